@@ -1,0 +1,56 @@
+"""``ctp`` entry point: one sub-command per module, imported lazily so ``ctp --help`` stays fast.
+
+Exit codes (all sub-commands): 0 success, 1 run failed (a typed engine error, printed as one line
+``error: CODE: message``), 2 bad usage or input, 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+
+# name -> (module, help). Each module defines ``add_arguments(parser)`` and ``run(args) -> int``.
+COMMANDS: dict[str, tuple[str, str]] = {
+    "align": ("ctp.cmd_align", "place SOURCE relative to TARGET from a text prompt (in-process)"),
+    "hparams": ("ctp.cmd_hparams", "print the scene priors (size ratio, penetration, contact ratio)"),
+    "bench": ("ctp.cmd_bench", "run the evaluation harness over benchmark cases"),
+    "serve": ("ctp.cmd_serve", "start the HTTP API (embedded Redis + worker when REDIS_URL is unset)"),
+    "worker": ("ctp.cmd_serve", "run a queue worker against REDIS_URL"),
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # shared CPU workers: no OpenMP spin-waiting
+    argv = sys.argv[1:] if argv is None else argv
+    parser = argparse.ArgumentParser(prog="ctp", description="Copy-Transform-Paste: text-guided 3D alignment")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (_, help_text) in COMMANDS.items():
+        sub.add_parser(name, help=help_text, add_help=False)
+    if not argv or argv[0] in ("-h", "--help") or argv[0] not in COMMANDS:
+        if argv and argv[0] not in ("-h", "--help"):
+            parser.print_usage(sys.stderr)
+            print(f"ctp: error: unknown command {argv[0]!r}", file=sys.stderr)
+            return 2
+        parser.print_help()
+        return 0 if argv else 2
+    name = argv[0]
+    module = importlib.import_module(COMMANDS[name][0])
+    cmd_parser = argparse.ArgumentParser(prog=f"ctp {name}", description=COMMANDS[name][1])
+    module.add_arguments(cmd_parser, name) if _takes_name(module) else module.add_arguments(cmd_parser)
+    args = cmd_parser.parse_args(argv[1:])
+    args.command = name
+    try:
+        return int(module.run(args) or 0)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+def _takes_name(module) -> bool:
+    return module.add_arguments.__code__.co_argcount == 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,169 @@
+"""One typed configuration object for an alignment run, with named presets.
+
+Every knob of the method (method.md) lives here with its default and a line on why; callers build an
+``AlignConfig`` (usually ``AlignConfig.preset("default")`` plus overrides) and pass it down whole
+instead of threading keyword arguments through the layers.
+
+Presets:
+- ``paper``: the paper's budget (2000 steps, 8 views per step, 3 phases, 5 restarts).
+- ``default``: a CPU worker's budget: a typical pair finishes in about ten minutes on 2 cores. It trades
+  steps and views per step for wall time (see README, "Presets").
+- ``test``: seconds; for CI and smoke tests.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from ctp_core.errors import ConfigError
+
+Penetration = Literal["auto", "allow", "forbid"]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+class CameraConfig(_Strict):
+    """Training and evaluation views, all in the normalised frame (target AABB longest side 2)."""
+
+    views: int = Field(8, ge=1, le=64, description="training views per restart per step")
+    image_size: int = Field(224, ge=32, le=1024, description="render resolution in pixels (square)")
+    elevation_deg: tuple[float, float] = Field((20.0, 50.0), description="elevation range")
+    elevation_beta: tuple[float, float] = Field((1.0, 5.0), description="Beta law over the elevation range")
+    distance: tuple[float, float] = Field((3.0, 3.5), description="camera distance range to the look-at")
+    fov_deg: tuple[float, float] = Field((30.0, 60.0), description="vertical field of view range")
+    look_at_beta_last: float = Field(
+        1.0, ge=0.0, le=1.0, description="beta of the last phase: look-at moves from target to source centroid"
+    )
+    zoom_last: float = Field(0.81, gt=0.0, le=1.0, description="distance factor of the last phase")
+    schedule: bool = Field(True, description="camera scheduling on (off: beta=0, zoom=1 in every phase)")
+    eval_views: int = Field(4, ge=1, le=16, description="fixed views for selection (azimuths evenly spaced)")
+    eval_elevation_deg: float = 30.0
+    eval_distance: float = 3.2
+    eval_fov_deg: float = 45.0
+
+
+class LossConfig(_Strict):
+    """Weights and constants of L = l_clip*L_clip + l_icp*L_icp(r) + l_pen*L_pen."""
+
+    lambda_clip: float = Field(1.0, ge=0.0, description="0 gives the geometry-only optimiser")
+    lambda_icp: tuple[float, float] = Field((1.0, 100.0), description="first and last phase (log-spaced)")
+    lambda_pen: tuple[float, float] = Field((10.0, 1000.0), description="first and last phase (log-spaced)")
+    sigma_icp: float = Field(0.1, gt=0.0, description="soft-ICP softmax width, normalised frame")
+    sigma_pen: float = Field(0.05, gt=0.0, description="penetration nearest-point softmax width")
+    c_pen: float = Field(0.0, ge=0.0, description="penetration margin, normalised frame units")
+    icp_neighbours: int = Field(32, ge=1, description="soft-ICP softmax restricted to k nearest targets")
+    samples: int = Field(3000, ge=100, le=50000, description="surface samples per object for the losses")
+    selection_only: bool = Field(
+        False, description="reference-code behaviour: no CLIP gradient, text only picks the best pose"
+    )
+
+
+class OptimConfig(_Strict):
+    """Restarts, phases, steps and Adam settings."""
+
+    steps: int = Field(120, ge=1, le=100000, description="total steps per restart over all phases")
+    phases: int = Field(3, ge=1, le=10)
+    restarts: int = Field(4, ge=1, le=64, description="random starts, optimised as one batch")
+    lr_translation: float = Field(0.05, gt=0.0)
+    lr_rotation: float = Field(0.05, gt=0.0)
+    lr_scale: float = Field(0.02, ge=0.0, description="used only when scale is optimised")
+    noise: float = Field(0.01, ge=0.0, description="per-step Gaussian pose noise, as a fraction of lr")
+    cosine_t0: int = Field(10, ge=1, description="cosine warm restarts: first period in steps")
+    cosine_t_mult: int = Field(2, ge=1)
+    init_distance: tuple[float, float] = Field((2.0, 4.0), description="start distance in target radii")
+    eval_every: int = Field(10, ge=1, description="steps between evaluations on fixed views")
+
+
+class AlignConfig(_Strict):
+    """Everything one run needs besides the meshes and the prompt."""
+
+    preset: str = "default"
+    seed: int = Field(0, ge=0)
+    device: Literal["cpu", "cuda"] = "cpu"
+    model: str = Field("hf:openai/clip-vit-base-patch32", description="guidance model spec (guidance.py)")
+    autocast: bool = Field(True, description="bf16 on CPU / fp16 on CUDA for the vision-language model")
+    scale: bool = Field(False, description="optimise isotropic scale too")
+    size_ratio: float | None = Field(None, ge=0.01, le=100.0, description="source/target size; None: prior")
+    contact_ratio: float | None = Field(None, ge=0.0, le=1.0, description="soft-ICP ratio r; None: prior")
+    penetration: Penetration = Field("auto", description="auto: the prior decides; allow: lambda_pen = 0")
+    hparams_provider: str = Field("rules", description="scene-prior provider (priors.py)")
+    threads: int | None = Field(None, ge=1, le=256, description="torch CPU threads; None leaves torch's")
+    progress_every: int = Field(5, ge=1, description="steps between progress events")
+    camera: CameraConfig = CameraConfig()
+    loss: LossConfig = LossConfig()
+    optim: OptimConfig = OptimConfig()
+
+    @model_validator(mode="after")
+    def _phases_fit(self) -> AlignConfig:
+        if self.optim.steps < self.optim.phases:
+            raise ValueError("steps must be at least the number of phases")
+        return self
+
+    @classmethod
+    def preset_names(cls) -> list[str]:
+        return sorted(PRESETS)
+
+    @classmethod
+    def from_preset(cls, name: str = "default", **overrides) -> AlignConfig:
+        """Build a preset, then apply overrides (nested sections as dicts merge into the preset's)."""
+        if name not in PRESETS:
+            raise ConfigError(f"unknown preset {name!r}; choose one of {', '.join(sorted(PRESETS))}",
+                              field="preset")
+        data = _merge(PRESETS[name], {"preset": name})
+        data = _merge(data, overrides)
+        try:
+            return cls.model_validate(data)
+        except ValueError as exc:  # pydantic.ValidationError is a ValueError
+            raise ConfigError(_first_error(exc), field=_first_field(exc)) from None
+
+
+def _merge(base: dict, extra: dict) -> dict:
+    out = dict(base)
+    for key, value in extra.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def _first_error(exc: Exception) -> str:
+    errors = getattr(exc, "errors", None)
+    if callable(errors):
+        err = errors()[0]
+        loc = ".".join(str(p) for p in err.get("loc", ()))
+        return f"{loc}: {err.get('msg')}" if loc else str(err.get("msg"))
+    return str(exc)
+
+
+def _first_field(exc: Exception) -> str | None:
+    errors = getattr(exc, "errors", None)
+    if callable(errors):
+        loc = errors()[0].get("loc", ())
+        return ".".join(str(p) for p in loc) or None
+    return None
+
+
+PRESETS: dict[str, dict] = {
+    # The paper's budget: 2000 steps, 8 views per step, 3 phases, 5 restarts.
+    "paper": {
+        "camera": {"views": 8},
+        "optim": {"steps": 2000, "phases": 3, "restarts": 5, "eval_every": 50},
+    },
+    # A CPU worker's budget (~10 min for a typical pair on 2 cores).
+    "default": {
+        "camera": {"views": 4},
+        "optim": {"steps": 120, "phases": 3, "restarts": 4, "eval_every": 10},
+    },
+    # Seconds: CI and smoke tests (use with a small model such as random:tiny).
+    "test": {
+        "camera": {"views": 2, "image_size": 64, "eval_views": 2},
+        "loss": {"samples": 400},
+        "optim": {"steps": 6, "phases": 2, "restarts": 2, "eval_every": 3},
+        "progress_every": 1,
+    },
+}

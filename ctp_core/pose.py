@@ -1,0 +1,83 @@
+"""Pose theta = (t, q, log s) of the source, batched over restarts.
+
+A pose maps the *source local frame* (source file frame, centred at its AABB centre and scaled by the
+normalisation factor, see ``frames``) to the *normalised frame* (target AABB centred, longest side 2):
+``x_norm = s * R(q) @ x_local + t``. q is stored unnormalised (w, x, y, z) and normalised in the forward
+pass so Adam can move it freely; log s keeps the scale positive.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+
+def normalise_quaternion(q: torch.Tensor) -> torch.Tensor:
+    """(..., 4) -> unit quaternions, w first; the sign is kept (q and -q are the same rotation)."""
+    return q / q.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
+def quaternion_to_matrix(q: torch.Tensor) -> torch.Tensor:
+    """(..., 4) unit or not, w first -> (..., 3, 3) rotation matrices."""
+    w, x, y, z = normalise_quaternion(q).unbind(-1)
+    two = 2.0
+    rows = [
+        1 - two * (y * y + z * z), two * (x * y - w * z), two * (x * z + w * y),
+        two * (x * y + w * z), 1 - two * (x * x + z * z), two * (y * z - w * x),
+        two * (x * z - w * y), two * (y * z + w * x), 1 - two * (x * x + y * y),
+    ]
+    return torch.stack(rows, dim=-1).reshape(q.shape[:-1] + (3, 3))
+
+
+def matrix_to_quaternion(m: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation matrix -> unit quaternion (w, x, y, z) with w >= 0 (numpy, for reports)."""
+    m = np.asarray(m, dtype=np.float64)
+    trace = np.trace(m)
+    if trace > 0:
+        s = math.sqrt(trace + 1.0) * 2
+        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
+    else:
+        i = int(np.argmax(np.diag(m)))
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = math.sqrt(1.0 + m[i, i] - m[j, j] - m[k, k]) * 2
+        q = [0.0] * 4
+        q[0] = (m[k, j] - m[j, k]) / s
+        q[1 + i] = 0.25 * s
+        q[1 + j] = (m[j, i] + m[i, j]) / s
+        q[1 + k] = (m[k, i] + m[i, k]) / s
+    q = np.array(q)
+    q /= np.linalg.norm(q)
+    return q if q[0] >= 0 else -q
+
+
+def random_quaternions(n: int, generator: torch.Generator) -> torch.Tensor:
+    """Uniformly distributed rotations (Shoemake), (n, 4) w first."""
+    u1, u2, u3 = torch.rand(3, n, generator=generator, dtype=torch.float64)
+    a, b = torch.sqrt(1 - u1), torch.sqrt(u1)
+    q = torch.stack([
+        b * torch.cos(2 * math.pi * u3), a * torch.sin(2 * math.pi * u2),
+        a * torch.cos(2 * math.pi * u2), b * torch.sin(2 * math.pi * u3),
+    ], dim=-1)
+    return q.float()
+
+
+def apply_pose(points: torch.Tensor, t: torch.Tensor, q: torch.Tensor, log_s: torch.Tensor) -> torch.Tensor:
+    """Source local frame -> normalised frame for a batch of poses.
+
+    points (N, 3) shared by all poses; t (B, 3), q (B, 4), log_s (B,) -> (B, N, 3).
+    """
+    rot = quaternion_to_matrix(q)  # (B, 3, 3)
+    scale = log_s.exp().reshape(-1, 1, 1)
+    return scale * torch.einsum("bij,nj->bni", rot, points) + t[:, None, :]
+
+
+def pose_matrix(t: torch.Tensor, q: torch.Tensor, log_s: torch.Tensor) -> torch.Tensor:
+    """(B, 4, 4) similarity, source local frame -> normalised frame."""
+    rot = quaternion_to_matrix(q) * log_s.exp().reshape(-1, 1, 1)
+    out = torch.zeros(t.shape[0], 4, 4, dtype=t.dtype, device=t.device)
+    out[:, :3, :3] = rot
+    out[:, :3, 3] = t
+    out[:, 3, 3] = 1.0
+    return out
