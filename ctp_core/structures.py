@@ -16,5 +16,5 @@ class MeshArrays:
     vertices: np.ndarray  # (V, 3) float32
     faces: np.ndarray  # (F, 3) int64
     colors: np.ndarray  # (V, 3) float32 in [0, 1]; white when the mesh has no colour
-    uv: np.ndarray | None = None  # (V, 2) float32, glTF convention (v = 0 at the image top)
+    uv: np.ndarray | None = None  # (V, 2) float32, trimesh/OpenGL convention (v = 0 at the image bottom)
     texture: np.ndarray | None = None  # (H, W, 3) float32 in [0, 1], base colour
