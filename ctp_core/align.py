@@ -7,47 +7,20 @@ file frame. Everything in between (normalisation, canonical pose, optimisation) 
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import time
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
+import torch
 import trimesh
 
+from ctp_core import priors
 from ctp_core.config import AlignConfig
+from ctp_core.errors import ConfigError
+from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 
-EventKind = Literal["start", "phase_start", "step", "phase_end", "done"]
-
-
-@dataclass
-class ProgressEvent:
-    """What the optimiser reports; the CLI draws a bar from it and the worker publishes it."""
-
-    kind: EventKind
-    phase: int  # 1-based; 0 before the first phase
-    phases: int
-    step: int  # steps done so far over all phases (per restart; restarts run as one batch)
-    steps: int
-    restarts: int
-    elapsed_s: float
-    eta_s: float | None
-    losses: dict[str, float] = field(default_factory=dict)  # mean over restarts of the last step
-    best_objective: float | None = None
-    message: str = ""
-
-    @property
-    def fraction(self) -> float:
-        return min(1.0, self.step / max(1, self.steps))
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "kind": self.kind, "phase": self.phase, "phases": self.phases, "step": self.step,
-            "steps": self.steps, "restarts": self.restarts, "fraction": round(self.fraction, 4),
-            "elapsed_s": round(self.elapsed_s, 3),
-            "eta_s": None if self.eta_s is None else round(self.eta_s, 1),
-            "losses": {k: round(v, 6) for k, v in self.losses.items()},
-            "best_objective": self.best_objective, "message": self.message,
-        }
+__all__ = ["AlignResult", "ProgressEvent", "align"]
 
 
 @dataclass
@@ -79,5 +52,96 @@ class AlignResult:
         return self.source_to_target[:3, 3].copy()
 
 
-ProgressCallback = Callable[[ProgressEvent], None]
-CancelCheck = Callable[[], bool]
+
+
+def align(
+    target: trimesh.Trimesh,
+    source: trimesh.Trimesh,
+    prompt: str | None,
+    config: AlignConfig,
+    *,
+    image: np.ndarray | None = None,
+    target_name: str = "target",
+    source_name: str = "source",
+    guide=None,
+    guidance=None,
+    init: np.ndarray | None = None,
+    on_event: ProgressCallback | None = None,
+    should_cancel: CancelCheck | None = None,
+) -> AlignResult:
+    """Place ``source`` relative to ``target`` (both in file frames) so renders agree with the prompt.
+
+    ``image`` (H, W, 3 uint8) guides by a reference picture instead of the text; ``guidance`` (a
+    ``targets`` object) overrides both (the benchmark's oracle). ``guide`` is a preloaded
+    vision-language model (``guidance.get_guide``); without one the configured model is loaded (and
+    cached per process). ``init`` (4x4, source file -> target file) replaces the first random start.
+    Raises ``errors.Canceled`` when ``should_cancel()`` turns true, other ``CtpError`` on bad input.
+    """
+    from ctp_core import guidance as guidance_mod
+    from ctp_core import optimise, scene, schedule, targets
+
+    started = time.perf_counter()
+    if config.threads:
+        torch.set_num_threads(config.threads)
+    if config.device == "cuda" and not torch.cuda.is_available():
+        raise ConfigError("device 'cuda' was requested but no CUDA device is available", field="device")
+    prior = priors.resolve_priors(
+        priors.get_provider(config.hparams_provider), target_name, source_name, prompt or "",
+        size_ratio=config.size_ratio, contact_ratio=config.contact_ratio,
+        penetration={"auto": None, "allow": True, "forbid": False}[config.penetration],
+        target_extent=float(target.extents.max()), source_extent=float(source.extents.max()),
+    )
+    pair = scene.prepare_pair(target, source, samples=config.loss.samples, seed=config.seed, device=config.device)
+    prepared = time.perf_counter()
+
+    if guidance is None and config.loss.lambda_clip > 0:
+        if image is not None:
+            guidance = targets.ImageTarget(image)
+        elif prompt:
+            guidance = targets.TextTarget(prompt)
+    if guidance is not None and config.loss.lambda_clip > 0:
+        guide = guide or guidance_mod.get_guide(config.model, device=config.device, autocast=config.autocast)
+        guidance.prepare(pair, guide)
+    else:
+        guidance = None
+    loaded = time.perf_counter()
+
+    generator = torch.Generator().manual_seed(config.seed)
+    start = optimise.initial_poses(pair, config, prior.size_ratio, generator, init=init)
+    plan = schedule.phases(config, allow_penetration=prior.penetration)
+    problem = optimise.Problem(pair, config, prior.contact_ratio, guide=guide, target=guidance)
+    runner = optimise.Optimiser(problem, plan, on_event=on_event, should_cancel=should_cancel)
+    outcome = runner.run(start)
+
+    matrices = outcome.poses.matrices()
+    answers = [pair.source_to_target(m) for m in matrices]
+    preview = scene.render_pair(pair, matrices[outcome.best], views=4, image_size=224)
+    preview = (preview.permute(0, 2, 3, 1).clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8)
+    timings = {f"optimise_{k}_s": round(v, 3) for k, v in outcome.timings.items()}
+    timings.update(prepare_s=round(prepared - started, 3), model_s=round(loaded - prepared, 3),
+                   total_s=round(time.perf_counter() - started, 3))
+    restarts = [
+        {"restart": i, "objective": float(outcome.objectives[i]),
+         **{k: float(v[i]) for k, v in outcome.terms.items()}, "source_to_target": answers[i].tolist()}
+        for i in range(len(answers))
+    ]
+    result = AlignResult(
+        source_to_target=answers[outcome.best], objective=float(outcome.objectives[outcome.best]),
+        target=target, source=source, prompt=prompt, config=config, hparams=prior.to_dict(),
+        restarts=restarts, timings=timings, preview=preview,
+        extra={
+            "best_restart": outcome.best,
+            "guidance": guidance.description if guidance is not None else "none (geometry only)",
+            "model": config.model if guidance is not None else None,
+            "clip_images": outcome.clip_images,
+            "phase_timings": [{k: round(v, 3) for k, v in p.items()} for p in outcome.phase_timings],
+            "target_upright": {"rotation": pair.target_upright.rotation.tolist(),
+                               "changed": pair.target_upright.changed, "reason": pair.target_upright.reason},
+        },
+    )
+    if on_event:
+        on_event(ProgressEvent(kind="done", phase=len(plan), phases=len(plan), step=outcome.steps_run,
+                               steps=runner.total_steps, restarts=config.optim.restarts,
+                               elapsed_s=time.perf_counter() - started, eta_s=0.0,
+                               best_objective=result.objective, message="done"))
+    return result

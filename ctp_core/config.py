@@ -75,6 +75,9 @@ class OptimConfig(_Strict):
     cosine_t0: int = Field(10, ge=1, description="cosine warm restarts: first period in steps")
     cosine_t_mult: int = Field(2, ge=1)
     init_distance: tuple[float, float] = Field((2.0, 4.0), description="start distance in target radii")
+    init_rotation: Literal["upright", "random"] = Field(
+        "upright", description="upright: the source's canonical frame turned about +Y; random: uniform (paper)"
+    )
     eval_every: int = Field(10, ge=1, description="steps between evaluations on fixed views")
 
 
@@ -152,7 +155,7 @@ PRESETS: dict[str, dict] = {
     # The paper's budget: 2000 steps, 8 views per step, 3 phases, 5 restarts.
     "paper": {
         "camera": {"views": 8},
-        "optim": {"steps": 2000, "phases": 3, "restarts": 5, "eval_every": 50},
+        "optim": {"steps": 2000, "phases": 3, "restarts": 5, "eval_every": 50, "init_rotation": "random"},
     },
     # A CPU worker's budget (~10 min for a typical pair on 2 cores).
     "default": {

@@ -1,0 +1,48 @@
+"""Progress events: what a run reports while it works, and how it is asked to stop.
+
+The optimiser calls ``on_event(ProgressEvent)``; the CLI draws a bar from it and the worker publishes
+it. ``should_cancel()`` is polled between steps.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+EventKind = Literal["start", "phase_start", "step", "phase_end", "done"]
+
+
+@dataclass
+class ProgressEvent:
+    """What the optimiser reports; the CLI draws a bar from it and the worker publishes it."""
+
+    kind: EventKind
+    phase: int  # 1-based; 0 before the first phase
+    phases: int
+    step: int  # steps done so far over all phases (per restart; restarts run as one batch)
+    steps: int
+    restarts: int
+    elapsed_s: float
+    eta_s: float | None
+    losses: dict[str, float] = field(default_factory=dict)  # mean over restarts of the last step
+    best_objective: float | None = None
+    message: str = ""
+
+    @property
+    def fraction(self) -> float:
+        return min(1.0, self.step / max(1, self.steps))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "kind": self.kind, "phase": self.phase, "phases": self.phases, "step": self.step,
+            "steps": self.steps, "restarts": self.restarts, "fraction": round(self.fraction, 4),
+            "elapsed_s": round(self.elapsed_s, 3),
+            "eta_s": None if self.eta_s is None else round(self.eta_s, 1),
+            "losses": {k: round(v, 6) for k, v in self.losses.items()},
+            "best_objective": self.best_objective, "message": self.message,
+        }
+
+
+ProgressCallback = Callable[[ProgressEvent], None]
+CancelCheck = Callable[[], bool]

@@ -1,0 +1,144 @@
+"""A target and a source prepared for optimisation: frames, render meshes and loss samples.
+
+Frames (see ``frames``):
+- target *file* frame -> *normalised* frame: the target's upright rotation (``canonical``), then its
+  AABB centred with longest side 2. The normalised frame is where cameras, renders and losses live.
+- source *file* frame -> *source local* frame: centred at the source AABB centre, scaled by the same
+  factor as the target (so the files' relative size is kept).
+- a pose (``pose``) maps source local -> normalised; ``source_to_target`` turns it into the answer,
+  source file -> target file.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import trimesh
+
+from ctp_core import canonical, frames, render, sampling
+from ctp_core.cameras import Cameras, orbit
+from ctp_core.losses import TargetIndex
+from ctp_core.structures import MeshArrays
+
+
+@dataclass
+class PreparedPair:
+    target: trimesh.Trimesh  # target file frame, untouched
+    source: trimesh.Trimesh  # source file frame, untouched
+    target_to_normalised: frames.Similarity  # target file -> normalised
+    source_to_local: frames.Similarity  # source file -> source local
+    target_upright: canonical.Upright
+    source_upright: canonical.Upright  # rotation source file -> its own upright frame
+    mesh: render.RenderMesh  # target then source, joined (faces index target verts first)
+    target_vertices: torch.Tensor  # (Vt, 3) normalised frame
+    source_vertices: torch.Tensor  # (Vs, 3) source local frame
+    index: TargetIndex  # target samples + outward normals, normalised frame
+    source_samples: torch.Tensor  # (N, 3) source local frame
+
+    @property
+    def target_radius(self) -> float:
+        """Half the target AABB diagonal in the normalised frame."""
+        lo, hi = self.target_vertices.min(0).values, self.target_vertices.max(0).values
+        return float((hi - lo).norm() / 2)
+
+    def scene_vertices(self, posed_source: torch.Tensor) -> torch.Tensor:
+        """(B, Vs, 3) posed source -> (B, Vt + Vs, 3) vertices of the joined render mesh."""
+        target = self.target_vertices.expand(posed_source.shape[0], -1, -1)
+        return torch.cat([target, posed_source], dim=1)
+
+    def local_to_normalised(self, source_to_target: np.ndarray) -> np.ndarray:
+        """A source file -> target file 4x4 as a source local -> normalised 4x4."""
+        file_to_file = frames.Similarity(np.asarray(source_to_target, float), "source_file", "target_file")
+        return (self.target_to_normalised @ file_to_file @ self.source_to_local.inverse()).matrix
+
+    def source_to_target(self, local_to_normalised: np.ndarray) -> np.ndarray:
+        """A pose (source local -> normalised 4x4) as the answer: source file -> target file."""
+        pose = frames.Similarity(np.asarray(local_to_normalised, float), "source_local", "normalised")
+        return (self.target_to_normalised.inverse() @ pose @ self.source_to_local).matrix
+
+
+def prepare_pair(target: trimesh.Trimesh, source: trimesh.Trimesh, *, samples: int, seed: int,
+                 device: str = "cpu", canonicalise: bool = True) -> PreparedPair:
+    """Normalise, canonicalise and sample a pair once per run (everything later reuses it)."""
+    target_up = canonical.upright_rotation(target, seed=seed) if canonicalise else canonical.identity()
+    source_up = canonical.upright_rotation(source, seed=seed) if canonicalise else canonical.identity()
+    rotate = frames.Similarity(_rotation4(target_up.rotation), "target_file", "target_upright")
+    upright_bounds = trimesh.bounds.corners(target.bounds) @ target_up.rotation.T
+    norm = frames.normalisation(np.array([upright_bounds.min(0), upright_bounds.max(0)]))
+    target_to_norm = norm @ rotate
+    source_to_local = frames.source_local(source.bounds, norm)
+
+    target_arrays = MeshArrays.from_trimesh(target)
+    source_arrays = MeshArrays.from_trimesh(source)
+    target_render = render.RenderMesh.from_arrays(target_arrays, device=device)
+    source_render = render.RenderMesh.from_arrays(source_arrays, device=device)
+    mesh = render.join([target_render, source_render], [len(target_arrays.vertices), len(source_arrays.vertices)])
+
+    oriented = _outward(target)
+    t_pts, t_nrm = sampling.surface_samples(oriented, samples, seed)
+    s_pts, _ = sampling.surface_samples(source, samples, seed + 1)
+    as_tensor = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=device)  # noqa: E731
+    rot = target_to_norm.matrix[:3, :3] / target_to_norm.scale
+    return PreparedPair(
+        target=target,
+        source=source,
+        target_to_normalised=target_to_norm,
+        source_to_local=source_to_local,
+        target_upright=target_up,
+        source_upright=source_up,
+        mesh=mesh,
+        target_vertices=as_tensor(target_to_norm.apply(target_arrays.vertices)),
+        source_vertices=as_tensor(source_to_local.apply(source_arrays.vertices)),
+        index=TargetIndex(as_tensor(target_to_norm.apply(t_pts)), as_tensor(t_nrm @ rot.T)),
+        source_samples=as_tensor(source_to_local.apply(s_pts)),
+    )
+
+
+def _rotation4(rotation: np.ndarray) -> np.ndarray:
+    out = np.eye(4)
+    out[:3, :3] = rotation
+    return out
+
+
+def _outward(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """A copy with consistent, outward winding where trimesh can decide it (penetration needs "inside").
+
+    Watertight meshes get outward normals; open ones get consistent winding, oriented by trimesh's
+    heuristic, and "inside" then means behind the oriented side (documented limit).
+    """
+    fixed = mesh.copy()
+    trimesh.repair.fix_normals(fixed, multibody=True)
+    return fixed
+
+
+def framing_cameras(vertices: torch.Tensor, views: int, image_size: int, elevation_deg: float = 30.0,
+                    fov_deg: float = 40.0) -> Cameras:
+    """Fixed orbit views that frame all of ``vertices`` (V, 3) (previews and metrics, not training)."""
+    lo, hi = vertices.min(0).values, vertices.max(0).values
+    centre, radius = (lo + hi) / 2, float((hi - lo).norm() / 2)
+    distance = radius / np.sin(np.radians(fov_deg) / 2) * 1.05
+    azimuth = torch.arange(views, dtype=torch.float32, device=vertices.device)[None] * (360.0 / views) + 30.0
+    full = lambda v: torch.full((1, views), float(v), device=vertices.device)  # noqa: E731
+    return orbit(centre[None], azimuth, full(elevation_deg), full(distance), full(fov_deg), image_size)
+
+
+def render_arrangement(target: trimesh.Trimesh, source: trimesh.Trimesh, source_to_target: np.ndarray, *,
+                       views: int = 8, image_size: int = 224, device: str = "cpu") -> torch.Tensor:
+    """Render target + placed source from fixed views framing the scene: (V, 3, H, W) in [0, 1].
+
+    Used for previews and the semantic metric; the views are a function of the arrangement only.
+    """
+    pair = prepare_pair(target, source, samples=100, seed=0, device=device, canonicalise=False)
+    return render_pair(pair, pair.local_to_normalised(source_to_target), views=views, image_size=image_size)
+
+
+@torch.no_grad()
+def render_pair(pair: PreparedPair, local_to_normalised: np.ndarray, *, views: int, image_size: int) -> torch.Tensor:
+    """Render a prepared pair at one pose (source local -> normalised 4x4) from framing views."""
+    m = torch.as_tensor(local_to_normalised, dtype=torch.float32, device=pair.source_vertices.device)
+    posed = pair.source_vertices @ m[:3, :3].T + m[:3, 3]
+    verts = pair.scene_vertices(posed[None])
+    cams = framing_cameras(verts[0], views, image_size)
+    return render.render(pair.mesh, verts, cams)[0]

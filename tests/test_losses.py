@@ -1,0 +1,88 @@
+"""Losses on cases whose answer is known analytically."""
+
+import numpy as np
+import pytest
+import torch
+
+from ctp_core import losses
+
+
+def _plane(n: int = 21, z: float = 0.0) -> losses.TargetIndex:
+    """A grid of target samples on the plane z = const with outward normal +z."""
+    g = torch.linspace(-1, 1, n)
+    xx, yy = torch.meshgrid(g, g, indexing="ij")
+    pts = torch.stack([xx.flatten(), yy.flatten(), torch.full((n * n,), z)], dim=1)
+    nrm = torch.zeros_like(pts)
+    nrm[:, 2] = 1
+    return losses.TargetIndex(pts, nrm)
+
+
+def _dense_soft_icp(src: torch.Tensor, tgt: torch.Tensor, ratio: float, sigma: float) -> torch.Tensor:
+    """The method.md formula with the full N_S x N_T matrix (independent of the k-NN implementation)."""
+    out = []
+    for b in range(src.shape[0]):
+        e = torch.cdist(src[b], tgt) ** 2
+        d = e.min(dim=1).values
+        keep = max(1, int(np.floor(ratio * src.shape[1])))
+        w = torch.argsort(d)[:keep]
+        alpha = torch.softmax(-e[w] / (2 * sigma**2), dim=1)
+        out.append((alpha * e[w]).sum(1).mean())
+    return torch.stack(out)
+
+
+def test_soft_icp_single_target_point_is_squared_distance():
+    index = losses.TargetIndex(torch.zeros(1, 3), torch.tensor([[0.0, 0.0, 1.0]]))
+    src = torch.tensor([[[0.3, 0.0, 0.0], [0.0, 0.4, 0.0]]])
+    value = losses.soft_icp(src, index, ratio=1.0, sigma=0.1, k=8)
+    assert value.item() == pytest.approx((0.09 + 0.16) / 2, rel=1e-5)
+
+
+def test_soft_icp_ratio_keeps_only_the_closest_fraction():
+    index = losses.TargetIndex(torch.zeros(1, 3), torch.tensor([[0.0, 0.0, 1.0]]))
+    src = torch.tensor([[[0.1, 0, 0], [0.2, 0, 0], [0.3, 0, 0], [0.4, 0, 0]]])
+    half = losses.soft_icp(src, index, ratio=0.5, sigma=0.1, k=1)
+    assert half.item() == pytest.approx((0.01 + 0.04) / 2, rel=1e-5)
+
+
+@pytest.mark.parametrize("ratio", [1.0, 0.3])
+def test_soft_icp_equals_dense_formula_when_k_covers_all_targets(ratio):
+    gen = torch.Generator().manual_seed(0)
+    tgt = torch.randn(40, 3, generator=gen)
+    src = torch.randn(3, 25, 3, generator=gen) * 0.7 + 0.2
+    index = losses.TargetIndex(tgt, torch.nn.functional.normalize(torch.randn(40, 3, generator=gen), dim=1))
+    knn = losses.soft_icp(src, index, ratio=ratio, sigma=0.3, k=40)
+    dense = _dense_soft_icp(src, tgt, ratio, 0.3)
+    torch.testing.assert_close(knn, dense, rtol=1e-5, atol=1e-6)
+
+
+def test_soft_icp_gradient_pulls_toward_target():
+    index = _plane()
+    src = torch.tensor([[[0.0, 0.0, 0.5]]], requires_grad=True)
+    losses.soft_icp(src, index, ratio=1.0, sigma=0.1, k=16).sum().backward()
+    assert src.grad[0, 0, 2] > 0  # descending moves the point down to the plane
+
+
+def test_penetration_depth_and_margin():
+    index = _plane()
+    inside = torch.tensor([[[0.0, 0.0, -0.1], [0.3, 0.2, -0.1]]])
+    outside = torch.tensor([[[0.0, 0.0, 0.2], [0.1, 0.1, 0.05]]])
+    depth = losses.penetration(inside, index, sigma=0.05, margin=0.0, k=16)
+    assert depth.item() == pytest.approx(0.1, abs=1e-4)
+    with_margin = losses.penetration(inside, index, sigma=0.05, margin=0.04, k=16)
+    assert with_margin.item() == pytest.approx(0.06, abs=1e-4)
+    assert losses.penetration(outside, index, sigma=0.05, margin=0.0, k=16).item() == 0.0
+
+
+def test_penetration_gradient_pushes_out():
+    index = _plane()
+    src = torch.tensor([[[0.0, 0.0, -0.2]]], requires_grad=True)
+    losses.penetration(src, index, sigma=0.05, margin=0.0, k=16).sum().backward()
+    assert src.grad[0, 0, 2] < 0  # descending raises the point out of the target
+
+
+def test_clip_loss_fixed_and_per_view_targets():
+    emb = torch.nn.functional.normalize(torch.randn(2, 3, 8), dim=-1)
+    assert torch.allclose(losses.clip_loss(emb, emb), torch.full((2,), -1.0), atol=1e-6)
+    text = torch.nn.functional.normalize(torch.randn(8), dim=0)
+    expected = -(emb @ text).mean(dim=1)
+    torch.testing.assert_close(losses.clip_loss(emb, text), expected)
