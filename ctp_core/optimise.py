@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import time
 from collections import defaultdict
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -122,22 +123,28 @@ def quaternion_product(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 
 class _Clock:
-    """Accumulates wall time per component (render / clip / geometry / eval)."""
+    """Wall time per component (render / clip / geometry / eval).
+
+    Spans do not nest: time inside an outer span (e.g. the render inside an evaluation) counts for
+    the outer one only, so the parts add up to the total.
+    """
 
     def __init__(self):
         self.totals: dict[str, float] = defaultdict(float)
+        self._active = False
 
+    @contextmanager
     def time(self, key: str):
-        clock = self
-
-        class _Span:
-            def __enter__(self):
-                self.start = time.perf_counter()
-
-            def __exit__(self, *exc):
-                clock.totals[key] += time.perf_counter() - self.start
-
-        return _Span()
+        if self._active:
+            yield
+            return
+        self._active = True
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.totals[key] += time.perf_counter() - start
+            self._active = False
 
 
 class Optimiser:
@@ -202,6 +209,7 @@ class Optimiser:
         """The selection objective on fixed evaluation views (no noise from random cameras)."""
         with self.clock.time("eval"):
             terms = self.geometry(poses, phase)
+            del terms["centroid"]
             objective = phase.lambda_icp * terms["icp"] + phase.lambda_pen * terms["pen"]
             if self.use_clip:
                 if self._eval_cameras is None:

@@ -50,13 +50,12 @@ class PreparedPair:
 
     def local_to_normalised(self, source_to_target: np.ndarray) -> np.ndarray:
         """A source file -> target file 4x4 as a source local -> normalised 4x4."""
-        file_to_file = frames.Similarity(np.asarray(source_to_target, float), "source_file", "target_file")
+        file_to_file = frames.Similarity(source_to_target, frames.SOURCE_FILE, frames.TARGET_FILE)
         return (self.target_to_normalised @ file_to_file @ self.source_to_local.inverse()).matrix
 
     def source_to_target(self, local_to_normalised: np.ndarray) -> np.ndarray:
         """A pose (source local -> normalised 4x4) as the answer: source file -> target file."""
-        pose = frames.Similarity(np.asarray(local_to_normalised, float), "source_local", "normalised")
-        return (self.target_to_normalised.inverse() @ pose @ self.source_to_local).matrix
+        return frames.source_to_target(local_to_normalised, self.target_to_normalised, self.source_to_local).matrix
 
 
 def prepare_pair(target: trimesh.Trimesh, source: trimesh.Trimesh, *, samples: int, seed: int,
@@ -64,11 +63,8 @@ def prepare_pair(target: trimesh.Trimesh, source: trimesh.Trimesh, *, samples: i
     """Normalise, canonicalise and sample a pair once per run (everything later reuses it)."""
     target_up = canonical.upright_rotation(target, seed=seed) if canonicalise else canonical.identity()
     source_up = canonical.upright_rotation(source, seed=seed) if canonicalise else canonical.identity()
-    rotate = frames.Similarity(_rotation4(target_up.rotation), "target_file", "target_upright")
-    upright_bounds = trimesh.bounds.corners(target.bounds) @ target_up.rotation.T
-    norm = frames.normalisation(np.array([upright_bounds.min(0), upright_bounds.max(0)]))
-    target_to_norm = norm @ rotate
-    source_to_local = frames.source_local(source.bounds, norm)
+    target_to_norm = frames.target_to_normalised(target.vertices, target_up.rotation)
+    source_to_local = frames.source_local(source.bounds, target_to_norm)
 
     target_arrays = MeshArrays.from_trimesh(target)
     source_arrays = MeshArrays.from_trimesh(source)
@@ -80,7 +76,6 @@ def prepare_pair(target: trimesh.Trimesh, source: trimesh.Trimesh, *, samples: i
     t_pts, t_nrm = sampling.surface_samples(oriented, samples, seed)
     s_pts, _ = sampling.surface_samples(source, samples, seed + 1)
     as_tensor = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=device)  # noqa: E731
-    rot = target_to_norm.matrix[:3, :3] / target_to_norm.scale
     return PreparedPair(
         target=target,
         source=source,
@@ -91,15 +86,9 @@ def prepare_pair(target: trimesh.Trimesh, source: trimesh.Trimesh, *, samples: i
         mesh=mesh,
         target_vertices=as_tensor(target_to_norm.apply(target_arrays.vertices)),
         source_vertices=as_tensor(source_to_local.apply(source_arrays.vertices)),
-        index=TargetIndex(as_tensor(target_to_norm.apply(t_pts)), as_tensor(t_nrm @ rot.T)),
+        index=TargetIndex(as_tensor(target_to_norm.apply(t_pts)), as_tensor(target_to_norm.apply_directions(t_nrm))),
         source_samples=as_tensor(source_to_local.apply(s_pts)),
     )
-
-
-def _rotation4(rotation: np.ndarray) -> np.ndarray:
-    out = np.eye(4)
-    out[:3, :3] = rotation
-    return out
 
 
 def _outward(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
