@@ -272,6 +272,8 @@ def load_guide(
         raise ModelError(f"model spec {spec!r} must look like hf:REPO_OR_PATH, open_clip:ARCH:TAG or "
                          "random:ARCH", field="model")
     dev = torch.device(device)
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ModelError(f"device {device!r} requested but this torch build sees no CUDA device", field="device")
     if offline is None:
         offline = not downloads_allowed()
     if backend == "random":
@@ -409,7 +411,8 @@ def _processor_config(source: str, kwargs: dict) -> dict | None:
     from transformers.utils import cached_file
 
     for filename, key in (("preprocessor_config.json", None), ("processor_config.json", "image_processor")):
-        found = cached_file(source, filename, _raise_exceptions_for_missing_entries=False, **kwargs)
+        found = cached_file(source, filename, _raise_exceptions_for_missing_entries=False,
+                            _raise_exceptions_for_connection_errors=False, **kwargs)
         if found:
             cfg = json.loads(Path(found).read_text())
             cfg = cfg.get(key) if key else cfg

@@ -179,6 +179,21 @@ def test_hf_local_directory_loads_offline_and_matches_the_model(tmp_path, monkey
                                torch.nn.functional.normalize(expected_img, dim=-1))
 
 
+def test_hf_repo_name_loads_from_the_cache_offline(tmp_path):
+    # The Hugging Face cache layout: models--ORG--NAME/{refs/main, snapshots/REVISION/...}.
+    repo = tmp_path / "models--ctp-test--tiny-clip"
+    revision = "0" * 40
+    snapshot = repo / "snapshots" / revision
+    snapshot.mkdir(parents=True)
+    _save_tiny_hf_clip(snapshot)
+    (snapshot / "preprocessor_config.json").unlink()  # falls back to CLIP's recipe at the model's size
+    (repo / "refs").mkdir()
+    (repo / "refs" / "main").write_text(revision)
+    guide = load_guide("hf:ctp-test/tiny-clip", offline=True, cache_dir=str(tmp_path))
+    assert guide.transform == ImageTransform.clip(32)
+    assert guide.encode_images(_images(1, size=48)).shape == (1, 16)
+
+
 def test_missing_offline_weights_fail_fast_with_instructions(tmp_path):
     start = time.monotonic()
     with pytest.raises(ModelError) as info:
@@ -202,6 +217,13 @@ def test_missing_offline_weights_fail_fast_with_instructions(tmp_path):
 def test_bad_specs_raise_model_error(spec, fragment):
     with pytest.raises(ModelError, match=fragment):
         load_guide(spec)
+
+
+def test_cuda_without_a_gpu_is_a_model_error():
+    if torch.cuda.is_available():
+        pytest.skip("a CUDA device is present; this checks the refusal without one")
+    with pytest.raises(ModelError, match="CUDA"):
+        load_guide("random:tiny", device="cuda")
 
 
 def test_open_clip_absent_suggests_the_hf_spec():
