@@ -1,0 +1,89 @@
+"""``ctp serve`` (the HTTP API) and ``ctp worker`` (a queue worker).
+
+``ctp serve`` with no ``REDIS_URL`` is the one-command service: it starts an embedded redis-server
+(``service.embedded``) and one worker process next to the API, and stops them on exit. With
+``REDIS_URL`` it serves the API only and workers are started elsewhere with ``ctp worker``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+
+from ctp_core.errors import CtpError
+
+STOP_GRACE_S = 10.0
+
+
+def add_arguments(parser: argparse.ArgumentParser, name: str) -> None:
+    if name == "serve":
+        parser.add_argument("--host", default="127.0.0.1", help="interface to listen on (default: %(default)s)")
+        parser.add_argument("--port", type=int, default=8000, help="TCP port (default: %(default)s)")
+        parser.add_argument("--workers", type=int, default=None,
+                            help="worker processes to start here (default: 1 with the embedded Redis, "
+                            "0 with REDIS_URL)")
+    else:
+        parser.add_argument("--burst", action="store_true", help="quit once the queue is empty")
+        parser.add_argument("--name", default=None, help="worker name (default: HOST.PID)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from service.settings import Settings
+
+    try:
+        settings = Settings()
+    except ValueError as exc:  # pydantic's ValidationError
+        print(f"error: invalid_setting: {exc}", file=sys.stderr)
+        return 2
+    return _serve(settings, args) if args.command == "serve" else _work(settings, args)
+
+
+def _work(settings, args: argparse.Namespace) -> int:
+    from worker.main import run_worker
+
+    if not settings.redis_url:
+        print("error: missing_setting: set REDIS_URL to the Redis shared with the API", file=sys.stderr)
+        return 2
+    return run_worker(settings, burst=args.burst, name=args.name)
+
+
+def _serve(settings, args: argparse.Namespace) -> int:
+    import uvicorn
+
+    from service.app import create_app
+    from service.embedded import EmbeddedRedis
+
+    embedded = None
+    if not settings.redis_url:
+        embedded = EmbeddedRedis(settings.redis_dir)
+        settings = settings.model_copy(update={"redis_url": embedded.start()})
+    n_workers = args.workers if args.workers is not None else (1 if embedded else 0)
+    env = {**os.environ, "REDIS_URL": settings.redis_url}
+    workers = [subprocess.Popen([sys.executable, "-m", "ctp", "worker"], env=env) for _ in range(n_workers)]
+    where = f"embedded Redis in {embedded.data_dir}" if embedded else "REDIS_URL"
+    print(f"ctp: serving on http://{args.host}:{args.port} ({where}, {n_workers} local worker(s))", file=sys.stderr)
+    try:
+        uvicorn.run(create_app(settings), host=args.host, port=args.port, log_level=settings.log_level.lower())
+    except CtpError as exc:
+        print(f"error: {exc.code}: {exc.message}", file=sys.stderr)
+        return 2
+    finally:
+        _stop(workers)
+        if embedded:
+            embedded.stop()
+    return 0
+
+
+def _stop(processes: list[subprocess.Popen]) -> None:
+    """SIGTERM (rq warm shutdown: finish the current job), then SIGKILL after a grace period; a job killed
+    that way is failed with worker_lost by the next API reaper."""
+    for p in processes:
+        p.terminate()
+    for p in processes:
+        try:
+            p.wait(timeout=STOP_GRACE_S)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()

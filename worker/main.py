@@ -1,0 +1,150 @@
+"""One worker process: an rq ``SimpleWorker`` plus a heartbeat thread.
+
+``SimpleWorker`` runs jobs in this process instead of forking a child per job, so the vision-language
+model loaded at start-up (``guidance.get_guide`` caches it per process) serves every job, and torch
+never has to survive a fork. The heartbeat thread keeps this worker visible to ``/readyz``, holds the
+lease of the running job (lapsed lease: the API's reaper fails the job with ``worker_lost``) and
+republishes progress when the optimiser has been quiet for a while.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+import threading
+import time
+from dataclasses import dataclass
+
+from redis import Redis
+from redis.exceptions import RedisError
+from rq import SimpleWorker
+from rq.serializers import JSONSerializer
+
+from service import logs
+from service.jobs import Jobs, Progress
+from service.settings import Settings
+from service.storage import open_storage
+
+log = logging.getLogger("ctp.worker")
+
+
+class Heartbeat(threading.Thread):
+    """Refresh this worker's and its job's leases; keep a running job's progress fresh."""
+
+    def __init__(self, jobs: Jobs, name: str, period_s: float, progress_every_s: float):
+        super().__init__(name="ctp-heartbeat", daemon=True)
+        self.jobs, self.worker, self.period_s, self.progress_every_s = jobs, name, period_s, progress_every_s
+        self._stop_event = threading.Event()
+        self._lock = threading.Lock()
+        self.job_id: str | None = None
+        self._progress: Progress | None = None
+        self._published = 0.0  # monotonic time of the last progress write
+
+    def run(self) -> None:
+        while not self._stop_event.is_set():
+            try:
+                self.jobs.heartbeat(self.worker, self.job_id)
+                self._refresh_progress()
+            except RedisError as exc:  # Redis restarting: keep beating, the next one may land
+                log.warning("heartbeat failed: %s", exc, extra={"worker": self.worker})
+            self._stop_event.wait(self.period_s)
+
+    def stop(self) -> None:
+        self._stop_event.set()
+        self.join(timeout=self.period_s + 1)
+
+    def begin(self, job_id: str) -> None:
+        with self._lock:
+            self.job_id, self._progress, self._published = job_id, None, time.monotonic()
+
+    def end(self) -> None:
+        with self._lock:
+            self.job_id, self._progress = None, None
+
+    def publish(self, progress: Progress, *, force: bool = False, min_interval_s: float = 0.5) -> None:
+        """Store a progress update; frequent step events are thinned to one per ``min_interval_s``."""
+        with self._lock:
+            job_id = self.job_id
+            self._progress = progress
+            if job_id is None or (not force and time.monotonic() - self._published < min_interval_s):
+                return
+            self._published = time.monotonic()
+            self.jobs.set_progress(job_id, progress)  # under the lock: writes never reorder
+
+    def _refresh_progress(self) -> None:
+        with self._lock:
+            job_id, progress, since = self.job_id, self._progress, time.monotonic() - self._published
+            if job_id is None or progress is None or since < self.progress_every_s:
+                return
+            self._published = time.monotonic()
+            eta = None if progress.eta_s is None else max(0.0, round(progress.eta_s - since, 1))
+            progress = progress.model_copy(update={"elapsed_s": round(progress.elapsed_s + since, 3), "eta_s": eta})
+            self._progress = progress
+            self.jobs.set_progress(job_id, progress)
+
+
+@dataclass
+class WorkerContext:
+    settings: Settings
+    jobs: Jobs
+    name: str
+    beat: Heartbeat
+
+
+_CONTEXT: WorkerContext | None = None
+
+
+def context() -> WorkerContext:
+    """This process's worker state (set by ``run_worker``)."""
+    if _CONTEXT is None:
+        raise RuntimeError("worker.tasks.run_job runs inside `ctp worker` (worker.main.run_worker)")
+    return _CONTEXT
+
+
+def connect(settings: Settings) -> Jobs:
+    client = Redis.from_url(settings.redis_url, health_check_interval=30)
+    storage = open_storage(client, settings.queue, settings.job_ttl_s, settings.storage_dir)
+    return Jobs(client, storage, prefix=settings.queue, ttl_s=settings.job_ttl_s,
+                job_timeout_s=settings.job_timeout_s, lease_s=settings.lease_s)
+
+
+def run_worker(settings: Settings, *, burst: bool = False, name: str | None = None) -> int:
+    """Preload the default model, then take jobs until stopped (SIGTERM/SIGINT: after the current job)."""
+    global _CONTEXT
+    logs.configure(settings.log_level)
+    name = name or f"{socket.gethostname()}.{os.getpid()}"
+    jobs = connect(settings)
+    _preload(settings)
+    beat = Heartbeat(jobs, name, settings.heartbeat_s, settings.progress_every_s)
+    _CONTEXT = WorkerContext(settings, jobs, name, beat)
+    beat.start()
+    worker = SimpleWorker([jobs.queue], connection=jobs.redis, serializer=JSONSerializer, name=name)
+    log.info("worker ready", extra={"worker": name})
+    try:
+        worker.work(burst=burst, logging_level=settings.log_level.upper())
+    finally:
+        beat.stop()
+        jobs.worker_gone(name)
+        _CONTEXT = None
+    return 0
+
+
+def _preload(settings: Settings) -> None:
+    """Load the default model once for the life of the process; a failure is logged and each job that
+    needs the model then fails with its clear ``model_unavailable`` error."""
+    import torch
+
+    from ctp_core.config import AlignConfig
+    from ctp_core.errors import ModelError
+    from ctp_core.guidance import get_guide
+
+    if settings.threads:
+        torch.set_num_threads(settings.threads)
+    started = time.perf_counter()
+    try:
+        get_guide(settings.model, device=settings.device, autocast=AlignConfig.model_fields["autocast"].default)
+    except ModelError as exc:
+        log.error("default model unavailable: %s", exc.message)
+        return
+    log.info("model %s loaded in %.1f s", settings.model, time.perf_counter() - started)
