@@ -1,0 +1,121 @@
+"""The benchmark harness: case discovery, the perturbation protocol, b1, and ``ctp bench`` end to end."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from ctp_core.bench import baselines, cases, protocol
+from ctp_core.errors import ConfigError
+
+
+def _write_case(folder: Path, case_id: str, target: trimesh.Trimesh, source: trimesh.Trimesh,
+                reference: np.ndarray | None, prompt: str) -> Path:
+    folder.mkdir(parents=True)
+    target.export(folder / "target.glb")
+    source.export(folder / "source.glb")
+    data = {"id": case_id, "prompt": prompt, "origin": "synthetic",
+            "target": {"file": "target.glb", "name": "block"}, "source": {"file": "source.glb", "name": "cap"},
+            "reference": None if reference is None else {"source_to_target": reference.tolist(), "scale": 1.0},
+            "relation": "on_top", "penetration_expected": False}
+    (folder / "case.json").write_text(json.dumps(data))
+    return folder
+
+
+def _translation(x, y, z) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, 3] = (x, y, z)
+    return m
+
+
+@pytest.fixture(scope="module")
+def bench_dir(tmp_path_factory) -> Path:
+    """Two generated cases with a known arrangement, nested one level deeper to exercise the recursive search."""
+    root = tmp_path_factory.mktemp("cases")
+    block = trimesh.creation.box((1.0, 0.6, 0.8))
+    cap = trimesh.creation.cylinder(radius=0.2, height=0.3, sections=24)
+    cap.apply_translation((3.0, 1.0, -2.0))  # file pose far from the answer, as in the real cases
+    on_top = _translation(-3.0, -1.0 + 0.3 + 0.15, 2.0)
+    _write_case(root / "set" / "a", "gen-cap-on-block", block, cap, on_top, "a cap on top of a block")
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.5)
+    cone = trimesh.creation.cone(radius=0.25, height=0.4, sections=16)
+    beside = trimesh.transformations.rotation_matrix(0.4, [0, 0, 1])
+    beside[:3, 3] = (0.8, -0.3, 0.1)
+    _write_case(root / "set" / "b", "gen-cone-by-ball", ball, cone, beside, "a cone beside a ball")
+    return root
+
+
+def test_discover_finds_nested_cases_and_selects_by_id(bench_dir):
+    found = cases.discover(bench_dir)
+    assert [c.id for c in found] == ["gen-cap-on-block", "gen-cone-by-ball"]
+    assert found[0].reference.shape == (4, 4) and found[0].target_file.exists()
+    assert [c.id for c in cases.discover(bench_dir, ["gen-cone-by-ball"])] == ["gen-cone-by-ball"]
+    with pytest.raises(ConfigError, match="unknown case"):
+        cases.discover(bench_dir, ["nope"])
+
+
+def test_discover_refuses_duplicate_ids(tmp_path):
+    box = trimesh.creation.box()
+    for name in ("x", "y"):
+        _write_case(tmp_path / name, "same", box, box, None, "p")
+    with pytest.raises(ConfigError, match="duplicate"):
+        cases.discover(tmp_path)
+
+
+def test_protocol_is_deterministic_per_case():
+    bounds = np.array([[0.0, 0.0, 0.0], [1.0, 2.0, 0.5]])
+    ref = _translation(5, 0, 0)
+    first = protocol.initial_poses(ref, bounds, protocol="rigid", count=3, seed=7, case_id="a")
+    again = protocol.initial_poses(ref, bounds, protocol="rigid", count=3, seed=7, case_id="a")
+    other = protocol.initial_poses(ref, bounds, protocol="rigid", count=3, seed=7, case_id="b")
+    reseeded = protocol.initial_poses(ref, bounds, protocol="rigid", count=3, seed=8, case_id="a")
+    assert all(np.array_equal(x, y) for x, y in zip(first, again, strict=True))
+    assert not np.allclose(first[0], other[0]) and not np.allclose(first[0], reseeded[0])
+    assert len({m.tobytes() for m in first}) == 3  # the inits of one case differ from each other
+
+
+def test_protocol_ranges():
+    bounds = np.array([[0.0, 0.0, 0.0], [1.0, 2.0, 0.5]])
+    sides, centre = np.array([1.0, 2.0, 0.5]), np.array([0.5, 1.0, 0.25])
+    ref = _translation(5, 0, 0)
+    rigid = protocol.initial_poses(ref, bounds, protocol="rigid", count=200, seed=0, case_id="c")
+    shifts = np.array([(m[:3, :3] @ centre + m[:3, 3]) - (centre + ref[:3, 3]) for m in rigid])
+    assert np.all(np.abs(shifts) <= 10 * sides + 1e-9)  # the centre moves by U(-10 L, 10 L) per axis
+    assert np.all(np.abs(shifts).max(axis=0) > 7 * sides)  # and uses the range
+    for m in rigid:
+        assert np.allclose(m[:3, :3] @ m[:3, :3].T, np.eye(3), atol=1e-9)  # rigid: rotation only
+    angles = [math.degrees(math.acos(np.clip((np.trace(m[:3, :3]) - 1) / 2, -1, 1))) for m in rigid]
+    assert max(angles) > 150  # Euler angles over ±180° reach large turns
+    scaled = protocol.initial_poses(ref, bounds, protocol="scale", count=200, seed=0, case_id="c")
+    scales = np.array([np.cbrt(np.linalg.det(m[:3, :3])) for m in scaled])
+    assert np.all((scales >= 0.01) & (scales <= 100)) and scales.max() > 50
+
+
+def test_random_starts_sit_two_to_four_radii_out():
+    target, source = np.array([[-1.0, -1, -1], [1, 1, 1]]), np.array([[2.0, 2, 2], [2.5, 3, 2.2]])
+    starts = protocol.random_starts(target, source, 1.5, 50, np.random.default_rng(0))
+    radius = math.sqrt(3)
+    centre = source.mean(axis=0)
+    distances = [np.linalg.norm(m[:3, :3] @ centre + m[:3, 3]) / radius for m in starts]
+    assert min(distances) >= 2 - 1e-9 and max(distances) <= 4 + 1e-9
+    assert all(np.cbrt(np.linalg.det(m[:3, :3])) == pytest.approx(1.5) for m in starts)
+
+
+def test_shrinkwrap_lands_on_the_surface_without_penetrating():
+    from ctp_core import metrics
+
+    target = trimesh.creation.box((2.0, 1.0, 2.0))
+    source = trimesh.creation.icosphere(subdivisions=2, radius=0.2)
+    above = _translation(0.1, 3.0, -0.2)  # the nearest target point is on the top face
+    inside = _translation(0.0, 0.3, 0.0)  # starts half inside, just under the top face
+    for pose in baselines.shrinkwrap(target, source, [above, inside]):
+        placed = source.copy()
+        placed.apply_transform(pose)
+        assert metrics.intersection_over_union(target, placed).iou < 1e-3
+        assert metrics.contact_distance(target, placed) < 0.01
+        assert pose[1, 3] == pytest.approx(0.7, abs=0.02)  # resting on the top face (y = 0.5)
