@@ -1,0 +1,117 @@
+"""A small Python client for the ctp HTTP API (httpx only; ``ctp_core`` does not depend on it).
+
+    client = Client("http://127.0.0.1:8000", api_key=None)
+    job = client.submit("sundae.glb", "cherry.glb", "a cherry on top of a sundae", options={"seed": 1})
+    final = client.wait(job["id"], on_progress=lambda j: print(j["progress"]["message"]))
+    client.download(job["id"], "result.glb", to="scene.glb")
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+MeshInput = str | Path | tuple[str, bytes]  # a path, or (file name with extension, bytes)
+TERMINAL = ("succeeded", "failed", "canceled")
+
+
+class ServiceError(Exception):
+    """An error answer of the API: HTTP status plus its stable ``code``, ``message`` and ``field``."""
+
+    def __init__(self, status: int, code: str, message: str, field: str | None = None):
+        super().__init__(f"{status} {code}: {message}" + (f" (field {field})" if field else ""))
+        self.status, self.code, self.message, self.field = status, code, message, field
+
+
+class Client:
+    def __init__(self, url: str, api_key: str | None = None, *, timeout_s: float = 60.0,
+                 transport: httpx.BaseTransport | None = None):
+        headers = {"Authorization": f"Bearer {api_key}"} if api_key else {}
+        self.http = httpx.Client(base_url=url, headers=headers, timeout=timeout_s, transport=transport)
+
+    def close(self) -> None:
+        self.http.close()
+
+    def __enter__(self) -> Client:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def submit(self, target: MeshInput, source: MeshInput, prompt: str | None = None, *,
+               image: MeshInput | None = None, options: dict[str, Any] | None = None,
+               target_name: str | None = None, source_name: str | None = None) -> dict[str, Any]:
+        """Upload a pair; returns ``{id, status, links}``. Needs a prompt or an image."""
+        files = {"target": _file(target), "source": _file(source)}
+        if image is not None:
+            files["image"] = _file(image)
+        data = {k: v for k, v in {"prompt": prompt, "target_name": target_name, "source_name": source_name,
+                                  "options": json.dumps(options) if options else None}.items() if v is not None}
+        return self._json(self.http.post("/align", files=files, data=data))
+
+    def status(self, job_id: str) -> dict[str, Any]:
+        return self._json(self.http.get(f"/jobs/{job_id}"))
+
+    def cancel(self, job_id: str) -> dict[str, Any]:
+        return self._json(self.http.delete(f"/jobs/{job_id}"))
+
+    def wait(self, job_id: str, on_progress: Callable[[dict[str, Any]], None] | None = None,
+             timeout_s: float | None = None) -> dict[str, Any]:
+        """Follow the job's server-sent events until it ends; returns the final job (any end status).
+        A dropped stream is reopened; ``TimeoutError`` after ``timeout_s``."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while True:
+            remaining = None if deadline is None else max(0.1, deadline - time.monotonic())
+            try:
+                for job in self._events(job_id, remaining):
+                    if on_progress is not None:
+                        on_progress(job)
+                    if job["status"] in TERMINAL:
+                        return job
+            except (httpx.TransportError, httpx.TimeoutException):
+                pass
+            job = self.status(job_id)
+            if job["status"] in TERMINAL:
+                return job
+            if deadline is not None and time.monotonic() > deadline:
+                raise TimeoutError(f"job {job_id} still {job['status']} after {timeout_s} s")
+
+    def download(self, job_id: str, name: str = "result.glb", to: str | Path | None = None) -> bytes:
+        """``result.glb``, ``report.json`` or ``preview.png`` of a succeeded job; also written to ``to``."""
+        answer = self.http.get(f"/jobs/{job_id}/{name}")
+        if answer.status_code != 200:
+            self._json(answer)
+        if to is not None:
+            Path(to).write_bytes(answer.content)
+        return answer.content
+
+    def _events(self, job_id: str, timeout_s: float | None) -> Iterator[dict[str, Any]]:
+        timeout = httpx.Timeout(self.http.timeout.connect, read=timeout_s)
+        with self.http.stream("GET", f"/jobs/{job_id}/events", timeout=timeout) as stream:
+            if stream.status_code != 200:
+                stream.read()
+                self._json(stream)
+            for line in stream.iter_lines():
+                if line.startswith("data: "):
+                    yield json.loads(line.removeprefix("data: "))
+
+    @staticmethod
+    def _json(answer: httpx.Response) -> dict[str, Any]:
+        body = answer.json() if answer.headers.get("content-type", "").startswith("application/json") else {}
+        if answer.status_code >= 400:
+            error = body.get("error") or {"code": "http_error", "message": answer.text[:200]}
+            raise ServiceError(answer.status_code, error.get("code", "http_error"), error.get("message", ""),
+                               error.get("field"))
+        return body
+
+
+def _file(item: MeshInput) -> tuple[str, bytes]:
+    if isinstance(item, tuple):
+        return item
+    path = Path(item)
+    return path.name, path.read_bytes()
