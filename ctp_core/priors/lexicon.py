@@ -1,0 +1,528 @@
+"""Typical real sizes of common objects, and how object names map onto them.
+
+The rule-based prior needs a size for each named object (the size ratio is their quotient) and a few
+coarse shape facts that decide contact and penetration (is it a container, is it pointed, flat, round,
+soft, does it wrap around what wears it, is it someone who can hold or wear things). A language model
+knows these; without one, this table is the knowledge.
+
+Sizes are the *longest side* of the object's bounding box in metres, for a typical real instance (a
+guess good to a factor of about two). Table rows: ``name[/alias...] size [tag,tag...]`` with ``_`` for
+spaces; plurals are handled by ``singular`` so rows list singular forms only.
+
+Tags:
+- ``container``: has a cavity or opening things go into without cutting (cup, box, bun, keyhole).
+- ``pointed``: thin or sharp enough to be pushed into a solid (knife, arrow, nail, candle, flag).
+- ``flat``: a sheet or slice that lies on one face (pepperoni, poster, sticker).
+- ``round``: ball-like; touches a support at a point.
+- ``soft``: drapes or settles onto a support (cushion, cat, towel).
+- ``wrap``: a garment or band that hugs what wears it (scarf, glove, collar).
+- ``agent``: a person, character or animal that can hold, wear, ride.
+
+Names like ``rooster_comb`` or ``teapot_lid`` are parts: ``PARTS`` gives a part's size as a fraction
+of its owner's, so any owner in the table works without listing every pair.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+_TABLE = """
+# --- food and drink ---
+apple 0.08 round
+orange 0.08 round
+lemon/lime 0.07 round
+peach/plum/pear 0.08 round
+cherry/grape/olive/blueberry/strawberry/raspberry 0.025 round
+banana 0.2
+watermelon 0.35 round
+melon/pumpkin/pineapple 0.3
+coconut 0.15 round
+avocado/mango 0.1
+tomato/onion/potato 0.08 round
+carrot/cucumber/zucchini/eggplant 0.2 pointed
+corn 0.2
+mushroom 0.06
+egg 0.06 round
+bread/loaf 0.25
+bread_roll/roll/bun 0.12 container
+baguette 0.6 pointed
+toast 0.11 flat
+sandwich/burger/hamburger/cheeseburger 0.12
+hotdog/hot_dog/sausage/frankfurter 0.15
+patty 0.1 flat
+pizza 0.35 flat
+pepperoni 0.04 flat
+cheese 0.1
+cheese_slice/ham/bacon/lettuce/salmon_fillet/salmon 0.12 flat
+steak/meat/chicken/fish_fillet 0.2
+drumstick 0.15
+rice/rice_ball/onigiri 0.07
+sushi/nigiri/maki 0.06
+cake 0.25
+cupcake/muffin 0.07
+cookie/biscuit/cracker/pancake/waffle 0.08 flat
+donut/doughnut/bagel 0.1
+croissant 0.15
+pie/tart/quiche 0.25
+sundae/ice_cream_sundae/dessert 0.2
+ice_cream/gelato 0.12
+scoop/ice_cream_scoop 0.07 round
+ice_cream_cone/waffle_cone/cone 0.15 container
+popsicle/lollipop 0.15
+candy/sweet/chocolate/praline 0.03
+chocolate_bar 0.15 flat
+marshmallow 0.04 soft
+taco/burrito/wrap 0.18 container
+noodle/pasta/spaghetti 0.2
+soup/stew 0.2
+butter 0.1
+honey/honey_jar/honey_pot/jam 0.12 container
+coffee/tea/latte/espresso/cappuccino 0.09 container
+wine/beer/juice/milk/water/soda/drink/cocktail/martini/margarita 0.18 container
+teabag/tea_bag 0.07 flat
+sugar_cube/ice_cube 0.02
+# --- tableware and kitchen ---
+plate/dish/saucer 0.27 flat,container
+bowl 0.2 container
+cup/coffee_cup/teacup/mug/beaker 0.1 container
+glass/tumbler/wine_glass/martini_glass/champagne_glass/goblet 0.16 container
+bottle/wine_bottle/beer_bottle/flask 0.3 container
+jar/canister 0.15 container
+can/tin/soda_can 0.12 container
+teapot/kettle 0.25 container
+pot/saucepan/cooking_pot/cauldron 0.3 container
+pan/frying_pan/skillet/wok 0.45 container
+tray/platter/cutting_board/chopping_board 0.4 flat
+lid 0.15
+cork/stopper 0.045
+straw/drinking_straw 0.2 pointed
+spoon/teaspoon/ladle 0.17 pointed
+fork 0.19 pointed
+knife/kitchen_knife/chef_knife/butter_knife/steak_knife/cleaver 0.28 pointed
+chopstick 0.24 pointed
+toothpick/cocktail_stick 0.07 pointed
+skewer/kebab_stick 0.3 pointed
+whisk/spatula/rolling_pin 0.3
+napkin/tablecloth/placemat 0.4 flat,soft
+blender/mixer/toaster/coffee_maker/microwave 0.4
+basket 0.4 container
+bucket/pail 0.3 container
+# --- bathroom and cosmetics ---
+lipstick/lip_balm/mascara 0.08 pointed
+perfume/perfume_bottle/lotion/shampoo 0.15 container
+toothbrush/razor/hairbrush/comb 0.18 pointed
+toothpaste/tube 0.18
+soap/sponge 0.09 soft
+# --- furniture and home ---
+table/dining_table/coffee_table/kitchen_table 1.5
+desk/workbench 1.4
+chair/stool/armchair/office_chair 0.9
+bench 1.5
+sofa/couch 2.0
+bed 2.1
+pillow 0.6 soft
+cushion 0.45 soft
+blanket/quilt/duvet/rug/carpet/mat/doormat 1.8 flat,soft
+towel 0.7 flat,soft
+shelf 1.0
+bookshelf/bookcase/cabinet/cupboard/wardrobe/closet/dresser 1.8 container
+drawer/chest/crate/trunk 0.8 container
+box/cardboard_box/carton/package/parcel 0.5 container
+present/gift/gift_box 0.35 container
+bow/ribbon 0.15
+lamp/desk_lamp/table_lamp 0.45
+floor_lamp/standing_lamp 1.6
+candle 0.2 pointed
+candlestick/candle_stick/candle_holder/candelabra 0.3 container
+vase 0.3 container
+flower_pot/plant_pot/planter/pot_plant 0.25 container
+clock/wall_clock 0.35 flat
+mirror 0.8 flat
+painting/picture/frame/picture_frame/poster/photo/photograph/canvas/map/calendar 0.7 flat
+sign/signboard/plaque 0.6 flat
+sticker/label/decal/note/sticky_note/postcard/letter/paper/card/playing_card 0.09 flat
+envelope 0.22 flat,container
+book/notebook/novel 0.25
+magazine/newspaper 0.3 flat
+television/tv 1.2 flat
+monitor/screen 0.6 flat
+laptop/computer 0.35
+keyboard 0.45
+mouse_pad 0.25 flat
+phone/smartphone/cellphone/mobile_phone/remote/remote_control 0.15
+headphones/headset 0.2
+camera 0.12
+speaker 0.3
+piano/grand_piano 1.5
+guitar/violin/cello/bass 1.0
+drum 0.5
+trumpet/flute/saxophone 0.6
+door/front_door/gate 2.0 flat
+window 1.2 flat
+wall 4.0 flat
+floor/ground/platform/stage 5.0 flat
+roof 10.0
+stair/staircase/step 3.0
+fireplace 1.5 container
+bathtub/bath 1.7 container
+sink/basin 0.6 container
+toilet 0.7 container
+shower 2.0
+fridge/refrigerator/oven/stove/washing_machine/dishwasher 1.7 container
+trash_can/bin/dustbin/wastebasket 0.6 container
+coat_rack/hat_stand/coat_stand 1.8
+hook/peg/hanger/coat_hook/knob/doorknob/handle 0.06
+ring_stand/pencil_holder/pen_holder 0.1 container
+piggy_bank/money_box 0.2 container
+mailbox/letterbox 0.45 container
+birdhouse/nest 0.3 container
+cage/birdcage 0.6 container
+fishbowl/fish_bowl 0.25 container
+aquarium/fish_tank 0.8 container
+pincushion 0.1
+cork_board/corkboard/bulletin_board/whiteboard/blackboard/chalkboard 0.9 flat
+board/plank 1.0 flat
+log/tree_trunk/stump/firewood 0.8
+wood/timber 0.5
+block/cube/brick 0.3
+chessboard/chess_board/game_board 0.45 flat
+pawn/chess_piece/rook/bishop 0.05
+dice/die 0.016
+coin 0.025 flat
+key 0.06 pointed
+lock/padlock/keyhole 0.06 container
+# --- clothing and accessories ---
+hat/cap/beanie/beret/top_hat/cowboy_hat/sun_hat/fedora/party_hat/witch_hat/wizard_hat/baseball_cap 0.3
+crown/tiara 0.2
+helmet 0.3
+headband/hairband 0.18 wrap
+glasses/sunglasses/spectacles/goggles 0.14
+mask 0.2
+scarf/shawl 0.4 wrap,soft
+tie/necktie/bowtie/bow_tie 0.3 flat
+necklace/chain/collar/choker 0.15 wrap
+ring 0.02 wrap
+bracelet/watch/wristwatch/bangle 0.07 wrap
+belt 0.5 wrap
+glove/mitten 0.25 wrap
+sock 0.25 wrap
+shoe/boot/sneaker/slipper/sandal 0.3 container
+jacket/coat/shirt/t_shirt/sweater/hoodie/dress/robe/cape/cloak 1.0 soft
+trousers/pants/jeans/skirt/shorts 1.0 soft
+apron 0.8 flat,soft
+backpack/rucksack/schoolbag 0.5 container
+bag/handbag/purse/tote/shopping_bag 0.4 container
+suitcase/luggage 0.7 container
+wallet 0.11 flat
+umbrella/parasol 1.0
+cane/walking_stick/staff 1.0 pointed
+saddle/bridle 0.6 soft
+wreath/garland 0.5
+# --- tools, weapons and equipment ---
+hammer/mallet 0.33
+gavel 0.25
+sound_block/gavel_block 0.12
+axe/hatchet 0.7 pointed
+saw 0.6
+screwdriver/chisel 0.25 pointed
+wrench/spanner/pliers 0.25
+nail 0.07 pointed
+screw/bolt 0.05 pointed
+pin/push_pin/pushpin/thumbtack/tack/needle/sewing_needle 0.03 pointed
+scissors 0.2
+pen/pencil/marker/crayon/paintbrush/brush 0.15 pointed
+ruler 0.3 flat
+shovel/spade/rake/broom/broomstick/mop/pitchfork 1.4 pointed
+sword/katana/sabre/saber 1.0 pointed
+dagger 0.35 pointed
+spear/lance/javelin/trident 2.0 pointed
+arrow/dart 0.75 pointed
+longbow 1.5
+shield 0.75
+gun/pistol/revolver 0.25
+rifle 1.0
+wand/magic_wand 0.35 pointed
+flag/pennant/banner 1.5 pointed
+cocktail_flag 0.2 pointed
+pole/stake/post/pillar/column 2.5 pointed
+stick/twig/rod 0.8 pointed
+archery_target/dartboard/bullseye 1.2 flat
+ladder 3.0
+rope/cable/hose/wire 3.0 wrap
+chain_link 0.03
+tent 3.0 container
+ball/football/soccer_ball/basketball/volleyball/beach_ball/globe 0.22 round
+tennis_ball/baseball/golf_ball/marble/snowball 0.07 round
+balloon 0.3 round
+bat/baseball_bat/racket/tennis_racket/golf_club/hockey_stick 0.9
+skateboard/surfboard/snowboard/skis/ski 0.8 flat
+frisbee 0.25 flat
+kite 1.0 flat
+hoop/basketball_hoop/ring_toss 0.45 container
+trophy/medal 0.3
+slide/playground_slide 3.0
+swing 2.0
+seesaw/trampoline 3.0
+sandcastle/sand_castle 0.4
+snowman 1.5
+antenna/satellite_dish 1.5 pointed
+chimney 1.5
+cross 1.0
+star 0.2
+statue/sculpture 2.0
+# --- toys and figures ---
+toy/figurine/action_figure/doll/puppet 0.3
+teddy_bear/teddy/plush/stuffed_animal 0.4 soft,agent
+lego/lego_brick/toy_block 0.05
+toy_car 0.1
+# --- people and characters (agents) ---
+person/human/man/woman/people/adult/guy/lady/gentleman/hiker/farmer/chef/cook/doctor/nurse 1.75 agent
+soldier/astronaut/pilot/firefighter/policeman/student/teacher/worker/musician/player/athlete 1.75 agent
+dancer/runner/tourist/driver/rider/mannequin/zombie/vampire 1.75 agent
+boy/girl/kid/child/teen/teenager 1.3 agent
+baby/toddler/infant 0.7 agent
+king/queen/prince/princess/knight/wizard/witch/pirate/cowboy/ninja/samurai/viking/clown/captain 1.8 agent
+superhero/hero/villain/sorcerer/monk/priest/santa/santa_claus/elf/warrior 1.8 agent
+dwarf/gnome/goblin 1.0 agent
+fairy 0.3 agent
+troll/ogre 3.0 agent
+robot/android/cyborg 1.8 agent
+alien 1.5 agent
+captain_america/superman/batman/spider_man/spiderman/iron_man/hulk/thor/wonder_woman 1.8 agent
+darth_vader/harry_potter/hermione/gandalf/frodo/luke_skywalker/james_bond/sherlock_holmes/elsa 1.8 agent
+snow_white/cinderella/shrek/mario/luigi/link/lara_croft 1.8 agent
+pinocchio/peter_pan/alice/tintin 1.2 agent
+mickey_mouse/minnie_mouse/donald_duck/goofy/bugs_bunny/daffy_duck/sonic/scooby_doo/garfield 1.0 agent
+winnie_the_pooh/pooh/paddington/yoda/pikachu/kermit/stitch/olaf/minion 0.6 agent
+# body parts (a person's)
+head/mannequin_head/skull 0.25
+face 0.2 flat
+hand/paw 0.19
+foot 0.26
+arm/leg 0.75
+finger/toe 0.08
+neck 0.12
+nose/ear/mouth/eye 0.05
+# --- animals ---
+dog/puppy/wolf/fox 0.8 agent
+cat/kitten 0.45 soft,agent
+rabbit/bunny/hare 0.4 agent
+mouse/rat/hamster/squirrel/guinea_pig 0.1 agent
+bird/sparrow/robin/parrot/pigeon/crow/owl/songbird 0.2 agent
+hen/rooster/duck/goose/penguin 0.5 agent
+eagle/hawk/swan/flamingo 1.0 agent
+horse/pony/donkey/camel/cow/bull/ox/deer/moose/zebra 2.4 agent
+pig/sheep/goat/lamb/calf 1.2 agent
+elephant 6.0 agent
+giraffe 5.0 agent
+lion/tiger/bear/panda/gorilla/leopard/cheetah 2.0 agent
+monkey/chimpanzee/lemur/koala/raccoon/otter 0.6 agent
+frog/toad/turtle/tortoise/lizard/snail/crab/lobster 0.2 agent
+snake/python/cobra/eel 2.0 wrap,agent
+fish/goldfish/clownfish 0.06 agent
+shark/dolphin/whale 4.0 agent
+bee/butterfly/ladybug/ant/spider/fly/insect/bug/beetle/worm 0.03 agent
+oyster/clam/shell/seashell/mussel/scallop 0.1 container
+pearl/bead/gem/gemstone/jewel/diamond 0.01 round
+bone 0.25
+feather 0.2 flat
+egg_shell 0.06 container
+# --- plants ---
+tree/oak/pine/palm/palm_tree/pine_tree 8.0
+christmas_tree/xmas_tree/fir 2.0
+bush/shrub/hedge 1.5
+plant/houseplant/potted_plant/fern/cactus/succulent 0.5
+flower/rose/tulip/daisy/sunflower/lily/bouquet 0.4 pointed
+leaf 0.1 flat
+branch/bough 1.0 pointed
+grass/lawn 5.0 flat
+rock/stone/boulder 0.5
+pebble 0.04 round
+sand/dirt/soil/snow/mud 1.0
+# --- vehicles ---
+car/taxi/sedan/suv/jeep/van 4.5 container
+truck/lorry/bus/tractor 7.0 container
+bicycle/bike/tricycle 1.7
+motorcycle/motorbike/scooter 2.0
+skate/roller_skate 0.3
+boat/canoe/kayak/rowboat 5.0 container
+ship/yacht/ferry 40.0 container
+airplane/plane/aeroplane/jet 30.0
+helicopter 12.0
+rocket/spaceship 20.0 pointed
+train/locomotive/tram 20.0
+wagon/cart/wheelbarrow/stroller/pram 1.5 container
+sled/sledge/sleigh 1.5
+# --- buildings and places ---
+house/home/cottage/cabin/hut/shed 10.0 container
+garage 6.0 container
+barn/warehouse/factory 20.0 container
+building/office/school/hospital/hotel/apartment/skyscraper 30.0
+church/chapel/temple/mosque/cathedral 25.0
+castle/palace/fortress 50.0
+tower/castle_tower/lighthouse/turret 15.0
+bridge 50.0
+fence/railing 2.5 flat
+well 1.5 container
+fountain/pool/pond/swimming_pool 4.0 container
+igloo/dome 3.0 container
+moon/planet/earth 100.0 round
+mountain/hill/cliff 100.0
+"""
+
+# A part's size as a fraction of its owner's ("teapot lid": 0.6 of a teapot).
+PARTS: dict[str, float] = {
+    "lid": 0.6, "cap": 0.4, "cover": 1.0, "case": 1.0, "sheath": 1.0, "holder": 0.8, "base": 0.7,
+    "stand": 0.8, "handle": 0.4, "jar": 0.6, "tank": 0.6, "container": 0.6, "comb": 0.15, "top": 0.5,
+    "seat": 0.4, "wheel": 0.3, "door": 0.5, "roof": 1.0, "blade": 0.6, "tip": 0.1, "head": 0.3,
+    "leg": 0.5, "shade": 0.4, "bulb": 0.2, "slice": 0.5, "piece": 0.3, "half": 0.8, "wing": 0.4,
+    "tail": 0.4, "nose": 0.1,
+}
+# Parts made to come off their owner: a name that is only one of these ("lid") is sized from the other object.
+DETACHABLE = frozenset({"lid", "cap", "cover", "case", "sheath", "stand", "base", "handle", "top"})
+# Parts that hold their owner (a lipstick's cover, a blender's jar) are containers.
+CONTAINER_PARTS = frozenset({"cover", "case", "sheath", "holder", "jar", "tank", "container", "cap"})
+
+# Size adjectives in a name or just before a mention ("small flag", "big knife").
+SIZE_WORDS: dict[str, float] = {
+    "tiny": 0.3, "mini": 0.5, "miniature": 0.3, "small": 0.5, "little": 0.5,
+    "big": 2.0, "large": 2.0, "huge": 4.0, "giant": 5.0, "enormous": 5.0,
+}
+
+# Materials name the object only when nothing else does ("table wood" is a table, "wood" is wood).
+MATERIALS = frozenset({"wood", "stone", "glass", "metal", "gold", "silver", "plastic", "paper", "marble", "clay",
+                       "steel", "iron", "leather", "rock"})
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One table row: the canonical name (first alias), its longest side in metres and its tags."""
+
+    name: str
+    size_m: float
+    tags: frozenset[str]
+
+
+@dataclass(frozen=True)
+class Match:
+    """What a name resolved to: the matched phrase, its size after part/adjective scaling, tags, how."""
+
+    phrase: str
+    entry: Entry  # the head's row; for a part ("teapot lid"), the owner's
+    size_m: float
+    tags: frozenset[str]
+    how: str  # e.g. "lid of a teapot (0.6 x 0.25 m)"
+
+    def has(self, tag: str) -> bool:
+        return tag in self.tags
+
+
+def _parse_table(text: str) -> dict[str, Entry]:
+    table: dict[str, Entry] = {}
+    for line in text.splitlines():
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        names, size, *tags = line.split()
+        aliases = [a.replace("_", " ") for a in names.split("/")]
+        entry = Entry(aliases[0], float(size), frozenset(tags[0].split(",")) if tags else frozenset())
+        for alias in aliases:
+            if alias in table:
+                raise ValueError(f"lexicon alias {alias!r} listed twice")
+            table[alias] = entry
+    return table
+
+
+LEXICON: dict[str, Entry] = _parse_table(_TABLE)
+MAX_WORDS = max(len(k.split()) for k in LEXICON)
+
+_IRREGULAR = {
+    "people": "person", "men": "man", "women": "woman", "children": "child", "teeth": "tooth", "feet": "foot",
+    "mice": "mouse", "geese": "goose", "knives": "knife", "leaves": "leaf", "loaves": "loaf", "wolves": "wolf",
+    "shelves": "shelf", "halves": "half", "scarves": "scarf", "calves": "calf", "cacti": "cactus",
+}
+
+
+def singulars(word: str) -> list[str]:
+    """The word and its plausible English singulars, most likely first ("boxes" -> box, boxe)."""
+    if word in _IRREGULAR:
+        return [_IRREGULAR[word], word]
+    forms = [word]
+    if len(word) > 3 and word.endswith("s") and not word.endswith(("ss", "us", "is")):
+        if word.endswith("ies"):
+            forms.append(word[:-3] + "y")
+        if word.endswith("es"):
+            forms.append(word[:-2])
+        forms.append(word[:-1])
+    return forms
+
+
+def words(text: str) -> list[str]:
+    """Lower-case word tokens of a file-style or prose name ("CoffeeCup_02" -> ["coffee", "cup"])."""
+    text = re.sub(r"(?<=[a-z])(?=[A-Z])", " ", text)  # camelCase
+    text = re.sub(r"['’]s\b", " ", text)  # possessive: "the ball's head"
+    return re.findall(r"[a-z]+", text.lower())
+
+
+def phrase_entry(tokens: list[str]) -> tuple[str, Entry] | None:
+    """(matched phrase, entry) for a token run, trying the last word's singulars and the run as one word."""
+    for last in singulars(tokens[-1]):
+        form = [*tokens[:-1], last]
+        for candidate in (" ".join(form), "".join(form)):
+            if candidate in LEXICON:
+                return candidate, LEXICON[candidate]
+    return None
+
+
+def spans(tokens: list[str]) -> list[tuple[int, int, str, Entry]]:
+    """Known phrases in ``tokens`` as (start, end, phrase, entry): longest match first, left to right."""
+    found, i = [], 0
+    while i < len(tokens):
+        for n in range(min(MAX_WORDS + 1, len(tokens) - i), 0, -1):
+            hit = phrase_entry(tokens[i:i + n])
+            if hit is not None:
+                found.append((i, i + n, *hit))
+                i += n
+                break
+        else:
+            i += 1
+    return found
+
+
+def bare_part(name: str) -> str | None:
+    """The detachable part a name is, when nothing else in it is known ("Lid_01" -> "lid", "pot_lid" -> None)."""
+    tokens = words(name)
+    for i in reversed(range(len(tokens))):
+        part = next((w for w in singulars(tokens[i]) if w in DETACHABLE), None)
+        if part is not None:
+            return None if spans(tokens[:i] + tokens[i + 1:]) else part
+    return None
+
+
+def lookup(name: str) -> Match | None:
+    """Resolve an object name to a size, or None when nothing in it is known.
+
+    The head of an English compound is its last noun ("coffee cup" is a cup), so the rightmost known
+    phrase wins (materials only when alone); a last word naming a part after a known owner ("teapot
+    lid", "blender_tank") is sized as a fraction of the owner. Size adjectives in the name
+    ("ball_small") scale the result.
+    """
+    tokens = [t for t in words(name) if t not in SIZE_WORDS]
+    scale = 1.0
+    for token in words(name):
+        scale *= SIZE_WORDS.get(token, 1.0)
+    found = [f for f in spans(tokens) if f[3].name not in MATERIALS] or spans(tokens)
+    part = next((w for w in singulars(tokens[-1]) if w in PARTS), None) if tokens else None
+    if part is not None and not any(end == len(tokens) and end - start > 1 for start, end, _, _ in found):
+        owners = [f for f in found if f[1] < len(tokens)]
+        if owners:
+            _, _, phrase, owner = owners[-1]
+            size = owner.size_m * PARTS[part] * scale
+            tags = frozenset({"container"}) if part in CONTAINER_PARTS else frozenset()
+            return Match(part, owner, size, tags, f"{part} of a {phrase} ({PARTS[part]:g} x {owner.size_m:g} m)")
+    if not found:
+        return None
+    _, _, phrase, head = found[-1]
+    how = f"'{phrase}' ({head.size_m:g} m)" + (f" x {scale:g} (size word)" if scale != 1.0 else "")
+    return Match(phrase, head, head.size_m * scale, head.tags, how)

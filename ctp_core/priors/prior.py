@@ -1,0 +1,48 @@
+"""The scene prior: the three numbers the hyperparameter step gives the optimiser, and who gave them.
+
+``size_ratio`` is source/target bounding-box size (longest side over longest side), the initial scale
+in scale mode; ``penetration`` says the arrangement needs one solid inside the other (lambda_pen = 0);
+``contact_ratio`` is the fraction of the source surface touching the target (the soft-ICP ratio r).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Protocol
+
+SIZE_RANGE = (0.1, 10.0)  # the paper clamps guessed size ratios here: beyond it a guess is noise
+
+
+@dataclass(frozen=True)
+class ScenePrior:
+    size_ratio: float  # source/target bbox size; clamped to SIZE_RANGE unless given explicitly
+    penetration: bool
+    contact_ratio: float  # [0, 1] -> soft-ICP ratio r
+    source: str  # "rules", "openai", "rules (fallback: <why>)", or with "; explicit: <fields>"
+    reason: str  # short, for humans
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+class PriorProvider(Protocol):
+    """Anything that turns (target name, source name, prompt) into a ``ScenePrior``; never raises."""
+
+    name: str
+
+    def estimate(self, target_name: str, source_name: str, prompt: str) -> ScenePrior: ...
+
+
+def clamp_size(value: float) -> float:
+    """A guessed size ratio in SIZE_RANGE (NaN and non-positive values are not guesses: ValueError)."""
+    if not math.isfinite(value) or value <= 0:
+        raise ValueError(f"size ratio must be a positive number, got {value!r}")
+    return min(max(value, SIZE_RANGE[0]), SIZE_RANGE[1])
+
+
+def clamp_contact(value: float) -> float:
+    """A contact ratio in [0, 1]."""
+    if not math.isfinite(value):
+        raise ValueError(f"contact ratio must be a number, got {value!r}")
+    return min(max(value, 0.0), 1.0)

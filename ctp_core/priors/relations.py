@@ -1,0 +1,149 @@
+"""Spatial relations read from a prompt: which cue, and who is the figure.
+
+A relation has a *figure* (the thing placed: the hat, the cup, the arrow) and a *ground* (the head,
+the table, the target). Contact is a fraction of the **source** surface, so it depends on whether the
+source is the figure ("a cup on a table": its base, 0.15) or the ground (the table under the cup:
+almost none). The names say which mesh is the source; the prompt's word order around the cue says
+which role it plays ("Pinocchio wearing a hat" and "a hat on Pinocchio" both make the hat the figure).
+
+Cues are matched as whole words (``in`` never matches inside "pinocchio" or "dining"), the most
+specific cue wins (``CUES`` is in priority order: "holding a carrot in his hand" is holding, not in),
+and ties go to the earliest cue.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Relation:
+    """Contact of the figure's and of the ground's surface, and whether solids interpenetrate.
+
+    ``penetration``: "yes" (cut, pierce, embed ... unless the ground is a container: a key stuck in a
+    lock goes into the keyhole), "if_pointed" ("in"/"through": an arrow in a target yes, a spoon in a
+    cup no) or "no".
+    """
+
+    name: str
+    figure_contact: float
+    ground_contact: float
+    penetration: str = "no"
+
+
+RELATIONS: dict[str, Relation] = {r.name: r for r in (
+    Relation("penetrate", 0.25, 0.1, "yes"),   # the buried part of a blade, arrow or nail
+    Relation("wear", 0.35, 0.1),               # a hat's inner band; garments that wrap get more (rules)
+    Relation("hold", 0.1, 0.05),               # a hand closes around a handle
+    Relation("sit", 0.2, 0.2),                 # a rider or sitter: seat, legs, hands
+    Relation("lie", 0.35, 0.05),               # lying or draped: one side
+    Relation("stand", 0.05, 0.02),             # feet or a foot only
+    Relation("wrap", 0.6, 0.2),                # coiled or tied around
+    Relation("lean", 0.05, 0.02),              # an end or an edge
+    Relation("hang", 0.05, 0.02),              # a loop on a hook
+    Relation("attach", 0.3, 0.05),             # glued, taped, mounted: a face or a foot
+    Relation("under", 0.0, 0.05),              # "a ball under the table" does not touch it
+    Relation("beside", 0.0, 0.0),              # next to, behind, in front of: no contact
+    Relation("in", 0.25, 0.15, "if_pointed"),  # contained: the bottom and some of the walls
+    Relation("on", 0.15, 0.05),                # resting on: its base
+)}
+
+
+@dataclass(frozen=True)
+class Cue:
+    pattern: str
+    relation: str
+    figure_after: bool = False  # the figure is named after the cue ("wearing a hat", "holding a cup")
+
+
+_HEAD = r"(?:the |his |her |its |their |a |an )?(?:[a-z]+\s+){0,2}heads?"
+_BODY = r"(?:hands?|paws?|mouths?|arms?|grip|beak|claws?|fingers?|teeth)"
+_POSS = r"(?:his|her|its|their|the|a|one)"
+
+CUES: list[Cue] = [
+    # penetration: the penetrating object is the figure
+    Cue(r"(?:pierced|cut|stabbed|skewered|impaled|speared) (?:by|with)", "penetrate", True),
+    Cue(r"pierc(?:e|es|ed|ing)|stab(?:s|bed|bing)?|impal(?:e|es|ed|ing)|skewer(?:ed|ing)|spear(?:ed|ing)"
+        r"|cut(?:s|ting)?(?: through| into)?(?!\s+boards?)|slicing(?: through| into)?|embedded|lodged|penetrat[a-z]*"
+        r"|stuck (?:in|into|through)|stick(?:s|ing)? (?:in|into|out of|through)|buried (?:in|into)"
+        r"|(?:driven|hammered|nailed|pinned|planted|pushed|poked|thrust|sunk|jammed|screwed|shot) (?:in|into)",
+        "penetrate"),
+    # garments and headwear
+    Cue(r"on (?:top of )?" + _HEAD + r"|around " + _POSS + r" (?:neck|waist|wrist|finger|arm)s?|worn by",
+        "wear"),
+    Cue(r"wear(?:s|ing)?|dressed in|put(?:s|ting)? on|has on|donning", "wear", True),
+    # held
+    Cue(r"in " + _POSS + r" " + _BODY + r"|held (?:by|in)", "hold"),
+    Cue(r"hold(?:s|ing)?|carr(?:y|ies|ying)|grasp(?:s|ing)?|grip(?:s|ping)?|clutch(?:es|ing)?|wield(?:s|ing)?"
+        r"|brandish(?:es|ing)?|play(?:s|ing)|hug(?:s|ging)?|eat(?:s|ing)|bit(?:e|es|ing)", "hold", True),
+    # supported postures
+    Cue(r"rid(?:e|es|ing)|astride|straddl[a-z]+|driv(?:e|es|ing)|(?:sit|sits|sitting|seated|sat)"
+        r" (?:on|in|at|astride|inside)", "sit"),
+    Cue(r"(?:lying|lies|laid|lay|sleeping|sleeps|napping|curled up|draped|spread) (?:on|over|across|upon)",
+        "lie"),
+    Cue(r"(?:standing|stands|stood|perched|perching|balanced|balancing|landed|hopping) (?:on|upon|atop)",
+        "stand"),
+    Cue(r"(?:wrapped|coiled|wound|tied|looped|wrapping|coiling) (?:around|round)|around", "wrap"),
+    Cue(r"lean(?:s|ing|ed)? (?:against|on)|propped (?:against|up|on)|rest(?:s|ing)? against", "lean"),
+    Cue(r"hang(?:s|ing)?|hung|dangl(?:e|es|ing)|suspended", "hang"),
+    Cue(r"attached|glued|taped|stuck (?:on|to)|fixed (?:on|to)|fastened|mounted|stapled|clipped", "attach"),
+    Cue(r"under(?:neath)?|beneath|below", "under"),
+    Cue(r"swim(?:s|ming)?|float(?:s|ing)?|hover(?:s|ing)?|fl(?:y|ies|ying) (?:over|above|around|past|near)"
+        r"|above|over", "beside"),  # free in the air or water: no contact
+    Cue(r"beside|next to|near|nearby|alongside|in front of|behind|left of|right of|opposite|facing|close to"
+        r"|by the side of|side by side", "beside"),
+    Cue(r"through", "in"),  # penetrates only when a pointed thing goes through a solid
+    Cue(r"filled with|full of|contain(?:s|ing)?|holding inside", "in", True),
+    Cue(r"inside|into|within|in", "in"),
+    Cue(r"on top of|on top|atop|onto|upon|on", "on"),
+]
+_COMPILED = [(re.compile(r"(?<![a-z])(?:" + c.pattern + r")(?![a-z])"), c) for c in CUES]
+
+
+@dataclass(frozen=True)
+class CueMatch:
+    cue: Cue
+    start: int  # character offsets in the prompt
+    end: int
+    text: str
+
+    @property
+    def relation(self) -> Relation:
+        return RELATIONS[self.cue.relation]
+
+
+def clean(prompt: str) -> str:
+    """Lower-case prompt with possessives blanked in place, so offsets stay those of the prompt."""
+    return re.sub(r"['\u2019]s(?![a-z])", "  ", prompt.lower())
+
+
+def find_cue(prompt: str) -> CueMatch | None:
+    """The relation cue of a prompt: the first-priority cue found, the earliest if it occurs twice."""
+    text = clean(prompt)
+    for regex, cue in _COMPILED:
+        m = regex.search(text)
+        if m:
+            return CueMatch(cue, m.start(), m.end(), m.group(0))
+    return None
+
+
+def source_is_figure(cue: CueMatch, source_at: list[int], target_at: list[int]) -> bool | None:
+    """Whether the source plays the figure, from where each object is mentioned around the cue.
+
+    The figure is the mention nearest the cue on its figure side ("a cup on the table": before;
+    "wearing a hat": after; "a tree with a star on top": the star, nearer). None when the prompt does
+    not tell (a name not mentioned, or one word naming both, like "blender" in "blender jar ... base").
+    """
+    if cue.cue.figure_after:
+        side = sorted([(p, "s") for p in source_at if p >= cue.end] + [(p, "t") for p in target_at if p >= cue.end])
+        nearest = side[:1]
+    else:
+        side = sorted([(p, "s") for p in source_at if p < cue.start] + [(p, "t") for p in target_at if p < cue.start])
+        nearest = side[-1:]
+    if not nearest:
+        return None
+    pos = nearest[0][0]
+    if pos in source_at and pos in target_at:
+        return None
+    return nearest[0][1] == "s"

@@ -1,0 +1,156 @@
+"""The deterministic scene-prior provider: the lexicon for sizes, the prompt's cue for the relation.
+
+No network, no model, the same answer every time; the default provider and the fallback of the
+language-model one. Every value says where it came from in ``reason``, and anything guessed for lack
+of knowledge says "fallback".
+"""
+
+from __future__ import annotations
+
+import re
+
+from ctp_core.priors import lexicon, relations
+from ctp_core.priors.prior import ScenePrior, clamp_contact, clamp_size
+
+PERSON_M = 1.75  # an unknown name that holds, wears or rides is taken to be someone this tall
+
+# Relations where a ball touches at a point, a sheet lies on a face, a soft thing settles.
+_SUPPORT = {"on", "stand", "sit", "lie", "lean", "hang", "attach"}
+# Relations whose ground must be an agent (the wearer, the holder, the rider).
+_AGENT_GROUND = {"wear", "hold"}
+
+
+class RulesProvider:
+    """Lexicon sizes + prompt relation cues; see ``lexicon`` and ``relations`` for the tables."""
+
+    name = "rules"
+
+    def estimate(self, target_name: str, source_name: str, prompt: str) -> ScenePrior:
+        target, source = lexicon.lookup(target_name), lexicon.lookup(source_name)
+        cue = relations.find_cue(prompt)
+        figure = None
+        if cue is not None:
+            figure = relations.source_is_figure(
+                cue, _mentions(prompt, source_name, source), _mentions(prompt, target_name, target))
+        notes: list[str] = []
+        if figure is None:
+            figure = True  # the source is what gets placed: by default it is the figure
+        elif not figure:
+            notes.append("the source is the ground of the relation")
+        relation, why = _relation(cue, target, source, source if figure else target)
+        notes.insert(0, why)
+        if relation.name == "under" and not figure:  # "a table under a cup": the cup is on the table
+            relation, figure = relations.RELATIONS["on"], True
+            notes.append("read as the target resting on the source")
+        size, size_why = _size_ratio(target_name, source_name, target, source, relation.name, figure)
+        notes.insert(0, size_why)
+        penetration, pen_why = _penetration(relation, figure, target, source)
+        notes.append(pen_why)
+        contact = _contact(relation, figure, source)
+        return ScenePrior(size_ratio=clamp_size(size), penetration=penetration, contact_ratio=clamp_contact(contact),
+                          source=self.name, reason="; ".join(n for n in notes if n))
+
+
+def _mentions(prompt: str, name: str, match: lexicon.Match | None) -> list[int]:
+    """Character offsets in the prompt where the named object is mentioned.
+
+    The name's head (its lexicon phrase, a synonym of it, or its part word) is preferred; any other
+    word of the name ("blender" in "blender_tank") counts only when the head is not mentioned.
+    """
+    text = relations.clean(prompt)
+    offsets, tokens = [], []
+    for m in re.finditer(r"[a-z]+", text):
+        offsets.append(m.start())
+        tokens.append(m.group(0))
+    name_words = [w for w in lexicon.words(name) if w not in lexicon.SIZE_WORDS]
+    if not name_words:
+        return []
+    head_forms = set(lexicon.singulars(match.phrase.split()[-1] if match else name_words[-1]))
+    heads = [offsets[i] for i, t in enumerate(tokens) if head_forms & set(lexicon.singulars(t))]
+    if match is not None and match.phrase in lexicon.LEXICON:  # a synonym: "broomstick" for "broom"
+        heads += [offsets[s] for s, _, _, entry in lexicon.spans(tokens) if entry is match.entry]
+    if heads:
+        return sorted(set(heads))
+    forms = {f for w in name_words for f in lexicon.singulars(w)}
+    return [offsets[i] for i, t in enumerate(tokens) if forms & set(lexicon.singulars(t))]
+
+
+def _relation(cue, target, source, figure) -> tuple[relations.Relation, str]:
+    """The cue's relation ("a ball riding down a slide" rests on it: only agents ride or sit)."""
+    if cue is not None:
+        rel = relations.RELATIONS[cue.cue.relation]
+        if rel.name == "sit" and figure is not None and not figure.has("agent"):
+            return relations.RELATIONS["on"], f"'{cue.text}' said of an object: resting on"
+        return rel, f"'{cue.text}' -> {rel.name}"
+    if source is not None and lexicon.bare_part(source.phrase) is not None:
+        return relations.RELATIONS["on"], "no relation cue; a detachable part: assumed seated on its owner"
+    if target is not None and target.has("container") and (source is None or source.size_m <= target.size_m):
+        return relations.RELATIONS["in"], "no relation cue; the target holds things: assumed inside"
+    return relations.RELATIONS["on"], "no relation cue: assumed resting on"
+
+
+def _size_ratio(target_name, source_name, target, source, relation: str, figure: bool) -> tuple[float, str]:
+    """Lexicon sizes; an unknown wearer/holder/rider is a person; anything else unknown gives 1.0.
+
+    A name that is only a detachable part ("lid", "cap") belongs to the other object: a teapot's lid
+    is sized from the teapot, a pen's cap from the pen.
+    """
+    for part_name, other_name, other, part_is_source in ((source_name, target_name, target, True),
+                                                         (target_name, source_name, source, False)):
+        part = lexicon.bare_part(part_name)
+        if part is not None and other is not None and not other.has("agent"):  # a man has no lid
+            fraction = lexicon.PARTS[part]
+            ratio = fraction if part_is_source else 1.0 / fraction
+            return ratio, (f"size ratio {clamp_size(ratio):.3g} ({part_name}: the {part} of the {other_name}, "
+                           f"{fraction:g} of its size)")
+    sizes, whys = [], []
+    for name, match, is_ground in ((target_name, target, figure), (source_name, source, not figure)):
+        if match is not None:
+            sizes.append(match.size_m)
+            whys.append(f"{name}: {match.how}")
+        elif is_ground and relation in _AGENT_GROUND or not is_ground and relation == "sit":
+            sizes.append(PERSON_M)
+            whys.append(f"{name}: unknown, taken as a person ({PERSON_M:g} m) because it {relation}s")
+        else:
+            sizes.append(None)
+            whys.append(f"{name}: not in the lexicon")
+    if None in sizes:
+        return 1.0, "size ratio 1.0 (fallback: " + ", ".join(whys) + ")"
+    ratio = sizes[1] / sizes[0]
+    clamped = clamp_size(ratio)
+    note = "" if clamped == ratio else f", clamped from {ratio:.3g}"
+    return ratio, f"size ratio {clamped:.3g} ({whys[1]} / {whys[0]}{note})"
+
+
+def _penetration(relation, figure: bool, target, source) -> tuple[bool, str]:
+    ground, fig = (target, source) if figure else (source, target)
+    if relation.penetration == "yes":
+        if ground is not None and ground.has("container"):
+            return False, "goes into an opening of the ground: no penetration"
+        return True, "the relation cuts or pierces: penetration"
+    if (relation.penetration == "if_pointed" and fig is not None and fig.has("pointed") and ground is not None
+            and not ground.has("container") and not ground.has("agent")):
+        return True, f"a pointed {fig.phrase} into a solid {ground.phrase}: penetration"
+    return False, ""
+
+
+def _contact(relation, figure: bool, source) -> float:
+    """The relation's contact for the source's role, adjusted for the source's shape when it is the figure."""
+    if not figure:
+        return relation.ground_contact
+    contact = relation.figure_contact
+    if source is None:
+        return contact
+    if source.has("round") and relation.name in _SUPPORT | {"in"}:
+        contact = min(contact, 0.05 if relation.name in _SUPPORT else 0.1)
+    if source.has("flat") and relation.name in {"on", "lie", "attach"}:
+        contact = max(contact, 0.45)
+    if source.has("flat") and not source.has("soft") and relation.name == "hang":
+        contact = max(contact, 0.3)  # a frame or a sign hangs flat against its wall
+    if source.has("pointed") and relation.name == "in" and not source.has("round"):
+        contact = min(contact, 0.1)  # a spoon, a straw, a pencil leans on the rim and the bottom
+    if source.has("soft") and relation.name in {"on", "sit"}:
+        contact = max(contact, 0.3)
+    if source.has("wrap") and relation.name in {"wear", "on", "attach", "in"}:
+        contact = max(contact, 0.6)
+    return contact
