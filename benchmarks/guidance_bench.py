@@ -1,9 +1,10 @@
 """Cost and precision of the guidance model on this machine; prints one JSON line.
 
 Measures what decides the CPU autocast default (see ctp_core/guidance.py): forward+backward of a
-step's views in fp32 and bf16, forward-only scoring per image, the largest image-text cosine change
-bf16 causes (bound: 1e-2), and how well bf16 keeps the gradient direction w.r.t. the pixels. Also the
-fixed costs a worker pays once: ``import transformers`` and building the model.
+step's views in fp32 and bf16, forward-only scoring per image (medians over ``--repeats`` rounds),
+the largest image-text cosine change bf16 causes (bound: 1e-2), and how well bf16 keeps the gradient
+direction w.r.t. the pixels. Also the fixed costs a worker pays once: ``import transformers`` and
+building the model.
 
     OMP_WAIT_POLICY=PASSIVE nice -n 10 python benchmarks/guidance_bench.py --spec random:ViT-B-32
 """
@@ -37,15 +38,10 @@ def scenes(n: int, size: int, seed: int) -> torch.Tensor:
     return out
 
 
-def timed(fn, repeats: int) -> float:
-    """Median seconds of ``repeats`` calls after one warm-up call."""
+def seconds(fn) -> float:
+    start = time.perf_counter()
     fn()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
+    return time.perf_counter() - start
 
 
 def main() -> None:
@@ -80,14 +76,24 @@ def main() -> None:
     compare = scenes(args.compare_images, args.size, seed=3)
     result = {"spec": args.spec, "threads": torch.get_num_threads(), "views": args.views, "size": args.size,
               "import_transformers_s": round(import_s, 3), "build_s": round(build_s, 3)}
+    precisions = {"fp32": False, "bf16": True}
+    times = {key: [] for name in precisions for key in (f"fwd_bwd_s_{name}", f"fwd_ms_per_image_{name}")}
     cos, grad = {}, {}
-    for name, autocast in (("fp32", False), ("bf16", True)):
+    # Interleave the precisions, one warm-up round first: on a shared machine load drifts, and
+    # alternating keeps it from favouring whichever precision ran in the quieter minute.
+    for round_ in range(args.repeats + 1):
+        for name, autocast in precisions.items():
+            guide.autocast = autocast
+            step_s = seconds(step)
+            score_s = seconds(lambda: guide.score(score_batch, text[0]))
+            if round_:
+                times[f"fwd_bwd_s_{name}"].append(step_s)
+                times[f"fwd_ms_per_image_{name}"].append(1000 * score_s / args.score_images)
+    for name, autocast in precisions.items():
         guide.autocast = autocast
-        result[f"fwd_bwd_s_{name}"] = round(timed(step, args.repeats), 3)
-        per_image = timed(lambda: guide.score(score_batch, text[0]), args.repeats) / args.score_images
-        result[f"fwd_ms_per_image_{name}"] = round(1000 * per_image, 2)
         cos[name] = guide.score(compare, text)
         grad[name] = step().flatten()
+    result.update({key: round(statistics.median(values), 3) for key, values in times.items()})
     result["max_abs_cos_diff"] = float((cos["bf16"] - cos["fp32"]).abs().max())
     result["cos_pairs"] = cos["fp32"].numel()
     result["cos_range_fp32"] = [round(float(cos["fp32"].min()), 4), round(float(cos["fp32"].max()), 4)]

@@ -25,10 +25,15 @@ weights raise ``ModelError`` at once, naming them and how to provide them; nothi
 
 Precision: images go through the model under bf16 autocast on CPU and fp16 autocast on CUDA when
 ``autocast`` is on; text and reference images are always encoded in fp32 (once per run, so precision
-costs nothing there). Measured with ``benchmarks/guidance_bench.py`` on random:ViT-B-32, 2-core AVX512-BF16
-CPU: fwd+bwd of 8 images at 224 px 2.33 s fp32 vs 1.19 s bf16, forward-only 61 vs 19 ms per image,
-max |cos_bf16 - cos_fp32| = 2.0e-3 over 64 image-text pairs (bound 1e-2) and gradient cosine 0.9996
-w.r.t. the pixels. bf16 therefore stays on by default on CPU.
+costs nothing there). Decision measured with ``benchmarks/guidance_bench.py --spec random:ViT-B-32``
+on the shared 2-core AVX512-BF16 CPU (two runs, load 1 and 3-7, so ratios within a run are what
+counts): max |cos_bf16 - cos_fp32| = 5.3e-4 over 512 image-text pairs (bound 1e-2), gradient w.r.t.
+the pixels has cosine 0.99997 with fp32's; forward+backward of 8 views at 224 px 1.15 -> 0.83 s
+(1.4x; 1.6x in the loaded run), forward-only 94 -> 54 ms per image (1.75x; 2.4x loaded). So bf16 is
+on by default on CPU. The model's weights are frozen (``requires_grad_(False)``) so the backward
+pass computes pixel gradients only: fp32 forward+backward 1.6x faster than with trainable weights
+(interleaved in one run), likely why 1.15 s here beats the 2.0 s measured earlier. ``random:tiny``
+is too small to gain from bf16 (autocast overhead makes it ~1.5x slower); it exists for CI.
 """
 
 from __future__ import annotations
