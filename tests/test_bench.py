@@ -119,3 +119,62 @@ def test_shrinkwrap_lands_on_the_surface_without_penetrating():
         assert metrics.intersection_over_union(target, placed).iou < 1e-3
         assert metrics.contact_distance(target, placed) < 0.01
         assert pose[1, 3] == pytest.approx(0.7, abs=0.02)  # resting on the top face (y = 0.5)
+
+
+def _bench(*args: str) -> int:
+    from ctp.cli import main
+
+    return main(["bench", *args, "--model", "random:tiny", "--preset", "test", "--quiet"])
+
+
+def _finite(value) -> bool:
+    return bool(np.all(np.isfinite(np.asarray(value, dtype=float))))
+
+
+def test_ctp_bench_end_to_end(bench_dir, tmp_path):
+    out = tmp_path / "out"
+    code = _bench(str(bench_dir), "--method", "ctp,geometry", "--method", "b1,b2", "--guide", "oracle",
+                  "--metrics-model", "random:tiny", "--out", str(out))
+    assert code == 0
+    rows = [json.loads(line) for line in (out / "results.jsonl").read_text().splitlines()]
+    assert sorted((r["case"], r["method"]) for r in rows) == sorted(
+        (c, m) for c in ("gen-cap-on-block", "gen-cone-by-ball") for m in ("ctp", "geometry", "b1", "b2"))
+    for case in cases.discover(bench_dir):
+        source = case.load()[1]
+        start = protocol.initial_poses(case.reference, source.bounds, protocol="rigid", count=1, seed=0,
+                                       case_id=case.id)[0]
+        for row in (r for r in rows if r["case"] == case.id):  # every method starts from the protocol pose
+            assert np.allclose(row["initial_pose"], start)
+    for row in rows:
+        assert row["status"] == "ok", row.get("error")
+        metrics = row["metrics"]
+        for key in ("iou", "contact", "adds", "translation_error", "rotation_error_deg", "scale_error"):
+            assert _finite(metrics[key]), (row["method"], key)
+        assert 0.0 <= metrics["iou"] <= 1.0 and metrics["iou_method"] == "exact"
+        assert metrics["scale_error"] == pytest.approx(0.0, abs=1e-5)  # rigid protocol keeps the scale
+        assert _finite(metrics["semantic"]["random:tiny"])
+        assert np.asarray(row["source_to_target"]).shape == (4, 4) and _finite(row["source_to_target"])
+        assert row["time_s"] > 0
+        guided = row["method"] in ("ctp", "b2")
+        assert (row["guide"], row["encoder"]) == (("oracle", "random:tiny") if guided else (None, None))
+        assert (row["clip_images"] > 0) == guided
+    summary = (out / "summary.md").read_text()
+    for label in ("| b1 |", "| b2 oracle/random:tiny |", "| ctp oracle/random:tiny (test) |", "| geometry (test) |"):
+        assert label in summary
+    for name in ("tradeoff.png", "pose_cdf.png", "time_per_case.png"):
+        assert (out / name).stat().st_size > 1000
+
+    lines = (out / "results.jsonl").read_text()
+    assert _bench(str(bench_dir), "--method", "b1", "--out", str(out), "--resume") == 0
+    assert (out / "results.jsonl").read_text() == lines  # b1 rows were done: nothing reran
+
+
+def test_guides_needing_a_reference_skip_cases_without_one(tmp_path):
+    box = trimesh.creation.box()
+    ball = trimesh.creation.icosphere(subdivisions=1, radius=0.3)
+    _write_case(tmp_path / "cases" / "n", "no-reference", box, ball, None, "a ball on a box")
+    out = tmp_path / "out"
+    assert _bench(str(tmp_path / "cases"), "--method", "b1,b2", "--guide", "oracle", "--out", str(out)) == 0
+    rows = {r["method"]: r for r in map(json.loads, (out / "results.jsonl").read_text().splitlines())}
+    assert rows["b1"]["status"] == "ok" and "adds" not in rows["b1"]["metrics"]  # no reference: no pose error
+    assert rows["b2"]["status"] == "skipped" and "reference" in rows["b2"]["error"]

@@ -1,0 +1,105 @@
+"""``ctp bench``: run the evaluation harness over benchmark case folders (``ctp_core.bench``).
+
+Writes ``OUT/results.jsonl`` (one row per case x init x method), ``OUT/summary.md`` and PNG plots.
+Exit codes: 0 done (rows may still record per-case errors); 1 no run succeeded; 2 bad usage or
+input; 3 the guided methods' vision-language model is unavailable; 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+import time
+from pathlib import Path
+
+from ctp_core.errors import ConfigError, CtpError, MeshError, ModelError
+
+EXIT_FAILED, EXIT_INPUT, EXIT_MODEL = 1, 2, 3
+
+
+def _list(value: str) -> list[str]:
+    return [v.strip() for v in value.split(",") if v.strip()]
+
+
+class _Extend(argparse.Action):
+    """Repeatable option that also takes comma lists: ``--method ctp,b1 --method b2``."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        setattr(namespace, self.dest, (getattr(namespace, self.dest) or []) + _list(values))
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from ctp_core.bench.guides import GUIDES
+    from ctp_core.bench.harness import ABLATIONS, METHODS
+    from ctp_core.bench.protocol import PROTOCOLS
+
+    parser.add_argument("cases_dir", type=Path, help="folder searched recursively for <case>/case.json")
+    parser.add_argument("--out", type=Path, required=True, help="output folder")
+    parser.add_argument("--cases", action=_Extend, help="case ids (case.json 'id'), comma list; default all")
+    parser.add_argument("--method", action=_Extend, dest="methods",
+                        help=f"{' | '.join(METHODS)}; repeatable or a comma list (default ctp)")
+    parser.add_argument("--protocol", choices=PROTOCOLS, default="rigid",
+                        help="rigid: perturb pose; scale: also scale U(0.01, 100) and optimise scale")
+    parser.add_argument("--inits", type=int, default=1, help="protocol starts per case (default 1)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--preset", default="default", help="AlignConfig preset for ctp/geometry")
+    parser.add_argument("--model", help="encoder of ctp's guide and b2's selection (default: the preset's)")
+    parser.add_argument("--guide", choices=GUIDES, default="text",
+                        help="text: the prompt; image: a reference render; oracle: the reference per view")
+    parser.add_argument("--metrics-model", action=_Extend, dest="metrics_models", default=[],
+                        help="encoder(s) for the semantic metric, repeatable or comma list")
+    parser.add_argument("--ablation", choices=sorted(ABLATIONS), help="change ctp/geometry's configuration")
+    parser.add_argument("--jobs", type=int, default=1, help="cases run in parallel processes")
+    parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
+    parser.add_argument("--threads", type=int, help="torch CPU threads per run")
+    parser.add_argument("--resume", action="store_true", help="keep finished rows of OUT/results.jsonl")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+class CaseBar:
+    """Progress over cases on stderr: a redrawn line on a terminal, one line per case otherwise."""
+
+    def __init__(self, stream=sys.stderr, enabled: bool = True):
+        self.stream, self.enabled, self.tty = stream, enabled, stream.isatty()
+        self.started = time.perf_counter()
+
+    def __call__(self, done: int, total: int, case_id: str) -> None:
+        if not self.enabled:
+            return
+        elapsed = time.perf_counter() - self.started
+        eta = f"{elapsed / done * (total - done):6.0f}s" if done else "     ?"
+        filled = int(30 * done / max(1, total))
+        line = f"[{'#' * filled}{'.' * (30 - filled)}] {done}/{total} cases eta {eta} {case_id}"
+        self.stream.write(("\r" + line + ("\n" if done == total else "")) if self.tty else line + "\n")
+        self.stream.flush()
+
+
+def run(args: argparse.Namespace) -> int:
+    from ctp_core.bench import cases, harness, summary
+
+    try:
+        options = harness.BenchOptions(
+            methods=args.methods or ["ctp"], protocol=args.protocol, inits=args.inits, seed=args.seed,
+            preset=args.preset, model=args.model, guide=args.guide, metrics_models=args.metrics_models,
+            ablation=args.ablation, device=args.device, threads=args.threads)
+        options.config("ctp")  # a bad preset or model spec fails here, before any case runs
+        found = cases.discover(args.cases_dir, args.cases)
+        rows = harness.run_bench(found, options, args.out, jobs=args.jobs, resume=args.resume,
+                                 on_case=CaseBar(enabled=not args.quiet))
+    except (MeshError, ConfigError) as exc:
+        return _fail(exc, EXIT_INPUT)
+    except ModelError as exc:
+        return _fail(exc, EXIT_MODEL)
+    except CtpError as exc:
+        return _fail(exc, EXIT_FAILED)
+    command = "ctp " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["bench"] else None
+    path = summary.write_summary(rows, args.out, command=command)
+    failed = sum(r.get("status") != "ok" for r in rows)
+    print(f"{len(rows)} runs over {len(found)} cases ({failed} not ok): {path}")
+    return EXIT_FAILED if rows and failed == len(rows) else 0
+
+
+def _fail(exc: CtpError, code: int) -> int:
+    print(f"error: {exc.code}: {exc.message}", file=sys.stderr)
+    return code

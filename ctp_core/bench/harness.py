@@ -1,0 +1,321 @@
+"""The benchmark run loop: cases x protocol inits x methods -> one ``results.jsonl`` row each.
+
+Every method starts init i of a case from the same protocol pose (``protocol.initial_poses``), and
+every row says which guide and encoder produced it, because numbers from a random encoder or the
+oracle guide mean something different from numbers with real CLIP weights and a text prompt.
+
+Methods:
+- ``ctp``: ``align`` with the chosen guide (text, image or oracle), restart 0 at the protocol pose.
+- ``geometry``: ``align`` with lambda_clip = 0 (no guide at all).
+- ``b1`` / ``b2``: the shrinkwrap baselines (``baselines``); b2 selects with ctp's guide and encoder.
+
+Ablations change ctp's (and geometry's) configuration through the optimiser's own switches.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+import traceback
+from collections.abc import Callable, Iterable
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from ctp_core import metrics, sampling
+from ctp_core.bench import baselines, protocol
+from ctp_core.bench.cases import Case
+from ctp_core.bench.guides import GUIDES, GuideInputs, SelectionScore, guide_inputs
+from ctp_core.config import AlignConfig
+from ctp_core.errors import ConfigError
+
+METHODS: tuple[str, ...] = ("ctp", "geometry", "b1", "b2")
+GUIDED = ("ctp", "b2")  # methods that see the guide
+OPTIMISED = ("ctp", "geometry")  # methods that run align() and take a preset and ablations
+B2_STARTS = 5  # the paper's N for the multi-start baseline
+EVAL_VIEWS = 8  # fixed evaluation views of the semantic metric (paper)
+POSE_SAMPLES = 2000  # source surface samples for ADD-S
+
+# name -> (preset replacing --preset or None, config overrides). Each reuses an optimiser switch.
+ABLATIONS: dict[str, tuple[str | None, dict]] = {
+    "no-guidance": (None, {"loss": {"lambda_clip": 0.0}}),
+    "no-icp": (None, {"loss": {"lambda_icp": (0.0, 0.0)}}),
+    "no-pen": (None, {"loss": {"lambda_pen": (0.0, 0.0)}}),
+    "no-phases": (None, {"optim": {"phases": 1}}),
+    "no-camera-schedule": (None, {"camera": {"schedule": False}}),
+    "selection-only": (None, {"loss": {"selection_only": True}}),
+    "paper": ("paper", {}),
+}
+RESULTS = "results.jsonl"
+
+
+@dataclass
+class BenchOptions:
+    methods: list[str] = field(default_factory=lambda: ["ctp"])
+    protocol: protocol.Protocol = "rigid"
+    inits: int = 1
+    seed: int = 0
+    preset: str = "default"
+    model: str | None = None  # ctp's (and b2's) encoder; None: the preset's
+    guide: str = "text"
+    metrics_models: list[str] = field(default_factory=list)
+    ablation: str | None = None
+    device: str = "cpu"
+    threads: int | None = None
+
+    def __post_init__(self) -> None:
+        unknown = [m for m in self.methods if m not in METHODS]
+        if unknown or not self.methods:
+            raise ConfigError(f"methods must be among {', '.join(METHODS)}, got {self.methods}", field="method")
+        if self.guide not in GUIDES:
+            raise ConfigError(f"guide must be one of {', '.join(GUIDES)}, got {self.guide!r}", field="guide")
+        if self.ablation is not None and self.ablation not in ABLATIONS:
+            raise ConfigError(f"ablation must be one of {', '.join(ABLATIONS)}, got {self.ablation!r}",
+                              field="ablation")
+        if self.protocol not in protocol.PROTOCOLS:
+            raise ConfigError(f"protocol must be one of {', '.join(protocol.PROTOCOLS)}", field="protocol")
+        if self.inits < 1:
+            raise ConfigError("inits must be at least 1", field="inits")
+
+    def config(self, method: str) -> AlignConfig:
+        """The AlignConfig of an optimised method: preset, ablation, then the bench's own settings."""
+        preset, overrides = ABLATIONS[self.ablation] if self.ablation else (None, {})
+        top = {"seed": self.seed, "device": self.device, "threads": self.threads,
+               "scale": self.protocol == "scale"}
+        if self.model:
+            top["model"] = self.model
+        config = AlignConfig.from_preset(preset or self.preset, **{k: v for k, v in top.items() if v is not None},
+                                         **overrides)
+        if method == "geometry":
+            config = config.model_copy(update={"loss": config.loss.model_copy(update={"lambda_clip": 0.0})})
+        return config
+
+    @property
+    def encoder(self) -> str:
+        return self.config("ctp").model
+
+
+def identity(case: Case, init: int, method: str, options: BenchOptions) -> dict:
+    """The fields that name a row: a rerun with ``--resume`` skips rows whose identity is done."""
+    optimised = method in OPTIMISED
+    guided = method in GUIDED and not (method == "ctp" and options.config("ctp").loss.lambda_clip == 0)
+    return {
+        "case": case.id, "init": init, "method": method, "protocol": options.protocol, "seed": options.seed,
+        "ablation": options.ablation if optimised else None,
+        "preset": options.config(method).preset if optimised else None,
+        "guide": options.guide if guided else None,
+        "encoder": options.encoder if guided else None,
+    }
+
+
+def row_key(row: dict) -> tuple:
+    return tuple(row.get(k) for k in ("case", "init", "method", "protocol", "seed", "ablation", "preset", "guide",
+                                      "encoder"))
+
+
+@dataclass
+class _CaseData:
+    case: Case
+    target: trimesh.Trimesh
+    source: trimesh.Trimesh
+    points: np.ndarray  # source surface samples, source file frame (ADD-S)
+    inits: list[np.ndarray]
+    semantic: list[tuple[str, object, object]]  # (spec, guide, text embedding) per metrics encoder
+    notes: dict[str, str]
+    guide: GuideInputs | None = None
+    guide_error: str | None = None
+
+
+def _metric_encoders(specs: Iterable[str], prompt: str, device: str) -> tuple[list, dict[str, str]]:
+    from ctp_core import guidance
+    from ctp_core.errors import ModelError
+
+    loaded, notes = [], {}
+    for spec in specs:
+        try:
+            guide = guidance.get_guide(spec, device=device)
+        except ModelError as exc:
+            notes[spec] = f"semantic score skipped: {exc.message}"
+            continue
+        loaded.append((spec, guide, guide.encode_text([prompt])[0]))
+    return loaded, notes
+
+
+def evaluate(data: _CaseData, pose: np.ndarray) -> dict:
+    """Every metric of one final pose (source file -> target file)."""
+    from ctp_core import scene
+
+    placed = data.source.copy()
+    placed.apply_transform(pose)
+    out = metrics.intersection_over_union(data.target, placed).to_dict()
+    out["contact"] = metrics.contact_distance(data.target, placed)
+    if data.case.reference is not None:
+        out.update(metrics.pose_errors(data.points, pose, data.case.reference))
+    semantic = {}
+    if data.semantic:
+        images = scene.render_arrangement(data.target, data.source, pose, views=EVAL_VIEWS, image_size=224)
+        semantic = {spec: metrics.semantic_score(images, text, guide) for spec, guide, text in data.semantic}
+    out["semantic"] = semantic
+    return out
+
+
+def _run_method(method: str, init: np.ndarray, index: int, data: _CaseData, options: BenchOptions) -> dict:
+    """(pose, info) of one method from one start; info holds timings and the CLIP image count."""
+    from ctp_core import guidance
+
+    case = data.case
+    started = time.perf_counter()
+    if method in OPTIMISED:
+        from ctp_core.align import align
+
+        config = options.config(method)
+        inputs = data.guide if method == "ctp" and config.loss.lambda_clip > 0 else None
+        result = align(data.target, data.source, case.prompt, config, init=init,
+                       image=inputs.image if inputs else None, guidance=inputs.guidance if inputs else None,
+                       target_name=case.target_name, source_name=case.source_name)
+        return {"source_to_target": result.source_to_target, "timings": result.timings,
+                "clip_images": int(result.extra.get("clip_images", 0)),
+                "time_s": time.perf_counter() - started,
+                "extra": {"best_restart": result.extra.get("best_restart"), "guidance": result.extra.get("guidance"),
+                          "hparams": result.hparams}}
+    if method == "b1":
+        pose = baselines.shrinkwrap(data.target, data.source, [init], seed=options.seed)[0]
+        return {"source_to_target": pose, "clip_images": 0, "time_s": time.perf_counter() - started}
+    rng = protocol.case_rng(options.seed, case.id, f"b2-{index}")
+    scale = float(np.cbrt(abs(np.linalg.det(init[:3, :3]))))
+    starts = [init, *protocol.random_starts(data.target.bounds, data.source.bounds, scale, B2_STARTS - 1, rng)]
+    poses = baselines.shrinkwrap(data.target, data.source, starts, seed=options.seed)
+    guide = guidance.get_guide(options.encoder, device=options.device)
+    scorer = SelectionScore(data.guide, data.target, data.source, guide, case.reference, views=EVAL_VIEWS)
+    best, scores = baselines.best_of(poses, scorer)
+    return {"source_to_target": poses[best], "clip_images": len(poses) * EVAL_VIEWS,
+            "time_s": time.perf_counter() - started, "extra": {"best_start": best, "scores": scores}}
+
+
+def _load(case: Case, options: BenchOptions, need_guide: bool) -> _CaseData:
+    target, source = case.load()
+    inits = protocol.initial_poses(case.reference, source.bounds, protocol=options.protocol, count=options.inits,
+                                   seed=options.seed, case_id=case.id)
+    semantic, notes = _metric_encoders(options.metrics_models, case.prompt, options.device)
+    data = _CaseData(case, target, source, sampling.surface_samples(source, POSE_SAMPLES, options.seed)[0],
+                     inits, semantic, notes)
+    if need_guide:
+        try:
+            data.guide = guide_inputs(options.guide, case, target, source,
+                                      protocol.case_rng(options.seed, case.id, "guide"))
+        except ConfigError as exc:
+            data.guide_error = exc.message
+    return data
+
+
+def run_case(case: Case, options: BenchOptions, skip: frozenset = frozenset()) -> list[dict]:
+    """All rows of one case (inits x methods), minus those whose key is in ``skip``."""
+    planned = [(i, m) for i in range(options.inits) for m in options.methods
+               if row_key(identity(case, i, m, options)) not in skip]
+    if not planned:
+        return []
+    data = _load(case, options, need_guide=any(m in GUIDED for _, m in planned))
+    rows = []
+    for i, method in planned:
+        row = identity(case, i, method, options)
+        row.update(origin=case.origin, relation=case.relation, has_reference=case.reference is not None,
+                   initial_pose=data.inits[i].tolist(), guide_description=None, metric_notes=data.notes)
+        if row["guide"] is not None:
+            if data.guide is None:
+                rows.append({**row, "status": "skipped", "error": data.guide_error})
+                continue
+            row["guide_description"] = data.guide.description
+        try:
+            info = _run_method(method, data.inits[i], i, data, options)
+            row.update(status="ok", **info, metrics=evaluate(data, info["source_to_target"]))
+        except Exception as exc:  # one failing case must not end a long benchmark; the row records it
+            traceback.print_exc(file=sys.stderr)
+            row.update(status="error", error=f"{type(exc).__name__}: {exc}")
+        rows.append(row)
+    return rows
+
+
+def read_results(path: Path) -> list[dict]:
+    """Rows of a results.jsonl, the last one per key (a resumed run may have retried a row)."""
+    if not Path(path).exists():
+        return []
+    rows = {}
+    for line in Path(path).read_text().splitlines():
+        if line.strip():
+            row = json.loads(line)
+            rows[row_key(row)] = row
+    return list(rows.values())
+
+
+def _worker_init(threads: int) -> None:
+    import torch
+
+    torch.set_num_threads(threads)
+
+
+def _check_models(options: BenchOptions) -> None:
+    """Fail before the first case if the guided methods' encoder cannot load (every row would error)."""
+    from ctp_core import guidance
+
+    guided = [m for m in options.methods if m in GUIDED]
+    if guided and not (guided == ["ctp"] and options.config("ctp").loss.lambda_clip == 0):
+        guidance.get_guide(options.encoder, device=options.device)
+
+
+def run_bench(cases: list[Case], options: BenchOptions, out: Path, *, jobs: int = 1, resume: bool = False,
+              on_case: Callable[[int, int, str], None] | None = None) -> list[dict]:
+    """Run every case, appending rows to ``out/results.jsonl`` as each case finishes; returns all rows.
+
+    ``resume`` keeps the finished (status ok) rows already in the file and runs only the rest.
+    ``jobs`` > 1 runs cases in that many processes, splitting the CPU threads between them.
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / RESULTS
+    if not resume:
+        path.unlink(missing_ok=True)
+    skip = frozenset(row_key(r) for r in read_results(path) if r.get("status") == "ok")
+    _check_models(options)
+    total, done = len(cases), 0
+
+    def record(case_id: str, rows: list[dict]) -> None:
+        nonlocal done
+        with path.open("a") as f:
+            for row in rows:
+                f.write(json.dumps(_plain(row)) + "\n")
+        done += 1
+        if on_case:
+            on_case(done, total, case_id)
+
+    if on_case:
+        on_case(0, total, "")
+    if jobs <= 1:
+        for case in cases:
+            record(case.id, run_case(case, options, skip))
+    else:
+        threads = max(1, (os.cpu_count() or 1) // jobs)
+        with ProcessPoolExecutor(jobs, mp_context=get_context("spawn"), initializer=_worker_init,
+                                 initargs=(threads,)) as pool:
+            futures = {pool.submit(run_case, case, options, skip): case.id for case in cases}
+            for future in as_completed(futures):
+                record(futures[future], future.result())
+    return read_results(path)
+
+
+def _plain(value):
+    """JSON-ready: numpy arrays and scalars become lists and Python numbers."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
