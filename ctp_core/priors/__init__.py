@@ -23,6 +23,7 @@ PROVIDERS = ("rules", "openai")
 EXPLICIT_SIZE_RANGE = (0.01, 100.0)  # what a caller may ask for (AlignConfig.size_ratio)
 UNITS_M = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254}  # file units a mesh may plausibly be in
 PLAUSIBLE_FACTOR = 3.0  # a mesh "looks real" when within this factor of its object's typical size
+AGREE_FACTOR = 2.5  # ... and the two meshes' ratio within this factor of the typical sizes' ratio
 
 
 def get_provider(name: str = "rules", settings: PriorSettings | None = None) -> PriorProvider:
@@ -40,17 +41,21 @@ def mesh_size_ratio(target_name: str, source_name: str, target_extent: float,
     """The file-unit size ratio, when both meshes look modelled at real size in one common unit.
 
     Files are often in arbitrary units, and in the scale-mode benchmark deliberately mis-scaled, so
-    the files' ratio is trusted only when both objects are known and, read in one of m/cm/mm/in, each
-    lands within PLAUSIBLE_FACTOR of its typical size. Returns (ratio, why) or None.
+    the files' ratio is trusted only when both objects are known, each lands within PLAUSIBLE_FACTOR
+    of its typical size read in one of m/cm/mm/in, and their ratio is within AGREE_FACTOR of the
+    typical sizes' ratio: then the meshes refine the estimate (a stylised church's small cross) rather
+    than replace it with an accident of scale. Returns (ratio, why) or None.
     """
     target, source = lexicon.lookup(target_name), lexicon.lookup(source_name)
     if target is None or source is None or min(target_extent, source_extent) <= 0:
         return None
+    ratio = source_extent / target_extent
+    if not 1 / AGREE_FACTOR <= ratio / (source.size_m / target.size_m) <= AGREE_FACTOR:
+        return None
     for unit, metres in UNITS_M.items():
         if all(1 / PLAUSIBLE_FACTOR <= extent * metres / match.size_m <= PLAUSIBLE_FACTOR
                for extent, match in ((target_extent, target), (source_extent, source))):
-            ratio = source_extent / target_extent
-            return ratio, (f"size ratio {clamp_size(ratio):.3g} from the mesh extents (both plausible in {unit}: "
+            return ratio, (f"the mesh extents set the size ratio to {clamp_size(ratio):.3g} (both plausible in {unit}: "
                            f"{target_extent * metres:.3g} m and {source_extent * metres:.3g} m)")
     return None
 

@@ -1,0 +1,67 @@
+"""``ctp hparams``: print the scene priors for a (target, source, prompt) triple as JSON.
+
+What ``ctp align`` would use, without loading a mesh or a model: handy to check a prompt's reading
+before a long run, or to test an LLM endpoint (``--provider openai`` with CTP_LLM_* set).
+Exit codes: 0 printed; 2 bad input (one line on stderr: ``error: CODE: message``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+
+from ctp_core.errors import ConfigError
+
+EXIT_INPUT = 2
+PENETRATION = {"auto": None, "allow": True, "forbid": False}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    # Values are parsed in run() so that bad input is one line, like every other error.
+    parser.add_argument("--target", help="target object name (e.g. plate, christmas_tree)")
+    parser.add_argument("--source", help="source object name (the one placed)")
+    parser.add_argument("--prompt", default="", help="text describing the arrangement")
+    parser.add_argument("--provider", default="rules", help="rules | openai (default rules)")
+    parser.add_argument("--size-ratio", help="explicit source/target size in [0.01, 100]")
+    parser.add_argument("--penetration", default="auto", help="auto | allow | forbid")
+    parser.add_argument("--contact-ratio", help="explicit soft-ICP ratio in [0, 1]")
+    parser.add_argument("--target-extent", help="target mesh longest side in file units (may inform the size)")
+    parser.add_argument("--source-extent", help="source mesh longest side in file units")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ctp_core import priors
+
+    try:
+        for flag in ("target", "source"):
+            if not (getattr(args, flag) or "").strip():
+                raise ConfigError(f"--{flag} NAME is required", field=flag)
+        if args.penetration not in PENETRATION:
+            raise ConfigError(f"--penetration must be one of {', '.join(PENETRATION)}, got {args.penetration!r}",
+                              field="penetration")
+        prior = priors.resolve_priors(
+            priors.get_provider(args.provider), args.target, args.source, args.prompt,
+            size_ratio=_number(args.size_ratio, "size-ratio"), penetration=PENETRATION[args.penetration],
+            contact_ratio=_number(args.contact_ratio, "contact-ratio"),
+            target_extent=_number(args.target_extent, "target-extent"),
+            source_extent=_number(args.source_extent, "source-extent"),
+        )
+    except ConfigError as exc:
+        print(f"error: {exc.code}: {exc.message}", file=sys.stderr)
+        return EXIT_INPUT
+    print(json.dumps(prior.to_dict(), indent=2))
+    return 0
+
+
+def _number(text: str | None, flag: str) -> float | None:
+    if text is None:
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise ConfigError(f"--{flag} must be a number, got {text!r}", field=flag.replace("-", "_")) from None
+    if not math.isfinite(value):
+        raise ConfigError(f"--{flag} must be finite, got {text!r}", field=flag.replace("-", "_"))
+    return value

@@ -1,0 +1,421 @@
+"""Scene priors: the provider interface, the rules (lexicon, cues, roles), explicit overrides, the
+OpenAI-compatible provider against a real local HTTP server, and ``ctp hparams``."""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+
+import pytest
+
+from ctp.cli import main as ctp_main
+from ctp_core.errors import ConfigError
+from ctp_core.priors import (
+    PriorSettings,
+    RulesProvider,
+    ScenePrior,
+    get_provider,
+    lexicon,
+    mesh_size_ratio,
+    resolve_priors,
+)
+from ctp_core.priors.openai import AnswerError, parse_answer
+from ctp_core.priors.prior import clamp_contact, clamp_size
+
+
+def rules(target: str, source: str, prompt: str) -> ScenePrior:
+    return get_provider("rules").estimate(target, source, prompt)
+
+
+# --- interface -------------------------------------------------------------------------------------
+
+def test_get_provider_returns_named_providers_and_refuses_unknown_names():
+    for name in ("rules", "openai"):
+        provider = get_provider(name, PriorSettings(base_url=None))
+        assert provider.name == name
+        prior = provider.estimate("table", "cup", "a cup on the table")
+        assert isinstance(prior, ScenePrior)
+        assert set(prior.to_dict()) == {"size_ratio", "penetration", "contact_ratio", "source", "reason"}
+    with pytest.raises(ConfigError) as err:
+        get_provider("llama")
+    assert err.value.field == "hparams_provider"
+
+
+def test_rules_are_deterministic():
+    a = rules("bowl", "apples", "apples in a bowl")
+    assert a == rules("bowl", "apples", "apples in a bowl")
+    assert a.source == "rules"
+
+
+# --- clamping ---------------------------------------------------------------------------------------
+
+def test_size_ratio_is_clamped_to_the_paper_range():
+    assert rules("cherry", "skyscraper", "a skyscraper next to a cherry").size_ratio == 10.0
+    assert rules("skyscraper", "cherry", "a cherry next to a skyscraper").size_ratio == 0.1
+    assert "clamped" in rules("skyscraper", "cherry", "a cherry next to a skyscraper").reason
+
+
+def test_clamp_helpers():
+    assert clamp_size(50) == 10.0 and clamp_size(0.001) == 0.1 and clamp_size(2.0) == 2.0
+    assert clamp_contact(-0.2) == 0.0 and clamp_contact(1.7) == 1.0
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError):
+            clamp_size(bad)
+
+
+# --- explicit values and mesh extents ---------------------------------------------------------------
+
+class Refusing:
+    name = "refusing"
+
+    def estimate(self, target_name, source_name, prompt):
+        raise AssertionError("the provider must not be asked when every value is explicit")
+
+
+def test_explicit_values_win_and_are_named_in_source():
+    prior = resolve_priors(get_provider("rules"), "apple", "knife", "a knife cuts an apple",
+                           size_ratio=0.02, contact_ratio=0.9)
+    assert prior.size_ratio == 0.02  # explicit: kept outside the clamp range
+    assert prior.contact_ratio == 0.9
+    assert prior.penetration is True  # from the rules
+    assert prior.source == "rules; explicit: size_ratio, contact_ratio"
+    prior = resolve_priors(get_provider("rules"), "apple", "knife", "a knife cuts an apple", penetration=False)
+    assert prior.penetration is False and "explicit: penetration" in prior.source
+
+
+def test_all_explicit_skips_the_provider():
+    prior = resolve_priors(Refusing(), "a", "b", "", size_ratio=2.0, penetration=True, contact_ratio=0.0)
+    assert (prior.size_ratio, prior.penetration, prior.contact_ratio, prior.source) == (2.0, True, 0.0, "explicit")
+
+
+@pytest.mark.parametrize("kwargs", [{"size_ratio": 0.0}, {"size_ratio": 500.0}, {"contact_ratio": 1.5},
+                                    {"contact_ratio": float("nan")}])
+def test_explicit_values_out_of_range_are_refused(kwargs):
+    with pytest.raises(ConfigError):
+        resolve_priors(get_provider("rules"), "table", "cup", "a cup on a table", **kwargs)
+
+
+def test_mesh_extents_inform_the_size_only_when_plausible():
+    # a 1.5 m table and a 45 cm vase in centimetres: plausible, the files' ratio replaces the guess
+    guess = rules("table", "vase", "a vase on a table").size_ratio
+    prior = resolve_priors(get_provider("rules"), "table", "vase", "a vase on a table",
+                           target_extent=150.0, source_extent=45.0)
+    assert prior.size_ratio == pytest.approx(0.3) != guess
+    assert "mesh extents" in prior.reason and "cm" in prior.reason
+    # the same vase scaled x40 (a mis-scaled file): ignored, the guess stays
+    assert mesh_size_ratio("table", "vase", 150.0, 1800.0) is None
+    prior = resolve_priors(get_provider("rules"), "table", "vase", "a vase on a table",
+                           target_extent=150.0, source_extent=1800.0)
+    assert "mesh extents" not in prior.reason and prior.size_ratio == guess
+    # unknown objects: nothing to judge plausibility by
+    assert mesh_size_ratio("zorblax", "cup", 1.0, 0.1) is None
+
+
+def test_mesh_extents_refine_a_ratio_inside_the_range():
+    ratio, why = mesh_size_ratio("man", "hat", 180.0, 40.0)
+    assert ratio == pytest.approx(40.0 / 180.0)
+    assert "cm" in why
+
+
+# --- relation cues on general phrases ----------------------------------------------------------------
+
+@pytest.mark.parametrize("target,source,prompt,penetration", [
+    ("log", "hatchet", "a hatchet stuck in a log", True),
+    ("apple", "toothpick", "a toothpick pushed through an apple", True),
+    ("melon", "dagger", "a dagger piercing a melon", True),
+    ("cheese", "knife", "a knife slicing into the cheese", True),
+    ("drawer", "knife", "a knife in the drawer", False),   # a container: no cutting
+    ("cup", "pencil", "a pencil in a cup", False),
+    ("lock", "key", "a key stuck in the lock", False),     # into an opening
+    ("wall", "poster", "a poster stuck on the wall", False),
+    ("cutting_board", "bread", "bread on a cutting board", False),
+    ("shelf", "vase", "a vase beside the shelf", False),
+])
+def test_penetration_cues(target, source, prompt, penetration):
+    assert rules(target, source, prompt).penetration is penetration
+
+
+@pytest.mark.parametrize("target,source,prompt,low,high", [
+    ("shelf", "vase", "a vase beside the shelf", 0.0, 0.0),
+    ("bench", "ball", "a ball under the bench", 0.0, 0.0),
+    ("tree", "lantern", "a lantern hanging from a tree", 0.0, 0.1),
+    ("wall", "poster", "a poster stuck on the wall", 0.4, 0.6),
+    ("woman", "necklace", "a woman wearing a necklace", 0.5, 0.8),
+    ("king", "crown", "a king wearing a crown", 0.2, 0.45),
+    ("table", "orange", "an orange on the table", 0.0, 0.1),      # round: a point
+    ("pizza", "salami", "salami slices on a pizza", 0.0, 0.3),    # unknown shape: default resting
+    ("aquarium", "fish", "a fish swimming in the aquarium", 0.0, 0.0),
+])
+def test_contact_from_cues_and_shapes(target, source, prompt, low, high):
+    assert low <= rules(target, source, prompt).contact_ratio <= high
+
+
+def test_in_matches_whole_words_only():
+    # "in" inside "dining" and "pinecone" must not read as containment
+    prior = rules("dining_table", "pinecone", "a pinecone on the dining table")
+    assert "'on' -> on" in prior.reason
+    assert "'in'" not in prior.reason
+
+
+def test_the_most_specific_cue_wins():
+    assert "hold" in rules("boy", "apple", "a boy holding an apple in his hand").reason
+    assert "sit" in rules("horse", "knight", "a knight riding on a horse").reason
+
+
+def test_roles_come_from_the_names_and_the_relation_from_the_prompt():
+    wearing = rules("pinocchio", "hat", "Pinocchio wearing a hat")
+    on_head = rules("pinocchio", "hat", "a hat on Pinocchio's head")
+    assert wearing.contact_ratio == on_head.contact_ratio
+    assert wearing.size_ratio == on_head.size_ratio < 1
+    # the same prompt with the roles swapped: the source is now the wearer, who barely touches the hat
+    swapped = rules("hat", "pinocchio", "Pinocchio wearing a hat")
+    assert swapped.size_ratio > 1
+    assert swapped.contact_ratio < wearing.contact_ratio
+    assert "ground" in swapped.reason
+
+
+def test_target_under_source_reads_as_source_on_target():
+    prior = rules("table", "lamp", "a table under a lamp")
+    assert prior.contact_ratio > 0
+    assert rules("table", "lamp", "a lamp under a table").contact_ratio == 0
+
+
+def test_no_cue_says_what_it_assumed():
+    assert "no relation cue" in rules("plate", "donut", "a donut").reason
+    assert "inside" in rules("jar", "cookie", "cookies").reason  # a container target: inside
+
+
+# --- lexicon: plurals, synonyms, compounds, parts, fallback -----------------------------------------
+
+@pytest.mark.parametrize("plural,singular", [("cherries", "cherry"), ("boxes", "box"), ("knives", "knife"),
+                                             ("shoes", "shoe"), ("tomatoes", "tomato"), ("mice", "mouse"),
+                                             ("glasses", "glasses"), ("Leaves", "leaf")])
+def test_plurals(plural, singular):
+    assert lexicon.lookup(plural).entry is lexicon.lookup(singular).entry
+
+
+def test_synonyms_compounds_and_file_style_names():
+    assert lexicon.lookup("broomstick").entry is lexicon.lookup("broom").entry
+    assert lexicon.lookup("couch").entry is lexicon.lookup("sofa").entry
+    assert lexicon.lookup("CoffeeCup_02").entry is lexicon.lookup("cup").entry
+    assert lexicon.lookup("christmas_tree").size_m < lexicon.lookup("tree").size_m
+    assert lexicon.lookup("candle stick").entry is lexicon.lookup("candlestick").entry
+    assert lexicon.lookup("table_wood").entry is lexicon.lookup("table").entry  # material is not the head
+    assert lexicon.lookup("wood").entry.name == "wood"
+
+
+def test_parts_and_size_words():
+    assert lexicon.lookup("teapot_lid").size_m == pytest.approx(0.6 * lexicon.lookup("teapot").size_m)
+    assert lexicon.lookup("ball_small").size_m == pytest.approx(0.5 * lexicon.lookup("ball").size_m)
+    # a bare detachable part is sized from the other object; a person has no lid
+    assert rules("kettle", "lid", "a kettle").size_ratio == pytest.approx(lexicon.PARTS["lid"])
+    assert rules("man", "cap", "a man wearing a cap").size_ratio < 0.3
+
+
+def test_unknown_objects_fall_back_and_say_so():
+    prior = rules("zorblax", "quux", "a quux on the zorblax")
+    assert prior.size_ratio == 1.0
+    assert "fallback" in prior.reason and "zorblax" in prior.reason
+    holder = rules("grimbly", "sword", "grimbly holding a sword")
+    assert holder.size_ratio == pytest.approx(lexicon.lookup("sword").size_m / 1.75)
+    assert "person" in holder.reason
+
+
+def test_lexicon_is_a_few_hundred_objects():
+    assert len({id(e) for e in lexicon.LEXICON.values()}) >= 300
+
+
+# --- the OpenAI-compatible provider against a real local server --------------------------------------
+
+class ChatServer:
+    """A chat-completions endpoint on 127.0.0.1: ``reply(question) -> (status, body or content, delay)``."""
+
+    def __init__(self, reply):
+        self.reply, self.requests = reply, []
+        outer = self
+
+        class Handler(BaseHTTPRequestHandler):
+            def do_POST(self):  # noqa: N802 (http.server API)
+                body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
+                outer.requests.append({"path": self.path, "headers": dict(self.headers), "body": body})
+                status, content, delay = outer.reply(body["messages"][-1]["content"])
+                time.sleep(delay)
+                payload = content if isinstance(content, bytes) else json.dumps(
+                    {"choices": [{"message": {"role": "assistant", "content": content}}]}).encode()
+                try:
+                    self.send_response(status)
+                    self.send_header("Content-Type", "application/json")
+                    self.send_header("Content-Length", str(len(payload)))
+                    self.end_headers()
+                    self.wfile.write(payload)
+                except (BrokenPipeError, ConnectionResetError):
+                    pass  # the client gave up (timeout test)
+
+            def log_message(self, *args):
+                pass
+
+        self.httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.httpd.daemon_threads = True
+        self.thread = threading.Thread(target=self.httpd.serve_forever, daemon=True)
+
+    def __enter__(self):
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self.httpd.shutdown()
+        self.httpd.server_close()
+
+    def settings(self, **kw) -> PriorSettings:
+        host, port = self.httpd.server_address
+        return PriorSettings(base_url=f"http://{host}:{port}/v1", **{"timeout_s": 2.0, "retries": 0, **kw})
+
+
+def by_question(size, penetration, contact, status=200, delay=0.0):
+    def reply(question):
+        if "bounding-box" in question:
+            return status, size, delay
+        if "pass into" in question:
+            return status, penetration, delay
+        return status, contact, delay
+    return reply
+
+
+def test_openai_provider_asks_three_questions_and_parses_varied_answers():
+    answers = by_question("```json\n{\"size_ratio\": 0.3}\n```", "Yes, the knife goes into it.", "0.25")
+    with ChatServer(answers) as server:
+        provider = get_provider("openai", server.settings(model="llama-3-8b", api_key="sk-test"))
+        prior = provider.estimate("apple", "kitchen_knife", "a knife cuts an apple")
+    assert (prior.size_ratio, prior.penetration, prior.contact_ratio) == (0.3, True, 0.25)
+    assert prior.source == "openai"
+    assert len(server.requests) == 3
+    first = server.requests[0]
+    assert first["path"] == "/v1/chat/completions"
+    assert first["headers"]["Authorization"] == "Bearer sk-test"
+    assert first["body"]["model"] == "llama-3-8b"
+    assert "kitchen knife" in first["body"]["messages"][-1]["content"]  # readable names
+
+
+def test_openai_answers_are_clamped():
+    with ChatServer(by_question("250", "false", "1.7")) as server:
+        prior = get_provider("openai", server.settings()).estimate("cup", "table", "a cup on a table")
+    assert (prior.size_ratio, prior.contact_ratio, prior.source) == (10.0, 1.0, "openai")
+
+
+@pytest.mark.parametrize("reply,why", [
+    (by_question("I cannot say.", "true", "0.1"), "AnswerError"),
+    (by_question("0.5", "maybe", "0.1"), "AnswerError"),
+    (by_question("-3", "true", "0.1"), "AnswerError"),
+    (lambda q: (200, b"<html>not json</html>", 0.0), "not a chat-completions reply"),
+    (lambda q: (500, b"{}", 0.0), "HTTPStatusError"),
+])
+def test_openai_malformed_answers_fall_back_to_rules(reply, why):
+    with ChatServer(reply) as server:
+        prior = get_provider("openai", server.settings()).estimate("bowl", "apples", "apples in a bowl")
+    expected = rules("bowl", "apples", "apples in a bowl")
+    assert prior.source.startswith("rules (fallback: ")
+    assert why in prior.source and why in prior.reason
+    assert (prior.size_ratio, prior.penetration, prior.contact_ratio) == (
+        expected.size_ratio, expected.penetration, expected.contact_ratio)
+
+
+def test_openai_slow_answer_times_out_and_falls_back_fast():
+    with ChatServer(by_question("0.5", "false", "0.1", delay=1.5)) as server:
+        started = time.perf_counter()
+        prior = get_provider("openai", server.settings(timeout_s=0.2, retries=1)).estimate(
+            "table", "cup", "a cup on the table")
+        elapsed = time.perf_counter() - started
+    assert prior.source.startswith("rules (fallback: ReadTimeout")
+    assert elapsed < 1.4  # two 0.2 s attempts, then no further questions
+    assert len(server.requests) == 2
+
+
+def test_openai_retries_a_bad_answer():
+    calls = []
+
+    def flaky(question):
+        calls.append(question)
+        return (200, "no idea", 0.0) if len(calls) == 1 else by_question("0.2", "false", "0.1")(question)
+
+    with ChatServer(flaky) as server:
+        prior = get_provider("openai", server.settings(retries=1)).estimate("table", "cup", "a cup on the table")
+    assert prior.source == "openai" and len(calls) == 4
+
+
+def test_openai_unreachable_or_unconfigured_falls_back():
+    prior = get_provider("openai", PriorSettings(base_url="http://127.0.0.1:9/v1", timeout_s=0.5, retries=0)).estimate(
+        "table", "cup", "a cup on the table")
+    assert prior.source.startswith("rules (fallback: ConnectError")
+    prior = get_provider("openai", PriorSettings(base_url=None)).estimate("table", "cup", "a cup on the table")
+    assert "CTP_LLM_BASE_URL" in prior.source
+
+
+def test_settings_come_from_the_environment(monkeypatch):
+    monkeypatch.setenv("CTP_LLM_BASE_URL", "http://example.invalid/v1")
+    monkeypatch.setenv("CTP_LLM_MODEL", "qwen")
+    monkeypatch.setenv("CTP_LLM_API_KEY", "secret")
+    monkeypatch.setenv("CTP_LLM_TIMEOUT_S", "3.5")
+    settings = PriorSettings()
+    assert (settings.base_url, settings.model, settings.timeout_s) == ("http://example.invalid/v1", "qwen", 3.5)
+    assert settings.api_key.get_secret_value() == "secret" and "secret" not in repr(settings)
+
+
+@pytest.mark.parametrize("text,key,value", [
+    ("0.3", "size_ratio", 0.3),
+    ("```json\n0.3\n```", "size_ratio", 0.3),
+    ('{"size_ratio": 0.3}', "size_ratio", 0.3),
+    ('Sure! {"ratio": "0.3"} is my estimate.', "size_ratio", 0.3),
+    ("<think>a cup is 10 cm, 1 table is 150</think>\n0.07", "size_ratio", 0.07),
+    ("[0.5]", "size_ratio", 0.5),
+    ("true", "penetration", True),
+    ('"yes"', "penetration", True),
+    ("No.", "penetration", False),
+    ('{"penetration": false}', "penetration", False),
+    ("30%", "contact_ratio", 0.3),
+    ('{"contact_ratio": 0.2, "note": "base only"}', "contact_ratio", 0.2),
+])
+def test_parse_answer(text, key, value):
+    answer = parse_answer(text, key)
+    if isinstance(value, bool):
+        assert answer is value
+    else:
+        assert answer == pytest.approx(value)
+
+
+@pytest.mark.parametrize("text,key", [("", "size_ratio"), ("unknown", "size_ratio"), ("perhaps", "penetration"),
+                                      ("NaN", "contact_ratio"), ('{"a": 1, "b": 2}', "size_ratio")])
+def test_parse_answer_refuses_non_answers(text, key):
+    with pytest.raises(AnswerError):
+        parse_answer(text, key)
+
+
+# --- CLI --------------------------------------------------------------------------------------------
+
+def test_cli_prints_the_prior(capsys):
+    assert ctp_main(["hparams", "--target", "wood", "--source", "axe", "--prompt", "an axe embedded in wood"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["penetration"] is True and out["source"] == "rules"
+    assert ctp_main(["hparams", "--target", "wood", "--source", "axe", "--prompt", "an axe embedded in wood",
+                     "--penetration", "forbid", "--size-ratio", "3"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["penetration"] is False and out["size_ratio"] == 3.0 and "explicit" in out["source"]
+
+
+@pytest.mark.parametrize("argv", [
+    ["--source", "cup"],
+    ["--target", "table", "--source", "cup", "--contact-ratio", "2"],
+    ["--target", "table", "--source", "cup", "--size-ratio", "big"],
+    ["--target", "table", "--source", "cup", "--provider", "gpt"],
+    ["--target", "table", "--source", "cup", "--penetration", "maybe"],
+])
+def test_cli_bad_input_exits_2_with_one_line(argv, capsys):
+    assert ctp_main(["hparams", *argv]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert len(captured.err.strip().splitlines()) == 1 and captured.err.startswith("error: ")
+
+
+def test_rules_provider_class_is_the_default():
+    assert isinstance(get_provider(), RulesProvider)
