@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import subprocess
 import sys
 
@@ -64,6 +65,8 @@ def _serve(settings, args: argparse.Namespace) -> int:
     workers = [subprocess.Popen([sys.executable, "-m", "ctp", "worker"], env=env) for _ in range(n_workers)]
     where = f"embedded Redis in {embedded.data_dir}" if embedded else "REDIS_URL"
     print(f"ctp: serving on http://{args.host}:{args.port} ({where}, {n_workers} local worker(s))", file=sys.stderr)
+    # uvicorn re-raises the SIGTERM it shut down on; make that an exception so the children are stopped.
+    signal.signal(signal.SIGTERM, _exit_on_signal)
     try:
         uvicorn.run(create_app(settings), host=args.host, port=args.port, log_level=settings.log_level.lower())
     except CtpError as exc:
@@ -74,6 +77,10 @@ def _serve(settings, args: argparse.Namespace) -> int:
         if embedded:
             embedded.stop()
     return 0
+
+
+def _exit_on_signal(signum, _frame) -> None:
+    raise SystemExit(128 + signum)
 
 
 def _stop(processes: list[subprocess.Popen]) -> None:

@@ -34,6 +34,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from ctp_core.errors import ConfigError, CtpError, MeshError
 from ctp_core.io import validate_upload
+from service import logs
 from service.jobs import OUTPUTS, TERMINAL, JobError, JobRecord, Jobs, TooManyJobs, new_id, now
 from service.schemas import Accepted, AlignOptions, ErrorBody, Health, JobOut, Ready, build_config, links
 from service.settings import Settings
@@ -45,6 +46,7 @@ PROMPT_MAX = 500
 NAME_MAX = 100
 FORM_FIELDS = {"target", "source", "prompt", "image", "options", "target_name", "source_name"}
 SSE_KEEPALIVE_S = 10.0
+SWEEP_EVERY_S = 60.0
 
 # MeshError codes that are not 422.
 _MESH_STATUS = {"mesh_file_too_large": 413, "mesh_too_large": 413, "mesh_unknown_format": 415}
@@ -169,6 +171,7 @@ class BodyLimit:
 def create_app(settings: Settings | None = None) -> FastAPI:
     """The API over the Redis at ``settings.redis_url`` (required; ``ctp serve`` provides one)."""
     settings = settings or Settings()
+    logs.configure(settings.log_level)
     if not settings.redis_url:
         raise ConfigError("REDIS_URL is not set; `ctp serve` starts an embedded Redis", field="REDIS_URL")
     client = redis.Redis.from_url(settings.redis_url, health_check_interval=30)
@@ -259,8 +262,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         form = await _read_form(request)
         prompt, image = _prompt_and_image(form)
         options = _options(form)
-        config = build_config(options, default_model=settings.model, allowed_models=settings.allowed_models,
-                              device=settings.device)
+        config = build_config(options, default_model=settings.model, allowed_models=settings.allowed_models)
         blobs: dict[str, bytes] = {}
         files: dict[str, str] = {}
         for role in ("target", "source"):
@@ -345,9 +347,14 @@ def _add_output_route(app: FastAPI, name: str, media_type: str, jobs: Jobs, own_
 
 
 async def _reap_forever(jobs: Jobs, period_s: float) -> None:
+    """Fail jobs of dead workers every heartbeat period; expire stored files about once a minute."""
+    last_sweep = 0.0
     while True:
         try:
             await run_in_threadpool(jobs.reap)
+            if time.monotonic() - last_sweep > SWEEP_EVERY_S:
+                await run_in_threadpool(jobs.storage.sweep)
+                last_sweep = time.monotonic()
         except redis.exceptions.RedisError as exc:
             log.warning("reaper: redis unavailable: %s", exc)
         await asyncio.sleep(period_s)

@@ -277,15 +277,26 @@ class Jobs:
         """A worker is alive (and so is its running job): refresh both leases."""
         with self.redis.pipeline(transaction=False) as pipe:
             pipe.set(f"{self.prefix}:worker:{worker}", job_id or "", ex=self.lease_s)
+            pipe.sadd(f"{self.prefix}:workers", worker)
             if job_id is not None:
                 pipe.set(self._lease_key(job_id), worker, ex=self.lease_s, xx=True)
             pipe.execute()
 
     def worker_gone(self, worker: str) -> None:
         self.redis.delete(f"{self.prefix}:worker:{worker}")
+        self.redis.srem(f"{self.prefix}:workers", worker)
 
     def workers_alive(self) -> int:
-        return sum(1 for _ in self.redis.scan_iter(match=f"{self.prefix}:worker:*", count=1000))
+        """Workers whose lease is current; forgets the others (O(workers), not a key-space scan)."""
+        names = [raw.decode() for raw in self.redis.smembers(f"{self.prefix}:workers")]
+        with self.redis.pipeline(transaction=False) as pipe:
+            for name in names:
+                pipe.exists(f"{self.prefix}:worker:{name}")
+            alive = pipe.execute()
+        dead = [name for name, ok in zip(names, alive, strict=True) if not ok]
+        if dead:
+            self.redis.srem(f"{self.prefix}:workers", *dead)
+        return len(names) - len(dead)
 
     def reap(self) -> list[str]:
         """Fail running jobs whose worker stopped heart-beating; returns their ids."""
@@ -302,5 +313,4 @@ class Jobs:
                 log.warning("job reaped", extra={"job_id": job_id, "worker": record.worker})
             elif record is None or record.status in TERMINAL:
                 self.redis.srem(self._running_key, job_id)
-        self.storage.sweep()
         return reaped

@@ -59,8 +59,7 @@ AlignOptions: type[BaseModel] = create_model(
 )
 
 
-def build_config(options: dict[str, Any], *, default_model: str, allowed_models: list[str],
-                 device: str) -> AlignConfig:
+def build_config(options: dict[str, Any], *, default_model: str, allowed_models: list[str]) -> AlignConfig:
     """Validate a client's options and merge them into their preset; raises ConfigError whose
     ``field`` is ``options.<name>``, code ``unknown_option`` or ``invalid_option``."""
     try:
@@ -77,7 +76,7 @@ def build_config(options: dict[str, Any], *, default_model: str, allowed_models:
     if model not in allowed_models:
         raise ConfigError(f"model {model!r} is not served here; choose one of {', '.join(allowed_models)}",
                           field="options.model")
-    overrides: dict[str, Any] = {"model": model, "device": device}
+    overrides: dict[str, Any] = {"model": model}  # where it runs (device, threads) is the worker's setting
     for name, value in given.items():
         *parents, leaf = OPTION_PATHS[name]
         node = overrides

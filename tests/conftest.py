@@ -39,7 +39,7 @@ def service_env(redis_url: str, queue: str, **settings) -> dict[str, str]:
     """The environment of a service on ``queue``: fast liveness, the tiny random model."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("CTP_") and k != "REDIS_URL"}
     env.update(REDIS_URL=redis_url, CTP_QUEUE=queue, CTP_MODEL="random:tiny", CTP_HEARTBEAT_S="0.5",
-               CTP_LEASE_S="3", CTP_PROGRESS_EVERY_S="1", CTP_LOG_LEVEL="WARNING", CTP_THREADS="1",
+               CTP_LEASE_S="5", CTP_PROGRESS_EVERY_S="1", CTP_LOG_LEVEL="WARNING", CTP_THREADS="1",
                OMP_WAIT_POLICY="PASSIVE", OMP_NUM_THREADS="1")
     env.update({f"CTP_{k.upper()}": str(v) for k, v in settings.items()})
     return env

@@ -30,8 +30,9 @@ def wait_stepping(api: Api, job_id: str) -> dict:
 
 
 @pytest.fixture(scope="module")
-def env(private_redis):
-    return service_env(private_redis.url, "faults")
+def env(private_redis, tmp_path_factory):
+    """Files on disk instead of in Redis here, so both storage back ends run end to end."""
+    return service_env(private_redis.url, "faults", storage_dir=tmp_path_factory.mktemp("blobs"))
 
 
 @pytest.fixture(scope="module")

@@ -119,7 +119,10 @@ def run_worker(settings: Settings, *, burst: bool = False, name: str | None = No
     beat = Heartbeat(jobs, name, settings.heartbeat_s, settings.progress_every_s)
     _CONTEXT = WorkerContext(settings, jobs, name, beat)
     beat.start()
-    worker = SimpleWorker([jobs.queue], connection=jobs.redis, serializer=JSONSerializer, name=name)
+    # rq gets a connection of its own: it raises the socket timeout above its blocking dequeue, which the
+    # heartbeat thread's connections (redis-py's default timeout) must not share.
+    worker = SimpleWorker([settings.queue], connection=Redis.from_url(settings.redis_url), serializer=JSONSerializer,
+                          name=name)
     log.info("worker ready", extra={"worker": name})
     try:
         worker.work(burst=burst, logging_level=settings.log_level.upper())

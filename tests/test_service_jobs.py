@@ -1,0 +1,142 @@
+"""The job life cycle, liveness and storage against a real Redis, without HTTP or workers: the races
+the service relies on (cancel vs pickup, reaper vs a live worker) and the TTL bookkeeping."""
+
+from __future__ import annotations
+
+import os
+import time
+import uuid
+
+import pytest
+import redis
+
+from service.jobs import JobError, JobRecord, Jobs, Progress, TooManyJobs, new_id, now
+from service.settings import Settings
+from service.storage import DirStorage, RedisStorage
+
+
+@pytest.fixture
+def jobs(private_redis):
+    client = redis.Redis.from_url(private_redis.url)
+    prefix = f"unit-{uuid.uuid4().hex[:8]}"
+    yield Jobs(client, RedisStorage(client, prefix, 600), prefix=prefix, ttl_s=600, job_timeout_s=60, lease_s=1)
+    client.close()
+
+
+def queued(jobs: Jobs, owner: str = "me", max_active: int = 10) -> JobRecord:
+    record = JobRecord(id=new_id(), owner=owner, created_at=now(), prompt="p")
+    return jobs.submit(record, {"target": b"t", "source": b"s"}, max_active)
+
+
+def test_submit_stores_inputs_record_and_rq_job(jobs):
+    record = queued(jobs)
+    assert jobs.get(record.id).status == "queued"
+    assert jobs.storage.get(record.id, "target") == b"t"
+    assert jobs.queue.get_job_ids() == [record.id]
+    assert 0 < jobs.redis.ttl(f"{jobs.prefix}:job:{record.id}") <= 600
+
+
+def test_cancel_wins_over_a_later_pickup(jobs):
+    record = queued(jobs)
+    assert jobs.cancel(record.id).status == "canceled"
+    assert jobs.start(record.id, "w1") is None  # the worker skips it
+    assert jobs.queue.get_job_ids() == []
+    assert jobs.storage.get(record.id, "target") is None  # inputs dropped
+
+
+def test_only_one_worker_can_start_a_job(jobs):
+    record = queued(jobs)
+    assert jobs.start(record.id, "w1").worker == "w1"
+    assert jobs.start(record.id, "w2") is None
+
+
+def test_running_cancel_is_a_flag_the_worker_polls(jobs):
+    record = queued(jobs)
+    jobs.start(record.id, "w1")
+    assert not jobs.should_stop(record.id)
+    flagged = jobs.cancel(record.id)
+    assert flagged.status == "running" and flagged.cancel_requested
+    assert jobs.should_stop(record.id)
+    done = jobs.finish(record.id, "canceled", JobError(code="canceled", message="x"))
+    assert done.status == "canceled" and done.finished_at is not None
+    assert jobs.finish(record.id, "succeeded").status == "canceled"  # terminal states are final
+
+
+def test_progress_is_published_to_the_job_channel(jobs):
+    record = queued(jobs)
+    pubsub = jobs.redis.pubsub(ignore_subscribe_messages=True)
+    pubsub.subscribe(jobs.channel(record.id))
+    jobs.start(record.id, "w1")
+    jobs.set_progress(record.id, Progress(kind="step", step=3, steps=10, fraction=0.3, message="m"))
+    seen = []
+    deadline = time.monotonic() + 5
+    while len(seen) < 2 and time.monotonic() < deadline:
+        message = pubsub.get_message(timeout=0.5)
+        if message:
+            seen.append(JobRecord.model_validate_json(message["data"]))
+    pubsub.close()
+    assert [r.status for r in seen] == ["running", "running"]
+    assert seen[-1].progress.step == 3
+
+
+def test_reaper_fails_jobs_whose_lease_lapsed_and_spares_live_ones(jobs):
+    dead, live = queued(jobs), queued(jobs)
+    jobs.start(dead.id, "gone")
+    jobs.start(live.id, "alive")
+    deadline = time.monotonic() + 3
+    while time.monotonic() < deadline and jobs.redis.exists(f"{jobs.prefix}:lease:{dead.id}"):
+        jobs.heartbeat("alive", live.id)
+        time.sleep(0.2)
+    jobs.heartbeat("alive", live.id)
+    assert jobs.reap() == [dead.id]
+    assert jobs.get(dead.id).error.code == "worker_lost"
+    assert jobs.get(live.id).status == "running"
+    assert jobs.should_stop(dead.id)  # a worker that was only frozen stops once it wakes
+    jobs.heartbeat("gone", dead.id)  # ... and cannot revive the lease
+    assert not jobs.redis.exists(f"{jobs.prefix}:lease:{dead.id}")
+    assert jobs.reap() == []
+
+
+def test_workers_alive_counts_current_leases_only(jobs):
+    jobs.heartbeat("a", None)
+    jobs.heartbeat("b", None)
+    assert jobs.workers_alive() == 2
+    jobs.worker_gone("a")
+    assert jobs.workers_alive() == 1
+    time.sleep(1.2)  # lease_s = 1
+    assert jobs.workers_alive() == 0
+
+
+def test_active_job_cap_is_per_owner_and_self_heals(jobs):
+    first, _ = queued(jobs, max_active=2), queued(jobs, max_active=2)
+    with pytest.raises(TooManyJobs):
+        queued(jobs, max_active=2)
+    queued(jobs, owner="someone else", max_active=2)
+    jobs.redis.delete(f"{jobs.prefix}:job:{first.id}")  # a record that expired without releasing its slot
+    queued(jobs, max_active=2)
+
+
+def test_dir_storage_round_trip_and_sweep(tmp_path):
+    store = DirStorage(tmp_path, ttl_s=60)
+    store.put("job1", "result.glb", b"abc")
+    assert store.get("job1", "result.glb") == b"abc"
+    assert store.get("job1", "missing") is None
+    with pytest.raises(ValueError):
+        store.put("../x", "a", b"")
+    store.put("job2", "report.json", b"{}")
+    old = time.time() - 120
+    os.utime(tmp_path / "job1", (old, old))
+    assert store.sweep() == 1
+    assert store.get("job1", "result.glb") is None and store.get("job2", "report.json") == b"{}"
+    store.delete("job2", ["report.json"])
+    assert store.get("job2", "report.json") is None
+
+
+def test_settings_read_comma_lists_and_redis_url(monkeypatch):
+    monkeypatch.setenv("REDIS_URL", "redis://h:1/2")
+    monkeypatch.setenv("CTP_API_KEYS", "a, b,,c")
+    monkeypatch.setenv("CTP_MODELS", "random:tiny")
+    settings = Settings()
+    assert settings.redis_url == "redis://h:1/2"
+    assert settings.api_keys == ["a", "b", "c"]
+    assert settings.allowed_models == [settings.model, "random:tiny"]
