@@ -132,6 +132,7 @@ def test_mesh_extents_refine_a_ratio_inside_the_range():
     ("wall", "poster", "a poster stuck on the wall", False),
     ("cutting_board", "bread", "bread on a cutting board", False),
     ("shelf", "vase", "a vase beside the shelf", False),
+    ("cake", "chef", "a chef cutting a cake", False),      # people cut with tools
 ])
 def test_penetration_cues(target, source, prompt, penetration):
     assert rules(target, source, prompt).penetration is penetration

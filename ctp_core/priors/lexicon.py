@@ -25,6 +25,7 @@ of its owner's, so any owner in the table works without listing every pair.
 from __future__ import annotations
 
 import re
+import unicodedata
 from dataclasses import dataclass
 
 _TABLE = """
@@ -83,6 +84,13 @@ wine/beer/juice/milk/water/soda/drink/cocktail/martini/margarita 0.18 container
 teabag/tea_bag 0.07 flat
 sugar_cube/ice_cube 0.02
 # --- tableware and kitchen ---
+coaster 0.1 flat
+decanter/carafe/pitcher/jug/vial/potion/potion_bottle 0.25 container
+ice_bucket/wine_cooler 0.25 container
+cocktail_umbrella 0.1 pointed
+macaron/truffle 0.04
+watering_can 0.4 container
+cake_stand 0.3
 plate/dish/saucer 0.27 flat,container
 bowl 0.2 container
 cup/coffee_cup/teacup/mug/beaker 0.1 container
@@ -115,6 +123,19 @@ toothbrush/razor/hairbrush/comb 0.18 pointed
 toothpaste/tube 0.18
 soap/sponge 0.09 soft
 # --- furniture and home ---
+anvil 0.5
+barrel/keg/cask 0.9 container
+lantern 0.3
+pedestal/plinth 1.0
+podium/lectern 1.2
+coffin/casket 2.0 container
+tombstone/gravestone/headstone 1.0
+easel/tripod 1.7
+telescope/microscope 1.0
+microphone/mic 0.2
+turntable/record_player 0.45
+record/vinyl 0.3 flat
+dollhouse 0.8 container
 table/dining_table/coffee_table/kitchen_table 1.5
 desk/workbench 1.4
 chair/stool/armchair/office_chair 0.9
@@ -272,6 +293,7 @@ cross 1.0
 star 0.2
 statue/sculpture 2.0
 # --- toys and figures ---
+rubber_duck 0.08
 toy/figurine/action_figure/doll/puppet 0.3
 teddy_bear/teddy/plush/stuffed_animal 0.4 soft,agent
 lego/lego_brick/toy_block 0.05
@@ -305,6 +327,9 @@ finger/toe 0.08
 neck 0.12
 nose/ear/mouth/eye 0.05
 # --- animals ---
+scarecrow/ghost/skeleton 1.8 agent
+dragon/dinosaur 10.0 agent
+unicorn 2.4 agent
 dog/puppy/wolf/fox 0.8 agent
 cat/kitten 0.45 soft,agent
 rabbit/bunny/hare 0.4 agent
@@ -341,6 +366,8 @@ rock/stone/boulder 0.5
 pebble 0.04 round
 sand/dirt/soil/snow/mud 1.0
 # --- vehicles ---
+tire/tyre/wheel 0.7 round
+ufo/flying_saucer 10.0
 car/taxi/sedan/suv/jeep/van 4.5 container
 truck/lorry/bus/tractor 7.0 container
 bicycle/bike/tricycle 1.7
@@ -355,6 +382,12 @@ train/locomotive/tram 20.0
 wagon/cart/wheelbarrow/stroller/pram 1.5 container
 sled/sledge/sleigh 1.5
 # --- buildings and places ---
+fire_hydrant 0.8
+lamp_post/street_lamp/streetlight/lamppost 4.0 pointed
+traffic_cone 0.7
+hay_bale 1.2
+haystack 3.0
+bird_bath/birdbath 0.8 container
 house/home/cottage/cabin/hut/shed 10.0 container
 garage 6.0 container
 barn/warehouse/factory 20.0 container
@@ -460,6 +493,7 @@ def singulars(word: str) -> list[str]:
 
 def words(text: str) -> list[str]:
     """Lower-case word tokens of a file-style or prose name ("CoffeeCup_02" -> ["coffee", "cup"])."""
+    text = unicodedata.normalize("NFKD", text).encode("ascii", "ignore").decode()  # "Ståtue" -> "Statue"
     text = re.sub(r"(?<=[a-z])(?=[A-Z])", " ", text)  # camelCase
     text = re.sub(r"['’]s\b", " ", text)  # possessive: "the ball's head"
     return re.findall(r"[a-z]+", text.lower())

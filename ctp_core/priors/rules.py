@@ -76,11 +76,14 @@ def _mentions(prompt: str, name: str, match: lexicon.Match | None) -> list[int]:
 
 
 def _relation(cue, target, source, figure) -> tuple[relations.Relation, str]:
-    """The cue's relation ("a ball riding down a slide" rests on it: only agents ride or sit)."""
+    """The cue's relation; only agents ride or sit ("a ball riding down a slide" rests on it), and
+    agents cut with tools, not themselves ("a chef cutting a cake" handles it)."""
     if cue is not None:
         rel = relations.RELATIONS[cue.cue.relation]
         if rel.name == "sit" and figure is not None and not figure.has("agent"):
             return relations.RELATIONS["on"], f"'{cue.text}' said of an object: resting on"
+        if rel.name == "penetrate" and figure is not None and figure.has("agent"):  # "a chef cutting a cake"
+            return relations.RELATIONS["hold"], f"'{cue.text}' said of someone: handling it, with a tool"
         return rel, f"'{cue.text}' -> {rel.name}"
     if source is not None and lexicon.bare_part(source.phrase) is not None:
         return relations.RELATIONS["on"], "no relation cue; a detachable part: assumed seated on its owner"
@@ -110,10 +113,10 @@ def _size_ratio(target_name, source_name, target, source, relation: str, figure:
             whys.append(f"{name}: {match.how}")
         elif is_ground and relation in _AGENT_GROUND or not is_ground and relation == "sit":
             sizes.append(PERSON_M)
-            whys.append(f"{name}: unknown, taken as a person ({PERSON_M:g} m) because it {relation}s")
+            whys.append(f"{name!r}: unknown, taken as a person ({PERSON_M:g} m) because it {relation}s")
         else:
             sizes.append(None)
-            whys.append(f"{name}: not in the lexicon")
+            whys.append(f"{name!r}: not in the lexicon")
     if None in sizes:
         return 1.0, "size ratio 1.0 (fallback: " + ", ".join(whys) + ")"
     ratio = sizes[1] / sizes[0]
