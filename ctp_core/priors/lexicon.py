@@ -417,7 +417,7 @@ DETACHABLE = frozenset({"lid", "cap", "cover", "case", "sheath", "stand", "base"
 # Parts that hold their owner (a lipstick's cover, a blender's jar) are containers.
 CONTAINER_PARTS = frozenset({"cover", "case", "sheath", "holder", "jar", "tank", "container", "cap"})
 
-# Size adjectives in a name or just before a mention ("small flag", "big knife").
+# Size adjectives in a name ("ball_small", "BigRock").
 SIZE_WORDS: dict[str, float] = {
     "tiny": 0.3, "mini": 0.5, "miniature": 0.3, "small": 0.5, "little": 0.5,
     "big": 2.0, "large": 2.0, "huge": 4.0, "giant": 5.0, "enormous": 5.0,

@@ -67,7 +67,7 @@ def _mentions(prompt: str, name: str, match: lexicon.Match | None) -> list[int]:
         return []
     head_forms = set(lexicon.singulars(match.phrase.split()[-1] if match else name_words[-1]))
     heads = [offsets[i] for i, t in enumerate(tokens) if head_forms & set(lexicon.singulars(t))]
-    if match is not None and match.phrase in lexicon.LEXICON:  # a synonym: "broomstick" for "broom"
+    if match is not None and lexicon.LEXICON.get(match.phrase) is match.entry:  # a synonym: "broomstick", "broom"
         heads += [offsets[s] for s, _, _, entry in lexicon.spans(tokens) if entry is match.entry]
     if heads:
         return sorted(set(heads))
