@@ -37,6 +37,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("cases_dir", type=Path, help="folder searched recursively for <case>/case.json")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     parser.add_argument("--cases", action=_Extend, help="case ids (case.json 'id'), comma list; default all")
+    parser.add_argument("--with-reference", action="store_true",
+                        help="only cases with a reference arrangement (the ones pose errors exist for)")
     parser.add_argument("--method", action=_Extend, dest="methods",
                         help=f"{' | '.join(METHODS)}; repeatable or a comma list (default ctp)")
     parser.add_argument("--protocol", choices=PROTOCOLS, default="rigid",
@@ -85,6 +87,10 @@ def run(args: argparse.Namespace) -> int:
             ablation=args.ablation, device=args.device, threads=args.threads)
         options.config("ctp")  # a bad preset or model spec fails here, before any case runs
         found = cases.discover(args.cases_dir, args.cases)
+        if args.with_reference:
+            found = [c for c in found if c.reference is not None]
+        if not found:
+            raise ConfigError(f"no cases to run under {args.cases_dir}", field="cases_dir")
         rows = harness.run_bench(found, options, args.out, jobs=args.jobs, resume=args.resume,
                                  on_case=CaseBar(enabled=not args.quiet))
     except (MeshError, ConfigError) as exc:
