@@ -19,6 +19,7 @@ from ctp_core.priors import (
     get_provider,
     lexicon,
     mesh_size_ratio,
+    relations,
     resolve_priors,
 )
 from ctp_core.priors.openai import AnswerError, parse_answer
@@ -217,8 +218,12 @@ def test_parts_and_size_words():
 
 def test_unknown_objects_fall_back_and_say_so():
     prior = rules("zorblax", "quux", "a quux on the zorblax")
-    assert prior.size_ratio == 1.0
+    assert prior.size_ratio == relations.RELATIONS["on"].figure_size  # what rests on a thing is smaller
     assert "fallback" in prior.reason and "zorblax" in prior.reason
+    # the same relation with the unknown source as the ground: the inverse ratio
+    assert rules("zorblax", "quux", "a zorblax on the quux").size_ratio == pytest.approx(
+        1 / relations.RELATIONS["on"].figure_size)
+    assert rules("zorblax", "quux", "a quux beside the zorblax").size_ratio == 1.0
     holder = rules("grimbly", "sword", "grimbly holding a sword")
     assert holder.size_ratio == pytest.approx(lexicon.lookup("sword").size_m / 1.75)
     assert "person" in holder.reason

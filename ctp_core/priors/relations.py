@@ -19,34 +19,36 @@ from dataclasses import dataclass
 
 @dataclass(frozen=True)
 class Relation:
-    """Contact of the figure's and of the ground's surface, and whether solids interpenetrate.
+    """Contact of the figure's and of the ground's surface, whether solids interpenetrate, and a size.
 
     ``penetration``: "yes" (cut, pierce, embed ... unless the ground is a container: a key stuck in a
     lock goes into the keyhole), "if_pointed" ("in"/"through": an arrow in a target yes, a spoon in a
-    cup no) or "no".
+    cup no) or "no". ``figure_size``: the figure's size over the ground's when the lexicon does not
+    know one of them; what sits on, in or hangs from something is usually the smaller of the two.
     """
 
     name: str
     figure_contact: float
     ground_contact: float
+    figure_size: float
     penetration: str = "no"
 
 
 RELATIONS: dict[str, Relation] = {r.name: r for r in (
-    Relation("penetrate", 0.25, 0.1, "yes"),   # the buried part of a blade, arrow or nail
-    Relation("wear", 0.35, 0.1),               # a hat's inner band; garments that wrap get more (rules)
-    Relation("hold", 0.1, 0.05),               # a hand closes around a handle
-    Relation("sit", 0.2, 0.2),                 # a rider or sitter: seat, legs, hands
-    Relation("lie", 0.35, 0.05),               # lying or draped: one side
-    Relation("stand", 0.05, 0.02),             # feet or a foot only
-    Relation("wrap", 0.6, 0.2),                # coiled or tied around
-    Relation("lean", 0.05, 0.02),              # an end or an edge
-    Relation("hang", 0.05, 0.02),              # a loop on a hook
-    Relation("attach", 0.3, 0.05),             # glued, taped, mounted: a face or a foot
-    Relation("under", 0.0, 0.05),              # "a ball under the table" does not touch it
-    Relation("beside", 0.0, 0.0),              # next to, behind, in front of: no contact
-    Relation("in", 0.25, 0.15, "if_pointed"),  # contained: the bottom and some of the walls
-    Relation("on", 0.15, 0.05),                # resting on: its base
+    Relation("penetrate", 0.25, 0.1, 0.8, "yes"),   # the buried part of a blade, arrow or nail
+    Relation("wear", 0.35, 0.1, 0.2),               # a hat's inner band; garments that wrap get more (rules)
+    Relation("hold", 0.1, 0.05, 0.3),               # a hand closes around a handle
+    Relation("sit", 0.2, 0.2, 0.6),                 # a rider or sitter: seat, legs, hands
+    Relation("lie", 0.35, 0.05, 0.3),               # lying or draped: one side
+    Relation("stand", 0.05, 0.02, 0.3),             # feet or a foot only
+    Relation("wrap", 0.6, 0.2, 0.3),                # coiled or tied around
+    Relation("lean", 0.05, 0.02, 0.8),              # an end or an edge
+    Relation("hang", 0.05, 0.02, 0.2),              # a loop on a hook
+    Relation("attach", 0.3, 0.05, 0.2),             # glued, taped, mounted: a face or a foot
+    Relation("under", 0.0, 0.05, 0.5),              # "a ball under the table" does not touch it
+    Relation("beside", 0.0, 0.0, 1.0),              # next to, behind, in front of: no contact
+    Relation("in", 0.25, 0.15, 0.5, "if_pointed"),  # contained: the bottom and some of the walls
+    Relation("on", 0.15, 0.05, 0.3),                # resting on: its base
 )}
 
 

@@ -42,7 +42,7 @@ class RulesProvider:
         if relation.name == "under" and not figure:  # "a table under a cup": the cup is on the table
             relation, figure = relations.RELATIONS["on"], True
             notes.append("read as the target resting on the source")
-        size, size_why = _size_ratio(target_name, source_name, target, source, relation.name, figure)
+        size, size_why = _size_ratio(target_name, source_name, target, source, relation, figure)
         notes.insert(0, size_why)
         penetration, pen_why = _penetration(relation, figure, target, source)
         notes.append(pen_why)
@@ -92,8 +92,9 @@ def _relation(cue, target, source, figure) -> tuple[relations.Relation, str]:
     return relations.RELATIONS["on"], "no relation cue: assumed resting on"
 
 
-def _size_ratio(target_name, source_name, target, source, relation: str, figure: bool) -> tuple[float, str]:
-    """Lexicon sizes; an unknown wearer/holder/rider is a person; anything else unknown gives 1.0.
+def _size_ratio(target_name, source_name, target, source, relation, figure: bool) -> tuple[float, str]:
+    """Lexicon sizes; an unknown wearer/holder/rider is a person; otherwise an unknown size falls back
+    to the relation's typical figure/ground ratio.
 
     A name that is only a detachable part ("lid", "cap") belongs to the other object: a teapot's lid
     is sized from the teapot, a pen's cap from the pen.
@@ -111,14 +112,16 @@ def _size_ratio(target_name, source_name, target, source, relation: str, figure:
         if match is not None:
             sizes.append(match.size_m)
             whys.append(f"{name}: {match.how}")
-        elif is_ground and relation in _AGENT_GROUND or not is_ground and relation == "sit":
+        elif is_ground and relation.name in _AGENT_GROUND or not is_ground and relation.name == "sit":
             sizes.append(PERSON_M)
-            whys.append(f"{name!r}: unknown, taken as a person ({PERSON_M:g} m) because it {relation}s")
+            whys.append(f"{name!r}: unknown, taken as a person ({PERSON_M:g} m) because it {relation.name}s")
         else:
             sizes.append(None)
             whys.append(f"{name!r}: not in the lexicon")
     if None in sizes:
-        return 1.0, "size ratio 1.0 (fallback: " + ", ".join(whys) + ")"
+        ratio = relation.figure_size if figure else 1.0 / relation.figure_size
+        return ratio, (f"size ratio {clamp_size(ratio):.3g} (fallback: {', '.join(whys)}; "
+                       f"the typical ratio for '{relation.name}')")
     ratio = sizes[1] / sizes[0]
     clamped = clamp_size(ratio)
     note = "" if clamped == ratio else f", clamped from {ratio:.3g}"
