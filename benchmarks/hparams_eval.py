@@ -8,6 +8,8 @@ size uniformly in [0.1, 10], contact uniformly in [0, 1] and penetration by a fa
 
     python benchmarks/hparams_eval.py [--provider rules|openai] [--errors] [--labels FILE]
 
+Origins: ``bench`` (every prompt of ../shared/bench), ``hand`` (labelled before the rules were written),
+``holdout`` (labelled after they were first frozen; see the README for what changed since).
 Labels: ``size_ratio`` is source/target longest side (measured on the bench's split models where both
 parts come from one model, estimated from typical real sizes otherwise), ``contact_ratio`` the fraction
 of the source's surface touching the target, ``penetration`` whether one solid passes into the other.
