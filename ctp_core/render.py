@@ -163,11 +163,12 @@ def render(mesh: RenderMesh, verts: Tensor, cameras: Cameras, *, background: flo
     inst = _face_instances(mesh.faces, verts, cameras)
     fid = _rasterize(inst.planes.detach(), inst.bbox, len(mesh.faces), size)
     covered = (fid >= 0).nonzero()[:, 0]
-    m = fid[covered]
-    table = torch.cat([inst.planes.flatten(1), inst.shade[:, None]], dim=1)[m]  # one gather: 9 plane coefs + shade
-    e = (table[:, :9].view(-1, 3, 3) * _pixel_centres(covered, size).to(verts.dtype)[:, None, :]).sum(-1)
+    m = fid.index_select(0, covered)
+    table = torch.cat([inst.planes.flatten(1), inst.shade[:, None]], 1).index_select(0, m)  # planes + shade
+    x, y = _pixel_centres(covered, size, verts.dtype)
+    e = _edge_values(table[:, :9].view(-1, 3, 3), x, y)
     bary = e / e.sum(-1, keepdim=True)
-    colour = _albedo(mesh, m % len(mesh.faces), bary, verts.dtype) * table[:, 9:]
+    colour = _albedo(mesh, m % len(mesh.faces), bary) * table[:, 9:]
     img = torch.full((batch * views * size * size, 3), background, dtype=verts.dtype, device=verts.device)
     img = _antialias(img.index_put((covered,), colour), fid, inst, mesh.neighbours, size)
     # A pixel blended from several sides can overshoot slightly (as in nvdiffrast); keep the [0, 1] contract.
@@ -186,7 +187,7 @@ def coverage(mesh: RenderMesh, verts: Tensor, cameras: Cameras) -> Tensor:
 class _Instances(NamedTuple):
     """Per face instance m = n * F + f (image n, face f), camera frame of image n."""
 
-    planes: Tensor  # (M, 3, 3): planes[m, i] = (a, b, c), e_i(x, y) = a x + b y + c at pixel (x, y)
+    planes: Tensor  # (M, 3, 3): rows a, b, c over edges i: e_i(x, y) = a_i x + b_i y + c_i at pixel (x, y)
     shade: Tensor  # (M,) flat Lambert factor
     facing: Tensor  # (M,) int8: sign of the winding seen from the camera, 0 for dropped faces
     bbox: Tensor  # (M, 4) inclusive pixel index range x0, y0, x1, y1 of candidate centres; empty if dropped
@@ -197,7 +198,7 @@ def _face_instances(faces: Tensor, verts: Tensor, cameras: Cameras) -> _Instance
     size = cameras.image_size
     focal = cameras.focal_px().to(verts.dtype)  # (B, C)
     view = cameras.to_view(verts[:, None])  # (B, C, V, 3) camera frame
-    tri = view[:, :, faces].flatten(0, 2)  # (M, 3 vertices, 3)
+    tri = view.index_select(2, faces.flatten()).view(-1, 3, 3)  # (M, 3 vertices, 3)
     v0, v1, v2 = tri.unbind(1)
     edges = torch.stack([torch.linalg.cross(v1, v2), torch.linalg.cross(v2, v0), torch.linalg.cross(v0, v1)], 1)
     det = (v0 * edges[:, 0]).sum(-1)  # (M,) triple product; its sign is the winding seen from the camera
@@ -219,7 +220,7 @@ def _face_instances(faces: Tensor, verts: Tensor, cameras: Cameras) -> _Instance
 
     # d(x, y) = ((x - s/2) / f, -(y - s/2) / f, -1), so d . E = E_x/f x - E_y/f y + (E_y - E_x) s/(2f) - E_z.
     ex, ey, ez = (edges / torch.where(keep, det, torch.ones_like(det))[:, None, None]).unbind(-1)
-    planes = torch.stack([ex / f, -ey / f, (ey - ex) * (size / 2) / f - ez], -1)
+    planes = torch.stack([ex / f, -ey / f, (ey - ex) * (size / 2) / f - ez], 1)
 
     normal = edges.sum(1)  # (v1 - v0) x (v2 - v0), camera frame
     facing = -torch.sign(det)[:, None]  # flips the normal towards the camera: two-sided lighting
@@ -236,100 +237,125 @@ def _rasterize(planes: Tensor, bbox: Tensor, faces_per_image: int, size: int) ->
     count = width.clamp_min(0) * (bbox[:, 3] - bbox[:, 1] + 1).clamp_min(0)
     live = count.nonzero()[:, 0]
     count = count[live]
-    start = count.cumsum(0) - count
-    info = torch.stack([live, bbox[live, 0], bbox[live, 1], width[live], start], -1)[
-        torch.repeat_interleave(count)]  # (K, 5): one row per (face instance, pixel) candidate
-    local = torch.arange(len(info), device=info.device) - info[:, 4]
-    row = local.div(info[:, 3], rounding_mode="floor")
-    px, py = info[:, 1] + local - row * info[:, 3], info[:, 2] + row
-    m = info[:, 0]
-    centres = torch.stack([px + 0.5, py + 0.5, torch.ones_like(px)], -1).to(planes.dtype)
-    e = (planes[m] * centres[:, None, :]).sum(-1)  # (K, 3)
+    owner = torch.repeat_interleave(count)  # (K,) live face of each (face instance, pixel) candidate
+    local = torch.arange(len(owner), device=owner.device) - (count.cumsum(0) - count).index_select(0, owner)
+    # One float gather per candidate: the plane coefficients (a0 a1 a2 b0 b1 b2 c0 c1 c2) and the bbox
+    # corner and width. Pixel indices within a bbox are far below 2^24, so float arithmetic is exact.
+    table = torch.cat([planes.index_select(0, live).flatten(1), bbox.index_select(0, live)[:, :2].to(planes.dtype),
+                       width.index_select(0, live)[:, None].to(planes.dtype)], 1).index_select(0, owner)
+    local = local.to(planes.dtype)
+    row = torch.floor((local + 0.5) / table[:, 11])
+    px, py = table[:, 9] + local - row * table[:, 11], table[:, 10] + row
+    e = torch.addcmul(table[:, 6:9], table[:, 0:3], (px + 0.5)[:, None]).addcmul_(table[:, 3:6], (py + 0.5)[:, None])
     inv_depth = e.sum(-1)
-    hit = (e.amin(-1) >= -INSIDE_TOL * inv_depth) & (inv_depth > 0)
-    m, inv_depth = m[hit], inv_depth[hit]
-    pixel = (m // faces_per_image * size + py[hit]) * size + px[hit]
+    hit = ((e.amin(-1) >= -INSIDE_TOL * inv_depth) & (inv_depth > 0)).nonzero()[:, 0]
+    m = live.index_select(0, owner.index_select(0, hit))
+    pixel = (m // faces_per_image) * (size * size) + (py[hit] * size + px[hit]).long()
     # Positive float32 bit patterns sort like the floats, so the high word orders by 1/depth (nearest
     # wins) and the low word breaks ties deterministically.
-    key = (inv_depth.float().view(torch.int32).long() << 32) | m
+    key = (inv_depth[hit].float().view(torch.int32).long() << 32) | m
     images = len(planes) // faces_per_image
     best = torch.full((images * size * size,), -1, dtype=torch.long, device=planes.device)
     best.scatter_reduce_(0, pixel, key, "amax")
     return torch.where(best >= 0, best & 0xFFFFFFFF, -1)
 
 
-def _pixel_centres(pixel: Tensor, size: int) -> Tensor:
-    """Flat pixel indices (n * size + y) * size + x -> (P, 3) homogeneous centres (x + 0.5, y + 0.5, 1)."""
+def _pixel_centres(pixel: Tensor, size: int, dtype: torch.dtype) -> tuple[Tensor, Tensor]:
+    """Flat pixel indices (n * size + y) * size + x -> pixel-centre coordinates x + 0.5, y + 0.5."""
     within = pixel % (size * size)
     row = within.div(size, rounding_mode="floor")
-    return torch.stack([within - row * size + 0.5, row + 0.5, torch.ones_like(row)], -1).float()
+    return (within - row * size).to(dtype) + 0.5, row.to(dtype) + 0.5
 
 
-def _albedo(mesh: RenderMesh, face: Tensor, bary: Tensor, dtype: torch.dtype) -> Tensor:
+def _edge_values(planes: Tensor, x: Tensor, y: Tensor) -> Tensor:
+    """(T, 3, 3) edge planes at points (T,) -> (T, 3) e_i = a_i x + b_i y + c_i."""
+    return torch.addcmul(planes[:, 2], planes[:, 0], x[:, None]).addcmul_(planes[:, 1], y[:, None])
+
+
+def _albedo(mesh: RenderMesh, face: Tensor, bary: Tensor) -> Tensor:
     """(P, 3) vertex colour, times the texture where there is one, at barycentrics (P, 3) of faces (P,)."""
-    corners = mesh.faces[face]  # (P, 3)
-    colour = (mesh.colors.to(dtype)[corners] * bary[..., None]).sum(1)
+    # One gather of a per-face table: corner colours (9), and with a texture corner UVs (6) and tile (4).
+    parts = [mesh.colors.to(bary.dtype).index_select(0, mesh.faces.flatten()).view(-1, 9)]
+    if mesh.textured:
+        parts += [mesh.uv.to(bary.dtype).index_select(0, mesh.faces.flatten()).view(-1, 6), _tiles(mesh).to(bary.dtype)]
+    table = torch.cat(parts, 1).index_select(0, face)
+    colour = (table[:, :9].view(-1, 3, 3) * bary[..., None]).sum(1)
     if not mesh.textured:
         return colour
-    uv = (mesh.uv.to(dtype)[corners] * bary[..., None]).sum(1)
+    uv = (table[:, 9:15].view(-1, 3, 2) * bary[..., None]).sum(1)
     uv = torch.where((uv < 0) | (uv > 1), uv - torch.floor(uv), uv)  # repeat; 1.0 stays at the far edge
-    x0, y0, w, h = _tiles(mesh).to(dtype)[face].unbind(-1)
+    x0, y0, w, h = table[:, 15:].unbind(-1)
     # Texel coordinates inside the face's tile, kept half a texel from its border so that bilinear taps
     # never reach a neighbouring tile of the atlas.
     x = torch.minimum(torch.maximum(x0 + uv[:, 0] * w, x0 + 0.5), x0 + w - 0.5)
     y = torch.minimum(torch.maximum(y0 + (1 - uv[:, 1]) * h, y0 + 0.5), y0 + h - 0.5)
     height, width = mesh.texture.shape[1:]
     grid = torch.stack([x * (2 / width) - 1, y * (2 / height) - 1], -1)  # grid_sample: (-1, -1) = top-left
-    texel = F.grid_sample(mesh.texture.to(dtype)[None], grid[None, None], mode="bilinear",
+    texel = F.grid_sample(mesh.texture.to(bary.dtype)[None], grid[None, None], mode="bilinear",
                           padding_mode="border", align_corners=False)[0, :, 0].T
     return colour * texel
 
 
 def _antialias(img: Tensor, fid: Tensor, inst: _Instances, neighbours: Tensor, size: int) -> Tensor:
-    """Blend adjacent pixels across the front face's edges (nvdiffrast ``antialias``), with gradient.
+    """Blend adjacent pixels across visibility boundaries (nvdiffrast ``antialias``), with gradient.
 
     img (N * size * size, 3) flat images; fid the face instance per pixel. For a pair (inside pixel of the
-    front face, outside pixel) whose segment leaves the front surface at fraction t from the inside
-    centre, the surface covers t - 1/2 of a pixel beyond the midpoint: the outside pixel moves towards the
+    front surface, outside pixel) whose segment crosses the boundary at fraction t from the inside centre,
+    the front surface covers t - 1/2 of a pixel beyond the midpoint: the outside pixel moves towards the
     inside colour when t > 1/2, the inside one towards the outside colour when t < 1/2, by |t - 1/2| of
-    the colour difference. This is continuous as an edge passes a pixel centre.
+    the colour difference. This is continuous as a boundary passes a pixel centre.
 
-    The edge used must be where the front surface really ends on the way to the other pixel: a silhouette
-    edge (boundary, or its neighbour faces the other way), or the edge to the face the other pixel shows.
-    When the segment leaves the front face through another interior edge, the walk continues into the
-    neighbour (up to ``_HOPS`` faces: the thin foreshortened faces along a silhouette); otherwise a pixel
-    beside the background would blend at the wrong place.
+    The boundary is found by walking from the front face along the segment (``_walk_to_surface_end``):
+    - an edge where the surface ends (boundary, fold) or meets the face the other pixel shows: the edge;
+    - the surface goes on under the other pixel, whose face is nearer there: the two surfaces intersect,
+      and the boundary is where their depth planes cross (1/depth is affine in the pixel, so this is a
+      line too). nvdiffrast leaves these unblended; here an object pushed into another still gets a
+      gradient from the intersection line.
     """
     grid = fid.view(-1, size, size)
     across = (grid[:, :, :-1] != grid[:, :, 1:]).flatten().nonzero()[:, 0]
     down = (grid[:, :-1, :] != grid[:, 1:, :]).flatten().nonzero()[:, 0]
     first = torch.cat([across + across.div(size - 1, rounding_mode="floor"),
                        down + down.div((size - 1) * size, rounding_mode="floor") * size])
-    second = first + torch.cat([torch.ones_like(across), torch.full_like(down, size)])
     horizontal = torch.arange(len(first), device=first.device) < len(across)
+    second = first + torch.where(horizontal, 1, size)
     planes = inst.planes
+    depth = planes.sum(-1)  # (M, 3): 1/depth = a x + b y + c, with gradient
     with torch.no_grad():
-        m0, m1 = fid[first], fid[second]
-        centre0, centre1 = _pixel_centres(first, size).to(planes.dtype), _pixel_centres(second, size).to(planes.dtype)
-        depth_planes = planes.detach().sum(1)  # (M, 3): 1/depth as an affine function of the pixel
-        mid = (centre0 + centre1) / 2  # the front face is the nearer plane at the midpoint
-        front0 = (m1 < 0) | ((m0 >= 0) & ((depth_planes[m0.clamp_min(0)] * mid).sum(-1)
-                                          >= (depth_planes[m1.clamp_min(0)] * mid).sum(-1)))
+        m0, m1 = fid.index_select(0, first), fid.index_select(0, second)
+        x0, y0 = _pixel_centres(first, size, planes.dtype)
+        step_x, step_y = horizontal.to(planes.dtype), (~horizontal).to(planes.dtype)  # first -> second
+        mid = torch.stack([x0 + step_x / 2, y0 + step_y / 2, torch.ones_like(x0)], -1)
+        inv0 = (depth.detach().index_select(0, m0.clamp_min(0)) * mid).sum(-1)
+        inv1 = (depth.detach().index_select(0, m1.clamp_min(0)) * mid).sum(-1)
+        front0 = (m1 < 0) | ((m0 >= 0) & (inv0 >= inv1))  # the nearer plane at the midpoint is in front
         inside, outside = torch.where(front0, first, second), torch.where(front0, second, first)
-        c_in, c_out = torch.where(front0[:, None], centre0, centre1), torch.where(front0[:, None], centre1, centre0)
         face, other = torch.where(front0, m0, m1), torch.where(front0, m1, m0)
-        face, edge, ends = _walk_to_surface_end(planes.detach(), inst.facing, neighbours, face, other, c_in, c_out)
-        keep = ends.nonzero()[:, 0]
-    row = planes[face[keep], edge[keep]]  # (Q, 3) with gradient
-    e_in, e_out = (row * c_in[keep]).sum(-1), (row * c_out[keep]).sum(-1)
-    # A straight edge moved by d changes the image by d per unit length through its horizontal pairs alone,
-    # and again through its vertical pairs alone; share it between the two by cos^2 / sin^2 of the edge
+        back = (~front0).to(planes.dtype)  # the segment runs inside -> outside: second -> first if back
+        segment = torch.stack([x0 + step_x * back, y0 + step_y * back, step_x * (1 - 2 * back),
+                               step_y * (1 - 2 * back)], -1)
+        face, edge, ends, covers = _walk_to_surface_end(planes.detach(), inst.facing, neighbours, face, other,
+                                                        segment)
+        at_edge = ends.nonzero()[:, 0]
+        at_crossing = (covers & (other >= 0)).nonzero()[:, 0]
+    # The boundary as a line l(x, y) = a x + b y + c, >= 0 on the inside centre and < 0 on the outside one.
+    edge_lines = planes.index_select(0, face[at_edge]).gather(2, edge[at_edge, None, None].expand(-1, 3, 1))[..., 0]
+    crossing_lines = depth.index_select(0, face[at_crossing]) - depth.index_select(0, other[at_crossing])
+    lines, pairs = torch.cat([edge_lines, crossing_lines]), torch.cat([at_edge, at_crossing])
+    x_in, y_in, dx, dy = segment.index_select(0, pairs).unbind(-1)
+    a, b, c = lines.unbind(-1)
+    value, slope = a * x_in + b * y_in + c, a * dx + b * dy
+    with torch.no_grad():  # depth planes extended from one pixel to the next need not cross between them
+        keep = ((slope < 0) & (value >= 0) & (value + slope < 0)).nonzero()[:, 0]
+    a, b, value, slope, pairs = (v.index_select(0, keep) for v in (a, b, value, slope, pairs))
+    t = -value / slope
+    # A straight boundary moved by d changes the image by d per unit length through its horizontal pairs
+    # alone, and again through its vertical pairs alone; share it between the two by cos^2 / sin^2 of its
     # normal (nvdiffrast picks one by slope, which jumps as an edge turns through 45 degrees).
-    a2, b2 = row[:, 0].square(), row[:, 1].square()
-    share = torch.where(horizontal[keep], a2, b2) / (a2 + b2)
-    weight = share * ((e_in / (e_in - e_out)).clamp(0, 1) - 0.5)
-    inside, outside = inside[keep], outside[keep]
-    delta = weight[:, None] * (img[inside] - img[outside])
+    a2, b2 = a.square(), b.square()
+    weight = torch.where(horizontal.index_select(0, pairs), a2, b2) / (a2 + b2) * (t.clamp(0, 1) - 0.5)
+    inside, outside = inside.index_select(0, pairs), outside.index_select(0, pairs)
+    delta = weight[:, None] * (img.index_select(0, inside) - img.index_select(0, outside))
     return img.index_add(0, torch.where(weight > 0, outside, inside), delta)
 
 
@@ -337,34 +363,43 @@ _HOPS = 8
 
 
 def _walk_to_surface_end(planes: Tensor, facing: Tensor, neighbours: Tensor, face: Tensor, other: Tensor,
-                         c_in: Tensor, c_out: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """Follow the segment c_in -> c_out across interior edges, from ``face`` (instances) until it ends.
+                         segment: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Follow pixel-pair segments across interior edges, from ``face`` (instances) until they end.
 
-    Returns the face and edge where the segment leaves the surface, and whether that happens before
-    c_out at an edge that ends the visible surface towards ``other`` (the instance at c_out, -1 if none).
+    segment (T, 4): start x, y (the inside centre) and the step dx, dy to the other centre; ``other`` is
+    the instance shown there (-1: none). Returns, per segment, the last face reached and the edge it
+    leaves by, ``ends`` (it leaves before the other centre by an edge that ends the visible surface or
+    leads to ``other``) and ``covers`` (the surface reaches the other centre: ``other`` is in front there).
+    Walks longer than ``_HOPS`` faces give neither.
     """
     faces_per_image = len(neighbours)
     image_start = face - face % faces_per_image
     face = face.clone()
     ends = torch.zeros_like(face, dtype=torch.bool)
+    covers = torch.zeros_like(ends)
     edge = torch.zeros_like(face)
     todo = torch.arange(len(face), device=face.device)
     for hop in range(_HOPS + 1):
-        f, rows = face[todo], planes[face[todo]]
-        e_in, e_out = (rows * c_in[todo, None, :]).sum(-1), (rows * c_out[todo, None, :]).sum(-1)
-        leaving = e_out < e_in
-        t, k = torch.where(leaving, e_in / torch.where(leaving, e_in - e_out, torch.ones_like(e_in)), 2.0).min(-1)
-        code = neighbours[f % faces_per_image, k]
-        nb_m = torch.where(code == -1, -1, torch.where(code >= 0, code, -2 - code) + image_start[todo])
+        f, seg = face.index_select(0, todo), segment.index_select(0, todo)
+        rows = planes.index_select(0, f)
+        e = _edge_values(rows, seg[:, 0], seg[:, 1])
+        step = rows[:, 0] * seg[:, 2:3] + rows[:, 1] * seg[:, 3:4]
+        leaving = step < 0
+        t, k = torch.where(leaving, -e / torch.where(leaving, step, -1.0), 2.0).min(-1)
+        code = neighbours.view(-1).index_select(0, (f % faces_per_image) * 3 + k)
+        nb = torch.where(code >= 0, code, -2 - code) + image_start.index_select(0, todo)
+        nb = torch.where(code == -1, -1, nb)
         # The surface folds away (a silhouette) where the neighbour's winding, corrected for faces wound
         # against each other, is seen the other way round from this face's.
-        relative = facing[nb_m.clamp_min(0)] * torch.where(code < -1, -1, 1).to(facing.dtype)
-        silhouette = (code == -1) | (relative != facing[f])
+        relative = facing.index_select(0, nb.clamp_min(0)) * torch.where(code < -1, -1, 1).to(facing.dtype)
+        silhouette = (code == -1) | (relative != facing.index_select(0, f))
+        reaches_other = nb == other.index_select(0, todo)
         edge[todo] = k
-        ends[todo] = (t <= 1) & (silhouette | (nb_m == other[todo]))
-        go_on = (t <= 1) & ~silhouette & (nb_m != other[todo])
+        ends[todo] = (t <= 1) & (silhouette | reaches_other)
+        covers[todo] = t > 1
+        go_on = (t <= 1) & ~silhouette & ~reaches_other
         if hop == _HOPS or not go_on.any():
             break
         todo = todo[go_on]
-        face[todo] = nb_m[go_on]
-    return face, edge, ends
+        face[todo] = nb[go_on]
+    return face, edge, ends, covers
