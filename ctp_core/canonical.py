@@ -1,0 +1,218 @@
+"""Canonical upright pose (Auto-Align): which way is up for an uploaded mesh.
+
+Renders guide the optimiser, and a vision-language model recognises objects in their usual
+orientation, so a lying or upside-down target spoils every view. Two cues, both from geometry alone:
+
+1. **Dominant axes** (method.md): RANSAC over area-weighted face normals for three orthogonal axes
+   (200 tries, 5° inliers), refined by an area-weighted median (10 iterations). They make the answer
+   exact (a chosen up within 5° of an axis snaps to it) and fix the turn about the up axis.
+2. **Resting pose**, the cue the reference lacks (it takes the frame nearest the input, so it cannot
+   fix an upside-down upload): every facet of the convex hull the object can stand on (centre of
+   mass above it) is a candidate "down". A candidate scores ``p * (0.05 + fill) * h²``: ``p`` the
+   chance to come to rest on it (solid angle of the facet from the centre of mass, the quasi-static
+   drop model of ``trimesh.poses.compute_stable_poses``, computed directly because trimesh's sampler
+   can stall on large hulls), ``fill`` the share of the facet the mesh actually touches (a real flat
+   base, not a bridge over bumps), ``h`` the height it then stands (authored objects stand up).
+
+An upload is left as authored (identity, ``changed=False``) unless it is clearly lying, tilted or
+upside down: there must be a candidate with a real base (fill >= 0.5), and the file's +Y must not be
+a resting pose scoring at least 1/20 of it. The margin is wide on purpose: an authored table on its
+legs scores ~1/16 of the same table upside down (its top is a perfect base), a bottle lying on its
+side ~1/11 of it standing, so no margin separates the two; keeping an authored pose is the safer
+error (a flipped table ruins "a cup on the table"), and a lying upload is still placed correctly in
+its own file frame.
+Measured on ``../shared/bench`` by ``benchmarks/canonical_bench.py`` (figures in the README).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import trimesh
+
+_INLIER_COS = np.cos(np.radians(5.0))
+_SNAP_COS = np.cos(np.radians(5.0))
+_AUTHORED_COS = np.cos(np.radians(8.0))  # a resting pose this close to the file's +Y is the authored one
+_BASE_FILL = 0.5  # share of a facet the mesh must touch to count as a real base
+_KEEP_RATIO = 0.05  # the file's +Y stays unless the best pose scores 20x more: rotate only when clear
+_MAX_FACES = 20_000  # normals sampled for RANSAC: plenty for three axes, bounded time
+_Y = np.array([0.0, 1.0, 0.0])
+
+
+@dataclass
+class Upright:
+    """``rotation`` (3, 3) maps the file frame to the upright frame (+Y up), p_up = R @ p_file."""
+
+    rotation: np.ndarray
+    changed: bool
+    reason: str
+    axes: np.ndarray = field(default_factory=lambda: np.eye(3))  # (3, 3) dominant axes (rows), file frame
+    candidates: list[dict] = field(default_factory=list)  # resting poses, best first, up in file frame
+
+    @property
+    def up(self) -> np.ndarray:
+        """The recovered up direction in the file frame."""
+        return self.rotation.T @ _Y
+
+
+def identity(reason: str = "not canonicalised") -> Upright:
+    return Upright(np.eye(3), False, reason)
+
+
+def upright_rotation(mesh: trimesh.Trimesh, seed: int = 0) -> Upright:
+    """Estimate the upright frame of ``mesh`` (file frame); deterministic by ``seed``."""
+    axes = dominant_axes(mesh, seed)
+    candidates = resting_poses(mesh)
+    bases = [c for c in candidates if c["fill"] >= _BASE_FILL]
+    if not bases:
+        return Upright(np.eye(3), False, "no flat base to stand on: kept as authored", axes, candidates)
+    best = bases[0]
+    as_file = [c for c in candidates if np.dot(c["up"], _Y) > _AUTHORED_COS]
+    if as_file and as_file[0]["score"] >= _KEEP_RATIO * best["score"]:
+        return Upright(np.eye(3), False, "already upright: the file's +Y is a resting pose", axes, candidates)
+    up = np.asarray(best["up"])
+    nearest = axes[np.argmax(np.abs(axes @ up))]
+    if abs(nearest @ up) > _SNAP_COS:
+        up = nearest * np.sign(nearest @ up)
+    rotation = _yaw_to_axes(_turn_onto(up, _Y), axes)
+    reason = (f"rests on a base ({best['fill']:.0%} contact, p={best['probability']:.2f}) with up "
+              f"{np.round(up, 3).tolist()} in the file frame; the file's +Y "
+              + (f"scores {as_file[0]['score'] / best['score']:.0%} of it" if as_file else "is not a resting pose"))
+    return Upright(rotation, True, reason, axes, candidates)
+
+
+def dominant_axes(mesh: trimesh.Trimesh, seed: int = 0, tries: int = 200, iterations: int = 10) -> np.ndarray:
+    """(3, 3) orthonormal rows: the three orthogonal directions most face area is normal to (file frame)."""
+    rng = np.random.default_rng(seed)
+    normals = np.asarray(mesh.face_normals, dtype=np.float64)
+    weights = np.asarray(mesh.area_faces, dtype=np.float64)
+    keep = (weights > 0) & (np.linalg.norm(normals, axis=1) > 0.5)
+    normals, weights = normals[keep], weights[keep] / weights[keep].sum()
+    if len(weights) > _MAX_FACES:  # an area-weighted draw keeps the distribution, weights become equal
+        normals = normals[rng.choice(len(weights), _MAX_FACES, p=weights)]
+        weights = np.full(_MAX_FACES, 1.0 / _MAX_FACES)
+
+    best, best_support = np.eye(3), -1.0
+    for _ in range(tries):
+        first = normals[rng.choice(len(weights), p=weights)]
+        orthogonal = weights * (np.abs(normals @ first) < np.sin(np.radians(5.0)))
+        if orthogonal.sum() > 0:
+            second = normals[rng.choice(len(weights), p=orthogonal / orthogonal.sum())]
+        else:  # no face at right angles: any perpendicular (the support decides)
+            second = np.cross(first, [1.0, 0.0, 0.0] if abs(first[0]) < 0.9 else [0.0, 1.0, 0.0])
+        second = second - (second @ first) * first
+        second /= np.linalg.norm(second)
+        axes = np.stack([first, second, np.cross(first, second)])
+        support = weights[(np.abs(normals @ axes.T) > _INLIER_COS).any(1)].sum()
+        if support > best_support:
+            best, best_support = axes, support
+
+    axes = best
+    for _ in range(iterations):
+        refined = []
+        for axis in axes:
+            dots = normals @ axis
+            inliers = np.abs(dots) > _INLIER_COS
+            if not inliers.any():
+                refined.append(axis)
+                continue
+            flipped = normals[inliers] * np.sign(dots[inliers])[:, None]
+            median = np.array([_weighted_median(flipped[:, k], weights[inliers]) for k in range(3)])
+            refined.append(median / np.linalg.norm(median))
+        u, _, vt = np.linalg.svd(np.stack(refined))  # nearest orthonormal frame
+        axes = u @ vt
+    if np.linalg.det(axes) < 0:
+        axes[2] = -axes[2]
+    return axes
+
+
+def resting_poses(mesh: trimesh.Trimesh, min_probability: float = 0.005) -> list[dict]:
+    """Hull facets the object can stand on, scored (see module docstring), best first; file frame.
+
+    Each: ``up`` (unit, file frame), ``probability``, ``fill``, ``height`` (share of the longest
+    extent), ``score``. The hull's centroid stands in for the centre of mass: uploads are rarely
+    watertight, so the mesh's own volume is not to be trusted.
+    """
+    hull = mesh.convex_hull
+    if hull.volume <= 0:
+        return []
+    centre = hull.center_mass
+    extent = float(mesh.extents.max())
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    face_normals = np.asarray(mesh.face_normals)
+    face_areas = np.asarray(mesh.area_faces)
+
+    normals, areas, triangles = hull.face_normals, hull.area_faces, hull.triangles
+    angles = _solid_angles(triangles, centre) / (4 * np.pi)
+    unused = np.ones(len(areas), dtype=bool)
+    poses = []
+    for seed_face in np.argsort(-areas):
+        if not unused[seed_face]:
+            continue
+        group = unused & (normals @ normals[seed_face] > np.cos(np.radians(3.0)))
+        unused &= ~group
+        probability = float(angles[group].sum())
+        down = normals[group].T @ areas[group]
+        down /= np.linalg.norm(down)
+        if probability < min_probability or not _over_facet(centre, down, triangles[group]):
+            continue
+        depth = vertices @ down
+        lowest = depth.max()
+        on_plane = (lowest - depth[mesh.faces]).max(1) < 0.01 * extent
+        touching = on_plane & (face_normals @ down > np.cos(np.radians(15.0)))
+        fill = min(float(face_areas[touching].sum() / areas[group].sum()), 1.0)
+        height = float(np.ptp(depth) / extent)
+        poses.append({"up": (-down).tolist(), "probability": probability, "fill": fill, "height": height,
+                      "score": probability * (0.05 + fill) * height**2})
+    return sorted(poses, key=lambda p: -p["score"])
+
+
+def _solid_angles(triangles: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    """Solid angle of each (T, 3, 3) triangle seen from ``origin`` (Van Oosterom & Strackee)."""
+    a, b, c = (triangles[:, k] - origin for k in range(3))
+    la, lb, lc = (np.linalg.norm(v, axis=1) for v in (a, b, c))
+    numerator = np.einsum("ij,ij->i", a, np.cross(b, c))
+    denominator = (la * lb * lc + np.einsum("ij,ij->i", a, b) * lc + np.einsum("ij,ij->i", a, c) * lb
+                   + np.einsum("ij,ij->i", b, c) * la)
+    return np.abs(2 * np.arctan2(numerator, denominator))
+
+
+def _over_facet(centre: np.ndarray, down: np.ndarray, triangles: np.ndarray) -> bool:
+    """Whether the centre of mass projects into the facet along ``down`` (it stands, not topples)."""
+    plane = (triangles[:, 0] @ down).max()
+    foot = centre + (plane - centre @ down) * down
+    bary = trimesh.triangles.points_to_barycentric(triangles, np.repeat(foot[None], len(triangles), 0))
+    return bool((bary > -1e-6).all(1).any())
+
+
+def _turn_onto(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest rotation taking unit vector ``a`` onto unit vector ``b`` (3, 3)."""
+    axis = np.cross(a, b)
+    sin, cos = np.linalg.norm(axis), float(a @ b)
+    if sin < 1e-12:
+        if cos > 0:
+            return np.eye(3)
+        perpendicular = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        return trimesh.transformations.rotation_matrix(np.pi, perpendicular)[:3, :3]
+    return trimesh.transformations.rotation_matrix(np.arctan2(sin, cos), axis / sin)[:3, :3]
+
+
+def _yaw_to_axes(rotation: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """Add the smallest turn about +Y that lines a horizontal dominant axis up with ±X/±Z.
+
+    Renders then see the object square-on, as a modeller would have placed it.
+    """
+    turned = axes @ rotation.T
+    horizontal = [v for v in turned if abs(v[1]) < np.sin(np.radians(5.0))]
+    if not horizontal:
+        return rotation
+    heading = np.arctan2(horizontal[0][2], horizontal[0][0])
+    yaw = (heading + np.pi / 4) % (np.pi / 2) - np.pi / 4  # residual to the nearest of ±X/±Z
+    return trimesh.transformations.rotation_matrix(yaw, _Y)[:3, :3] @ rotation
+
+
+def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
+    order = np.argsort(values)
+    cumulative = np.cumsum(weights[order])
+    return float(values[order][np.searchsorted(cumulative, cumulative[-1] / 2)])
