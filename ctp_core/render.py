@@ -15,10 +15,11 @@ Pipeline, for verts (B, V, 3) in the *normalised* frame and B x C cameras (N = B
    wound, so only the depth test decides.
 3. At covered pixels, recompute the barycentrics from the edge planes with gradient, interpolate vertex
    colours and UVs (texture lookup with ``grid_sample``) and multiply by the face's flat Lambert shading.
-4. Analytic antialiasing as nvdiffrast's ``antialias``: for each horizontally or vertically adjacent
-   pixel pair showing different faces, find where the front face's edge crosses the segment between the
-   two pixel centres and blend the pair's colours in proportion. The blend is continuous in the vertex
-   positions, so silhouettes (and flat-shading creases) carry gradients.
+4. Analytic antialiasing after nvdiffrast's ``antialias``: for each horizontally or vertically adjacent
+   pixel pair showing different faces, find where the segment between the two pixel centres leaves the
+   front surface (walking across the mesh's interior edges to a silhouette edge, or to the line where two
+   intersecting surfaces cross) and blend the pair's colours in proportion. The blend is continuous in
+   the vertex positions, so silhouettes, intersection lines and flat-shading creases carry gradients.
 
 Shading: flat (one normal per face), because low-poly uploads (a 20-face star) have no meaningful vertex
 normals; two-sided (the normal is flipped to face the camera); a key light from the camera, raised a
@@ -161,7 +162,7 @@ def render(mesh: RenderMesh, verts: Tensor, cameras: Cameras, *, background: flo
     batch, views = cameras.fov_deg.shape
     size = cameras.image_size
     inst = _face_instances(mesh.faces, verts, cameras)
-    fid = _rasterize(inst.planes.detach(), inst.bbox, len(mesh.faces), size)
+    fid = _rasterize(inst.planes.detach(), inst.bbox, batch * views, size)
     covered = (fid >= 0).nonzero()[:, 0]
     m = fid.index_select(0, covered)
     table = torch.cat([inst.planes.flatten(1), inst.shade[:, None]], 1).index_select(0, m)  # planes + shade
@@ -181,7 +182,7 @@ def coverage(mesh: RenderMesh, verts: Tensor, cameras: Cameras) -> Tensor:
     batch, views = cameras.fov_deg.shape
     size = cameras.image_size
     inst = _face_instances(mesh.faces, verts, cameras)
-    return (_rasterize(inst.planes, inst.bbox, len(mesh.faces), size) >= 0).view(batch, views, size, size)
+    return (_rasterize(inst.planes, inst.bbox, batch * views, size) >= 0).view(batch, views, size, size)
 
 
 class _Instances(NamedTuple):
@@ -231,8 +232,8 @@ def _face_instances(faces: Tensor, verts: Tensor, cameras: Cameras) -> _Instance
 
 
 @torch.no_grad()
-def _rasterize(planes: Tensor, bbox: Tensor, faces_per_image: int, size: int) -> Tensor:
-    """Nearest face instance per pixel, (N * size * size,) long, -1 where nothing is drawn."""
+def _rasterize(planes: Tensor, bbox: Tensor, images: int, size: int) -> Tensor:
+    """Nearest face instance per pixel, (images * size * size,) long, -1 where nothing is drawn."""
     width = bbox[:, 2] - bbox[:, 0] + 1
     count = width.clamp_min(0) * (bbox[:, 3] - bbox[:, 1] + 1).clamp_min(0)
     live = count.nonzero()[:, 0]
@@ -250,11 +251,10 @@ def _rasterize(planes: Tensor, bbox: Tensor, faces_per_image: int, size: int) ->
     inv_depth = e.sum(-1)
     hit = ((e.amin(-1) >= -INSIDE_TOL * inv_depth) & (inv_depth > 0)).nonzero()[:, 0]
     m = live.index_select(0, owner.index_select(0, hit))
-    pixel = (m // faces_per_image) * (size * size) + (py[hit] * size + px[hit]).long()
+    pixel = m // max(1, len(planes) // images) * (size * size) + (py[hit] * size + px[hit]).long()
     # Positive float32 bit patterns sort like the floats, so the high word orders by 1/depth (nearest
     # wins) and the low word breaks ties deterministically.
     key = (inv_depth[hit].float().view(torch.int32).long() << 32) | m
-    images = len(planes) // faces_per_image
     best = torch.full((images * size * size,), -1, dtype=torch.long, device=planes.device)
     best.scatter_reduce_(0, pixel, key, "amax")
     return torch.where(best >= 0, best & 0xFFFFFFFF, -1)

@@ -112,6 +112,23 @@ def test_batch_of_poses_renders_like_separate_calls():
     assert not torch.allclose(both[0, 0], both[1, 0], atol=1e-2)
 
 
+@pytest.mark.parametrize("shift", [(0.0, 0.0, 5.0), (10.0, 0.0, 0.0)], ids=["behind_camera", "off_screen"])
+def test_nothing_visible_renders_background(shift):
+    tm = _ellipsoid(2)
+    verts = (_verts(tm) + torch.tensor(shift)).requires_grad_(True)
+    img = render.render(_render_mesh(tm), verts, _cameras([0, 20], [0, 10], size=32), background=0.8)
+    assert torch.equal(img, torch.full_like(img, 0.8))
+    img.sum().backward()
+    assert verts.grad is None or torch.equal(verts.grad, torch.zeros_like(verts))
+
+
+def test_empty_mesh_renders_background():
+    mesh = render.RenderMesh(torch.zeros(0, 3, dtype=torch.long), torch.zeros(0, 3))
+    img = render.render(mesh, torch.zeros(2, 0, 3), orbit(torch.zeros(2, 3), *(torch.zeros(2, 1),) * 2,
+                                                          torch.full((2, 1), 3.0), torch.full((2, 1), 45.0), 16))
+    assert img.shape == (2, 1, 3, 16, 16) and torch.equal(img, torch.ones_like(img))
+
+
 def test_lambert_shading_from_the_camera():
     """A white plane facing the camera is fully lit; tilted away from the key light it gets darker."""
     quad = trimesh.Trimesh([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], [[0, 1, 2], [0, 2, 3]], process=False)
