@@ -22,7 +22,7 @@ def surface_samples(mesh: trimesh.Trimesh, count: int, seed: int) -> tuple[np.nd
 
     Stratified rather than i.i.d.: each face gets ``floor(count * area share)`` points plus a seeded
     systematic draw for the remainders, and the points inside a face follow a randomly shifted R2
-    sequence folded into the triangle. Every face larger than 1/count of the area is therefore hit and
+    sequence mapped onto the triangle. Every face larger than 1/count of the area is therefore hit and
     no region is left bare by chance, which is what a 20-face star needs to give the losses evenly
     spread points.
     """
@@ -44,11 +44,10 @@ def surface_samples(mesh: trimesh.Trimesh, count: int, seed: int) -> tuple[np.nd
 
     face = np.repeat(np.arange(len(areas)), per_face)
     rank = np.arange(count) - np.repeat(np.cumsum(per_face) - per_face, per_face)
-    uv = (rng.random((len(areas), 2))[face] + rank[:, None] * _R2) % 1.0
-    fold = uv.sum(1) > 1.0
-    uv[fold] = 1.0 - uv[fold]
-
+    u, v = ((rng.random((len(areas), 2))[face] + rank[:, None] * _R2) % 1.0).T
+    root = np.sqrt(u)  # square-root warp: uniform on the triangle, keeps the sequence's stratification
     corners = np.asarray(mesh.vertices, dtype=np.float64)[np.asarray(mesh.faces)[face]]  # (count, 3, 3)
-    points = corners[:, 0] + uv[:, :1] * (corners[:, 1] - corners[:, 0]) + uv[:, 1:] * (corners[:, 2] - corners[:, 0])
+    weights = np.stack([1.0 - root, root * (1.0 - v), root * v], axis=1)
+    points = np.einsum("nk,nkj->nj", weights, corners)
     normals = np.asarray(mesh.face_normals, dtype=np.float64)[face]
     return points, normals
