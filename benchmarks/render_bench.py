@@ -2,8 +2,9 @@
 
 Scene (as in docs/renderer-study.md): a fixed torus (10 000 faces) and a posed ellipsoid (5 120 faces),
 both with per-vertex colour gradients, seen by 8 ring cameras (45 degree azimuth steps, elevation 20/40,
-distance 2.6, fov 45) at 224 x 224. The pose is x = s R(q) x_local + t (ctp_core.pose), all 8 parameters
-requiring grad in the timed steps.
+distance 2.6, fov 45) at 224 x 224. The ellipsoid sits in the top of the upright ring, passing through
+its tube, so silhouettes, occlusions and intersection lines all carry the gradient. The pose is
+x = s R(q) x_local + t (ctp_core.pose), all 8 parameters requiring grad in the timed steps.
 
 - forward_ms: render under no_grad; forward_backward_ms: render -> MSE -> backward. Medians of
   ``--repeats`` runs after one warm-up.
@@ -44,7 +45,7 @@ def scene(views: int, size: int, dtype: torch.dtype):
     mesh = render.join(parts, [len(torus.vertices), len(ellipsoid.vertices)])
     fixed = torch.as_tensor(torus.vertices, dtype=dtype)[None]
     local = torch.as_tensor(ellipsoid.vertices, dtype=dtype)
-    offset = torch.tensor([0.0, 0.5, 0.0], dtype=dtype)  # the ellipsoid rests on the ring's top
+    offset = torch.tensor([0.0, 0.5, 0.0], dtype=dtype)  # ellipsoid centre, in the ring's top
     azimuth = torch.arange(views, dtype=torch.float32)[None] * 45.0
     elevation = torch.tensor([[20.0, 40.0] * ((views + 1) // 2)])[:, :views]
     cams = orbit(torch.zeros(1, 3), azimuth, elevation, torch.full((1, views), 2.6), torch.full((1, views), 45.0),
