@@ -178,3 +178,46 @@ def test_guides_needing_a_reference_skip_cases_without_one(tmp_path):
     rows = {r["method"]: r for r in map(json.loads, (out / "results.jsonl").read_text().splitlines())}
     assert rows["b1"]["status"] == "ok" and "adds" not in rows["b1"]["metrics"]  # no reference: no pose error
     assert rows["b2"]["status"] == "skipped" and "reference" in rows["b2"]["error"]
+
+
+@pytest.mark.parametrize("name", ["no-guidance", "no-icp", "no-pen", "no-phases", "no-camera-schedule",
+                                  "selection-only", "paper"])
+def test_every_ablation_changes_its_switch(name):
+    from ctp_core.bench.harness import BenchOptions
+
+    base = BenchOptions(preset="test").config("ctp")
+    config = BenchOptions(preset="test", ablation=name).config("ctp")
+    changed = {
+        "no-guidance": config.loss.lambda_clip == 0.0,
+        "no-icp": config.loss.lambda_icp == (0.0, 0.0),
+        "no-pen": config.loss.lambda_pen == (0.0, 0.0),
+        "no-phases": config.optim.phases == 1,
+        "no-camera-schedule": config.camera.schedule is False,
+        "selection-only": config.loss.selection_only is True,
+        "paper": config.preset == "paper" and config.optim.steps > base.optim.steps,
+    }
+    assert changed[name]
+    assert config != base
+
+
+def test_bench_configs_follow_protocol_and_method():
+    from ctp_core.bench.harness import BenchOptions
+
+    options = BenchOptions(preset="test", protocol="scale", model="random:tiny", seed=3)
+    ctp, geometry = options.config("ctp"), options.config("geometry")
+    assert ctp.scale and ctp.model == "random:tiny" and ctp.seed == 3 and ctp.loss.lambda_clip > 0
+    assert geometry.loss.lambda_clip == 0.0 and geometry.scale
+    with pytest.raises(ConfigError):
+        BenchOptions(methods=["nope"])
+
+
+def test_image_guide_is_a_render_of_the_reference(bench_dir):
+    from ctp_core.bench import guides
+
+    case = cases.discover(bench_dir, ["gen-cap-on-block"])[0]
+    target, source = case.load()
+    image = guides.reference_image(target, source, case.reference, np.random.default_rng(1), image_size=64)
+    again = guides.reference_image(target, source, case.reference, np.random.default_rng(1), image_size=64)
+    assert image.shape == (64, 64, 3) and image.dtype == np.uint8
+    assert np.array_equal(image, again)
+    assert (image < 250).any(axis=-1).mean() > 0.05  # the objects cover part of the white background

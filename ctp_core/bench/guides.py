@@ -46,7 +46,7 @@ def _pair_and_pose(target: trimesh.Trimesh, source: trimesh.Trimesh,
 
 
 def _scene_vertices(pair: scene.PreparedPair, source_to_target: np.ndarray) -> torch.Tensor:
-    m = torch.as_tensor(pair.local_to_normalised(source_to_target), dtype=torch.float32)
+    m = torch.tensor(pair.local_to_normalised(source_to_target), dtype=torch.float32)  # a copy: frames are read-only
     return pair.scene_vertices((pair.source_vertices @ m[:3, :3].T + m[:3, 3])[None])
 
 
