@@ -56,7 +56,8 @@ def load_mesh(data: str | Path | bytes, *, filename: str | None = None, limits: 
             if size > limits.max_bytes:
                 raise _too_big(label, size, limits)
             payload = path.read_bytes()
-            assets = _Assets.from_folder(path.parent, limits)
+            # an OBJ on disk may use its MTL and textures beside it; glTF references are never followed
+            assets = _Assets.from_folder(path.parent, limits) if ext == ".obj" else _Assets.empty()
         else:
             if filename is None:
                 raise MeshError(f"{label}: a filename is needed to tell the format of raw bytes",
