@@ -19,7 +19,7 @@ import os
 import sys
 import time
 import traceback
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from multiprocessing import get_context
@@ -214,21 +214,20 @@ def _load(case: Case, options: BenchOptions, need_guide: bool) -> _CaseData:
     return data
 
 
-def run_case(case: Case, options: BenchOptions, skip: frozenset = frozenset()) -> list[dict]:
-    """All rows of one case (inits x methods), minus those whose key is in ``skip``."""
+def case_rows(case: Case, options: BenchOptions, skip: frozenset = frozenset()) -> Iterator[dict]:
+    """Rows of one case (inits x methods) as each finishes, minus those whose key is in ``skip``."""
     planned = [(i, m) for i in range(options.inits) for m in options.methods
                if row_key(identity(case, i, m, options)) not in skip]
     if not planned:
-        return []
+        return
     data = _load(case, options, need_guide=any(m in GUIDED for _, m in planned))
-    rows = []
     for i, method in planned:
         row = identity(case, i, method, options)
         row.update(origin=case.origin, relation=case.relation, has_reference=case.reference is not None,
                    initial_pose=data.inits[i].tolist(), guide_description=None, metric_notes=data.notes)
         if row["guide"] is not None:
             if data.guide is None:
-                rows.append({**row, "status": "skipped", "error": data.guide_error})
+                yield {**row, "status": "skipped", "error": data.guide_error}
                 continue
             row["guide_description"] = data.guide.description
         try:
@@ -237,8 +236,12 @@ def run_case(case: Case, options: BenchOptions, skip: frozenset = frozenset()) -
         except Exception as exc:  # one failing case must not end a long benchmark; the row records it
             traceback.print_exc(file=sys.stderr)
             row.update(status="error", error=f"{type(exc).__name__}: {exc}")
-        rows.append(row)
-    return rows
+        yield row
+
+
+def run_case(case: Case, options: BenchOptions, skip: frozenset = frozenset()) -> list[dict]:
+    """All rows of one case at once (what a worker process sends back)."""
+    return list(case_rows(case, options, skip))
 
 
 def read_results(path: Path) -> list[dict]:
@@ -270,7 +273,7 @@ def _check_models(options: BenchOptions) -> None:
 
 def run_bench(cases: list[Case], options: BenchOptions, out: Path, *, jobs: int = 1, resume: bool = False,
               on_case: Callable[[int, int, str], None] | None = None) -> list[dict]:
-    """Run every case, appending rows to ``out/results.jsonl`` as each case finishes; returns all rows.
+    """Run every case, appending each row to ``out/results.jsonl`` as it finishes; returns all rows.
 
     ``resume`` keeps the finished (status ok) rows already in the file and runs only the rest.
     ``jobs`` > 1 runs cases in that many processes, splitting the CPU threads between them.
@@ -284,11 +287,13 @@ def run_bench(cases: list[Case], options: BenchOptions, out: Path, *, jobs: int 
     _check_models(options)
     total, done = len(cases), 0
 
-    def record(case_id: str, rows: list[dict]) -> None:
-        nonlocal done
-        with path.open("a") as f:
-            for row in rows:
+    def write(rows: Iterable[dict]) -> None:
+        for row in rows:  # one line at a time: an interrupted run keeps every finished row
+            with path.open("a") as f:
                 f.write(json.dumps(_plain(row)) + "\n")
+
+    def finished(case_id: str) -> None:
+        nonlocal done
         done += 1
         if on_case:
             on_case(done, total, case_id)
@@ -297,14 +302,16 @@ def run_bench(cases: list[Case], options: BenchOptions, out: Path, *, jobs: int 
         on_case(0, total, "")
     if jobs <= 1:
         for case in cases:
-            record(case.id, run_case(case, options, skip))
+            write(case_rows(case, options, skip))
+            finished(case.id)
     else:
         threads = max(1, (os.cpu_count() or 1) // jobs)
         with ProcessPoolExecutor(jobs, mp_context=get_context("spawn"), initializer=_worker_init,
                                  initargs=(threads,)) as pool:
             futures = {pool.submit(run_case, case, options, skip): case.id for case in cases}
             for future in as_completed(futures):
-                record(futures[future], future.result())
+                write(future.result())
+                finished(futures[future])
     return read_results(path)
 
 
