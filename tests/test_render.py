@@ -336,6 +336,17 @@ def test_join_textured_and_untextured():
     assert torch.allclose(centre / centre.max(), torch.tensor([0.125, 1.0, 0.25]), atol=0.02)  # cube colour
 
 
+def test_face_neighbours_encode_winding():
+    quad = torch.tensor([[0, 1, 2], [0, 2, 3]])  # consistent: the shared edge 0-2 runs both ways
+    assert render.face_neighbours(quad).tolist() == [[-1, 1, -1], [-1, -1, 0]]
+    flipped = torch.tensor([[0, 1, 2], [0, 3, 2]])
+    assert render.face_neighbours(flipped).tolist() == [[-1, -2 - 1, -1], [-1, -2 - 0, -1]]
+    split = torch.tensor([[0, 1, 2], [4, 2, 3]])  # vertex 4 duplicates vertex 0 (a UV seam)
+    welded = torch.tensor([0, 1, 2, 3, 0])
+    assert render.face_neighbours(split).tolist() == [[-1, -1, -1], [-1, -1, -1]]
+    assert render.face_neighbours(split, welded).tolist() == [[-1, 1, -1], [-1, -1, 0]]
+
+
 def test_join_without_textures_keeps_colours():
     a, b = _ellipsoid(1), trimesh.creation.box([0.2, 0.2, 0.2])
     mesh = render.join([_render_mesh(a), _render_mesh(b)], [len(a.vertices), len(b.vertices)])
