@@ -13,6 +13,7 @@ x = s R(q) x_local + t (ctp_core.pose), all 8 parameters requiring grad in the t
   (steps 0.01 units and 0.02 rad, about a third of a pixel).
 - recovery_*: Adam (lr 0.01, ``--steps`` steps) from the identity pose to the target pose
   (translation 20 % of the object size, rotation 20 degrees about (0.3, 1, 0.2), scale 1.15), by image MSE.
+- peak_rss_mb: peak resident memory of the process (torch alone is ~280 MB).
 
 Usage: OMP_WAIT_POLICY=PASSIVE python benchmarks/render_bench.py [--size 224] [--views 8] [--steps 200]
 """
@@ -22,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import resource
 import statistics
 import time
 
@@ -172,6 +174,7 @@ def main() -> None:
     }
     if args.steps:
         out.update(recovery(images, object_size, args.steps))
+    out["peak_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
     print(json.dumps(out))
 
 
