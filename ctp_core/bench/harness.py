@@ -35,7 +35,6 @@ from ctp_core.bench.guides import GUIDES, GuideInputs, SelectionScore, guide_inp
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
 
-METHODS: tuple[str, ...] = ("ctp", "geometry", "b1", "b2")
 GUIDED = ("ctp", "b2")  # methods that see the guide
 OPTIMISED = ("ctp", "geometry")  # methods that run align() and take a preset and ablations
 B2_STARTS = 5  # the paper's N for the multi-start baseline
@@ -165,37 +164,48 @@ def evaluate(data: _CaseData, pose: np.ndarray) -> dict:
     return out
 
 
-def _run_method(method: str, init: np.ndarray, index: int, data: _CaseData, options: BenchOptions) -> dict:
-    """(pose, info) of one method from one start; info holds timings and the CLIP image count."""
+def _run_align(method: str, init: np.ndarray, index: int, data: _CaseData, options: BenchOptions) -> dict:
+    """ctp or geometry: ``align`` with restart 0 at the protocol start (the others stay random)."""
+    from ctp_core.align import align
+
+    started = time.perf_counter()
+    config = options.config(method)
+    inputs = data.guide if method == "ctp" and config.loss.lambda_clip > 0 else None
+    result = align(data.target, data.source, data.case.prompt, config, init=init,
+                   image=inputs.image if inputs else None, guidance=inputs.guidance if inputs else None,
+                   target_name=data.case.target_name, source_name=data.case.source_name)
+    return {"source_to_target": result.source_to_target, "time_s": time.perf_counter() - started,
+            "clip_images": int(result.extra.get("clip_images", 0)), "timings": result.timings,
+            "extra": {"best_restart": result.extra.get("best_restart"), "guidance": result.extra.get("guidance"),
+                      "hparams": result.hparams}}
+
+
+def _run_b1(method: str, init: np.ndarray, index: int, data: _CaseData, options: BenchOptions) -> dict:
+    started = time.perf_counter()
+    pose = baselines.shrinkwrap(data.target, data.source, [init], seed=options.seed)[0]
+    return {"source_to_target": pose, "time_s": time.perf_counter() - started, "clip_images": 0}
+
+
+def _run_b2(method: str, init: np.ndarray, index: int, data: _CaseData, options: BenchOptions) -> dict:
+    """b1 from the protocol start and B2_STARTS - 1 uninformed ones, the best by ctp's guide and encoder."""
     from ctp_core import guidance
 
-    case = data.case
     started = time.perf_counter()
-    if method in OPTIMISED:
-        from ctp_core.align import align
-
-        config = options.config(method)
-        inputs = data.guide if method == "ctp" and config.loss.lambda_clip > 0 else None
-        result = align(data.target, data.source, case.prompt, config, init=init,
-                       image=inputs.image if inputs else None, guidance=inputs.guidance if inputs else None,
-                       target_name=case.target_name, source_name=case.source_name)
-        return {"source_to_target": result.source_to_target, "timings": result.timings,
-                "clip_images": int(result.extra.get("clip_images", 0)),
-                "time_s": time.perf_counter() - started,
-                "extra": {"best_restart": result.extra.get("best_restart"), "guidance": result.extra.get("guidance"),
-                          "hparams": result.hparams}}
-    if method == "b1":
-        pose = baselines.shrinkwrap(data.target, data.source, [init], seed=options.seed)[0]
-        return {"source_to_target": pose, "clip_images": 0, "time_s": time.perf_counter() - started}
-    rng = protocol.case_rng(options.seed, case.id, f"b2-{index}")
+    rng = protocol.case_rng(options.seed, data.case.id, f"b2-{index}")
     scale = float(np.cbrt(abs(np.linalg.det(init[:3, :3]))))
     starts = [init, *protocol.random_starts(data.target.bounds, data.source.bounds, scale, B2_STARTS - 1, rng)]
     poses = baselines.shrinkwrap(data.target, data.source, starts, seed=options.seed)
     guide = guidance.get_guide(options.encoder, device=options.device)
-    scorer = SelectionScore(data.guide, data.target, data.source, guide, case.reference, views=EVAL_VIEWS)
+    scorer = SelectionScore(data.guide, data.target, data.source, guide, data.case.reference, views=EVAL_VIEWS)
     best, scores = baselines.best_of(poses, scorer)
-    return {"source_to_target": poses[best], "clip_images": len(poses) * EVAL_VIEWS,
-            "time_s": time.perf_counter() - started, "extra": {"best_start": best, "scores": scores}}
+    return {"source_to_target": poses[best], "time_s": time.perf_counter() - started,
+            "clip_images": len(poses) * EVAL_VIEWS, "extra": {"best_start": best, "scores": scores}}
+
+
+# method -> runner(method, init pose, init index, case data, options) -> row fields: the final
+# "source_to_target", "time_s", "clip_images" and whatever else the method reports.
+RUNNERS = {"ctp": _run_align, "geometry": _run_align, "b1": _run_b1, "b2": _run_b2}
+METHODS: tuple[str, ...] = tuple(RUNNERS)
 
 
 def _load(case: Case, options: BenchOptions, need_guide: bool) -> _CaseData:
@@ -231,7 +241,7 @@ def case_rows(case: Case, options: BenchOptions, skip: frozenset = frozenset()) 
                 continue
             row["guide_description"] = data.guide.description
         try:
-            info = _run_method(method, data.inits[i], i, data, options)
+            info = RUNNERS[method](method, data.inits[i], i, data, options)
             row.update(status="ok", **info, metrics=evaluate(data, info["source_to_target"]))
         except Exception as exc:  # one failing case must not end a long benchmark; the row records it
             traceback.print_exc(file=sys.stderr)
