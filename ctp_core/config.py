@@ -52,8 +52,14 @@ class LossConfig(_Strict):
     lambda_clip: float = Field(1.0, ge=0.0, description="0 gives the geometry-only optimiser")
     lambda_icp: tuple[float, float] = Field((1.0, 100.0), description="first and last phase (log-spaced)")
     lambda_pen: tuple[float, float] = Field((10.0, 1000.0), description="first and last phase (log-spaced)")
-    sigma_icp: float = Field(0.1, gt=0.0, description="soft-ICP softmax width, normalised frame")
-    sigma_pen: float = Field(0.05, gt=0.0, description="penetration nearest-point softmax width")
+    sigma_icp: tuple[float, float] = Field(
+        (0.1, 0.02), description="soft-ICP softmax width, first and last phase (log-spaced), normalised frame; "
+        "narrowing it turns the soft pull toward a neighbourhood's centroid into a closest-point pull"
+    )
+    sigma_pen: float = Field(
+        0.01, gt=0.0, description="penetration nearest-point softmax width (reference 0.05; narrower keeps a "
+        "thin wall's far side from voting, which made points outside a mug count as inside)"
+    )
     c_pen: float = Field(0.0, ge=0.0, description="penetration margin, normalised frame units")
     icp_neighbours: int = Field(32, ge=1, description="soft-ICP softmax restricted to k nearest targets")
     samples: int = Field(3000, ge=100, le=50000, description="surface samples per object for the losses")

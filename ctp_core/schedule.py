@@ -20,6 +20,7 @@ class Phase:
     lambda_clip: float
     lambda_icp: float
     lambda_pen: float
+    sigma_icp: float
     look_at_beta: float  # 0: look at the target centre; 1: at the posed source centroid
     zoom: float  # camera distance factor
 
@@ -44,6 +45,7 @@ def phases(config: AlignConfig, allow_penetration: bool) -> list[Phase]:
     count = config.optim.phases
     cam = config.camera
     icp = log_spaced(*config.loss.lambda_icp, count)
+    sigma = log_spaced(*config.loss.sigma_icp, count)
     pen = [0.0] * count if allow_penetration else log_spaced(*config.loss.lambda_pen, count)
     if cam.schedule and count > 1:
         betas = list(np.linspace(0.0, cam.look_at_beta_last, count))
@@ -51,6 +53,6 @@ def phases(config: AlignConfig, allow_penetration: bool) -> list[Phase]:
     else:
         betas, zooms = [0.0] * count, [1.0] * count
     return [
-        Phase(i + 1, steps, config.loss.lambda_clip, icp[i], pen[i], float(betas[i]), float(zooms[i]))
+        Phase(i + 1, steps, config.loss.lambda_clip, icp[i], pen[i], sigma[i], float(betas[i]), float(zooms[i]))
         for i, steps in enumerate(split_steps(config.optim.steps, count))
     ]

@@ -1,0 +1,141 @@
+"""The optimiser and ``align`` end to end on generated meshes (random:tiny model, test preset)."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from ctp.cli import main
+from ctp_core import optimise, schedule
+from ctp_core.align import align
+from ctp_core.config import AlignConfig
+from ctp_core.errors import Canceled
+from ctp_core.guidance import get_guide
+from ctp_core.scene import prepare_pair
+from ctp_core.targets import TextTarget
+
+
+def _coloured(mesh: trimesh.Trimesh, rgb) -> trimesh.Trimesh:
+    mesh.visual.vertex_colors = np.tile(np.array([*rgb, 255], np.uint8), (len(mesh.vertices), 1))
+    return mesh
+
+
+@pytest.fixture(scope="module")
+def meshes():
+    table = _coloured(trimesh.creation.box(extents=(2.0, 0.2, 1.2)), (150, 100, 60))
+    cup = _coloured(trimesh.creation.cylinder(radius=0.2, height=0.4, sections=24), (200, 30, 30))
+    cup.apply_translation((5.0, 3.0, 1.0))  # the file pose is arbitrary and far away
+    return table, cup
+
+
+def test_clip_gradient_reaches_translation_rotation_and_scale(meshes):
+    cfg = AlignConfig.from_preset("test", model="random:tiny", scale=True)
+    pair = prepare_pair(*meshes, samples=200, seed=0)
+    guide = get_guide("random:tiny")
+    target = TextTarget("a cup on the table")
+    target.prepare(pair, guide)
+    problem = optimise.Problem(pair, cfg, 1.0, guide=guide, target=target)
+    runner = optimise.Optimiser(problem, schedule.phases(cfg, allow_penetration=False))
+    t = torch.tensor([[0.2, 0.4, 0.1]], requires_grad=True)
+    q = torch.tensor([[0.9, 0.1, 0.3, 0.0]], requires_grad=True)
+    log_s = torch.tensor([0.1], requires_grad=True)
+    from ctp_core.cameras import sample_training_views
+
+    cams = sample_training_views(torch.zeros(1, 3), cfg.camera, 1.0, torch.Generator().manual_seed(0))
+    runner.clip_term(optimise.Poses(t, q, log_s), cams)
+    for name, p in (("t", t), ("q", q), ("log_s", log_s)):
+        assert p.grad is not None and torch.isfinite(p.grad).all() and p.grad.abs().sum() > 0, name
+
+
+def test_align_is_deterministic_and_reports_progress(meshes):
+    cfg = AlignConfig.from_preset("test", model="random:tiny")
+    events = []
+    a = align(*meshes, "a cup on the table", cfg, target_name="table", source_name="cup", on_event=events.append)
+    b = align(*meshes, "a cup on the table", cfg, target_name="table", source_name="cup")
+    np.testing.assert_allclose(a.source_to_target, b.source_to_target, atol=1e-6)
+    kinds = [e.kind for e in events]
+    assert kinds[0] == "phase_start" and kinds[-1] == "done"
+    assert kinds.count("phase_end") == cfg.optim.phases
+    assert events[-1].step == cfg.optim.steps and events[-1].fraction == 1.0
+    assert len(a.restarts) == cfg.optim.restarts
+    assert a.objective == min(r["objective"] for r in a.restarts)
+    assert a.hparams["source"] and 0 <= a.hparams["contact_ratio"] <= 1
+    assert a.preview.shape == (4, 224, 224, 3) and a.preview.dtype == np.uint8
+    # rigid: the scale of the answer is the file-relative scale (1)
+    assert a.scale == pytest.approx(1.0, rel=1e-5)
+
+
+def test_cancel_between_steps(meshes):
+    cfg = AlignConfig.from_preset("test", model="random:tiny")
+    calls = {"n": 0}
+
+    def cancel():
+        calls["n"] += 1
+        return calls["n"] > 2
+
+    with pytest.raises(Canceled):
+        align(*meshes, "a cup on the table", cfg, should_cancel=cancel)
+
+
+def test_geometry_only_brings_source_into_contact(meshes):
+    """lambda_clip = 0: soft-ICP + penetration alone pull the far source onto the target surface."""
+    from ctp_core import metrics
+
+    cfg = AlignConfig.from_preset("default", loss={"lambda_clip": 0.0, "samples": 1500}, contact_ratio=0.3,
+                                  penetration="forbid", optim={"restarts": 2, "steps": 90})
+    result = align(*meshes, None, cfg)
+    placed = result.source.copy()
+    placed.apply_transform(result.source_to_target)
+    size = float(np.linalg.norm(meshes[0].extents))
+    assert metrics.contact_distance(meshes[0], placed) <= 0.01 * size
+    assert metrics.intersection_over_union(meshes[0], placed).iou <= 0.01
+
+
+def test_cli_align_end_to_end(tmp_path, meshes, capsys):
+    target, source = tmp_path / "table.glb", tmp_path / "cup.glb"
+    meshes[0].export(target)
+    meshes[1].export(source)
+    out, report, preview = tmp_path / "scene.glb", tmp_path / "report.json", tmp_path / "preview.png"
+    code = main(["align", str(target), str(source), "--prompt", "a cup on the table", "--preset", "test",
+                 "--model", "random:tiny", "--out", str(out), "--report", str(report),
+                 "--preview", str(preview), "--quiet"])
+    assert code == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["out"] == str(out)
+    scene = trimesh.load(out, force="scene")
+    assert len(scene.geometry) == 2
+    data = json.loads(report.read_text())
+    np.testing.assert_allclose(np.array(data["transform"]["matrix"]), summary_matrix(summary, data), atol=1e-9)
+    assert data["prompt"] == "a cup on the table" and data["model"] == "random:tiny"
+    assert preview.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def summary_matrix(summary: dict, report: dict) -> np.ndarray:
+    """The report's matrix must agree with the translation the CLI printed."""
+    m = np.array(report["transform"]["matrix"])
+    np.testing.assert_allclose(m[:3, 3], summary["translation"], atol=1e-5)
+    return m
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["--preset", "nope"], "unknown preset"),
+    (["--restarts", "0"], "optim.restarts"),
+    (["--contact-ratio", "2"], "contact_ratio"),
+])
+def test_cli_bad_options_exit_2_with_one_line(tmp_path, meshes, capsys, argv, needle):
+    target, source = tmp_path / "t.stl", tmp_path / "s.stl"
+    meshes[0].export(target)
+    meshes[1].export(source)
+    code = main(["align", str(target), str(source), "--prompt", "x", "--model", "random:tiny", *argv])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and needle in err[0] and err[0].startswith("error: invalid_option")
+
+
+def test_cli_refuses_unreadable_mesh(tmp_path, capsys):
+    bad = tmp_path / "bad.glb"
+    bad.write_bytes(b"not a mesh at all")
+    code = main(["align", str(bad), str(bad), "--prompt", "x", "--preset", "test", "--model", "random:tiny"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err.startswith("error: mesh_") and "\n" not in err
