@@ -39,7 +39,7 @@ class Heartbeat(threading.Thread):
         self._lock = threading.Lock()
         self.job_id: str | None = None
         self._progress: Progress | None = None
-        self._published = 0.0  # monotonic time of the last progress write
+        self._job_started = self._published = self._event_at = 0.0  # monotonic: job start, last write, last event
 
     def run(self) -> None:
         while not self._stop_event.is_set():
@@ -48,6 +48,8 @@ class Heartbeat(threading.Thread):
                 self._refresh_progress()
             except RedisError as exc:  # Redis restarting: keep beating, the next one may land
                 log.warning("heartbeat failed: %s", exc, extra={"worker": self.worker})
+            except Exception:  # never let the thread die: a silent worker has its jobs reaped
+                log.exception("heartbeat error", extra={"worker": self.worker, "job_id": self.job_id})
             self._stop_event.wait(self.period_s)
 
     def stop(self) -> None:
@@ -56,32 +58,37 @@ class Heartbeat(threading.Thread):
 
     def begin(self, job_id: str) -> None:
         with self._lock:
-            self.job_id, self._progress, self._published = job_id, None, time.monotonic()
+            self.job_id, self._progress = job_id, None
+            self._job_started = self._published = time.monotonic()
 
     def end(self) -> None:
         with self._lock:
             self.job_id, self._progress = None, None
 
     def publish(self, progress: Progress, *, force: bool = False, min_interval_s: float = 0.5) -> None:
-        """Store a progress update; frequent step events are thinned to one per ``min_interval_s``."""
+        """Store a progress update (``elapsed_s`` counted from the job's start); step events are thinned
+        to one per ``min_interval_s``."""
         with self._lock:
-            job_id = self.job_id
-            self._progress = progress
-            if job_id is None or (not force and time.monotonic() - self._published < min_interval_s):
+            job_id, now = self.job_id, time.monotonic()
+            if job_id is None:
                 return
-            self._published = time.monotonic()
-            self.jobs.set_progress(job_id, progress)  # under the lock: writes never reorder
+            self._progress, self._event_at = progress, now
+            if force or now - self._published >= min_interval_s:
+                self._write(job_id, progress, now)
 
     def _refresh_progress(self) -> None:
+        """Republish the last progress with elapsed and ETA moved on, when nothing was written lately."""
         with self._lock:
-            job_id, progress, since = self.job_id, self._progress, time.monotonic() - self._published
-            if job_id is None or progress is None or since < self.progress_every_s:
-                return
-            self._published = time.monotonic()
-            eta = None if progress.eta_s is None else max(0.0, round(progress.eta_s - since, 1))
-            progress = progress.model_copy(update={"elapsed_s": round(progress.elapsed_s + since, 3), "eta_s": eta})
-            self._progress = progress
-            self.jobs.set_progress(job_id, progress)
+            job_id, progress, now = self.job_id, self._progress, time.monotonic()
+            if job_id is not None and progress is not None and now - self._published >= self.progress_every_s:
+                self._write(job_id, progress, now)
+
+    def _write(self, job_id: str, progress: Progress, now: float) -> None:
+        # Under the lock: writes from the job thread and this thread never reorder.
+        eta = None if progress.eta_s is None else max(0.0, round(progress.eta_s - (now - self._event_at), 1))
+        self.jobs.set_progress(job_id, progress.model_copy(update={"elapsed_s": round(now - self._job_started, 3),
+                                                                   "eta_s": eta}))
+        self._published = now
 
 
 @dataclass

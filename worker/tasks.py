@@ -114,7 +114,7 @@ def progress_of(event: ProgressEvent) -> Progress:
     message = event.message or (f"phase {event.phase}/{event.phases}, step {event.step}/{event.steps}"
                                 if event.phase else event.kind)
     return Progress(kind=event.kind, phase=event.phase, phases=event.phases, step=event.step, steps=event.steps,
-                    restarts=event.restarts, fraction=round(event.fraction, 4), elapsed_s=round(event.elapsed_s, 3),
+                    restarts=event.restarts, fraction=round(event.fraction, 4),
                     eta_s=None if event.eta_s is None else round(event.eta_s, 1), message=message)
 
 
