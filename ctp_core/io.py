@@ -21,6 +21,7 @@ from urllib.parse import unquote
 
 import numpy as np
 import trimesh
+from PIL import Image
 
 from ctp_core.errors import MeshError
 
@@ -276,6 +277,8 @@ def _flatten(scene: trimesh.Scene, limits: MeshLimits, label: str) -> trimesh.Tr
     for matrix, geometry in instances:
         if not (np.isfinite(matrix).all() and np.isfinite(geometry.vertices).all()):
             raise MeshError(f"{label}: vertices or transforms contain NaN or infinity", code="mesh_invalid_values")
+    for geometry in scene.geometry.values():
+        _bake_base_colour_factor(geometry)
     mesh = scene.to_geometry()
     if not np.isfinite(mesh.vertices).all():
         raise MeshError(f"{label}: vertices overflow once node transforms are applied", code="mesh_invalid_values")
@@ -283,3 +286,23 @@ def _flatten(scene: trimesh.Scene, limits: MeshLimits, label: str) -> trimesh.Tr
     if not mesh.area > 0 or not mesh.extents.max() > 0:
         raise MeshError(f"{label}: the mesh has no surface area", code="mesh_empty")
     return mesh
+
+
+def _bake_base_colour_factor(mesh: trimesh.Trimesh) -> None:
+    """Multiply a PBR material's base colour factor into its texture, in place.
+
+    Flattening packs several materials into one atlas, and trimesh 5.2's packer multiplies the texture
+    by the uint8 factor unscaled (255 x texel wraps round: inverted colours). A texture with no factor
+    packs correctly. The factor is linear (glTF), the texture sRGB, so the factor is taken to sRGB
+    first (exact for a pure power-law transfer, close for sRGB).
+    """
+    material = getattr(mesh.visual, "material", None)
+    if not isinstance(material, trimesh.visual.material.PBRMaterial) or material.baseColorTexture is None:
+        return
+    factor = material.baseColorFactor
+    if factor is None:
+        return
+    srgb = trimesh.visual.color.linear_to_srgb(np.asarray(factor[:3], dtype=np.float64) / 255.0)
+    texels = np.asarray(material.baseColorTexture.convert("RGB"), dtype=np.float64) * srgb
+    material.baseColorTexture = Image.fromarray(texels.round().clip(0, 255).astype(np.uint8))
+    material.baseColorFactor = None

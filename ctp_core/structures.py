@@ -27,8 +27,9 @@ class MeshArrays:
 
         Colour sources, in trimesh's terms: ``ColorVisuals`` give per-vertex colours (face colours are
         averaged onto vertices); ``TextureVisuals`` give UVs and the base-colour image (PBR
-        ``baseColorTexture`` or the OBJ ``map_Kd`` image), with the material's base colour factor or
-        diffuse colour as the per-vertex multiplier; otherwise white.
+        ``baseColorTexture`` or the OBJ ``map_Kd`` image), with the PBR base colour factor (linear in
+        glTF, converted to sRGB) as the per-vertex multiplier, or the material colour when untextured;
+        otherwise white.
         """
         vertices = np.asarray(mesh.vertices, dtype=np.float32)
         faces = np.asarray(mesh.faces, dtype=np.int64)
@@ -42,14 +43,15 @@ class MeshArrays:
         if material is None:
             return cls(vertices, faces, white)
         pbr = isinstance(material, trimesh.visual.material.PBRMaterial)
+        # glTF's baseColorFactor is linear and multiplies the (sRGB) texture; an MTL's Kd is sRGB and,
+        # beside a map_Kd, usually an exporter default (Blender writes 0.8), so an OBJ texture is taken as is.
+        factor = (None if material.baseColorFactor is None else _srgb(material.baseColorFactor)) if pbr else None
         image = material.baseColorTexture if pbr else getattr(material, "image", None)
         uv = getattr(visual, "uv", None)
         if image is None or uv is None or len(uv) != len(vertices):
-            return cls(vertices, faces, _fill(material.main_color, len(vertices)))
-        # glTF multiplies the texture by baseColorFactor; an MTL's Kd beside map_Kd is usually an
-        # exporter default (Blender writes 0.8), so an OBJ texture is taken as is.
-        factor = material.baseColorFactor if pbr else None
-        colors = white if factor is None else _fill(factor, len(vertices))
+            solid = factor if pbr else _unit_rgb(np.atleast_2d(material.main_color))[0]
+            return cls(vertices, faces, white if solid is None else np.tile(solid, (len(vertices), 1)))
+        colors = white if factor is None else np.tile(factor, (len(vertices), 1))
         return cls(vertices, faces, colors, np.asarray(uv, dtype=np.float32), _texture(image))
 
 
@@ -61,9 +63,10 @@ def _unit_rgb(rgba: np.ndarray) -> np.ndarray:
     return (np.asarray(rgba)[:, :3].astype(np.float32) / 255.0).clip(0.0, 1.0)
 
 
-def _fill(rgba: np.ndarray, count: int) -> np.ndarray:
-    """One material colour (uint8 RGBA) as (count, 3) per-vertex colours."""
-    return np.repeat(_unit_rgb(np.atleast_2d(rgba)), count, axis=0)
+def _srgb(linear_rgba: np.ndarray) -> np.ndarray:
+    """glTF's linear uint8 RGBA factor -> (3,) float32 sRGB in [0, 1], the renderer's colour space."""
+    linear = np.asarray(linear_rgba, dtype=np.float64)[:3] / 255.0
+    return trimesh.visual.color.linear_to_srgb(linear).astype(np.float32).clip(0.0, 1.0)
 
 
 def _texture(image: Image.Image) -> np.ndarray:
