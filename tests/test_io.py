@@ -214,3 +214,22 @@ def test_bad_zips():
     assert _code(bomb, "x.zip", limits=MeshLimits(max_unzipped_bytes=2**20)) == "mesh_zip_invalid"
     many = _zip({f"t{i}.png": b"x" for i in range(5)} | {"model.obj": _OBJ})
     assert _code(many, "x.zip", limits=MeshLimits(max_zip_members=4)) == "mesh_zip_invalid"
+
+
+def test_multi_material_scene_keeps_its_colours():
+    """Two textured parts flatten into one atlas; each part still samples its own colour (not inverted)."""
+    scene = trimesh.Scene()
+    for name, colour, x in (("red", (220, 30, 20), 0.0), ("blue", (20, 40, 230), 3.0)):
+        part = trimesh.creation.box()
+        part.unmerge_vertices()
+        material = trimesh.visual.material.PBRMaterial(baseColorTexture=Image.new("RGB", (8, 8), colour),
+                                                       baseColorFactor=[255, 255, 255, 255])
+        part.visual = trimesh.visual.TextureVisuals(uv=np.full((len(part.vertices), 2), 0.5), material=material)
+        scene.add_geometry(part, node_name=name, transform=trimesh.transformations.translation_matrix([x, 0, 0]))
+    arrays = MeshArrays.from_trimesh(load_mesh(_glb(scene), filename="parts.glb"))
+    height, width = arrays.texture.shape[:2]
+    texel = arrays.texture[((1 - arrays.uv[:, 1]) * (height - 1)).round().astype(int),
+                           (arrays.uv[:, 0] * (width - 1)).round().astype(int)] * arrays.colors
+    left = arrays.vertices[:, 0] < 1.5
+    assert np.allclose(texel[left], np.array([220, 30, 20]) / 255, atol=0.02)
+    assert np.allclose(texel[~left], np.array([20, 40, 230]) / 255, atol=0.02)
