@@ -47,6 +47,7 @@ NAME_MAX = 100
 FORM_FIELDS = {"target", "source", "prompt", "image", "options", "target_name", "source_name"}
 SSE_KEEPALIVE_S = 10.0
 SWEEP_EVERY_S = 60.0
+_JOB_ID = re.compile(r"[0-9a-f]{32}")
 
 # MeshError codes that are not 422.
 _MESH_STATUS = {"mesh_file_too_large": 413, "mesh_too_large": 413, "mesh_unknown_format": 415}
@@ -223,7 +224,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         return _error_response(400, JobError(code="invalid_request", message=str(err.get("msg")),
                                              field=".".join(str(p) for p in err.get("loc", ())[1:]) or None))
 
-    def owner(request: Request) -> str:
+    async def owner(request: Request) -> str:
         """The caller's identity: a digest of its API key, or "public" when the service has none."""
         if not key_digests:
             return "public"
@@ -234,8 +235,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                            headers={"WWW-Authenticate": "Bearer"})
         return digest
 
-    def own_job(job_id: str, who: str) -> JobRecord:
-        record = jobs.get(job_id) if re.fullmatch(r"[0-9a-f]{32}", job_id) else None
+    async def own_job(request: Request, job_id: str, who: str) -> JobRecord:
+        """The caller's job, read on the event loop (the hot path: clients poll it)."""
+        raw = await request.app.state.aredis.get(jobs.record_key(job_id)) if _JOB_ID.fullmatch(job_id) else None
+        record = None if raw is None else JobRecord.model_validate_json(raw)
         if record is None or record.owner != who:
             raise ApiError(404, "job_not_found", f"no job {job_id!r}")
         return record
@@ -286,19 +289,19 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         return Accepted(id=record.id, status="queued", links=links(record.id))
 
     @app.get("/jobs/{job_id}", response_model=JobOut, responses=_errors(401, 404), summary="A job's state")
-    def get_job(job_id: str, who: str = Depends(owner)) -> JobOut:
-        return JobOut.of(own_job(job_id, who))
+    async def get_job(job_id: str, request: Request, who: str = Depends(owner)) -> JobOut:
+        return JobOut.of(await own_job(request, job_id, who))
 
     @app.delete("/jobs/{job_id}", response_model=JobOut, summary="Cancel a job",
                 description="A queued job is canceled at once (200, status canceled); a running one is "
                 "flagged and stops at its next optimisation step (202, cancel_requested true).",
                 responses={202: {"model": JobOut, "description": "cancel requested; the job is still running"},
                            **_errors(401, 404, 409)})
-    def cancel_job(job_id: str, response: Response, who: str = Depends(owner)) -> JobOut:
-        record = own_job(job_id, who)
+    async def cancel_job(job_id: str, request: Request, response: Response, who: str = Depends(owner)) -> JobOut:
+        record = await own_job(request, job_id, who)
         if record.status in TERMINAL:
             raise ApiError(409, "job_finished", f"job {job_id} already ended ({record.status})")
-        record = jobs.cancel(job_id) or record
+        record = await run_in_threadpool(jobs.cancel, job_id) or record
         response.status_code = 202 if record.status == "running" else 200
         log.info("cancel requested", extra={"job_id": job_id, "status": record.status})
         return JobOut.of(record)
@@ -311,7 +314,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
               "content": {"text/event-stream": {"schema": {"type": "string"}}}}},
         response_class=StreamingResponse, summary="Server-sent progress events until the job ends")
     async def job_events(job_id: str, request: Request, who: str = Depends(owner)):
-        await run_in_threadpool(own_job, job_id, who)
+        await own_job(request, job_id, who)
         return StreamingResponse(_sse(request.app.state.aredis, jobs, job_id), media_type="text/event-stream",
                                  headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
 
@@ -331,11 +334,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
 
 def _add_output_route(app: FastAPI, name: str, media_type: str, jobs: Jobs, own_job, owner) -> None:
-    def download(job_id: str, who: str = Depends(owner)) -> Response:
-        record = own_job(job_id, who)
+    async def download(job_id: str, request: Request, who: str = Depends(owner)) -> Response:
+        record = await own_job(request, job_id, who)
         if record.status != "succeeded":
             raise ApiError(409, "job_not_ready", f"job {job_id} is {record.status}; results exist once it succeeded")
-        data = jobs.storage.get(job_id, name)
+        data = await run_in_threadpool(jobs.storage.get, job_id, name)
         if data is None:
             raise ApiError(404, "job_not_found", f"the results of job {job_id} have expired")
         return Response(data, media_type=media_type,
@@ -365,7 +368,7 @@ async def _sse(aredis: aioredis.Redis, jobs: Jobs, job_id: str):
     pubsub = aredis.pubsub()
     await pubsub.subscribe(jobs.channel(job_id))
     try:
-        raw = await aredis.get(f"{jobs.prefix}:job:{job_id}")
+        raw = await aredis.get(jobs.record_key(job_id))
         last = None
         while raw is not None:
             record = JobRecord.model_validate_json(raw)
@@ -379,7 +382,7 @@ async def _sse(aredis: aioredis.Redis, jobs: Jobs, job_id: str):
             message = await pubsub.get_message(ignore_subscribe_messages=True, timeout=SSE_KEEPALIVE_S)
             if message is None:
                 yield ": keep-alive\n\n"
-                raw = await aredis.get(f"{jobs.prefix}:job:{job_id}")
+                raw = await aredis.get(jobs.record_key(job_id))
             else:
                 raw = message["data"]
     finally:

@@ -113,7 +113,7 @@ class Jobs:
         self.queue = Queue(prefix, connection=redis, serializer=JSONSerializer)
 
     # -- keys ---------------------------------------------------------------------------------------
-    def _record_key(self, job_id: str) -> str:
+    def record_key(self, job_id: str) -> str:
         return f"{self.prefix}:job:{job_id}"
 
     def _lease_key(self, job_id: str) -> str:
@@ -131,7 +131,7 @@ class Jobs:
 
     # -- reading ------------------------------------------------------------------------------------
     def get(self, job_id: str) -> JobRecord | None:
-        raw = self.redis.get(self._record_key(job_id))
+        raw = self.redis.get(self.record_key(job_id))
         return None if raw is None else JobRecord.model_validate_json(raw)
 
     def should_stop(self, job_id: str) -> bool:
@@ -153,12 +153,12 @@ class Jobs:
         try:
             for name, data in blobs.items():
                 self.storage.put(record.id, name, data)
-            self.redis.set(self._record_key(record.id), record.model_dump_json(), ex=self.ttl_s)
+            self.redis.set(self.record_key(record.id), record.model_dump_json(), ex=self.ttl_s)
             self.queue.enqueue(TASK, record.id, job_id=record.id, job_timeout=self.job_timeout_s,
                                result_ttl=0, failure_ttl=self.ttl_s, description=f"align {record.id}")
         except Exception:
             self.redis.srem(active, record.id)
-            self.redis.delete(self._record_key(record.id))
+            self.redis.delete(self.record_key(record.id))
             self.storage.delete(record.id, list(blobs))
             raise
         log.info("job queued", extra={"job_id": record.id, "owner": record.owner})
@@ -249,7 +249,7 @@ class Jobs:
                 also: Callable[[Any, JobRecord], None] | None = None) -> JobRecord | None:
         """Compare-and-set one record; ``change`` returns the new record or None for no change.
         Returns the record as stored afterwards (None when the id is unknown)."""
-        key = self._record_key(job_id)
+        key = self.record_key(job_id)
         with self.redis.pipeline() as pipe:
             while True:
                 try:

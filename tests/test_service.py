@@ -183,7 +183,8 @@ def test_request_and_upload_size_limits(private_redis):
         answer = submit(small, target=("big.glb", big_mesh))
         assert (answer.status_code, answer.json()["error"]["code"]) == (413, "request_too_large")
 
-        def chunks():  # no Content-Length: the limit must hold while the body streams in
+        def chunks():  # no Content-Length: the limit must hold while a well-formed body streams in
+            yield b'--b\r\nContent-Disposition: form-data; name="target"; filename="a.glb"\r\n\r\n'
             yield b"x" * 150_000
             yield b"x" * 150_000
 
