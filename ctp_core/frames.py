@@ -27,7 +27,6 @@ SOURCE_FILE = "source_file"
 TARGET_UPRIGHT = "target_upright"
 NORMALISED = "normalised"
 SOURCE_LOCAL = "source_local"
-CAMERA = "camera"
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,17 @@ def test_inverse_round_trip_and_parts():
     assert np.allclose((a.inverse() @ a).matrix, np.eye(4), atol=1e-9)
     assert np.allclose(a.rotation @ a.rotation.T, np.eye(3), atol=1e-9)
     assert np.isclose(a.inverse().scale, 1 / a.scale)
+    assert np.allclose(a.translation, a.apply(np.zeros((1, 3)))[0])
+
+
+def test_directions_rotate_without_scale_or_shift():
+    rng = np.random.default_rng(4)
+    a = _random_similarity(rng, "a", "b")
+    normals = rng.normal(size=(30, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    turned = a.apply_directions(normals)
+    assert np.allclose(np.linalg.norm(turned, axis=1), 1.0)
+    assert np.allclose(turned, (a.apply(normals) - a.translation) / a.scale)
 
 
 def test_composition_applies_right_first_and_checks_frames():
