@@ -1,7 +1,7 @@
 """Canonical upright pose (Auto-Align): which way is up for an uploaded mesh.
 
 Renders guide the optimiser, and a vision-language model recognises objects in their usual
-orientation, so a lying or upside-down target spoils every view. Two cues, both from geometry alone:
+orientation, so a lying or upside-down target spoils every view. Three cues, all from geometry alone:
 
 1. **Dominant axes** (method.md): RANSAC over area-weighted face normals for three orthogonal axes
    (200 tries, 5° inliers), refined by an area-weighted median (10 iterations). They make the answer
@@ -13,15 +13,19 @@ orientation, so a lying or upside-down target spoils every view. Two cues, both 
    drop model of ``trimesh.poses.compute_stable_poses``, computed directly because trimesh's sampler
    can stall on large hulls), ``fill`` the share of the facet the mesh actually touches (a real flat
    base, not a bridge over bumps), ``h`` the height it then stands (authored objects stand up).
+3. **Rotational symmetry**: when the surface has an axis of (near) rotational symmetry, only the
+   resting poses on that axis compete (a tree or a glass stands on its axis even with a rough base).
 
 An upload is left as authored (identity, ``changed=False``) unless it is clearly lying, tilted or
-upside down: there must be a candidate with a real base (fill >= 0.5), and the file's +Y must not be
+upside down: there must be a candidate with a real base (fill >= 0.5) or on the symmetry axis, and
+the file's +Y must not be
 a resting pose scoring at least 1/20 of it. The margin is wide on purpose: an authored table on its
 legs scores ~1/16 of the same table upside down (its top is a perfect base), a bottle lying on its
 side ~1/11 of it standing, so no margin separates the two; keeping an authored pose is the safer
 error (a flipped table ruins "a cup on the table"), and a lying upload is still placed correctly in
-its own file frame.
-Measured on ``../shared/bench`` by ``benchmarks/canonical_bench.py`` (figures in the README).
+its own file frame. Known misses: figures that cannot stand on their own (no resting pose has +Y
+up), tables (upside down rests better), cubes and spheres (no single up). Measured on
+``../shared/bench`` by ``benchmarks/canonical_bench.py`` (figures in the README).
 """
 
 from __future__ import annotations
