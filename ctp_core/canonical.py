@@ -18,14 +18,13 @@ orientation, so a lying or upside-down target spoils every view. Three cues, all
 
 An upload is left as authored (identity, ``changed=False``) unless it is clearly lying, tilted or
 upside down: there must be a candidate with a real base (fill >= 0.5) or on the symmetry axis, and
-the file's +Y must not be
-a resting pose scoring at least 1/20 of it. The margin is wide on purpose: an authored table on its
-legs scores ~1/16 of the same table upside down (its top is a perfect base), a bottle lying on its
-side ~1/11 of it standing, so no margin separates the two; keeping an authored pose is the safer
-error (a flipped table ruins "a cup on the table"), and a lying upload is still placed correctly in
-its own file frame. Known misses: figures that cannot stand on their own (no resting pose has +Y
-up), tables (upside down rests better), cubes and spheres (no single up). Measured on
-``../shared/bench`` by ``benchmarks/canonical_bench.py`` (figures in the README).
+the file's +Y must not be a resting pose scoring at least 1/20 of it. The margin is wide on purpose:
+an authored table on its legs scores ~1/16 of the same table upside down (its top is a perfect
+base), a bottle lying on its side ~1/11 of it standing, so no margin separates the two; keeping an
+authored pose is the safer error (a flipped table ruins "a cup on the table"), and a lying upload is
+still placed correctly in its own file frame. Known misses: figures that cannot stand on their own
+(no resting pose has +Y up), tables (upside down rests better), cubes and spheres (no single up).
+Measured on ``../shared/bench`` by ``benchmarks/canonical_bench.py`` (figures in the README).
 """
 
 from __future__ import annotations
