@@ -16,6 +16,7 @@ from pathlib import Path
 from ctp_core.errors import ConfigError, CtpError, MeshError, ModelError
 
 EXIT_FAILED, EXIT_INPUT, EXIT_MODEL = 1, 2, 3
+COMMANDS = "commands.txt"
 
 
 def _list(value: str) -> list[str]:
@@ -56,6 +57,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
     parser.add_argument("--threads", type=int, help="torch CPU threads per run")
     parser.add_argument("--resume", action="store_true", help="keep finished rows of OUT/results.jsonl")
+    parser.add_argument("--summary-only", action="store_true",
+                        help="only rewrite summary.md and the plots from OUT/results.jsonl (e.g. after an interrupt)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -86,24 +89,39 @@ def run(args: argparse.Namespace) -> int:
             preset=args.preset, model=args.model, guide=args.guide, metrics_models=args.metrics_models,
             ablation=args.ablation, device=args.device, threads=args.threads)
         options.config("ctp")  # a bad preset or model spec fails here, before any case runs
-        found = cases.discover(args.cases_dir, args.cases)
-        if args.with_reference:
-            found = [c for c in found if c.reference is not None]
-        if not found:
-            raise ConfigError(f"no cases to run under {args.cases_dir}", field="cases_dir")
-        rows = harness.run_bench(found, options, args.out, jobs=args.jobs, resume=args.resume,
-                                 on_case=CaseBar(enabled=not args.quiet))
+        if args.summary_only:
+            rows = harness.read_results(args.out / harness.RESULTS)
+        else:
+            found = cases.discover(args.cases_dir, args.cases)
+            if args.with_reference:
+                found = [c for c in found if c.reference is not None]
+            if not found:
+                raise ConfigError(f"no cases to run under {args.cases_dir}", field="cases_dir")
+            _log_command(args)
+            rows = harness.run_bench(found, options, args.out, jobs=args.jobs, resume=args.resume,
+                                     on_case=CaseBar(enabled=not args.quiet))
     except (MeshError, ConfigError) as exc:
         return _fail(exc, EXIT_INPUT)
     except ModelError as exc:
         return _fail(exc, EXIT_MODEL)
     except CtpError as exc:
         return _fail(exc, EXIT_FAILED)
-    command = "ctp " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["bench"] else None
-    path = summary.write_summary(rows, args.out, command=command)
+    log = args.out / COMMANDS
+    path = summary.write_summary(rows, args.out, commands=log.read_text().splitlines() if log.exists() else [])
     failed = sum(r.get("status") != "ok" for r in rows)
-    print(f"{len(rows)} runs over {len(found)} cases ({failed} not ok): {path}")
+    print(f"{len(rows)} runs over {len({r['case'] for r in rows})} cases ({failed} not ok): {path}")
     return EXIT_FAILED if rows and failed == len(rows) else 0
+
+
+def _log_command(args: argparse.Namespace) -> None:
+    """Append this invocation to OUT/commands.txt: the summary shows every command behind its rows."""
+    if sys.argv[1:2] == ["bench"]:
+        line = "ctp " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    else:  # called in-process (ctp.cli.main(argv)): the parsed arguments are what is known
+        line = "ctp bench (in-process) " + " ".join(f"{k}={v}" for k, v in sorted(vars(args).items()))
+    args.out.mkdir(parents=True, exist_ok=True)
+    with (args.out / COMMANDS).open("a") as f:
+        f.write(line + "\n")
 
 
 def _fail(exc: CtpError, code: int) -> int:

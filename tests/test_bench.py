@@ -167,6 +167,10 @@ def test_ctp_bench_end_to_end(bench_dir, tmp_path):
     lines = (out / "results.jsonl").read_text()
     assert _bench(str(bench_dir), "--method", "b1", "--out", str(out), "--resume") == 0
     assert (out / "results.jsonl").read_text() == lines  # b1 rows were done: nothing reran
+    assert len((out / "commands.txt").read_text().splitlines()) == 2
+    (out / "summary.md").unlink()
+    assert _bench(str(bench_dir), "--out", str(out), "--summary-only") == 0
+    assert "| geometry (test) |" in (out / "summary.md").read_text()
 
 
 def test_guides_needing_a_reference_skip_cases_without_one(tmp_path):

@@ -198,7 +198,7 @@ def _notes(rows: list[dict]) -> list[str]:
     return notes
 
 
-def write_summary(rows: list[dict], out: Path, command: str | None = None) -> Path:
+def write_summary(rows: list[dict], out: Path, commands: list[str] = ()) -> Path:
     """Write ``summary.md`` and the plots into ``out``; returns the summary's path."""
     import matplotlib
 
@@ -211,8 +211,8 @@ def write_summary(rows: list[dict], out: Path, command: str | None = None) -> Pa
     }
     cases = sorted({r["case"] for r in rows})
     parts = ["# Benchmark summary", ""]
-    if command:
-        parts += ["```", command, "```", ""]
+    if commands:
+        parts += ["```", *commands, "```", ""]
     parts += [f"{len(cases)} cases, {len(rows)} runs. Cells are mean / median over runs; success is "
               f"ADD-S ≤ {SUCCESS_ADDS} (cases with a reference only); pose errors are relative to the source "
               "diagonal; contact is the closest surface distance over the target's longest side.", "",
