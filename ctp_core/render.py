@@ -43,7 +43,7 @@ from ctp_core.structures import MeshArrays
 AMBIENT = 0.35  # light on faces turned away from the key light; the key light adds up to 1 - AMBIENT
 KEY_LIGHT = (0.0, 0.3, 1.0)  # camera frame, towards the light: from the camera, raised ~17 degrees
 NEAR = 1e-2  # normalised-frame units; faces reaching closer to the camera plane are not drawn
-INSIDE_TOL = 1e-5  # relative barycentric slack so pixel centres on shared edges never fall in a crack
+SPAN_TOL = 1e-4  # pixels of slack in the scanline spans, so centres on shared edges never fall in a crack
 
 
 @dataclass
@@ -233,28 +233,43 @@ def _face_instances(faces: Tensor, verts: Tensor, cameras: Cameras) -> _Instance
 
 @torch.no_grad()
 def _rasterize(planes: Tensor, bbox: Tensor, images: int, size: int) -> Tensor:
-    """Nearest face instance per pixel, (images * size * size,) long, -1 where nothing is drawn."""
-    width = bbox[:, 2] - bbox[:, 0] + 1
-    count = width.clamp_min(0) * (bbox[:, 3] - bbox[:, 1] + 1).clamp_min(0)
-    live = count.nonzero()[:, 0]
-    count = count[live]
-    owner = torch.repeat_interleave(count)  # (K,) live face of each (face instance, pixel) candidate
-    local = torch.arange(len(owner), device=owner.device) - (count.cumsum(0) - count).index_select(0, owner)
-    # One float gather per candidate: the plane coefficients (a0 a1 a2 b0 b1 b2 c0 c1 c2) and the bbox
-    # corner and width. Pixel indices within a bbox are far below 2^24, so float arithmetic is exact.
-    table = torch.cat([planes.index_select(0, live).flatten(1), bbox.index_select(0, live)[:, :2].to(planes.dtype),
-                       width.index_select(0, live)[:, None].to(planes.dtype)], 1).index_select(0, owner)
-    local = local.to(planes.dtype)
-    row = torch.floor((local + 0.5) / table[:, 11])
-    px, py = table[:, 9] + local - row * table[:, 11], table[:, 10] + row
-    e = torch.addcmul(table[:, 6:9], table[:, 0:3], (px + 0.5)[:, None]).addcmul_(table[:, 3:6], (py + 0.5)[:, None])
-    inv_depth = e.sum(-1)
-    hit = ((e.amin(-1) >= -INSIDE_TOL * inv_depth) & (inv_depth > 0)).nonzero()[:, 0]
-    m = live.index_select(0, owner.index_select(0, hit))
-    pixel = m // max(1, len(planes) // images) * (size * size) + (py[hit] * size + px[hit]).long()
+    """Nearest face instance per pixel, (images * size * size,) long, -1 where nothing is drawn.
+
+    Scanline enumeration: each bounding-box row of a face gets the exact span of pixel centres inside
+    it (the three edge planes are affine along the row), so only covered (face, pixel) pairs are made.
+    """
+    height = (bbox[:, 3] - bbox[:, 1] + 1).clamp_min(0) * (bbox[:, 2] >= bbox[:, 0])
+    live = height.nonzero()[:, 0]
+    height = height.index_select(0, live)
+    owner = torch.repeat_interleave(height)  # (R,) live face of each bounding-box row
+    row = torch.arange(len(owner), device=owner.device) - (height.cumsum(0) - height).index_select(0, owner)
+    face_table = torch.cat([planes.index_select(0, live).flatten(1), bbox.index_select(0, live).to(planes.dtype)], 1)
+    table = face_table.index_select(0, owner)  # (R, 13): a0 a1 a2 b0 b1 b2 c0 c1 c2 x0 y0 x1 y1
+    y = table[:, 10] + row.to(planes.dtype) + 0.5
+    a, rest = table[:, 0:3], torch.addcmul(table[:, 6:9], table[:, 3:6], y[:, None])  # e_i = a_i x + rest_i
+    bound = -rest / a
+    lo = torch.where(a > 0, bound, -torch.inf).amax(-1)
+    hi = torch.where(a < 0, bound, torch.inf).amin(-1)
+    # SPAN_TOL px of slack so a pixel centre on an edge shared by two faces is never missed by both.
+    first = torch.maximum(torch.ceil(lo - 0.5 - SPAN_TOL), table[:, 9])
+    last = torch.minimum(torch.floor(hi - 0.5 + SPAN_TOL), table[:, 11])
+    blocked = ((a == 0) & (rest < 0)).any(-1)
+    count = torch.where(blocked, 0, (last - first + 1).clamp_min(0)).long()
+    # Per candidate: its row's first centre x, 1/depth = (sum a) x + (sum rest), and the row's pixel base.
+    m = live.index_select(0, owner)
+    base = (m // max(1, len(planes) // images)) * (size * size) + (y - 0.5).long() * size
+    spans = count.nonzero()[:, 0]
+    count = count.index_select(0, spans)
+    cand = torch.repeat_interleave(count)  # (K,) row span of each candidate
+    local = torch.arange(len(cand), device=cand.device) - (count.cumsum(0) - count).index_select(0, cand)
+    x = first.index_select(0, spans).index_select(0, cand) + local.to(planes.dtype)
+    depth = torch.stack([a.sum(-1), rest.sum(-1)], -1).index_select(0, spans).index_select(0, cand)
+    inv_depth = torch.addcmul(depth[:, 1], depth[:, 0], x + 0.5)
+    rows = spans.index_select(0, cand)
+    pixel = base.index_select(0, rows) + x.long()
     # Positive float32 bit patterns sort like the floats, so the high word orders by 1/depth (nearest
     # wins) and the low word breaks ties deterministically.
-    key = (inv_depth[hit].float().view(torch.int32).long() << 32) | m
+    key = (inv_depth.float().clamp_min(0).view(torch.int32).long() << 32) | m.index_select(0, rows)
     best = torch.full((images * size * size,), -1, dtype=torch.long, device=planes.device)
     best.scatter_reduce_(0, pixel, key, "amax")
     return torch.where(best >= 0, best & 0xFFFFFFFF, -1)
