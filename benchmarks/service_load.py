@@ -89,18 +89,24 @@ async def _measure(url: str, args: argparse.Namespace) -> dict:
         jobs = await asyncio.gather(*(one_job(i) for i in range(args.jobs)))
         jobs_wall = time.perf_counter() - started
 
-        async def timed_get(job_id: str) -> float:
+        async def timed_get(path: str) -> float:
             t = time.perf_counter()
-            (await client.get(f"/jobs/{job_id}")).raise_for_status()
+            (await client.get(path)).raise_for_status()
             return 1000 * (time.perf_counter() - t)
 
-        await asyncio.gather(*(timed_get(jobs[0]["id"]) for _ in range(args.concurrency)))  # open connections
-        latencies = []
-        for r in range(args.rounds):
-            ids = [jobs[(r + i) % len(jobs)]["id"] for i in range(args.concurrency)]
-            latencies += await asyncio.gather(*(timed_get(job_id) for job_id in ids))
+        async def rounds(paths: list[str]) -> list[float]:
+            """``args.rounds`` bursts of ``args.concurrency`` simultaneous GETs, latencies sorted."""
+            out = []
+            for r in range(args.rounds):
+                burst = [paths[(r + i) % len(paths)] for i in range(args.concurrency)]
+                out += await asyncio.gather(*(timed_get(p) for p in burst))
+            return sorted(out)
+
+        await rounds(["/healthz"])  # open the connections first
+        latencies = await rounds([f"/jobs/{j['id']}" for j in jobs])
+        # The same bursts on a route that does nothing: what this machine's client + server loop cost alone.
+        baseline = await rounds(["/healthz"])
     seconds = sorted(j["seconds"] for j in jobs)
-    latencies.sort()
     return {
         "jobs": {"submitted": args.jobs, "workers": args.workers,
                  "succeeded": sum(j["status"] == "succeeded" for j in jobs), "wall_s": round(jobs_wall, 2),
@@ -108,6 +114,9 @@ async def _measure(url: str, args: argparse.Namespace) -> dict:
         "get_job": {"concurrency": args.concurrency, "requests": len(latencies),
                     "p50_ms": round(_quantile(latencies, 0.50), 1), "p99_ms": round(_quantile(latencies, 0.99), 1),
                     "max_ms": round(latencies[-1], 1)},
+        "healthz_baseline": {"p50_ms": round(_quantile(baseline, 0.50), 1),
+                             "p99_ms": round(_quantile(baseline, 0.99), 1)},
+        "load_average_1m": round(os.getloadavg()[0], 2),
     }
 
 

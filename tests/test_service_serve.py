@@ -1,0 +1,83 @@
+"""``ctp serve`` and ``ctp worker`` as a user runs them: one command gives a working service (embedded
+Redis + one worker), and stopping it stops everything it started."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import httpx
+import pytest
+
+from ctp.cli import main
+from service.client import Client
+from service.embedded import free_port
+from tests.conftest import REPO, service_env, wait_for
+from tests.test_service import BALL, BOX, FAST
+
+
+def children(pid: int) -> list[int]:
+    """Direct children of ``pid`` (Linux /proc)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            found.append(int(stat.parent.name))
+    return found
+
+
+def alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs Linux /proc to find the child processes")
+def test_one_command_service_and_clean_stop(tmp_path):
+    env = service_env("unused", "ctp")
+    del env["REDIS_URL"]  # the point: no Redis given
+    env["XDG_CACHE_HOME"] = str(tmp_path / "cache")
+    port = free_port()
+    log = open(tmp_path / "serve.log", "wb")  # noqa: SIM115 - closed below
+    serve = subprocess.Popen([sys.executable, "-m", "ctp", "serve", "--port", str(port)], env=env, cwd=REPO,
+                             stdout=log, stderr=subprocess.STDOUT)
+    started: list[int] = []
+    try:
+        with Client(f"http://127.0.0.1:{port}") as client:
+            def ready():
+                try:
+                    return client.http.get("/readyz").status_code == 200
+                except httpx.TransportError:  # uvicorn still starting
+                    return False
+
+            wait_for(ready, 120, "ctp serve to be ready", interval_s=0.5)
+            started = children(serve.pid)
+            assert len(started) == 2  # redis-server and one worker
+            assert (tmp_path / "cache" / "ctp" / "redis" / "appendonly.aof").exists()
+            job = client.submit(("box.glb", BOX), ("ball.glb", BALL), "a ball on top of a box", options=FAST)
+            assert client.wait(job["id"], timeout_s=120)["status"] == "succeeded"
+        serve.send_signal(signal.SIGTERM)
+        assert serve.wait(timeout=40) == 128 + signal.SIGTERM  # stopped by the signal, after cleaning up
+        wait_for(lambda: not any(alive(p) for p in started), 20, "serve's children to exit")
+    finally:
+        if serve.poll() is None:
+            serve.kill()
+        for pid in started:
+            if alive(pid):
+                os.kill(pid, signal.SIGKILL)
+        log.close()
+
+
+def test_worker_needs_redis_url(monkeypatch, capsys):
+    monkeypatch.delenv("REDIS_URL", raising=False)
+    monkeypatch.delenv("CTP_REDIS_URL", raising=False)
+    assert main(["worker"]) == 2
+    assert "REDIS_URL" in capsys.readouterr().err
