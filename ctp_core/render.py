@@ -9,10 +9,10 @@ Pipeline, for verts (B, V, 3) in the *normalised* frame and B x C cameras (N = B
    e_i(p) = d(p) . (V_j x V_k) / det(V0, V1, V2), affine in the pixel position p, where d(p) is the ray
    through p (z = -1). They are the perspective-correct barycentrics divided by the depth: e_i >= 0 inside
    the triangle, whatever its winding, and sum_i e_i = 1 / depth. Differentiable w.r.t. the vertices.
-2. Hard z-buffer without gradient: enumerate (face instance, pixel centre) pairs inside each face's
-   screen bounding box, keep the inside ones and take the nearest per pixel with one ``scatter_reduce``
-   (amax) on a 64-bit key (1/depth bits, face instance). No back-face culling: uploads are not reliably
-   wound, so only the depth test decides.
+2. Hard z-buffer without gradient: enumerate the (face instance, pixel centre) pairs inside each face,
+   row by row of its screen bounding box (scanline spans), and take the nearest per pixel with one
+   ``scatter_reduce`` (amax) on a 64-bit key (1/depth bits, face instance). No back-face culling: uploads
+   are not reliably wound, so only the depth test decides.
 3. At covered pixels, recompute the barycentrics from the edge planes with gradient, interpolate vertex
    colours and UVs (texture lookup with ``grid_sample``) and multiply by the face's flat Lambert shading.
 4. Analytic antialiasing after nvdiffrast's ``antialias``: for each horizontally or vertically adjacent
