@@ -194,7 +194,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             client.close()
 
     app = FastAPI(title="ctp", version="0.1.0", description=DESCRIPTION, lifespan=lifespan)
-    app.state.settings, app.state.jobs = settings, jobs
     if settings.cors_origins:
         app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins, allow_methods=["GET", "POST",
                            "DELETE"], allow_headers=["Authorization", "Content-Type"])
@@ -209,6 +208,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         return _error_response(422, JobError(**exc.to_dict()))
 
     @app.exception_handler(redis.exceptions.ConnectionError)
+    @app.exception_handler(redis.exceptions.TimeoutError)
     async def _redis_down(_request: Request, exc: Exception):
         log.error("redis unavailable: %s", exc)
         return _error_response(503, JobError(code="redis_unavailable", message="the job store is unreachable"))

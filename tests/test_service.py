@@ -201,10 +201,17 @@ def test_request_and_upload_size_limits(private_redis):
 
 def test_api_keys_isolate_jobs_and_cap_active_jobs(private_redis):
     """No worker on this queue: jobs stay queued, which is what the per-key cap counts."""
-    keyed = Api(service_env(private_redis.url, "keyed", api_keys="alpha,beta", max_active_jobs=2))
+    keyed = Api(service_env(private_redis.url, "keyed", api_keys="alpha,beta", max_active_jobs=2,
+                            cors_origins="https://app.example"))
     alpha, beta = ({"Authorization": f"Bearer {k}"} for k in ("alpha", "beta"))
     try:
         assert keyed.client.get("/healthz").status_code == 200  # probes need no key
+        preflight = keyed.client.options("/align", headers={"Origin": "https://app.example",
+                                                             "Access-Control-Request-Method": "POST",
+                                                             "Access-Control-Request-Headers": "authorization"})
+        assert preflight.headers["access-control-allow-origin"] == "https://app.example"
+        foreign = keyed.client.get("/healthz", headers={"Origin": "https://evil.example"})
+        assert "access-control-allow-origin" not in foreign.headers
         anonymous = submit(keyed)
         assert (anonymous.status_code, anonymous.json()["error"]["code"]) == (401, "unauthorized")
         assert submit(keyed, headers={"Authorization": "Bearer gamma"}).status_code == 401
