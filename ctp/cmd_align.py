@@ -45,6 +45,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--selection-only", action="store_true",
                         help="reference-code behaviour: text picks the best pose but gives no gradient")
     parser.add_argument("--no-guidance", action="store_true", help="geometry only (lambda_clip = 0)")
+    parser.add_argument("--keep-up", action="store_true",
+                        help="keep the target file's +Y as up (no automatic upright turn of the target)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -56,6 +58,8 @@ def config_from_args(args: argparse.Namespace):
            "threads": args.threads, "contact_ratio": args.contact_ratio, "penetration": args.penetration,
            "size_ratio": args.size_ratio, "hparams_provider": args.hparams_provider}
     overrides = {k: v for k, v in top.items() if v is not None}
+    if args.keep_up:
+        overrides["upright"] = False
     optim = {k: v for k, v in {"restarts": args.restarts, "steps": args.steps}.items() if v is not None}
     loss = {}
     if args.selection_only:

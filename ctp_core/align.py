@@ -91,7 +91,8 @@ def align(
         penetration={"auto": None, "allow": True, "forbid": False}[config.penetration],
         target_extent=float(target.extents.max()), source_extent=float(source.extents.max()),
     )
-    pair = scene.prepare_pair(target, source, samples=config.loss.samples, seed=config.seed, device=config.device)
+    pair = scene.prepare_pair(target, source, samples=config.loss.samples, seed=config.seed, device=config.device,
+                              canonicalise=config.upright)
     prepared = time.perf_counter()
 
     if guidance is None and config.loss.lambda_clip > 0:

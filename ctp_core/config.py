@@ -99,6 +99,10 @@ class AlignConfig(_Strict):
     size_ratio: float | None = Field(None, ge=0.01, le=100.0, description="source/target size; None: prior")
     contact_ratio: float | None = Field(None, ge=0.0, le=1.0, description="soft-ICP ratio r; None: prior")
     penetration: Penetration = Field("auto", description="auto: the prior decides; allow: lambda_pen = 0")
+    upright: bool = Field(
+        True, description="turn a clearly lying or upside-down target upright first (canonical.py); "
+        "off keeps the target file's +Y as up"
+    )
     hparams_provider: str = Field("rules", description="scene-prior provider (priors.py)")
     threads: int | None = Field(None, ge=1, le=256, description="torch CPU threads; None leaves torch's")
     progress_every: int = Field(5, ge=1, description="steps between progress events")

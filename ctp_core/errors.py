@@ -25,7 +25,7 @@ class CtpError(Exception):
 
 class MeshError(CtpError):
     """A mesh upload was refused. Codes: mesh_empty, mesh_too_large, mesh_file_too_large,
-    mesh_external_reference, mesh_unreadable, mesh_invalid_values, mesh_unknown_format."""
+    mesh_external_reference, mesh_unreadable, mesh_invalid_values, mesh_unknown_format, mesh_zip_invalid."""
 
     code = "mesh_unreadable"
 

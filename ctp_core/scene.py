@@ -60,9 +60,13 @@ class PreparedPair:
 
 def prepare_pair(target: trimesh.Trimesh, source: trimesh.Trimesh, *, samples: int, seed: int,
                  device: str = "cpu", canonicalise: bool = True) -> PreparedPair:
-    """Normalise, canonicalise and sample a pair once per run (everything later reuses it)."""
+    """Normalise, canonicalise and sample a pair once per run (everything later reuses it).
+
+    ``canonicalise`` turns a clearly lying or upside-down target upright (renders then show it as
+    CLIP expects); the source's upright frame is always computed, as the starting orientation.
+    """
     target_up = canonical.upright_rotation(target, seed=seed) if canonicalise else canonical.identity()
-    source_up = canonical.upright_rotation(source, seed=seed) if canonicalise else canonical.identity()
+    source_up = canonical.upright_rotation(source, seed=seed)
     target_to_norm = frames.target_to_normalised(target.vertices, target_up.rotation)
     source_to_local = frames.source_local(source.bounds, target_to_norm)
 
@@ -126,7 +130,7 @@ def render_arrangement(target: trimesh.Trimesh, source: trimesh.Trimesh, source_
 @torch.no_grad()
 def render_pair(pair: PreparedPair, local_to_normalised: np.ndarray, *, views: int, image_size: int) -> torch.Tensor:
     """Render a prepared pair at one pose (source local -> normalised 4x4) from framing views."""
-    m = torch.as_tensor(local_to_normalised, dtype=torch.float32, device=pair.source_vertices.device)
+    m = torch.tensor(np.array(local_to_normalised), dtype=torch.float32, device=pair.source_vertices.device)
     posed = pair.source_vertices @ m[:3, :3].T + m[:3, 3]
     verts = pair.scene_vertices(posed[None])
     cams = framing_cameras(verts[0], views, image_size)
