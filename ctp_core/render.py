@@ -199,7 +199,9 @@ def _face_instances(faces: Tensor, verts: Tensor, cameras: Cameras) -> _Instance
     size = cameras.image_size
     focal = cameras.focal_px().to(verts.dtype)  # (B, C)
     view = cameras.to_view(verts[:, None])  # (B, C, V, 3) camera frame
-    tri = view.index_select(2, faces.flatten()).view(-1, 3, 3)  # (M, 3 vertices, 3)
+    images, count = view.shape[0] * view.shape[1], view.shape[2]
+    corners = (torch.arange(images, device=faces.device)[:, None] * count + faces.flatten()).flatten()
+    tri = view.reshape(-1, 3).index_select(0, corners).view(-1, 3, 3)  # (M, 3 vertices, 3)
     v0, v1, v2 = tri.unbind(1)
     edges = torch.stack([torch.linalg.cross(v1, v2), torch.linalg.cross(v2, v0), torch.linalg.cross(v0, v1)], 1)
     det = (v0 * edges[:, 0]).sum(-1)  # (M,) triple product; its sign is the winding seen from the camera
