@@ -1,7 +1,8 @@
 """``ctp`` entry point: one sub-command per module, imported lazily so ``ctp --help`` stays fast.
 
-Exit codes (all sub-commands): 0 success, 1 run failed (a typed engine error, printed as one line
-``error: CODE: message``), 2 bad usage or input, 130 interrupted.
+Exit codes (all sub-commands): 0 success, 1 run failed, 2 bad usage or input (a refused mesh, an option
+out of range), 3 the vision-language model is unavailable, 130 interrupted. Typed engine errors are
+printed here, once for every sub-command, as one line ``error: CODE: message``; never a traceback.
 """
 
 from __future__ import annotations
@@ -10,6 +11,10 @@ import argparse
 import importlib
 import os
 import sys
+
+from ctp_core.errors import ConfigError, CtpError, MeshError, ModelError
+
+EXIT_FAILED, EXIT_INPUT, EXIT_MODEL = 1, 2, 3
 
 # name -> (module, help). Each module defines ``add_arguments(parser)`` and ``run(args) -> int``.
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -43,9 +48,19 @@ def main(argv: list[str] | None = None) -> int:
     args.command = name
     try:
         return int(module.run(args) or 0)
+    except CtpError as exc:
+        print(f"error: {exc.code}: {exc.message}", file=sys.stderr)
+        return exit_code(exc)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+
+
+def exit_code(exc: CtpError) -> int:
+    """The documented exit code of a typed engine error."""
+    if isinstance(exc, (MeshError, ConfigError)):
+        return EXIT_INPUT
+    return EXIT_MODEL if isinstance(exc, ModelError) else EXIT_FAILED
 
 
 def _takes_name(module) -> bool:

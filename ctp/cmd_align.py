@@ -14,9 +14,7 @@ import sys
 import time
 from pathlib import Path
 
-from ctp_core.errors import ConfigError, CtpError, MeshError, ModelError
-
-EXIT_FAILED, EXIT_INPUT, EXIT_MODEL = 1, 2, 3
+from ctp_core.errors import ConfigError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -100,25 +98,18 @@ def run(args: argparse.Namespace) -> int:
     from ctp_core import export, io
     from ctp_core.align import align
 
-    try:
-        if not args.prompt and not args.image and not args.no_guidance:
-            raise ConfigError("give --prompt TEXT or --image REF.png (or --no-guidance)", field="prompt")
-        config = config_from_args(args)
-        target = io.load_mesh(args.target, name="target")
-        source = io.load_mesh(args.source, name="source")
-        image = _read_image(args.image) if args.image else None
-        started = time.perf_counter()
-        result = align(target, source, args.prompt, config, image=image,
-                       target_name=args.target_name or args.target.stem,
-                       source_name=args.source_name or args.source.stem,
-                       on_event=ProgressBar(enabled=not args.quiet))
-        export.write_outputs(result, glb=args.out, report_path=args.report, preview=args.preview)
-    except (MeshError, ConfigError) as exc:
-        return _fail(exc, EXIT_INPUT)
-    except ModelError as exc:
-        return _fail(exc, EXIT_MODEL)
-    except CtpError as exc:
-        return _fail(exc, EXIT_FAILED)
+    if not args.prompt and not args.image and not args.no_guidance:
+        raise ConfigError("give --prompt TEXT or --image REF.png (or --no-guidance)", field="prompt")
+    config = config_from_args(args)
+    target = io.load_mesh(args.target, name="target")
+    source = io.load_mesh(args.source, name="source")
+    image = _read_image(args.image) if args.image else None
+    started = time.perf_counter()
+    result = align(target, source, args.prompt, config, image=image,
+                   target_name=args.target_name or args.target.stem,
+                   source_name=args.source_name or args.source.stem,
+                   on_event=ProgressBar(enabled=not args.quiet))
+    export.write_outputs(result, glb=args.out, report_path=args.report, preview=args.preview)
     summary = {"out": str(args.out), "objective": round(result.objective, 6), "scale": round(result.scale, 6),
                "translation": [round(v, 6) for v in result.translation.tolist()],
                "seconds": round(time.perf_counter() - started, 2), "preset": config.preset,
@@ -137,7 +128,3 @@ def _read_image(path: Path):
     except (OSError, UnidentifiedImageError) as exc:
         raise ConfigError(f"cannot read image {path}: {exc}", field="image") from None
 
-
-def _fail(exc: CtpError, code: int) -> int:
-    print(f"error: {exc.code}: {exc.message}", file=sys.stderr)
-    return code

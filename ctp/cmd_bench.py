@@ -13,9 +13,8 @@ import sys
 import time
 from pathlib import Path
 
-from ctp_core.errors import ConfigError, CtpError, MeshError, ModelError
+from ctp_core.errors import ConfigError
 
-EXIT_FAILED, EXIT_INPUT, EXIT_MODEL = 1, 2, 3
 COMMANDS = "commands.txt"
 
 
@@ -83,34 +82,27 @@ class CaseBar:
 def run(args: argparse.Namespace) -> int:
     from ctp_core.bench import cases, harness, summary
 
-    try:
-        options = harness.BenchOptions(
-            methods=args.methods or ["ctp"], protocol=args.protocol, inits=args.inits, seed=args.seed,
-            preset=args.preset, model=args.model, guide=args.guide, metrics_models=args.metrics_models,
-            ablation=args.ablation, device=args.device, threads=args.threads)
-        options.config("ctp")  # a bad preset or model spec fails here, before any case runs
-        if args.summary_only:
-            rows = harness.read_results(args.out / harness.RESULTS)
-        else:
-            found = cases.discover(args.cases_dir, args.cases)
-            if args.with_reference:
-                found = [c for c in found if c.reference is not None]
-            if not found:
-                raise ConfigError(f"no cases to run under {args.cases_dir}", field="cases_dir")
-            _log_command(args)
-            rows = harness.run_bench(found, options, args.out, jobs=args.jobs, resume=args.resume,
-                                     on_case=CaseBar(enabled=not args.quiet))
-    except (MeshError, ConfigError) as exc:
-        return _fail(exc, EXIT_INPUT)
-    except ModelError as exc:
-        return _fail(exc, EXIT_MODEL)
-    except CtpError as exc:
-        return _fail(exc, EXIT_FAILED)
+    options = harness.BenchOptions(
+        methods=args.methods or ["ctp"], protocol=args.protocol, inits=args.inits, seed=args.seed,
+        preset=args.preset, model=args.model, guide=args.guide, metrics_models=args.metrics_models,
+        ablation=args.ablation, device=args.device, threads=args.threads)
+    options.config("ctp")  # a bad preset or model spec fails here, before any case runs
+    if args.summary_only:
+        rows = harness.read_results(args.out / harness.RESULTS)
+    else:
+        found = cases.discover(args.cases_dir, args.cases)
+        if args.with_reference:
+            found = [c for c in found if c.reference is not None]
+        if not found:
+            raise ConfigError(f"no cases to run under {args.cases_dir}", field="cases_dir")
+        _log_command(args)
+        rows = harness.run_bench(found, options, args.out, jobs=args.jobs, resume=args.resume,
+                                 on_case=CaseBar(enabled=not args.quiet))
     log = args.out / COMMANDS
     path = summary.write_summary(rows, args.out, commands=log.read_text().splitlines() if log.exists() else [])
     failed = sum(r.get("status") != "ok" for r in rows)
     print(f"{len(rows)} runs over {len({r['case'] for r in rows})} cases ({failed} not ok): {path}")
-    return EXIT_FAILED if rows and failed == len(rows) else 0
+    return 1 if rows and failed == len(rows) else 0
 
 
 def _log_command(args: argparse.Namespace) -> None:
@@ -123,7 +115,3 @@ def _log_command(args: argparse.Namespace) -> None:
     with (args.out / COMMANDS).open("a") as f:
         f.write(line + "\n")
 
-
-def _fail(exc: CtpError, code: int) -> int:
-    print(f"error: {exc.code}: {exc.message}", file=sys.stderr)
-    return code

@@ -10,11 +10,9 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 
 from ctp_core.errors import ConfigError
 
-EXIT_INPUT = 2
 PENETRATION = {"auto": None, "allow": True, "forbid": False}
 
 
@@ -34,23 +32,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from ctp_core import priors
 
-    try:
-        for flag in ("target", "source"):
-            if not (getattr(args, flag) or "").strip():
-                raise ConfigError(f"--{flag} NAME is required", field=flag)
-        if args.penetration not in PENETRATION:
-            raise ConfigError(f"--penetration must be one of {', '.join(PENETRATION)}, got {args.penetration!r}",
-                              field="penetration")
-        prior = priors.resolve_priors(
-            priors.get_provider(args.provider), args.target, args.source, args.prompt,
-            size_ratio=_number(args.size_ratio, "size-ratio"), penetration=PENETRATION[args.penetration],
-            contact_ratio=_number(args.contact_ratio, "contact-ratio"),
-            target_extent=_number(args.target_extent, "target-extent"),
-            source_extent=_number(args.source_extent, "source-extent"),
-        )
-    except ConfigError as exc:
-        print(f"error: {exc.code}: {exc.message}", file=sys.stderr)
-        return EXIT_INPUT
+    for flag in ("target", "source"):
+        if not (getattr(args, flag) or "").strip():
+            raise ConfigError(f"--{flag} NAME is required", field=flag)
+    if args.penetration not in PENETRATION:
+        raise ConfigError(f"--penetration must be one of {', '.join(PENETRATION)}, got {args.penetration!r}",
+                          field="penetration")
+    prior = priors.resolve_priors(
+        priors.get_provider(args.provider), args.target, args.source, args.prompt,
+        size_ratio=_number(args.size_ratio, "size-ratio"), penetration=PENETRATION[args.penetration],
+        contact_ratio=_number(args.contact_ratio, "contact-ratio"),
+        target_extent=_number(args.target_extent, "target-extent"),
+        source_extent=_number(args.source_extent, "source-extent"),
+    )
     print(json.dumps(prior.to_dict(), indent=2))
     return 0
 

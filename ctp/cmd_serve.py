@@ -13,8 +13,6 @@ import signal
 import subprocess
 import sys
 
-from ctp_core.errors import CtpError
-
 STOP_GRACE_S = 10.0
 
 
@@ -69,9 +67,6 @@ def _serve(settings, args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, _exit_on_signal)
     try:
         uvicorn.run(create_app(settings), host=args.host, port=args.port, log_level=settings.log_level.lower())
-    except CtpError as exc:
-        print(f"error: {exc.code}: {exc.message}", file=sys.stderr)
-        return 2
     finally:
         _stop(workers)
         if embedded:

@@ -27,6 +27,8 @@ SUCCESS_ADDS = 0.1  # ADD-S (relative to the source diagonal) at or below which 
 # Fixed ray directions for the winding-number estimate: a Fibonacci sphere, turned off the axes so no
 # direction runs along the faces of axis-aligned boxes (where ray hits would be ambiguous).
 _N_DIRECTIONS = 16
+# Rays per intersector call: bounds memory (trimesh's numpy fallback holds every candidate triangle per ray).
+_RAYS_PER_CALL = 1 << 14
 
 
 def _directions(count: int) -> np.ndarray:
@@ -51,12 +53,18 @@ def winding_numbers(mesh: trimesh.Trimesh, points: np.ndarray, directions: int =
     """
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     d = _directions(directions)
+    per_chunk = max(1, _RAYS_PER_CALL // len(d))
+    counts = [_signed_crossings(mesh, points[i:i + per_chunk], d) for i in range(0, len(points), per_chunk)]
+    return np.concatenate(counts).reshape(len(points), len(d)).mean(axis=1) if counts else np.zeros(0)
+
+
+def _signed_crossings(mesh: trimesh.Trimesh, points: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Signed surface crossings of the rays from every point along every direction (flat, point-major)."""
     origins = np.repeat(points, len(d), axis=0)
     rays = np.tile(d, (len(points), 1))
     tri, ray = mesh.ray.intersects_id(origins, rays, multiple_hits=True)[:2]
     sign = np.sign(np.einsum("ij,ij->i", mesh.face_normals[tri], rays[ray]))
-    counts = np.bincount(ray, weights=sign, minlength=len(origins))
-    return counts.reshape(len(points), len(d)).mean(axis=1)
+    return np.bincount(ray, weights=sign, minlength=len(origins))
 
 
 def _grid(lo: np.ndarray, hi: np.ndarray, resolution: int) -> tuple[np.ndarray, float]:

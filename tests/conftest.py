@@ -112,3 +112,20 @@ def wait_ready(api: Api, workers: int = 1, timeout_s: float = 90) -> None:
     """Until /readyz counts ``workers`` live workers (they preload the model first)."""
     wait_for(lambda: api.client.get("/readyz").json().get("workers", 0) >= workers, timeout_s,
              f"{workers} worker(s) on /readyz", interval_s=0.25)
+
+
+# A service test module defines a module-scoped ``env`` fixture (its Redis queue and settings); these
+# two then give it a uvicorn API and one worker process for the module's duration.
+@pytest.fixture(scope="module")
+def api(env):
+    server = Api(env)
+    yield server
+    server.stop()
+
+
+@pytest.fixture(scope="module")
+def worker(env, api, tmp_path_factory):
+    process = Worker(env, tmp_path_factory.mktemp("logs") / "worker.log")
+    wait_ready(api)
+    yield process
+    process.stop()

@@ -15,7 +15,7 @@ import trimesh
 import yaml
 from PIL import Image
 
-from tests.conftest import REPO, Api, Worker, service_env, wait_for, wait_ready
+from tests.conftest import REPO, Api, service_env, wait_for
 
 FAST = {"preset": "test", "model": "random:tiny"}
 
@@ -79,21 +79,6 @@ def submit(api: Api, target=("box.glb", BOX), source=("ball.glb", BALL), prompt=
 @pytest.fixture(scope="module")
 def env(private_redis):
     return service_env(private_redis.url, "svc", max_unzipped_bytes=4 * 2**20, max_active_jobs=50)
-
-
-@pytest.fixture(scope="module")
-def api(env):
-    server = Api(env)
-    yield server
-    server.stop()
-
-
-@pytest.fixture(scope="module")
-def worker(env, api, tmp_path_factory):
-    process = Worker(env, tmp_path_factory.mktemp("logs") / "worker.log")
-    wait_ready(api)
-    yield process
-    process.stop()
 
 
 def test_served_schema_equals_openapi_yaml(api):

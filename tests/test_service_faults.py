@@ -35,21 +35,6 @@ def env(private_redis, tmp_path_factory):
     return service_env(private_redis.url, "faults", storage_dir=tmp_path_factory.mktemp("blobs"))
 
 
-@pytest.fixture(scope="module")
-def api(env):
-    server = Api(env)
-    yield server
-    server.stop()
-
-
-@pytest.fixture(scope="module")
-def worker(env, api, tmp_path_factory):
-    process = Worker(env, tmp_path_factory.mktemp("logs") / "worker.log")
-    wait_ready(api)
-    yield process
-    process.stop()
-
-
 def test_cancel_running_and_queued_jobs(api, worker):
     running = submit(api, options=LONG).json()["id"]
     wait_stepping(api, running)
