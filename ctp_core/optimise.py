@@ -103,7 +103,7 @@ def initial_poses(pair: PreparedPair, config: AlignConfig, size_ratio: float, ge
     if init is not None:
         m = pair.local_to_normalised(init)
         scale = float(np.cbrt(np.linalg.det(m[:3, :3])))
-        t[0] = torch.as_tensor(m[:3, 3], dtype=torch.float32)
+        t[0] = torch.tensor(np.array(m[:3, 3]), dtype=torch.float32)  # m may be read-only
         q[0] = torch.as_tensor(matrix_to_quaternion(m[:3, :3] / scale), dtype=torch.float32)
         log_s = torch.full((count,), math.log(scale))
     device = pair.source_vertices.device
