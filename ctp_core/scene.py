@@ -76,7 +76,7 @@ def prepare_pair(target: trimesh.Trimesh, source: trimesh.Trimesh, *, samples: i
     source_render = render.RenderMesh.from_arrays(source_arrays, device=device)
     mesh = render.join([target_render, source_render], [len(target_arrays.vertices), len(source_arrays.vertices)])
 
-    oriented = _outward(target)
+    oriented = outward(target)
     t_pts, t_nrm = sampling.surface_samples(oriented, samples, seed)
     s_pts, _ = sampling.surface_samples(source, samples, seed + 1)
     as_tensor = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=device)  # noqa: E731
@@ -95,14 +95,15 @@ def prepare_pair(target: trimesh.Trimesh, source: trimesh.Trimesh, *, samples: i
     )
 
 
-def _outward(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+def outward(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     """A copy with consistent, outward winding where trimesh can decide it (penetration needs "inside").
 
     Watertight meshes get outward normals; open ones get consistent winding, oriented by trimesh's
     heuristic, and "inside" then means behind the oriented side (documented limit).
     """
     fixed = mesh.copy()
-    trimesh.repair.fix_normals(fixed, multibody=True)
+    with np.errstate(divide="ignore", invalid="ignore"):  # trimesh divides by the volume of flat parts
+        trimesh.repair.fix_normals(fixed, multibody=True)
     return fixed
 
 
