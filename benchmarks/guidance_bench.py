@@ -58,7 +58,7 @@ def main() -> None:
     import transformers  # noqa: F401  (timed: a worker pays this once per process)
 
     import_s = time.perf_counter() - start
-    from ctp_core.guidance import load_guide
+    from ctp_core.guidance import cpu_has_fast_bf16, load_guide
 
     start = time.perf_counter()
     guide = load_guide(args.spec, autocast=False)
@@ -74,7 +74,8 @@ def main() -> None:
 
     score_batch = scenes(args.score_images, args.size, seed=2)
     compare = scenes(args.compare_images, args.size, seed=3)
-    result = {"spec": args.spec, "threads": torch.get_num_threads(), "views": args.views, "size": args.size,
+    result = {"spec": args.spec, "threads": torch.get_num_threads(), "native_bf16": cpu_has_fast_bf16(),
+              "views": args.views, "size": args.size,
               "import_transformers_s": round(import_s, 3), "build_s": round(build_s, 3)}
     precisions = {"fp32": False, "bf16": True}
     times = {key: [] for name in precisions for key in (f"fwd_bwd_s_{name}", f"fwd_ms_per_image_{name}")}

@@ -94,7 +94,7 @@ class AlignConfig(_Strict):
     seed: int = Field(0, ge=0)
     device: Literal["cpu", "cuda"] = "cpu"
     model: str = Field("hf:openai/clip-vit-base-patch32", description="guidance model spec (guidance.py)")
-    autocast: bool = Field(True, description="bf16 on CPU / fp16 on CUDA for the vision-language model")
+    autocast: bool = Field(True, description="fp16 on CUDA, bf16 on CPUs with native bf16 (AVX512-BF16/AMX), else fp32")
     scale: bool = Field(False, description="optimise isotropic scale too")
     size_ratio: float | None = Field(None, ge=0.01, le=100.0, description="source/target size; None: prior")
     contact_ratio: float | None = Field(None, ge=0.0, le=1.0, description="soft-ICP ratio r; None: prior")

@@ -29,9 +29,12 @@ costs nothing there). Decision measured with ``benchmarks/guidance_bench.py --sp
 on the shared 2-core AVX512-BF16 CPU (two runs, load 1 and 3-7, so ratios within a run are what
 counts): max |cos_bf16 - cos_fp32| = 5.3e-4 over 512 image-text pairs (bound 1e-2), gradient w.r.t.
 the pixels has cosine 0.99997 with fp32's; forward+backward of 8 views at 224 px 1.15 -> 0.83 s
-(1.4x; 1.6x in the loaded run), forward-only 94 -> 54 ms per image (1.75x; 2.4x loaded). So bf16 is
-on by default on CPU. The model's weights are frozen (``requires_grad_(False)``) so the backward
-pass computes pixel gradients only: fp32 forward+backward 1.6x faster than with trainable weights
+(1.4x; 1.6x in the loaded run), forward-only 94 -> 54 ms per image (1.75x; 2.4x loaded). On a CPU
+without native bf16 (an AMD EPYC worker with AVX2 only, no AVX512-BF16/AMX) the same benchmark gave
+fp32 2.35 s vs bf16 86 s (bf16 emulated, 37x slower). So bf16 is on by default on CPU only where the CPU
+has AVX512-BF16 or AMX (``cpu_has_fast_bf16``); elsewhere the CPU path is fp32. The model's weights
+are frozen (``requires_grad_(False)``) so the backward pass computes pixel gradients only: fp32
+forward+backward 1.6x faster than with trainable weights
 (interleaved in one run), likely why 1.15 s here beats the 2.0 s measured earlier. ``random:tiny``
 is too small to gain from bf16 (autocast overhead makes it ~1.5x slower); it exists for CI.
 """
@@ -167,6 +170,12 @@ class ImageTransform:
         return (x - mean) / std
 
 
+def cpu_has_fast_bf16() -> bool:
+    """Whether this CPU computes bf16 natively (AVX512-BF16 or AMX); without it autocast emulates bf16, slowly."""
+    probes = ("_is_avx512_bf16_supported", "_is_amx_tile_supported")
+    return any(bool(getattr(torch.cpu, name, lambda: False)()) for name in probes)
+
+
 class Guide:
     """A loaded vision-language model; load once per process (``get_guide``) and reuse across jobs.
 
@@ -189,7 +198,7 @@ class Guide:
         self.model = model.eval().requires_grad_(False)  # gradients are wanted w.r.t. pixels only
         self.embed_dim = embed_dim
         self.device = device
-        self.autocast = autocast and device.type in ("cpu", "cuda")
+        self.autocast = autocast and (device.type == "cuda" or (device.type == "cpu" and cpu_has_fast_bf16()))
         self.transform = transform
         self._image_features = image_features
         self._text_features = text_features

@@ -21,7 +21,17 @@ def tiny():
 
 @pytest.fixture(scope="module")
 def tiny_bf16():
-    return load_guide("random:tiny", autocast=True)
+    """bf16 autocast forced on, whatever this CPU is: its numerics are tested here, its speed is benchmarked."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(guidance, "cpu_has_fast_bf16", lambda: True)
+        return load_guide("random:tiny", autocast=True)
+
+
+def test_cpu_autocast_follows_native_bf16_support(monkeypatch):
+    for native in (False, True):
+        monkeypatch.setattr(guidance, "cpu_has_fast_bf16", lambda native=native: native)
+        assert load_guide("random:tiny", autocast=True).autocast is native
+    assert load_guide("random:tiny", autocast=False).autocast is False
 
 
 def _images(n: int, size: int = 96, seed: int = 0) -> torch.Tensor:
@@ -61,8 +71,10 @@ def test_text_embeddings_tell_prompts_apart(tiny):
 
 
 @pytest.mark.parametrize("autocast", [False, True])
-def test_gradient_reaches_the_images(autocast):
+def test_gradient_reaches_the_images(autocast, monkeypatch):
+    monkeypatch.setattr(guidance, "cpu_has_fast_bf16", lambda: True)
     guide = load_guide("random:tiny", autocast=autocast)
+    assert guide.autocast is autocast
     images = _images(2, size=80).requires_grad_(True)
     text = guide.encode_text(["a red ball"])[0]
     (guide.encode_images(images) @ text).sum().backward()
