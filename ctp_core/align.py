@@ -15,7 +15,7 @@ import numpy as np
 import torch
 import trimesh
 
-from ctp_core import priors
+from ctp_core import frames, priors
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
@@ -40,16 +40,21 @@ class AlignResult:
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
+    def transform(self) -> frames.Similarity:
+        """The answer as a named similarity: source file frame -> target file frame."""
+        return frames.Similarity(self.source_to_target, frames.SOURCE_FILE, frames.TARGET_FILE)
+
+    @property
     def scale(self) -> float:
-        return float(np.cbrt(abs(np.linalg.det(self.source_to_target[:3, :3]))))
+        return self.transform.scale
 
     @property
     def rotation(self) -> np.ndarray:
-        return self.source_to_target[:3, :3] / self.scale
+        return self.transform.rotation
 
     @property
     def translation(self) -> np.ndarray:
-        return self.source_to_target[:3, 3].copy()
+        return self.transform.translation
 
 
 

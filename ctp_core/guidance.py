@@ -59,37 +59,25 @@ from ctp_core.errors import ModelError
 CLIP_MEAN = (0.48145466, 0.4578275, 0.40821073)
 CLIP_STD = (0.26862954, 0.26130258, 0.27577711)
 
+def _clip_shape(width: int, layers: int, heads: int, patch: int, text_width: int, text_heads: int, *,
+                image_size: int = 224, text_layers: int = 12, vocab: int = 49408, mlp_ratio: int = 4) -> dict:
+    """transformers CLIPConfig keyword arguments of a ViT CLIP (the projection is the text width)."""
+    return {
+        "vision": {"hidden_size": width, "intermediate_size": mlp_ratio * width, "num_hidden_layers": layers,
+                   "num_attention_heads": heads, "patch_size": patch, "image_size": image_size},
+        "text": {"hidden_size": text_width, "intermediate_size": mlp_ratio * text_width,
+                 "num_hidden_layers": text_layers, "num_attention_heads": text_heads, "vocab_size": vocab},
+        "projection_dim": text_width,
+    }
+
+
 # Random architectures: transformers CLIPConfig keyword arguments. The ViT entries match OpenAI CLIP's
 # shapes so timings and memory are those of the real model; ``tiny`` is small enough for CI.
 RANDOM_ARCHS: dict[str, dict] = {
-    "ViT-B-32": {
-        "vision": {"hidden_size": 768, "intermediate_size": 3072, "num_hidden_layers": 12,
-                   "num_attention_heads": 12, "patch_size": 32, "image_size": 224},
-        "text": {"hidden_size": 512, "intermediate_size": 2048, "num_hidden_layers": 12,
-                 "num_attention_heads": 8, "vocab_size": 49408},
-        "projection_dim": 512,
-    },
-    "ViT-B-16": {
-        "vision": {"hidden_size": 768, "intermediate_size": 3072, "num_hidden_layers": 12,
-                   "num_attention_heads": 12, "patch_size": 16, "image_size": 224},
-        "text": {"hidden_size": 512, "intermediate_size": 2048, "num_hidden_layers": 12,
-                 "num_attention_heads": 8, "vocab_size": 49408},
-        "projection_dim": 512,
-    },
-    "ViT-L-14": {
-        "vision": {"hidden_size": 1024, "intermediate_size": 4096, "num_hidden_layers": 24,
-                   "num_attention_heads": 16, "patch_size": 14, "image_size": 224},
-        "text": {"hidden_size": 768, "intermediate_size": 3072, "num_hidden_layers": 12,
-                 "num_attention_heads": 12, "vocab_size": 49408},
-        "projection_dim": 768,
-    },
-    "tiny": {
-        "vision": {"hidden_size": 64, "intermediate_size": 128, "num_hidden_layers": 2,
-                   "num_attention_heads": 2, "patch_size": 16, "image_size": 64},
-        "text": {"hidden_size": 64, "intermediate_size": 128, "num_hidden_layers": 2,
-                 "num_attention_heads": 2, "vocab_size": 258},
-        "projection_dim": 64,
-    },
+    "ViT-B-32": _clip_shape(768, 12, 12, 32, 512, 8),
+    "ViT-B-16": _clip_shape(768, 12, 12, 16, 512, 8),
+    "ViT-L-14": _clip_shape(1024, 24, 16, 14, 768, 12),
+    "tiny": _clip_shape(64, 2, 2, 16, 64, 2, image_size=64, text_layers=2, vocab=258, mlp_ratio=2),
 }
 RANDOM_SEED = 0
 TEXT_CONTEXT = 77  # CLIP's text context length, SOT and EOT included
