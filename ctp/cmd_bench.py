@@ -13,6 +13,7 @@ import sys
 import time
 from pathlib import Path
 
+from ctp.cli import EXIT_FAILED
 from ctp_core.errors import ConfigError
 
 COMMANDS = "commands.txt"
@@ -102,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
     path = summary.write_summary(rows, args.out, commands=log.read_text().splitlines() if log.exists() else [])
     failed = sum(r.get("status") != "ok" for r in rows)
     print(f"{len(rows)} runs over {len({r['case'] for r in rows})} cases ({failed} not ok): {path}")
-    return 1 if rows and failed == len(rows) else 0
+    return EXIT_FAILED if rows and failed == len(rows) else 0
 
 
 def _log_command(args: argparse.Namespace) -> None:
