@@ -6,7 +6,11 @@ be within 10° of the file's +Y. A second, symmetry-aware figure also counts an 
 profile along it matches the one along +Y (a cube or a sphere has no single up to find). Prints one
 JSON object: per case and totals.
 
-    python benchmarks/canonical_bench.py [--bench ../shared/bench] [--trials 20] [--seed 0]
+``--model SPEC`` adds the semantic judge (``scene.upright_judge``: renders under candidate ups scored
+against "a photo of a NAME", NAME from case.json); it needs real weights to mean anything, ``random:ARCH``
+only exercises the path.
+
+    python benchmarks/canonical_bench.py [--bench ../shared/bench] [--trials 20] [--seed 0] [--model SPEC]
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ctp_core import canonical, io, sampling
+from ctp_core import canonical, guidance, io, sampling, scene
 
 _TOLERANCE_DEG = 10.0
 
@@ -30,12 +34,21 @@ def height_profile(points: np.ndarray, up: np.ndarray) -> np.ndarray:
     return (heights - heights[0]) / max(heights[-1] - heights[0], 1e-12)
 
 
+def upright(mesh, guide: guidance.Guide | None, name: str, args: argparse.Namespace) -> canonical.Upright:
+    """Auto-Align by geometry, or with the semantic judge when a guide is given."""
+    judge = scene.upright_judge(mesh, guide, name, views=args.views) if guide else None
+    return canonical.upright_rotation(mesh, seed=args.seed, judge=judge)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--bench", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "bench")
     parser.add_argument("--trials", type=int, default=20)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--model", help="guidance model spec for the semantic judge (default: geometry only)")
+    parser.add_argument("--views", type=int, default=4, help="judge renders per candidate up")
     args = parser.parse_args()
+    guide = guidance.get_guide(args.model) if args.model else None
 
     rng = np.random.default_rng(args.seed)
     cases, started = [], time.perf_counter()
@@ -43,14 +56,15 @@ def main() -> None:
         mesh = io.load_mesh(path)
         points, _ = sampling.surface_samples(mesh, 4000, args.seed)
         reference = height_profile(points, np.array([0.0, 1.0, 0.0]))
-        authored = canonical.upright_rotation(mesh, seed=args.seed)
+        name = json.loads((path.parent / "case.json").read_text())["target"].get("name", "object").replace("_", " ")
+        authored = upright(mesh, guide, name, args)
         strict = symmetric = 0
         seconds = []
         for rotation in Rotation.random(args.trials, random_state=rng):
             turned = mesh.copy()
             turned.apply_transform(np.block([[rotation.as_matrix(), np.zeros((3, 1))], [np.zeros((1, 3)), 1.0]]))
             tick = time.perf_counter()
-            up = rotation.inv().apply(canonical.upright_rotation(turned, seed=args.seed).up)  # back to file frame
+            up = rotation.inv().apply(upright(turned, guide, name, args).up)  # back to file frame
             seconds.append(time.perf_counter() - tick)
             hit = np.degrees(np.arccos(np.clip(up[1], -1, 1))) <= _TOLERANCE_DEG
             strict += int(hit)
@@ -67,6 +81,7 @@ def main() -> None:
     count = len(cases)
     print(json.dumps({
         "trials_per_case": args.trials,
+        "judge": args.model,
         "cases": cases,
         "totals": {
             "cases": count,

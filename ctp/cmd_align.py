@@ -45,6 +45,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-guidance", action="store_true", help="geometry only (lambda_clip = 0)")
     parser.add_argument("--keep-up", action="store_true",
                         help="keep the target file's +Y as up (no automatic upright turn of the target)")
+    parser.add_argument("--judge-up", action="store_true",
+                        help="let the guidance model pick the target's up from renders named --target-name "
+                        "(needs real weights)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -58,6 +61,8 @@ def config_from_args(args: argparse.Namespace):
     overrides = {k: v for k, v in top.items() if v is not None}
     if args.keep_up:
         overrides["upright"] = False
+    if args.judge_up:
+        overrides["upright_judge"] = True
     optim = {k: v for k, v in {"restarts": args.restarts, "steps": args.steps}.items() if v is not None}
     loss = {}
     if args.selection_only:

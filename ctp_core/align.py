@@ -96,8 +96,12 @@ def align(
         penetration={"auto": None, "allow": True, "forbid": False}[config.penetration],
         target_extent=float(target.extents.max()), source_extent=float(source.extents.max()),
     )
+    judge = None
+    if config.upright and config.upright_judge:
+        guide = guide or guidance_mod.get_guide(config.model, device=config.device, autocast=config.autocast)
+        judge = scene.upright_judge(target, guide, target_name, device=config.device)
     pair = scene.prepare_pair(target, source, samples=config.loss.samples, seed=config.seed, device=config.device,
-                              canonicalise=config.upright)
+                              canonicalise=config.upright, judge=judge)
     prepared = time.perf_counter()
 
     if guidance is None and config.loss.lambda_clip > 0:

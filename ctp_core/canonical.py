@@ -25,10 +25,17 @@ authored pose is the safer error (a flipped table ruins "a cup on the table"), a
 still placed correctly in its own file frame. Known misses: figures that cannot stand on their own
 (no resting pose has +Y up), tables (upside down rests better), cubes and spheres (no single up).
 Measured on ``../shared/bench`` by ``benchmarks/canonical_bench.py`` (figures in the README).
+
+4. **A judge** (optional, semantic): geometry cannot tell a table on its legs from one on its top, or
+   where a figure's head is; a vision-language model can. ``judge`` scores candidate rotations (in
+   practice: renders of the object under each, against "a photo of a NAME", ``scene.upright_judge``)
+   and picks among the file's +Y, the best resting poses and the six dominant-axis directions. The
+   file's +Y stays unless another candidate scores ``margin`` more.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -45,6 +52,11 @@ _BASE_FILL = 0.5  # share of a facet the mesh must touch to count as a real base
 _KEEP_RATIO = 0.05  # the file's +Y stays unless the best pose scores 20x more: rotate only when clear
 _MAX_FACES = 20_000  # normals sampled for RANSAC: plenty for three axes, bounded time
 _Y = np.array([0.0, 1.0, 0.0])
+_JUDGED_POSES = 4  # best resting poses offered to a judge, besides the file's +Y and the dominant axes
+_DISTINCT_COS = np.cos(np.radians(10.0))  # candidate ups closer than this are one candidate
+
+Judge = Callable[[np.ndarray], np.ndarray]
+"""Scores (K,) for candidate rotations (K, 3, 3), file frame -> upright frame; higher is more upright."""
 
 
 @dataclass
@@ -55,7 +67,7 @@ class Upright:
     changed: bool
     reason: str
     axes: np.ndarray = field(default_factory=lambda: np.eye(3))  # (3, 3) dominant axes (rows), file frame
-    candidates: list[dict] = field(default_factory=list)  # resting poses, best first, up in file frame
+    candidates: list[dict] = field(default_factory=list)  # resting or judged poses, best first, file frame
 
     @property
     def up(self) -> np.ndarray:
@@ -67,10 +79,13 @@ def identity(reason: str = "not canonicalised") -> Upright:
     return Upright(np.eye(3), False, reason)
 
 
-def upright_rotation(mesh: trimesh.Trimesh, seed: int = 0) -> Upright:
-    """Estimate the upright frame of ``mesh`` (file frame); deterministic by ``seed``."""
+def upright_rotation(mesh: trimesh.Trimesh, seed: int = 0, judge: Judge | None = None,
+                     margin: float = 0.01) -> Upright:
+    """Estimate the upright frame of ``mesh`` (file frame); deterministic by ``seed`` (and the judge)."""
     axes = dominant_axes(mesh, seed)
     candidates = resting_poses(mesh)
+    if judge is not None:
+        return _judged(axes, candidates, judge, margin)
     axis = symmetry_axis(mesh, seed)
     on_axis = [] if axis is None else [c for c in candidates if abs(np.dot(c["up"], axis)) > _AXIS_COS]
     bases = on_axis or [c for c in candidates if c["fill"] >= _BASE_FILL]
@@ -80,15 +95,32 @@ def upright_rotation(mesh: trimesh.Trimesh, seed: int = 0) -> Upright:
     as_file = [c for c in candidates if np.dot(c["up"], _Y) > _AUTHORED_COS]
     if as_file and as_file[0]["score"] >= _KEEP_RATIO * best["score"]:
         return Upright(np.eye(3), False, "already upright: the file's +Y is a resting pose", axes, candidates)
-    up = np.asarray(best["up"])
-    nearest = axes[np.argmax(np.abs(axes @ up))]
-    if abs(nearest @ up) > _SNAP_COS:
-        up = nearest * np.sign(nearest @ up)
-    rotation = _yaw_to_axes(_turn_onto(up, _Y), axes)
+    up = _snapped(np.asarray(best["up"]), axes)
+    rotation = _standing_on(up, axes)
     reason = (f"rests on a base ({best['fill']:.0%} contact, p={best['probability']:.2f}) with up "
               f"{np.round(up, 3).tolist()} in the file frame; the file's +Y "
               + (f"scores {as_file[0]['score'] / best['score']:.0%} of it" if as_file else "is not a resting pose"))
     return Upright(rotation, True, reason, axes, candidates)
+
+
+def _judged(axes: np.ndarray, candidates: list[dict], judge: Judge, margin: float) -> Upright:
+    """Let ``judge`` pick among the file's +Y, the best resting poses and the dominant-axis directions."""
+    ups = [_Y] + [_snapped(np.asarray(c["up"]), axes) for c in candidates[:_JUDGED_POSES]]
+    ups += [sign * axis for axis in axes for sign in (1.0, -1.0)]
+    distinct: list[np.ndarray] = []
+    for up in ups:
+        if all(up @ other < _DISTINCT_COS for other in distinct):
+            distinct.append(up)
+    rotations = np.stack([np.eye(3)] + [_standing_on(up, axes) for up in distinct[1:]])
+    scores = np.asarray(judge(rotations), dtype=np.float64)
+    best = int(np.argmax(scores))
+    ranked = [{"up": up.tolist(), "judge_score": float(score)} for up, score in zip(distinct, scores, strict=True)]
+    ranked.sort(key=lambda c: -c["judge_score"])
+    if best == 0 or scores[best] - scores[0] < margin:
+        return Upright(np.eye(3), False, f"judged: the file's +Y scores {scores[0]:.4f}, no candidate "
+                       f"{margin} more (best {scores[best]:.4f})", axes, ranked)
+    return Upright(rotations[best], True, f"judged: up {np.round(distinct[best], 3).tolist()} in the file frame "
+                   f"scores {scores[best]:.4f}, the file's +Y {scores[0]:.4f}", axes, ranked)
 
 
 def symmetry_axis(mesh: trimesh.Trimesh, seed: int = 0, samples: int = 2000) -> np.ndarray | None:
@@ -217,6 +249,17 @@ def _over_facet(centre: np.ndarray, down: np.ndarray, triangles: np.ndarray) -> 
     foot = centre + (plane - centre @ down) * down
     bary = trimesh.triangles.points_to_barycentric(triangles, np.repeat(foot[None], len(triangles), 0))
     return bool((bary > -1e-6).all(1).any())
+
+
+def _snapped(up: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """``up`` snapped onto the nearest dominant axis when within 5° of it (answers come out exact)."""
+    nearest = axes[np.argmax(np.abs(axes @ up))]
+    return nearest * np.sign(nearest @ up) if abs(nearest @ up) > _SNAP_COS else up
+
+
+def _standing_on(up: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """The rotation (file -> upright) that turns ``up`` onto +Y, squared to the dominant axes."""
+    return _yaw_to_axes(_turn_onto(up, _Y), axes)
 
 
 def _turn_onto(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -103,6 +103,10 @@ class AlignConfig(_Strict):
         True, description="turn a clearly lying or upside-down target upright first (canonical.py); "
         "off keeps the target file's +Y as up"
     )
+    upright_judge: bool = Field(
+        False, description="let the guidance model choose the target's up (renders under candidate ups against "
+        "'a photo of a TARGET_NAME'); needs real weights and a target name; its accuracy is unmeasured (README)"
+    )
     hparams_provider: str = Field("rules", description="scene-prior provider (priors.py)")
     threads: int | None = Field(None, ge=1, le=256, description="torch CPU threads; None leaves torch's")
     progress_every: int = Field(5, ge=1, description="steps between progress events")

@@ -59,13 +59,15 @@ class PreparedPair:
 
 
 def prepare_pair(target: trimesh.Trimesh, source: trimesh.Trimesh, *, samples: int, seed: int,
-                 device: str = "cpu", canonicalise: bool = True) -> PreparedPair:
+                 device: str = "cpu", canonicalise: bool = True, judge: canonical.Judge | None = None
+                 ) -> PreparedPair:
     """Normalise, canonicalise and sample a pair once per run (everything later reuses it).
 
     ``canonicalise`` turns a clearly lying or upside-down target upright (renders then show it as
-    CLIP expects); the source's upright frame is always computed, as the starting orientation.
+    CLIP expects), by ``judge`` when given (``upright_judge``); the source's upright frame is always
+    computed from geometry, as the starting orientation.
     """
-    target_up = canonical.upright_rotation(target, seed=seed) if canonicalise else canonical.identity()
+    target_up = canonical.upright_rotation(target, seed=seed, judge=judge) if canonicalise else canonical.identity()
     source_up = canonical.upright_rotation(source, seed=seed)
     target_to_norm = frames.target_to_normalised(target.vertices, target_up.rotation)
     source_to_local = frames.source_local(source.bounds, target_to_norm)
@@ -116,6 +118,30 @@ def framing_cameras(vertices: torch.Tensor, views: int, image_size: int, elevati
     azimuth = torch.arange(views, dtype=torch.float32, device=vertices.device)[None] * (360.0 / views) + 30.0
     full = lambda v: torch.full((1, views), float(v), device=vertices.device)  # noqa: E731
     return orbit(centre[None], azimuth, full(elevation_deg), full(distance), full(fov_deg), image_size)
+
+
+def upright_judge(mesh: trimesh.Trimesh, guide, name: str, *, views: int = 4, image_size: int = 224,
+                  device: str = "cpu") -> canonical.Judge:
+    """A ``canonical.Judge`` that asks ``guide`` which way up ``mesh`` (file frame) looks like a NAME.
+
+    Each candidate rotation (file -> upright) is rendered from ``views`` framing views at 30° elevation;
+    its score is the mean cosine of the views with "a photo of a NAME" (forward only).
+    """
+    arrays = MeshArrays.from_trimesh(mesh)
+    shape = render.RenderMesh.from_arrays(arrays, device=device)
+    centred = torch.as_tensor(arrays.vertices - mesh.bounds.mean(0), dtype=torch.float32, device=device)
+    text = guide.encode_text([f"a photo of a {name}"])[0]
+
+    @torch.no_grad()
+    def judge(rotations: np.ndarray) -> np.ndarray:
+        scores = []
+        for rotation in rotations:
+            turned = centred @ torch.as_tensor(rotation, dtype=torch.float32, device=device).T
+            images = render.render(shape, turned[None], framing_cameras(turned, views, image_size))[0]
+            scores.append(float(guide.score(images, text).mean()))
+        return np.array(scores)
+
+    return judge
 
 
 def render_arrangement(target: trimesh.Trimesh, source: trimesh.Trimesh, source_to_target: np.ndarray, *,

@@ -28,6 +28,8 @@ OPTION_PATHS: dict[str, tuple[str, ...]] = {
     "penetration": ("penetration",),
     "size_ratio": ("size_ratio",),
     "hparams_provider": ("hparams_provider",),
+    "upright": ("upright",),
+    "upright_judge": ("upright_judge",),
 }
 _EXTRA_DOC = {
     "preset": f"named budget ({', '.join(AlignConfig.preset_names())}); the other options override it",

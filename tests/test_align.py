@@ -139,3 +139,12 @@ def test_cli_refuses_unreadable_mesh(tmp_path, capsys):
     code = main(["align", str(bad), str(bad), "--prompt", "x", "--preset", "test", "--model", "random:tiny"])
     err = capsys.readouterr().err.strip()
     assert code == 2 and err.startswith("error: mesh_") and "\n" not in err
+
+
+def test_align_with_the_upright_judge(meshes):
+    """The opt-in semantic judge runs inside align with the configured model and reports its choice."""
+    cfg = AlignConfig.from_preset("test", model="random:tiny", upright_judge=True)
+    result = align(*meshes, "a cup on the table", cfg, target_name="table")
+    upright = result.extra["target_upright"]
+    assert upright["reason"].startswith("judged")
+    assert np.allclose(np.array(upright["rotation"]) @ np.array(upright["rotation"]).T, np.eye(3), atol=1e-9)

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from ctp_core import canonical
+from ctp_core import canonical, scene
 
 
 def _turned(mesh: trimesh.Trimesh, rotation: np.ndarray) -> trimesh.Trimesh:
@@ -90,3 +91,53 @@ def test_deterministic_and_no_base_means_no_change():
     result = canonical.upright_rotation(sphere)
     assert not result.changed and "no flat base" in result.reason
     assert not canonical.identity().changed
+
+
+class _TopRedGuide:
+    """A stand-in guide that likes renders whose upper half is red and lower half is not.
+
+    Through ``scene.upright_judge`` it proves that each candidate is rendered the right way up: a
+    candidate turned the wrong way (R instead of R.T, or a camera upside down) would win otherwise.
+    """
+
+    def encode_text(self, texts: list[str]) -> torch.Tensor:
+        return torch.ones(len(texts), 1)
+
+    def score(self, images: torch.Tensor, text: torch.Tensor) -> torch.Tensor:
+        red = images[:, 0] - images[:, 1:].mean(1)  # (N, H, W)
+        half = images.shape[-2] // 2
+        return red[:, :half].mean((1, 2)) - red[:, half:].mean((1, 2))
+
+
+def _red_topped_cube() -> trimesh.Trimesh:
+    """A cube, authored with its red face up: geometry alone cannot tell which face that is."""
+    cube = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    cube.unmerge_vertices()
+    colours = np.tile(np.array([120, 120, 120, 255], np.uint8), (len(cube.faces), 1))
+    colours[cube.face_normals[:, 1] > 0.9] = [220, 20, 20, 255]
+    cube.visual.face_colors = colours
+    return cube
+
+
+def test_judge_finds_the_up_geometry_cannot():
+    cube = _red_topped_cube()
+    judge = lambda mesh: scene.upright_judge(mesh, _TopRedGuide(), "cube", image_size=64)  # noqa: E731
+    kept = canonical.upright_rotation(cube, judge=judge(cube))
+    assert not kept.changed and np.array_equal(kept.rotation, np.eye(3))
+    assert kept.reason.startswith("judged")
+    for rotation in Rotation.random(4, random_state=5).as_matrix():
+        turned = _turned(cube, rotation)
+        result = canonical.upright_rotation(turned, judge=judge(turned))
+        assert result.changed
+        assert _angle_to_file_y(rotation, result) < 1.0  # the red face, snapped to the cube's axis
+        assert result.candidates[0]["judge_score"] >= result.candidates[-1]["judge_score"]
+
+
+def test_an_undecided_judge_keeps_the_file_up():
+    lamp = _turned(_lamp(), Rotation.from_euler("x", 90, degrees=True).as_matrix())  # lying: geometry would turn it
+    assert canonical.upright_rotation(lamp).changed
+    flat = canonical.upright_rotation(lamp, judge=lambda rotations: np.zeros(len(rotations)))
+    assert not flat.changed and np.array_equal(flat.rotation, np.eye(3))
+    # a judge preferring the second candidate by less than the margin changes nothing either
+    slight = canonical.upright_rotation(lamp, judge=lambda r: np.r_[0.0, 0.005, np.zeros(len(r) - 2)])
+    assert not slight.changed

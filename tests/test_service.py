@@ -131,6 +131,8 @@ BAD_INPUTS = {
                             "options.contact_ratio"),
     # A cross-field rule of AlignConfig: no single option is at fault.
     "steps below phases": (dict(options={**FAST, "steps": 1}), 422, "invalid_option", "options"),
+    "upright judge not a bool": (dict(options={**FAST, "upright_judge": "yes"}), 422, "invalid_option",
+                                 "options.upright_judge"),
     "unknown preset": (dict(options={"preset": "turbo"}), 422, "invalid_option", "options.preset"),
     "model not served": (dict(options={**FAST, "model": "hf:someone/huge"}), 422, "invalid_option", "options.model"),
     "options not an object": (dict(options=[1, 2]), 400, "invalid_options", "options"),
