@@ -12,6 +12,7 @@ Frames (see ``frames``):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -21,6 +22,9 @@ from ctp_core import canonical, frames, render, sampling
 from ctp_core.cameras import Cameras, orbit
 from ctp_core.losses import TargetIndex
 from ctp_core.structures import MeshArrays
+
+if TYPE_CHECKING:
+    from ctp_core.guidance import Guide
 
 
 @dataclass
@@ -111,21 +115,26 @@ def outward(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
 
 def framing_cameras(vertices: torch.Tensor, views: int, image_size: int, elevation_deg: float = 30.0,
                     fov_deg: float = 40.0) -> Cameras:
-    """Fixed orbit views that frame all of ``vertices`` (V, 3) (previews and metrics, not training)."""
-    lo, hi = vertices.min(0).values, vertices.max(0).values
-    centre, radius = (lo + hi) / 2, float((hi - lo).norm() / 2)
-    distance = radius / np.sin(np.radians(fov_deg) / 2) * 1.05
-    azimuth = torch.arange(views, dtype=torch.float32, device=vertices.device)[None] * (360.0 / views) + 30.0
-    full = lambda v: torch.full((1, views), float(v), device=vertices.device)  # noqa: E731
-    return orbit(centre[None], azimuth, full(elevation_deg), full(distance), full(fov_deg), image_size)
+    """Fixed orbit views that frame all of ``vertices`` (previews and metrics, not training).
+
+    ``vertices`` (V, 3) gives (1, views) cameras; (B, V, 3) gives (B, views), each framing its own set.
+    """
+    batched = vertices if vertices.dim() == 3 else vertices[None]
+    lo, hi = batched.min(1).values, batched.max(1).values
+    centre, radius = (lo + hi) / 2, (hi - lo).norm(dim=1) / 2
+    distance = (radius / np.sin(np.radians(fov_deg) / 2) * 1.05)[:, None].expand(-1, views)
+    azimuth = torch.arange(views, dtype=torch.float32, device=vertices.device) * (360.0 / views) + 30.0
+    full = lambda v: torch.full((len(batched), views), float(v), device=vertices.device)  # noqa: E731
+    return orbit(centre, azimuth.expand(len(batched), -1), full(elevation_deg), distance, full(fov_deg), image_size)
 
 
-def upright_judge(mesh: trimesh.Trimesh, guide, name: str, *, views: int = 4, image_size: int = 224,
+def upright_judge(mesh: trimesh.Trimesh, guide: Guide, name: str, *, views: int = 4, image_size: int = 224,
                   device: str = "cpu") -> canonical.Judge:
     """A ``canonical.Judge`` that asks ``guide`` which way up ``mesh`` (file frame) looks like a NAME.
 
-    Each candidate rotation (file -> upright) is rendered from ``views`` framing views at 30° elevation;
-    its score is the mean cosine of the views with "a photo of a NAME" (forward only).
+    Each candidate rotation (file -> upright) is rendered from ``views`` framing views at 30° elevation,
+    all candidates in one batch; its score is the mean cosine of its views with "a photo of a NAME"
+    (forward only).
     """
     arrays = MeshArrays.from_trimesh(mesh)
     shape = render.RenderMesh.from_arrays(arrays, device=device)
@@ -134,12 +143,10 @@ def upright_judge(mesh: trimesh.Trimesh, guide, name: str, *, views: int = 4, im
 
     @torch.no_grad()
     def judge(rotations: np.ndarray) -> np.ndarray:
-        scores = []
-        for rotation in rotations:
-            turned = centred @ torch.as_tensor(rotation, dtype=torch.float32, device=device).T
-            images = render.render(shape, turned[None], framing_cameras(turned, views, image_size))[0]
-            scores.append(float(guide.score(images, text).mean()))
-        return np.array(scores)
+        turned = centred @ torch.as_tensor(np.asarray(rotations), dtype=torch.float32, device=device).transpose(1, 2)
+        images = render.render(shape, turned, framing_cameras(turned, views, image_size))
+        scores = guide.score(images.flatten(0, 1), text).view(len(rotations), views).mean(1)
+        return scores.double().cpu().numpy()
 
     return judge
 
