@@ -11,6 +11,9 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 EventKind = Literal["start", "phase_start", "step", "phase_end", "done"]
+# The pipeline stage an event belongs to: the search scores candidate poses (step/steps count candidates),
+# the refinement optimises the best of them (step/steps count optimisation steps).
+StageName = Literal["search", "refine"]
 
 
 @dataclass
@@ -28,6 +31,7 @@ class ProgressEvent:
     losses: dict[str, float] = field(default_factory=dict)  # mean over restarts of the last step
     best_objective: float | None = None
     message: str = ""
+    stage: StageName = "refine"
 
     @property
     def fraction(self) -> float:

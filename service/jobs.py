@@ -47,8 +47,21 @@ class TooManyJobs(Exception):
     """The key already has its limit of queued plus running jobs."""
 
 
+class Stage(BaseModel):
+    """Which part of the pipeline runs now, and which alignment of the job (an assembly places several)."""
+
+    name: str = Field("queued", description="pipeline stage: queued, loading, model, search (step/steps count "
+                      "candidate poses scored), refine (step/steps count optimisation steps), exporting, done")
+    index: int = Field(1, ge=1, description="1-based alignment of this job (an assembly places one object each)")
+    count: int = Field(1, ge=1, description="alignments in this job (1 for POST /align)")
+    label: str = Field("", description="what the current alignment places (an assembly step's prompt)")
+
+
 class Progress(BaseModel):
     """Where a job is; the optimiser's ProgressEvent, flattened for clients."""
+
+    stage: Stage = Field(default_factory=Stage, description="the pipeline stage and, for an assembly, which "
+                         "object is being placed")
 
     kind: str = Field("queued", description="queued, loading, model, start, phase_start, step, phase_end, "
                       "exporting or done")

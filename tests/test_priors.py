@@ -38,7 +38,8 @@ def test_get_provider_returns_named_providers_and_refuses_unknown_names():
         assert provider.name == name
         prior = provider.estimate("table", "cup", "a cup on the table")
         assert isinstance(prior, ScenePrior)
-        assert set(prior.to_dict()) == {"size_ratio", "penetration", "contact_ratio", "source", "reason"}
+        assert set(prior.to_dict()) == {"size_ratio", "penetration", "contact_ratio", "source", "reason", "relation",
+                                        "source_is_figure"}
     with pytest.raises(ConfigError) as err:
         get_provider("llama")
     assert err.value.field == "hparams_provider"
@@ -425,3 +426,10 @@ def test_cli_bad_input_exits_2_with_one_line(argv, capsys):
 
 def test_rules_provider_class_is_the_default():
     assert isinstance(get_provider(), RulesProvider)
+
+
+def test_the_rules_say_which_relation_they_read():
+    prior = RulesProvider().estimate("table", "cup", "a cup on the table")
+    assert (prior.relation, prior.source_is_figure) == ("on", True)
+    worn = RulesProvider().estimate("hat", "pinocchio", "Pinocchio wearing a hat")
+    assert (worn.relation, worn.source_is_figure) == ("wear", False)

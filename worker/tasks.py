@@ -22,7 +22,7 @@ from ctp_core.export import preview_png, report, scene_glb
 from ctp_core.guidance import get_guide
 from ctp_core.io import MeshLimits, load_mesh
 from ctp_core.progress import ProgressEvent
-from service.jobs import JobError, JobRecord, Progress, Status
+from service.jobs import JobError, JobRecord, Progress, Stage, Status
 from worker.main import context
 
 log = logging.getLogger("ctp.worker")
@@ -113,7 +113,8 @@ def progress_of(event: ProgressEvent) -> Progress:
     """The optimiser's event as the API's progress object."""
     message = event.message or (f"phase {event.phase}/{event.phases}, step {event.step}/{event.steps}"
                                 if event.phase else event.kind)
-    return Progress(kind=event.kind, phase=event.phase, phases=event.phases, step=event.step, steps=event.steps,
+    return Progress(stage=Stage(name=event.stage), kind=event.kind, phase=event.phase, phases=event.phases,
+                    step=event.step, steps=event.steps,
                     restarts=event.restarts, fraction=round(event.fraction, 4),
                     eta_s=None if event.eta_s is None else round(event.eta_s, 1), message=message)
 

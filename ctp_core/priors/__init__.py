@@ -100,6 +100,8 @@ def resolve_priors(
         contact_ratio=float(prior.contact_ratio if contact_ratio is None else contact_ratio),
         source=prior.source + ("; explicit: " + ", ".join(explicit) if explicit else ""),
         reason="; ".join(reasons),
+        relation=prior.relation,
+        source_is_figure=prior.source_is_figure,
     )
 
 

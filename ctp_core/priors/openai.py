@@ -79,9 +79,11 @@ class OpenAIProvider:
         except (httpx.HTTPError, AnswerError) as exc:
             why = f"{type(exc).__name__}: {exc}".splitlines()[0][:200]
             return self._fall_back(target_name, source_name, prompt, why)
+        rules = self.fallback.estimate(target_name, source_name, prompt)  # the relation is read by the rules
         return ScenePrior(size_ratio=clamp_size(answers["size_ratio"]), penetration=answers["penetration"],
                           contact_ratio=clamp_contact(answers["contact_ratio"]), source=self.name,
-                          reason=f"answered by {self.settings.model or 'the endpoint default model'}")
+                          reason=f"answered by {self.settings.model or 'the endpoint default model'}",
+                          relation=rules.relation, source_is_figure=rules.source_is_figure)
 
     def _headers(self) -> dict[str, str]:
         key = self.settings.api_key
@@ -107,7 +109,8 @@ class OpenAIProvider:
         prior = self.fallback.estimate(target_name, source_name, prompt)
         return ScenePrior(prior.size_ratio, prior.penetration, prior.contact_ratio,
                           source=f"{prior.source} (fallback: {why})",
-                          reason=f"openai provider failed ({why}); {prior.reason}")
+                          reason=f"openai provider failed ({why}); {prior.reason}",
+                          relation=prior.relation, source_is_figure=prior.source_is_figure)
 
 
 def _readable(name: str) -> str:

@@ -21,6 +21,11 @@ class ScenePrior:
     contact_ratio: float  # [0, 1] -> soft-ICP ratio r
     source: str  # "rules", "openai", "rules (fallback: <why>)", or with "; explicit: <fields>"
     reason: str  # short, for humans
+    # the spatial relation read from the prompt (a key of ``relations.RELATIONS``: "on", "in", "beside" ...)
+    # and whether the source is its figure (the thing placed) or its ground; None when the provider does not
+    # say. The search weights where it proposes poses by it (never excluding a region).
+    relation: str | None = None
+    source_is_figure: bool = True
 
     def to_dict(self) -> dict:
         return asdict(self)

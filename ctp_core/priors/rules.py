@@ -48,7 +48,8 @@ class RulesProvider:
         notes.append(pen_why)
         contact = _contact(relation, figure, source)
         return ScenePrior(size_ratio=clamp_size(size), penetration=penetration, contact_ratio=clamp_contact(contact),
-                          source=self.name, reason="; ".join(n for n in notes if n))
+                          source=self.name, reason="; ".join(n for n in notes if n),
+                          relation=relation.name, source_is_figure=figure)
 
 
 def _mentions(prompt: str, name: str, match: lexicon.Match | None) -> list[int]:

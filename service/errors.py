@@ -1,0 +1,107 @@
+"""Error answers: the ``ApiError`` routes raise, the handlers that turn every failure into the stable body,
+and the documented error responses each route lists in the schema."""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import redis
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from ctp_core.errors import CtpError
+from service.jobs import JobError
+from service.schemas import ErrorBody
+
+log = logging.getLogger("ctp.service")
+
+_ERRORS = {status: {"model": ErrorBody, "description": text} for status, text in {
+    400: "malformed request", 401: "missing or unknown API key", 404: "unknown job (or another key's)",
+    409: "the job is not in a state that allows this", 413: "an upload is over a limit",
+    415: "unsupported mesh format", 422: "invalid input", 429: "too many active jobs for this key",
+    503: "Redis or the workers are unavailable",
+}.items()}
+
+
+class ApiError(Exception):
+    """An error answer: HTTP status plus the stable body."""
+
+    def __init__(self, status: int, code: str, message: str, field: str | None = None, headers=None):
+        super().__init__(message)
+        self.status, self.body, self.headers = status, JobError(code=code, message=message, field=field), headers
+
+
+def error_response(status: int, error: JobError, headers=None) -> JSONResponse:
+    return JSONResponse(ErrorBody(error=error).model_dump(mode="json"), status_code=status, headers=headers)
+
+
+def documented(*statuses: int) -> dict[int | str, dict[str, Any]]:
+    """The schema's error responses for these statuses."""
+    return {s: _ERRORS[s] for s in statuses}
+
+
+def binary(media_type: str, description: str) -> dict[int | str, dict[str, Any]]:
+    """The schema's 200 response for a file download."""
+    return {200: {"description": description,
+                  "content": {media_type: {"schema": {"type": "string", "format": "binary"}}}}}
+
+
+def install_handlers(app: FastAPI) -> None:
+    """Every failure a route can meet answers with the stable error body, never a traceback."""
+
+    @app.exception_handler(ApiError)
+    async def _api_error(_request: Request, exc: ApiError):
+        return error_response(exc.status, exc.body, exc.headers)
+
+    @app.exception_handler(CtpError)
+    async def _engine_error(_request: Request, exc: CtpError):
+        return error_response(422, JobError(**exc.to_dict()))
+
+    @app.exception_handler(redis.exceptions.ConnectionError)
+    @app.exception_handler(redis.exceptions.TimeoutError)
+    async def _redis_down(_request: Request, exc: Exception):
+        log.error("redis unavailable: %s", exc)
+        return error_response(503, JobError(code="redis_unavailable", message="the job store is unreachable"))
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http_error(_request: Request, exc: StarletteHTTPException):
+        code = "not_found" if exc.status_code == 404 else "invalid_request"
+        return error_response(exc.status_code, JobError(code=code, message=str(exc.detail)), exc.headers)
+
+    @app.exception_handler(RequestValidationError)
+    async def _invalid(_request: Request, exc: RequestValidationError):
+        err = exc.errors()[0]
+        return error_response(400, JobError(code="invalid_request", message=str(err.get("msg")),
+                                            field=".".join(str(p) for p in err.get("loc", ())[1:]) or None))
+
+
+class BodyLimit:
+    """ASGI middleware: refuse request bodies over the limit while they stream in, declared length or not."""
+
+    def __init__(self, app, max_bytes: int):
+        self.app, self.max_bytes = app, max_bytes
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        declared = dict(scope["headers"]).get(b"content-length")
+        if declared is not None and declared.isdigit() and int(declared) > self.max_bytes:
+            response = error_response(413, self._error())
+            return await response(scope, receive, send)
+        seen = 0
+
+        async def limited():
+            nonlocal seen
+            message = await receive()
+            seen += len(message.get("body", b""))
+            if seen > self.max_bytes:
+                raise ApiError(413, **self._error().model_dump())
+            return message
+
+        await self.app(scope, limited, send)
+
+    def _error(self) -> JobError:
+        return JobError(code="request_too_large", message=f"the request body is over {self.max_bytes} bytes")

@@ -1,0 +1,153 @@
+"""The ``POST /align`` form: its documented body, and the checks that run before anything is queued.
+
+Everything a worker would refuse is refused here first: meshes are parsed with ``ctp_core.io`` under
+the service limits, the image is decoded, text fields are bounded.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import logging
+import time
+from pathlib import PurePath
+from typing import Any
+
+from fastapi import Request
+from PIL import Image, UnidentifiedImageError
+from starlette.datastructures import UploadFile
+
+from ctp_core.errors import CtpError, MeshError
+from ctp_core.io import validate_upload
+from service.errors import ApiError
+
+log = logging.getLogger("ctp.service")
+
+PROMPT_MAX = 500
+NAME_MAX = 100
+FORM_FIELDS = {"target", "source", "prompt", "image", "options", "target_name", "source_name"}
+
+# MeshError codes that are not 422.
+_MESH_STATUS = {"mesh_file_too_large": 413, "mesh_too_large": 413, "mesh_unknown_format": 415}
+
+
+def _file_field(description: str) -> dict[str, Any]:
+    return {"type": "string", "format": "binary", "description": description}
+
+
+ALIGN_BODY = {
+    "required": True,
+    "content": {"multipart/form-data": {"schema": {
+        "type": "object",
+        "required": ["target", "source"],
+        "properties": {
+            "target": _file_field("the mesh that stays put (GLB, glTF with embedded buffers, OBJ, OBJ+MTL in a "
+                                  ".zip, PLY, STL); the extension of the file name gives the format"),
+            "source": _file_field("the mesh to place, same formats"),
+            "prompt": {"type": "string", "minLength": 1, "maxLength": PROMPT_MAX,
+                       "description": "what the arrangement should look like; required unless `image` is given"},
+            "image": _file_field("reference picture (PNG or JPEG) for image-guided alignment instead of the text"),
+            "options": {"type": "string", "contentMediaType": "application/json",
+                        "contentSchema": {"$ref": "#/components/schemas/AlignOptions"},
+                        "description": "JSON object of run options (AlignOptions)"},
+            "target_name": {"type": "string", "maxLength": NAME_MAX,
+                            "description": "what the target is (\"sundae\"), for the scene priors; "
+                            "default: its file name"},
+            "source_name": {"type": "string", "maxLength": NAME_MAX,
+                            "description": "what the source is (\"cherry\"); default: its file name"},
+        },
+    }}},
+}
+
+
+async def read_form(request: Request):
+    if not request.headers.get("content-type", "").startswith("multipart/form-data"):
+        raise ApiError(400, "invalid_request", "send multipart/form-data (fields target, source, prompt, options)")
+    try:
+        form = await request.form(max_files=3, max_fields=8)
+    except ApiError:
+        raise
+    except Exception as exc:  # python-multipart and Starlette raise several types for a broken body
+        raise ApiError(400, "invalid_request", f"malformed multipart body: {exc}") from None
+    for key in form:
+        if key not in FORM_FIELDS:
+            raise ApiError(400, "unknown_field", f"unknown form field {key!r}; known: {', '.join(sorted(FORM_FIELDS))}",
+                           field=key)
+    return form
+
+
+def text(form, name: str) -> str | None:
+    value = form.get(name)
+    if isinstance(value, UploadFile):
+        raise ApiError(400, "invalid_field", f"{name} must be a text field, not a file", field=name)
+    return value
+
+
+def file(form, name: str) -> UploadFile:
+    value = form.get(name)
+    if value is None:
+        raise ApiError(400, "missing_field", f"{name} is required (a file)", field=name)
+    if not isinstance(value, UploadFile):
+        raise ApiError(400, "invalid_field", f"{name} must be a file upload, not text", field=name)
+    return value
+
+
+def prompt_and_image(form) -> tuple[str | None, UploadFile | None]:
+    prompt = text(form, "prompt")
+    image = file(form, "image") if "image" in form else None
+    if prompt is None and image is None:
+        raise ApiError(400, "missing_field", "give a prompt (or an image for image-guided alignment)", field="prompt")
+    if prompt is not None and not 1 <= len(prompt.strip()) <= PROMPT_MAX:
+        raise ApiError(422, "invalid_prompt", f"the prompt must have 1 to {PROMPT_MAX} characters", field="prompt")
+    return (prompt.strip() if prompt is not None else None), image
+
+
+def options(form) -> dict[str, Any]:
+    raw = text(form, "options")
+    if raw is None or not raw.strip():
+        return {}
+    try:
+        parsed = json.loads(raw)
+    except json.JSONDecodeError as exc:
+        raise ApiError(400, "invalid_options", f"options is not JSON: {exc}", field="options") from None
+    if not isinstance(parsed, dict):
+        raise ApiError(400, "invalid_options", "options must be a JSON object", field="options")
+    return parsed
+
+
+def object_name(form, role: str, filename: str) -> str:
+    name = text(form, f"{role}_name")
+    if name is None:
+        return PurePath(filename).stem.replace("_", " ").replace("-", " ").strip() or role
+    if not 1 <= len(name.strip()) <= NAME_MAX:
+        raise ApiError(422, "invalid_name", f"{role}_name must have 1 to {NAME_MAX} characters",
+                       field=f"{role}_name")
+    return name.strip()
+
+
+async def read_limited(upload: UploadFile, max_bytes: int, field: str, code: str) -> bytes:
+    if upload.size is not None and upload.size > max_bytes:
+        raise ApiError(413, code, f"{field} is over the {max_bytes}-byte limit", field=field)
+    return await upload.read()
+
+
+def check_mesh(data: bytes, filename: str, limits, role: str) -> None:
+    """Parse exactly as the worker will, so a queued job never fails on its input."""
+    started = time.perf_counter()
+    try:
+        validate_upload(data, filename, limits)
+    except MeshError as exc:
+        raise ApiError(_MESH_STATUS.get(exc.code, 422), exc.code, exc.message, field=role) from None
+    except CtpError as exc:
+        raise ApiError(422, exc.code, exc.message, field=role) from None
+    log.debug("mesh checked", extra={"duration_ms": round(1000 * (time.perf_counter() - started))})
+
+
+def check_image(data: bytes, max_pixels: int) -> None:
+    try:
+        with Image.open(io.BytesIO(data)) as img:
+            if img.width * img.height > max_pixels:
+                raise ApiError(413, "image_too_large", f"the image has over {max_pixels} pixels", field="image")
+            img.convert("RGB").load()
+    except (UnidentifiedImageError, OSError, Image.DecompressionBombError) as exc:
+        raise ApiError(422, "invalid_image", f"the image could not be read: {exc}", field="image") from None

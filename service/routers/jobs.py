@@ -1,0 +1,135 @@
+"""The jobs API: submit an alignment, read and cancel a job, follow its events, download its results."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import PurePath
+
+import redis.asyncio as aioredis
+from fastapi import APIRouter, Depends, Request, Response
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import StreamingResponse
+
+from service import forms
+from service.deps import own_job, owner
+from service.errors import ApiError, binary, documented
+from service.jobs import OUTPUTS, TERMINAL, JobRecord, Jobs, TooManyJobs, new_id, now
+from service.schemas import Accepted, JobOut, build_config, links
+
+log = logging.getLogger("ctp.service")
+
+SSE_KEEPALIVE_S = 10.0
+
+router = APIRouter()
+
+
+@router.post("/align", status_code=202, response_model=Accepted, openapi_extra={"requestBody": forms.ALIGN_BODY},
+             responses=documented(400, 401, 413, 415, 422, 429, 503), summary="Submit an alignment job")
+async def submit(request: Request, who: str = Depends(owner)) -> Accepted:
+    settings, jobs = request.app.state.settings, request.app.state.jobs
+    form = await forms.read_form(request)
+    prompt, image = forms.prompt_and_image(form)
+    options = forms.options(form)
+    config = build_config(options, default_model=settings.model, allowed_models=settings.allowed_models)
+    blobs: dict[str, bytes] = {}
+    files: dict[str, str] = {}
+    for role in ("target", "source"):
+        upload = forms.file(form, role)
+        files[role] = PurePath(upload.filename or role).name
+        blobs[role] = await forms.read_limited(upload, settings.max_upload_bytes, role, "mesh_file_too_large")
+        await run_in_threadpool(forms.check_mesh, blobs[role], files[role], settings.mesh_limits, role)
+    if image is not None:
+        blobs["image"] = await forms.read_limited(image, settings.max_image_bytes, "image", "image_too_large")
+        await run_in_threadpool(forms.check_image, blobs["image"], settings.max_image_pixels)
+    record = JobRecord(
+        id=new_id(), owner=who, created_at=now(), prompt=prompt, has_image=image is not None,
+        target_name=forms.object_name(form, "target", files["target"]),
+        source_name=forms.object_name(form, "source", files["source"]),
+        target_file=files["target"], source_file=files["source"], config=config.model_dump(mode="json"),
+    )
+    try:
+        await run_in_threadpool(jobs.submit, record, blobs, settings.max_active_jobs)
+    except TooManyJobs as exc:
+        raise ApiError(429, "too_many_jobs", str(exc)) from None
+    return Accepted(id=record.id, status="queued", links=links(record.id))
+
+
+@router.get("/jobs/{job_id}", response_model=JobOut, responses=documented(401, 404), summary="A job's state")
+async def get_job(job_id: str, request: Request, who: str = Depends(owner)) -> JobOut:
+    return JobOut.of(await own_job(request, job_id, who))
+
+
+@router.delete("/jobs/{job_id}", response_model=JobOut, summary="Cancel a job",
+               description="A queued job is canceled at once (200, status canceled); a running one is "
+               "flagged and stops at its next optimisation step (202, cancel_requested true).",
+               responses={202: {"model": JobOut, "description": "cancel requested; the job is still running"},
+                          **documented(401, 404, 409)})
+async def cancel_job(job_id: str, request: Request, response: Response, who: str = Depends(owner)) -> JobOut:
+    record = await own_job(request, job_id, who)
+    if record.status in TERMINAL:
+        raise ApiError(409, "job_finished", f"job {job_id} already ended ({record.status})")
+    record = await run_in_threadpool(request.app.state.jobs.cancel, job_id) or record
+    response.status_code = 202 if record.status == "running" else 200
+    log.info("cancel requested", extra={"job_id": job_id, "status": record.status})
+    return JobOut.of(record)
+
+
+@router.get("/jobs/{job_id}/events", responses={
+    **documented(401, 404),
+    200: {"description": "`text/event-stream`: an `event: progress` whose data is the job (as GET "
+                         "/jobs/{id}) whenever it changes, comment lines as keep-alives, and a last "
+                         "`event: end` with the final job, after which the stream closes.",
+          "content": {"text/event-stream": {"schema": {"type": "string"}}}}},
+    response_class=StreamingResponse, summary="Server-sent progress events until the job ends")
+async def job_events(job_id: str, request: Request, who: str = Depends(owner)):
+    await own_job(request, job_id, who)
+    state = request.app.state
+    return StreamingResponse(_sse(state.aredis, state.jobs, job_id), media_type="text/event-stream",
+                             headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+
+
+def _add_output_route(name: str, media_type: str) -> None:
+    async def download(job_id: str, request: Request, who: str = Depends(owner)) -> Response:
+        record = await own_job(request, job_id, who)
+        if record.status != "succeeded":
+            raise ApiError(409, "job_not_ready", f"job {job_id} is {record.status}; results exist once it succeeded")
+        data = await run_in_threadpool(request.app.state.jobs.storage.get, job_id, name)
+        if data is None:
+            raise ApiError(404, "job_not_found", f"the results of job {job_id} have expired")
+        return Response(data, media_type=media_type,
+                        headers={"Content-Disposition": f'attachment; filename="{job_id}-{name}"'})
+
+    router.add_api_route(f"/jobs/{{job_id}}/{name}", download, methods=["GET"], response_class=Response,
+                         responses={**binary(media_type, name), **documented(401, 404, 409)},
+                         operation_id=f"download_{name.replace('.', '_')}", summary=f"Download {name}")
+
+
+for _name, _media_type in OUTPUTS.items():
+    _add_output_route(_name, _media_type)
+
+
+async def _sse(aredis: aioredis.Redis, jobs: Jobs, job_id: str):
+    """Subscribe first, then read the record, so no change between the two is missed."""
+    pubsub = aredis.pubsub()
+    await pubsub.subscribe(jobs.channel(job_id))
+    try:
+        raw = await aredis.get(jobs.record_key(job_id))
+        last = None
+        while raw is not None:
+            record = JobRecord.model_validate_json(raw)
+            data = JobOut.of(record).model_dump_json()
+            ended = record.status in TERMINAL
+            if data != last:
+                yield f"event: {'end' if ended else 'progress'}\ndata: {data}\n\n"
+                last = data
+            if ended:
+                return
+            message = await pubsub.get_message(ignore_subscribe_messages=True, timeout=SSE_KEEPALIVE_S)
+            if message is None:
+                yield ": keep-alive\n\n"
+                raw = await aredis.get(jobs.record_key(job_id))
+            else:
+                raw = message["data"]
+    finally:
+        await pubsub.unsubscribe()
+        await pubsub.aclose()
