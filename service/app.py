@@ -2,7 +2,7 @@
 
 ``create_app`` is the factory (``uvicorn --factory service.app:create_app``): it builds the job store from
 the settings, puts what the routes share on ``app.state`` and includes the routers (``service.routers``:
-health, jobs), the error handlers (``service.errors``) and the body limit. State lives in Redis
+health, jobs, page), the error handlers (``service.errors``) and the body limit. State lives in Redis
 (``service.jobs``), so any number of API processes can serve the same jobs. ``openapi.yaml`` at the
 repository root is this app's schema, checked by the tests.
 """
@@ -27,7 +27,7 @@ from service.deps import digest
 from service.errors import BodyLimit, install_handlers
 from service.forms import PROMPT_MAX
 from service.jobs import Jobs
-from service.routers import health
+from service.routers import health, page
 from service.routers import jobs as jobs_router
 from service.schemas import AlignOptions
 from service.settings import Settings
@@ -90,7 +90,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             await app.state.aredis.aclose()
             client.close()
 
-    app = FastAPI(title="ctp", version="0.1.0", description=DESCRIPTION, lifespan=lifespan)
+    # The docs pages are the page router's, on vendored assets (FastAPI's default loads them from a CDN).
+    app = FastAPI(title="ctp", version="0.1.0", description=DESCRIPTION, lifespan=lifespan,
+                  docs_url=None, redoc_url=None)
     app.state.settings, app.state.jobs = settings, jobs
     app.state.key_digests = [digest(k) for k in settings.api_keys]
     if settings.cors_origins:
@@ -100,6 +102,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     install_handlers(app)
     app.include_router(health.router)
     app.include_router(jobs_router.router)
+    app.include_router(page.router)
+    app.mount("/static", page.static_files(), name="static")
 
     def openapi() -> dict[str, Any]:
         if app.openapi_schema is None:

@@ -75,6 +75,9 @@ class Progress(BaseModel):
     fraction: float = Field(0.0, ge=0.0, le=1.0, description="step / steps")
     elapsed_s: float = Field(0.0, description="seconds since the worker started the job")
     eta_s: float | None = Field(None, description="estimated seconds left; null when unknown")
+    objective: float | None = Field(
+        None, description="best objective over the restarts so far (lower is better): the figure to watch while "
+        "it runs; null before the first scored step")
     message: str = Field("", description="human-readable status line")
 
 
@@ -135,6 +138,9 @@ class Jobs:
     def _active_key(self, owner: str) -> str:
         return f"{self.prefix}:active:{owner}"
 
+    def _owned_key(self, owner: str) -> str:
+        return f"{self.prefix}:owned:{owner}"
+
     def channel(self, job_id: str) -> str:
         return f"{self.prefix}:events:{job_id}"
 
@@ -146,6 +152,17 @@ class Jobs:
     def get(self, job_id: str) -> JobRecord | None:
         raw = self.redis.get(self.record_key(job_id))
         return None if raw is None else JobRecord.model_validate_json(raw)
+
+    def owned(self, owner: str, offset: int, limit: int) -> tuple[list[JobRecord], int]:
+        """A page of the owner's jobs, newest first, and how many it has; expired ones are forgotten here."""
+        key = self._owned_key(owner)
+        self.redis.zremrangebyscore(key, "-inf", now().timestamp() - self.ttl_s)
+        ids = [raw.decode() for raw in self.redis.zrevrange(key, offset, offset + limit - 1)]
+        raws = self.redis.mget([self.record_key(i) for i in ids]) if ids else []
+        gone = [job_id for job_id, raw in zip(ids, raws, strict=True) if raw is None]
+        if gone:
+            self.redis.zrem(key, *gone)
+        return [JobRecord.model_validate_json(raw) for raw in raws if raw is not None], self.redis.zcard(key)
 
     def should_stop(self, job_id: str) -> bool:
         """What a running job polls between steps: cancel requested, or no longer its worker's (reaped)."""
@@ -167,10 +184,13 @@ class Jobs:
             for name, data in blobs.items():
                 self.storage.put(record.id, name, data)
             self.redis.set(self.record_key(record.id), record.model_dump_json(), ex=self.ttl_s)
+            self.redis.zadd(self._owned_key(record.owner), {record.id: record.created_at.timestamp()})
+            self.redis.expire(self._owned_key(record.owner), self.ttl_s)
             self.queue.enqueue(TASK, record.id, job_id=record.id, job_timeout=self.job_timeout_s,
                                result_ttl=0, failure_ttl=self.ttl_s, description=f"align {record.id}")
         except Exception:
             self.redis.srem(active, record.id)
+            self.redis.zrem(self._owned_key(record.owner), record.id)
             self.redis.delete(self.record_key(record.id))
             self.storage.delete(record.id, list(blobs))
             raise
@@ -184,7 +204,8 @@ class Jobs:
             if r.status != "queued":
                 return None
             return r.model_copy(update={"status": "running", "started_at": now(), "worker": worker,
-                                        "progress": Progress(kind="loading", message="loading meshes")})
+                                        "progress": Progress(stage=Stage(name="loading"), kind="loading",
+                                                                message="loading meshes")})
 
         def also(pipe, _r: JobRecord) -> None:
             pipe.set(self._lease_key(job_id), worker, ex=self.lease_s)
@@ -206,8 +227,9 @@ class Jobs:
                 return None
             progress = r.progress
             if status == "succeeded":
-                progress = progress.model_copy(update={"kind": "done", "fraction": 1.0, "eta_s": 0.0,
-                                                       "message": "done"})
+                progress = progress.model_copy(update={
+                    "stage": progress.stage.model_copy(update={"name": "done"}), "kind": "done", "fraction": 1.0,
+                    "eta_s": 0.0, "message": "done"})
             return r.model_copy(update={"status": status, "finished_at": now(), "error": error,
                                         "progress": progress})
 

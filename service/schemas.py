@@ -153,6 +153,16 @@ class JobOut(BaseModel):
                    links=links(r.id))
 
 
+class JobList(BaseModel):
+    """A page of the caller's jobs, newest first."""
+
+    jobs: list[JobOut] = Field(description="newest first")
+    total: int = Field(description="the caller's jobs that have not expired")
+    offset: int = Field(description="jobs skipped before this page")
+    limit: int = Field(description="page size asked for")
+    next: str | None = Field(None, description="the next page (relative URL); null on the last page")
+
+
 class Health(BaseModel):
     status: str = Field(description="ok")
 

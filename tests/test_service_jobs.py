@@ -116,6 +116,18 @@ def test_active_job_cap_is_per_owner_and_self_heals(jobs):
     queued(jobs, max_active=2)
 
 
+def test_owned_lists_an_owners_jobs_newest_first_and_forgets_expired_ones(jobs):
+    mine = [queued(jobs) for _ in range(3)]
+    queued(jobs, owner="someone else")
+    page, total = jobs.owned("me", 0, 2)
+    assert ([r.id for r in page], total) == ([mine[2].id, mine[1].id], 3)
+    assert [r.id for r in jobs.owned("me", 2, 2)[0]] == [mine[0].id]
+    jobs.redis.delete(f"{jobs.prefix}:job:{mine[1].id}")  # its record expired
+    page, total = jobs.owned("me", 0, 10)
+    assert ([r.id for r in page], total) == ([mine[2].id, mine[0].id], 2)
+    assert jobs.owned("nobody", 0, 10) == ([], 0)
+
+
 def test_dir_storage_round_trip_and_sweep(tmp_path):
     store = DirStorage(tmp_path, ttl_s=60)
     store.put("job1", "result.glb", b"abc")

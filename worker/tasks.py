@@ -85,13 +85,13 @@ def align_job(
     worker's to decide.
     """
     config = AlignConfig.model_validate({**record.config, "device": device, "threads": threads})
-    on_progress(Progress(kind="loading", message="loading meshes"), True)
+    on_progress(Progress(stage=Stage(name="loading"), kind="loading", message="loading meshes"), True)
     target = load_mesh(inputs["target"], filename=record.target_file, limits=limits)
     source = load_mesh(inputs["source"], filename=record.source_file, limits=limits)
     image = _decode_image(inputs["image"]) if inputs.get("image") is not None else None
     guide = None
     if config.loss.lambda_clip > 0:
-        on_progress(Progress(kind="model", message=f"loading model {config.model}"), True)
+        on_progress(Progress(stage=Stage(name="model"), kind="model", message=f"loading model {config.model}"), True)
         guide = get_guide(config.model, device=config.device, autocast=config.autocast)
 
     def on_event(event: ProgressEvent) -> None:
@@ -99,8 +99,9 @@ def align_job(
 
     result = align(target, source, record.prompt, config, image=image, target_name=record.target_name,
                    source_name=record.source_name, guide=guide, on_event=on_event, should_cancel=should_cancel)
-    on_progress(Progress(kind="exporting", phase=config.optim.phases, phases=config.optim.phases,
-                         step=config.optim.steps, steps=config.optim.steps, restarts=config.optim.restarts,
+    on_progress(Progress(stage=Stage(name="exporting"), kind="exporting", phase=config.optim.phases,
+                         phases=config.optim.phases, step=config.optim.steps, steps=config.optim.steps,
+                         restarts=config.optim.restarts,
                          fraction=1.0, eta_s=0.0, message="writing results"), True)
     files = {"result.glb": scene_glb(result),
              "report.json": json.dumps(report(result), indent=2).encode()}
@@ -116,7 +117,8 @@ def progress_of(event: ProgressEvent) -> Progress:
     return Progress(stage=Stage(name=event.stage), kind=event.kind, phase=event.phase, phases=event.phases,
                     step=event.step, steps=event.steps,
                     restarts=event.restarts, fraction=round(event.fraction, 4),
-                    eta_s=None if event.eta_s is None else round(event.eta_s, 1), message=message)
+                    eta_s=None if event.eta_s is None else round(event.eta_s, 1),
+                    objective=None if event.best_objective is None else round(event.best_objective, 5), message=message)
 
 
 def _decode_image(data: bytes) -> np.ndarray:

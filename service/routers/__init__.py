@@ -1,2 +1,3 @@
-"""The API's routes, one router per concept: ``health`` (liveness, readiness) and ``jobs`` (submit, state,
-cancel, events, results). ``service.app.create_app`` includes them."""
+"""The API's routes, one router per concept: ``health`` (liveness, readiness), ``jobs`` (submit, list, state,
+cancel, events, results) and ``page`` (the web page, its static files and the offline docs; not in the
+schema). ``service.app.create_app`` includes them."""

@@ -6,7 +6,7 @@ import logging
 from pathlib import PurePath
 
 import redis.asyncio as aioredis
-from fastapi import APIRouter, Depends, Request, Response
+from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
 
@@ -14,11 +14,12 @@ from service import forms
 from service.deps import own_job, owner
 from service.errors import ApiError, binary, documented
 from service.jobs import OUTPUTS, TERMINAL, JobRecord, Jobs, TooManyJobs, new_id, now
-from service.schemas import Accepted, JobOut, build_config, links
+from service.schemas import Accepted, JobList, JobOut, build_config, links
 
 log = logging.getLogger("ctp.service")
 
 SSE_KEEPALIVE_S = 10.0
+JOBS_PAGE_MAX = 100
 
 router = APIRouter()
 
@@ -52,6 +53,18 @@ async def submit(request: Request, who: str = Depends(owner)) -> Accepted:
     except TooManyJobs as exc:
         raise ApiError(429, "too_many_jobs", str(exc)) from None
     return Accepted(id=record.id, status="queued", links=links(record.id))
+
+
+@router.get("/jobs", response_model=JobList, responses=documented(400, 401), summary="The caller's jobs, newest first",
+            description="Jobs submitted with the caller's key (all jobs when the service has no keys) that have "
+            "not expired (`CTP_JOB_TTL_S`), a page at a time.")
+async def list_jobs(request: Request, who: str = Depends(owner),
+                    offset: int = Query(0, ge=0, description="jobs to skip"),
+                    limit: int = Query(20, ge=1, le=JOBS_PAGE_MAX, description="page size")) -> JobList:
+    records, total = await run_in_threadpool(request.app.state.jobs.owned, who, offset, limit)
+    after = offset + limit
+    return JobList(jobs=[JobOut.of(r) for r in records], total=total, offset=offset, limit=limit,
+                   next=f"/jobs?offset={after}&limit={limit}" if after < total else None)
 
 
 @router.get("/jobs/{job_id}", response_model=JobOut, responses=documented(401, 404), summary="A job's state")

@@ -1,0 +1,481 @@
+// The ctp page: a client of the JSON API like any other (POST /align, GET /jobs/{id}/events, results).
+// Every call goes through fetch with the API key, when there is one, in the Authorization header (never
+// in a URL); results are fetched as blobs and shown from blob URLs, so the same code works with keys on.
+import { Viewer } from "./viewer.js";
+
+const $ = (id) => document.getElementById(id);
+const ROLES = ["target", "source"];
+const TERMINAL = ["succeeded", "failed", "canceled"];
+const state = {
+  config: null,
+  key: sessionStorage.getItem("ctp-key") || "",
+  files: { target: null, source: null },
+  following: null, // AbortController of the event stream being read
+  viewer: null,
+  result: null, // {id, blobs: {file name: Blob}}
+  urls: [], // blob URLs to revoke when the next result replaces this one
+  objectives: [],
+  nextPage: null,
+};
+
+class ApiError extends Error {
+  constructor(status, error) {
+    super(`${error.code}: ${error.message}`);
+    Object.assign(this, { status, code: error.code, detail: error.message, field: error.field });
+  }
+}
+
+async function call(path, init = {}) {
+  const headers = { ...(init.headers || {}) };
+  if (state.key) headers.Authorization = `Bearer ${state.key}`;
+  let response;
+  try {
+    response = await fetch(path, { ...init, headers });
+  } catch (err) {
+    if (err.name === "AbortError") throw err;
+    throw new ApiError(0, { code: "network_error", message: `the service could not be reached (${err.message})` });
+  }
+  if (!response.ok) {
+    let body = null;
+    try { body = await response.json(); } catch { /* not the service's JSON: described below */ }
+    const error = body && body.error ? body.error
+      : { code: `http_${response.status}`, message: response.statusText || "the service answered with an error" };
+    if (response.status === 401) askForKey(error.message);
+    throw new ApiError(response.status, error);
+  }
+  return response;
+}
+
+const api = {
+  json: async (path, init) => (await call(path, init)).json(),
+  blob: async (path, init) => (await call(path, init)).blob(),
+};
+
+// -- messages ---------------------------------------------------------------------------------------
+
+function showError(err) {
+  const box = $("error");
+  const code = document.createElement("code");
+  code.textContent = err.code || "error";
+  let where = "";
+  if (ROLES.includes(err.field)) {
+    const file = state.files[err.field];
+    where = `${err.field} file${file ? ` "${file.name}"` : ""} refused: `;
+  } else if (err.field) {
+    where = `${err.field}: `;
+  }
+  box.replaceChildren(code, document.createTextNode(` ${where}${err.detail ?? err.message}`));
+  box.hidden = false;
+}
+
+function clearError() {
+  $("error").hidden = true;
+  $("error").replaceChildren();
+}
+
+function askForKey(message) {
+  $("key-form").hidden = false;
+  $("key-state").textContent = message || "";
+  $("api-key").focus();
+}
+
+const duration = (s) => (s < 60 ? `${Math.round(s)} s` : `${Math.floor(s / 60)} min ${Math.round(s % 60)} s`);
+const size = (n) => (n < 1024 * 1024 ? `${(n / 1024).toFixed(1)} kB` : `${(n / 1024 / 1024).toFixed(1)} MB`);
+
+// -- the form ---------------------------------------------------------------------------------------
+
+/** Put a file in the target or source slot (a pick, a drop, an example; chaining a result will too). */
+export function setFile(role, file) {
+  state.files[role] = file;
+  $(`chosen-${role}`).textContent = file ? `${file.name} (${size(file.size)})` : "drop a mesh here or choose a file";
+  $(`drop-${role}`).classList.toggle("has-file", Boolean(file));
+}
+
+function wireDrop(role) {
+  const zone = $(`drop-${role}`);
+  const input = $(`file-${role}`);
+  input.addEventListener("change", () => setFile(role, input.files[0] || null));
+  zone.addEventListener("dragover", (e) => { e.preventDefault(); zone.classList.add("over"); });
+  zone.addEventListener("dragleave", () => zone.classList.remove("over"));
+  zone.addEventListener("drop", (e) => {
+    e.preventDefault();
+    zone.classList.remove("over");
+    const file = e.dataTransfer && e.dataTransfer.files[0];
+    if (file) {
+      input.value = "";
+      setFile(role, file);
+    }
+  });
+}
+
+async function useSample(sample) {
+  clearError();
+  try {
+    const [target, source] = await Promise.all([sample.target_file, sample.source_file].map(
+      (name) => api.blob(`samples/${encodeURIComponent(sample.name)}/${encodeURIComponent(name)}`)));
+    setFile("target", new File([target], sample.target_file, { type: "model/gltf-binary" }));
+    setFile("source", new File([source], sample.source_file, { type: "model/gltf-binary" }));
+  } catch (err) {
+    showError(err);
+    return;
+  }
+  $("name-target").value = sample.target_name;
+  $("name-source").value = sample.source_name;
+  document.querySelector("input[name=guide][value=prompt]").checked = true;
+  guideChanged();
+  $("prompt").value = sample.prompt;
+}
+
+function guideChanged() {
+  const byImage = document.querySelector("input[name=guide]:checked").value === "image";
+  $("prompt").hidden = byImage;
+  $("image").hidden = !byImage;
+}
+
+function options() {
+  const out = {};
+  if ($("opt-preset").value) out.preset = $("opt-preset").value;
+  if ($("opt-scale").value) out.scale = $("opt-scale").value === "true";
+  for (const name of ["seed", "restarts"]) {
+    const value = $(`opt-${name}`).value.trim();
+    if (value !== "") out[name] = Number(value);
+  }
+  return out;
+}
+
+async function submit(event) {
+  event.preventDefault();
+  clearError();
+  // Nothing is checked here that the service checks: its answer (code, message, field) is what is shown.
+  const data = new FormData();
+  for (const role of ROLES) {
+    if (state.files[role]) data.append(role, state.files[role], state.files[role].name);
+    const name = $(`name-${role}`).value.trim();
+    if (name) data.append(`${role}_name`, name);
+  }
+  if (document.querySelector("input[name=guide]:checked").value === "image") {
+    if ($("image").files[0]) data.append("image", $("image").files[0]);
+  } else {
+    data.append("prompt", $("prompt").value);
+  }
+  data.append("options", JSON.stringify(options()));
+  $("submit").disabled = true;
+  try {
+    const accepted = await api.json("align", { method: "POST", body: data });
+    follow(accepted.id);
+    refreshJobs();
+  } catch (err) {
+    showError(err);
+  } finally {
+    $("submit").disabled = false;
+  }
+}
+
+// -- progress ---------------------------------------------------------------------------------------
+
+/** Read a server-sent event stream with fetch (EventSource cannot send the Authorization header);
+ *  calls onProgress with each job state; returns the final job, or null when the stream broke off. */
+async function readEvents(path, signal, onProgress) {
+  const response = await call(path, { signal, headers: { Accept: "text/event-stream" } });
+  const reader = response.body.pipeThrough(new TextDecoderStream()).getReader();
+  let buffer = "";
+  for (;;) {
+    const { value, done } = await reader.read();
+    if (done) return null;
+    buffer += value;
+    let cut;
+    while ((cut = buffer.search(/\r?\n\r?\n/)) >= 0) {
+      const block = buffer.slice(0, cut);
+      buffer = buffer.slice(cut).replace(/^\r?\n\r?\n/, "");
+      let kind = "message";
+      const data = [];
+      for (const line of block.split(/\r?\n/)) {
+        if (line.startsWith("event:")) kind = line.slice(6).trim();
+        else if (line.startsWith("data:")) data.push(line.slice(5).replace(/^ /, ""));
+      }
+      if (!data.length) continue; // a keep-alive comment
+      const job = JSON.parse(data.join("\n"));
+      onProgress(job);
+      if (kind === "end") return job;
+    }
+  }
+}
+
+async function follow(id) {
+  if (state.following) state.following.abort();
+  const controller = new AbortController();
+  state.following = controller;
+  state.objectives = [];
+  drawSpark();
+  $("progress").hidden = false;
+  $("result").hidden = true;
+  $("job-id").textContent = id;
+  $("cancel").onclick = () => cancel(id);
+  let final = null;
+  while (!final && !controller.signal.aborted) {
+    try {
+      final = await readEvents(`jobs/${id}/events`, controller.signal, renderProgress);
+    } catch (err) {
+      if (controller.signal.aborted) return;
+      if (err instanceof ApiError && err.status !== 0) {
+        showError(err);
+        return;
+      }
+    }
+    // A dropped connection: reconnect; the stream starts again with the job's current state.
+    if (!final) await new Promise((resolve) => setTimeout(resolve, 1000));
+  }
+  if (controller.signal.aborted) return;
+  state.following = null;
+  refreshJobs();
+  if (final.status === "succeeded") await showResult(final.id);
+  else if (final.error) showError(final.error);
+}
+
+function stageName(job) {
+  if (job.status !== "running") return job.status;
+  const p = job.progress;
+  return p.stage && p.stage.name !== "queued" ? p.stage.name : p.kind;
+}
+
+function renderProgress(job) {
+  const p = job.progress;
+  const name = stageName(job);
+  let stage = name;
+  if (p.stage && p.stage.count > 1) {
+    stage += ` - object ${p.stage.index} of ${p.stage.count}${p.stage.label ? ` (${p.stage.label})` : ""}`;
+  }
+  if (p.phases && job.status === "running") stage += ` - phase ${p.phase} of ${p.phases}`;
+  $("stage").textContent = stage;
+  const percent = job.status === "succeeded" ? 100 : Math.floor(100 * p.fraction);
+  $("bar").value = percent;
+  $("percent").textContent = `${percent} %`;
+  $("steps").textContent = p.steps
+    ? `${name === "search" ? "candidate" : "step"} ${p.step} of ${p.steps}${p.restarts ? `, ${p.restarts} restarts` : ""}`
+    : "";
+  const times = [];
+  if (p.eta_s != null && !TERMINAL.includes(job.status)) times.push(`about ${duration(p.eta_s)} left`);
+  if (p.elapsed_s) times.push(`${duration(p.elapsed_s)} elapsed`);
+  $("eta").textContent = times.join(", ");
+  if (p.objective != null) {
+    $("quality").textContent = `objective ${p.objective.toFixed(4)} (best so far; lower is better)`;
+    if (state.objectives.at(-1) !== p.objective) state.objectives.push(p.objective);
+    drawSpark();
+  } else {
+    $("quality").textContent = "";
+  }
+  $("message").textContent = p.message + (job.cancel_requested && job.status === "running" ? " - cancel requested" : "");
+  $("cancel").disabled = TERMINAL.includes(job.status) || job.cancel_requested;
+}
+
+function drawSpark() {
+  const canvas = $("spark");
+  const ctx = canvas.getContext("2d");
+  ctx.clearRect(0, 0, canvas.width, canvas.height);
+  const values = state.objectives;
+  canvas.hidden = values.length < 2;
+  if (values.length < 2) return;
+  const lo = Math.min(...values);
+  const span = Math.max(...values) - lo || 1;
+  ctx.strokeStyle = "#2563eb";
+  ctx.lineWidth = 2;
+  ctx.beginPath();
+  values.forEach((v, i) => {
+    const x = (i / (values.length - 1)) * (canvas.width - 4) + 2;
+    const y = 2 + (1 - (v - lo) / span) * (canvas.height - 4);
+    if (i) ctx.lineTo(x, y); else ctx.moveTo(x, y);
+  });
+  ctx.stroke();
+}
+
+async function cancel(id) {
+  try {
+    renderProgress(await api.json(`jobs/${id}`, { method: "DELETE" }));
+  } catch (err) {
+    showError(err);
+  }
+}
+
+// -- the result -------------------------------------------------------------------------------------
+
+async function showResult(id) {
+  clearError();
+  let glb, report, preview;
+  try {
+    [glb, report, preview] = await Promise.all([
+      api.blob(`jobs/${id}/result.glb`), api.blob(`jobs/${id}/report.json`),
+      api.blob(`jobs/${id}/preview.png`).catch(() => null), // a run may have no preview
+    ]);
+  } catch (err) {
+    showError(err);
+    return;
+  }
+  state.urls.forEach((url) => URL.revokeObjectURL(url));
+  state.urls = [];
+  state.result = { id, blobs: { "result.glb": glb, "report.json": report, "preview.png": preview } };
+  $("result").hidden = false;
+  $("result-id").textContent = id;
+  const facts = JSON.parse(await report.text());
+  showFacts(facts);
+  if (preview) {
+    const url = URL.createObjectURL(preview);
+    state.urls.push(url);
+    $("preview").src = url;
+  }
+  $("preview").hidden = !preview;
+  document.querySelector("[data-file='preview.png']").disabled = !preview;
+  const viewerBox = $("viewer");
+  delete viewerBox.dataset.ready;
+  try {
+    state.viewer = state.viewer || new Viewer(viewerBox);
+    showParts(await state.viewer.show(await glb.arrayBuffer()));
+    viewerBox.dataset.ready = "1";
+  } catch (err) {
+    showError({ code: "viewer_error", detail: `the scene could not be shown: ${err.message}` });
+  }
+}
+
+function showParts(parts) {
+  const box = $("parts");
+  box.replaceChildren();
+  for (const part of parts) {
+    const label = document.createElement("label");
+    const check = Object.assign(document.createElement("input"), { type: "checkbox", checked: true });
+    check.addEventListener("change", () => state.viewer.setVisible(part, check.checked));
+    const swatch = document.createElement("span");
+    swatch.className = "swatch";
+    swatch.style.background = `#${part.tint.toString(16).padStart(6, "0")}`;
+    label.append(check, " ", swatch, ` ${part.name}`);
+    box.append(label);
+  }
+  const tint = document.createElement("label");
+  const check = Object.assign(document.createElement("input"), { type: "checkbox", id: "tint" });
+  check.addEventListener("change", () => state.viewer.setTinted(check.checked));
+  tint.append(check, " tint each object");
+  box.append(tint);
+}
+
+function showFacts(report) {
+  $("result-prompt").textContent = report.prompt ? `"${report.prompt}"` : "guided by a reference image";
+  const t = report.transform || {};
+  const fixed = (values, digits) => (values || []).map((v) => Number(v).toFixed(digits)).join(", ");
+  const [w = 1, ...xyz] = t.rotation_wxyz || [];
+  const angle = (2 * Math.acos(Math.min(1, Math.abs(w))) * 180) / Math.PI;
+  const rows = [
+    ["translation", `${fixed(t.translation, 3)} (target file frame)`],
+    ["rotation", `${angle.toFixed(1)} deg; quaternion wxyz ${fixed([w, ...xyz], 4)}`],
+    ["scale", t.scale != null ? Number(t.scale).toFixed(3) : ""],
+    ["objective", typeof report.objective === "number" ? report.objective.toFixed(4) : ""],
+    ["model", report.model || ""],
+    ["preset, seed", `${report.preset ?? ""}, ${report.seed ?? ""}`],
+  ];
+  const table = $("transform");
+  table.replaceChildren();
+  for (const [name, value] of rows) {
+    const tr = table.insertRow();
+    tr.insertCell().textContent = name;
+    tr.insertCell().textContent = value;
+  }
+}
+
+function download(file) {
+  const blob = state.result && state.result.blobs[file];
+  if (!blob) return;
+  const url = URL.createObjectURL(blob);
+  const link = Object.assign(document.createElement("a"), { href: url, download: `${state.result.id}-${file}` });
+  document.body.append(link);
+  link.click();
+  link.remove();
+  setTimeout(() => URL.revokeObjectURL(url), 60_000);
+}
+
+// -- recent jobs ------------------------------------------------------------------------------------
+
+async function refreshJobs(more = false) {
+  const path = more && state.nextPage ? state.nextPage.replace(/^\//, "") : "jobs?limit=10";
+  let page;
+  try {
+    page = await api.json(path);
+  } catch (err) {
+    if (err.status !== 401) showError(err); // 401: the key form already asks
+    return;
+  }
+  const body = $("jobs-body");
+  if (!more) body.replaceChildren();
+  for (const job of page.jobs) {
+    const row = body.insertRow();
+    row.dataset.id = job.id;
+    row.insertCell().textContent = new Date(job.created_at).toLocaleString();
+    const status = row.insertCell();
+    status.textContent = job.status + (job.error ? ` (${job.error.code})` : "");
+    status.className = `status-${job.status}`;
+    row.insertCell().textContent = job.prompt ?? "(reference image)";
+    const open = document.createElement("button");
+    open.type = "button";
+    open.textContent = job.status === "succeeded" ? "Open" : TERMINAL.includes(job.status) ? "Details" : "Follow";
+    open.addEventListener("click", () => reopen(job));
+    row.insertCell().append(open);
+  }
+  state.nextPage = page.next;
+  $("jobs-more").hidden = !page.next;
+}
+
+async function reopen(job) {
+  clearError();
+  if (job.status === "succeeded") {
+    if (state.following) state.following.abort();
+    $("progress").hidden = true;
+    await showResult(job.id);
+  } else {
+    follow(job.id); // a running job's progress; an ended one's final state and error
+  }
+}
+
+// -- start ------------------------------------------------------------------------------------------
+
+async function init() {
+  const config = (state.config = await (await fetch("page/config")).json());
+  $("formats").textContent = config.formats.join(" ");
+  for (const role of ROLES) {
+    $(`file-${role}`).accept = config.formats.join(",");
+    $(`name-${role}`).maxLength = config.name_max;
+    wireDrop(role);
+  }
+  const samples = $("samples");
+  for (const sample of config.samples) {
+    const button = Object.assign(document.createElement("button"), { type: "button", textContent: sample.prompt });
+    button.dataset.sample = sample.name;
+    button.addEventListener("click", () => useSample(sample));
+    samples.append(button, " ");
+  }
+  for (const preset of config.presets) {
+    $("opt-preset").append(new Option(preset, preset, false, preset === config.default_preset));
+  }
+  for (const [name, bounds] of Object.entries(config.bounds)) {
+    if (bounds.minimum != null) $(`opt-${name}`).min = bounds.minimum;
+    if (bounds.maximum != null) $(`opt-${name}`).max = bounds.maximum;
+  }
+  $("prompt").maxLength = config.prompt_max;
+  document.querySelectorAll("input[name=guide]").forEach((r) => r.addEventListener("change", guideChanged));
+  $("align-form").addEventListener("submit", submit);
+  document.querySelectorAll("[data-file]").forEach((b) => b.addEventListener("click", () => download(b.dataset.file)));
+  $("jobs-refresh").addEventListener("click", () => refreshJobs());
+  $("jobs-more").addEventListener("click", () => refreshJobs(true));
+  $("key-form").addEventListener("submit", (e) => {
+    e.preventDefault();
+    state.key = $("api-key").value.trim();
+    sessionStorage.setItem("ctp-key", state.key);
+    $("key-state").textContent = state.key ? "key set" : "";
+    clearError();
+    refreshJobs();
+  });
+  if (config.auth) {
+    $("key-form").hidden = false;
+    $("api-key").value = state.key;
+    if (!state.key) askForKey("this service needs an API key");
+  }
+  if (!config.auth || state.key) refreshJobs();
+  document.body.dataset.ready = "1";
+}
+
+init().catch((err) => showError({ code: "page_error", detail: `the page could not start: ${err.message}` }));
