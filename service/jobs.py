@@ -76,8 +76,8 @@ class Progress(BaseModel):
     elapsed_s: float = Field(0.0, description="seconds since the worker started the job")
     eta_s: float | None = Field(None, description="estimated seconds left; null when unknown")
     objective: float | None = Field(
-        None, description="best objective over the restarts so far (lower is better): the figure to watch while "
-        "it runs; null before the first scored step")
+        None, description="objective of the best restart at the last scored step (lower is better; comparable "
+        "within a phase, whose weights differ): the figure to watch while it runs; null before the first score")
     message: str = Field("", description="human-readable status line")
 
 

@@ -101,8 +101,8 @@ def align_job(
                    source_name=record.source_name, guide=guide, on_event=on_event, should_cancel=should_cancel)
     on_progress(Progress(stage=Stage(name="exporting"), kind="exporting", phase=config.optim.phases,
                          phases=config.optim.phases, step=config.optim.steps, steps=config.optim.steps,
-                         restarts=config.optim.restarts,
-                         fraction=1.0, eta_s=0.0, message="writing results"), True)
+                         restarts=config.optim.restarts, fraction=1.0, eta_s=0.0,
+                         objective=round(result.objective, 5), message="writing results"), True)
     files = {"result.glb": scene_glb(result),
              "report.json": json.dumps(report(result), indent=2).encode()}
     if result.preview is not None:

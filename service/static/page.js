@@ -87,7 +87,7 @@ const size = (n) => (n < 1024 * 1024 ? `${(n / 1024).toFixed(1)} kB` : `${(n / 1
 /** Put a file in the target or source slot (a pick, a drop, an example; chaining a result will too). */
 export function setFile(role, file) {
   state.files[role] = file;
-  $(`chosen-${role}`).textContent = file ? `${file.name} (${size(file.size)})` : "drop a mesh here or choose a file";
+  $(`chosen-${role}`).textContent = file ? `${file.name} (${size(file.size)})` : "or drop a mesh here";
   $(`drop-${role}`).classList.toggle("has-file", Boolean(file));
 }
 
@@ -247,7 +247,8 @@ function renderProgress(job) {
   }
   if (p.phases && job.status === "running") stage += ` - phase ${p.phase} of ${p.phases}`;
   $("stage").textContent = stage;
-  const percent = job.status === "succeeded" ? 100 : Math.floor(100 * p.fraction);
+  // 100 % once the job has succeeded, not while its results are still being written.
+  const percent = job.status === "succeeded" ? 100 : Math.min(99, Math.floor(100 * p.fraction));
   $("bar").value = percent;
   $("percent").textContent = `${percent} %`;
   $("steps").textContent = p.steps
@@ -258,7 +259,7 @@ function renderProgress(job) {
   if (p.elapsed_s) times.push(`${duration(p.elapsed_s)} elapsed`);
   $("eta").textContent = times.join(", ");
   if (p.objective != null) {
-    $("quality").textContent = `objective ${p.objective.toFixed(4)} (best so far; lower is better)`;
+    $("quality").textContent = `objective ${p.objective.toFixed(4)} (best restart; lower is better)`;
     if (state.objectives.at(-1) !== p.objective) state.objectives.push(p.objective);
     drawSpark();
   } else {

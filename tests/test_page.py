@@ -1,0 +1,244 @@
+"""The web page, its job list and the offline docs, against the real service (private Redis, uvicorn, one
+``ctp worker`` with ``random:tiny``), API keys on, and in a real browser: Debian's ``chromium`` driven by
+Selenium through ``chromium-driver`` (``.ci/run`` installs both; Selenium Manager never downloads one).
+
+Screenshots of the form, the progress and the result go to ``runs/screens/`` (git-ignored).
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import os
+import re
+import shutil
+import time
+
+import pytest
+import trimesh
+
+from tests.conftest import REPO, service_env, wait_for
+
+KEY, OTHER = "page-key", "other-key"
+AUTH = {"Authorization": f"Bearer {KEY}"}
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+CHROMEDRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"
+SCREENS = REPO / "runs" / "screens"
+BACKGROUND = (240, 242, 245)  # the viewer's clear colour (service/static/viewer.js)
+
+
+@pytest.fixture(scope="module")
+def env(private_redis):
+    return service_env(private_redis.url, "page", api_keys=f"{KEY},{OTHER}", max_active_jobs=10)
+
+
+def table_and_ball() -> tuple[bytes, bytes]:
+    """A generated pair, as the user would upload it."""
+    table = trimesh.creation.box((1.0, 0.1, 0.8))
+    table.visual.vertex_colors = [150, 100, 60, 255]
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.15)
+    ball.visual.vertex_colors = [200, 30, 30, 255]
+    return table.export(file_type="glb"), ball.export(file_type="glb")
+
+
+# -- HTTP: what the page is served from --------------------------------------------------------------
+
+def test_page_static_files_and_docs_are_served_from_the_package(api):
+    page = api.client.get("/")
+    assert page.status_code == 200 and "text/html" in page.headers["content-type"]
+    for url in re.findall(r'(?:src|href)="([^"#]+)"', page.text) + ["static/viewer.js"]:
+        if not url.startswith("http"):
+            assert api.client.get("/" + url).status_code == 200, url
+    assert "http://" not in page.text.replace("http://www.w3.org", "") and "https://" not in page.text
+    docs_assets = {"/docs": ("swagger-ui-bundle.js", "swagger-ui.css"), "/redoc": ("redoc.standalone.js",)}
+    for docs, assets in docs_assets.items():
+        html = api.client.get(docs).text
+        urls = re.findall(r'(?:src|href)="([^"]+)"', html)
+        assert urls and all(u.startswith("/static/vendor/") for u in urls), (docs, urls)  # nothing from a CDN
+        for asset in assets:
+            url = next(u for u in urls if u.endswith(asset))
+            assert api.client.get(url).status_code == 200
+    for licence in ("three/LICENSE", "swagger-ui/LICENSE", "redoc/LICENSE"):
+        assert api.client.get(f"/static/vendor/{licence}").status_code == 200
+
+
+def test_page_config_and_samples(api):
+    config = api.client.get("/page/config").json()
+    assert config["auth"] is True and "test" in config["presets"]
+    assert config["bounds"]["restarts"] == {"minimum": 1, "maximum": 64}
+    sample = config["samples"][0]
+    glb = api.client.get(f"/samples/{sample['name']}/{sample['target_file']}")
+    assert glb.status_code == 200 and glb.content[:4] == b"glTF"
+    missing = api.client.get(f"/samples/{sample['name']}/nothing.glb")
+    assert (missing.status_code, missing.json()["error"]["code"]) == (404, "not_found")
+
+
+def test_job_list_is_the_callers_own_newest_first_and_paginated(api):
+    target, source = table_and_ball()
+
+    def submit(key: str) -> str:
+        answer = api.client.post("/align", headers={"Authorization": f"Bearer {key}"},
+                                 files={"target": ("t.glb", target), "source": ("s.glb", source)},
+                                 data={"prompt": "a ball on a table", "options": json.dumps({"preset": "test"})})
+        assert answer.status_code == 202, answer.text
+        return answer.json()["id"]
+
+    mine = [submit(OTHER) for _ in range(3)]
+    theirs = submit(KEY)
+    other = {"Authorization": f"Bearer {OTHER}"}
+    first = api.client.get("/jobs", params={"limit": 2}, headers=other).json()
+    assert [j["id"] for j in first["jobs"]] == mine[:0:-1] and first["total"] == 3
+    rest = api.client.get(first["next"], headers=other).json()
+    assert [j["id"] for j in rest["jobs"]] == mine[:1] and rest["next"] is None
+    assert api.client.get("/jobs").status_code == 401
+    bad = api.client.get("/jobs", params={"limit": 0}, headers=other)
+    assert (bad.status_code, bad.json()["error"]["code"]) == (400, "invalid_request")
+    for job_id, headers in [*((j, other) for j in mine), (theirs, AUTH)]:  # leave the worker to the browser test
+        assert api.client.delete(f"/jobs/{job_id}", headers=headers).status_code == 200
+
+
+# -- the browser -------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def browser(tmp_path_factory):
+    if not (os.access(CHROMIUM, os.X_OK) and os.access(CHROMEDRIVER, os.X_OK)):
+        pytest.skip(f"no Chromium here ({CHROMIUM}, {CHROMEDRIVER}): apt-get install chromium chromium-driver")
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    downloads = tmp_path_factory.mktemp("downloads")
+    options = webdriver.ChromeOptions()
+    options.binary_location = CHROMIUM
+    for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--use-angle=swiftshader",
+                "--enable-unsafe-swiftshader", "--window-size=1280,1400", "--disable-gpu-sandbox"):
+        options.add_argument(arg)
+    options.add_experimental_option("prefs", {"download.default_directory": str(downloads),
+                                              "download.prompt_for_download": False})
+    os.environ["SE_OFFLINE"] = "true"  # Selenium Manager must not go looking for a driver or a browser
+    driver = webdriver.Chrome(service=Service(executable_path=CHROMEDRIVER), options=options)
+    driver.execute_cdp_cmd("Browser.setDownloadBehavior", {"behavior": "allow", "downloadPath": str(downloads)})
+    driver.set_script_timeout(30)
+    driver.downloads = downloads
+    yield driver
+    driver.quit()
+
+
+def shoot(driver, name: str) -> None:
+    SCREENS.mkdir(parents=True, exist_ok=True)
+    driver.save_screenshot(str(SCREENS / f"{name}.png"))
+
+
+def drop_file(driver, zone_id: str, name: str, data: bytes) -> None:
+    """What a drag and drop from the desktop delivers: a drop event whose DataTransfer holds the file."""
+    driver.execute_script("""
+        const [zoneId, name, b64] = arguments;
+        const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+        const transfer = new DataTransfer();
+        transfer.items.add(new File([bytes], name));
+        document.getElementById(zoneId).dispatchEvent(new DragEvent("drop", {dataTransfer: transfer, bubbles: true}));
+    """, zone_id, name, base64.b64encode(data).decode())
+
+
+CANVAS_COLOURS = """
+    const canvas = document.querySelector('#viewer canvas');
+    const copy = Object.assign(document.createElement('canvas'), {width: canvas.width, height: canvas.height});
+    const ctx = copy.getContext('2d');
+    ctx.drawImage(canvas, 0, 0);
+    const px = ctx.getImageData(0, 0, copy.width, copy.height).data;
+    const [r0, g0, b0] = arguments[0];
+    let total = 0, differ = 0, blue = 0, orange = 0;
+    for (let i = 0; i < px.length; i += 4) {
+      const [r, g, b] = [px[i], px[i + 1], px[i + 2]];
+      total++;
+      if (Math.abs(r - r0) + Math.abs(g - g0) + Math.abs(b - b0) > 30) differ++;
+      if (b > r + 40 && b > g) blue++;
+      if (r > b + 60 && g > b) orange++;
+    }
+    return {total, differ, blue, orange};
+"""
+
+
+def test_upload_follow_view_download_and_a_refused_upload(api, worker, browser, tmp_path):
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import Select
+
+    driver = browser
+    find = driver.find_element
+    driver.get(api.url + "/")
+    wait_for(lambda: driver.execute_script("return document.body.dataset.ready"), 20, "the page to start")
+    assert find(By.ID, "key-form").is_displayed()  # keys are on: the page asks for one
+    find(By.ID, "api-key").send_keys(KEY)
+    find(By.CSS_SELECTOR, "#key-form button").click()
+
+    target, source = table_and_ball()
+    (tmp_path / "table.glb").write_bytes(target)
+    find(By.ID, "file-target").send_keys(str(tmp_path / "table.glb"))
+    drop_file(driver, "drop-source", "ball.glb", source)
+    assert "ball.glb" in find(By.ID, "chosen-source").text
+    find(By.ID, "prompt").send_keys("a ball on top of a table")
+    Select(find(By.ID, "opt-preset")).select_by_value("test")
+    find(By.ID, "opt-seed").send_keys("3")
+    find(By.ID, "opt-restarts").send_keys("2")
+    shoot(driver, "form")
+
+    find(By.ID, "submit").click()
+    wait_for(lambda: find(By.ID, "progress").is_displayed(), 20, "the progress panel")
+    job_id = find(By.ID, "job-id").text
+    wait_for(lambda: find(By.ID, "steps").text or find(By.ID, "percent").text == "100 %", 120,
+             "the first optimisation steps", interval_s=0.05)
+    shoot(driver, "progress")
+    wait_for(lambda: find(By.ID, "percent").text == "100 %", 240, "the progress bar at 100 %", interval_s=0.25)
+    assert find(By.ID, "stage").text.lower() == "succeeded"
+    assert "objective" in find(By.ID, "quality").text
+    wait_for(lambda: find(By.ID, "viewer").get_attribute("data-ready"), 60, "the 3D viewer")
+
+    colours = driver.execute_script(CANVAS_COLOURS, BACKGROUND)
+    assert colours["differ"] > 0.02 * colours["total"], colours  # the WebGL canvas shows the scene
+    find(By.ID, "tint").click()  # each object in its own colour: blue target, orange source
+    tinted = driver.execute_script(CANVAS_COLOURS, BACKGROUND)
+    assert tinted["blue"] > 0.005 * tinted["total"] and tinted["orange"] > 0.0005 * tinted["total"], tinted
+    assert [e.text for e in driver.find_elements(By.CSS_SELECTOR, "#parts label")][:2] == ["target", "source"]
+    assert find(By.ID, "result-prompt").text == '"a ball on top of a table"'
+    assert "translation" in find(By.ID, "transform").text
+    assert driver.execute_script("return document.getElementById('preview').naturalWidth") > 0
+    find(By.ID, "tint").click()
+    find(By.ID, "result").location_once_scrolled_into_view  # noqa: B018 - scrolls for the screenshot
+    shoot(driver, "result")
+
+    find(By.CSS_SELECTOR, "[data-file='result.glb']").click()
+    downloaded = driver.downloads / f"{job_id}-result.glb"
+    wait_for(downloaded.exists, 20, "the GLB download")
+    time.sleep(0.2)
+    served = api.client.get(f"/jobs/{job_id}/result.glb", headers=AUTH).content
+    assert downloaded.read_bytes() == served
+    scene = trimesh.load(downloaded, file_type="glb")
+    assert {"target", "source"} <= set(scene.graph.nodes_geometry)
+
+    rows = driver.find_elements(By.CSS_SELECTOR, f"#jobs-body tr[data-id='{job_id}']")
+    assert rows and "succeeded" in rows[0].text
+    # The key travelled in a header only: no URL the page fetched holds it.
+    fetched = driver.execute_script("return performance.getEntriesByType('resource').map((e) => e.name)")
+    assert fetched and not [u for u in fetched if KEY in u]
+
+    broken = tmp_path / "broken.glb"
+    broken.write_bytes(b"glTF" + bytes(range(256)) * 4)
+    find(By.ID, "file-target").send_keys(str(broken))
+    find(By.ID, "submit").click()
+    wait_for(lambda: find(By.ID, "error").is_displayed(), 20, "the error message")
+    expected = api.client.post("/align", headers=AUTH, data={"prompt": "a ball on top of a table"},
+                               files={"target": ("broken.glb", broken.read_bytes()), "source": ("ball.glb", source)})
+    error = expected.json()["error"]
+    assert (expected.status_code, error["field"]) == (422, "target")
+    assert find(By.ID, "error").text == f'{error["code"]} target file "broken.glb" refused: {error["message"]}'
+    find(By.ID, "error").location_once_scrolled_into_view  # noqa: B018
+    shoot(driver, "refused")
+
+
+def test_docs_render_offline(api, browser):
+    """Swagger UI and ReDoc draw the schema from the vendored scripts (CI has no internet either)."""
+    from selenium.webdriver.common.by import By
+
+    for path, selector in {"/docs": ".swagger-ui .opblock", "/redoc": ".redoc-wrap [data-section-id]"}.items():
+        browser.get(api.url + path)
+        wait_for(lambda sel=selector: browser.find_elements(By.CSS_SELECTOR, sel), 30, f"{path} to render")
+        assert "/jobs" in browser.find_element(By.TAG_NAME, "body").text
