@@ -41,8 +41,9 @@ DESCRIPTION = f"""
 Place one 3D object relative to another from a text prompt (Copy-Transform-Paste).
 
 Submit two meshes and a prompt to `POST /align`, follow `GET /jobs/{{id}}` (or its server-sent
-`events`), then download `result.glb`. Jobs run on queue workers; records and results expire after
-the configured TTL (`CTP_JOB_TTL_S`).
+`events`), then download `result.glb`; `GET /jobs` lists the caller's jobs. Jobs run on queue workers;
+records and results expire after the configured TTL (`CTP_JOB_TTL_S`). A web page for all of this is at
+`/`; these docs work offline (`/docs`, `/redoc`).
 
 **Authentication.** When the service has API keys (`CTP_API_KEYS`), every call except `/healthz` and
 `/readyz` needs `Authorization: Bearer <key>`, and a key sees only its own jobs (others' are 404).

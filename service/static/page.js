@@ -408,7 +408,7 @@ async function refreshJobs(more = false) {
     row.dataset.id = job.id;
     row.insertCell().textContent = new Date(job.created_at).toLocaleString();
     const status = row.insertCell();
-    status.textContent = job.status + (job.error ? ` (${job.error.code})` : "");
+    status.textContent = job.status + (job.error && job.error.code !== job.status ? ` (${job.error.code})` : "");
     status.className = `status-${job.status}`;
     row.insertCell().textContent = job.prompt ?? "(reference image)";
     const open = document.createElement("button");
