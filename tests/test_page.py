@@ -170,7 +170,15 @@ def test_upload_follow_view_download_and_a_refused_upload(api, worker, browser, 
     find(By.ID, "api-key").send_keys(KEY)
     find(By.CSS_SELECTOR, "#key-form button").click()
 
-    target, source = table_and_ball()
+    find(By.CSS_SELECTOR, "[data-sample='apple-in-bowl']").click()  # an example fills the form
+    wait_for(lambda: "bowl.glb" in find(By.ID, "chosen-target").text, 20, "the example's target")
+    assert "apple.glb" in find(By.ID, "chosen-source").text
+    assert find(By.ID, "prompt").get_attribute("value") == "an apple in a bowl"
+    find(By.ID, "prompt").clear()
+    for role in ("target", "source"):
+        find(By.ID, f"name-{role}").clear()
+
+    target, source = table_and_ball()  # then the user's own files replace it
     (tmp_path / "table.glb").write_bytes(target)
     find(By.ID, "file-target").send_keys(str(tmp_path / "table.glb"))
     drop_file(driver, "drop-source", "ball.glb", source)
@@ -216,6 +224,9 @@ def test_upload_follow_view_download_and_a_refused_upload(api, worker, browser, 
 
     rows = driver.find_elements(By.CSS_SELECTOR, f"#jobs-body tr[data-id='{job_id}']")
     assert rows and "succeeded" in rows[0].text
+    rows[0].find_element(By.TAG_NAME, "button").click()  # reopen the result from the job list
+    wait_for(lambda: find(By.ID, "viewer").get_attribute("data-ready") and not find(By.ID, "progress").is_displayed(),
+             30, "the reopened result")
     # The key travelled in a header only: no URL the page fetched holds it.
     fetched = driver.execute_script("return performance.getEntriesByType('resource').map((e) => e.name)")
     assert fetched and not [u for u in fetched if KEY in u]

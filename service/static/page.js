@@ -301,6 +301,8 @@ async function cancel(id) {
 
 async function showResult(id) {
   clearError();
+  const viewerBox = $("viewer");
+  delete viewerBox.dataset.ready; // set again once this result is drawn
   let glb, report, preview;
   try {
     [glb, report, preview] = await Promise.all([
@@ -325,8 +327,6 @@ async function showResult(id) {
   }
   $("preview").hidden = !preview;
   document.querySelector("[data-file='preview.png']").disabled = !preview;
-  const viewerBox = $("viewer");
-  delete viewerBox.dataset.ready;
   try {
     state.viewer = state.viewer || new Viewer(viewerBox);
     showParts(await state.viewer.show(await glb.arrayBuffer()));
