@@ -114,7 +114,7 @@ def browser(tmp_path_factory):
         options.add_argument(arg)
     options.add_experimental_option("prefs", {"download.default_directory": str(downloads),
                                               "download.prompt_for_download": False})
-    os.environ["SE_OFFLINE"] = "true"  # Selenium Manager must not go looking for a driver or a browser
+    # A driver path in Service: Selenium skips Selenium Manager, which would otherwise download one.
     driver = webdriver.Chrome(service=Service(executable_path=CHROMEDRIVER), options=options)
     driver.execute_cdp_cmd("Browser.setDownloadBehavior", {"behavior": "allow", "downloadPath": str(downloads)})
     driver.set_script_timeout(30)
@@ -137,6 +137,21 @@ def drop_file(driver, zone_id: str, name: str, data: bytes) -> None:
         transfer.items.add(new File([bytes], name));
         document.getElementById(zoneId).dispatchEvent(new DragEvent("drop", {dataTransfer: transfer, bubbles: true}));
     """, zone_id, name, base64.b64encode(data).decode())
+
+
+def open_page(driver, api) -> None:
+    """Load the page in a fresh tab state; keys are on, so it asks for one."""
+    from selenium.webdriver.common.by import By
+
+    driver.get(api.url + "/")
+    driver.execute_script("sessionStorage.clear()")
+    driver.get(api.url + "/")
+    wait_for(lambda: driver.execute_script("return document.body.dataset.ready"), 20, "the page to start")
+    assert driver.find_element(By.ID, "key-form").is_displayed()
+    assert driver.find_element(By.ID, "key-state").text == "this service needs an API key"
+    driver.find_element(By.ID, "api-key").send_keys(KEY)
+    driver.find_element(By.CSS_SELECTOR, "#key-form button").click()
+    wait_for(lambda: driver.find_element(By.ID, "key-state").text == "key set", 5, "the key to be taken")
 
 
 CANVAS_COLOURS = """
@@ -162,13 +177,8 @@ def test_upload_follow_view_download_and_a_refused_upload(api, worker, browser, 
     from selenium.webdriver.common.by import By
     from selenium.webdriver.support.ui import Select
 
-    driver = browser
-    find = driver.find_element
-    driver.get(api.url + "/")
-    wait_for(lambda: driver.execute_script("return document.body.dataset.ready"), 20, "the page to start")
-    assert find(By.ID, "key-form").is_displayed()  # keys are on: the page asks for one
-    find(By.ID, "api-key").send_keys(KEY)
-    find(By.CSS_SELECTOR, "#key-form button").click()
+    driver, find = browser, browser.find_element
+    open_page(driver, api)
 
     find(By.CSS_SELECTOR, "[data-sample='apple-in-bowl']").click()  # an example fills the form
     wait_for(lambda: "bowl.glb" in find(By.ID, "chosen-target").text, 20, "the example's target")
@@ -243,6 +253,26 @@ def test_upload_follow_view_download_and_a_refused_upload(api, worker, browser, 
     assert find(By.ID, "error").text == f'{error["code"]} target file "broken.glb" refused: {error["message"]}'
     find(By.ID, "error").location_once_scrolled_into_view  # noqa: B018
     shoot(driver, "refused")
+
+
+def test_cancel_from_the_page(api, worker, browser):
+    """A longer run (the default preset, one of the examples): watch it optimise, then cancel it."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import Select
+
+    driver, find = browser, browser.find_element
+    open_page(driver, api)
+    find(By.CSS_SELECTOR, "[data-sample='cup-on-table']").click()
+    wait_for(lambda: "table.glb" in find(By.ID, "chosen-target").text, 20, "the example's files")
+    Select(find(By.ID, "opt-preset")).select_by_value("default")
+    find(By.ID, "submit").click()
+    wait_for(lambda: find(By.ID, "eta").text.startswith("about") and find(By.ID, "quality").text, 180,
+             "an ETA and an objective", interval_s=0.25)
+    shoot(driver, "progress-running")
+    find(By.ID, "cancel").click()
+    wait_for(lambda: find(By.ID, "stage").text.lower() == "canceled", 120, "the job to stop")
+    assert "canceled" in find(By.ID, "error").text and int(find(By.ID, "percent").text.split()[0]) < 100
+    shoot(driver, "canceled")
 
 
 def test_docs_render_offline(api, browser):

@@ -207,6 +207,7 @@ async function follow(id) {
   state.following = controller;
   state.objectives = [];
   drawSpark();
+  $("quality").textContent = "";
   $("progress").hidden = false;
   $("result").hidden = true;
   $("job-id").textContent = id;
@@ -258,12 +259,10 @@ function renderProgress(job) {
   if (p.eta_s != null && !TERMINAL.includes(job.status)) times.push(`about ${duration(p.eta_s)} left`);
   if (p.elapsed_s) times.push(`${duration(p.elapsed_s)} elapsed`);
   $("eta").textContent = times.join(", ");
-  if (p.objective != null) {
+  if (p.objective != null) { // null at a phase start: the last figure stays up
     $("quality").textContent = `objective ${p.objective.toFixed(4)} (best restart; lower is better)`;
     if (state.objectives.at(-1) !== p.objective) state.objectives.push(p.objective);
     drawSpark();
-  } else {
-    $("quality").textContent = "";
   }
   $("message").textContent = p.message + (job.cancel_requested && job.status === "running" ? " - cancel requested" : "");
   $("cancel").disabled = TERMINAL.includes(job.status) || job.cancel_requested;
