@@ -17,7 +17,7 @@ import time
 import pytest
 import trimesh
 
-from tests.conftest import REPO, service_env, wait_for
+from tests.conftest import REPO, Api, service_env, wait_for
 
 KEY, OTHER = "page-key", "other-key"
 AUTH = {"Authorization": f"Bearer {KEY}"}
@@ -71,6 +71,16 @@ def test_page_config_and_samples(api):
     assert glb.status_code == 200 and glb.content[:4] == b"glTF"
     missing = api.client.get(f"/samples/{sample['name']}/nothing.glb")
     assert (missing.status_code, missing.json()["error"]["code"]) == (404, "not_found")
+
+
+def test_page_asks_for_no_key_when_the_service_has_none(private_redis):
+    open_service = Api(service_env(private_redis.url, "page-open"))
+    try:
+        assert open_service.client.get("/page/config").json()["auth"] is False
+        assert open_service.client.get("/jobs").json() == {"jobs": [], "total": 0, "offset": 0, "limit": 20,
+                                                           "next": None}
+    finally:
+        open_service.stop()
 
 
 def test_job_list_is_the_callers_own_newest_first_and_paginated(api):
