@@ -229,8 +229,9 @@ def test_upload_follow_view_download_and_a_refused_upload(api, worker, browser, 
     assert find(By.ID, "result-prompt").text == '"a ball on top of a table"'
     assert "translation" in find(By.ID, "transform").text
     assert driver.execute_script("return document.getElementById('preview').naturalWidth") > 0
-    find(By.ID, "tint").click()
     find(By.ID, "result").location_once_scrolled_into_view  # noqa: B018 - scrolls for the screenshot
+    shoot(driver, "result-tinted")
+    find(By.ID, "tint").click()
     shoot(driver, "result")
 
     find(By.CSS_SELECTOR, "[data-file='result.glb']").click()
