@@ -130,9 +130,14 @@ def test_empty_mesh_renders_background():
     assert img.shape == (2, 1, 3, 16, 16) and torch.equal(img, torch.ones_like(img))
 
 
+def _facing_quad() -> trimesh.Trimesh:
+    """A 2 x 2 quad in the z = 0 plane, facing +Z (the camera at azimuth 0, elevation 0)."""
+    return trimesh.Trimesh([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], [[0, 1, 2], [0, 2, 3]], process=False)
+
+
 def test_lambert_shading_from_the_camera():
     """A white plane facing the camera is fully lit; tilted away from the key light it gets darker."""
-    quad = trimesh.Trimesh([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], [[0, 1, 2], [0, 2, 3]], process=False)
+    quad = _facing_quad()
     mesh = _render_mesh(quad, np.ones((4, 3)))
     cams = _cameras([0], [0], dist=3.0, size=32)
     lights = render.Lights()
@@ -162,7 +167,7 @@ def test_lights_are_a_parameter():
 def test_fragments_depth_barycentrics_and_stages():
     """A quad facing the camera at distance 3: depth 3 on every covered pixel, barycentrics on the simplex,
     and render() is antialias(shade(rasterize()))."""
-    quad = trimesh.Trimesh([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], [[0, 1, 2], [0, 2, 3]], process=False)
+    quad = _facing_quad()
     mesh, verts, cams = _render_mesh(quad), _verts(quad), _cameras([0, 30], [0, 0], dist=3.0, size=32)
     fragments = render.rasterize(mesh, verts, cams)
     assert fragments.pix_to_face.shape == (1, 2, 32, 32) and fragments.mask.sum() == len(fragments.pixels)
