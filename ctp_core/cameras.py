@@ -57,10 +57,6 @@ class Cameras:
         m = self.world_to_view().to(points.dtype)
         return points @ m[..., :3, :3].transpose(-1, -2) + m[..., None, :3, 3]
 
-    def project(self, points: Tensor) -> Tensor:
-        """Points (B, C, N, 3) normalised frame -> (B, C, N, 3): pixel x, pixel y, depth (> 0 in front)."""
-        return view_to_pixels(self.to_view(points), self.focal_px().to(points.dtype), self.image_size)
-
     def to(self, device: torch.device | str) -> Cameras:
         up = self.up.to(device) if self.up is not None else None
         return replace(self, eye=self.eye.to(device), at=self.at.to(device), fov_deg=self.fov_deg.to(device), up=up)

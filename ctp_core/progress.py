@@ -8,9 +8,9 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Literal
 
-EventKind = Literal["start", "phase_start", "step", "phase_end", "done"]
+EventKind = Literal["phase_start", "step", "phase_end", "done"]
 # The pipeline stage an event belongs to: the search scores candidate poses (step/steps count candidates),
 # the refinement optimises the best of them (step/steps count optimisation steps).
 StageName = Literal["search", "refine"]
@@ -36,16 +36,6 @@ class ProgressEvent:
     @property
     def fraction(self) -> float:
         return min(1.0, self.step / max(1, self.steps))
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "kind": self.kind, "phase": self.phase, "phases": self.phases, "step": self.step,
-            "steps": self.steps, "restarts": self.restarts, "fraction": round(self.fraction, 4),
-            "elapsed_s": round(self.elapsed_s, 3),
-            "eta_s": None if self.eta_s is None else round(self.eta_s, 1),
-            "losses": {k: round(v, 6) for k, v in self.losses.items()},
-            "best_objective": self.best_objective, "message": self.message,
-        }
 
 
 ProgressCallback = Callable[[ProgressEvent], None]

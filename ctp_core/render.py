@@ -3,8 +3,10 @@
 Why our own: nvdiffrast and kaolin are CUDA-only and PyTorch3D's CPU path is ~70x slower (see
 docs/renderer-study.md); this runs wherever torch runs, CPU or CUDA, with the same code.
 
-Pipeline, for verts (B, V, 3) in the *normalised* frame and B x C cameras (N = B * C images):
+Stages, as in PyTorch3D (rasterizer -> ``Fragments`` -> shader), for verts (B, V, 3) in the *normalised*
+frame and B x C cameras (N = B * C images); ``render`` is their composition:
 
+``rasterize`` -> ``Fragments`` (what was found per pixel; no shading):
 1. Per face instance m = n * F + f (image n, face f), in the *camera* frame: three "edge planes"
    e_i(p) = d(p) . (V_j x V_k) / det(V0, V1, V2), affine in the pixel position p, where d(p) is the ray
    through p (z = -1). They are the perspective-correct barycentrics divided by the depth: e_i >= 0 inside
@@ -12,9 +14,14 @@ Pipeline, for verts (B, V, 3) in the *normalised* frame and B x C cameras (N = B
 2. Hard z-buffer without gradient: enumerate the (face instance, pixel centre) pairs inside each face,
    row by row of its screen bounding box (scanline spans), and take the nearest per pixel with one
    ``scatter_reduce`` (amax) on a 64-bit key (1/depth bits, face instance). No back-face culling: uploads
-   are not reliably wound, so only the depth test decides.
-3. At covered pixels, recompute the barycentrics from the edge planes with gradient, interpolate vertex
-   colours and UVs (texture lookup with ``grid_sample``) and multiply by the face's flat Lambert shading.
+   are not reliably wound, so only the depth test decides. At the covered pixels, the barycentrics and
+   depth are recomputed from the edge planes with gradient.
+
+``shade`` (``Lights``):
+3. Interpolate vertex colours and UVs at the covered pixels (texture lookup with ``grid_sample``) and
+   multiply by the face's flat Lambert shading.
+
+``antialias``:
 4. Analytic antialiasing after nvdiffrast's ``antialias``: for each horizontally or vertically adjacent
    pixel pair showing different faces, find where the segment between the two pixel centres leaves the
    front surface (walking across the mesh's interior edges to a silhouette edge, or to the line where two
@@ -22,15 +29,15 @@ Pipeline, for verts (B, V, 3) in the *normalised* frame and B x C cameras (N = B
    the vertex positions, so silhouettes, intersection lines and flat-shading creases carry gradients.
 
 Shading: flat (one normal per face), because low-poly uploads (a 20-face star) have no meaningful vertex
-normals; two-sided (the normal is flipped to face the camera); a key light from the camera, raised a
-little, plus ambient. Faces with a vertex closer than ``NEAR`` to the camera plane are dropped.
+normals; two-sided (the normal is flipped to face the camera); by default a key light from the camera,
+raised a little, plus ambient (``Lights``). Faces with a vertex closer than ``NEAR`` to the camera plane
+are dropped.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -40,8 +47,6 @@ from torch import Tensor
 from ctp_core.cameras import Cameras, view_to_pixels
 from ctp_core.structures import MeshArrays
 
-AMBIENT = 0.35  # light on faces turned away from the key light; the key light adds up to 1 - AMBIENT
-KEY_LIGHT = (0.0, 0.3, 1.0)  # camera frame, towards the light: from the camera, raised ~17 degrees
 NEAR = 1e-2  # normalised-frame units; faces reaching closer to the camera plane are not drawn
 SPAN_TOL = 1e-4  # pixels of slack in the scanline spans, so centres on shared edges never fall in a crack
 
@@ -157,45 +162,154 @@ def face_neighbours(faces: Tensor, vertex_ids: Tensor | None = None) -> Tensor:
     return out.view(-1, 3)
 
 
-def render(mesh: RenderMesh, verts: Tensor, cameras: Cameras, *, background: float = 1.0) -> Tensor:
-    """verts (B, V, 3) normalised frame -> images (B, C, 3, H, W) in [0, 1]; differentiable w.r.t. verts."""
-    batch, views = cameras.fov_deg.shape
-    size = cameras.image_size
-    inst = _face_instances(mesh.faces, verts, cameras)
-    fid = _rasterize(inst.planes.detach(), inst.bbox, batch * views, size)
-    covered = (fid >= 0).nonzero()[:, 0]
-    m = fid.index_select(0, covered)
-    table = torch.cat([inst.planes.flatten(1), inst.shade[:, None]], 1).index_select(0, m)  # planes + shade
-    x, y = _pixel_centres(covered, size, verts.dtype)
-    e = _edge_values(table[:, :9].view(-1, 3, 3), x, y)
-    bary = e / e.sum(-1, keepdim=True)
-    colour = _albedo(mesh, m % len(mesh.faces), bary) * table[:, 9:]
-    img = torch.full((batch * views * size * size, 3), background, dtype=verts.dtype, device=verts.device)
-    img = _antialias(img.index_put((covered,), colour), fid, inst, mesh.neighbours, size)
-    # A pixel blended from several sides can overshoot slightly (as in nvdiffrast); keep the [0, 1] contract.
-    return img.clamp(0, 1).view(batch, views, size, size, 3).permute(0, 1, 4, 2, 3)
+@dataclass(frozen=True)
+class Lights:
+    """Flat, two-sided lighting: ambient plus one directional key light that moves with the camera."""
+
+    ambient: float = 0.35  # light on faces turned away from the key light; the key light adds up to 1 - ambient
+    direction: tuple[float, float, float] = (0.0, 0.3, 1.0)  # camera frame, towards the light: raised ~17 degrees
 
 
-@torch.no_grad()
-def coverage(mesh: RenderMesh, verts: Tensor, cameras: Cameras) -> Tensor:
-    """(B, C, H, W) bool: pixel centres covered by any face (hard, no antialiasing, no gradient)."""
-    batch, views = cameras.fov_deg.shape
-    size = cameras.image_size
-    inst = _face_instances(mesh.faces, verts, cameras)
-    return (_rasterize(inst.planes, inst.bbox, batch * views, size) >= 0).view(batch, views, size, size)
+@dataclass
+class Fragments:
+    """What ``rasterize`` found, for the later stages (PyTorch3D's ``Fragments``, kept sparse).
 
+    Face instance m = n * F + f: face f of the mesh in image n = b * C + c. Per pixel, the nearest instance;
+    at the P covered pixels, its barycentrics and depth; per instance, what shading and antialiasing use.
+    Tensors marked "gradient" carry it w.r.t. the vertices.
+    """
 
-class _Instances(NamedTuple):
-    """Per face instance m = n * F + f (image n, face f), camera frame of image n."""
-
-    planes: Tensor  # (M, 3, 3): rows a, b, c over edges i: e_i(x, y) = a_i x + b_i y + c_i at pixel (x, y)
-    shade: Tensor  # (M,) flat Lambert factor
+    pix_to_face: Tensor  # (B, C, H, W) long: face instance per pixel, -1 where nothing is drawn
+    pixels: Tensor  # (P,) covered pixels, flat indices into pix_to_face, ascending
+    pixel_faces: Tensor  # (P,) the face instance at each covered pixel
+    bary_coords: Tensor  # (P, 3) perspective-correct barycentrics of the pixel centre; gradient
+    depth: Tensor  # (P,) camera-frame depth (-z) at the pixel centre; gradient
+    planes: Tensor  # (M, 3, 3) edge planes, rows a, b, c over edges i: e_i(x, y) = a_i x + b_i y + c_i; gradient
     facing: Tensor  # (M,) int8: sign of the winding seen from the camera, 0 for dropped faces
-    bbox: Tensor  # (M, 4) inclusive pixel index range x0, y0, x1, y1 of candidate centres; empty if dropped
+    normals: Tensor  # (M, 3) camera frame, unnormalised, turned towards the camera (two-sided); gradient
+
+    @property
+    def mask(self) -> Tensor:
+        """(B, C, H, W) bool: pixel centres covered by any face (hard: the silhouette before antialiasing)."""
+        return self.pix_to_face >= 0
+
+    def dense(self, values: Tensor, fill: float) -> Tensor:
+        """Values at the covered pixels (P, ...) -> (B, C, H, W, ...), ``fill`` where nothing is drawn."""
+        flat = torch.full((self.pix_to_face.numel(), *values.shape[1:]), fill, dtype=values.dtype,
+                          device=values.device)
+        return flat.index_put((self.pixels,), values).view(*self.pix_to_face.shape, *values.shape[1:])
 
 
-def _face_instances(faces: Tensor, verts: Tensor, cameras: Cameras) -> _Instances:
-    """Edge planes, shading, winding and pixel bounding boxes of every face in every image."""
+def render(mesh: RenderMesh, verts: Tensor, cameras: Cameras, *, background: float = 1.0,
+           lights: Lights = Lights()) -> Tensor:
+    """verts (B, V, 3) normalised frame -> images (B, C, 3, H, W) in [0, 1]; differentiable w.r.t. verts."""
+    fragments = rasterize(mesh, verts, cameras)
+    images = antialias(mesh, fragments, shade(mesh, fragments, lights, background=background))
+    # A pixel blended from several sides can overshoot slightly (as in nvdiffrast); keep the [0, 1] contract.
+    return images.clamp(0, 1).permute(0, 1, 4, 2, 3)
+
+
+def rasterize(mesh: RenderMesh, verts: Tensor, cameras: Cameras) -> Fragments:
+    """verts (B, V, 3) normalised frame -> the nearest face per pixel of B x C images (steps 1-2 above).
+
+    Costs no shading: under ``torch.no_grad`` it is the cheap silhouette (``mask``) or depth pass.
+    """
+    batch, views = cameras.fov_deg.shape
+    size = cameras.image_size
+    planes, facing, normals, bbox = _face_instances(mesh.faces, verts, cameras)
+    pix_to_face = _nearest_faces(planes.detach(), bbox, batch * views, size)
+    pixels = (pix_to_face >= 0).nonzero()[:, 0]
+    pixel_faces = pix_to_face.index_select(0, pixels)
+    x, y = _pixel_centres(pixels, size, verts.dtype)
+    e = _edge_values(planes.index_select(0, pixel_faces), x, y)
+    inverse_depth = e.sum(-1, keepdim=True)  # sum_i e_i = 1 / depth
+    return Fragments(pix_to_face.view(batch, views, size, size), pixels, pixel_faces, e / inverse_depth,
+                     inverse_depth[:, 0].reciprocal(), planes, facing, normals)
+
+
+def shade(mesh: RenderMesh, fragments: Fragments, lights: Lights = Lights(), *, background: float = 1.0) -> Tensor:
+    """(B, C, H, W, 3) images, channels last as the rasterizer's grid: albedo times flat Lambert (step 3).
+
+    Albedo is the interpolated vertex colour, times the texture where there is one; not antialiased.
+    """
+    normals = fragments.normals
+    light = torch.tensor(lights.direction, dtype=normals.dtype, device=normals.device)
+    lambert = (normals * (light / light.norm())).sum(-1) / normals.norm(dim=-1).clamp_min(1e-20)
+    factor = lights.ambient + (1 - lights.ambient) * lambert.clamp_min(0)  # (M,) per face instance
+    faces = fragments.pixel_faces
+    colour = _albedo(mesh, faces % len(mesh.faces), fragments.bary_coords) * factor.index_select(0, faces)[:, None]
+    return fragments.dense(colour, background)
+
+
+def antialias(mesh: RenderMesh, fragments: Fragments, images: Tensor) -> Tensor:
+    """Blend adjacent pixels across visibility boundaries (nvdiffrast ``antialias``), with gradient (step 4).
+
+    images (B, C, H, W, 3) as ``shade`` gives them. For a pair (inside pixel of the front surface, outside
+    pixel) whose segment crosses the boundary at fraction t from the inside centre, the front surface
+    covers t - 1/2 of a pixel beyond the midpoint: the outside pixel moves towards the inside colour when
+    t > 1/2, the inside one towards the outside colour when t < 1/2, by |t - 1/2| of the colour
+    difference. This is continuous as a boundary passes a pixel centre.
+
+    The boundary is found by walking from the front face along the segment (``_walk_to_surface_end``):
+    - an edge where the surface ends (boundary, fold) or meets the face the other pixel shows: the edge;
+    - the surface goes on under the other pixel, whose face is nearer there: the two surfaces intersect,
+      and the boundary is where their depth planes cross (1/depth is affine in the pixel, so this is a
+      line too). nvdiffrast leaves these unblended; here an object pushed into another still gets a
+      gradient from the intersection line.
+    """
+    size = fragments.pix_to_face.shape[-1]
+    grid = fragments.pix_to_face.view(-1, size, size)
+    fid = grid.view(-1)
+    img = images.reshape(-1, images.shape[-1])
+    across = (grid[:, :, :-1] != grid[:, :, 1:]).flatten().nonzero()[:, 0]
+    down = (grid[:, :-1, :] != grid[:, 1:, :]).flatten().nonzero()[:, 0]
+    first = torch.cat([across + across.div(size - 1, rounding_mode="floor"),
+                       down + down.div((size - 1) * size, rounding_mode="floor") * size])
+    horizontal = torch.arange(len(first), device=first.device) < len(across)
+    second = first + torch.where(horizontal, 1, size)
+    planes = fragments.planes
+    depth = planes.sum(-1)  # (M, 3): 1/depth = a x + b y + c, with gradient
+    with torch.no_grad():
+        m0, m1 = fid.index_select(0, first), fid.index_select(0, second)
+        x0, y0 = _pixel_centres(first, size, planes.dtype)
+        step_x, step_y = horizontal.to(planes.dtype), (~horizontal).to(planes.dtype)  # first -> second
+        mid = torch.stack([x0 + step_x / 2, y0 + step_y / 2, torch.ones_like(x0)], -1)
+        inv0 = (depth.detach().index_select(0, m0.clamp_min(0)) * mid).sum(-1)
+        inv1 = (depth.detach().index_select(0, m1.clamp_min(0)) * mid).sum(-1)
+        front0 = (m1 < 0) | ((m0 >= 0) & (inv0 >= inv1))  # the nearer plane at the midpoint is in front
+        inside, outside = torch.where(front0, first, second), torch.where(front0, second, first)
+        face, other = torch.where(front0, m0, m1), torch.where(front0, m1, m0)
+        back = (~front0).to(planes.dtype)  # the segment runs inside -> outside: second -> first if back
+        segment = torch.stack([x0 + step_x * back, y0 + step_y * back, step_x * (1 - 2 * back),
+                               step_y * (1 - 2 * back)], -1)
+        face, edge, ends, covers = _walk_to_surface_end(planes.detach(), fragments.facing, mesh.neighbours, face,
+                                                        other, segment)
+        at_edge = ends.nonzero()[:, 0]
+        at_crossing = (covers & (other >= 0)).nonzero()[:, 0]
+    # The boundary as a line l(x, y) = a x + b y + c, >= 0 on the inside centre and < 0 on the outside one.
+    edge_lines = planes.index_select(0, face[at_edge]).gather(2, edge[at_edge, None, None].expand(-1, 3, 1))[..., 0]
+    crossing_lines = depth.index_select(0, face[at_crossing]) - depth.index_select(0, other[at_crossing])
+    lines, pairs = torch.cat([edge_lines, crossing_lines]), torch.cat([at_edge, at_crossing])
+    x_in, y_in, dx, dy = segment.index_select(0, pairs).unbind(-1)
+    a, b, c = lines.unbind(-1)
+    value, slope = a * x_in + b * y_in + c, a * dx + b * dy
+    with torch.no_grad():  # depth planes extended from one pixel to the next need not cross between them
+        keep = ((slope < 0) & (value >= 0) & (value + slope < 0)).nonzero()[:, 0]
+    a, b, value, slope, pairs = (v.index_select(0, keep) for v in (a, b, value, slope, pairs))
+    t = -value / slope
+    # A straight boundary moved by d changes the image by d per unit length through its horizontal pairs
+    # alone, and again through its vertical pairs alone; share it between the two by cos^2 / sin^2 of its
+    # normal (nvdiffrast picks one by slope, which jumps as an edge turns through 45 degrees).
+    a2, b2 = a.square(), b.square()
+    weight = torch.where(horizontal.index_select(0, pairs), a2, b2) / (a2 + b2) * (t.clamp(0, 1) - 0.5)
+    inside, outside = inside.index_select(0, pairs), outside.index_select(0, pairs)
+    delta = weight[:, None] * (img.index_select(0, inside) - img.index_select(0, outside))
+    return img.index_add(0, torch.where(weight > 0, outside, inside), delta).view_as(images)
+
+
+def _face_instances(faces: Tensor, verts: Tensor, cameras: Cameras) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Per face instance (see ``Fragments``), camera frame of its image: edge planes, facing, normals, and
+    bbox (M, 4), the inclusive pixel index range x0, y0, x1, y1 of candidate centres (empty if dropped)."""
     size = cameras.image_size
     focal = cameras.focal_px().to(verts.dtype)  # (B, C)
     view = cameras.to_view(verts[:, None])  # (B, C, V, 3) camera frame
@@ -225,16 +339,13 @@ def _face_instances(faces: Tensor, verts: Tensor, cameras: Cameras) -> _Instance
     ex, ey, ez = (edges / torch.where(keep, det, torch.ones_like(det))[:, None, None]).unbind(-1)
     planes = torch.stack([ex / f, -ey / f, (ey - ex) * (size / 2) / f - ez], 1)
 
-    normal = edges.sum(1)  # (v1 - v0) x (v2 - v0), camera frame
-    facing = -torch.sign(det)[:, None]  # flips the normal towards the camera: two-sided lighting
-    light = torch.tensor(KEY_LIGHT, dtype=verts.dtype, device=verts.device)
-    lambert = (facing * normal * (light / light.norm())).sum(-1) / normal.norm(dim=-1).clamp_min(1e-20)
-    shade = AMBIENT + (1 - AMBIENT) * lambert.clamp_min(0)
-    return _Instances(planes, shade, (torch.sign(det.detach()) * keep).to(torch.int8), bbox)
+    # (v1 - v0) x (v2 - v0), flipped towards the camera: two-sided lighting
+    normals = -torch.sign(det)[:, None] * edges.sum(1)
+    return planes, (torch.sign(det.detach()) * keep).to(torch.int8), normals, bbox
 
 
 @torch.no_grad()
-def _rasterize(planes: Tensor, bbox: Tensor, images: int, size: int) -> Tensor:
+def _nearest_faces(planes: Tensor, bbox: Tensor, images: int, size: int) -> Tensor:
     """Nearest face instance per pixel, (images * size * size,) long, -1 where nothing is drawn.
 
     Scanline enumeration: each bounding-box row of a face gets the exact span of pixel centres inside
@@ -311,69 +422,6 @@ def _albedo(mesh: RenderMesh, face: Tensor, bary: Tensor) -> Tensor:
     texel = F.grid_sample(mesh.texture.to(bary.dtype)[None], grid[None, None], mode="bilinear",
                           padding_mode="border", align_corners=False)[0, :, 0].T
     return colour * texel
-
-
-def _antialias(img: Tensor, fid: Tensor, inst: _Instances, neighbours: Tensor, size: int) -> Tensor:
-    """Blend adjacent pixels across visibility boundaries (nvdiffrast ``antialias``), with gradient.
-
-    img (N * size * size, 3) flat images; fid the face instance per pixel. For a pair (inside pixel of the
-    front surface, outside pixel) whose segment crosses the boundary at fraction t from the inside centre,
-    the front surface covers t - 1/2 of a pixel beyond the midpoint: the outside pixel moves towards the
-    inside colour when t > 1/2, the inside one towards the outside colour when t < 1/2, by |t - 1/2| of
-    the colour difference. This is continuous as a boundary passes a pixel centre.
-
-    The boundary is found by walking from the front face along the segment (``_walk_to_surface_end``):
-    - an edge where the surface ends (boundary, fold) or meets the face the other pixel shows: the edge;
-    - the surface goes on under the other pixel, whose face is nearer there: the two surfaces intersect,
-      and the boundary is where their depth planes cross (1/depth is affine in the pixel, so this is a
-      line too). nvdiffrast leaves these unblended; here an object pushed into another still gets a
-      gradient from the intersection line.
-    """
-    grid = fid.view(-1, size, size)
-    across = (grid[:, :, :-1] != grid[:, :, 1:]).flatten().nonzero()[:, 0]
-    down = (grid[:, :-1, :] != grid[:, 1:, :]).flatten().nonzero()[:, 0]
-    first = torch.cat([across + across.div(size - 1, rounding_mode="floor"),
-                       down + down.div((size - 1) * size, rounding_mode="floor") * size])
-    horizontal = torch.arange(len(first), device=first.device) < len(across)
-    second = first + torch.where(horizontal, 1, size)
-    planes = inst.planes
-    depth = planes.sum(-1)  # (M, 3): 1/depth = a x + b y + c, with gradient
-    with torch.no_grad():
-        m0, m1 = fid.index_select(0, first), fid.index_select(0, second)
-        x0, y0 = _pixel_centres(first, size, planes.dtype)
-        step_x, step_y = horizontal.to(planes.dtype), (~horizontal).to(planes.dtype)  # first -> second
-        mid = torch.stack([x0 + step_x / 2, y0 + step_y / 2, torch.ones_like(x0)], -1)
-        inv0 = (depth.detach().index_select(0, m0.clamp_min(0)) * mid).sum(-1)
-        inv1 = (depth.detach().index_select(0, m1.clamp_min(0)) * mid).sum(-1)
-        front0 = (m1 < 0) | ((m0 >= 0) & (inv0 >= inv1))  # the nearer plane at the midpoint is in front
-        inside, outside = torch.where(front0, first, second), torch.where(front0, second, first)
-        face, other = torch.where(front0, m0, m1), torch.where(front0, m1, m0)
-        back = (~front0).to(planes.dtype)  # the segment runs inside -> outside: second -> first if back
-        segment = torch.stack([x0 + step_x * back, y0 + step_y * back, step_x * (1 - 2 * back),
-                               step_y * (1 - 2 * back)], -1)
-        face, edge, ends, covers = _walk_to_surface_end(planes.detach(), inst.facing, neighbours, face, other,
-                                                        segment)
-        at_edge = ends.nonzero()[:, 0]
-        at_crossing = (covers & (other >= 0)).nonzero()[:, 0]
-    # The boundary as a line l(x, y) = a x + b y + c, >= 0 on the inside centre and < 0 on the outside one.
-    edge_lines = planes.index_select(0, face[at_edge]).gather(2, edge[at_edge, None, None].expand(-1, 3, 1))[..., 0]
-    crossing_lines = depth.index_select(0, face[at_crossing]) - depth.index_select(0, other[at_crossing])
-    lines, pairs = torch.cat([edge_lines, crossing_lines]), torch.cat([at_edge, at_crossing])
-    x_in, y_in, dx, dy = segment.index_select(0, pairs).unbind(-1)
-    a, b, c = lines.unbind(-1)
-    value, slope = a * x_in + b * y_in + c, a * dx + b * dy
-    with torch.no_grad():  # depth planes extended from one pixel to the next need not cross between them
-        keep = ((slope < 0) & (value >= 0) & (value + slope < 0)).nonzero()[:, 0]
-    a, b, value, slope, pairs = (v.index_select(0, keep) for v in (a, b, value, slope, pairs))
-    t = -value / slope
-    # A straight boundary moved by d changes the image by d per unit length through its horizontal pairs
-    # alone, and again through its vertical pairs alone; share it between the two by cos^2 / sin^2 of its
-    # normal (nvdiffrast picks one by slope, which jumps as an edge turns through 45 degrees).
-    a2, b2 = a.square(), b.square()
-    weight = torch.where(horizontal.index_select(0, pairs), a2, b2) / (a2 + b2) * (t.clamp(0, 1) - 0.5)
-    inside, outside = inside.index_select(0, pairs), outside.index_select(0, pairs)
-    delta = weight[:, None] * (img.index_select(0, inside) - img.index_select(0, outside))
-    return img.index_add(0, torch.where(weight > 0, outside, inside), delta)
 
 
 _HOPS = 8

@@ -63,14 +63,12 @@ class Progress(BaseModel):
     stage: Stage = Field(default_factory=Stage, description="the pipeline stage and, for an assembly, which "
                          "object is being placed")
 
-    kind: str = Field("queued", description="queued, loading, model, start, phase_start, step, phase_end, "
+    kind: str = Field("queued", description="queued, loading, model, phase_start, step, phase_end, "
                       "exporting or done")
     phase: int = Field(0, description="1-based optimisation phase; 0 before the first")
     phases: int = Field(0, description="optimisation phases of this run; 0 until known")
     step: int = Field(0, description="optimisation steps done (all phases)")
     steps: int = Field(0, description="optimisation steps of this run (all phases); 0 until known")
-    restart: int | None = Field(
-        None, description="1-based restart being optimised; null while the restarts run as one batch")
     restarts: int = Field(0, description="random restarts of this run")
     fraction: float = Field(0.0, ge=0.0, le=1.0, description="step / steps")
     elapsed_s: float = Field(0.0, description="seconds since the worker started the job")

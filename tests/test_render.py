@@ -35,7 +35,7 @@ def _ellipsoid(subdivisions: int) -> trimesh.Trimesh:
     return tm
 
 
-# -- 1. coverage agrees with trimesh ray casting through pixel centres ------------------------------
+# -- 1. rasterize's coverage agrees with trimesh ray casting through pixel centres ------------------------------
 
 def _ray_coverage(tm, az, el, dist, fov, size, at):
     """Independent pinhole camera written from the documented conventions, numpy + embree."""
@@ -80,7 +80,8 @@ def test_coverage_matches_ray_casting(name):
     size, at = 96, (0.05, 0.1, -0.05)
     cams = orbit(torch.tensor([at]), *(torch.tensor([[v[i] for v in views]], dtype=torch.float32) for i in range(4)),
                  size)
-    mask = render.coverage(_render_mesh(tm), _verts(tm), cams)[0].numpy()
+    with torch.no_grad():  # the silhouette pass: rasterize alone, no shading
+        mask = render.rasterize(_render_mesh(tm), _verts(tm), cams).mask[0].numpy()
     for i, (az, el, dist, fov) in enumerate(views):
         expected = _ray_coverage(tm, az, el, dist, fov, size, at)
         iou = (mask[i] & expected).sum() / (mask[i] | expected).sum()
@@ -129,20 +130,53 @@ def test_empty_mesh_renders_background():
     assert img.shape == (2, 1, 3, 16, 16) and torch.equal(img, torch.ones_like(img))
 
 
+def _facing_quad() -> trimesh.Trimesh:
+    """A 2 x 2 quad in the z = 0 plane, facing +Z (the camera at azimuth 0, elevation 0)."""
+    return trimesh.Trimesh([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], [[0, 1, 2], [0, 2, 3]], process=False)
+
+
 def test_lambert_shading_from_the_camera():
     """A white plane facing the camera is fully lit; tilted away from the key light it gets darker."""
-    quad = trimesh.Trimesh([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], [[0, 1, 2], [0, 2, 3]], process=False)
+    quad = _facing_quad()
     mesh = _render_mesh(quad, np.ones((4, 3)))
     cams = _cameras([0], [0], dist=3.0, size=32)
-    key = np.array(render.KEY_LIGHT) / np.linalg.norm(render.KEY_LIGHT)
+    lights = render.Lights()
+    key = np.array(lights.direction) / np.linalg.norm(lights.direction)
     centre = lambda verts: render.render(mesh, verts, cams, background=0.0)[0, 0, :, 16, 16]  # noqa: E731
-    assert torch.allclose(centre(_verts(quad)), torch.full((3,), render.AMBIENT + (1 - render.AMBIENT) * key[2]),
+    assert torch.allclose(centre(_verts(quad)), torch.full((3,), lights.ambient + (1 - lights.ambient) * key[2]),
                           atol=1e-4)
     tilt = math.radians(60)
     rot = torch.tensor([[1, 0, 0], [0, math.cos(tilt), -math.sin(tilt)], [0, math.sin(tilt), math.cos(tilt)]])
     lit = float(centre(_verts(quad) @ rot.T.float())[0])
     normal = rot.numpy() @ np.array([0, 0, 1.0])
-    assert lit == pytest.approx(render.AMBIENT + (1 - render.AMBIENT) * max(0.0, normal @ key), abs=1e-4)
+    assert lit == pytest.approx(lights.ambient + (1 - lights.ambient) * max(0.0, normal @ key), abs=1e-4)
+
+
+def test_lights_are_a_parameter():
+    """Full ambient shows the albedo; a key light from below leaves a face turned up at the ambient level."""
+    quad = trimesh.Trimesh([[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 1]], [[0, 1, 2], [0, 2, 3]], process=False)
+    mesh = _render_mesh(quad, np.tile([[0.8, 0.4, 0.2]], (4, 1)))
+    cams = _cameras([0], [40], dist=3.0, size=32)  # looking down at the horizontal quad
+    centre = lambda lights: render.render(mesh, _verts(quad), cams, lights=lights)[0, 0, :, 16, 16]  # noqa: E731
+    assert torch.allclose(centre(render.Lights(ambient=1.0)), torch.tensor([0.8, 0.4, 0.2]), atol=1e-5)
+    below = centre(render.Lights(ambient=0.5, direction=(0.0, -1.0, 0.0)))
+    assert torch.allclose(below, 0.5 * torch.tensor([0.8, 0.4, 0.2]), atol=1e-5)
+    assert (centre(render.Lights()) > 1.5 * below).all()  # the default key light reaches it
+
+
+def test_fragments_depth_barycentrics_and_stages():
+    """A quad facing the camera at distance 3: depth 3 on every covered pixel, barycentrics on the simplex,
+    and render() is antialias(shade(rasterize()))."""
+    quad = _facing_quad()
+    mesh, verts, cams = _render_mesh(quad), _verts(quad), _cameras([0, 30], [0, 0], dist=3.0, size=32)
+    fragments = render.rasterize(mesh, verts, cams)
+    assert fragments.pix_to_face.shape == (1, 2, 32, 32) and fragments.mask.sum() == len(fragments.pixels)
+    assert torch.allclose(fragments.dense(fragments.depth, 3.0)[0, 0], torch.full((32, 32), 3.0), atol=1e-5)
+    assert (fragments.depth[fragments.pixel_faces >= 2] > 3.0 - 1.0).all()  # the turned view sees it obliquely
+    assert torch.allclose(fragments.bary_coords.sum(-1), torch.ones(len(fragments.pixels)), atol=1e-6)
+    assert (fragments.bary_coords > -1e-6).all()
+    staged = render.antialias(mesh, fragments, render.shade(mesh, fragments)).clamp(0, 1).permute(0, 1, 4, 2, 3)
+    assert torch.equal(staged, render.render(mesh, verts, cams))
 
 
 # -- 2. finite differences vs autograd -------------------------------------------------------------

@@ -28,7 +28,7 @@ from worker.main import context
 log = logging.getLogger("ctp.worker")
 
 # Optimiser events always published; step events are thinned (Heartbeat.publish).
-_MILESTONES = {"start", "phase_start", "phase_end", "done"}
+_MILESTONES = {"phase_start", "phase_end", "done"}
 
 
 def run_job(job_id: str) -> str:
