@@ -17,6 +17,12 @@ Tags:
 - ``soft``: drapes or settles onto a support (cushion, cat, towel).
 - ``wrap``: a garment or band that hugs what wears it (scarf, glove, collar).
 - ``agent``: a person, character or animal that can hold, wear, ride.
+- ``filled``: holds contents that close its opening off (a drink, a soup, a pond): what goes *in* it passes
+  below the surface of the contents, so it penetrates (the prompt can say so too: "a mug of cocoa").
+
+Each row belongs to the section it is listed under (``Entry.domain``): the domain decides between the senses of
+a word listed in more than one row (``~mouse`` in a later row: the computer mouse is another sense of "mouse";
+``SENSES``), by the other object of the prompt.
 
 Names like ``rooster_comb`` or ``teapot_lid`` are parts: ``PARTS`` gives a part's size as a fraction
 of its owner's, so any owner in the table works without listing every pair.
@@ -76,14 +82,27 @@ chocolate_bar 0.15 flat
 marshmallow 0.04 soft
 taco/burrito/wrap 0.18 container
 noodle/pasta/spaghetti 0.2
-soup/stew 0.2
+soup/stew/broth/porridge/oatmeal/curry 0.2 container,filled
 butter 0.1
-honey/honey_jar/honey_pot/jam 0.12 container
-coffee/tea/latte/espresso/cappuccino 0.09 container
-wine/beer/juice/milk/water/soda/drink/cocktail/martini/margarita 0.18 container
+honey/honey_jar/honey_pot/jam 0.12 container,filled
+coffee/tea/latte/espresso/cappuccino/cocoa/hot_chocolate/iced_tea 0.09 container,filled
+wine/beer/juice/milk/water/soda/drink/cocktail/martini/margarita/lemonade/cola/whiskey/whisky/punch 0.18 container,filled
+milkshake/smoothie/frappe 0.2 container,filled
 teabag/tea_bag 0.07 flat
 sugar_cube/ice_cube 0.02
 # --- tableware and kitchen ---
+fried_egg 0.12 flat
+dumpling/gyoza/wonton/meatball 0.045
+dough/batter/clay/playdough 0.2 soft
+colander/strainer/sieve/measuring_cup/egg_cup/lunchbox/lunch_box 0.2 container
+thermos 0.3 container
+grater/peeler/can_opener/bottle_opener/corkscrew/salt_shaker/pepper_shaker/pepper_mill 0.15
+tongs 0.3
+oven_mitt/pot_holder 0.3 soft,wrap
+thermometer/meat_thermometer 0.15 pointed
+roast_turkey/roast_chicken/roast 0.4
+kitchen_counter/counter/countertop/kitchen_island 2.0 flat
+dish_rack/drying_rack 0.45 container
 coaster 0.1 flat
 decanter/carafe/pitcher/jug/vial/potion/potion_bottle 0.25 container
 ice_bucket/wine_cooler 0.25 container
@@ -105,7 +124,9 @@ tray/platter/cutting_board/chopping_board 0.4 flat
 lid 0.15
 cork/stopper 0.045
 straw/drinking_straw 0.2 pointed
-spoon/teaspoon/ladle 0.17 pointed
+spoon/tablespoon 0.17 pointed
+teaspoon 0.14 pointed
+ladle/serving_spoon 0.3 pointed
 fork 0.19 pointed
 knife/kitchen_knife/chef_knife/butter_knife/steak_knife/cleaver 0.28 pointed
 chopstick 0.24 pointed
@@ -113,16 +134,41 @@ toothpick/cocktail_stick 0.07 pointed
 skewer/kebab_stick 0.3 pointed
 whisk/spatula/rolling_pin 0.3
 napkin/tablecloth/placemat 0.4 flat,soft
-blender/mixer/toaster/coffee_maker/microwave 0.4
+blender/mixer/coffee_maker/microwave 0.4
+toaster 0.3 container
 basket 0.4 container
 bucket/pail 0.3 container
 # --- bathroom and cosmetics ---
+toilet_paper/toilet_roll/toilet_paper_roll/paper_towel_roll 0.11
+soap_dish 0.12 container
+soap_dispenser/hair_dryer/hairdryer 0.22
+towel_rail/towel_bar/towel_rack 0.6
+shower_head/showerhead/bath_bomb/cotton_swab/nail_polish 0.08
+shower_curtain 1.8 flat,soft
+bath_mat/bathmat 0.8 flat,soft
+plunger/toilet_brush 0.45
+medicine_cabinet 0.6 container
+laundry_basket/hamper 0.6 container
 lipstick/lip_balm/mascara 0.08 pointed
 perfume/perfume_bottle/lotion/shampoo 0.15 container
 toothbrush/razor/hairbrush/comb 0.18 pointed
 toothpaste/tube 0.18
 soap/sponge 0.09 soft
 # --- furniture and home ---
+computer_mouse/~mouse 0.11
+stapler/tape_dispenser/calculator/projector/router 0.2
+paperclip/paper_clip/eraser/usb_stick/flash_drive/webcam/rubber_stamp 0.04
+binder/folder/file_folder/tablet/ipad 0.3 flat
+printer/scanner 0.45
+pencil_sharpener/sharpener 0.08 container
+alarm_clock/desk_clock 0.12
+filing_cabinet/file_cabinet 1.3 container
+locker 1.8 container
+fan/desk_fan/electric_fan 0.35
+ceiling_fan 1.2
+bell/cowbell/doorbell 0.12
+nightstand/bedside_table/side_table 0.55
+pegboard 1.0 flat
 anvil 0.5
 barrel/keg/cask 0.9 container
 lantern 0.3
@@ -162,7 +208,8 @@ clock/wall_clock 0.35 flat
 mirror 0.8 flat
 painting/picture/frame/picture_frame/poster/photo/photograph/canvas/map/calendar 0.7 flat
 sign/signboard/plaque 0.6 flat
-sticker/label/decal/note/sticky_note/postcard/letter/paper/card/playing_card 0.09 flat
+sticker/label/decal/note/sticky_note/postcard/card/playing_card 0.09 flat
+letter/paper/sheet/document/page 0.25 flat
 envelope 0.22 flat,container
 book/notebook/novel 0.25
 magazine/newspaper 0.3 flat
@@ -193,7 +240,7 @@ shower 2.0
 fridge/refrigerator/oven/stove/washing_machine/dishwasher 1.7 container
 trash_can/bin/dustbin/wastebasket 0.6 container
 coat_rack/hat_stand/coat_stand 1.8
-hook/peg/hanger/coat_hook/knob/doorknob/handle 0.06
+hook/peg/coat_hook/knob/doorknob/handle 0.06
 ring_stand/pencil_holder/pen_holder 0.1 container
 piggy_bank/money_box 0.2 container
 mailbox/letterbox 0.45 container
@@ -214,6 +261,17 @@ coin 0.025 flat
 key 0.06 pointed
 lock/padlock/keyhole 0.06 container
 # --- clothing and accessories ---
+hanger/coat_hanger/clothes_hanger 0.45
+clothesline/washing_line 4.0
+clothes_peg/clothespin 0.07
+wedding_dress/gown/ball_gown 1.5 soft
+pajamas/pyjamas/swimsuit/vest/waistcoat 0.7 soft
+shoebox/shoe_box 0.35 container
+earmuffs 0.2 wrap
+hairclip/hair_clip/barrette/hairpin/earring/brooch/badge/button 0.03 flat
+fabric/cloth/felt/linen/cotton/denim/silk/velvet 0.5 flat,soft
+yarn/ball_of_yarn/yarn_ball/wool 0.1 soft,round
+knitting_needle 0.35 pointed
 hat/cap/beanie/beret/top_hat/cowboy_hat/sun_hat/fedora/party_hat/witch_hat/wizard_hat/baseball_cap 0.3
 crown/tiara 0.2
 helmet 0.3
@@ -241,6 +299,22 @@ cane/walking_stick/staff 1.0 pointed
 saddle/bridle 0.6 soft
 wreath/garland 0.5
 # --- tools, weapons and equipment ---
+drill/power_drill/electric_drill/hair_trimmer 0.25
+drill_bit 0.1 pointed
+toolbox/tool_box/toolkit/tool_chest 0.5 container
+vise/vice/clamp 0.3
+tape_measure/measuring_tape 0.08
+spirit_level/crowbar 0.6
+flashlight/torch/glue_gun/paint_roller 0.25
+soldering_iron 0.25 pointed
+iron/clothes_iron/steam_iron 0.28
+ironing_board 1.3 flat
+sandpaper 0.25 flat
+paint_can/paint_bucket 0.2 container
+chainsaw/sawhorse 0.8
+trowel 0.3 pointed
+hoe 1.5 pointed
+shears/pruners/secateurs 0.25
 hammer/mallet 0.33
 gavel 0.25
 sound_block/gavel_block 0.12
@@ -277,7 +351,9 @@ ball/football/soccer_ball/basketball/volleyball/beach_ball/globe 0.22 round
 tennis_ball/baseball/golf_ball/marble/snowball 0.07 round
 balloon 0.3 round
 bat/baseball_bat/racket/tennis_racket/golf_club/hockey_stick 0.9
-skateboard/surfboard/snowboard/skis/ski 0.8 flat
+skateboard 0.8 flat
+surfboard/paddleboard 2.0 flat
+snowboard/skis/ski 1.6 flat
 frisbee 0.25 flat
 kite 1.0 flat
 hoop/basketball_hoop/ring_toss 0.45 container
@@ -293,6 +369,16 @@ cross 1.0
 star 0.2
 statue/sculpture 2.0
 # --- toys and figures ---
+spinning_top/yo_yo/yoyo/rubik_cube/slinky 0.06
+rattle/baby_rattle/jack_in_the_box 0.15
+toy_train 0.2
+train_set/train_track/toy_track/play_mat/playmat 1.2 flat
+toy_box/toy_chest 0.8 container
+bouncy_ball/rubber_ball 0.05 round
+lego_minifigure/minifigure/minifig 0.04 agent
+rocking_horse 1.0
+water_gun/squirt_gun 0.25
+garden_gnome/lawn_gnome 0.35
 rubber_duck 0.08
 toy/figurine/action_figure/doll/puppet 0.3
 teddy_bear/teddy/plush/stuffed_animal 0.4 soft,agent
@@ -327,16 +413,34 @@ finger/toe 0.08
 neck 0.12
 nose/ear/mouth/eye 0.05
 # --- animals ---
+foal/colt/filly 1.4 agent
+duckling/chick/gosling 0.1 agent
+fruit_bat/vampire_bat/~bat 0.3 agent
+seal/sea_lion/walrus 2.0 agent
+crocodile/alligator 4.0 agent
+kangaroo 1.5 agent
+turkey/peacock 1.0 agent
+dog_bowl/pet_bowl/water_bowl/food_bowl 0.2 container
+dog_bed/pet_bed/cat_bed 0.8 soft,container
+kennel/doghouse/dog_house 1.0 container
+hamster_wheel/exercise_wheel 0.2
+hutch/coop/chicken_coop/trough 1.5 container
+stable 10.0 container
+leash/lead 1.5 wrap
+horseshoe 0.12
 scarecrow/ghost/skeleton 1.8 agent
 dragon/dinosaur 10.0 agent
 unicorn 2.4 agent
-dog/puppy/wolf/fox 0.8 agent
-cat/kitten 0.45 soft,agent
+dog/wolf/fox 0.8 agent
+puppy/cub/piglet 0.4 agent
+cat 0.45 soft,agent
+kitten 0.25 soft,agent
 rabbit/bunny/hare 0.4 agent
 mouse/rat/hamster/squirrel/guinea_pig 0.1 agent
-bird/sparrow/robin/parrot/pigeon/crow/owl/songbird 0.2 agent
+bird/sparrow/robin/pigeon/crow/owl/songbird 0.2 agent
+parrot/macaw/cockatoo 0.4 agent
 hen/rooster/duck/goose/penguin 0.5 agent
-eagle/hawk/swan/flamingo 1.0 agent
+eagle/hawk/swan/flamingo/heron/stork/crane 1.0 agent
 horse/pony/donkey/camel/cow/bull/ox/deer/moose/zebra 2.4 agent
 pig/sheep/goat/lamb/calf 1.2 agent
 elephant 6.0 agent
@@ -354,6 +458,16 @@ bone 0.25
 feather 0.2 flat
 egg_shell 0.06 container
 # --- plants ---
+seedling/sprout 0.1
+sapling 1.5
+lily_pad 0.3 flat
+flower_bed/garden_bed/raised_bed 2.0 flat
+fence_post 1.2 pointed
+sprinkler/bird_feeder 0.25
+lawn_mower/lawnmower/mower 1.5
+compost_bin 1.0 container
+greenhouse/gazebo 4.0 container
+hammock 3.0 soft
 tree/oak/pine/palm/palm_tree/pine_tree 8.0
 christmas_tree/xmas_tree/fir 2.0
 bush/shrub/hedge 1.5
@@ -366,6 +480,21 @@ rock/stone/boulder 0.5
 pebble 0.04 round
 sand/dirt/soil/snow/mud 1.0
 # --- vehicles ---
+pickup/pickup_truck 5.5 container
+fire_truck/fire_engine/ambulance 8.0 container
+golf_cart/forklift 2.5
+excavator/digger/bulldozer 8.0
+construction_crane/tower_crane/~crane 50.0
+windshield/windscreen 1.5 flat
+windshield_wiper/wiper/license_plate/number_plate 0.5 flat
+steering_wheel 0.38
+roof_rack 1.2
+trailer 4.0 container
+caravan/camper/rv/motorhome 7.0 container
+submarine 50.0
+hot_air_balloon 20.0 container
+parking_ticket/ticket/receipt/flyer/leaflet 0.15 flat
+traffic_light 3.0
 tire/tyre/wheel 0.7 round
 ufo/flying_saucer 10.0
 car/taxi/sedan/suv/jeep/van 4.5 container
@@ -398,7 +527,9 @@ tower/castle_tower/lighthouse/turret 15.0
 bridge 50.0
 fence/railing 2.5 flat
 well 1.5 container
-fountain/pool/pond/swimming_pool 4.0 container
+fountain/pool/pond/swimming_pool 4.0 container,filled
+lake/river/sea/ocean 100.0 container,filled
+puddle 0.5 flat,filled
 igloo/dome 3.0 container
 moon/planet/earth 100.0 round
 mountain/hill/cliff 100.0
@@ -412,6 +543,8 @@ PARTS: dict[str, float] = {
     "leg": 0.5, "shade": 0.4, "bulb": 0.2, "slice": 0.5, "piece": 0.3, "half": 0.8, "wing": 0.4,
     "tail": 0.4, "nose": 0.1,
 }
+# The parts a person, character or animal has (a "hamster wheel" is no part of a hamster).
+AGENT_PARTS = frozenset({"head", "leg", "tail", "wing", "nose", "comb", "tip"})
 # Parts made to come off their owner: a name that is only one of these ("lid") is sized from the other object.
 DETACHABLE = frozenset({"lid", "cap", "cover", "case", "sheath", "stand", "base", "handle", "top"})
 # Parts that hold their owner (a lipstick's cover, a blender's jar) are containers.
@@ -425,7 +558,16 @@ SIZE_WORDS: dict[str, float] = {
 
 # Materials name the object only when nothing else does ("table wood" is a table, "wood" is wood).
 MATERIALS = frozenset({"wood", "stone", "glass", "metal", "gold", "silver", "plastic", "paper", "marble", "clay",
-                       "steel", "iron", "leather", "rock"})
+                       "steel", "iron", "leather", "rock", "fabric", "cloth", "felt", "cotton", "denim", "silk",
+                       "velvet", "linen", "wool", "yarn"})
+# Words a file name or a prompt puts around an object's head noun that do not name an object: colours, styles,
+# file-format and asset-pipeline words ("Rubber_Duck_Yellow", "old_lamp_lowpoly", "SM_Chair_02").
+NON_HEAD_WORDS = frozenset("""
+red green blue yellow white black brown grey gray pink purple beige golden dark light bright pale striped
+old new vintage antique modern classic rusty broken clean dirty simple cartoon stylized stylised realistic cute
+low high poly lowpoly highpoly hi res detailed model mesh obj fbx glb gltf stl ply sm geo lod copy asset prop
+final version var variant wooden metallic plastic ceramic round square tall short long wide empty open closed
+""".split())
 
 
 @dataclass(frozen=True)
@@ -435,6 +577,7 @@ class Entry:
     name: str
     size_m: float
     tags: frozenset[str]
+    domain: str = ""  # the table section: "animals", "vehicles" ...
 
 
 @dataclass(frozen=True)
@@ -451,23 +594,31 @@ class Match:
         return tag in self.tags
 
 
-def _parse_table(text: str) -> dict[str, Entry]:
+def _parse_table(text: str) -> tuple[dict[str, Entry], dict[str, list[Entry]]]:
+    """Rows to (alias -> entry, word -> its senses, the plain row first): ``~word`` in a row adds a sense."""
     table: dict[str, Entry] = {}
+    senses: dict[str, list[Entry]] = {}
+    domain = ""
     for line in text.splitlines():
         line = line.strip()
+        if line.startswith("# ---"):
+            domain = line.strip("#- ")
         if not line or line.startswith("#"):
             continue
         names, size, *tags = line.split()
         aliases = [a.replace("_", " ") for a in names.split("/")]
-        entry = Entry(aliases[0], float(size), frozenset(tags[0].split(",")) if tags else frozenset())
+        entry = Entry(aliases[0], float(size), frozenset(tags[0].split(",")) if tags else frozenset(), domain)
         for alias in aliases:
+            if alias.startswith("~"):
+                senses.setdefault(alias[1:], []).append(entry)
+                continue
             if alias in table:
                 raise ValueError(f"lexicon alias {alias!r} listed twice")
             table[alias] = entry
-    return table
+    return table, {word: [table[word], *others] for word, others in senses.items()}
 
 
-LEXICON: dict[str, Entry] = _parse_table(_TABLE)
+LEXICON, SENSES = _parse_table(_TABLE)
 MAX_WORDS = max(len(k.split()) for k in LEXICON)
 
 _IRREGULAR = {
@@ -530,6 +681,8 @@ def bare_part(name: str) -> str | None:
     for i in reversed(range(len(tokens))):
         part = next((w for w in singulars(tokens[i]) if w in DETACHABLE), None)
         if part is not None:
+            if any(start <= i < end and end - start > 1 for start, end, _, _ in spans(tokens)):
+                return None  # a compound that is an object of its own: "spinning top", "coat stand"
             return None if spans(tokens[:i] + tokens[i + 1:]) else part
     return None
 
@@ -540,23 +693,51 @@ def lookup(name: str) -> Match | None:
     The head of an English compound is its last noun ("coffee cup" is a cup), so the rightmost known
     phrase wins (materials only when alone); a last word naming a part after a known owner ("teapot
     lid", "blender_tank") is sized as a fraction of the owner. Size adjectives in the name
-    ("ball_small") scale the result.
+    ("ball_small") scale the result; colours, styles and file-pipeline words ("_lowpoly", "_Yellow")
+    are not heads. An unknown last word is the head all the same: a closed compound ends in a known
+    word ("shoebox" is a box), otherwise the object is named after the known word before it ("pencil
+    sharpener"): its size is a guess from that word, and none of that word's shape tags apply.
     """
     tokens = [t for t in words(name) if t not in SIZE_WORDS]
     scale = 1.0
     for token in words(name):
         scale *= SIZE_WORDS.get(token, 1.0)
-    found = [f for f in spans(tokens) if f[3].name not in MATERIALS] or spans(tokens)
+    while tokens and (tokens[-1] in NON_HEAD_WORDS or len(tokens[-1]) < 3):
+        tokens.pop()
+    known = spans(tokens)
+    found = [f for f in known if f[2] not in MATERIALS] or known
     part = next((w for w in singulars(tokens[-1]) if w in PARTS), None) if tokens else None
     if part is not None and not any(end == len(tokens) and end - start > 1 for start, end, _, _ in found):
-        owners = [f for f in found if f[1] < len(tokens)]
+        owners = [f for f in found if f[1] < len(tokens) and (part in AGENT_PARTS or "agent" not in f[3].tags)]
         if owners:
             _, _, phrase, owner = owners[-1]
             size = owner.size_m * PARTS[part] * scale
             tags = frozenset({"container"}) if part in CONTAINER_PARTS else frozenset()
             return Match(part, owner, size, tags, f"{part} of a {phrase} ({PARTS[part]:g} x {owner.size_m:g} m)")
+    if tokens and not any(end == len(tokens) for _, end, _, _ in known):
+        head_word = tokens[-1]
+        closed = closed_compound(head_word)
+        if closed is not None:
+            phrase, head = closed
+            return Match(phrase, head, head.size_m * scale, head.tags,
+                         f"'{head_word}': a kind of {phrase} ({head.size_m:g} m)")
+        if found:
+            start, _, phrase, known = found[-1]
+            named = " ".join(tokens[start:])
+            return Match(named, known, known.size_m * scale, frozenset(),
+                         f"'{named}': unknown '{head_word}' named after a {phrase}, sized like one ({known.size_m:g} m)")
     if not found:
         return None
     _, _, phrase, head = found[-1]
     how = f"'{phrase}' ({head.size_m:g} m)" + (f" x {scale:g} (size word)" if scale != 1.0 else "")
     return Match(phrase, head, head.size_m * scale, head.tags, how)
+
+
+def closed_compound(word: str) -> tuple[str, Entry] | None:
+    """A one-word compound's known head: the longest known word it ends in, after a known stem ("shoe|box") or,
+    for a head of 4+ letters, after any stem of 3+ letters ("rain|coat"; "tur|key" is no key)."""
+    for k in range(3, len(word) - 2):
+        hit = phrase_entry([word[k:]])
+        if hit is not None and (len(word) - k >= 4 or phrase_entry([word[:k]]) is not None):
+            return hit
+    return None

@@ -8,11 +8,11 @@ of knowledge says "fallback".
 from __future__ import annotations
 
 import re
+from dataclasses import replace
 
-from ctp_core.priors import lexicon, relations
+from ctp_core.priors import context, lexicon, relations
+from ctp_core.priors.context import PERSON_M  # an unknown name that holds, wears or rides is someone this tall
 from ctp_core.priors.prior import ScenePrior, clamp_contact, clamp_size
-
-PERSON_M = 1.75  # an unknown name that holds, wears or rides is taken to be someone this tall
 
 # Relations where a ball touches at a point, a sheet lies on a face, a soft thing settles.
 _SUPPORT = {"on", "stand", "sit", "lie", "lean", "hang", "attach"}
@@ -28,25 +28,40 @@ class RulesProvider:
     def estimate(self, target_name: str, source_name: str, prompt: str) -> ScenePrior:
         target, source = lexicon.lookup(target_name), lexicon.lookup(source_name)
         cue = relations.find_cue(prompt)
+        target_at, source_at = _mentions(prompt, target_name, target), _mentions(prompt, source_name, source)
         figure = None
         if cue is not None:
-            figure = relations.source_is_figure(
-                cue, _mentions(prompt, source_name, source), _mentions(prompt, target_name, target))
+            figure = relations.source_is_figure(cue, source_at, target_at)
         notes: list[str] = []
         if figure is None:
             figure = True  # the source is what gets placed: by default it is the figure
         elif not figure:
             notes.append("the source is the ground of the relation")
+        agent_role = {"wear": "ground", "hold": "ground", "sit": "figure"}.get(cue.cue.relation if cue else "")
+        target, source = (
+            context.resolve(target_name, prompt, target_at, source, agent_role == ("ground" if figure else "figure")),
+            context.resolve(source_name, prompt, source_at, target, agent_role == ("figure" if figure else "ground")))
+        ground_name, ground, ground_at = (target_name, target, target_at) if figure else (
+            source_name, source, source_at)
+        filled = context.contents(prompt, ground_at, ground)
         relation, why = _relation(cue, target, source, source if figure else target)
+        if cue is not None and cue.text.startswith("float") and filled is None:
+            relation, why = relations.RELATIONS["beside"], f"'{cue.text}' in air or open water: no contact"
+        floating = cue is not None and cue.text.startswith("float") and filled is not None
+        opening = context.opening_after(prompt, cue.end) if cue is not None else None
+        if opening is not None and ground is not None and not ground.has("container"):
+            ground = replace(ground, tags=ground.tags | {"container"})  # "in the slot of a toaster"
+            target, source = (ground, source) if figure else (target, ground)
+            notes.append(f"into the {opening} of the {ground_name}")
         notes.insert(0, why)
         if relation.name == "under" and not figure:  # "a table under a cup": the cup is on the table
             relation, figure = relations.RELATIONS["on"], True
             notes.append("read as the target resting on the source")
         size, size_why = _size_ratio(target_name, source_name, target, source, relation, figure)
         notes.insert(0, size_why)
-        penetration, pen_why = _penetration(relation, figure, target, source)
+        penetration, pen_why = _penetration(relation, figure, target, source, filled, floating)
         notes.append(pen_why)
-        contact = _contact(relation, figure, source)
+        contact = _contact(relation, figure, source, filled if penetration else None)
         return ScenePrior(size_ratio=clamp_size(size), penetration=penetration, contact_ratio=clamp_contact(contact),
                           source=self.name, reason="; ".join(n for n in notes if n),
                           relation=relation.name, source_is_figure=figure)
@@ -129,8 +144,20 @@ def _size_ratio(target_name, source_name, target, source, relation, figure: bool
     return ratio, f"size ratio {clamped:.3g} ({whys[1]} / {whys[0]}{note})"
 
 
-def _penetration(relation, figure: bool, target, source) -> tuple[bool, str]:
+def _penetration(relation, figure: bool, target, source, filled: str | None, floating: bool) -> tuple[bool, str]:
+    """From the relation word and from what the ground is.
+
+    Categories: a ground full of contents that close it off (``context.contents``: a drink, a soup, soil, a
+    pond) is entered below their surface by whatever goes in, is stuck in or floats in it (flat things float on
+    top); a container otherwise is entered through its opening; a pointed figure goes into any other solid; and
+    anything inside a solid food that is no container (a coin in a cake) is embedded in it.
+    """
     ground, fig = (target, source) if figure else (source, target)
+    fig_name = fig.phrase if fig is not None else "source" if figure else "target"
+    if filled is not None and (relation.name in {"in", "penetrate"} or floating):
+        if floating and fig is not None and fig.has("flat"):
+            return False, f"a flat {fig_name} floats on the {filled}: no penetration"
+        return True, f"the ground is full of {filled}: the {fig_name} goes below its surface: penetration"
     if relation.penetration == "yes":
         if ground is not None and ground.has("container"):
             return False, "goes into an opening of the ground: no penetration"
@@ -138,14 +165,20 @@ def _penetration(relation, figure: bool, target, source) -> tuple[bool, str]:
     if (relation.penetration == "if_pointed" and fig is not None and fig.has("pointed") and ground is not None
             and not ground.has("container") and not ground.has("agent")):
         return True, f"a pointed {fig.phrase} into a solid {ground.phrase}: penetration"
+    if (relation.name == "in" and ground is not None and ground.entry.domain == "food and drink"
+            and not ground.has("container") and not ground.has("agent")):
+        return True, f"inside a solid {ground.phrase}: embedded, penetration"
     return False, ""
 
 
-def _contact(relation, figure: bool, source) -> float:
-    """The relation's contact for the source's role, adjusted for the source's shape when it is the figure."""
+def _contact(relation, figure: bool, source, immersed_in: str | None = None) -> float:
+    """The relation's contact for the source's role, adjusted for the source's shape when it is the figure;
+    a figure that goes into contents (``immersed_in``) touches them with its whole wetted part."""
     if not figure:
         return relation.ground_contact
     contact = relation.figure_contact
+    if immersed_in is not None:
+        return 0.3 if source is not None and source.has("pointed") else 0.4
     if source is None:
         return contact
     if source.has("round") and relation.name in _SUPPORT | {"in"}:

@@ -1,0 +1,147 @@
+"""Object names read in the context of the prompt.
+
+A file name says less than the prompt: the source may be called "duck" while the prompt says "a rubber
+duck", "mouse" next to a laptop is a computer mouse, and "a mug of hot cocoa" is full. ``resolve`` reads the
+noun phrase of the prompt that mentions a name (its modifiers) and the other object, ``contents`` what fills
+a container. Categories of modifiers (documented here because they decide sizes):
+
+- a longer lexicon phrase with the prompt's modifiers wins ("rubber duck", "coat hanger", "garden gnome");
+- a word with several senses (``lexicon.SENSES``) takes the sense from the other object's lexicon section, or
+  the agent sense when the relation needs someone (a mouse eating cheese);
+- ``TOY_WORDS`` ("toy robot", "miniature house") make an object hand-sized (``TOY_SIZE_M``) unless it is a toy
+  already or a box for toys; ``CRAFT_WORDS`` ("paper crane", "origami boat") do the same for animals and vehicles;
+- a garment named after an animal or a small person ("dog coat", "baby shoes") is scaled to its wearer;
+- ``HOLLOW_WORDS`` ("a carved pumpkin") make the object a container.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import replace
+
+from ctp_core.priors import lexicon, relations
+
+PERSON_M = 1.75  # the wearer garments are sized for
+TOY_SIZE_M = 0.3  # a toy or a model of something big fits in the hands
+CRAFT_SIZE_M = 0.2  # a folded-paper animal or vehicle
+TOY_WORDS = frozenset({"toy", "miniature", "model", "plush", "stuffed", "figurine", "lego", "dollhouse"})
+CRAFT_WORDS = frozenset({"paper", "origami", "folded"})
+HOLLOW_WORDS = frozenset({"hollow", "hollowed", "carved", "empty"})
+_CRAFT_DOMAINS = frozenset({"animals", "vehicles"})
+_INDOOR = frozenset({"food and drink", "tableware and kitchen", "bathroom and cosmetics", "furniture and home"})
+_STOP = frozenset("a an the of in on at with his her its their my your our this that these those and or to from by "
+                  "for into onto is are two three four five some several pair one".split())
+# Contents that close a container off: liquids, pastes, foams and soils. Discrete things (apples, cereal, coins)
+# leave gaps and are not here: a spoon rests on cereal but sinks into soup.
+CONTENTS = frozenset("""
+water coffee tea cocoa chocolate soup stew broth milk juice wine beer whiskey whisky soda lemonade cola punch
+milkshake smoothie yogurt yoghurt cream custard batter dough sauce gravy ketchup mustard honey jam syrup oil
+paint ink glue wax foam bubbles soil dirt earth compost sand mud snow cement concrete jelly porridge oatmeal rice
+""".split())
+_FILL_WORDS = frozenset({"of", "with", "full", "filled", "containing"})
+
+
+def _tokens(prompt: str) -> list[tuple[int, str]]:
+    return [(m.start(), m.group(0)) for m in re.finditer(r"[a-z]+", relations.clean(prompt))]
+
+
+def modifiers(prompt: str, mention_at: list[int]) -> list[str]:
+    """Up to two words before the first mention of an object in the prompt, stopping at function words."""
+    tokens = _tokens(prompt)
+    starts = [start for start, _ in tokens]
+    if not mention_at or mention_at[0] not in starts:
+        return []
+    i = starts.index(mention_at[0])
+    mods: list[str] = []
+    for _, word in reversed(tokens[max(0, i - 2):i]):
+        if word in _STOP:
+            break
+        mods.insert(0, word)
+    return mods
+
+
+def resolve(name: str, prompt: str, mention_at: list[int], other: lexicon.Match | None,
+            needs_agent: bool) -> lexicon.Match | None:
+    """The lexicon match of ``name`` as the prompt qualifies it (see the module docstring for the categories)."""
+    match = lexicon.lookup(name)
+    mods = [w for w in modifiers(prompt, mention_at) if w not in lexicon.words(name)]
+    if mods:
+        qualified = lexicon.lookup(" ".join([*mods, *lexicon.words(name)]))
+        if qualified is not None and (match is None or (
+                len(qualified.phrase.split()) > len(match.phrase.split())
+                and qualified.phrase.split()[-1] == match.phrase.split()[-1])):
+            match = replace(qualified, how=qualified.how + f" (the prompt says '{' '.join(mods)}')")
+    if match is None:
+        return None
+    match = _sense(match, other, needs_agent)
+    return _modified(match, [*mods, *lexicon.words(name)])
+
+
+def _sense(match: lexicon.Match, other: lexicon.Match | None, needs_agent: bool) -> lexicon.Match:
+    senses = lexicon.SENSES.get(match.phrase)
+    if not senses or match.entry not in senses:
+        return match
+
+    def fit(entry: lexicon.Entry) -> int:
+        score = 2 * (needs_agent and "agent" in entry.tags)
+        if other is not None:
+            score += 2 if entry.domain == other.entry.domain else int({entry.domain, other.entry.domain} <= _INDOOR)
+        return score
+
+    best = max(senses, key=fit)  # ties keep the first (the plain row)
+    if best is match.entry:
+        return match
+    return lexicon.Match(match.phrase, best, best.size_m, best.tags,
+                         f"'{match.phrase}' as a {best.name} ({best.size_m:g} m; the sense that fits the scene)")
+
+
+def _modified(match: lexicon.Match, words: list[str]) -> lexicon.Match:
+    entry, head = match.entry, match.phrase.split()[-1]
+    qualifiers = {w for w in words if w != head}
+    if qualifiers & TOY_WORDS and entry.domain != "toys and figures" and match.size_m > TOY_SIZE_M and not (
+            "container" in entry.tags and entry.domain not in _CRAFT_DOMAINS | {"buildings and places"}):
+        match = replace(match, size_m=TOY_SIZE_M, how=match.how + f", a toy: {TOY_SIZE_M:g} m")
+    if qualifiers & CRAFT_WORDS and entry.domain in _CRAFT_DOMAINS and match.size_m > CRAFT_SIZE_M:
+        match = replace(match, size_m=CRAFT_SIZE_M, how=match.how + f", folded paper: {CRAFT_SIZE_M:g} m")
+    if entry.domain == "clothing and accessories" and "wrap" not in entry.tags:
+        wearers = [m for w in qualifiers if (m := lexicon.lookup(w)) is not None and m.has("agent")]
+        if wearers and wearers[-1].size_m < PERSON_M:
+            scale = wearers[-1].size_m / PERSON_M
+            match = replace(match, size_m=match.size_m * scale,
+                            how=match.how + f", made for a {wearers[-1].phrase}: x {scale:.2g}")
+    if qualifiers & HOLLOW_WORDS and not match.has("container"):
+        match = replace(match, tags=match.tags | {"container"}, how=match.how + ", hollow")
+    return match
+
+
+# Parts that are openings: "a bit in the chuck of a drill" goes into the chuck, not into the drill's material.
+OPENINGS = frozenset("""
+chuck slot socket hole keyhole mouth opening holder compartment pocket drawer tray slit spout neck
+""".split())
+
+
+def opening_after(prompt: str, cue_end: int) -> str | None:
+    """The opening part a cue leads into ("in the slot of ..."), when the prompt names one right after it."""
+    after = [w for start, w in _tokens(prompt) if start >= cue_end][:3]
+    while after and after[0] in _STOP:
+        after.pop(0)
+    return after[0] if after and after[0] in OPENINGS else None
+
+
+def contents(prompt: str, mention_at: list[int], match: lexicon.Match | None) -> str | None:
+    """What fills the object, when it is ``filled`` or the prompt says so ("a mug of hot cocoa", "full of water")."""
+    if match is not None and match.has("filled"):
+        return match.phrase
+    tokens = _tokens(prompt)
+    starts = [start for start, _ in tokens]
+    for at in mention_at:
+        if at not in starts:
+            continue
+        after = [w for _, w in tokens[starts.index(at) + 1:starts.index(at) + 6]]
+        if after and after[0] in _FILL_WORDS:
+            for word in after[1:]:
+                if word in CONTENTS:
+                    return word
+                if word in _STOP and word not in _FILL_WORDS:
+                    break
+    return None
