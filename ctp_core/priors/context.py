@@ -29,15 +29,15 @@ CRAFT_WORDS = frozenset({"paper", "origami", "folded"})
 HOLLOW_WORDS = frozenset({"hollow", "hollowed", "carved", "empty"})
 _CRAFT_DOMAINS = frozenset({"animals", "vehicles"})
 _INDOOR = frozenset({"food and drink", "tableware and kitchen", "bathroom and cosmetics", "furniture and home"})
-_STOP = frozenset("a an the of in on at with his her its their my your our this that these those and or to from by "
-                  "for into onto is are two three four five some several pair one".split())
+_STOP = lexicon.word_set("a an the of in on at with his her its their my your our this that these those and or to "
+                         "from by for into onto is are two three four five some several pair one")
 # Contents that close a container off: liquids, pastes, foams and soils. Discrete things (apples, cereal, coins)
 # leave gaps and are not here: a spoon rests on cereal but sinks into soup.
-CONTENTS = frozenset("""
+CONTENTS = lexicon.word_set("""
 water coffee tea cocoa chocolate soup stew broth milk juice wine beer whiskey whisky soda lemonade cola punch
 milkshake smoothie yogurt yoghurt cream custard batter dough sauce gravy ketchup mustard honey jam syrup oil
 paint ink glue wax foam bubbles soil dirt earth compost sand mud snow cement concrete jelly porridge oatmeal rice
-""".split())
+""")
 _FILL_WORDS = frozenset({"of", "with", "full", "filled", "containing"})
 
 
@@ -115,9 +115,9 @@ def _modified(match: lexicon.Match, words: list[str]) -> lexicon.Match:
 
 
 # Parts that are openings: "a bit in the chuck of a drill" goes into the chuck, not into the drill's material.
-OPENINGS = frozenset("""
+OPENINGS = lexicon.word_set("""
 chuck slot socket hole keyhole mouth opening holder compartment pocket drawer tray slit spout neck
-""".split())
+""")
 
 
 def opening_after(prompt: str, cue_end: int) -> str | None:

@@ -86,7 +86,8 @@ soup/stew/broth/porridge/oatmeal/curry 0.2 container,filled
 butter 0.1
 honey/honey_jar/honey_pot/jam 0.12 container,filled
 coffee/tea/latte/espresso/cappuccino/cocoa/hot_chocolate/iced_tea 0.09 container,filled
-wine/beer/juice/milk/water/soda/drink/cocktail/martini/margarita/lemonade/cola/whiskey/whisky/punch 0.18 container,filled
+wine/beer/juice/milk/water/soda/drink/cocktail/martini/margarita 0.18 container,filled
+lemonade/cola/whiskey/whisky/punch 0.18 container,filled
 milkshake/smoothie/frappe 0.2 container,filled
 teabag/tea_bag 0.07 flat
 sugar_cube/ice_cube 0.02
@@ -562,12 +563,17 @@ MATERIALS = frozenset({"wood", "stone", "glass", "metal", "gold", "silver", "pla
                        "velvet", "linen", "wool", "yarn"})
 # Words a file name or a prompt puts around an object's head noun that do not name an object: colours, styles,
 # file-format and asset-pipeline words ("Rubber_Duck_Yellow", "old_lamp_lowpoly", "SM_Chair_02").
-NON_HEAD_WORDS = frozenset("""
+def word_set(text: str) -> frozenset[str]:
+    """The whitespace-separated words of a table of words."""
+    return frozenset(text.split())
+
+
+NON_HEAD_WORDS = word_set("""
 red green blue yellow white black brown grey gray pink purple beige golden dark light bright pale striped
 old new vintage antique modern classic rusty broken clean dirty simple cartoon stylized stylised realistic cute
 low high poly lowpoly highpoly hi res detailed model mesh obj fbx glb gltf stl ply sm geo lod copy asset prop
 final version var variant wooden metallic plastic ceramic round square tall short long wide empty open closed
-""".split())
+""")
 
 
 @dataclass(frozen=True)
@@ -724,8 +730,8 @@ def lookup(name: str) -> Match | None:
         if found:
             start, _, phrase, known = found[-1]
             named = " ".join(tokens[start:])
-            return Match(named, known, known.size_m * scale, frozenset(),
-                         f"'{named}': unknown '{head_word}' named after a {phrase}, sized like one ({known.size_m:g} m)")
+            how = f"'{named}': unknown '{head_word}' named after a {phrase}, sized like one ({known.size_m:g} m)"
+            return Match(named, known, known.size_m * scale, frozenset(), how)
     if not found:
         return None
     _, _, phrase, head = found[-1]
