@@ -6,8 +6,9 @@ noun phrase of the prompt that mentions a name (its modifiers) and the other obj
 a container. Categories of modifiers (documented here because they decide sizes):
 
 - a longer lexicon phrase with the prompt's modifiers wins ("rubber duck", "coat hanger", "garden gnome");
-- a word with several senses (``lexicon.SENSES``) takes the sense from the other object's lexicon section, or
-  the agent sense when the relation needs someone (a mouse eating cheese);
+- a word with several senses (``lexicon.SENSES``) takes the sense whose lexicon section fits the other object,
+  the name's own modifiers and the prompt's other known words ("a flute of champagne", "drumsticks on a snare
+  drum"), or the agent sense when the relation needs someone (a mouse eating cheese);
 - ``TOY_WORDS`` ("toy robot", "miniature house") make an object hand-sized (``TOY_SIZE_M``) unless it is a toy
   already or a box for toys; ``CRAFT_WORDS`` ("paper crane", "origami boat") do the same for animals and vehicles;
 - a garment named after an animal or a small person ("dog coat", "baby shoes") is scaled to its wearer;
@@ -29,6 +30,10 @@ CRAFT_WORDS = frozenset({"paper", "origami", "folded"})
 HOLLOW_WORDS = frozenset({"hollow", "hollowed", "carved", "empty"})
 _CRAFT_DOMAINS = frozenset({"animals", "vehicles"})
 _INDOOR = frozenset({"food and drink", "tableware and kitchen", "bathroom and cosmetics", "furniture and home"})
+# Sections whose objects go together (a drink and its glass, a person and an animal).
+_NEAR = (frozenset({"food and drink", "tableware and kitchen"}),
+         frozenset({"furniture and home", "bathroom and cosmetics"}),
+         frozenset({"people and characters (agents)", "animals", "toys and figures"}))
 _STOP = lexicon.word_set("a an the of in on at with his her its their my your our this that these those and or to "
                          "from by for into onto is are two three four five some several pair one")
 # Contents that close a container off: liquids, pastes, foams and soils. Discrete things (apples, cereal, coins)
@@ -39,6 +44,13 @@ milkshake smoothie yogurt yoghurt cream custard batter dough sauce gravy ketchup
 paint ink glue wax foam bubbles soil dirt earth compost sand mud snow cement concrete jelly porridge oatmeal rice
 """)
 _FILL_WORDS = frozenset({"of", "with", "full", "filled", "containing"})
+_MELTED = frozenset({"melted", "molten", "liquid", "liquified", "whipped"})  # "a pot of melted cheese"
+
+
+def _is_contents(word: str, before: str | None) -> bool:
+    """A contents word, a drink of the lexicon ("champagne") or anything melted or whipped."""
+    drink = lexicon.phrase_entry([word])
+    return word in CONTENTS or before in _MELTED or (drink is not None and "filled" in drink[1].tags)
 
 
 def _tokens(prompt: str) -> list[tuple[int, str]]:
@@ -73,20 +85,31 @@ def resolve(name: str, prompt: str, mention_at: list[int], other: lexicon.Match 
             match = replace(qualified, how=qualified.how + f" (the prompt says '{' '.join(mods)}')")
     if match is None:
         return None
-    match = _sense(match, other, needs_agent)
-    return _modified(match, [*mods, *lexicon.words(name)])
+    words = [*mods, *lexicon.words(name)]
+    scene = [(2.0, other.entry)] if other is not None else []
+    scene += [(2.0, e) for _, _, phrase, e in lexicon.spans(words) if phrase != match.phrase]
+    scene += [(1.0, e) for _, _, phrase, e in lexicon.spans([w for _, w in _tokens(prompt)])
+              if phrase != match.phrase and e is not match.entry]
+    match = _sense(match, scene, needs_agent)
+    return _modified(match, words)
 
 
-def _sense(match: lexicon.Match, other: lexicon.Match | None, needs_agent: bool) -> lexicon.Match:
+def _affinity(a: str, b: str) -> float:
+    if a == b:
+        return 1.0
+    if any({a, b} <= near for near in _NEAR):
+        return 0.75
+    return 0.25 if {a, b} <= _INDOOR else 0.0
+
+
+def _sense(match: lexicon.Match, scene: list[tuple[float, lexicon.Entry]], needs_agent: bool) -> lexicon.Match:
     senses = lexicon.SENSES.get(match.phrase)
     if not senses or match.entry not in senses:
         return match
 
-    def fit(entry: lexicon.Entry) -> int:
-        score = 2 * (needs_agent and "agent" in entry.tags)
-        if other is not None:
-            score += 2 if entry.domain == other.entry.domain else int({entry.domain, other.entry.domain} <= _INDOOR)
-        return score
+    def fit(entry: lexicon.Entry) -> float:
+        score = 3.0 * (needs_agent and "agent" in entry.tags)
+        return score + sum(weight * _affinity(entry.domain, e.domain) for weight, e in scene)
 
     best = max(senses, key=fit)  # ties keep the first (the plain row)
     if best is match.entry:
@@ -139,8 +162,8 @@ def contents(prompt: str, mention_at: list[int], match: lexicon.Match | None) ->
             continue
         after = [w for _, w in tokens[starts.index(at) + 1:starts.index(at) + 6]]
         if after and after[0] in _FILL_WORDS:
-            for word in after[1:]:
-                if word in CONTENTS:
+            for before, word in zip(after, after[1:], strict=False):
+                if _is_contents(word, before):
                     return word
                 if word in _STOP and word not in _FILL_WORDS:
                     break

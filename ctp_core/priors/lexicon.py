@@ -17,6 +17,8 @@ Tags:
 - ``soft``: drapes or settles onto a support (cushion, cat, towel).
 - ``wrap``: a garment or band that hugs what wears it (scarf, glove, collar).
 - ``agent``: a person, character or animal that can hold, wear, ride.
+- ``pierceable``: a solid a pointed thing goes into when pushed (wood, soil, foam, a dartboard, fabric); solid
+  food, plants and ``soft`` things are pierceable without the tag.
 - ``filled``: holds contents that close its opening off (a drink, a soup, a pond): what goes *in* it passes
   below the surface of the contents, so it penetrates (the prompt can say so too: "a mug of cocoa").
 
@@ -64,6 +66,8 @@ cheese 0.1
 cheese_slice/ham/bacon/lettuce/salmon_fillet/salmon 0.12 flat
 steak/meat/chicken/fish_fillet 0.2
 drumstick 0.15
+clove/peppercorn/seed/bean/almond/peanut/walnut/hazelnut/pistachio/chickpea 0.02
+garlic/chili/chilli 0.06
 rice/rice_ball/onigiri 0.07
 sushi/nigiri/maki 0.06
 cake 0.25
@@ -87,14 +91,14 @@ butter 0.1
 honey/honey_jar/honey_pot/jam 0.12 container,filled
 coffee/tea/latte/espresso/cappuccino/cocoa/hot_chocolate/iced_tea 0.09 container,filled
 wine/beer/juice/milk/water/soda/drink/cocktail/martini/margarita 0.18 container,filled
-lemonade/cola/whiskey/whisky/punch 0.18 container,filled
+lemonade/cola/whiskey/whisky/punch/champagne/prosecco/vodka/gin/rum/cider/sake 0.18 container,filled
 milkshake/smoothie/frappe 0.2 container,filled
 teabag/tea_bag 0.07 flat
 sugar_cube/ice_cube 0.02
 # --- tableware and kitchen ---
 fried_egg 0.12 flat
 dumpling/gyoza/wonton/meatball 0.045
-dough/batter/clay/playdough 0.2 soft
+dough/batter/clay/playdough/foam/styrofoam 0.2 soft,pierceable
 colander/strainer/sieve/measuring_cup/egg_cup/lunchbox/lunch_box 0.2 container
 thermos 0.3 container
 grater/peeler/can_opener/bottle_opener/corkscrew/salt_shaker/pepper_shaker/pepper_mill 0.15
@@ -114,7 +118,7 @@ cake_stand 0.3
 plate/dish/saucer 0.27 flat,container
 bowl 0.2 container
 cup/coffee_cup/teacup/mug/beaker 0.1 container
-glass/tumbler/wine_glass/martini_glass/champagne_glass/goblet 0.16 container
+glass/tumbler/wine_glass/martini_glass/champagne_glass/goblet/champagne_flute/~flute 0.2 container
 bottle/wine_bottle/beer_bottle/flask 0.3 container
 jar/canister 0.15 container
 can/tin/soda_can 0.12 container
@@ -135,7 +139,7 @@ toothpick/cocktail_stick 0.07 pointed
 skewer/kebab_stick 0.3 pointed
 whisk/spatula/rolling_pin 0.3
 napkin/tablecloth/placemat 0.4 flat,soft
-blender/mixer/coffee_maker/microwave 0.4
+blender/mixer/coffee_maker/coffee_machine/espresso_machine/microwave 0.4
 toaster 0.3 container
 basket 0.4 container
 bucket/pail 0.3 container
@@ -172,9 +176,9 @@ nightstand/bedside_table/side_table 0.55
 pegboard 1.0 flat
 anvil 0.5
 barrel/keg/cask 0.9 container
-lantern 0.3
+lantern/jack_o_lantern 0.3 container
 pedestal/plinth 1.0
-podium/lectern 1.2
+podium/lectern/music_stand 1.2
 coffin/casket 2.0 container
 tombstone/gravestone/headstone 1.0
 easel/tripod 1.7
@@ -202,6 +206,7 @@ bow/ribbon 0.15
 lamp/desk_lamp/table_lamp 0.45
 floor_lamp/standing_lamp 1.6
 candle 0.2 pointed
+sparkler/cake_topper/candle_topper 0.25 pointed
 candlestick/candle_stick/candle_holder/candelabra 0.3 container
 vase 0.3 container
 flower_pot/plant_pot/planter/pot_plant 0.25 container
@@ -227,9 +232,10 @@ piano/grand_piano 1.5
 guitar/violin/cello/bass 1.0
 drum 0.5
 trumpet/flute/saxophone 0.6
+drum_stick/drumsticks/~drumstick 0.4 pointed
 door/front_door/gate 2.0 flat
 window 1.2 flat
-wall 4.0 flat
+wall 4.0 flat,pierceable
 floor/ground/platform/stage 5.0 flat
 roof 10.0
 stair/staircase/step 3.0
@@ -249,11 +255,15 @@ birdhouse/nest 0.3 container
 cage/birdcage 0.6 container
 fishbowl/fish_bowl 0.25 container
 aquarium/fish_tank 0.8 container
-pincushion 0.1
-cork_board/corkboard/bulletin_board/whiteboard/blackboard/chalkboard 0.9 flat
-board/plank 1.0 flat
-log/tree_trunk/stump/firewood 0.8
-wood/timber 0.5
+pincushion 0.1 pierceable
+dustpan/dust_pan 0.3
+ottoman/footstool/pouf 0.6 soft
+nozzle/fuel_nozzle/hose_nozzle 0.3
+cork_board/corkboard/bulletin_board 0.9 flat,pierceable
+whiteboard/blackboard/chalkboard 0.9 flat
+board/plank 1.0 flat,pierceable
+log/tree_trunk/stump/firewood 0.8 pierceable
+wood/timber 0.5 pierceable
 block/cube/brick 0.3
 chessboard/chess_board/game_board 0.45 flat
 pawn/chess_piece/rook/bishop 0.05
@@ -270,7 +280,7 @@ pajamas/pyjamas/swimsuit/vest/waistcoat 0.7 soft
 shoebox/shoe_box 0.35 container
 earmuffs 0.2 wrap
 hairclip/hair_clip/barrette/hairpin/earring/brooch/badge/button 0.03 flat
-fabric/cloth/felt/linen/cotton/denim/silk/velvet 0.5 flat,soft
+fabric/cloth/felt/linen/cotton/denim/silk/velvet 0.5 flat,soft,pierceable
 yarn/ball_of_yarn/yarn_ball/wool 0.1 soft,round
 knitting_needle 0.35 pointed
 hat/cap/beanie/beret/top_hat/cowboy_hat/sun_hat/fedora/party_hat/witch_hat/wizard_hat/baseball_cap 0.3
@@ -280,7 +290,8 @@ headband/hairband 0.18 wrap
 glasses/sunglasses/spectacles/goggles 0.14
 mask 0.2
 scarf/shawl 0.4 wrap,soft
-tie/necktie/bowtie/bow_tie 0.3 flat
+tie/necktie 0.3 flat
+bowtie/bow_tie 0.12 flat
 necklace/chain/collar/choker 0.15 wrap
 ring 0.02 wrap
 bracelet/watch/wristwatch/bangle 0.07 wrap
@@ -343,7 +354,8 @@ flag/pennant/banner 1.5 pointed
 cocktail_flag 0.2 pointed
 pole/stake/post/pillar/column 2.5 pointed
 stick/twig/rod 0.8 pointed
-archery_target/dartboard/bullseye 1.2 flat
+archery_target/bullseye 1.2 flat,pierceable
+dartboard 0.45 flat,pierceable
 ladder 3.0
 rope/cable/hose/wire 3.0 wrap
 chain_link 0.03
@@ -362,8 +374,15 @@ trophy/medal 0.3
 slide/playground_slide 3.0
 swing 2.0
 seesaw/trampoline 3.0
-sandcastle/sand_castle 0.4
-snowman 1.5
+sandcastle/sand_castle 0.4 pierceable
+snowman 1.5 pierceable
+goal/soccer_goal/football_goal 7.3
+net/goal_net 3.0 soft
+bowling_pin/skittle 0.38
+bowling_ball 0.22 round
+puck/hockey_puck 0.08 flat
+shuttlecock/golf_tee 0.07
+ski_pole/trekking_pole 1.2 pointed
 antenna/satellite_dish 1.5 pointed
 chimney 1.5
 cross 1.0
@@ -389,6 +408,8 @@ toy_car 0.1
 person/human/man/woman/people/adult/guy/lady/gentleman/hiker/farmer/chef/cook/doctor/nurse 1.75 agent
 soldier/astronaut/pilot/firefighter/policeman/student/teacher/worker/musician/player/athlete 1.75 agent
 dancer/runner/tourist/driver/rider/mannequin/zombie/vampire 1.75 agent
+patient/passenger/fisherman/shepherd/gardener/mechanic/plumber/painter/skier/surfer/swimmer/climber 1.75 agent
+waiter/waitress/butler/sailor/diver/golfer/boxer/skater/cyclist/artist/scientist/businessman 1.75 agent
 boy/girl/kid/child/teen/teenager 1.3 agent
 baby/toddler/infant 0.7 agent
 king/queen/prince/princess/knight/wizard/witch/pirate/cowboy/ninja/samurai/viking/clown/captain 1.8 agent
@@ -438,8 +459,8 @@ cat 0.45 soft,agent
 kitten 0.25 soft,agent
 rabbit/bunny/hare 0.4 agent
 mouse/rat/hamster/squirrel/guinea_pig 0.1 agent
-bird/sparrow/robin/pigeon/crow/owl/songbird 0.2 agent
-parrot/macaw/cockatoo 0.4 agent
+bird/sparrow/robin/pigeon/crow/songbird 0.2 agent
+parrot/macaw/cockatoo/owl 0.4 agent
 hen/rooster/duck/goose/penguin 0.5 agent
 eagle/hawk/swan/flamingo/heron/stork/crane 1.0 agent
 horse/pony/donkey/camel/cow/bull/ox/deer/moose/zebra 2.4 agent
@@ -477,9 +498,9 @@ flower/rose/tulip/daisy/sunflower/lily/bouquet 0.4 pointed
 leaf 0.1 flat
 branch/bough 1.0 pointed
 grass/lawn 5.0 flat
-rock/stone/boulder 0.5
+rock/stone/boulder 0.5 pierceable
 pebble 0.04 round
-sand/dirt/soil/snow/mud 1.0
+sand/dirt/soil/snow/mud 1.0 pierceable
 # --- vehicles ---
 pickup/pickup_truck 5.5 container
 fire_truck/fire_engine/ambulance 8.0 container
@@ -515,8 +536,8 @@ sled/sledge/sleigh 1.5
 fire_hydrant 0.8
 lamp_post/street_lamp/streetlight/lamppost 4.0 pointed
 traffic_cone 0.7
-hay_bale 1.2
-haystack 3.0
+hay_bale 1.2 pierceable
+haystack 3.0 pierceable
 bird_bath/birdbath 0.8 container
 house/home/cottage/cabin/hut/shed 10.0 container
 garage 6.0 container
@@ -689,7 +710,8 @@ def bare_part(name: str) -> str | None:
         if part is not None:
             if any(start <= i < end and end - start > 1 for start, end, _, _ in spans(tokens)):
                 return None  # a compound that is an object of its own: "spinning top", "coat stand"
-            return None if spans(tokens[:i] + tokens[i + 1:]) else part
+            others = [t for t in tokens[:i] + tokens[i + 1:] if t not in NON_HEAD_WORDS and len(t) > 2]
+            return None if others else part  # "music stand", "pot lid": not a bare part
     return None
 
 
@@ -727,11 +749,12 @@ def lookup(name: str) -> Match | None:
             phrase, head = closed
             return Match(phrase, head, head.size_m * scale, head.tags,
                          f"'{head_word}': a kind of {phrase} ({head.size_m:g} m)")
-        if found:
-            start, _, phrase, known = found[-1]
-            named = " ".join(tokens[start:])
-            how = f"'{named}': unknown '{head_word}' named after a {phrase}, sized like one ({known.size_m:g} m)"
-            return Match(named, known, known.size_m * scale, frozenset(), how)
+        if not found or found[-1][3].domain == "food and drink":  # a "pizza cutter" is not pizza-sized
+            return None
+        start, _, phrase, known = found[-1]
+        named = " ".join(tokens[start:])
+        how = f"'{named}': unknown '{head_word}' named after a {phrase}, sized like one ({known.size_m:g} m)"
+        return Match(named, known, known.size_m * scale, frozenset(), how)
     if not found:
         return None
     _, _, phrase, head = found[-1]
@@ -740,10 +763,10 @@ def lookup(name: str) -> Match | None:
 
 
 def closed_compound(word: str) -> tuple[str, Entry] | None:
-    """A one-word compound's known head: the longest known word it ends in, after a known stem ("shoe|box") or,
-    for a head of 4+ letters, after any stem of 3+ letters ("rain|coat"; "tur|key" is no key)."""
+    """A one-word compound's known head: the longest known word it ends in, after a known stem ("shoe|box") or
+    a stem long enough not to be a syllable ("rain|coat", "dust|pan"; "tur|key" is no key)."""
     for k in range(3, len(word) - 2):
         hit = phrase_entry([word[k:]])
-        if hit is not None and (len(word) - k >= 4 or phrase_entry([word[:k]]) is not None):
+        if hit is not None and (len(word) - k >= 4 or k >= 4 or phrase_entry([word[:k]]) is not None):
             return hit
     return None

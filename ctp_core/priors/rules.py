@@ -59,7 +59,8 @@ class RulesProvider:
             notes.append("read as the target resting on the source")
         size, size_why = _size_ratio(target_name, source_name, target, source, relation, figure)
         notes.insert(0, size_why)
-        penetration, pen_why = _penetration(relation, figure, target, source, filled, floating)
+        penetration, pen_why = _penetration(relation, figure, target, source, filled, floating,
+                                            cue.text if cue is not None else "")
         notes.append(pen_why)
         contact = _contact(relation, figure, source, filled if penetration else None)
         return ScenePrior(size_ratio=clamp_size(size), penetration=penetration, contact_ratio=clamp_contact(contact),
@@ -144,13 +145,22 @@ def _size_ratio(target_name, source_name, target, source, relation, figure: bool
     return ratio, f"size ratio {clamped:.3g} ({whys[1]} / {whys[0]}{note})"
 
 
-def _penetration(relation, figure: bool, target, source, filled: str | None, floating: bool) -> tuple[bool, str]:
+def _pierceable(ground) -> bool:
+    """Solids a pointed thing goes into: tagged ``pierceable`` (wood, soil, foam, a dartboard), solid food,
+    plants and soft things; never a container (it has an opening), a person or an animal."""
+    return ground is not None and not ground.has("container") and not ground.has("agent") and (
+        ground.has("pierceable") or ground.has("soft") or ground.entry.domain in {"food and drink", "plants"})
+
+
+def _penetration(relation, figure: bool, target, source, filled: str | None, floating: bool,
+                 cue_text: str = "") -> tuple[bool, str]:
     """From the relation word and from what the ground is.
 
     Categories: a ground full of contents that close it off (``context.contents``: a drink, a soup, soil, a
     pond) is entered below their surface by whatever goes in, is stuck in or floats in it (flat things float on
-    top); a container otherwise is entered through its opening; a pointed figure goes into any other solid; and
-    anything inside a solid food that is no container (a coin in a cake) is embedded in it.
+    top); a container otherwise is entered through its opening; a pointed figure goes into a pierceable solid
+    (``_pierceable``), also when "stuck on" it (a candle on a cake), and a food or soft thing "on" a pointed
+    stick is skewered by it; anything inside a solid food that is no container (a coin in a cake) is embedded.
     """
     ground, fig = (target, source) if figure else (source, target)
     fig_name = fig.phrase if fig is not None else "source" if figure else "target"
@@ -162,9 +172,14 @@ def _penetration(relation, figure: bool, target, source, filled: str | None, flo
         if ground is not None and ground.has("container"):
             return False, "goes into an opening of the ground: no penetration"
         return True, "the relation cuts or pierces: penetration"
-    if (relation.penetration == "if_pointed" and fig is not None and fig.has("pointed") and ground is not None
-            and not ground.has("container") and not ground.has("agent")):
+    if relation.penetration == "if_pointed" and fig is not None and fig.has("pointed") and _pierceable(ground):
         return True, f"a pointed {fig.phrase} into a solid {ground.phrase}: penetration"
+    if (relation.name == "attach" and cue_text.startswith("stuck") and _pierceable(ground)
+            and not (fig is not None and fig.has("flat"))):
+        return True, f"stuck on a {ground.phrase}, which it pierces: penetration"
+    if (relation.name == "on" and ground is not None and ground.has("pointed") and ground.size_m <= 1.0
+            and fig is not None and (fig.entry.domain == "food and drink" or fig.has("soft")) and not fig.has("agent")):
+        return True, f"a {fig.phrase} on a pointed {ground.phrase}: skewered, penetration"
     if (relation.name == "in" and ground is not None and ground.entry.domain == "food and drink"
             and not ground.has("container") and not ground.has("agent")):
         return True, f"inside a solid {ground.phrase}: embedded, penetration"
