@@ -10,7 +10,8 @@ a container. Categories of modifiers (documented here because they decide sizes)
   the name's own modifiers and the prompt's other known words ("a flute of champagne", "drumsticks on a snare
   drum"), or the agent sense when the relation needs someone (a mouse eating cheese);
 - ``TOY_WORDS`` ("toy robot", "miniature house") make an object hand-sized (``TOY_SIZE_M``) unless it is a toy
-  already or a box for toys; ``CRAFT_WORDS`` ("paper crane", "origami boat") do the same for animals and vehicles;
+  already (a "toy box" is a lexicon phrase: a box for toys); ``CRAFT_WORDS`` ("paper crane", "origami boat") do
+  the same for animals and vehicles;
 - a garment named after an animal or a small person ("dog coat", "baby shoes") is scaled to its wearer;
 - ``HOLLOW_WORDS`` ("a carved pumpkin") make the object a container.
 """
@@ -119,10 +120,9 @@ def _sense(match: lexicon.Match, scene: list[tuple[float, lexicon.Entry]], needs
 
 
 def _modified(match: lexicon.Match, words: list[str]) -> lexicon.Match:
-    entry, head = match.entry, match.phrase.split()[-1]
-    qualifiers = {w for w in words if w != head}
-    if qualifiers & TOY_WORDS and entry.domain != "toys and figures" and match.size_m > TOY_SIZE_M and not (
-            "container" in entry.tags and entry.domain not in _CRAFT_DOMAINS | {"buildings and places"}):
+    entry = match.entry
+    qualifiers = {w for w in words if w not in match.phrase.split()}  # "toy box" is a lexicon phrase of its own
+    if qualifiers & TOY_WORDS and entry.domain != "toys and figures" and match.size_m > TOY_SIZE_M:
         match = replace(match, size_m=TOY_SIZE_M, how=match.how + f", a toy: {TOY_SIZE_M:g} m")
     if qualifiers & CRAFT_WORDS and entry.domain in _CRAFT_DOMAINS and match.size_m > CRAFT_SIZE_M:
         match = replace(match, size_m=CRAFT_SIZE_M, how=match.how + f", folded paper: {CRAFT_SIZE_M:g} m")
@@ -154,7 +154,7 @@ def opening_after(prompt: str, cue_end: int) -> str | None:
 def contents(prompt: str, mention_at: list[int], match: lexicon.Match | None) -> str | None:
     """What fills the object, when it is ``filled`` or the prompt says so ("a mug of hot cocoa", "full of water")."""
     if match is not None and match.has("filled"):
-        return match.phrase
+        return "its contents"
     tokens = _tokens(prompt)
     starts = [start for start, _ in tokens]
     for at in mention_at:

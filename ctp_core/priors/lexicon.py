@@ -117,6 +117,7 @@ watering_can 0.4 container
 cake_stand 0.3
 plate/dish/saucer 0.27 flat,container
 bowl 0.2 container
+punch_bowl/salad_bowl/mixing_bowl 0.35 container
 cup/coffee_cup/teacup/mug/beaker 0.1 container
 glass/tumbler/wine_glass/martini_glass/champagne_glass/goblet/champagne_flute/~flute 0.2 container
 bottle/wine_bottle/beer_bottle/flask 0.3 container
@@ -241,7 +242,11 @@ roof 10.0
 stair/staircase/step 3.0
 fireplace 1.5 container
 bathtub/bath 1.7 container
+hot_tub/jacuzzi 2.1 container,filled
 sink/basin 0.6 container
+plug/power_plug/charger 0.06
+power_strip/extension_cord 0.4
+socket/power_outlet/outlet/light_switch 0.1 flat
 toilet 0.7 container
 shower 2.0
 fridge/refrigerator/oven/stove/washing_machine/dishwasher 1.7 container
@@ -298,12 +303,13 @@ bracelet/watch/wristwatch/bangle 0.07 wrap
 belt 0.5 wrap
 glove/mitten 0.25 wrap
 sock 0.25 wrap
+stocking/christmas_stocking 0.45 soft
 shoe/boot/sneaker/slipper/sandal 0.3 container
 jacket/coat/shirt/t_shirt/sweater/hoodie/dress/robe/cape/cloak 1.0 soft
 trousers/pants/jeans/skirt/shorts 1.0 soft
 apron 0.8 flat,soft
-backpack/rucksack/schoolbag 0.5 container
-bag/handbag/purse/tote/shopping_bag 0.4 container
+backpack/rucksack/schoolbag 0.5 container,soft
+bag/handbag/purse/tote/shopping_bag 0.4 container,soft
 suitcase/luggage 0.7 container
 wallet 0.11 flat
 umbrella/parasol 1.0
@@ -374,6 +380,7 @@ trophy/medal 0.3
 slide/playground_slide 3.0
 swing 2.0
 seesaw/trampoline 3.0
+sandbox/sandpit 2.0 container
 sandcastle/sand_castle 0.4 pierceable
 snowman 1.5 pierceable
 goal/soccer_goal/football_goal 7.3
@@ -471,9 +478,13 @@ lion/tiger/bear/panda/gorilla/leopard/cheetah 2.0 agent
 monkey/chimpanzee/lemur/koala/raccoon/otter 0.6 agent
 frog/toad/turtle/tortoise/lizard/snail/crab/lobster 0.2 agent
 snake/python/cobra/eel 2.0 wrap,agent
-fish/goldfish/clownfish 0.06 agent
+fish/trout/carp 0.3 agent
+goldfish/clownfish/guppy 0.06 agent
 shark/dolphin/whale 4.0 agent
-bee/butterfly/ladybug/ant/spider/fly/insect/bug/beetle/worm 0.03 agent
+bee/butterfly/ladybug/ant/spider/fly/insect/bug/beetle 0.03 agent
+worm/earthworm/caterpillar/slug 0.08 agent
+beehive/hive/anthill 0.5 container
+spider_web/cobweb/web 0.4 flat
 oyster/clam/shell/seashell/mussel/scallop 0.1 container
 pearl/bead/gem/gemstone/jewel/diamond 0.01 round
 bone 0.25
@@ -530,7 +541,8 @@ airplane/plane/aeroplane/jet 30.0
 helicopter 12.0
 rocket/spaceship 20.0 pointed
 train/locomotive/tram 20.0
-wagon/cart/wheelbarrow/stroller/pram 1.5 container
+wagon/cart/wheelbarrow 1.5 container
+stroller/pram/buggy 1.0 container
 sled/sledge/sleigh 1.5
 # --- buildings and places ---
 fire_hydrant 0.8
@@ -567,6 +579,8 @@ PARTS: dict[str, float] = {
 }
 # The parts a person, character or animal has (a "hamster wheel" is no part of a hamster).
 AGENT_PARTS = frozenset({"head", "leg", "tail", "wing", "nose", "comb", "tip"})
+# The parts a food has (a "wheel of cheese" is a whole cheese, no cheese's wheel).
+FOOD_PARTS = frozenset({"slice", "piece", "half", "top", "tip", "base", "wing", "leg", "lid"})
 # Parts made to come off their owner: a name that is only one of these ("lid") is sized from the other object.
 DETACHABLE = frozenset({"lid", "cap", "cover", "case", "sheath", "stand", "base", "handle", "top"})
 # Parts that hold their owner (a lipstick's cover, a blender's jar) are containers.
@@ -736,7 +750,8 @@ def lookup(name: str) -> Match | None:
     found = [f for f in known if f[2] not in MATERIALS] or known
     part = next((w for w in singulars(tokens[-1]) if w in PARTS), None) if tokens else None
     if part is not None and not any(end == len(tokens) and end - start > 1 for start, end, _, _ in found):
-        owners = [f for f in found if f[1] < len(tokens) and (part in AGENT_PARTS or "agent" not in f[3].tags)]
+        owners = [f for f in found if f[1] < len(tokens) and (part in AGENT_PARTS or "agent" not in f[3].tags)
+                  and (part in FOOD_PARTS or f[3].domain != "food and drink")]
         if owners:
             _, _, phrase, owner = owners[-1]
             size = owner.size_m * PARTS[part] * scale
@@ -749,8 +764,8 @@ def lookup(name: str) -> Match | None:
             phrase, head = closed
             return Match(phrase, head, head.size_m * scale, head.tags,
                          f"'{head_word}': a kind of {phrase} ({head.size_m:g} m)")
-        if not found or found[-1][3].domain == "food and drink":  # a "pizza cutter" is not pizza-sized
-            return None
+        if not found or found[-1][3].domain == "food and drink" or "agent" in found[-1][3].tags:
+            return None  # a "pizza cutter" is not pizza-sized, nor a "spider web" spider-sized
         start, _, phrase, known = found[-1]
         named = " ".join(tokens[start:])
         how = f"'{named}': unknown '{head_word}' named after a {phrase}, sized like one ({known.size_m:g} m)"
@@ -764,9 +779,9 @@ def lookup(name: str) -> Match | None:
 
 def closed_compound(word: str) -> tuple[str, Entry] | None:
     """A one-word compound's known head: the longest known word it ends in, after a known stem ("shoe|box") or
-    a stem long enough not to be a syllable ("rain|coat", "dust|pan"; "tur|key" is no key)."""
+    for a head of 5+ letters, after any stem ("hour|glass"); "tur|key" is no key, "stoc|king" no king."""
     for k in range(3, len(word) - 2):
         hit = phrase_entry([word[k:]])
-        if hit is not None and (len(word) - k >= 4 or k >= 4 or phrase_entry([word[:k]]) is not None):
+        if hit is not None and (len(word) - k >= 5 or phrase_entry([word[:k]]) is not None):
             return hit
     return None

@@ -69,6 +69,7 @@ CUES: list[Cue] = [
     Cue(r"pierc(?:e|es|ed|ing)|stab(?:s|bed|bing)?|impal(?:e|es|ed|ing)|skewer(?:ed|ing)|spear(?:ed|ing)"
         r"|cut(?:s|ting)?(?: through| into)?(?!\s+boards?)|slicing(?: through| into)?|embedded|lodged|penetrat[a-z]*"
         r"|stuck (?:in|into|through)|stick(?:s|ing)? (?:in|into|out of|through)|buried (?:in|into)"
+        r"|pok(?:e|es|ed|ing) (?:out of|through|into)|peek(?:s|ing)? out of|protrud(?:e|es|ing) from"
         r"|(?:driven|hammered|nailed|pinned|planted|pushed|poked|thrust|sunk|jammed|screwed|shot) (?:in|into)",
         "penetrate"),
     # garments and headwear

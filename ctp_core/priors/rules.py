@@ -94,12 +94,14 @@ def _mentions(prompt: str, name: str, match: lexicon.Match | None) -> list[int]:
 
 def _relation(cue, target, source, figure) -> tuple[relations.Relation, str]:
     """The cue's relation; only agents ride or sit ("a ball riding down a slide" rests on it), and
-    agents cut with tools, not themselves ("a chef cutting a cake" handles it)."""
+    agents cut with tools, not themselves ("a chef cutting a cake" handles it; "a worm poking out of an apple"
+    is in it)."""
     if cue is not None:
         rel = relations.RELATIONS[cue.cue.relation]
         if rel.name == "sit" and figure is not None and not figure.has("agent"):
             return relations.RELATIONS["on"], f"'{cue.text}' said of an object: resting on"
-        if rel.name == "penetrate" and figure is not None and figure.has("agent"):  # "a chef cutting a cake"
+        if (rel.name == "penetrate" and figure is not None and figure.has("agent")
+                and re.match(r"cut|slic|stab|pierc|skewer|spear|impal|carv", cue.text)):  # "a chef cutting a cake"
             return relations.RELATIONS["hold"], f"'{cue.text}' said of someone: handling it, with a tool"
         return rel, f"'{cue.text}' -> {rel.name}"
     if source is not None and lexicon.bare_part(source.phrase) is not None:
@@ -139,6 +141,12 @@ def _size_ratio(target_name, source_name, target, source, relation, figure: bool
         ratio = relation.figure_size if figure else 1.0 / relation.figure_size
         return ratio, (f"size ratio {clamp_size(ratio):.3g} (fallback: {', '.join(whys)}; "
                        f"the typical ratio for '{relation.name}')")
+    fig_match, ground_match = (source, target) if figure else (target, source)
+    if (relation.name in _AGENT_GROUND and ground_match is not None and fig_match is not None
+            and ground_match.entry.domain == "toys and figures" and fig_match.size_m > 0.5 * ground_match.size_m):
+        scale = ground_match.size_m / PERSON_M  # a doll's hat, an action figure's sword: made to its scale
+        sizes[1 if figure else 0] *= scale
+        whys[1 if figure else 0] += f" x {scale:.2g} (a toy's)"
     ratio = sizes[1] / sizes[0]
     clamped = clamp_size(ratio)
     note = "" if clamped == ratio else f", clamped from {ratio:.3g}"
@@ -167,7 +175,7 @@ def _penetration(relation, figure: bool, target, source, filled: str | None, flo
     if filled is not None and (relation.name in {"in", "penetrate"} or floating):
         if floating and fig is not None and fig.has("flat"):
             return False, f"a flat {fig_name} floats on the {filled}: no penetration"
-        return True, f"the ground is full of {filled}: the {fig_name} goes below its surface: penetration"
+        return True, f"the ground holds {filled}: the {fig_name} goes below their surface: penetration"
     if relation.penetration == "yes":
         if ground is not None and ground.has("container"):
             return False, "goes into an opening of the ground: no penetration"
@@ -204,6 +212,8 @@ def _contact(relation, figure: bool, source, immersed_in: str | None = None) -> 
         contact = max(contact, 0.3)  # a frame or a sign hangs flat against its wall
     if source.has("pointed") and relation.name == "in" and not source.has("round"):
         contact = min(contact, 0.1)  # a spoon, a straw, a pencil leans on the rim and the bottom
+    if relation.name == "lie" and not (source.has("soft") or source.has("flat") or source.has("agent")):
+        contact = min(contact, 0.1)  # a rigid tool or stick lying down touches at a few points
     if source.has("soft") and relation.name in {"on", "sit"}:
         contact = max(contact, 0.3)
     if source.has("wrap") and relation.name in {"wear", "on", "attach", "in"}:
