@@ -46,12 +46,21 @@ paint ink glue wax foam bubbles soil dirt earth compost sand mud snow cement con
 """)
 _FILL_WORDS = frozenset({"of", "with", "full", "filled", "containing"})
 _MELTED = frozenset({"melted", "molten", "liquid", "liquified", "whipped"})  # "a pot of melted cheese"
+# Mass nouns of loose pieces: they leave gaps, a spoon rests on them.
+DISCRETE = lexicon.word_set("cereal popcorn candy fruit ice gold money change food salad confetti gravel hay straw")
 
 
 def _is_contents(word: str, before: str | None) -> bool:
-    """A contents word, a drink of the lexicon ("champagne") or anything melted or whipped."""
-    drink = lexicon.phrase_entry([word])
-    return word in CONTENTS or before in _MELTED or (drink is not None and "filled" in drink[1].tags)
+    """A contents word, a drink of the lexicon ("champagne"), anything melted or whipped, or a singular mass
+    noun the lexicon knows as no object, or only as a food that is no round piece ("ramen", "peanut butter")."""
+    if word in CONTENTS or before in _MELTED:
+        return True
+    known = lexicon.phrase_entry([word])
+    if known is not None and "filled" in known[1].tags:
+        return True
+    if word in DISCRETE or word in _STOP or lexicon.singulars(word)[-1] != word:  # "apples": countable pieces
+        return False
+    return known is None or (known[1].domain == "food and drink" and not known[1].tags & {"round", "agent"})
 
 
 def _tokens(prompt: str) -> list[tuple[int, str]]:
@@ -161,10 +170,17 @@ def contents(prompt: str, mention_at: list[int], match: lexicon.Match | None) ->
         if at not in starts:
             continue
         after = [w for _, w in tokens[starts.index(at) + 1:starts.index(at) + 6]]
+        if after[:1] == ["full"] or after[:1] == ["filled"]:
+            after = after[1:]
         if after and after[0] in _FILL_WORDS:
-            for before, word in zip(after, after[1:], strict=False):
-                if _is_contents(word, before):
-                    return word
-                if word in _STOP and word not in _FILL_WORDS:
+            phrase = []
+            for word in after[1:4]:  # the noun phrase after "of"/"with": its last word is its head
+                if word in _STOP:
                     break
+                phrase.append(word)
+            for before, word in zip([None, *phrase], phrase, strict=False):
+                if word in CONTENTS or before in _MELTED:
+                    return word
+            if phrase and _is_contents(phrase[-1], phrase[-2] if len(phrase) > 1 else None):
+                return phrase[-1]
     return None

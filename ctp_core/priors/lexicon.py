@@ -86,12 +86,13 @@ chocolate_bar 0.15 flat
 marshmallow 0.04 soft
 taco/burrito/wrap 0.18 container
 noodle/pasta/spaghetti 0.2
-soup/stew/broth/porridge/oatmeal/curry 0.2 container,filled
+soup/stew/broth/porridge/oatmeal/curry/ramen/chowder 0.2 container,filled
 butter 0.1
 honey/honey_jar/honey_pot/jam 0.12 container,filled
 coffee/tea/latte/espresso/cappuccino/cocoa/hot_chocolate/iced_tea 0.09 container,filled
 wine/beer/juice/milk/water/soda/drink/cocktail/martini/margarita 0.18 container,filled
 lemonade/cola/whiskey/whisky/punch/champagne/prosecco/vodka/gin/rum/cider/sake 0.18 container,filled
+mojito/daiquiri/pina_colada/sangria/mimosa/negroni/cosmopolitan/gin_and_tonic 0.18 container,filled
 milkshake/smoothie/frappe 0.2 container,filled
 teabag/tea_bag 0.07 flat
 sugar_cube/ice_cube 0.02
@@ -182,8 +183,10 @@ pedestal/plinth 1.0
 podium/lectern/music_stand 1.2
 coffin/casket 2.0 container
 tombstone/gravestone/headstone 1.0
-easel/tripod 1.7
-telescope/microscope 1.0
+easel/tripod/microphone_stand/mic_stand/lamp_stand 1.7
+telescope 1.0
+microscope 0.4
+microscope_slide/glass_slide/~slide 0.075 flat
 microphone/mic 0.2
 turntable/record_player 0.45
 record/vinyl 0.3 flat
@@ -344,7 +347,13 @@ nail 0.07 pointed
 screw/bolt 0.05 pointed
 pin/push_pin/pushpin/thumbtack/tack/needle/sewing_needle 0.03 pointed
 scissors 0.2
-pen/pencil/marker/crayon/paintbrush/brush 0.15 pointed
+pen/pencil/marker/crayon 0.15 pointed
+paintbrush/brush 0.22 pointed
+syringe/injection 0.12 pointed
+wedge 0.15 pointed
+palette 0.35 flat
+paddle/oar 2.0
+wafer 0.08 flat
 ruler 0.3 flat
 shovel/spade/rake/broom/broomstick/mop/pitchfork 1.4 pointed
 sword/katana/sabre/saber 1.0 pointed
@@ -366,6 +375,7 @@ ladder 3.0
 rope/cable/hose/wire 3.0 wrap
 chain_link 0.03
 tent 3.0 container
+sleeping_bag 2.0 flat,soft
 ball/football/soccer_ball/basketball/volleyball/beach_ball/globe 0.22 round
 tennis_ball/baseball/golf_ball/marble/snowball 0.07 round
 balloon 0.3 round
@@ -388,7 +398,7 @@ net/goal_net 3.0 soft
 bowling_pin/skittle 0.38
 bowling_ball 0.22 round
 puck/hockey_puck 0.08 flat
-shuttlecock/golf_tee 0.07
+shuttlecock/golf_tee/tee 0.06
 ski_pole/trekking_pole 1.2 pointed
 antenna/satellite_dish 1.5 pointed
 chimney 1.5
@@ -435,10 +445,10 @@ winnie_the_pooh/pooh/paddington/yoda/pikachu/kermit/stitch/olaf/minion 0.6 agent
 # body parts (a person's)
 head/mannequin_head/skull 0.25
 face 0.2 flat
-hand/paw 0.19
-foot 0.26
-arm/leg 0.75
-finger/toe 0.08
+hand/paw 0.19 pierceable
+foot 0.26 pierceable
+arm/leg 0.75 pierceable
+finger/toe 0.08 pierceable
 neck 0.12
 nose/ear/mouth/eye 0.05
 # --- animals ---
@@ -528,6 +538,7 @@ submarine 50.0
 hot_air_balloon 20.0 container
 parking_ticket/ticket/receipt/flyer/leaflet 0.15 flat
 traffic_light 3.0
+bus_stop/bus_shelter 3.0
 tire/tyre/wheel 0.7 round
 ufo/flying_saucer 10.0
 car/taxi/sedan/suv/jeep/van 4.5 container
@@ -585,6 +596,8 @@ FOOD_PARTS = frozenset({"slice", "piece", "half", "top", "tip", "base", "wing", 
 DETACHABLE = frozenset({"lid", "cap", "cover", "case", "sheath", "stand", "base", "handle", "top"})
 # Parts that hold their owner (a lipstick's cover, a blender's jar) are containers.
 CONTAINER_PARTS = frozenset({"cover", "case", "sheath", "holder", "jar", "tank", "container", "cap"})
+# Parts that hug their owner's surface (a car cover).
+WRAPPING_PARTS = frozenset({"cover"})
 
 # Size adjectives in a name ("ball_small", "BigRock").
 SIZE_WORDS: dict[str, float] = {
@@ -756,6 +769,7 @@ def lookup(name: str) -> Match | None:
             _, _, phrase, owner = owners[-1]
             size = owner.size_m * PARTS[part] * scale
             tags = frozenset({"container"}) if part in CONTAINER_PARTS else frozenset()
+            tags |= {"wrap"} if part in WRAPPING_PARTS else set()
             return Match(part, owner, size, tags, f"{part} of a {phrase} ({PARTS[part]:g} x {owner.size_m:g} m)")
     if tokens and not any(end == len(tokens) for _, end, _, _ in known):
         head_word = tokens[-1]

@@ -92,8 +92,9 @@ CUES: list[Cue] = [
     Cue(r"hang(?:s|ing)?|hung|dangl(?:e|es|ing)|suspended", "hang"),
     Cue(r"attached|glued|taped|stuck (?:on|to)|fixed (?:on|to)|fastened|mounted|stapled|clipped", "attach"),
     Cue(r"under(?:neath)?|beneath|below", "under"),
-    Cue(r"float(?:s|ing)? (?:in|inside|within)", "in"),  # in water when the ground holds some (rules), else free
-    Cue(r"float(?:s|ing)? (?:on|upon|atop)", "on"),
+    # in water when the ground holds some (rules), else free in air or water
+    Cue(r"(?:float(?:s|ing)?|swim(?:s|ming)?|bob(?:s|bing)?|paddl(?:e|es|ing)) (?:in|inside|within)", "in"),
+    Cue(r"(?:float(?:s|ing)?|swim(?:s|ming)?|bob(?:s|bing)?|paddl(?:e|es|ing)) (?:on|upon|atop)", "on"),
     Cue(r"swim(?:s|ming)?|float(?:s|ing)?|hover(?:s|ing)?|fl(?:y|ies|ying) (?:over|above|around|past|near)"
         r"|above|over", "beside"),  # free in the air or water: no contact
     Cue(r"beside|next to|near|nearby|alongside|in front of|behind|left of|right of|opposite|facing|close to"

@@ -45,9 +45,14 @@ class RulesProvider:
             source_name, source, source_at)
         filled = context.contents(prompt, ground_at, ground)
         relation, why = _relation(cue, target, source, source if figure else target)
-        if cue is not None and cue.text.startswith("float") and filled is None:
+        afloat = cue is not None and re.match(r"float|swim|bob|paddl", cue.text) is not None
+        if afloat and filled is None:
             relation, why = relations.RELATIONS["beside"], f"'{cue.text}' in air or open water: no contact"
-        floating = cue is not None and cue.text.startswith("float") and filled is not None
+        floating = afloat and filled is not None
+        fig_match = source if figure else target
+        if (relation.name == "beside" and cue is not None and cue.text == "over" and fig_match is not None
+                and (fig_match.has("soft") or fig_match.has("wrap"))):
+            relation, why = relations.RELATIONS["lie"], "'over' said of a cloth or a cover: draped over"
         opening = context.opening_after(prompt, cue.end) if cue is not None else None
         if opening is not None and ground is not None and not ground.has("container"):
             ground = replace(ground, tags=ground.tags | {"container"})  # "in the slot of a toaster"
@@ -216,6 +221,6 @@ def _contact(relation, figure: bool, source, immersed_in: str | None = None) -> 
         contact = min(contact, 0.1)  # a rigid tool or stick lying down touches at a few points
     if source.has("soft") and relation.name in {"on", "sit"}:
         contact = max(contact, 0.3)
-    if source.has("wrap") and relation.name in {"wear", "on", "attach", "in"}:
+    if source.has("wrap") and relation.name in {"wear", "on", "attach", "in", "lie"}:
         contact = max(contact, 0.6)
     return contact
