@@ -12,6 +12,8 @@ spaces; plurals are handled by ``singular`` so rows list singular forms only.
 Tags:
 - ``container``: has a cavity or opening things go into without cutting (cup, box, bun, keyhole).
 - ``pointed``: thin or sharp enough to be pushed into a solid (knife, arrow, nail, candle, flag).
+- ``staked``: pointed and made to stand stuck in what it is put on (candle, flag, toothpick): "on" a
+  pierceable solid (a cake, a sandcastle) it goes into it, where a knife or a fork would lie on top.
 - ``flat``: a sheet or slice that lies on one face (pepperoni, poster, sticker).
 - ``round``: ball-like; touches a support at a point.
 - ``soft``: drapes or settles onto a support (cushion, cat, towel).
@@ -82,6 +84,7 @@ scoop/ice_cream_scoop 0.07 round
 ice_cream_cone/waffle_cone/cone 0.15 container
 popsicle/lollipop 0.15
 candy/sweet/chocolate/praline 0.03
+candy_cane 0.15
 chocolate_bar 0.15 flat
 marshmallow 0.04 soft
 taco/burrito/wrap 0.18 container
@@ -110,9 +113,10 @@ roast_turkey/roast_chicken/roast 0.4
 kitchen_counter/counter/countertop/kitchen_island 2.0 flat
 dish_rack/drying_rack 0.45 container
 coaster 0.1 flat
-decanter/carafe/pitcher/jug/vial/potion/potion_bottle 0.25 container
+decanter/carafe/pitcher/jug/vial/potion_bottle 0.25 container
+potion/elixir 0.2 container,filled
 ice_bucket/wine_cooler 0.25 container
-cocktail_umbrella 0.1 pointed
+cocktail_umbrella 0.1 pointed,staked
 macaron/truffle 0.04
 watering_can 0.4 container
 cake_stand 0.3
@@ -137,10 +141,11 @@ ladle/serving_spoon 0.3 pointed
 fork 0.19 pointed
 knife/kitchen_knife/chef_knife/butter_knife/steak_knife/cleaver 0.28 pointed
 chopstick 0.24 pointed
-toothpick/cocktail_stick 0.07 pointed
-skewer/kebab_stick 0.3 pointed
+toothpick/cocktail_stick 0.07 pointed,staked
+skewer/kebab_stick 0.3 pointed,staked
 whisk/spatula/rolling_pin 0.3
-napkin/tablecloth/placemat 0.4 flat,soft
+napkin/placemat 0.4 flat,soft
+tablecloth/table_cloth/tarp/tarpaulin/bedsheet 2.0 flat,soft
 blender/mixer/coffee_maker/coffee_machine/espresso_machine/microwave 0.4
 toaster 0.3 container
 basket 0.4 container
@@ -209,8 +214,10 @@ present/gift/gift_box 0.35 container
 bow/ribbon 0.15
 lamp/desk_lamp/table_lamp 0.45
 floor_lamp/standing_lamp 1.6
-candle 0.2 pointed
-sparkler/cake_topper/candle_topper 0.25 pointed
+candle 0.2 pointed,staked
+sparkler/cake_topper/candle_topper 0.25 pointed,staked
+umbrella_stand 0.5 container
+snow_globe 0.12 container
 candlestick/candle_stick/candle_holder/candelabra 0.3 container
 vase 0.3 container
 flower_pot/plant_pot/planter/pot_plant 0.25 container
@@ -252,7 +259,8 @@ power_strip/extension_cord 0.4
 socket/power_outlet/outlet/light_switch 0.1 flat
 toilet 0.7 container
 shower 2.0
-fridge/refrigerator/oven/stove/washing_machine/dishwasher 1.7 container
+fridge/refrigerator 1.7 container
+oven/stove/cooker/washing_machine/dishwasher/dryer/tumble_dryer 0.9 container
 trash_can/bin/dustbin/wastebasket 0.6 container
 coat_rack/hat_stand/coat_stand 1.8
 hook/peg/coat_hook/knob/doorknob/handle 0.06
@@ -316,7 +324,8 @@ bag/handbag/purse/tote/shopping_bag 0.4 container,soft
 suitcase/luggage 0.7 container
 wallet 0.11 flat
 umbrella/parasol 1.0
-cane/walking_stick/staff 1.0 pointed
+cane/walking_stick 1.0 pointed
+staff/wizard_staff/quarterstaff 1.7 pointed
 saddle/bridle 0.6 soft
 wreath/garland 0.5
 # --- tools, weapons and equipment ---
@@ -365,8 +374,8 @@ shield 0.75
 gun/pistol/revolver 0.25
 rifle 1.0
 wand/magic_wand 0.35 pointed
-flag/pennant/banner 1.5 pointed
-cocktail_flag 0.2 pointed
+flag/pennant/banner 1.5 pointed,staked
+cocktail_flag 0.2 pointed,staked
 pole/stake/post/pillar/column 2.5 pointed
 stick/twig/rod 0.8 pointed
 archery_target/bullseye 1.2 flat,pierceable
@@ -408,6 +417,10 @@ statue/sculpture 2.0
 # --- toys and figures ---
 spinning_top/yo_yo/yoyo/rubik_cube/slinky 0.06
 rattle/baby_rattle/jack_in_the_box 0.15
+pacifier/dummy/teether 0.06
+baby_bottle 0.18 container
+diaper/nappy 0.4 soft
+bib 0.25 flat,soft
 toy_train 0.2
 train_set/train_track/toy_track/play_mat/playmat 1.2 flat
 toy_box/toy_chest 0.8 container
@@ -524,6 +537,8 @@ pebble 0.04 round
 sand/dirt/soil/snow/mud 1.0 pierceable
 # --- vehicles ---
 pickup/pickup_truck 5.5 container
+tank/battle_tank/army_tank 7.0 container
+fuel_tank/gas_tank 0.6 container
 fire_truck/fire_engine/ambulance 8.0 container
 golf_cart/forklift 2.5
 excavator/digger/bulldozer 8.0
@@ -580,9 +595,10 @@ moon/planet/earth 100.0 round
 mountain/hill/cliff 100.0
 """
 
-# A part's size as a fraction of its owner's ("teapot lid": 0.6 of a teapot).
+# A part's size as a fraction of its owner's ("teapot lid": 0.6 of a teapot); a holder named for what it holds
+# ("ring box", "guitar case") is sized from that.
 PARTS: dict[str, float] = {
-    "lid": 0.6, "cap": 0.4, "cover": 1.0, "case": 1.0, "sheath": 1.0, "holder": 0.8, "base": 0.7,
+    "lid": 0.6, "cap": 0.4, "cover": 1.0, "case": 1.0, "box": 1.5, "sheath": 1.0, "holder": 0.8, "base": 0.7,
     "stand": 0.8, "handle": 0.4, "jar": 0.6, "tank": 0.6, "container": 0.6, "comb": 0.15, "top": 0.5,
     "seat": 0.4, "wheel": 0.3, "door": 0.5, "roof": 1.0, "blade": 0.6, "tip": 0.1, "head": 0.3,
     "leg": 0.5, "shade": 0.4, "bulb": 0.2, "slice": 0.5, "piece": 0.3, "half": 0.8, "wing": 0.4,
@@ -590,12 +606,12 @@ PARTS: dict[str, float] = {
 }
 # The parts a person, character or animal has (a "hamster wheel" is no part of a hamster).
 AGENT_PARTS = frozenset({"head", "leg", "tail", "wing", "nose", "comb", "tip"})
-# The parts a food has (a "wheel of cheese" is a whole cheese, no cheese's wheel).
-FOOD_PARTS = frozenset({"slice", "piece", "half", "top", "tip", "base", "wing", "leg", "lid"})
+# The parts a food has, and what holds one (a "pizza box"; a "wheel of cheese" is a whole cheese, no cheese's wheel).
+FOOD_PARTS = frozenset({"slice", "piece", "half", "top", "tip", "base", "wing", "leg", "lid", "box"})
 # Parts made to come off their owner: a name that is only one of these ("lid") is sized from the other object.
 DETACHABLE = frozenset({"lid", "cap", "cover", "case", "sheath", "stand", "base", "handle", "top"})
 # Parts that hold their owner (a lipstick's cover, a blender's jar) are containers.
-CONTAINER_PARTS = frozenset({"cover", "case", "sheath", "holder", "jar", "tank", "container", "cap"})
+CONTAINER_PARTS = frozenset({"cover", "case", "sheath", "holder", "jar", "tank", "container", "cap", "box"})
 # Parts that hug their owner's surface (a car cover).
 WRAPPING_PARTS = frozenset({"cover"})
 

@@ -70,7 +70,9 @@ CUES: list[Cue] = [
         r"|cut(?:s|ting)?(?: through| into)?(?!\s+boards?)|slicing(?: through| into)?|embedded|lodged|penetrat[a-z]*"
         r"|stuck (?:in|into|through)|stick(?:s|ing)? (?:in|into|out of|through)|buried (?:in|into)"
         r"|pok(?:e|es|ed|ing) (?:out of|through|into)|peek(?:s|ing)? out of|protrud(?:e|es|ing) from"
-        r"|(?:driven|hammered|nailed|pinned|planted|pushed|poked|thrust|sunk|jammed|screwed|shot) (?:in|into)",
+        r"|(?:driven|hammered|nailed|pinned|planted|pushed|poked|thrust|sunk|jammed|screwed|shot) (?:in|into)"
+        r"|planted (?:on|atop)|carv(?:e|es|ed|ing)|chop(?:s|ped|ping)? (?:into|through)"
+        r"|saw(?:s|ed|ing)? (?:through|into)",
         "penetrate"),
     # garments and headwear
     Cue(r"on (?:top of )?" + _HEAD + r"|around " + _POSS + r" (?:neck|waist|wrist|finger|arm)s?|worn by",

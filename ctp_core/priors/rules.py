@@ -14,6 +14,7 @@ from ctp_core.priors import context, lexicon, relations
 from ctp_core.priors.context import PERSON_M  # an unknown name that holds, wears or rides is someone this tall
 from ctp_core.priors.prior import ScenePrior, clamp_contact, clamp_size
 
+FITS_INSIDE = 0.9  # what is inside a container (not a long thing or a plant sticking out) is at most this size of it
 # Relations where a ball touches at a point, a sheet lies on a face, a soft thing settles.
 _SUPPORT = {"on", "stand", "sit", "lie", "lean", "hang", "attach"}
 # Relations whose ground must be an agent (the wearer, the holder, the rider).
@@ -108,6 +109,8 @@ def _relation(cue, target, source, figure) -> tuple[relations.Relation, str]:
         if (rel.name == "penetrate" and figure is not None and figure.has("agent")
                 and re.match(r"cut|slic|stab|pierc|skewer|spear|impal|carv", cue.text)):  # "a chef cutting a cake"
             return relations.RELATIONS["hold"], f"'{cue.text}' said of someone: handling it, with a tool"
+        if rel.name == "wear" and figure is not None and figure.has("agent"):  # "a bird on a giraffe's head"
+            return relations.RELATIONS["stand"], f"'{cue.text}' said of a creature: standing on it"
         return rel, f"'{cue.text}' -> {rel.name}"
     if source is not None and lexicon.bare_part(source.phrase) is not None:
         return relations.RELATIONS["on"], "no relation cue; a detachable part: assumed seated on its owner"
@@ -153,6 +156,12 @@ def _size_ratio(target_name, source_name, target, source, relation, figure: bool
         sizes[1 if figure else 0] *= scale
         whys[1 if figure else 0] += f" x {scale:.2g} (a toy's)"
     ratio = sizes[1] / sizes[0]
+    fits = FITS_INSIDE if figure else 1.0 / FITS_INSIDE
+    if (relation.name == "in" and ground_match is not None and ground_match.has("container") and fig_match is not None
+            and not fig_match.has("pointed") and fig_match.entry.domain != "plants"  # stems stick out of a vase
+            and (ratio > fits if figure else ratio < fits)):
+        return fits, (f"size ratio {fits:.3g} ({whys[1]} / {whys[0]}: the {fig_match.phrase} must fit inside, "
+                      f"so no bigger than {FITS_INSIDE:g} of the {ground_match.phrase})")
     clamped = clamp_size(ratio)
     note = "" if clamped == ratio else f", clamped from {ratio:.3g}"
     return ratio, f"size ratio {clamped:.3g} ({whys[1]} / {whys[0]}{note})"
@@ -190,6 +199,8 @@ def _penetration(relation, figure: bool, target, source, filled: str | None, flo
     if (relation.name == "attach" and cue_text.startswith("stuck") and _pierceable(ground)
             and not (fig is not None and fig.has("flat"))):
         return True, f"stuck on a {ground.phrase}, which it pierces: penetration"
+    if relation.name == "on" and fig is not None and fig.has("staked") and _pierceable(ground):
+        return True, f"a {fig.phrase} stands stuck in the {ground.phrase}: penetration"
     if (relation.name == "on" and ground is not None and ground.has("pointed") and ground.size_m <= 1.0
             and fig is not None and (fig.entry.domain == "food and drink" or fig.has("soft")) and not fig.has("agent")):
         return True, f"a {fig.phrase} on a pointed {ground.phrase}: skewered, penetration"
