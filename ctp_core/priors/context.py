@@ -13,7 +13,9 @@ a container. Categories of modifiers (documented here because they decide sizes)
   already (a "toy box" is a lexicon phrase: a box for toys); ``CRAFT_WORDS`` ("paper crane", "origami boat") do
   the same for animals and vehicles;
 - a garment named after an animal or a small person ("dog coat", "baby shoes") is scaled to its wearer;
-- ``HOLLOW_WORDS`` ("a carved pumpkin") make the object a container.
+- ``HOLLOW_WORDS`` ("a carved pumpkin") make the object a container;
+- a figure named after a food ("toast soldier", "chocolate bunny", "gingerbread man") is that food, shaped
+  like it: food-sized (``FOOD_FIGURE_M``) and no agent.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from ctp_core.priors import lexicon, relations
 PERSON_M = 1.75  # the wearer garments are sized for
 TOY_SIZE_M = 0.3  # a toy or a model of something big fits in the hands
 CRAFT_SIZE_M = 0.2  # a folded-paper animal or vehicle
+FOOD_FIGURE_M = 0.12  # a sweet or a snack shaped like a person or an animal
 TOY_WORDS = frozenset({"toy", "miniature", "model", "plush", "stuffed", "figurine", "lego", "dollhouse"})
 CRAFT_WORDS = frozenset({"paper", "origami", "folded"})
 HOLLOW_WORDS = frozenset({"hollow", "hollowed", "carved", "empty"})
@@ -141,6 +144,10 @@ def _modified(match: lexicon.Match, words: list[str]) -> lexicon.Match:
             scale = wearers[-1].size_m / PERSON_M
             match = replace(match, size_m=match.size_m * scale,
                             how=match.how + f", made for a {wearers[-1].phrase}: x {scale:.2g}")
+    foods = [m for w in qualifiers if (m := lexicon.lookup(w)) is not None and m.entry.domain == "food and drink"]
+    if foods and match.has("agent"):
+        match = replace(match, size_m=min(match.size_m, FOOD_FIGURE_M), tags=match.tags - {"agent"},
+                        how=match.how + f", made of {foods[-1].phrase}: {FOOD_FIGURE_M:g} m")
     if qualifiers & HOLLOW_WORDS and not match.has("container"):
         match = replace(match, tags=match.tags | {"container"}, how=match.how + ", hollow")
     return match

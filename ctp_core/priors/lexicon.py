@@ -52,7 +52,7 @@ coconut 0.15 round
 avocado/mango 0.1
 tomato/onion/potato 0.08 round
 carrot/cucumber/zucchini/eggplant 0.2 pointed
-corn 0.2
+corn/corn_cob/corn_on_the_cob/cob 0.2
 mushroom 0.06
 egg 0.06 round
 bread/loaf 0.25
@@ -103,7 +103,9 @@ sugar_cube/ice_cube 0.02
 fried_egg 0.12 flat
 dumpling/gyoza/wonton/meatball 0.045
 dough/batter/clay/playdough/foam/styrofoam 0.2 soft,pierceable
-colander/strainer/sieve/measuring_cup/egg_cup/lunchbox/lunch_box 0.2 container
+colander/strainer/sieve/measuring_cup/lunchbox/lunch_box 0.2 container
+egg_cup 0.05 container
+tea_cozy/tea_cosy 0.3 soft,wrap
 thermos 0.3 container
 grater/peeler/can_opener/bottle_opener/corkscrew/salt_shaker/pepper_shaker/pepper_mill 0.15
 tongs 0.3
@@ -246,6 +248,8 @@ trumpet/flute/saxophone 0.6
 drum_stick/drumsticks/~drumstick 0.4 pointed
 door/front_door/gate 2.0 flat
 window 1.2 flat
+shop_window/display_window/storefront 3.0 flat
+vending_machine/arcade_machine/jukebox 1.8
 wall 4.0 flat,pierceable
 floor/ground/platform/stage 5.0 flat
 roof 10.0
@@ -313,6 +317,7 @@ ring 0.02 wrap
 bracelet/watch/wristwatch/bangle 0.07 wrap
 belt 0.5 wrap
 glove/mitten 0.25 wrap
+boxing_glove 0.3
 sock 0.25 wrap
 stocking/christmas_stocking 0.45 soft
 shoe/boot/sneaker/slipper/sandal 0.3 container
@@ -335,6 +340,12 @@ toolbox/tool_box/toolkit/tool_chest 0.5 container
 vise/vice/clamp 0.3
 tape_measure/measuring_tape 0.08
 spirit_level/crowbar 0.6
+barbell 2.1
+dumbbell/kettlebell 0.3
+weight_bench/gym_bench 1.5
+treadmill/exercise_bike/rowing_machine 1.8
+punching_bag/boxing_bag/heavy_bag 1.2 soft
+yoga_mat/exercise_mat 1.8 flat,soft
 flashlight/torch/glue_gun/paint_roller 0.25
 soldering_iron 0.25 pointed
 iron/clothes_iron/steam_iron 0.28
@@ -555,6 +566,7 @@ parking_ticket/ticket/receipt/flyer/leaflet 0.15 flat
 traffic_light 3.0
 bus_stop/bus_shelter 3.0
 tire/tyre/wheel 0.7 round
+buoy 1.0 round
 ufo/flying_saucer 10.0
 car/taxi/sedan/suv/jeep/van 4.5 container
 truck/lorry/bus/tractor 7.0 container
@@ -622,6 +634,8 @@ SIZE_WORDS: dict[str, float] = {
 }
 
 # Materials name the object only when nothing else does ("table wood" is a table, "wood" is wood).
+# Substances: an unknown thing named after one ("sand dune", "snow bank") says nothing about its size.
+SUBSTANCES = frozenset({"sand", "dirt", "soil", "snow", "mud", "water", "ice", "grass", "hay", "sugar", "salt"})
 MATERIALS = frozenset({"wood", "stone", "glass", "metal", "gold", "silver", "plastic", "paper", "marble", "clay",
                        "steel", "iron", "leather", "rock", "fabric", "cloth", "felt", "cotton", "denim", "silk",
                        "velvet", "linen", "wool", "yarn"})
@@ -794,8 +808,9 @@ def lookup(name: str) -> Match | None:
             phrase, head = closed
             return Match(phrase, head, head.size_m * scale, head.tags,
                          f"'{head_word}': a kind of {phrase} ({head.size_m:g} m)")
-        if not found or found[-1][3].domain == "food and drink" or "agent" in found[-1][3].tags:
-            return None  # a "pizza cutter" is not pizza-sized, nor a "spider web" spider-sized
+        if (not found or found[-1][3].domain == "food and drink" or "agent" in found[-1][3].tags
+                or found[-1][2] in SUBSTANCES | MATERIALS):
+            return None  # a "pizza cutter" is not pizza-sized, nor a "spider web" spider-sized, nor a "sand dune" sandy
         start, _, phrase, known = found[-1]
         named = " ".join(tokens[start:])
         how = f"'{named}': unknown '{head_word}' named after a {phrase}, sized like one ({known.size_m:g} m)"

@@ -90,7 +90,10 @@ CUES: list[Cue] = [
     Cue(r"(?:standing|stands|stood|perched|perching|balanced|balancing|landed|hopping) (?:on|upon|atop)",
         "stand"),
     Cue(r"(?:wrapped|coiled|wound|tied|looped|wrapping|coiling) (?:around|round)|around", "wrap"),
-    Cue(r"lean(?:s|ing|ed)? (?:against|on)|propped (?:against|up|on)|rest(?:s|ing)? against", "lean"),
+    Cue(r"lean(?:s|ing|ed)? (?:against|on|in)|propped (?:against|up|on)|rest(?:s|ing)? against", "lean"),
+    # moving over a support: feet, wheels or a belly on it
+    Cue(r"(?:walk|run|crawl|stroll|march|hik|climb|roll|skat|ski|slid|trott|gallop|wander)(?:s|ing|ed|e|es)?"
+        r" (?:over|across|along|up|down|on)", "stand"),
     Cue(r"hang(?:s|ing)?|hung|dangl(?:e|es|ing)|suspended", "hang"),
     Cue(r"attached|glued|taped|stuck (?:on|to)|fixed (?:on|to)|fastened|mounted|stapled|clipped", "attach"),
     Cue(r"under(?:neath)?|beneath|below", "under"),
