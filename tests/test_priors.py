@@ -245,6 +245,9 @@ def test_lexicon_is_a_few_hundred_objects():
     ("shelf", "robot", "a toy robot on a shelf", 0.25, 0.35),
     ("desk", "crane", "a folded paper crane on a desk", 0.1, 0.16),
     ("dog", "dog_coat", "a dog wearing a dog coat", 0.4, 0.7),
+    # young animals and folded cloths are smaller
+    ("elephant", "baby_elephant", "a baby elephant next to its mother", 0.3, 0.4),
+    ("basket", "towel", "a folded towel on a basket", 0.6, 0.8),
     # a food shaped like someone is food-sized
     ("plate", "gingerbread_man", "a gingerbread man on a plate", 0.3, 0.6),
 ])
@@ -307,6 +310,8 @@ def test_file_stems_and_unknown_heads():
     ("bowl", "spoon", "a spoon in a bowl of cereal", False),              # loose pieces leave gaps
     ("bowl", "spoon", "a spoon in a bowl of cherries", False),            # countable things
     ("martini", "olive", "a martini with an olive on top", False),        # on the surface, not in
+    ("sandbox", "toy_shovel", "a toy shovel stuck in the sand of a sandbox", True),  # contents named before
+    ("truck", "boxes", "boxes in the back of a truck", False),
     # pierceable solids, openings, staked and skewered things
     ("fabric", "needle", "a needle through the fabric", True),
     ("arm", "syringe", "a syringe in the patient's arm", True),
@@ -322,6 +327,7 @@ def test_file_stems_and_unknown_heads():
     ("cake", "coin", "a cake with a coin inside it", True),               # inside a solid food: embedded
     ("apple", "worm", "a worm poking out of an apple", True),             # a creature's state, not its tool
     ("pumpkin", "knife", "a knife carving a pumpkin", True),
+    ("wall", "drill", "a drill boring into the wall", True),
     ("pumpkin", "candle", "a candle inside a carved pumpkin", False),     # carved: hollow
 ])
 def test_penetration_from_what_the_ground_is(target, source, prompt, penetration):
@@ -355,6 +361,7 @@ def test_sizes_fit_the_scene():
     ("house", "balloon", "a balloon floating over the house", "beside", 0.0, 0.0),
     ("fishbowl", "goldfish", "a goldfish swimming in a fishbowl", "beside", 0.0, 0.0),  # no contents said
     ("dune", "camel", "a camel walking over a dune", "stand", 0.0, 0.1),
+    ("river", "salmon", "a salmon leaping out of the river", "beside", 0.0, 0.0),
     ("giraffe", "bird", "a bird sitting on the giraffe's head", "stand", 0.0, 0.1),    # creatures don't wear
     ("workbench", "hammer", "a hammer lying on the workbench", "lie", 0.0, 0.1),      # rigid: a few points
     ("mug", "sugar_cube", "a sugar cube dropped into a mug of tea", "in", 0.3, 0.5),  # wetted all over

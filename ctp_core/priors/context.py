@@ -14,6 +14,8 @@ a container. Categories of modifiers (documented here because they decide sizes)
   the same for animals and vehicles;
 - a garment named after an animal or a small person ("dog coat", "baby shoes") is scaled to its wearer;
 - ``HOLLOW_WORDS`` ("a carved pumpkin") make the object a container;
+- ``YOUNG_WORDS`` ("baby elephant") make an animal or a food a young, small one (``YOUNG_SCALE``), and
+  ``FOLDED_WORDS`` ("a folded towel") a cloth or a sheet a folded, smaller one (``FOLDED_SCALE``);
 - a figure named after a food ("toast soldier", "chocolate bunny", "gingerbread man") is that food, shaped
   like it: food-sized (``FOOD_FIGURE_M``) and no agent.
 """
@@ -29,6 +31,10 @@ PERSON_M = 1.75  # the wearer garments are sized for
 TOY_SIZE_M = 0.3  # a toy or a model of something big fits in the hands
 CRAFT_SIZE_M = 0.2  # a folded-paper animal or vehicle
 FOOD_FIGURE_M = 0.12  # a sweet or a snack shaped like a person or an animal
+YOUNG_WORDS = frozenset({"baby", "young", "newborn", "infant"})
+YOUNG_SCALE = 0.35  # a calf is about a third of its mother's length
+FOLDED_WORDS = frozenset({"folded", "rolled", "crumpled", "stacked"})
+FOLDED_SCALE = 0.4
 TOY_WORDS = frozenset({"toy", "miniature", "model", "plush", "stuffed", "figurine", "lego", "dollhouse"})
 CRAFT_WORDS = frozenset({"paper", "origami", "folded"})
 HOLLOW_WORDS = frozenset({"hollow", "hollowed", "carved", "empty"})
@@ -53,14 +59,17 @@ _MELTED = frozenset({"melted", "molten", "liquid", "liquified", "whipped"})  # "
 DISCRETE = lexicon.word_set("cereal popcorn candy fruit ice gold money change food salad confetti gravel hay straw")
 
 
+def _is_drink(word: str) -> bool:
+    known = lexicon.phrase_entry([word])
+    return known is not None and "filled" in known[1].tags
+
+
 def _is_contents(word: str, before: str | None) -> bool:
     """A contents word, a drink of the lexicon ("champagne"), anything melted or whipped, or a singular mass
     noun the lexicon knows as no object, or only as a food that is no round piece ("ramen", "peanut butter")."""
-    if word in CONTENTS or before in _MELTED:
+    if word in CONTENTS or before in _MELTED or _is_drink(word):
         return True
     known = lexicon.phrase_entry([word])
-    if known is not None and "filled" in known[1].tags:
-        return True
     if word in DISCRETE or word in _STOP or lexicon.singulars(word)[-1] != word:  # "apples": countable pieces
         return False
     return known is None or (known[1].domain == "food and drink" and not known[1].tags & {"round", "agent"})
@@ -138,6 +147,11 @@ def _modified(match: lexicon.Match, words: list[str]) -> lexicon.Match:
         match = replace(match, size_m=TOY_SIZE_M, how=match.how + f", a toy: {TOY_SIZE_M:g} m")
     if qualifiers & CRAFT_WORDS and entry.domain in _CRAFT_DOMAINS and match.size_m > CRAFT_SIZE_M:
         match = replace(match, size_m=CRAFT_SIZE_M, how=match.how + f", folded paper: {CRAFT_SIZE_M:g} m")
+    young = qualifiers & YOUNG_WORDS
+    if young and (entry.domain == "food and drink" or "agent" in entry.tags) and entry.name not in YOUNG_WORDS:
+        match = replace(match, size_m=match.size_m * YOUNG_SCALE, how=match.how + f", {min(young)}: x {YOUNG_SCALE:g}")
+    if qualifiers & FOLDED_WORDS and ("soft" in entry.tags or "flat" in entry.tags) and not match.has("agent"):
+        match = replace(match, size_m=match.size_m * FOLDED_SCALE, how=match.how + f", folded: x {FOLDED_SCALE:g}")
     if entry.domain == "clothing and accessories" and "wrap" not in entry.tags:
         wearers = [m for w in qualifiers if (m := lexicon.lookup(w)) is not None and m.has("agent")]
         if wearers and wearers[-1].size_m < PERSON_M:
@@ -176,6 +190,10 @@ def contents(prompt: str, mention_at: list[int], match: lexicon.Match | None) ->
     for at in mention_at:
         if at not in starts:
             continue
+        before = [w for _, w in tokens[max(0, starts.index(at) - 3):starts.index(at)]]
+        if len(before) == 3 and before[1] == "of" and before[2] in _STOP and (
+                before[0] in CONTENTS or _is_drink(before[0])):
+            return before[0]  # "in the sand of a sandbox", "the water of the pool"
         after = [w for _, w in tokens[starts.index(at) + 1:starts.index(at) + 6]]
         if after[:1] == ["full"] or after[:1] == ["filled"]:
             after = after[1:]

@@ -75,6 +75,7 @@ sushi/nigiri/maki 0.06
 cake 0.25
 cupcake/muffin 0.07
 cookie/biscuit/cracker/pancake/waffle 0.08 flat
+biscotti/breadstick/churro/pretzel_stick 0.15
 donut/doughnut/bagel 0.1
 croissant 0.15
 pie/tart/quiche 0.25
@@ -138,6 +139,7 @@ lid 0.15
 cork/stopper 0.045
 straw/drinking_straw 0.2 pointed
 spoon/tablespoon 0.17 pointed
+wooden_spoon/cooking_spoon/stirring_spoon 0.3 pointed
 teaspoon 0.14 pointed
 ladle/serving_spoon 0.3 pointed
 fork 0.19 pointed
@@ -225,7 +227,9 @@ vase 0.3 container
 flower_pot/plant_pot/planter/pot_plant 0.25 container
 clock/wall_clock 0.35 flat
 mirror 0.8 flat
-painting/picture/frame/picture_frame/poster/photo/photograph/canvas/map/calendar 0.7 flat
+painting/picture/frame/picture_frame/poster/canvas/map/calendar 0.7 flat
+photo/photograph/polaroid 0.15 flat
+baking_sheet/baking_tray/sheet_pan 0.4 flat
 sign/signboard/plaque 0.6 flat
 sticker/label/decal/note/sticky_note/postcard/card/playing_card 0.09 flat
 letter/paper/sheet/document/page 0.25 flat
@@ -291,6 +295,8 @@ dice/die 0.016
 coin 0.025 flat
 key 0.06 pointed
 lock/padlock/keyhole 0.06 container
+bike_lock/cable_lock/chain_lock 0.6 wrap
+shoelace/lace 1.0 wrap
 # --- clothing and accessories ---
 hanger/coat_hanger/clothes_hanger 0.45
 clothesline/washing_line 4.0
@@ -509,7 +515,7 @@ pig/sheep/goat/lamb/calf 1.2 agent
 elephant 6.0 agent
 giraffe 5.0 agent
 lion/tiger/bear/panda/gorilla/leopard/cheetah 2.0 agent
-monkey/chimpanzee/lemur/koala/raccoon/otter 0.6 agent
+monkey/chimpanzee/lemur/koala/raccoon/otter/sloth 0.6 agent
 frog/toad/turtle/tortoise/lizard/snail/crab/lobster 0.2 agent
 snake/python/cobra/eel 2.0 wrap,agent
 fish/trout/carp 0.3 agent
@@ -535,7 +541,9 @@ lawn_mower/lawnmower/mower 1.5
 compost_bin 1.0 container
 greenhouse/gazebo 4.0 container
 hammock 3.0 soft
-tree/oak/pine/palm/palm_tree/pine_tree 8.0
+tree/oak/pine/palm/palm_tree/pine_tree/oak_tree 8.0
+treehouse/tree_house/playhouse 2.5 container
+field/meadow/vegetable_patch/vegetable_garden/garden_patch/farmland 20.0 flat,pierceable
 christmas_tree/xmas_tree/fir 2.0
 bush/shrub/hedge 1.5
 plant/houseplant/potted_plant/fern/cactus/succulent 0.5

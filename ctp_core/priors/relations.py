@@ -72,7 +72,7 @@ CUES: list[Cue] = [
         r"|pok(?:e|es|ed|ing) (?:out of|through|into)|peek(?:s|ing)? out of|protrud(?:e|es|ing) from"
         r"|(?:driven|hammered|nailed|pinned|planted|pushed|poked|thrust|sunk|jammed|screwed|shot) (?:in|into)"
         r"|planted (?:on|atop)|carv(?:e|es|ed|ing)|chop(?:s|ped|ping)? (?:into|through)"
-        r"|saw(?:s|ed|ing)? (?:through|into)",
+        r"|saw(?:s|ed|ing)? (?:through|into)|(?:drill|bor)(?:e|es|ed|ing|s)? (?:a hole )?(?:in|into|through)",
         "penetrate"),
     # garments and headwear
     Cue(r"on (?:top of )?" + _HEAD + r"|around " + _POSS + r" (?:neck|waist|wrist|finger|arm)s?|worn by",
@@ -95,11 +95,13 @@ CUES: list[Cue] = [
     Cue(r"(?:walk|run|crawl|stroll|march|hik|climb|roll|skat|ski|slid|trott|gallop|wander)(?:s|ing|ed|e|es)?"
         r" (?:over|across|along|up|down|on)", "stand"),
     Cue(r"hang(?:s|ing)?|hung|dangl(?:e|es|ing)|suspended", "hang"),
-    Cue(r"attached|glued|taped|stuck (?:on|to)|fixed (?:on|to)|fastened|mounted|stapled|clipped", "attach"),
+    Cue(r"attached|glued|taped|stuck (?:on|to)|fixed (?:on|to)|fastened|mounted|stapled|clipped|pinned (?:to|on)",
+        "attach"),
     Cue(r"under(?:neath)?|beneath|below", "under"),
     # in water when the ground holds some (rules), else free in air or water
     Cue(r"(?:float(?:s|ing)?|swim(?:s|ming)?|bob(?:s|bing)?|paddl(?:e|es|ing)) (?:in|inside|within)", "in"),
     Cue(r"(?:float(?:s|ing)?|swim(?:s|ming)?|bob(?:s|bing)?|paddl(?:e|es|ing)) (?:on|upon|atop)", "on"),
+    Cue(r"(?:leap|jump|hop|spring|climb|fly|flie|get|com)(?:s|ing|ed)? out of|emerg(?:e|es|ing) from", "beside"),
     Cue(r"swim(?:s|ming)?|float(?:s|ing)?|hover(?:s|ing)?|fl(?:y|ies|ying) (?:over|above|around|past|near)"
         r"|above|over", "beside"),  # free in the air or water: no contact
     Cue(r"beside|next to|near|nearby|alongside|in front of|behind|left of|right of|opposite|facing|close to"
