@@ -95,10 +95,14 @@ def modifiers(prompt: str, mention_at: list[int]) -> list[str]:
 
 
 def resolve(name: str, prompt: str, mention_at: list[int], other: lexicon.Match | None,
-            needs_agent: bool) -> lexicon.Match | None:
-    """The lexicon match of ``name`` as the prompt qualifies it (see the module docstring for the categories)."""
+            needs_agent: bool, other_name: str = "") -> lexicon.Match | None:
+    """The lexicon match of ``name`` as the prompt qualifies it (see the module docstring for the categories).
+
+    A modifier the other object's name has is that object's ("a baby elephant next to its mother", names
+    "baby_elephant" and "elephant": "baby" is not the mother's)."""
     match = lexicon.lookup(name)
-    mods = [w for w in modifiers(prompt, mention_at) if w not in lexicon.words(name)]
+    taken = set(lexicon.words(name)) | set(lexicon.words(other_name))
+    mods = [w for w in modifiers(prompt, mention_at) if w not in taken]
     if mods:
         qualified = lexicon.lookup(" ".join([*mods, *lexicon.words(name)]))
         if qualified is not None and (match is None or (

@@ -40,8 +40,10 @@ class RulesProvider:
             notes.append("the source is the ground of the relation")
         agent_role = {"wear": "ground", "hold": "ground", "sit": "figure"}.get(cue.cue.relation if cue else "")
         target, source = (
-            context.resolve(target_name, prompt, target_at, source, agent_role == ("ground" if figure else "figure")),
-            context.resolve(source_name, prompt, source_at, target, agent_role == ("figure" if figure else "ground")))
+            context.resolve(target_name, prompt, target_at, source, agent_role == ("ground" if figure else "figure"),
+                            source_name),
+            context.resolve(source_name, prompt, source_at, target, agent_role == ("figure" if figure else "ground"),
+                            target_name))
         ground_name, ground, ground_at = (target_name, target, target_at) if figure else (
             source_name, source, source_at)
         filled = context.contents(prompt, ground_at, ground)
