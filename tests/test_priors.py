@@ -312,6 +312,8 @@ def test_file_stems_and_unknown_heads():
     ("martini", "olive", "a martini with an olive on top", False),        # on the surface, not in
     ("sandbox", "toy_shovel", "a toy shovel stuck in the sand of a sandbox", True),  # contents named before
     ("truck", "boxes", "boxes in the back of a truck", False),
+    ("wok", "spatula", "a spatula in a wok full of noodles", True),         # strands heap up, pieces do not
+    ("wheelbarrow", "pumpkins", "a wheelbarrow full of pumpkins", False),  # the contents are the figure
     # pierceable solids, openings, staked and skewered things
     ("fabric", "needle", "a needle through the fabric", True),
     ("arm", "syringe", "a syringe in the patient's arm", True),

@@ -70,9 +70,12 @@ def _is_contents(word: str, before: str | None) -> bool:
     if word in CONTENTS or before in _MELTED or _is_drink(word):
         return True
     known = lexicon.phrase_entry([word])
-    if word in DISCRETE or word in _STOP or lexicon.singulars(word)[-1] != word:  # "apples": countable pieces
+    if word in DISCRETE or word in _STOP:
         return False
-    return known is None or (known[1].domain == "food and drink" and not known[1].tags & {"round", "agent"})
+    food = known is not None and known[1].domain == "food and drink" and not known[1].tags & {"round", "agent"}
+    if lexicon.singulars(word)[-1] != word:  # a plural: strands heap up ("noodles"), pieces leave gaps ("apples")
+        return food and not known[1].tags & {"flat", "container"} and known[1].size_m >= 0.1
+    return known is None or food
 
 
 def _tokens(prompt: str) -> list[tuple[int, str]]:
@@ -185,8 +188,17 @@ def opening_after(prompt: str, cue_end: int) -> str | None:
     return after[0] if after and after[0] in OPENINGS else None
 
 
-def contents(prompt: str, mention_at: list[int], match: lexicon.Match | None) -> str | None:
-    """What fills the object, when it is ``filled`` or the prompt says so ("a mug of hot cocoa", "full of water")."""
+def contents(prompt: str, mention_at: list[int], match: lexicon.Match | None, figure_name: str = "") -> str | None:
+    """What fills the object, when it is ``filled`` or the prompt says so ("a mug of hot cocoa", "full of water");
+    never the figure itself ("a wheelbarrow full of pumpkins" holds the pumpkins that are placed)."""
+    found = _contents(prompt, mention_at, match)
+    figure_words = {f for w in lexicon.words(figure_name) for f in lexicon.singulars(w)}
+    if found is not None and figure_words & set(lexicon.singulars(found)):
+        return None
+    return found
+
+
+def _contents(prompt: str, mention_at: list[int], match: lexicon.Match | None) -> str | None:
     if match is not None and match.has("filled"):
         return "its contents"
     tokens = _tokens(prompt)

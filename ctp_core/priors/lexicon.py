@@ -150,7 +150,8 @@ skewer/kebab_stick 0.3 pointed,staked
 whisk/spatula/rolling_pin 0.3
 napkin/placemat 0.4 flat,soft
 tablecloth/table_cloth/tarp/tarpaulin/bedsheet 2.0 flat,soft
-blender/mixer/coffee_maker/coffee_machine/espresso_machine/microwave 0.4
+blender/mixer/coffee_maker/coffee_machine/espresso_machine 0.4
+microwave/microwave_oven 0.5 container
 toaster 0.3 container
 basket 0.4 container
 bucket/pail 0.3 container
@@ -580,6 +581,7 @@ car/taxi/sedan/suv/jeep/van 4.5 container
 truck/lorry/bus/tractor 7.0 container
 bicycle/bike/tricycle 1.7
 motorcycle/motorbike/scooter 2.0
+kick_scooter/push_scooter 0.85
 skate/roller_skate 0.3
 boat/canoe/kayak/rowboat 5.0 container
 ship/yacht/ferry 40.0 container
@@ -618,7 +620,7 @@ mountain/hill/cliff 100.0
 # A part's size as a fraction of its owner's ("teapot lid": 0.6 of a teapot); a holder named for what it holds
 # ("ring box", "guitar case") is sized from that.
 PARTS: dict[str, float] = {
-    "lid": 0.6, "cap": 0.4, "cover": 1.0, "case": 1.0, "box": 1.5, "sheath": 1.0, "holder": 0.8, "base": 0.7,
+    "lid": 0.6, "cap": 0.4, "cover": 1.0, "case": 1.0, "box": 1.5, "sheath": 1.0, "holder": 1.3, "base": 0.7,
     "stand": 0.8, "handle": 0.4, "jar": 0.6, "tank": 0.6, "container": 0.6, "comb": 0.15, "top": 0.5,
     "seat": 0.4, "wheel": 0.3, "door": 0.5, "roof": 1.0, "blade": 0.6, "tip": 0.1, "head": 0.3,
     "leg": 0.5, "shade": 0.4, "bulb": 0.2, "slice": 0.5, "piece": 0.3, "half": 0.8, "wing": 0.4,

@@ -46,7 +46,7 @@ class RulesProvider:
                             target_name))
         ground_name, ground, ground_at = (target_name, target, target_at) if figure else (
             source_name, source, source_at)
-        filled = context.contents(prompt, ground_at, ground)
+        filled = context.contents(prompt, ground_at, ground, source_name if figure else target_name)
         relation, why = _relation(cue, target, source, source if figure else target)
         afloat = cue is not None and re.match(r"float|swim|bob|paddl", cue.text) is not None
         if afloat and filled is None:
