@@ -314,6 +314,7 @@ def test_file_stems_and_unknown_heads():
     ("truck", "boxes", "boxes in the back of a truck", False),
     ("wok", "spatula", "a spatula in a wok full of noodles", True),         # strands heap up, pieces do not
     ("wheelbarrow", "pumpkins", "a wheelbarrow full of pumpkins", False),  # the contents are the figure
+    ("paint_tray", "paint_roller", "a paint roller in a paint tray full of paint", True),  # ... its head only
     # pierceable solids, openings, staked and skewered things
     ("fabric", "needle", "a needle through the fabric", True),
     ("arm", "syringe", "a syringe in the patient's arm", True),

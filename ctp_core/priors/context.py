@@ -192,9 +192,10 @@ def contents(prompt: str, mention_at: list[int], match: lexicon.Match | None, fi
     """What fills the object, when it is ``filled`` or the prompt says so ("a mug of hot cocoa", "full of water");
     never the figure itself ("a wheelbarrow full of pumpkins" holds the pumpkins that are placed)."""
     found = _contents(prompt, mention_at, match)
-    figure_words = {f for w in lexicon.words(figure_name) for f in lexicon.singulars(w)}
-    if found is not None and figure_words & set(lexicon.singulars(found)):
-        return None
+    figure = lexicon.lookup(figure_name)
+    head = figure.phrase.split()[-1] if figure is not None else (lexicon.words(figure_name) or [""])[-1]
+    if found is not None and set(lexicon.singulars(head)) & set(lexicon.singulars(found)):
+        return None  # the head only: a "paint roller" in a tray full of paint is no paint
     return found
 
 
