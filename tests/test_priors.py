@@ -288,6 +288,8 @@ def test_file_stems_and_unknown_heads():
     assert lexicon.lookup("sand_gizmo") is None
     # a part word with an unknown modifier is an object of its own, not a bare part
     assert lexicon.bare_part("Lid_01") == "lid" and lexicon.bare_part("zorb_stand") is None
+    # a holder named for what it holds is sized from it, when that is small enough to be held
+    assert lexicon.lookup("ring_box").size_m < 0.1 and lexicon.lookup("roof_box").size_m < 2
     # parts fit their owner's kind: no hamster's wheel, no cheese's wheel
     assert lexicon.lookup("cheese_wheel").how != lexicon.lookup("car_wheel").how
     assert "wheel of a car" in lexicon.lookup("car_wheel").how and "of a" not in lexicon.lookup("cheese_wheel").how

@@ -484,7 +484,9 @@ neck 0.12
 nose/ear/mouth/eye 0.05
 # --- animals ---
 foal/colt/filly 1.4 agent
-duckling/chick/gosling 0.1 agent
+duckling/chick/gosling/cygnet 0.15 agent
+fawn/joey 0.8 agent
+perch/bird_perch 0.3
 fruit_bat/vampire_bat/~bat 0.3 agent
 seal/sea_lion/walrus 2.0 agent
 crocodile/alligator 4.0 agent
@@ -630,6 +632,9 @@ PARTS: dict[str, float] = {
 AGENT_PARTS = frozenset({"head", "leg", "tail", "wing", "nose", "comb", "tip"})
 # The parts a food has, and what holds one (a "pizza box"; a "wheel of cheese" is a whole cheese, no cheese's wheel).
 FOOD_PARTS = frozenset({"slice", "piece", "half", "top", "tip", "base", "wing", "leg", "lid", "box"})
+# Holders named for what they hold ("ring box", "pizza box"): only things small enough to be held ("roof box").
+HOLDERS = frozenset({"box", "case", "holder"})
+HOLDER_MAX_M = 1.2
 # Parts made to come off their owner: a name that is only one of these ("lid") is sized from the other object.
 DETACHABLE = frozenset({"lid", "cap", "cover", "case", "sheath", "stand", "base", "handle", "top"})
 # Parts that hold their owner (a lipstick's cover, a blender's jar) are containers.
@@ -804,7 +809,8 @@ def lookup(name: str) -> Match | None:
     part = next((w for w in singulars(tokens[-1]) if w in PARTS), None) if tokens else None
     if part is not None and not any(end == len(tokens) and end - start > 1 for start, end, _, _ in found):
         owners = [f for f in found if f[1] < len(tokens) and (part in AGENT_PARTS or "agent" not in f[3].tags)
-                  and (part in FOOD_PARTS or f[3].domain != "food and drink")]
+                  and (part in FOOD_PARTS or f[3].domain != "food and drink")
+                  and (part not in HOLDERS or f[3].size_m <= HOLDER_MAX_M)]
         if owners:
             _, _, phrase, owner = owners[-1]
             size = owner.size_m * PARTS[part] * scale
