@@ -16,6 +16,7 @@ from ctp_core.priors import (
     PriorSettings,
     RulesProvider,
     ScenePrior,
+    context,
     get_provider,
     lexicon,
     mesh_size_ratio,
@@ -232,6 +233,148 @@ def test_unknown_objects_fall_back_and_say_so():
 
 def test_lexicon_is_a_few_hundred_objects():
     assert len({id(e) for e in lexicon.LEXICON.values()}) >= 300
+
+
+# --- names in the prompt's context (ctp_core.priors.context) -------------------------------------------
+
+@pytest.mark.parametrize("target,source,prompt,low,high", [
+    # the prompt's modifiers pick a longer lexicon phrase: a rubber duck, not a 50 cm duck
+    ("sink", "duck", "a yellow rubber duck in the sink", 0.1, 0.2),
+    ("wardrobe", "hanger", "a coat hanger in the wardrobe", 0.2, 0.3),
+    # toy and paper modifiers make big things hand-sized; a garment for an animal is sized to it
+    ("shelf", "robot", "a toy robot on a shelf", 0.25, 0.35),
+    ("desk", "crane", "a folded paper crane on a desk", 0.1, 0.16),
+    ("dog", "dog_coat", "a dog wearing a dog coat", 0.4, 0.7),
+    # young animals and folded cloths are smaller
+    ("elephant", "baby_elephant", "a baby elephant next to its mother", 0.3, 0.4),
+    ("basket", "towel", "a folded towel on a basket", 0.6, 0.8),
+    # a food shaped like someone is food-sized
+    ("plate", "gingerbread_man", "a gingerbread man on a plate", 0.3, 0.6),
+])
+def test_modifiers_in_the_prompt_or_the_name_decide_the_size(target, source, prompt, low, high):
+    assert low <= rules(target, source, prompt).size_ratio <= high
+
+
+@pytest.mark.parametrize("name,prompt,other,needs_agent,domain", [
+    ("mouse", "a mouse next to a laptop", "laptop", False, "furniture and home"),  # the other object's section
+    ("mouse", "a cat chasing a mouse", "cat", False, "animals"),
+    ("mouse", "a mouse eating cheese", "cheese", True, "animals"),                  # someone eats: the agent
+    ("drumsticks", "drumsticks on a snare drum", "drum", False, "furniture and home"),
+    ("champagne_flute", "a strawberry in a flute of champagne", "strawberry", False, "tableware and kitchen"),
+    ("flute", "a boy playing the flute", "boy", False, "furniture and home"),        # the plain row by default
+])
+def test_a_word_with_senses_takes_the_one_that_fits_the_scene(name, prompt, other, needs_agent, domain):
+    head = name.split("_")[-1].rstrip("s")
+    match = context.resolve(name, prompt, [prompt.find(head)], lexicon.lookup(other), needs_agent)
+    assert match.entry.domain == domain, match.how
+
+
+def test_file_stems_and_unknown_heads():
+    # colours, styles and pipeline words are not heads
+    assert lexicon.lookup("SM_Chair_02").entry is lexicon.lookup("chair").entry
+    assert lexicon.lookup("old_lamp_lowpoly").entry is lexicon.lookup("lamp").entry
+    assert lexicon.lookup("Rubber_Duck_Yellow").phrase == "rubber duck"
+    # a closed compound ends in its head, when the stem is a word or the head long enough not to be a syllable
+    assert lexicon.lookup("hourglass").entry is lexicon.lookup("glass").entry
+    assert lexicon.lookup("zorbboard").entry is lexicon.lookup("board").entry
+    assert lexicon.lookup("zorkey") is None  # "key" after a non-word stem is no key
+    # an unknown head named after a known object is sized like it, without its shape
+    gizmo = lexicon.lookup("candle_gizmo")
+    assert gizmo.size_m == lexicon.lookup("candle").size_m and not gizmo.has("pointed")
+    assert "unknown 'gizmo'" in gizmo.how
+    # ... but not after a food, an animal or a substance (a pizza cutter, a spider web, a sand dune)
+    assert lexicon.lookup("pizza_gizmo") is None
+    assert lexicon.lookup("hamster_gizmo") is None
+    assert lexicon.lookup("sand_gizmo") is None
+    # a part word with an unknown modifier is an object of its own, not a bare part
+    assert lexicon.bare_part("Lid_01") == "lid" and lexicon.bare_part("zorb_stand") is None
+    # a holder named for what it holds is sized from it, when that is small enough to be held
+    assert lexicon.lookup("ring_box").size_m < 0.1 and lexicon.lookup("roof_box").size_m < 2
+    # parts fit their owner's kind: no hamster's wheel, no cheese's wheel
+    assert lexicon.lookup("cheese_wheel").how != lexicon.lookup("car_wheel").how
+    assert "wheel of a car" in lexicon.lookup("car_wheel").how and "of a" not in lexicon.lookup("cheese_wheel").how
+
+
+# --- penetration from what the ground is ---------------------------------------------------------------
+
+@pytest.mark.parametrize("target,source,prompt,penetration", [
+    # a container whose contents close it off: what goes in goes below their surface
+    ("mug", "spoon", "a spoon in a mug of hot cocoa", True),
+    ("pot", "ladle", "a ladle in a pot of stew", True),
+    ("pot", "fork", "a fork dipped in a pot of melted chocolate", True),
+    ("jar", "knife", "a knife in a jar of peanut butter", True),          # a mass noun after "of"
+    ("glass", "straw", "a straw in a glass of prosecco", True),           # a drink of the lexicon
+    ("cocktail", "straw", "a straw in a cocktail", True),                 # the target is a drink
+    ("bathtub", "toy_boat", "a toy boat floating in a bathtub full of water", True),
+    ("pond", "duck", "a duck swimming in the pond", True),
+    ("pond", "lily_pad", "a lily pad floating on the pond", False),       # flat things float on top
+    ("mug", "spoon", "a spoon in an empty mug", False),
+    ("bowl", "spoon", "a spoon in a bowl of cereal", False),              # loose pieces leave gaps
+    ("bowl", "spoon", "a spoon in a bowl of cherries", False),            # countable things
+    ("martini", "olive", "a martini with an olive on top", False),        # on the surface, not in
+    ("sandbox", "toy_shovel", "a toy shovel stuck in the sand of a sandbox", True),  # contents named before
+    ("truck", "boxes", "boxes in the back of a truck", False),
+    ("wok", "spatula", "a spatula in a wok full of noodles", True),         # strands heap up, pieces do not
+    ("wheelbarrow", "pumpkins", "a wheelbarrow full of pumpkins", False),  # the contents are the figure
+    ("paint_tray", "paint_roller", "a paint roller in a paint tray full of paint", True),  # ... its head only
+    # pierceable solids, openings, staked and skewered things
+    ("fabric", "needle", "a needle through the fabric", True),
+    ("arm", "syringe", "a syringe in the patient's arm", True),
+    ("lantern", "candle", "a candle in a lantern", False),                # a holder, not a solid
+    ("drill", "drill_bit", "a drill bit in the chuck of a drill", False),  # an opening part
+    ("cake", "candle", "a candle on a birthday cake", True),
+    ("sandcastle", "flag", "a flag on top of a sandcastle", True),
+    ("tower", "flag", "a flag on top of a tower", False),
+    ("cake", "knife", "a knife on the cake", False),                      # cutlery lies, candles stand
+    ("cake", "sparkler", "a sparkler stuck on a cake", True),
+    ("fridge", "magnet", "a magnet stuck on the fridge", False),
+    ("stick", "marshmallow", "a marshmallow on a stick", True),
+    ("cake", "coin", "a cake with a coin inside it", True),               # inside a solid food: embedded
+    ("apple", "worm", "a worm poking out of an apple", True),             # a creature's state, not its tool
+    ("pumpkin", "knife", "a knife carving a pumpkin", True),
+    ("wall", "drill", "a drill boring into the wall", True),
+    ("pumpkin", "candle", "a candle inside a carved pumpkin", False),     # carved: hollow
+])
+def test_penetration_from_what_the_ground_is(target, source, prompt, penetration):
+    prior = rules(target, source, prompt)
+    assert prior.penetration is penetration, prior.reason
+
+
+def test_contents_are_read_from_the_prompt():
+    at = [len("a spoon in a ")]
+    assert context.contents("a spoon in a mug of hot cocoa", at, lexicon.lookup("mug")) == "cocoa"
+    assert context.contents("a spoon in a mug of coins", at, lexicon.lookup("mug")) is None
+    assert context.contents("a spoon in a mug", at, lexicon.lookup("mug")) is None
+    assert context.contents("a straw in a cola", at, lexicon.lookup("cola")) == "its contents"
+
+
+# --- sizes and contact from the scene -------------------------------------------------------------------
+
+def test_sizes_fit_the_scene():
+    # what is inside a container fits in it, unless it is long or a plant sticking out
+    assert rules("snow_globe", "house", "a tiny house inside a snow globe").size_ratio <= 0.9
+    assert rules("vase", "flowers", "flowers in a vase").size_ratio > 1
+    # a toy's accessories are made to its scale
+    assert rules("doll", "hat", "a doll wearing a hat").size_ratio < 0.5
+    assert rules("man", "hat", "a man wearing a hat").size_ratio == pytest.approx(
+        lexicon.lookup("hat").size_m / lexicon.lookup("man").size_m)
+
+
+@pytest.mark.parametrize("target,source,prompt,relation,low,high", [
+    ("sofa", "blanket", "a blanket over the sofa", "lie", 0.3, 0.6),       # cloth over something drapes
+    ("car", "car_cover", "a car cover over the car", "lie", 0.5, 0.7),
+    ("house", "balloon", "a balloon floating over the house", "beside", 0.0, 0.0),
+    ("fishbowl", "goldfish", "a goldfish swimming in a fishbowl", "beside", 0.0, 0.0),  # no contents said
+    ("dune", "camel", "a camel walking over a dune", "stand", 0.0, 0.1),
+    ("river", "salmon", "a salmon leaping out of the river", "beside", 0.0, 0.0),
+    ("giraffe", "bird", "a bird sitting on the giraffe's head", "stand", 0.0, 0.1),    # creatures don't wear
+    ("workbench", "hammer", "a hammer lying on the workbench", "lie", 0.0, 0.1),      # rigid: a few points
+    ("mug", "sugar_cube", "a sugar cube dropped into a mug of tea", "in", 0.3, 0.5),  # wetted all over
+])
+def test_relation_and_contact_from_the_scene(target, source, prompt, relation, low, high):
+    prior = rules(target, source, prompt)
+    assert prior.relation == relation, prior.reason
+    assert low <= prior.contact_ratio <= high, prior.reason
 
 
 # --- the OpenAI-compatible provider against a real local server --------------------------------------

@@ -12,11 +12,21 @@ spaces; plurals are handled by ``singular`` so rows list singular forms only.
 Tags:
 - ``container``: has a cavity or opening things go into without cutting (cup, box, bun, keyhole).
 - ``pointed``: thin or sharp enough to be pushed into a solid (knife, arrow, nail, candle, flag).
+- ``staked``: pointed and made to stand stuck in what it is put on (candle, flag, toothpick): "on" a
+  pierceable solid (a cake, a sandcastle) it goes into it, where a knife or a fork would lie on top.
 - ``flat``: a sheet or slice that lies on one face (pepperoni, poster, sticker).
 - ``round``: ball-like; touches a support at a point.
 - ``soft``: drapes or settles onto a support (cushion, cat, towel).
 - ``wrap``: a garment or band that hugs what wears it (scarf, glove, collar).
 - ``agent``: a person, character or animal that can hold, wear, ride.
+- ``pierceable``: a solid a pointed thing goes into when pushed (wood, soil, foam, a dartboard, fabric); solid
+  food, plants and ``soft`` things are pierceable without the tag.
+- ``filled``: holds contents that close its opening off (a drink, a soup, a pond): what goes *in* it passes
+  below the surface of the contents, so it penetrates (the prompt can say so too: "a mug of cocoa").
+
+Each row belongs to the section it is listed under (``Entry.domain``): the domain decides between the senses of
+a word listed in more than one row (``~mouse`` in a later row: the computer mouse is another sense of "mouse";
+``SENSES``), by the other object of the prompt.
 
 Names like ``rooster_comb`` or ``teapot_lid`` are parts: ``PARTS`` gives a part's size as a fraction
 of its owner's, so any owner in the table works without listing every pair.
@@ -42,7 +52,7 @@ coconut 0.15 round
 avocado/mango 0.1
 tomato/onion/potato 0.08 round
 carrot/cucumber/zucchini/eggplant 0.2 pointed
-corn 0.2
+corn/corn_cob/corn_on_the_cob/cob 0.2
 mushroom 0.06
 egg 0.06 round
 bread/loaf 0.25
@@ -58,11 +68,14 @@ cheese 0.1
 cheese_slice/ham/bacon/lettuce/salmon_fillet/salmon 0.12 flat
 steak/meat/chicken/fish_fillet 0.2
 drumstick 0.15
+clove/peppercorn/seed/bean/almond/peanut/walnut/hazelnut/pistachio/chickpea 0.02
+garlic/chili/chilli 0.06
 rice/rice_ball/onigiri 0.07
 sushi/nigiri/maki 0.06
 cake 0.25
 cupcake/muffin 0.07
 cookie/biscuit/cracker/pancake/waffle 0.08 flat
+biscotti/breadstick/churro/pretzel_stick 0.15
 donut/doughnut/bagel 0.1
 croissant 0.15
 pie/tart/quiche 0.25
@@ -72,29 +85,49 @@ scoop/ice_cream_scoop 0.07 round
 ice_cream_cone/waffle_cone/cone 0.15 container
 popsicle/lollipop 0.15
 candy/sweet/chocolate/praline 0.03
+candy_cane 0.15
 chocolate_bar 0.15 flat
 marshmallow 0.04 soft
 taco/burrito/wrap 0.18 container
 noodle/pasta/spaghetti 0.2
-soup/stew 0.2
+soup/stew/broth/porridge/oatmeal/curry/ramen/chowder 0.2 container,filled
 butter 0.1
-honey/honey_jar/honey_pot/jam 0.12 container
-coffee/tea/latte/espresso/cappuccino 0.09 container
-wine/beer/juice/milk/water/soda/drink/cocktail/martini/margarita 0.18 container
+honey/honey_jar/honey_pot/jam 0.12 container,filled
+coffee/tea/latte/espresso/cappuccino/cocoa/hot_chocolate/iced_tea 0.09 container,filled
+wine/beer/juice/milk/water/soda/drink/cocktail/martini/margarita 0.18 container,filled
+lemonade/cola/whiskey/whisky/punch/champagne/prosecco/vodka/gin/rum/cider/sake 0.18 container,filled
+mojito/daiquiri/pina_colada/sangria/mimosa/negroni/cosmopolitan/gin_and_tonic 0.18 container,filled
+milkshake/smoothie/frappe 0.2 container,filled
 teabag/tea_bag 0.07 flat
 sugar_cube/ice_cube 0.02
 # --- tableware and kitchen ---
+fried_egg 0.12 flat
+dumpling/gyoza/wonton/meatball 0.045
+dough/batter/clay/playdough/foam/styrofoam 0.2 soft,pierceable
+colander/strainer/sieve/measuring_cup/lunchbox/lunch_box 0.2 container
+egg_cup 0.05 container
+tea_cozy/tea_cosy 0.3 soft,wrap
+thermos 0.3 container
+grater/peeler/can_opener/bottle_opener/corkscrew/salt_shaker/pepper_shaker/pepper_mill 0.15
+tongs 0.3
+oven_mitt/pot_holder 0.3 soft,wrap
+thermometer/meat_thermometer 0.15 pointed
+roast_turkey/roast_chicken/roast 0.4
+kitchen_counter/counter/countertop/kitchen_island 2.0 flat
+dish_rack/drying_rack 0.45 container
 coaster 0.1 flat
-decanter/carafe/pitcher/jug/vial/potion/potion_bottle 0.25 container
+decanter/carafe/pitcher/jug/vial/potion_bottle 0.25 container
+potion/elixir 0.2 container,filled
 ice_bucket/wine_cooler 0.25 container
-cocktail_umbrella 0.1 pointed
+cocktail_umbrella 0.1 pointed,staked
 macaron/truffle 0.04
 watering_can 0.4 container
 cake_stand 0.3
 plate/dish/saucer 0.27 flat,container
 bowl 0.2 container
+punch_bowl/salad_bowl/mixing_bowl 0.35 container
 cup/coffee_cup/teacup/mug/beaker 0.1 container
-glass/tumbler/wine_glass/martini_glass/champagne_glass/goblet 0.16 container
+glass/tumbler/wine_glass/martini_glass/champagne_glass/goblet/champagne_flute/~flute 0.2 container
 bottle/wine_bottle/beer_bottle/flask 0.3 container
 jar/canister 0.15 container
 can/tin/soda_can 0.12 container
@@ -105,33 +138,65 @@ tray/platter/cutting_board/chopping_board 0.4 flat
 lid 0.15
 cork/stopper 0.045
 straw/drinking_straw 0.2 pointed
-spoon/teaspoon/ladle 0.17 pointed
+spoon/tablespoon 0.17 pointed
+wooden_spoon/cooking_spoon/stirring_spoon 0.3 pointed
+teaspoon 0.14 pointed
+ladle/serving_spoon 0.3 pointed
 fork 0.19 pointed
 knife/kitchen_knife/chef_knife/butter_knife/steak_knife/cleaver 0.28 pointed
 chopstick 0.24 pointed
-toothpick/cocktail_stick 0.07 pointed
-skewer/kebab_stick 0.3 pointed
+toothpick/cocktail_stick 0.07 pointed,staked
+skewer/kebab_stick 0.3 pointed,staked
 whisk/spatula/rolling_pin 0.3
-napkin/tablecloth/placemat 0.4 flat,soft
-blender/mixer/toaster/coffee_maker/microwave 0.4
+napkin/placemat 0.4 flat,soft
+tablecloth/table_cloth/tarp/tarpaulin/bedsheet 2.0 flat,soft
+blender/mixer/coffee_maker/coffee_machine/espresso_machine 0.4
+microwave/microwave_oven 0.5 container
+toaster 0.3 container
 basket 0.4 container
 bucket/pail 0.3 container
 # --- bathroom and cosmetics ---
+toilet_paper/toilet_roll/toilet_paper_roll/paper_towel_roll 0.11
+soap_dish 0.12 container
+soap_dispenser/hair_dryer/hairdryer 0.22
+towel_rail/towel_bar/towel_rack 0.6
+shower_head/showerhead/bath_bomb/cotton_swab/nail_polish 0.08
+shower_curtain 1.8 flat,soft
+bath_mat/bathmat 0.8 flat,soft
+plunger/toilet_brush 0.45
+medicine_cabinet 0.6 container
+laundry_basket/hamper 0.6 container
 lipstick/lip_balm/mascara 0.08 pointed
 perfume/perfume_bottle/lotion/shampoo 0.15 container
 toothbrush/razor/hairbrush/comb 0.18 pointed
 toothpaste/tube 0.18
 soap/sponge 0.09 soft
 # --- furniture and home ---
+computer_mouse/~mouse 0.11
+stapler/tape_dispenser/calculator/projector/router 0.2
+paperclip/paper_clip/eraser/usb_stick/flash_drive/webcam/rubber_stamp 0.04
+binder/folder/file_folder/tablet/ipad 0.3 flat
+printer/scanner 0.45
+pencil_sharpener/sharpener 0.08 container
+alarm_clock/desk_clock 0.12
+filing_cabinet/file_cabinet 1.3 container
+locker 1.8 container
+fan/desk_fan/electric_fan 0.35
+ceiling_fan 1.2
+bell/cowbell/doorbell 0.12
+nightstand/bedside_table/side_table 0.55
+pegboard 1.0 flat
 anvil 0.5
 barrel/keg/cask 0.9 container
-lantern 0.3
+lantern/jack_o_lantern 0.3 container
 pedestal/plinth 1.0
-podium/lectern 1.2
+podium/lectern/music_stand 1.2
 coffin/casket 2.0 container
 tombstone/gravestone/headstone 1.0
-easel/tripod 1.7
-telescope/microscope 1.0
+easel/tripod/microphone_stand/mic_stand/lamp_stand 1.7
+telescope 1.0
+microscope 0.4
+microscope_slide/glass_slide/~slide 0.075 flat
 microphone/mic 0.2
 turntable/record_player 0.45
 record/vinyl 0.3 flat
@@ -154,15 +219,21 @@ present/gift/gift_box 0.35 container
 bow/ribbon 0.15
 lamp/desk_lamp/table_lamp 0.45
 floor_lamp/standing_lamp 1.6
-candle 0.2 pointed
+candle 0.2 pointed,staked
+sparkler/cake_topper/candle_topper 0.25 pointed,staked
+umbrella_stand 0.5 container
+snow_globe 0.12 container
 candlestick/candle_stick/candle_holder/candelabra 0.3 container
 vase 0.3 container
 flower_pot/plant_pot/planter/pot_plant 0.25 container
 clock/wall_clock 0.35 flat
 mirror 0.8 flat
-painting/picture/frame/picture_frame/poster/photo/photograph/canvas/map/calendar 0.7 flat
+painting/picture/frame/picture_frame/poster/canvas/map/calendar 0.7 flat
+photo/photograph/polaroid 0.15 flat
+baking_sheet/baking_tray/sheet_pan 0.4 flat
 sign/signboard/plaque 0.6 flat
-sticker/label/decal/note/sticky_note/postcard/letter/paper/card/playing_card 0.09 flat
+sticker/label/decal/note/sticky_note/postcard/card/playing_card 0.09 flat
+letter/paper/sheet/document/page 0.25 flat
 envelope 0.22 flat,container
 book/notebook/novel 0.25
 magazine/newspaper 0.3 flat
@@ -179,21 +250,29 @@ piano/grand_piano 1.5
 guitar/violin/cello/bass 1.0
 drum 0.5
 trumpet/flute/saxophone 0.6
+drum_stick/drumsticks/~drumstick 0.4 pointed
 door/front_door/gate 2.0 flat
 window 1.2 flat
-wall 4.0 flat
+shop_window/display_window/storefront 3.0 flat
+vending_machine/arcade_machine/jukebox 1.8
+wall 4.0 flat,pierceable
 floor/ground/platform/stage 5.0 flat
 roof 10.0
 stair/staircase/step 3.0
 fireplace 1.5 container
 bathtub/bath 1.7 container
+hot_tub/jacuzzi 2.1 container,filled
 sink/basin 0.6 container
+plug/power_plug/charger 0.06
+power_strip/extension_cord 0.4
+socket/power_outlet/outlet/light_switch 0.1 flat
 toilet 0.7 container
 shower 2.0
-fridge/refrigerator/oven/stove/washing_machine/dishwasher 1.7 container
+fridge/refrigerator 1.7 container
+oven/stove/cooker/washing_machine/dishwasher/dryer/tumble_dryer 0.9 container
 trash_can/bin/dustbin/wastebasket 0.6 container
 coat_rack/hat_stand/coat_stand 1.8
-hook/peg/hanger/coat_hook/knob/doorknob/handle 0.06
+hook/peg/coat_hook/knob/doorknob/handle 0.06
 ring_stand/pencil_holder/pen_holder 0.1 container
 piggy_bank/money_box 0.2 container
 mailbox/letterbox 0.45 container
@@ -201,11 +280,15 @@ birdhouse/nest 0.3 container
 cage/birdcage 0.6 container
 fishbowl/fish_bowl 0.25 container
 aquarium/fish_tank 0.8 container
-pincushion 0.1
-cork_board/corkboard/bulletin_board/whiteboard/blackboard/chalkboard 0.9 flat
-board/plank 1.0 flat
-log/tree_trunk/stump/firewood 0.8
-wood/timber 0.5
+pincushion 0.1 pierceable
+dustpan/dust_pan 0.3
+ottoman/footstool/pouf 0.6 soft
+nozzle/fuel_nozzle/hose_nozzle 0.3
+cork_board/corkboard/bulletin_board 0.9 flat,pierceable
+whiteboard/blackboard/chalkboard 0.9 flat
+board/plank 1.0 flat,pierceable
+log/tree_trunk/stump/firewood 0.8 pierceable
+wood/timber 0.5 pierceable
 block/cube/brick 0.3
 chessboard/chess_board/game_board 0.45 flat
 pawn/chess_piece/rook/bishop 0.05
@@ -213,7 +296,20 @@ dice/die 0.016
 coin 0.025 flat
 key 0.06 pointed
 lock/padlock/keyhole 0.06 container
+bike_lock/cable_lock/chain_lock 0.6 wrap
+shoelace/lace 1.0 wrap
 # --- clothing and accessories ---
+hanger/coat_hanger/clothes_hanger 0.45
+clothesline/washing_line 4.0
+clothes_peg/clothespin 0.07
+wedding_dress/gown/ball_gown 1.5 soft
+pajamas/pyjamas/swimsuit/vest/waistcoat 0.7 soft
+shoebox/shoe_box 0.35 container
+earmuffs 0.2 wrap
+hairclip/hair_clip/barrette/hairpin/earring/brooch/badge/button 0.03 flat
+fabric/cloth/felt/linen/cotton/denim/silk/velvet 0.5 flat,soft,pierceable
+yarn/ball_of_yarn/yarn_ball/wool 0.1 soft,round
+knitting_needle 0.35 pointed
 hat/cap/beanie/beret/top_hat/cowboy_hat/sun_hat/fedora/party_hat/witch_hat/wizard_hat/baseball_cap 0.3
 crown/tiara 0.2
 helmet 0.3
@@ -221,26 +317,52 @@ headband/hairband 0.18 wrap
 glasses/sunglasses/spectacles/goggles 0.14
 mask 0.2
 scarf/shawl 0.4 wrap,soft
-tie/necktie/bowtie/bow_tie 0.3 flat
+tie/necktie 0.3 flat
+bowtie/bow_tie 0.12 flat
 necklace/chain/collar/choker 0.15 wrap
 ring 0.02 wrap
 bracelet/watch/wristwatch/bangle 0.07 wrap
 belt 0.5 wrap
 glove/mitten 0.25 wrap
+boxing_glove 0.3
 sock 0.25 wrap
+stocking/christmas_stocking 0.45 soft
 shoe/boot/sneaker/slipper/sandal 0.3 container
 jacket/coat/shirt/t_shirt/sweater/hoodie/dress/robe/cape/cloak 1.0 soft
 trousers/pants/jeans/skirt/shorts 1.0 soft
 apron 0.8 flat,soft
-backpack/rucksack/schoolbag 0.5 container
-bag/handbag/purse/tote/shopping_bag 0.4 container
+backpack/rucksack/schoolbag 0.5 container,soft
+bag/handbag/purse/tote/shopping_bag 0.4 container,soft
 suitcase/luggage 0.7 container
 wallet 0.11 flat
 umbrella/parasol 1.0
-cane/walking_stick/staff 1.0 pointed
+cane/walking_stick 1.0 pointed
+staff/wizard_staff/quarterstaff 1.7 pointed
 saddle/bridle 0.6 soft
 wreath/garland 0.5
 # --- tools, weapons and equipment ---
+drill/power_drill/electric_drill/hair_trimmer 0.25
+drill_bit 0.1 pointed
+toolbox/tool_box/toolkit/tool_chest 0.5 container
+vise/vice/clamp 0.3
+tape_measure/measuring_tape 0.08
+spirit_level/crowbar 0.6
+barbell 2.1
+dumbbell/kettlebell 0.3
+weight_bench/gym_bench 1.5
+treadmill/exercise_bike/rowing_machine 1.8
+punching_bag/boxing_bag/heavy_bag 1.2 soft
+yoga_mat/exercise_mat 1.8 flat,soft
+flashlight/torch/glue_gun/paint_roller 0.25
+soldering_iron 0.25 pointed
+iron/clothes_iron/steam_iron 0.28
+ironing_board 1.3 flat
+sandpaper 0.25 flat
+paint_can/paint_bucket 0.2 container
+chainsaw/sawhorse 0.8
+trowel 0.3 pointed
+hoe 1.5 pointed
+shears/pruners/secateurs 0.25
 hammer/mallet 0.33
 gavel 0.25
 sound_block/gavel_block 0.12
@@ -252,7 +374,13 @@ nail 0.07 pointed
 screw/bolt 0.05 pointed
 pin/push_pin/pushpin/thumbtack/tack/needle/sewing_needle 0.03 pointed
 scissors 0.2
-pen/pencil/marker/crayon/paintbrush/brush 0.15 pointed
+pen/pencil/marker/crayon 0.15 pointed
+paintbrush/brush 0.22 pointed
+syringe/injection 0.12 pointed
+wedge 0.15 pointed
+palette 0.35 flat
+paddle/oar 2.0
+wafer 0.08 flat
 ruler 0.3 flat
 shovel/spade/rake/broom/broomstick/mop/pitchfork 1.4 pointed
 sword/katana/sabre/saber 1.0 pointed
@@ -264,20 +392,24 @@ shield 0.75
 gun/pistol/revolver 0.25
 rifle 1.0
 wand/magic_wand 0.35 pointed
-flag/pennant/banner 1.5 pointed
-cocktail_flag 0.2 pointed
+flag/pennant/banner 1.5 pointed,staked
+cocktail_flag 0.2 pointed,staked
 pole/stake/post/pillar/column 2.5 pointed
 stick/twig/rod 0.8 pointed
-archery_target/dartboard/bullseye 1.2 flat
+archery_target/bullseye 1.2 flat,pierceable
+dartboard 0.45 flat,pierceable
 ladder 3.0
 rope/cable/hose/wire 3.0 wrap
 chain_link 0.03
 tent 3.0 container
+sleeping_bag 2.0 flat,soft
 ball/football/soccer_ball/basketball/volleyball/beach_ball/globe 0.22 round
 tennis_ball/baseball/golf_ball/marble/snowball 0.07 round
 balloon 0.3 round
 bat/baseball_bat/racket/tennis_racket/golf_club/hockey_stick 0.9
-skateboard/surfboard/snowboard/skis/ski 0.8 flat
+skateboard 0.8 flat
+surfboard/paddleboard 2.0 flat
+snowboard/skis/ski 1.6 flat
 frisbee 0.25 flat
 kite 1.0 flat
 hoop/basketball_hoop/ring_toss 0.45 container
@@ -285,14 +417,36 @@ trophy/medal 0.3
 slide/playground_slide 3.0
 swing 2.0
 seesaw/trampoline 3.0
-sandcastle/sand_castle 0.4
-snowman 1.5
+sandbox/sandpit 2.0 container
+sandcastle/sand_castle 0.4 pierceable
+snowman 1.5 pierceable
+goal/soccer_goal/football_goal 7.3
+net/goal_net 3.0 soft
+bowling_pin/skittle 0.38
+bowling_ball 0.22 round
+puck/hockey_puck 0.08 flat
+shuttlecock/golf_tee/tee 0.06
+ski_pole/trekking_pole 1.2 pointed
 antenna/satellite_dish 1.5 pointed
 chimney 1.5
 cross 1.0
 star 0.2
 statue/sculpture 2.0
 # --- toys and figures ---
+spinning_top/yo_yo/yoyo/rubik_cube/slinky 0.06
+rattle/baby_rattle/jack_in_the_box 0.15
+pacifier/dummy/teether 0.06
+baby_bottle 0.18 container
+diaper/nappy 0.4 soft
+bib 0.25 flat,soft
+toy_train 0.2
+train_set/train_track/toy_track/play_mat/playmat 1.2 flat
+toy_box/toy_chest 0.8 container
+bouncy_ball/rubber_ball 0.05 round
+lego_minifigure/minifigure/minifig 0.04 agent
+rocking_horse 1.0
+water_gun/squirt_gun 0.25
+garden_gnome/lawn_gnome 0.35
 rubber_duck 0.08
 toy/figurine/action_figure/doll/puppet 0.3
 teddy_bear/teddy/plush/stuffed_animal 0.4 soft,agent
@@ -302,6 +456,8 @@ toy_car 0.1
 person/human/man/woman/people/adult/guy/lady/gentleman/hiker/farmer/chef/cook/doctor/nurse 1.75 agent
 soldier/astronaut/pilot/firefighter/policeman/student/teacher/worker/musician/player/athlete 1.75 agent
 dancer/runner/tourist/driver/rider/mannequin/zombie/vampire 1.75 agent
+patient/passenger/fisherman/shepherd/gardener/mechanic/plumber/painter/skier/surfer/swimmer/climber 1.75 agent
+waiter/waitress/butler/sailor/diver/golfer/boxer/skater/cyclist/artist/scientist/businessman 1.75 agent
 boy/girl/kid/child/teen/teenager 1.3 agent
 baby/toddler/infant 0.7 agent
 king/queen/prince/princess/knight/wizard/witch/pirate/cowboy/ninja/samurai/viking/clown/captain 1.8 agent
@@ -320,41 +476,77 @@ winnie_the_pooh/pooh/paddington/yoda/pikachu/kermit/stitch/olaf/minion 0.6 agent
 # body parts (a person's)
 head/mannequin_head/skull 0.25
 face 0.2 flat
-hand/paw 0.19
-foot 0.26
-arm/leg 0.75
-finger/toe 0.08
+hand/paw 0.19 pierceable
+foot 0.26 pierceable
+arm/leg 0.75 pierceable
+finger/toe 0.08 pierceable
 neck 0.12
 nose/ear/mouth/eye 0.05
 # --- animals ---
+foal/colt/filly 1.4 agent
+duckling/chick/gosling/cygnet 0.15 agent
+fawn/joey 0.8 agent
+perch/bird_perch 0.3
+fruit_bat/vampire_bat/~bat 0.3 agent
+seal/sea_lion/walrus 2.0 agent
+crocodile/alligator 4.0 agent
+kangaroo 1.5 agent
+turkey/peacock 1.0 agent
+dog_bowl/pet_bowl/water_bowl/food_bowl 0.2 container
+dog_bed/pet_bed/cat_bed 0.8 soft,container
+kennel/doghouse/dog_house 1.0 container
+hamster_wheel/exercise_wheel 0.2
+hutch/coop/chicken_coop/trough 1.5 container
+stable 10.0 container
+leash/lead 1.5 wrap
+horseshoe 0.12
 scarecrow/ghost/skeleton 1.8 agent
 dragon/dinosaur 10.0 agent
 unicorn 2.4 agent
-dog/puppy/wolf/fox 0.8 agent
-cat/kitten 0.45 soft,agent
+dog/wolf/fox 0.8 agent
+puppy/cub/piglet 0.4 agent
+cat 0.45 soft,agent
+kitten 0.25 soft,agent
 rabbit/bunny/hare 0.4 agent
 mouse/rat/hamster/squirrel/guinea_pig 0.1 agent
-bird/sparrow/robin/parrot/pigeon/crow/owl/songbird 0.2 agent
+bird/sparrow/robin/pigeon/crow/songbird 0.2 agent
+parrot/macaw/cockatoo/owl 0.4 agent
 hen/rooster/duck/goose/penguin 0.5 agent
-eagle/hawk/swan/flamingo 1.0 agent
+eagle/hawk/swan/flamingo/heron/stork/crane 1.0 agent
 horse/pony/donkey/camel/cow/bull/ox/deer/moose/zebra 2.4 agent
 pig/sheep/goat/lamb/calf 1.2 agent
 elephant 6.0 agent
 giraffe 5.0 agent
 lion/tiger/bear/panda/gorilla/leopard/cheetah 2.0 agent
-monkey/chimpanzee/lemur/koala/raccoon/otter 0.6 agent
+monkey/chimpanzee/lemur/koala/raccoon/otter/sloth 0.6 agent
 frog/toad/turtle/tortoise/lizard/snail/crab/lobster 0.2 agent
 snake/python/cobra/eel 2.0 wrap,agent
-fish/goldfish/clownfish 0.06 agent
+fish/trout/carp 0.3 agent
+goldfish/clownfish/guppy 0.06 agent
 shark/dolphin/whale 4.0 agent
-bee/butterfly/ladybug/ant/spider/fly/insect/bug/beetle/worm 0.03 agent
+bee/butterfly/ladybug/ant/spider/fly/insect/bug/beetle 0.03 agent
+worm/earthworm/caterpillar/slug 0.08 agent
+beehive/hive/anthill 0.5 container
+spider_web/cobweb/web 0.4 flat
 oyster/clam/shell/seashell/mussel/scallop 0.1 container
 pearl/bead/gem/gemstone/jewel/diamond 0.01 round
 bone 0.25
 feather 0.2 flat
 egg_shell 0.06 container
 # --- plants ---
-tree/oak/pine/palm/palm_tree/pine_tree 8.0
+seedling/sprout 0.1
+sapling 1.5
+lily_pad 0.3 flat
+flower_bed/garden_bed/raised_bed 2.0 flat
+fence_post 1.2 pointed
+sprinkler/bird_feeder 0.25
+lawn_mower/lawnmower/mower 1.5
+compost_bin 1.0 container
+greenhouse/gazebo 4.0 container
+hammock 3.0 soft
+tree/oak/pine/palm/palm_tree/pine_tree/oak_tree 8.0
+treehouse/tree_house/playhouse 2.5 container
+field/meadow/vegetable_patch/vegetable_garden/garden_patch/farmland 20.0 flat,pierceable
 christmas_tree/xmas_tree/fir 2.0
 bush/shrub/hedge 1.5
 plant/houseplant/potted_plant/fern/cactus/succulent 0.5
@@ -362,16 +554,36 @@ flower/rose/tulip/daisy/sunflower/lily/bouquet 0.4 pointed
 leaf 0.1 flat
 branch/bough 1.0 pointed
 grass/lawn 5.0 flat
-rock/stone/boulder 0.5
+rock/stone/boulder 0.5 pierceable
 pebble 0.04 round
-sand/dirt/soil/snow/mud 1.0
+sand/dirt/soil/snow/mud 1.0 pierceable
 # --- vehicles ---
+pickup/pickup_truck 5.5 container
+tank/battle_tank/army_tank 7.0 container
+fuel_tank/gas_tank 0.6 container
+fire_truck/fire_engine/ambulance 8.0 container
+golf_cart/forklift 2.5
+excavator/digger/bulldozer 8.0
+construction_crane/tower_crane/~crane 50.0
+windshield/windscreen 1.5 flat
+windshield_wiper/wiper/license_plate/number_plate 0.5 flat
+steering_wheel 0.38
+roof_rack 1.2
+trailer 4.0 container
+caravan/camper/rv/motorhome 7.0 container
+submarine 50.0
+hot_air_balloon 20.0 container
+parking_ticket/ticket/receipt/flyer/leaflet 0.15 flat
+traffic_light 3.0
+bus_stop/bus_shelter 3.0
 tire/tyre/wheel 0.7 round
+buoy 1.0 round
 ufo/flying_saucer 10.0
 car/taxi/sedan/suv/jeep/van 4.5 container
 truck/lorry/bus/tractor 7.0 container
 bicycle/bike/tricycle 1.7
 motorcycle/motorbike/scooter 2.0
+kick_scooter/push_scooter 0.85
 skate/roller_skate 0.3
 boat/canoe/kayak/rowboat 5.0 container
 ship/yacht/ferry 40.0 container
@@ -379,14 +591,15 @@ airplane/plane/aeroplane/jet 30.0
 helicopter 12.0
 rocket/spaceship 20.0 pointed
 train/locomotive/tram 20.0
-wagon/cart/wheelbarrow/stroller/pram 1.5 container
+wagon/cart/wheelbarrow 1.5 container
+stroller/pram/buggy 1.0 container
 sled/sledge/sleigh 1.5
 # --- buildings and places ---
 fire_hydrant 0.8
 lamp_post/street_lamp/streetlight/lamppost 4.0 pointed
 traffic_cone 0.7
-hay_bale 1.2
-haystack 3.0
+hay_bale 1.2 pierceable
+haystack 3.0 pierceable
 bird_bath/birdbath 0.8 container
 house/home/cottage/cabin/hut/shed 10.0 container
 garage 6.0 container
@@ -398,24 +611,36 @@ tower/castle_tower/lighthouse/turret 15.0
 bridge 50.0
 fence/railing 2.5 flat
 well 1.5 container
-fountain/pool/pond/swimming_pool 4.0 container
+fountain/pool/pond/swimming_pool 4.0 container,filled
+lake/river/sea/ocean 100.0 container,filled
+puddle 0.5 flat,filled
 igloo/dome 3.0 container
 moon/planet/earth 100.0 round
 mountain/hill/cliff 100.0
 """
 
-# A part's size as a fraction of its owner's ("teapot lid": 0.6 of a teapot).
+# A part's size as a fraction of its owner's ("teapot lid": 0.6 of a teapot); a holder named for what it holds
+# ("ring box", "guitar case") is sized from that.
 PARTS: dict[str, float] = {
-    "lid": 0.6, "cap": 0.4, "cover": 1.0, "case": 1.0, "sheath": 1.0, "holder": 0.8, "base": 0.7,
+    "lid": 0.6, "cap": 0.4, "cover": 1.0, "case": 1.0, "box": 1.5, "sheath": 1.0, "holder": 1.3, "base": 0.7,
     "stand": 0.8, "handle": 0.4, "jar": 0.6, "tank": 0.6, "container": 0.6, "comb": 0.15, "top": 0.5,
     "seat": 0.4, "wheel": 0.3, "door": 0.5, "roof": 1.0, "blade": 0.6, "tip": 0.1, "head": 0.3,
     "leg": 0.5, "shade": 0.4, "bulb": 0.2, "slice": 0.5, "piece": 0.3, "half": 0.8, "wing": 0.4,
     "tail": 0.4, "nose": 0.1,
 }
+# The parts a person, character or animal has (a "hamster wheel" is no part of a hamster).
+AGENT_PARTS = frozenset({"head", "leg", "tail", "wing", "nose", "comb", "tip"})
+# The parts a food has, and what holds one (a "pizza box"; a "wheel of cheese" is a whole cheese, no cheese's wheel).
+FOOD_PARTS = frozenset({"slice", "piece", "half", "top", "tip", "base", "wing", "leg", "lid", "box"})
+# Holders named for what they hold ("ring box", "pizza box"): only things small enough to be held ("roof box").
+HOLDERS = frozenset({"box", "case", "holder"})
+HOLDER_MAX_M = 1.2
 # Parts made to come off their owner: a name that is only one of these ("lid") is sized from the other object.
 DETACHABLE = frozenset({"lid", "cap", "cover", "case", "sheath", "stand", "base", "handle", "top"})
 # Parts that hold their owner (a lipstick's cover, a blender's jar) are containers.
-CONTAINER_PARTS = frozenset({"cover", "case", "sheath", "holder", "jar", "tank", "container", "cap"})
+CONTAINER_PARTS = frozenset({"cover", "case", "sheath", "holder", "jar", "tank", "container", "cap", "box"})
+# Parts that hug their owner's surface (a car cover).
+WRAPPING_PARTS = frozenset({"cover"})
 
 # Size adjectives in a name ("ball_small", "BigRock").
 SIZE_WORDS: dict[str, float] = {
@@ -424,8 +649,24 @@ SIZE_WORDS: dict[str, float] = {
 }
 
 # Materials name the object only when nothing else does ("table wood" is a table, "wood" is wood).
+# Substances: an unknown thing named after one ("sand dune", "snow bank") says nothing about its size.
+SUBSTANCES = frozenset({"sand", "dirt", "soil", "snow", "mud", "water", "ice", "grass", "hay", "sugar", "salt"})
 MATERIALS = frozenset({"wood", "stone", "glass", "metal", "gold", "silver", "plastic", "paper", "marble", "clay",
-                       "steel", "iron", "leather", "rock"})
+                       "steel", "iron", "leather", "rock", "fabric", "cloth", "felt", "cotton", "denim", "silk",
+                       "velvet", "linen", "wool", "yarn"})
+# Words a file name or a prompt puts around an object's head noun that do not name an object: colours, styles,
+# file-format and asset-pipeline words ("Rubber_Duck_Yellow", "old_lamp_lowpoly", "SM_Chair_02").
+def word_set(text: str) -> frozenset[str]:
+    """The whitespace-separated words of a table of words."""
+    return frozenset(text.split())
+
+
+NON_HEAD_WORDS = word_set("""
+red green blue yellow white black brown grey gray pink purple beige golden dark light bright pale striped
+old new vintage antique modern classic rusty broken clean dirty simple cartoon stylized stylised realistic cute
+low high poly lowpoly highpoly hi res detailed model mesh obj fbx glb gltf stl ply sm geo lod copy asset prop
+final version var variant wooden metallic plastic ceramic round square tall short long wide empty open closed
+""")
 
 
 @dataclass(frozen=True)
@@ -435,6 +676,7 @@ class Entry:
     name: str
     size_m: float
     tags: frozenset[str]
+    domain: str = ""  # the table section: "animals", "vehicles" ...
 
 
 @dataclass(frozen=True)
@@ -451,23 +693,31 @@ class Match:
         return tag in self.tags
 
 
-def _parse_table(text: str) -> dict[str, Entry]:
+def _parse_table(text: str) -> tuple[dict[str, Entry], dict[str, list[Entry]]]:
+    """Rows to (alias -> entry, word -> its senses, the plain row first): ``~word`` in a row adds a sense."""
     table: dict[str, Entry] = {}
+    senses: dict[str, list[Entry]] = {}
+    domain = ""
     for line in text.splitlines():
         line = line.strip()
+        if line.startswith("# ---"):
+            domain = line.strip("#- ")
         if not line or line.startswith("#"):
             continue
         names, size, *tags = line.split()
         aliases = [a.replace("_", " ") for a in names.split("/")]
-        entry = Entry(aliases[0], float(size), frozenset(tags[0].split(",")) if tags else frozenset())
+        entry = Entry(aliases[0], float(size), frozenset(tags[0].split(",")) if tags else frozenset(), domain)
         for alias in aliases:
+            if alias.startswith("~"):
+                senses.setdefault(alias[1:], []).append(entry)
+                continue
             if alias in table:
                 raise ValueError(f"lexicon alias {alias!r} listed twice")
             table[alias] = entry
-    return table
+    return table, {word: [table[word], *others] for word, others in senses.items()}
 
 
-LEXICON: dict[str, Entry] = _parse_table(_TABLE)
+LEXICON, SENSES = _parse_table(_TABLE)
 MAX_WORDS = max(len(k.split()) for k in LEXICON)
 
 _IRREGULAR = {
@@ -530,7 +780,10 @@ def bare_part(name: str) -> str | None:
     for i in reversed(range(len(tokens))):
         part = next((w for w in singulars(tokens[i]) if w in DETACHABLE), None)
         if part is not None:
-            return None if spans(tokens[:i] + tokens[i + 1:]) else part
+            if any(start <= i < end and end - start > 1 for start, end, _, _ in spans(tokens)):
+                return None  # a compound that is an object of its own: "spinning top", "coat stand"
+            others = [t for t in tokens[:i] + tokens[i + 1:] if t not in NON_HEAD_WORDS and len(t) > 2]
+            return None if others else part  # "music stand", "pot lid": not a bare part
     return None
 
 
@@ -540,23 +793,56 @@ def lookup(name: str) -> Match | None:
     The head of an English compound is its last noun ("coffee cup" is a cup), so the rightmost known
     phrase wins (materials only when alone); a last word naming a part after a known owner ("teapot
     lid", "blender_tank") is sized as a fraction of the owner. Size adjectives in the name
-    ("ball_small") scale the result.
+    ("ball_small") scale the result; colours, styles and file-pipeline words ("_lowpoly", "_Yellow")
+    are not heads. An unknown last word is the head all the same: a closed compound ends in a known
+    word ("shoebox" is a box), otherwise the object is named after the known word before it ("pencil
+    sharpener"): its size is a guess from that word, and none of that word's shape tags apply.
     """
     tokens = [t for t in words(name) if t not in SIZE_WORDS]
     scale = 1.0
     for token in words(name):
         scale *= SIZE_WORDS.get(token, 1.0)
-    found = [f for f in spans(tokens) if f[3].name not in MATERIALS] or spans(tokens)
+    while tokens and (tokens[-1] in NON_HEAD_WORDS or len(tokens[-1]) < 3):
+        tokens.pop()
+    known = spans(tokens)
+    found = [f for f in known if f[2] not in MATERIALS] or known
     part = next((w for w in singulars(tokens[-1]) if w in PARTS), None) if tokens else None
     if part is not None and not any(end == len(tokens) and end - start > 1 for start, end, _, _ in found):
-        owners = [f for f in found if f[1] < len(tokens)]
+        owners = [f for f in found if f[1] < len(tokens) and (part in AGENT_PARTS or "agent" not in f[3].tags)
+                  and (part in FOOD_PARTS or f[3].domain != "food and drink")
+                  and (part not in HOLDERS or f[3].size_m <= HOLDER_MAX_M)]
         if owners:
             _, _, phrase, owner = owners[-1]
             size = owner.size_m * PARTS[part] * scale
             tags = frozenset({"container"}) if part in CONTAINER_PARTS else frozenset()
+            tags |= {"wrap"} if part in WRAPPING_PARTS else set()
             return Match(part, owner, size, tags, f"{part} of a {phrase} ({PARTS[part]:g} x {owner.size_m:g} m)")
+    if tokens and not any(end == len(tokens) for _, end, _, _ in known):
+        head_word = tokens[-1]
+        closed = closed_compound(head_word)
+        if closed is not None:
+            phrase, head = closed
+            return Match(phrase, head, head.size_m * scale, head.tags,
+                         f"'{head_word}': a kind of {phrase} ({head.size_m:g} m)")
+        if (not found or found[-1][3].domain == "food and drink" or "agent" in found[-1][3].tags
+                or found[-1][2] in SUBSTANCES | MATERIALS):
+            return None  # a "pizza cutter" is not pizza-sized, nor a "spider web" spider-sized, nor a "sand dune" sandy
+        start, _, phrase, known = found[-1]
+        named = " ".join(tokens[start:])
+        how = f"'{named}': unknown '{head_word}' named after a {phrase}, sized like one ({known.size_m:g} m)"
+        return Match(named, known, known.size_m * scale, frozenset(), how)
     if not found:
         return None
     _, _, phrase, head = found[-1]
     how = f"'{phrase}' ({head.size_m:g} m)" + (f" x {scale:g} (size word)" if scale != 1.0 else "")
     return Match(phrase, head, head.size_m * scale, head.tags, how)
+
+
+def closed_compound(word: str) -> tuple[str, Entry] | None:
+    """A one-word compound's known head: the longest known word it ends in, after a known stem ("shoe|box") or
+    for a head of 5+ letters, after any stem ("hour|glass"); "tur|key" is no key, "stoc|king" no king."""
+    for k in range(3, len(word) - 2):
+        hit = phrase_entry([word[k:]])
+        if hit is not None and (len(word) - k >= 5 or phrase_entry([word[:k]]) is not None):
+            return hit
+    return None

@@ -69,7 +69,10 @@ CUES: list[Cue] = [
     Cue(r"pierc(?:e|es|ed|ing)|stab(?:s|bed|bing)?|impal(?:e|es|ed|ing)|skewer(?:ed|ing)|spear(?:ed|ing)"
         r"|cut(?:s|ting)?(?: through| into)?(?!\s+boards?)|slicing(?: through| into)?|embedded|lodged|penetrat[a-z]*"
         r"|stuck (?:in|into|through)|stick(?:s|ing)? (?:in|into|out of|through)|buried (?:in|into)"
-        r"|(?:driven|hammered|nailed|pinned|planted|pushed|poked|thrust|sunk|jammed|screwed|shot) (?:in|into)",
+        r"|pok(?:e|es|ed|ing) (?:out of|through|into)|peek(?:s|ing)? out of|protrud(?:e|es|ing) from"
+        r"|(?:driven|hammered|nailed|pinned|planted|pushed|poked|thrust|sunk|jammed|screwed|shot) (?:in|into)"
+        r"|planted (?:on|atop)|carv(?:e|es|ed|ing)|chop(?:s|ped|ping)? (?:into|through)"
+        r"|saw(?:s|ed|ing)? (?:through|into)|(?:drill|bor)(?:e|es|ed|ing|s)? (?:a hole )?(?:in|into|through)",
         "penetrate"),
     # garments and headwear
     Cue(r"on (?:top of )?" + _HEAD + r"|around " + _POSS + r" (?:neck|waist|wrist|finger|arm)s?|worn by",
@@ -87,10 +90,18 @@ CUES: list[Cue] = [
     Cue(r"(?:standing|stands|stood|perched|perching|balanced|balancing|landed|hopping) (?:on|upon|atop)",
         "stand"),
     Cue(r"(?:wrapped|coiled|wound|tied|looped|wrapping|coiling) (?:around|round)|around", "wrap"),
-    Cue(r"lean(?:s|ing|ed)? (?:against|on)|propped (?:against|up|on)|rest(?:s|ing)? against", "lean"),
+    Cue(r"lean(?:s|ing|ed)? (?:against|on|in)|propped (?:against|up|on)|rest(?:s|ing)? against", "lean"),
+    # moving over a support: feet, wheels or a belly on it
+    Cue(r"(?:walk|run|crawl|stroll|march|hik|climb|roll|skat|ski|slid|trott|gallop|wander)(?:s|ing|ed|e|es)?"
+        r" (?:over|across|along|up|down|on)", "stand"),
     Cue(r"hang(?:s|ing)?|hung|dangl(?:e|es|ing)|suspended", "hang"),
-    Cue(r"attached|glued|taped|stuck (?:on|to)|fixed (?:on|to)|fastened|mounted|stapled|clipped", "attach"),
+    Cue(r"attached|glued|taped|stuck (?:on|to)|fixed (?:on|to)|fastened|mounted|stapled|clipped|pinned (?:to|on)",
+        "attach"),
     Cue(r"under(?:neath)?|beneath|below", "under"),
+    # in water when the ground holds some (rules), else free in air or water
+    Cue(r"(?:float(?:s|ing)?|swim(?:s|ming)?|bob(?:s|bing)?|paddl(?:e|es|ing)) (?:in|inside|within)", "in"),
+    Cue(r"(?:float(?:s|ing)?|swim(?:s|ming)?|bob(?:s|bing)?|paddl(?:e|es|ing)) (?:on|upon|atop)", "on"),
+    Cue(r"(?:leap|jump|hop|spring|climb|fly|flie|get|com)(?:s|ing|ed)? out of|emerg(?:e|es|ing) from", "beside"),
     Cue(r"swim(?:s|ming)?|float(?:s|ing)?|hover(?:s|ing)?|fl(?:y|ies|ying) (?:over|above|around|past|near)"
         r"|above|over", "beside"),  # free in the air or water: no contact
     Cue(r"beside|next to|near|nearby|alongside|in front of|behind|left of|right of|opposite|facing|close to"

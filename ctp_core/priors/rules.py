@@ -8,12 +8,13 @@ of knowledge says "fallback".
 from __future__ import annotations
 
 import re
+from dataclasses import replace
 
-from ctp_core.priors import lexicon, relations
+from ctp_core.priors import context, lexicon, relations
+from ctp_core.priors.context import PERSON_M  # an unknown name that holds, wears or rides is someone this tall
 from ctp_core.priors.prior import ScenePrior, clamp_contact, clamp_size
 
-PERSON_M = 1.75  # an unknown name that holds, wears or rides is taken to be someone this tall
-
+FITS_INSIDE = 0.9  # what is inside a container (not a long thing or a plant sticking out) is at most this size of it
 # Relations where a ball touches at a point, a sheet lies on a face, a soft thing settles.
 _SUPPORT = {"on", "stand", "sit", "lie", "lean", "hang", "attach"}
 # Relations whose ground must be an agent (the wearer, the holder, the rider).
@@ -28,25 +29,48 @@ class RulesProvider:
     def estimate(self, target_name: str, source_name: str, prompt: str) -> ScenePrior:
         target, source = lexicon.lookup(target_name), lexicon.lookup(source_name)
         cue = relations.find_cue(prompt)
+        target_at, source_at = _mentions(prompt, target_name, target), _mentions(prompt, source_name, source)
         figure = None
         if cue is not None:
-            figure = relations.source_is_figure(
-                cue, _mentions(prompt, source_name, source), _mentions(prompt, target_name, target))
+            figure = relations.source_is_figure(cue, source_at, target_at)
         notes: list[str] = []
         if figure is None:
             figure = True  # the source is what gets placed: by default it is the figure
         elif not figure:
             notes.append("the source is the ground of the relation")
+        agent_role = {"wear": "ground", "hold": "ground", "sit": "figure"}.get(cue.cue.relation if cue else "")
+        target, source = (
+            context.resolve(target_name, prompt, target_at, source, agent_role == ("ground" if figure else "figure"),
+                            source_name),
+            context.resolve(source_name, prompt, source_at, target, agent_role == ("figure" if figure else "ground"),
+                            target_name))
+        ground_name, ground, ground_at = (target_name, target, target_at) if figure else (
+            source_name, source, source_at)
+        filled = context.contents(prompt, ground_at, ground, source_name if figure else target_name)
         relation, why = _relation(cue, target, source, source if figure else target)
+        afloat = cue is not None and re.match(r"float|swim|bob|paddl", cue.text) is not None
+        if afloat and filled is None:
+            relation, why = relations.RELATIONS["beside"], f"'{cue.text}' in air or open water: no contact"
+        floating = afloat and filled is not None
+        fig_match = source if figure else target
+        if (relation.name == "beside" and cue is not None and cue.text == "over" and fig_match is not None
+                and (fig_match.has("soft") or fig_match.has("wrap"))):
+            relation, why = relations.RELATIONS["lie"], "'over' said of a cloth or a cover: draped over"
+        opening = context.opening_after(prompt, cue.end) if cue is not None else None
+        if opening is not None and ground is not None and not ground.has("container"):
+            ground = replace(ground, tags=ground.tags | {"container"})  # "in the slot of a toaster"
+            target, source = (ground, source) if figure else (target, ground)
+            notes.append(f"into the {opening} of the {ground_name}")
         notes.insert(0, why)
         if relation.name == "under" and not figure:  # "a table under a cup": the cup is on the table
             relation, figure = relations.RELATIONS["on"], True
             notes.append("read as the target resting on the source")
         size, size_why = _size_ratio(target_name, source_name, target, source, relation, figure)
         notes.insert(0, size_why)
-        penetration, pen_why = _penetration(relation, figure, target, source)
+        penetration, pen_why = _penetration(relation, figure, target, source, filled, floating,
+                                            cue.text if cue is not None else "")
         notes.append(pen_why)
-        contact = _contact(relation, figure, source)
+        contact = _contact(relation, figure, source, filled if penetration else None)
         return ScenePrior(size_ratio=clamp_size(size), penetration=penetration, contact_ratio=clamp_contact(contact),
                           source=self.name, reason="; ".join(n for n in notes if n),
                           relation=relation.name, source_is_figure=figure)
@@ -78,13 +102,17 @@ def _mentions(prompt: str, name: str, match: lexicon.Match | None) -> list[int]:
 
 def _relation(cue, target, source, figure) -> tuple[relations.Relation, str]:
     """The cue's relation; only agents ride or sit ("a ball riding down a slide" rests on it), and
-    agents cut with tools, not themselves ("a chef cutting a cake" handles it)."""
+    agents cut with tools, not themselves ("a chef cutting a cake" handles it; "a worm poking out of an apple"
+    is in it)."""
     if cue is not None:
         rel = relations.RELATIONS[cue.cue.relation]
         if rel.name == "sit" and figure is not None and not figure.has("agent"):
             return relations.RELATIONS["on"], f"'{cue.text}' said of an object: resting on"
-        if rel.name == "penetrate" and figure is not None and figure.has("agent"):  # "a chef cutting a cake"
+        if (rel.name == "penetrate" and figure is not None and figure.has("agent")
+                and re.match(r"cut|slic|stab|pierc|skewer|spear|impal|carv", cue.text)):  # "a chef cutting a cake"
             return relations.RELATIONS["hold"], f"'{cue.text}' said of someone: handling it, with a tool"
+        if rel.name == "wear" and figure is not None and figure.has("agent"):  # "a bird on a giraffe's head"
+            return relations.RELATIONS["stand"], f"'{cue.text}' said of a creature: standing on it"
         return rel, f"'{cue.text}' -> {rel.name}"
     if source is not None and lexicon.bare_part(source.phrase) is not None:
         return relations.RELATIONS["on"], "no relation cue; a detachable part: assumed seated on its owner"
@@ -123,29 +151,75 @@ def _size_ratio(target_name, source_name, target, source, relation, figure: bool
         ratio = relation.figure_size if figure else 1.0 / relation.figure_size
         return ratio, (f"size ratio {clamp_size(ratio):.3g} (fallback: {', '.join(whys)}; "
                        f"the typical ratio for '{relation.name}')")
+    fig_match, ground_match = (source, target) if figure else (target, source)
+    if (relation.name in _AGENT_GROUND and ground_match is not None and fig_match is not None
+            and ground_match.entry.domain == "toys and figures" and fig_match.size_m > 0.5 * ground_match.size_m):
+        scale = ground_match.size_m / PERSON_M  # a doll's hat, an action figure's sword: made to its scale
+        sizes[1 if figure else 0] *= scale
+        whys[1 if figure else 0] += f" x {scale:.2g} (a toy's)"
     ratio = sizes[1] / sizes[0]
+    fits = FITS_INSIDE if figure else 1.0 / FITS_INSIDE
+    if (relation.name == "in" and ground_match is not None and ground_match.has("container") and fig_match is not None
+            and not fig_match.has("pointed") and fig_match.entry.domain != "plants"  # stems stick out of a vase
+            and (ratio > fits if figure else ratio < fits)):
+        return fits, (f"size ratio {fits:.3g} ({whys[1]} / {whys[0]}: the {fig_match.phrase} must fit inside, "
+                      f"so no bigger than {FITS_INSIDE:g} of the {ground_match.phrase})")
     clamped = clamp_size(ratio)
     note = "" if clamped == ratio else f", clamped from {ratio:.3g}"
     return ratio, f"size ratio {clamped:.3g} ({whys[1]} / {whys[0]}{note})"
 
 
-def _penetration(relation, figure: bool, target, source) -> tuple[bool, str]:
+def _pierceable(ground) -> bool:
+    """Solids a pointed thing goes into: tagged ``pierceable`` (wood, soil, foam, a dartboard), solid food,
+    plants and soft things; never a container (it has an opening), a person or an animal."""
+    return ground is not None and not ground.has("container") and not ground.has("agent") and (
+        ground.has("pierceable") or ground.has("soft") or ground.entry.domain in {"food and drink", "plants"})
+
+
+def _penetration(relation, figure: bool, target, source, filled: str | None, floating: bool,
+                 cue_text: str = "") -> tuple[bool, str]:
+    """From the relation word and from what the ground is.
+
+    Categories: a ground full of contents that close it off (``context.contents``: a drink, a soup, soil, a
+    pond) is entered below their surface by whatever goes in, is stuck in or floats in it (flat things float on
+    top); a container otherwise is entered through its opening; a pointed figure goes into a pierceable solid
+    (``_pierceable``), also when "stuck on" it (a candle on a cake), and a food or soft thing "on" a pointed
+    stick is skewered by it; anything inside a solid food that is no container (a coin in a cake) is embedded.
+    """
     ground, fig = (target, source) if figure else (source, target)
+    fig_name = fig.phrase if fig is not None else "source" if figure else "target"
+    if filled is not None and (relation.name in {"in", "penetrate"} or floating):
+        if floating and fig is not None and fig.has("flat"):
+            return False, f"a flat {fig_name} floats on the {filled}: no penetration"
+        return True, f"the ground holds {filled}: the {fig_name} goes below their surface: penetration"
     if relation.penetration == "yes":
         if ground is not None and ground.has("container"):
             return False, "goes into an opening of the ground: no penetration"
         return True, "the relation cuts or pierces: penetration"
-    if (relation.penetration == "if_pointed" and fig is not None and fig.has("pointed") and ground is not None
-            and not ground.has("container") and not ground.has("agent")):
+    if relation.penetration == "if_pointed" and fig is not None and fig.has("pointed") and _pierceable(ground):
         return True, f"a pointed {fig.phrase} into a solid {ground.phrase}: penetration"
+    if (relation.name == "attach" and cue_text.startswith("stuck") and _pierceable(ground)
+            and not (fig is not None and fig.has("flat"))):
+        return True, f"stuck on a {ground.phrase}, which it pierces: penetration"
+    if relation.name == "on" and fig is not None and fig.has("staked") and _pierceable(ground):
+        return True, f"a {fig.phrase} stands stuck in the {ground.phrase}: penetration"
+    if (relation.name == "on" and ground is not None and ground.has("pointed") and ground.size_m <= 1.0
+            and fig is not None and (fig.entry.domain == "food and drink" or fig.has("soft")) and not fig.has("agent")):
+        return True, f"a {fig.phrase} on a pointed {ground.phrase}: skewered, penetration"
+    if (relation.name == "in" and ground is not None and ground.entry.domain == "food and drink"
+            and not ground.has("container") and not ground.has("agent")):
+        return True, f"inside a solid {ground.phrase}: embedded, penetration"
     return False, ""
 
 
-def _contact(relation, figure: bool, source) -> float:
-    """The relation's contact for the source's role, adjusted for the source's shape when it is the figure."""
+def _contact(relation, figure: bool, source, immersed_in: str | None = None) -> float:
+    """The relation's contact for the source's role, adjusted for the source's shape when it is the figure;
+    a figure that goes into contents (``immersed_in``) touches them with its whole wetted part."""
     if not figure:
         return relation.ground_contact
     contact = relation.figure_contact
+    if immersed_in is not None:
+        return 0.3 if source is not None and source.has("pointed") else 0.4
     if source is None:
         return contact
     if source.has("round") and relation.name in _SUPPORT | {"in"}:
@@ -156,8 +230,10 @@ def _contact(relation, figure: bool, source) -> float:
         contact = max(contact, 0.3)  # a frame or a sign hangs flat against its wall
     if source.has("pointed") and relation.name == "in" and not source.has("round"):
         contact = min(contact, 0.1)  # a spoon, a straw, a pencil leans on the rim and the bottom
+    if relation.name == "lie" and not (source.has("soft") or source.has("flat") or source.has("agent")):
+        contact = min(contact, 0.1)  # a rigid tool or stick lying down touches at a few points
     if source.has("soft") and relation.name in {"on", "sit"}:
         contact = max(contact, 0.3)
-    if source.has("wrap") and relation.name in {"wear", "on", "attach", "in"}:
+    if source.has("wrap") and relation.name in {"wear", "on", "attach", "in", "lie"}:
         contact = max(contact, 0.6)
     return contact

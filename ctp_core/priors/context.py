@@ -1,0 +1,228 @@
+"""Object names read in the context of the prompt.
+
+A file name says less than the prompt: the source may be called "duck" while the prompt says "a rubber
+duck", "mouse" next to a laptop is a computer mouse, and "a mug of hot cocoa" is full. ``resolve`` reads the
+noun phrase of the prompt that mentions a name (its modifiers) and the other object, ``contents`` what fills
+a container. Categories of modifiers (documented here because they decide sizes):
+
+- a longer lexicon phrase with the prompt's modifiers wins ("rubber duck", "coat hanger", "garden gnome");
+- a word with several senses (``lexicon.SENSES``) takes the sense whose lexicon section fits the other object,
+  the name's own modifiers and the prompt's other known words ("a flute of champagne", "drumsticks on a snare
+  drum"), or the agent sense when the relation needs someone (a mouse eating cheese);
+- ``TOY_WORDS`` ("toy robot", "miniature house") make an object hand-sized (``TOY_SIZE_M``) unless it is a toy
+  already (a "toy box" is a lexicon phrase: a box for toys); ``CRAFT_WORDS`` ("paper crane", "origami boat") do
+  the same for animals and vehicles;
+- a garment named after an animal or a small person ("dog coat", "baby shoes") is scaled to its wearer;
+- ``HOLLOW_WORDS`` ("a carved pumpkin") make the object a container;
+- ``YOUNG_WORDS`` ("baby elephant") make an animal or a food a young, small one (``YOUNG_SCALE``), and
+  ``FOLDED_WORDS`` ("a folded towel") a cloth or a sheet a folded, smaller one (``FOLDED_SCALE``);
+- a figure named after a food ("toast soldier", "chocolate bunny", "gingerbread man") is that food, shaped
+  like it: food-sized (``FOOD_FIGURE_M``) and no agent.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import replace
+
+from ctp_core.priors import lexicon, relations
+
+PERSON_M = 1.75  # the wearer garments are sized for
+TOY_SIZE_M = 0.3  # a toy or a model of something big fits in the hands
+CRAFT_SIZE_M = 0.2  # a folded-paper animal or vehicle
+FOOD_FIGURE_M = 0.12  # a sweet or a snack shaped like a person or an animal
+YOUNG_WORDS = frozenset({"baby", "young", "newborn", "infant"})
+YOUNG_SCALE = 0.35  # a calf is about a third of its mother's length
+FOLDED_WORDS = frozenset({"folded", "rolled", "crumpled", "stacked"})
+FOLDED_SCALE = 0.4
+TOY_WORDS = frozenset({"toy", "miniature", "model", "plush", "stuffed", "figurine", "lego", "dollhouse"})
+CRAFT_WORDS = frozenset({"paper", "origami", "folded"})
+HOLLOW_WORDS = frozenset({"hollow", "hollowed", "carved", "empty"})
+_CRAFT_DOMAINS = frozenset({"animals", "vehicles"})
+_INDOOR = frozenset({"food and drink", "tableware and kitchen", "bathroom and cosmetics", "furniture and home"})
+# Sections whose objects go together (a drink and its glass, a person and an animal).
+_NEAR = (frozenset({"food and drink", "tableware and kitchen"}),
+         frozenset({"furniture and home", "bathroom and cosmetics"}),
+         frozenset({"people and characters (agents)", "animals", "toys and figures"}))
+_STOP = lexicon.word_set("a an the of in on at with his her its their my your our this that these those and or to "
+                         "from by for into onto is are two three four five some several pair one")
+# Contents that close a container off: liquids, pastes, foams and soils. Discrete things (apples, cereal, coins)
+# leave gaps and are not here: a spoon rests on cereal but sinks into soup.
+CONTENTS = lexicon.word_set("""
+water coffee tea cocoa chocolate soup stew broth milk juice wine beer whiskey whisky soda lemonade cola punch
+milkshake smoothie yogurt yoghurt cream custard batter dough sauce gravy ketchup mustard honey jam syrup oil
+paint ink glue wax foam bubbles soil dirt earth compost sand mud snow cement concrete jelly porridge oatmeal rice
+""")
+_FILL_WORDS = frozenset({"of", "with", "full", "filled", "containing"})
+_MELTED = frozenset({"melted", "molten", "liquid", "liquified", "whipped"})  # "a pot of melted cheese"
+# Mass nouns of loose pieces: they leave gaps, a spoon rests on them.
+DISCRETE = lexicon.word_set("cereal popcorn candy fruit ice gold money change food salad confetti gravel hay straw")
+
+
+def _is_drink(word: str) -> bool:
+    known = lexicon.phrase_entry([word])
+    return known is not None and "filled" in known[1].tags
+
+
+def _is_contents(word: str, before: str | None) -> bool:
+    """A contents word, a drink of the lexicon ("champagne"), anything melted or whipped, or a singular mass
+    noun the lexicon knows as no object, or only as a food that is no round piece ("ramen", "peanut butter")."""
+    if word in CONTENTS or before in _MELTED or _is_drink(word):
+        return True
+    known = lexicon.phrase_entry([word])
+    if word in DISCRETE or word in _STOP:
+        return False
+    food = known is not None and known[1].domain == "food and drink" and not known[1].tags & {"round", "agent"}
+    if lexicon.singulars(word)[-1] != word:  # a plural: strands heap up ("noodles"), pieces leave gaps ("apples")
+        return food and not known[1].tags & {"flat", "container"} and known[1].size_m >= 0.1
+    return known is None or food
+
+
+def _tokens(prompt: str) -> list[tuple[int, str]]:
+    return [(m.start(), m.group(0)) for m in re.finditer(r"[a-z]+", relations.clean(prompt))]
+
+
+def modifiers(prompt: str, mention_at: list[int]) -> list[str]:
+    """Up to two words before the first mention of an object in the prompt, stopping at function words."""
+    tokens = _tokens(prompt)
+    starts = [start for start, _ in tokens]
+    if not mention_at or mention_at[0] not in starts:
+        return []
+    i = starts.index(mention_at[0])
+    mods: list[str] = []
+    for _, word in reversed(tokens[max(0, i - 2):i]):
+        if word in _STOP:
+            break
+        mods.insert(0, word)
+    return mods
+
+
+def resolve(name: str, prompt: str, mention_at: list[int], other: lexicon.Match | None,
+            needs_agent: bool, other_name: str = "") -> lexicon.Match | None:
+    """The lexicon match of ``name`` as the prompt qualifies it (see the module docstring for the categories).
+
+    A modifier the other object's name has is that object's ("a baby elephant next to its mother", names
+    "baby_elephant" and "elephant": "baby" is not the mother's)."""
+    match = lexicon.lookup(name)
+    taken = set(lexicon.words(name)) | set(lexicon.words(other_name))
+    mods = [w for w in modifiers(prompt, mention_at) if w not in taken]
+    if mods:
+        qualified = lexicon.lookup(" ".join([*mods, *lexicon.words(name)]))
+        if qualified is not None and (match is None or (
+                len(qualified.phrase.split()) > len(match.phrase.split())
+                and qualified.phrase.split()[-1] == match.phrase.split()[-1])):
+            match = replace(qualified, how=qualified.how + f" (the prompt says '{' '.join(mods)}')")
+    if match is None:
+        return None
+    words = [*mods, *lexicon.words(name)]
+    scene = [(2.0, other.entry)] if other is not None else []
+    scene += [(2.0, e) for _, _, phrase, e in lexicon.spans(words) if phrase != match.phrase]
+    scene += [(1.0, e) for _, _, phrase, e in lexicon.spans([w for _, w in _tokens(prompt)])
+              if phrase != match.phrase and e is not match.entry]
+    match = _sense(match, scene, needs_agent)
+    return _modified(match, words)
+
+
+def _affinity(a: str, b: str) -> float:
+    if a == b:
+        return 1.0
+    if any({a, b} <= near for near in _NEAR):
+        return 0.75
+    return 0.25 if {a, b} <= _INDOOR else 0.0
+
+
+def _sense(match: lexicon.Match, scene: list[tuple[float, lexicon.Entry]], needs_agent: bool) -> lexicon.Match:
+    senses = lexicon.SENSES.get(match.phrase)
+    if not senses or match.entry not in senses:
+        return match
+
+    def fit(entry: lexicon.Entry) -> float:
+        score = 3.0 * (needs_agent and "agent" in entry.tags)
+        return score + sum(weight * _affinity(entry.domain, e.domain) for weight, e in scene)
+
+    best = max(senses, key=fit)  # ties keep the first (the plain row)
+    if best is match.entry:
+        return match
+    return lexicon.Match(match.phrase, best, best.size_m, best.tags,
+                         f"'{match.phrase}' as a {best.name} ({best.size_m:g} m; the sense that fits the scene)")
+
+
+def _modified(match: lexicon.Match, words: list[str]) -> lexicon.Match:
+    entry = match.entry
+    qualifiers = {w for w in words if w not in match.phrase.split()}  # "toy box" is a lexicon phrase of its own
+    if qualifiers & TOY_WORDS and entry.domain != "toys and figures" and match.size_m > TOY_SIZE_M:
+        match = replace(match, size_m=TOY_SIZE_M, how=match.how + f", a toy: {TOY_SIZE_M:g} m")
+    if qualifiers & CRAFT_WORDS and entry.domain in _CRAFT_DOMAINS and match.size_m > CRAFT_SIZE_M:
+        match = replace(match, size_m=CRAFT_SIZE_M, how=match.how + f", folded paper: {CRAFT_SIZE_M:g} m")
+    young = qualifiers & YOUNG_WORDS
+    if young and (entry.domain == "food and drink" or "agent" in entry.tags) and entry.name not in YOUNG_WORDS:
+        match = replace(match, size_m=match.size_m * YOUNG_SCALE, how=match.how + f", {min(young)}: x {YOUNG_SCALE:g}")
+    if qualifiers & FOLDED_WORDS and ("soft" in entry.tags or "flat" in entry.tags) and not match.has("agent"):
+        match = replace(match, size_m=match.size_m * FOLDED_SCALE, how=match.how + f", folded: x {FOLDED_SCALE:g}")
+    if entry.domain == "clothing and accessories" and "wrap" not in entry.tags:
+        wearers = [m for w in qualifiers if (m := lexicon.lookup(w)) is not None and m.has("agent")]
+        if wearers and wearers[-1].size_m < PERSON_M:
+            scale = wearers[-1].size_m / PERSON_M
+            match = replace(match, size_m=match.size_m * scale,
+                            how=match.how + f", made for a {wearers[-1].phrase}: x {scale:.2g}")
+    foods = [m for w in qualifiers if (m := lexicon.lookup(w)) is not None and m.entry.domain == "food and drink"]
+    if foods and match.has("agent"):
+        match = replace(match, size_m=min(match.size_m, FOOD_FIGURE_M), tags=match.tags - {"agent"},
+                        how=match.how + f", made of {foods[-1].phrase}: {FOOD_FIGURE_M:g} m")
+    if qualifiers & HOLLOW_WORDS and not match.has("container"):
+        match = replace(match, tags=match.tags | {"container"}, how=match.how + ", hollow")
+    return match
+
+
+# Parts that are openings: "a bit in the chuck of a drill" goes into the chuck, not into the drill's material.
+OPENINGS = lexicon.word_set("""
+chuck slot socket hole keyhole mouth opening holder compartment pocket drawer tray slit spout neck
+""")
+
+
+def opening_after(prompt: str, cue_end: int) -> str | None:
+    """The opening part a cue leads into ("in the slot of ..."), when the prompt names one right after it."""
+    after = [w for start, w in _tokens(prompt) if start >= cue_end][:3]
+    while after and after[0] in _STOP:
+        after.pop(0)
+    return after[0] if after and after[0] in OPENINGS else None
+
+
+def contents(prompt: str, mention_at: list[int], match: lexicon.Match | None, figure_name: str = "") -> str | None:
+    """What fills the object, when it is ``filled`` or the prompt says so ("a mug of hot cocoa", "full of water");
+    never the figure itself ("a wheelbarrow full of pumpkins" holds the pumpkins that are placed)."""
+    found = _contents(prompt, mention_at, match)
+    figure = lexicon.lookup(figure_name)
+    head = figure.phrase.split()[-1] if figure is not None else (lexicon.words(figure_name) or [""])[-1]
+    if found is not None and set(lexicon.singulars(head)) & set(lexicon.singulars(found)):
+        return None  # the head only: a "paint roller" in a tray full of paint is no paint
+    return found
+
+
+def _contents(prompt: str, mention_at: list[int], match: lexicon.Match | None) -> str | None:
+    if match is not None and match.has("filled"):
+        return "its contents"
+    tokens = _tokens(prompt)
+    starts = [start for start, _ in tokens]
+    for at in mention_at:
+        if at not in starts:
+            continue
+        before = [w for _, w in tokens[max(0, starts.index(at) - 3):starts.index(at)]]
+        if len(before) == 3 and before[1] == "of" and before[2] in _STOP and (
+                before[0] in CONTENTS or _is_drink(before[0])):
+            return before[0]  # "in the sand of a sandbox", "the water of the pool"
+        after = [w for _, w in tokens[starts.index(at) + 1:starts.index(at) + 6]]
+        if after[:1] == ["full"] or after[:1] == ["filled"]:
+            after = after[1:]
+        if after and after[0] in _FILL_WORDS:
+            phrase = []
+            for word in after[1:4]:  # the noun phrase after "of"/"with": its last word is its head
+                if word in _STOP:
+                    break
+                phrase.append(word)
+            for before, word in zip([None, *phrase], phrase, strict=False):
+                if word in CONTENTS or before in _MELTED:
+                    return word
+            if phrase and _is_contents(phrase[-1], phrase[-2] if len(phrase) > 1 else None):
+                return phrase[-1]
+    return None
