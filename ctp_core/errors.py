@@ -42,6 +42,13 @@ class ConfigError(CtpError):
     code = "invalid_option"
 
 
+class ModelSpecError(ModelError, ConfigError):
+    """A model spec that names no model (malformed, unknown backend or architecture): bad usage, not an
+    unavailable model, so the CLI exits 2 for it."""
+
+    code = "invalid_option"
+
+
 class Canceled(CtpError):
     """The run was cancelled between steps."""
 

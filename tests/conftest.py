@@ -6,6 +6,7 @@ Each service test picks its own queue name, so tests share one Redis without see
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -95,6 +96,26 @@ class Worker:
             except subprocess.TimeoutExpired:
                 self.kill()
         self.log.close()
+
+
+@contextlib.contextmanager
+def parked_worker(env: dict[str, str], models: dict[str, str | None] | None = None, lease_s: int = 120):
+    """A live worker as the API sees it (its heartbeat, written by ``Jobs.heartbeat`` like a real worker's)
+    with no rq consumer behind it: jobs submitted meanwhile are accepted and stay queued."""
+    import redis
+
+    from service.jobs import Jobs
+    from service.storage import RedisStorage
+
+    client = redis.Redis.from_url(env["REDIS_URL"])
+    queue, name = env["CTP_QUEUE"], f"parked-{os.getpid()}"
+    jobs = Jobs(client, RedisStorage(client, queue, 600), prefix=queue, ttl_s=600, job_timeout_s=60, lease_s=lease_s)
+    jobs.heartbeat(name, None, {env["CTP_MODEL"]: None} if models is None else models)
+    try:
+        yield jobs
+    finally:
+        jobs.worker_gone(name)
+        client.close()
 
 
 def wait_for(predicate, timeout_s: float, what: str, interval_s: float = 0.1):

@@ -90,7 +90,7 @@ def align_job(
     source = load_mesh(inputs["source"], filename=record.source_file, limits=limits)
     image = _decode_image(inputs["image"]) if inputs.get("image") is not None else None
     guide = None
-    if config.loss.lambda_clip > 0:
+    if config.uses_model:
         on_progress(Progress(kind="model", message=f"loading model {config.model}"), True)
         guide = get_guide(config.model, device=config.device, autocast=config.autocast)
 
