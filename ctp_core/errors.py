@@ -30,6 +30,12 @@ class MeshError(CtpError):
     code = "mesh_unreadable"
 
 
+class ImageError(CtpError):
+    """A reference picture was refused. Codes: invalid_image, image_too_large."""
+
+    code = "invalid_image"
+
+
 class ModelError(CtpError):
     """A vision-language model could not be loaded (bad spec, missing weights offline)."""
 
