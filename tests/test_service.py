@@ -295,3 +295,4 @@ def test_image_guided_job(api, worker):
     bad = api.client.post("/align", data={"prompt": "x"}, files={
         "target": ("box.glb", BOX), "source": ("ball.glb", BALL), "image": ("ref.png", b"not a picture")})
     assert (bad.status_code, bad.json()["error"]["code"]) == (422, "invalid_image")
+    assert bad.json()["error"]["message"] == "image: not a readable PNG or JPEG image"  # no <_io.BytesIO ...>
