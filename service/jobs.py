@@ -209,6 +209,9 @@ class Jobs:
             if status == "succeeded":
                 progress = progress.model_copy(update={"kind": "done", "fraction": 1.0, "eta_s": 0.0,
                                                        "message": "done"})
+            else:  # not the last step's "loading model ..." of a job that ended there
+                message = f"failed: {error.code}" if status == "failed" and error else status
+                progress = progress.model_copy(update={"eta_s": None, "message": message})
             return r.model_copy(update={"status": status, "finished_at": now(), "error": error,
                                         "progress": progress})
 

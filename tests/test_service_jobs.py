@@ -44,6 +44,14 @@ def test_cancel_wins_over_a_later_pickup(jobs):
     assert jobs.storage.get(record.id, "target") is None  # inputs dropped
 
 
+def test_a_failed_job_says_so_in_its_progress(jobs):
+    record = queued(jobs)
+    jobs.start(record.id, "w1")
+    jobs.set_progress(record.id, Progress(kind="model", message="loading model hf:x", eta_s=30.0))
+    failed = jobs.finish(record.id, "failed", JobError(code="model_unavailable", message="no weights"))
+    assert (failed.progress.message, failed.progress.eta_s) == ("failed: model_unavailable", None)
+
+
 def test_only_one_worker_can_start_a_job(jobs):
     record = queued(jobs)
     assert jobs.start(record.id, "w1").worker == "w1"
