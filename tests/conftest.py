@@ -6,7 +6,6 @@ Each service test picks its own queue name, so tests share one Redis without see
 
 from __future__ import annotations
 
-import contextlib
 import os
 import signal
 import subprocess
@@ -98,10 +97,10 @@ class Worker:
         self.log.close()
 
 
-@contextlib.contextmanager
-def parked_worker(env: dict[str, str], models: dict[str, str | None] | None = None, lease_s: int = 120):
+def park_worker(env: dict[str, str], models: dict[str, str | None] | None = None, lease_s: int = 120):
     """A live worker as the API sees it (its heartbeat, written by ``Jobs.heartbeat`` like a real worker's)
-    with no rq consumer behind it: jobs submitted meanwhile are accepted and stay queued."""
+    with no rq consumer behind it: jobs submitted meanwhile are accepted and stay queued. Returns the
+    function that makes it leave."""
     import redis
 
     from service.jobs import Jobs
@@ -111,11 +110,12 @@ def parked_worker(env: dict[str, str], models: dict[str, str | None] | None = No
     queue, name = env["CTP_QUEUE"], f"parked-{os.getpid()}"
     jobs = Jobs(client, RedisStorage(client, queue, 600), prefix=queue, ttl_s=600, job_timeout_s=60, lease_s=lease_s)
     jobs.heartbeat(name, None, {env["CTP_MODEL"]: None} if models is None else models)
-    try:
-        yield jobs
-    finally:
+
+    def leave() -> None:
         jobs.worker_gone(name)
         client.close()
+
+    return leave
 
 
 def wait_for(predicate, timeout_s: float, what: str, interval_s: float = 0.1):

@@ -15,7 +15,7 @@ import trimesh
 import yaml
 from PIL import Image
 
-from tests.conftest import REPO, Api, parked_worker, service_env, wait_for
+from tests.conftest import REPO, Api, park_worker, service_env, wait_for
 
 FAST = {"preset": "test", "model": "random:tiny"}
 
@@ -197,8 +197,7 @@ def test_api_keys_isolate_jobs_and_cap_active_jobs(private_redis):
                       cors_origins="https://app.example")
     keyed = Api(env)
     alpha, beta = ({"Authorization": f"Bearer {k}"} for k in ("alpha", "beta"))
-    parked = parked_worker(env)
-    parked.__enter__()
+    leave = park_worker(env)
     try:
         assert keyed.client.get("/healthz").status_code == 200  # probes need no key
         preflight = keyed.client.options("/align", headers={"Origin": "https://app.example",
@@ -232,7 +231,7 @@ def test_api_keys_isolate_jobs_and_cap_active_jobs(private_redis):
         assert (again.status_code, again.json()["error"]["code"]) == (409, "job_finished")
         assert submit(keyed, headers=alpha).status_code == 202  # the canceled job freed its slot
     finally:
-        parked.__exit__(None, None, None)
+        leave()
         keyed.stop()
 
 
