@@ -289,7 +289,7 @@ class Jobs:
                 except WatchError:
                     continue
 
-    # -- liveness ----------------------------------------------------------------------------------
+    # -- liveness -----------------------------------------------------------------------------------
     def _worker_key(self, worker: str) -> str:
         return f"{self.prefix}:worker:{worker}"
 
@@ -329,6 +329,7 @@ class Jobs:
         return live
 
     def workers_alive(self) -> int:
+        """How many workers are alive (``live_workers``)."""
         return len(self.live_workers())
 
     def unavailable(self, model: str | None, *, what: str = "model",
