@@ -60,6 +60,16 @@ def test_unavailable_model_exits_3_without_a_contradiction(pair, capsys):
                                 "/nonexistent/ctp-weights (expected config.json from save_pretrained)")
 
 
+def test_weights_missing_offline_say_so_without_a_contradiction(pair, capsys, monkeypatch):
+    monkeypatch.delenv("CTP_ALLOW_DOWNLOAD", raising=False)
+    monkeypatch.delenv("HF_HUB_OFFLINE", raising=False)
+    assert main(["align", *map(str, pair), "--prompt", "x", "--preset", "test", "--model",
+                 "hf:ctp-tests/never-cached", "--quiet"]) == 3
+    line = one_line(capsys)
+    assert line.startswith("error: model_unavailable: weights for 'ctp-tests/never-cached' are not in the Hugging")
+    assert "downloads are off" in line and "connect" not in line  # transformers' "couldn't connect" tail is gone
+
+
 def test_bad_usage_is_one_line_exit_2(capsys):
     assert main(["align"]) == 2
     line = one_line(capsys)
