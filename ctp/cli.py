@@ -12,13 +12,14 @@ import importlib
 import os
 import sys
 
-from ctp_core.errors import ConfigError, CtpError, MeshError, ModelError
+from ctp_core.errors import ConfigError, CtpError, ImageError, MeshError, ModelError
 
 EXIT_FAILED, EXIT_INPUT, EXIT_MODEL = 1, 2, 3
 
 # name -> (module, help). Each module defines ``add_arguments(parser)`` and ``run(args) -> int``.
 COMMANDS: dict[str, tuple[str, str]] = {
     "align": ("ctp.cmd_align", "place SOURCE relative to TARGET from a text prompt (in-process)"),
+    "example": ("ctp.cmd_example", "write a generated sample pair (target and source GLB) to try ctp on"),
     "hparams": ("ctp.cmd_hparams", "print the scene priors (size ratio, penetration, contact ratio)"),
     "bench": ("ctp.cmd_bench", "run the evaluation harness over benchmark cases"),
     "serve": ("ctp.cmd_serve", "start the HTTP API (embedded Redis + worker when REDIS_URL is unset)"),
@@ -41,10 +42,12 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 0 if argv else 2
     name = argv[0]
-    module = importlib.import_module(COMMANDS[name][0])
-    cmd_parser = argparse.ArgumentParser(prog=f"ctp {name}", description=COMMANDS[name][1])
-    module.add_arguments(cmd_parser, name) if _takes_name(module) else module.add_arguments(cmd_parser)
-    args = cmd_parser.parse_args(argv[1:])
+    module, cmd_parser = command_parser(name)
+    try:
+        args = cmd_parser.parse_args(argv[1:])
+    except UsageError as exc:
+        print(f"error: usage: {exc}", file=sys.stderr)
+        return EXIT_INPUT
     args.command = name
     try:
         return int(module.run(args) or 0)
@@ -56,9 +59,35 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
+class UsageError(Exception):
+    """Bad command-line usage, reported as one line like every other error (argparse prints two)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):
+        raise UsageError(f"{self.prog}: {message} (see {self.prog} --help)")
+
+
+def command_parser(name: str, width: int | None = None) -> tuple[object, argparse.ArgumentParser]:
+    """The sub-command's module and its argument parser (``width``: a fixed usage width)."""
+    module = importlib.import_module(COMMANDS[name][0])
+    formatter = argparse.HelpFormatter if width is None else (lambda prog: argparse.HelpFormatter(prog, width=width))
+    parser = _Parser(prog=f"ctp {name}", description=COMMANDS[name][1], formatter_class=formatter)
+    module.add_arguments(parser, name) if _takes_name(module) else module.add_arguments(parser)
+    return module, parser
+
+
+def synopsis(width: int = 112) -> str:
+    """Every sub-command's usage line, generated from its parser: the README's synopsis is exactly this (a
+    test compares them; print it with ``python -c "from ctp.cli import synopsis; print(synopsis())"``)."""
+    prefix = len("usage: ")  # argparse's continuation lines are indented past it
+    usages = (command_parser(name, width)[1].format_usage().rstrip().splitlines() for name in COMMANDS)
+    return "\n".join(line[prefix:] for usage in usages for line in usage)
+
+
 def exit_code(exc: CtpError) -> int:
     """The documented exit code of a typed engine error."""
-    if isinstance(exc, (MeshError, ConfigError)):
+    if isinstance(exc, (MeshError, ImageError, ConfigError)):
         return EXIT_INPUT
     return EXIT_MODEL if isinstance(exc, ModelError) else EXIT_FAILED
 

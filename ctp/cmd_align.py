@@ -10,36 +10,40 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
 
-from ctp_core.errors import ConfigError
+from ctp_core.errors import ConfigError, ImageError, MeshError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("target", type=Path, help="the anchor mesh (GLB, glTF-binary, OBJ zip, PLY, STL)")
-    parser.add_argument("source", type=Path, help="the mesh to place")
+    parser.add_argument("target", type=Path, metavar="TARGET",
+                        help="the anchor mesh (GLB, glTF-binary, OBJ zip, PLY, STL)")
+    parser.add_argument("source", type=Path, metavar="SOURCE", help="the mesh to place")
     guide = parser.add_mutually_exclusive_group()
-    guide.add_argument("--prompt", help="text describing the arrangement")
-    guide.add_argument("--image", type=Path, help="reference picture (PNG/JPEG) instead of a prompt")
-    parser.add_argument("--out", type=Path, default=Path("scene.glb"), help="output GLB (default scene.glb)")
-    parser.add_argument("--report", type=Path, help="write the JSON report here")
-    parser.add_argument("--preview", type=Path, help="write a 4-view preview PNG here")
-    parser.add_argument("--preset", default="default", help="default | paper | test")
-    parser.add_argument("--model", help="guidance model: hf:REPO_OR_PATH, open_clip:ARCH:TAG, random:ARCH")
+    guide.add_argument("--prompt", metavar="TEXT", help="text describing the arrangement")
+    guide.add_argument("--image", type=Path, metavar="REF.png", help="reference picture (PNG/JPEG) instead of a prompt")
+    parser.add_argument("--out", type=Path, default=Path("scene.glb"), metavar="scene.glb",
+                        help="output GLB (default scene.glb)")
+    parser.add_argument("--report", type=Path, metavar="report.json", help="write the JSON report here")
+    parser.add_argument("--preview", type=Path, metavar="preview.png", help="write a 4-view preview PNG here")
+    parser.add_argument("--preset", default="default", metavar="NAME", help="default | paper | test")
+    parser.add_argument("--model", metavar="SPEC",
+                        help="guidance model: hf:REPO_OR_PATH, open_clip:ARCH:TAG, random:ARCH")
     parser.add_argument("--scale", action="store_true", help="optimise isotropic scale too")
-    parser.add_argument("--restarts", type=int)
-    parser.add_argument("--steps", type=int, help="total steps per restart over all phases")
-    parser.add_argument("--seed", type=int)
+    parser.add_argument("--restarts", type=int, metavar="N")
+    parser.add_argument("--steps", type=int, metavar="N", help="total steps per restart over all phases")
+    parser.add_argument("--seed", type=int, metavar="N")
     parser.add_argument("--device", choices=["cpu", "cuda"])
-    parser.add_argument("--threads", type=int, help="torch CPU threads")
-    parser.add_argument("--contact-ratio", type=float, help="soft-ICP ratio r in [0, 1] (default: prior)")
+    parser.add_argument("--threads", type=int, metavar="N", help="torch CPU threads")
+    parser.add_argument("--contact-ratio", type=float, metavar="R", help="soft-ICP ratio r in [0, 1] (default: prior)")
     parser.add_argument("--penetration", choices=["auto", "allow", "forbid"])
-    parser.add_argument("--size-ratio", type=float, help="source/target size in [0.01, 100] (scale mode)")
-    parser.add_argument("--hparams-provider", help="rules | openai (default rules)")
-    parser.add_argument("--target-name", help="object name for the priors (default: file stem)")
-    parser.add_argument("--source-name", help="object name for the priors (default: file stem)")
+    parser.add_argument("--size-ratio", type=float, metavar="S", help="source/target size in [0.01, 100] (scale mode)")
+    parser.add_argument("--hparams-provider", metavar="NAME", help="rules | openai (default rules)")
+    parser.add_argument("--target-name", metavar="NAME", help="object name for the priors (default: file stem)")
+    parser.add_argument("--source-name", metavar="NAME", help="object name for the priors (default: file stem)")
     parser.add_argument("--selection-only", action="store_true",
                         help="reference-code behaviour: text picks the best pose but gives no gradient")
     parser.add_argument("--no-guidance", action="store_true", help="geometry only (lambda_clip = 0)")
@@ -77,38 +81,73 @@ def config_from_args(args: argparse.Namespace):
 
 
 class ProgressBar:
-    """One redrawn line on a terminal; one line per phase event otherwise (logs stay readable)."""
+    """One redrawn line on a terminal; one line per phase event otherwise (logs stay readable).
+
+    Beside the step count it shows what a person can follow, from the last step's losses (means over the
+    restarts): ``match``, the cosine between the rendered views and the prompt (or image) under the
+    guidance model, higher is better; ``gap``, the contact distance between the objects (the root of the
+    soft-ICP term, in % of the target's size), lower is better. The objective itself is not shown: its
+    weights change between phases, so its value jumps although nothing got worse.
+    """
+
+    LEGEND = ("progress: match = cosine between the views and the prompt (higher is better); "
+              "gap = distance between the touching parts, % of the target's size (lower is better)")
 
     def __init__(self, stream=sys.stderr, enabled: bool = True):
         self.stream, self.enabled = stream, enabled
         self.tty = stream.isatty()
+        self._legend = False
+        self._losses: dict[str, float] = {}
 
     def __call__(self, event) -> None:
+        self._losses = event.losses or self._losses  # phase events carry none: show the last step's
         if not self.enabled or (not self.tty and event.kind == "step"):
             return
-        width = 30
+        if not self._legend:
+            self.stream.write(self.LEGEND + "\n")
+            self._legend = True
+        width = 20
         filled = int(event.fraction * width)
-        eta = f"{event.eta_s:5.0f}s" if event.eta_s is not None else "    ?"
-        best = f" best {event.best_objective:.4f}" if event.best_objective is not None else ""
-        line = (f"[{'#' * filled}{'.' * (width - filled)}] phase {event.phase}/{event.phases} "
-                f"step {event.step}/{event.steps} eta {eta}{best}")
+        eta = f"{event.eta_s:4.0f}s" if event.eta_s is not None else "   ?"
+        where = (f"search {event.step}/{event.steps}" if event.stage == "search" else
+                 f"phase {event.phase}/{event.phases} step {event.step}/{event.steps}")
+        line = f"[{'#' * filled}{'.' * (width - filled)}] {where} eta {eta}{figures(self._losses)}"
         if self.tty:
-            self.stream.write("\r" + line + ("\n" if event.kind == "done" else ""))
+            self.stream.write("\r" + line + "\033[K" + ("\n" if event.kind == "done" else ""))
         else:
             self.stream.write(f"{event.kind}: {line}\n")
         self.stream.flush()
 
 
-def run(args: argparse.Namespace) -> int:
-    from ctp_core import export, io
-    from ctp_core.align import align
+def figures(losses: dict[str, float]) -> str:
+    """`` match M gap G%`` from a step's losses (each part only when its term ran)."""
+    out = ""
+    if losses.get("clip"):  # L_clip = -cosine; absent (or 0) when the guidance is off
+        out += f" match {-losses['clip']:.3f}"
+    if "icp" in losses:  # soft-ICP: mean squared distance in the normalised frame (target longest side 2)
+        out += f" gap {100 * math.sqrt(max(losses['icp'], 0.0)) / 2:.1f}%"
+    return out
 
+
+def check_inputs(args: argparse.Namespace) -> None:
+    """Missing input files are reported at once, with their paths, before the engine's imports (seconds)."""
+    for role, path, error in (("target", args.target, MeshError), ("source", args.source, MeshError),
+                              ("image", args.image, ImageError)):
+        if path is not None and not path.is_file():
+            raise error(f"{role}: {'not a file' if path.exists() else 'no such file'}: {path}", field=role)
+
+
+def run(args: argparse.Namespace) -> int:
     if not args.prompt and not args.image and not args.no_guidance:
         raise ConfigError("give --prompt TEXT or --image REF.png (or --no-guidance)", field="prompt")
+    check_inputs(args)
     config = config_from_args(args)
+    from ctp_core import export, io  # the engine (torch, trimesh): seconds to import
+    from ctp_core.align import align
+
     target = io.load_mesh(args.target, name="target")
     source = io.load_mesh(args.source, name="source")
-    image = _read_image(args.image) if args.image else None
+    image = io.load_image(args.image) if args.image else None
     started = time.perf_counter()
     result = align(target, source, args.prompt, config, image=image,
                    target_name=args.target_name or args.target.stem,
@@ -118,18 +157,7 @@ def run(args: argparse.Namespace) -> int:
     summary = {"out": str(args.out), "objective": round(result.objective, 6), "scale": round(result.scale, 6),
                "translation": [round(v, 6) for v in result.translation.tolist()],
                "seconds": round(time.perf_counter() - started, 2), "preset": config.preset,
-               "model": result.extra.get("model"), "hparams": result.hparams.get("source")}
+               "model": result.extra.get("model"), "hparams": result.hparams.get("source"),
+               "names": {"target": result.hparams["target_name"], "source": result.hparams["source_name"]}}
     print(json.dumps(summary))
     return 0
-
-
-def _read_image(path: Path):
-    import numpy as np
-    from PIL import Image, UnidentifiedImageError
-
-    try:
-        with Image.open(path) as img:
-            return np.asarray(img.convert("RGB"))
-    except (OSError, UnidentifiedImageError) as exc:
-        raise ConfigError(f"cannot read image {path}: {exc}", field="image") from None
-

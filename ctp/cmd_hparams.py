@@ -18,15 +18,18 @@ PENETRATION = {"auto": None, "allow": True, "forbid": False}
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     # Values are parsed in run() so that bad input is one line, like every other error.
-    parser.add_argument("--target", help="target object name (e.g. plate, christmas_tree)")
-    parser.add_argument("--source", help="source object name (the one placed)")
-    parser.add_argument("--prompt", default="", help="text describing the arrangement")
-    parser.add_argument("--provider", default="rules", help="rules | openai (default rules)")
-    parser.add_argument("--size-ratio", help="explicit source/target size in [0.01, 100]")
-    parser.add_argument("--penetration", default="auto", help="auto | allow | forbid")
-    parser.add_argument("--contact-ratio", help="explicit soft-ICP ratio in [0, 1]")
-    parser.add_argument("--target-extent", help="target mesh longest side in file units (may inform the size)")
-    parser.add_argument("--source-extent", help="source mesh longest side in file units")
+    parser.add_argument("--target", required=True, metavar="NAME",
+                        help="target object name (e.g. plate, christmas_tree)")
+    parser.add_argument("--source", required=True, metavar="NAME", help="source object name (the one placed)")
+    parser.add_argument("--prompt", default="", metavar="TEXT", help="text describing the arrangement (optional: "
+                        "relation cues such as on, inside, embedded in)")
+    parser.add_argument("--provider", default="rules", metavar="NAME", help="rules | openai (default rules)")
+    parser.add_argument("--size-ratio", metavar="S", help="explicit source/target size in [0.01, 100]")
+    parser.add_argument("--penetration", default="auto", metavar="auto|allow|forbid", help="auto | allow | forbid")
+    parser.add_argument("--contact-ratio", metavar="R", help="explicit soft-ICP ratio in [0, 1]")
+    parser.add_argument("--target-extent", metavar="L",
+                        help="target mesh longest side in file units (may inform the size)")
+    parser.add_argument("--source-extent", metavar="L", help="source mesh longest side in file units")
 
 
 def run(args: argparse.Namespace) -> int:

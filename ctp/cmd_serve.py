@@ -57,8 +57,14 @@ def _serve(settings, args: argparse.Namespace) -> int:
     embedded = None
     if not settings.redis_url:
         embedded = EmbeddedRedis(settings.redis_dir)
-        settings = settings.model_copy(update={"redis_url": embedded.start()})
+        try:
+            settings = settings.model_copy(update={"redis_url": embedded.start()})
+        except RuntimeError as exc:  # a second `make serve`, or redis-server failed: one line, no traceback
+            print(f"error: redis_unavailable: {exc}", file=sys.stderr)
+            return 1
     n_workers = args.workers if args.workers is not None else (1 if embedded else 0)
+    if n_workers:
+        _say_if_default_model_missing(settings.model)
     env = {**os.environ, "REDIS_URL": settings.redis_url}
     workers = [subprocess.Popen([sys.executable, "-m", "ctp", "worker"], env=env) for _ in range(n_workers)]
     where = f"embedded Redis in {embedded.data_dir}" if embedded else "REDIS_URL"
@@ -72,6 +78,18 @@ def _serve(settings, args: argparse.Namespace) -> int:
         if embedded:
             embedded.stop()
     return 0
+
+
+def _say_if_default_model_missing(spec: str) -> None:
+    """One line at start when the local workers will not have the default model (``ctp_core.weights``)."""
+    from ctp_core.weights import missing
+
+    reason = missing(spec)
+    if reason:
+        print(f"ctp: the default model {spec} cannot run here ({reason.split('. ')[0]}), so jobs that need it are "
+              "refused (503 model_unavailable); start with CTP_ALLOW_DOWNLOAD=1 to download it, or with "
+              "CTP_MODEL=random:tiny to try the service (random weights: placements follow geometry only)",
+              file=sys.stderr)
 
 
 def _exit_on_signal(signum, _frame) -> None:

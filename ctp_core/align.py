@@ -137,7 +137,8 @@ def align(
     ]
     result = AlignResult(
         source_to_target=answers[outcome.best], objective=float(outcome.objectives[outcome.best]),
-        target=target, source=source, prompt=prompt, config=config, hparams=prior.to_dict(),
+        target=target, source=source, prompt=prompt, config=config,
+        hparams={**prior.to_dict(), "target_name": target_name, "source_name": source_name},  # what they read
         restarts=restarts, timings=timings, preview=preview,
         extra={
             "best_restart": outcome.best,

@@ -120,6 +120,12 @@ class AlignConfig(_Strict):
             raise ValueError("steps must be at least the number of phases")
         return self
 
+    @property
+    def uses_model(self) -> bool:
+        """Whether a run loads the guidance model: prompt guidance (lambda_clip > 0) or the upright judge.
+        A geometry-only run needs none, so a service without the model's weights can still run it."""
+        return self.loss.lambda_clip > 0 or (self.upright and self.upright_judge)
+
     @classmethod
     def preset_names(cls) -> list[str]:
         return sorted(PRESETS)

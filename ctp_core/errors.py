@@ -30,6 +30,12 @@ class MeshError(CtpError):
     code = "mesh_unreadable"
 
 
+class ImageError(CtpError):
+    """A reference picture was refused. Codes: invalid_image, image_too_large."""
+
+    code = "invalid_image"
+
+
 class ModelError(CtpError):
     """A vision-language model could not be loaded (bad spec, missing weights offline)."""
 
@@ -38,6 +44,13 @@ class ModelError(CtpError):
 
 class ConfigError(CtpError):
     """An option is out of range or unknown."""
+
+    code = "invalid_option"
+
+
+class ModelSpecError(ModelError, ConfigError):
+    """A model spec that names no model (malformed, unknown backend or architecture): bad usage, not an
+    unavailable model, so the CLI exits 2 for it."""
 
     code = "invalid_option"
 

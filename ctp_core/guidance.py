@@ -42,7 +42,6 @@ is too small to gain from bf16 (autocast overhead makes it ~1.5x slower); it exi
 from __future__ import annotations
 
 import json
-import os
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -53,7 +52,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from ctp_core.errors import ModelError
+from ctp_core.errors import ModelError, ModelSpecError
+from ctp_core.weights import downloads_allowed, looks_local, missing
 
 # CLIP's (OpenAI) pixel statistics; open_clip and transformers CLIP checkpoints use the same.
 CLIP_MEAN = (0.48145466, 0.4578275, 0.40821073)
@@ -271,7 +271,7 @@ def load_guide(
     """
     backend, sep, rest = spec.partition(":")
     if not sep or not rest:
-        raise ModelError(f"model spec {spec!r} must look like hf:REPO_OR_PATH, open_clip:ARCH:TAG or "
+        raise ModelSpecError(f"model spec {spec!r} must look like hf:REPO_OR_PATH, open_clip:ARCH:TAG or "
                          "random:ARCH", field="model")
     dev = torch.device(device)
     if dev.type == "cuda" and not torch.cuda.is_available():
@@ -284,7 +284,7 @@ def load_guide(
         return _load_hf(spec, rest, dev, autocast, offline, cache_dir)
     if backend == "open_clip":
         return _load_open_clip(spec, rest, dev, autocast, offline, cache_dir)
-    raise ModelError(f"unknown model backend {backend!r} in {spec!r}; use hf:, open_clip: or random:",
+    raise ModelSpecError(f"unknown model backend {backend!r} in {spec!r}; use hf:, open_clip: or random:",
                      field="model")
 
 
@@ -303,18 +303,6 @@ def get_guide(spec: str, *, device: str = "cpu", autocast: bool = True) -> Guide
         if key not in _CACHE:
             _CACHE[key] = load_guide(spec, device=device, autocast=autocast)
         return _CACHE[key]
-
-
-def downloads_allowed() -> bool:
-    """Whether weights may be fetched: ``CTP_ALLOW_DOWNLOAD`` wins, then ``HF_HUB_OFFLINE``; default no.
-
-    A service must not stall a job on a multi-GB download it was never told to make.
-    """
-    for name, allow_when_true in (("CTP_ALLOW_DOWNLOAD", True), ("HF_HUB_OFFLINE", False)):
-        value = os.environ.get(name, "").strip().lower()
-        if value:
-            return (value in ("1", "true", "yes", "on")) == allow_when_true
-    return False
 
 
 def byte_tokenize(texts: list[str], vocab_size: int, context: int = TEXT_CONTEXT) -> dict[str, Tensor]:
@@ -341,7 +329,7 @@ def _pooled(output) -> Tensor:
 
 def _load_random(spec: str, arch: str, device: torch.device, autocast: bool) -> Guide:
     if arch not in RANDOM_ARCHS:
-        raise ModelError(f"unknown random architecture {arch!r}; choose one of {', '.join(RANDOM_ARCHS)}",
+        raise ModelSpecError(f"unknown random architecture {arch!r}; choose one of {', '.join(RANDOM_ARCHS)}",
                          field="model")
     from transformers import CLIPConfig, CLIPModel
 
@@ -369,11 +357,11 @@ def _load_hf(spec: str, name: str, device: torch.device, autocast: bool, offline
     import transformers
 
     path = Path(name).expanduser()
-    looks_local = name.startswith(("/", ".", "~")) or path.exists()
-    if looks_local and not (path / "config.json").is_file():
+    local = looks_local(name)
+    if local and not (path / "config.json").is_file():
         raise ModelError(f"no transformers model directory at {path} (expected config.json from "
                          "save_pretrained)", field="model")
-    source = str(path) if looks_local else name
+    source = str(path) if local else name
     kwargs = {"cache_dir": cache_dir, "local_files_only": offline}
     try:
         model = transformers.AutoModel.from_pretrained(source, **kwargs).float()
@@ -426,21 +414,19 @@ def _processor_config(source: str, kwargs: dict) -> dict | None:
 def _missing_weights_message(name: str, offline: bool, cache_dir: str | None, exc: Exception) -> str:
     if not offline:
         return f"could not load {name!r}: {exc}"
-    from huggingface_hub import constants
-
-    cache = cache_dir or constants.HF_HUB_CACHE
-    return (f"weights for {name!r} are not in the Hugging Face cache ({cache}) and downloads are off. "
-            f"Provide them by one of: `hf download {name}` (or `huggingface-cli download {name}`) on a "
-            "machine with network, then copy that cache here or point HF_HOME at it; save the model "
-            "with save_pretrained and pass hf:/path/to/dir; or set CTP_ALLOW_DOWNLOAD=1 to let ctp "
-            f"download it. ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})")
+    # Offline, transformers' own text ("couldn't connect to ...") would contradict "downloads are off".
+    absent = missing(f"hf:{name}", cache_dir=cache_dir, offline=True)
+    if absent is None:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        return f"could not load {name!r} from its local files: {first}"
+    return absent
 
 
 def _load_open_clip(spec: str, rest: str, device: torch.device, autocast: bool, offline: bool,
                     cache_dir: str | None) -> Guide:
     arch, sep, tag = rest.partition(":")
     if not (arch and sep and tag):
-        raise ModelError(f"open_clip spec {spec!r} must be open_clip:ARCH:TAG, e.g. open_clip:ViT-B-32:openai",
+        raise ModelSpecError(f"open_clip spec {spec!r} must be open_clip:ARCH:TAG, e.g. open_clip:ViT-B-32:openai",
                          field="model")
     try:
         import open_clip
@@ -452,10 +438,9 @@ def _load_open_clip(spec: str, rest: str, device: torch.device, autocast: bool, 
         raise ModelError(f"{spec!r} needs the open_clip package, which is not installed (it requires "
                          f"torchvision, which does not install beside this CPU torch build); {hint}",
                          field="model") from None
-    if offline and not Path(tag).expanduser().is_file():
-        raise ModelError(f"downloads are off and open_clip cannot be limited to its cache: pass a checkpoint "
-                         f"file as the tag (open_clip:{arch}:/path/to/weights.pt) or set "
-                         "CTP_ALLOW_DOWNLOAD=1", field="model")
+    absent = missing(spec, cache_dir=cache_dir, offline=offline)
+    if absent:
+        raise ModelError(absent, field="model")
     try:
         model = open_clip.create_model(arch, pretrained=tag, cache_dir=cache_dir, device=device)
         tokenizer = open_clip.get_tokenizer(arch)

@@ -1,4 +1,5 @@
-"""Mesh input: one flattened, validated ``trimesh.Trimesh`` in the *file frame* from an upload or a path.
+"""Input: one flattened, validated ``trimesh.Trimesh`` in the *file frame* from an upload or a path, and
+the reference picture of an image-guided run (``load_image``).
 
 Uploads are untrusted, so loading is also the gate: every refusal is a ``MeshError`` with a stable
 code (the service and CLI turn codes into messages). Nothing named *inside* a file is ever fetched
@@ -23,7 +24,7 @@ import numpy as np
 import trimesh
 from PIL import Image
 
-from ctp_core.errors import MeshError
+from ctp_core.errors import ImageError, MeshError
 
 SUPPORTED_EXTENSIONS = (".glb", ".gltf", ".obj", ".ply", ".stl", ".zip")
 _MESH_EXTENSIONS = tuple(e for e in SUPPORTED_EXTENSIONS if e != ".zip")
@@ -86,6 +87,27 @@ def validate_upload(data: bytes, filename: str, limits: MeshLimits) -> trimesh.T
     return load_mesh(data, filename=filename, limits=limits, name=filename)
 
 
+def load_image(data: str | Path | bytes, *, max_pixels: int | None = None, name: str = "image") -> np.ndarray:
+    """A reference picture (PNG or JPEG, a path or an upload's bytes) as (H, W, 3) uint8 RGB.
+
+    The one image loader of the CLI, the API's check and the worker, so all three refuse the same files
+    with the same ``ImageError``: ``invalid_image`` whatever the decoder raised, ``image_too_large`` over
+    ``max_pixels`` (checked from the header, before decoding).
+    """
+    try:
+        with Image.open(io.BytesIO(data) if isinstance(data, bytes | bytearray) else Path(data)) as img:
+            if max_pixels is not None and img.width * img.height > max_pixels:
+                raise ImageError(f"{name}: {img.width} x {img.height} pixels is over the {max_pixels}-pixel limit",
+                                 code="image_too_large", field=name)
+            return np.asarray(img.convert("RGB"), dtype=np.uint8)
+    except ImageError:
+        raise
+    except FileNotFoundError:
+        raise ImageError(f"{name}: no such file: {data}", field=name) from None
+    except Exception as exc:  # PIL raises many kinds (UnidentifiedImageError, truncated data, bombs)
+        raise ImageError(f"{name}: not a readable PNG or JPEG image", field=name) from exc
+
+
 def _extension(filename: str, label: str) -> str:
     ext = Path(filename).suffix.lower()
     if ext not in SUPPORTED_EXTENSIONS:
@@ -98,7 +120,7 @@ def _file_size(path: Path, label: str) -> int:
     try:
         return path.stat().st_size
     except OSError as exc:
-        raise MeshError(f"{label}: cannot read the file ({exc.strerror})", code="mesh_unreadable") from exc
+        raise MeshError(f"{label}: cannot read {path} ({exc.strerror})", code="mesh_unreadable") from exc
 
 
 def _too_big(label: str, size: int, limits: MeshLimits) -> MeshError:

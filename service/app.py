@@ -61,11 +61,14 @@ records and results expire after the configured TTL (`CTP_JOB_TTL_S`). A web pag
   `mesh_empty`, `mesh_unreadable`, `mesh_invalid_values` (NaN/inf), `mesh_external_reference` (glTF
   URIs), `mesh_zip_invalid`, `invalid_image`
 - 429: `too_many_jobs` (queued plus running jobs per key, `CTP_MAX_ACTIVE_JOBS`)
-- 503: `redis_unavailable`, `not_ready`
+- 503: `redis_unavailable`; `no_worker` (no worker is alive); `model_unavailable` (no live worker can run
+  the job's model, e.g. its weights are not on the workers and downloads are off; the message says why).
+  `POST /align` answers these up front instead of accepting a job that would fail; a job with
+  `lambda_clip` 0 (geometry only) needs no model. `GET /readyz` gives the same codes for the default model.
 
-Failed jobs carry an error too: an engine code (`canceled`, `model_unavailable`, `invalid_option`, a
-mesh code, ...), `job_timeout` (`CTP_JOB_TIMEOUT_S`), `worker_lost` (its worker was killed or lost
-its machine; not retried) or `internal_error`.
+Failed jobs carry an error too: an engine code (`canceled`, `model_unavailable` (the model failed to load
+after the job was accepted), `invalid_option`, a mesh code, ...), `job_timeout` (`CTP_JOB_TIMEOUT_S`),
+`worker_lost` (its worker was killed or lost its machine; not retried) or `internal_error`.
 """
 
 

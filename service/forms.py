@@ -6,7 +6,6 @@ the service limits, the image is decoded, text fields are bounded.
 
 from __future__ import annotations
 
-import io
 import json
 import logging
 import time
@@ -14,11 +13,10 @@ from pathlib import PurePath
 from typing import Any
 
 from fastapi import Request
-from PIL import Image, UnidentifiedImageError
 from starlette.datastructures import UploadFile
 
-from ctp_core.errors import CtpError, MeshError
-from ctp_core.io import validate_upload
+from ctp_core.errors import CtpError, ImageError, MeshError
+from ctp_core.io import load_image, validate_upload
 from service.errors import ApiError
 
 log = logging.getLogger("ctp.service")
@@ -144,10 +142,8 @@ def check_mesh(data: bytes, filename: str, limits, role: str) -> None:
 
 
 def check_image(data: bytes, max_pixels: int) -> None:
+    """Decode exactly as the worker will (``ctp_core.io.load_image``)."""
     try:
-        with Image.open(io.BytesIO(data)) as img:
-            if img.width * img.height > max_pixels:
-                raise ApiError(413, "image_too_large", f"the image has over {max_pixels} pixels", field="image")
-            img.convert("RGB").load()
-    except (UnidentifiedImageError, OSError, Image.DecompressionBombError) as exc:
-        raise ApiError(422, "invalid_image", f"the image could not be read: {exc}", field="image") from None
+        load_image(data, max_pixels=max_pixels)
+    except ImageError as exc:
+        raise ApiError(413 if exc.code == "image_too_large" else 422, exc.code, exc.message, field="image") from None

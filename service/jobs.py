@@ -18,6 +18,7 @@ take every worker down in turn. Clients may resubmit.
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 import uuid
 from collections.abc import Callable
@@ -228,6 +229,9 @@ class Jobs:
                 progress = progress.model_copy(update={
                     "stage": progress.stage.model_copy(update={"name": "done"}), "kind": "done", "fraction": 1.0,
                     "eta_s": 0.0, "message": "done"})
+            else:  # not the last step's "loading model ..." of a job that ended there
+                message = f"failed: {error.code}" if status == "failed" and error else status
+                progress = progress.model_copy(update={"eta_s": None, "message": message})
             return r.model_copy(update={"status": status, "finished_at": now(), "error": error,
                                         "progress": progress})
 
@@ -306,30 +310,62 @@ class Jobs:
                     continue
 
     # -- liveness -----------------------------------------------------------------------------------
-    def heartbeat(self, worker: str, job_id: str | None) -> None:
-        """A worker is alive (and so is its running job): refresh both leases."""
+    def _worker_key(self, worker: str) -> str:
+        return f"{self.prefix}:worker:{worker}"
+
+    def _models_key(self, worker: str) -> str:
+        return f"{self.prefix}:models:{worker}"
+
+    def heartbeat(self, worker: str, job_id: str | None, models: dict[str, str | None] | None = None) -> None:
+        """A worker is alive (and so is its running job): refresh both leases. ``models`` is what the worker
+        can run, ``{spec: None when it can, else why not}``; it lives as long as the worker's lease."""
         with self.redis.pipeline(transaction=False) as pipe:
-            pipe.set(f"{self.prefix}:worker:{worker}", job_id or "", ex=self.lease_s)
+            pipe.set(self._worker_key(worker), job_id or "", ex=self.lease_s)
             pipe.sadd(f"{self.prefix}:workers", worker)
+            if models is not None:
+                pipe.set(self._models_key(worker), json.dumps(models), ex=self.lease_s)
             if job_id is not None:
                 pipe.set(self._lease_key(job_id), worker, ex=self.lease_s, xx=True)
             pipe.execute()
 
     def worker_gone(self, worker: str) -> None:
-        self.redis.delete(f"{self.prefix}:worker:{worker}")
+        self.redis.delete(self._worker_key(worker), self._models_key(worker))
         self.redis.srem(f"{self.prefix}:workers", worker)
 
-    def workers_alive(self) -> int:
-        """Workers whose lease is current; forgets the others (O(workers), not a key-space scan)."""
+    def live_workers(self) -> dict[str, dict[str, str | None]]:
+        """Workers whose lease is current -> the models each published; forgets the others (O(workers),
+        not a key-space scan)."""
         names = [raw.decode() for raw in self.redis.smembers(f"{self.prefix}:workers")]
         with self.redis.pipeline(transaction=False) as pipe:
             for name in names:
-                pipe.exists(f"{self.prefix}:worker:{name}")
-            alive = pipe.execute()
-        dead = [name for name, ok in zip(names, alive, strict=True) if not ok]
+                pipe.exists(self._worker_key(name))
+                pipe.get(self._models_key(name))
+            replies = pipe.execute()
+        live = {name: json.loads(raw) if raw else {}
+                for name, ok, raw in zip(names, replies[0::2], replies[1::2], strict=True) if ok}
+        dead = [name for name in names if name not in live]
         if dead:
             self.redis.srem(f"{self.prefix}:workers", *dead)
-        return len(names) - len(dead)
+        return live
+
+    def workers_alive(self) -> int:
+        """How many workers are alive (``live_workers``)."""
+        return len(self.live_workers())
+
+    def unavailable(self, model: str | None, *, what: str = "model",
+                    field: str | None = "options.model") -> JobError | None:
+        """Why a job that needs ``model`` (None: a geometry-only job) cannot succeed if submitted now, or
+        None when a live worker can run it: the one readiness rule of ``/readyz`` and ``POST /align``."""
+        live = self.live_workers()
+        if not live:
+            return JobError(code="no_worker", message="no worker is alive: start one with `ctp worker` "
+                            "(`ctp serve` without REDIS_URL starts one) or wait until it is back")
+        if model is None or any(model in models and models[model] is None for models in live.values()):
+            return None
+        reasons = sorted({models[model] for models in live.values() if models.get(model)})
+        why = "; ".join(reasons) if reasons else "no live worker offers it"
+        return JobError(code="model_unavailable", message=f"no live worker can run {what} {model!r}: {why}",
+                        field=field)
 
     def reap(self) -> list[str]:
         """Fail running jobs whose worker stopped heart-beating; returns their ids."""

@@ -30,12 +30,15 @@ OPTION_PATHS: dict[str, tuple[str, ...]] = {
     "hparams_provider": ("hparams_provider",),
     "upright": ("upright",),
     "upright_judge": ("upright_judge",),
+    "lambda_clip": ("loss", "lambda_clip"),
 }
 _EXTRA_DOC = {
     "preset": f"named budget ({', '.join(AlignConfig.preset_names())}); the other options override it",
     "model": "guidance model spec; must be one the service allows (CTP_MODEL, CTP_MODELS)",
     "seed": "random seed of the restarts and the samples",
     "restarts": "random starts, optimised as one batch",
+    "lambda_clip": "weight of the prompt (or image) guidance; 0 is a geometry-only run (contact without "
+                   "interpenetration), which needs no model and is accepted while the model is unavailable",
     "hparams_provider": "scene-prior provider for the values left unset (size_ratio, contact_ratio, penetration)",
 }
 
@@ -171,3 +174,5 @@ class Ready(BaseModel):
     status: str = Field(description="ready")
     redis: bool = Field(description="Redis answered")
     workers: int = Field(description="workers that sent a heartbeat within the lease (CTP_LEASE_S)")
+    models: list[str] = Field(description="the models at least one live worker can run now (the default among "
+                              "them, or the answer is 503)")

@@ -97,6 +97,27 @@ class Worker:
         self.log.close()
 
 
+def park_worker(env: dict[str, str], models: dict[str, str | None] | None = None, lease_s: int = 120):
+    """A live worker as the API sees it (its heartbeat, written by ``Jobs.heartbeat`` like a real worker's)
+    with no rq consumer behind it: jobs submitted meanwhile are accepted and stay queued. Returns the
+    function that makes it leave."""
+    import redis
+
+    from service.jobs import Jobs
+    from service.storage import RedisStorage
+
+    client = redis.Redis.from_url(env["REDIS_URL"])
+    queue, name = env["CTP_QUEUE"], f"parked-{os.getpid()}"
+    jobs = Jobs(client, RedisStorage(client, queue, 600), prefix=queue, ttl_s=600, job_timeout_s=60, lease_s=lease_s)
+    jobs.heartbeat(name, None, {env["CTP_MODEL"]: None} if models is None else models)
+
+    def leave() -> None:
+        jobs.worker_gone(name)
+        client.close()
+
+    return leave
+
+
 def wait_for(predicate, timeout_s: float, what: str, interval_s: float = 0.1):
     """Poll ``predicate`` until it returns a truthy value; fail the test with ``what`` on timeout."""
     deadline = time.monotonic() + timeout_s

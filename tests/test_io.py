@@ -11,8 +11,8 @@ import pytest
 import trimesh
 from PIL import Image
 
-from ctp_core.errors import MeshError
-from ctp_core.io import MeshLimits, load_mesh, validate_upload
+from ctp_core.errors import ImageError, MeshError
+from ctp_core.io import MeshLimits, load_image, load_mesh, validate_upload
 from ctp_core.structures import MeshArrays
 
 
@@ -233,3 +233,31 @@ def test_multi_material_scene_keeps_its_colours():
     left = arrays.vertices[:, 0] < 1.5
     assert np.allclose(texel[left], np.array([220, 30, 20]) / 255, atol=0.02)
     assert np.allclose(texel[~left], np.array([20, 40, 230]) / 255, atol=0.02)
+
+
+def _rgb_png(width: int, height: int) -> bytes:
+    out = io.BytesIO()
+    Image.new("RGB", (width, height), (10, 200, 30)).save(out, format="PNG")
+    return out.getvalue()
+
+
+def test_load_image_from_bytes_and_path(tmp_path):
+    picture = _rgb_png(8, 6)
+    (tmp_path / "ref.png").write_bytes(picture)
+    for data in (picture, tmp_path / "ref.png"):
+        image = load_image(data)
+        assert image.shape == (6, 8, 3) and image.dtype == np.uint8 and tuple(image[0, 0]) == (10, 200, 30)
+
+
+def test_load_image_refusals_have_one_clear_message(tmp_path):
+    with pytest.raises(ImageError) as bad:
+        load_image(b"not a picture")
+    assert (bad.value.code, bad.value.message) == ("invalid_image", "image: not a readable PNG or JPEG image")
+    with pytest.raises(ImageError) as truncated:
+        load_image(_rgb_png(64, 64)[:60])
+    assert truncated.value.message == bad.value.message  # whatever PIL raised, the same words
+    with pytest.raises(ImageError) as big:
+        load_image(_rgb_png(100, 100), max_pixels=9999)
+    assert big.value.code == "image_too_large" and "100 x 100" in big.value.message
+    with pytest.raises(ImageError, match="no such file: .*nope.png"):
+        load_image(tmp_path / "nope.png")

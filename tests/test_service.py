@@ -15,7 +15,7 @@ import trimesh
 import yaml
 from PIL import Image
 
-from tests.conftest import REPO, Api, service_env, wait_for
+from tests.conftest import REPO, Api, park_worker, service_env, wait_for
 
 FAST = {"preset": "test", "model": "random:tiny"}
 
@@ -95,12 +95,16 @@ def test_every_schema_property_is_documented(api):
     assert not undocumented
 
 
-def test_readyz_needs_a_worker(private_redis):
+def test_without_a_worker_readyz_and_align_say_no_worker(private_redis):
     lonely = Api(service_env(private_redis.url, "no-workers-here"))
     try:
         assert lonely.client.get("/healthz").json() == {"status": "ok"}
         answer = lonely.client.get("/readyz")
-        assert answer.status_code == 503 and answer.json()["error"]["code"] == "not_ready"
+        assert answer.status_code == 503 and answer.json()["error"]["code"] == "no_worker"
+        refused = submit(lonely)
+        assert (refused.status_code, refused.json()["error"]["code"]) == (503, "no_worker")
+        assert "ctp worker" in refused.json()["error"]["message"]
+        assert submit(lonely, prompt="").json()["error"]["code"] == "invalid_prompt"  # bad input is still 4xx
     finally:
         lonely.stop()
 
@@ -187,10 +191,13 @@ def test_request_and_upload_size_limits(private_redis):
 
 
 def test_api_keys_isolate_jobs_and_cap_active_jobs(private_redis):
-    """No worker on this queue: jobs stay queued, which is what the per-key cap counts."""
-    keyed = Api(service_env(private_redis.url, "keyed", api_keys="alpha,beta", max_active_jobs=2,
-                            cors_origins="https://app.example"))
+    """A parked worker on this queue (alive, consuming nothing): jobs stay queued, which is what the
+    per-key cap counts."""
+    env = service_env(private_redis.url, "keyed", api_keys="alpha,beta", max_active_jobs=2,
+                      cors_origins="https://app.example")
+    keyed = Api(env)
     alpha, beta = ({"Authorization": f"Bearer {k}"} for k in ("alpha", "beta"))
+    leave = park_worker(env)
     try:
         assert keyed.client.get("/healthz").status_code == 200  # probes need no key
         preflight = keyed.client.options("/align", headers={"Origin": "https://app.example",
@@ -224,6 +231,7 @@ def test_api_keys_isolate_jobs_and_cap_active_jobs(private_redis):
         assert (again.status_code, again.json()["error"]["code"]) == (409, "job_finished")
         assert submit(keyed, headers=alpha).status_code == 202  # the canceled job freed its slot
     finally:
+        leave()
         keyed.stop()
 
 
@@ -232,6 +240,12 @@ def test_unknown_job_is_404(api):
         answer = api.client.get(path)
         assert answer.status_code == 404
         assert answer.json()["error"]["code"] in ("job_not_found", "not_found")
+
+
+def test_readyz_lists_the_models_a_worker_can_run(api, worker):
+    answer = api.client.get("/readyz")
+    assert answer.status_code == 200
+    assert answer.json() == {"status": "ready", "redis": True, "workers": 1, "models": ["random:tiny"]}
 
 
 def test_end_to_end_with_progress_events(api, worker):
@@ -280,3 +294,4 @@ def test_image_guided_job(api, worker):
     bad = api.client.post("/align", data={"prompt": "x"}, files={
         "target": ("box.glb", BOX), "source": ("ball.glb", BALL), "image": ("ref.png", b"not a picture")})
     assert (bad.status_code, bad.json()["error"]["code"]) == (422, "invalid_image")
+    assert bad.json()["error"]["message"] == "image: not a readable PNG or JPEG image"  # no <_io.BytesIO ...>

@@ -8,7 +8,7 @@ import pytest
 
 from service.client import Client, ServiceError
 from service.embedded import EmbeddedRedis
-from tests.conftest import Api, Worker, service_env, wait_for, wait_ready
+from tests.conftest import Api, Worker, park_worker, service_env, wait_for, wait_ready
 from tests.test_service import BALL, BOX, FAST, submit
 
 LONG = {**FAST, "steps": 100000}
@@ -112,7 +112,9 @@ def test_redis_restart_between_submit_and_pickup(tmp_path):
     api = Api(env)
     worker = None
     try:
+        leave = park_worker(env)  # a live worker (heartbeat only): the API accepts the job, nobody takes it
         job_id = submit(api).json()["id"]
+        leave()
         redis_server.stop(release=False)
         assert api.client.get(f"/jobs/{job_id}").json()["error"]["code"] == "redis_unavailable"
         redis_server.start()

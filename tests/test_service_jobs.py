@@ -44,6 +44,14 @@ def test_cancel_wins_over_a_later_pickup(jobs):
     assert jobs.storage.get(record.id, "target") is None  # inputs dropped
 
 
+def test_a_failed_job_says_so_in_its_progress(jobs):
+    record = queued(jobs)
+    jobs.start(record.id, "w1")
+    jobs.set_progress(record.id, Progress(kind="model", message="loading model hf:x", eta_s=30.0))
+    failed = jobs.finish(record.id, "failed", JobError(code="model_unavailable", message="no weights"))
+    assert (failed.progress.message, failed.progress.eta_s) == ("failed: model_unavailable", None)
+
+
 def test_only_one_worker_can_start_a_job(jobs):
     record = queued(jobs)
     assert jobs.start(record.id, "w1").worker == "w1"
@@ -105,6 +113,22 @@ def test_workers_alive_counts_current_leases_only(jobs):
     assert jobs.workers_alive() == 1
     time.sleep(1.2)  # lease_s = 1
     assert jobs.workers_alive() == 0
+
+
+def test_unavailable_says_no_worker_then_which_model_is_missing(jobs):
+    assert jobs.unavailable("random:tiny").code == "no_worker"
+    assert jobs.unavailable(None).code == "no_worker"  # even a geometry-only job needs a worker
+    jobs.heartbeat("a", None, {"hf:big": "weights for 'big' are not in the cache", "random:tiny": None})
+    jobs.heartbeat("b", None, {"hf:big": "weights for 'big' are not in the cache"})
+    assert jobs.unavailable("random:tiny") is None and jobs.unavailable(None) is None
+    missing = jobs.unavailable("hf:big")
+    assert (missing.code, missing.field) == ("model_unavailable", "options.model")
+    assert missing.message == "no live worker can run model 'hf:big': weights for 'big' are not in the cache"
+    assert "no live worker offers it" in jobs.unavailable("random:ViT-B-32").message
+    assert sorted(jobs.live_workers()) == ["a", "b"]
+    jobs.worker_gone("a")
+    assert jobs.unavailable("random:tiny").code == "model_unavailable"  # the one worker that had it left
+    assert not jobs.redis.exists(f"{jobs.prefix}:models:a")
 
 
 def test_active_job_cap_is_per_owner_and_self_heals(jobs):

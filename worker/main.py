@@ -2,7 +2,8 @@
 
 ``SimpleWorker`` runs jobs in this process instead of forking a child per job, so the vision-language
 model loaded at start-up (``guidance.get_guide`` caches it per process) serves every job, and torch
-never has to survive a fork. The heartbeat thread keeps this worker visible to ``/readyz``, holds the
+never has to survive a fork. The heartbeat thread keeps this worker visible to ``/readyz`` with the
+models it can run (checked once at start: the default loaded, the others' weights looked for), holds the
 lease of the running job (lapsed lease: the API's reaper fails the job with ``worker_lost``) and
 republishes progress when the optimiser has been quiet for a while.
 """
@@ -32,9 +33,11 @@ log = logging.getLogger("ctp.worker")
 class Heartbeat(threading.Thread):
     """Refresh this worker's and its job's leases; keep a running job's progress fresh."""
 
-    def __init__(self, jobs: Jobs, name: str, period_s: float, progress_every_s: float):
+    def __init__(self, jobs: Jobs, name: str, period_s: float, progress_every_s: float,
+                 models: dict[str, str | None] | None = None):
         super().__init__(name="ctp-heartbeat", daemon=True)
         self.jobs, self.worker, self.period_s, self.progress_every_s = jobs, name, period_s, progress_every_s
+        self.models = models or {}
         self._stop_event = threading.Event()
         self._lock = threading.Lock()
         self.job_id: str | None = None
@@ -44,7 +47,7 @@ class Heartbeat(threading.Thread):
     def run(self) -> None:
         while not self._stop_event.is_set():
             try:
-                self.jobs.heartbeat(self.worker, self.job_id)
+                self.jobs.heartbeat(self.worker, self.job_id, self.models)
                 self._refresh_progress()
             except RedisError as exc:  # Redis restarting: keep beating, the next one may land
                 log.warning("heartbeat failed: %s", exc, extra={"worker": self.worker})
@@ -122,8 +125,8 @@ def run_worker(settings: Settings, *, burst: bool = False, name: str | None = No
     logs.configure(settings.log_level)
     name = name or f"{socket.gethostname()}.{os.getpid()}"
     jobs = connect(settings)
-    _preload(settings)
-    beat = Heartbeat(jobs, name, settings.heartbeat_s, settings.progress_every_s)
+    models = _preload(settings)
+    beat = Heartbeat(jobs, name, settings.heartbeat_s, settings.progress_every_s, models)
     _CONTEXT = WorkerContext(settings, jobs, name, beat)
     beat.start()
     # rq gets a connection of its own: it raises the socket timeout above its blocking dequeue, which the
@@ -140,11 +143,13 @@ def run_worker(settings: Settings, *, burst: bool = False, name: str | None = No
     return 0
 
 
-def _preload(settings: Settings) -> None:
-    """Load the default model once for the life of the process; a failure is logged and each job that
-    needs the model then fails with its clear ``model_unavailable`` error."""
+def _preload(settings: Settings) -> dict[str, str | None]:
+    """Load the default model once for the life of the process and look for the weights of the other
+    models the service allows; returns ``{spec: None when this worker can run it, else why not}``, which
+    the heartbeat publishes so that the API refuses jobs no worker can run (``Jobs.unavailable``)."""
     import torch
 
+    from ctp_core import weights
     from ctp_core.config import AlignConfig
     from ctp_core.errors import ModelError
     from ctp_core.guidance import get_guide
@@ -152,9 +157,13 @@ def _preload(settings: Settings) -> None:
     if settings.threads:
         torch.set_num_threads(settings.threads)
     started = time.perf_counter()
+    models = {spec: weights.missing(spec) for spec in settings.allowed_models}
     try:
         get_guide(settings.model, device=settings.device, autocast=AlignConfig.model_fields["autocast"].default)
     except ModelError as exc:
         log.error("default model unavailable: %s", exc.message)
-        return
-    log.info("model %s loaded in %.1f s", settings.model, time.perf_counter() - started)
+        models[settings.model] = exc.message
+    else:
+        log.info("model %s loaded in %.1f s", settings.model, time.perf_counter() - started)
+        models[settings.model] = None
+    return models

@@ -6,13 +6,10 @@
 
 from __future__ import annotations
 
-import io
 import json
 import logging
 from collections.abc import Callable
 
-import numpy as np
-from PIL import Image
 from rq.timeouts import JobTimeoutException
 
 from ctp_core.align import align
@@ -20,7 +17,7 @@ from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled, CtpError
 from ctp_core.export import preview_png, report, scene_glb
 from ctp_core.guidance import get_guide
-from ctp_core.io import MeshLimits, load_mesh
+from ctp_core.io import MeshLimits, load_image, load_mesh
 from ctp_core.progress import ProgressEvent
 from service.jobs import JobError, JobRecord, Progress, Stage, Status
 from worker.main import context
@@ -88,9 +85,9 @@ def align_job(
     on_progress(Progress(stage=Stage(name="loading"), kind="loading", message="loading meshes"), True)
     target = load_mesh(inputs["target"], filename=record.target_file, limits=limits)
     source = load_mesh(inputs["source"], filename=record.source_file, limits=limits)
-    image = _decode_image(inputs["image"]) if inputs.get("image") is not None else None
+    image = load_image(inputs["image"]) if inputs.get("image") is not None else None
     guide = None
-    if config.loss.lambda_clip > 0:
+    if config.uses_model:
         on_progress(Progress(stage=Stage(name="model"), kind="model", message=f"loading model {config.model}"), True)
         guide = get_guide(config.model, device=config.device, autocast=config.autocast)
 
@@ -119,8 +116,3 @@ def progress_of(event: ProgressEvent) -> Progress:
                     restarts=event.restarts, fraction=round(event.fraction, 4),
                     eta_s=None if event.eta_s is None else round(event.eta_s, 1),
                     objective=None if event.best_objective is None else round(event.best_objective, 5), message=message)
-
-
-def _decode_image(data: bytes) -> np.ndarray:
-    with Image.open(io.BytesIO(data)) as img:
-        return np.asarray(img.convert("RGB"), dtype=np.uint8)

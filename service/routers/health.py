@@ -18,14 +18,19 @@ def healthz() -> Health:
 
 
 @router.get("/readyz", response_model=Ready, responses=documented(503),
-            summary="Redis answers and at least one worker is alive")
+            summary="A job submitted now can succeed: Redis answers and a live worker can run the default model",
+            description="503 with `redis_unavailable`, `no_worker` (no worker is alive) or `model_unavailable` "
+            "(no live worker can run the default model, e.g. its weights are not on the workers; the message "
+            "says why). Jobs that need no model (`lambda_clip` 0) may still be accepted then.")
 def readyz(request: Request):
-    jobs = request.app.state.jobs
+    jobs, settings = request.app.state.jobs, request.app.state.settings
     try:
         jobs.redis.ping()
-        workers = jobs.workers_alive()
+        problem = jobs.unavailable(settings.model, what="the default model (CTP_MODEL)", field=None)
+        live = jobs.live_workers()
     except redis.exceptions.RedisError:
         return error_response(503, JobError(code="redis_unavailable", message="Redis does not answer"))
-    if workers < 1:
-        return error_response(503, JobError(code="not_ready", message="no worker is alive"))
-    return Ready(status="ready", redis=True, workers=workers)
+    if problem is not None:
+        return error_response(503, problem)
+    models = sorted({spec for served in live.values() for spec, why in served.items() if why is None})
+    return Ready(status="ready", redis=True, workers=len(live), models=models)

@@ -48,6 +48,9 @@ async def submit(request: Request, who: str = Depends(owner)) -> Accepted:
         source_name=forms.object_name(form, "source", files["source"]),
         target_file=files["target"], source_file=files["source"], config=config.model_dump(mode="json"),
     )
+    unavailable = await run_in_threadpool(jobs.unavailable, config.model if config.uses_model else None)
+    if unavailable is not None:  # refused now rather than accepted and failed later
+        raise ApiError(503, unavailable.code, unavailable.message, unavailable.field)
     try:
         await run_in_threadpool(jobs.submit, record, blobs, settings.max_active_jobs)
     except TooManyJobs as exc:

@@ -1,0 +1,56 @@
+"""Readiness means "a job submitted now can succeed": a real worker whose default model has no weights
+here (an ``hf:`` path that does not exist) makes ``/readyz`` and ``POST /align`` answer 503
+``model_unavailable`` with the worker's reason, while jobs it can run (another allowed model, or a
+geometry-only job that needs no model) are still accepted and succeed."""
+
+from __future__ import annotations
+
+import pytest
+
+from tests.conftest import Api, Worker, service_env, wait_for
+from tests.test_service import FAST, submit
+
+MISSING = "hf:/nonexistent/ctp-weights"
+
+
+@pytest.fixture(scope="module")
+def env(private_redis):
+    return service_env(private_redis.url, "no-weights", model=MISSING, models="random:tiny")
+
+
+@pytest.fixture(scope="module")
+def live_worker(env, api, tmp_path_factory):
+    process = Worker(env, tmp_path_factory.mktemp("logs") / "worker.log")
+    wait_for(lambda: api.client.get("/readyz").json()["error"]["code"] != "no_worker", 90,
+             "the worker's first heartbeat", interval_s=0.25)
+    yield process
+    process.stop()
+
+
+def finished(api: Api, job_id: str) -> dict:
+    return wait_for(lambda: (j := api.client.get(f"/jobs/{job_id}").json())["status"] in ("succeeded", "failed")
+                    and j, 120, f"job {job_id} to end")
+
+
+def test_readyz_says_the_default_model_is_unavailable_and_why(api, live_worker):
+    answer = api.client.get("/readyz")
+    assert answer.status_code == 503
+    error = answer.json()["error"]
+    assert error["code"] == "model_unavailable"
+    assert MISSING in error["message"] and "no transformers model directory at /nonexistent" in error["message"]
+
+
+def test_a_job_needing_the_missing_model_is_refused_up_front(api, live_worker):
+    refused = submit(api, options={"preset": "test"})  # the default model
+    assert refused.status_code == 503, refused.text
+    assert refused.json()["error"]["code"] == "model_unavailable"
+    assert refused.json()["error"]["field"] == "options.model"
+
+
+def test_jobs_the_worker_can_run_are_accepted_and_succeed(api, live_worker):
+    with_model = submit(api, options=FAST)  # random:tiny, which the worker has
+    geometry_only = submit(api, options={"preset": "test", "lambda_clip": 0})  # the default model, unused
+    for accepted in (with_model, geometry_only):
+        assert accepted.status_code == 202, accepted.text
+        job = finished(api, accepted.json()["id"])
+        assert job["status"] == "succeeded", job
