@@ -17,7 +17,7 @@ import time
 import pytest
 import trimesh
 
-from tests.conftest import REPO, Api, service_env, wait_for
+from tests.conftest import REPO, Api, park_worker, service_env, wait_for
 
 KEY, OTHER = "page-key", "other-key"
 AUTH = {"Authorization": f"Bearer {KEY}"}
@@ -83,28 +83,31 @@ def test_page_asks_for_no_key_when_the_service_has_none(private_redis):
         open_service.stop()
 
 
-def test_job_list_is_the_callers_own_newest_first_and_paginated(api):
+def test_job_list_is_the_callers_own_newest_first_and_paginated(api, env):
     target, source = table_and_ball()
+    leave = park_worker(env)  # a live worker that consumes nothing: the jobs stay queued
+    try:
+        def submit(key: str) -> str:
+            answer = api.client.post("/align", headers={"Authorization": f"Bearer {key}"},
+                                     files={"target": ("t.glb", target), "source": ("s.glb", source)},
+                                     data={"prompt": "a ball on a table", "options": json.dumps({"preset": "test"})})
+            assert answer.status_code == 202, answer.text
+            return answer.json()["id"]
 
-    def submit(key: str) -> str:
-        answer = api.client.post("/align", headers={"Authorization": f"Bearer {key}"},
-                                 files={"target": ("t.glb", target), "source": ("s.glb", source)},
-                                 data={"prompt": "a ball on a table", "options": json.dumps({"preset": "test"})})
-        assert answer.status_code == 202, answer.text
-        return answer.json()["id"]
-
-    mine = [submit(OTHER) for _ in range(3)]
-    theirs = submit(KEY)
-    other = {"Authorization": f"Bearer {OTHER}"}
-    first = api.client.get("/jobs", params={"limit": 2}, headers=other).json()
-    assert [j["id"] for j in first["jobs"]] == mine[:0:-1] and first["total"] == 3
-    rest = api.client.get(first["next"], headers=other).json()
-    assert [j["id"] for j in rest["jobs"]] == mine[:1] and rest["next"] is None
-    assert api.client.get("/jobs").status_code == 401
-    bad = api.client.get("/jobs", params={"limit": 0}, headers=other)
-    assert (bad.status_code, bad.json()["error"]["code"]) == (400, "invalid_request")
-    for job_id, headers in [*((j, other) for j in mine), (theirs, AUTH)]:  # leave the worker to the browser test
-        assert api.client.delete(f"/jobs/{job_id}", headers=headers).status_code == 200
+        mine = [submit(OTHER) for _ in range(3)]
+        theirs = submit(KEY)
+        other = {"Authorization": f"Bearer {OTHER}"}
+        first = api.client.get("/jobs", params={"limit": 2}, headers=other).json()
+        assert [j["id"] for j in first["jobs"]] == mine[:0:-1] and first["total"] == 3
+        rest = api.client.get(first["next"], headers=other).json()
+        assert [j["id"] for j in rest["jobs"]] == mine[:1] and rest["next"] is None
+        assert api.client.get("/jobs").status_code == 401
+        bad = api.client.get("/jobs", params={"limit": 0}, headers=other)
+        assert (bad.status_code, bad.json()["error"]["code"]) == (400, "invalid_request")
+        for job_id, headers in [*((j, other) for j in mine), (theirs, AUTH)]:  # leave the worker to the browser test
+            assert api.client.delete(f"/jobs/{job_id}", headers=headers).status_code == 200
+    finally:
+        leave()
 
 
 # -- the browser -------------------------------------------------------------------------------------
