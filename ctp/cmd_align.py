@@ -33,7 +33,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--steps", type=int, help="total steps per restart over all phases")
     parser.add_argument("--seed", type=int)
     parser.add_argument("--device", choices=["cpu", "cuda"])
-    parser.add_argument("--threads", type=int, help="torch CPU threads")
+    parser.add_argument("--threads", type=int, help="torch CPU threads (and ONNX Runtime's)")
+    parser.add_argument("--runtime", choices=["auto", "torch", "onnx", "onnx-int8"],
+                        help="where forward-only encoding runs (selection, judge): ONNX Runtime fp32 or int8, "
+                        "torch, or auto (default; README)")
     parser.add_argument("--contact-ratio", type=float, help="soft-ICP ratio r in [0, 1] (default: prior)")
     parser.add_argument("--penetration", choices=["auto", "allow", "forbid"])
     parser.add_argument("--size-ratio", type=float, help="source/target size in [0.01, 100] (scale mode)")
@@ -56,7 +59,8 @@ def config_from_args(args: argparse.Namespace):
     from ctp_core.config import AlignConfig
 
     top = {"model": args.model, "scale": args.scale or None, "seed": args.seed, "device": args.device,
-           "threads": args.threads, "contact_ratio": args.contact_ratio, "penetration": args.penetration,
+           "threads": args.threads, "runtime": args.runtime, "contact_ratio": args.contact_ratio,
+           "penetration": args.penetration,
            "size_ratio": args.size_ratio, "hparams_provider": args.hparams_provider}
     overrides = {k: v for k, v in top.items() if v is not None}
     if args.keep_up:

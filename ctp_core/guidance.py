@@ -423,6 +423,12 @@ def get_guide(spec: str, *, device: str = "cpu", autocast: bool = True, runtime:
         return _CACHE[key]
 
 
+def guide_for(config) -> Guide:
+    """The guide an ``AlignConfig`` asks for (model, device, precision, runtime, threads), process-cached."""
+    return get_guide(config.model, device=config.device, autocast=config.autocast, runtime=config.runtime,
+                     threads=config.threads)
+
+
 def downloads_allowed() -> bool:
     """Whether weights may be fetched: ``CTP_ALLOW_DOWNLOAD`` wins, then ``HF_HUB_OFFLINE``; default no.
 

@@ -89,8 +89,7 @@ def cache_dir(key: dict) -> Path:
 class _Tower(torch.nn.Module):
     """A feature function as a module with positional tensor inputs, which ``torch.onnx.export`` wants."""
 
-    def __init__(self, model: torch.nn.Module, fn: Callable[[dict[str, torch.Tensor]], torch.Tensor],
-                 names: list[str]):
+    def __init__(self, model: torch.nn.Module, fn: Features, names: list[str]):
         super().__init__()
         self.model = model  # registered, so the exporter sees its weights as parameters, not constants
         self.fn, self.names = fn, names
@@ -99,7 +98,10 @@ class _Tower(torch.nn.Module):
         return self.fn(dict(zip(self.names, tensors, strict=True)))
 
 
-def _export(model: torch.nn.Module, fn: Callable[[dict[str, torch.Tensor]], torch.Tensor], inputs: dict[str, torch.Tensor],
+Features = Callable[[dict[str, torch.Tensor]], torch.Tensor]
+
+
+def _export(model: torch.nn.Module, fn: Features, inputs: dict[str, torch.Tensor],
             dynamic: dict[str, dict[int, str]], path: Path) -> None:
     """Export one tower with named dynamic axes; quiet (the exporter prints progress and warnings)."""
     names = list(inputs)
@@ -114,8 +116,8 @@ def _export(model: torch.nn.Module, fn: Callable[[dict[str, torch.Tensor]], torc
                           optimize=True, external_data=False, verbose=False, report=False)
 
 
-def export(directory: Path, model: torch.nn.Module, *, meta: dict, image_features: Callable[[torch.Tensor], torch.Tensor],
-           text_features: Callable[[dict[str, torch.Tensor]], torch.Tensor], pixels: torch.Tensor,
+def export(directory: Path, model: torch.nn.Module, *, meta: dict,
+           image_features: Callable[[torch.Tensor], torch.Tensor], text_features: Features, pixels: torch.Tensor,
            tokens: dict[str, torch.Tensor], save_tokenizer: Callable[[Path], dict] | None) -> Path:
     """Export both towers into ``directory`` unless it already holds them; returns ``directory``.
 

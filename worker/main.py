@@ -153,8 +153,10 @@ def _preload(settings: Settings) -> None:
         torch.set_num_threads(settings.threads)
     started = time.perf_counter()
     try:
-        get_guide(settings.model, device=settings.device, autocast=AlignConfig.model_fields["autocast"].default)
+        guide = get_guide(settings.model, device=settings.device, runtime=settings.runtime, threads=settings.threads,
+                          autocast=AlignConfig.model_fields["autocast"].default)
     except ModelError as exc:
         log.error("default model unavailable: %s", exc.message)
         return
-    log.info("model %s loaded in %.1f s", settings.model, time.perf_counter() - started)
+    log.info("model %s loaded in %.1f s (forward-only runtime %s)", settings.model, time.perf_counter() - started,
+             guide.runtime)
