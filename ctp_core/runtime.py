@@ -128,6 +128,7 @@ def export(directory: Path, model: torch.nn.Module, *, meta: dict,
         return directory
     directory.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=".export-", dir=directory.parent))
+    tmp.chmod(0o755)  # mkdtemp makes it private; the cache may be shared by a host's workers
     try:
         _export(model, lambda d: image_features(d["pixels"]), {"pixels": pixels}, {"pixels": {0: "batch"}},
                 tmp / VISION)
