@@ -322,15 +322,15 @@ class Guide:
             if self.device.type != "cpu":
                 raise ValueError("ONNX Runtime runs on the CPU here; use the torch runtime on CUDA")
             key = runtime_mod.cache_key(self.spec, runtime_mod.weights_hash(self.model))
+            meta = {"key": key, "embed_dim": self.embed_dim, "transform": asdict(self.transform)}
             directory = runtime_mod.export(
-                runtime_mod.cache_dir(key), self.model, meta={"key": key, "embed_dim": self.embed_dim,
-                                                  "transform": asdict(self.transform)},
-                image_features=self._image_features, text_features=self._text_features,
+                runtime_mod.cache_dir(key), self.model, meta=meta, image_features=self._image_features,
+                text_features=self._text_features,
                 pixels=self.transform(torch.rand(2, 3, 64, 64)),  # the model input of square renders
                 tokens=self._tokenize(["a photo of a cat", "a hat on a dog"]), save_tokenizer=self._save_tokenizer)
             self.encoders = runtime_mod.Encoders.load(directory, int8=resolved == "onnx-int8", threads=threads)
             self.runtime = resolved
-        except Exception as exc:  # noqa: BLE001 (exporter and runtime raise many types; torch still works)
+        except Exception as exc:  # the exporter and onnxruntime raise many types; torch still works
             self._runtime_failed(resolved, exc)
 
     def _pixel_features(self, pixels: Tensor, amp: bool = True) -> Tensor:
@@ -360,7 +360,7 @@ class Guide:
                              "or random: model, or selection only", field="model")
         try:
             return call(self.encoders)
-        except Exception as exc:  # noqa: BLE001 (onnxruntime raises its own types)
+        except Exception as exc:  # onnxruntime raises its own types
             if self.model is None:
                 raise ModelError(f"ONNX Runtime failed on {self.spec}: {exc}", field="model") from exc
             self._runtime_failed(self.runtime, exc)
@@ -572,7 +572,7 @@ def _load_onnx(spec: str, name: str, request: LoadRequest) -> Guide:
     transform = ImageTransform(resize, tuple(t["crop"]) if t["crop"] else None, tuple(t["mean"]), tuple(t["std"]))
     try:
         encoders = runtime_mod.Encoders.load(directory, int8=request.runtime == "onnx-int8", threads=request.threads)
-    except Exception as exc:  # noqa: BLE001 (onnxruntime raises its own types)
+    except Exception as exc:  # onnxruntime raises its own types
         raise ModelError(f"ONNX Runtime could not load {directory}: {exc}", field="model") from exc
     return Guide(spec, None, image_features=None, tokenize=tokenize, text_features=None, transform=transform,
                  embed_dim=int(meta["embed_dim"]), device=request.device, autocast=False, encoders=encoders)
