@@ -122,7 +122,8 @@ def run(args: argparse.Namespace) -> int:
     summary = {"out": str(args.out), "objective": round(result.objective, 6), "scale": round(result.scale, 6),
                "translation": [round(v, 6) for v in result.translation.tolist()],
                "seconds": round(time.perf_counter() - started, 2), "preset": config.preset,
-               "model": result.extra.get("model"), "hparams": result.hparams.get("source")}
+               "model": result.extra.get("model"), "runtime": result.extra.get("runtime"),
+               "hparams": result.hparams.get("source")}
     print(json.dumps(summary))
     return 0
 

@@ -189,3 +189,21 @@ def test_config_refuses_runs_a_backend_cannot_serve():
     with pytest.raises(ConfigError, match="runtime"):
         AlignConfig.from_preset("test", runtime="tensorrt")
     assert AlignConfig.from_preset("test").runtime == "auto"
+
+
+def test_cli_forward_only_model_needs_selection_only(onnx_guide, tmp_path, capsys):
+    import json
+
+    import trimesh
+
+    from ctp.cli import main
+
+    target, source = tmp_path / "t.glb", tmp_path / "s.glb"
+    trimesh.creation.box((2, 0.2, 2)).export(target)
+    trimesh.creation.icosphere(1, 0.3).export(source)
+    argv = ["align", str(target), str(source), "--prompt", "a ball on a table", "--preset", "test", "--quiet",
+            "--model", f"onnx:{onnx_guide.encoders.directory}", "--out", str(tmp_path / "o.glb")]
+    assert main(argv) == 2
+    assert "forward only" in capsys.readouterr().err
+    assert main([*argv, "--selection-only", "--runtime", "onnx"]) == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["runtime"] == "onnx"
