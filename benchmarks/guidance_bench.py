@@ -1,12 +1,20 @@
 """Cost and precision of the guidance model on this machine; prints one JSON line.
 
-Measures what decides the CPU autocast default (see ctp_core/guidance.py): forward+backward of a
-step's views in fp32 and bf16, forward-only scoring per image (medians over ``--repeats`` rounds),
-the largest image-text cosine change bf16 causes (bound: 1e-2), and how well bf16 keeps the gradient
-direction w.r.t. the pixels. Also the fixed costs a worker pays once: ``import transformers`` and
-building the model.
+Measures what decides the CPU autocast default and the forward-only runtime default (see
+ctp_core/guidance.py, ctp_core/runtime.py): forward+backward of a step's views in fp32 and bf16
+(bf16 only where the CPU has it natively), and forward-only scoring (``Guide.score``, the text-guided
+scoring path) in ms per image at batch 1, 8 and 32 for torch fp32, torch bf16 (native only), ONNX
+Runtime fp32 and ONNX Runtime int8, all interleaved in one run (one warm-up round first; medians of
+``--repeats`` rounds, and per-round ratios to torch fp32, which load drift cannot bias). Precision:
+the largest image-text cosine change to torch fp32 over 64 x 8 = 512 pairs (bounds: bf16 1e-2, ONNX
+fp32 1e-4), how well bf16 keeps the pixel gradient's direction, and for int8 the rank agreement with
+torch fp32 over ``--poses`` renders of random candidate poses of one pair (Spearman >= 0.95 and at
+least 8 of the top 10 kept). Also the fixed costs a worker pays once: ``import transformers``,
+building the model, exporting the ONNX towers (or loading them from the cache). The load average
+before and after is printed: the machine may be shared.
 
-    OMP_WAIT_POLICY=PASSIVE nice -n 10 python benchmarks/guidance_bench.py --spec random:ViT-B-32
+    OMP_WAIT_POLICY=PASSIVE python benchmarks/guidance_bench.py --spec random:ViT-B-32 \
+        --case ../shared/bench/pairbench3d/coffee_cup_with_plate --table
 """
 
 from __future__ import annotations
@@ -14,7 +22,9 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
+import sys
 import time
+from pathlib import Path
 
 import torch
 
@@ -44,15 +54,67 @@ def seconds(fn) -> float:
     return time.perf_counter() - start
 
 
+def loadavg() -> list[float] | None:
+    try:
+        return [float(v) for v in Path("/proc/loadavg").read_text().split()[:3]]
+    except OSError:
+        return None
+
+
+def candidate_renders(case: Path | None, count: int, size: int, seed: int) -> tuple[torch.Tensor, str]:
+    """(count, 3, size, size) renders of one pair at random candidate poses (one framing view each), and its prompt.
+
+    ``case`` is a bench case folder (case.json); without one, a box (target) and a sphere (source).
+    """
+    import numpy as np
+    import trimesh
+
+    from ctp_core import render, scene
+    from ctp_core.bench import protocol
+
+    if case is not None:
+        from ctp_core.bench.cases import read_case
+
+        c = read_case(case / "case.json")
+        (target, source), prompt = c.load(), c.prompt
+    else:
+        target, source = trimesh.creation.box((2.0, 0.2, 1.0)), trimesh.creation.icosphere(2, 0.3)
+        prompt = "a ball on a table"
+    pair = scene.prepare_pair(target, source, samples=100, seed=0, canonicalise=False)
+    rng = np.random.default_rng(seed)
+    starts = protocol.random_starts(target.bounds, source.bounds, 1.0, count, rng, distance=(0.3, 1.2))
+    out = []
+    with torch.no_grad():
+        for chunk in range(0, count, 50):
+            m = torch.tensor(np.stack([pair.local_to_normalised(p) for p in starts[chunk:chunk + 50]]),
+                             dtype=torch.float32)
+            posed = pair.source_vertices @ m[:, :3, :3].transpose(1, 2) + m[:, None, :3, 3]
+            verts = pair.scene_vertices(posed)
+            out.append(render.render(pair.mesh, verts, scene.framing_cameras(verts, 1, size))[:, 0])
+    return torch.cat(out), prompt
+
+
+def rank_agreement(reference: torch.Tensor, other: torch.Tensor, top: int = 10) -> dict:
+    from scipy.stats import spearmanr
+
+    kept = set(reference.topk(top).indices.tolist()) & set(other.topk(top).indices.tolist())
+    return {"spearman": round(float(spearmanr(reference.numpy(), other.numpy()).statistic), 4),
+            f"top{top}_kept": len(kept)}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--spec", default="random:ViT-B-32")
     parser.add_argument("--views", type=int, default=8, help="images per forward+backward (a step's views)")
     parser.add_argument("--size", type=int, default=224, help="render resolution fed to the guide")
-    parser.add_argument("--score-images", type=int, default=32, help="images for forward-only timing")
-    parser.add_argument("--compare-images", type=int, default=64, help="images for the bf16/fp32 comparison")
+    parser.add_argument("--batches", default="1,8,32", help="forward-only batch sizes")
+    parser.add_argument("--compare-images", type=int, default=64, help="images for the cosine comparison")
+    parser.add_argument("--poses", type=int, default=500, help="candidate-pose renders for the int8 ranking")
+    parser.add_argument("--case", type=Path, help="bench case folder for the candidate poses (default: primitives)")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--table", action="store_true", help="also print a Markdown table to stderr")
     args = parser.parse_args()
+    load_start = loadavg()
 
     start = time.perf_counter()
     import transformers  # noqa: F401  (timed: a worker pays this once per process)
@@ -63,7 +125,25 @@ def main() -> None:
     start = time.perf_counter()
     guide = load_guide(args.spec, autocast=False)
     build_s = time.perf_counter() - start
+    native = cpu_has_fast_bf16()
+    threads = torch.get_num_threads()
+    start = time.perf_counter()
+    guide.use_runtime("onnx", threads)
+    onnx32 = guide.encoders
+    export_s = time.perf_counter() - start
+    guide.use_runtime("onnx-int8", threads)
+    onnx8 = guide.encoders
+    if onnx32 is None or onnx8 is None:
+        raise SystemExit("ONNX Runtime unavailable (see the warning above)")
 
+    # name -> (encoders, autocast): encoders None is torch; the guide is switched between them.
+    runtimes = {"torch_fp32": (None, False), **({"torch_bf16": (None, True)} if native else {}),
+                "onnx_fp32": (onnx32, False), "onnx_int8": (onnx8, False)}
+
+    def use(name: str) -> None:
+        guide.encoders, guide.autocast = runtimes[name]
+
+    use("torch_fp32")  # the reference everywhere: the text is encoded once, in torch fp32
     text = guide.encode_text(PROMPTS)
     views = scenes(args.views, args.size, seed=1)
 
@@ -72,37 +152,84 @@ def main() -> None:
         (-(guide.encode_images(images) @ text[0]).mean()).backward()
         return images.grad
 
-    score_batch = scenes(args.score_images, args.size, seed=2)
-    compare = scenes(args.compare_images, args.size, seed=3)
-    result = {"spec": args.spec, "threads": torch.get_num_threads(), "native_bf16": cpu_has_fast_bf16(),
-              "views": args.views, "size": args.size,
-              "import_transformers_s": round(import_s, 3), "build_s": round(build_s, 3)}
-    precisions = {"fp32": False, "bf16": True}
-    times = {key: [] for name in precisions for key in (f"fwd_bwd_s_{name}", f"fwd_ms_per_image_{name}")}
-    cos, grad = {}, {}
-    # Interleave the precisions, one warm-up round first: on a shared machine load drifts, and
-    # alternating keeps it from favouring whichever precision ran in the quieter minute.
+    batches = [int(b) for b in args.batches.split(",")]
+    batch_images = {b: scenes(b, args.size, seed=2 + b) for b in batches}
+    grad_names = [n for n in ("torch_fp32", "torch_bf16") if n in runtimes]
+    fwd_bwd = {n: [] for n in grad_names}
+    ms = {b: {n: [] for n in runtimes} for b in batches}
+    ratio = {b: {n: [] for n in runtimes} for b in batches}
+    # Interleave everything, one warm-up round first: on a shared machine load drifts, and alternating
+    # keeps it from favouring whichever runtime ran in the quieter minute; ratios are taken per round.
     for round_ in range(args.repeats + 1):
-        for name, autocast in precisions.items():
-            guide.autocast = autocast
-            step_s = seconds(step)
-            score_s = seconds(lambda: guide.score(score_batch, text[0]))
+        for name in grad_names:
+            use(name)
+            elapsed = seconds(step)
             if round_:
-                times[f"fwd_bwd_s_{name}"].append(step_s)
-                times[f"fwd_ms_per_image_{name}"].append(1000 * score_s / args.score_images)
-    for name, autocast in precisions.items():
-        guide.autocast = autocast
+                fwd_bwd[name].append(elapsed)
+        for b in batches:
+            this_round = {}
+            for name in runtimes:
+                use(name)
+                this_round[name] = seconds(lambda b=b: guide.score(batch_images[b], text[0], batch_size=b))
+            if round_:
+                for name, elapsed in this_round.items():
+                    ms[b][name].append(1000 * elapsed / b)
+                    ratio[b][name].append(this_round["torch_fp32"] / elapsed)
+
+    compare = scenes(args.compare_images, args.size, seed=3)
+    cos, grad = {}, {}
+    for name in runtimes:
+        use(name)
         cos[name] = guide.score(compare, text)
+    for name in grad_names:
+        use(name)
         grad[name] = step().flatten()
-    result.update({key: round(statistics.median(values), 3) for key, values in times.items()})
-    result["max_abs_cos_diff"] = float((cos["bf16"] - cos["fp32"]).abs().max())
-    result["cos_pairs"] = cos["fp32"].numel()
-    result["cos_range_fp32"] = [round(float(cos["fp32"].min()), 4), round(float(cos["fp32"].max()), 4)]
-    result["grad_cos_bf16_fp32"] = round(float(torch.nn.functional.cosine_similarity(
-        grad["bf16"].double(), grad["fp32"].double(), dim=0)), 5)
-    result["speedup_fwd_bwd"] = round(result["fwd_bwd_s_fp32"] / result["fwd_bwd_s_bf16"], 2)
-    result["speedup_fwd"] = round(result["fwd_ms_per_image_fp32"] / result["fwd_ms_per_image_bf16"], 2)
+    renders, prompt = candidate_renders(args.case, args.poses, args.size, seed=4)
+    use("torch_fp32")
+    prompt_emb = guide.encode_text([prompt])[0]
+    pose_scores = {}
+    for name in runtimes:
+        use(name)
+        pose_scores[name] = guide.score(renders, prompt_emb)
+
+    result = {"spec": args.spec, "threads": threads, "native_bf16": native, "views": args.views, "size": args.size,
+              "loadavg_start": load_start, "import_transformers_s": round(import_s, 3), "build_s": round(build_s, 3),
+              "onnx_export_or_load_s": round(export_s, 3), "onnx_dir": str(onnx32.directory)}
+    result.update({f"fwd_bwd_s_{n.split('_')[1]}": round(statistics.median(v), 3) for n, v in fwd_bwd.items()})
+    result["ms_per_image"] = {b: {n: round(statistics.median(v), 2) for n, v in ms[b].items()} for b in batches}
+    result["speedup_vs_torch_fp32"] = {b: {n: round(statistics.median(v), 2) for n, v in ratio[b].items()
+                                           if n != "torch_fp32"} for b in batches}
+    result["max_abs_cos_diff"] = {n: float((cos[n] - cos["torch_fp32"]).abs().max()) for n in runtimes
+                                  if n != "torch_fp32"}
+    result["cos_pairs"] = cos["torch_fp32"].numel()
+    result["cos_range_fp32"] = [round(float(cos["torch_fp32"].min()), 4), round(float(cos["torch_fp32"].max()), 4)]
+    if "torch_bf16" in grad:
+        result["grad_cos_bf16_fp32"] = round(float(torch.nn.functional.cosine_similarity(
+            grad["torch_bf16"].double(), grad["torch_fp32"].double(), dim=0)), 5)
+        result["speedup_fwd_bwd"] = round(result["fwd_bwd_s_fp32"] / result["fwd_bwd_s_bf16"], 2)
+    result["ranking"] = {"case": str(args.case) if args.case else "primitives", "poses": len(renders),
+                         "score_range_fp32": [round(float(pose_scores["torch_fp32"].min()), 4),
+                                              round(float(pose_scores["torch_fp32"].max()), 4)],
+                         **{n: rank_agreement(pose_scores["torch_fp32"], v) for n, v in pose_scores.items()
+                            if n != "torch_fp32"}}
+    result["loadavg_end"] = loadavg()
     print(json.dumps(result))
+    if args.table:
+        print(markdown(result, batches, list(runtimes)), file=sys.stderr)
+
+
+def markdown(result: dict, batches: list[int], names: list[str]) -> str:
+    head = "| runtime | " + " | ".join(f"batch {b} ms/image (× torch fp32)" for b in batches) + \
+        f" | max abs Δcos ({result['cos_pairs']} pairs) | Spearman / top-10 kept |"
+    lines = [head, "|---" * (len(batches) + 3) + "|"]
+    for n in names:
+        cells = [f"{result['ms_per_image'][b][n]}" + (f" ({result['speedup_vs_torch_fp32'][b][n]}×)"
+                                                      if n != "torch_fp32" else "") for b in batches]
+        diff = f"{result['max_abs_cos_diff'][n]:.1e}" if n != "torch_fp32" else "reference"
+        rank = result["ranking"].get(n)
+        rank = f"{rank['spearman']} / {rank['top10_kept']}" if rank else "reference"
+        lines.append(f"| {n.replace('_', ' ')} | " + " | ".join(cells) + f" | {diff} | {rank} |")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

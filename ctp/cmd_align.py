@@ -37,7 +37,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--steps", type=int, metavar="N", help="total steps per restart over all phases")
     parser.add_argument("--seed", type=int, metavar="N")
     parser.add_argument("--device", choices=["cpu", "cuda"])
-    parser.add_argument("--threads", type=int, metavar="N", help="torch CPU threads")
+    parser.add_argument("--threads", type=int, metavar="N", help="torch CPU threads (and ONNX Runtime's)")
+    parser.add_argument("--runtime", choices=["auto", "torch", "onnx", "onnx-int8"],
+                        help="where forward-only encoding runs (selection, judge): ONNX Runtime fp32 or int8, "
+                        "torch, or auto (default; README)")
     parser.add_argument("--contact-ratio", type=float, metavar="R", help="soft-ICP ratio r in [0, 1] (default: prior)")
     parser.add_argument("--penetration", choices=["auto", "allow", "forbid"])
     parser.add_argument("--size-ratio", type=float, metavar="S", help="source/target size in [0.01, 100] (scale mode)")
@@ -60,7 +63,8 @@ def config_from_args(args: argparse.Namespace):
     from ctp_core.config import AlignConfig
 
     top = {"model": args.model, "scale": args.scale or None, "seed": args.seed, "device": args.device,
-           "threads": args.threads, "contact_ratio": args.contact_ratio, "penetration": args.penetration,
+           "threads": args.threads, "runtime": args.runtime, "contact_ratio": args.contact_ratio,
+           "penetration": args.penetration,
            "size_ratio": args.size_ratio, "hparams_provider": args.hparams_provider}
     overrides = {k: v for k, v in top.items() if v is not None}
     if args.keep_up:
@@ -157,7 +161,8 @@ def run(args: argparse.Namespace) -> int:
     summary = {"out": str(args.out), "objective": round(result.objective, 6), "scale": round(result.scale, 6),
                "translation": [round(v, 6) for v in result.translation.tolist()],
                "seconds": round(time.perf_counter() - started, 2), "preset": config.preset,
-               "model": result.extra.get("model"), "hparams": result.hparams.get("source"),
+               "model": result.extra.get("model"), "runtime": result.extra.get("runtime"),
+               "hparams": result.hparams.get("source"),
                "names": {"target": result.hparams["target_name"], "source": result.hparams["source_name"]}}
     print(json.dumps(summary))
     return 0

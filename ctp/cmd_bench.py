@@ -56,6 +56,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--jobs", type=int, default=1, help="cases run in parallel processes")
     parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
     parser.add_argument("--threads", type=int, help="torch CPU threads per run")
+    parser.add_argument("--runtime", choices=["auto", "torch", "onnx", "onnx-int8"],
+                        help="where forward-only encoding runs (scoring, selection, metrics; default auto)")
     parser.add_argument("--resume", action="store_true", help="keep finished rows of OUT/results.jsonl")
     parser.add_argument("--summary-only", action="store_true",
                         help="only rewrite summary.md and the plots from OUT/results.jsonl (e.g. after an interrupt)")
@@ -86,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     options = harness.BenchOptions(
         methods=args.methods or ["ctp"], protocol=args.protocol, inits=args.inits, seed=args.seed,
         preset=args.preset, model=args.model, guide=args.guide, metrics_models=args.metrics_models,
-        ablation=args.ablation, device=args.device, threads=args.threads)
+        ablation=args.ablation, device=args.device, threads=args.threads, runtime=args.runtime)
     options.config("ctp")  # a bad preset or model spec fails here, before any case runs
     if args.summary_only:
         rows = harness.read_results(args.out / harness.RESULTS)

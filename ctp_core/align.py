@@ -98,7 +98,7 @@ def align(
     )
     judge = None
     if config.upright and config.upright_judge:
-        guide = guide or guidance_mod.get_guide(config.model, device=config.device, autocast=config.autocast)
+        guide = guide or guidance_mod.guide_for(config)
         judge = scene.upright_judge(target, guide, target_name, device=config.device)
     pair = scene.prepare_pair(target, source, samples=config.loss.samples, seed=config.seed, device=config.device,
                               canonicalise=config.upright, judge=judge)
@@ -110,7 +110,7 @@ def align(
         elif prompt:
             guidance = targets.TextTarget(prompt)
     if guidance is not None and config.loss.lambda_clip > 0:
-        guide = guide or guidance_mod.get_guide(config.model, device=config.device, autocast=config.autocast)
+        guide = guide or guidance_mod.guide_for(config)
         guidance.prepare(pair, guide)
     else:
         guidance = None
@@ -144,6 +144,7 @@ def align(
             "best_restart": outcome.best,
             "guidance": guidance.description if guidance is not None else "none (geometry only)",
             "model": config.model if guidance is not None else None,
+            "runtime": guide.runtime if guide is not None else None,
             "clip_images": outcome.clip_images,
             "phase_timings": [{k: round(v, 3) for k, v in p.items()} for p in outcome.phase_timings],
             "target_upright": {"rotation": pair.target_upright.rotation.tolist(),

@@ -17,9 +17,11 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from ctp_core import backends
 from ctp_core.errors import ConfigError
 
 Penetration = Literal["auto", "allow", "forbid"]
+Runtime = Literal["auto", "torch", "onnx", "onnx-int8"]
 
 
 class _Strict(BaseModel):
@@ -95,6 +97,11 @@ class AlignConfig(_Strict):
     device: Literal["cpu", "cuda"] = "cpu"
     model: str = Field("hf:openai/clip-vit-base-patch32", description="guidance model spec (guidance.py)")
     autocast: bool = Field(True, description="fp16 on CUDA, bf16 on CPUs with native bf16 (AVX512-BF16/AMX), else fp32")
+    runtime: Runtime = Field(
+        "auto", description="where forward-only encoding runs (scoring, selection, judge): torch, onnx (ONNX "
+        "Runtime fp32), onnx-int8 (dynamic int8 vision tower), auto (onnx on CPUs without native bf16, else "
+        "torch; README); the gradient path is always torch"
+    )
     scale: bool = Field(False, description="optimise isotropic scale too")
     size_ratio: float | None = Field(None, ge=0.01, le=100.0, description="source/target size; None: prior")
     contact_ratio: float | None = Field(None, ge=0.0, le=1.0, description="soft-ICP ratio r; None: prior")
@@ -125,6 +132,31 @@ class AlignConfig(_Strict):
         """Whether a run loads the guidance model: prompt guidance (lambda_clip > 0) or the upright judge.
         A geometry-only run needs none, so a service without the model's weights can still run it."""
         return self.loss.lambda_clip > 0 or (self.upright and self.upright_judge)
+
+    @model_validator(mode="after")
+    def _backend_serves_the_run(self) -> AlignConfig:
+        """A forward-only backend cannot give the CLIP gradient; ONNX Runtime runs on the CPU only.
+
+        Raises ``ConfigError`` itself (pydantic lets it through) so the field is ``model``/``runtime``.
+        """
+        backend = backends.BACKENDS.get(self.model.partition(":")[0])
+        if backend is not None and not backend.differentiable:
+            if self.needs_image_gradient:
+                raise ConfigError(f"model {self.model!r} is forward only (no gradients), and this run descends "
+                                  "the CLIP loss: use selection only (--selection-only, loss.selection_only), "
+                                  "no guidance, or a differentiable model (hf:, random:, open_clip:)", field="model")
+            if self.runtime == "torch" or self.device != "cpu":
+                raise ConfigError(f"model {self.model!r} runs only in ONNX Runtime on the CPU: use device cpu "
+                                  "and runtime auto, onnx or onnx-int8", field="runtime")
+        if self.runtime.startswith("onnx") and self.device != "cpu":
+            raise ConfigError(f"runtime {self.runtime!r} is ONNX Runtime on the CPU; on CUDA use auto or torch",
+                              field="runtime")
+        return self
+
+    @property
+    def needs_image_gradient(self) -> bool:
+        """Whether the optimiser differentiates the CLIP loss w.r.t. the renders."""
+        return self.loss.lambda_clip > 0 and not self.loss.selection_only
 
     @classmethod
     def preset_names(cls) -> list[str]:

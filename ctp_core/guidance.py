@@ -18,6 +18,18 @@ Model specs (the strings of ``ctp align --model``):
 - ``random:ARCH``: the same architecture with deterministic random weights (seeded, built from a
   config in code, nothing read or downloaded) for tests and benchmarks on machines without weights.
   ``ARCH`` is one of ``RANDOM_ARCHS`` (``ViT-B-32``, ``ViT-B-16``, ``ViT-L-14``, ``tiny``).
+- ``onnx:DIR``: a directory of exported towers (an entry of the ONNX cache, see ``runtime``), run by
+  ONNX Runtime without torch weights. Forward only: ``Guide.differentiable`` is False, and a run that
+  needs image gradients is refused when it is configured (``config``).
+
+The backends are a registry (``backends.BACKENDS``: spec prefix -> loader, differentiable or not).
+
+Runtime of the forward-only calls (``runtime``: ``auto``, ``torch``, ``onnx``, ``onnx-int8``): with
+``onnx``/``onnx-int8`` the guide exports its towers once (cached) and runs ``encode_images``,
+``score`` and ``encode_reference_image`` in ONNX Runtime whenever gradients are disabled
+(``torch.no_grad`` / ``torch.inference_mode``; ``encode_text`` always is), and in torch whenever they
+are enabled, so the optimiser's gradient path is unchanged. If export or loading fails the guide logs
+one line and stays on torch. ``auto`` follows ``runtime.resolve`` (measured; README).
 
 Offline by default: weights are only read from disk unless the caller passes ``offline=False`` or
 the environment allows downloads (``CTP_ALLOW_DOWNLOAD=1``, or ``HF_HUB_OFFLINE=0``). Missing
@@ -42,9 +54,10 @@ is too small to gain from bf16 (autocast overhead makes it ~1.5x slower); it exi
 from __future__ import annotations
 
 import json
+import logging
 import threading
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -52,8 +65,12 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from ctp_core import backends
+from ctp_core import runtime as runtime_mod
 from ctp_core.errors import ModelError, ModelSpecError
 from ctp_core.weights import downloads_allowed, looks_local, missing
+
+log = logging.getLogger(__name__)
 
 # CLIP's (OpenAI) pixel statistics; open_clip and transformers CLIP checkpoints use the same.
 CLIP_MEAN = (0.48145466, 0.4578275, 0.40821073)
@@ -164,35 +181,66 @@ def cpu_has_fast_bf16() -> bool:
     return any(bool(getattr(torch.cpu, name, lambda: False)()) for name in probes)
 
 
+Tokens = dict[str, Tensor]
+
+
+@dataclass(frozen=True)
+class LoadRequest:
+    """What every backend loader gets besides the spec (see ``load_guide``)."""
+
+    device: torch.device
+    autocast: bool
+    offline: bool
+    cache_dir: str | None
+    runtime: str
+    threads: int
+
+
 class Guide:
     """A loaded vision-language model; load once per process (``get_guide``) and reuse across jobs.
 
     Embeddings are (N, D) fp32 and L2-normalised, so a dot product is the cosine similarity.
+    ``model`` is None for a forward-only backend (``onnx:``), whose calls all go to ``encoders``.
+    ``tokenize`` maps prompts to the token tensors ``text_features`` takes; ``save_tokenizer`` writes
+    what ``onnx:DIR`` needs to tokenize again into an export directory and returns its meta entry.
     """
 
     def __init__(
         self,
         spec: str,
-        model: torch.nn.Module,
+        model: torch.nn.Module | None,
         *,
-        image_features: Callable[[Tensor], Tensor],
-        text_features: Callable[[list[str]], Tensor],
+        image_features: Callable[[Tensor], Tensor] | None,
+        tokenize: Callable[[list[str]], Tokens],
+        text_features: Callable[[Tokens], Tensor] | None,
         transform: ImageTransform,
         embed_dim: int,
         device: torch.device,
         autocast: bool,
+        save_tokenizer: Callable[[Path], dict] | None = None,
+        encoders: runtime_mod.Encoders | None = None,
     ):
         self.spec = spec
-        self.model = model.eval().requires_grad_(False)  # gradients are wanted w.r.t. pixels only
+        self.model = model.eval().requires_grad_(False) if model is not None else None  # pixel gradients only
         self.embed_dim = embed_dim
         self.device = device
         self.autocast = autocast and (device.type == "cuda" or (device.type == "cpu" and cpu_has_fast_bf16()))
         self.transform = transform
         self._image_features = image_features
+        self._tokenize = tokenize
         self._text_features = text_features
+        self._save_tokenizer = save_tokenizer
+        self.encoders = encoders
+        self.runtime = ("onnx-int8" if encoders.int8 else "onnx") if encoders is not None else "torch"
 
     def __repr__(self) -> str:
-        return f"Guide({self.spec!r}, device={self.device}, autocast={self.autocast}, D={self.embed_dim})"
+        return (f"Guide({self.spec!r}, device={self.device}, autocast={self.autocast}, runtime={self.runtime}, "
+                f"D={self.embed_dim})")
+
+    @property
+    def differentiable(self) -> bool:
+        """Whether ``encode_images`` can carry gradients back to the pixels (a torch model is loaded)."""
+        return self.model is not None
 
     @property
     def amp_dtype(self) -> torch.dtype:
@@ -201,23 +249,27 @@ class Guide:
 
     @torch.no_grad()
     def encode_text(self, texts: list[str]) -> Tensor:
-        """(N, D) unit embeddings of raw prompts, fp32, no grad.
+        """(N, D) unit embeddings of raw prompts, fp32, no grad (ONNX Runtime when the runtime is onnx).
 
         ``no_grad`` rather than ``inference_mode``: the result enters the differentiable loss, and
         inference tensors cannot be saved for backward.
         """
         if isinstance(texts, str):
             texts = [texts]
-        return F.normalize(self._text_features(list(texts)).float(), dim=-1)
+        tokens = self._tokenize(list(texts))
+        features = self._forward_only(lambda enc: enc.text_features(tokens), True)
+        if features is None:
+            features = self._text_features(tokens)
+        return F.normalize(features.float().to(self.device), dim=-1)
 
     def encode_images(self, images: Tensor) -> Tensor:
-        """(N, 3, H, W) in [0, 1], any size -> (N, D) unit embeddings, differentiable w.r.t. ``images``."""
+        """(N, 3, H, W) in [0, 1], any size -> (N, D) unit embeddings, differentiable w.r.t. ``images``.
+
+        With gradients disabled and an ONNX runtime, the forward pass runs in ONNX Runtime.
+        """
         if images.dim() != 4 or images.shape[1] != 3:
             raise ValueError(f"images must be (N, 3, H, W), got {tuple(images.shape)}")
-        pixels = self.transform(images.to(self.device))
-        with torch.autocast(self.device.type, dtype=self.amp_dtype, enabled=self.autocast):
-            features = self._image_features(pixels)
-        return F.normalize(features.float(), dim=-1)
+        return F.normalize(self._pixel_features(self.transform(images.to(self.device))).float(), dim=-1)
 
     def score(self, images: Tensor, text_emb: Tensor, batch_size: int = 32) -> Tensor:
         """Cosine of each image with ``text_emb`` ((D,) -> (N,); (T, D) -> (N, T)), forward only.
@@ -236,7 +288,7 @@ class Guide:
 
         Accepts an (H, W, 3|4) or (H, W) array (uint8 0-255 or float 0-1, as PIL/imageio give) or a
         (3, H, W) tensor in [0, 1]. Alpha is composited over white, the renders' background, so a
-        cut-out reference is compared like for like.
+        cut-out reference is compared like for like. fp32 (no autocast): encoded once per run.
         """
         if isinstance(image, Tensor):
             if image.dim() != 3 or image.shape[0] != 3:
@@ -253,7 +305,72 @@ class Guide:
                 arr = arr[:, :, :3] * arr[:, :, 3:] + (1.0 - arr[:, :, 3:])
             x = torch.from_numpy(np.ascontiguousarray(arr.transpose(2, 0, 1)))
         pixels = self.transform(x.clamp(0, 1)[None].to(self.device))
-        return F.normalize(self._image_features(pixels).float(), dim=-1)[0]
+        return F.normalize(self._pixel_features(pixels, amp=False).float(), dim=-1)[0]
+
+    def use_runtime(self, runtime: str, threads: int) -> None:
+        """Switch the forward-only calls to ``runtime`` (``runtime.RUNTIMES``), exporting once if needed.
+
+        A failed export or load logs one line and leaves the guide on torch.
+        """
+        if self.model is None:  # a forward-only backend: its loader opened the sessions
+            return
+        resolved = runtime_mod.resolve(runtime, device=self.device.type, bf16=self.autocast)
+        self.encoders, self.runtime = None, "torch"
+        if resolved == "torch":
+            return
+        try:
+            if self.device.type != "cpu":
+                raise ValueError("ONNX Runtime runs on the CPU here; use the torch runtime on CUDA")
+            key = runtime_mod.cache_key(self.spec, runtime_mod.weights_hash(self.model))
+            meta = {"key": key, "embed_dim": self.embed_dim, "transform": asdict(self.transform)}
+            directory = runtime_mod.export(
+                runtime_mod.cache_dir(key), self.model, meta=meta, image_features=self._image_features,
+                text_features=self._text_features,
+                pixels=self.transform(torch.rand(2, 3, 64, 64)),  # the model input of square renders
+                tokens=self._tokenize(["a photo of a cat", "a hat on a dog"]), save_tokenizer=self._save_tokenizer)
+            self.encoders = runtime_mod.Encoders.load(directory, int8=resolved == "onnx-int8", threads=threads)
+            self.runtime = resolved
+        except Exception as exc:  # the exporter and onnxruntime raise many types; torch still works
+            self._runtime_failed(resolved, exc)
+
+    def _pixel_features(self, pixels: Tensor, amp: bool = True) -> Tensor:
+        """Features of model-input pixels: ONNX Runtime when forward-only, else torch (autocast if on)."""
+        features = self._forward_only(lambda enc: enc.image_features(pixels) if enc.accepts(pixels) else None,
+                                      not torch.is_grad_enabled() or not pixels.requires_grad)
+        if features is not None:
+            return features.to(self.device)
+        if self.model is None:
+            raise ModelError(f"{self.spec} was exported for {self.encoders.meta['pixels']} model input, got "
+                             f"{list(pixels.shape[1:])}: pass square renders", field="model")
+        with torch.autocast(self.device.type, dtype=self.amp_dtype, enabled=amp and self.autocast):
+            return self._image_features(pixels)
+
+    def _forward_only(self, call: Callable[[runtime_mod.Encoders], Tensor | None], no_grad: bool) -> Tensor | None:
+        """``call(encoders)`` when this call may use ONNX Runtime, else None (use torch).
+
+        ``no_grad``: nothing can be differentiated. A differentiable guide uses ONNX Runtime only when
+        gradients are disabled altogether (the agreed contract); a forward-only guide has no choice.
+        """
+        if self.encoders is None:
+            return None
+        if self.model is not None and torch.is_grad_enabled():
+            return None
+        if self.model is None and not no_grad:
+            raise ModelError(f"{self.spec} is forward only (ONNX Runtime): it gives no gradients; use an hf: "
+                             "or random: model, or selection only", field="model")
+        try:
+            return call(self.encoders)
+        except Exception as exc:  # onnxruntime raises its own types
+            if self.model is None:
+                raise ModelError(f"ONNX Runtime failed on {self.spec}: {exc}", field="model") from exc
+            self._runtime_failed(self.runtime, exc)
+            return None
+
+    def _runtime_failed(self, runtime: str, exc: Exception) -> None:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+        log.warning("ONNX Runtime (%s) unavailable for %s, using torch: %s: %s", runtime, self.spec,
+                    type(exc).__name__, first[:300])
+        self.encoders, self.runtime = None, "torch"
 
 
 def load_guide(
@@ -263,46 +380,53 @@ def load_guide(
     autocast: bool = True,
     offline: bool | None = None,
     cache_dir: str | None = None,
+    runtime: str = "torch",
+    threads: int | None = None,
 ) -> Guide:
     """Build the guide named by ``spec`` (see module docstring); raises ``ModelError`` if it cannot.
 
     ``offline=None`` follows the environment (see ``downloads_allowed``); ``cache_dir`` overrides the
-    Hugging Face cache directory.
+    Hugging Face cache directory. ``runtime`` chooses where forward-only calls run (``use_runtime``);
+    ``threads`` is ONNX Runtime's intra-op threads (None: torch's current thread count).
     """
-    backend, sep, rest = spec.partition(":")
-    if not sep or not rest:
-        raise ModelSpecError(f"model spec {spec!r} must look like hf:REPO_OR_PATH, open_clip:ARCH:TAG or "
-                         "random:ARCH", field="model")
+    backend, rest = backends.parse(spec)
+    if runtime not in runtime_mod.RUNTIMES:
+        raise ModelError(f"unknown runtime {runtime!r}; choose one of {', '.join(runtime_mod.RUNTIMES)}",
+                         field="runtime")
     dev = torch.device(device)
     if dev.type == "cuda" and not torch.cuda.is_available():
         raise ModelError(f"device {device!r} requested but this torch build sees no CUDA device", field="device")
     if offline is None:
         offline = not downloads_allowed()
-    if backend == "random":
-        return _load_random(spec, rest, dev, autocast)
-    if backend == "hf":
-        return _load_hf(spec, rest, dev, autocast, offline, cache_dir)
-    if backend == "open_clip":
-        return _load_open_clip(spec, rest, dev, autocast, offline, cache_dir)
-    raise ModelSpecError(f"unknown model backend {backend!r} in {spec!r}; use hf:, open_clip: or random:",
-                     field="model")
+    request = LoadRequest(dev, autocast, offline, cache_dir, runtime, threads or torch.get_num_threads())
+    guide = backend.load_function()(spec, rest, request)
+    guide.use_runtime(runtime, request.threads)
+    return guide
 
 
-_CACHE: dict[tuple[str, str, bool], Guide] = {}
+_CACHE: dict[tuple, Guide] = {}
 _CACHE_LOCK = threading.Lock()
 
 
-def get_guide(spec: str, *, device: str = "cpu", autocast: bool = True) -> Guide:
+def get_guide(spec: str, *, device: str = "cpu", autocast: bool = True, runtime: str = "torch",
+              threads: int | None = None) -> Guide:
     """Process-wide cache over ``load_guide``: a worker loads each model once, then reuses it.
 
     The lock makes concurrent first calls load once; failures are not cached, so a fixed
     environment (weights copied in) takes effect on the next call.
     """
-    key = (spec, str(torch.device(device)), bool(autocast))
+    threads = threads or torch.get_num_threads()
+    key = (spec, str(torch.device(device)), bool(autocast), runtime, threads)
     with _CACHE_LOCK:
         if key not in _CACHE:
-            _CACHE[key] = load_guide(spec, device=device, autocast=autocast)
+            _CACHE[key] = load_guide(spec, device=device, autocast=autocast, runtime=runtime, threads=threads)
         return _CACHE[key]
+
+
+def guide_for(config) -> Guide:
+    """The guide an ``AlignConfig`` asks for (model, device, precision, runtime, threads), process-cached."""
+    return get_guide(config.model, device=config.device, autocast=config.autocast, runtime=config.runtime,
+                     threads=config.threads)
 
 
 def byte_tokenize(texts: list[str], vocab_size: int, context: int = TEXT_CONTEXT) -> dict[str, Tensor]:
@@ -327,12 +451,13 @@ def _pooled(output) -> Tensor:
     return output if isinstance(output, Tensor) else output.pooler_output
 
 
-def _load_random(spec: str, arch: str, device: torch.device, autocast: bool) -> Guide:
+def _load_random(spec: str, arch: str, request: LoadRequest) -> Guide:
     if arch not in RANDOM_ARCHS:
         raise ModelSpecError(f"unknown random architecture {arch!r}; choose one of {', '.join(RANDOM_ARCHS)}",
                          field="model")
     from transformers import CLIPConfig, CLIPModel
 
+    device = request.device
     shape = RANDOM_ARCHS[arch]
     vocab = shape["text"]["vocab_size"]
     text = {**shape["text"], "max_position_embeddings": TEXT_CONTEXT, "bos_token_id": vocab - 2,
@@ -343,19 +468,32 @@ def _load_random(spec: str, arch: str, device: torch.device, autocast: bool) -> 
         model = CLIPModel(config).float()
     model.to(device)
 
-    def text_features(texts: list[str]) -> Tensor:
-        batch = {k: v.to(device) for k, v in byte_tokenize(texts, vocab).items()}
-        return _pooled(model.get_text_features(**batch))
-
     return Guide(spec, model, image_features=lambda x: _pooled(model.get_image_features(pixel_values=x)),
-                 text_features=text_features, transform=ImageTransform.clip(shape["vision"]["image_size"]),
-                 embed_dim=shape["projection_dim"], device=device, autocast=autocast)
+                 tokenize=lambda texts: byte_tokenize(texts, vocab),
+                 text_features=lambda batch: _pooled(model.get_text_features(**_on(batch, device))),
+                 save_tokenizer=lambda directory: {"kind": "bytes", "vocab_size": vocab},
+                 transform=ImageTransform.clip(shape["vision"]["image_size"]),
+                 embed_dim=shape["projection_dim"], device=device, autocast=request.autocast)
 
 
-def _load_hf(spec: str, name: str, device: torch.device, autocast: bool, offline: bool,
-             cache_dir: str | None) -> Guide:
+def _on(batch: Tokens, device: torch.device) -> Tokens:
+    return {k: v.to(device) for k, v in batch.items()}
+
+
+def _hf_tokenize(tokenizer, siglip: bool, context: int) -> Callable[[list[str]], Tokens]:
+    """SigLIP was trained on max-length padded text without a mask; CLIP/ALIGN pad to the longest."""
+    def tokenize(texts: list[str]) -> Tokens:
+        batch = tokenizer(texts, padding="max_length" if siglip else True, truncation=True, max_length=context,
+                          return_tensors="pt")
+        return {k: v for k, v in batch.items() if isinstance(v, Tensor)}
+
+    return tokenize
+
+
+def _load_hf(spec: str, name: str, request: LoadRequest) -> Guide:
     import transformers
 
+    device, offline, cache_dir = request.device, request.offline, request.cache_dir
     path = Path(name).expanduser()
     local = looks_local(name)
     if local and not (path / "config.json").is_file():
@@ -384,16 +522,48 @@ def _load_hf(spec: str, name: str, device: torch.device, autocast: bool, offline
     else:
         transform = ImageTransform.clip(config.vision_config.image_size)
 
-    def text_features(texts: list[str]) -> Tensor:
-        # SigLIP was trained on max-length padded text without a mask; CLIP/ALIGN pad to the longest.
-        batch = tokenizer(texts, padding="max_length" if siglip else True, truncation=True,
-                          max_length=context, return_tensors="pt")
-        return _pooled(model.get_text_features(**{k: v.to(device) for k, v in batch.items()}))
+    def save_tokenizer(directory: Path) -> dict:
+        tokenizer.save_pretrained(directory / "tokenizer")
+        return {"kind": "hf", "siglip": siglip, "context": context}
 
     embed_dim = getattr(config, "projection_dim", None) or config.text_config.hidden_size
     return Guide(spec, model, image_features=lambda x: _pooled(model.get_image_features(pixel_values=x)),
-                 text_features=text_features, transform=transform, embed_dim=int(embed_dim), device=device,
-                 autocast=autocast)
+                 tokenize=_hf_tokenize(tokenizer, siglip, context),
+                 text_features=lambda batch: _pooled(model.get_text_features(**_on(batch, device))),
+                 save_tokenizer=save_tokenizer, transform=transform, embed_dim=int(embed_dim), device=device,
+                 autocast=request.autocast)
+
+
+def _load_onnx(spec: str, name: str, request: LoadRequest) -> Guide:
+    """An exported directory (``runtime``) as a forward-only guide: ONNX Runtime, no torch weights."""
+    directory = Path(name).expanduser()
+    if not (directory / runtime_mod.META).is_file():
+        raise ModelError(f"no exported model at {directory} (expected {runtime_mod.META}; the ONNX cache "
+                         f"under {runtime_mod.cache_root()} holds one directory per exported model)", field="model")
+    if request.device.type != "cpu":
+        raise ModelError(f"{spec} runs in ONNX Runtime on the CPU; use device cpu", field="device")
+    if request.runtime == "torch":
+        raise ModelError(f"{spec} has no torch weights; use runtime onnx, onnx-int8 or auto", field="runtime")
+    meta = json.loads((directory / runtime_mod.META).read_text())
+    tok = meta.get("tokenizer") or {}
+    if tok.get("kind") == "bytes":
+        tokenize = lambda texts: byte_tokenize(texts, tok["vocab_size"])  # noqa: E731
+    elif tok.get("kind") == "hf":
+        import transformers
+
+        tokenizer = transformers.AutoTokenizer.from_pretrained(directory / "tokenizer", local_files_only=True)
+        tokenize = _hf_tokenize(tokenizer, tok["siglip"], tok["context"])
+    else:
+        raise ModelError(f"{directory} was exported without a tokenizer ctp can rebuild", field="model")
+    t = meta["transform"]
+    resize = (t["resize"][0], t["resize"][1] if isinstance(t["resize"][1], int) else tuple(t["resize"][1]))
+    transform = ImageTransform(resize, tuple(t["crop"]) if t["crop"] else None, tuple(t["mean"]), tuple(t["std"]))
+    try:
+        encoders = runtime_mod.Encoders.load(directory, int8=request.runtime == "onnx-int8", threads=request.threads)
+    except Exception as exc:  # onnxruntime raises its own types
+        raise ModelError(f"ONNX Runtime could not load {directory}: {exc}", field="model") from exc
+    return Guide(spec, None, image_features=None, tokenize=tokenize, text_features=None, transform=transform,
+                 embed_dim=int(meta["embed_dim"]), device=request.device, autocast=False, encoders=encoders)
 
 
 def _processor_config(source: str, kwargs: dict) -> dict | None:
@@ -422,8 +592,8 @@ def _missing_weights_message(name: str, offline: bool, cache_dir: str | None, ex
     return absent
 
 
-def _load_open_clip(spec: str, rest: str, device: torch.device, autocast: bool, offline: bool,
-                    cache_dir: str | None) -> Guide:
+def _load_open_clip(spec: str, rest: str, request: LoadRequest) -> Guide:
+    device, offline, cache_dir = request.device, request.offline, request.cache_dir
     arch, sep, tag = rest.partition(":")
     if not (arch and sep and tag):
         raise ModelSpecError(f"open_clip spec {spec!r} must be open_clip:ARCH:TAG, e.g. open_clip:ViT-B-32:openai",
@@ -452,7 +622,7 @@ def _load_open_clip(spec: str, rest: str, device: torch.device, autocast: bool, 
     std = getattr(model.visual, "image_std", None) or CLIP_STD
     with torch.no_grad():
         embed_dim = int(model.encode_text(tokenizer(["a"]).to(device)).shape[-1])
-    return Guide(spec, model, image_features=model.encode_image,
-                 text_features=lambda texts: model.encode_text(tokenizer(texts).to(device)),
+    return Guide(spec, model, image_features=model.encode_image, tokenize=lambda texts: {"text": tokenizer(texts)},
+                 text_features=lambda batch: model.encode_text(batch["text"].to(device)),
                  transform=ImageTransform.clip(size, mean, std), embed_dim=embed_dim, device=device,
-                 autocast=autocast)
+                 autocast=request.autocast)

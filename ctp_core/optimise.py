@@ -216,8 +216,7 @@ class Optimiser:
                     origin = torch.zeros(len(poses.t), 3, device=poses.t.device)
                     self._eval_cameras = evaluation_views(origin, self.problem.config.camera)
                     self._eval_targets = self.problem.target.embeddings(self._eval_cameras)
-                with torch.enable_grad():
-                    clip, _ = self.clip_term(poses, self._eval_cameras, self._eval_targets, grad=False)
+                clip, _ = self.clip_term(poses, self._eval_cameras, self._eval_targets, grad=False)
                 terms["clip"] = clip
                 objective = objective + phase.lambda_clip * clip
             else:

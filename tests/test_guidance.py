@@ -220,7 +220,8 @@ def test_missing_offline_weights_fail_fast_with_instructions(tmp_path):
     ("spec", "fragment"),
     [
         ("clip-vit", "must look like"),
-        ("onnx:model", "unknown model backend"),
+        ("onnx:model", "no exported model"),
+        ("tensorrt:model", "unknown model backend"),
         ("random:ViT-Z-99", "unknown random architecture"),
         ("open_clip:ViT-B-32", "open_clip:ARCH:TAG"),
         ("hf:/nonexistent/ctp-model", "no transformers model directory"),

@@ -159,11 +159,13 @@ def _preload(settings: Settings) -> dict[str, str | None]:
     started = time.perf_counter()
     models = {spec: weights.missing(spec) for spec in settings.allowed_models}
     try:
-        get_guide(settings.model, device=settings.device, autocast=AlignConfig.model_fields["autocast"].default)
+        guide = get_guide(settings.model, device=settings.device, runtime=settings.runtime, threads=settings.threads,
+                          autocast=AlignConfig.model_fields["autocast"].default)
     except ModelError as exc:
         log.error("default model unavailable: %s", exc.message)
         models[settings.model] = exc.message
     else:
-        log.info("model %s loaded in %.1f s", settings.model, time.perf_counter() - started)
+        log.info("model %s loaded in %.1f s (forward-only runtime %s)", settings.model, time.perf_counter() - started,
+                 guide.runtime)
         models[settings.model] = None
     return models

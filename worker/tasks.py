@@ -16,7 +16,7 @@ from ctp_core.align import align
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled, CtpError
 from ctp_core.export import preview_png, report, scene_glb
-from ctp_core.guidance import get_guide
+from ctp_core.guidance import guide_for
 from ctp_core.io import MeshLimits, load_image, load_mesh
 from ctp_core.progress import ProgressEvent
 from service.jobs import JobError, JobRecord, Progress, Stage, Status
@@ -44,7 +44,8 @@ def run_job(job_id: str) -> str:
         if inputs["target"] is None or inputs["source"] is None:
             raise CtpError("the job's uploads expired before a worker picked it up", code="inputs_expired")
         files = align_job(
-            record, inputs, device=ctx.settings.device, threads=ctx.settings.threads, limits=ctx.settings.mesh_limits,
+            record, inputs, device=ctx.settings.device, threads=ctx.settings.threads, runtime=ctx.settings.runtime,
+            limits=ctx.settings.mesh_limits,
             on_progress=lambda p, force: ctx.beat.publish(p, force=force),
             should_cancel=lambda: ctx.jobs.should_stop(job_id),
         )
@@ -72,16 +73,17 @@ def align_job(
     *,
     device: str,
     threads: int | None,
+    runtime: str = "auto",
     limits: MeshLimits,
     on_progress: Callable[[Progress, bool], None],
     should_cancel: Callable[[], bool],
 ) -> dict[str, bytes]:
     """Run ``ctp_core.align`` on a job's uploads; returns ``result.glb``, ``report.json``, ``preview.png``.
 
-    The config was validated when the job was accepted; only where it runs (device, threads) is this
-    worker's to decide.
+    The config was validated when the job was accepted; only where and how it runs (device, threads,
+    the forward-only runtime) is this worker's to decide.
     """
-    config = AlignConfig.model_validate({**record.config, "device": device, "threads": threads})
+    config = AlignConfig.model_validate({**record.config, "device": device, "threads": threads, "runtime": runtime})
     on_progress(Progress(stage=Stage(name="loading"), kind="loading", message="loading meshes"), True)
     target = load_mesh(inputs["target"], filename=record.target_file, limits=limits)
     source = load_mesh(inputs["source"], filename=record.source_file, limits=limits)
@@ -89,7 +91,7 @@ def align_job(
     guide = None
     if config.uses_model:
         on_progress(Progress(stage=Stage(name="model"), kind="model", message=f"loading model {config.model}"), True)
-        guide = get_guide(config.model, device=config.device, autocast=config.autocast)
+        guide = guide_for(config)
 
     def on_event(event: ProgressEvent) -> None:
         on_progress(progress_of(event), event.kind in _MILESTONES)

@@ -67,6 +67,7 @@ class BenchOptions:
     ablation: str | None = None
     device: str = "cpu"
     threads: int | None = None
+    runtime: str | None = None  # forward-only runtime of every guide (AlignConfig.runtime); None: the preset's
 
     def __post_init__(self) -> None:
         unknown = [m for m in self.methods if m not in METHODS]
@@ -85,7 +86,7 @@ class BenchOptions:
     def config(self, method: str) -> AlignConfig:
         """The AlignConfig of an optimised method: preset, ablation, then the bench's own settings."""
         preset, overrides = ABLATIONS[self.ablation] if self.ablation else (None, {})
-        top = {"seed": self.seed, "device": self.device, "threads": self.threads,
+        top = {"seed": self.seed, "device": self.device, "threads": self.threads, "runtime": self.runtime,
                "scale": self.protocol == "scale"}
         if self.model:
             top["model"] = self.model
@@ -131,14 +132,15 @@ class _CaseData:
     guide_error: str | None = None
 
 
-def _metric_encoders(specs: Iterable[str], prompt: str, device: str) -> tuple[list, dict[str, str]]:
+def _metric_encoders(specs: Iterable[str], prompt: str, config: AlignConfig) -> tuple[list, dict[str, str]]:
+    """The metrics encoders, on the run's device and forward-only runtime (they only score)."""
     from ctp_core import guidance
     from ctp_core.errors import ModelError
 
     loaded, notes = [], {}
     for spec in specs:
         try:
-            guide = guidance.get_guide(spec, device=device)
+            guide = guidance.get_guide(spec, device=config.device, runtime=config.runtime, threads=config.threads)
         except ModelError as exc:
             notes[spec] = f"semantic score skipped: {exc.message}"
             continue
@@ -195,7 +197,7 @@ def _run_b2(method: str, init: np.ndarray, index: int, data: _CaseData, options:
     scale = float(np.cbrt(abs(np.linalg.det(init[:3, :3]))))
     starts = [init, *protocol.random_starts(data.target.bounds, data.source.bounds, scale, B2_STARTS - 1, rng)]
     poses = baselines.shrinkwrap(data.target, data.source, starts, seed=options.seed)
-    guide = guidance.get_guide(options.encoder, device=options.device)
+    guide = guidance.guide_for(options.config("ctp"))
     scorer = SelectionScore(data.guide, data.target, data.source, guide, data.case.reference, views=EVAL_VIEWS)
     best, scores = baselines.best_of(poses, scorer)
     return {"source_to_target": poses[best], "time_s": time.perf_counter() - started,
@@ -212,7 +214,7 @@ def _load(case: Case, options: BenchOptions, need_guide: bool) -> _CaseData:
     target, source = case.load()
     inits = protocol.initial_poses(case.reference, source.bounds, protocol=options.protocol, count=options.inits,
                                    seed=options.seed, case_id=case.id)
-    semantic, notes = _metric_encoders(options.metrics_models, case.prompt, options.device)
+    semantic, notes = _metric_encoders(options.metrics_models, case.prompt, options.config("ctp"))
     data = _CaseData(case, target, source, sampling.surface_samples(source, POSE_SAMPLES, options.seed)[0],
                      inits, semantic, notes)
     if need_guide:
@@ -278,7 +280,7 @@ def _check_models(options: BenchOptions) -> None:
 
     guided = [m for m in options.methods if m in GUIDED]
     if guided and not (guided == ["ctp"] and options.config("ctp").loss.lambda_clip == 0):
-        guidance.get_guide(options.encoder, device=options.device)
+        guidance.guide_for(options.config("ctp"))
 
 
 def run_bench(cases: list[Case], options: BenchOptions, out: Path, *, jobs: int = 1, resume: bool = False,
