@@ -49,25 +49,33 @@ _STOP = lexicon.word_set("a an the of in on at with his her its their my your ou
 # Contents that close a container off: liquids, pastes, foams and soils. Discrete things (apples, cereal, coins)
 # leave gaps and are not here: a spoon rests on cereal but sinks into soup.
 CONTENTS = lexicon.word_set("""
-water coffee tea cocoa chocolate soup stew broth milk juice wine beer whiskey whisky soda lemonade cola punch
+brine water coffee tea cocoa chocolate soup stew broth milk juice wine beer whiskey whisky soda lemonade cola punch
 milkshake smoothie yogurt yoghurt cream custard batter dough sauce gravy ketchup mustard honey jam syrup oil
 paint ink glue wax foam bubbles soil dirt earth compost sand mud snow cement concrete jelly porridge oatmeal rice
 """)
 _FILL_WORDS = frozenset({"of", "with", "full", "filled", "containing"})
-_MELTED = frozenset({"melted", "molten", "liquid", "liquified", "whipped"})  # "a pot of melted cheese"
+# Made into a paste, a liquid or a foam: "a pot of melted cheese", "a bowl of mashed potatoes".
+_MELTED = frozenset({"melted", "molten", "liquid", "liquified", "whipped", "mashed", "pureed", "creamed", "blended"})
+# Contents a small thing sinks into whole (the others, pastes, foams and soils, hold it half sunk).
+LIQUIDS = lexicon.word_set("""
+water coffee tea cocoa soup stew broth milk juice wine beer whiskey whisky soda lemonade cola punch brine oil
+""")
+# Heaps: what goes into a pile of anything (leaves, laundry, dirt) is buried in it, below its surface.
+HEAPS = lexicon.word_set("pile heap mound")
 # Mass nouns of loose pieces: they leave gaps, a spoon rests on them.
 DISCRETE = lexicon.word_set("cereal popcorn candy fruit ice gold money change food salad confetti gravel hay straw")
 
 
-def _is_drink(word: str) -> bool:
-    known = lexicon.phrase_entry([word])
+def is_drink(phrase: str) -> bool:
+    """A drink, a soup or another filled thing the lexicon knows ("champagne", "pina colada")."""
+    known = lexicon.phrase_entry(phrase.split())
     return known is not None and "filled" in known[1].tags
 
 
 def _is_contents(word: str, before: str | None) -> bool:
     """A contents word, a drink of the lexicon ("champagne"), anything melted or whipped, or a singular mass
     noun the lexicon knows as no object, or only as a food that is no round piece ("ramen", "peanut butter")."""
-    if word in CONTENTS or before in _MELTED or _is_drink(word):
+    if word in CONTENTS or before in _MELTED or is_drink(word):
         return True
     known = lexicon.phrase_entry([word])
     if word in DISCRETE or word in _STOP:
@@ -199,17 +207,42 @@ def contents(prompt: str, mention_at: list[int], match: lexicon.Match | None, fi
     return found
 
 
+def contents_after(prompt: str, cue_end: int, figure_name: str = "") -> str | None:
+    """The contents the cue itself leads into, when its object is a substance or a drink rather than the ground
+    ("dipped in melted chocolate in a bowl", "buried in the sand" of a beach, "stuck in a pina colada" in a glass)."""
+    phrase = []
+    for _, word in (t for t in _tokens(prompt) if t[0] >= cue_end):
+        if word in _STOP:
+            if phrase:
+                break
+            continue
+        phrase.append(word)
+        if len(phrase) == 3:
+            break
+    if not phrase or set(phrase) & set(lexicon.words(figure_name)):
+        return None
+    if phrase[-1] in CONTENTS or (len(phrase) > 1 and phrase[-2] in _MELTED):  # its head: no "wine bottle"
+        return phrase[-1]
+    known = lexicon.lookup(" ".join(phrase))
+    drink = known is not None and known.has("filled") and known.entry.domain == "food and drink"
+    return " ".join(phrase) if drink else None
+
+
 def _contents(prompt: str, mention_at: list[int], match: lexicon.Match | None) -> str | None:
     if match is not None and match.has("filled"):
         return "its contents"
+    if match is not None and match.phrase.split()[-1] in HEAPS:
+        return f"the {match.phrase}"
     tokens = _tokens(prompt)
     starts = [start for start, _ in tokens]
     for at in mention_at:
         if at not in starts:
             continue
+        if tokens[starts.index(at)][1] in HEAPS:
+            return f"the {tokens[starts.index(at)][1]}"
         before = [w for _, w in tokens[max(0, starts.index(at) - 3):starts.index(at)]]
         if len(before) == 3 and before[1] == "of" and before[2] in _STOP and (
-                before[0] in CONTENTS or _is_drink(before[0])):
+                before[0] in CONTENTS or is_drink(before[0])):
             return before[0]  # "in the sand of a sandbox", "the water of the pool"
         after = [w for _, w in tokens[starts.index(at) + 1:starts.index(at) + 6]]
         if after[:1] == ["full"] or after[:1] == ["filled"]:

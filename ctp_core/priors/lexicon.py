@@ -372,6 +372,7 @@ screwdriver/chisel 0.25 pointed
 wrench/spanner/pliers 0.25
 nail 0.07 pointed
 screw/bolt 0.05 pointed
+nut/hex_nut/wing_nut/washer/grommet/eyelet 0.015 container
 pin/push_pin/pushpin/thumbtack/tack/needle/sewing_needle 0.03 pointed
 scissors 0.2
 pen/pencil/marker/crayon 0.15 pointed

@@ -17,6 +17,17 @@ from ctp_core.priors.prior import ScenePrior, clamp_contact, clamp_size
 FITS_INSIDE = 0.9  # what is inside a container (not a long thing or a plant sticking out) is at most this size of it
 # Relations where a ball touches at a point, a sheet lies on a face, a soft thing settles.
 _SUPPORT = {"on", "stand", "sit", "lie", "lean", "hang", "attach"}
+# Cues of a blade or a bit that passes through a wall, even a container's (a knife slicing a cardboard box).
+_CUTS = re.compile(r"(?:cut|slic|saw|carv|chop|stab|pierc|drill|bor|punctur)\w*(?:ing|s)\b")  # no "carved"
+# Immersion: words that put the whole figure below the contents' surface, and words that put only part of it
+# there; without either, a figure at most SUNK_MAX the size of its ground that is no agent, plant, soft or
+# pointed thing and does not float sinks whole into a liquid (pickles in brine, a coin in a fountain), not into a
+# paste, a foam or a soil (strawberries in whipped cream).
+_WHOLLY_UNDER = re.compile(r"\b(?:submerged|underwater|under (?:the )?water|at the bottom|sunk|buried"
+                           r"|sinking|sank|dropped)\b")
+_PARTLY_UNDER = re.compile(r"\b(?:dip|dipped|dipping|dunk|dunked|dunking|half)\b")
+SUNK_MAX = 0.5
+IMMERSED_CONTACT = {"whole": 0.9, "part": 0.4, "pointed": 0.3}
 # Relations whose ground must be an agent (the wearer, the holder, the rider).
 _AGENT_GROUND = {"wear", "hold"}
 
@@ -48,6 +59,8 @@ class RulesProvider:
             source_name, source, source_at)
         filled = context.contents(prompt, ground_at, ground, source_name if figure else target_name)
         relation, why = _relation(cue, target, source, source if figure else target)
+        if filled is None and cue is not None and relation.name in {"in", "penetrate"}:
+            filled = context.contents_after(prompt, cue.end, source_name if figure else target_name)
         afloat = cue is not None and re.match(r"float|swim|bob|paddl", cue.text) is not None
         if afloat and filled is None:
             relation, why = relations.RELATIONS["beside"], f"'{cue.text}' in air or open water: no contact"
@@ -70,7 +83,9 @@ class RulesProvider:
         penetration, pen_why = _penetration(relation, figure, target, source, filled, floating,
                                             cue.text if cue is not None else "")
         notes.append(pen_why)
-        contact = _contact(relation, figure, source, filled if penetration else None)
+        immersed = ground.phrase if filled == "its contents" and ground is not None else filled
+        immersed = immersed if penetration else None
+        contact = _contact(relation, figure, source, immersed, afloat, prompt, size)
         return ScenePrior(size_ratio=clamp_size(size), penetration=penetration, contact_ratio=clamp_contact(contact),
                           source=self.name, reason="; ".join(n for n in notes if n),
                           relation=relation.name, source_is_figure=figure)
@@ -193,7 +208,7 @@ def _penetration(relation, figure: bool, target, source, filled: str | None, flo
             return False, f"a flat {fig_name} floats on the {filled}: no penetration"
         return True, f"the ground holds {filled}: the {fig_name} goes below their surface: penetration"
     if relation.penetration == "yes":
-        if ground is not None and ground.has("container"):
+        if ground is not None and ground.has("container") and not _CUTS.match(cue_text):
             return False, "goes into an opening of the ground: no penetration"
         return True, "the relation cuts or pierces: penetration"
     if relation.penetration == "if_pointed" and fig is not None and fig.has("pointed") and _pierceable(ground):
@@ -212,14 +227,16 @@ def _penetration(relation, figure: bool, target, source, filled: str | None, flo
     return False, ""
 
 
-def _contact(relation, figure: bool, source, immersed_in: str | None = None) -> float:
+def _contact(relation, figure: bool, source, immersed_in: str | None = None, afloat: bool = False,
+             prompt: str = "", size: float = 1.0) -> float:
     """The relation's contact for the source's role, adjusted for the source's shape when it is the figure;
-    a figure that goes into contents (``immersed_in``) touches them with its whole wetted part."""
+    a figure that goes into contents (``immersed_in``) touches them with its whole wetted part: all of it when
+    it goes wholly under (``_immersion``), a part otherwise."""
     if not figure:
         return relation.ground_contact
     contact = relation.figure_contact
     if immersed_in is not None:
-        return 0.3 if source is not None and source.has("pointed") else 0.4
+        return IMMERSED_CONTACT[_immersion(source, immersed_in, afloat, relations.clean(prompt), size)]
     if source is None:
         return contact
     if source.has("round") and relation.name in _SUPPORT | {"in"}:
@@ -237,3 +254,21 @@ def _contact(relation, figure: bool, source, immersed_in: str | None = None) -> 
     if source.has("wrap") and relation.name in {"wear", "on", "attach", "in", "lie"}:
         contact = max(contact, 0.6)
     return contact
+
+
+def _immersion(source, contents: str, afloat: bool, text: str, size: float) -> str:
+    """How much of a figure is below the contents' surface: "whole", "part" or "pointed" (a blade, a stick,
+    a spoon: its end)."""
+    if _WHOLLY_UNDER.search(text):
+        return "whole"
+    if source is not None and source.has("pointed"):
+        return "pointed"
+    words = contents.split()
+    liquid = words[-1] in context.LIQUIDS or context.is_drink(contents) and not set(words) & context.CONTENTS - \
+        context.LIQUIDS  # a "pond" or a "cocktail" is liquid; a "honey jar" is not
+    if afloat or _PARTLY_UNDER.search(text) or size > SUNK_MAX or not liquid:
+        return "part"
+    if source is not None and (source.has("agent") or source.has("soft") or (
+            source.entry.domain == "plants" and not source.has("round"))):
+        return "part"  # someone standing or sitting in it, a sponge afloat, stems and roots (a pebble sinks)
+    return "whole"
