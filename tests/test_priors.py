@@ -612,3 +612,18 @@ def test_penetration_kinds_from_batch12(target, source, prompt, penetration):
 ])
 def test_immersed_contact_says_how_much_is_under(target, source, prompt, low, high):
     assert low <= rules(target, source, prompt).contact_ratio <= high
+
+
+def test_a_size_word_in_the_prompt_scales_the_object_relative_to_its_kind():
+    plain = rules("sofa", "teddy_bear", "a teddy bear sitting on the sofa").size_ratio
+    giant = rules("sofa", "teddy_bear", "a giant teddy bear sitting on the sofa").size_ratio
+    mini = rules("desk", "fridge", "a mini fridge next to the desk").size_ratio
+    assert 1.5 * plain < giant < 5 * plain  # damped: a giant one is not five times the kind
+    assert mini < rules("desk", "fridge", "a fridge next to the desk").size_ratio
+    named = rules("table", "small_box", "a small box on a table").size_ratio  # the name's word counts once
+    assert named == pytest.approx(rules("table", "small_box", "a box on a table").size_ratio)
+
+
+def test_something_stuck_in_contents_touches_them_with_its_end():
+    assert rules("beach", "flag", "a flag stuck in the sand").contact_ratio <= 0.3
+    assert rules("beach", "girl", "a girl buried in the sand").contact_ratio >= 0.8

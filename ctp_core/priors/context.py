@@ -27,6 +27,9 @@ from dataclasses import replace
 
 from ctp_core.priors import lexicon, relations
 
+# A size word in the prompt is relative to the kind ("a big knife" is no twice-as-long knife): the name's
+# factor (``lexicon.SIZE_WORDS``) damped to this power.
+PROMPT_SIZE_POWER = 0.5
 PERSON_M = 1.75  # the wearer garments are sized for
 TOY_SIZE_M = 0.3  # a toy or a model of something big fits in the hands
 CRAFT_SIZE_M = 0.2  # a folded-paper animal or vehicle
@@ -128,6 +131,10 @@ def resolve(name: str, prompt: str, mention_at: list[int], other: lexicon.Match 
     scene += [(1.0, e) for _, _, phrase, e in lexicon.spans([w for _, w in _tokens(prompt)])
               if phrase != match.phrase and e is not match.entry]
     match = _sense(match, scene, needs_agent)
+    sized = [w for w in mods if w in lexicon.SIZE_WORDS]
+    if sized and not set(lexicon.words(name)) & set(lexicon.SIZE_WORDS):  # "a giant teddy bear", "a mini fridge"
+        scale = lexicon.SIZE_WORDS[sized[-1]] ** PROMPT_SIZE_POWER
+        match = replace(match, size_m=match.size_m * scale, how=match.how + f", {sized[-1]}: x {scale:.2g}")
     return _modified(match, words)
 
 

@@ -27,7 +27,7 @@ _WHOLLY_UNDER = re.compile(r"\b(?:submerged|underwater|under (?:the )?water|at t
                            r"|sinking|sank|dropped)\b")
 _PARTLY_UNDER = re.compile(r"\b(?:dip|dipped|dipping|dunk|dunked|dunking|half)\b")
 SUNK_MAX = 0.5
-IMMERSED_CONTACT = {"whole": 0.9, "part": 0.4, "pointed": 0.3}
+IMMERSED_CONTACT = {"whole": 0.9, "part": 0.4, "pointed": 0.3}  # "pointed" also for anything stuck in them
 # Relations whose ground must be an agent (the wearer, the holder, the rider).
 _AGENT_GROUND = {"wear", "hold"}
 
@@ -236,7 +236,8 @@ def _contact(relation, figure: bool, source, immersed_in: str | None = None, afl
         return relation.ground_contact
     contact = relation.figure_contact
     if immersed_in is not None:
-        return IMMERSED_CONTACT[_immersion(source, immersed_in, afloat, relations.clean(prompt), size)]
+        how = _immersion(source, immersed_in, afloat, relations.clean(prompt), size)
+        return IMMERSED_CONTACT["pointed" if how == "part" and relation.name == "penetrate" else how]
     if source is None:
         return contact
     if source.has("round") and relation.name in _SUPPORT | {"in"}:
