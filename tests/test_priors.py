@@ -627,3 +627,27 @@ def test_a_size_word_in_the_prompt_scales_the_object_relative_to_its_kind():
 def test_something_stuck_in_contents_touches_them_with_its_end():
     assert rules("beach", "flag", "a flag stuck in the sand").contact_ratio <= 0.3
     assert rules("beach", "girl", "a girl buried in the sand").contact_ratio >= 0.8
+
+
+# --- kinds of misses of the frozen batch13 ----------------------------------------------------------------------
+
+@pytest.mark.parametrize("target,source,prompt,penetration,low,high", [
+    ("bucket", "toy_boat", "a toy boat underwater in a bucket", True, 0.8, 1.0),  # "underwater": it holds water
+    ("lake", "duck", "a duck gliding on the lake", True, 0.2, 0.5),  # on a body of water: afloat in it
+    ("lake", "cat", "a cat sitting on a raft in the lake", False, 0.0, 0.4),  # on the raft, not on the lake
+    ("marina", "rowboat", "a rowboat moored in the marina", True, 0.2, 0.5),  # a boat floats, partly under
+])
+def test_water_said_or_a_body_of_water(target, source, prompt, penetration, low, high):
+    prior = rules(target, source, prompt)
+    assert prior.penetration is penetration and low <= prior.contact_ratio <= high
+
+
+def test_a_short_fastener_driven_in_is_mostly_inside_unless_it_goes_into_a_hole():
+    assert rules("fence_post", "tack", "a tack hammered into a fence post").contact_ratio >= 0.5
+    into_hole = rules("wing_nut", "screw", "a screw driven into a wing nut")
+    assert not into_hole.penetration and into_hole.contact_ratio < 0.5
+
+
+def test_what_sticks_out_of_a_container_is_at_most_a_few_times_its_size():
+    assert rules("mug", "broom", "a broom standing in a mug").size_ratio <= 2.5
+    assert rules("cup", "tree", "a tree in a paper cup").size_ratio <= 2.5

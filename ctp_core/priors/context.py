@@ -214,6 +214,18 @@ def contents(prompt: str, mention_at: list[int], match: lexicon.Match | None, fi
     return found
 
 
+def names_next(prompt: str, cue_end: int, mention_at: list[int]) -> bool:
+    """Whether the noun phrase right after the cue (the cue's object) mentions the object."""
+    phrase: list[int] = []
+    for start, word in (t for t in _tokens(prompt) if t[0] >= cue_end):
+        if word in _STOP:
+            if phrase:
+                break
+            continue
+        phrase.append(start)
+    return bool(set(phrase) & set(mention_at))
+
+
 def contents_after(prompt: str, cue_end: int, figure_name: str = "") -> str | None:
     """The contents the cue itself leads into, when its object is a substance or a drink rather than the ground
     ("dipped in melted chocolate in a bowl", "buried in the sand" of a beach, "stuck in a pina colada" in a glass)."""

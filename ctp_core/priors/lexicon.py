@@ -614,6 +614,7 @@ fence/railing 2.5 flat
 well 1.5 container
 fountain/pool/pond/swimming_pool 4.0 container,filled
 lake/river/sea/ocean 100.0 container,filled
+harbour/harbor/marina/lagoon/reservoir/canal/fjord/estuary 300.0 container,filled
 puddle 0.5 flat,filled
 igloo/dome 3.0 container
 moon/planet/earth 100.0 round

@@ -14,17 +14,23 @@ from ctp_core.priors import context, lexicon, relations
 from ctp_core.priors.context import PERSON_M  # an unknown name that holds, wears or rides is someone this tall
 from ctp_core.priors.prior import ScenePrior, clamp_contact, clamp_size
 
+STICKS_OUT = 2.5  # ... and a long thing or a plant that sticks out of it is at most this size of it
 FITS_INSIDE = 0.9  # what is inside a container (not a long thing or a plant sticking out) is at most this size of it
 # Relations where a ball touches at a point, a sheet lies on a face, a soft thing settles.
 _SUPPORT = {"on", "stand", "sit", "lie", "lean", "hang", "attach"}
 # Cues of a blade or a bit that passes through a wall, even a container's (a knife slicing a cardboard box).
 _CUTS = re.compile(r"(?:cut|slic|saw|carv|chop|stab|pierc|drill|bor|punctur)\w*(?:ing|s)\b")  # no "carved"
+# Short fasteners driven in (a nail, a screw, a tent peg) are mostly inside what holds them.
+_DRIVEN = re.compile(r"hammer|driv|screw|nail|tapp|pound")
+DRIVEN_MAX_M = 0.25
+DRIVEN_CONTACT = 0.6
 # Immersion: words that put the whole figure below the contents' surface, and words that put only part of it
 # there; without either, a figure at most SUNK_MAX the size of its ground that is no agent, plant, soft or
 # pointed thing and does not float sinks whole into a liquid (pickles in brine, a coin in a fountain), not into a
 # paste, a foam or a soil (strawberries in whipped cream).
 _WHOLLY_UNDER = re.compile(r"\b(?:submerged|underwater|under (?:the )?water|at the bottom|sunk|buried"
                            r"|sinking|sank|dropped)\b")
+_WATER_SAID = re.compile(r"\b(?:submerged|underwater|under (?:the )?water)\b")
 _PARTLY_UNDER = re.compile(r"\b(?:dip|dipped|dipping|dunk|dunked|dunking|half)\b")
 SUNK_MAX = 0.5
 IMMERSED_CONTACT = {"whole": 0.9, "part": 0.4, "pointed": 0.3}  # "pointed" also for anything stuck in them
@@ -62,6 +68,14 @@ class RulesProvider:
         if filled is None and cue is not None and relation.name in {"in", "penetrate"}:
             filled = context.contents_after(prompt, cue.end, source_name if figure else target_name)
         afloat = cue is not None and re.match(r"float|swim|bob|paddl", cue.text) is not None
+        text = relations.clean(prompt)
+        if filled is None and ground is not None and ground.has("container") and _WATER_SAID.search(text):
+            filled = "water"  # "a toy submarine underwater in the bathtub"
+        if (not afloat and filled is not None and relation.name in _SUPPORT and ground is not None
+                and ground.entry.domain == "buildings and places"  # "a swan gliding on the lake", not "a frog
+                and cue is not None and context.names_next(prompt, cue.end, ground_at)):  # on a lily pad in a pond"
+            afloat = True
+            why += "; on a body of water: afloat in it"
         if afloat and filled is None:
             relation, why = relations.RELATIONS["beside"], f"'{cue.text}' in air or open water: no contact"
         floating = afloat and filled is not None
@@ -85,7 +99,10 @@ class RulesProvider:
         notes.append(pen_why)
         immersed = ground.phrase if filled == "its contents" and ground is not None else filled
         immersed = immersed if penetration else None
-        contact = _contact(relation, figure, source, immersed, afloat, prompt, size)
+        driven = (penetration and relation.name == "penetrate" and cue is not None and _DRIVEN.match(cue.text)
+                  and source is not None and source.has("pointed") and source.size_m <= DRIVEN_MAX_M)
+        contact = DRIVEN_CONTACT if driven and figure else _contact(relation, figure, source, immersed, afloat, text,
+                                                                    size)
         return ScenePrior(size_ratio=clamp_size(size), penetration=penetration, contact_ratio=clamp_contact(contact),
                           source=self.name, reason="; ".join(n for n in notes if n),
                           relation=relation.name, source_is_figure=figure)
@@ -179,6 +196,11 @@ def _size_ratio(target_name, source_name, target, source, relation, figure: bool
             and (ratio > fits if figure else ratio < fits)):
         return fits, (f"size ratio {fits:.3g} ({whys[1]} / {whys[0]}: the {fig_match.phrase} must fit inside, "
                       f"so no bigger than {FITS_INSIDE:g} of the {ground_match.phrase})")
+    sticks_out = STICKS_OUT if figure else 1.0 / STICKS_OUT
+    if (relation.name == "in" and ground_match is not None and ground_match.has("container") and fig_match is not None
+            and (ratio > sticks_out if figure else ratio < sticks_out)):  # a shoe tree in a shoe is no 8 m tree
+        return sticks_out, (f"size ratio {sticks_out:.3g} ({whys[1]} / {whys[0]}: a {fig_match.phrase} in a "
+                            f"{ground_match.phrase} sticks out of it, by no more than {STICKS_OUT:g} times its size)")
     clamped = clamp_size(ratio)
     note = "" if clamped == ratio else f", clamped from {ratio:.3g}"
     return ratio, f"size ratio {clamped:.3g} ({whys[1]} / {whys[0]}{note})"
@@ -236,7 +258,7 @@ def _contact(relation, figure: bool, source, immersed_in: str | None = None, afl
         return relation.ground_contact
     contact = relation.figure_contact
     if immersed_in is not None:
-        how = _immersion(source, immersed_in, afloat, relations.clean(prompt), size)
+        how = _immersion(source, immersed_in, afloat, prompt, size)
         return IMMERSED_CONTACT["pointed" if how == "part" and relation.name == "penetrate" else how]
     if source is None:
         return contact
@@ -269,7 +291,7 @@ def _immersion(source, contents: str, afloat: bool, text: str, size: float) -> s
         context.LIQUIDS  # a "pond" or a "cocktail" is liquid; a "honey jar" is not
     if afloat or _PARTLY_UNDER.search(text) or size > SUNK_MAX or not liquid:
         return "part"
-    if source is not None and (source.has("agent") or source.has("soft") or (
+    if source is not None and (source.has("agent") or source.has("soft") or source.entry.domain == "vehicles" or (
             source.entry.domain == "plants" and not source.has("round"))):
-        return "part"  # someone standing or sitting in it, a sponge afloat, stems and roots (a pebble sinks)
+        return "part"  # someone standing or sitting in it, a sponge or a boat afloat, stems and roots (a pebble sinks)
     return "whole"
