@@ -214,30 +214,29 @@ def contents(prompt: str, mention_at: list[int], match: lexicon.Match | None, fi
     return found
 
 
-def names_next(prompt: str, cue_end: int, mention_at: list[int]) -> bool:
-    """Whether the noun phrase right after the cue (the cue's object) mentions the object."""
-    phrase: list[int] = []
+def _object_of(prompt: str, cue_end: int, most: int = 3) -> list[tuple[int, str]]:
+    """The cue's object: the first run of (at most ``most``) words after it that are no function words."""
+    phrase: list[tuple[int, str]] = []
     for start, word in (t for t in _tokens(prompt) if t[0] >= cue_end):
         if word in _STOP:
             if phrase:
                 break
             continue
-        phrase.append(start)
-    return bool(set(phrase) & set(mention_at))
+        phrase.append((start, word))
+        if len(phrase) == most:
+            break
+    return phrase
+
+
+def names_next(prompt: str, cue_end: int, mention_at: list[int]) -> bool:
+    """Whether the noun phrase right after the cue (the cue's object) mentions the object."""
+    return bool({start for start, _ in _object_of(prompt, cue_end, most=99)} & set(mention_at))
 
 
 def contents_after(prompt: str, cue_end: int, figure_name: str = "") -> str | None:
     """The contents the cue itself leads into, when its object is a substance or a drink rather than the ground
     ("dipped in melted chocolate in a bowl", "buried in the sand" of a beach, "stuck in a pina colada" in a glass)."""
-    phrase = []
-    for _, word in (t for t in _tokens(prompt) if t[0] >= cue_end):
-        if word in _STOP:
-            if phrase:
-                break
-            continue
-        phrase.append(word)
-        if len(phrase) == 3:
-            break
+    phrase = [word for _, word in _object_of(prompt, cue_end)]
     if not phrase or set(phrase) & set(lexicon.words(figure_name)):
         return None
     if phrase[-1] in CONTENTS or (len(phrase) > 1 and phrase[-2] in _MELTED):  # its head: no "wine bottle"
