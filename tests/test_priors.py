@@ -651,3 +651,17 @@ def test_a_short_fastener_driven_in_is_mostly_inside_unless_it_goes_into_a_hole(
 def test_what_sticks_out_of_a_container_is_at_most_a_few_times_its_size():
     assert rules("mug", "broom", "a broom standing in a mug").size_ratio <= 2.5
     assert rules("cup", "tree", "a tree in a paper cup").size_ratio <= 2.5
+
+
+# --- kinds of misses of the frozen batch14 ----------------------------------------------------------------------
+
+def test_what_grows_in_a_container_is_rooted_in_its_soil():
+    assert rules("pot", "cactus", "a cactus growing in a clay pot").penetration
+    assert not rules("pot", "cactus", "a cactus next to a clay pot").penetration
+
+
+def test_half_submerged_is_partly_under_and_a_body_of_water_is_any_spring_or_waterhole():
+    assert rules("lake", "log", "a log half submerged in the lake").contact_ratio <= 0.5
+    assert rules("lake", "log", "a log submerged in the lake").contact_ratio >= 0.8
+    assert rules("watering_hole", "buffalo", "a buffalo wading in the watering hole").penetration
+    assert rules("tank", "pebble", "a pebble in a tank full of seawater").contact_ratio >= 0.8  # seawater: a liquid

@@ -52,7 +52,8 @@ _STOP = lexicon.word_set("a an the of in on at with his her its their my your ou
 # Contents that close a container off: liquids, pastes, foams and soils. Discrete things (apples, cereal, coins)
 # leave gaps and are not here: a spoon rests on cereal but sinks into soup.
 CONTENTS = lexicon.word_set("""
-brine water coffee tea cocoa chocolate soup stew broth milk juice wine beer whiskey whisky soda lemonade cola punch
+brine water seawater saltwater coffee tea cocoa chocolate soup stew broth milk juice wine beer whiskey whisky soda
+lemonade cola punch
 milkshake smoothie yogurt yoghurt cream custard batter dough sauce gravy ketchup mustard honey jam syrup oil
 paint ink glue wax foam bubbles soil dirt earth compost sand mud snow cement concrete jelly porridge oatmeal rice
 """)
@@ -61,7 +62,8 @@ _FILL_WORDS = frozenset({"of", "with", "full", "filled", "containing"})
 _MELTED = frozenset({"melted", "molten", "liquid", "liquified", "whipped", "mashed", "pureed", "creamed", "blended"})
 # Contents a small thing sinks into whole (the others, pastes, foams and soils, hold it half sunk).
 LIQUIDS = lexicon.word_set("""
-water coffee tea cocoa soup stew broth milk juice wine beer whiskey whisky soda lemonade cola punch brine oil
+water seawater saltwater coffee tea cocoa soup stew broth milk juice wine beer whiskey whisky soda lemonade cola
+punch brine oil
 """)
 # Heaps: what goes into a pile of anything (leaves, laundry, dirt) is buried in it, below its surface.
 HEAPS = lexicon.word_set("pile heap mound")

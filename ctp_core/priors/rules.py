@@ -31,7 +31,8 @@ DRIVEN_CONTACT = 0.6
 _WHOLLY_UNDER = re.compile(r"\b(?:submerged|underwater|under (?:the )?water|at the bottom|sunk|buried"
                            r"|sinking|sank|dropped)\b")
 _WATER_SAID = re.compile(r"\b(?:submerged|underwater|under (?:the )?water)\b")
-_PARTLY_UNDER = re.compile(r"\b(?:dip|dipped|dipping|dunk|dunked|dunking|half)\b")
+_GROWS = re.compile(r"\b(?:growing|grows|grown|planted|rooted|sprouting)\b")
+_PARTLY_UNDER = re.compile(r"\b(?:dip|dipped|dipping|dunk|dunked|dunking|half|partly|partially)\b")
 SUNK_MAX = 0.5
 IMMERSED_CONTACT = {"whole": 0.9, "part": 0.4, "pointed": 0.3}  # "pointed" also for anything stuck in them
 # Relations whose ground must be an agent (the wearer, the holder, the rider).
@@ -71,6 +72,8 @@ class RulesProvider:
         text = relations.clean(prompt)
         if filled is None and ground is not None and ground.has("container") and _WATER_SAID.search(text):
             filled = "water"  # "a toy submarine underwater in the bathtub"
+        if filled is None and ground is not None and ground.has("container") and _GROWS.search(text):
+            filled = "soil"  # "daffodils growing in a flower pot": rooted in the soil it holds
         if (not afloat and filled is not None and relation.name in _SUPPORT and ground is not None
                 and ground.entry.domain == "buildings and places"  # "a swan gliding on the lake", not "a frog
                 and cue is not None and context.names_next(prompt, cue.end, ground_at)):  # on a lily pad in a pond"
@@ -282,7 +285,7 @@ def _contact(relation, figure: bool, source, immersed_in: str | None = None, afl
 def _immersion(source, contents: str, afloat: bool, text: str, size: float) -> str:
     """How much of a figure is below the contents' surface: "whole", "part" or "pointed" (a blade, a stick,
     a spoon: its end)."""
-    if _WHOLLY_UNDER.search(text):
+    if _WHOLLY_UNDER.search(text) and not _PARTLY_UNDER.search(text):  # "half submerged" is partly
         return "whole"
     if source is not None and source.has("pointed"):
         return "pointed"
