@@ -665,3 +665,10 @@ def test_half_submerged_is_partly_under_and_a_body_of_water_is_any_spring_or_wat
     assert rules("lake", "log", "a log submerged in the lake").contact_ratio >= 0.8
     assert rules("watering_hole", "buffalo", "a buffalo wading in the watering hole").penetration
     assert rules("tank", "pebble", "a pebble in a tank full of seawater").contact_ratio >= 0.8  # seawater: a liquid
+
+
+def test_a_cue_about_a_substance_yields_to_the_one_that_relates_the_objects():
+    prior = rules("lake", "hippo", "a hippo wallowing in the lake with its nostrils above the water")
+    assert prior.relation == "in" and prior.penetration
+    alone = relations.find_cue("a kite flying above the water")  # no other cue: it stands
+    assert alone is not None and alone.relation.name == "beside"

@@ -235,6 +235,12 @@ def names_next(prompt: str, cue_end: int, mention_at: list[int]) -> bool:
     return bool({start for start, _ in _object_of(prompt, cue_end, most=99)} & set(mention_at))
 
 
+def substance_object(prompt: str, cue_end: int) -> bool:
+    """Whether the cue's object is a bare substance ("above the water", "on the sand"), no object."""
+    phrase = _object_of(prompt, cue_end)
+    return bool(phrase) and phrase[-1][1] in CONTENTS
+
+
 def contents_after(prompt: str, cue_end: int, figure_name: str = "") -> str | None:
     """The contents the cue itself leads into, when its object is a substance or a drink rather than the ground
     ("dipped in melted chocolate in a bowl", "buried in the sand" of a beach, "stuck in a pina colada" in a glass)."""

@@ -46,8 +46,10 @@ class RulesProvider:
 
     def estimate(self, target_name: str, source_name: str, prompt: str) -> ScenePrior:
         target, source = lexicon.lookup(target_name), lexicon.lookup(source_name)
-        cue = relations.find_cue(prompt)
         target_at, source_at = _mentions(prompt, target_name, target), _mentions(prompt, source_name, source)
+        cue = relations.find_cue(prompt, lambda c: (  # "... with only its eyes above the water": about a part
+            c.cue.relation not in {"in", "penetrate"} and context.substance_object(prompt, c.end)
+            and not context.names_next(prompt, c.end, target_at + source_at)))
         figure = None
         if cue is not None:
             figure = relations.source_is_figure(cue, source_at, target_at)
