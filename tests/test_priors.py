@@ -607,7 +607,7 @@ def test_penetration_kinds_from_batch12(target, source, prompt, penetration):
     ("cup", "cookie", "a cookie dipped in a cup of tea", 0.2, 0.5),  # dipped: partly
     ("pool", "ball", "a ball floating in the pool", 0.1, 0.5),  # afloat
     ("bowl", "grape", "a grape in a bowl of yogurt", 0.2, 0.5),  # a paste holds it half sunk
-    ("pond", "man", "a man standing in a pond", 0.2, 0.5),  # someone standing in it
+    ("pond", "man", "a man standing in a pond", 0.05, 0.2),  # someone standing in it: the legs
     ("pot", "ladle", "a ladle in a pot of soup", 0.2, 0.4),  # a long tool: its end
 ])
 def test_immersed_contact_says_how_much_is_under(target, source, prompt, low, high):
@@ -672,3 +672,24 @@ def test_a_cue_about_a_substance_yields_to_the_one_that_relates_the_objects():
     assert prior.relation == "in" and prior.penetration
     alone = relations.find_cue("a kite flying above the water")  # no other cue: it stands
     assert alone is not None and alone.relation.name == "beside"
+
+
+# --- kinds of misses of the frozen batch15 ----------------------------------------------------------------------
+
+def test_a_pinned_accessory_pierces_the_cloth_a_pinned_sheet_does_not():
+    assert rules("jacket", "badge", "a badge pinned to a denim jacket").penetration
+    assert not rules("cork_board", "poster", "a poster pinned to a cork board").penetration
+
+
+def test_whatever_grows_in_the_ground_is_rooted_in_it():
+    assert rules("flower_bed", "rose_bush", "a rose bush growing in the flower bed").penetration
+
+
+def test_someone_standing_in_a_place_or_in_contents_touches_it_with_the_feet():
+    assert rules("barn", "cow", "a cow standing in the barn").contact_ratio <= 0.05
+    assert rules("river", "deer", "a deer wading in the river").contact_ratio <= 0.1
+    assert rules("river", "deer", "a deer swimming in the river").contact_ratio >= 0.2
+
+
+def test_what_goes_into_a_container_sticks_out_by_a_few_times_its_size_at_most():
+    assert rules("cup", "branch", "a branch stuck in a cup of water").size_ratio <= 2.5

@@ -24,6 +24,10 @@ _CUTS = re.compile(r"(?:cut|slic|saw|carv|chop|stab|pierc|drill|bor|punctur)\w*(
 _DRIVEN = re.compile(r"hammer|driv|screw|nail|tapp|pound")
 DRIVEN_MAX_M = 0.25
 DRIVEN_CONTACT = 0.6
+# Someone standing in contents or in a place touches them with the feet (a horse in its stable, a heron wading).
+_ON_FEET = re.compile(r"\b(?:standing|stands|wading|wades|walking|walks|grazing)\b")
+ON_FEET_CONTACT = 0.02  # on a floor
+WADING_CONTACT = 0.1  # in contents: the legs
 # Immersion: words that put the whole figure below the contents' surface, and words that put only part of it
 # there; without either, a figure at most SUNK_MAX the size of its ground that is no agent, plant, soft or
 # pointed thing and does not float sinks whole into a liquid (pickles in brine, a coin in a fountain), not into a
@@ -74,7 +78,7 @@ class RulesProvider:
         text = relations.clean(prompt)
         if filled is None and ground is not None and ground.has("container") and _WATER_SAID.search(text):
             filled = "water"  # "a toy submarine underwater in the bathtub"
-        if filled is None and ground is not None and ground.has("container") and _GROWS.search(text):
+        if filled is None and ground is not None and relation.name == "in" and _GROWS.search(text):
             filled = "soil"  # "daffodils growing in a flower pot": rooted in the soil it holds
         if (not afloat and filled is not None and relation.name in _SUPPORT and ground is not None
                 and ground.entry.domain == "buildings and places"  # "a swan gliding on the lake", not "a frog
@@ -106,8 +110,10 @@ class RulesProvider:
         immersed = immersed if penetration else None
         driven = (penetration and relation.name == "penetrate" and cue is not None and _DRIVEN.match(cue.text)
                   and source is not None and source.has("pointed") and source.size_m <= DRIVEN_MAX_M)
+        in_place = ground is not None and size <= SUNK_MAX and (
+            ground.entry.domain == "buildings and places" or _ON_FEET.search(text) is not None)
         contact = DRIVEN_CONTACT if driven and figure else _contact(relation, figure, source, immersed, afloat, text,
-                                                                    size)
+                                                                    size, in_place)
         return ScenePrior(size_ratio=clamp_size(size), penetration=penetration, contact_ratio=clamp_contact(contact),
                           source=self.name, reason="; ".join(n for n in notes if n),
                           relation=relation.name, source_is_figure=figure)
@@ -202,8 +208,8 @@ def _size_ratio(target_name, source_name, target, source, relation, figure: bool
         return fits, (f"size ratio {fits:.3g} ({whys[1]} / {whys[0]}: the {fig_match.phrase} must fit inside, "
                       f"so no bigger than {FITS_INSIDE:g} of the {ground_match.phrase})")
     sticks_out = STICKS_OUT if figure else 1.0 / STICKS_OUT
-    if (relation.name == "in" and ground_match is not None and ground_match.has("container") and fig_match is not None
-            and (ratio > sticks_out if figure else ratio < sticks_out)):  # a shoe tree in a shoe is no 8 m tree
+    if (relation.name in {"in", "penetrate"} and ground_match is not None and ground_match.has("container")
+            and fig_match is not None and (ratio > sticks_out if figure else ratio < sticks_out)):  # a shoe tree
         return sticks_out, (f"size ratio {sticks_out:.3g} ({whys[1]} / {whys[0]}: a {fig_match.phrase} in a "
                             f"{ground_match.phrase} sticks out of it, by no more than {STICKS_OUT:g} times its size)")
     clamped = clamp_size(ratio)
@@ -240,6 +246,9 @@ def _penetration(relation, figure: bool, target, source, filled: str | None, flo
         return True, "the relation cuts or pierces: penetration"
     if relation.penetration == "if_pointed" and fig is not None and fig.has("pointed") and _pierceable(ground):
         return True, f"a pointed {fig.phrase} into a solid {ground.phrase}: penetration"
+    if (cue_text.startswith("pinned") and fig is not None and ground is not None and ground.has("soft")
+            and fig.entry.domain == "clothing and accessories"):  # a brooch, a badge: its own pin
+        return True, f"a {fig.phrase} pinned to a {ground.phrase}: its pin through the cloth, penetration"
     if (relation.name == "attach" and cue_text.startswith("stuck") and _pierceable(ground)
             and not (fig is not None and fig.has("flat"))):
         return True, f"stuck on a {ground.phrase}, which it pierces: penetration"
@@ -255,7 +264,7 @@ def _penetration(relation, figure: bool, target, source, filled: str | None, flo
 
 
 def _contact(relation, figure: bool, source, immersed_in: str | None = None, afloat: bool = False,
-             prompt: str = "", size: float = 1.0) -> float:
+             prompt: str = "", size: float = 1.0, in_place: bool = False) -> float:
     """The relation's contact for the source's role, adjusted for the source's shape when it is the figure;
     a figure that goes into contents (``immersed_in``) touches them with its whole wetted part: all of it when
     it goes wholly under (``_immersion``), a part otherwise."""
@@ -263,10 +272,14 @@ def _contact(relation, figure: bool, source, immersed_in: str | None = None, afl
         return relation.ground_contact
     contact = relation.figure_contact
     if immersed_in is not None:
+        if source is not None and source.has("agent") and _ON_FEET.search(prompt) and not afloat:
+            return WADING_CONTACT  # "a heron wading in the pond": its legs
         how = _immersion(source, immersed_in, afloat, prompt, size)
         return IMMERSED_CONTACT["pointed" if how == "part" and relation.name == "penetrate" else how]
     if source is None:
         return contact
+    if relation.name == "in" and (source.has("agent") or source.entry.domain == "vehicles") and in_place:
+        return ON_FEET_CONTACT  # "a horse in its stable", "a motorbike parked in the garage": feet or tyres
     if source.has("round") and relation.name in _SUPPORT | {"in"}:
         contact = min(contact, 0.05 if relation.name in _SUPPORT else 0.1)
     if source.has("flat") and relation.name in {"on", "lie", "attach"}:
