@@ -693,3 +693,10 @@ def test_someone_standing_in_a_place_or_in_contents_touches_it_with_the_feet():
 
 def test_what_goes_into_a_container_sticks_out_by_a_few_times_its_size_at_most():
     assert rules("cup", "branch", "a branch stuck in a cup of water").size_ratio <= 2.5
+
+
+# --- kinds of misses of the frozen batch16 ----------------------------------------------------------------------
+
+def test_at_the_edge_of_something_is_on_its_rim_not_in_it():
+    prior = rules("pond", "duck", "a duck resting at the edge of the pond")
+    assert prior.relation == "on" and not prior.penetration

@@ -106,6 +106,7 @@ CUES: list[Cue] = [
         r"|above|over", "beside"),  # free in the air or water: no contact
     Cue(r"beside|next to|near|nearby|alongside|in front of|behind|left of|right of|opposite|facing|close to"
         r"|by the side of|side by side", "beside"),
+    Cue(r"(?:at|on) the (?:edge|rim|brink|lip) of", "on"),  # "a pigeon drinking at the edge of a fountain"
     Cue(r"through", "in"),  # penetrates only when a pointed thing goes through a solid
     Cue(r"filled with|full of|contain(?:s|ing)?|holding inside", "in", True),
     Cue(r"inside|into|within|in", "in"),

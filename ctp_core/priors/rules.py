@@ -82,7 +82,8 @@ class RulesProvider:
             filled = "soil"  # "daffodils growing in a flower pot": rooted in the soil it holds
         if (not afloat and filled is not None and relation.name in _SUPPORT and ground is not None
                 and ground.entry.domain == "buildings and places"  # "a swan gliding on the lake", not "a frog
-                and cue is not None and context.names_next(prompt, cue.end, ground_at)):  # on a lily pad in a pond"
+                and cue is not None and context.names_next(prompt, cue.end, ground_at)  # on a lily pad in a pond"
+                and not re.search(r"edge|rim|brink|lip", cue.text)):  # at the edge of a fountain: on its rim
             afloat = True
             why += "; on a body of water: afloat in it"
         if afloat and filled is None:
