@@ -700,3 +700,14 @@ def test_what_goes_into_a_container_sticks_out_by_a_few_times_its_size_at_most()
 def test_at_the_edge_of_something_is_on_its_rim_not_in_it():
     prior = rules("pond", "duck", "a duck resting at the edge of the pond")
     assert prior.relation == "on" and not prior.penetration
+
+
+# --- kinds of misses of the frozen batch17 ----------------------------------------------------------------------
+
+def test_hidden_in_a_mass_is_inside_it_hidden_in_a_container_is_not():
+    assert rules("haystack", "mouse", "a mouse hiding in a haystack").penetration
+    assert not rules("wardrobe", "cat", "a cat hiding in a wardrobe").penetration
+
+
+def test_streams_and_creeks_are_bodies_of_water():
+    assert rules("creek", "salmon", "a salmon swimming in a creek").penetration

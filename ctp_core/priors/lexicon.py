@@ -615,6 +615,7 @@ well 1.5 container
 fountain/pool/pond/swimming_pool 4.0 container,filled
 hot_spring/thermal_pool/onsen/water_hole/watering_hole 6.0 container,filled
 lake/river/sea/ocean 100.0 container,filled
+stream/creek/brook 20.0 container,filled
 harbour/harbor/marina/lagoon/reservoir/canal/fjord/estuary 300.0 container,filled
 puddle 0.5 flat,filled
 igloo/dome 3.0 container

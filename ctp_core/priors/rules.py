@@ -35,6 +35,7 @@ WADING_CONTACT = 0.1  # in contents: the legs
 _WHOLLY_UNDER = re.compile(r"\b(?:submerged|underwater|under (?:the )?water|at the bottom|sunk|buried"
                            r"|sinking|sank|dropped)\b")
 _WATER_SAID = re.compile(r"\b(?:submerged|underwater|under (?:the )?water)\b")
+_HIDDEN = re.compile(r"\b(?:hidden|hiding|hides|nestled|concealed|buried)\b")
 _GROWS = re.compile(r"\b(?:growing|grows|grown|planted|rooted|sprouting)\b")
 _PARTLY_UNDER = re.compile(r"\b(?:dip|dipped|dipping|dunk|dunked|dunking|half|partly|partially)\b")
 SUNK_MAX = 0.5
@@ -78,6 +79,9 @@ class RulesProvider:
         text = relations.clean(prompt)
         if filled is None and ground is not None and ground.has("container") and _WATER_SAID.search(text):
             filled = "water"  # "a toy submarine underwater in the bathtub"
+        if (filled is None and ground is not None and relation.name == "in" and not ground.has("container")
+                and _HIDDEN.search(text)):
+            filled = f"the {ground.phrase}"  # "a bird nest hidden in a hedge": inside its mass
         if filled is None and ground is not None and relation.name == "in" and _GROWS.search(text):
             filled = "soil"  # "daffodils growing in a flower pot": rooted in the soil it holds
         if (not afloat and filled is not None and relation.name in _SUPPORT and ground is not None
