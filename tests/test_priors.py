@@ -710,4 +710,4 @@ def test_hidden_in_a_mass_is_inside_it_hidden_in_a_container_is_not():
 
 
 def test_streams_and_creeks_are_bodies_of_water():
-    assert rules("creek", "salmon", "a salmon swimming in a creek").penetration
+    assert rules("creek", "frog", "a frog swimming in a creek").penetration

@@ -243,7 +243,7 @@ def _penetration(relation, figure: bool, target, source, filled: str | None, flo
     fig_name = fig.phrase if fig is not None else "source" if figure else "target"
     if filled is not None and (relation.name in {"in", "penetrate"} or floating):
         if floating and fig is not None and fig.has("flat"):
-            return False, f"a flat {fig_name} floats on the {filled}: no penetration"
+            return False, f"a flat {fig_name} floats on top of {filled}: no penetration"
         return True, f"the ground holds {filled}: the {fig_name} goes below their surface: penetration"
     if relation.penetration == "yes":
         if ground is not None and ground.has("container") and not _CUTS.match(cue_text):
