@@ -27,6 +27,9 @@ from dataclasses import replace
 
 from ctp_core.priors import lexicon, relations
 
+# A size word in the prompt is relative to the kind ("a big knife" is no twice-as-long knife): the name's
+# factor (``lexicon.SIZE_WORDS``) damped to this power.
+PROMPT_SIZE_POWER = 0.5
 PERSON_M = 1.75  # the wearer garments are sized for
 TOY_SIZE_M = 0.3  # a toy or a model of something big fits in the hands
 CRAFT_SIZE_M = 0.2  # a folded-paper animal or vehicle
@@ -49,25 +52,35 @@ _STOP = lexicon.word_set("a an the of in on at with his her its their my your ou
 # Contents that close a container off: liquids, pastes, foams and soils. Discrete things (apples, cereal, coins)
 # leave gaps and are not here: a spoon rests on cereal but sinks into soup.
 CONTENTS = lexicon.word_set("""
-water coffee tea cocoa chocolate soup stew broth milk juice wine beer whiskey whisky soda lemonade cola punch
+brine water seawater saltwater coffee tea cocoa chocolate soup stew broth milk juice wine beer whiskey whisky soda
+lemonade cola punch
 milkshake smoothie yogurt yoghurt cream custard batter dough sauce gravy ketchup mustard honey jam syrup oil
 paint ink glue wax foam bubbles soil dirt earth compost sand mud snow cement concrete jelly porridge oatmeal rice
 """)
 _FILL_WORDS = frozenset({"of", "with", "full", "filled", "containing"})
-_MELTED = frozenset({"melted", "molten", "liquid", "liquified", "whipped"})  # "a pot of melted cheese"
+# Made into a paste, a liquid or a foam: "a pot of melted cheese", "a bowl of mashed potatoes".
+_MELTED = frozenset({"melted", "molten", "liquid", "liquified", "whipped", "mashed", "pureed", "creamed", "blended"})
+# Contents a small thing sinks into whole (the others, pastes, foams and soils, hold it half sunk).
+LIQUIDS = lexicon.word_set("""
+water seawater saltwater coffee tea cocoa soup stew broth milk juice wine beer whiskey whisky soda lemonade cola
+punch brine oil
+""")
+# Heaps: what goes into a pile of anything (leaves, laundry, dirt) is buried in it, below its surface.
+HEAPS = lexicon.word_set("pile heap mound")
 # Mass nouns of loose pieces: they leave gaps, a spoon rests on them.
 DISCRETE = lexicon.word_set("cereal popcorn candy fruit ice gold money change food salad confetti gravel hay straw")
 
 
-def _is_drink(word: str) -> bool:
-    known = lexicon.phrase_entry([word])
+def is_drink(phrase: str) -> bool:
+    """A drink, a soup or another filled thing the lexicon knows ("champagne", "pina colada")."""
+    known = lexicon.phrase_entry(phrase.split())
     return known is not None and "filled" in known[1].tags
 
 
 def _is_contents(word: str, before: str | None) -> bool:
     """A contents word, a drink of the lexicon ("champagne"), anything melted or whipped, or a singular mass
     noun the lexicon knows as no object, or only as a food that is no round piece ("ramen", "peanut butter")."""
-    if word in CONTENTS or before in _MELTED or _is_drink(word):
+    if word in CONTENTS or before in _MELTED or is_drink(word):
         return True
     known = lexicon.phrase_entry([word])
     if word in DISCRETE or word in _STOP:
@@ -120,6 +133,10 @@ def resolve(name: str, prompt: str, mention_at: list[int], other: lexicon.Match 
     scene += [(1.0, e) for _, _, phrase, e in lexicon.spans([w for _, w in _tokens(prompt)])
               if phrase != match.phrase and e is not match.entry]
     match = _sense(match, scene, needs_agent)
+    sized = [w for w in mods if w in lexicon.SIZE_WORDS]
+    if sized and not set(lexicon.words(name)) & set(lexicon.SIZE_WORDS):  # "a giant teddy bear", "a mini fridge"
+        scale = lexicon.SIZE_WORDS[sized[-1]] ** PROMPT_SIZE_POWER
+        match = replace(match, size_m=match.size_m * scale, how=match.how + f", {sized[-1]}: x {scale:.2g}")
     return _modified(match, words)
 
 
@@ -199,17 +216,59 @@ def contents(prompt: str, mention_at: list[int], match: lexicon.Match | None, fi
     return found
 
 
+def _object_of(prompt: str, cue_end: int, most: int = 3) -> list[tuple[int, str]]:
+    """The cue's object: the first run of (at most ``most``) words after it that are no function words."""
+    phrase: list[tuple[int, str]] = []
+    for start, word in (t for t in _tokens(prompt) if t[0] >= cue_end):
+        if word in _STOP:
+            if phrase:
+                break
+            continue
+        phrase.append((start, word))
+        if len(phrase) == most:
+            break
+    return phrase
+
+
+def names_next(prompt: str, cue_end: int, mention_at: list[int]) -> bool:
+    """Whether the noun phrase right after the cue (the cue's object) mentions the object."""
+    return bool({start for start, _ in _object_of(prompt, cue_end, most=99)} & set(mention_at))
+
+
+def substance_object(prompt: str, cue_end: int) -> bool:
+    """Whether the cue's object is a bare substance ("above the water", "on the sand"), no object."""
+    phrase = _object_of(prompt, cue_end)
+    return bool(phrase) and phrase[-1][1] in CONTENTS
+
+
+def contents_after(prompt: str, cue_end: int, figure_name: str = "") -> str | None:
+    """The contents the cue itself leads into, when its object is a substance or a drink rather than the ground
+    ("dipped in melted chocolate in a bowl", "buried in the sand" of a beach, "stuck in a pina colada" in a glass)."""
+    phrase = [word for _, word in _object_of(prompt, cue_end)]
+    if not phrase or set(phrase) & set(lexicon.words(figure_name)):
+        return None
+    if phrase[-1] in CONTENTS or (len(phrase) > 1 and phrase[-2] in _MELTED):  # its head: no "wine bottle"
+        return phrase[-1]
+    known = lexicon.lookup(" ".join(phrase))
+    drink = known is not None and known.has("filled") and known.entry.domain == "food and drink"
+    return " ".join(phrase) if drink else None
+
+
 def _contents(prompt: str, mention_at: list[int], match: lexicon.Match | None) -> str | None:
     if match is not None and match.has("filled"):
         return "its contents"
+    if match is not None and match.phrase.split()[-1] in HEAPS:
+        return f"the {match.phrase}"
     tokens = _tokens(prompt)
     starts = [start for start, _ in tokens]
     for at in mention_at:
         if at not in starts:
             continue
+        if tokens[starts.index(at)][1] in HEAPS:
+            return f"the {tokens[starts.index(at)][1]}"
         before = [w for _, w in tokens[max(0, starts.index(at) - 3):starts.index(at)]]
         if len(before) == 3 and before[1] == "of" and before[2] in _STOP and (
-                before[0] in CONTENTS or _is_drink(before[0])):
+                before[0] in CONTENTS or is_drink(before[0])):
             return before[0]  # "in the sand of a sandbox", "the water of the pool"
         after = [w for _, w in tokens[starts.index(at) + 1:starts.index(at) + 6]]
         if after[:1] == ["full"] or after[:1] == ["filled"]:

@@ -372,6 +372,7 @@ screwdriver/chisel 0.25 pointed
 wrench/spanner/pliers 0.25
 nail 0.07 pointed
 screw/bolt 0.05 pointed
+nut/hex_nut/wing_nut/washer/grommet/eyelet 0.015 container
 pin/push_pin/pushpin/thumbtack/tack/needle/sewing_needle 0.03 pointed
 scissors 0.2
 pen/pencil/marker/crayon 0.15 pointed
@@ -612,7 +613,10 @@ bridge 50.0
 fence/railing 2.5 flat
 well 1.5 container
 fountain/pool/pond/swimming_pool 4.0 container,filled
+hot_spring/thermal_pool/onsen/water_hole/watering_hole 6.0 container,filled
 lake/river/sea/ocean 100.0 container,filled
+stream/creek/brook 20.0 container,filled
+harbour/harbor/marina/lagoon/reservoir/canal/fjord/estuary 300.0 container,filled
 puddle 0.5 flat,filled
 igloo/dome 3.0 container
 moon/planet/earth 100.0 round

@@ -106,6 +106,7 @@ CUES: list[Cue] = [
         r"|above|over", "beside"),  # free in the air or water: no contact
     Cue(r"beside|next to|near|nearby|alongside|in front of|behind|left of|right of|opposite|facing|close to"
         r"|by the side of|side by side", "beside"),
+    Cue(r"(?:at|on) the (?:edge|rim|brink|lip) of", "on"),  # "a pigeon drinking at the edge of a fountain"
     Cue(r"through", "in"),  # penetrates only when a pointed thing goes through a solid
     Cue(r"filled with|full of|contain(?:s|ing)?|holding inside", "in", True),
     Cue(r"inside|into|within|in", "in"),
@@ -131,14 +132,19 @@ def clean(prompt: str) -> str:
     return re.sub(r"['\u2019]s(?![a-z])", "  ", prompt.lower())
 
 
-def find_cue(prompt: str) -> CueMatch | None:
-    """The relation cue of a prompt: the first-priority cue found, the earliest if it occurs twice."""
+def find_cue(prompt: str, aside=None) -> CueMatch | None:
+    """The relation cue of a prompt: the first-priority cue found, the earliest if it occurs twice; a cue that
+    ``aside(cue)`` says is about something else ("with only its eyes above the water") yields to the next one
+    found, and is the answer only when there is no other."""
     text = clean(prompt)
+    first = None
     for regex, cue in _COMPILED:
-        m = regex.search(text)
-        if m:
-            return CueMatch(cue, m.start(), m.end(), m.group(0))
-    return None
+        for m in regex.finditer(text):
+            found = CueMatch(cue, m.start(), m.end(), m.group(0))
+            if aside is None or not aside(found):
+                return found
+            first = first or found
+    return first
 
 
 def source_is_figure(cue: CueMatch, source_at: list[int], target_at: list[int]) -> bool | None:

@@ -14,9 +14,32 @@ from ctp_core.priors import context, lexicon, relations
 from ctp_core.priors.context import PERSON_M  # an unknown name that holds, wears or rides is someone this tall
 from ctp_core.priors.prior import ScenePrior, clamp_contact, clamp_size
 
+STICKS_OUT = 2.5  # ... and a long thing or a plant that sticks out of it is at most this size of it
 FITS_INSIDE = 0.9  # what is inside a container (not a long thing or a plant sticking out) is at most this size of it
 # Relations where a ball touches at a point, a sheet lies on a face, a soft thing settles.
 _SUPPORT = {"on", "stand", "sit", "lie", "lean", "hang", "attach"}
+# Cues of a blade or a bit that passes through a wall, even a container's (a knife slicing a cardboard box).
+_CUTS = re.compile(r"(?:cut|slic|saw|carv|chop|stab|pierc|drill|bor|punctur)\w*(?:ing|s)\b")  # no "carved"
+# Short fasteners driven in (a nail, a screw, a tent peg) are mostly inside what holds them.
+_DRIVEN = re.compile(r"hammer|driv|screw|nail|tapp|pound")
+DRIVEN_MAX_M = 0.25
+DRIVEN_CONTACT = 0.6
+# Someone standing in contents or in a place touches them with the feet (a horse in its stable, a heron wading).
+_ON_FEET = re.compile(r"\b(?:standing|stands|wading|wades|walking|walks|grazing)\b")
+ON_FEET_CONTACT = 0.02  # on a floor
+WADING_CONTACT = 0.1  # in contents: the legs
+# Immersion: words that put the whole figure below the contents' surface, and words that put only part of it
+# there; without either, a figure at most SUNK_MAX the size of its ground that is no agent, plant, soft or
+# pointed thing and does not float sinks whole into a liquid (pickles in brine, a coin in a fountain), not into a
+# paste, a foam or a soil (strawberries in whipped cream).
+_WHOLLY_UNDER = re.compile(r"\b(?:submerged|underwater|under (?:the )?water|at the bottom|sunk|buried"
+                           r"|sinking|sank|dropped)\b")
+_WATER_SAID = re.compile(r"\b(?:submerged|underwater|under (?:the )?water)\b")
+_HIDDEN = re.compile(r"\b(?:hidden|hiding|hides|nestled|concealed|buried)\b")
+_GROWS = re.compile(r"\b(?:growing|grows|grown|planted|rooted|sprouting)\b")
+_PARTLY_UNDER = re.compile(r"\b(?:dip|dipped|dipping|dunk|dunked|dunking|half|partly|partially)\b")
+SUNK_MAX = 0.5
+IMMERSED_CONTACT = {"whole": 0.9, "part": 0.4, "pointed": 0.3}  # "pointed" also for anything stuck in them
 # Relations whose ground must be an agent (the wearer, the holder, the rider).
 _AGENT_GROUND = {"wear", "hold"}
 
@@ -28,8 +51,10 @@ class RulesProvider:
 
     def estimate(self, target_name: str, source_name: str, prompt: str) -> ScenePrior:
         target, source = lexicon.lookup(target_name), lexicon.lookup(source_name)
-        cue = relations.find_cue(prompt)
         target_at, source_at = _mentions(prompt, target_name, target), _mentions(prompt, source_name, source)
+        cue = relations.find_cue(prompt, lambda c: (  # "... with only its eyes above the water": about a part
+            c.cue.relation not in {"in", "penetrate"} and context.substance_object(prompt, c.end)
+            and not context.names_next(prompt, c.end, target_at + source_at)))
         figure = None
         if cue is not None:
             figure = relations.source_is_figure(cue, source_at, target_at)
@@ -48,7 +73,23 @@ class RulesProvider:
             source_name, source, source_at)
         filled = context.contents(prompt, ground_at, ground, source_name if figure else target_name)
         relation, why = _relation(cue, target, source, source if figure else target)
+        if filled is None and cue is not None and relation.name in {"in", "penetrate"}:
+            filled = context.contents_after(prompt, cue.end, source_name if figure else target_name)
         afloat = cue is not None and re.match(r"float|swim|bob|paddl", cue.text) is not None
+        text = relations.clean(prompt)
+        if filled is None and ground is not None and ground.has("container") and _WATER_SAID.search(text):
+            filled = "water"  # "a toy submarine underwater in the bathtub"
+        if (filled is None and ground is not None and relation.name == "in" and not ground.has("container")
+                and _HIDDEN.search(text)):
+            filled = f"the {ground.phrase}"  # "a bird nest hidden in a hedge": inside its mass
+        if filled is None and ground is not None and relation.name == "in" and _GROWS.search(text):
+            filled = "soil"  # "daffodils growing in a flower pot": rooted in the soil it holds
+        if (not afloat and filled is not None and relation.name in _SUPPORT and ground is not None
+                and ground.entry.domain == "buildings and places"  # "a swan gliding on the lake", not "a frog
+                and cue is not None and context.names_next(prompt, cue.end, ground_at)  # on a lily pad in a pond"
+                and not re.search(r"edge|rim|brink|lip", cue.text)):  # at the edge of a fountain: on its rim
+            afloat = True
+            why += "; on a body of water: afloat in it"
         if afloat and filled is None:
             relation, why = relations.RELATIONS["beside"], f"'{cue.text}' in air or open water: no contact"
         floating = afloat and filled is not None
@@ -70,7 +111,14 @@ class RulesProvider:
         penetration, pen_why = _penetration(relation, figure, target, source, filled, floating,
                                             cue.text if cue is not None else "")
         notes.append(pen_why)
-        contact = _contact(relation, figure, source, filled if penetration else None)
+        immersed = ground.phrase if filled == "its contents" and ground is not None else filled
+        immersed = immersed if penetration else None
+        driven = (penetration and relation.name == "penetrate" and cue is not None and _DRIVEN.match(cue.text)
+                  and source is not None and source.has("pointed") and source.size_m <= DRIVEN_MAX_M)
+        in_place = ground is not None and size <= SUNK_MAX and (
+            ground.entry.domain == "buildings and places" or _ON_FEET.search(text) is not None)
+        contact = DRIVEN_CONTACT if driven and figure else _contact(relation, figure, source, immersed, afloat, text,
+                                                                    size, in_place)
         return ScenePrior(size_ratio=clamp_size(size), penetration=penetration, contact_ratio=clamp_contact(contact),
                           source=self.name, reason="; ".join(n for n in notes if n),
                           relation=relation.name, source_is_figure=figure)
@@ -164,6 +212,11 @@ def _size_ratio(target_name, source_name, target, source, relation, figure: bool
             and (ratio > fits if figure else ratio < fits)):
         return fits, (f"size ratio {fits:.3g} ({whys[1]} / {whys[0]}: the {fig_match.phrase} must fit inside, "
                       f"so no bigger than {FITS_INSIDE:g} of the {ground_match.phrase})")
+    sticks_out = STICKS_OUT if figure else 1.0 / STICKS_OUT
+    if (relation.name in {"in", "penetrate"} and ground_match is not None and ground_match.has("container")
+            and fig_match is not None and (ratio > sticks_out if figure else ratio < sticks_out)):  # a shoe tree
+        return sticks_out, (f"size ratio {sticks_out:.3g} ({whys[1]} / {whys[0]}: a {fig_match.phrase} in a "
+                            f"{ground_match.phrase} sticks out of it, by no more than {STICKS_OUT:g} times its size)")
     clamped = clamp_size(ratio)
     note = "" if clamped == ratio else f", clamped from {ratio:.3g}"
     return ratio, f"size ratio {clamped:.3g} ({whys[1]} / {whys[0]}{note})"
@@ -190,14 +243,17 @@ def _penetration(relation, figure: bool, target, source, filled: str | None, flo
     fig_name = fig.phrase if fig is not None else "source" if figure else "target"
     if filled is not None and (relation.name in {"in", "penetrate"} or floating):
         if floating and fig is not None and fig.has("flat"):
-            return False, f"a flat {fig_name} floats on the {filled}: no penetration"
+            return False, f"a flat {fig_name} floats on top of {filled}: no penetration"
         return True, f"the ground holds {filled}: the {fig_name} goes below their surface: penetration"
     if relation.penetration == "yes":
-        if ground is not None and ground.has("container"):
+        if ground is not None and ground.has("container") and not _CUTS.match(cue_text):
             return False, "goes into an opening of the ground: no penetration"
         return True, "the relation cuts or pierces: penetration"
     if relation.penetration == "if_pointed" and fig is not None and fig.has("pointed") and _pierceable(ground):
         return True, f"a pointed {fig.phrase} into a solid {ground.phrase}: penetration"
+    if (cue_text.startswith("pinned") and fig is not None and ground is not None and ground.has("soft")
+            and fig.entry.domain == "clothing and accessories"):  # a brooch, a badge: its own pin
+        return True, f"a {fig.phrase} pinned to a {ground.phrase}: its pin through the cloth, penetration"
     if (relation.name == "attach" and cue_text.startswith("stuck") and _pierceable(ground)
             and not (fig is not None and fig.has("flat"))):
         return True, f"stuck on a {ground.phrase}, which it pierces: penetration"
@@ -212,16 +268,23 @@ def _penetration(relation, figure: bool, target, source, filled: str | None, flo
     return False, ""
 
 
-def _contact(relation, figure: bool, source, immersed_in: str | None = None) -> float:
+def _contact(relation, figure: bool, source, immersed_in: str | None = None, afloat: bool = False,
+             prompt: str = "", size: float = 1.0, in_place: bool = False) -> float:
     """The relation's contact for the source's role, adjusted for the source's shape when it is the figure;
-    a figure that goes into contents (``immersed_in``) touches them with its whole wetted part."""
+    a figure that goes into contents (``immersed_in``) touches them with its whole wetted part: all of it when
+    it goes wholly under (``_immersion``), a part otherwise."""
     if not figure:
         return relation.ground_contact
     contact = relation.figure_contact
     if immersed_in is not None:
-        return 0.3 if source is not None and source.has("pointed") else 0.4
+        if source is not None and source.has("agent") and _ON_FEET.search(prompt) and not afloat:
+            return WADING_CONTACT  # "a heron wading in the pond": its legs
+        how = _immersion(source, immersed_in, afloat, prompt, size)
+        return IMMERSED_CONTACT["pointed" if how == "part" and relation.name == "penetrate" else how]
     if source is None:
         return contact
+    if relation.name == "in" and (source.has("agent") or source.entry.domain == "vehicles") and in_place:
+        return ON_FEET_CONTACT  # "a horse in its stable", "a motorbike parked in the garage": feet or tyres
     if source.has("round") and relation.name in _SUPPORT | {"in"}:
         contact = min(contact, 0.05 if relation.name in _SUPPORT else 0.1)
     if source.has("flat") and relation.name in {"on", "lie", "attach"}:
@@ -237,3 +300,21 @@ def _contact(relation, figure: bool, source, immersed_in: str | None = None) -> 
     if source.has("wrap") and relation.name in {"wear", "on", "attach", "in", "lie"}:
         contact = max(contact, 0.6)
     return contact
+
+
+def _immersion(source, contents: str, afloat: bool, text: str, size: float) -> str:
+    """How much of a figure is below the contents' surface: "whole", "part" or "pointed" (a blade, a stick,
+    a spoon: its end)."""
+    if _WHOLLY_UNDER.search(text) and not _PARTLY_UNDER.search(text):  # "half submerged" is partly
+        return "whole"
+    if source is not None and source.has("pointed"):
+        return "pointed"
+    words = contents.split()
+    liquid = words[-1] in context.LIQUIDS or context.is_drink(contents) and not set(words) & context.CONTENTS - \
+        context.LIQUIDS  # a "pond" or a "cocktail" is liquid; a "honey jar" is not
+    if afloat or _PARTLY_UNDER.search(text) or size > SUNK_MAX or not liquid:
+        return "part"
+    if source is not None and (source.has("agent") or source.has("soft") or source.entry.domain == "vehicles" or (
+            source.entry.domain == "plants" and not source.has("round"))):
+        return "part"  # someone standing or sitting in it, a sponge or a boat afloat, stems and roots (a pebble sinks)
+    return "whole"
