@@ -100,14 +100,16 @@ class ProgressBar:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ctp_core import export, io
+    from ctp_core import export
     from ctp_core.align import align
+    from ctp_core.loader import MeshLoader
 
     if not args.prompt and not args.image and not args.no_guidance:
         raise ConfigError("give --prompt TEXT or --image REF.png (or --no-guidance)", field="prompt")
     config = config_from_args(args)
-    target = io.load_mesh(args.target, name="target")
-    source = io.load_mesh(args.source, name="source")
+    with MeshLoader(1) as loader:  # the same bounded loading as the service (ctp_core.loader)
+        target = loader.load(args.target, name="target")
+        source = loader.load(args.source, name="source")
     image = _read_image(args.image) if args.image else None
     started = time.perf_counter()
     result = align(target, source, args.prompt, config, image=image,

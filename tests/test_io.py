@@ -12,7 +12,7 @@ import trimesh
 from PIL import Image
 
 from ctp_core.errors import MeshError
-from ctp_core.io import MeshLimits, load_mesh, validate_upload
+from ctp_core.io import MeshLimits, load_mesh
 from ctp_core.structures import MeshArrays
 
 
@@ -129,7 +129,7 @@ def test_stl_from_a_path(tmp_path):
     path.write_bytes(trimesh.creation.cylinder(radius=1, height=3, sections=12).export(file_type="stl"))
     mesh = load_mesh(path)
     assert np.allclose(mesh.extents, [2, 2, 3], atol=1e-6)
-    assert validate_upload(path.read_bytes(), "part.stl", MeshLimits()).faces.shape == mesh.faces.shape
+    assert load_mesh(path.read_bytes(), filename="part.stl").faces.shape == mesh.faces.shape
 
 
 # --- refusals -------------------------------------------------------------------------------------
