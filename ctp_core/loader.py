@@ -52,8 +52,8 @@ class LoaderUnavailable(CtpError):
 class MeshLoader:
     """``load``/``check`` meshes in up to ``processes`` children, each load under the limits above.
 
-    Children start on first use and are reused; thread-safe (a caller waits up to ``timeout_s`` for
-    a free child, then gets ``loader_unavailable``).
+    Children start on first use and are reused; thread-safe (a caller waits for a free child up to the
+    longest another caller can hold one, ``timeout_s + start_timeout_s``, then gets ``loader_unavailable``).
     """
 
     def __init__(self, processes: int = 2, *, timeout_s: float = 20.0, memory_bytes: int = 3 * 2**30,
@@ -92,10 +92,11 @@ class MeshLoader:
     def _call(self, data, filename, limits: MeshLimits, name, want_mesh: bool):
         label = name or filename or (str(data) if isinstance(data, str | Path) else "upload")
         payload = str(data) if isinstance(data, Path) else data
+        wait = self.timeout_s + self.start_timeout_s  # the longest a holder can keep its process
         try:
-            child = self._idle.get(timeout=self.timeout_s)
+            child = self._idle.get(timeout=wait)
         except queue.Empty:
-            raise LoaderUnavailable(f"{label}: every loading process stayed busy for {self.timeout_s:.0f} s; "
+            raise LoaderUnavailable(f"{label}: every loading process stayed busy for {wait:.0f} s; "
                                     "try again") from None
         reply = None
         try:
