@@ -8,14 +8,15 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 
 import pytest
+import trimesh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ctp_core.config import AlignConfig
 from service.schemas import OPTION_PATHS
-from tests.conftest import Api, service_env
+from tests.conftest import Api, service_env, wait_for
 from tests.test_loader import wide_glb
-from tests.test_service import BALL, BOX, FAST, deep_chain_glb
+from tests.test_service import BALL, BOX, FAST, deep_chain_glb, glb
 
 
 @pytest.fixture(scope="module")
@@ -91,3 +92,16 @@ def test_accepted_options_build_an_engine_config(api):
     config = build_config({"seed": 2**32 - 1, "steps": 100_000}, default_model="random:tiny",
                           allowed_models=["random:tiny"])
     assert AlignConfig.model_validate(config.model_dump()).seed == 2**32 - 1
+
+
+def test_single_triangle_and_planar_uploads_succeed(api, worker):
+    """Once accepted with 202 and then failed with internal_error (QhullError): a valid input succeeds."""
+    triangle = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], process=False)
+    square = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [1, 0, 1], [0, 0, 1]], [[0, 1, 2], [0, 2, 3]], process=False)
+    ids = [_post(api, target=("square.glb", glb(square)), source=("triangle.glb", glb(triangle))).json()["id"],
+           _post(api, source=("triangle.glb", glb(triangle))).json()["id"]]
+    for job_id in ids:
+        job = wait_for(lambda job_id=job_id: (j := api.client.get(f"/jobs/{job_id}").json())["status"]
+                       in ("succeeded", "failed") and j, 180, "the job to end")
+        assert job["status"] == "succeeded", job["error"]
+        assert api.client.get(f"/jobs/{job_id}/result.glb").status_code == 200
