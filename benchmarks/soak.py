@@ -46,6 +46,7 @@ from tests.test_service import (  # noqa: E402
     obj_zip_with_symlink,
     ply,
 )
+from tests.test_service_serve import alive, children  # noqa: E402
 
 OPTIONS = {"preset": "test", "model": "random:tiny"}
 TERMINAL = ("succeeded", "failed", "canceled")
@@ -92,24 +93,19 @@ def _rss_mb(pid: int) -> float:
 
 
 def _children(pid: int) -> list[int]:
-    found = []
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[1]) == pid and fields[0] != "Z":
-            found.append(int(stat.parent.name))
-    return found
+    return [p for p in children(pid) if alive(p)]
 
 
-def _workers(pid: int) -> list[int]:
-    def cmdline(p: int) -> str:
-        try:
-            return Path(f"/proc/{p}/cmdline").read_bytes().replace(b"\0", b" ").decode()
-        except OSError:
-            return ""
-    return [p for p in _children(pid) if " worker" in cmdline(p)]
+def _cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+    except OSError:
+        return ""
+
+
+def _children_running(pid: int, needle: str) -> list[int]:
+    """Live children of ``pid`` whose command line holds ``needle`` (" worker", "ctp_core.loader")."""
+    return [p for p in _children(pid) if needle in _cmdline(p)]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -141,6 +137,7 @@ def main(argv: list[str] | None = None) -> int:
     valid: list[str] = []
     kills: list[float] = []
     rss: list[float] = []
+    loader_rss: list[float] = [0.0]
     lock = threading.Lock()
     stop = threading.Event()
     sent = [0]
@@ -186,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
 
         def kill_loop() -> None:
             while not stop.wait(rng.uniform(*args.kill_every)):
-                pids = _workers(serve.pid)
+                pids = _children_running(serve.pid, " worker")
                 if pids:
                     os.kill(rng.choice(pids), signal.SIGKILL)
                     kills.append(time.monotonic())
@@ -194,6 +191,7 @@ def main(argv: list[str] | None = None) -> int:
         def watch_rss() -> None:
             while not stop.wait(0.5):
                 rss.append(_rss_mb(serve.pid))
+                loader_rss.extend(_rss_mb(p) for p in _children_running(serve.pid, "ctp_core.loader"))
 
         started = time.monotonic()
         threads = [threading.Thread(target=send, args=(args.seed + i,)) for i in range(args.clients)]
@@ -226,7 +224,6 @@ def main(argv: list[str] | None = None) -> int:
                 time.sleep(1.0)
         outcomes = collections.Counter(
             j["status"] if j["status"] != "failed" else f"failed {j['error']['code']}" for j in ended.values())
-        loader_peak = max((_rss_mb(p) for p in _children(serve.pid)), default=0.0)
     finally:
         stop.set()
         serve.send_signal(signal.SIGTERM)
@@ -245,7 +242,7 @@ def main(argv: list[str] | None = None) -> int:
         "status_500": sum(v for k, v in counts.items() if k.endswith(": 500")),
         "api_rss_mb": {"start": round(rss[0], 1) if rss else None, "peak": round(max(rss, default=0), 1),
                        "end": round(rss[-1], 1) if rss else None, "bound": args.rss_mb},
-        "a_loader_process_rss_mb_at_end": round(loader_peak, 1),
+        "loader_process_rss_peak_mb": round(max(loader_rss), 1),
     }
     ok = (figures["valid_stuck"] == 0 and figures["status_500"] == 0 and not figures["hostile_other"]
           and set(outcomes) <= {"succeeded", "failed worker_lost"}

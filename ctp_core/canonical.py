@@ -206,8 +206,9 @@ def resting_poses(mesh: trimesh.Trimesh, min_probability: float = 0.005) -> list
         hull = mesh.convex_hull
     except QhullError:  # a single face, or all vertices on one plane or line: nothing to stand on
         return []
-    if not hull.volume > 0:
-        return []
+    with np.errstate(invalid="ignore", divide="ignore"):  # a flat hull has no centre of mass
+        if not hull.volume > 0:
+            return []
     centre = hull.center_mass
     extent = float(mesh.extents.max())
     vertices = np.asarray(mesh.vertices, dtype=np.float64)

@@ -100,16 +100,26 @@ class MeshLoader:
                                     "try again") from None
         reply = None
         try:
-            if child is None or not child.alive():
-                child = self._spawn()
-            reply = child.request((payload, filename, limits, name, want_mesh), self.timeout_s)
+            for attempt in range(2):
+                if child is None or not child.alive():
+                    child = self._spawn()
+                try:
+                    reply = child.request((payload, filename, limits, name, want_mesh), self.timeout_s)
+                    break
+                except _Died as exc:
+                    if not exc.unsent or attempt:
+                        raise
+                    self._forget(child)  # it died idle, before this file reached it: not the file's fault
+                    child = None
             if reply[:2] == ("error", "mesh_too_complex"):  # out of memory: that child exits, start afresh
                 self._forget(child)
                 child = None
         except _Died as exc:
+            if child is not None:
+                self._forget(child)
+                child = None
             if self._closed:
                 raise LoaderUnavailable(f"{label}: the service is shutting down") from None
-            child = None
             if exc.timed_out:
                 raise MeshError(f"{label}: loading took over {self.timeout_s:.0f} s; the file is too complex",
                                 code="mesh_too_complex") from None
@@ -145,9 +155,11 @@ class MeshLoader:
 
 
 class _Died(Exception):
-    def __init__(self, what: str, timed_out: bool = False):
+    """The child is gone: killed at the wall-time limit, crashed, or dead before the request was sent."""
+
+    def __init__(self, what: str, timed_out: bool = False, unsent: bool = False):
         super().__init__(what)
-        self.timed_out = timed_out
+        self.timed_out, self.unsent = timed_out, unsent
 
 
 class _Child:
@@ -175,7 +187,7 @@ class _Child:
             self.process.stdin.flush()
         except (BrokenPipeError, OSError) as exc:
             self.kill()
-            raise _Died(f"write failed: {exc}") from None
+            raise _Died(f"write failed: {exc}", unsent=True) from None
         return self._read(time.monotonic() + timeout_s)
 
     def _read(self, deadline: float, start: bool = False) -> tuple:
