@@ -8,6 +8,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -18,6 +19,7 @@ from ctp.cli import main
 from service.client import Client
 from service.embedded import free_port
 from tests.conftest import REPO, service_env, wait_for
+from tests.test_loader import wide_glb
 from tests.test_service import BALL, BOX, FAST
 
 
@@ -97,11 +99,20 @@ def _child(serve_pid: int, needle: str) -> int | None:
     return found[0] if found else None
 
 
+def _busy(pid: int) -> bool:
+    """Whether the process is using CPU now (state R)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "R"
+    except OSError:
+        return False
+
+
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs Linux /proc to find the child processes")
 def test_embedded_service_heals_a_killed_worker_and_redis(tmp_path):
     """SIGKILL the worker: a new one comes up and takes jobs. SIGKILL redis-server: it comes back on the
-    same data (append-only file) and a job queued before the kill still runs."""
-    env = service_env("unused", "ctp")
+    same data (append-only file) and a job queued before the kill still runs. Then SIGTERM stops the
+    service promptly although an upload is still loading."""
+    env = service_env("unused", "ctp", load_timeout_s=120, max_nodes=10**6)
     del env["REDIS_URL"]
     env["XDG_CACHE_HOME"] = str(tmp_path / "cache")
     port = free_port()
@@ -150,8 +161,19 @@ def test_embedded_service_heals_a_killed_worker_and_redis(tmp_path):
                              180, "the queued job to end")
             assert final["status"] == "succeeded", final
             assert replacement
+
+            def post_slow():
+                with contextlib.suppress(httpx.HTTPError):  # the service goes away under it
+                    client.http.post("/align", data={"prompt": "x"}, files={
+                        "target": ("box.glb", BOX), "source": ("wide.glb", wide_glb(300_000))})
+
+            threading.Thread(target=post_slow, daemon=True).start()
+            wait_for(lambda: _child(serve.pid, "ctp_core.loader") and _busy(_child(serve.pid, "ctp_core.loader")),
+                     60, "the slow upload to be loading")
+        stopping = time.monotonic()
         serve.send_signal(signal.SIGTERM)
         assert serve.wait(timeout=40) == 128 + signal.SIGTERM
+        assert time.monotonic() - stopping < 25  # uvicorn's grace (10 s), then the loading process is killed
     finally:
         if serve.poll() is None:
             serve.kill()
