@@ -105,3 +105,19 @@ def test_single_triangle_and_planar_uploads_succeed(api, worker):
                        in ("succeeded", "failed") and j, 180, "the job to end")
         assert job["status"] == "succeeded", job["error"]
         assert api.client.get(f"/jobs/{job_id}/result.glb").status_code == 200
+
+
+def test_control_characters_in_a_file_name(api):
+    """httpx quotes file names; a raw multipart body carries the byte as sent."""
+    boundary = "ctpboundary"
+    parts = [("target", "bo\x01x.glb", BOX), ("source", "ball.glb", BALL)]
+    body = b"".join(f'--{boundary}\r\nContent-Disposition: form-data; name="{name}"; filename="{filename}"\r\n'
+                    f"Content-Type: application/octet-stream\r\n\r\n".encode() + data + b"\r\n"
+                    for name, filename, data in parts)
+    body += f'--{boundary}\r\nContent-Disposition: form-data; name="prompt"\r\n\r\na ball on a box\r\n'.encode()
+    body += f"--{boundary}--\r\n".encode()
+    answer = api.client.post("/align", content=body,
+                             headers={"Content-Type": f"multipart/form-data; boundary={boundary}"})
+    assert (answer.status_code, answer.json()["error"]) == (422, {
+        "code": "invalid_name", "field": "target",
+        "message": "the target file name holds control characters or is over 255 characters"})
