@@ -250,7 +250,7 @@ _COMPONENT_BYTES = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5125: 4, 5126: 4}
 _TYPE_COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 
 
-def _gltf_budget(tree: dict, binary: int | None, limits: MeshLimits, label: str) -> None:
+def _gltf_budget(tree: dict, binary: int | None, assets: _Assets, limits: MeshLimits, label: str) -> None:
     """Check a glTF's JSON against the budgets, before trimesh builds anything from it.
 
     The node hierarchy must be a forest (one parent per node, no cycles) within ``max_nodes`` and
@@ -293,6 +293,8 @@ def _gltf_budget(tree: dict, binary: int | None, limits: MeshLimits, label: str)
             decoded = _data_uri_size(uri, label)
             if decoded != declared:
                 raise bad(f"buffers[{i}] declares byteLength {declared} but its data: URI holds {decoded} bytes")
+        elif isinstance(uri, str) and len(assets[uri]) < declared:  # a member of the same zip
+            raise bad(f"buffers[{i}] declares {declared} bytes, {uri!r} holds {len(assets[uri])}")
         sizes.append(declared)
     for i, view in enumerate(views):
         buffer = index(view.get("buffer"), len(buffers), f"bufferViews[{i}].buffer")
@@ -404,7 +406,7 @@ def _load_scene(payload: bytes, ext: str, assets: _Assets, limits: MeshLimits, l
             if not uri.startswith("data:") and uri not in assets:
                 raise MeshError(f"{label}: glTF references an external file or URL ({uri[:80]!r}); "
                                 "upload a self-contained .glb", code="mesh_external_reference")
-        _gltf_budget(tree, binary, limits, label)
+        _gltf_budget(tree, binary, assets, limits, label)
     if ext == ".obj" and not payload.strip():
         raise MeshError(f"{label}: the file is empty", code="mesh_empty")
     # process=False: keep the file's vertices as they are so NaN/inf are refused, not silently dropped.
