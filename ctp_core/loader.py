@@ -104,7 +104,7 @@ class MeshLoader:
                 if child is None or not child.alive():
                     child = self._spawn()
                 try:
-                    reply = child.request((payload, filename, limits, name, want_mesh), self.timeout_s)
+                    reply = child.request((payload, filename, limits, name, want_mesh, self.timeout_s), self.timeout_s)
                     break
                 except _Died as exc:
                     if not exc.unsent or attempt:
@@ -237,9 +237,9 @@ def _serve(memory_bytes: int) -> None:
 
     send((_READY,))
     while header := requests.read(_HEADER.size):
-        data, filename, limits, name, want_mesh = pickle.loads(requests.read(_HEADER.unpack(header)[0]))
+        data, filename, limits, name, want_mesh, timeout_s = pickle.loads(requests.read(_HEADER.unpack(header)[0]))
         used = resource.getrusage(resource.RUSAGE_SELF)
-        cpu = int(used.ru_utime + used.ru_stime) + 60  # the parent's wall limit is the real one
+        cpu = int(used.ru_utime + used.ru_stime + timeout_s) + 5  # the parent's wall limit comes first
         resource.setrlimit(resource.RLIMIT_CPU, (cpu, resource.RLIM_INFINITY))
         try:
             mesh = io.load_mesh(data, filename=filename, limits=limits, name=name)
