@@ -202,11 +202,11 @@ def resting_poses(mesh: trimesh.Trimesh, min_probability: float = 0.005) -> list
     extent), ``score``. The hull's centroid stands in for the centre of mass: uploads are rarely
     watertight, so the mesh's own volume is not to be trusted.
     """
-    try:
-        hull = mesh.convex_hull
-    except QhullError:  # a single face, or all vertices on one plane or line: nothing to stand on
-        return []
     with np.errstate(invalid="ignore", divide="ignore"):  # a flat hull has no centre of mass
+        try:
+            hull = mesh.convex_hull
+        except QhullError:  # a single face, or all vertices on one plane or line: nothing to stand on
+            return []
         if not hull.volume > 0:
             return []
     centre = hull.center_mass
