@@ -148,9 +148,11 @@ def run(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     from ctp_core import export, io  # the engine (torch, trimesh): seconds to import
     from ctp_core.align import align
+    from ctp_core.loader import MeshLoader
 
-    target = io.load_mesh(args.target, name="target")
-    source = io.load_mesh(args.source, name="source")
+    with MeshLoader(1) as loader:  # the same bounded loading as the service (ctp_core.loader)
+        target = loader.load(args.target, name="target")
+        source = loader.load(args.source, name="source")
     image = io.load_image(args.image) if args.image else None
     started = time.perf_counter()
     result = align(target, source, args.prompt, config, image=image,

@@ -1,7 +1,8 @@
 """``ctp serve`` (the HTTP API) and ``ctp worker`` (a queue worker).
 
 ``ctp serve`` with no ``REDIS_URL`` is the one-command service: it starts an embedded redis-server
-(``service.embedded``) and one worker process next to the API, and stops them on exit. With
+(``service.embedded``) and one worker process next to the API, restarts either when it dies
+(``service.supervisor``), and stops them on exit. With
 ``REDIS_URL`` it serves the API only and workers are started elsewhere with ``ctp worker``.
 """
 
@@ -53,6 +54,7 @@ def _serve(settings, args: argparse.Namespace) -> int:
 
     from service.app import create_app
     from service.embedded import EmbeddedRedis
+    from service.supervisor import Supervisor
 
     embedded = None
     if not settings.redis_url:
@@ -66,15 +68,20 @@ def _serve(settings, args: argparse.Namespace) -> int:
     if n_workers:
         _say_if_default_model_missing(settings.model)
     env = {**os.environ, "REDIS_URL": settings.redis_url}
-    workers = [subprocess.Popen([sys.executable, "-m", "ctp", "worker"], env=env) for _ in range(n_workers)]
+    # workers and the embedded Redis are restarted when they die (service.supervisor)
+    supervisor = Supervisor(lambda: subprocess.Popen([sys.executable, "-m", "ctp", "worker"], env=env), n_workers,
+                            embedded)
     where = f"embedded Redis in {embedded.data_dir}" if embedded else "REDIS_URL"
     print(f"ctp: serving on http://{args.host}:{args.port} ({where}, {n_workers} local worker(s))", file=sys.stderr)
     # uvicorn re-raises the SIGTERM it shut down on; make that an exception so the children are stopped.
     signal.signal(signal.SIGTERM, _exit_on_signal)
     try:
-        uvicorn.run(create_app(settings), host=args.host, port=args.port, log_level=settings.log_level.lower())
+        app = create_app(settings)
+        supervisor.start()
+        uvicorn.run(app, host=args.host, port=args.port, log_level=settings.log_level.lower(),
+                    timeout_graceful_shutdown=STOP_GRACE_S)
     finally:
-        _stop(workers)
+        _stop(supervisor.stop())
         if embedded:
             embedded.stop()
     return 0

@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import trimesh
-from scipy.spatial import cKDTree
+from scipy.spatial import QhullError, cKDTree
 
 from ctp_core import sampling
 
@@ -82,6 +82,7 @@ def identity(reason: str = "not canonicalised") -> Upright:
 def upright_rotation(mesh: trimesh.Trimesh, seed: int = 0, judge: Judge | None = None,
                      margin: float = 0.01) -> Upright:
     """Estimate the upright frame of ``mesh`` (file frame); deterministic by ``seed`` (and the judge)."""
+    mesh = _unit_size(mesh)
     axes = dominant_axes(mesh, seed)
     candidates = resting_poses(mesh)
     if judge is not None:
@@ -153,6 +154,8 @@ def dominant_axes(mesh: trimesh.Trimesh, seed: int = 0, tries: int = 200, iterat
     normals = np.asarray(mesh.face_normals, dtype=np.float64)
     weights = np.asarray(mesh.area_faces, dtype=np.float64)
     keep = (weights > 0) & (np.linalg.norm(normals, axis=1) > 0.5)
+    if not keep.any():  # every face degenerate: no direction is dominant
+        return np.eye(3)
     normals, weights = normals[keep], weights[keep] / weights[keep].sum()
     if len(weights) > _MAX_FACES:  # an area-weighted draw keeps the distribution, weights become equal
         normals = normals[rng.choice(len(weights), _MAX_FACES, p=weights)]
@@ -199,9 +202,13 @@ def resting_poses(mesh: trimesh.Trimesh, min_probability: float = 0.005) -> list
     extent), ``score``. The hull's centroid stands in for the centre of mass: uploads are rarely
     watertight, so the mesh's own volume is not to be trusted.
     """
-    hull = mesh.convex_hull
-    if hull.volume <= 0:
-        return []
+    with np.errstate(invalid="ignore", divide="ignore"):  # a flat hull has no centre of mass
+        try:
+            hull = mesh.convex_hull
+        except QhullError:  # a single face, or all vertices on one plane or line: nothing to stand on
+            return []
+        if not hull.volume > 0:
+            return []
     centre = hull.center_mass
     extent = float(mesh.extents.max())
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
@@ -286,6 +293,17 @@ def _yaw_to_axes(rotation: np.ndarray, axes: np.ndarray) -> np.ndarray:
     heading = np.arctan2(horizontal[0][2], horizontal[0][0])
     yaw = (heading + np.pi / 4) % (np.pi / 2) - np.pi / 4  # residual to the nearest of ±X/±Z
     return trimesh.transformations.rotation_matrix(yaw, _Y)[:3, :3] @ rotation
+
+
+def _unit_size(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """The geometry alone, centred and scaled to a longest side of 1 (same orientations, file frame axes).
+
+    Directions do not depend on size, but trimesh's tolerances do: the faces of a 1e-6 box have no
+    normals at its own scale.
+    """
+    extent = float(mesh.extents.max())
+    vertices = (np.asarray(mesh.vertices, dtype=np.float64) - mesh.bounds.mean(axis=0)) / extent
+    return trimesh.Trimesh(vertices, np.asarray(mesh.faces), process=False)
 
 
 def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:

@@ -93,7 +93,7 @@ class AlignConfig(_Strict):
     """Everything one run needs besides the meshes and the prompt."""
 
     preset: str = "default"
-    seed: int = Field(0, ge=0)
+    seed: int = Field(0, ge=0, le=2**32 - 1, description="random seed (numpy and torch take any value in range)")
     device: Literal["cpu", "cuda"] = "cpu"
     model: str = Field("hf:openai/clip-vit-base-patch32", description="guidance model spec (guidance.py)")
     autocast: bool = Field(True, description="fp16 on CUDA, bf16 on CPUs with native bf16 (AVX512-BF16/AMX), else fp32")

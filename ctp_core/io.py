@@ -10,9 +10,12 @@ path on disk, inside the OBJ's own folder).
 
 from __future__ import annotations
 
+import base64
+import binascii
 import io
 import json
 import posixpath
+import stat
 import struct
 import zipfile
 from collections.abc import Callable, Iterator, Mapping
@@ -39,6 +42,10 @@ class MeshLimits:
     max_bytes: int = 100 * 2**20  # the file as uploaded
     max_unzipped_bytes: int = 400 * 2**20  # all zip members read, in total (zip-bomb guard)
     max_zip_members: int = 256
+    # glTF scene graph, checked in the JSON before any geometry is built: flattening costs grow with the
+    # cube of the depth (a 25 kB chain of 500 nodes took trimesh 10 s), so a file over these is refused.
+    max_nodes: int = 10_000
+    max_depth: int = 128
 
 
 def load_mesh(data: str | Path | bytes, *, filename: str | None = None, limits: MeshLimits = MeshLimits(),
@@ -72,19 +79,14 @@ def load_mesh(data: str | Path | bytes, *, filename: str | None = None, limits: 
         if ext == ".zip":
             member, payload, assets = _open_zip(payload, limits, label)
             ext = _extension(member, label)
-        mesh = _flatten(_load_scene(payload, ext, assets, label), limits, label)
-    except MeshError:
+        mesh = _flatten(_load_scene(payload, ext, assets, limits, label), limits, label)
+    except (MeshError, MemoryError):  # out of memory is the caller's to report (ctp_core.loader)
         raise
     except Exception as exc:  # trimesh, PIL and numpy raise many kinds on corrupt input
         raise MeshError(f"{label}: could not read the mesh ({type(exc).__name__}: {exc})",
                         code="mesh_unreadable") from exc
     mesh.metadata["name"] = name or mesh.metadata.get("name")
     return mesh
-
-
-def validate_upload(data: bytes, filename: str, limits: MeshLimits) -> trimesh.Trimesh:
-    """The check the service runs before enqueueing: a full load, so the worker cannot meet a surprise."""
-    return load_mesh(data, filename=filename, limits=limits, name=filename)
 
 
 def load_image(data: str | Path | bytes, *, max_pixels: int | None = None, name: str = "image") -> np.ndarray:
@@ -218,6 +220,8 @@ def _open_zip(payload: bytes, limits: MeshLimits, label: str) -> tuple[str, byte
                             code="mesh_zip_invalid")
         if info.flag_bits & 0x1:
             raise MeshError(f"{label}: zip member {info.filename!r} is encrypted", code="mesh_zip_invalid")
+        if stat.S_ISLNK(info.external_attr >> 16):  # read in memory, it could not escape; refused all the same
+            raise MeshError(f"{label}: zip member {info.filename!r} is a symbolic link", code="mesh_zip_invalid")
     declared = sum(i.file_size for i in infos)
     if declared > limits.max_unzipped_bytes:
         raise MeshError(f"{label}: zip unpacks to {declared / 2**20:.0f} MiB, over the "
@@ -236,8 +240,10 @@ def _open_zip(payload: bytes, limits: MeshLimits, label: str) -> tuple[str, byte
     return meshes[0], assets[meshes[0]], assets.relative_to(meshes[0])
 
 
-def _gltf_json(payload: bytes, ext: str, label: str) -> dict:
-    """The JSON of a .gltf, or of a .glb's first chunk (parsed here so URIs can be vetted first)."""
+def _gltf_json(payload: bytes, ext: str, label: str) -> tuple[dict, int | None]:
+    """The JSON of a .gltf, or of a .glb's first chunk, and the length of the GLB's binary chunk (parsed
+    here so URIs and budgets can be vetted before trimesh builds anything)."""
+    binary = None
     if ext == ".gltf":
         text = payload
     else:
@@ -250,13 +256,157 @@ def _gltf_json(payload: bytes, ext: str, label: str) -> dict:
         if length > len(payload) or 20 + chunk_length > len(payload):
             raise MeshError(f"{label}: truncated GLB ({len(payload)} of {length} bytes)", code="mesh_unreadable")
         text = payload[20:20 + chunk_length]
+        at = 20 + chunk_length
+        if at + 8 <= len(payload) and payload[at + 4:at + 8] == b"BIN\0":
+            binary = min(struct.unpack_from("<I", payload, at)[0], len(payload) - at - 8)
     try:
         tree = json.loads(text)
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise MeshError(f"{label}: glTF JSON is corrupt ({exc})", code="mesh_unreadable") from exc
+    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+        raise MeshError(f"{label}: glTF JSON is corrupt ({type(exc).__name__}: {exc})", code="mesh_unreadable") from exc
     if not isinstance(tree, dict):
         raise MeshError(f"{label}: glTF JSON is not an object", code="mesh_unreadable")
-    return tree
+    return tree, binary
+
+
+_COMPONENT_BYTES = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5125: 4, 5126: 4}
+_TYPE_COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+
+
+def _gltf_budget(tree: dict, binary: int | None, assets: _Assets, limits: MeshLimits, label: str) -> None:
+    """Check a glTF's JSON against the budgets, before trimesh builds anything from it.
+
+    The node hierarchy must be a forest (one parent per node, no cycles) within ``max_nodes`` and
+    ``max_depth``; the faces of every mesh instance reachable from a scene count against ``max_faces``;
+    each accessor must fit in its buffer view, each view in its buffer, each buffer in the bytes given
+    (a ``data:`` URI must decode to exactly its ``byteLength``). Malformed JSON (wrong types) is
+    ``mesh_unreadable``, a graph over budget ``mesh_too_complex``, too many faces ``mesh_too_large``.
+    """
+
+    def bad(what: str) -> MeshError:
+        return MeshError(f"{label}: invalid glTF: {what}", code="mesh_unreadable")
+
+    def items(key: str) -> list[dict]:
+        value = tree.get(key, [])
+        if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
+            raise bad(f"{key} is not a list of objects")
+        return value
+
+    def index(value, size: int, what: str) -> int:
+        if type(value) is not int or not 0 <= value < size:
+            raise bad(f"{what} {value!r} is out of range")
+        return value
+
+    def natural(item: dict, key: str, what: str, default: int | None = None) -> int:
+        value = item.get(key, default)
+        if type(value) is not int or value < 0:
+            raise bad(f"{what}.{key} must be a non-negative integer")
+        return value
+
+    buffers, views, accessors = items("buffers"), items("bufferViews"), items("accessors")
+    nodes, meshes, scenes = items("nodes"), items("meshes"), items("scenes")
+    sizes = []
+    for i, buffer in enumerate(buffers):
+        declared = natural(buffer, "byteLength", f"buffers[{i}]")
+        uri = buffer.get("uri")
+        if uri is None:
+            if i != 0 or binary is None or declared > binary:
+                raise bad(f"buffers[{i}] declares {declared} bytes that the file does not hold")
+        elif isinstance(uri, str) and uri.startswith("data:"):
+            decoded = _data_uri_size(uri, label)
+            if decoded != declared:
+                raise bad(f"buffers[{i}] declares byteLength {declared} but its data: URI holds {decoded} bytes")
+        elif isinstance(uri, str) and len(assets[uri]) < declared:  # a member of the same zip
+            raise bad(f"buffers[{i}] declares {declared} bytes, {uri!r} holds {len(assets[uri])}")
+        sizes.append(declared)
+    for i, view in enumerate(views):
+        buffer = index(view.get("buffer"), len(buffers), f"bufferViews[{i}].buffer")
+        end = natural(view, "byteOffset", f"bufferViews[{i}]", 0) + natural(view, "byteLength", f"bufferViews[{i}]")
+        if end > sizes[buffer]:
+            raise bad(f"bufferViews[{i}] ends at byte {end}, past its buffer ({sizes[buffer]} bytes)")
+    for i, accessor in enumerate(accessors):
+        count = natural(accessor, "count", f"accessors[{i}]")
+        width = _COMPONENT_BYTES.get(accessor.get("componentType"), 0) * _TYPE_COMPONENTS.get(accessor.get("type"), 0)
+        if not width:
+            raise bad(f"accessors[{i}] has an unknown componentType or type")
+        if "bufferView" not in accessor:
+            if count > 3 * limits.max_faces:
+                raise bad(f"accessors[{i}] has {count} elements and no data")
+            continue
+        view = views[index(accessor["bufferView"], len(views), f"accessors[{i}].bufferView")]
+        stride = natural(view, "byteStride", f"bufferViews[{accessor['bufferView']}]", width) or width
+        end = natural(accessor, "byteOffset", f"accessors[{i}]", 0) + (stride * (count - 1) + width if count else 0)
+        if end > view["byteLength"]:
+            raise bad(f"accessors[{i}] needs {end} bytes, its buffer view has {view['byteLength']}")
+
+    if len(nodes) > limits.max_nodes:
+        raise MeshError(f"{label}: {len(nodes):,} scene nodes, over the limit of {limits.max_nodes:,}",
+                        code="mesh_too_complex")
+    parent: dict[int, int] = {}
+    for i, node in enumerate(nodes):
+        children = node.get("children", [])
+        if not isinstance(children, list):
+            raise bad(f"nodes[{i}].children is not a list")
+        for child in children:
+            if index(child, len(nodes), f"nodes[{i}].children") in parent or child == i:
+                raise bad(f"node {child} has several parents (the scene graph must be a tree)")
+            parent[child] = i
+    depths = [0] * len(nodes)  # 1 for a root; found by walking up, each node once
+    for start in range(len(nodes)):
+        chain, at = [], start
+        while not depths[at]:
+            chain.append(at)
+            if len(chain) > limits.max_depth:  # a cycle never reaches a root, so it ends here too
+                raise MeshError(f"{label}: the scene graph is over {limits.max_depth} nodes deep",
+                                code="mesh_too_complex")
+            if at not in parent:
+                break
+            at = parent[at]
+        depth = depths[at] if depths[at] else 0
+        for node in reversed(chain):
+            depth += 1
+            if depth > limits.max_depth:
+                raise MeshError(f"{label}: the scene graph is over {limits.max_depth} nodes deep",
+                                code="mesh_too_complex")
+            depths[node] = depth
+    for s, scene in enumerate(scenes):
+        roots = scene.get("nodes", [])
+        if not isinstance(roots, list) or any(index(r, len(nodes), f"scenes[{s}].nodes") in parent for r in roots):
+            raise bad(f"scenes[{s}].nodes must list nodes without a parent")
+    faces = [_mesh_faces(mesh, accessors, bad) for mesh in meshes]
+    # a forest: every node is at most one instance of its mesh
+    instanced = sum(faces[index(n["mesh"], len(meshes), "node mesh")] for n in nodes if "mesh" in n) or sum(faces)
+    if instanced > limits.max_faces:
+        raise MeshError(f"{label}: {instanced:,} faces with instances counted, over the limit of "
+                        f"{limits.max_faces:,}; decimate it first", code="mesh_too_large")
+
+
+def _mesh_faces(mesh: dict, accessors: list[dict], bad) -> int:
+    """Triangles of one glTF mesh as its accessors declare them (points and lines count none)."""
+    primitives = mesh.get("primitives", [])
+    if not isinstance(primitives, list) or not all(isinstance(p, dict) for p in primitives):
+        raise bad("mesh primitives are not a list of objects")
+    total = 0
+    for primitive in primitives:
+        attributes = primitive.get("attributes", {})
+        which = primitive.get("indices", attributes.get("POSITION") if isinstance(attributes, dict) else None)
+        if which is None:
+            continue
+        if type(which) is not int or not 0 <= which < len(accessors):
+            raise bad(f"primitive accessor {which!r} is out of range")
+        count, mode = accessors[which]["count"], primitive.get("mode", 4)
+        total += count // 3 if mode == 4 else max(count - 2, 0) if mode in (5, 6) else 0
+    return total
+
+
+def _data_uri_size(uri: str, label: str) -> int:
+    """Decoded size of a base64 ``data:`` URI (what trimesh will decode)."""
+    header, _, body = uri.partition(",")
+    if not header.endswith(";base64"):
+        return len(unquote(body).encode("latin-1", "replace"))
+    try:
+        return len(base64.b64decode(body, validate=False))
+    except (binascii.Error, ValueError) as exc:
+        raise MeshError(f"{label}: invalid glTF: a data: URI is not base64 ({exc})", code="mesh_unreadable") from exc
 
 
 def _uris(node) -> Iterator[str]:
@@ -271,12 +421,14 @@ def _uris(node) -> Iterator[str]:
             yield from _uris(value)
 
 
-def _load_scene(payload: bytes, ext: str, assets: _Assets, label: str) -> trimesh.Scene:
+def _load_scene(payload: bytes, ext: str, assets: _Assets, limits: MeshLimits, label: str) -> trimesh.Scene:
     if ext in (".glb", ".gltf"):
-        for uri in _uris(_gltf_json(payload, ext, label)):
+        tree, binary = _gltf_json(payload, ext, label)
+        for uri in _uris(tree):
             if not uri.startswith("data:") and uri not in assets:
                 raise MeshError(f"{label}: glTF references an external file or URL ({uri[:80]!r}); "
                                 "upload a self-contained .glb", code="mesh_external_reference")
+        _gltf_budget(tree, binary, assets, limits, label)
     if ext == ".obj" and not payload.strip():
         raise MeshError(f"{label}: the file is empty", code="mesh_empty")
     # process=False: keep the file's vertices as they are so NaN/inf are refused, not silently dropped.
@@ -288,8 +440,10 @@ def _flatten(scene: trimesh.Scene, limits: MeshLimits, label: str) -> trimesh.Tr
     others = [k for k, g in scene.geometry.items() if not isinstance(g, trimesh.Trimesh)]
     if others:
         scene.delete_geometry(others)
-    instances = [(scene.graph[node][0], scene.geometry[scene.graph[node][1]]) for node in scene.graph.nodes_geometry
-                 if scene.graph[node][1] in scene.geometry]
+    world = _world_matrices(scene.graph)
+    instances = [(world(node), scene.geometry[scene.graph.transforms.node_data[node]["geometry"]])
+                 for node in scene.graph.nodes_geometry
+                 if scene.graph.transforms.node_data[node]["geometry"] in scene.geometry]
     faces = sum(len(g.faces) for _, g in instances)
     if faces == 0:
         raise MeshError(f"{label}: no triangles in the file", code="mesh_empty")
@@ -301,13 +455,37 @@ def _flatten(scene: trimesh.Scene, limits: MeshLimits, label: str) -> trimesh.Tr
             raise MeshError(f"{label}: vertices or transforms contain NaN or infinity", code="mesh_invalid_values")
     for geometry in scene.geometry.values():
         _bake_base_colour_factor(geometry)
-    mesh = scene.to_geometry()
+    mesh = trimesh.util.concatenate([geometry.copy().apply_transform(matrix) for matrix, geometry in instances])
     if not np.isfinite(mesh.vertices).all():
         raise MeshError(f"{label}: vertices overflow once node transforms are applied", code="mesh_invalid_values")
     mesh.merge_vertices()  # what trimesh's default processing does: shared vertices where UVs agree
     if not mesh.area > 0 or not mesh.extents.max() > 0:
         raise MeshError(f"{label}: the mesh has no surface area", code="mesh_empty")
     return mesh
+
+
+def _world_matrices(graph: trimesh.scene.transforms.SceneGraph) -> Callable[[str], np.ndarray]:
+    """A node's 4x4 from the scene's base frame, composed once per node down the tree.
+
+    trimesh's own lookup (``graph[node]``) orders each node's chain with numpy's ``multi_dot``, whose
+    chain-order search is cubic in the depth: 60 s for a 2000-node chain a client can send in 100 kB.
+    """
+    forest = graph.transforms
+    world = {graph.base_frame: np.eye(4)}
+
+    def of(node: str) -> np.ndarray:
+        chain = []
+        while node not in world:
+            chain.append(node)
+            node = forest.parents[node]
+        matrix = world[node]
+        for child in reversed(chain):
+            edge = forest.edge_data[(forest.parents[child], child)]
+            matrix = matrix @ edge["matrix"] if "matrix" in edge else matrix
+            world[child] = matrix
+        return matrix
+
+    return of
 
 
 def _bake_base_colour_factor(mesh: trimesh.Trimesh) -> None:

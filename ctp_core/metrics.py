@@ -22,6 +22,8 @@ import torch
 import trimesh
 from scipy.spatial import cKDTree
 
+from ctp_core import proximity
+
 SUCCESS_ADDS = 0.1  # ADD-S (relative to the source diagonal) at or below which a pose counts as found
 
 # Fixed ray directions for the winding-number estimate: a Fibonacci sphere, turned off the axes so no
@@ -123,14 +125,14 @@ def contact_distance(target: trimesh.Trimesh, source: trimesh.Trimesh, samples: 
     """Closest distance between the two surfaces relative to the target's longest AABB side (0 = touching).
 
     Estimated from ``samples`` surface points of each mesh against the exact closest point on the
-    other, in both directions, so thin features of either object are not missed. Interpenetrating
+    other (``proximity``: bounded memory), in both directions, so thin features of either object are
+    not missed. Interpenetrating
     surfaces give (nearly) 0: this measures attachment, ``intersection_over_union`` measures overlap.
     """
     source_points = trimesh.sample.sample_surface(source, samples, seed=seed)[0]
     target_points = trimesh.sample.sample_surface(target, samples, seed=seed + 1)[0]
-    d_source = trimesh.proximity.closest_point(target, source_points)[1]
-    d_target = trimesh.proximity.closest_point(source, target_points)[1]
-    return float(min(d_source.min(), d_target.min()) / target.extents.max())
+    nearest = min(proximity.min_distance(target, source_points), proximity.min_distance(source, target_points))
+    return float(nearest / target.extents.max())
 
 
 def _similarity_parts(m: np.ndarray) -> tuple[float, np.ndarray]:

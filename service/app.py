@@ -22,16 +22,16 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.middleware.cors import CORSMiddleware
 
 from ctp_core.errors import ConfigError
+from ctp_core.io import MeshLimits
 from service import logs
 from service.deps import digest
 from service.errors import BodyLimit, install_handlers
-from service.forms import PROMPT_MAX
+from service.forms import NAME_MAX, OPTIONS_DEPTH, OPTIONS_MAX, PROMPT_MAX
 from service.jobs import Jobs
 from service.routers import health, page
 from service.routers import jobs as jobs_router
 from service.schemas import AlignOptions
 from service.settings import Settings
-from service.storage import open_storage
 
 log = logging.getLogger("ctp.service")
 
@@ -51,20 +51,33 @@ records and results expire after the configured TTL (`CTP_JOB_TTL_S`). A web pag
 **Errors.** Every error answer is `{{"error": {{"code", "message", "field"}}}}`; `code` is stable:
 
 - 400: `invalid_request` (not multipart, malformed form), `missing_field`, `invalid_field` (a file where
-  text belongs or the reverse), `unknown_field`, `invalid_options` (options is not a JSON object)
+  text belongs or the reverse, text that is not UTF-8), `unknown_field`, `invalid_options` (options is
+  not a JSON object, is over {OPTIONS_MAX} characters or {OPTIONS_DEPTH} levels deep, or holds an integer
+  beyond 64 bits, NaN or infinity)
 - 401: `unauthorized`
 - 404: `job_not_found`, `not_found`
 - 409: `job_not_ready` (result of a job that has not succeeded), `job_finished` (cancel of an ended job)
-- 413: `request_too_large`, `mesh_file_too_large`, `mesh_too_large` (faces), `image_too_large`
+- 413: `request_too_large`, `mesh_file_too_large`, `mesh_too_large` (faces, glTF instances counted),
+  `mesh_too_complex` (a glTF scene graph over {MeshLimits.max_nodes:,} nodes or {MeshLimits.max_depth}
+  deep by default, or a mesh whose loading ran past its wall time (`CTP_LOAD_TIMEOUT_S`) or memory
+  (`CTP_LOAD_MEMORY_MB`)), `image_too_large`
 - 415: `mesh_unknown_format` (extension not .glb, .gltf, .obj, .zip (OBJ+MTL), .ply or .stl)
-- 422: `invalid_prompt` (1 to {PROMPT_MAX} characters), `invalid_option`, `unknown_option`, `invalid_name`,
-  `mesh_empty`, `mesh_unreadable`, `mesh_invalid_values` (NaN/inf), `mesh_external_reference` (glTF
-  URIs), `mesh_zip_invalid`, `invalid_image`
+- 422: `invalid_prompt` (1 to {PROMPT_MAX} characters, no control characters but tab, newline and carriage
+  return), `invalid_option` (includes an integer option out of its range), `unknown_option`,
+  `invalid_name` (1 to {NAME_MAX} characters, no control characters; also a file name with control
+  characters), `mesh_empty`, `mesh_unreadable` (corrupt, or a glTF whose accessors, buffer views or
+  buffers disagree, including a `data:` buffer whose `byteLength` is not its decoded size),
+  `mesh_invalid_values` (NaN/inf), `mesh_external_reference` (glTF URIs), `mesh_zip_invalid` (bombs,
+  paths out of the archive, encrypted or symbolic-link members, not exactly one mesh), `invalid_image`
 - 429: `too_many_jobs` (queued plus running jobs per key, `CTP_MAX_ACTIVE_JOBS`)
 - 503: `redis_unavailable`; `no_worker` (no worker is alive); `model_unavailable` (no live worker can run
-  the job's model, e.g. its weights are not on the workers and downloads are off; the message says why).
+  the job's model, e.g. its weights are not on the workers and downloads are off; the message says why);
+  `loader_unavailable` (shutting down, or every loading process busy).
   `POST /align` answers these up front instead of accepting a job that would fail; a job with
   `lambda_clip` 0 (geometry only) needs no model. `GET /readyz` gives the same codes for the default model.
+
+Uploads are loaded, before anything is queued, in separate loading processes with a wall-time and a
+memory limit, so no upload can stall or exhaust the API.
 
 Failed jobs carry an error too: an engine code (`canceled`, `model_unavailable` (the model failed to load
 after the job was accepted), `invalid_option`, a mesh code, ...), `job_timeout` (`CTP_JOB_TIMEOUT_S`),
@@ -78,10 +91,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     logs.configure(settings.log_level)
     if not settings.redis_url:
         raise ConfigError("REDIS_URL is not set; `ctp serve` starts an embedded Redis", field="REDIS_URL")
-    client = redis.Redis.from_url(settings.redis_url, health_check_interval=30)
-    jobs = Jobs(client, open_storage(client, settings.queue, settings.job_ttl_s, settings.storage_dir),
-                prefix=settings.queue, ttl_s=settings.job_ttl_s, job_timeout_s=settings.job_timeout_s,
-                lease_s=settings.lease_s)
+    jobs = Jobs.from_settings(settings)
+    loader = settings.mesh_loader()
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -91,13 +102,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             yield
         finally:
             reaper.cancel()
+            loader.close()
             await app.state.aredis.aclose()
-            client.close()
+            jobs.redis.close()
 
     # The docs pages are the page router's, on vendored assets (FastAPI's default loads them from a CDN).
     app = FastAPI(title="ctp", version="0.1.0", description=DESCRIPTION, lifespan=lifespan,
                   docs_url=None, redoc_url=None)
-    app.state.settings, app.state.jobs = settings, jobs
+    app.state.settings, app.state.jobs, app.state.loader = settings, jobs, loader
     app.state.key_digests = [digest(k) for k in settings.api_keys]
     if settings.cors_origins:
         app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins, allow_methods=["GET", "POST",

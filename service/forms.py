@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import json
 import logging
+import math
+import re
 import time
 from pathlib import PurePath
 from typing import Any
@@ -16,17 +18,25 @@ from fastapi import Request
 from starlette.datastructures import UploadFile
 
 from ctp_core.errors import CtpError, ImageError, MeshError
-from ctp_core.io import load_image, validate_upload
+from ctp_core.io import MeshLimits, load_image
+from ctp_core.loader import LoaderUnavailable, MeshLoader
 from service.errors import ApiError
 
 log = logging.getLogger("ctp.service")
 
 PROMPT_MAX = 500
 NAME_MAX = 100
+OPTIONS_MAX = 16 * 1024  # characters of the options JSON
+OPTIONS_DEPTH = 8  # nesting of the options JSON (AlignOptions is flat)
+INT_MAX = 2**63 - 1  # JSON integers must fit in 64 bits
+# C0 control characters; a prompt may hold tab, newline and carriage return, a name none of them.
+_PROMPT_CONTROL = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
+_NAME_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
 FORM_FIELDS = {"target", "source", "prompt", "image", "options", "target_name", "source_name"}
 
 # MeshError codes that are not 422.
-_MESH_STATUS = {"mesh_file_too_large": 413, "mesh_too_large": 413, "mesh_unknown_format": 415}
+_MESH_STATUS = {"mesh_file_too_large": 413, "mesh_too_large": 413, "mesh_too_complex": 413,
+                "mesh_unknown_format": 415}
 
 
 def _file_field(description: str) -> dict[str, Any]:
@@ -78,6 +88,11 @@ def text(form, name: str) -> str | None:
     value = form.get(name)
     if isinstance(value, UploadFile):
         raise ApiError(400, "invalid_field", f"{name} must be a text field, not a file", field=name)
+    if value is not None:
+        try:
+            value.encode("utf-8")
+        except UnicodeEncodeError:  # lone surrogates: the body was not UTF-8
+            raise ApiError(400, "invalid_field", f"{name} is not valid UTF-8 text", field=name) from None
     return value
 
 
@@ -97,6 +112,9 @@ def prompt_and_image(form) -> tuple[str | None, UploadFile | None]:
         raise ApiError(400, "missing_field", "give a prompt (or an image for image-guided alignment)", field="prompt")
     if prompt is not None and not 1 <= len(prompt.strip()) <= PROMPT_MAX:
         raise ApiError(422, "invalid_prompt", f"the prompt must have 1 to {PROMPT_MAX} characters", field="prompt")
+    if prompt is not None and _PROMPT_CONTROL.search(prompt):
+        raise ApiError(422, "invalid_prompt", "the prompt holds control characters (only tab, newline and "
+                       "carriage return are allowed)", field="prompt")
     return (prompt.strip() if prompt is not None else None), image
 
 
@@ -104,23 +122,73 @@ def options(form) -> dict[str, Any]:
     raw = text(form, "options")
     if raw is None or not raw.strip():
         return {}
+    if len(raw) > OPTIONS_MAX:
+        raise ApiError(400, "invalid_options", f"options is over {OPTIONS_MAX} characters", field="options")
+    if _depth(raw) > OPTIONS_DEPTH:
+        raise ApiError(400, "invalid_options", f"options nests deeper than {OPTIONS_DEPTH} levels", field="options")
     try:
-        parsed = json.loads(raw)
-    except json.JSONDecodeError as exc:
-        raise ApiError(400, "invalid_options", f"options is not JSON: {exc}", field="options") from None
+        parsed = json.loads(raw, parse_int=_int64, parse_float=_finite, parse_constant=_no_constant)
+    except ValueError as exc:  # JSONDecodeError, and the hooks' refusals
+        raise ApiError(400, "invalid_options", f"options is not valid JSON: {exc}", field="options") from None
     if not isinstance(parsed, dict):
         raise ApiError(400, "invalid_options", "options must be a JSON object", field="options")
     return parsed
 
 
+def _depth(raw: str) -> int:
+    """Deepest bracket nesting, strings skipped: checked before parsing, so no parser recursion is deep."""
+    depth = deepest = 0
+    in_string = escaped = False
+    for char in raw:
+        if in_string:
+            escaped, in_string = (False, True) if escaped else (char == "\\", char != '"')
+        elif char == '"':
+            in_string = True
+        elif char in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif char in "]}":
+            depth -= 1
+    return deepest
+
+
+def _int64(literal: str) -> int:
+    if len(literal) > 20 or abs(value := int(literal)) > INT_MAX:
+        raise ValueError(f"integer {literal[:24]}... does not fit in 64 bits" if len(literal) > 24
+                         else f"integer {literal} does not fit in 64 bits")
+    return value
+
+
+def _finite(literal: str) -> float:
+    value = float(literal)
+    if not math.isfinite(value):
+        raise ValueError(f"number {literal[:24]} is out of range")
+    return value
+
+
+def _no_constant(literal: str):
+    raise ValueError(f"{literal} is not a JSON number")
+
+
 def object_name(form, role: str, filename: str) -> str:
     name = text(form, f"{role}_name")
     if name is None:
-        return PurePath(filename).stem.replace("_", " ").replace("-", " ").strip() or role
+        return PurePath(filename).stem.replace("_", " ").replace("-", " ").strip()[:NAME_MAX] or role
     if not 1 <= len(name.strip()) <= NAME_MAX:
         raise ApiError(422, "invalid_name", f"{role}_name must have 1 to {NAME_MAX} characters",
                        field=f"{role}_name")
+    if _NAME_CONTROL.search(name):
+        raise ApiError(422, "invalid_name", f"{role}_name holds control characters", field=f"{role}_name")
     return name.strip()
+
+
+def file_name(upload: UploadFile, role: str) -> str:
+    """The upload's base name (its extension names the format); control characters are refused."""
+    name = PurePath(upload.filename or role).name
+    if _NAME_CONTROL.search(name) or len(name) > 255:
+        raise ApiError(422, "invalid_name", f"the {role} file name holds control characters or is over 255 "
+                       "characters", field=role)
+    return name
 
 
 async def read_limited(upload: UploadFile, max_bytes: int, field: str, code: str) -> bytes:
@@ -129,11 +197,14 @@ async def read_limited(upload: UploadFile, max_bytes: int, field: str, code: str
     return await upload.read()
 
 
-def check_mesh(data: bytes, filename: str, limits, role: str) -> None:
-    """Parse exactly as the worker will, so a queued job never fails on its input."""
+def check_mesh(loader: MeshLoader, data: bytes, filename: str, limits: MeshLimits, role: str) -> None:
+    """Parse exactly as the worker will (in a loading process, bounded), so a queued job never fails on
+    its input."""
     started = time.perf_counter()
     try:
-        validate_upload(data, filename, limits)
+        loader.check(data, filename, limits)
+    except LoaderUnavailable as exc:
+        raise ApiError(503, exc.code, exc.message, field=role) from None
     except MeshError as exc:
         raise ApiError(_MESH_STATUS.get(exc.code, 422), exc.code, exc.message, field=role) from None
     except CtpError as exc:

@@ -23,7 +23,7 @@ import logging
 import uuid
 from collections.abc import Callable
 from datetime import UTC, datetime
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import BaseModel, Field
 from redis import Redis, WatchError
@@ -32,7 +32,10 @@ from rq.exceptions import InvalidJobOperation, NoSuchJobError
 from rq.job import Job as RqJob
 from rq.serializers import JSONSerializer
 
-from service.storage import Storage
+from service.storage import Storage, open_storage
+
+if TYPE_CHECKING:
+    from service.settings import Settings
 
 log = logging.getLogger("ctp.service")
 
@@ -126,6 +129,14 @@ class Jobs:
         self.redis, self.storage, self.prefix = redis, storage, prefix
         self.ttl_s, self.job_timeout_s, self.lease_s = ttl_s, job_timeout_s, lease_s
         self.queue = Queue(prefix, connection=redis, serializer=JSONSerializer)
+
+    @classmethod
+    def from_settings(cls, settings: Settings) -> Jobs:
+        """The job store of a deployment, as the API and every worker reach it (``settings.redis_url``)."""
+        client = Redis.from_url(settings.redis_url, health_check_interval=30)
+        return cls(client, open_storage(client, settings.queue, settings.job_ttl_s, settings.storage_dir),
+                   prefix=settings.queue, ttl_s=settings.job_ttl_s, job_timeout_s=settings.job_timeout_s,
+                   lease_s=settings.lease_s)
 
     # -- keys ---------------------------------------------------------------------------------------
     def record_key(self, job_id: str) -> str:

@@ -14,6 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model
 
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
+from ctp_core.priors import PROVIDERS
 from service.jobs import JobError, JobRecord, Progress, Status
 
 # option -> where it lives in AlignConfig.
@@ -77,6 +78,9 @@ def build_config(options: dict[str, Any], *, default_model: str, allowed_models:
                               code="unknown_option", field=f"options.{name}") from None
         raise ConfigError(f"{name}: {err['msg']}", field=f"options.{name}") from None
     given = parsed.model_dump(exclude_none=True)
+    if given.get("hparams_provider", PROVIDERS[0]) not in PROVIDERS:
+        raise ConfigError(f"unknown hparams provider {given['hparams_provider']!r}; choose one of "
+                          f"{', '.join(PROVIDERS)}", field="options.hparams_provider")
     model = given.get("model", default_model)
     if model not in allowed_models:
         raise ConfigError(f"model {model!r} is not served here; choose one of {', '.join(allowed_models)}",

@@ -14,6 +14,7 @@ from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 from ctp_core.config import Runtime
 from ctp_core.io import MeshLimits
+from ctp_core.loader import MeshLoader
 
 MiB = 1024 * 1024
 DEFAULT_MODEL = "hf:openai/clip-vit-base-patch32"
@@ -43,6 +44,12 @@ class Settings(BaseSettings):
     max_image_pixels: int = Field(4096 * 4096, ge=1, description="reference image width times height")
     max_unzipped_bytes: int = Field(200 * MiB, ge=1, description="all members of an OBJ zip, unpacked (zip bombs)")
     max_faces: int = Field(500_000, ge=1, description="faces of one mesh after loading")
+    max_nodes: int = Field(10_000, ge=1, description="nodes of a glTF scene graph")
+    max_depth: int = Field(128, ge=1, description="depth of a glTF scene graph")
+    load_timeout_s: float = Field(20.0, gt=0, description="wall time to load one mesh (in a loading process, "
+                                  "killed past it)")
+    load_memory_mb: int = Field(3072, ge=512, description="address-space limit of each loading process (MiB)")
+    load_processes: int = Field(2, ge=1, description="loading processes of the API (a worker has one)")
     max_active_jobs: int = Field(4, ge=1, description="queued plus running jobs per API key")
     job_timeout_s: int = Field(3600, ge=1, description="a running job is failed after this long")
     job_ttl_s: int = Field(24 * 3600, ge=60, description="job records, uploads and results expire after this")
@@ -78,7 +85,13 @@ class Settings(BaseSettings):
     @property
     def mesh_limits(self) -> MeshLimits:
         return MeshLimits(max_bytes=self.max_upload_bytes, max_faces=self.max_faces,
-                          max_unzipped_bytes=self.max_unzipped_bytes)
+                          max_unzipped_bytes=self.max_unzipped_bytes, max_nodes=self.max_nodes,
+                          max_depth=self.max_depth)
+
+    def mesh_loader(self, processes: int | None = None) -> MeshLoader:
+        """The bounded loader (``ctp_core.loader``) under these limits; the caller closes it."""
+        return MeshLoader(processes or self.load_processes, timeout_s=self.load_timeout_s,
+                          memory_bytes=self.load_memory_mb * MiB)
 
     @property
     def allowed_models(self) -> list[str]:

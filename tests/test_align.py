@@ -148,3 +148,27 @@ def test_align_with_the_upright_judge(meshes):
     upright = result.extra["target_upright"]
     assert upright["reason"].startswith("judged")
     assert np.allclose(np.array(upright["rotation"]) @ np.array(upright["rotation"]).T, np.eye(3), atol=1e-9)
+
+
+_TRIANGLE = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], process=False)
+_SQUARE = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [1, 0, 1], [0, 0, 1]], [[0, 1, 2], [0, 2, 3]], process=False)
+DEGENERATE = {  # (target, source): no volume, no hull (qhull needs 4 points off one plane), or sub-tolerance
+    "single-triangle source": (trimesh.creation.box(), _TRIANGLE),
+    "single-triangle target": (_TRIANGLE, trimesh.creation.box()),
+    "planar pair": (_SQUARE, _TRIANGLE),
+    "micrometre pair": (trimesh.creation.box(extents=(1e-6, 1e-6, 1e-6)),
+                        trimesh.creation.icosphere(subdivisions=1, radius=3e-7)),
+}
+
+
+@pytest.mark.parametrize("case", list(DEGENERATE))
+def test_degenerate_meshes_align(case):
+    """Valid but unusual inputs succeed: canonicalisation, resting poses and hulls fall back."""
+    target, source = DEGENERATE[case]
+    result = align(target, source, "a thing on a thing", AlignConfig.from_preset("test", model="random:tiny"))
+    matrix = result.source_to_target
+    assert np.isfinite(result.objective) and np.isfinite(matrix).all()
+    # posed at the target's scale: the source lands within a few target sizes of it
+    distance = np.linalg.norm(matrix[:3, :3] @ source.bounds.mean(0) + matrix[:3, 3]
+                              - target.bounds.mean(0))
+    assert distance < 10 * target.extents.max()

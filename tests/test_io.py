@@ -12,7 +12,7 @@ import trimesh
 from PIL import Image
 
 from ctp_core.errors import ImageError, MeshError
-from ctp_core.io import MeshLimits, load_image, load_mesh, validate_upload
+from ctp_core.io import MeshLimits, load_image, load_mesh
 from ctp_core.structures import MeshArrays
 
 
@@ -129,7 +129,7 @@ def test_stl_from_a_path(tmp_path):
     path.write_bytes(trimesh.creation.cylinder(radius=1, height=3, sections=12).export(file_type="stl"))
     mesh = load_mesh(path)
     assert np.allclose(mesh.extents, [2, 2, 3], atol=1e-6)
-    assert validate_upload(path.read_bytes(), "part.stl", MeshLimits()).faces.shape == mesh.faces.shape
+    assert load_mesh(path.read_bytes(), filename="part.stl").faces.shape == mesh.faces.shape
 
 
 # --- refusals -------------------------------------------------------------------------------------
@@ -261,3 +261,54 @@ def test_load_image_refusals_have_one_clear_message(tmp_path):
     assert big.value.code == "image_too_large" and "100 x 100" in big.value.message
     with pytest.raises(ImageError, match="no such file: .*nope.png"):
         load_image(tmp_path / "nope.png")
+
+
+# --- glTF budgets, read from the JSON before any geometry is built ----------------------------------
+
+_TRIANGLE = np.array([0, 0, 0, 1, 0, 0, 0, 1, 0], "<f4").tobytes()
+
+
+def _gltf(**change) -> bytes:
+    """A one-triangle .gltf with an embedded buffer; ``change`` replaces top-level entries."""
+    import base64
+
+    tree = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+            "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+            "buffers": [{"uri": "data:application/octet-stream;base64," + base64.b64encode(_TRIANGLE).decode(),
+                         "byteLength": 36}],
+            "bufferViews": [{"buffer": 0, "byteLength": 36}],
+            "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                           "min": [0, 0, 0], "max": [1, 1, 0]}]}
+    tree.update(change)
+    return json.dumps(tree).encode()
+
+
+def test_gltf_budgets_and_consistency():
+    assert load_mesh(_gltf(), filename="t.gltf").faces.shape == (1, 3)
+    chain = [{"children": [i + 1]} for i in range(200)] + [{"mesh": 0}]
+    assert _code(_gltf(nodes=chain), "t.gltf") == "mesh_too_complex"  # 201 deep, over 128
+    assert load_mesh(_gltf(nodes=chain), filename="t.gltf", limits=MeshLimits(max_depth=300)).faces.shape == (1, 3)
+    assert _code(_gltf(nodes=chain), "t.gltf", limits=MeshLimits(max_nodes=100, max_depth=300)) == "mesh_too_complex"
+    cycle = [{"children": [1]}, {"children": [0], "mesh": 0}]
+    assert _code(_gltf(nodes=cycle, scenes=[{"nodes": []}]), "t.gltf") == "mesh_too_complex"  # endless depth
+    two_parents = [{"children": [2]}, {"children": [2]}, {"mesh": 0}]
+    assert _code(_gltf(nodes=two_parents, scenes=[{"nodes": [0, 1]}]), "t.gltf") == "mesh_unreadable"
+    fan = [{"children": list(range(1, 1001))}] + [{"mesh": 0}] * 1000  # 1000 instances of one triangle
+    assert _code(_gltf(nodes=fan), "t.gltf", limits=MeshLimits(max_faces=999)) == "mesh_too_large"
+    accessor = {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3"}  # 48 bytes of a 36-byte view
+    assert _code(_gltf(accessors=[accessor]), "t.gltf") == "mesh_unreadable"
+    assert _code(_gltf(bufferViews=[{"buffer": 0, "byteOffset": 4, "byteLength": 36}]), "t.gltf") == "mesh_unreadable"
+    short = [{"uri": "data:application/octet-stream;base64,AAAA", "byteLength": 36}]
+    assert _code(_gltf(buffers=short), "t.gltf") == "mesh_unreadable"
+    assert _code(_gltf(nodes="many"), "t.gltf") == "mesh_unreadable"
+    assert _code(b"[" * 100_000 + b"]" * 100_000, "t.gltf") == "mesh_unreadable"  # no RecursionError escapes
+
+
+def test_zip_symlink_member_is_refused():
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w") as archive:
+        archive.writestr("m.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+        link = zipfile.ZipInfo("texture.png")
+        link.external_attr = 0o120777 << 16
+        archive.writestr(link, "/etc/passwd")
+    assert _code(out.getvalue(), "m.zip") == "mesh_zip_invalid"

@@ -63,6 +63,33 @@ def obj_zip_bomb(unpacked_bytes: int) -> bytes:
     return out.getvalue()
 
 
+def obj_zip_with_symlink() -> bytes:
+    """An OBJ zip whose MTL member is a symbolic link (to a path outside the archive)."""
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w") as z:
+        z.writestr("model.obj", b"mtllib model.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+        link = zipfile.ZipInfo("model.mtl")
+        link.external_attr = (0o120777 << 16)  # S_IFLNK
+        z.writestr(link, "/etc/passwd")
+    return out.getvalue()
+
+
+def deep_chain_glb(depth: int) -> bytes:
+    """One triangle under a chain of ``depth`` nodes: 25 kB at 500 nodes once took trimesh 10 s to flatten."""
+    triangle = struct.pack("<9f", 0, 0, 0, 1, 0, 0, 0, 1, 0)
+    nodes = [{"children": [i + 1], "translation": [0.001, 0, 0]} for i in range(depth - 1)] + [{"mesh": 0}]
+    tree = json.dumps({
+        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": nodes,
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}], "buffers": [{"byteLength": 36}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                       "min": [0, 0, 0], "max": [1, 1, 0]}],
+    }).encode()
+    tree += b" " * (-len(tree) % 4)
+    body = struct.pack("<I4s", len(tree), b"JSON") + tree + struct.pack("<I4s", 36, b"BIN\0") + triangle
+    return struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body
+
+
 BOX = glb(trimesh.creation.box())
 BALL = glb(trimesh.creation.icosphere(subdivisions=2, radius=0.3))
 
@@ -70,7 +97,7 @@ BALL = glb(trimesh.creation.icosphere(subdivisions=2, radius=0.3))
 def submit(api: Api, target=("box.glb", BOX), source=("ball.glb", BALL), prompt="a ball on top of a box",
            options=FAST, headers=None, **extra):
     files = {"target": target, "source": source}
-    data = {"options": json.dumps(options), **extra}
+    data = {"options": options if isinstance(options, str) else json.dumps(options), **extra}
     if prompt is not None:
         data["prompt"] = prompt
     return api.client.post("/align", files=files, data=data, headers=headers)
@@ -118,6 +145,12 @@ BAD_INPUTS = {
                           "mesh_external_reference", "target"),
     "gltf local file uri": (dict(source=("ball.gltf", gltf_with_uri("../../etc/passwd"))), 422,
                             "mesh_external_reference", "source"),
+    "gltf data uri shorter than its byteLength": (
+        dict(target=("box.gltf", gltf_with_uri("data:application/octet-stream;base64,AAAA"))), 422,
+        "mesh_unreadable", "target"),
+    "obj zip with a symlink member": (dict(source=("ball.zip", obj_zip_with_symlink())), 422, "mesh_zip_invalid",
+                                      "source"),
+    "deep node chain": (dict(target=("box.glb", deep_chain_glb(5000))), 413, "mesh_too_complex", "target"),
     "obj zip bomb": (dict(source=("ball.zip", obj_zip_bomb(16 * 2**20))), 422, "mesh_zip_invalid", "source"),
     "10 MB random bytes": (dict(target=("box.ply", np.random.default_rng(0).bytes(10 * 2**20))), 422,
                            "mesh_unreadable", "target"),
@@ -127,6 +160,19 @@ BAD_INPUTS = {
     "empty prompt": (dict(prompt=""), 422, "invalid_prompt", "prompt"),
     "blank prompt": (dict(prompt="   "), 422, "invalid_prompt", "prompt"),
     "overlong prompt": (dict(prompt="a" * 501), 422, "invalid_prompt", "prompt"),
+    "NUL in prompt": (dict(prompt="a ball\x00 on a box"), 422, "invalid_prompt", "prompt"),
+    "ESC in prompt": (dict(prompt="a ball \x1b[31mon a box"), 422, "invalid_prompt", "prompt"),
+    "BEL in a name": (dict(source_name="ball\x07"), 422, "invalid_name", "source_name"),
+    "seed beyond 64 bits": (dict(options={**FAST, "seed": 2**64 + 1}), 400, "invalid_options", "options"),
+    "seed beyond the engine's range": (dict(options={**FAST, "seed": 2**40}), 422, "invalid_option",
+                                       "options.seed"),
+    "option NaN": (dict(options='{"contact_ratio": NaN}'), 400, "invalid_options", "options"),
+    "option overflowing float": (dict(options='{"contact_ratio": 1e999}'), 400, "invalid_options", "options"),
+    "deeply nested options": (dict(options="[" * 100_000 + "]" * 100_000), 400, "invalid_options", "options"),
+    "options nested past the limit": (dict(options='{"seed": ' + "[" * 20 + "]" * 20 + "}"), 400,
+                                      "invalid_options", "options"),
+    "unknown hparams provider": (dict(options={**FAST, "hparams_provider": "oracle"}), 422, "invalid_option",
+                                 "options.hparams_provider"),
     "no prompt or image": (dict(prompt=None), 400, "missing_field", "prompt"),
     "unknown option": (dict(options={**FAST, "temperature": 1}), 422, "unknown_option", "options.temperature"),
     "option wrong type": (dict(options={**FAST, "seed": "seven"}), 422, "invalid_option", "options.seed"),

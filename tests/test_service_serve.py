@@ -3,10 +3,13 @@ Redis + one worker), and stopping it stops everything it started."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 import httpx
@@ -16,6 +19,7 @@ from ctp.cli import main
 from service.client import Client
 from service.embedded import free_port
 from tests.conftest import REPO, service_env, wait_for
+from tests.test_loader import wide_glb
 from tests.test_service import BALL, BOX, FAST
 
 
@@ -81,3 +85,101 @@ def test_worker_needs_redis_url(monkeypatch, capsys):
     monkeypatch.delenv("CTP_REDIS_URL", raising=False)
     assert main(["worker"]) == 2
     assert "REDIS_URL" in capsys.readouterr().err
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+    except OSError:
+        return ""
+
+
+def _child(serve_pid: int, needle: str) -> int | None:
+    found = [p for p in children(serve_pid) if needle in _cmdline(p) and alive(p)]
+    return found[0] if found else None
+
+
+def _busy(pid: int) -> bool:
+    """Whether the process is using CPU now (state R)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "R"
+    except OSError:
+        return False
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs Linux /proc to find the child processes")
+def test_embedded_service_heals_a_killed_worker_and_redis(tmp_path):
+    """SIGKILL the worker: a new one comes up and takes jobs. SIGKILL redis-server: it comes back on the
+    same data (append-only file) and a job queued before the kill still runs. Then SIGTERM stops the
+    service promptly although an upload is still loading."""
+    env = service_env("unused", "ctp", load_timeout_s=120, max_nodes=10**6)
+    del env["REDIS_URL"]
+    env["XDG_CACHE_HOME"] = str(tmp_path / "cache")
+    port = free_port()
+    log = open(tmp_path / "serve.log", "wb")  # noqa: SIM115 - closed below
+    serve = subprocess.Popen([sys.executable, "-m", "ctp", "serve", "--port", str(port)], env=env, cwd=REPO,
+                             stdout=log, stderr=subprocess.STDOUT)
+    try:
+        with Client(f"http://127.0.0.1:{port}") as client:
+            def ready():
+                try:
+                    return client.http.get("/readyz").status_code == 200
+                except httpx.TransportError:
+                    return False
+
+            wait_for(ready, 120, "ctp serve to be ready", interval_s=0.5)
+            worker = _child(serve.pid, " worker")
+            os.kill(worker, signal.SIGKILL)
+            replacement = wait_for(lambda: (p := _child(serve.pid, " worker")) not in (None, worker) and p, 30,
+                                   "a new worker process")
+            job = client.submit(("box.glb", BOX), ("ball.glb", BALL), "a ball on top of a box", options=FAST)
+            assert client.wait(job["id"], timeout_s=120)["status"] == "succeeded"
+            assert not alive(worker)  # reaped, not a zombie
+
+            busy = client.submit(("box.glb", BOX), ("ball.glb", BALL), "a ball on a box",
+                                 options={**FAST, "steps": 100000})
+            queued = client.submit(("box.glb", BOX), ("ball.glb", BALL), "a ball on top of a box", options=FAST)
+            wait_for(lambda: client.status(busy["id"])["status"] == "running", 60, "the long job to start")
+            assert client.status(queued["id"])["status"] == "queued"
+            time.sleep(1.5)  # appendfsync everysec: the submission is on disk
+            redis_pid = _child(serve.pid, "redis-server")
+            os.kill(redis_pid, signal.SIGKILL)
+            wait_for(lambda: (p := _child(serve.pid, "redis-server")) not in (None, redis_pid) and p, 30,
+                     "redis-server to be restarted")
+
+            def answered(job_id):
+                try:
+                    return client.status(job_id)
+                except Exception:  # noqa: BLE001 - 503 while Redis restarts
+                    return None
+
+            assert wait_for(lambda: answered(queued["id"]), 30, "the API to reach Redis again")["status"] in (
+                "queued", "running")
+            with contextlib.suppress(Exception):
+                client.cancel(busy["id"])
+            final = wait_for(lambda: (j := answered(queued["id"])) and j["status"] in ("succeeded", "failed") and j,
+                             180, "the queued job to end")
+            assert final["status"] == "succeeded", final
+            assert replacement
+
+            def post_slow():
+                with contextlib.suppress(httpx.HTTPError):  # the service goes away under it
+                    client.http.post("/align", data={"prompt": "x"}, files={
+                        "target": ("box.glb", BOX), "source": ("wide.glb", wide_glb(300_000))})
+
+            threading.Thread(target=post_slow, daemon=True).start()
+            wait_for(lambda: _child(serve.pid, "ctp_core.loader") and _busy(_child(serve.pid, "ctp_core.loader")),
+                     60, "the slow upload to be loading")
+        stopping = time.monotonic()
+        serve.send_signal(signal.SIGTERM)
+        assert serve.wait(timeout=40) == 128 + signal.SIGTERM
+        assert time.monotonic() - stopping < 25  # uvicorn's grace (10 s), then the loading process is killed
+    finally:
+        if serve.poll() is None:
+            serve.kill()
+        for pid in children(serve.pid):
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
+        log.close()
+    text = (tmp_path / "serve.log").read_text(errors="replace")
+    assert "supervisor: worker 1 restarted" in text and "supervisor: redis-server restarted" in text

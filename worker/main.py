@@ -22,10 +22,10 @@ from redis.exceptions import RedisError
 from rq import SimpleWorker
 from rq.serializers import JSONSerializer
 
+from ctp_core.loader import MeshLoader
 from service import logs
 from service.jobs import Jobs, Progress
 from service.settings import Settings
-from service.storage import open_storage
 
 log = logging.getLogger("ctp.worker")
 
@@ -100,6 +100,7 @@ class WorkerContext:
     jobs: Jobs
     name: str
     beat: Heartbeat
+    loader: MeshLoader
 
 
 _CONTEXT: WorkerContext | None = None
@@ -112,22 +113,16 @@ def context() -> WorkerContext:
     return _CONTEXT
 
 
-def connect(settings: Settings) -> Jobs:
-    client = Redis.from_url(settings.redis_url, health_check_interval=30)
-    storage = open_storage(client, settings.queue, settings.job_ttl_s, settings.storage_dir)
-    return Jobs(client, storage, prefix=settings.queue, ttl_s=settings.job_ttl_s,
-                job_timeout_s=settings.job_timeout_s, lease_s=settings.lease_s)
-
-
 def run_worker(settings: Settings, *, burst: bool = False, name: str | None = None) -> int:
     """Preload the default model, then take jobs until stopped (SIGTERM/SIGINT: after the current job)."""
     global _CONTEXT
     logs.configure(settings.log_level)
     name = name or f"{socket.gethostname()}.{os.getpid()}"
-    jobs = connect(settings)
+    jobs = Jobs.from_settings(settings)
     models = _preload(settings)
     beat = Heartbeat(jobs, name, settings.heartbeat_s, settings.progress_every_s, models)
-    _CONTEXT = WorkerContext(settings, jobs, name, beat)
+    loader = settings.mesh_loader(processes=1)
+    _CONTEXT = WorkerContext(settings, jobs, name, beat, loader)
     beat.start()
     # rq gets a connection of its own: it raises the socket timeout above its blocking dequeue, which the
     # heartbeat thread's connections (redis-py's default timeout) must not share.
@@ -138,6 +133,7 @@ def run_worker(settings: Settings, *, burst: bool = False, name: str | None = No
         worker.work(burst=burst, logging_level=settings.log_level.upper())
     finally:
         beat.stop()
+        loader.close()
         jobs.worker_gone(name)
         _CONTEXT = None
     return 0

@@ -17,7 +17,8 @@ from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled, CtpError
 from ctp_core.export import preview_png, report, scene_glb
 from ctp_core.guidance import guide_for
-from ctp_core.io import MeshLimits, load_image, load_mesh
+from ctp_core.io import MeshLimits, load_image
+from ctp_core.loader import MeshLoader
 from ctp_core.progress import ProgressEvent
 from service.jobs import JobError, JobRecord, Progress, Stage, Status
 from worker.main import context
@@ -45,6 +46,7 @@ def run_job(job_id: str) -> str:
             raise CtpError("the job's uploads expired before a worker picked it up", code="inputs_expired")
         files = align_job(
             record, inputs, device=ctx.settings.device, threads=ctx.settings.threads, runtime=ctx.settings.runtime,
+            loader=ctx.loader,
             limits=ctx.settings.mesh_limits,
             on_progress=lambda p, force: ctx.beat.publish(p, force=force),
             should_cancel=lambda: ctx.jobs.should_stop(job_id),
@@ -73,6 +75,7 @@ def align_job(
     *,
     device: str,
     threads: int | None,
+    loader: MeshLoader,
     runtime: str = "auto",
     limits: MeshLimits,
     on_progress: Callable[[Progress, bool], None],
@@ -85,8 +88,8 @@ def align_job(
     """
     config = AlignConfig.model_validate({**record.config, "device": device, "threads": threads, "runtime": runtime})
     on_progress(Progress(stage=Stage(name="loading"), kind="loading", message="loading meshes"), True)
-    target = load_mesh(inputs["target"], filename=record.target_file, limits=limits)
-    source = load_mesh(inputs["source"], filename=record.source_file, limits=limits)
+    target = loader.load(inputs["target"], filename=record.target_file, limits=limits)
+    source = loader.load(inputs["source"], filename=record.source_file, limits=limits)
     image = load_image(inputs["image"]) if inputs.get("image") is not None else None
     guide = None
     if config.uses_model:

@@ -16,7 +16,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import trimesh
 
-from ctp_core import metrics, sampling, scene
+from ctp_core import metrics, proximity, sampling, scene
 
 PUSH_STEPS = 20  # each push clears the deepest sample; a non-convex contact may need a few
 PUSH_MARGIN = 1e-3  # extra clearance per push, relative to the target's longest side
@@ -43,7 +43,7 @@ def shrinkwrap(target: trimesh.Trimesh, source: trimesh.Trimesh, starts: Sequenc
     for start in starts:
         start = np.asarray(start, dtype=np.float64)
         posed_centre = start[:3, :3] @ centre + start[:3, 3]
-        nearest, _, face = trimesh.proximity.closest_point(outward, posed_centre[None])
+        nearest, _, face = proximity.closest_points(outward, posed_centre[None])
         normal = outward.face_normals[face[0]]
         pose = _moved(start, nearest[0] - posed_centre)
         for _ in range(PUSH_STEPS):
@@ -51,7 +51,7 @@ def shrinkwrap(target: trimesh.Trimesh, source: trimesh.Trimesh, starts: Sequenc
             inside = metrics.winding_numbers(outward, posed) > 0.5
             if not inside.any():
                 break
-            depth = trimesh.proximity.closest_point(outward, posed[inside])[1].max()
+            depth = proximity.closest_points(outward, posed[inside])[1].max()
             pose = _moved(pose, normal * (depth + margin))
         poses.append(pose)
     return poses

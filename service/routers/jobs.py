@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-from pathlib import PurePath
 
 import redis.asyncio as aioredis
 from fastapi import APIRouter, Depends, Query, Request, Response
@@ -36,9 +35,10 @@ async def submit(request: Request, who: str = Depends(owner)) -> Accepted:
     files: dict[str, str] = {}
     for role in ("target", "source"):
         upload = forms.file(form, role)
-        files[role] = PurePath(upload.filename or role).name
+        files[role] = forms.file_name(upload, role)
         blobs[role] = await forms.read_limited(upload, settings.max_upload_bytes, role, "mesh_file_too_large")
-        await run_in_threadpool(forms.check_mesh, blobs[role], files[role], settings.mesh_limits, role)
+        await run_in_threadpool(forms.check_mesh, request.app.state.loader, blobs[role], files[role],
+                                settings.mesh_limits, role)
     if image is not None:
         blobs["image"] = await forms.read_limited(image, settings.max_image_bytes, "image", "image_too_large")
         await run_in_threadpool(forms.check_image, blobs["image"], settings.max_image_pixels)

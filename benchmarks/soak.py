@@ -1,0 +1,259 @@
+"""Soak of the embedded service: hostile uploads mixed with valid jobs while workers are killed.
+
+Runs ``ctp serve --workers 2`` (embedded Redis, supervised workers) on 127.0.0.1 with the tiny random
+model, then for ``--minutes`` (or ``--requests``) sends, from ``--clients`` threads, a mix of valid jobs
+(the ``test`` preset) and hostile uploads (the refusals the tests pin down: a deep node chain, a wide
+scene graph cut at the wall-time limit, bad ``data:`` buffers, symlinks and bombs in zips, NaN vertices,
+too many faces, control characters, 65-bit integers, deep JSON). Every few seconds (uniform in
+``--kill-every``) it SIGKILLs one worker at random; the supervisor brings it back.
+
+It reports, and checks: every valid job ends ``succeeded``, or ``failed`` with ``worker_lost`` (its
+worker was the one killed), none stuck; every hostile request is a 4xx; no 5xx but 503s while a
+dependency is down; the API process's peak RSS (the bound is ``--rss-mb``). A measurement, not a
+test: it prints JSON and exits 1 when a check fails.
+
+    python benchmarks/soak.py --minutes 3
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import httpx
+import trimesh
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from service.embedded import free_port  # noqa: E402
+from tests.test_loader import wide_glb  # noqa: E402
+from tests.test_service import (  # noqa: E402
+    deep_chain_glb,
+    gltf_with_uri,
+    grid_mesh,
+    obj_zip_bomb,
+    obj_zip_with_symlink,
+    ply,
+)
+from tests.test_service_serve import alive, children  # noqa: E402
+
+OPTIONS = {"preset": "test", "model": "random:tiny"}
+TERMINAL = ("succeeded", "failed", "canceled")
+
+
+def _hostile() -> list[tuple[str, dict, dict]]:
+    """(name, files, form fields) of uploads the API must refuse with a 4xx."""
+    box = trimesh.creation.box().export(file_type="glb")
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.3).export(file_type="glb")
+    ok = json.dumps(OPTIONS)
+    nan = ply(__import__("numpy").array([[0, 0, 0], [float("nan"), 1, 0], [0, 1, 1]]), [[0, 1, 2]])
+
+    def upload(target=("box.glb", box), source=("ball.glb", ball), prompt="a ball on a box", options=ok, **extra):
+        return {"target": target, "source": source}, {"prompt": prompt, "options": options, **extra}
+
+    cases = {
+        "deep node chain": upload(target=("deep.glb", deep_chain_glb(5000))),
+        "wide scene graph": upload(source=("wide.glb", wide_glb(60_000))),
+        "data uri byteLength": upload(target=("t.gltf", gltf_with_uri("data:application/octet-stream;base64,AAAA"))),
+        "external uri": upload(target=("t.gltf", gltf_with_uri("http://169.254.169.254/latest"))),
+        "zip symlink": upload(source=("s.zip", obj_zip_with_symlink())),
+        "zip bomb": upload(source=("s.zip", obj_zip_bomb(16 * 2**20))),
+        "nan vertices": upload(target=("t.ply", nan)),
+        "2M faces": upload(source=("s.ply", ply(*grid_mesh(1001)))),
+        "random bytes": upload(target=("t.glb", os.urandom(200_000))),
+        "NUL prompt": upload(prompt="a ball\x00on a box"),
+        "ESC name": upload(source_name="ball\x1b[2J"),
+        "65-bit seed": upload(options=json.dumps({**OPTIONS, "seed": 2**64 + 1})),
+        "deep json": upload(options="[" * 50_000 + "]" * 50_000),
+        "NaN option": upload(options='{"contact_ratio": NaN}'),
+        "unknown option": upload(options=json.dumps({**OPTIONS, "temperature": 2})),
+    }
+    return [(name, files, data) for name, (files, data) in cases.items()]
+
+
+def _rss_mb(pid: int) -> float:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return 0.0
+
+
+def _children(pid: int) -> list[int]:
+    return [p for p in children(pid) if alive(p)]
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+    except OSError:
+        return ""
+
+
+def _children_running(pid: int, needle: str) -> list[int]:
+    """Live children of ``pid`` whose command line holds ``needle`` (" worker", "ctp_core.loader")."""
+    return [p for p in _children(pid) if needle in _cmdline(p)]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--minutes", type=float, default=3.0, help="how long to send requests")
+    parser.add_argument("--requests", type=int, default=5000, help="stop sending after this many")
+    parser.add_argument("--clients", type=int, default=3, help="threads sending requests")
+    parser.add_argument("--valid-share", type=float, default=0.3, help="share of requests that are valid jobs")
+    parser.add_argument("--kill-every", type=float, nargs=2, default=(10.0, 25.0), metavar=("MIN_S", "MAX_S"))
+    parser.add_argument("--rss-mb", type=float, default=600.0, help="bound on the API process's RSS")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--json", type=Path, default=None, help="also write the figures here")
+    args = parser.parse_args(argv)
+    rng = random.Random(args.seed)
+
+    tmp = tempfile.TemporaryDirectory()
+    env = {**os.environ, "XDG_CACHE_HOME": tmp.name, "CTP_MODEL": "random:tiny", "CTP_LOG_LEVEL": "WARNING",
+           "CTP_MAX_ACTIVE_JOBS": "100000", "CTP_THREADS": "1", "OMP_NUM_THREADS": "1", "OMP_WAIT_POLICY": "PASSIVE",
+           "CTP_HEARTBEAT_S": "0.5", "CTP_LEASE_S": "5", "CTP_LOAD_TIMEOUT_S": "5", "CTP_MAX_NODES": "1000000"}
+    env.pop("REDIS_URL", None)
+    port = free_port()
+    url = f"http://127.0.0.1:{port}"
+    log = open(Path(tmp.name) / "serve.log", "wb")  # noqa: SIM115 - closed below
+    serve = subprocess.Popen([sys.executable, "-m", "ctp", "serve", "--port", str(port), "--workers", "2"],
+                             env=env, cwd=REPO, stdout=log, stderr=subprocess.STDOUT)
+    hostile = _hostile()
+    counts: collections.Counter = collections.Counter()
+    statuses: collections.Counter = collections.Counter()
+    valid: list[str] = []
+    kills: list[float] = []
+    rss: list[float] = []
+    loader_rss: list[float] = [0.0]
+    lock = threading.Lock()
+    stop = threading.Event()
+    sent = [0]
+    box = trimesh.creation.box().export(file_type="glb")
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.3).export(file_type="glb")
+    try:
+        with httpx.Client(base_url=url, timeout=120) as client:
+            deadline = time.monotonic() + 180
+            while True:
+                try:
+                    if client.get("/readyz").json().get("workers", 0) >= 2:
+                        break
+                except httpx.TransportError:
+                    pass
+                if time.monotonic() > deadline or serve.poll() is not None:
+                    raise RuntimeError("ctp serve did not become ready")
+                time.sleep(0.5)
+
+        def send(seed: int) -> None:
+            local = random.Random(seed)
+            with httpx.Client(base_url=url, timeout=120) as client:
+                while not stop.is_set():
+                    with lock:
+                        if sent[0] >= args.requests:
+                            return
+                        sent[0] += 1
+                        in_flight = len(valid) - statuses["ended"]
+                    if local.random() < args.valid_share and in_flight < 6:
+                        name, files, data = "valid", {"target": ("box.glb", box), "source": ("ball.glb", ball)}, {
+                            "prompt": "a ball on top of a box", "options": json.dumps(OPTIONS)}
+                    else:
+                        name, files, data = local.choice(hostile)
+                    try:
+                        answer = client.post("/align", files=files, data=data)
+                    except httpx.TransportError as exc:
+                        with lock:
+                            counts[f"transport error {type(exc).__name__}"] += 1
+                        continue
+                    with lock:
+                        counts[f"{name}: {answer.status_code}"] += 1
+                        if name == "valid" and answer.status_code == 202:
+                            valid.append(answer.json()["id"])
+
+        def kill_loop() -> None:
+            while not stop.wait(rng.uniform(*args.kill_every)):
+                pids = _children_running(serve.pid, " worker")
+                if pids:
+                    os.kill(rng.choice(pids), signal.SIGKILL)
+                    kills.append(time.monotonic())
+
+        def watch_rss() -> None:
+            while not stop.wait(0.5):
+                rss.append(_rss_mb(serve.pid))
+                loader_rss.extend(_rss_mb(p) for p in _children_running(serve.pid, "ctp_core.loader"))
+
+        started = time.monotonic()
+        threads = [threading.Thread(target=send, args=(args.seed + i,)) for i in range(args.clients)]
+        helpers = [threading.Thread(target=kill_loop, daemon=True), threading.Thread(target=watch_rss, daemon=True)]
+        for t in [*threads, *helpers]:
+            t.start()
+        ended: dict[str, dict] = {}
+        with httpx.Client(base_url=url, timeout=30) as client:
+            def poll() -> None:
+                for job_id in [j for j in list(valid) if j not in ended]:
+                    try:
+                        job = client.get(f"/jobs/{job_id}").json()
+                    except (httpx.TransportError, ValueError):
+                        continue
+                    if job.get("status") in TERMINAL:
+                        ended[job_id] = job
+                        with lock:
+                            statuses["ended"] += 1
+
+            while any(t.is_alive() for t in threads):
+                if time.monotonic() - started > 60 * args.minutes:
+                    stop.set()
+                poll()
+                time.sleep(1.0)
+            sending_s = time.monotonic() - started
+            stop.set()
+            drain = time.monotonic() + 180
+            while len(ended) < len(valid) and time.monotonic() < drain:
+                poll()
+                time.sleep(1.0)
+        outcomes = collections.Counter(
+            j["status"] if j["status"] != "failed" else f"failed {j['error']['code']}" for j in ended.values())
+    finally:
+        stop.set()
+        serve.send_signal(signal.SIGTERM)
+        try:
+            serve.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            serve.kill()
+        log.close()
+    hostile_answers = {k: v for k, v in counts.items() if not k.startswith("valid")}
+    figures = {
+        "sending_s": round(sending_s, 1), "requests": sent[0], "worker_kills": len(kills),
+        "valid_accepted": len(valid), "valid_outcomes": dict(outcomes), "valid_stuck": len(valid) - len(ended),
+        "hostile_4xx": sum(v for k, v in hostile_answers.items() if k.rsplit(": ", 1)[-1].startswith("4")),
+        "hostile_other": {k: v for k, v in hostile_answers.items() if not k.rsplit(": ", 1)[-1].startswith("4")},
+        "answers": dict(sorted(counts.items())),
+        "status_500": sum(v for k, v in counts.items() if k.endswith(": 500")),
+        "api_rss_mb": {"start": round(rss[0], 1) if rss else None, "peak": round(max(rss, default=0), 1),
+                       "end": round(rss[-1], 1) if rss else None, "bound": args.rss_mb},
+        "loader_process_rss_peak_mb": round(max(loader_rss), 1),
+    }
+    ok = (figures["valid_stuck"] == 0 and figures["status_500"] == 0 and not figures["hostile_other"]
+          and set(outcomes) <= {"succeeded", "failed worker_lost"}
+          and outcomes.get("failed worker_lost", 0) <= len(kills) and max(rss, default=0) <= args.rss_mb)
+    figures["ok"] = ok
+    print(json.dumps(figures, indent=2))
+    if args.json:
+        args.json.write_text(json.dumps(figures, indent=2))
+    tmp.cleanup()
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
