@@ -91,7 +91,8 @@ class MeshLoader:
 
     def _call(self, data, filename, limits: MeshLimits, name, want_mesh: bool):
         label = name or filename or (str(data) if isinstance(data, str | Path) else "upload")
-        payload = str(data) if isinstance(data, Path) else data
+        # the loading processes run in the package root, so a relative path is made absolute here
+        payload = str(Path(data).absolute()) if isinstance(data, str | Path) else data
         wait = self.timeout_s + self.start_timeout_s  # the longest a holder can keep its process
         try:
             child = self._idle.get(timeout=wait)

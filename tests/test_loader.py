@@ -96,3 +96,11 @@ def test_close_ends_a_load_in_flight():
     assert isinstance(errors[0], LoaderUnavailable)
     with pytest.raises(LoaderUnavailable):
         pool.load(BOX, filename="box.glb")
+
+
+def test_a_relative_path_is_read_from_the_callers_folder(loader, tmp_path, monkeypatch):
+    """The loading processes run elsewhere (the package root): `ctp align try/table.glb` must still work."""
+    (tmp_path / "try").mkdir()
+    (tmp_path / "try" / "box.glb").write_bytes(BOX)
+    monkeypatch.chdir(tmp_path)
+    assert len(loader.load("try/box.glb").faces) == 12

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from ctp_core.config import AlignConfig
 from service.schemas import OPTION_PATHS
-from tests.conftest import Api, service_env, wait_for
+from tests.conftest import Api, park_worker, service_env, wait_for
 from tests.test_loader import wide_glb
 from tests.test_service import BALL, BOX, FAST, deep_chain_glb, glb
 
@@ -25,12 +25,20 @@ def env(private_redis):
     return service_env(private_redis.url, "hostile", max_active_jobs=100_000, load_timeout_s=2, max_nodes=10**6)
 
 
+@pytest.fixture(scope="module")
+def parked(env):
+    """A live worker as the API sees it, consuming nothing: submissions are accepted (no ``no_worker``)."""
+    leave = park_worker(env)
+    yield
+    leave()
+
+
 def _post(api: Api, target=("box.glb", BOX), source=("ball.glb", BALL), data=None):
     return api.client.post("/align", files={"target": target, "source": source},
                            data={"prompt": "a ball on a box", "options": json.dumps(FAST)} if data is None else data)
 
 
-def test_pathological_glbs_are_refused_quickly_and_the_api_stays_up(api):
+def test_pathological_glbs_are_refused_quickly_and_the_api_stays_up(api, parked):
     """The reported DoS: a 100 kB chain of 2000 nodes held an API thread for minutes; three at once took
     the API to 4.7 GB. Now the JSON budget refuses it at once, and a file inside the budgets that is
     still slow to load is cut off at the wall-time limit (2 s here) in a loading process."""
@@ -75,7 +83,7 @@ _prompt = st.just("a ball on top of a box") | _field  # a third valid, so option
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(options=_options, prompt=_prompt, target_name=_field, source_name=_field,
        source_file=st.sampled_from(["ball.glb", "ball", "ball.GLB", "b.zip", ".glb"]))
-def test_no_form_or_options_gives_a_500(api, options, prompt, target_name, source_name, source_file):
+def test_no_form_or_options_gives_a_500(api, parked, options, prompt, target_name, source_name, source_file):
     data = {k: v for k, v in {"options": options, "prompt": prompt, "target_name": target_name,
                               "source_name": source_name}.items() if v is not None}
     answer = _post(api, source=(source_file, BALL), data=data)
@@ -90,7 +98,7 @@ def test_no_form_or_options_gives_a_500(api, options, prompt, target_name, sourc
         assert set(body["error"]) == {"code", "message", "field"} and body["error"]["code"]
 
 
-def test_accepted_options_build_an_engine_config(api):
+def test_accepted_options_build_an_engine_config(api, parked):
     """What the property test cannot see from outside: an accepted seed, steps... fit AlignConfig."""
     from service.schemas import build_config
 
@@ -112,7 +120,7 @@ def test_single_triangle_and_planar_uploads_succeed(api, worker):
         assert api.client.get(f"/jobs/{job_id}/result.glb").status_code == 200
 
 
-def test_control_characters_in_a_file_name(api):
+def test_control_characters_in_a_file_name(api, parked):
     """httpx quotes file names; a raw multipart body carries the byte as sent."""
     boundary = "ctpboundary"
     parts = [("target", "bo\x01x.glb", BOX), ("source", "ball.glb", BALL)]
