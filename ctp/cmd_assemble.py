@@ -56,14 +56,14 @@ def run(args: argparse.Namespace) -> int:
     if args.plan is not None:
         if args.base is not None or args.add:
             raise ConfigError("give either --plan or BASE with --add, not both", field="plan")
-        base, base_name, steps = read_plan(args.plan, config)
+        base, base_name, steps, config = read_plan(args.plan, config)
     else:
         if args.base is None or not args.add:
             raise ConfigError("give BASE and at least one --add SOURCE PROMPT (or --plan plan.yaml)", field="add")
         base, base_name = _load(args.base, "base"), args.base.stem
         steps = [_step({"file": path, "prompt": prompt}, Path.cwd(), config, i) for i, (path, prompt)
                  in enumerate(args.add)]
-    bar = ProgressBar(enabled=not args.quiet)
+    bar = ProgressBar(sys.stderr, enabled=not args.quiet)
 
     def on_stage(index: int, count: int, step) -> None:
         if not args.quiet:
@@ -85,7 +85,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def read_plan(path: Path, config):
-    """(base mesh, base name, steps) of a YAML plan; every refusal is a ConfigError naming the key."""
+    """(base mesh, base name, steps, config with the plan's options) of a YAML plan; every refusal is a
+    ConfigError naming the key."""
     import yaml
 
     try:
@@ -93,7 +94,7 @@ def read_plan(path: Path, config):
     except OSError as exc:
         raise ConfigError(f"cannot read the plan {path}: {exc.strerror}", field="plan") from None
     except yaml.YAMLError as exc:
-        raise ConfigError(f"the plan {path} is not valid YAML: {exc}", field="plan") from None
+        raise ConfigError(f"the plan {path} is not valid YAML: {' '.join(str(exc).split())}", field="plan") from None
     if not isinstance(plan, dict) or not isinstance(plan.get("base"), str) or not isinstance(plan.get("steps"), list):
         raise ConfigError("a plan is a mapping with base: FILE and steps: a list", field="plan")
     _known(plan, _PLAN_KEYS, "plan")
@@ -101,7 +102,7 @@ def read_plan(path: Path, config):
     config = _with_options(config, plan.get("options"), "options")
     base_file = folder / plan["base"]
     steps = [_step(step, folder, config, i) for i, step in enumerate(plan["steps"])]
-    return _load(base_file, "base"), str(plan.get("name") or base_file.stem), steps
+    return _load(base_file, "base"), str(plan.get("name") or base_file.stem), steps, config
 
 
 def _step(entry: Any, folder: Path, config, i: int):

@@ -16,16 +16,18 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import trimesh
 
 from ctp_core import frames
-from ctp_core.align import AlignResult, align
 from ctp_core.config import AlignConfig, _merge
 from ctp_core.errors import Canceled, ConfigError, CtpError
 from ctp_core.progress import CancelCheck, ProgressCallback
+
+if TYPE_CHECKING:  # the engine (torch) loads only when a stage runs: the API checks plans with check_plan
+    from ctp_core.align import AlignResult
 
 __all__ = ["Assembly", "Placed", "Stage", "Step", "assemble", "config_with"]
 
@@ -107,11 +109,14 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
     ``on_stage(index, count, step)`` is called as each stage starts; ``on_event`` gets every stage's
     optimiser events. The guidance model is loaded once for all stages (every stage uses
     ``config.model``). A stage's ``CtpError`` is re-raised with the stage named in its message and
-    ``field`` ``steps.<i>``; ``Canceled`` passes through.
+    ``field`` ``steps.<i>[.<its field>]``; ``Canceled`` passes through.
     """
+    from ctp_core.align import align
+
     started = time.perf_counter()
     configs = [step.config or config for step in steps]
-    check_plan(base_name, steps, configs)
+    check_plan(base_name, [(s.name, s.on, s.prompt is not None or s.image is not None or c.loss.lambda_clip == 0)
+                           for s, c in zip(steps, configs, strict=True)])
     if any(c.model != config.model for c in configs):
         raise ConfigError("every stage must use the assembly's model (it is loaded once)", field="model")
     if guide is None and any(c.loss.lambda_clip > 0 for c in configs):
@@ -131,8 +136,9 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
         except Canceled:
             raise
         except CtpError as exc:
+            where = f"steps.{index - 1}" + (f".{exc.field}" if exc.field else "")
             raise type(exc)(f"stage {index}/{len(steps)} ({step.name}): {exc.message}", code=exc.code,
-                            field=exc.field or f"steps.{index - 1}") from exc
+                            field=where) from exc
         # The stage's target file frame is the scene frame (every placed object is in it).
         placed.append(Placed(step.name, step.source,
                              frames.Similarity(result.source_to_target, frames.SOURCE_FILE, frames.SCENE)))
@@ -140,20 +146,21 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
     return Assembly(placed, stages, {"total_s": round(time.perf_counter() - started, 3)})
 
 
-def check_plan(base_name: str, steps: Sequence[Step], configs: Sequence[AlignConfig]) -> None:
-    """Names unique and non-empty, every ``on`` an object placed earlier, a guide for every guided step."""
+def check_plan(base_name: str, steps: Sequence[tuple[str, str | None, bool]]) -> None:
+    """Each step's (name, on, guided): names unique and non-empty, every ``on`` an object placed before
+    it, a prompt or an image wherever the guidance term is on. Raises ConfigError naming the step."""
     if not steps:
         raise ConfigError("an assembly needs at least one step", field="steps")
     names = [base_name]
-    for i, (step, config) in enumerate(zip(steps, configs, strict=True)):
-        if not step.name or not step.name.strip():
+    for i, (name, on, guided) in enumerate(steps):
+        if not name or not name.strip():
             raise ConfigError(f"step {i + 1} has no name", field=f"steps.{i}.name")
-        if step.name in names:
-            raise ConfigError(f"step {i + 1}: the name {step.name!r} is already used; names must be unique",
+        if name in names:
+            raise ConfigError(f"step {i + 1}: the name {name!r} is already used; names must be unique",
                               field=f"steps.{i}.name")
-        if step.on is not None and step.on not in names:
-            raise ConfigError(f"step {i + 1} ({step.name}): on {step.on!r} is not an object placed before it "
+        if on is not None and on not in names:
+            raise ConfigError(f"step {i + 1} ({name}): on {on!r} is not an object placed before it "
                               f"({', '.join(names)})", field=f"steps.{i}.on")
-        if step.prompt is None and step.image is None and config.loss.lambda_clip > 0:
-            raise ConfigError(f"step {i + 1} ({step.name}) needs a prompt or an image", field=f"steps.{i}.prompt")
-        names.append(step.name)
+        if not guided:
+            raise ConfigError(f"step {i + 1} ({name}) needs a prompt or an image", field=f"steps.{i}.prompt")
+        names.append(name)

@@ -27,7 +27,7 @@ from service.deps import digest
 from service.errors import BodyLimit, install_handlers
 from service.forms import PROMPT_MAX
 from service.jobs import Jobs
-from service.routers import health
+from service.routers import assemble, health
 from service.routers import jobs as jobs_router
 from service.schemas import AlignOptions
 from service.settings import Settings
@@ -41,8 +41,9 @@ DESCRIPTION = f"""
 Place one 3D object relative to another from a text prompt (Copy-Transform-Paste).
 
 Submit two meshes and a prompt to `POST /align`, follow `GET /jobs/{{id}}` (or its server-sent
-`events`), then download `result.glb`. Jobs run on queue workers; records and results expire after
-the configured TTL (`CTP_JOB_TTL_S`).
+`events`), then download `result.glb`. `POST /assemble` builds a scene of several objects, one stage
+each, as one job; `POST /align` with `target_job` adds one object to an earlier job's scene.
+Jobs run on queue workers; records and results expire after the configured TTL (`CTP_JOB_TTL_S`).
 
 **Authentication.** When the service has API keys (`CTP_API_KEYS`), every call except `/healthz` and
 `/readyz` needs `Authorization: Bearer <key>`, and a key sees only its own jobs (others' are 404).
@@ -50,13 +51,17 @@ the configured TTL (`CTP_JOB_TTL_S`).
 **Errors.** Every error answer is `{{"error": {{"code", "message", "field"}}}}`; `code` is stable:
 
 - 400: `invalid_request` (not multipart, malformed form), `missing_field`, `invalid_field` (a file where
-  text belongs or the reverse), `unknown_field`, `invalid_options` (options is not a JSON object)
+  text belongs or the reverse), `unknown_field`, `invalid_options` (options is not a JSON object),
+  `invalid_plan` (an assembly plan that is not a JSON list of steps, or names a file part not sent)
 - 401: `unauthorized`
-- 404: `job_not_found`, `not_found`
-- 409: `job_not_ready` (result of a job that has not succeeded), `job_finished` (cancel of an ended job)
-- 413: `request_too_large`, `mesh_file_too_large`, `mesh_too_large` (faces), `image_too_large`
+- 404: `job_not_found` (also a `target_job` that is unknown or another key's), `not_found`
+- 409: `job_not_ready` (result of a job that has not succeeded, or such a `target_job`), `job_finished`
+  (cancel of an ended job)
+- 413: `request_too_large`, `mesh_file_too_large`, `mesh_too_large` (faces), `image_too_large`,
+  `too_many_stages` (`CTP_MAX_STAGES`), `scene_too_large` (all meshes of a job, `CTP_MAX_SCENE_FACES`)
 - 415: `mesh_unknown_format` (extension not .glb, .gltf, .obj, .zip (OBJ+MTL), .ply or .stl)
 - 422: `invalid_prompt` (1 to {PROMPT_MAX} characters), `invalid_option`, `unknown_option`, `invalid_name`,
+  `invalid_plan` (duplicate step names, an `on` that is not placed before the step),
   `mesh_empty`, `mesh_unreadable`, `mesh_invalid_values` (NaN/inf), `mesh_external_reference` (glTF
   URIs), `mesh_zip_invalid`, `invalid_image`
 - 429: `too_many_jobs` (queued plus running jobs per key, `CTP_MAX_ACTIVE_JOBS`)
@@ -64,7 +69,8 @@ the configured TTL (`CTP_JOB_TTL_S`).
 
 Failed jobs carry an error too: an engine code (`canceled`, `model_unavailable`, `invalid_option`, a
 mesh code, ...), `job_timeout` (`CTP_JOB_TIMEOUT_S`), `worker_lost` (its worker was killed or lost
-its machine; not retried) or `internal_error`.
+its machine; not retried) or `internal_error`. An assembly's failure names its stage in the message
+(`stage 2/3 (plate): ...`) and in `field` (`steps.1`).
 """
 
 
@@ -100,6 +106,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     install_handlers(app)
     app.include_router(health.router)
     app.include_router(jobs_router.router)
+    app.include_router(assemble.router)
 
     def openapi() -> dict[str, Any]:
         if app.openapi_schema is None:

@@ -25,7 +25,7 @@ log = logging.getLogger("ctp.service")
 
 PROMPT_MAX = 500
 NAME_MAX = 100
-FORM_FIELDS = {"target", "source", "prompt", "image", "options", "target_name", "source_name"}
+FORM_FIELDS = {"target", "source", "prompt", "image", "options", "target_name", "source_name", "target_job", "on"}
 
 # MeshError codes that are not 422.
 _MESH_STATUS = {"mesh_file_too_large": 413, "mesh_too_large": 413, "mesh_unknown_format": 415}
@@ -39,10 +39,16 @@ ALIGN_BODY = {
     "required": True,
     "content": {"multipart/form-data": {"schema": {
         "type": "object",
-        "required": ["target", "source"],
+        "required": ["source"],
         "properties": {
             "target": _file_field("the mesh that stays put (GLB, glTF with embedded buffers, OBJ, OBJ+MTL in a "
-                                  ".zip, PLY, STL); the extension of the file name gives the format"),
+                                  ".zip, PLY, STL); the extension of the file name gives the format; required "
+                                  "unless `target_job` is given"),
+            "target_job": {"type": "string", "description": "instead of `target`: the id of one of your succeeded "
+                           "jobs, whose result scene becomes the target, read back as its separate objects "
+                           "(404 for an unknown job or another key's, 409 if it has not succeeded)"},
+            "on": {"type": "string", "maxLength": NAME_MAX, "description": "with `target_job`: the object of that "
+                   "scene the source relates to (soft-ICP attaches to it); default the last placed one"},
             "source": _file_field("the mesh to place, same formats"),
             "prompt": {"type": "string", "minLength": 1, "maxLength": PROMPT_MAX,
                        "description": "what the arrangement should look like; required unless `image` is given"},
@@ -60,18 +66,18 @@ ALIGN_BODY = {
 }
 
 
-async def read_form(request: Request):
+async def read_form(request: Request, fields: set[str] = FORM_FIELDS, max_files: int = 3):
     if not request.headers.get("content-type", "").startswith("multipart/form-data"):
-        raise ApiError(400, "invalid_request", "send multipart/form-data (fields target, source, prompt, options)")
+        raise ApiError(400, "invalid_request", f"send multipart/form-data (fields {', '.join(sorted(fields))})")
     try:
-        form = await request.form(max_files=3, max_fields=8)
+        form = await request.form(max_files=max_files, max_fields=8)
     except ApiError:
         raise
     except Exception as exc:  # python-multipart and Starlette raise several types for a broken body
         raise ApiError(400, "invalid_request", f"malformed multipart body: {exc}") from None
     for key in form:
-        if key not in FORM_FIELDS:
-            raise ApiError(400, "unknown_field", f"unknown form field {key!r}; known: {', '.join(sorted(FORM_FIELDS))}",
+        if key not in fields:
+            raise ApiError(400, "unknown_field", f"unknown form field {key!r}; known: {', '.join(sorted(fields))}",
                            field=key)
     return form
 
@@ -118,11 +124,16 @@ def options(form) -> dict[str, Any]:
 def object_name(form, role: str, filename: str) -> str:
     name = text(form, f"{role}_name")
     if name is None:
-        return PurePath(filename).stem.replace("_", " ").replace("-", " ").strip() or role
+        return default_name(filename, role)
     if not 1 <= len(name.strip()) <= NAME_MAX:
         raise ApiError(422, "invalid_name", f"{role}_name must have 1 to {NAME_MAX} characters",
                        field=f"{role}_name")
     return name.strip()
+
+
+def default_name(filename: str, fallback: str) -> str:
+    """An object's name from its file name ("coffee_cup.glb" -> "coffee cup")."""
+    return PurePath(filename).stem.replace("_", " ").replace("-", " ").strip() or fallback
 
 
 async def read_limited(upload: UploadFile, max_bytes: int, field: str, code: str) -> bytes:
@@ -131,16 +142,17 @@ async def read_limited(upload: UploadFile, max_bytes: int, field: str, code: str
     return await upload.read()
 
 
-def check_mesh(data: bytes, filename: str, limits, role: str) -> None:
-    """Parse exactly as the worker will, so a queued job never fails on its input."""
+def check_mesh(data: bytes, filename: str, limits, role: str, load=validate_upload):
+    """Parse exactly as the worker will (``load``), so a queued job never fails on its input; returns the mesh."""
     started = time.perf_counter()
     try:
-        validate_upload(data, filename, limits)
+        mesh = load(data, filename, limits)
     except MeshError as exc:
         raise ApiError(_MESH_STATUS.get(exc.code, 422), exc.code, exc.message, field=role) from None
     except CtpError as exc:
         raise ApiError(422, exc.code, exc.message, field=role) from None
     log.debug("mesh checked", extra={"duration_ms": round(1000 * (time.perf_counter() - started))})
+    return mesh
 
 
 def check_image(data: bytes, max_pixels: int) -> None:
