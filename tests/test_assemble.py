@@ -167,3 +167,14 @@ def test_cli_refuses_a_bad_plan_with_exit_2(tmp_path, meshes, capsys, plan, mess
                  "--quiet", "--out", str(tmp_path / "x.glb")])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and err[0].startswith("error: ") and message in err[0], err
+
+
+def test_table_setting_sample_is_a_valid_plan(tmp_path):
+    from ctp.cmd_assemble import read_plan
+    from ctp_core.samples import write_table_setting
+
+    config = AlignConfig.from_preset("test", model="random:tiny")
+    base, base_name, steps, _ = read_plan(write_table_setting(tmp_path), config)
+    assert base_name == "table" and [(s.name, s.on, s.prompt) for s in steps] == [
+        ("plate", None, "a plate on the table"), ("cup", "plate", "a cup on the plate")]
+    assert base.extents.max() > 10 * steps[1].source.extents.max()

@@ -133,3 +133,34 @@ def test_bad_plans_are_refused_before_queueing(api, files, plan, sources, status
     answer = api.client.post("/assemble", files=parts, data={"plan": raw, "options": json.dumps(options)},
                              headers=ALPHA)
     assert (answer.status_code, answer.json()["error"]["code"]) == (status, code), answer.text
+
+
+def test_a_failing_stage_is_named(api, worker, files):
+    """The unknown prior provider is only found when stage 2 asks it (the form does not vet provider names)."""
+    plan = [PLAN[0], {**PLAN[1], "options": {"hparams_provider": "no-such-provider"}}]
+    accepted = post_assembly(api, files, plan)
+    assert accepted.status_code == 202, accepted.text
+    job = finished(api, accepted.json()["id"])
+    assert job["status"] == "failed" and job["error"]["message"].startswith("stage 2/2 (cup): "), job
+    assert job["error"]["field"] == "steps.1.hparams_provider"
+
+
+def test_the_time_limit_scales_with_the_stages(private_redis):
+    import redis
+
+    from service.jobs import AssemblyStep, JobRecord, Jobs, new_id, now
+    from service.storage import RedisStorage
+
+    client = redis.Redis.from_url(private_redis.url)
+    jobs = Jobs(client, RedisStorage(client, "asm-unit", 60), prefix="asm-unit", ttl_s=60, job_timeout_s=100,
+                lease_s=5)
+    try:
+        steps = [AssemblyStep(name=f"s{i}", file="s.glb", prompt="p") for i in range(3)]
+        record = jobs.submit(JobRecord(id=new_id(), owner="me", created_at=now(), kind="assemble", steps=steps),
+                             {"target": b"b", **{f"source-{i}": b"s" for i in range(3)}}, 5)
+        assert jobs.queue.fetch_job(record.id).timeout == 300
+        assert record.inputs()[:3] == ["target", "source-0", "image-0"]
+        jobs.cancel(record.id)
+        assert jobs.storage.get(record.id, "source-2") is None  # an assembly's inputs are dropped too
+    finally:
+        client.close()
