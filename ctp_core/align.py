@@ -103,7 +103,9 @@ def align(
     judge = None
     if config.upright and config.upright_judge:
         guide = guide or guidance_mod.get_guide(config.model, device=config.device, autocast=config.autocast)
-        judge = scene.upright_judge(scene.geometry(target), guide, target_name, device=config.device)
+        # a scene's up is its base's (scene.base), judged under the base's own name
+        base_name, base = (target_name, target) if isinstance(target, trimesh.Trimesh) else scene.objects(target)[0]
+        judge = scene.upright_judge(base, guide, base_name, device=config.device)
     pair = scene.prepare_pair(target, source, samples=config.loss.samples, seed=config.seed, device=config.device,
                               canonicalise=config.upright, judge=judge, on=on)
     prepared = time.perf_counter()

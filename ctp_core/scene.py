@@ -64,6 +64,15 @@ def _position(names: list[str], on: str) -> int:
     return names.index(on)
 
 
+def base(target: Target) -> trimesh.Trimesh:
+    """The object that decides which way is up: the first of a scene (an assembly's base), or the mesh.
+
+    Not the whole scene: objects placed on it change its resting poses (a plate hung at a table leg's
+    foot made the table rest best upside down), and the scene's up must not turn from stage to stage.
+    """
+    return objects(target)[0][1]
+
+
 def geometry(target: Target) -> trimesh.Trimesh:
     """All triangles of ``target`` as one mesh (no visuals): what framing and the upright turn look at."""
     if isinstance(target, trimesh.Trimesh):
@@ -120,11 +129,11 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
 
     ``canonicalise`` turns a clearly lying or upside-down target upright (renders then show it as
     CLIP expects), by ``judge`` when given (``upright_judge``); the source's upright frame is always
-    computed from geometry, as the starting orientation. A scene target gets ``samples`` samples per
-    object; ``on`` names the object the soft-ICP term attaches to.
+    computed from geometry, as the starting orientation. A scene target's up is its base's (``base``);
+    it gets ``samples`` samples per object; ``on`` names the object the soft-ICP term attaches to.
     """
-    whole = geometry(target)
-    target_up = canonical.upright_rotation(whole, seed=seed, judge=judge) if canonicalise else canonical.identity()
+    whole, up_from = geometry(target), base(target)
+    target_up = canonical.upright_rotation(up_from, seed=seed, judge=judge) if canonicalise else canonical.identity()
     source_up = canonical.upright_rotation(source, seed=seed)
     target_to_norm = frames.target_to_normalised(whole.vertices, target_up.rotation)
     source_to_local = frames.source_local(source.bounds, target_to_norm)

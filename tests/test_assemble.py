@@ -178,3 +178,20 @@ def test_table_setting_sample_is_a_valid_plan(tmp_path):
     assert base_name == "table" and [(s.name, s.on, s.prompt) for s in steps] == [
         ("plate", None, "a plate on the table"), ("cup", "plate", "a cup on the plate")]
     assert base.extents.max() > 10 * steps[1].source.extents.max()
+
+
+def test_a_scene_keeps_its_base_s_up():
+    """A plate hung at a leg's foot makes table + plate rest best upside down; the scene's up stays the table's."""
+    from ctp_core import canonical, samples
+    from ctp_core.assemble import Placed, scene_of
+    from ctp_core.scene import geometry, prepare_pair
+
+    table, plate = samples._table(), samples._plate()
+    plate.apply_scale(0.96)
+    hung = trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0))  # on edge at a leg, rim below the floor
+    hung[:3, 3] = (-0.586, 0.046, 0.340)
+    placed = scene_of([Placed("table", table, frames.Similarity(np.eye(4), frames.SCENE, frames.SCENE)),
+                       Placed("plate", plate, frames.Similarity(hung, frames.SOURCE_FILE, frames.SCENE))])
+    assert canonical.upright_rotation(geometry(placed)).changed  # the whole scene would turn over
+    pair = prepare_pair(placed, samples._cup(), samples=200, seed=0, on="plate")
+    assert not pair.target_upright.changed and pair.target_upright.rotation.tolist() == np.eye(3).tolist()
