@@ -97,6 +97,12 @@ def test_chained_align_adds_to_a_finished_scene(api, assembled, files):
     bad_on = api.client.post("/align", data={**data, "on": "saucer"}, files={"source": ("spoon.glb", spoon)},
                              headers=ALPHA)
     assert (bad_on.status_code, bad_on.json()["error"]["code"]) == (422, "invalid_name")
+    both = api.client.post("/align", data=data, files={"source": ("spoon.glb", spoon), "target": ("t.glb", spoon)},
+                           headers=ALPHA)
+    assert (both.status_code, both.json()["error"]["code"]) == (400, "invalid_field")
+    lone_on = api.client.post("/align", data={"prompt": "x", "on": "cup"}, headers=ALPHA,
+                              files={"source": ("spoon.glb", spoon), "target": ("t.glb", spoon)})
+    assert (lone_on.status_code, lone_on.json()["error"]["field"]) == (400, "on")
 
     accepted = api.client.post("/align", data=data, files={"source": ("spoon.glb", spoon)}, headers=ALPHA)
     assert accepted.status_code == 202, accepted.text

@@ -39,6 +39,8 @@ async def submit(request: Request, who: str = Depends(owner)) -> Accepted:
     blobs: dict[str, bytes] = {}
     files: dict[str, str] = {}
     target_job, on = forms.text(form, "target_job"), forms.text(form, "on")
+    if on is not None and target_job is None:
+        raise ApiError(400, "invalid_field", "on names an object of a target_job's scene; give target_job", field="on")
     chained = await assemble.chained_target(request, form, who, target_job, on) if target_job is not None else None
     for role in ("source",) if chained else ("target", "source"):
         upload = forms.file(form, role)
