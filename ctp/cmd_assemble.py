@@ -40,11 +40,13 @@ _STEP_KEYS = {"file", "prompt", "image", "name", "on", "options"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.epilog = __doc__.split("\n\n", 2)[2]  # the plan format above
     parser.add_argument("base", type=Path, nargs="?", help="the object that stays put (not with --plan)")
     parser.add_argument("--add", nargs=2, action="append", metavar=("SOURCE", "PROMPT"), default=[],
                         help="place SOURCE as PROMPT says, relative to the object added before it (repeatable)")
     parser.add_argument("--plan", type=Path, help="a YAML plan (base, steps: file, prompt or image, name, on, "
-                        "options); see `ctp assemble --help`'s module doc or the README")
+                        "options; the format is below)")
     add_run_arguments(parser)
 
 
