@@ -170,3 +170,31 @@ def test_the_time_limit_scales_with_the_stages(private_redis):
         assert jobs.storage.get(record.id, "source-2") is None  # an assembly's inputs are dropped too
     finally:
         client.close()
+
+
+def test_python_client_assembles_and_chains(api, worker, files, tmp_path):
+    from service.client import Client, ServiceError
+
+    picture = io.BytesIO()
+    Image.new("RGB", (64, 48), (200, 30, 30)).save(picture, format="PNG")
+    (tmp_path / "plate.glb").write_bytes(files["plate"])
+    fast = {"preset": "test"}
+    with Client(api.url, api_key="alpha") as client:
+        job = client.assemble(("table.glb", files["table"]), [
+            {"file": tmp_path / "plate.glb", "prompt": "a plate on the table"},
+            {"file": ("cup.glb", files["cup"]), "image": ("ref.png", picture.getvalue()), "on": "plate"}],
+            options=fast, base_name="table")
+        final = client.wait(job["id"], timeout_s=180)
+        assert final["status"] == "succeeded", final
+        report = json.loads(client.download(job["id"], "report.json"))
+        assert [(s["name"], s["image_guided"]) for s in report["stages"]] == [("plate", False), ("cup", True)]
+        spoon = trimesh.creation.cylinder(radius=0.006, height=0.12, sections=8).export(file_type="glb")
+        chained = client.submit(None, ("spoon.glb", spoon), "a spoon in the cup", options=fast,
+                                target_job=job["id"], source_name="spoon")
+        assert client.wait(chained["id"], timeout_s=180)["status"] == "succeeded"
+        scene = load_objects(client.download(chained["id"]), filename="scene.glb")
+        assert list(scene.geometry) == ["table", "plate", "cup", "spoon"]
+        with pytest.raises(ServiceError) as err:
+            client.assemble(("table.glb", files["table"]), [{"file": ("cup.glb", files["cup"]), "image": None}],
+                            options=fast)
+        assert (err.value.status, err.value.code) == (422, "invalid_plan")  # neither prompt nor image
