@@ -167,7 +167,7 @@ async def submit_assembly(request: Request, who: str = Depends(owner)) -> Accept
     except ConfigError as exc:
         raise ApiError(422, "invalid_plan", exc.message,
                        field=f"plan.{(exc.field or '').removeprefix('steps.')}") from None
-    record = JobRecord(id=new_id(), owner=who, created_at=now(), kind="assemble", prompt=steps[-1].prompt,
+    record = JobRecord(id=new_id(), owner=who, created_at=now(), kind="assemble", prompt=None,  # per stage: steps
                        has_image=any(s.has_image for s in steps), target_name=base_name, target_file=base_file,
                        source_name=steps[-1].name, source_file=steps[-1].file, steps=steps,
                        config=config.model_dump(mode="json"))
