@@ -20,6 +20,7 @@ EXIT_FAILED, EXIT_INPUT, EXIT_MODEL = 1, 2, 3
 COMMANDS: dict[str, tuple[str, str]] = {
     "align": ("ctp.cmd_align", "place SOURCE relative to TARGET from a text prompt (in-process)"),
     "example": ("ctp.cmd_example", "write a generated sample pair (target and source GLB) to try ctp on"),
+    "assemble": ("ctp.cmd_assemble", "build a scene one object at a time: BASE --add SOURCE PROMPT ... or --plan"),
     "hparams": ("ctp.cmd_hparams", "print the scene priors (size ratio, penetration, contact ratio)"),
     "bench": ("ctp.cmd_bench", "run the evaluation harness over benchmark cases"),
     "serve": ("ctp.cmd_serve", "start the HTTP API (embedded Redis + worker when REDIS_URL is unset)"),

@@ -25,6 +25,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     guide = parser.add_mutually_exclusive_group()
     guide.add_argument("--prompt", metavar="TEXT", help="text describing the arrangement")
     guide.add_argument("--image", type=Path, metavar="REF.png", help="reference picture (PNG/JPEG) instead of a prompt")
+    add_run_arguments(parser)
+    parser.add_argument("--target-name", metavar="NAME", help="object name for the priors (default: file stem)")
+    parser.add_argument("--source-name", metavar="NAME", help="object name for the priors (default: file stem)")
+    parser.add_argument("--judge-up", action="store_true",
+                        help="let the guidance model pick the target's up from renders named --target-name "
+                        "(needs real weights)")
+
+
+def add_run_arguments(parser: argparse.ArgumentParser) -> None:
+    """Outputs and run options shared by ``ctp align`` and ``ctp assemble``."""
     parser.add_argument("--out", type=Path, default=Path("scene.glb"), metavar="scene.glb",
                         help="output GLB (default scene.glb)")
     parser.add_argument("--report", type=Path, metavar="report.json", help="write the JSON report here")
@@ -45,16 +55,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--penetration", choices=["auto", "allow", "forbid"])
     parser.add_argument("--size-ratio", type=float, metavar="S", help="source/target size in [0.01, 100] (scale mode)")
     parser.add_argument("--hparams-provider", metavar="NAME", help="rules | openai (default rules)")
-    parser.add_argument("--target-name", metavar="NAME", help="object name for the priors (default: file stem)")
-    parser.add_argument("--source-name", metavar="NAME", help="object name for the priors (default: file stem)")
     parser.add_argument("--selection-only", action="store_true",
                         help="reference-code behaviour: text picks the best pose but gives no gradient")
     parser.add_argument("--no-guidance", action="store_true", help="geometry only (lambda_clip = 0)")
     parser.add_argument("--keep-up", action="store_true",
                         help="keep the target file's +Y as up (no automatic upright turn of the target)")
-    parser.add_argument("--judge-up", action="store_true",
-                        help="let the guidance model pick the target's up from renders named --target-name "
-                        "(needs real weights)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -69,7 +74,7 @@ def config_from_args(args: argparse.Namespace):
     overrides = {k: v for k, v in top.items() if v is not None}
     if args.keep_up:
         overrides["upright"] = False
-    if args.judge_up:
+    if getattr(args, "judge_up", False):
         overrides["upright_judge"] = True
     optim = {k: v for k, v in {"restarts": args.restarts, "steps": args.steps}.items() if v is not None}
     loss = {}

@@ -29,7 +29,7 @@ class AlignResult:
 
     source_to_target: np.ndarray  # (4, 4): p_target_file = M @ [p_source_file; 1]
     objective: float
-    target: trimesh.Trimesh  # file frame, untouched
+    target: trimesh.Trimesh | trimesh.Scene  # file frame, untouched (a scene: the objects placed so far)
     source: trimesh.Trimesh  # source file frame (apply source_to_target to place it)
     prompt: str | None
     config: AlignConfig
@@ -60,11 +60,12 @@ class AlignResult:
 
 
 def align(
-    target: trimesh.Trimesh,
+    target: trimesh.Trimesh | trimesh.Scene,
     source: trimesh.Trimesh,
     prompt: str | None,
     config: AlignConfig,
     *,
+    on: str | None = None,
     image: np.ndarray | None = None,
     target_name: str = "target",
     source_name: str = "source",
@@ -80,6 +81,9 @@ def align(
     ``targets`` object) overrides both (the benchmark's oracle). ``guide`` is a preloaded
     vision-language model (``guidance.get_guide``); without one the configured model is loaded (and
     cached per process). ``init`` (4x4, source file -> target file) replaces the first random start.
+    A ``trimesh.Scene`` target is a scene of placed objects (``scene.objects``): ``on`` names the one
+    the source relates to (soft-ICP attaches to it; ``target_name`` and its size feed the priors), while
+    renders and the penetration term see them all.
     Raises ``errors.Canceled`` when ``should_cancel()`` turns true, other ``CtpError`` on bad input.
     """
     from ctp_core import guidance as guidance_mod
@@ -94,14 +98,16 @@ def align(
         priors.get_provider(config.hparams_provider), target_name, source_name, prompt or "",
         size_ratio=config.size_ratio, contact_ratio=config.contact_ratio,
         penetration={"auto": None, "allow": True, "forbid": False}[config.penetration],
-        target_extent=float(target.extents.max()), source_extent=float(source.extents.max()),
+        target_extent=float(scene.attachment(target, on).extents.max()), source_extent=float(source.extents.max()),
     )
     judge = None
     if config.upright and config.upright_judge:
         guide = guide or guidance_mod.guide_for(config)
-        judge = scene.upright_judge(target, guide, target_name, device=config.device)
+        # a scene's up is its base's (scene.base), judged under the base's own name
+        base_name, base = (target_name, target) if isinstance(target, trimesh.Trimesh) else scene.objects(target)[0]
+        judge = scene.upright_judge(base, guide, base_name, device=config.device)
     pair = scene.prepare_pair(target, source, samples=config.loss.samples, seed=config.seed, device=config.device,
-                              canonicalise=config.upright, judge=judge)
+                              canonicalise=config.upright, judge=judge, on=on)
     prepared = time.perf_counter()
 
     if guidance is None and config.loss.lambda_clip > 0:
@@ -142,6 +148,7 @@ def align(
         restarts=restarts, timings=timings, preview=preview,
         extra={
             "best_restart": outcome.best,
+            "on": on,
             "guidance": guidance.description if guidance is not None else "none (geometry only)",
             "model": config.model if guidance is not None else None,
             "runtime": guide.runtime if guide is not None else None,

@@ -2,7 +2,9 @@
 
 All transforms here are in *file frames*: the target is written untouched and the source keeps its
 own vertices under a node whose matrix is ``result.source_to_target`` (source file -> target file),
-so a viewer or a DCC tool shows the arrangement and the transform stays editable.
+so a viewer or a DCC tool shows the arrangement and the transform stays editable. An assembly
+(``assemble``) writes every object as its own named node under its source file -> scene matrix, and
+its report lists every stage.
 """
 
 from __future__ import annotations
@@ -22,34 +24,77 @@ import trimesh
 from PIL import Image
 
 import ctp_core
-from ctp_core.frames import SOURCE_FILE, TARGET_FILE
+from ctp_core.frames import SCENE, Similarity
 from ctp_core.pose import matrix_to_quaternion
+from ctp_core.scene import objects
 
 if TYPE_CHECKING:  # align imports the whole engine; exporting a result needs none of it
     from ctp_core.align import AlignResult
+    from ctp_core.assemble import Assembly
 
 
-def scene_glb(result: AlignResult) -> bytes:
-    """One GLB with two named nodes, "target" (identity) and "source" (placed), with their materials."""
+def scene_glb(result: AlignResult, source_name: str = "source") -> bytes:
+    """One GLB with named nodes and their materials: "target" (identity) and "source" (placed).
+
+    A scene target (the objects placed so far) keeps one node per object under its own name, and the
+    source's node is then named ``source_name`` (made unique among them).
+    """
     scene = trimesh.Scene()
-    scene.add_geometry(result.target, node_name="target", geom_name="target")
-    scene.add_geometry(result.source, node_name="source", geom_name="source",
+    if isinstance(result.target, trimesh.Scene):
+        names = [name for name, _ in objects(result.target)]
+        for name, mesh in objects(result.target):
+            scene.add_geometry(mesh, node_name=name, geom_name=name)
+        source_name = next(n for n in (source_name, *(f"{source_name}-{i}" for i in range(2, len(names) + 3)))
+                           if n not in names)
+    else:
+        scene.add_geometry(result.target, node_name="target", geom_name="target")
+        source_name = "source"
+    scene.add_geometry(result.source, node_name=source_name, geom_name=source_name,
                        transform=np.asarray(result.source_to_target, dtype=np.float64))
     return trimesh.exchange.gltf.export_glb(scene)
 
 
+def assembly_glb(assembly: Assembly) -> bytes:
+    """One GLB, every object its own named node with its materials, under its file -> scene matrix."""
+    return trimesh.exchange.gltf.export_glb(assembly.scene())
+
+
+def transform(similarity: Similarity) -> dict:
+    """A named similarity as the report writes it: frames, 4x4, translation, rotation (wxyz), scale."""
+    return {
+        "from_frame": similarity.from_frame,
+        "to_frame": similarity.to_frame,
+        "matrix": np.asarray(similarity.matrix, dtype=float).tolist(),
+        "translation": similarity.translation.tolist(),
+        "rotation_wxyz": matrix_to_quaternion(similarity.rotation).tolist(),
+        "scale": similarity.scale,
+    }
+
+
 def report(result: AlignResult) -> dict:
     """A JSON-serialisable record of the run: the answer (4x4 and t / q wxyz / s), inputs and provenance."""
+    return {**_run(result), **_provenance()}
+
+
+def assembly_report(assembly: Assembly) -> dict:
+    """The record of an assembly: every object's file -> scene transform, then each stage's run."""
+    first = assembly.stages[0].result.config
+    return {
+        "frame": SCENE,
+        "objects": [{"name": p.name, "transform": transform(p.to_scene)} for p in assembly.objects],
+        "stages": [{"stage": s.index, "of": s.count, "name": s.step.name, "on": s.on,
+                    "image_guided": s.step.image is not None,
+                    **_run(s.result, transform(assembly.objects[s.index].to_scene))} for s in assembly.stages],
+        "model": first.model, "seed": first.seed, "preset": first.preset,
+        "timings": _jsonable(assembly.timings),
+        **_provenance(),
+    }
+
+
+def _run(result: AlignResult, answer: dict | None = None) -> dict:
     config = result.config
     return {
-        "transform": {
-            "from_frame": SOURCE_FILE,
-            "to_frame": TARGET_FILE,
-            "matrix": np.asarray(result.source_to_target, dtype=float).tolist(),
-            "translation": result.translation.tolist(),
-            "rotation_wxyz": matrix_to_quaternion(result.rotation).tolist(),
-            "scale": result.scale,
-        },
+        "transform": answer or transform(result.transform),
         "objective": _jsonable(result.objective),
         "prompt": result.prompt,
         "model": result.extra.get("model", config.model),
@@ -60,6 +105,11 @@ def report(result: AlignResult) -> dict:
         "restarts": _jsonable(result.restarts),
         "timings": _jsonable(result.timings),
         "extra": _jsonable({k: v for k, v in result.extra.items() if k != "model"}),
+    }
+
+
+def _provenance() -> dict:
+    return {
         "versions": {
             "ctp": _version("ctp", ctp_core.__version__),
             "torch": torch.__version__,
@@ -88,14 +138,15 @@ def preview_png(images: np.ndarray) -> bytes:
     return buffer.getvalue()
 
 
-def write_outputs(result: AlignResult, *, glb: Path | None, report_path: Path | None,
+def write_outputs(result: AlignResult | Assembly, *, glb: Path | None, report_path: Path | None,
                   preview: Path | None) -> None:
-    """Write whichever outputs have a path; a preview needs ``result.preview``."""
+    """Write whichever outputs have a path (of one run or a whole assembly); a preview needs ``result.preview``."""
     if preview is not None and result.preview is None:
         raise ValueError("a preview was requested but the result holds no preview images")
+    make_glb, make_report = (assembly_glb, assembly_report) if hasattr(result, "stages") else (scene_glb, report)
     outputs = [
-        (glb, lambda: scene_glb(result)),
-        (report_path, lambda: (json.dumps(report(result), indent=2) + "\n").encode()),
+        (glb, lambda: make_glb(result)),
+        (report_path, lambda: (json.dumps(make_report(result), indent=2) + "\n").encode()),
         (preview, lambda: preview_png(result.preview)),
     ]
     for path, make in outputs:

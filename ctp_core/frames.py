@@ -5,6 +5,9 @@ composition checks that the frames chain, so a missing or doubled step fails lou
 silently misplacing the source. The frames:
 
 - ``target_file`` / ``source_file``: as uploaded, scene graph flattened (``io.load_mesh``).
+- ``scene``: an assembly's frame (``assemble``), the base's file frame. Stage k aligns its source
+  against the objects placed so far, all in this frame, so each stage's target file frame *is* the
+  scene frame and its answer maps source file -> scene.
 - ``target_upright``: the target file frame turned by its canonical rotation (``canonical``); equal to
   the file frame when the upload is already upright.
 - ``normalised``: the target's upright AABB centred at the origin with longest side 2. Cameras,
@@ -27,6 +30,7 @@ SOURCE_FILE = "source_file"
 TARGET_UPRIGHT = "target_upright"
 NORMALISED = "normalised"
 SOURCE_LOCAL = "source_local"
+SCENE = "scene"
 
 
 @dataclass(frozen=True)

@@ -56,8 +56,31 @@ def load_mesh(data: str | Path | bytes, *, filename: str | None = None, limits: 
     frame a viewer shows; visuals (base-colour texture + UVs, vertex colours, material colour) are
     kept because the guidance model sees colour. ``name`` labels messages and ``metadata["name"]``.
     """
+    scene, label = _read(data, filename, limits, name)
+    mesh = _guarded(lambda: _flatten(scene, limits, label), label)
+    mesh.metadata["name"] = name or mesh.metadata.get("name")
+    return mesh
+
+
+def load_objects(data: str | Path | bytes, *, filename: str | None = None, limits: MeshLimits = MeshLimits(),
+                 name: str | None = None) -> trimesh.Scene:
+    """Load ``data`` as its separate objects: one node per mesh instance, named as in the file.
+
+    The same gate as ``load_mesh`` (``limits`` count the faces of all objects), but not flattened:
+    each node's geometry is its mesh with the node transform applied (file frame), keeping its own
+    materials. Nodes keep the file's order (a glTF's node list), so a result scene of ``ctp assemble``
+    or ``POST /align`` reads back as the objects it placed, base first.
+    """
+    scene, label = _read(data, filename, limits, name)
+    return _guarded(lambda: _separate(scene, limits, label), label)
+
+
+def _read(data: str | Path | bytes, filename: str | None, limits: MeshLimits,
+          name: str | None) -> tuple[trimesh.Scene, str]:
+    """The vetted, unflattened scene of an upload, and the label its messages use."""
     label = name or filename or (str(data) if isinstance(data, str | Path) else "upload")
-    try:
+
+    def read() -> trimesh.Scene:
         if isinstance(data, str | Path):
             path = Path(data)
             ext = _extension(filename or path.name, label)
@@ -79,14 +102,24 @@ def load_mesh(data: str | Path | bytes, *, filename: str | None = None, limits: 
         if ext == ".zip":
             member, payload, assets = _open_zip(payload, limits, label)
             ext = _extension(member, label)
-        mesh = _flatten(_load_scene(payload, ext, assets, limits, label), limits, label)
+        scene = _load_scene(payload, ext, assets, limits, label)
+        if ext in (".glb", ".gltf"):
+            scene.metadata["node_order"] = [n.get("name") for n in _gltf_json(payload, ext, label)[0].get("nodes", [])
+                                            if isinstance(n, dict)]
+        return scene
+
+    return _guarded(read, label), label
+
+
+def _guarded(work, label: str):
+    """Run ``work``; anything but a MeshError (trimesh, PIL and numpy raise many kinds) becomes mesh_unreadable."""
+    try:
+        return work()
     except (MeshError, MemoryError):  # out of memory is the caller's to report (ctp_core.loader)
         raise
-    except Exception as exc:  # trimesh, PIL and numpy raise many kinds on corrupt input
+    except Exception as exc:
         raise MeshError(f"{label}: could not read the mesh ({type(exc).__name__}: {exc})",
                         code="mesh_unreadable") from exc
-    mesh.metadata["name"] = name or mesh.metadata.get("name")
-    return mesh
 
 
 def load_image(data: str | Path | bytes, *, max_pixels: int | None = None, name: str = "image") -> np.ndarray:
@@ -435,27 +468,51 @@ def _load_scene(payload: bytes, ext: str, assets: _Assets, limits: MeshLimits, l
     return trimesh.load(io.BytesIO(payload), file_type=ext[1:], resolver=assets, force="scene", process=False)
 
 
-def _flatten(scene: trimesh.Scene, limits: MeshLimits, label: str) -> trimesh.Trimesh:
-    """Apply node transforms and concatenate every triangle mesh instance (points and lines dropped)."""
+def _instances(scene: trimesh.Scene, limits: MeshLimits, label: str) -> list[tuple[str, np.ndarray, trimesh.Trimesh]]:
+    """(node, transform, mesh) of every triangle mesh instance, checked against the limits and for NaN."""
     others = [k for k, g in scene.geometry.items() if not isinstance(g, trimesh.Trimesh)]
     if others:
         scene.delete_geometry(others)
     world = _world_matrices(scene.graph)
-    instances = [(world(node), scene.geometry[scene.graph.transforms.node_data[node]["geometry"]])
+    instances = [(node, world(node), scene.geometry[scene.graph.transforms.node_data[node]["geometry"]])
                  for node in scene.graph.nodes_geometry
                  if scene.graph.transforms.node_data[node]["geometry"] in scene.geometry]
-    faces = sum(len(g.faces) for _, g in instances)
+    faces = sum(len(g.faces) for _, _, g in instances)
     if faces == 0:
         raise MeshError(f"{label}: no triangles in the file", code="mesh_empty")
     if faces > limits.max_faces:
         raise MeshError(f"{label}: {faces:,} faces, over the limit of {limits.max_faces:,}; decimate it first",
                         code="mesh_too_large")
-    for matrix, geometry in instances:
+    for _, matrix, geometry in instances:
         if not (np.isfinite(matrix).all() and np.isfinite(geometry.vertices).all()):
             raise MeshError(f"{label}: vertices or transforms contain NaN or infinity", code="mesh_invalid_values")
+    return instances
+
+
+def _flatten(scene: trimesh.Scene, limits: MeshLimits, label: str) -> trimesh.Trimesh:
+    """Apply node transforms and concatenate every triangle mesh instance (points and lines dropped)."""
+    instances = _instances(scene, limits, label)
     for geometry in scene.geometry.values():
         _bake_base_colour_factor(geometry)
-    mesh = trimesh.util.concatenate([geometry.copy().apply_transform(matrix) for matrix, geometry in instances])
+    mesh = trimesh.util.concatenate([geometry.copy().apply_transform(matrix) for _, matrix, geometry in instances])
+    return _checked(mesh, label)
+
+
+def _separate(scene: trimesh.Scene, limits: MeshLimits, label: str) -> trimesh.Scene:
+    """One node per instance, its mesh moved by the node transform (file frame), in the file's node order."""
+    order = {name: i for i, name in enumerate(scene.metadata.get("node_order", []))}
+    instances = sorted(_instances(scene, limits, label), key=lambda item: (order.get(item[0], len(order)), item[0]))
+    for geometry in scene.geometry.values():
+        _bake_base_colour_factor(geometry)
+    out = trimesh.Scene()
+    for node, matrix, geometry in instances:
+        mesh = geometry.copy()
+        mesh.apply_transform(matrix)
+        out.add_geometry(_checked(mesh, f"{label}: {node}"), node_name=node, geom_name=node)
+    return out
+
+
+def _checked(mesh: trimesh.Trimesh, label: str) -> trimesh.Trimesh:
     if not np.isfinite(mesh.vertices).all():
         raise MeshError(f"{label}: vertices overflow once node transforms are applied", code="mesh_invalid_values")
     mesh.merge_vertices()  # what trimesh's default processing does: shared vertices where UVs agree

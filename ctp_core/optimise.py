@@ -174,7 +174,7 @@ class Optimiser:
         pair = self.problem.pair
         with self.clock.time("geometry"):
             pts = apply_pose(pair.source_samples, poses.t, poses.q, poses.log_s)
-            icp = losses.soft_icp(pts, pair.index, self.problem.contact_ratio, phase.sigma_icp, cfg.icp_neighbours)
+            icp = losses.soft_icp(pts, pair.anchor, self.problem.contact_ratio, phase.sigma_icp, cfg.icp_neighbours)
             if phase.lambda_pen > 0:
                 pen = losses.penetration(pts, pair.index, cfg.sigma_pen, cfg.c_pen, cfg.icp_neighbours)
             else:

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-__all__ = ["SAMPLES", "Sample", "get_sample"]
+__all__ = ["SAMPLES", "Sample", "get_sample", "write_table_setting"]
 
 
 def _coloured(mesh: trimesh.Trimesh, rgb: tuple[int, int, int]) -> trimesh.Trimesh:
@@ -61,6 +61,14 @@ def _bowl() -> trimesh.Trimesh:
         bowl = outer
     bowl.apply_translation((0, -bowl.bounds[0][1], 0))
     return _coloured(bowl, (60, 120, 200))
+
+
+def _plate() -> trimesh.Trimesh:
+    """A 24 cm wide, 2 cm thick plate: a flat disc."""
+    plate = trimesh.creation.cylinder(radius=0.12, height=0.02, sections=48)
+    plate.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, (1, 0, 0)))
+    plate.apply_translation((0, 0.01, 0))
+    return _coloured(plate, (245, 245, 235))
 
 
 def _apple() -> trimesh.Trimesh:
@@ -127,3 +135,26 @@ def get_sample(name: str) -> Sample:
         return SAMPLES[name]
     except KeyError:
         raise KeyError(f"unknown sample {name!r}; known: {', '.join(SAMPLES)}") from None
+
+
+TABLE_SETTING_PLAN = """\
+# ctp assemble --plan plan.yaml: a table laid with a plate, then a cup on the plate
+base: table.glb
+steps:
+  - file: plate.glb
+    prompt: a plate on the table
+  - file: cup.glb
+    prompt: a cup on the plate
+    on: plate
+"""
+
+
+def write_table_setting(directory: str | Path) -> Path:
+    """Write a three-object assembly (table.glb, plate.glb, cup.glb and plan.yaml); returns the plan's path."""
+    folder = Path(directory)
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, make in (("table", _table), ("plate", _plate), ("cup", _cup)):
+        (folder / f"{name}.glb").write_bytes(_glb(make()))
+    plan = folder / "plan.yaml"
+    plan.write_text(TABLE_SETTING_PLAN)
+    return plan

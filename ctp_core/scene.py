@@ -1,5 +1,10 @@
 """A target and a source prepared for optimisation: frames, render meshes and loss samples.
 
+The target is one mesh, or a *scene of placed objects* (a ``trimesh.Scene``, an assembly's stages so
+far): each object in the target file frame (for an assembly, the *scene* frame), rendered with its own
+materials, all of them seen by the penetration term, and the soft-ICP term attached to the one object
+the source relates to (``on``) when one is named.
+
 Frames (see ``frames``):
 - target *file* frame -> *normalised* frame: the target's upright rotation (``canonical``), then its
   AABB centred with longest side 2. The normalised frame is where cameras, renders and losses live.
@@ -12,7 +17,7 @@ Frames (see ``frames``):
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeAlias
 
 import numpy as np
 import torch
@@ -20,26 +25,81 @@ import trimesh
 
 from ctp_core import canonical, frames, render, sampling
 from ctp_core.cameras import Cameras, orbit
+from ctp_core.errors import ConfigError
 from ctp_core.losses import TargetIndex
 from ctp_core.structures import MeshArrays
 
 if TYPE_CHECKING:
     from ctp_core.guidance import Guide
 
+Target: TypeAlias = "trimesh.Trimesh | trimesh.Scene"  # one mesh, or placed objects (target file frame)
+
+
+def objects(target: Target) -> list[tuple[str, trimesh.Trimesh]]:
+    """(name, mesh in the target file frame) of every object of ``target``, in the scene's order."""
+    if isinstance(target, trimesh.Trimesh):
+        return [(target.metadata.get("name") or "target", target)]
+    placed = []
+    for node in target.graph.nodes_geometry:
+        matrix, key = target.graph[node]
+        mesh = target.geometry.get(key)
+        if isinstance(mesh, trimesh.Trimesh):
+            placed.append((node, mesh if np.allclose(matrix, np.eye(4)) else mesh.copy().apply_transform(matrix)))
+    if not placed:
+        raise ValueError("the target scene holds no triangle mesh")
+    return placed
+
+
+def attachment(target: Target, on: str | None) -> trimesh.Trimesh:
+    """The object of ``target`` named ``on`` (the one the source relates to); the whole target for None."""
+    if on is None:
+        return geometry(target)
+    parts = objects(target)
+    return parts[_position([name for name, _ in parts], on)][1]
+
+
+def _position(names: list[str], on: str) -> int:
+    if on not in names:
+        raise ConfigError(f"no placed object named {on!r}; placed: {', '.join(names)}", field="on")
+    return names.index(on)
+
+
+def base(target: Target) -> trimesh.Trimesh:
+    """The object that decides which way is up: the first of a scene (an assembly's base), or the mesh.
+
+    Not the whole scene: objects placed on it change its resting poses (a plate hung at a table leg's
+    foot made the table rest best upside down), and the scene's up must not turn from stage to stage.
+    """
+    return objects(target)[0][1]
+
+
+def geometry(target: Target) -> trimesh.Trimesh:
+    """All triangles of ``target`` as one mesh (no visuals): what framing and the upright turn look at."""
+    if isinstance(target, trimesh.Trimesh):
+        return target
+    parts = [trimesh.Trimesh(m.vertices, m.faces, process=False) for _, m in objects(target)]
+    return parts[0] if len(parts) == 1 else trimesh.util.concatenate(parts)
+
 
 @dataclass
 class PreparedPair:
-    target: trimesh.Trimesh  # target file frame, untouched
+    target: Target  # target file frame, untouched
     source: trimesh.Trimesh  # source file frame, untouched
     target_to_normalised: frames.Similarity  # target file -> normalised
     source_to_local: frames.Similarity  # source file -> source local
     target_upright: canonical.Upright
     source_upright: canonical.Upright  # rotation source file -> its own upright frame
-    mesh: render.RenderMesh  # target then source, joined (faces index target verts first)
-    target_vertices: torch.Tensor  # (Vt, 3) normalised frame
+    mesh: render.RenderMesh  # target object(s) then source, joined (faces index target verts first)
+    target_vertices: torch.Tensor  # (Vt, 3) normalised frame, every target object
     source_vertices: torch.Tensor  # (Vs, 3) source local frame
-    index: TargetIndex  # target samples + outward normals, normalised frame
+    index: TargetIndex  # target samples + outward normals, normalised frame, every target object
     source_samples: torch.Tensor  # (N, 3) source local frame
+    attach: TargetIndex | None = None  # samples of the object the source relates to; None: all of ``index``
+
+    @property
+    def anchor(self) -> TargetIndex:
+        """What the soft-ICP term pulls toward: the related object's samples, or the whole target's."""
+        return self.index if self.attach is None else self.attach
 
     @property
     def target_radius(self) -> float:
@@ -62,30 +122,36 @@ class PreparedPair:
         return frames.source_to_target(local_to_normalised, self.target_to_normalised, self.source_to_local).matrix
 
 
-def prepare_pair(target: trimesh.Trimesh, source: trimesh.Trimesh, *, samples: int, seed: int,
-                 device: str = "cpu", canonicalise: bool = True, judge: canonical.Judge | None = None
-                 ) -> PreparedPair:
+def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed: int,
+                 device: str = "cpu", canonicalise: bool = True, judge: canonical.Judge | None = None,
+                 on: str | None = None) -> PreparedPair:
     """Normalise, canonicalise and sample a pair once per run (everything later reuses it).
 
     ``canonicalise`` turns a clearly lying or upside-down target upright (renders then show it as
     CLIP expects), by ``judge`` when given (``upright_judge``); the source's upright frame is always
-    computed from geometry, as the starting orientation.
+    computed from geometry, as the starting orientation. A scene target's up is its base's (``base``);
+    it gets ``samples`` samples per object; ``on`` names the object the soft-ICP term attaches to.
     """
-    target_up = canonical.upright_rotation(target, seed=seed, judge=judge) if canonicalise else canonical.identity()
+    whole, up_from = geometry(target), base(target)
+    target_up = canonical.upright_rotation(up_from, seed=seed, judge=judge) if canonicalise else canonical.identity()
     source_up = canonical.upright_rotation(source, seed=seed)
-    target_to_norm = frames.target_to_normalised(target.vertices, target_up.rotation)
+    target_to_norm = frames.target_to_normalised(whole.vertices, target_up.rotation)
     source_to_local = frames.source_local(source.bounds, target_to_norm)
 
-    target_arrays = MeshArrays.from_trimesh(target)
+    parts = objects(target)
+    target_arrays = [MeshArrays.from_trimesh(m) for _, m in parts]
     source_arrays = MeshArrays.from_trimesh(source)
-    target_render = render.RenderMesh.from_arrays(target_arrays, device=device)
-    source_render = render.RenderMesh.from_arrays(source_arrays, device=device)
-    mesh = render.join([target_render, source_render], [len(target_arrays.vertices), len(source_arrays.vertices)])
+    renders = [render.RenderMesh.from_arrays(a, device=device) for a in [*target_arrays, source_arrays]]
+    mesh = render.join(renders, [len(a.vertices) for a in [*target_arrays, source_arrays]])
 
-    oriented = outward(target)
-    t_pts, t_nrm = sampling.surface_samples(oriented, samples, seed)
+    sampled = [sampling.surface_samples(outward(m), samples, seed + 2 * i) for i, (_, m) in enumerate(parts)]
+    t_pts, t_nrm = (np.concatenate(parts_of) for parts_of in zip(*sampled, strict=True))
     s_pts, _ = sampling.surface_samples(source, samples, seed + 1)
     as_tensor = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=device)  # noqa: E731
+    index = lambda p, n: TargetIndex(as_tensor(target_to_norm.apply(p)),  # noqa: E731
+                                     as_tensor(target_to_norm.apply_directions(n)))
+    position = None if on is None else _position([name for name, _ in parts], on)
+    attach = index(*sampled[position]) if position is not None and len(parts) > 1 else None
     return PreparedPair(
         target=target,
         source=source,
@@ -94,10 +160,11 @@ def prepare_pair(target: trimesh.Trimesh, source: trimesh.Trimesh, *, samples: i
         target_upright=target_up,
         source_upright=source_up,
         mesh=mesh,
-        target_vertices=as_tensor(target_to_norm.apply(target_arrays.vertices)),
+        target_vertices=as_tensor(target_to_norm.apply(np.concatenate([a.vertices for a in target_arrays]))),
         source_vertices=as_tensor(source_to_local.apply(source_arrays.vertices)),
-        index=TargetIndex(as_tensor(target_to_norm.apply(t_pts)), as_tensor(target_to_norm.apply_directions(t_nrm))),
+        index=index(t_pts, t_nrm),
         source_samples=as_tensor(source_to_local.apply(s_pts)),
+        attach=attach,
     )
 
 

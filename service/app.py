@@ -28,7 +28,7 @@ from service.deps import digest
 from service.errors import BodyLimit, install_handlers
 from service.forms import NAME_MAX, OPTIONS_DEPTH, OPTIONS_MAX, PROMPT_MAX
 from service.jobs import Jobs
-from service.routers import health, page
+from service.routers import assemble, health, page
 from service.routers import jobs as jobs_router
 from service.schemas import AlignOptions
 from service.settings import Settings
@@ -41,9 +41,10 @@ DESCRIPTION = f"""
 Place one 3D object relative to another from a text prompt (Copy-Transform-Paste).
 
 Submit two meshes and a prompt to `POST /align`, follow `GET /jobs/{{id}}` (or its server-sent
-`events`), then download `result.glb`; `GET /jobs` lists the caller's jobs. Jobs run on queue workers;
-records and results expire after the configured TTL (`CTP_JOB_TTL_S`). A web page for all of this is at
-`/`; these docs work offline (`/docs`, `/redoc`).
+`events`), then download `result.glb`; `GET /jobs` lists the caller's jobs. `POST /assemble` builds a
+scene of several objects, one stage each, as one job; `POST /align` with `target_job` adds one object to
+an earlier job's scene. Jobs run on queue workers; records and results expire after the configured TTL
+(`CTP_JOB_TTL_S`). A web page for all of this is at `/`; these docs work offline (`/docs`, `/redoc`).
 
 **Authentication.** When the service has API keys (`CTP_API_KEYS`), every call except `/healthz` and
 `/readyz` needs `Authorization: Bearer <key>`, and a key sees only its own jobs (others' are 404).
@@ -53,19 +54,23 @@ records and results expire after the configured TTL (`CTP_JOB_TTL_S`). A web pag
 - 400: `invalid_request` (not multipart, malformed form), `missing_field`, `invalid_field` (a file where
   text belongs or the reverse, text that is not UTF-8), `unknown_field`, `invalid_options` (options is
   not a JSON object, is over {OPTIONS_MAX} characters or {OPTIONS_DEPTH} levels deep, or holds an integer
-  beyond 64 bits, NaN or infinity)
+  beyond 64 bits, NaN or infinity), `invalid_plan` (an assembly plan that is not a JSON list of steps, or
+  names a file part not sent)
 - 401: `unauthorized`
-- 404: `job_not_found`, `not_found`
-- 409: `job_not_ready` (result of a job that has not succeeded), `job_finished` (cancel of an ended job)
+- 404: `job_not_found` (also a `target_job` that is unknown or another key's), `not_found`
+- 409: `job_not_ready` (result of a job that has not succeeded, or such a `target_job`), `job_finished`
+  (cancel of an ended job)
 - 413: `request_too_large`, `mesh_file_too_large`, `mesh_too_large` (faces, glTF instances counted),
   `mesh_too_complex` (a glTF scene graph over {MeshLimits.max_nodes:,} nodes or {MeshLimits.max_depth}
   deep by default, or a mesh whose loading ran past its wall time (`CTP_LOAD_TIMEOUT_S`) or memory
-  (`CTP_LOAD_MEMORY_MB`)), `image_too_large`
+  (`CTP_LOAD_MEMORY_MB`)), `image_too_large`, `too_many_stages` (`CTP_MAX_STAGES`), `scene_too_large`
+  (all meshes of a job, `CTP_MAX_SCENE_FACES`)
 - 415: `mesh_unknown_format` (extension not .glb, .gltf, .obj, .zip (OBJ+MTL), .ply or .stl)
 - 422: `invalid_prompt` (1 to {PROMPT_MAX} characters, no control characters but tab, newline and carriage
   return), `invalid_option` (includes an integer option out of its range), `unknown_option`,
   `invalid_name` (1 to {NAME_MAX} characters, no control characters; also a file name with control
-  characters), `mesh_empty`, `mesh_unreadable` (corrupt, or a glTF whose accessors, buffer views or
+  characters), `invalid_plan` (duplicate step names, an `on` that is not placed before the step),
+  `mesh_empty`, `mesh_unreadable` (corrupt, or a glTF whose accessors, buffer views or
   buffers disagree, including a `data:` buffer whose `byteLength` is not its decoded size),
   `mesh_invalid_values` (NaN/inf), `mesh_external_reference` (glTF URIs), `mesh_zip_invalid` (bombs,
   paths out of the archive, encrypted or symbolic-link members, not exactly one mesh), `invalid_image`
@@ -81,7 +86,8 @@ memory limit, so no upload can stall or exhaust the API.
 
 Failed jobs carry an error too: an engine code (`canceled`, `model_unavailable` (the model failed to load
 after the job was accepted), `invalid_option`, a mesh code, ...), `job_timeout` (`CTP_JOB_TIMEOUT_S`),
-`worker_lost` (its worker was killed or lost its machine; not retried) or `internal_error`.
+`worker_lost` (its worker was killed or lost its machine; not retried) or `internal_error`. An assembly's
+failure names its stage in the message (`stage 2/3 (plate): ...`) and in `field` (`steps.1`).
 """
 
 
@@ -120,6 +126,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(jobs_router.router)
     app.include_router(page.router)
     app.mount("/static", page.static_files(), name="static")
+    app.include_router(assemble.router)
 
     def openapi() -> dict[str, Any]:
         if app.openapi_schema is None:

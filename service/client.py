@@ -4,6 +4,11 @@
     job = client.submit("sundae.glb", "cherry.glb", "a cherry on top of a sundae", options={"seed": 1})
     final = client.wait(job["id"], on_progress=lambda j: print(j["progress"]["message"]))
     client.download(job["id"], "result.glb", to="scene.glb")
+
+    # one more object on that scene (its objects stay as they are), or a whole scene as one job:
+    spoon = client.submit(None, "spoon.glb", "a spoon in the cup", target_job=job["id"])
+    scene = client.assemble("table.glb", [{"file": "plate.glb", "prompt": "a plate on the table"},
+                                          {"file": "cup.glb", "prompt": "a cup on the plate"}])
 """
 
 from __future__ import annotations
@@ -43,16 +48,47 @@ class Client:
     def __exit__(self, *exc) -> None:
         self.close()
 
-    def submit(self, target: MeshInput, source: MeshInput, prompt: str | None = None, *,
+    def submit(self, target: MeshInput | None, source: MeshInput, prompt: str | None = None, *,
                image: MeshInput | None = None, options: dict[str, Any] | None = None,
-               target_name: str | None = None, source_name: str | None = None) -> dict[str, Any]:
-        """Upload a pair; returns ``{id, status, links}``. Needs a prompt or an image."""
-        files = {"target": _file(target), "source": _file(source)}
+               target_name: str | None = None, source_name: str | None = None,
+               target_job: str | None = None, on: str | None = None) -> dict[str, Any]:
+        """Upload a pair; returns ``{id, status, links}``. Needs a prompt or an image.
+
+        ``target_job`` (with ``target`` None) uses that succeeded job's result scene as the target; ``on``
+        names the object of it the source relates to (default: the last placed one)."""
+        files = {"source": _file(source)}
+        if target is not None:
+            files["target"] = _file(target)
         if image is not None:
             files["image"] = _file(image)
         data = {k: v for k, v in {"prompt": prompt, "target_name": target_name, "source_name": source_name,
+                                  "target_job": target_job, "on": on,
                                   "options": json.dumps(options) if options else None}.items() if v is not None}
         return self._json(self.http.post("/align", files=files, data=data))
+
+    def assemble(self, base: MeshInput, steps: list[dict[str, Any]], *, options: dict[str, Any] | None = None,
+                 base_name: str | None = None) -> dict[str, Any]:
+        """Submit a whole scene as one job; returns ``{id, status, links}``.
+
+        Each step is ``{"file": MeshInput, "prompt": str}`` or ``{"file": ..., "image": MeshInput}``, with
+        optional ``name`` (default the file stem), ``on`` (a placed object's name; default the last placed)
+        and ``options`` (this stage's AlignOptions)."""
+        files: list[tuple[str, tuple[str, bytes]]] = [("base", _file(base))]
+        plan = []
+        for i, step in enumerate(steps):
+            entry = {k: v for k, v in step.items() if k not in ("file", "image")}
+            name, data = _file(step["file"])
+            entry.setdefault("name", Path(name).stem)
+            entry["file"] = f"{i}-{name}"  # distinct part names, whatever the files are called
+            files.append(("source", (entry["file"], data)))
+            if step.get("image") is not None:
+                image_name, image = _file(step["image"])
+                entry["image"] = f"{i}-{image_name}"
+                files.append(("image", (entry["image"], image)))
+            plan.append(entry)
+        data = {k: v for k, v in {"plan": json.dumps(plan), "base_name": base_name,
+                                  "options": json.dumps(options) if options else None}.items() if v is not None}
+        return self._json(self.http.post("/assemble", files=files, data=data))
 
     def status(self, job_id: str) -> dict[str, Any]:
         return self._json(self.http.get(f"/jobs/{job_id}"))

@@ -32,7 +32,8 @@ INT_MAX = 2**63 - 1  # JSON integers must fit in 64 bits
 # C0 control characters; a prompt may hold tab, newline and carriage return, a name none of them.
 _PROMPT_CONTROL = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
 _NAME_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
-FORM_FIELDS = {"target", "source", "prompt", "image", "options", "target_name", "source_name"}
+FORM_FIELDS = {"target", "source", "prompt", "image", "options", "target_name", "source_name",
+               "target_job", "on"}
 
 # MeshError codes that are not 422.
 _MESH_STATUS = {"mesh_file_too_large": 413, "mesh_too_large": 413, "mesh_too_complex": 413,
@@ -47,10 +48,16 @@ ALIGN_BODY = {
     "required": True,
     "content": {"multipart/form-data": {"schema": {
         "type": "object",
-        "required": ["target", "source"],
+        "required": ["source"],
         "properties": {
             "target": _file_field("the mesh that stays put (GLB, glTF with embedded buffers, OBJ, OBJ+MTL in a "
-                                  ".zip, PLY, STL); the extension of the file name gives the format"),
+                                  ".zip, PLY, STL); the extension of the file name gives the format; required "
+                                  "unless `target_job` is given"),
+            "target_job": {"type": "string", "description": "instead of `target`: the id of one of your succeeded "
+                           "jobs, whose result scene becomes the target, read back as its separate objects "
+                           "(404 for an unknown job or another key's, 409 if it has not succeeded)"},
+            "on": {"type": "string", "maxLength": NAME_MAX, "description": "with `target_job`: the object of that "
+                   "scene the source relates to (soft-ICP attaches to it); default the last placed one"},
             "source": _file_field("the mesh to place, same formats"),
             "prompt": {"type": "string", "minLength": 1, "maxLength": PROMPT_MAX,
                        "description": "what the arrangement should look like; required unless `image` is given"},
@@ -68,18 +75,18 @@ ALIGN_BODY = {
 }
 
 
-async def read_form(request: Request):
+async def read_form(request: Request, fields: set[str] = FORM_FIELDS, max_files: int = 3):
     if not request.headers.get("content-type", "").startswith("multipart/form-data"):
-        raise ApiError(400, "invalid_request", "send multipart/form-data (fields target, source, prompt, options)")
+        raise ApiError(400, "invalid_request", f"send multipart/form-data (fields {', '.join(sorted(fields))})")
     try:
-        form = await request.form(max_files=3, max_fields=8)
+        form = await request.form(max_files=max_files, max_fields=8)
     except ApiError:
         raise
     except Exception as exc:  # python-multipart and Starlette raise several types for a broken body
         raise ApiError(400, "invalid_request", f"malformed multipart body: {exc}") from None
     for key in form:
-        if key not in FORM_FIELDS:
-            raise ApiError(400, "unknown_field", f"unknown form field {key!r}; known: {', '.join(sorted(FORM_FIELDS))}",
+        if key not in fields:
+            raise ApiError(400, "unknown_field", f"unknown form field {key!r}; known: {', '.join(sorted(fields))}",
                            field=key)
     return form
 
@@ -122,17 +129,23 @@ def options(form) -> dict[str, Any]:
     raw = text(form, "options")
     if raw is None or not raw.strip():
         return {}
-    if len(raw) > OPTIONS_MAX:
-        raise ApiError(400, "invalid_options", f"options is over {OPTIONS_MAX} characters", field="options")
-    if _depth(raw) > OPTIONS_DEPTH:
-        raise ApiError(400, "invalid_options", f"options nests deeper than {OPTIONS_DEPTH} levels", field="options")
-    try:
-        parsed = json.loads(raw, parse_int=_int64, parse_float=_finite, parse_constant=_no_constant)
-    except ValueError as exc:  # JSONDecodeError, and the hooks' refusals
-        raise ApiError(400, "invalid_options", f"options is not valid JSON: {exc}", field="options") from None
+    parsed = strict_json(raw, "options", "invalid_options")
     if not isinstance(parsed, dict):
         raise ApiError(400, "invalid_options", "options must be a JSON object", field="options")
     return parsed
+
+
+def strict_json(raw: str, field: str, code: str, max_chars: int = OPTIONS_MAX) -> Any:
+    """JSON a client sent, bounded before parsing (size, nesting: no parser recursion is deep) and strict in
+    what it holds (integers in 64 bits, finite numbers); 400 ``code`` otherwise."""
+    if len(raw) > max_chars:
+        raise ApiError(400, code, f"{field} is over {max_chars} characters", field=field)
+    if _depth(raw) > OPTIONS_DEPTH:
+        raise ApiError(400, code, f"{field} nests deeper than {OPTIONS_DEPTH} levels", field=field)
+    try:
+        return json.loads(raw, parse_int=_int64, parse_float=_finite, parse_constant=_no_constant)
+    except ValueError as exc:  # JSONDecodeError, and the hooks' refusals
+        raise ApiError(400, code, f"{field} is not valid JSON: {exc}", field=field) from None
 
 
 def _depth(raw: str) -> int:
@@ -173,7 +186,7 @@ def _no_constant(literal: str):
 def object_name(form, role: str, filename: str) -> str:
     name = text(form, f"{role}_name")
     if name is None:
-        return PurePath(filename).stem.replace("_", " ").replace("-", " ").strip()[:NAME_MAX] or role
+        return default_name(filename, role)
     if not 1 <= len(name.strip()) <= NAME_MAX:
         raise ApiError(422, "invalid_name", f"{role}_name must have 1 to {NAME_MAX} characters",
                        field=f"{role}_name")
@@ -191,18 +204,23 @@ def file_name(upload: UploadFile, role: str) -> str:
     return name
 
 
+def default_name(filename: str, fallback: str) -> str:
+    """An object's name from its file name ("coffee_cup.glb" -> "coffee cup"), cut to NAME_MAX."""
+    return PurePath(filename).stem.replace("_", " ").replace("-", " ").strip()[:NAME_MAX] or fallback
+
+
 async def read_limited(upload: UploadFile, max_bytes: int, field: str, code: str) -> bytes:
     if upload.size is not None and upload.size > max_bytes:
         raise ApiError(413, code, f"{field} is over the {max_bytes}-byte limit", field=field)
     return await upload.read()
 
 
-def check_mesh(loader: MeshLoader, data: bytes, filename: str, limits: MeshLimits, role: str) -> None:
+def check_mesh(loader: MeshLoader, data: bytes, filename: str, limits: MeshLimits, role: str) -> int:
     """Parse exactly as the worker will (in a loading process, bounded), so a queued job never fails on
-    its input."""
+    its input; returns its face count."""
     started = time.perf_counter()
     try:
-        loader.check(data, filename, limits)
+        faces = loader.check(data, filename, limits)
     except LoaderUnavailable as exc:
         raise ApiError(503, exc.code, exc.message, field=role) from None
     except MeshError as exc:
@@ -210,6 +228,7 @@ def check_mesh(loader: MeshLoader, data: bytes, filename: str, limits: MeshLimit
     except CtpError as exc:
         raise ApiError(422, exc.code, exc.message, field=role) from None
     log.debug("mesh checked", extra={"duration_ms": round(1000 * (time.perf_counter() - started))})
+    return faces
 
 
 def check_image(data: bytes, max_pixels: int) -> None:

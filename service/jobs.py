@@ -41,7 +41,7 @@ log = logging.getLogger("ctp.service")
 
 Status = Literal["queued", "running", "succeeded", "failed", "canceled"]
 TERMINAL: frozenset[str] = frozenset({"succeeded", "failed", "canceled"})
-INPUTS = ("target", "source", "image")
+INPUTS = ("target", "source", "image")  # an assembly's are "target" (its base), "source-<i>", "image-<i>"
 # Result files: name -> media type.
 OUTPUTS = {"result.glb": "model/gltf-binary", "report.json": "application/json", "preview.png": "image/png"}
 TASK = "worker.tasks.run_job"  # by name: the API never imports the engine
@@ -91,8 +91,23 @@ class JobError(BaseModel):
     field: str | None = Field(None, description="the request field at fault, when there is one")
 
 
+class AssemblyStep(BaseModel):
+    """One stage of an assembly job: its source (blob ``source-<i>``), guide, name, relation and config."""
+
+    name: str
+    file: str = Field(description="the source's file name (its extension gives the format)")
+    prompt: str | None = None
+    has_image: bool = Field(False, description="guided by the reference picture in blob image-<i>")
+    on: str | None = Field(None, description="the placed object it relates to; None: the last placed one")
+    config: dict[str, Any] = Field(default_factory=dict, description="AlignConfig of this stage")
+
+
 class JobRecord(BaseModel):
-    """The stored job. ``owner`` is a digest of the API key, never the key."""
+    """The stored job. ``owner`` is a digest of the API key, never the key.
+
+    An assembly (``kind`` "assemble") has its base as the target and one ``steps`` entry per stage; an
+    alignment chained on an earlier job (``target_job``) has that job's result scene as its target.
+    """
 
     id: str
     owner: str
@@ -111,6 +126,20 @@ class JobRecord(BaseModel):
     target_file: str = "target.glb"
     source_file: str = "source.glb"
     config: dict[str, Any] = Field(default_factory=dict, description="AlignConfig, validated at submit")
+    kind: Literal["align", "assemble"] = "align"
+    target_job: str | None = Field(None, description="the job whose result scene is the target (POST /align)")
+    on: str | None = Field(None, description="with target_job: the object of its scene the source relates to")
+    steps: list[AssemblyStep] = Field(default_factory=list, description="an assembly's stages")
+
+    @property
+    def stage_count(self) -> int:
+        return max(1, len(self.steps))
+
+    def inputs(self) -> list[str]:
+        """The names of this job's upload blobs (dropped once it ends)."""
+        if self.kind == "assemble":
+            return ["target", *(f"{role}-{i}" for i in range(len(self.steps)) for role in ("source", "image"))]
+        return list(INPUTS)
 
 
 def now() -> datetime:
@@ -181,7 +210,9 @@ class Jobs:
 
     # -- writing ------------------------------------------------------------------------------------
     def submit(self, record: JobRecord, blobs: dict[str, bytes], max_active: int) -> JobRecord:
-        """Store the inputs and the record, then enqueue; raises TooManyJobs over the per-key limit."""
+        """Store the inputs and the record, then enqueue; raises TooManyJobs over the per-key limit.
+
+        The job's time limit is the configured one per stage (an assembly of n objects gets n times it)."""
         active = self._active_key(record.owner)
         self._prune_active(record.owner)
         # Reserve first, then count: concurrent submits can only under-admit, never exceed the limit.
@@ -196,8 +227,9 @@ class Jobs:
             self.redis.set(self.record_key(record.id), record.model_dump_json(), ex=self.ttl_s)
             self.redis.zadd(self._owned_key(record.owner), {record.id: record.created_at.timestamp()})
             self.redis.expire(self._owned_key(record.owner), self.ttl_s)
-            self.queue.enqueue(TASK, record.id, job_id=record.id, job_timeout=self.job_timeout_s,
-                               result_ttl=0, failure_ttl=self.ttl_s, description=f"align {record.id}")
+            self.queue.enqueue(TASK, record.id, job_id=record.id,
+                               job_timeout=self.job_timeout_s * record.stage_count, result_ttl=0,
+                               failure_ttl=self.ttl_s, description=f"{record.kind} {record.id}")
         except Exception:
             self.redis.srem(active, record.id)
             self.redis.zrem(self._owned_key(record.owner), record.id)
@@ -248,7 +280,7 @@ class Jobs:
 
         record = self._update(job_id, change, self._release)
         if record is not None and record.status == status:
-            self.storage.delete(job_id, list(INPUTS))
+            self.storage.delete(job_id, record.inputs())
             log.info("job %s", status, extra={"job_id": job_id, "status": status,
                                               "code": error.code if error else None})
         return record
@@ -275,7 +307,7 @@ class Jobs:
             # Already dequeued: the worker sees the status and skips it.
             with contextlib.suppress(NoSuchJobError, InvalidJobOperation):
                 RqJob.fetch(job_id, connection=self.redis, serializer=JSONSerializer).cancel()
-            self.storage.delete(job_id, list(INPUTS))
+            self.storage.delete(job_id, record.inputs())
             log.info("job canceled while queued", extra={"job_id": job_id})
         return record
 

@@ -68,6 +68,24 @@ AlignOptions: type[BaseModel] = create_model(
 def build_config(options: dict[str, Any], *, default_model: str, allowed_models: list[str]) -> AlignConfig:
     """Validate a client's options and merge them into their preset; raises ConfigError whose
     ``field`` is ``options.<name>``, code ``unknown_option`` or ``invalid_option``."""
+    overrides = option_overrides(options)
+    model = overrides.get("model", default_model)
+    if model not in allowed_models:
+        raise ConfigError(f"model {model!r} is not served here; choose one of {', '.join(allowed_models)}",
+                          field="options.model")
+    overrides["model"] = model  # where it runs (device, threads) is the worker's setting
+    preset = overrides.pop("preset", "default")
+    try:
+        return AlignConfig.from_preset(preset, **overrides)
+    except ConfigError as exc:
+        raise ConfigError(exc.message, field=_option_of(exc.field)) from None
+
+
+def option_overrides(options: dict[str, Any], where: str = "options") -> dict[str, Any]:
+    """Validate options (AlignOptions names) and nest them as ``AlignConfig`` overrides.
+
+    Raises ConfigError whose ``field`` is ``<where>.<name>``, code ``unknown_option`` or ``invalid_option``.
+    """
     try:
         parsed = AlignOptions.model_validate(options)
     except ValidationError as exc:
@@ -75,28 +93,20 @@ def build_config(options: dict[str, Any], *, default_model: str, allowed_models:
         name = ".".join(str(p) for p in err["loc"])
         if err["type"] == "extra_forbidden":
             raise ConfigError(f"unknown option {name!r}; known: {', '.join(OPTION_PATHS)}",
-                              code="unknown_option", field=f"options.{name}") from None
-        raise ConfigError(f"{name}: {err['msg']}", field=f"options.{name}") from None
+                              code="unknown_option", field=f"{where}.{name}") from None
+        raise ConfigError(f"{name}: {err['msg']}", field=f"{where}.{name}") from None
     given = parsed.model_dump(exclude_none=True)
     if given.get("hparams_provider", PROVIDERS[0]) not in PROVIDERS:
         raise ConfigError(f"unknown hparams provider {given['hparams_provider']!r}; choose one of "
-                          f"{', '.join(PROVIDERS)}", field="options.hparams_provider")
-    model = given.get("model", default_model)
-    if model not in allowed_models:
-        raise ConfigError(f"model {model!r} is not served here; choose one of {', '.join(allowed_models)}",
-                          field="options.model")
-    overrides: dict[str, Any] = {"model": model}  # where it runs (device, threads) is the worker's setting
+                          f"{', '.join(PROVIDERS)}", field=f"{where}.hparams_provider")
+    overrides: dict[str, Any] = {}
     for name, value in given.items():
         *parents, leaf = OPTION_PATHS[name]
         node = overrides
         for part in parents:
             node = node.setdefault(part, {})
         node[leaf] = value
-    preset = overrides.pop("preset", "default")
-    try:
-        return AlignConfig.from_preset(preset, **overrides)
-    except ConfigError as exc:
-        raise ConfigError(exc.message, field=_option_of(exc.field)) from None
+    return overrides
 
 
 def _option_of(config_field: str | None) -> str | None:

@@ -51,6 +51,9 @@ class Settings(BaseSettings):
     load_memory_mb: int = Field(3072, ge=512, description="address-space limit of each loading process (MiB)")
     load_processes: int = Field(2, ge=1, description="loading processes of the API (a worker has one)")
     max_active_jobs: int = Field(4, ge=1, description="queued plus running jobs per API key")
+    max_stages: int = Field(8, ge=1, description="objects one POST /assemble may place (its stages)")
+    max_scene_faces: int = Field(1_000_000, ge=1, description="faces of all meshes of one job together (an "
+                                 "assembly's base and sources, a chained job's target scene and source)")
     job_timeout_s: int = Field(3600, ge=1, description="a running job is failed after this long")
     job_ttl_s: int = Field(24 * 3600, ge=60, description="job records, uploads and results expire after this")
     # Engine.

@@ -1,7 +1,7 @@
 """The rq task: take a queued job, run the engine on it, store its results or its error.
 
-``run_job`` is the adapter (status, progress, leases, errors); ``align_job`` is the one call into
-``ctp_core``: bytes in, result files out.
+``run_job`` is the adapter (status, progress, leases, errors); ``align_job`` and ``assemble_job`` are
+the calls into ``ctp_core``: bytes in, result files out.
 """
 
 from __future__ import annotations
@@ -13,11 +13,12 @@ from collections.abc import Callable
 from rq.timeouts import JobTimeoutException
 
 from ctp_core.align import align
+from ctp_core.assemble import Step, assemble
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled, CtpError
-from ctp_core.export import preview_png, report, scene_glb
+from ctp_core.export import assembly_glb, assembly_report, preview_png, report, scene_glb
 from ctp_core.guidance import guide_for
-from ctp_core.io import MeshLimits, load_image
+from ctp_core.io import MeshLimits, load_image, load_objects
 from ctp_core.loader import MeshLoader
 from ctp_core.progress import ProgressEvent
 from service.jobs import JobError, JobRecord, Progress, Stage, Status
@@ -41,13 +42,12 @@ def run_job(job_id: str) -> str:
     status: Status = "failed"
     error: JobError | None = None
     try:
-        inputs = {name: ctx.jobs.storage.get(job_id, name) for name in ("target", "source", "image")}
-        if inputs["target"] is None or inputs["source"] is None:
+        inputs = {name: ctx.jobs.storage.get(job_id, name) for name in record.inputs()}
+        if inputs["target"] is None or inputs.get("source", inputs.get("source-0")) is None:
             raise CtpError("the job's uploads expired before a worker picked it up", code="inputs_expired")
-        files = align_job(
+        files = (assemble_job if record.kind == "assemble" else align_job)(
             record, inputs, device=ctx.settings.device, threads=ctx.settings.threads, runtime=ctx.settings.runtime,
-            loader=ctx.loader,
-            limits=ctx.settings.mesh_limits,
+            loader=ctx.loader, limits=ctx.settings.mesh_limits,
             on_progress=lambda p, force: ctx.beat.publish(p, force=force),
             should_cancel=lambda: ctx.jobs.should_stop(job_id),
         )
@@ -59,7 +59,8 @@ def run_job(job_id: str) -> str:
     except CtpError as exc:
         error = JobError(**exc.to_dict())
     except JobTimeoutException:
-        error = JobError(code="job_timeout", message=f"the job ran over {ctx.settings.job_timeout_s} s")
+        limit_s = ctx.settings.job_timeout_s * record.stage_count
+        error = JobError(code="job_timeout", message=f"the job ran over {limit_s} s")
     except Exception as exc:
         log.exception("job crashed", extra={"job_id": job_id, "worker": ctx.name})
         error = JobError(code="internal_error", message=f"{type(exc).__name__}: {exc}")
@@ -88,7 +89,11 @@ def align_job(
     """
     config = AlignConfig.model_validate({**record.config, "device": device, "threads": threads, "runtime": runtime})
     on_progress(Progress(stage=Stage(name="loading"), kind="loading", message="loading meshes"), True)
-    target = loader.load(inputs["target"], filename=record.target_file, limits=limits)
+    # A chained job's target is an earlier result scene (this service's own output), read back as its objects.
+    if record.target_job:
+        target = load_objects(inputs["target"], filename=record.target_file, limits=limits)
+    else:
+        target = loader.load(inputs["target"], filename=record.target_file, limits=limits)
     source = loader.load(inputs["source"], filename=record.source_file, limits=limits)
     image = load_image(inputs["image"]) if inputs.get("image") is not None else None
     guide = None
@@ -99,24 +104,88 @@ def align_job(
     def on_event(event: ProgressEvent) -> None:
         on_progress(progress_of(event), event.kind in _MILESTONES)
 
-    result = align(target, source, record.prompt, config, image=image, target_name=record.target_name,
+    result = align(target, source, record.prompt, config, on=record.on, image=image, target_name=record.target_name,
                    source_name=record.source_name, guide=guide, on_event=on_event, should_cancel=should_cancel)
-    on_progress(Progress(stage=Stage(name="exporting"), kind="exporting", phase=config.optim.phases,
-                         phases=config.optim.phases, step=config.optim.steps, steps=config.optim.steps,
-                         restarts=config.optim.restarts, fraction=1.0, eta_s=0.0,
-                         objective=round(result.objective, 5), message="writing results"), True)
-    files = {"result.glb": scene_glb(result),
+    on_progress(_exporting(config, objective=result.objective), True)
+    files = {"result.glb": scene_glb(result, source_name=record.source_name),
              "report.json": json.dumps(report(result), indent=2).encode()}
     if result.preview is not None:
         files["preview.png"] = preview_png(result.preview)
     return files
 
 
-def progress_of(event: ProgressEvent) -> Progress:
-    """The optimiser's event as the API's progress object."""
+def assemble_job(
+    record: JobRecord,
+    inputs: dict[str, bytes | None],
+    *,
+    device: str,
+    threads: int | None,
+    loader: MeshLoader,
+    limits: MeshLimits,
+    on_progress: Callable[[Progress, bool], None],
+    should_cancel: Callable[[], bool],
+    runtime: str = "auto",
+) -> dict[str, bytes]:
+    """Run ``ctp_core.assemble`` on an assembly job: the model loaded once, progress per stage, the whole
+    scene's GLB, report and preview out. A failure names its stage (message and field ``steps.<i>``)."""
+    where = {"device": device, "threads": threads, "runtime": runtime}
+    config = AlignConfig.model_validate({**record.config, **where})
+    count = record.stage_count
+    on_progress(Progress(stage=Stage(name="loading", count=count), kind="loading", message="loading meshes"), True)
+    base = loader.load(inputs["target"], filename=record.target_file, limits=limits)
+    steps = [Step(source=loader.load(inputs[f"source-{i}"], filename=s.file, limits=limits), name=s.name,
+                  prompt=s.prompt, on=s.on, config=AlignConfig.model_validate({**s.config, **where}),
+                  image=load_image(inputs[f"image-{i}"]) if inputs.get(f"image-{i}") is not None else None)
+             for i, s in enumerate(record.steps)]
+    guide = None
+    if any(step.config.loss.lambda_clip > 0 for step in steps):
+        on_progress(Progress(stage=Stage(name="model", count=count), kind="model",
+                             message=f"loading model {config.model}"), True)
+        guide = guide_for(config)
+    current = Stage(name="search", count=count)
+
+    def on_stage(index: int, total: int, step: Step) -> None:
+        nonlocal current
+        current = Stage(name="search", index=index, count=total, label=step.prompt or f"{step.name} (image-guided)")
+
+    def on_event(event: ProgressEvent) -> None:
+        on_progress(progress_of(event, current), event.kind in _MILESTONES)
+
+    try:
+        assembly = assemble(base, steps, config, base_name=record.target_name, guide=guide, on_event=on_event,
+                            on_stage=on_stage, should_cancel=should_cancel)
+    except (CtpError, JobTimeoutException):
+        raise  # the library names the stage of its own errors
+    except Exception as exc:
+        log.exception("assembly stage crashed", extra={"job_id": record.id})
+        raise CtpError(f"stage {current.index}/{count} ({record.steps[current.index - 1].name}): "
+                       f"{type(exc).__name__}: {exc}", code="internal_error",
+                       field=f"steps.{current.index - 1}") from exc
+    on_progress(_exporting(config, current.model_copy(update={"name": "exporting"})), True)
+    files = {"result.glb": assembly_glb(assembly),
+             "report.json": json.dumps(assembly_report(assembly), indent=2).encode()}
+    if assembly.preview is not None:
+        files["preview.png"] = preview_png(assembly.preview)
+    return files
+
+
+def _exporting(config: AlignConfig, stage: Stage | None = None, objective: float | None = None) -> Progress:
+    return Progress(stage=stage or Stage(name="exporting"), kind="exporting", phase=config.optim.phases,
+                    phases=config.optim.phases, step=config.optim.steps, steps=config.optim.steps,
+                    restarts=config.optim.restarts, fraction=1.0, eta_s=0.0,
+                    objective=None if objective is None else round(objective, 5), message="writing results")
+
+
+def progress_of(event: ProgressEvent, stage: Stage | None = None) -> Progress:
+    """The optimiser's event as the API's progress object; ``stage`` says which alignment of an assembly."""
     message = event.message or (f"phase {event.phase}/{event.phases}, step {event.step}/{event.steps}"
                                 if event.phase else event.kind)
-    return Progress(stage=Stage(name=event.stage), kind=event.kind, phase=event.phase, phases=event.phases,
+    if stage is None:
+        stage = Stage(name=event.stage)
+    else:
+        stage = stage.model_copy(update={"name": event.stage})
+        message = f'stage {stage.index}/{stage.count}: "{stage.label}": {message}'
+    return Progress(stage=stage, kind=event.kind, phase=event.phase, phases=event.phases,
                     step=event.step, steps=event.steps,
                     restarts=event.restarts, fraction=round(event.fraction, 4),
                     eta_s=None if event.eta_s is None else round(event.eta_s, 1),

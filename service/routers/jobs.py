@@ -13,6 +13,7 @@ from service import forms
 from service.deps import own_job, owner
 from service.errors import ApiError, binary, documented
 from service.jobs import OUTPUTS, TERMINAL, JobRecord, Jobs, TooManyJobs, new_id, now
+from service.routers import assemble
 from service.schemas import Accepted, JobList, JobOut, build_config, links
 
 log = logging.getLogger("ctp.service")
@@ -24,7 +25,11 @@ router = APIRouter()
 
 
 @router.post("/align", status_code=202, response_model=Accepted, openapi_extra={"requestBody": forms.ALIGN_BODY},
-             responses=documented(400, 401, 413, 415, 422, 429, 503), summary="Submit an alignment job")
+             responses=documented(400, 401, 404, 409, 413, 415, 422, 429, 503), summary="Submit an alignment job",
+             description="Two meshes and a prompt; or, with `target_job` instead of `target`, one of your succeeded "
+             "jobs' result scene as the target (its objects stay separate and never move), to add one object at "
+             "a time. 404 `job_not_found` for an unknown target job or another key's, 409 `job_not_ready` when "
+             "it has not succeeded, 413 `scene_too_large` over `CTP_MAX_SCENE_FACES`.")
 async def submit(request: Request, who: str = Depends(owner)) -> Accepted:
     settings, jobs = request.app.state.settings, request.app.state.jobs
     form = await forms.read_form(request)
@@ -33,20 +38,28 @@ async def submit(request: Request, who: str = Depends(owner)) -> Accepted:
     config = build_config(options, default_model=settings.model, allowed_models=settings.allowed_models)
     blobs: dict[str, bytes] = {}
     files: dict[str, str] = {}
-    for role in ("target", "source"):
+    target_job, on = forms.text(form, "target_job"), forms.text(form, "on")
+    if on is not None and target_job is None:
+        raise ApiError(400, "invalid_field", "on names an object of a target_job's scene; give target_job", field="on")
+    chained = await assemble.chained_target(request, form, who, target_job, on) if target_job is not None else None
+    for role in ("source",) if chained else ("target", "source"):
         upload = forms.file(form, role)
         files[role] = forms.file_name(upload, role)
         blobs[role] = await forms.read_limited(upload, settings.max_upload_bytes, role, "mesh_file_too_large")
-        await run_in_threadpool(forms.check_mesh, request.app.state.loader, blobs[role], files[role],
-                                settings.mesh_limits, role)
+        faces = await run_in_threadpool(forms.check_mesh, request.app.state.loader, blobs[role], files[role],
+                                        settings.mesh_limits, role)
+    if chained:
+        files["target"], blobs["target"], on = chained.file, chained.data, chained.on
+        assemble.check_scene_faces(chained.faces + faces, settings.max_scene_faces)
     if image is not None:
         blobs["image"] = await forms.read_limited(image, settings.max_image_bytes, "image", "image_too_large")
         await run_in_threadpool(forms.check_image, blobs["image"], settings.max_image_pixels)
     record = JobRecord(
         id=new_id(), owner=who, created_at=now(), prompt=prompt, has_image=image is not None,
-        target_name=forms.object_name(form, "target", files["target"]),
+        target_name=forms.object_name(form, "target", on or files["target"]),
         source_name=forms.object_name(form, "source", files["source"]),
         target_file=files["target"], source_file=files["source"], config=config.model_dump(mode="json"),
+        target_job=target_job, on=on,
     )
     unavailable = await run_in_threadpool(jobs.unavailable, config.model if config.uses_model else None)
     if unavailable is not None:  # refused now rather than accepted and failed later

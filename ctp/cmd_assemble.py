@@ -1,0 +1,154 @@
+"""``ctp assemble``: build a scene one object at a time, in-process (``ctp_core.assemble``).
+
+    ctp assemble BASE --add SOURCE "PROMPT" [--add SOURCE "PROMPT" ...]
+    ctp assemble --plan plan.yaml
+
+Each ``--add`` places one object relative to the one added before it (names are the file stems). A
+plan file says more (paths are relative to the plan file)::
+
+    base: table.glb              # the object that stays put; its file frame is the scene frame
+    name: table                  # optional; default the file stem
+    options: {seed: 1}           # optional: run options for every stage (the API's option names,
+                                 # over the command's flags; preset and model come from --preset, --model)
+    steps:
+      - file: plate.glb
+        prompt: a plate on the table
+        name: plate              # optional; default the file stem; names must be unique
+        on: table                # optional: the placed object it relates to; default the last placed
+      - file: cup.glb
+        image: cup_on_plate.png  # a reference picture instead of a prompt
+        options: {contact_ratio: 0.3}   # this stage only
+
+Outputs, progress bar and exit codes are those of ``ctp align``: the GLB holds every object as its own
+named node, the report every stage, the preview the whole scene.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from ctp.cmd_align import ProgressBar, add_run_arguments, config_from_args
+from ctp_core.errors import ConfigError
+
+_PLAN_KEYS = {"base", "name", "options", "steps"}
+_STEP_KEYS = {"file", "prompt", "image", "name", "on", "options"}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.epilog = __doc__.split("\n\n", 2)[2]  # the plan format above
+    parser.add_argument("base", type=Path, nargs="?", help="the object that stays put (not with --plan)")
+    parser.add_argument("--add", nargs=2, action="append", metavar=("SOURCE", "PROMPT"), default=[],
+                        help="place SOURCE as PROMPT says, relative to the object added before it (repeatable)")
+    parser.add_argument("--plan", type=Path, help="a YAML plan (base, steps: file, prompt or image, name, on, "
+                        "options; the format is below)")
+    add_run_arguments(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ctp_core import export
+    from ctp_core.assemble import assemble
+
+    config = config_from_args(args)
+    if args.plan is not None:
+        if args.base is not None or args.add:
+            raise ConfigError("give either --plan or BASE with --add, not both", field="plan")
+        base, base_name, steps, config = read_plan(args.plan, config)
+    else:
+        if args.base is None or not args.add:
+            raise ConfigError("give BASE and at least one --add SOURCE PROMPT (or --plan plan.yaml)", field="add")
+        base, base_name = _load(args.base, "base"), args.base.stem
+        steps = [_step({"file": path, "prompt": prompt}, Path.cwd(), config, i) for i, (path, prompt)
+                 in enumerate(args.add)]
+    bar = ProgressBar(sys.stderr, enabled=not args.quiet)
+
+    def on_stage(index: int, count: int, step) -> None:
+        if not args.quiet:
+            what = step.prompt if step.prompt is not None else "(image-guided)"
+            sys.stderr.write(f"stage {index}/{count}: {step.name}: {what}\n")
+            sys.stderr.flush()
+
+    started = time.perf_counter()
+    assembly = assemble(base, steps, config, base_name=base_name, on_event=bar, on_stage=on_stage)
+    export.write_outputs(assembly, glb=args.out, report_path=args.report, preview=args.preview)
+    summary = {"out": str(args.out), "seconds": round(time.perf_counter() - started, 2), "preset": config.preset,
+               "model": config.model if config.loss.lambda_clip > 0 else None,
+               "objects": [{"name": p.name, "scale": round(p.to_scene.scale, 6),
+                            "translation": [round(v, 6) for v in p.to_scene.translation.tolist()]}
+                           for p in assembly.objects],
+               "objectives": [round(s.result.objective, 6) for s in assembly.stages]}
+    print(json.dumps(summary))
+    return 0
+
+
+def read_plan(path: Path, config):
+    """(base mesh, base name, steps, config with the plan's options) of a YAML plan; every refusal is a
+    ConfigError naming the key."""
+    import yaml
+
+    try:
+        plan = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise ConfigError(f"cannot read the plan {path}: {exc.strerror}", field="plan") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"the plan {path} is not valid YAML: {' '.join(str(exc).split())}", field="plan") from None
+    if not isinstance(plan, dict) or not isinstance(plan.get("base"), str) or not isinstance(plan.get("steps"), list):
+        raise ConfigError("a plan is a mapping with base: FILE and steps: a list", field="plan")
+    _known(plan, _PLAN_KEYS, "plan")
+    folder = path.parent
+    config = _with_options(config, plan.get("options"), "options")
+    base_file = folder / plan["base"]
+    steps = [_step(step, folder, config, i) for i, step in enumerate(plan["steps"])]
+    return _load(base_file, "base"), str(plan.get("name") or base_file.stem), steps, config
+
+
+def _step(entry: Any, folder: Path, config, i: int):
+    from ctp_core import io
+    from ctp_core.assemble import Step
+
+    where = f"steps.{i}"
+    if not isinstance(entry, dict) or not isinstance(entry.get("file"), str | Path):
+        raise ConfigError(f"{where}: a step is a mapping with file: SOURCE", field=where)
+    entry = {("on" if key is True else key): value for key, value in entry.items()}  # YAML 1.1 reads on: as true
+    _known(entry, _STEP_KEYS, where)
+    if entry.get("prompt") is not None and entry.get("image") is not None:
+        raise ConfigError(f"{where}: give a prompt or an image, not both", field=f"{where}.prompt")
+    file = folder / entry["file"]
+    image = io.load_image(folder / entry["image"]) if entry.get("image") is not None else None
+    step_options = entry.get("options")
+    return Step(source=_load(file, f"{where}.file"), name=str(entry.get("name") or file.stem),
+                prompt=None if entry.get("prompt") is None else str(entry["prompt"]), image=image,
+                on=None if entry.get("on") is None else str(entry["on"]),
+                config=_with_options(config, step_options, f"{where}.options") if step_options else None)
+
+
+def _with_options(config, options: Any, where: str):
+    from ctp_core.assemble import config_with
+    from service.schemas import option_overrides
+
+    if options is None:
+        return config
+    if not isinstance(options, dict):
+        raise ConfigError(f"{where} must be a mapping of option names to values", field=where)
+    if {"preset", "model"} & set(options):
+        raise ConfigError(f"{where}: preset and model are set for the whole assembly (--preset, --model)",
+                          field=where)
+    return config_with(config, option_overrides(options, where))
+
+
+def _known(entry: dict, keys: set[str], where: str) -> None:
+    unknown = sorted(set(entry) - keys)
+    if unknown:
+        raise ConfigError(f"{where}: unknown key {unknown[0]!r}; known: {', '.join(sorted(keys))}", field=where)
+
+
+def _load(path: Path, name: str):
+    from ctp_core.loader import MeshLoader
+
+    with MeshLoader(1) as loader:  # the same bounded loading as ctp align and the service
+        return loader.load(path, name=name)

@@ -1,0 +1,166 @@
+"""Iterative assembly (method.md "Other applications"): build a scene one object at a time.
+
+``assemble(base, steps, config)`` places each step's source in turn. Stage k runs the one ``align``
+pipeline with the scene of the objects placed in stages 0..k-1 as its target: the soft-ICP term
+attaches the source to the object the step relates to (``on``, default the last placed one), the
+penetration term and the renders see every placed object with its own materials, and the priors get
+the source's name and the related object's name and size. Placed objects never move.
+
+Frames (``frames``): the *scene* frame is the base's file frame. Every object keeps its own file
+frame; ``Placed.to_scene`` maps it into the scene (the identity for the base). A stage's target is
+already in the scene frame, so its answer (source file -> target file) is the source's ``to_scene``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import trimesh
+
+from ctp_core import frames
+from ctp_core.config import AlignConfig, _merge
+from ctp_core.errors import Canceled, ConfigError, CtpError
+from ctp_core.progress import CancelCheck, ProgressCallback
+
+if TYPE_CHECKING:  # the engine (torch) loads only when a stage runs: the API checks plans with check_plan
+    from ctp_core.align import AlignResult
+
+__all__ = ["Assembly", "Placed", "Stage", "Step", "assemble", "config_with"]
+
+
+@dataclass(frozen=True)
+class Step:
+    """One object to add: its mesh (own file frame), its name, what guides it and what it relates to."""
+
+    source: trimesh.Trimesh
+    name: str
+    prompt: str | None = None
+    image: np.ndarray | None = None  # (H, W, 3) uint8 reference picture instead of the prompt
+    on: str | None = None  # the placed object it relates to; None: the last placed one
+    config: AlignConfig | None = None  # this stage's options; None: the assembly's config
+
+
+@dataclass
+class Placed:
+    """An object of the scene: its mesh in its own file frame and where it sits."""
+
+    name: str
+    mesh: trimesh.Trimesh
+    to_scene: frames.Similarity  # the object's file frame -> scene
+
+
+@dataclass
+class Stage:
+    """What stage ``index`` (1-based) of ``count`` did: the step, the object it related to, the run."""
+
+    index: int
+    count: int
+    step: Step
+    on: str
+    result: AlignResult
+
+
+@dataclass
+class Assembly:
+    """The placed objects (base first) and the record of every stage."""
+
+    objects: list[Placed]
+    stages: list[Stage]
+    timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def preview(self) -> np.ndarray | None:
+        """(V, H, W, 3) uint8 views of the whole scene: the last stage renders every object."""
+        return self.stages[-1].result.preview if self.stages else None
+
+    def scene(self) -> trimesh.Scene:
+        """Every object as its own named node: its mesh (own file frame, own materials) under ``to_scene``."""
+        return scene_of(self.objects)
+
+
+def scene_of(objects: Sequence[Placed]) -> trimesh.Scene:
+    """A ``trimesh.Scene`` (scene frame) of placed objects, one named node each, in placing order."""
+    out = trimesh.Scene()
+    for placed in objects:
+        out.add_geometry(placed.mesh, node_name=placed.name, geom_name=placed.name,
+                         transform=np.array(placed.to_scene.matrix))
+    return out
+
+
+def config_with(config: AlignConfig, overrides: dict[str, Any]) -> AlignConfig:
+    """``config`` with nested ``AlignConfig`` overrides applied and validated (a step's own options)."""
+    if not overrides:
+        return config
+    return AlignConfig.from_preset(config.preset, **_merge(config.model_dump(exclude={"preset"}), overrides))
+
+
+StageCallback = Callable[[int, int, Step], None]
+
+
+def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, *, base_name: str = "base",
+             guide=None, on_event: ProgressCallback | None = None, on_stage: StageCallback | None = None,
+             should_cancel: CancelCheck | None = None) -> Assembly:
+    """Place ``steps`` one after another around ``base`` (its file frame is the scene frame).
+
+    ``on_stage(index, count, step)`` is called as each stage starts; ``on_event`` gets every stage's
+    optimiser events. The guidance model is loaded once for all stages (every stage uses
+    ``config.model``). A stage's ``CtpError`` is re-raised with the stage named in its message and
+    ``field`` ``steps.<i>[.<its field>]``; ``Canceled`` passes through.
+    """
+    from ctp_core.align import align
+
+    started = time.perf_counter()
+    configs = [step.config or config for step in steps]
+    check_plan(base_name, [(s.name, s.on, s.prompt is not None or s.image is not None or c.loss.lambda_clip == 0)
+                           for s, c in zip(steps, configs, strict=True)])
+    if any(c.model != config.model for c in configs):
+        raise ConfigError("every stage must use the assembly's model (it is loaded once)", field="model")
+    if guide is None and any(c.loss.lambda_clip > 0 for c in configs):
+        from ctp_core.guidance import guide_for
+
+        guide = guide_for(config)
+    placed = [Placed(base_name, base, frames.Similarity(np.eye(4), frames.SCENE, frames.SCENE))]
+    stages: list[Stage] = []
+    for index, (step, stage_config) in enumerate(zip(steps, configs, strict=True), start=1):
+        on = step.on or placed[-1].name
+        if on_stage is not None:
+            on_stage(index, len(steps), step)
+        try:
+            result = align(scene_of(placed), step.source, step.prompt, stage_config, on=on, image=step.image,
+                           target_name=on, source_name=step.name, guide=guide, on_event=on_event,
+                           should_cancel=should_cancel)
+        except Canceled:
+            raise
+        except CtpError as exc:
+            where = f"steps.{index - 1}" + (f".{exc.field}" if exc.field else "")
+            raise type(exc)(f"stage {index}/{len(steps)} ({step.name}): {exc.message}", code=exc.code,
+                            field=where) from exc
+        # The stage's target file frame is the scene frame (every placed object is in it).
+        placed.append(Placed(step.name, step.source,
+                             frames.Similarity(result.source_to_target, frames.SOURCE_FILE, frames.SCENE)))
+        stages.append(Stage(index, len(steps), step, on, result))
+    return Assembly(placed, stages, {"total_s": round(time.perf_counter() - started, 3)})
+
+
+def check_plan(base_name: str, steps: Sequence[tuple[str, str | None, bool]]) -> None:
+    """Each step's (name, on, guided): names unique and non-empty, every ``on`` an object placed before
+    it, a prompt or an image wherever the guidance term is on. Raises ConfigError naming the step."""
+    if not steps:
+        raise ConfigError("an assembly needs at least one step", field="steps")
+    names = [base_name]
+    for i, (name, on, guided) in enumerate(steps):
+        if not name or not name.strip():
+            raise ConfigError(f"step {i + 1} has no name", field=f"steps.{i}.name")
+        if name in names:
+            raise ConfigError(f"step {i + 1}: the name {name!r} is already used; names must be unique",
+                              field=f"steps.{i}.name")
+        if on is not None and on not in names:
+            raise ConfigError(f"step {i + 1} ({name}): on {on!r} is not an object placed before it "
+                              f"({', '.join(names)})", field=f"steps.{i}.on")
+        if not guided:
+            raise ConfigError(f"step {i + 1} ({name}) needs a prompt or an image", field=f"steps.{i}.prompt")
+        names.append(name)

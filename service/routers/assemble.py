@@ -1,0 +1,238 @@
+"""The assembly API: ``POST /assemble`` builds a scene one object at a time as one job, and the chained
+target of ``POST /align`` (``target_job``): an earlier job's result scene, read back as its objects."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import PurePath
+from typing import Any
+
+from fastapi import APIRouter, Depends, Request
+from fastapi.concurrency import run_in_threadpool
+
+from ctp_core.assemble import check_plan
+from ctp_core.errors import ConfigError, CtpError
+from ctp_core.io import load_objects
+from service import forms
+from service.deps import own_job, owner
+from service.errors import ApiError, documented
+from service.jobs import AssemblyStep, JobRecord, TooManyJobs, new_id, now
+from service.schemas import Accepted, build_config, links
+
+router = APIRouter()
+
+ASSEMBLE_FIELDS = {"base", "base_name", "source", "image", "plan", "options"}
+_STEP_KEYS = {"file", "prompt", "image", "name", "on", "options"}
+
+ASSEMBLE_BODY = {
+    "required": True,
+    "content": {"multipart/form-data": {"schema": {
+        "type": "object",
+        "required": ["base", "source", "plan"],
+        "properties": {
+            "base": forms._file_field("the object that stays put (formats as POST /align's target); its file "
+                                      "frame is the scene frame"),
+            "base_name": {"type": "string", "maxLength": forms.NAME_MAX,
+                          "description": "what the base is (\"table\"); default: its file name"},
+            "source": {"type": "array", "items": forms._file_field("a mesh to place"),
+                       "description": "one part per source file, each with a distinct file name; the plan's "
+                       "steps name them by `file`"},
+            "image": {"type": "array", "items": forms._file_field("a reference picture (PNG or JPEG)"),
+                      "description": "reference pictures of image-guided steps, named by a step's `image`"},
+            "plan": {"type": "string", "contentMediaType": "application/json",
+                     "description": "JSON list, one object per stage in placing order: `file` (a source part's "
+                     "file name, required), `prompt` or `image` (an image part's file name), `name` (unique; "
+                     "default the file stem), `on` (the placed object it relates to; default the last placed "
+                     "one), `options` (AlignOptions of this stage, without preset and model)"},
+            "options": {"type": "string", "contentMediaType": "application/json",
+                        "contentSchema": {"$ref": "#/components/schemas/AlignOptions"},
+                        "description": "JSON object of run options (AlignOptions) for every stage"},
+        },
+    }}},
+}
+
+
+@dataclass(frozen=True)
+class ChainedTarget:
+    """An earlier job's result scene as the target of a new one."""
+
+    file: str
+    data: bytes
+    on: str  # the object the source relates to
+    faces: int
+
+
+async def chained_target(request: Request, form, who: str, job_id: str, on: str | None) -> ChainedTarget:
+    """The result scene of the caller's succeeded job ``job_id``: 404 for another key's, 409 unfinished."""
+    if "target" in form:
+        raise ApiError(400, "invalid_field", "give a target file or target_job, not both", field="target_job")
+    record = await own_job(request, job_id.strip(), who)
+    if record.status != "succeeded":
+        raise ApiError(409, "job_not_ready", f"job {record.id} is {record.status}; only a succeeded job's "
+                       "scene can be a target", field="target_job")
+    state = request.app.state
+    data = await run_in_threadpool(state.jobs.storage.get, record.id, "result.glb")
+    if data is None:
+        raise ApiError(404, "job_not_found", f"the results of job {record.id} have expired", field="target_job")
+    file = f"{record.id}.glb"
+    try:  # the service's own output, read in-process: only a corrupt store fails here
+        scene = await run_in_threadpool(_load_objects, data, file, state.settings.mesh_limits)
+    except CtpError as exc:
+        raise ApiError(422, exc.code, exc.message, field="target_job") from None
+    names = list(scene.geometry)  # load_objects: one geometry per node, named as it, in the file's order
+    if on is not None and on not in names:
+        raise ApiError(422, "invalid_name", f"on: job {record.id}'s scene has no object {on!r} "
+                       f"(it has {', '.join(names)})", field="on")
+    return ChainedTarget(file, data, on or names[-1], sum(len(m.faces) for m in scene.geometry.values()))
+
+
+def check_scene_faces(faces: int, limit: int) -> None:
+    if faces > limit:
+        raise ApiError(413, "scene_too_large", f"the job's meshes have {faces:,} faces together, over the limit "
+                       f"of {limit:,}", field="source")
+
+
+def _load_objects(data: bytes, filename: str, limits):
+    return load_objects(data, filename=filename, limits=limits, name=filename)
+
+
+@router.post("/assemble", status_code=202, response_model=Accepted, openapi_extra={"requestBody": ASSEMBLE_BODY},
+             responses=documented(400, 401, 413, 415, 422, 429, 503), summary="Submit an assembly job",
+             description="Build a scene one object at a time: stage k places the k-th step's source against "
+             "everything placed before it (placed objects never move), as one job whose progress names the "
+             "stage (`progress.stage.index`/`count`, `label` = its prompt). Its results are one GLB with every "
+             "object as its own named node, a report of every stage and a preview of the whole scene. "
+             "Refused before anything is queued: a malformed plan (400 `invalid_plan`), more stages than "
+             "`CTP_MAX_STAGES` (413 `too_many_stages`), all meshes together over `CTP_MAX_SCENE_FACES` (413 "
+             "`scene_too_large`), a bad reference between steps (422 `invalid_plan`), plus the mesh, image and "
+             "option codes of POST /align. The job's time limit is `CTP_JOB_TIMEOUT_S` per stage.")
+async def submit_assembly(request: Request, who: str = Depends(owner)) -> Accepted:
+    settings, jobs = request.app.state.settings, request.app.state.jobs
+    form = await forms.read_form(request, ASSEMBLE_FIELDS, max_files=1 + 2 * settings.max_stages)
+    plan = _plan(forms.text(form, "plan"), settings.max_stages)
+    options = forms.options(form)
+    config = build_config(options, default_model=settings.model, allowed_models=settings.allowed_models)
+    sources = _parts(form, "source")
+    images = _parts(form, "image")
+    base = forms.file(form, "base")
+    base_file = forms.file_name(base, "base")
+    blobs = {"target": await forms.read_limited(base, settings.max_upload_bytes, "base", "mesh_file_too_large")}
+    loader = request.app.state.loader
+    faces = await run_in_threadpool(forms.check_mesh, loader, blobs["target"], base_file, settings.mesh_limits, "base")
+    base_name = forms.object_name(form, "base", base_file)
+    steps: list[AssemblyStep] = []
+    meshes: dict[str, int] = {}
+    for i, entry in enumerate(plan):
+        where = f"plan.{i}"
+        file = entry["file"]
+        if file not in sources:
+            raise ApiError(400, "invalid_plan", f"{where}: no source part has the file name {file!r}",
+                           field=f"{where}.file")
+        if file not in meshes:
+            data = await forms.read_limited(sources[file], settings.max_upload_bytes, "source", "mesh_file_too_large")
+            meshes[file] = await run_in_threadpool(forms.check_mesh, loader, data, file, settings.mesh_limits, "source")
+            await sources[file].seek(0)
+        blobs[f"source-{i}"] = await sources[file].read()
+        await sources[file].seek(0)
+        faces += meshes[file]
+        check_scene_faces(faces, settings.max_scene_faces)
+        if entry.get("image") is not None:
+            image = images.get(entry["image"])
+            if image is None:
+                raise ApiError(400, "invalid_plan", f"{where}: no image part has the file name {entry['image']!r}",
+                               field=f"{where}.image")
+            blobs[f"image-{i}"] = await forms.read_limited(image, settings.max_image_bytes, "image", "image_too_large")
+            await image.seek(0)
+            await run_in_threadpool(forms.check_image, blobs[f"image-{i}"], settings.max_image_pixels)
+        step_options = entry.get("options") or {}
+        if not isinstance(step_options, dict) or {"preset", "model"} & set(step_options):
+            raise ApiError(400, "invalid_plan", f"{where}: options must be a JSON object of AlignOptions without "
+                           "preset and model (those are the assembly's, in the options field)",
+                           field=f"{where}.options")
+        try:
+            step_config = build_config({**options, **step_options}, default_model=settings.model,
+                                       allowed_models=settings.allowed_models)
+        except ConfigError as exc:
+            raise ApiError(422, exc.code, f"{where}: {exc.message}", field=f"{where}.{exc.field}") from None
+        steps.append(AssemblyStep(name=_name(entry.get("name"), file, where), file=file,
+                                  prompt=_prompt(entry, where),
+                                  has_image=entry.get("image") is not None, on=entry.get("on"),
+                                  config=step_config.model_dump(mode="json")))
+    unused = sorted(set(sources) - set(meshes))
+    if unused:
+        raise ApiError(400, "invalid_plan", f"source part {unused[0]!r} is not used by any step", field="source")
+    try:
+        check_plan(base_name, [(s.name, s.on, s.prompt is not None or s.has_image or
+                                s.config["loss"]["lambda_clip"] == 0) for s in steps])
+    except ConfigError as exc:
+        raise ApiError(422, "invalid_plan", exc.message,
+                       field=f"plan.{(exc.field or '').removeprefix('steps.')}") from None
+    record = JobRecord(id=new_id(), owner=who, created_at=now(), kind="assemble", prompt=None,  # per stage: steps
+                       has_image=any(s.has_image for s in steps), target_name=base_name, target_file=base_file,
+                       source_name=steps[-1].name, source_file=steps[-1].file, steps=steps,
+                       config=config.model_dump(mode="json"))
+    unavailable = await run_in_threadpool(jobs.unavailable, config.model if config.uses_model else None)
+    if unavailable is not None:  # refused now rather than accepted and failed later
+        raise ApiError(503, unavailable.code, unavailable.message, unavailable.field)
+    try:
+        await run_in_threadpool(jobs.submit, record, blobs, settings.max_active_jobs)
+    except TooManyJobs as exc:
+        raise ApiError(429, "too_many_jobs", str(exc)) from None
+    return Accepted(id=record.id, status="queued", links=links(record.id))
+
+
+def _plan(raw: str | None, max_stages: int) -> list[dict[str, Any]]:
+    """The plan field as a list of step objects (structure only; references are checked later)."""
+    if raw is None or not raw.strip():
+        raise ApiError(400, "missing_field", "plan is required: a JSON list of steps", field="plan")
+    plan = forms.strict_json(raw, "plan", "invalid_plan", max_chars=4 * forms.OPTIONS_MAX)
+    if not isinstance(plan, list) or not plan:
+        raise ApiError(400, "invalid_plan", "plan must be a non-empty JSON list of steps", field="plan")
+    if len(plan) > max_stages:
+        raise ApiError(413, "too_many_stages", f"the plan has {len(plan)} stages, over the limit of {max_stages}",
+                       field="plan")
+    for i, entry in enumerate(plan):
+        if not isinstance(entry, dict) or not isinstance(entry.get("file"), str):
+            raise ApiError(400, "invalid_plan", f"plan.{i}: a step is an object with file: a source part's name",
+                           field=f"plan.{i}")
+        unknown = sorted(set(entry) - _STEP_KEYS)
+        if unknown:
+            raise ApiError(400, "invalid_plan", f"plan.{i}: unknown key {unknown[0]!r}; known: "
+                           f"{', '.join(sorted(_STEP_KEYS))}", field=f"plan.{i}.{unknown[0]}")
+        for key in ("prompt", "image", "name", "on"):
+            if entry.get(key) is not None and not isinstance(entry[key], str):
+                raise ApiError(400, "invalid_plan", f"plan.{i}.{key} must be a string", field=f"plan.{i}.{key}")
+    return plan
+
+
+def _parts(form, name: str) -> dict:
+    """The file parts of a repeated field by file name (distinct names: the plan refers to them)."""
+    parts = {}
+    for value in form.getlist(name):
+        if isinstance(value, str):
+            raise ApiError(400, "invalid_field", f"{name} must be a file upload, not text", field=name)
+        filename = PurePath(value.filename or "").name
+        if not filename or filename in parts:
+            raise ApiError(400, "invalid_field", f"every {name} part needs its own file name ({filename!r} "
+                           "is missing or repeated)", field=name)
+        parts[filename] = value
+    return parts
+
+
+def _prompt(entry: dict[str, Any], where: str) -> str | None:
+    prompt = entry.get("prompt")
+    if prompt is not None and entry.get("image") is not None:
+        raise ApiError(400, "invalid_plan", f"{where}: give a prompt or an image, not both", field=f"{where}.prompt")
+    if prompt is not None and not 1 <= len(prompt.strip()) <= forms.PROMPT_MAX:
+        raise ApiError(422, "invalid_prompt", f"{where}: the prompt must have 1 to {forms.PROMPT_MAX} characters",
+                       field=f"{where}.prompt")
+    return None if prompt is None else prompt.strip()
+
+
+def _name(name: str | None, file: str, where: str) -> str:
+    if name is None:
+        return forms.default_name(file, "object")
+    if not 1 <= len(name.strip()) <= forms.NAME_MAX:
+        raise ApiError(422, "invalid_name", f"{where}.name must have 1 to {forms.NAME_MAX} characters",
+                       field=f"{where}.name")
+    return name.strip()

@@ -1,0 +1,200 @@
+"""``POST /assemble`` and chained ``POST /align`` (``target_job``) against a real Redis, uvicorn and
+``ctp worker``: the three-stage table setting end to end (per-stage progress, contacts measured on the
+downloaded GLB), the plan's validation before queueing, and chaining on finished, unfinished and
+another key's jobs."""
+
+from __future__ import annotations
+
+import io
+import json
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+from ctp_core.io import load_objects
+from ctp_core.scene import objects
+from tests.conftest import service_env, wait_for
+from tests.test_assemble import GEOMETRY_ONLY, check_contacts, table_plate_cup
+
+ALPHA, BETA = ({"Authorization": f"Bearer {k}"} for k in ("alpha", "beta"))
+
+
+@pytest.fixture(scope="module")
+def env(private_redis):
+    return service_env(private_redis.url, "asm", api_keys="alpha,beta", max_stages=3, max_scene_faces=300,
+                       max_active_jobs=20)
+
+
+@pytest.fixture(scope="module")
+def files():
+    return {name: mesh.export(file_type="glb") for name, mesh in table_plate_cup().items()}
+
+
+def post_assembly(api, files, plan, options=GEOMETRY_ONLY, sources=("plate", "cup"), headers=ALPHA):
+    parts = [("base", ("table.glb", files["table"]))]
+    parts += [("source", (f"{name}.glb", files[name])) for name in sources]
+    return api.client.post("/assemble", files=parts, data={"plan": json.dumps(plan), "options": json.dumps(options)},
+                           headers=headers)
+
+
+PLAN = [{"file": "plate.glb", "prompt": "a plate on the table"},
+        {"file": "cup.glb", "prompt": "a cup on the plate", "name": "cup", "on": "plate"}]
+
+
+def finished(api, job_id, headers=ALPHA, timeout_s=180):
+    return wait_for(lambda: (j := api.client.get(f"/jobs/{job_id}", headers=headers).json())["status"]
+                    in ("succeeded", "failed", "canceled") and j, timeout_s, f"job {job_id}")
+
+
+@pytest.fixture(scope="module")
+def assembled(api, worker, files):
+    """The table setting as one job, followed over its event stream; chaining on it while it runs is 409."""
+    accepted = post_assembly(api, files, PLAN)
+    assert accepted.status_code == 202, accepted.text
+    job_id = accepted.json()["id"]
+    early = api.client.post("/align", data={"target_job": job_id, "prompt": "a cup on the plate",
+                                            "options": json.dumps(GEOMETRY_ONLY)},
+                            files={"source": ("cup.glb", files["cup"])}, headers=ALPHA)
+    events = []
+    with api.client.stream("GET", f"/jobs/{job_id}/events", headers=ALPHA, timeout=180) as stream:
+        for line in stream.iter_lines():
+            if line.startswith("data: "):
+                events.append(json.loads(line.removeprefix("data: ")))
+    return job_id, early, events
+
+
+def test_assembly_runs_as_one_job_with_stage_progress(api, assembled):
+    job_id, _, events = assembled
+    final = events[-1]
+    assert final["status"] == "succeeded", final
+    stages = [(e["progress"]["stage"]["index"], e["progress"]["stage"]["count"], e["progress"]["stage"]["label"])
+              for e in events if e["progress"]["kind"] in ("phase_start", "step", "phase_end")]
+    assert stages[0] == (1, 2, "a plate on the table") and stages[-1] == (2, 2, "a cup on the plate")
+    assert stages == sorted(stages)
+    assert any(e["progress"]["message"].startswith('stage 2/2: "a cup on the plate"') for e in events)
+
+    glb = api.client.get(f"/jobs/{job_id}/result.glb", headers=ALPHA).content
+    check_contacts(glb)
+    report = api.client.get(f"/jobs/{job_id}/report.json", headers=ALPHA).json()
+    assert [(s["name"], s["on"], s["prompt"]) for s in report["stages"]] == [
+        ("plate", "table", "a plate on the table"), ("cup", "plate", "a cup on the plate")]
+    preview = Image.open(io.BytesIO(api.client.get(f"/jobs/{job_id}/preview.png", headers=ALPHA).content))
+    assert preview.format == "PNG"
+
+
+def test_chained_align_adds_to_a_finished_scene(api, assembled, files):
+    job_id, early, _ = assembled
+    assert (early.status_code, early.json()["error"]["code"]) == (409, "job_not_ready")  # it was still running
+    spoon = trimesh.creation.cylinder(radius=0.006, height=0.12, sections=8).export(file_type="glb")
+    data = {"target_job": job_id, "prompt": "a spoon in the cup", "options": json.dumps(GEOMETRY_ONLY)}
+    other = api.client.post("/align", data=data, files={"source": ("spoon.glb", spoon)}, headers=BETA)
+    assert (other.status_code, other.json()["error"]["code"]) == (404, "job_not_found")  # another key's job
+    unknown = api.client.post("/align", data={**data, "target_job": "0" * 32}, files={"source": ("spoon.glb", spoon)},
+                              headers=ALPHA)
+    assert unknown.status_code == 404
+    bad_on = api.client.post("/align", data={**data, "on": "saucer"}, files={"source": ("spoon.glb", spoon)},
+                             headers=ALPHA)
+    assert (bad_on.status_code, bad_on.json()["error"]["code"]) == (422, "invalid_name")
+    both = api.client.post("/align", data=data, files={"source": ("spoon.glb", spoon), "target": ("t.glb", spoon)},
+                           headers=ALPHA)
+    assert (both.status_code, both.json()["error"]["code"]) == (400, "invalid_field")
+    lone_on = api.client.post("/align", data={"prompt": "x", "on": "cup"}, headers=ALPHA,
+                              files={"source": ("spoon.glb", spoon), "target": ("t.glb", spoon)})
+    assert (lone_on.status_code, lone_on.json()["error"]["field"]) == (400, "on")
+
+    accepted = api.client.post("/align", data=data, files={"source": ("spoon.glb", spoon)}, headers=ALPHA)
+    assert accepted.status_code == 202, accepted.text
+    job = finished(api, accepted.json()["id"])
+    assert job["status"] == "succeeded", job
+    before = dict(objects(load_objects(api.client.get(f"/jobs/{job_id}/result.glb", headers=ALPHA).content,
+                                       filename="before.glb")))
+    after = dict(objects(load_objects(api.client.get(f"/jobs/{job['id']}/result.glb", headers=ALPHA).content,
+                                      filename="after.glb")))
+    assert list(after) == ["table", "plate", "cup", "spoon"]  # separate objects, not one flattened mesh
+    for name, mesh in before.items():  # placed objects never move
+        np.testing.assert_allclose(after[name].vertices, mesh.vertices, atol=1e-5)
+    report = api.client.get(f"/jobs/{job['id']}/report.json", headers=ALPHA).json()
+    assert report["extra"]["on"] == "cup" and "cup" in report["hparams"]["reason"]
+
+
+@pytest.mark.parametrize("plan, sources, status, code", [
+    ("not json", ("plate",), 400, "invalid_plan"),
+    ([], ("plate",), 400, "invalid_plan"),
+    ([{"file": "saucer.glb", "prompt": "x"}], ("plate",), 400, "invalid_plan"),
+    ([{"file": "plate.glb", "prompt": "x"}], ("plate", "cup"), 400, "invalid_plan"),  # cup.glb is never used
+    ([{"file": "plate.glb", "prompt": "x", "on": "saucer"}], ("plate",), 422, "invalid_plan"),
+    ([{"file": "plate.glb", "prompt": "x", "name": "table"}], ("plate",), 422, "invalid_plan"),
+    ([{"file": "plate.glb", "prompt": "x", "options": {"model": "random:tiny"}}], ("plate",), 400, "invalid_plan"),
+    ([{"file": "plate.glb", "prompt": "x", "options": {"steps": 0}}], ("plate",), 422, "invalid_option"),
+    ([{"file": "plate.glb"}], ("plate",), 422, "invalid_plan"),  # neither prompt nor image, guidance on
+    ([{"file": "cup.glb", "prompt": "x"}] * 4, ("cup",), 413, "too_many_stages"),
+    ([{"file": "plate.glb", "prompt": "x", "name": f"p{i}"} for i in range(3)], ("plate",), 413, "scene_too_large"),
+])
+def test_bad_plans_are_refused_before_queueing(api, files, plan, sources, status, code):
+    raw = plan if isinstance(plan, str) else json.dumps(plan)
+    parts = [("base", ("table.glb", files["table"]))] + [("source", (f"{n}.glb", files[n])) for n in sources]
+    options = {"preset": "test"} if code == "invalid_plan" and plan == [{"file": "plate.glb"}] else GEOMETRY_ONLY
+    answer = api.client.post("/assemble", files=parts, data={"plan": raw, "options": json.dumps(options)},
+                             headers=ALPHA)
+    assert (answer.status_code, answer.json()["error"]["code"]) == (status, code), answer.text
+
+
+def test_a_failing_stage_is_named(api, worker, files):
+    """The unknown prior provider is only found when stage 2 asks it (the form does not vet provider names)."""
+    plan = [PLAN[0], {**PLAN[1], "options": {"hparams_provider": "no-such-provider"}}]
+    accepted = post_assembly(api, files, plan)
+    assert accepted.status_code == 202, accepted.text
+    job = finished(api, accepted.json()["id"])
+    assert job["status"] == "failed" and job["error"]["message"].startswith("stage 2/2 (cup): "), job
+    assert job["error"]["field"] == "steps.1.hparams_provider"
+
+
+def test_the_time_limit_scales_with_the_stages(private_redis):
+    import redis
+
+    from service.jobs import AssemblyStep, JobRecord, Jobs, new_id, now
+    from service.storage import RedisStorage
+
+    client = redis.Redis.from_url(private_redis.url)
+    jobs = Jobs(client, RedisStorage(client, "asm-unit", 60), prefix="asm-unit", ttl_s=60, job_timeout_s=100,
+                lease_s=5)
+    try:
+        steps = [AssemblyStep(name=f"s{i}", file="s.glb", prompt="p") for i in range(3)]
+        record = jobs.submit(JobRecord(id=new_id(), owner="me", created_at=now(), kind="assemble", steps=steps),
+                             {"target": b"b", **{f"source-{i}": b"s" for i in range(3)}}, 5)
+        assert jobs.queue.fetch_job(record.id).timeout == 300
+        assert record.inputs()[:3] == ["target", "source-0", "image-0"]
+        jobs.cancel(record.id)
+        assert jobs.storage.get(record.id, "source-2") is None  # an assembly's inputs are dropped too
+    finally:
+        client.close()
+
+
+def test_python_client_assembles_and_chains(api, worker, files, tmp_path):
+    from service.client import Client, ServiceError
+
+    picture = io.BytesIO()
+    Image.new("RGB", (64, 48), (200, 30, 30)).save(picture, format="PNG")
+    (tmp_path / "plate.glb").write_bytes(files["plate"])
+    fast = {"preset": "test"}
+    with Client(api.url, api_key="alpha") as client:
+        job = client.assemble(("table.glb", files["table"]), [
+            {"file": tmp_path / "plate.glb", "prompt": "a plate on the table"},
+            {"file": ("cup.glb", files["cup"]), "image": ("ref.png", picture.getvalue()), "on": "plate"}],
+            options=fast, base_name="table")
+        final = client.wait(job["id"], timeout_s=180)
+        assert final["status"] == "succeeded", final
+        report = json.loads(client.download(job["id"], "report.json"))
+        assert [(s["name"], s["image_guided"]) for s in report["stages"]] == [("plate", False), ("cup", True)]
+        spoon = trimesh.creation.cylinder(radius=0.006, height=0.12, sections=8).export(file_type="glb")
+        chained = client.submit(None, ("spoon.glb", spoon), "a spoon in the cup", options=fast,
+                                target_job=job["id"], source_name="spoon")
+        assert client.wait(chained["id"], timeout_s=180)["status"] == "succeeded"
+        scene = load_objects(client.download(chained["id"]), filename="scene.glb")
+        assert list(scene.geometry) == ["table", "plate", "cup", "spoon"]
+        with pytest.raises(ServiceError) as err:
+            client.assemble(("table.glb", files["table"]), [{"file": ("cup.glb", files["cup"]), "image": None}],
+                            options=fast)
+        assert (err.value.status, err.value.code) == (422, "invalid_plan")  # neither prompt nor image
