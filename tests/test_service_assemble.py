@@ -141,14 +141,14 @@ def test_bad_plans_are_refused_before_queueing(api, files, plan, sources, status
     assert (answer.status_code, answer.json()["error"]["code"]) == (status, code), answer.text
 
 
-def test_a_failing_stage_is_named(api, worker, files):
-    """The unknown prior provider is only found when stage 2 asks it (the form does not vet provider names)."""
+def test_a_bad_stage_is_refused_before_queueing_and_named(api, files):
+    """A step's option the engine cannot take (an unknown prior provider) is refused up front, naming the step;
+    a stage that fails while running is named by the library (tests/test_assemble.py)."""
     plan = [PLAN[0], {**PLAN[1], "options": {"hparams_provider": "no-such-provider"}}]
-    accepted = post_assembly(api, files, plan)
-    assert accepted.status_code == 202, accepted.text
-    job = finished(api, accepted.json()["id"])
-    assert job["status"] == "failed" and job["error"]["message"].startswith("stage 2/2 (cup): "), job
-    assert job["error"]["field"] == "steps.1.hparams_provider"
+    answer = post_assembly(api, files, plan)
+    assert answer.status_code == 422, answer.text
+    assert answer.json()["error"]["field"] == "plan.1.options.hparams_provider"
+    assert answer.json()["error"]["message"].startswith("plan.1: ")
 
 
 def test_the_time_limit_scales_with_the_stages(private_redis):
