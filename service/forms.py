@@ -1,7 +1,9 @@
-"""The ``POST /align`` form: its documented body, and the checks that run before anything is queued.
+"""The ``POST /align`` form (its documented body) and the checks every submit route runs before anything
+is queued (``POST /assemble`` reads its form with them too).
 
-Everything a worker would refuse is refused here first: meshes are parsed with ``ctp_core.io`` under
-the service limits, the image is decoded, text fields are bounded.
+Everything a worker would refuse is refused here first: meshes are parsed by the bounded loader
+(``ctp_core.loader.MeshLoader``) under the service limits, the image is decoded with
+``ctp_core.io.load_image``, text fields are bounded.
 """
 
 from __future__ import annotations
@@ -117,12 +119,20 @@ def prompt_and_image(form) -> tuple[str | None, UploadFile | None]:
     image = file(form, "image") if "image" in form else None
     if prompt is None and image is None:
         raise ApiError(400, "missing_field", "give a prompt (or an image for image-guided alignment)", field="prompt")
-    if prompt is not None and not 1 <= len(prompt.strip()) <= PROMPT_MAX:
-        raise ApiError(422, "invalid_prompt", f"the prompt must have 1 to {PROMPT_MAX} characters", field="prompt")
-    if prompt is not None and _PROMPT_CONTROL.search(prompt):
-        raise ApiError(422, "invalid_prompt", "the prompt holds control characters (only tab, newline and "
-                       "carriage return are allowed)", field="prompt")
-    return (prompt.strip() if prompt is not None else None), image
+    return (clean_prompt(prompt) if prompt is not None else None), image
+
+
+def clean_prompt(prompt: str, field: str = "prompt", where: str = "") -> str:
+    """A prompt as the engine gets it (stripped); 422 ``invalid_prompt`` when empty, too long or holding
+    control characters. ``where`` prefixes the message (an assembly step: ``plan.1``)."""
+    prefix = f"{where}: " if where else ""
+    if not 1 <= len(prompt.strip()) <= PROMPT_MAX:
+        raise ApiError(422, "invalid_prompt", f"{prefix}the prompt must have 1 to {PROMPT_MAX} characters",
+                       field=field)
+    if _PROMPT_CONTROL.search(prompt):
+        raise ApiError(422, "invalid_prompt", f"{prefix}the prompt holds control characters (only tab, newline "
+                       "and carriage return are allowed)", field=field)
+    return prompt.strip()
 
 
 def options(form) -> dict[str, Any]:
@@ -185,13 +195,15 @@ def _no_constant(literal: str):
 
 def object_name(form, role: str, filename: str) -> str:
     name = text(form, f"{role}_name")
-    if name is None:
-        return default_name(filename, role)
+    return default_name(filename, role) if name is None else clean_name(name, f"{role}_name")
+
+
+def clean_name(name: str, field: str) -> str:
+    """An object's name (stripped); 422 ``invalid_name`` when empty, too long or holding control characters."""
     if not 1 <= len(name.strip()) <= NAME_MAX:
-        raise ApiError(422, "invalid_name", f"{role}_name must have 1 to {NAME_MAX} characters",
-                       field=f"{role}_name")
+        raise ApiError(422, "invalid_name", f"{field} must have 1 to {NAME_MAX} characters", field=field)
     if _NAME_CONTROL.search(name):
-        raise ApiError(422, "invalid_name", f"{role}_name holds control characters", field=f"{role}_name")
+        raise ApiError(422, "invalid_name", f"{field} holds control characters", field=field)
     return name.strip()
 
 

@@ -129,6 +129,8 @@ def test_chained_align_adds_to_a_finished_scene(api, assembled, files):
     ([{"file": "plate.glb", "prompt": "x", "options": {"model": "random:tiny"}}], ("plate",), 400, "invalid_plan"),
     ([{"file": "plate.glb", "prompt": "x", "options": {"steps": 0}}], ("plate",), 422, "invalid_option"),
     ([{"file": "plate.glb"}], ("plate",), 422, "invalid_plan"),  # neither prompt nor image, guidance on
+    ([{"file": "plate.glb", "prompt": "a plate\x1b[2J on the table"}], ("plate",), 422, "invalid_prompt"),
+    ([{"file": "plate.glb", "prompt": "x", "name": "pl\x00ate"}], ("plate",), 422, "invalid_name"),  # as POST /align
     ([{"file": "cup.glb", "prompt": "x"}] * 4, ("cup",), 413, "too_many_stages"),
     ([{"file": "plate.glb", "prompt": "x", "name": f"p{i}"} for i in range(3)], ("plate",), 413, "scene_too_large"),
 ])
