@@ -1,10 +1,10 @@
 """The HTTP API: a thin adapter that validates uploads, queues jobs and serves their state and results.
 
 ``create_app`` is the factory (``uvicorn --factory service.app:create_app``): it builds the job store from
-the settings, puts what the routes share on ``app.state`` and includes the routers (``service.routers``:
-health, jobs, page), the error handlers (``service.errors``) and the body limit. State lives in Redis
-(``service.jobs``), so any number of API processes can serve the same jobs. ``openapi.yaml`` at the
-repository root is this app's schema, checked by the tests.
+the settings, puts what the routes share on ``app.state`` (the bounded mesh loader among them) and includes
+the routers (``service.routers``: health, jobs, assemble, page), the error handlers (``service.errors``) and
+the body limit. State lives in Redis (``service.jobs``), so any number of API processes can serve the same
+jobs. ``openapi.yaml`` at the repository root is this app's schema, checked by the tests.
 """
 
 from __future__ import annotations
