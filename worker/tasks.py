@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import logging
 from collections.abc import Callable
+from typing import Any
 
 from rq.timeouts import JobTimeoutException
 
@@ -45,9 +46,9 @@ def run_job(job_id: str) -> str:
         inputs = {name: ctx.jobs.storage.get(job_id, name) for name in record.inputs()}
         if inputs["target"] is None or inputs.get("source", inputs.get("source-0")) is None:
             raise CtpError("the job's uploads expired before a worker picked it up", code="inputs_expired")
+        where = {"device": ctx.settings.device, "threads": ctx.settings.threads, "runtime": ctx.settings.runtime}
         files = (assemble_job if record.kind == "assemble" else align_job)(
-            record, inputs, device=ctx.settings.device, threads=ctx.settings.threads, runtime=ctx.settings.runtime,
-            loader=ctx.loader, limits=ctx.settings.mesh_limits,
+            record, inputs, where=where, loader=ctx.loader, limits=ctx.settings.mesh_limits,
             on_progress=lambda p, force: ctx.beat.publish(p, force=force),
             should_cancel=lambda: ctx.jobs.should_stop(job_id),
         )
@@ -74,20 +75,18 @@ def align_job(
     record: JobRecord,
     inputs: dict[str, bytes | None],
     *,
-    device: str,
-    threads: int | None,
+    where: dict[str, Any],
     loader: MeshLoader,
-    runtime: str = "auto",
     limits: MeshLimits,
     on_progress: Callable[[Progress, bool], None],
     should_cancel: Callable[[], bool],
 ) -> dict[str, bytes]:
     """Run ``ctp_core.align`` on a job's uploads; returns ``result.glb``, ``report.json``, ``preview.png``.
 
-    The config was validated when the job was accepted; only where and how it runs (device, threads,
-    the forward-only runtime) is this worker's to decide.
+    The config was validated when the job was accepted; only where and how it runs (``where``: device,
+    threads, the forward-only runtime) is this worker's to decide.
     """
-    config = AlignConfig.model_validate({**record.config, "device": device, "threads": threads, "runtime": runtime})
+    config = AlignConfig.model_validate({**record.config, **where})
     on_progress(Progress(stage=Stage(name="loading"), kind="loading", message="loading meshes"), True)
     # A chained job's target is an earlier result scene (this service's own output), read back as its objects.
     if record.target_job:
@@ -96,10 +95,7 @@ def align_job(
         target = loader.load(inputs["target"], filename=record.target_file, limits=limits)
     source = loader.load(inputs["source"], filename=record.source_file, limits=limits)
     image = load_image(inputs["image"]) if inputs.get("image") is not None else None
-    guide = None
-    if config.uses_model:
-        on_progress(Progress(stage=Stage(name="model"), kind="model", message=f"loading model {config.model}"), True)
-        guide = guide_for(config)
+    guide = _guide(config, Stage(name="model"), on_progress) if config.uses_model else None
 
     def on_event(event: ProgressEvent) -> None:
         on_progress(progress_of(event), event.kind in _MILESTONES)
@@ -107,28 +103,21 @@ def align_job(
     result = align(target, source, record.prompt, config, on=record.on, image=image, target_name=record.target_name,
                    source_name=record.source_name, guide=guide, on_event=on_event, should_cancel=should_cancel)
     on_progress(_exporting(config, objective=result.objective), True)
-    files = {"result.glb": scene_glb(result, source_name=record.source_name),
-             "report.json": json.dumps(report(result), indent=2).encode()}
-    if result.preview is not None:
-        files["preview.png"] = preview_png(result.preview)
-    return files
+    return _results(scene_glb(result, source_name=record.source_name), report(result), result.preview)
 
 
 def assemble_job(
     record: JobRecord,
     inputs: dict[str, bytes | None],
     *,
-    device: str,
-    threads: int | None,
+    where: dict[str, Any],
     loader: MeshLoader,
     limits: MeshLimits,
     on_progress: Callable[[Progress, bool], None],
     should_cancel: Callable[[], bool],
-    runtime: str = "auto",
 ) -> dict[str, bytes]:
     """Run ``ctp_core.assemble`` on an assembly job: the model loaded once, progress per stage, the whole
     scene's GLB, report and preview out. A failure names its stage (message and field ``steps.<i>``)."""
-    where = {"device": device, "threads": threads, "runtime": runtime}
     config = AlignConfig.model_validate({**record.config, **where})
     count = record.stage_count
     on_progress(Progress(stage=Stage(name="loading", count=count), kind="loading", message="loading meshes"), True)
@@ -137,11 +126,8 @@ def assemble_job(
                   prompt=s.prompt, on=s.on, config=AlignConfig.model_validate({**s.config, **where}),
                   image=load_image(inputs[f"image-{i}"]) if inputs.get(f"image-{i}") is not None else None)
              for i, s in enumerate(record.steps)]
-    guide = None
-    if any(step.config.loss.lambda_clip > 0 for step in steps):
-        on_progress(Progress(stage=Stage(name="model", count=count), kind="model",
-                             message=f"loading model {config.model}"), True)
-        guide = guide_for(config)
+    guide = (_guide(config, Stage(name="model", count=count), on_progress)
+             if any(step.config.uses_model for step in steps) else None)
     current = Stage(name="search", count=count)
 
     def on_stage(index: int, total: int, step: Step) -> None:
@@ -162,10 +148,20 @@ def assemble_job(
                        f"{type(exc).__name__}: {exc}", code="internal_error",
                        field=f"steps.{current.index - 1}") from exc
     on_progress(_exporting(config, current.model_copy(update={"name": "exporting"})), True)
-    files = {"result.glb": assembly_glb(assembly),
-             "report.json": json.dumps(assembly_report(assembly), indent=2).encode()}
-    if assembly.preview is not None:
-        files["preview.png"] = preview_png(assembly.preview)
+    return _results(assembly_glb(assembly), assembly_report(assembly), assembly.preview)
+
+
+def _guide(config: AlignConfig, stage: Stage, on_progress: Callable[[Progress, bool], None]):
+    """The job's guidance model (cached per process: the one the worker preloaded is not loaded again)."""
+    on_progress(Progress(stage=stage, kind="model", message=f"loading model {config.model}"), True)
+    return guide_for(config)
+
+
+def _results(glb: bytes, report_: dict[str, Any], preview) -> dict[str, bytes]:
+    """A succeeded job's files (``service.jobs.OUTPUTS``); a preview only when the run rendered one."""
+    files = {"result.glb": glb, "report.json": json.dumps(report_, indent=2).encode()}
+    if preview is not None:
+        files["preview.png"] = preview_png(preview)
     return files
 
 
