@@ -42,7 +42,8 @@ _MESH_STATUS = {"mesh_file_too_large": 413, "mesh_too_large": 413, "mesh_too_com
                 "mesh_unknown_format": 415}
 
 
-def _file_field(description: str) -> dict[str, Any]:
+def file_field(description: str) -> dict[str, Any]:
+    """A file part of a documented multipart body."""
     return {"type": "string", "format": "binary", "description": description}
 
 
@@ -52,7 +53,7 @@ ALIGN_BODY = {
         "type": "object",
         "required": ["source"],
         "properties": {
-            "target": _file_field("the mesh that stays put (GLB, glTF with embedded buffers, OBJ, OBJ+MTL in a "
+            "target": file_field("the mesh that stays put (GLB, glTF with embedded buffers, OBJ, OBJ+MTL in a "
                                   ".zip, PLY, STL); the extension of the file name gives the format; required "
                                   "unless `target_job` is given"),
             "target_job": {"type": "string", "description": "instead of `target`: the id of one of your succeeded "
@@ -60,10 +61,10 @@ ALIGN_BODY = {
                            "(404 for an unknown job or another key's, 409 if it has not succeeded)"},
             "on": {"type": "string", "maxLength": NAME_MAX, "description": "with `target_job`: the object of that "
                    "scene the source relates to (soft-ICP attaches to it); default the last placed one"},
-            "source": _file_field("the mesh to place, same formats"),
+            "source": file_field("the mesh to place, same formats"),
             "prompt": {"type": "string", "minLength": 1, "maxLength": PROMPT_MAX,
                        "description": "what the arrangement should look like; required unless `image` is given"},
-            "image": _file_field("reference picture (PNG or JPEG) for image-guided alignment instead of the text"),
+            "image": file_field("reference picture (PNG or JPEG) for image-guided alignment instead of the text"),
             "options": {"type": "string", "contentMediaType": "application/json",
                         "contentSchema": {"$ref": "#/components/schemas/AlignOptions"},
                         "description": "JSON object of run options (AlignOptions)"},

@@ -30,14 +30,14 @@ ASSEMBLE_BODY = {
         "type": "object",
         "required": ["base", "source", "plan"],
         "properties": {
-            "base": forms._file_field("the object that stays put (formats as POST /align's target); its file "
+            "base": forms.file_field("the object that stays put (formats as POST /align's target); its file "
                                       "frame is the scene frame"),
             "base_name": {"type": "string", "maxLength": forms.NAME_MAX,
                           "description": "what the base is (\"table\"); default: its file name"},
-            "source": {"type": "array", "items": forms._file_field("a mesh to place"),
+            "source": {"type": "array", "items": forms.file_field("a mesh to place"),
                        "description": "one part per source file, each with a distinct file name; the plan's "
                        "steps name them by `file`"},
-            "image": {"type": "array", "items": forms._file_field("a reference picture (PNG or JPEG)"),
+            "image": {"type": "array", "items": forms.file_field("a reference picture (PNG or JPEG)"),
                       "description": "reference pictures of image-guided steps, named by a step's `image`"},
             "plan": {"type": "string", "contentMediaType": "application/json",
                      "description": "JSON list, one object per stage in placing order: `file` (a source part's "

@@ -1,4 +1,5 @@
-"""The jobs API: submit an alignment, read and cancel a job, follow its events, download its results."""
+"""The jobs API: submit an alignment, list the caller's jobs, read and cancel one, follow its events,
+download its results."""
 
 from __future__ import annotations
 
