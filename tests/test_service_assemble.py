@@ -200,3 +200,19 @@ def test_python_client_assembles_and_chains(api, worker, files, tmp_path):
             client.assemble(("table.glb", files["table"]), [{"file": ("cup.glb", files["cup"]), "image": None}],
                             options=fast)
         assert (err.value.status, err.value.code) == (422, "invalid_plan")  # neither prompt nor image
+
+
+def test_control_characters_in_a_source_file_name(api, files):
+    """As POST /align's: a raw multipart body carries the byte as sent (httpx would quote it)."""
+    boundary = "ctpboundary"
+    parts = [("base", "table.glb", files["table"]), ("source", "pl\x01ate.glb", files["plate"])]
+    body = b"".join(f'--{boundary}\r\nContent-Disposition: form-data; name="{name}"; filename="{filename}"\r\n'
+                    f"Content-Type: application/octet-stream\r\n\r\n".encode() + data + b"\r\n"
+                    for name, filename, data in parts)
+    plan = json.dumps([{"file": "pl\x01ate.glb", "prompt": "a plate on the table"}])
+    body += f'--{boundary}\r\nContent-Disposition: form-data; name="plan"\r\n\r\n{plan}\r\n'.encode()
+    body += f"--{boundary}--\r\n".encode()
+    answer = api.client.post("/assemble", content=body,
+                             headers={**ALPHA, "Content-Type": f"multipart/form-data; boundary={boundary}"})
+    assert (answer.status_code, answer.json()["error"]["code"], answer.json()["error"]["field"]) == (
+        422, "invalid_name", "source"), answer.text

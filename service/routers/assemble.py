@@ -4,7 +4,6 @@ target of ``POST /align`` (``target_job``): an earlier job's result scene, read 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import PurePath
 from typing import Any
 
 from fastapi import APIRouter, Depends, Request
@@ -204,7 +203,7 @@ def _parts(form, name: str) -> dict:
     for value in form.getlist(name):
         if isinstance(value, str):
             raise ApiError(400, "invalid_field", f"{name} must be a file upload, not text", field=name)
-        filename = PurePath(value.filename or "").name
+        filename = forms.file_name(value, name) if value.filename else ""  # control characters: 422
         if not filename or filename in parts:
             raise ApiError(400, "invalid_field", f"every {name} part needs its own file name ({filename!r} "
                            "is missing or repeated)", field=name)
