@@ -78,7 +78,7 @@ an earlier job's scene. Jobs run on queue workers; records and results expire af
 - 503: `redis_unavailable`; `no_worker` (no worker is alive); `model_unavailable` (no live worker can run
   the job's model, e.g. its weights are not on the workers and downloads are off; the message says why);
   `loader_unavailable` (shutting down, or every loading process busy).
-  `POST /align` answers these up front instead of accepting a job that would fail; a job with
+  `POST /align` and `POST /assemble` answer these up front instead of accepting a job that would fail; a job with
   `lambda_clip` 0 (geometry only) needs no model. `GET /readyz` gives the same codes for the default model.
 
 Uploads are loaded, before anything is queued, in separate loading processes with a wall-time and a
