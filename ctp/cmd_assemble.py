@@ -53,6 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from ctp_core import export
     from ctp_core.assemble import assemble
+    from ctp_core.loader import MeshLoader
 
     config = config_from_args(args)
     if args.plan is not None:
@@ -62,9 +63,10 @@ def run(args: argparse.Namespace) -> int:
     else:
         if args.base is None or not args.add:
             raise ConfigError("give BASE and at least one --add SOURCE PROMPT (or --plan plan.yaml)", field="add")
-        base, base_name = _load(args.base, "base"), args.base.stem
-        steps = [_step({"file": path, "prompt": prompt}, Path.cwd(), config, i) for i, (path, prompt)
-                 in enumerate(args.add)]
+        with MeshLoader(1) as loader:  # the same bounded loading as ctp align and the service
+            base, base_name = loader.load(args.base, name="base"), args.base.stem
+            steps = [_step({"file": path, "prompt": prompt}, Path.cwd(), config, i, loader) for i, (path, prompt)
+                     in enumerate(args.add)]
     bar = ProgressBar(sys.stderr, enabled=not args.quiet)
 
     def on_stage(index: int, count: int, step) -> None:
@@ -91,6 +93,8 @@ def read_plan(path: Path, config):
     ConfigError naming the key."""
     import yaml
 
+    from ctp_core.loader import MeshLoader
+
     try:
         plan = yaml.safe_load(path.read_text())
     except OSError as exc:
@@ -103,11 +107,13 @@ def read_plan(path: Path, config):
     folder = path.parent
     config = _with_options(config, plan.get("options"), "options")
     base_file = folder / plan["base"]
-    steps = [_step(step, folder, config, i) for i, step in enumerate(plan["steps"])]
-    return _load(base_file, "base"), str(plan.get("name") or base_file.stem), steps, config
+    with MeshLoader(1) as loader:  # one loading process for every mesh of the plan
+        steps = [_step(step, folder, config, i, loader) for i, step in enumerate(plan["steps"])]
+        base = loader.load(base_file, name="base")
+    return base, str(plan.get("name") or base_file.stem), steps, config
 
 
-def _step(entry: Any, folder: Path, config, i: int):
+def _step(entry: Any, folder: Path, config, i: int, loader):
     from ctp_core import io
     from ctp_core.assemble import Step
 
@@ -121,7 +127,7 @@ def _step(entry: Any, folder: Path, config, i: int):
     file = folder / entry["file"]
     image = io.load_image(folder / entry["image"]) if entry.get("image") is not None else None
     step_options = entry.get("options")
-    return Step(source=_load(file, f"{where}.file"), name=str(entry.get("name") or file.stem),
+    return Step(source=loader.load(file, name=f"{where}.file"), name=str(entry.get("name") or file.stem),
                 prompt=None if entry.get("prompt") is None else str(entry["prompt"]), image=image,
                 on=None if entry.get("on") is None else str(entry["on"]),
                 config=_with_options(config, step_options, f"{where}.options") if step_options else None)
@@ -145,10 +151,3 @@ def _known(entry: dict, keys: set[str], where: str) -> None:
     unknown = sorted(set(entry) - keys)
     if unknown:
         raise ConfigError(f"{where}: unknown key {unknown[0]!r}; known: {', '.join(sorted(keys))}", field=where)
-
-
-def _load(path: Path, name: str):
-    from ctp_core.loader import MeshLoader
-
-    with MeshLoader(1) as loader:  # the same bounded loading as ctp align and the service
-        return loader.load(path, name=name)

@@ -1,10 +1,10 @@
 """The HTTP API: a thin adapter that validates uploads, queues jobs and serves their state and results.
 
 ``create_app`` is the factory (``uvicorn --factory service.app:create_app``): it builds the job store from
-the settings, puts what the routes share on ``app.state`` and includes the routers (``service.routers``:
-health, jobs, page), the error handlers (``service.errors``) and the body limit. State lives in Redis
-(``service.jobs``), so any number of API processes can serve the same jobs. ``openapi.yaml`` at the
-repository root is this app's schema, checked by the tests.
+the settings, puts what the routes share on ``app.state`` (the bounded mesh loader among them) and includes
+the routers (``service.routers``: health, jobs, assemble, page), the error handlers (``service.errors``) and
+the body limit. State lives in Redis (``service.jobs``), so any number of API processes can serve the same
+jobs. ``openapi.yaml`` at the repository root is this app's schema, checked by the tests.
 """
 
 from __future__ import annotations
@@ -78,14 +78,15 @@ an earlier job's scene. Jobs run on queue workers; records and results expire af
 - 503: `redis_unavailable`; `no_worker` (no worker is alive); `model_unavailable` (no live worker can run
   the job's model, e.g. its weights are not on the workers and downloads are off; the message says why);
   `loader_unavailable` (shutting down, or every loading process busy).
-  `POST /align` answers these up front instead of accepting a job that would fail; a job with
+  `POST /align` and `POST /assemble` answer these up front instead of accepting a job that would fail; a job with
   `lambda_clip` 0 (geometry only) needs no model. `GET /readyz` gives the same codes for the default model.
 
 Uploads are loaded, before anything is queued, in separate loading processes with a wall-time and a
 memory limit, so no upload can stall or exhaust the API.
 
 Failed jobs carry an error too: an engine code (`canceled`, `model_unavailable` (the model failed to load
-after the job was accepted), `invalid_option`, a mesh code, ...), `job_timeout` (`CTP_JOB_TIMEOUT_S`),
+after the job was accepted), `invalid_option`, a mesh code, ...), `inputs_expired` (its uploads expired,
+`CTP_JOB_TTL_S`, before a worker picked it up), `job_timeout` (`CTP_JOB_TIMEOUT_S`),
 `worker_lost` (its worker was killed or lost its machine; not retried) or `internal_error`. An assembly's
 failure names its stage in the message (`stage 2/3 (plate): ...`) and in `field` (`steps.1`).
 """

@@ -1,4 +1,4 @@
-"""Request dependencies shared by the routers: who is calling, and the caller's own job.
+"""Request dependencies shared by the routers: who is calling, the caller's own job, and queueing a job.
 
 They read what ``create_app`` put on ``app.state``: ``settings``, ``jobs`` (the job store), ``aredis``
 (the event loop's Redis client) and ``key_digests``.
@@ -11,9 +11,12 @@ import hmac
 import re
 
 from fastapi import Request
+from fastapi.concurrency import run_in_threadpool
 
+from ctp_core.config import AlignConfig
 from service.errors import ApiError
-from service.jobs import JobRecord
+from service.jobs import JobRecord, TooManyJobs
+from service.schemas import Accepted, links
 
 _JOB_ID = re.compile(r"[0-9a-f]{32}")
 
@@ -44,3 +47,17 @@ async def own_job(request: Request, job_id: str, who: str) -> JobRecord:
     if record is None or record.owner != who:
         raise ApiError(404, "job_not_found", f"no job {job_id!r}")
     return record
+
+
+async def enqueue(request: Request, record: JobRecord, blobs: dict[str, bytes], config: AlignConfig) -> Accepted:
+    """Queue a validated job (``POST /align`` and ``POST /assemble``): 503 when no live worker can run it
+    (refused now rather than accepted and failed later), 429 over the key's active-job limit."""
+    settings, jobs = request.app.state.settings, request.app.state.jobs
+    unavailable = await run_in_threadpool(jobs.unavailable, config.model if config.uses_model else None)
+    if unavailable is not None:
+        raise ApiError(503, unavailable.code, unavailable.message, unavailable.field)
+    try:
+        await run_in_threadpool(jobs.submit, record, blobs, settings.max_active_jobs)
+    except TooManyJobs as exc:
+        raise ApiError(429, "too_many_jobs", str(exc)) from None
+    return Accepted(id=record.id, status="queued", links=links(record.id))

@@ -1,7 +1,9 @@
-"""The ``POST /align`` form: its documented body, and the checks that run before anything is queued.
+"""The ``POST /align`` form (its documented body) and the checks every submit route runs before anything
+is queued (``POST /assemble`` reads its form with them too).
 
-Everything a worker would refuse is refused here first: meshes are parsed with ``ctp_core.io`` under
-the service limits, the image is decoded, text fields are bounded.
+Everything a worker would refuse is refused here first: meshes are parsed by the bounded loader
+(``ctp_core.loader.MeshLoader``) under the service limits, the image is decoded with
+``ctp_core.io.load_image``, text fields are bounded.
 """
 
 from __future__ import annotations
@@ -40,7 +42,8 @@ _MESH_STATUS = {"mesh_file_too_large": 413, "mesh_too_large": 413, "mesh_too_com
                 "mesh_unknown_format": 415}
 
 
-def _file_field(description: str) -> dict[str, Any]:
+def file_field(description: str) -> dict[str, Any]:
+    """A file part of a documented multipart body."""
     return {"type": "string", "format": "binary", "description": description}
 
 
@@ -50,7 +53,7 @@ ALIGN_BODY = {
         "type": "object",
         "required": ["source"],
         "properties": {
-            "target": _file_field("the mesh that stays put (GLB, glTF with embedded buffers, OBJ, OBJ+MTL in a "
+            "target": file_field("the mesh that stays put (GLB, glTF with embedded buffers, OBJ, OBJ+MTL in a "
                                   ".zip, PLY, STL); the extension of the file name gives the format; required "
                                   "unless `target_job` is given"),
             "target_job": {"type": "string", "description": "instead of `target`: the id of one of your succeeded "
@@ -58,10 +61,10 @@ ALIGN_BODY = {
                            "(404 for an unknown job or another key's, 409 if it has not succeeded)"},
             "on": {"type": "string", "maxLength": NAME_MAX, "description": "with `target_job`: the object of that "
                    "scene the source relates to (soft-ICP attaches to it); default the last placed one"},
-            "source": _file_field("the mesh to place, same formats"),
+            "source": file_field("the mesh to place, same formats"),
             "prompt": {"type": "string", "minLength": 1, "maxLength": PROMPT_MAX,
                        "description": "what the arrangement should look like; required unless `image` is given"},
-            "image": _file_field("reference picture (PNG or JPEG) for image-guided alignment instead of the text"),
+            "image": file_field("reference picture (PNG or JPEG) for image-guided alignment instead of the text"),
             "options": {"type": "string", "contentMediaType": "application/json",
                         "contentSchema": {"$ref": "#/components/schemas/AlignOptions"},
                         "description": "JSON object of run options (AlignOptions)"},
@@ -117,12 +120,20 @@ def prompt_and_image(form) -> tuple[str | None, UploadFile | None]:
     image = file(form, "image") if "image" in form else None
     if prompt is None and image is None:
         raise ApiError(400, "missing_field", "give a prompt (or an image for image-guided alignment)", field="prompt")
-    if prompt is not None and not 1 <= len(prompt.strip()) <= PROMPT_MAX:
-        raise ApiError(422, "invalid_prompt", f"the prompt must have 1 to {PROMPT_MAX} characters", field="prompt")
-    if prompt is not None and _PROMPT_CONTROL.search(prompt):
-        raise ApiError(422, "invalid_prompt", "the prompt holds control characters (only tab, newline and "
-                       "carriage return are allowed)", field="prompt")
-    return (prompt.strip() if prompt is not None else None), image
+    return (clean_prompt(prompt) if prompt is not None else None), image
+
+
+def clean_prompt(prompt: str, field: str = "prompt", where: str = "") -> str:
+    """A prompt as the engine gets it (stripped); 422 ``invalid_prompt`` when empty, too long or holding
+    control characters. ``where`` prefixes the message (an assembly step: ``plan.1``)."""
+    prefix = f"{where}: " if where else ""
+    if not 1 <= len(prompt.strip()) <= PROMPT_MAX:
+        raise ApiError(422, "invalid_prompt", f"{prefix}the prompt must have 1 to {PROMPT_MAX} characters",
+                       field=field)
+    if _PROMPT_CONTROL.search(prompt):
+        raise ApiError(422, "invalid_prompt", f"{prefix}the prompt holds control characters (only tab, newline "
+                       "and carriage return are allowed)", field=field)
+    return prompt.strip()
 
 
 def options(form) -> dict[str, Any]:
@@ -185,13 +196,15 @@ def _no_constant(literal: str):
 
 def object_name(form, role: str, filename: str) -> str:
     name = text(form, f"{role}_name")
-    if name is None:
-        return default_name(filename, role)
+    return default_name(filename, role) if name is None else clean_name(name, f"{role}_name")
+
+
+def clean_name(name: str, field: str) -> str:
+    """An object's name (stripped); 422 ``invalid_name`` when empty, too long or holding control characters."""
     if not 1 <= len(name.strip()) <= NAME_MAX:
-        raise ApiError(422, "invalid_name", f"{role}_name must have 1 to {NAME_MAX} characters",
-                       field=f"{role}_name")
+        raise ApiError(422, "invalid_name", f"{field} must have 1 to {NAME_MAX} characters", field=field)
     if _NAME_CONTROL.search(name):
-        raise ApiError(422, "invalid_name", f"{role}_name holds control characters", field=f"{role}_name")
+        raise ApiError(422, "invalid_name", f"{field} holds control characters", field=field)
     return name.strip()
 
 

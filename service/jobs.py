@@ -391,10 +391,6 @@ class Jobs:
             self.redis.srem(f"{self.prefix}:workers", *dead)
         return live
 
-    def workers_alive(self) -> int:
-        """How many workers are alive (``live_workers``)."""
-        return len(self.live_workers())
-
     def unavailable(self, model: str | None, *, what: str = "model",
                     field: str | None = "options.model") -> JobError | None:
         """Why a job that needs ``model`` (None: a geometry-only job) cannot succeed if submitted now, or

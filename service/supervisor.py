@@ -46,7 +46,7 @@ class Supervisor:
     """Keeps ``workers`` worker processes (started by ``spawn``) and the embedded Redis, if any, running."""
 
     def __init__(self, spawn: Callable[[], subprocess.Popen], workers: int, redis: EmbeddedRedis | None = None):
-        self.spawn, self.redis = spawn, redis
+        self.spawn = spawn
         self.processes: list[subprocess.Popen | None] = [None] * workers
         self._stop = threading.Event()
         self._children: list[_Child] = []

@@ -118,3 +118,11 @@ def test_synopsis_is_what_the_parsers_accept():
 def test_hparams_needs_no_prompt(capsys):
     assert main(["hparams", "--target", "table", "--source", "cup"]) == 0
     assert json.loads(capsys.readouterr().out)["penetration"] is False
+
+
+def test_every_setting_is_in_the_settings_table_once():
+    from service.settings import Settings
+
+    rows = re.findall(r"^\| `((?:CTP_)?[A-Z_]+)` \|", README, re.M)
+    names = ["REDIS_URL" if n == "redis_url" else f"CTP_{n.upper()}" for n in Settings.model_fields]
+    assert sorted(rows) == sorted(names), "README's settings table and service/settings.py disagree"

@@ -129,6 +129,8 @@ def test_chained_align_adds_to_a_finished_scene(api, assembled, files):
     ([{"file": "plate.glb", "prompt": "x", "options": {"model": "random:tiny"}}], ("plate",), 400, "invalid_plan"),
     ([{"file": "plate.glb", "prompt": "x", "options": {"steps": 0}}], ("plate",), 422, "invalid_option"),
     ([{"file": "plate.glb"}], ("plate",), 422, "invalid_plan"),  # neither prompt nor image, guidance on
+    ([{"file": "plate.glb", "prompt": "a plate\x1b[2J on the table"}], ("plate",), 422, "invalid_prompt"),
+    ([{"file": "plate.glb", "prompt": "x", "name": "pl\x00ate"}], ("plate",), 422, "invalid_name"),  # as POST /align
     ([{"file": "cup.glb", "prompt": "x"}] * 4, ("cup",), 413, "too_many_stages"),
     ([{"file": "plate.glb", "prompt": "x", "name": f"p{i}"} for i in range(3)], ("plate",), 413, "scene_too_large"),
 ])
@@ -143,12 +145,38 @@ def test_bad_plans_are_refused_before_queueing(api, files, plan, sources, status
 
 def test_a_bad_stage_is_refused_before_queueing_and_named(api, files):
     """A step's option the engine cannot take (an unknown prior provider) is refused up front, naming the step;
-    a stage that fails while running is named by the library (tests/test_assemble.py)."""
+    a stage that fails while running is named by the worker (below)."""
     plan = [PLAN[0], {**PLAN[1], "options": {"hparams_provider": "no-such-provider"}}]
     answer = post_assembly(api, files, plan)
     assert answer.status_code == 422, answer.text
     assert answer.json()["error"]["field"] == "plan.1.options.hparams_provider"
     assert answer.json()["error"]["message"].startswith("plan.1: ")
+
+
+def test_a_failing_stage_is_named(files):
+    """The worker's side: a stage that fails on the worker names itself. The form vets every option it can
+    (an unknown prior provider is 422 at submit), so the record is built here as if that check had missed one."""
+    from ctp_core.errors import CtpError
+    from ctp_core.io import MeshLimits
+    from ctp_core.loader import MeshLoader
+    from service.jobs import AssemblyStep, JobRecord, new_id, now
+    from service.schemas import build_config
+    from worker.tasks import Run, assemble_job
+
+    config = build_config(GEOMETRY_ONLY, default_model="random:tiny",
+                          allowed_models=["random:tiny"]).model_dump(mode="json")
+    steps = [AssemblyStep(name="plate", file="plate.glb", prompt=PLAN[0]["prompt"], config=config),
+             AssemblyStep(name="cup", file="cup.glb", prompt=PLAN[1]["prompt"], on="plate",
+                          config={**config, "hparams_provider": "no-such-provider"})]
+    record = JobRecord(id=new_id(), owner="public", created_at=now(), kind="assemble", target_name="table",
+                       target_file="table.glb", source_name="cup", source_file="cup.glb", steps=steps, config=config)
+    inputs = {"target": files["table"], "source-0": files["plate"], "source-1": files["cup"]}
+    with MeshLoader(1) as loader, pytest.raises(CtpError) as err:
+        assemble_job(record, inputs, Run(where={"device": "cpu", "threads": 1, "runtime": "torch"}, loader=loader,
+                                         limits=MeshLimits(), on_progress=lambda _p, _force: None,
+                                         should_cancel=lambda: False))
+    assert err.value.message.startswith("stage 2/2 (cup): "), err.value.message
+    assert err.value.field == "steps.1.hparams_provider"
 
 
 def test_the_time_limit_scales_with_the_stages(private_redis):
@@ -198,3 +226,19 @@ def test_python_client_assembles_and_chains(api, worker, files, tmp_path):
             client.assemble(("table.glb", files["table"]), [{"file": ("cup.glb", files["cup"]), "image": None}],
                             options=fast)
         assert (err.value.status, err.value.code) == (422, "invalid_plan")  # neither prompt nor image
+
+
+def test_control_characters_in_a_source_file_name(api, files):
+    """As POST /align's: a raw multipart body carries the byte as sent (httpx would quote it)."""
+    boundary = "ctpboundary"
+    parts = [("base", "table.glb", files["table"]), ("source", "pl\x01ate.glb", files["plate"])]
+    body = b"".join(f'--{boundary}\r\nContent-Disposition: form-data; name="{name}"; filename="{filename}"\r\n'
+                    f"Content-Type: application/octet-stream\r\n\r\n".encode() + data + b"\r\n"
+                    for name, filename, data in parts)
+    plan = json.dumps([{"file": "pl\x01ate.glb", "prompt": "a plate on the table"}])
+    body += f'--{boundary}\r\nContent-Disposition: form-data; name="plan"\r\n\r\n{plan}\r\n'.encode()
+    body += f"--{boundary}--\r\n".encode()
+    answer = api.client.post("/assemble", content=body,
+                             headers={**ALPHA, "Content-Type": f"multipart/form-data; boundary={boundary}"})
+    assert (answer.status_code, answer.json()["error"]["code"], answer.json()["error"]["field"]) == (
+        422, "invalid_name", "source"), answer.text

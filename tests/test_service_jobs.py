@@ -105,14 +105,14 @@ def test_reaper_fails_jobs_whose_lease_lapsed_and_spares_live_ones(jobs):
     assert jobs.reap() == []
 
 
-def test_workers_alive_counts_current_leases_only(jobs):
+def test_live_workers_are_those_with_current_leases_only(jobs):
     jobs.heartbeat("a", None)
-    jobs.heartbeat("b", None)
-    assert jobs.workers_alive() == 2
+    jobs.heartbeat("b", None, {"random:tiny": None})
+    assert jobs.live_workers() == {"a": {}, "b": {"random:tiny": None}}
     jobs.worker_gone("a")
-    assert jobs.workers_alive() == 1
+    assert list(jobs.live_workers()) == ["b"]
     time.sleep(1.2)  # lease_s = 1
-    assert jobs.workers_alive() == 0
+    assert jobs.live_workers() == {}
 
 
 def test_unavailable_says_no_worker_then_which_model_is_missing(jobs):

@@ -5,10 +5,12 @@ geometry-only job that needs no model) are still accepted and succeed."""
 
 from __future__ import annotations
 
+import json
+
 import pytest
 
 from tests.conftest import Api, Worker, service_env, wait_for
-from tests.test_service import FAST, submit
+from tests.test_service import BALL, BOX, FAST, submit
 
 MISSING = "hf:/nonexistent/ctp-weights"
 
@@ -45,6 +47,13 @@ def test_a_job_needing_the_missing_model_is_refused_up_front(api, live_worker):
     assert refused.status_code == 503, refused.text
     assert refused.json()["error"]["code"] == "model_unavailable"
     assert refused.json()["error"]["field"] == "options.model"
+
+
+def test_an_assembly_needing_the_missing_model_is_refused_up_front(api, live_worker):
+    plan = json.dumps([{"file": "ball.glb", "prompt": "a ball on top of a box"}])
+    refused = api.client.post("/assemble", files=[("base", ("box.glb", BOX)), ("source", ("ball.glb", BALL))],
+                              data={"plan": plan, "options": json.dumps({"preset": "test"})})
+    assert (refused.status_code, refused.json()["error"]["code"]) == (503, "model_unavailable"), refused.text
 
 
 def test_jobs_the_worker_can_run_are_accepted_and_succeed(api, live_worker):

@@ -9,7 +9,10 @@ from __future__ import annotations
 import json
 import logging
 from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
 
+import trimesh
 from rq.timeouts import JobTimeoutException
 
 from ctp_core.align import align
@@ -30,6 +33,31 @@ log = logging.getLogger("ctp.worker")
 _MILESTONES = {"phase_start", "phase_end", "done"}
 
 
+@dataclass(frozen=True)
+class Run:
+    """What a job runs with on this worker: ``where`` (device, threads, forward-only runtime: the only
+    parts of a validated config that are the worker's to decide), the bounded loader under the service
+    limits, and the callbacks to the job's record."""
+
+    where: dict[str, Any]
+    loader: MeshLoader
+    limits: MeshLimits
+    on_progress: Callable[[Progress, bool], None]
+    should_cancel: Callable[[], bool]
+
+    def config(self, stored: dict[str, Any]) -> AlignConfig:
+        return AlignConfig.model_validate({**stored, **self.where})
+
+    def load(self, data: bytes | None, filename: str) -> trimesh.Trimesh:
+        """An upload, loaded in a loading process exactly as the API checked it."""
+        return self.loader.load(data, filename=filename, limits=self.limits)
+
+    def guide(self, config: AlignConfig, stage: Stage):
+        """The job's guidance model (process-cached: the one the worker preloaded is not loaded again)."""
+        self.on_progress(Progress(stage=stage, kind="model", message=f"loading model {config.model}"), True)
+        return guide_for(config)
+
+
 def run_job(job_id: str) -> str:
     """rq entry point (by name, JSON-serialised id only); returns the job's final status."""
     ctx = context()
@@ -45,12 +73,12 @@ def run_job(job_id: str) -> str:
         inputs = {name: ctx.jobs.storage.get(job_id, name) for name in record.inputs()}
         if inputs["target"] is None or inputs.get("source", inputs.get("source-0")) is None:
             raise CtpError("the job's uploads expired before a worker picked it up", code="inputs_expired")
-        files = (assemble_job if record.kind == "assemble" else align_job)(
-            record, inputs, device=ctx.settings.device, threads=ctx.settings.threads, runtime=ctx.settings.runtime,
-            loader=ctx.loader, limits=ctx.settings.mesh_limits,
-            on_progress=lambda p, force: ctx.beat.publish(p, force=force),
-            should_cancel=lambda: ctx.jobs.should_stop(job_id),
-        )
+        run = Run(where={"device": ctx.settings.device, "threads": ctx.settings.threads,
+                         "runtime": ctx.settings.runtime},
+                  loader=ctx.loader, limits=ctx.settings.mesh_limits,
+                  on_progress=lambda p, force: ctx.beat.publish(p, force=force),
+                  should_cancel=lambda: ctx.jobs.should_stop(job_id))
+        files = (assemble_job if record.kind == "assemble" else align_job)(record, inputs, run)
         for name, data in files.items():
             ctx.jobs.storage.put(job_id, name, data)
         status = "succeeded"
@@ -70,78 +98,43 @@ def run_job(job_id: str) -> str:
     return status
 
 
-def align_job(
-    record: JobRecord,
-    inputs: dict[str, bytes | None],
-    *,
-    device: str,
-    threads: int | None,
-    loader: MeshLoader,
-    runtime: str = "auto",
-    limits: MeshLimits,
-    on_progress: Callable[[Progress, bool], None],
-    should_cancel: Callable[[], bool],
-) -> dict[str, bytes]:
+def align_job(record: JobRecord, inputs: dict[str, bytes | None], run: Run) -> dict[str, bytes]:
     """Run ``ctp_core.align`` on a job's uploads; returns ``result.glb``, ``report.json``, ``preview.png``.
 
-    The config was validated when the job was accepted; only where and how it runs (device, threads,
-    the forward-only runtime) is this worker's to decide.
+    The config was validated when the job was accepted; only where it runs is the worker's (``Run.where``).
     """
-    config = AlignConfig.model_validate({**record.config, "device": device, "threads": threads, "runtime": runtime})
-    on_progress(Progress(stage=Stage(name="loading"), kind="loading", message="loading meshes"), True)
+    config = run.config(record.config)
+    run.on_progress(Progress(stage=Stage(name="loading"), kind="loading", message="loading meshes"), True)
     # A chained job's target is an earlier result scene (this service's own output), read back as its objects.
     if record.target_job:
-        target = load_objects(inputs["target"], filename=record.target_file, limits=limits)
+        target = load_objects(inputs["target"], filename=record.target_file, limits=run.limits)
     else:
-        target = loader.load(inputs["target"], filename=record.target_file, limits=limits)
-    source = loader.load(inputs["source"], filename=record.source_file, limits=limits)
+        target = run.load(inputs["target"], record.target_file)
+    source = run.load(inputs["source"], record.source_file)
     image = load_image(inputs["image"]) if inputs.get("image") is not None else None
-    guide = None
-    if config.uses_model:
-        on_progress(Progress(stage=Stage(name="model"), kind="model", message=f"loading model {config.model}"), True)
-        guide = guide_for(config)
+    guide = run.guide(config, Stage(name="model")) if config.uses_model else None
 
     def on_event(event: ProgressEvent) -> None:
-        on_progress(progress_of(event), event.kind in _MILESTONES)
+        run.on_progress(progress_of(event), event.kind in _MILESTONES)
 
     result = align(target, source, record.prompt, config, on=record.on, image=image, target_name=record.target_name,
-                   source_name=record.source_name, guide=guide, on_event=on_event, should_cancel=should_cancel)
-    on_progress(_exporting(config, objective=result.objective), True)
-    files = {"result.glb": scene_glb(result, source_name=record.source_name),
-             "report.json": json.dumps(report(result), indent=2).encode()}
-    if result.preview is not None:
-        files["preview.png"] = preview_png(result.preview)
-    return files
+                   source_name=record.source_name, guide=guide, on_event=on_event, should_cancel=run.should_cancel)
+    run.on_progress(_exporting(config, objective=result.objective), True)
+    return _results(scene_glb(result, source_name=record.source_name), report(result), result.preview)
 
 
-def assemble_job(
-    record: JobRecord,
-    inputs: dict[str, bytes | None],
-    *,
-    device: str,
-    threads: int | None,
-    loader: MeshLoader,
-    limits: MeshLimits,
-    on_progress: Callable[[Progress, bool], None],
-    should_cancel: Callable[[], bool],
-    runtime: str = "auto",
-) -> dict[str, bytes]:
+def assemble_job(record: JobRecord, inputs: dict[str, bytes | None], run: Run) -> dict[str, bytes]:
     """Run ``ctp_core.assemble`` on an assembly job: the model loaded once, progress per stage, the whole
     scene's GLB, report and preview out. A failure names its stage (message and field ``steps.<i>``)."""
-    where = {"device": device, "threads": threads, "runtime": runtime}
-    config = AlignConfig.model_validate({**record.config, **where})
+    config = run.config(record.config)
     count = record.stage_count
-    on_progress(Progress(stage=Stage(name="loading", count=count), kind="loading", message="loading meshes"), True)
-    base = loader.load(inputs["target"], filename=record.target_file, limits=limits)
-    steps = [Step(source=loader.load(inputs[f"source-{i}"], filename=s.file, limits=limits), name=s.name,
-                  prompt=s.prompt, on=s.on, config=AlignConfig.model_validate({**s.config, **where}),
+    run.on_progress(Progress(stage=Stage(name="loading", count=count), kind="loading", message="loading meshes"), True)
+    base = run.load(inputs["target"], record.target_file)
+    steps = [Step(source=run.load(inputs[f"source-{i}"], s.file), name=s.name, prompt=s.prompt, on=s.on,
+                  config=run.config(s.config),
                   image=load_image(inputs[f"image-{i}"]) if inputs.get(f"image-{i}") is not None else None)
              for i, s in enumerate(record.steps)]
-    guide = None
-    if any(step.config.loss.lambda_clip > 0 for step in steps):
-        on_progress(Progress(stage=Stage(name="model", count=count), kind="model",
-                             message=f"loading model {config.model}"), True)
-        guide = guide_for(config)
+    guide = run.guide(config, Stage(name="model", count=count)) if any(s.config.uses_model for s in steps) else None
     current = Stage(name="search", count=count)
 
     def on_stage(index: int, total: int, step: Step) -> None:
@@ -149,11 +142,11 @@ def assemble_job(
         current = Stage(name="search", index=index, count=total, label=step.prompt or f"{step.name} (image-guided)")
 
     def on_event(event: ProgressEvent) -> None:
-        on_progress(progress_of(event, current), event.kind in _MILESTONES)
+        run.on_progress(progress_of(event, current), event.kind in _MILESTONES)
 
     try:
         assembly = assemble(base, steps, config, base_name=record.target_name, guide=guide, on_event=on_event,
-                            on_stage=on_stage, should_cancel=should_cancel)
+                            on_stage=on_stage, should_cancel=run.should_cancel)
     except (CtpError, JobTimeoutException):
         raise  # the library names the stage of its own errors
     except Exception as exc:
@@ -161,11 +154,15 @@ def assemble_job(
         raise CtpError(f"stage {current.index}/{count} ({record.steps[current.index - 1].name}): "
                        f"{type(exc).__name__}: {exc}", code="internal_error",
                        field=f"steps.{current.index - 1}") from exc
-    on_progress(_exporting(config, current.model_copy(update={"name": "exporting"})), True)
-    files = {"result.glb": assembly_glb(assembly),
-             "report.json": json.dumps(assembly_report(assembly), indent=2).encode()}
-    if assembly.preview is not None:
-        files["preview.png"] = preview_png(assembly.preview)
+    run.on_progress(_exporting(config, current.model_copy(update={"name": "exporting"})), True)
+    return _results(assembly_glb(assembly), assembly_report(assembly), assembly.preview)
+
+
+def _results(glb: bytes, report_: dict[str, Any], preview) -> dict[str, bytes]:
+    """A succeeded job's files (``service.jobs.OUTPUTS``); a preview only when the run rendered one."""
+    files = {"result.glb": glb, "report.json": json.dumps(report_, indent=2).encode()}
+    if preview is not None:
+        files["preview.png"] = preview_png(preview)
     return files
 
 

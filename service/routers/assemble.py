@@ -4,7 +4,6 @@ target of ``POST /align`` (``target_job``): an earlier job's result scene, read 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import PurePath
 from typing import Any
 
 from fastapi import APIRouter, Depends, Request
@@ -14,10 +13,10 @@ from ctp_core.assemble import check_plan
 from ctp_core.errors import ConfigError, CtpError
 from ctp_core.io import load_objects
 from service import forms
-from service.deps import own_job, owner
+from service.deps import enqueue, own_job, owner
 from service.errors import ApiError, documented
-from service.jobs import AssemblyStep, JobRecord, TooManyJobs, new_id, now
-from service.schemas import Accepted, build_config, links
+from service.jobs import AssemblyStep, JobRecord, new_id, now
+from service.schemas import Accepted, build_config
 
 router = APIRouter()
 
@@ -30,14 +29,14 @@ ASSEMBLE_BODY = {
         "type": "object",
         "required": ["base", "source", "plan"],
         "properties": {
-            "base": forms._file_field("the object that stays put (formats as POST /align's target); its file "
+            "base": forms.file_field("the object that stays put (formats as POST /align's target); its file "
                                       "frame is the scene frame"),
             "base_name": {"type": "string", "maxLength": forms.NAME_MAX,
                           "description": "what the base is (\"table\"); default: its file name"},
-            "source": {"type": "array", "items": forms._file_field("a mesh to place"),
+            "source": {"type": "array", "items": forms.file_field("a mesh to place"),
                        "description": "one part per source file, each with a distinct file name; the plan's "
                        "steps name them by `file`"},
-            "image": {"type": "array", "items": forms._file_field("a reference picture (PNG or JPEG)"),
+            "image": {"type": "array", "items": forms.file_field("a reference picture (PNG or JPEG)"),
                       "description": "reference pictures of image-guided steps, named by a step's `image`"},
             "plan": {"type": "string", "contentMediaType": "application/json",
                      "description": "JSON list, one object per stage in placing order: `file` (a source part's "
@@ -107,7 +106,7 @@ def _load_objects(data: bytes, filename: str, limits):
              "`scene_too_large`), a bad reference between steps (422 `invalid_plan`), plus the mesh, image and "
              "option codes of POST /align. The job's time limit is `CTP_JOB_TIMEOUT_S` per stage.")
 async def submit_assembly(request: Request, who: str = Depends(owner)) -> Accepted:
-    settings, jobs = request.app.state.settings, request.app.state.jobs
+    settings = request.app.state.settings
     form = await forms.read_form(request, ASSEMBLE_FIELDS, max_files=1 + 2 * settings.max_stages)
     plan = _plan(forms.text(form, "plan"), settings.max_stages)
     options = forms.options(form)
@@ -171,14 +170,7 @@ async def submit_assembly(request: Request, who: str = Depends(owner)) -> Accept
                        has_image=any(s.has_image for s in steps), target_name=base_name, target_file=base_file,
                        source_name=steps[-1].name, source_file=steps[-1].file, steps=steps,
                        config=config.model_dump(mode="json"))
-    unavailable = await run_in_threadpool(jobs.unavailable, config.model if config.uses_model else None)
-    if unavailable is not None:  # refused now rather than accepted and failed later
-        raise ApiError(503, unavailable.code, unavailable.message, unavailable.field)
-    try:
-        await run_in_threadpool(jobs.submit, record, blobs, settings.max_active_jobs)
-    except TooManyJobs as exc:
-        raise ApiError(429, "too_many_jobs", str(exc)) from None
-    return Accepted(id=record.id, status="queued", links=links(record.id))
+    return await enqueue(request, record, blobs, config)
 
 
 def _plan(raw: str | None, max_stages: int) -> list[dict[str, Any]]:
@@ -211,7 +203,7 @@ def _parts(form, name: str) -> dict:
     for value in form.getlist(name):
         if isinstance(value, str):
             raise ApiError(400, "invalid_field", f"{name} must be a file upload, not text", field=name)
-        filename = PurePath(value.filename or "").name
+        filename = forms.file_name(value, name) if value.filename else ""  # control characters: 422
         if not filename or filename in parts:
             raise ApiError(400, "invalid_field", f"every {name} part needs its own file name ({filename!r} "
                            "is missing or repeated)", field=name)
@@ -223,16 +215,8 @@ def _prompt(entry: dict[str, Any], where: str) -> str | None:
     prompt = entry.get("prompt")
     if prompt is not None and entry.get("image") is not None:
         raise ApiError(400, "invalid_plan", f"{where}: give a prompt or an image, not both", field=f"{where}.prompt")
-    if prompt is not None and not 1 <= len(prompt.strip()) <= forms.PROMPT_MAX:
-        raise ApiError(422, "invalid_prompt", f"{where}: the prompt must have 1 to {forms.PROMPT_MAX} characters",
-                       field=f"{where}.prompt")
-    return None if prompt is None else prompt.strip()
+    return None if prompt is None else forms.clean_prompt(prompt, f"{where}.prompt", where)
 
 
 def _name(name: str | None, file: str, where: str) -> str:
-    if name is None:
-        return forms.default_name(file, "object")
-    if not 1 <= len(name.strip()) <= forms.NAME_MAX:
-        raise ApiError(422, "invalid_name", f"{where}.name must have 1 to {forms.NAME_MAX} characters",
-                       field=f"{where}.name")
-    return name.strip()
+    return forms.default_name(file, "object") if name is None else forms.clean_name(name, f"{where}.name")

@@ -1,4 +1,5 @@
-"""The jobs API: submit an alignment, read and cancel a job, follow its events, download its results."""
+"""The jobs API: submit an alignment, list the caller's jobs, read and cancel one, follow its events,
+download its results."""
 
 from __future__ import annotations
 
@@ -10,11 +11,11 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
 
 from service import forms
-from service.deps import own_job, owner
+from service.deps import enqueue, own_job, owner
 from service.errors import ApiError, binary, documented
-from service.jobs import OUTPUTS, TERMINAL, JobRecord, Jobs, TooManyJobs, new_id, now
+from service.jobs import OUTPUTS, TERMINAL, JobRecord, Jobs, new_id, now
 from service.routers import assemble
-from service.schemas import Accepted, JobList, JobOut, build_config, links
+from service.schemas import Accepted, JobList, JobOut, build_config
 
 log = logging.getLogger("ctp.service")
 
@@ -31,7 +32,7 @@ router = APIRouter()
              "a time. 404 `job_not_found` for an unknown target job or another key's, 409 `job_not_ready` when "
              "it has not succeeded, 413 `scene_too_large` over `CTP_MAX_SCENE_FACES`.")
 async def submit(request: Request, who: str = Depends(owner)) -> Accepted:
-    settings, jobs = request.app.state.settings, request.app.state.jobs
+    settings = request.app.state.settings
     form = await forms.read_form(request)
     prompt, image = forms.prompt_and_image(form)
     options = forms.options(form)
@@ -61,14 +62,7 @@ async def submit(request: Request, who: str = Depends(owner)) -> Accepted:
         target_file=files["target"], source_file=files["source"], config=config.model_dump(mode="json"),
         target_job=target_job, on=on,
     )
-    unavailable = await run_in_threadpool(jobs.unavailable, config.model if config.uses_model else None)
-    if unavailable is not None:  # refused now rather than accepted and failed later
-        raise ApiError(503, unavailable.code, unavailable.message, unavailable.field)
-    try:
-        await run_in_threadpool(jobs.submit, record, blobs, settings.max_active_jobs)
-    except TooManyJobs as exc:
-        raise ApiError(429, "too_many_jobs", str(exc)) from None
-    return Accepted(id=record.id, status="queued", links=links(record.id))
+    return await enqueue(request, record, blobs, config)
 
 
 @router.get("/jobs", response_model=JobList, responses=documented(400, 401), summary="The caller's jobs, newest first",
