@@ -59,31 +59,26 @@ class AlignResult:
 
 
 
-def align(
-    target: trimesh.Trimesh,
-    source: trimesh.Trimesh,
-    prompt: str | None,
-    config: AlignConfig,
-    *,
-    image: np.ndarray | None = None,
-    target_name: str = "target",
-    source_name: str = "source",
-    guide=None,
-    guidance=None,
-    init: np.ndarray | None = None,
-    on_event: ProgressCallback | None = None,
-    should_cancel: CancelCheck | None = None,
-) -> AlignResult:
-    """Place ``source`` relative to ``target`` (both in file frames) so renders agree with the prompt.
+@dataclass
+class Run:
+    """What the stages share: the prepared pair, the priors, the objective and the phase plan."""
 
-    ``image`` (H, W, 3 uint8) guides by a reference picture instead of the text; ``guidance`` (a
-    ``targets`` object) overrides both (the benchmark's oracle). ``guide`` is a preloaded
-    vision-language model (``guidance.get_guide``); without one the configured model is loaded (and
-    cached per process). ``init`` (4x4, source file -> target file) replaces the first random start.
-    Raises ``errors.Canceled`` when ``should_cancel()`` turns true, other ``CtpError`` on bad input.
-    """
+    config: AlignConfig
+    pair: Any  # scene.PreparedPair
+    prior: priors.ScenePrior
+    scorer: Any  # objective.Scorer
+    plan: list  # schedule.Phase per refinement phase
+    guidance: Any  # a targets object, or None (geometry only)
+    started: float
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+def prepare(target: trimesh.Trimesh, source: trimesh.Trimesh, prompt: str | None, config: AlignConfig, *,
+            image: np.ndarray | None = None, target_name: str = "target", source_name: str = "source",
+            guide=None, guidance=None) -> Run:
+    """Priors, the normalised and canonicalised pair, the guide and its target, the objective and the plan."""
     from ctp_core import guidance as guidance_mod
-    from ctp_core import optimise, scene, schedule, targets
+    from ctp_core import objective, scene, schedule, targets
 
     started = time.perf_counter()
     if config.threads:
@@ -115,32 +110,86 @@ def align(
     else:
         guidance = None
     loaded = time.perf_counter()
-
-    generator = torch.Generator().manual_seed(config.seed)
-    start = optimise.initial_poses(pair, config, prior.size_ratio, generator, init=init)
+    scorer = objective.Scorer(pair, config, prior.contact_ratio, guide=guide, target=guidance)
     plan = schedule.phases(config, allow_penetration=prior.penetration)
-    problem = optimise.Problem(pair, config, prior.contact_ratio, guide=guide, target=guidance)
-    runner = optimise.Optimiser(problem, plan, on_event=on_event, should_cancel=should_cancel)
-    outcome = runner.run(start)
+    return Run(config, pair, prior, scorer, plan, guidance, started,
+               {"prepare_s": round(prepared - started, 3), "model_s": round(loaded - prepared, 3)})
 
+
+def propose(run: Run, init: np.ndarray | None = None):
+    """Search on: contact proposals (``search.propose``); off: the random starts (``optimise.initial_poses``).
+
+    ``init`` (source file -> target file 4x4) is one candidate (search) or replaces restart 0 (no search), and
+    fixes the source scale either way.
+    """
+    from ctp_core import optimise, search
+
+    config, pair = run.config, run.pair
+    generator = torch.Generator().manual_seed(config.seed)
+    starts = optimise.initial_poses(pair, config, run.prior.size_ratio, generator, init=init)
+    if not config.search.enabled:
+        return search.Proposals(starts, ["random"] * len(starts))
+    t0 = time.perf_counter()
+    weights = search.region_weights(run.prior.relation, run.prior.source_is_figure)
+    given = starts.select(slice(0, 1)) if init is not None else None
+    proposals = search.propose(pair, config, weights, float(starts.log_s[0]), generator, init=given)
+    run.timings["propose_s"] = round(time.perf_counter() - t0, 3)
+    return proposals
+
+
+def score(run: Run, proposals, *, on_event: ProgressCallback | None = None,
+          should_cancel: CancelCheck | None = None):
+    """The optimiser's starts: the search's diverse best ``optim.restarts`` (forward-only scoring), or the
+    proposals as they are when the search is off."""
+    from ctp_core import search
+
+    if not run.config.search.enabled:
+        return proposals.poses
+    ranked = search.search(run.scorer, proposals, run.plan[-1], k=run.config.optim.restarts, on_event=on_event,
+                           should_cancel=should_cancel, phases=len(run.plan), started=run.started)
+    run.timings["search_s"] = round(ranked.seconds, 3)
+    run.timings["search_candidates"] = ranked.scored
+    return ranked.poses
+
+
+def refine(run: Run, starts, *, on_event: ProgressCallback | None = None,
+           should_cancel: CancelCheck | None = None):
+    """The phased optimiser from ``starts`` (one restart each); returns its ``Outcome``."""
+    from ctp_core import optimise
+
+    runner = optimise.Optimiser(run.scorer, run.plan, on_event=on_event, should_cancel=should_cancel)
+    return runner.run(starts)
+
+
+def select(outcome) -> int:
+    """The restart whose best pose has the lowest objective on the fixed evaluation views."""
+    return int(outcome.objectives.argmin())
+
+
+def result(run: Run, outcome, best: int, target: trimesh.Trimesh, source: trimesh.Trimesh, prompt: str | None,
+           *, on_event: ProgressCallback | None = None) -> AlignResult:
+    """The answer in file frames with its report fields and a preview."""
+    from ctp_core import scene
+
+    config, pair = run.config, run.pair
     matrices = outcome.poses.matrices()
     answers = [pair.source_to_target(m) for m in matrices]
-    preview = scene.render_pair(pair, matrices[outcome.best], views=4, image_size=224)
+    preview = scene.render_pair(pair, matrices[best], views=4, image_size=224)
     preview = (preview.permute(0, 2, 3, 1).clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8)
     timings = {f"optimise_{k}_s": round(v, 3) for k, v in outcome.timings.items()}
-    timings.update(prepare_s=round(prepared - started, 3), model_s=round(loaded - prepared, 3),
-                   total_s=round(time.perf_counter() - started, 3))
+    timings.update(run.timings, total_s=round(time.perf_counter() - run.started, 3))
     restarts = [
         {"restart": i, "objective": float(outcome.objectives[i]),
          **{k: float(v[i]) for k, v in outcome.terms.items()}, "source_to_target": answers[i].tolist()}
         for i in range(len(answers))
     ]
-    result = AlignResult(
-        source_to_target=answers[outcome.best], objective=float(outcome.objectives[outcome.best]),
-        target=target, source=source, prompt=prompt, config=config, hparams=prior.to_dict(),
+    guidance = run.guidance
+    answer = AlignResult(
+        source_to_target=answers[best], objective=float(outcome.objectives[best]),
+        target=target, source=source, prompt=prompt, config=config, hparams=run.prior.to_dict(),
         restarts=restarts, timings=timings, preview=preview,
         extra={
-            "best_restart": outcome.best,
+            "best_restart": best,
             "guidance": guidance.description if guidance is not None else "none (geometry only)",
             "model": config.model if guidance is not None else None,
             "clip_images": outcome.clip_images,
@@ -150,8 +199,42 @@ def align(
         },
     )
     if on_event:
-        on_event(ProgressEvent(kind="done", phase=len(plan), phases=len(plan), step=outcome.steps_run,
-                               steps=runner.total_steps, restarts=config.optim.restarts,
-                               elapsed_s=time.perf_counter() - started, eta_s=0.0,
-                               best_objective=result.objective, message="done"))
-    return result
+        steps = sum(p.steps for p in run.plan)
+        on_event(ProgressEvent(kind="done", phase=len(run.plan), phases=len(run.plan), step=outcome.steps_run,
+                               steps=steps, restarts=config.optim.restarts,
+                               elapsed_s=time.perf_counter() - run.started, eta_s=0.0,
+                               best_objective=answer.objective, message="done"))
+    return answer
+
+
+def align(
+    target: trimesh.Trimesh,
+    source: trimesh.Trimesh,
+    prompt: str | None,
+    config: AlignConfig,
+    *,
+    image: np.ndarray | None = None,
+    target_name: str = "target",
+    source_name: str = "source",
+    guide=None,
+    guidance=None,
+    init: np.ndarray | None = None,
+    on_event: ProgressCallback | None = None,
+    should_cancel: CancelCheck | None = None,
+) -> AlignResult:
+    """Place ``source`` relative to ``target`` (both in file frames) so renders agree with the prompt.
+
+    The stages: ``prepare`` -> ``propose`` -> ``score`` -> ``refine`` -> ``select`` -> ``result``.
+    ``image`` (H, W, 3 uint8) guides by a reference picture instead of the text; ``guidance`` (a
+    ``targets`` object) overrides both (the benchmark's oracle). ``guide`` is a preloaded
+    vision-language model (``guidance.get_guide``); without one the configured model is loaded (and
+    cached per process). ``init`` (4x4, source file -> target file) is one more search candidate (or,
+    search off, replaces the first random start) and fixes the source's scale.
+    Raises ``errors.Canceled`` when ``should_cancel()`` turns true, other ``CtpError`` on bad input.
+    """
+    run = prepare(target, source, prompt, config, image=image, target_name=target_name, source_name=source_name,
+                  guide=guide, guidance=guidance)
+    proposals = propose(run, init)
+    starts = score(run, proposals, on_event=on_event, should_cancel=should_cancel)
+    outcome = refine(run, starts, on_event=on_event, should_cancel=should_cancel)
+    return result(run, outcome, select(outcome), target, source, prompt, on_event=on_event)

@@ -20,6 +20,7 @@ import trimesh
 
 from ctp_core import render, scene
 from ctp_core.bench.cases import Case
+from ctp_core.cameras import framing_cameras
 from ctp_core.errors import ConfigError
 from ctp_core.guidance import Guide
 
@@ -42,19 +43,14 @@ def _pair_and_pose(target: trimesh.Trimesh, source: trimesh.Trimesh,
                    source_to_target: np.ndarray) -> tuple[scene.PreparedPair, torch.Tensor]:
     """The pair in the file-frame normalised frame and its scene vertices (1, V, 3) at one pose."""
     pair = scene.prepare_pair(target, source, samples=100, seed=0, canonicalise=False)
-    return pair, _scene_vertices(pair, source_to_target)
-
-
-def _scene_vertices(pair: scene.PreparedPair, source_to_target: np.ndarray) -> torch.Tensor:
-    m = torch.tensor(pair.local_to_normalised(source_to_target), dtype=torch.float32)  # a copy: frames are read-only
-    return pair.scene_vertices((pair.source_vertices @ m[:3, :3].T + m[:3, 3])[None])
+    return pair, pair.scene_at(pair.local_to_normalised(source_to_target))
 
 
 def reference_image(target: trimesh.Trimesh, source: trimesh.Trimesh, reference: np.ndarray,
                     rng: np.random.Generator, image_size: int = 224) -> np.ndarray:
     """(H, W, 3) uint8 render of the reference arrangement from a random framing view."""
     pair, verts = _pair_and_pose(target, source, reference)
-    cams = scene.framing_cameras(verts[0], IMAGE_AZIMUTHS, image_size, elevation_deg=float(rng.uniform(20, 50)))
+    cams = framing_cameras(verts[0], IMAGE_AZIMUTHS, image_size, elevation_deg=float(rng.uniform(20, 50)))
     k = int(rng.integers(IMAGE_AZIMUTHS))
     one = replace(cams, eye=cams.eye[:, k:k + 1], at=cams.at[:, k:k + 1], fov_deg=cams.fov_deg[:, k:k + 1])
     with torch.no_grad():
@@ -95,8 +91,8 @@ class SelectionScore:
         self.guide, self.views, self.image_size = guide, views, image_size
         self.cameras = None
         if inputs.kind == "oracle":
-            ref_verts = _scene_vertices(self.pair, reference)
-            self.cameras = scene.framing_cameras(ref_verts[0], views, image_size)
+            ref_verts = self.pair.scene_at(self.pair.local_to_normalised(reference))
+            self.cameras = framing_cameras(ref_verts[0], views, image_size)
             with torch.no_grad():
                 self.embedding = guide.encode_images(render.render(self.pair.mesh, ref_verts, self.cameras)[0])
         elif inputs.kind == "image":
@@ -110,5 +106,6 @@ class SelectionScore:
                                        views=self.views, image_size=self.image_size)
             return float(self.guide.score(images, self.embedding).mean())
         with torch.no_grad():
-            images = render.render(self.pair.mesh, _scene_vertices(self.pair, source_to_target), self.cameras)[0]
+            verts = self.pair.scene_at(self.pair.local_to_normalised(source_to_target))
+            images = render.render(self.pair.mesh, verts, self.cameras)[0]
             return float((self.guide.encode_images(images) * self.embedding).sum(-1).mean())
