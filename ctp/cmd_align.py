@@ -26,11 +26,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("scene.glb"), help="output GLB (default scene.glb)")
     parser.add_argument("--report", type=Path, help="write the JSON report here")
     parser.add_argument("--preview", type=Path, help="write a 4-view preview PNG here")
-    parser.add_argument("--preset", default="default", help="default | paper | test")
+    parser.add_argument("--preset", default="default",
+                        help="default (search, then a short refinement) | descent | paper | test")
     parser.add_argument("--model", help="guidance model: hf:REPO_OR_PATH, open_clip:ARCH:TAG, random:ARCH")
     parser.add_argument("--scale", action="store_true", help="optimise isotropic scale too")
     parser.add_argument("--restarts", type=int)
     parser.add_argument("--steps", type=int, help="total steps per restart over all phases")
+    parser.add_argument("--candidates", type=int, help="poses the search scores (default: the preset's)")
+    parser.add_argument("--no-search", action="store_true",
+                        help="no search: the optimiser starts from random poses (as the descent preset)")
     parser.add_argument("--seed", type=int)
     parser.add_argument("--device", choices=["cpu", "cuda"])
     parser.add_argument("--threads", type=int, help="torch CPU threads")
@@ -71,6 +75,10 @@ def config_from_args(args: argparse.Namespace):
         loss["lambda_clip"] = 0.0
     if optim:
         overrides["optim"] = optim
+    search = {k: v for k, v in {"candidates": args.candidates, "enabled": False if args.no_search else None}.items()
+              if v is not None}
+    if search:
+        overrides["search"] = search
     if loss:
         overrides["loss"] = loss
     return AlignConfig.from_preset(args.preset, **overrides)
@@ -90,8 +98,9 @@ class ProgressBar:
         filled = int(event.fraction * width)
         eta = f"{event.eta_s:5.0f}s" if event.eta_s is not None else "    ?"
         best = f" best {event.best_objective:.4f}" if event.best_objective is not None else ""
-        line = (f"[{'#' * filled}{'.' * (width - filled)}] phase {event.phase}/{event.phases} "
-                f"step {event.step}/{event.steps} eta {eta}{best}")
+        where = (f"search {event.step}/{event.steps} candidates" if event.stage == "search" else
+                 f"phase {event.phase}/{event.phases} step {event.step}/{event.steps}")
+        line = f"[{'#' * filled}{'.' * (width - filled)}] {where} eta {eta}{best}"
         if self.tty:
             self.stream.write("\r" + line + ("\n" if event.kind == "done" else ""))
         else:

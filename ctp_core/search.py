@@ -32,7 +32,7 @@ import torch
 import trimesh
 from scipy.spatial import Delaunay
 
-from ctp_core import losses
+from ctp_core import losses, sampling, scene
 from ctp_core.cameras import Cameras, orbit
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
@@ -44,8 +44,10 @@ from ctp_core.schedule import Phase
 
 REGIONS: tuple[str, ...] = ("top", "side", "bottom", "inside", "gap")
 UP_FACING = 0.5  # n_y above: "top"; below minus this: "bottom"; else "side"
-SETTLE_POINTS = 128  # source samples used to settle proposals into contact
+SETTLE_POINTS = 256  # source samples used to settle proposals into contact
+CONTACT_SAMPLES = 6000  # target samples for settling proposals (the losses use ``loss.samples``)
 SETTLE_ITERATIONS = 12
+PUSH_ITERATIONS = 3
 HULL_POINTS = 96  # source convex hull vertices kept for the stable poses
 CAVITY_PROBES = 4096  # quasi-random points in the target AABB tried as cavity proposals
 
@@ -166,47 +168,77 @@ def cavity_points(pair: PreparedPair, seed: int) -> np.ndarray:
     return probes[keep]
 
 
-def settle(pair: PreparedPair, q: torch.Tensor, anchor: torch.Tensor, normal: torch.Tensor, log_s: torch.Tensor,
-           on_surface: bool) -> torch.Tensor:
-    """Source centres (B, 3) that bring each rotated source into contact from outside, approaching along -normal.
+def contact_index(pair: PreparedPair, count: int = CONTACT_SAMPLES, seed: int = 0) -> losses.TargetIndex:
+    """Denser target samples than the losses' (normalised frame, outward normals) for placing proposals: the
+    sampled depth and distance are only as good as the spacing."""
+    oriented = scene.outward(pair.target)
+    points, normals = sampling.surface_samples(oriented, count, seed)
+    frame = pair.target_to_normalised
+    as_t = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
+    return losses.TargetIndex(as_t(frame.apply(points)), as_t(frame.apply_directions(normals)))
 
-    ``on_surface``: ``anchor`` is a target surface point with outward ``normal``; the source starts with its
+
+def settle(pair: PreparedPair, index: losses.TargetIndex, q: torch.Tensor, anchor: torch.Tensor,
+           normal: torch.Tensor, log_s: torch.Tensor, on_surface: bool) -> tuple[torch.Tensor, torch.Tensor]:
+    """Source centres (B, 3) that bring each rotated source into contact from outside, approaching along -normal,
+    and whether each ended outside (a source wedged where pushing along the normal cannot free it did not).
+
+    ``index``: target samples (``contact_index``). ``on_surface``: ``anchor`` is a target surface point with
+    outward ``normal``; the source starts with its
     extreme point along -normal in the tangent plane there. Otherwise it starts centred at ``anchor``. Then,
     a few times: if a source sample is inside the target (``losses.signed_depth``), push out along the normal by
-    the deepest; else move along -normal by the smallest distance to the target samples (sphere tracing: that
-    step cannot pass through a sample), so it ends touching.
+    the deepest; else move toward the target by the smallest distance between the source and target samples,
+    along that closest pair (sphere tracing: a step that short cannot pass through a sample), so it ends touching.
     """
     idx = torch.linspace(0, len(pair.source_samples) - 1, min(SETTLE_POINTS, len(pair.source_samples))).long()
     local = pair.source_samples[idx]
     rotated = torch.einsum("bij,nj->bni", quaternion_to_matrix(q), local) * log_s.exp()[:, None, None]
     tol = 2e-3 * pair.target_radius
-    max_travel = torch.full((len(anchor),), 1.5 * pair.target_radius)
+    # the sampled depth is only as good as the sample spacing (an edge's neighbour plane votes near corners):
+    # count a sample inside only past a third of that spacing
+    spacing = math.sqrt(float(pair.target.area) / len(index.points)) * pair.target_to_normalised.scale
+    inside_tol = max(tol, spacing / 3)
     centre = anchor.clone()
     if on_surface:
         support = (-(rotated * normal[:, None, :]).sum(-1)).max(dim=1).values  # extent along -normal
         centre = anchor + normal * (support + tol)[:, None]
-    travel = torch.zeros(len(centre))
-    for _ in range(SETTLE_ITERATIONS):
-        posed = rotated + centre[:, None, :]
-        dist, idx = pair.index.tree.query(posed.reshape(-1, 3).numpy().astype(np.float64), k=4, workers=1)
+    points = index.points
+    active = torch.arange(len(centre))
+    depth = torch.zeros(len(centre))
+    for iteration in range(SETTLE_ITERATIONS + PUSH_ITERATIONS):
+        if iteration == SETTLE_ITERATIONS:
+            active = torch.arange(len(centre))  # the last iterations only push out: end outside rather than deep
+        posed = rotated[active] + centre[active, None, :]
+        dist, idx = index.tree.query(posed.reshape(-1, 3).numpy().astype(np.float64), k=4, workers=1)
         idx = torch.as_tensor(idx.reshape(*posed.shape[:2], 4), dtype=torch.long)
-        depth = losses.signed_depth(posed, pair.index, 0.01, 4, idx=idx).max(dim=1).values
-        gap = torch.as_tensor(dist[:, 0].reshape(posed.shape[:2]).min(axis=1), dtype=centre.dtype)
-        step = torch.where(depth > tol, depth + tol, -(gap - tol).clamp_min(0.0))
-        # a free fall is bounded: a source with nothing below it stops within a target radius or so
-        step = step.clamp(min=-(max_travel - travel).clamp_min(0.0))
-        travel = travel + step.clamp(max=0.0).abs()
-        if bool((step.abs() < tol).all()):
-            break
-        centre = centre + normal * step[:, None]
-    return centre
+        deepest = losses.signed_depth(posed, index, 0.01, 4, idx=idx).max(dim=1).values
+        depth[active] = deepest
+        dist = torch.as_tensor(dist[:, 0].reshape(posed.shape[:2]), dtype=centre.dtype)
+        gap, nearest = dist.min(dim=1)
+        if iteration >= SETTLE_ITERATIONS:
+            gap = torch.full_like(gap, tol)
+        rows = torch.arange(len(active))
+        toward = points[idx[rows, nearest, 0]] - posed[rows, nearest]  # closest source sample -> its target sample
+        toward = toward / toward.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+        inside = deepest > inside_tol
+        move = torch.where(inside[:, None], normal[active] * (deepest + tol)[:, None],
+                           toward * (gap - tol).clamp_min(0.0)[:, None])
+        moving = move.norm(dim=-1) >= tol
+        centre[active] = centre[active] + move
+        active = active[moving]
+        if not len(active):
+            if iteration >= SETTLE_ITERATIONS:
+                break
+            active = torch.empty(0, dtype=torch.long)
+    return centre, depth <= inside_tol
 
 
 def propose(pair: PreparedPair, config: AlignConfig, weights: dict[str, float], log_s: float,
             generator: torch.Generator, init: Poses | None = None) -> Proposals:
     """``search.candidates`` poses in contact, drawn per region by ``allocate`` (see module docstring).
 
-    ``log_s`` is the source scale of every proposal (rigid: kept from the files or the caller's start);
+    Proposals the settling could not free from the target are dropped. ``log_s`` is the source scale of every
+    proposal (rigid: kept from the files or the caller's start);
     ``init`` (one pose) is added as a candidate as given.
     """
     cfg = config.search
@@ -247,12 +279,16 @@ def propose(pair: PreparedPair, config: AlignConfig, weights: dict[str, float], 
     q = rotations[torch.as_tensor(rng.integers(len(rotations), size=len(anchor)))]
     scale = torch.full((len(anchor),), float(log_s))
     t = torch.empty_like(anchor)
+    free = torch.ones(len(anchor), dtype=torch.bool)
+    index = contact_index(pair, seed=config.seed)
     for mask in (surface, ~surface):
         sel = torch.as_tensor(mask)
         if sel.any():
-            t[sel] = settle(pair, q[sel], anchor[sel], direction[sel], scale[sel], on_surface=bool(mask[0]))
+            t[sel], free[sel] = settle(pair, index, q[sel], anchor[sel], direction[sel], scale[sel],
+                                       on_surface=bool(mask[0]))
     t = t + direction * gap[:, None]
-    poses = Poses(t, q, scale)
+    poses = Poses(t, q, scale).select(free)
+    labels = [label for label, ok in zip(labels, free.tolist(), strict=True) if ok]
     if init is not None:
         poses = Poses.cat([init, poses])
         labels = ["init", *labels]
