@@ -90,6 +90,7 @@ class Optimiser:
         self.total_steps = sum(p.steps for p in plan)
         self.done = 0
         self.start = time.perf_counter()
+        self._clock_start = dict(self.clock.totals)  # the scorer's clock may have run before (the search)
 
     # -- loop ----------------------------------------------------------------------------------------
     def run(self, start: Poses) -> Outcome:
@@ -107,9 +108,11 @@ class Optimiser:
             phase_timings.append(split)
             self._emit("phase_end", phase, best_objective=float(scores["objective"].min()))
         objectives = scores["objective"]
-        totals = dict(self.clock.totals)
+        totals = {k: v - self._clock_start.get(k, 0.0) for k, v in self.clock.totals.items()}
+        totals = {k: v for k, v in totals.items() if v > 0}
+        spent = sum(totals.values())
         totals["total"] = time.perf_counter() - self.start
-        totals["other"] = totals["total"] - sum(v for k, v in self.clock.totals.items())
+        totals["other"] = totals["total"] - spent
         return Outcome(
             best=int(objectives.argmin()), poses=best, objectives=objectives,
             terms={k: scores[k] for k in ("clip", "icp", "pen")}, timings=totals,
