@@ -44,7 +44,8 @@ from ctp_core.schedule import Phase
 
 REGIONS: tuple[str, ...] = ("top", "side", "bottom", "inside", "gap")
 UP_FACING = 0.5  # n_y above: "top"; below minus this: "bottom"; else "side"
-SETTLE_POINTS = 256  # source samples used to settle proposals into contact
+SETTLE_POINTS = 256  # source samples checked for penetration when settling proposals
+APPROACH_POINTS = 64  # source samples used while sliding proposals into contact
 CONTACT_SAMPLES = 6000  # target samples for settling proposals (the losses use ``loss.samples``)
 SETTLE_ITERATIONS = 12
 PUSH_ITERATIONS = 3
@@ -135,15 +136,17 @@ def orientations(pair: PreparedPair, config: AlignConfig, generator: torch.Gener
 def surface_regions(pair: PreparedPair) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray], np.ndarray]:
     """Target samples, normals, indices per surface region and a density weight per sample.
 
-    Samples are area-weighted already; the density adds weight where the surface faces up and on rims (where
-    the normals of neighbouring samples disagree).
+    Samples are area-weighted already; the density adds weight where the surface faces up, on rims (where
+    the normals of neighbouring samples disagree) and toward the top of the target (small tops, a spire's or a
+    head's, have little area but are where things are put).
     """
     points = pair.index.points.cpu().numpy().astype(np.float64)
     normals = pair.index.normals.cpu().numpy().astype(np.float64)
     ny = normals[:, 1]
     _, near = pair.index.tree.query(points, k=min(8, len(points)), workers=1)
     spread = 1.0 - np.linalg.norm(normals[near].mean(axis=1), axis=1)
-    density = 1.0 + np.clip(ny, 0.0, None) + (spread > 0.3)
+    height = (points[:, 1] - points[:, 1].min()) / max(float(np.ptp(points[:, 1])), 1e-9)
+    density = 1.0 + np.clip(ny, 0.0, None) + (spread > 0.3) + 2.0 * height**4
     regions = {"top": np.flatnonzero(ny > UP_FACING), "bottom": np.flatnonzero(ny < -UP_FACING),
                "side": np.flatnonzero(np.abs(ny) <= UP_FACING)}
     return points, normals, regions, density
@@ -184,15 +187,18 @@ def settle(pair: PreparedPair, index: losses.TargetIndex, q: torch.Tensor, ancho
     and whether each ended outside (a source wedged where pushing along the normal cannot free it did not).
 
     ``index``: target samples (``contact_index``). ``on_surface``: ``anchor`` is a target surface point with
-    outward ``normal``; the source starts with its
-    extreme point along -normal in the tangent plane there. Otherwise it starts centred at ``anchor``. Then,
-    a few times: if a source sample is inside the target (``losses.signed_depth``), push out along the normal by
-    the deepest; else move toward the target by the smallest distance between the source and target samples,
-    along that closest pair (sphere tracing: a step that short cannot pass through a sample), so it ends touching.
+    outward ``normal``; the source starts with its extreme point along -normal in the tangent plane there.
+    Otherwise it starts centred at ``anchor``. Then, a few times (a sparse subset of the source samples): if a
+    sample is inside the target (``losses.signed_depth``), push out along the normal by the deepest; else move
+    toward the target by the smallest distance between source and target samples, along that closest pair
+    (sphere tracing: a step that short cannot pass through a sample), so it ends touching. Last, a denser subset
+    is checked and only pushed out.
     """
-    idx = torch.linspace(0, len(pair.source_samples) - 1, min(SETTLE_POINTS, len(pair.source_samples))).long()
-    local = pair.source_samples[idx]
-    rotated = torch.einsum("bij,nj->bni", quaternion_to_matrix(q), local) * log_s.exp()[:, None, None]
+    def subset(count: int) -> torch.Tensor:
+        idx = torch.linspace(0, len(pair.source_samples) - 1, min(count, len(pair.source_samples))).long()
+        rot = quaternion_to_matrix(q) * log_s.exp()[:, None, None]
+        return torch.einsum("bij,nj->bni", rot, pair.source_samples[idx])
+
     tol = 2e-3 * pair.target_radius
     # the sampled depth is only as good as the sample spacing (an edge's neighbour plane votes near corners):
     # count a sample inside only past a third of that spacing
@@ -200,36 +206,41 @@ def settle(pair: PreparedPair, index: losses.TargetIndex, q: torch.Tensor, ancho
     inside_tol = max(tol, spacing / 3)
     centre = anchor.clone()
     if on_surface:
+        rotated = subset(SETTLE_POINTS)
         support = (-(rotated * normal[:, None, :]).sum(-1)).max(dim=1).values  # extent along -normal
         centre = anchor + normal * (support + tol)[:, None]
-    points = index.points
-    active = torch.arange(len(centre))
-    depth = torch.zeros(len(centre))
-    for iteration in range(SETTLE_ITERATIONS + PUSH_ITERATIONS):
-        if iteration == SETTLE_ITERATIONS:
-            active = torch.arange(len(centre))  # the last iterations only push out: end outside rather than deep
+
+    def step(rotated: torch.Tensor, active: torch.Tensor, approach: bool) -> tuple[torch.Tensor, torch.Tensor]:
+        """Move the active candidates once; returns the ones that still move and every active one's depth."""
         posed = rotated[active] + centre[active, None, :]
-        dist, idx = index.tree.query(posed.reshape(-1, 3).numpy().astype(np.float64), k=4, workers=1)
-        idx = torch.as_tensor(idx.reshape(*posed.shape[:2], 4), dtype=torch.long)
-        deepest = losses.signed_depth(posed, index, 0.01, 4, idx=idx).max(dim=1).values
-        depth[active] = deepest
+        dist, idx = index.tree.query(posed.reshape(-1, 3).numpy().astype(np.float64), k=2, workers=1)
+        idx = torch.as_tensor(idx.reshape(*posed.shape[:2], 2), dtype=torch.long)
+        deepest = losses.signed_depth(posed, index, 0.01, 2, idx=idx).max(dim=1).values
         dist = torch.as_tensor(dist[:, 0].reshape(posed.shape[:2]), dtype=centre.dtype)
         gap, nearest = dist.min(dim=1)
-        if iteration >= SETTLE_ITERATIONS:
-            gap = torch.full_like(gap, tol)
         rows = torch.arange(len(active))
-        toward = points[idx[rows, nearest, 0]] - posed[rows, nearest]  # closest source sample -> its target sample
+        toward = index.points[idx[rows, nearest, 0]] - posed[rows, nearest]  # closest source sample -> its target's
         toward = toward / toward.norm(dim=-1, keepdim=True).clamp_min(1e-12)
         inside = deepest > inside_tol
-        move = torch.where(inside[:, None], normal[active] * (deepest + tol)[:, None],
-                           toward * (gap - tol).clamp_min(0.0)[:, None])
-        moving = move.norm(dim=-1) >= tol
+        reach = (gap - tol).clamp_min(0.0) if approach else torch.zeros_like(gap)
+        move = torch.where(inside[:, None], normal[active] * (deepest + tol)[:, None], toward * reach[:, None])
         centre[active] = centre[active] + move
-        active = active[moving]
+        return active[move.norm(dim=-1) >= tol], deepest
+
+    # approach with a sparse subset of the source (cheap), then check with a denser one and only push out
+    sparse, dense = subset(APPROACH_POINTS), subset(SETTLE_POINTS)
+    active = torch.arange(len(centre))
+    for _ in range(SETTLE_ITERATIONS):
+        active, _ = step(sparse, active, approach=True)
         if not len(active):
-            if iteration >= SETTLE_ITERATIONS:
-                break
-            active = torch.empty(0, dtype=torch.long)
+            break
+    active = torch.arange(len(centre))
+    depth = torch.zeros(len(centre))
+    for _ in range(PUSH_ITERATIONS):
+        moving, depth[active] = step(dense, active, approach=False)
+        active = moving
+        if not len(active):
+            break
     return centre, depth <= inside_tol
 
 

@@ -149,7 +149,7 @@ def test_cancel_during_search(pairs):
 def test_stages_are_callable_alone(pairs):
     run = prepare(*pairs["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box")
     props = propose(run)
-    assert run.prior.relation == "on" and len(props.poses) >= CONFIG.search.candidates
+    assert run.prior.relation == "on" and len(props.poses) >= CONFIG.search.candidates // 2  # wedged ones dropped
     off = CONFIG.model_copy(update={"search": CONFIG.search.model_copy(update={"enabled": False})})
     assert propose(prepare(*pairs["box on table"], None, off)).region == ["random"] * off.optim.restarts
 
