@@ -93,9 +93,11 @@ class SearchConfig(_Strict):
     forward only, coarse to fine; its diverse best ``optim.restarts`` poses start the optimiser."""
 
     enabled: bool = Field(True, description="off: the optimiser starts from random poses (method.md Initialise)")
-    candidates: int = Field(192, ge=1, le=20000, description="contact proposals scored at the coarse stage")
+    candidates: int = Field(144, ge=1, le=20000, description="contact proposals scored at the coarse stage")
     coarse_views: int = Field(2, ge=1, le=16, description="fixed views of the coarse stage, the same for all")
     coarse_image_size: int = Field(128, ge=32, le=1024, description="render size of the coarse stage")
+    sweep: int = Field(2, ge=0, le=64, description="best distinct coarse sites re-tried with every source "
+                       "orientation (at the coarse views)")
     fine: int = Field(24, ge=1, le=1000, description="best coarse candidates rescored at the fine stage")
     fine_views: int = Field(3, ge=1, le=16, description="views per candidate at the fine stage")
     fine_image_size: int = Field(160, ge=32, le=1024, description="render size of the fine stage")
@@ -227,7 +229,7 @@ PRESETS: dict[str, dict] = {
         "camera": {"views": 2, "image_size": 64, "eval_views": 2},
         "loss": {"samples": 400},
         "optim": {"steps": 6, "phases": 2, "restarts": 2, "eval_every": 3},
-        "search": {"candidates": 12, "coarse_views": 1, "coarse_image_size": 64, "fine": 4, "fine_views": 1,
+        "search": {"candidates": 12, "sweep": 1, "coarse_views": 1, "coarse_image_size": 64, "fine": 4, "fine_views": 1,
                    "fine_image_size": 64, "batch": 6, "yaw_steps": 4, "stable_poses": 1},
         "progress_every": 1,
     },

@@ -15,6 +15,8 @@ lets the guide rank them in batches, with no gradient:
    ``search.batch`` candidates x views per render and encoder call: first all candidates at a few fixed views
    framing the target's region (the same cameras for all, so a per-view target is encoded once), then the best
    ``search.fine`` at more views zoomed toward each candidate's source.
+   Between the two, ``sweep`` tries every source orientation at the best few distinct sites of the coarse stage
+   (a candidate's orientation is one draw of many; a right place with the wrong turn still ranks well).
 3. ``diverse_top``: the best ``optim.restarts`` poses, near-duplicates suppressed; they start the optimiser.
 
 Frames: every pose maps the source local frame to the normalised frame (``pose``); points and directions here
@@ -30,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 import trimesh
-from scipy.spatial import Delaunay
+from scipy.spatial import Delaunay, QhullError
 
 from ctp_core import losses, sampling, scene
 from ctp_core.cameras import Cameras, orbit
@@ -68,16 +70,33 @@ GROUND_WEIGHTS: dict[str, dict[str, float]] = {
 
 
 @dataclass
+class Site:
+    """Where proposals touch the target: an anchor and approach direction per proposal (normalised frame)."""
+
+    anchor: torch.Tensor  # (N, 3) a target surface point, or a cavity point
+    normal: torch.Tensor  # (N, 3) approach along -normal (outward normal; +Y for cavity points)
+    gap: torch.Tensor  # (N,) distance kept from the target after contact (lateral proposals)
+    on_surface: torch.Tensor  # (N,) bool: anchor on the surface (else a cavity point)
+
+    def select(self, index) -> Site:
+        return Site(self.anchor[index], self.normal[index], self.gap[index], self.on_surface[index])
+
+
+@dataclass
 class Proposals:
     poses: Poses  # (N,) source local -> normalised
     region: list[str]  # (N,) which region each was drawn from ("init" for the caller's start)
+    sites: Site | None = None  # (N,) where each touches (None: not placed by the search, e.g. random starts)
+    rotations: torch.Tensor | None = None  # (R, 4) the source orientations the proposals were drawn from
+    index: losses.TargetIndex | None = None  # the contact samples they were placed with
 
 
 @dataclass
 class Ranked:
     poses: Poses  # the kept poses, best first
     objectives: torch.Tensor  # (K,) their fine-stage objective
-    scored: int  # candidate evaluations (coarse + fine)
+    scored: int  # candidate evaluations (coarse + sweep + fine)
+    swept: int  # candidates of the orientation sweep
     seconds: float
 
 
@@ -160,7 +179,7 @@ def cavity_points(pair: PreparedPair, seed: int) -> np.ndarray:
     probes = lo + (hi - lo) * np.random.default_rng(seed).random((CAVITY_PROBES, 3))
     try:
         hull = Delaunay(trimesh.convex.convex_hull(verts).vertices)
-    except Exception:  # a flat target has no volume and no cavity  # noqa: BLE001
+    except (QhullError, ValueError):  # a flat target has no volume and no cavity
         return np.zeros((0, 3))
     probes = probes[hull.find_simplex(probes) >= 0]
     if not len(probes):
@@ -286,25 +305,55 @@ def propose(pair: PreparedPair, config: AlignConfig, weights: dict[str, float], 
             on_surface.append(np.ones(n, bool))
         labels += [region] * n
     as_t = lambda a: torch.as_tensor(np.concatenate(a), dtype=torch.float32)  # noqa: E731
-    anchor, direction, gap, surface = as_t(anchors), as_t(dirs), as_t(gaps), np.concatenate(on_surface)
-    q = rotations[torch.as_tensor(rng.integers(len(rotations), size=len(anchor)))]
-    scale = torch.full((len(anchor),), float(log_s))
-    t = torch.empty_like(anchor)
-    free = torch.ones(len(anchor), dtype=torch.bool)
+    sites = Site(as_t(anchors), as_t(dirs), as_t(gaps), torch.as_tensor(np.concatenate(on_surface)))
+    q = rotations[torch.as_tensor(rng.integers(len(rotations), size=len(sites.anchor)))]
     index = contact_index(pair, seed=config.seed)
-    for mask in (surface, ~surface):
-        sel = torch.as_tensor(mask)
-        if sel.any():
-            t[sel], free[sel] = settle(pair, index, q[sel], anchor[sel], direction[sel], scale[sel],
-                                       on_surface=bool(mask[0]))
-    t = t + direction * gap[:, None]
-    poses = Poses(t, q, scale).select(free)
+    poses, free = place(pair, index, q, sites, log_s)
     labels = [label for label, ok in zip(labels, free.tolist(), strict=True) if ok]
-    if init is not None:
-        poses = Poses.cat([init, poses])
+    sites = sites.select(free)
+    if init is not None:  # the caller's start, as given (no site: the orientation sweep skips it)
+        poses = Poses.cat([init.select(slice(0, 1)), poses])
         labels = ["init", *labels]
+        given = Site(init.t[:1].cpu(), torch.tensor([[0.0, 1.0, 0.0]]), torch.zeros(1),
+                     torch.zeros(1, dtype=torch.bool))
+        sites = Site(*(torch.cat([a, b]) for a, b in zip(vars(given).values(), vars(sites).values(), strict=True)))
     device = pair.source_vertices.device
-    return Proposals(Poses(poses.t.to(device), poses.q.to(device), poses.log_s.to(device)), labels)
+    return Proposals(Poses(poses.t.to(device), poses.q.to(device), poses.log_s.to(device)), labels, sites,
+                     rotations, index)
+
+
+def place(pair: PreparedPair, index: losses.TargetIndex, q: torch.Tensor, sites: Site,
+          log_s: float) -> tuple[Poses, torch.Tensor]:
+    """Poses with orientations ``q`` settled into contact at ``sites`` (``settle``), then moved out by each site's
+    gap; returns the poses that ended free of the target and the mask of which did."""
+    scale = torch.full((len(q),), float(log_s))
+    t = torch.empty(len(q), 3)
+    free = torch.ones(len(q), dtype=torch.bool)
+    for surface in (True, False):
+        sel = sites.on_surface == surface
+        if sel.any():
+            t[sel], free[sel] = settle(pair, index, q[sel], sites.anchor[sel], sites.normal[sel], scale[sel],
+                                       on_surface=surface)
+    t = t + sites.normal * sites.gap[:, None]
+    return Poses(t, q, scale).select(free), free
+
+
+def sweep(proposals: Proposals, pair: PreparedPair, objectives: torch.Tensor, positions: int,
+          distance: float) -> Poses:
+    """Every source orientation at the best ``positions`` distinct sites (by ``objectives``): a coarse
+    candidate's orientation is one draw of many, and a good site with the wrong turn can still rank high."""
+    placed = torch.tensor([region != "init" for region in proposals.region])
+    if positions == 0 or not placed.any():
+        return Poses(torch.zeros(0, 3), torch.zeros(0, 4), torch.zeros(0))
+    candidates = torch.nonzero(placed)[:, 0]
+    poses = proposals.poses.select(candidates)
+    best = diverse_top(poses, objectives[candidates], positions, distance, 180.0)  # distinct places, any turn
+    rotations = proposals.rotations
+    sites = proposals.sites.select(candidates[best].repeat_interleave(len(rotations)))
+    q = rotations.repeat(len(best), 1)
+    swept, _ = place(pair, proposals.index, q, sites, float(poses.log_s[0]))
+    device = pair.source_vertices.device
+    return Poses(swept.t.to(device), swept.q.to(device), swept.log_s.to(device))
 
 
 # -- scoring --------------------------------------------------------------------------------------------------
@@ -349,16 +398,24 @@ def fine_cameras(pair: PreparedPair, config: AlignConfig, poses: Poses) -> Camer
                  cfg.fine_image_size).to(pair.source_vertices.device)
 
 
+def shared_targets(scorer: Scorer, cameras: Cameras) -> torch.Tensor | None:
+    """The guidance target for (1, C) cameras shared by every candidate (a per-view target encodes them once)."""
+    if not scorer.use_clip:
+        return None
+    with torch.inference_mode():
+        targets = scorer.target_embeddings(cameras)
+    return targets.clone()
+
+
 def score(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, batch: int,
-          progress=lambda scored: None, should_cancel: CancelCheck | None = None) -> torch.Tensor:
+          targets: torch.Tensor | None = None, progress=lambda scored: None,
+          should_cancel: CancelCheck | None = None) -> torch.Tensor:
     """(N,) objectives of ``poses`` on ``cameras`` ((1, C) shared or (N, C)), ``batch`` poses per call, forward
-    only; ``progress(scored)`` after each batch, cancel checked before each."""
+    only; ``progress(scored)`` after each batch, cancel checked before each. ``targets``: ``shared_targets`` of
+    shared cameras, when already computed."""
     shared = cameras.fov_deg.shape[0] == 1
-    targets = None
-    if shared and scorer.use_clip:
-        with torch.inference_mode():
-            targets = scorer.target_embeddings(cameras)
-        targets = targets.clone()
+    if shared and targets is None and scorer.use_clip:
+        targets = shared_targets(scorer, cameras)
     out = []
     for lo in range(0, len(poses), batch):
         if should_cancel is not None and should_cancel():
@@ -406,7 +463,8 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
     poses = proposals.poses
     log_s = float(poses.log_s[0])
     fine_count = min(cfg.fine, len(poses))
-    total = len(poses) + fine_count
+    sweep_count = cfg.sweep * (len(proposals.rotations) if proposals.rotations is not None else 0)
+    total = len(poses) + sweep_count + fine_count
 
     def emit(done: int, best: float | None = None) -> None:
         if on_event:
@@ -417,17 +475,27 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
 
     emit(0)
     with scorer.clock.time("search"):
-        coarse = score(scorer, poses, weights, coarse_cameras(pair, config, log_s), batch=cfg.batch,
-                       progress=emit, should_cancel=should_cancel)
-        shortlist = diverse_top(poses, coarse, fine_count, *_distinct(pair, config, log_s))
+        cameras = coarse_cameras(pair, config, log_s)
+        targets = shared_targets(scorer, cameras)
+        distinct = _distinct(pair, config, log_s)
+        coarse = score(scorer, poses, weights, cameras, batch=cfg.batch, targets=targets, progress=emit,
+                       should_cancel=should_cancel)
+        swept = sweep(proposals, pair, coarse, cfg.sweep, distinct[0]) if sweep_count else None
+        if swept is not None and len(swept):
+            extra = score(scorer, swept, weights, cameras, batch=cfg.batch, targets=targets,
+                          should_cancel=should_cancel, progress=lambda n: emit(len(poses) + n))
+            poses, coarse = Poses.cat([poses, swept]), torch.cat([coarse, extra])
+        emit(total - fine_count)
+        shortlist = diverse_top(poses, coarse, fine_count, *distinct)
         fine_poses = poses.select(shortlist)
         fine = score(scorer, fine_poses, weights, fine_cameras(pair, config, fine_poses), batch=cfg.batch,
-                     progress=lambda n: emit(len(poses) + n), should_cancel=should_cancel)
+                     progress=lambda n: emit(total - fine_count + n), should_cancel=should_cancel)
         # the fine views see each candidate closer; the coarse ones see all in the same frame: rank by both
         ranked = 0.5 * (fine + coarse[shortlist])
-        best = diverse_top(fine_poses, ranked, k, *_distinct(pair, config, log_s))
+        best = diverse_top(fine_poses, ranked, k, *distinct)
     emit(total, float(ranked[best[0]]))
-    return Ranked(fine_poses.select(best), ranked[best], total, time.perf_counter() - began)
+    return Ranked(fine_poses.select(best), ranked[best], len(poses) + len(fine_poses),
+                  0 if swept is None else len(swept), time.perf_counter() - began)
 
 
 def _distinct(pair: PreparedPair, config: AlignConfig, log_s: float) -> tuple[float, float]:

@@ -117,11 +117,26 @@ def test_search_counts_every_encoder_image_including_the_oracles(pairs):
     ranked = search.search(scorer, props, weights, k=2, on_event=events.append)
     cfg = CONFIG.search
     n, fine = len(props.poses), min(cfg.fine, len(props.poses))
-    # candidates x views, the shared coarse reference views once, the per-candidate fine ones each
-    assert scorer.clip_images == n * cfg.coarse_views + cfg.coarse_views + 2 * fine * cfg.fine_views
+    assert 0 < ranked.swept <= cfg.sweep * len(props.rotations)  # every orientation at the best site(s)
+    # candidates x views (coarse and sweep), the shared coarse reference views once, the fine ones each
+    coarse = (n + ranked.swept) * cfg.coarse_views
+    assert scorer.clip_images == coarse + cfg.coarse_views + 2 * fine * cfg.fine_views
+    assert ranked.scored == n + ranked.swept + fine
     assert len(ranked.poses) == 2 and ranked.objectives[0] <= ranked.objectives[1]
-    assert all(e.stage == "search" for e in events) and events[-1].step == events[-1].steps == n + fine
+    planned = n + cfg.sweep * len(props.rotations) + fine
+    assert all(e.stage == "search" for e in events) and events[-1].step == events[-1].steps == planned
     assert [e.step for e in events] == sorted(e.step for e in events)
+
+
+def test_the_sweep_tries_every_orientation_at_the_best_site(pairs):
+    target, source = pairs["box on table"]
+    pair, props = _proposals(target, source)
+    objectives = torch.arange(len(props.poses), dtype=torch.float32)  # the first proposal is the best
+    swept = search.sweep(props, pair, objectives, 1, 0.1)
+    assert 0 < len(swept) <= len(props.rotations)
+    turns = torch.nn.functional.normalize(swept.q, dim=-1) @ torch.nn.functional.normalize(props.rotations, dim=-1).T
+    assert (turns.abs().max(dim=1).values > 0.9999).all()  # each is one of the source's orientations
+    assert (swept.t - props.poses.t[0]).norm(dim=-1).max() < 2 * pair.target_radius  # at that site
 
 
 def test_diverse_top_skips_near_duplicates():
