@@ -140,12 +140,17 @@ def propose(run: Run, init: np.ndarray | None = None):
 def score(run: Run, proposals, *, on_event: ProgressCallback | None = None,
           should_cancel: CancelCheck | None = None):
     """The optimiser's starts: the search's diverse best ``optim.restarts`` (forward-only scoring), or the
-    proposals as they are when the search is off."""
+    proposals as they are when the search is off.
+
+    The search scores with the first phase's weights: its proposals already touch without interpenetrating,
+    so the guide should decide among them (the last phase's geometric weights, 100x and 1000x, drowned the
+    guide's differences: the oracle and pixel guides then ranked as geometry alone did).
+    """
     from ctp_core import search
 
     if not run.config.search.enabled:
         return proposals.poses
-    ranked = search.search(run.scorer, proposals, run.plan[-1], k=run.config.optim.restarts, on_event=on_event,
+    ranked = search.search(run.scorer, proposals, run.plan[0], k=run.config.optim.restarts, on_event=on_event,
                            should_cancel=should_cancel, phases=len(run.plan), started=run.started)
     run.timings["search_s"] = round(ranked.seconds, 3)
     run.timings["search_candidates"] = ranked.scored
