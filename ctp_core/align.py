@@ -142,9 +142,8 @@ def score(run: Run, proposals, *, on_event: ProgressCallback | None = None,
     """The optimiser's starts: the search's diverse best ``optim.restarts`` (forward-only scoring), or the
     proposals as they are when the search is off.
 
-    The search scores with the first phase's weights: its proposals already touch without interpenetrating,
-    so the guide should decide among them (the last phase's geometric weights, 100x and 1000x, drowned the
-    guide's differences: the oracle and pixel guides then ranked as geometry alone did).
+    The search ranks by the guide alone where there is one (``search.ranking_key``), otherwise by the first
+    phase's objective: its proposals already touch without interpenetrating.
     """
     from ctp_core import search
 
