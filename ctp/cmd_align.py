@@ -39,12 +39,16 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
                         help="output GLB (default scene.glb)")
     parser.add_argument("--report", type=Path, metavar="report.json", help="write the JSON report here")
     parser.add_argument("--preview", type=Path, metavar="preview.png", help="write a 4-view preview PNG here")
-    parser.add_argument("--preset", default="default", metavar="NAME", help="default | paper | test")
+    parser.add_argument("--preset", default="default", metavar="NAME",
+                        help="default (search, then a short refinement) | descent | paper | test")
     parser.add_argument("--model", metavar="SPEC",
                         help="guidance model: hf:REPO_OR_PATH, open_clip:ARCH:TAG, random:ARCH")
     parser.add_argument("--scale", action="store_true", help="optimise isotropic scale too")
     parser.add_argument("--restarts", type=int, metavar="N")
     parser.add_argument("--steps", type=int, metavar="N", help="total steps per restart over all phases")
+    parser.add_argument("--candidates", type=int, metavar="N", help="poses the search scores (default: the preset's)")
+    parser.add_argument("--no-search", action="store_true",
+                        help="no search: the optimiser starts from random poses (as the descent preset)")
     parser.add_argument("--seed", type=int, metavar="N")
     parser.add_argument("--device", choices=["cpu", "cuda"])
     parser.add_argument("--threads", type=int, metavar="N", help="torch CPU threads (and ONNX Runtime's)")
@@ -84,6 +88,10 @@ def config_from_args(args: argparse.Namespace):
         loss["lambda_clip"] = 0.0
     if optim:
         overrides["optim"] = optim
+    search = {k: v for k, v in {"candidates": args.candidates, "enabled": False if args.no_search else None}.items()
+              if v is not None}
+    if search:
+        overrides["search"] = search
     if loss:
         overrides["loss"] = loss
     return AlignConfig.from_preset(args.preset, **overrides)
@@ -118,7 +126,7 @@ class ProgressBar:
         width = 20
         filled = int(event.fraction * width)
         eta = f"{event.eta_s:4.0f}s" if event.eta_s is not None else "   ?"
-        where = (f"search {event.step}/{event.steps}" if event.stage == "search" else
+        where = (f"search {event.step}/{event.steps} candidates" if event.stage == "search" else
                  f"phase {event.phase}/{event.phases} step {event.step}/{event.steps}")
         line = f"[{'#' * filled}{'.' * (width - filled)}] {where} eta {eta}{figures(self._losses)}"
         if self.tty:

@@ -46,10 +46,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="rigid: perturb pose; scale: also scale U(0.01, 100) and optimise scale")
     parser.add_argument("--inits", type=int, default=1, help="protocol starts per case (default 1)")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--preset", default="default", help="AlignConfig preset for ctp/geometry")
+    parser.add_argument("--preset", default="default",
+                        help="AlignConfig preset for ctp/geometry (default: search + refine; descent; paper; test)")
     parser.add_argument("--model", help="encoder of ctp's guide and b2's selection (default: the preset's)")
     parser.add_argument("--guide", choices=GUIDES, default="text",
-                        help="text: the prompt; image: a reference render; oracle: the reference per view")
+                        help="text: the prompt; image: a reference render; oracle: the reference per view; "
+                        "pixels: an upper-bound instrument, the oracle compared as images with no encoder")
     parser.add_argument("--metrics-model", action=_Extend, dest="metrics_models", default=[],
                         help="encoder(s) for the semantic metric, repeatable or comma list")
     parser.add_argument("--ablation", choices=sorted(ABLATIONS), help="change ctp/geometry's configuration")

@@ -29,7 +29,7 @@ class AlignResult:
 
     source_to_target: np.ndarray  # (4, 4): p_target_file = M @ [p_source_file; 1]
     objective: float
-    target: trimesh.Trimesh | trimesh.Scene  # file frame, untouched (a scene: the objects placed so far)
+    target: trimesh.Trimesh  # file frame, untouched
     source: trimesh.Trimesh  # source file frame (apply source_to_target to place it)
     prompt: str | None
     config: AlignConfig
@@ -59,35 +59,29 @@ class AlignResult:
 
 
 
-def align(
-    target: trimesh.Trimesh | trimesh.Scene,
-    source: trimesh.Trimesh,
-    prompt: str | None,
-    config: AlignConfig,
-    *,
-    on: str | None = None,
-    image: np.ndarray | None = None,
-    target_name: str = "target",
-    source_name: str = "source",
-    guide=None,
-    guidance=None,
-    init: np.ndarray | None = None,
-    on_event: ProgressCallback | None = None,
-    should_cancel: CancelCheck | None = None,
-) -> AlignResult:
-    """Place ``source`` relative to ``target`` (both in file frames) so renders agree with the prompt.
+@dataclass
+class Run:
+    """What the stages share: the prepared pair, the priors, the objective and the phase plan."""
 
-    ``image`` (H, W, 3 uint8) guides by a reference picture instead of the text; ``guidance`` (a
-    ``targets`` object) overrides both (the benchmark's oracle). ``guide`` is a preloaded
-    vision-language model (``guidance.get_guide``); without one the configured model is loaded (and
-    cached per process). ``init`` (4x4, source file -> target file) replaces the first random start.
-    A ``trimesh.Scene`` target is a scene of placed objects (``scene.objects``): ``on`` names the one
-    the source relates to (soft-ICP attaches to it; ``target_name`` and its size feed the priors), while
-    renders and the penetration term see them all.
-    Raises ``errors.Canceled`` when ``should_cancel()`` turns true, other ``CtpError`` on bad input.
-    """
+    config: AlignConfig
+    pair: Any  # scene.PreparedPair
+    prior: priors.ScenePrior
+    scorer: Any  # objective.Scorer
+    plan: list  # schedule.Phase per refinement phase
+    guidance: Any  # a targets object, or None (geometry only)
+    started: float
+    names: dict[str, str | None] = field(default_factory=dict)  # target, source, on: what the priors read
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, prompt: str | None,
+            config: AlignConfig, *, on: str | None = None, image: np.ndarray | None = None,
+            target_name: str = "target", source_name: str = "source", guide=None, guidance=None) -> Run:
+    """Priors, the normalised and canonicalised pair, the guide and its target, the objective and the plan.
+
+    A scene target's priors read the object ``on`` (its name is ``target_name``, its size the extent)."""
     from ctp_core import guidance as guidance_mod
-    from ctp_core import optimise, scene, schedule, targets
+    from ctp_core import objective, scene, schedule, targets
 
     started = time.perf_counter()
     if config.threads:
@@ -121,37 +115,98 @@ def align(
     else:
         guidance = None
     loaded = time.perf_counter()
-
-    generator = torch.Generator().manual_seed(config.seed)
-    start = optimise.initial_poses(pair, config, prior.size_ratio, generator, init=init)
+    scorer = objective.Scorer(pair, config, prior.contact_ratio, guide=guide, target=guidance)
     plan = schedule.phases(config, allow_penetration=prior.penetration)
-    problem = optimise.Problem(pair, config, prior.contact_ratio, guide=guide, target=guidance)
-    runner = optimise.Optimiser(problem, plan, on_event=on_event, should_cancel=should_cancel)
-    outcome = runner.run(start)
+    return Run(config, pair, prior, scorer, plan, guidance, started,
+               {"prepare_s": round(prepared - started, 3), "model_s": round(loaded - prepared, 3)},
+               {"target": target_name, "source": source_name, "on": on})
 
+
+def propose(run: Run, init: np.ndarray | None = None):
+    """Search on: contact proposals (``search.propose``); off: the random starts (``optimise.initial_poses``).
+
+    ``init`` (source file -> target file 4x4) is one candidate (search) or replaces restart 0 (no search), and
+    fixes the source scale either way.
+    """
+    from ctp_core import optimise, search
+
+    config, pair = run.config, run.pair
+    generator = torch.Generator().manual_seed(config.seed)
+    starts = optimise.initial_poses(pair, config, run.prior.size_ratio, generator, init=init)
+    if not config.search.enabled:
+        return search.Proposals(starts, ["random"] * len(starts))
+    t0 = time.perf_counter()
+    weights = search.region_weights(run.prior.relation, run.prior.source_is_figure)
+    given = starts.select(slice(0, 1)) if init is not None else None
+    proposals = search.propose(pair, config, weights, float(starts.log_s[0]), generator, init=given)
+    run.timings["propose_s"] = round(time.perf_counter() - t0, 3)
+    return proposals
+
+
+def score(run: Run, proposals, *, on_event: ProgressCallback | None = None,
+          should_cancel: CancelCheck | None = None):
+    """The optimiser's starts: the search's diverse best ``optim.restarts`` (forward-only scoring), or the
+    proposals as they are when the search is off.
+
+    The search ranks by the guide alone where there is one (``search.ranking_key``), otherwise by the first
+    phase's objective: its proposals already touch without interpenetrating.
+    """
+    from ctp_core import search
+
+    if not run.config.search.enabled:
+        return proposals.poses
+    ranked = search.search(run.scorer, proposals, run.plan[0], k=run.config.optim.restarts, on_event=on_event,
+                           should_cancel=should_cancel, phases=len(run.plan), started=run.started)
+    run.timings["search_s"] = round(ranked.seconds, 3)
+    run.timings["search_candidates"] = ranked.scored
+    return ranked.poses
+
+
+def refine(run: Run, starts, *, on_event: ProgressCallback | None = None,
+           should_cancel: CancelCheck | None = None):
+    """The phased optimiser from ``starts`` (one restart each); returns its ``Outcome``."""
+    from ctp_core import optimise
+
+    runner = optimise.Optimiser(run.scorer, run.plan, on_event=on_event, should_cancel=should_cancel)
+    return runner.run(starts)
+
+
+def select(outcome) -> int:
+    """The restart whose best pose has the lowest objective on the fixed evaluation views."""
+    return int(outcome.objectives.argmin())
+
+
+def result(run: Run, outcome, best: int, target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh,
+           prompt: str | None,
+           *, on_event: ProgressCallback | None = None) -> AlignResult:
+    """The answer in file frames with its report fields and a preview."""
+    from ctp_core import scene
+
+    config, pair = run.config, run.pair
     matrices = outcome.poses.matrices()
     answers = [pair.source_to_target(m) for m in matrices]
-    preview = scene.render_pair(pair, matrices[outcome.best], views=4, image_size=224)
+    preview = scene.render_pair(pair, matrices[best], views=4, image_size=224)
     preview = (preview.permute(0, 2, 3, 1).clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8)
     timings = {f"optimise_{k}_s": round(v, 3) for k, v in outcome.timings.items()}
-    timings.update(prepare_s=round(prepared - started, 3), model_s=round(loaded - prepared, 3),
-                   total_s=round(time.perf_counter() - started, 3))
+    timings.update(run.timings, total_s=round(time.perf_counter() - run.started, 3))
     restarts = [
         {"restart": i, "objective": float(outcome.objectives[i]),
          **{k: float(v[i]) for k, v in outcome.terms.items()}, "source_to_target": answers[i].tolist()}
         for i in range(len(answers))
     ]
-    result = AlignResult(
-        source_to_target=answers[outcome.best], objective=float(outcome.objectives[outcome.best]),
+    guidance = run.guidance
+    answer = AlignResult(
+        source_to_target=answers[best], objective=float(outcome.objectives[best]),
         target=target, source=source, prompt=prompt, config=config,
-        hparams={**prior.to_dict(), "target_name": target_name, "source_name": source_name},  # what they read
+        hparams={**run.prior.to_dict(), "target_name": run.names.get("target"),  # the names the priors read
+                 "source_name": run.names.get("source")},
         restarts=restarts, timings=timings, preview=preview,
         extra={
-            "best_restart": outcome.best,
-            "on": on,
+            "best_restart": best,
+            "on": run.names.get("on"),
             "guidance": guidance.description if guidance is not None else "none (geometry only)",
             "model": config.model if guidance is not None else None,
-            "runtime": guide.runtime if guide is not None else None,
+            "runtime": run.scorer.guide.runtime if run.scorer.guide is not None else None,
             "clip_images": outcome.clip_images,
             "phase_timings": [{k: round(v, 3) for k, v in p.items()} for p in outcome.phase_timings],
             "target_upright": {"rotation": pair.target_upright.rotation.tolist(),
@@ -159,8 +214,46 @@ def align(
         },
     )
     if on_event:
-        on_event(ProgressEvent(kind="done", phase=len(plan), phases=len(plan), step=outcome.steps_run,
-                               steps=runner.total_steps, restarts=config.optim.restarts,
-                               elapsed_s=time.perf_counter() - started, eta_s=0.0,
-                               best_objective=result.objective, message="done"))
-    return result
+        steps = sum(p.steps for p in run.plan)
+        on_event(ProgressEvent(kind="done", phase=len(run.plan), phases=len(run.plan), step=outcome.steps_run,
+                               steps=steps, restarts=config.optim.restarts,
+                               elapsed_s=time.perf_counter() - run.started, eta_s=0.0,
+                               best_objective=answer.objective, message="done"))
+    return answer
+
+
+def align(
+    target: trimesh.Trimesh | trimesh.Scene,
+    source: trimesh.Trimesh,
+    prompt: str | None,
+    config: AlignConfig,
+    *,
+    on: str | None = None,
+    image: np.ndarray | None = None,
+    target_name: str = "target",
+    source_name: str = "source",
+    guide=None,
+    guidance=None,
+    init: np.ndarray | None = None,
+    on_event: ProgressCallback | None = None,
+    should_cancel: CancelCheck | None = None,
+) -> AlignResult:
+    """Place ``source`` relative to ``target`` (both in file frames) so renders agree with the prompt.
+
+    The stages: ``prepare`` -> ``propose`` -> ``score`` -> ``refine`` -> ``select`` -> ``result``.
+    ``image`` (H, W, 3 uint8) guides by a reference picture instead of the text; ``guidance`` (a
+    ``targets`` object) overrides both (the benchmark's oracle). ``guide`` is a preloaded
+    vision-language model (``guidance.get_guide``); without one the configured model is loaded (and
+    cached per process). ``init`` (4x4, source file -> target file) is one more search candidate (or,
+    search off, replaces the first random start) and fixes the source's scale.
+    A ``trimesh.Scene`` target is a scene of placed objects (``scene.objects``): ``on`` names the one
+    the source relates to (soft-ICP attaches to it, the search proposes on it; ``target_name`` and its size
+    feed the priors), while renders and the penetration term see them all.
+    Raises ``errors.Canceled`` when ``should_cancel()`` turns true, other ``CtpError`` on bad input.
+    """
+    run = prepare(target, source, prompt, config, on=on, image=image, target_name=target_name,
+                  source_name=source_name, guide=guide, guidance=guidance)
+    proposals = propose(run, init)
+    starts = score(run, proposals, on_event=on_event, should_cancel=should_cancel)
+    outcome = refine(run, starts, on_event=on_event, should_cancel=should_cancel)
+    return result(run, outcome, select(outcome), target, source, prompt, on_event=on_event)

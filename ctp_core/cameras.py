@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import numpy as np
 import scipy.special
 import torch
 from torch import Tensor
@@ -56,6 +57,17 @@ class Cameras:
         """Points (B, C, N, 3), or (B, 1, N, 3) shared by the views, normalised frame -> camera frame."""
         m = self.world_to_view().to(points.dtype)
         return points @ m[..., :3, :3].transpose(-1, -2) + m[..., None, :3, 3]
+
+    def expand(self, batch: int) -> Cameras:
+        """(1, C) cameras shared by ``batch`` rows, as (batch, C) views (no copy)."""
+        grow = lambda t: t.expand(batch, *t.shape[1:])  # noqa: E731
+        return replace(self, eye=grow(self.eye), at=grow(self.at), fov_deg=grow(self.fov_deg),
+                       up=None if self.up is None else grow(self.up))
+
+    def rows(self, lo: int, hi: int) -> Cameras:
+        """Rows lo:hi of the batch (the cameras of some of the restarts or candidates)."""
+        up = None if self.up is None else self.up[lo:hi]
+        return replace(self, eye=self.eye[lo:hi], at=self.at[lo:hi], fov_deg=self.fov_deg[lo:hi], up=up)
 
     def to(self, device: torch.device | str) -> Cameras:
         up = self.up.to(device) if self.up is not None else None
@@ -112,6 +124,21 @@ def evaluation_views(look_at: Tensor, cfg: CameraConfig) -> Cameras:
     azimuth = torch.arange(cfg.eval_views, dtype=look_at.dtype, device=look_at.device) * (360.0 / cfg.eval_views)
     return orbit(look_at, azimuth.expand(shape), full(cfg.eval_elevation_deg), full(cfg.eval_distance),
                  full(cfg.eval_fov_deg), cfg.image_size)
+
+
+def framing_cameras(vertices: torch.Tensor, views: int, image_size: int, elevation_deg: float = 30.0,
+                    fov_deg: float = 40.0) -> Cameras:
+    """Fixed orbit views that frame all of ``vertices`` (previews and metrics, not training).
+
+    ``vertices`` (V, 3) gives (1, views) cameras; (B, V, 3) gives (B, views), each framing its own set.
+    """
+    batched = vertices if vertices.dim() == 3 else vertices[None]
+    lo, hi = batched.min(1).values, batched.max(1).values
+    centre, radius = (lo + hi) / 2, (hi - lo).norm(dim=1) / 2
+    distance = (radius / np.sin(np.radians(fov_deg) / 2) * 1.05)[:, None].expand(-1, views)
+    azimuth = torch.arange(views, dtype=torch.float32, device=vertices.device) * (360.0 / views) + 30.0
+    full = lambda v: torch.full((len(batched), views), float(v), device=vertices.device)  # noqa: E731
+    return orbit(centre, azimuth.expand(len(batched), -1), full(elevation_deg), distance, full(fov_deg), image_size)
 
 
 def _unit(v: Tensor) -> Tensor:

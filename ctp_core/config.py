@@ -6,9 +6,10 @@ instead of threading keyword arguments through the layers.
 
 Presets:
 - ``paper``: the paper's budget (2000 steps, 8 views per step, 3 phases, 5 restarts).
-- ``default``: a CPU worker's budget: a typical pair finishes in about ten minutes on 2 cores. It trades
-  steps and views per step for wall time (see README, "Presets").
-- ``test``: seconds; for CI and smoke tests.
+- ``default``: search, then a short refinement: a typical pair in about two minutes on a 2-core CPU
+  (README, "Presets").
+- ``descent``: the earlier default, local descent only from random starts (about ten minutes a pair).
+- ``test``: seconds; for CI and smoke tests (search included, tiny).
 """
 
 from __future__ import annotations
@@ -89,6 +90,41 @@ class OptimConfig(_Strict):
     eval_every: int = Field(10, ge=1, description="steps between evaluations on fixed views")
 
 
+class SearchConfig(_Strict):
+    """The global search before the optimiser (``search``): geometry-only proposals in contact, scored
+    forward only, coarse to fine; its diverse best ``optim.restarts`` poses start the optimiser."""
+
+    enabled: bool = Field(True, description="off: the optimiser starts from random poses (method.md Initialise)")
+    candidates: int = Field(144, ge=1, le=20000, description="contact proposals scored at the coarse stage")
+    coarse_views: int = Field(2, ge=1, le=16, description="fixed views of the coarse stage, the same for all")
+    coarse_image_size: int = Field(128, ge=32, le=1024, description="render size of the coarse stage")
+    sweep: int = Field(2, ge=0, le=64, description="best distinct coarse sites re-tried with every source "
+                       "orientation (at the coarse views)")
+    fine: int = Field(24, ge=1, le=1000, description="best coarse candidates rescored at the fine stage")
+    fine_views: int = Field(3, ge=1, le=16, description="views per candidate at the fine stage")
+    fine_image_size: int = Field(160, ge=32, le=1024, description="render size of the fine stage")
+    fine_zoom: float = Field(
+        0.5, ge=0.0, le=1.0, description="fine views look this far from the target centre toward the "
+        "candidate's source and come closer by the same fraction (a small source fills more pixels)"
+    )
+    batch: int = Field(24, ge=1, le=1024, description="candidates per render/encoder call (cancel is "
+                       "checked between calls)")
+    yaw_steps: int = Field(8, ge=1, le=72, description="turns about +Y of each source orientation")
+    stable_poses: int = Field(4, ge=0, le=32, description="most probable resting poses of the source used")
+    gaps: tuple[float, ...] = Field(
+        (0.0, 0.1, 0.3), description="lateral proposals: gaps to the target, in source diagonals"
+    )
+    min_share: float = Field(
+        0.08, gt=0.0, le=1.0, description="every proposal region keeps at least this share of its "
+        "unweighted count, whatever the relation read from the prompt"
+    )
+    distinct_translation: float = Field(
+        0.25, ge=0.0, description="top-k: poses closer than this (source diagonals) and distinct_rotation_deg "
+        "count as duplicates"
+    )
+    distinct_rotation_deg: float = Field(30.0, ge=0.0, le=180.0)
+
+
 class AlignConfig(_Strict):
     """Everything one run needs besides the meshes and the prompt."""
 
@@ -120,6 +156,7 @@ class AlignConfig(_Strict):
     camera: CameraConfig = CameraConfig()
     loss: LossConfig = LossConfig()
     optim: OptimConfig = OptimConfig()
+    search: SearchConfig = SearchConfig()
 
     @model_validator(mode="after")
     def _phases_fit(self) -> AlignConfig:
@@ -204,21 +241,34 @@ def _first_field(exc: Exception) -> str | None:
 
 
 PRESETS: dict[str, dict] = {
-    # The paper's budget: 2000 steps, 8 views per step, 3 phases, 5 restarts.
+    # The paper's budget: 2000 steps, 8 views per step, 3 phases, 5 restarts, no search.
     "paper": {
         "camera": {"views": 8},
         "optim": {"steps": 2000, "phases": 3, "restarts": 5, "eval_every": 50, "init_rotation": "random"},
+        "search": {"enabled": False},
     },
-    # A CPU worker's budget (~10 min for a typical pair on 2 cores).
+    # Search then refine (~2 min for a typical pair on 2 cores): the search's 3 best poses, already in
+    # contact, get a short low-resolution descent with small steps (they start near an answer).
     "default": {
+        "camera": {"views": 2, "image_size": 128, "zoom_last": 0.7},
+        "loss": {"samples": 2000},
+        "optim": {"steps": 12, "phases": 2, "restarts": 3, "eval_every": 6, "lr_translation": 0.01,
+                  "lr_rotation": 0.02},
+        "progress_every": 2,
+    },
+    # The earlier default: local descent from random starts (~10 min for a typical pair on 2 cores).
+    "descent": {
         "camera": {"views": 4},
         "optim": {"steps": 120, "phases": 3, "restarts": 4, "eval_every": 10},
+        "search": {"enabled": False},
     },
     # Seconds: CI and smoke tests (use with a small model such as random:tiny).
     "test": {
         "camera": {"views": 2, "image_size": 64, "eval_views": 2},
         "loss": {"samples": 400},
         "optim": {"steps": 6, "phases": 2, "restarts": 2, "eval_every": 3},
+        "search": {"candidates": 12, "sweep": 1, "coarse_views": 1, "coarse_image_size": 64, "fine": 4, "fine_views": 1,
+                   "fine_image_size": 64, "batch": 6, "yaw_steps": 4, "stable_poses": 1},
         "progress_every": 1,
     },
 }

@@ -63,19 +63,27 @@ def soft_icp(source: torch.Tensor, index: TargetIndex, ratio: float, sigma: floa
     return (alpha * sq).sum(-1).mean(dim=1)
 
 
-def penetration(source: torch.Tensor, index: TargetIndex, sigma: float, margin: float, k: int) -> torch.Tensor:
-    """Mean of max(0, depth - margin) over source samples (the reference drops the margin; we keep it).
+def signed_depth(source: torch.Tensor, index: TargetIndex, sigma: float, k: int,
+                 idx: torch.Tensor | None = None) -> torch.Tensor:
+    """(B, N) signed depth of each source point below the target surface (positive inside).
 
-    depth is the signed distance below the target surface along its outward normal at a
-    softmax-weighted nearest target point (width ``sigma``), so it is positive inside the target.
-    Inside/outside comes from the target normals: ``scene`` orients them outward (trimesh winding fix);
-    for an open surface "inside" means behind the surface's oriented side.
+    The distance along the target's outward normal at a softmax-weighted nearest target point (width
+    ``sigma``). Inside/outside comes from the target normals: ``scene`` orients them outward (trimesh winding
+    fix); for an open surface "inside" means behind the surface's oriented side. ``idx`` (B, N, k): the
+    neighbours when the caller has them already.
     """
-    idx = index.neighbours(source, k)  # (B, N, k)
+    idx = index.neighbours(source, k) if idx is None else idx  # (B, N, k)
     u = index.points[idx]
     nrm = index.normals[idx]
     diff = u - source[:, :, None, :]  # from source point to target point
     sq = (diff**2).sum(-1)
     alpha = torch.softmax(-sq / (2 * sigma**2), dim=-1)
-    depth = (alpha * (diff * nrm).sum(-1)).sum(-1)  # (B, N)
-    return torch.relu(depth - margin).mean(dim=1)
+    return (alpha * (diff * nrm).sum(-1)).sum(-1)
+
+
+def penetration(source: torch.Tensor, index: TargetIndex, sigma: float, margin: float, k: int) -> torch.Tensor:
+    """Mean of max(0, depth - margin) over source samples (the reference drops the margin; we keep it).
+
+    depth is ``signed_depth``: positive inside the target.
+    """
+    return torch.relu(signed_depth(source, index, sigma, k) - margin).mean(dim=1)

@@ -25,6 +25,11 @@ from scipy.spatial import cKDTree
 from ctp_core import proximity
 
 SUCCESS_ADDS = 0.1  # ADD-S (relative to the source diagonal) at or below which a pose counts as found
+# placement success, rotation-free: the source's centroid within this many source diagonals of its reference
+# position, and the intersection ratio at most PLACEMENT_IOU (contact stays its own column: "under" or
+# "beside" arrangements need not touch)
+PLACEMENT_RADIUS = 0.5
+PLACEMENT_IOU = 0.02
 
 # Fixed ray directions for the winding-number estimate: a Fibonacci sphere, turned off the axes so no
 # direction runs along the faces of axis-aligned boxes (where ray hits would be ambiguous).
@@ -172,20 +177,29 @@ def pose_errors(points: np.ndarray, predicted: np.ndarray, reference: np.ndarray
     """Pose error of a source_to_target 4x4 against the reference one (both source file -> target file).
 
     ``adds`` and ``translation_error`` (distance between the posed AABB centres) are relative to the
-    reference-posed source diagonal, ``rotation_error_deg`` is the geodesic angle, ``scale_error`` is
+    reference-posed source diagonal, as is ``centroid_error`` (of the surface samples' centroid),
+    ``rotation_error_deg`` is the geodesic angle, ``scale_error`` is
     |ln(s / s_ref)|, and ``success`` is ADD-S <= ``SUCCESS_ADDS``.
     """
     predicted, reference = np.asarray(predicted, float), np.asarray(reference, float)
     centre = (points.min(axis=0) + points.max(axis=0)) / 2
     offset = np.linalg.norm(_apply(predicted, centre[None]) - _apply(reference, centre[None]))
+    centroid = points.mean(axis=0, keepdims=True)
+    centroid_offset = np.linalg.norm(_apply(predicted, centroid) - _apply(reference, centroid))
     adds = add_s(points, predicted, reference)
     return {
         "adds": adds,
         "translation_error": float(offset / _diagonal(points, reference)),
+        "centroid_error": float(centroid_offset / _diagonal(points, reference)),
         "rotation_error_deg": rotation_error_deg(predicted, reference),
         "scale_error": float(abs(np.log(_similarity_parts(predicted)[0] / _similarity_parts(reference)[0]))),
         "success": bool(adds <= SUCCESS_ADDS),
     }
+
+
+def placement_success(centroid_error: float, iou: float) -> bool:
+    """Rotation-free success: centroid within ``PLACEMENT_RADIUS`` source diagonals, IoU <= ``PLACEMENT_IOU``."""
+    return bool(centroid_error <= PLACEMENT_RADIUS and iou <= PLACEMENT_IOU)
 
 
 def semantic_score(images: torch.Tensor, text_embedding: torch.Tensor, guide) -> float:

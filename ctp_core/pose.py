@@ -52,6 +52,18 @@ def matrix_to_quaternion(m: np.ndarray) -> np.ndarray:
     return q if q[0] >= 0 else -q
 
 
+def quaternion_product(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Hamilton product a*b of (..., 4) quaternions, w first (rotation b then a)."""
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack([
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ], dim=-1)
+
+
 def random_quaternions(n: int, generator: torch.Generator) -> torch.Tensor:
     """Uniformly distributed rotations (Shoemake), (n, 4) w first."""
     u1, u2, u3 = torch.rand(3, n, generator=generator, dtype=torch.float64)

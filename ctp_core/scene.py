@@ -24,7 +24,7 @@ import torch
 import trimesh
 
 from ctp_core import canonical, frames, render, sampling
-from ctp_core.cameras import Cameras, orbit
+from ctp_core.cameras import framing_cameras
 from ctp_core.errors import ConfigError
 from ctp_core.losses import TargetIndex
 from ctp_core.structures import MeshArrays
@@ -112,6 +112,15 @@ class PreparedPair:
         target = self.target_vertices.expand(posed_source.shape[0], -1, -1)
         return torch.cat([target, posed_source], dim=1)
 
+    def scene_at(self, local_to_normalised: np.ndarray | torch.Tensor) -> torch.Tensor:
+        """The joined render mesh's vertices with the source posed at a (4, 4) or (B, 4, 4) similarity.
+
+        The pose maps the source local frame to the normalised frame; returns (B, Vt + Vs, 3), B = 1 for one pose.
+        """
+        m = torch.as_tensor(np.array(local_to_normalised), dtype=torch.float32, device=self.source_vertices.device)
+        m = m.reshape(-1, 4, 4)
+        return self.scene_vertices(self.source_vertices @ m[:, :3, :3].transpose(1, 2) + m[:, None, :3, 3])
+
     def local_to_normalised(self, source_to_target: np.ndarray) -> np.ndarray:
         """A source file -> target file 4x4 as a source local -> normalised 4x4."""
         file_to_file = frames.Similarity(source_to_target, frames.SOURCE_FILE, frames.TARGET_FILE)
@@ -180,21 +189,6 @@ def outward(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     return fixed
 
 
-def framing_cameras(vertices: torch.Tensor, views: int, image_size: int, elevation_deg: float = 30.0,
-                    fov_deg: float = 40.0) -> Cameras:
-    """Fixed orbit views that frame all of ``vertices`` (previews and metrics, not training).
-
-    ``vertices`` (V, 3) gives (1, views) cameras; (B, V, 3) gives (B, views), each framing its own set.
-    """
-    batched = vertices if vertices.dim() == 3 else vertices[None]
-    lo, hi = batched.min(1).values, batched.max(1).values
-    centre, radius = (lo + hi) / 2, (hi - lo).norm(dim=1) / 2
-    distance = (radius / np.sin(np.radians(fov_deg) / 2) * 1.05)[:, None].expand(-1, views)
-    azimuth = torch.arange(views, dtype=torch.float32, device=vertices.device) * (360.0 / views) + 30.0
-    full = lambda v: torch.full((len(batched), views), float(v), device=vertices.device)  # noqa: E731
-    return orbit(centre, azimuth.expand(len(batched), -1), full(elevation_deg), distance, full(fov_deg), image_size)
-
-
 def upright_judge(mesh: trimesh.Trimesh, guide: Guide, name: str, *, views: int = 4, image_size: int = 224,
                   device: str = "cpu") -> canonical.Judge:
     """A ``canonical.Judge`` that asks ``guide`` which way up ``mesh`` (file frame) looks like a NAME.
@@ -231,8 +225,6 @@ def render_arrangement(target: trimesh.Trimesh, source: trimesh.Trimesh, source_
 @torch.no_grad()
 def render_pair(pair: PreparedPair, local_to_normalised: np.ndarray, *, views: int, image_size: int) -> torch.Tensor:
     """Render a prepared pair at one pose (source local -> normalised 4x4) from framing views."""
-    m = torch.tensor(np.array(local_to_normalised), dtype=torch.float32, device=pair.source_vertices.device)
-    posed = pair.source_vertices @ m[:3, :3].T + m[:3, 3]
-    verts = pair.scene_vertices(posed[None])
+    verts = pair.scene_at(local_to_normalised)
     cams = framing_cameras(verts[0], views, image_size)
     return render.render(pair.mesh, verts, cams)[0]

@@ -63,9 +63,7 @@ class ReferenceTarget:
         self.description = "oracle: reference arrangement rendered per view"
 
     def prepare(self, pair: PreparedPair, guide: Guide) -> None:
-        m = torch.tensor(np.array(pair.local_to_normalised(self.source_to_target)), dtype=torch.float32,
-                         device=pair.source_vertices.device)
-        self._vertices = pair.scene_vertices((pair.source_vertices @ m[:3, :3].T + m[:3, 3])[None])
+        self._vertices = pair.scene_at(pair.local_to_normalised(self.source_to_target))
         self._mesh = pair.mesh
         self._guide = guide
 

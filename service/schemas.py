@@ -24,6 +24,8 @@ OPTION_PATHS: dict[str, tuple[str, ...]] = {
     "seed": ("seed",),
     "restarts": ("optim", "restarts"),
     "steps": ("optim", "steps"),
+    "search": ("search", "enabled"),
+    "candidates": ("search", "candidates"),
     "model": ("model",),
     "contact_ratio": ("contact_ratio",),
     "penetration": ("penetration",),
@@ -37,7 +39,8 @@ _EXTRA_DOC = {
     "preset": f"named budget ({', '.join(AlignConfig.preset_names())}); the other options override it",
     "model": "guidance model spec; must be one the service allows (CTP_MODEL, CTP_MODELS)",
     "seed": "random seed of the restarts and the samples",
-    "restarts": "random starts, optimised as one batch",
+    "restarts": "optimiser starts, one batch (with the search: its best distinct poses)",
+    "search": "search contact poses before the optimiser (false: random starts, as the descent preset)",
     "lambda_clip": "weight of the prompt (or image) guidance; 0 is a geometry-only run (contact without "
                    "interpenetration), which needs no model and is accepted while the model is unavailable",
     "hparams_provider": "scene-prior provider for the values left unset (size_ratio, contact_ratio, penetration)",

@@ -8,7 +8,7 @@ import torch
 import trimesh
 
 from ctp.cli import main
-from ctp_core import optimise, schedule
+from ctp_core import objective, schedule
 from ctp_core.align import align
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
@@ -36,15 +36,15 @@ def test_clip_gradient_reaches_translation_rotation_and_scale(meshes):
     guide = get_guide("random:tiny")
     target = TextTarget("a cup on the table")
     target.prepare(pair, guide)
-    problem = optimise.Problem(pair, cfg, 1.0, guide=guide, target=target)
-    runner = optimise.Optimiser(problem, schedule.phases(cfg, allow_penetration=False))
+    scorer = objective.Scorer(pair, cfg, 1.0, guide=guide, target=target)
+    phase = schedule.phases(cfg, allow_penetration=False)[0]
     t = torch.tensor([[0.2, 0.4, 0.1]], requires_grad=True)
     q = torch.tensor([[0.9, 0.1, 0.3, 0.0]], requires_grad=True)
     log_s = torch.tensor([0.1], requires_grad=True)
     from ctp_core.cameras import sample_training_views
 
     cams = sample_training_views(torch.zeros(1, 3), cfg.camera, 1.0, torch.Generator().manual_seed(0))
-    runner.clip_term(optimise.Poses(t, q, log_s), cams)
+    scorer.clip_term(objective.Poses(t, q, log_s), cams, weight=phase.lambda_clip)
     for name, p in (("t", t), ("q", q), ("log_s", log_s)):
         assert p.grad is not None and torch.isfinite(p.grad).all() and p.grad.abs().sum() > 0, name
 
@@ -55,7 +55,9 @@ def test_align_is_deterministic_and_reports_progress(meshes):
     a = align(*meshes, "a cup on the table", cfg, target_name="table", source_name="cup", on_event=events.append)
     b = align(*meshes, "a cup on the table", cfg, target_name="table", source_name="cup")
     np.testing.assert_allclose(a.source_to_target, b.source_to_target, atol=1e-6)
-    kinds = [e.kind for e in events]
+    stages = [e.stage for e in events]
+    assert stages[0] == "search" and stages == sorted(stages, key=("search", "refine").index)  # search, then refine
+    kinds = [e.kind for e in events if e.stage == "refine"]
     assert kinds[0] == "phase_start" and kinds[-1] == "done"
     assert kinds.count("phase_end") == cfg.optim.phases
     assert events[-1].step == cfg.optim.steps and events[-1].fraction == 1.0
@@ -83,7 +85,7 @@ def test_geometry_only_brings_source_into_contact(meshes):
     """lambda_clip = 0: soft-ICP + penetration alone pull the far source onto the target surface."""
     from ctp_core import metrics
 
-    cfg = AlignConfig.from_preset("default", loss={"lambda_clip": 0.0, "samples": 1500}, contact_ratio=0.3,
+    cfg = AlignConfig.from_preset("descent", loss={"lambda_clip": 0.0, "samples": 1500}, contact_ratio=0.3,
                                   penetration="forbid", optim={"restarts": 2, "steps": 90})
     result = align(*meshes, None, cfg)
     placed = result.source.copy()

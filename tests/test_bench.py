@@ -225,3 +225,51 @@ def test_image_guide_is_a_render_of_the_reference(bench_dir):
     assert image.shape == (64, 64, 3) and image.dtype == np.uint8
     assert np.array_equal(image, again)
     assert (image < 250).any(axis=-1).mean() > 0.05  # the objects cover part of the white background
+
+
+def test_pixels_guide_is_labelled_and_reports_placement_success(bench_dir, tmp_path):
+    """The upper-bound instrument: no encoder, its own label in rows and summary, placement next to success."""
+    out = tmp_path / "out"
+    assert _bench(str(bench_dir), "--cases", "gen-cap-on-block", "--method", "ctp,b2", "--guide", "pixels",
+                  "--out", str(out)) == 0
+    rows = [json.loads(line) for line in (out / "results.jsonl").read_text().splitlines()]
+    for row in rows:
+        assert row["status"] == "ok", row.get("error")
+        assert (row["guide"], row["encoder"]) == ("pixels", "none (pixels)")
+        assert "upper-bound" in row["guide_description"]
+        m = row["metrics"]
+        assert m["placement_success"] == (m["centroid_error"] <= 0.5 and m["iou"] <= 0.02)
+    summary = (out / "summary.md").read_text()
+    assert "| ctp pixels (upper bound, no encoder) (test) |" in summary and "placement" in summary
+
+
+def test_pixel_guide_embeds_renders_as_images():
+    import torch
+
+    from ctp_core.bench.guides import PixelGuide
+
+    guide = PixelGuide(size=8)
+    white = torch.ones(1, 3, 32, 32)
+    dot, shifted = white.clone(), white.clone()
+    dot[..., 4:12, 4:12] = 0.2
+    shifted[..., 20:28, 20:28] = 0.2
+    images = torch.cat([dot, shifted]).requires_grad_(True)
+    emb = guide.encode_images(images)
+    assert emb.shape == (2, guide.embed_dim)
+    assert guide.score(dot, emb[0])[0] == pytest.approx(1.0, abs=1e-6)
+    assert guide.score(shifted, emb[0])[0] < 0.1  # no overlap: far apart as images
+    (emb[0] @ emb[1]).backward()
+    assert images.grad.abs().sum() > 0  # the optimiser can follow it
+
+
+def test_placement_success_is_rotation_free():
+    from ctp_core import metrics
+
+    points = np.random.default_rng(0).normal(size=(500, 3))
+    reference = np.eye(4)
+    turned = trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0])
+    errors = metrics.pose_errors(points, turned, reference)
+    assert errors["rotation_error_deg"] == pytest.approx(90.0) and errors["centroid_error"] < 0.1
+    assert metrics.placement_success(errors["centroid_error"], 0.0)
+    assert not metrics.placement_success(errors["centroid_error"], 0.05)
+    assert not metrics.placement_success(0.6, 0.0)

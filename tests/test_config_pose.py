@@ -11,6 +11,10 @@ def test_presets_differ_in_budget_and_overrides_merge():
     paper, default, test = (AlignConfig.from_preset(n) for n in ("paper", "default", "test"))
     assert (paper.optim.steps, paper.camera.views, paper.optim.phases, paper.optim.restarts) == (2000, 8, 3, 5)
     assert test.optim.steps < default.optim.steps < paper.optim.steps
+    descent = AlignConfig.from_preset("descent")  # the earlier default: local descent from random starts
+    assert (descent.optim.steps, descent.camera.views, descent.optim.restarts) == (120, 4, 4)
+    assert default.search.enabled and test.search.enabled and not descent.search.enabled
+    assert not paper.search.enabled
     cfg = AlignConfig.from_preset("test", optim={"restarts": 3}, seed=7)
     assert cfg.optim.restarts == 3 and cfg.seed == 7 and cfg.optim.steps == test.optim.steps
 

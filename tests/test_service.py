@@ -309,8 +309,11 @@ def test_end_to_end_with_progress_events(api, worker):
     assert events[-1][0] == "end" and all(k == "progress" for k, _ in events[:-1])
     final = events[-1][1]
     assert final["status"] == "succeeded", final
-    steps = [e["progress"]["step"] for _, e in events if e["status"] == "running"]
-    assert steps == sorted(steps) and max(steps) > 0
+    running = [e["progress"] for _, e in events if e["status"] == "running"]
+    for stage in ("search", "refine"):  # the search counts candidates scored, then the refinement its steps
+        steps = [p["step"] for p in running if p["stage"]["name"] == stage]
+        assert steps == sorted(steps), stage  # step events are thinned: a short search may publish none
+    assert max(p["step"] for p in running if p["stage"]["name"] == "refine") > 0
     assert {e["progress"]["phase"] for _, e in events} >= {1, 2}  # the test preset has two phases
     assert final["started_at"] <= final["finished_at"] and final["progress"]["fraction"] == 1.0
 

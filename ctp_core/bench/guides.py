@@ -5,6 +5,9 @@
 - ``oracle``: per view, the reference arrangement rendered with the same camera
   (``targets.ReferenceTarget``). The problem then has a known optimum, so pose error measures the
   optimiser with whatever encoder is at hand, random ones included (issue 6).
+- ``pixels``: the oracle without an encoder (``PixelGuide``): per view, the image distance to the reference
+  rendered by the same camera. An upper-bound instrument, never a product number: with it a miss is the
+  search's or the optimiser's, not the random encoder's weak signal.
 
 Renders here use ``scene.prepare_pair(canonicalise=False)``: the normalised frame of the *file-frame*
 target (AABB centred, longest side 2), so a view depends on the arrangement only.
@@ -20,10 +23,13 @@ import trimesh
 
 from ctp_core import render, scene
 from ctp_core.bench.cases import Case
+from ctp_core.cameras import framing_cameras
 from ctp_core.errors import ConfigError
 from ctp_core.guidance import Guide
 
-GUIDES: tuple[str, ...] = ("text", "image", "oracle")
+GUIDES: tuple[str, ...] = ("text", "image", "oracle", "pixels")
+PER_VIEW = ("oracle", "pixels")  # guides that compare each view with the reference seen by the same camera
+PIXELS_LABEL = "pixels: upper-bound instrument, image distance to the reference per view, no encoder"
 IMAGE_AZIMUTHS = 36  # the image guide's view: one of 36 azimuths, elevation U(20°, 50°)
 
 
@@ -36,25 +42,57 @@ class GuideInputs:
     image: np.ndarray | None = None  # (H, W, 3) uint8
     guidance: object | None = None  # a ctp_core.targets object
     description: str = ""
+    guide: object | None = None  # replaces the encoder (the pixels guide)
+
+
+class PixelGuide:
+    """A ``guidance.Guide`` stand-in with no encoder: an image's "embedding" is its render itself.
+
+    The view is area-downsampled to ``size``² pixels, inverted (the white background becomes 0, so only the
+    objects count) and L2-normalised; the cosine of two such vectors is 1 - d²/2 with d the L2 distance
+    between the normalised images, so the CLIP loss becomes an image distance. Differentiable, so the
+    optimiser follows it too.
+    """
+
+    spec = "pixels"
+    autocast = False
+
+    def __init__(self, size: int = 32, device: str = "cpu"):
+        self.size = size
+        self.device = torch.device(device)
+        self.embed_dim = 3 * size * size
+
+    def __repr__(self) -> str:
+        return f"PixelGuide(size={self.size})"
+
+    def encode_images(self, images: torch.Tensor) -> torch.Tensor:
+        small = torch.nn.functional.interpolate(images.float(), size=(self.size, self.size), mode="area")
+        return torch.nn.functional.normalize((1.0 - small).flatten(1), dim=-1)
+
+    def score(self, images: torch.Tensor, embedding: torch.Tensor, batch_size: int = 32) -> torch.Tensor:
+        with torch.inference_mode():
+            out = self.encode_images(images) @ embedding.reshape(-1, 1)
+        return out[:, 0].clone()
+
+    def encode_text(self, texts: list[str]) -> torch.Tensor:
+        raise ConfigError("the pixels guide compares renders with the reference; it reads no text", field="guide")
+
+    def encode_reference_image(self, image) -> torch.Tensor:
+        raise ConfigError("the pixels guide compares renders with the reference; it takes no picture", field="guide")
 
 
 def _pair_and_pose(target: trimesh.Trimesh, source: trimesh.Trimesh,
                    source_to_target: np.ndarray) -> tuple[scene.PreparedPair, torch.Tensor]:
     """The pair in the file-frame normalised frame and its scene vertices (1, V, 3) at one pose."""
     pair = scene.prepare_pair(target, source, samples=100, seed=0, canonicalise=False)
-    return pair, _scene_vertices(pair, source_to_target)
-
-
-def _scene_vertices(pair: scene.PreparedPair, source_to_target: np.ndarray) -> torch.Tensor:
-    m = torch.tensor(pair.local_to_normalised(source_to_target), dtype=torch.float32)  # a copy: frames are read-only
-    return pair.scene_vertices((pair.source_vertices @ m[:3, :3].T + m[:3, 3])[None])
+    return pair, pair.scene_at(pair.local_to_normalised(source_to_target))
 
 
 def reference_image(target: trimesh.Trimesh, source: trimesh.Trimesh, reference: np.ndarray,
                     rng: np.random.Generator, image_size: int = 224) -> np.ndarray:
     """(H, W, 3) uint8 render of the reference arrangement from a random framing view."""
     pair, verts = _pair_and_pose(target, source, reference)
-    cams = scene.framing_cameras(verts[0], IMAGE_AZIMUTHS, image_size, elevation_deg=float(rng.uniform(20, 50)))
+    cams = framing_cameras(verts[0], IMAGE_AZIMUTHS, image_size, elevation_deg=float(rng.uniform(20, 50)))
     k = int(rng.integers(IMAGE_AZIMUTHS))
     one = replace(cams, eye=cams.eye[:, k:k + 1], at=cams.at[:, k:k + 1], fov_deg=cams.fov_deg[:, k:k + 1])
     with torch.no_grad():
@@ -77,6 +115,9 @@ def guide_inputs(kind: str, case: Case, target: trimesh.Trimesh, source: trimesh
     if kind == "image":
         image = reference_image(target, source, case.reference, rng)
         return GuideInputs(kind, case.prompt, image=image, description="image: reference arrangement, random view")
+    if kind == "pixels":
+        return GuideInputs(kind, case.prompt, guidance=targets.ReferenceTarget(case.reference),
+                           description=PIXELS_LABEL, guide=PixelGuide())
     return GuideInputs(kind, case.prompt, guidance=targets.ReferenceTarget(case.reference),
                        description="oracle: reference arrangement rendered per view")
 
@@ -85,8 +126,8 @@ class SelectionScore:
     """b2's criterion: mean cosine over fixed views with the guide ctp gets (higher is better).
 
     Text and image: each view of the candidate (views framing it) against the prompt or picture
-    embedding. Oracle: each view against the reference seen by the same camera (views framing the
-    reference), as ``ReferenceTarget`` does during optimisation.
+    embedding. Oracle and pixels: each view against the reference seen by the same camera (views framing
+    the reference), as ``ReferenceTarget`` does during optimisation.
     """
 
     def __init__(self, inputs: GuideInputs, target: trimesh.Trimesh, source: trimesh.Trimesh, guide: Guide,
@@ -94,9 +135,9 @@ class SelectionScore:
         self.pair = scene.prepare_pair(target, source, samples=100, seed=0, canonicalise=False)
         self.guide, self.views, self.image_size = guide, views, image_size
         self.cameras = None
-        if inputs.kind == "oracle":
-            ref_verts = _scene_vertices(self.pair, reference)
-            self.cameras = scene.framing_cameras(ref_verts[0], views, image_size)
+        if inputs.kind in PER_VIEW:
+            ref_verts = self.pair.scene_at(self.pair.local_to_normalised(reference))
+            self.cameras = framing_cameras(ref_verts[0], views, image_size)
             with torch.no_grad():
                 self.embedding = guide.encode_images(render.render(self.pair.mesh, ref_verts, self.cameras)[0])
         elif inputs.kind == "image":
@@ -110,5 +151,6 @@ class SelectionScore:
                                        views=self.views, image_size=self.image_size)
             return float(self.guide.score(images, self.embedding).mean())
         with torch.no_grad():
-            images = render.render(self.pair.mesh, _scene_vertices(self.pair, source_to_target), self.cameras)[0]
+            verts = self.pair.scene_at(self.pair.local_to_normalised(source_to_target))
+            images = render.render(self.pair.mesh, verts, self.cameras)[0]
             return float((self.guide.encode_images(images) * self.embedding).sum(-1).mean())

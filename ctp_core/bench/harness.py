@@ -31,7 +31,7 @@ import trimesh
 from ctp_core import metrics, sampling
 from ctp_core.bench import baselines, protocol
 from ctp_core.bench.cases import Case
-from ctp_core.bench.guides import GUIDES, GuideInputs, SelectionScore, guide_inputs
+from ctp_core.bench.guides import GUIDES, GuideInputs, PixelGuide, SelectionScore, guide_inputs
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
 
@@ -98,7 +98,17 @@ class BenchOptions:
 
     @property
     def encoder(self) -> str:
-        return self.config("ctp").model
+        """What encodes the guided methods' views: the model spec, or "none (pixels)" for the pixels guide."""
+        return "none (pixels)" if self.guide == "pixels" else self.config("ctp").model
+
+    def load_encoder(self):
+        """The guided methods' encoder: a cached ``guidance.Guide``, or the pixels guide's stand-in."""
+        from ctp_core import guidance
+
+        if self.guide == "pixels":
+            return PixelGuide(device=self.device)
+        config = self.config("ctp")  # its forward-only runtime and threads (ONNX Runtime where faster)
+        return guidance.get_guide(self.encoder, device=self.device, runtime=config.runtime, threads=config.threads)
 
 
 def identity(case: Case, init: int, method: str, options: BenchOptions) -> dict:
@@ -158,6 +168,7 @@ def evaluate(data: _CaseData, pose: np.ndarray) -> dict:
     out["contact"] = metrics.contact_distance(data.target, placed)
     if data.case.reference is not None:
         out.update(metrics.pose_errors(data.points, pose, data.case.reference))
+        out["placement_success"] = metrics.placement_success(out["centroid_error"], out["iou"])
     semantic = {}
     if data.semantic:
         images = scene.render_arrangement(data.target, data.source, pose, views=EVAL_VIEWS, image_size=224)
@@ -174,7 +185,8 @@ def _run_align(method: str, init: np.ndarray, index: int, data: _CaseData, optio
     config = options.config(method)
     inputs = data.guide if method == "ctp" and config.loss.lambda_clip > 0 else None
     result = align(data.target, data.source, data.case.prompt, config, init=init,
-                   image=inputs.image if inputs else None, guidance=inputs.guidance if inputs else None,
+                   guide=inputs.guide if inputs else None, image=inputs.image if inputs else None,
+                   guidance=inputs.guidance if inputs else None,
                    target_name=data.case.target_name, source_name=data.case.source_name)
     return {"source_to_target": result.source_to_target, "time_s": time.perf_counter() - started,
             "clip_images": int(result.extra.get("clip_images", 0)), "timings": result.timings,
@@ -190,14 +202,12 @@ def _run_b1(method: str, init: np.ndarray, index: int, data: _CaseData, options:
 
 def _run_b2(method: str, init: np.ndarray, index: int, data: _CaseData, options: BenchOptions) -> dict:
     """b1 from the protocol start and B2_STARTS - 1 uninformed ones, the best by ctp's guide and encoder."""
-    from ctp_core import guidance
-
     started = time.perf_counter()
     rng = protocol.case_rng(options.seed, data.case.id, f"b2-{index}")
     scale = float(np.cbrt(abs(np.linalg.det(init[:3, :3]))))
     starts = [init, *protocol.random_starts(data.target.bounds, data.source.bounds, scale, B2_STARTS - 1, rng)]
     poses = baselines.shrinkwrap(data.target, data.source, starts, seed=options.seed)
-    guide = guidance.guide_for(options.config("ctp"))
+    guide = options.load_encoder()
     scorer = SelectionScore(data.guide, data.target, data.source, guide, data.case.reference, views=EVAL_VIEWS)
     best, scores = baselines.best_of(poses, scorer)
     return {"source_to_target": poses[best], "time_s": time.perf_counter() - started,
@@ -276,11 +286,9 @@ def _worker_init(threads: int) -> None:
 
 def _check_models(options: BenchOptions) -> None:
     """Fail before the first case if the guided methods' encoder cannot load (every row would error)."""
-    from ctp_core import guidance
-
     guided = [m for m in options.methods if m in GUIDED]
     if guided and not (guided == ["ctp"] and options.config("ctp").loss.lambda_clip == 0):
-        guidance.guide_for(options.config("ctp"))
+        options.load_encoder()
 
 
 def run_bench(cases: list[Case], options: BenchOptions, out: Path, *, jobs: int = 1, resume: bool = False,

@@ -20,7 +20,7 @@ CONTACT_LIMIT = 0.01  # closest surface distance / target AABB diagonal
 INTERSECTION_LIMIT = 0.01  # Vol(A & B) / Vol(A | B)
 
 
-def geometry_contact(case: Case, *, preset: str = "default", seed: int = 0, steps: int = 90,
+def geometry_contact(case: Case, *, preset: str = "descent", seed: int = 0, steps: int = 90,
                      restarts: int = 2) -> dict:
     """Run the geometry-only optimiser on a case and measure contact and intersection."""
     target, source = case.load()

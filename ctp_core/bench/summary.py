@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ctp_core.metrics import SUCCESS_ADDS
+from ctp_core.metrics import PLACEMENT_IOU, PLACEMENT_RADIUS, SUCCESS_ADDS
 
 PLOTS = {"tradeoff": "tradeoff.png", "pose_cdf": "pose_cdf.png", "time": "time_per_case.png"}
 
@@ -21,7 +21,9 @@ PLOTS = {"tradeoff": "tradeoff.png", "pose_cdf": "pose_cdf.png", "time": "time_p
 def variant(row: dict) -> str:
     """The label a row is grouped and plotted under, e.g. ``ctp[no-icp] oracle/random:ViT-B-32 (default)``."""
     name = row["method"] + (f"[{row['ablation']}]" if row.get("ablation") else "")
-    if row.get("guide"):
+    if row.get("guide") == "pixels":
+        name += " pixels (upper bound, no encoder)"
+    elif row.get("guide"):
         name += f" {row['guide']}/{row['encoder']}"
     if row.get("preset"):
         name += f" ({row['preset']})"
@@ -53,6 +55,10 @@ def _mean_median(v: np.ndarray, digits: int = 3) -> str:
     return "–" if v.size == 0 else f"{v.mean():.{digits}f} / {np.median(v):.{digits}f}"
 
 
+def _rate(flags: list[bool]) -> str:
+    return f"{100 * np.mean(flags):.0f}% ({sum(flags)}/{len(flags)})" if flags else "–"
+
+
 def _encoders(rows: list[dict]) -> list[str]:
     return sorted({spec for r in rows if r.get("status") == "ok" for spec in r["metrics"]["semantic"]})
 
@@ -60,16 +66,17 @@ def _encoders(rows: list[dict]) -> list[str]:
 def table(rows: list[dict]) -> str:
     """The Markdown table: per variant, mean / median of every metric over its ok rows."""
     specs = _encoders(rows)
-    head = ["variant", "ok/runs", "success", "ADD-S", "rot err °", "trans err", "IoU", "contact",
+    head = ["variant", "ok/runs", "success", "placement", "ADD-S", "rot err °", "trans err", "IoU", "contact",
             *[f"semantic {s}" for s in specs], "time s", "CLIP images"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for name, group in sorted(_groups(rows).items()):
         ok = [r for r in group if r.get("status") == "ok"]
         success = [r["metrics"]["success"] for r in ok if "success" in r["metrics"]]
+        placed = [r["metrics"]["placement_success"] for r in ok if "placement_success" in r["metrics"]]
         clip = np.array([r.get("clip_images", 0) for r in ok], dtype=float)
         cells = [
             name, f"{len(ok)}/{len(group)}",
-            f"{100 * np.mean(success):.0f}% ({sum(success)}/{len(success)})" if success else "–",
+            _rate(success), _rate(placed),
             _mean_median(_values(group, "adds")), _mean_median(_values(group, "rotation_error_deg"), 1),
             _mean_median(_values(group, "translation_error")), _mean_median(_values(group, "iou"), 4),
             _mean_median(_values(group, "contact"), 4), *[_mean_median(_semantic(group, s), 4) for s in specs],
@@ -214,7 +221,9 @@ def write_summary(rows: list[dict], out: Path, commands: list[str] = ()) -> Path
     if commands:
         parts += ["```", *commands, "```", ""]
     parts += [f"{len(cases)} cases, {len(rows)} runs. Cells are mean / median over runs; success is "
-              f"ADD-S ≤ {SUCCESS_ADDS} (cases with a reference only); pose errors are relative to the source "
+              f"ADD-S ≤ {SUCCESS_ADDS} (cases with a reference only); placement is the centroid "
+              f"within {PLACEMENT_RADIUS} source diagonals of the reference and IoU ≤ {PLACEMENT_IOU}; "
+              "pose errors are relative to the source "
               "diagonal; contact is the closest surface distance over the target's longest side.", "",
               table(rows), "", "## Per case: ADD-S (IoU)", "", per_case(rows), "", "## Notes", ""]
     parts += [f"- {n}" for n in _notes(rows)]

@@ -1,0 +1,520 @@
+"""Global search before the optimiser: propose poses in contact, score them forward only, keep a diverse best few.
+
+The benchmark protocol (and any user's file) starts the source anywhere with any rotation, and local descent
+spends its whole budget getting close. The search instead enumerates poses that already touch the target and
+lets the guide rank them in batches, with no gradient:
+
+1. ``propose`` (geometry only): points on the target surface (area-weighted, denser where the surface faces up
+   and along rims), split into regions (``REGIONS``): surfaces facing up, sideways and down, the target's cavity
+   (inside its convex hull, outside the target as the penetration term defines it) and lateral gaps. Each point
+   gets a source orientation from the source's own frames (its upright frame and its flip turned about +Y, its
+   stable resting poses; uniform rotations in the ``random`` init mode), and ``settle`` slides the source along
+   the approach direction until it touches without interpenetrating. The prompt's relation (``ScenePrior``)
+   only *weights* how many proposals each region gets (``region_weights``); every region keeps a share.
+2. ``score``: the objective's terms (``objective.Scorer``) of every candidate, ranked by the guide's term where
+   there is a guide (``ranking_key``: the proposals satisfy the geometry already), forward only under inference mode,
+   ``search.batch`` candidates x views per render and encoder call: first all candidates at a few fixed views
+   framing the target's region (the same cameras for all, so a per-view target is encoded once), then the best
+   ``search.fine`` at more views zoomed toward each candidate's source.
+   Between the two, ``sweep`` tries every source orientation at the best few distinct sites of the coarse stage
+   (a candidate's orientation is one draw of many; a right place with the wrong turn still ranks well).
+3. ``diverse_top``: the best ``optim.restarts`` poses, near-duplicates suppressed; they start the optimiser.
+
+Frames: every pose maps the source local frame to the normalised frame (``pose``); points and directions here
+are in the normalised frame.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import trimesh
+from scipy.spatial import Delaunay, QhullError
+
+from ctp_core import losses, sampling, scene
+from ctp_core.cameras import Cameras, orbit
+from ctp_core.config import AlignConfig
+from ctp_core.errors import Canceled
+from ctp_core.objective import Poses, Scorer
+from ctp_core.pose import matrix_to_quaternion, quaternion_product, quaternion_to_matrix, random_quaternions
+from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
+from ctp_core.scene import PreparedPair
+from ctp_core.schedule import Phase
+
+REGIONS: tuple[str, ...] = ("top", "side", "bottom", "inside", "gap")
+UP_FACING = 0.5  # n_y above: "top"; below minus this: "bottom"; else "side"
+SETTLE_POINTS = 256  # source samples checked for penetration when settling proposals
+APPROACH_POINTS = 64  # source samples used while sliding proposals into contact
+CONTACT_SAMPLES = 6000  # target samples for settling proposals (the losses use ``loss.samples``)
+SETTLE_ITERATIONS = 12
+PUSH_ITERATIONS = 3
+HULL_POINTS = 96  # source convex hull vertices kept for the stable poses
+CAVITY_PROBES = 4096  # quasi-random points in the target AABB tried as cavity proposals
+
+# Region weights per relation when the source is the relation's figure (the thing placed), and when it is the
+# ground (the target sits on, in or against the source). Unlisted regions weigh 1: weights shift proposals
+# toward where the prompt says, never away from everywhere else (``min_share`` keeps every region).
+FIGURE_WEIGHTS: dict[str, dict[str, float]] = {
+    "on": {"top": 4.0}, "stand": {"top": 4.0}, "sit": {"top": 3.0}, "lie": {"top": 3.0}, "wear": {"top": 4.0},
+    "in": {"inside": 4.0, "top": 1.5}, "beside": {"gap": 4.0, "side": 2.0}, "under": {"bottom": 3.0, "gap": 2.0},
+    "hang": {"side": 2.0, "bottom": 2.0}, "lean": {"side": 3.0}, "attach": {"side": 2.0}, "hold": {"side": 2.0},
+    "wrap": {"side": 2.0}, "penetrate": {"top": 1.5, "side": 1.5},
+}
+GROUND_WEIGHTS: dict[str, dict[str, float]] = {
+    "on": {"bottom": 4.0}, "stand": {"bottom": 4.0}, "sit": {"bottom": 3.0}, "lie": {"bottom": 3.0},
+    "wear": {"bottom": 3.0}, "under": {"top": 4.0}, "beside": {"gap": 4.0, "side": 2.0},
+}
+
+
+@dataclass
+class Site:
+    """Where proposals touch the target: an anchor and approach direction per proposal (normalised frame)."""
+
+    anchor: torch.Tensor  # (N, 3) a target surface point, or a cavity point
+    normal: torch.Tensor  # (N, 3) approach along -normal (outward normal; +Y for cavity points)
+    gap: torch.Tensor  # (N,) distance kept from the target after contact (lateral proposals)
+    on_surface: torch.Tensor  # (N,) bool: anchor on the surface (else a cavity point)
+
+    def select(self, index) -> Site:
+        return Site(self.anchor[index], self.normal[index], self.gap[index], self.on_surface[index])
+
+
+@dataclass
+class Proposals:
+    poses: Poses  # (N,) source local -> normalised
+    region: list[str]  # (N,) which region each was drawn from ("init" for the caller's start)
+    sites: Site | None = None  # (N,) where each touches (None: not placed by the search, e.g. random starts)
+    rotations: torch.Tensor | None = None  # (R, 4) the source orientations the proposals were drawn from
+    index: losses.TargetIndex | None = None  # the contact samples they were placed with
+
+
+@dataclass
+class Ranked:
+    poses: Poses  # the kept poses, best first
+    objectives: torch.Tensor  # (K,) their fine-stage objective
+    scored: int  # candidate evaluations (coarse + sweep + fine)
+    swept: int  # candidates of the orientation sweep
+    seconds: float
+
+
+def region_weights(relation: str | None, source_is_figure: bool = True) -> dict[str, float]:
+    """Weight of every region for a relation read from the prompt; at least 1 each (1: no preference)."""
+    table = FIGURE_WEIGHTS if source_is_figure else GROUND_WEIGHTS
+    chosen = table.get(relation or "", {})
+    return {r: max(1.0, float(chosen.get(r, 1.0))) for r in REGIONS}
+
+
+def allocate(available: dict[str, int], weights: dict[str, float], total: int, min_share: float) -> dict[str, int]:
+    """Proposals per region: proportional to weight x size (in region points), each non-empty region keeping at
+    least ``min_share`` of its unweighted count and at least one."""
+    present = {r: n for r, n in available.items() if n > 0}
+    if not present:
+        return {r: 0 for r in available}
+    size = sum(present.values())
+    plain = {r: total * n / size for r, n in present.items()}
+    mass = {r: weights[r] * n for r, n in present.items()}
+    norm = sum(mass.values())
+    counts = {r: max(1, math.ceil(min_share * plain[r]), int(round(total * mass[r] / norm))) for r in present}
+    return {r: counts.get(r, 0) for r in available}
+
+
+# -- proposals ------------------------------------------------------------------------------------------------
+def orientations(pair: PreparedPair, config: AlignConfig, generator: torch.Generator) -> torch.Tensor:
+    """(R, 4) source orientations, source local -> normalised, from the source's own frames.
+
+    The upright frame and its flip, each turned in ``search.yaw_steps`` about +Y, and the ``search.stable_poses``
+    most probable resting poses (trimesh, on the source's convex hull) turned the same way; in the ``random``
+    init mode as many uniform rotations instead.
+    """
+    cfg = config.search
+    yaw = torch.arange(cfg.yaw_steps, dtype=torch.float32) * (2 * math.pi / cfg.yaw_steps)
+    turns = torch.stack([torch.cos(yaw / 2), 0 * yaw, torch.sin(yaw / 2), 0 * yaw], dim=1)
+    up = pair.source_upright.rotation
+    flip = np.diag([1.0, -1.0, -1.0])  # half turn about x: upside down
+    bases = [up, flip @ up]
+    if cfg.stable_poses:
+        hull = pair.source.convex_hull
+        if len(hull.vertices) > HULL_POINTS:  # trimesh's stable poses loop over hull faces: keep the hull small
+            keep = np.random.default_rng(config.seed).choice(len(hull.vertices), HULL_POINTS, replace=False)
+            hull = trimesh.convex.convex_hull(hull.vertices[keep])
+        with np.errstate(all="ignore"):
+            rests, _ = trimesh.poses.compute_stable_poses(hull, center_mass=hull.center_mass, seed=config.seed)
+        z_to_y = trimesh.transformations.rotation_matrix(-math.pi / 2, [1, 0, 0])[:3, :3]  # rests stand on +Z
+        bases += [z_to_y @ np.asarray(m)[:3, :3] for m in rests[: cfg.stable_poses]]
+    base = torch.tensor(np.stack([matrix_to_quaternion(b) for b in bases]), dtype=torch.float32)
+    q = quaternion_product(turns[:, None].expand(-1, len(base), -1), base[None].expand(len(turns), -1, -1))
+    q = q.reshape(-1, 4)
+    if config.optim.init_rotation == "random":
+        return random_quaternions(len(q), generator)
+    return q
+
+
+def surface_regions(pair: PreparedPair) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray], np.ndarray]:
+    """Target samples, normals, indices per surface region and a density weight per sample (of the object the
+    source relates to, ``PreparedPair.anchor``, when the target is a scene of placed objects).
+
+    Samples are area-weighted already; the density adds weight where the surface faces up, on rims (where
+    the normals of neighbouring samples disagree) and toward the top of the target (small tops, a spire's or a
+    head's, have little area but are where things are put).
+    """
+    anchor = pair.anchor  # in a scene of placed objects, the one the source relates to
+    points = anchor.points.cpu().numpy().astype(np.float64)
+    normals = anchor.normals.cpu().numpy().astype(np.float64)
+    ny = normals[:, 1]
+    _, near = anchor.tree.query(points, k=min(8, len(points)), workers=1)
+    spread = 1.0 - np.linalg.norm(normals[near].mean(axis=1), axis=1)
+    height = (points[:, 1] - points[:, 1].min()) / max(float(np.ptp(points[:, 1])), 1e-9)
+    density = 1.0 + np.clip(ny, 0.0, None) + (spread > 0.3) + 2.0 * height**4
+    regions = {"top": np.flatnonzero(ny > UP_FACING), "bottom": np.flatnonzero(ny < -UP_FACING),
+               "side": np.flatnonzero(np.abs(ny) <= UP_FACING)}
+    return points, normals, regions, density
+
+
+def cavity_points(pair: PreparedPair, seed: int) -> np.ndarray:
+    """Points inside the target's convex hull but outside the target (its cavity, as the penetration term sees
+    it: behind no oriented surface), away from the walls; (P, 3), possibly empty."""
+    verts = pair.target_vertices.cpu().numpy().astype(np.float64)
+    lo, hi = verts.min(0), verts.max(0)
+    probes = lo + (hi - lo) * np.random.default_rng(seed).random((CAVITY_PROBES, 3))
+    try:
+        hull = Delaunay(trimesh.convex.convex_hull(verts).vertices)
+    except (QhullError, ValueError):  # a flat target has no volume and no cavity
+        return np.zeros((0, 3))
+    probes = probes[hull.find_simplex(probes) >= 0]
+    if not len(probes):
+        return probes
+    dist, _ = pair.index.tree.query(probes, k=1, workers=1)
+    depth = losses.signed_depth(torch.as_tensor(probes, dtype=torch.float32)[None], pair.index, 0.01, 8)[0]
+    keep = (depth.numpy() < 0) & (dist > 0.02 * float(np.linalg.norm(hi - lo)))
+    return probes[keep]
+
+
+def contact_index(pair: PreparedPair, count: int = CONTACT_SAMPLES, seed: int = 0) -> losses.TargetIndex:
+    """Denser target samples than the losses' (normalised frame, outward normals) for placing proposals: the
+    sampled depth and distance are only as good as the spacing."""
+    oriented = scene.outward(pair.target)
+    points, normals = sampling.surface_samples(oriented, count, seed)
+    frame = pair.target_to_normalised
+    as_t = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
+    return losses.TargetIndex(as_t(frame.apply(points)), as_t(frame.apply_directions(normals)))
+
+
+def settle(pair: PreparedPair, index: losses.TargetIndex, q: torch.Tensor, anchor: torch.Tensor,
+           normal: torch.Tensor, log_s: torch.Tensor, on_surface: bool) -> tuple[torch.Tensor, torch.Tensor]:
+    """Source centres (B, 3) that bring each rotated source into contact from outside, approaching along -normal,
+    and whether each ended outside (a source wedged where pushing along the normal cannot free it did not).
+
+    ``index``: target samples (``contact_index``). ``on_surface``: ``anchor`` is a target surface point with
+    outward ``normal``; the source starts with its extreme point along -normal in the tangent plane there.
+    Otherwise it starts centred at ``anchor``. Then, a few times (a sparse subset of the source samples): if a
+    sample is inside the target (``losses.signed_depth``), push out along the normal by the deepest; else move
+    toward the target by the smallest distance between source and target samples, along that closest pair
+    (sphere tracing: a step that short cannot pass through a sample), so it ends touching. Last, a denser subset
+    is checked and only pushed out.
+    """
+    def subset(count: int) -> torch.Tensor:
+        idx = torch.linspace(0, len(pair.source_samples) - 1, min(count, len(pair.source_samples))).long()
+        rot = quaternion_to_matrix(q) * log_s.exp()[:, None, None]
+        return torch.einsum("bij,nj->bni", rot, pair.source_samples[idx])
+
+    tol = 2e-3 * pair.target_radius
+    # the sampled depth is only as good as the sample spacing (an edge's neighbour plane votes near corners):
+    # count a sample inside only past a third of that spacing
+    spacing = math.sqrt(float(pair.target.area) / len(index.points)) * pair.target_to_normalised.scale
+    inside_tol = max(tol, spacing / 3)
+    centre = anchor.clone()
+    if on_surface:
+        rotated = subset(SETTLE_POINTS)
+        support = (-(rotated * normal[:, None, :]).sum(-1)).max(dim=1).values  # extent along -normal
+        centre = anchor + normal * (support + tol)[:, None]
+
+    def step(rotated: torch.Tensor, active: torch.Tensor, approach: bool) -> tuple[torch.Tensor, torch.Tensor]:
+        """Move the active candidates once; returns the ones that still move and every active one's depth."""
+        posed = rotated[active] + centre[active, None, :]
+        dist, idx = index.tree.query(posed.reshape(-1, 3).numpy().astype(np.float64), k=2, workers=1)
+        idx = torch.as_tensor(idx.reshape(*posed.shape[:2], 2), dtype=torch.long)
+        deepest = losses.signed_depth(posed, index, 0.01, 2, idx=idx).max(dim=1).values
+        dist = torch.as_tensor(dist[:, 0].reshape(posed.shape[:2]), dtype=centre.dtype)
+        gap, nearest = dist.min(dim=1)
+        rows = torch.arange(len(active))
+        toward = index.points[idx[rows, nearest, 0]] - posed[rows, nearest]  # closest source sample -> its target's
+        toward = toward / toward.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+        inside = deepest > inside_tol
+        reach = (gap - tol).clamp_min(0.0) if approach else torch.zeros_like(gap)
+        move = torch.where(inside[:, None], normal[active] * (deepest + tol)[:, None], toward * reach[:, None])
+        centre[active] = centre[active] + move
+        return active[move.norm(dim=-1) >= tol], deepest
+
+    # approach with a sparse subset of the source (cheap), then check with a denser one and only push out
+    sparse, dense = subset(APPROACH_POINTS), subset(SETTLE_POINTS)
+    active = torch.arange(len(centre))
+    for _ in range(SETTLE_ITERATIONS):
+        active, _ = step(sparse, active, approach=True)
+        if not len(active):
+            break
+    active = torch.arange(len(centre))
+    depth = torch.zeros(len(centre))
+    for _ in range(PUSH_ITERATIONS):
+        moving, depth[active] = step(dense, active, approach=False)
+        active = moving
+        if not len(active):
+            break
+    return centre, depth <= inside_tol
+
+
+def propose(pair: PreparedPair, config: AlignConfig, weights: dict[str, float], log_s: float,
+            generator: torch.Generator, init: Poses | None = None) -> Proposals:
+    """``search.candidates`` poses in contact, drawn per region by ``allocate`` (see module docstring).
+
+    Proposals the settling could not free from the target are dropped. ``log_s`` is the source scale of every
+    proposal (rigid: kept from the files or the caller's start);
+    ``init`` (one pose) is added as a candidate as given.
+    """
+    cfg = config.search
+    rng = np.random.default_rng(config.seed)
+    points, normals, regions, density = surface_regions(pair)
+    cavity = cavity_points(pair, config.seed)
+    sides = regions["side"]
+    # unweighted shares: the surface regions by area (sample counts); the cavity as at most a quarter of the
+    # surface and the lateral gaps as half the sides, whatever the number of probes that landed there
+    available = {"top": len(regions["top"]), "side": len(sides), "bottom": len(regions["bottom"]),
+                 "inside": min(len(cavity), len(points) // 4), "gap": len(sides) // 2}
+    counts = allocate(available, weights, cfg.candidates, cfg.min_share)
+    rotations = orientations(pair, config, generator)
+    up = np.array([0.0, 1.0, 0.0])
+    diagonal = float(pair.source_samples.max(0).values.sub(pair.source_samples.min(0).values).norm()) * math.exp(log_s)
+    anchors, dirs, gaps, labels, on_surface = [], [], [], [], []
+    for region, n in counts.items():
+        if n == 0:
+            continue
+        if region == "inside":
+            pick = rng.integers(len(cavity), size=n)
+            anchors.append(cavity[pick])
+            dirs.append(np.tile(up, (n, 1)))
+            gaps.append(np.zeros(n))
+            on_surface.append(np.zeros(n, bool))
+        else:
+            pool = regions["side"] if region == "gap" else regions[region]
+            w = density[pool] / density[pool].sum()
+            pick = pool[rng.choice(len(pool), size=n, p=w)]
+            anchors.append(points[pick])
+            dirs.append(normals[pick])
+            choices = np.array([g for g in cfg.gaps if g > 0] or [0.0]) if region == "gap" else np.zeros(1)
+            gaps.append(rng.choice(choices, size=n) * diagonal)
+            on_surface.append(np.ones(n, bool))
+        labels += [region] * n
+    as_t = lambda a: torch.as_tensor(np.concatenate(a), dtype=torch.float32)  # noqa: E731
+    sites = Site(as_t(anchors), as_t(dirs), as_t(gaps), torch.as_tensor(np.concatenate(on_surface)))
+    q = rotations[torch.as_tensor(rng.integers(len(rotations), size=len(sites.anchor)))]
+    index = contact_index(pair, seed=config.seed)
+    poses, free = place(pair, index, q, sites, log_s)
+    labels = [label for label, ok in zip(labels, free.tolist(), strict=True) if ok]
+    sites = sites.select(free)
+    if init is not None:  # the caller's start, as given (no site: the orientation sweep skips it)
+        poses = Poses.cat([init.select(slice(0, 1)), poses])
+        labels = ["init", *labels]
+        given = Site(init.t[:1].cpu(), torch.tensor([[0.0, 1.0, 0.0]]), torch.zeros(1),
+                     torch.zeros(1, dtype=torch.bool))
+        sites = Site(*(torch.cat([a, b]) for a, b in zip(vars(given).values(), vars(sites).values(), strict=True)))
+    device = pair.source_vertices.device
+    return Proposals(Poses(poses.t.to(device), poses.q.to(device), poses.log_s.to(device)), labels, sites,
+                     rotations, index)
+
+
+def place(pair: PreparedPair, index: losses.TargetIndex, q: torch.Tensor, sites: Site,
+          log_s: float) -> tuple[Poses, torch.Tensor]:
+    """Poses with orientations ``q`` settled into contact at ``sites`` (``settle``), then moved out by each site's
+    gap; returns the poses that ended free of the target and the mask of which did."""
+    scale = torch.full((len(q),), float(log_s))
+    t = torch.empty(len(q), 3)
+    free = torch.ones(len(q), dtype=torch.bool)
+    for surface in (True, False):
+        sel = sites.on_surface == surface
+        if sel.any():
+            t[sel], free[sel] = settle(pair, index, q[sel], sites.anchor[sel], sites.normal[sel], scale[sel],
+                                       on_surface=surface)
+    t = t + sites.normal * sites.gap[:, None]
+    return Poses(t, q, scale).select(free), free
+
+
+def sweep(proposals: Proposals, pair: PreparedPair, objectives: torch.Tensor, positions: int,
+          distance: float) -> Poses:
+    """Every source orientation at the best ``positions`` distinct sites (by ``objectives``): a coarse
+    candidate's orientation is one draw of many, and a good site with the wrong turn can still rank high."""
+    placed = torch.tensor([region != "init" for region in proposals.region])
+    if positions == 0 or not placed.any():
+        return Poses(torch.zeros(0, 3), torch.zeros(0, 4), torch.zeros(0))
+    candidates = torch.nonzero(placed)[:, 0]
+    poses = proposals.poses.select(candidates)
+    best = diverse_top(poses, objectives[candidates], positions, distance, 180.0)  # distinct places, any turn
+    rotations = proposals.rotations
+    sites = proposals.sites.select(candidates[best].repeat_interleave(len(rotations)))
+    q = rotations.repeat(len(best), 1)
+    swept, _ = place(pair, proposals.index, q, sites, float(poses.log_s[0]))
+    device = pair.source_vertices.device
+    return Poses(swept.t.to(device), swept.q.to(device), swept.log_s.to(device))
+
+
+# -- scoring --------------------------------------------------------------------------------------------------
+def _scene_radius(pair: PreparedPair, log_s: float) -> float:
+    src = pair.source_samples
+    return pair.target_radius + float((src.max(0).values - src.min(0).values).norm() / 2) * math.exp(log_s)
+
+
+def coarse_cameras(pair: PreparedPair, config: AlignConfig, log_s: float) -> Cameras:
+    """(1, C) fixed views around the target centre that frame the target and any source touching it.
+
+    They depend on the target and the source's size only (never on a candidate or a reference pose).
+    """
+    cfg, cam = config.search, config.camera
+    views = cfg.coarse_views
+    fov = cam.eval_fov_deg
+    distance = _scene_radius(pair, log_s) / math.sin(math.radians(fov) / 2) * 1.05
+    azimuth = torch.arange(views, dtype=torch.float32)[None] * (360.0 / views) + 45.0
+    full = lambda v: torch.full((1, views), float(v))  # noqa: E731
+    device = pair.source_vertices.device
+    return orbit(torch.zeros(1, 3), azimuth, full(cam.eval_elevation_deg), full(distance), full(fov),
+                 cfg.coarse_image_size).to(device)
+
+
+def fine_cameras(pair: PreparedPair, config: AlignConfig, poses: Poses) -> Cameras:
+    """(B, C) views per candidate: the look-at moves ``fine_zoom`` of the way to its source's centre and the
+    framed radius shrinks toward the source's (but frames at least twice the source)."""
+    cfg, cam = config.search, config.camera
+    views, beta = cfg.fine_views, cfg.fine_zoom
+    src = pair.source_samples
+    source_radius = float((src.max(0).values - src.min(0).values).norm() / 2) * poses.log_s.exp()
+    scene_radius = _scene_radius(pair, 0.0) - float((src.max(0).values - src.min(0).values).norm() / 2) \
+        + source_radius
+    radius = torch.maximum(scene_radius * (1 - beta), 2 * source_radius)
+    fov = cam.eval_fov_deg
+    distance = (radius / math.sin(math.radians(fov) / 2) * 1.05)[:, None].expand(-1, views)
+    look_at = beta * poses.t
+    azimuth = (torch.arange(views, dtype=torch.float32) * (360.0 / views) + 15.0).expand(len(poses), -1)
+    elevation = torch.tensor([cam.eval_elevation_deg + (10.0 if i % 2 else -10.0) for i in range(views)])
+    full = lambda v: torch.full((len(poses), views), float(v))  # noqa: E731
+    return orbit(look_at.cpu(), azimuth, elevation.expand(len(poses), -1), distance.cpu(), full(fov),
+                 cfg.fine_image_size).to(pair.source_vertices.device)
+
+
+def shared_targets(scorer: Scorer, cameras: Cameras) -> torch.Tensor | None:
+    """The guidance target for (1, C) cameras shared by every candidate (a per-view target encodes them once)."""
+    if not scorer.use_clip:
+        return None
+    with torch.inference_mode():
+        targets = scorer.target_embeddings(cameras)
+    return targets.clone()
+
+
+def score(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, batch: int,
+          targets: torch.Tensor | None = None, progress=lambda scored: None,
+          should_cancel: CancelCheck | None = None) -> torch.Tensor:
+    """(N,) objectives of ``poses`` on ``cameras`` ((1, C) shared or (N, C)), ``batch`` poses per call, forward
+    only; ``progress(scored)`` after each batch, cancel checked before each. ``targets``: ``shared_targets`` of
+    shared cameras, when already computed."""
+    shared = cameras.fov_deg.shape[0] == 1
+    if shared and targets is None and scorer.use_clip:
+        targets = shared_targets(scorer, cameras)
+    out = []
+    for lo in range(0, len(poses), batch):
+        if should_cancel is not None and should_cancel():
+            raise Canceled("the run was cancelled")
+        chunk = poses.select(slice(lo, lo + batch))
+        cams = cameras if shared else cameras.rows(lo, lo + batch)
+        out.append(ranking_key(scorer, scorer.score(chunk, weights, cams, targets), weights))
+        progress(lo + len(chunk))
+    return torch.cat(out)
+
+
+
+
+def diverse_top(poses: Poses, objectives: torch.Tensor, k: int, distance: float, angle_deg: float) -> list[int]:
+    """Indices of the ``k`` best poses (lowest objective), skipping any within ``distance`` (normalised units) and
+    ``angle_deg`` of one already kept; duplicates fill in only when too few distinct poses exist."""
+    order = torch.argsort(objectives).tolist()
+    q = torch.nn.functional.normalize(poses.q, dim=-1)
+    kept: list[int] = []
+    for i in order:
+        if len(kept) == k:
+            break
+        if kept:
+            near = (poses.t[kept] - poses.t[i]).norm(dim=-1) < distance
+            dot = (q[kept] @ q[i]).abs().clamp(max=1.0)
+            close = torch.rad2deg(2 * torch.acos(dot)) < angle_deg
+            if bool((near & close).any()):
+                continue
+        kept.append(i)
+    kept += [i for i in order if i not in kept][: k - len(kept)]
+    return kept
+
+
+def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
+           on_event: ProgressCallback | None = None, should_cancel: CancelCheck | None = None,
+           phases: int = 1, started: float | None = None) -> Ranked:
+    """Coarse then fine scoring of ``proposals`` and the diverse best ``k`` (see module docstring).
+
+    Events: kind ``step`` with stage ``search``, step/steps = candidate evaluations done / planned.
+    """
+    config, pair = scorer.config, scorer.pair
+    cfg = config.search
+    began = time.perf_counter()
+    started = began if started is None else started
+    poses = proposals.poses
+    log_s = float(poses.log_s[0])
+    fine_count = min(cfg.fine, len(poses))
+    sweep_count = cfg.sweep * (len(proposals.rotations) if proposals.rotations is not None else 0)
+    total = len(poses) + sweep_count + fine_count
+
+    def emit(done: int, best: float | None = None) -> None:
+        if on_event:
+            elapsed = time.perf_counter() - started
+            on_event(ProgressEvent(kind="step", phase=0, phases=phases, step=done, steps=total, restarts=k,
+                                   elapsed_s=elapsed, eta_s=None, best_objective=best, stage="search",
+                                   message=f"search: {done}/{total} candidates scored"))
+
+    emit(0)
+    with scorer.clock.time("search"):
+        cameras = coarse_cameras(pair, config, log_s)
+        targets = shared_targets(scorer, cameras)
+        distinct = _distinct(pair, config, log_s)
+        coarse = score(scorer, poses, weights, cameras, batch=cfg.batch, targets=targets, progress=emit,
+                       should_cancel=should_cancel)
+        swept = sweep(proposals, pair, coarse, cfg.sweep, distinct[0]) if sweep_count else None
+        if swept is not None and len(swept):
+            extra = score(scorer, swept, weights, cameras, batch=cfg.batch, targets=targets,
+                          should_cancel=should_cancel, progress=lambda n: emit(len(poses) + n))
+            poses, coarse = Poses.cat([poses, swept]), torch.cat([coarse, extra])
+        emit(total - fine_count)
+        shortlist = diverse_top(poses, coarse, fine_count, *distinct)
+        fine_poses = poses.select(shortlist)
+        fine = score(scorer, fine_poses, weights, fine_cameras(pair, config, fine_poses), batch=cfg.batch,
+                     progress=lambda n: emit(total - fine_count + n), should_cancel=should_cancel)
+        # the fine views see each candidate closer; the coarse ones see all in the same frame: rank by both
+        ranked = 0.5 * (fine + coarse[shortlist])
+        best = diverse_top(fine_poses, ranked, k, *distinct)
+    emit(total, float(ranked[best[0]]))
+    return Ranked(fine_poses.select(best), ranked[best], len(poses) + len(fine_poses),
+                  0 if swept is None else len(swept), time.perf_counter() - began)
+
+
+def ranking_key(scorer: Scorer, terms: dict[str, torch.Tensor], weights: Phase) -> torch.Tensor:
+    """What the search ranks its candidates by (lower is better): the guide's term alone when there is a guide,
+    else the objective (geometry only).
+
+    The proposals touch without interpenetrating by construction, so among them the geometric terms measure
+    how the target's samples happen to fall (soft-ICP at contact is about sigma² and varies with sample density),
+    not contact: on pb3d-blender with the oracle and random:ViT-B-32, the soft-ICP's spread over touching
+    candidates was ~0.01 against the guide's ~1e-4, so any weighted sum ranked as geometry alone did. The
+    refinement and the final selection use the whole objective.
+    """
+    return terms["clip"] if scorer.use_clip else terms["objective"]
+
+
+def _distinct(pair: PreparedPair, config: AlignConfig, log_s: float) -> tuple[float, float]:
+    src = pair.source_samples
+    diagonal = float((src.max(0).values - src.min(0).values).norm()) * math.exp(log_s)
+    return config.search.distinct_translation * diagonal, config.search.distinct_rotation_deg

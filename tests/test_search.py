@@ -1,0 +1,190 @@
+"""The search stage alone and inside align: proposals, relation weights, the shared scorer, cancel, counts."""
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from ctp_core import metrics, objective, scene, schedule, search, targets
+from ctp_core.align import align, prepare, propose
+from ctp_core.config import AlignConfig
+from ctp_core.errors import Canceled
+from ctp_core.guidance import get_guide
+from ctp_core.priors.relations import RELATIONS
+
+CONFIG = AlignConfig.from_preset("test", model="random:tiny", search={"candidates": 40}, loss={"samples": 1500})
+
+
+def _cup() -> trimesh.Trimesh:
+    """An open-topped cup, one closed solid with a cavity (a cylinder minus a smaller one from the top)."""
+    outer = trimesh.creation.cylinder(radius=0.5, height=0.8, sections=32)
+    inner = trimesh.creation.cylinder(radius=0.4, height=0.8, sections=32)
+    inner.apply_translation((0, 0, 0.1))
+    cup = trimesh.boolean.difference([outer, inner], engine="manifold")
+    cup.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))  # axis along +Y
+    return cup
+
+
+@pytest.fixture(scope="module")
+def pairs():
+    table = trimesh.creation.box(extents=(2.0, 0.2, 1.2))
+    block = trimesh.creation.box(extents=(0.3, 0.2, 0.4))
+    block.apply_translation((4.0, 2.0, -3.0))
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.15)
+    ball.apply_translation((-3.0, 1.0, 2.0))
+    return {"box on table": (table, block), "ball and cup": (_cup(), ball)}
+
+
+def _proposals(target, source, config=CONFIG):
+    pair = scene.prepare_pair(target, source, samples=config.loss.samples, seed=0)
+    props = search.propose(pair, config, search.region_weights(None), 0.0, torch.Generator().manual_seed(0))
+    return pair, props
+
+
+@pytest.mark.parametrize("name", ["box on table", "ball and cup"])
+def test_proposals_touch_and_do_not_penetrate(pairs, name):
+    """Exact signed distances (both targets are closed): no source sample deeper than 1 % of the target's
+    size, and nearly all proposals but the lateral gaps within 1 % of touching."""
+    target, source = pairs[name]
+    assert target.is_volume
+    pair, props = _proposals(target, source)
+    points = trimesh.sample.sample_surface(source, 300, seed=0)[0]
+    size = float(target.extents.max())
+    touching = 0
+    for matrix, region in zip(props.poses.matrices(), props.region, strict=True):
+        m = pair.source_to_target(matrix)
+        depth = trimesh.proximity.signed_distance(target, points @ m[:3, :3].T + m[:3, 3]).max()  # > 0 inside
+        assert depth <= 0.01 * size, (region, depth)
+        if region != "gap":
+            touching += depth >= -0.01 * size
+    contacts = sum(r != "gap" for r in props.region)
+    assert touching >= 0.85 * contacts  # sampled distances leave a few short of contact
+    assert {"top", "side", "bottom"} <= set(props.region)
+    if name == "ball and cup":
+        assert "inside" in props.region
+
+
+@pytest.mark.parametrize("figure", [True, False])
+@pytest.mark.parametrize("relation", [None, "other", *RELATIONS])
+def test_a_relation_weight_never_zeroes_a_region(relation, figure):
+    weights = search.region_weights(relation, figure)
+    assert set(weights) == set(search.REGIONS) and min(weights.values()) >= 1.0
+    available = {"top": 300, "side": 900, "bottom": 300, "inside": 40, "gap": 450}
+    counts = search.allocate(available, weights, 64, CONFIG.search.min_share)
+    assert all(counts[r] >= 1 for r in available)
+    plain = search.allocate(available, search.region_weights(None), 64, CONFIG.search.min_share)
+    assert all(counts[r] >= min(plain[r], max(1, int(CONFIG.search.min_share * plain[r]))) for r in available)
+
+
+def test_the_prompt_relation_shifts_proposals_without_removing_any(pairs):
+    target, source = pairs["ball and cup"]
+    pair = scene.prepare_pair(target, source, samples=CONFIG.loss.samples, seed=0)
+    gen = lambda: torch.Generator().manual_seed(0)  # noqa: E731
+    plain = search.propose(pair, CONFIG, search.region_weights(None), 0.0, gen())
+    inside = search.propose(pair, CONFIG, search.region_weights("in"), 0.0, gen())
+    assert inside.region.count("inside") > plain.region.count("inside")
+    assert set(inside.region) == set(plain.region)
+
+
+def test_the_scorer_scores_n_candidates_then_m_restarts(pairs):
+    target, source = pairs["box on table"]
+    pair, props = _proposals(target, source)
+    guide = get_guide("random:tiny")
+    text = targets.TextTarget("a box on the table")
+    text.prepare(pair, guide)
+    scorer = objective.Scorer(pair, CONFIG, 0.2, guide=guide, target=text)
+    weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
+    many = scorer.evaluate(props.poses, weights)
+    few = scorer.evaluate(props.poses.select(slice(0, 3)), weights)
+    n, views = len(props.poses), CONFIG.camera.eval_views
+    assert many["objective"].shape == (n,) and few["objective"].shape == (3,)
+    torch.testing.assert_close(few["objective"], many["objective"][:3], atol=1e-5, rtol=0)
+    assert scorer.clip_images == (n + 3) * views
+    assert not few["objective"].is_inference()  # usable by the optimiser outside inference mode
+
+
+def test_search_counts_every_encoder_image_including_the_oracles(pairs):
+    target, source = pairs["box on table"]
+    pair, props = _proposals(target, source)
+    reference = np.eye(4)
+    reference[:3, 3] = -source.bounds.mean(0) + (0, 0.2, 0)
+    oracle = targets.ReferenceTarget(reference)
+    guide = get_guide("random:tiny")
+    oracle.prepare(pair, guide)
+    scorer = objective.Scorer(pair, CONFIG, 0.2, guide=guide, target=oracle)
+    weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
+    events = []
+    ranked = search.search(scorer, props, weights, k=2, on_event=events.append)
+    cfg = CONFIG.search
+    n, fine = len(props.poses), min(cfg.fine, len(props.poses))
+    assert 0 < ranked.swept <= cfg.sweep * len(props.rotations)  # every orientation at the best site(s)
+    # candidates x views (coarse and sweep), the shared coarse reference views once, the fine ones each
+    coarse = (n + ranked.swept) * cfg.coarse_views
+    assert scorer.clip_images == coarse + cfg.coarse_views + 2 * fine * cfg.fine_views
+    assert ranked.scored == n + ranked.swept + fine
+    assert len(ranked.poses) == 2 and ranked.objectives[0] <= ranked.objectives[1]
+    planned = n + cfg.sweep * len(props.rotations) + fine
+    assert all(e.stage == "search" for e in events) and events[-1].step == events[-1].steps == planned
+    assert [e.step for e in events] == sorted(e.step for e in events)
+
+
+def test_the_sweep_tries_every_orientation_at_the_best_site(pairs):
+    target, source = pairs["box on table"]
+    pair, props = _proposals(target, source)
+    objectives = torch.arange(len(props.poses), dtype=torch.float32)  # the first proposal is the best
+    swept = search.sweep(props, pair, objectives, 1, 0.1)
+    assert 0 < len(swept) <= len(props.rotations)
+    turns = torch.nn.functional.normalize(swept.q, dim=-1) @ torch.nn.functional.normalize(props.rotations, dim=-1).T
+    assert (turns.abs().max(dim=1).values > 0.9999).all()  # each is one of the source's orientations
+    assert (swept.t - props.poses.t[0]).norm(dim=-1).max() < 2 * pair.target_radius  # at that site
+
+
+def test_diverse_top_skips_near_duplicates():
+    t = torch.tensor([[0.0, 0, 0], [0.01, 0, 0], [1.0, 0, 0]])
+    q = torch.tensor([[1.0, 0, 0, 0]] * 3)
+    poses = objective.Poses(t, q, torch.zeros(3))
+    assert search.diverse_top(poses, torch.tensor([0.0, 0.1, 0.2]), 2, 0.1, 30.0) == [0, 2]
+    assert search.diverse_top(poses, torch.tensor([0.0, 0.1, 0.2]), 3, 0.1, 30.0) == [0, 2, 1]
+
+
+def test_cancel_during_search(pairs):
+    calls = {"n": 0}
+
+    def cancel():
+        calls["n"] += 1
+        return calls["n"] > 1  # the first batch runs, the second is refused
+
+    events = []
+    with pytest.raises(Canceled):
+        align(*pairs["box on table"], "a box on the table", CONFIG, on_event=events.append, should_cancel=cancel)
+    assert events and all(e.stage == "search" for e in events)
+    assert 0 < max(e.step for e in events) < events[0].steps
+
+
+def test_stages_are_callable_alone(pairs):
+    run = prepare(*pairs["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box")
+    props = propose(run)
+    assert run.prior.relation == "on" and len(props.poses) >= CONFIG.search.candidates // 2  # wedged ones dropped
+    off = CONFIG.model_copy(update={"search": CONFIG.search.model_copy(update={"enabled": False})})
+    assert propose(prepare(*pairs["box on table"], None, off)).region == ["random"] * off.optim.restarts
+
+
+def test_align_end_to_end_with_the_default_preset(pairs):
+    """The real default (search, then refinement), shrunk only in counts and image sizes for CI."""
+    cfg = AlignConfig.from_preset(
+        "default", model="random:tiny", camera={"image_size": 64}, loss={"samples": 600},
+        search={"candidates": 32, "coarse_image_size": 64, "fine": 6, "fine_image_size": 64, "batch": 16},
+    )
+    events = []
+    result = align(*pairs["box on table"], "a box on the table", cfg, target_name="table", source_name="box",
+                   on_event=events.append)
+    search_events = [e for e in events if e.stage == "search"]
+    assert search_events and search_events[-1].step == search_events[-1].steps
+    assert events[-1].kind == "done" and events[-1].stage == "refine"
+    assert result.timings["search_candidates"] >= 32 and len(result.restarts) == cfg.optim.restarts
+    placed = result.source.copy()
+    placed.apply_transform(result.source_to_target)
+    table = pairs["box on table"][0]
+    assert metrics.contact_distance(table, placed) <= 0.02
+    assert metrics.intersection_over_union(table, placed).iou <= 0.02
+    assert result.extra["clip_images"] > cfg.search.candidates * cfg.search.coarse_views
