@@ -70,8 +70,8 @@ class Run:
     plan: list  # schedule.Phase per refinement phase
     guidance: Any  # a targets object, or None (geometry only)
     started: float
-    names: dict[str, str | None] = field(default_factory=dict)  # target, source, on: what the priors read
     timings: dict[str, float] = field(default_factory=dict)
+    names: dict[str, str | None] = field(default_factory=dict)  # target, source, on: what the priors read
 
 
 def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, prompt: str | None,
@@ -206,7 +206,7 @@ def result(run: Run, outcome, best: int, target: trimesh.Trimesh | trimesh.Scene
             "on": run.names.get("on"),
             "guidance": guidance.description if guidance is not None else "none (geometry only)",
             "model": config.model if guidance is not None else None,
-            "runtime": run.scorer.guide.runtime if run.scorer.guide is not None else None,
+            "runtime": getattr(run.scorer.guide, "runtime", None),  # the pixels guide has none
             "clip_images": outcome.clip_images,
             "phase_timings": [{k: round(v, 3) for k, v in p.items()} for p in outcome.phase_timings],
             "target_upright": {"rotation": pair.target_upright.rotation.tolist(),

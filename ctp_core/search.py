@@ -137,12 +137,7 @@ def orientations(pair: PreparedPair, config: AlignConfig, generator: torch.Gener
     flip = np.diag([1.0, -1.0, -1.0])  # half turn about x: upside down
     bases = [up, flip @ up]
     if cfg.stable_poses:
-        hull = pair.source.convex_hull
-        if len(hull.vertices) > HULL_POINTS:  # trimesh's stable poses loop over hull faces: keep the hull small
-            keep = np.random.default_rng(config.seed).choice(len(hull.vertices), HULL_POINTS, replace=False)
-            hull = trimesh.convex.convex_hull(hull.vertices[keep])
-        with np.errstate(all="ignore"):
-            rests, _ = trimesh.poses.compute_stable_poses(hull, center_mass=hull.center_mass, seed=config.seed)
+        rests = _stable_poses(pair.source, config.seed)
         z_to_y = trimesh.transformations.rotation_matrix(-math.pi / 2, [1, 0, 0])[:3, :3]  # rests stand on +Z
         bases += [z_to_y @ np.asarray(m)[:3, :3] for m in rests[: cfg.stable_poses]]
     base = torch.tensor(np.stack([matrix_to_quaternion(b) for b in bases]), dtype=torch.float32)
@@ -151,6 +146,23 @@ def orientations(pair: PreparedPair, config: AlignConfig, generator: torch.Gener
     if config.optim.init_rotation == "random":
         return random_quaternions(len(q), generator)
     return q
+
+
+def _stable_poses(source: trimesh.Trimesh, seed: int) -> list[np.ndarray]:
+    """trimesh's resting poses of the source's convex hull, most probable first; none for a flat source (a
+    single face or a planar mesh has no 3-D hull to rest on: its own frames are the orientations)."""
+    try:
+        hull = source.convex_hull
+        if len(hull.vertices) > HULL_POINTS:  # trimesh's stable poses loop over hull faces: keep the hull small
+            keep = np.random.default_rng(seed).choice(len(hull.vertices), HULL_POINTS, replace=False)
+            hull = trimesh.convex.convex_hull(hull.vertices[keep])
+        if not hull.volume > 0:
+            return []
+        with np.errstate(all="ignore"):
+            rests, _ = trimesh.poses.compute_stable_poses(hull, center_mass=hull.center_mass, seed=seed)
+    except (QhullError, ValueError, IndexError):
+        return []
+    return list(rests)
 
 
 def surface_regions(pair: PreparedPair) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray], np.ndarray]:
@@ -196,7 +208,7 @@ def cavity_points(pair: PreparedPair, seed: int) -> np.ndarray:
 def contact_index(pair: PreparedPair, count: int = CONTACT_SAMPLES, seed: int = 0) -> losses.TargetIndex:
     """Denser target samples than the losses' (normalised frame, outward normals) for placing proposals: the
     sampled depth and distance are only as good as the spacing."""
-    oriented = scene.outward(pair.target)
+    oriented = scene.outward(scene.geometry(pair.target))  # a scene of placed objects: all of them
     points, normals = sampling.surface_samples(oriented, count, seed)
     frame = pair.target_to_normalised
     as_t = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
