@@ -66,7 +66,7 @@ def case(args) -> None:
     case, result, wall = _run(args.case, cfg)
     print(json.dumps({"bench": "align_case", "case": case.id, "preset": args.preset, "model": args.model,
                       "wall_s": round(wall, 1), "timings": result.timings,
-                      "phase_timings": result.extra["phase_timings"], "clip_images": result.extra["clip_images"]}))
+                      "phase_timings": result.phase_timings, "clip_images": result.clip_images}))
 
 
 def _timed(case, preset: str, model: str, stop_after: int) -> dict:
@@ -99,7 +99,7 @@ def _timed(case, preset: str, model: str, stop_after: int) -> dict:
         return {"preset": preset, "measured_s": round(now - start, 1), "steps_run": seen["step"], "steps": total,
                 "extrapolated_s": round(seen["first"] - start + per_step * total, 1), "extrapolated": True}
     return {"preset": preset, "measured_s": round(time.perf_counter() - start, 1), "extrapolated": False,
-            "clip_images": result.extra["clip_images"], "timings": result.timings}
+            "clip_images": result.clip_images, "timings": result.timings}
 
 
 def ratio(args) -> None:

@@ -176,7 +176,7 @@ def run(args: argparse.Namespace) -> int:
     summary = {"out": str(args.out), "objective": round(result.objective, 6), "scale": round(result.scale, 6),
                "translation": [round(v, 6) for v in result.translation.tolist()],
                "seconds": round(time.perf_counter() - started, 2), "preset": config.preset,
-               "model": result.extra.get("model"), "runtime": result.extra.get("runtime"),
+               "model": result.model, "runtime": result.runtime,
                "hparams": result.hparams.get("source"),
                "names": {"target": result.hparams["target_name"], "source": result.hparams["source_name"]}}
     print(json.dumps(summary))

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -19,6 +19,9 @@ from ctp_core import frames, priors
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
+
+if TYPE_CHECKING:
+    from ctp_core import canonical
 
 __all__ = ["AlignResult", "ProgressEvent", "align"]
 
@@ -37,7 +40,14 @@ class AlignResult:
     restarts: list[dict[str, Any]]
     timings: dict[str, float]
     preview: np.ndarray | None = None  # (V, H, W, 3) uint8 views of the final scene
-    extra: dict[str, Any] = field(default_factory=dict)
+    best_restart: int | None = None  # the restart the answer comes from
+    on: str | None = None  # the placed object an assembly step relates to
+    guidance: str | None = None  # what guided the run, in words
+    model: str | None = None  # the guidance model; None for a geometry-only run
+    runtime: str | None = None  # the guide's runtime ("torch", "onnx"); None without a guide
+    clip_images: int = 0  # images the encoder scored
+    phase_timings: list[dict[str, float]] = field(default_factory=list)  # per refinement phase
+    target_upright: canonical.Upright | None = None  # the target's canonical pose (file frame -> upright frame)
 
     @property
     def transform(self) -> frames.Similarity:
@@ -200,18 +210,13 @@ def result(run: Run, outcome, best: int, target: trimesh.Trimesh | trimesh.Scene
         target=target, source=source, prompt=prompt, config=config,
         hparams={**run.prior.to_dict(), "target_name": run.names.get("target"),  # the names the priors read
                  "source_name": run.names.get("source")},
-        restarts=restarts, timings=timings, preview=preview,
-        extra={
-            "best_restart": best,
-            "on": run.names.get("on"),
-            "guidance": guidance.description if guidance is not None else "none (geometry only)",
-            "model": config.model if guidance is not None else None,
-            "runtime": getattr(run.scorer.guide, "runtime", None),  # the pixels guide has none
-            "clip_images": outcome.clip_images,
-            "phase_timings": [{k: round(v, 3) for k, v in p.items()} for p in outcome.phase_timings],
-            "target_upright": {"rotation": pair.target_upright.rotation.tolist(),
-                               "changed": pair.target_upright.changed, "reason": pair.target_upright.reason},
-        },
+        restarts=restarts, timings=timings, preview=preview, best_restart=best, on=run.names.get("on"),
+        guidance=guidance.description if guidance is not None else "none (geometry only)",
+        model=config.model if guidance is not None else None,
+        runtime=getattr(run.scorer.guide, "runtime", None),  # the pixels guide has none
+        clip_images=outcome.clip_images,
+        phase_timings=[{k: round(v, 3) for k, v in p.items()} for p in outcome.phase_timings],
+        target_upright=pair.target_upright,
     )
     if on_event:
         steps = sum(p.steps for p in run.plan)

@@ -97,14 +97,25 @@ def _run(result: AlignResult, answer: dict | None = None) -> dict:
         "transform": answer or transform(result.transform),
         "objective": _jsonable(result.objective),
         "prompt": result.prompt,
-        "model": result.extra.get("model", config.model),
+        "model": result.model,
         "seed": config.seed,
         "preset": config.preset,
         "config": config.model_dump(mode="json"),
         "hparams": _jsonable(result.hparams),
         "restarts": _jsonable(result.restarts),
         "timings": _jsonable(result.timings),
-        "extra": _jsonable({k: v for k, v in result.extra.items() if k != "model"}),
+        "extra": _jsonable(_extra(result)),
+    }
+
+
+def _extra(result: AlignResult) -> dict:
+    """The run's provenance fields under the report's ``extra`` key, in the order the report has always had."""
+    upright = result.target_upright
+    return {
+        "best_restart": result.best_restart, "on": result.on, "guidance": result.guidance,
+        "runtime": result.runtime, "clip_images": result.clip_images, "phase_timings": result.phase_timings,
+        "target_upright": None if upright is None else {"rotation": upright.rotation.tolist(),
+                                                        "changed": upright.changed, "reason": upright.reason},
     }
 
 

@@ -111,6 +111,13 @@ def test_cli_align_end_to_end(tmp_path, meshes, capsys):
     data = json.loads(report.read_text())
     np.testing.assert_allclose(np.array(data["transform"]["matrix"]), summary_matrix(summary, data), atol=1e-9)
     assert data["prompt"] == "a cup on the table" and data["model"] == "random:tiny"
+    assert list(data) == ["transform", "objective", "prompt", "model", "seed", "preset", "config", "hparams",
+                          "restarts", "timings", "extra", "versions", "created_at"]
+    assert list(data["extra"]) == ["best_restart", "on", "guidance", "runtime", "clip_images", "phase_timings",
+                                   "target_upright"]
+    assert data["extra"]["clip_images"] > 0 and len(data["extra"]["phase_timings"]) == data["config"]["optim"]["phases"]
+    assert list(data["extra"]["target_upright"]) == ["rotation", "changed", "reason"]
+    assert (summary["model"], summary["runtime"]) == ("random:tiny", "torch")
     assert preview.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
@@ -147,9 +154,9 @@ def test_align_with_the_upright_judge(meshes):
     """The opt-in semantic judge runs inside align with the configured model and reports its choice."""
     cfg = AlignConfig.from_preset("test", model="random:tiny", upright_judge=True)
     result = align(*meshes, "a cup on the table", cfg, target_name="table")
-    upright = result.extra["target_upright"]
-    assert upright["reason"].startswith("judged")
-    assert np.allclose(np.array(upright["rotation"]) @ np.array(upright["rotation"]).T, np.eye(3), atol=1e-9)
+    upright = result.target_upright
+    assert upright.reason.startswith("judged")
+    assert np.allclose(upright.rotation @ upright.rotation.T, np.eye(3), atol=1e-9)
 
 
 _TRIANGLE = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], process=False)

@@ -12,6 +12,7 @@ import trimesh
 from PIL import Image
 from scipy.spatial.transform import Rotation
 
+from ctp_core import canonical
 from ctp_core.align import AlignResult
 from ctp_core.config import AlignConfig
 from ctp_core.export import preview_png, report, scene_glb, write_outputs
@@ -38,7 +39,8 @@ def _result(preview: np.ndarray | None = None) -> AlignResult:
         source_to_target=matrix, objective=-0.31, target=target, source=source, prompt="a ball on a box",
         config=AlignConfig.from_preset("test", seed=3), hparams={"size_ratio": np.float32(0.2)},
         restarts=[{"restart": 0, "objective": -0.31}], timings={"total_s": 1.5}, preview=preview,
-        extra={"model": "random:tiny", "best_restart": 0, "values": np.arange(3)},
+        model="random:tiny", best_restart=0, clip_images=np.int64(12),
+        phase_timings=[{"phase_s": np.float32(0.5)}], target_upright=canonical.identity(),
     )
 
 
@@ -73,7 +75,10 @@ def test_report_is_json_and_recomposes_the_transform():
     assert np.allclose(transform["matrix"], result.source_to_target)
     assert data["prompt"] == "a ball on a box" and data["model"] == "random:tiny"
     assert data["seed"] == 3 and data["preset"] == "test" and data["config"]["seed"] == 3
-    assert data["extra"]["values"] == [0, 1, 2] and data["hparams"]["size_ratio"] == pytest.approx(0.2)
+    assert data["extra"]["clip_images"] == 12 and data["extra"]["phase_timings"] == [{"phase_s": 0.5}]
+    assert data["extra"]["target_upright"] == {"rotation": np.eye(3).tolist(), "changed": False,
+                                               "reason": "not canonicalised"}
+    assert data["hparams"]["size_ratio"] == pytest.approx(0.2)
     assert {"ctp", "torch", "trimesh", "python"} <= set(data["versions"])
     assert dt.datetime.fromisoformat(data["created_at"]).tzinfo is not None
 

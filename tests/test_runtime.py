@@ -164,7 +164,7 @@ def test_optimiser_selection_uses_onnx_runtime(onnx_guide, monkeypatch):
     result = align(trimesh.creation.box((2, 0.2, 2)), trimesh.creation.icosphere(1, 0.3), "a ball on a table",
                    config, guide=onnx_guide)
     assert calls[0] > 0  # the evaluations on fixed views ran forward-only in ONNX Runtime
-    assert result.extra["runtime"] == "onnx"
+    assert result.runtime == "onnx"
 
 
 def test_auto_rule():

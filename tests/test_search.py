@@ -187,4 +187,4 @@ def test_align_end_to_end_with_the_default_preset(pairs):
     table = pairs["box on table"][0]
     assert metrics.contact_distance(table, placed) <= 0.02
     assert metrics.intersection_over_union(table, placed).iou <= 0.02
-    assert result.extra["clip_images"] > cfg.search.candidates * cfg.search.coarse_views
+    assert result.clip_images > cfg.search.candidates * cfg.search.coarse_views

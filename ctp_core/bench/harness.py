@@ -189,8 +189,8 @@ def _run_align(method: str, init: np.ndarray, index: int, data: _CaseData, optio
                    guidance=inputs.guidance if inputs else None,
                    target_name=data.case.target_name, source_name=data.case.source_name)
     return {"source_to_target": result.source_to_target, "time_s": time.perf_counter() - started,
-            "clip_images": int(result.extra.get("clip_images", 0)), "timings": result.timings,
-            "extra": {"best_restart": result.extra.get("best_restart"), "guidance": result.extra.get("guidance"),
+            "clip_images": int(result.clip_images), "timings": result.timings,
+            "extra": {"best_restart": result.best_restart, "guidance": result.guidance,
                       "hparams": result.hparams}}
 
 
