@@ -33,10 +33,12 @@ def bumpy_sphere(subdivisions: int, radius: float, seed: int) -> trimesh.Trimesh
     return mesh
 
 
-def write_case(root: Path, target_sub: int, source_sub: int) -> tuple[Path, int]:
+def write_case(root: Path, target_subdivisions: int, source_subdivisions: int) -> tuple[Path, int]:
+    """A bench case folder ``root/dense-pair``: a ball on a ball, the source placed away from its reference."""
     folder = root / "dense-pair"
     folder.mkdir(parents=True)
-    target, source = bumpy_sphere(target_sub, 1.0, 0), bumpy_sphere(source_sub, 0.3, 1)
+    target = bumpy_sphere(target_subdivisions, 1.0, 0)
+    source = bumpy_sphere(source_subdivisions, 0.3, 1)
     source.apply_translation((4.0, 2.0, -3.0))
     target.export(folder / "target.glb")
     source.export(folder / "source.glb")

@@ -14,19 +14,11 @@ import sys
 
 import numpy as np
 import pytest
-import trimesh
 
+from benchmarks.dense_bench import write_case
 from tests.conftest import REPO
 
 LIMIT_BYTES = 6 * 2**30  # address space, torch's mappings included (an idle torch process maps ~2 GiB)
-
-
-def _bumpy_sphere(subdivisions: int, radius: float, seed: int) -> trimesh.Trimesh:
-    """A scan-like closed surface: an icosphere with noisy radii (6 subdivisions: 81,920 faces)."""
-    mesh = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
-    noise = 1.0 + 0.02 * np.random.default_rng(seed).standard_normal(len(mesh.vertices))
-    mesh.vertices *= noise[:, None]
-    return mesh
 
 
 def _limited() -> None:
@@ -41,22 +33,10 @@ def _ctp(*args: str, cwd) -> subprocess.CompletedProcess:
 
 @pytest.fixture(scope="module")
 def dense_case(tmp_path_factory):
+    """82k + 20k faces: the benchmark's generated pair (benchmarks/dense_bench.py) at a CI-sized resolution."""
     root = tmp_path_factory.mktemp("dense")
-    folder = root / "dense-pair"
-    folder.mkdir()
-    target = _bumpy_sphere(6, 1.0, 0)
-    source = _bumpy_sphere(5, 0.3, 1)
-    source.apply_translation((4.0, 2.0, -3.0))
-    target.export(folder / "target.glb")
-    source.export(folder / "source.glb")
-    reference = np.eye(4)
-    reference[:3, 3] = (-4.0, -2.0 + 1.3, 3.0)
-    (folder / "case.json").write_text(json.dumps({
-        "id": "dense-pair", "prompt": "a ball on top of a ball", "origin": "synthetic",
-        "target": {"file": "target.glb", "name": "ball"}, "source": {"file": "source.glb", "name": "ball"},
-        "reference": {"source_to_target": reference.tolist(), "scale": 1.0}, "relation": "on_top",
-        "penetration_expected": False}))
-    return root, len(target.faces) + len(source.faces)
+    _, faces = write_case(root, target_subdivisions=6, source_subdivisions=5)
+    return root, faces
 
 
 @pytest.mark.slow
