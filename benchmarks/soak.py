@@ -36,6 +36,7 @@ import trimesh
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from ctp.cmd_serve import stop_processes  # noqa: E402
 from service.embedded import free_port  # noqa: E402
 from tests.test_loader import wide_glb  # noqa: E402
 from tests.test_service import (  # noqa: E402
@@ -226,11 +227,7 @@ def main(argv: list[str] | None = None) -> int:
             j["status"] if j["status"] != "failed" else f"failed {j['error']['code']}" for j in ended.values())
     finally:
         stop.set()
-        serve.send_signal(signal.SIGTERM)
-        try:
-            serve.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            serve.kill()
+        stop_processes([serve], grace_s=60)
         log.close()
     hostile_answers = {k: v for k, v in counts.items() if not k.startswith("valid")}
     figures = {

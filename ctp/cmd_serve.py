@@ -81,7 +81,7 @@ def _serve(settings, args: argparse.Namespace) -> int:
         uvicorn.run(app, host=args.host, port=args.port, log_level=settings.log_level.lower(),
                     timeout_graceful_shutdown=STOP_GRACE_S)
     finally:
-        _stop(supervisor.stop())
+        stop_processes(supervisor.stop())
         if embedded:
             embedded.stop()
     return 0
@@ -103,14 +103,14 @@ def _exit_on_signal(signum, _frame) -> None:
     raise SystemExit(128 + signum)
 
 
-def _stop(processes: list[subprocess.Popen]) -> None:
-    """SIGTERM (rq warm shutdown: finish the current job), then SIGKILL after a grace period; a job killed
-    that way is failed with worker_lost by the next API reaper."""
+def stop_processes(processes: list[subprocess.Popen], grace_s: float = STOP_GRACE_S) -> None:
+    """SIGTERM (rq warm shutdown: finish the current job; ``ctp serve``: stop its children), then SIGKILL after
+    ``grace_s``; a job killed that way is failed with worker_lost by the next API reaper."""
     for p in processes:
         p.terminate()
     for p in processes:
         try:
-            p.wait(timeout=STOP_GRACE_S)
+            p.wait(timeout=grace_s)
         except subprocess.TimeoutExpired:
             p.kill()
             p.wait()

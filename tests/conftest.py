@@ -18,6 +18,7 @@ from unittest import mock
 import httpx
 import pytest
 
+from ctp.cmd_serve import stop_processes
 from service.embedded import EmbeddedRedis, free_port
 
 REPO = Path(__file__).resolve().parents[1]
@@ -98,12 +99,7 @@ class Worker:
         self.process.wait()
 
     def stop(self) -> None:
-        if self.process.poll() is None:
-            self.process.terminate()
-            try:
-                self.process.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                self.kill()
+        stop_processes([self.process], grace_s=15)
         self.log.close()
 
 

@@ -15,7 +15,6 @@ import json
 import os
 import re
 import shutil
-import signal
 import subprocess
 import sys
 
@@ -24,6 +23,7 @@ import pytest
 import trimesh
 
 from ctp.cli import main, synopsis
+from ctp.cmd_serve import stop_processes
 from ctp_core.samples import get_sample
 from service.embedded import free_port
 from tests.conftest import REPO, service_env, wait_for
@@ -100,11 +100,7 @@ def test_service_walk_through_and_client_run_as_written(tmp_path):
         assert client.stdout.strip().splitlines()[-1] == "succeeded"
         assert trimesh.load(tmp_path / "try" / "client.glb", force="scene").geometry
     finally:
-        serve.send_signal(signal.SIGTERM)
-        try:
-            serve.wait(timeout=40)
-        except subprocess.TimeoutExpired:
-            serve.kill()
+        stop_processes([serve], grace_s=40)
         log.close()
 
 
