@@ -35,7 +35,7 @@ import torch
 import trimesh
 from scipy.spatial import Delaunay, QhullError
 
-from ctp_core import losses, sampling, scene
+from ctp_core import losses, sampling
 from ctp_core.cameras import Cameras, orbit
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
@@ -208,7 +208,9 @@ def cavity_points(pair: PreparedPair, seed: int) -> np.ndarray:
 def contact_index(pair: PreparedPair, count: int = CONTACT_SAMPLES, seed: int = 0) -> losses.TargetIndex:
     """Denser target samples than the losses' (normalised frame, outward normals) for placing proposals: the
     sampled depth and distance are only as good as the spacing."""
-    oriented = scene.outward(scene.geometry(pair.target))  # a scene of placed objects: all of them
+    parts = pair.target_outward  # a scene of placed objects: all of them, oriented once by prepare_pair
+    oriented = parts[0] if len(parts) == 1 else trimesh.util.concatenate(
+        [trimesh.Trimesh(m.vertices, m.faces, process=False) for m in parts])
     points, normals = sampling.surface_samples(oriented, count, seed)
     frame = pair.target_to_normalised
     as_t = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
