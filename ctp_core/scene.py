@@ -108,6 +108,12 @@ class PreparedPair:
         lo, hi = self.target_vertices.min(0).values, self.target_vertices.max(0).values
         return float((hi - lo).norm() / 2)
 
+    @property
+    def source_radius(self) -> float:
+        """Half the AABB diagonal of the source samples in the source local frame (unscaled)."""
+        lo, hi = self.source_samples.min(0).values, self.source_samples.max(0).values
+        return float((hi - lo).norm() / 2)
+
     def scene_vertices(self, posed_source: torch.Tensor) -> torch.Tensor:
         """(B, Vs, 3) posed source -> (B, Vt + Vs, 3) vertices of the joined render mesh."""
         target = self.target_vertices.expand(posed_source.shape[0], -1, -1)

@@ -300,7 +300,7 @@ def propose(pair: PreparedPair, config: AlignConfig, weights: dict[str, float], 
     counts = allocate(available, weights, cfg.candidates, cfg.min_share)
     rotations = orientations(pair, config, generator)
     up = np.array([0.0, 1.0, 0.0])
-    diagonal = float(pair.source_samples.max(0).values.sub(pair.source_samples.min(0).values).norm()) * math.exp(log_s)
+    diagonal = 2 * pair.source_radius * math.exp(log_s)
     anchors, dirs, gaps, labels, on_surface = [], [], [], [], []
     for region, n in counts.items():
         if n == 0:
@@ -375,8 +375,7 @@ def sweep(proposals: Proposals, pair: PreparedPair, objectives: torch.Tensor, po
 
 # -- scoring --------------------------------------------------------------------------------------------------
 def _scene_radius(pair: PreparedPair, log_s: float) -> float:
-    src = pair.source_samples
-    return pair.target_radius + float((src.max(0).values - src.min(0).values).norm() / 2) * math.exp(log_s)
+    return pair.target_radius + pair.source_radius * math.exp(log_s)
 
 
 def coarse_cameras(pair: PreparedPair, config: AlignConfig, log_s: float) -> Cameras:
@@ -400,10 +399,8 @@ def fine_cameras(pair: PreparedPair, config: AlignConfig, poses: Poses) -> Camer
     framed radius shrinks toward the source's (but frames at least twice the source)."""
     cfg, cam = config.search, config.camera
     views, beta = cfg.fine_views, cfg.fine_zoom
-    src = pair.source_samples
-    source_radius = float((src.max(0).values - src.min(0).values).norm() / 2) * poses.log_s.exp()
-    scene_radius = _scene_radius(pair, 0.0) - float((src.max(0).values - src.min(0).values).norm() / 2) \
-        + source_radius
+    source_radius = pair.source_radius * poses.log_s.exp()
+    scene_radius = pair.target_radius + source_radius
     radius = torch.maximum(scene_radius * (1 - beta), 2 * source_radius)
     fov = cam.eval_fov_deg
     distance = (radius / math.sin(math.radians(fov) / 2) * 1.05)[:, None].expand(-1, views)
