@@ -181,18 +181,12 @@ def refine(run: Run, starts, *, on_event: ProgressCallback | None = None,
     return runner.run(starts)
 
 
-def select(outcome) -> int:
-    """The restart whose best pose has the lowest objective on the fixed evaluation views."""
-    return int(outcome.objectives.argmin())
-
-
-def result(run: Run, outcome, best: int, target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh,
-           prompt: str | None,
-           *, on_event: ProgressCallback | None = None) -> AlignResult:
-    """The answer in file frames with its report fields and a preview."""
+def result(run: Run, outcome, prompt: str | None, *, on_event: ProgressCallback | None = None) -> AlignResult:
+    """The answer in file frames with its report fields and a preview, from the restart whose best pose has
+    the lowest objective on the fixed evaluation views (``Outcome.best``)."""
     from ctp_core import scene
 
-    config, pair = run.config, run.pair
+    config, pair, best = run.config, run.pair, outcome.best
     matrices = outcome.poses.matrices()
     answers = [pair.source_to_target(m) for m in matrices]
     preview = scene.render_pair(pair, matrices[best], views=4, image_size=224)
@@ -207,7 +201,7 @@ def result(run: Run, outcome, best: int, target: trimesh.Trimesh | trimesh.Scene
     guidance = run.guidance
     answer = AlignResult(
         source_to_target=answers[best], objective=float(outcome.objectives[best]),
-        target=target, source=source, prompt=prompt, config=config,
+        target=pair.target, source=pair.source, prompt=prompt, config=config,
         hparams={**run.prior.to_dict(), "target_name": run.names.get("target"),  # the names the priors read
                  "source_name": run.names.get("source")},
         restarts=restarts, timings=timings, preview=preview, best_restart=best, on=run.names.get("on"),
@@ -245,7 +239,7 @@ def align(
 ) -> AlignResult:
     """Place ``source`` relative to ``target`` (both in file frames) so renders agree with the prompt.
 
-    The stages: ``prepare`` -> ``propose`` -> ``score`` -> ``refine`` -> ``select`` -> ``result``.
+    The stages: ``prepare`` -> ``propose`` -> ``score`` -> ``refine`` -> ``result``.
     ``image`` (H, W, 3 uint8) guides by a reference picture instead of the text; ``guidance`` (a
     ``targets`` object) overrides both (the benchmark's oracle). ``guide`` is a preloaded
     vision-language model (``guidance.get_guide``); without one the configured model is loaded (and
@@ -261,4 +255,4 @@ def align(
     proposals = propose(run, init)
     starts = score(run, proposals, on_event=on_event, should_cancel=should_cancel)
     outcome = refine(run, starts, on_event=on_event, should_cancel=should_cancel)
-    return result(run, outcome, select(outcome), target, source, prompt, on_event=on_event)
+    return result(run, outcome, prompt, on_event=on_event)

@@ -102,11 +102,7 @@ def _read(data: str | Path | bytes, filename: str | None, limits: MeshLimits,
         if ext == ".zip":
             member, payload, assets = _open_zip(payload, limits, label)
             ext = _extension(member, label)
-        scene = _load_scene(payload, ext, assets, limits, label)
-        if ext in (".glb", ".gltf"):
-            scene.metadata["node_order"] = [n.get("name") for n in _gltf_json(payload, ext, label)[0].get("nodes", [])
-                                            if isinstance(n, dict)]
-        return scene
+        return _load_scene(payload, ext, assets, limits, label)
 
     return _guarded(read, label), label
 
@@ -455,6 +451,8 @@ def _uris(node) -> Iterator[str]:
 
 
 def _load_scene(payload: bytes, ext: str, assets: _Assets, limits: MeshLimits, label: str) -> trimesh.Scene:
+    """The scene trimesh builds from a vetted payload; a glTF's keeps its node order (``node_order``)."""
+    tree = None
     if ext in (".glb", ".gltf"):
         tree, binary = _gltf_json(payload, ext, label)
         for uri in _uris(tree):
@@ -465,7 +463,10 @@ def _load_scene(payload: bytes, ext: str, assets: _Assets, limits: MeshLimits, l
     if ext == ".obj" and not payload.strip():
         raise MeshError(f"{label}: the file is empty", code="mesh_empty")
     # process=False: keep the file's vertices as they are so NaN/inf are refused, not silently dropped.
-    return trimesh.load(io.BytesIO(payload), file_type=ext[1:], resolver=assets, force="scene", process=False)
+    scene = trimesh.load(io.BytesIO(payload), file_type=ext[1:], resolver=assets, force="scene", process=False)
+    if tree is not None:
+        scene.metadata["node_order"] = [n.get("name") for n in tree.get("nodes", []) if isinstance(n, dict)]
+    return scene
 
 
 def _instances(scene: trimesh.Scene, limits: MeshLimits, label: str) -> list[tuple[str, np.ndarray, trimesh.Trimesh]]:

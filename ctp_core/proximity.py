@@ -33,11 +33,20 @@ def min_distance(mesh: trimesh.Trimesh, points: np.ndarray, batch: int = BATCH) 
     return float(_search(mesh, np.asarray(points, dtype=np.float64), batch, prune=True)[1].min())
 
 
+def _anchors(mesh: trimesh.Trimesh) -> cKDTree:
+    """A KD-tree of the mesh's vertices and ``_SAMPLES`` surface samples, built once per mesh and kept in
+    trimesh's cache (dropped when the mesh changes): the baselines ask about one target at every push."""
+    tree = mesh._cache["ctp_proximity_anchors"]
+    if tree is None:
+        anchors = np.concatenate([np.asarray(mesh.vertices, dtype=np.float64),
+                                  sampling.surface_samples(mesh, _SAMPLES, seed=0)[0]])
+        tree = mesh._cache["ctp_proximity_anchors"] = cKDTree(anchors)
+    return tree
+
+
 def _search(mesh: trimesh.Trimesh, points: np.ndarray, batch: int, prune: bool):
     triangles = np.asarray(mesh.triangles, dtype=np.float64)
-    anchors = np.concatenate([np.asarray(mesh.vertices, dtype=np.float64),
-                              sampling.surface_samples(mesh, _SAMPLES, seed=0)[0]])
-    upper = cKDTree(anchors).query(points)[0]  # anchors lie on the surface: bounds on each answer
+    upper = _anchors(mesh).query(points)[0]  # anchors lie on the surface: bounds on each answer
     best_d = np.full(len(points), np.inf)
     best_p = np.zeros_like(points)
     best_f = np.full(len(points), -1, dtype=np.int64)

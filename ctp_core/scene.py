@@ -94,6 +94,7 @@ class PreparedPair:
     source_vertices: torch.Tensor  # (Vs, 3) source local frame
     index: TargetIndex  # target samples + outward normals, normalised frame, every target object
     source_samples: torch.Tensor  # (N, 3) source local frame
+    target_outward: list[trimesh.Trimesh]  # each target object, file frame, outward winding (``outward``)
     attach: TargetIndex | None = None  # samples of the object the source relates to; None: all of ``index``
 
     @property
@@ -105,6 +106,12 @@ class PreparedPair:
     def target_radius(self) -> float:
         """Half the target AABB diagonal in the normalised frame."""
         lo, hi = self.target_vertices.min(0).values, self.target_vertices.max(0).values
+        return float((hi - lo).norm() / 2)
+
+    @property
+    def source_radius(self) -> float:
+        """Half the AABB diagonal of the source samples in the source local frame (unscaled)."""
+        lo, hi = self.source_samples.min(0).values, self.source_samples.max(0).values
         return float((hi - lo).norm() / 2)
 
     def scene_vertices(self, posed_source: torch.Tensor) -> torch.Tensor:
@@ -153,7 +160,8 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
     renders = [render.RenderMesh.from_arrays(a, device=device) for a in [*target_arrays, source_arrays]]
     mesh = render.join(renders, [len(a.vertices) for a in [*target_arrays, source_arrays]])
 
-    sampled = [sampling.surface_samples(outward(m), samples, seed + 2 * i) for i, (_, m) in enumerate(parts)]
+    oriented = [outward(m) for _, m in parts]
+    sampled = [sampling.surface_samples(m, samples, seed + 2 * i) for i, m in enumerate(oriented)]
     t_pts, t_nrm = (np.concatenate(parts_of) for parts_of in zip(*sampled, strict=True))
     s_pts, _ = sampling.surface_samples(source, samples, seed + 1)
     as_tensor = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=device)  # noqa: E731
@@ -173,6 +181,7 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
         source_vertices=as_tensor(source_to_local.apply(source_arrays.vertices)),
         index=index(t_pts, t_nrm),
         source_samples=as_tensor(source_to_local.apply(s_pts)),
+        target_outward=oriented,
         attach=attach,
     )
 

@@ -35,7 +35,7 @@ import torch
 import trimesh
 from scipy.spatial import Delaunay, QhullError
 
-from ctp_core import losses, sampling, scene
+from ctp_core import losses, sampling
 from ctp_core.cameras import Cameras, orbit
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
@@ -208,7 +208,9 @@ def cavity_points(pair: PreparedPair, seed: int) -> np.ndarray:
 def contact_index(pair: PreparedPair, count: int = CONTACT_SAMPLES, seed: int = 0) -> losses.TargetIndex:
     """Denser target samples than the losses' (normalised frame, outward normals) for placing proposals: the
     sampled depth and distance are only as good as the spacing."""
-    oriented = scene.outward(scene.geometry(pair.target))  # a scene of placed objects: all of them
+    parts = pair.target_outward  # a scene of placed objects: all of them, oriented once by prepare_pair
+    oriented = parts[0] if len(parts) == 1 else trimesh.util.concatenate(
+        [trimesh.Trimesh(m.vertices, m.faces, process=False) for m in parts])
     points, normals = sampling.surface_samples(oriented, count, seed)
     frame = pair.target_to_normalised
     as_t = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
@@ -298,7 +300,7 @@ def propose(pair: PreparedPair, config: AlignConfig, weights: dict[str, float], 
     counts = allocate(available, weights, cfg.candidates, cfg.min_share)
     rotations = orientations(pair, config, generator)
     up = np.array([0.0, 1.0, 0.0])
-    diagonal = float(pair.source_samples.max(0).values.sub(pair.source_samples.min(0).values).norm()) * math.exp(log_s)
+    diagonal = 2 * pair.source_radius * math.exp(log_s)
     anchors, dirs, gaps, labels, on_surface = [], [], [], [], []
     for region, n in counts.items():
         if n == 0:
@@ -373,8 +375,7 @@ def sweep(proposals: Proposals, pair: PreparedPair, objectives: torch.Tensor, po
 
 # -- scoring --------------------------------------------------------------------------------------------------
 def _scene_radius(pair: PreparedPair, log_s: float) -> float:
-    src = pair.source_samples
-    return pair.target_radius + float((src.max(0).values - src.min(0).values).norm() / 2) * math.exp(log_s)
+    return pair.target_radius + pair.source_radius * math.exp(log_s)
 
 
 def coarse_cameras(pair: PreparedPair, config: AlignConfig, log_s: float) -> Cameras:
@@ -398,10 +399,8 @@ def fine_cameras(pair: PreparedPair, config: AlignConfig, poses: Poses) -> Camer
     framed radius shrinks toward the source's (but frames at least twice the source)."""
     cfg, cam = config.search, config.camera
     views, beta = cfg.fine_views, cfg.fine_zoom
-    src = pair.source_samples
-    source_radius = float((src.max(0).values - src.min(0).values).norm() / 2) * poses.log_s.exp()
-    scene_radius = _scene_radius(pair, 0.0) - float((src.max(0).values - src.min(0).values).norm() / 2) \
-        + source_radius
+    source_radius = pair.source_radius * poses.log_s.exp()
+    scene_radius = pair.target_radius + source_radius
     radius = torch.maximum(scene_radius * (1 - beta), 2 * source_radius)
     fov = cam.eval_fov_deg
     distance = (radius / math.sin(math.radians(fov) / 2) * 1.05)[:, None].expand(-1, views)
