@@ -14,7 +14,9 @@ import math
 import sys
 import time
 from pathlib import Path
+from typing import get_args
 
+from ctp_core.config import Penetration, Runtime
 from ctp_core.errors import ConfigError, ImageError, MeshError
 
 
@@ -52,11 +54,11 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, metavar="N")
     parser.add_argument("--device", choices=["cpu", "cuda"])
     parser.add_argument("--threads", type=int, metavar="N", help="torch CPU threads (and ONNX Runtime's)")
-    parser.add_argument("--runtime", choices=["auto", "torch", "onnx", "onnx-int8"],
+    parser.add_argument("--runtime", choices=get_args(Runtime),
                         help="where forward-only encoding runs (selection, judge): ONNX Runtime fp32 or int8, "
                         "torch, or auto (default; README)")
     parser.add_argument("--contact-ratio", type=float, metavar="R", help="soft-ICP ratio r in [0, 1] (default: prior)")
-    parser.add_argument("--penetration", choices=["auto", "allow", "forbid"])
+    parser.add_argument("--penetration", choices=get_args(Penetration))
     parser.add_argument("--size-ratio", type=float, metavar="S", help="source/target size in [0.01, 100] (scale mode)")
     parser.add_argument("--hparams-provider", metavar="NAME", help="rules | openai (default rules)")
     parser.add_argument("--selection-only", action="store_true",

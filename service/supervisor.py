@@ -34,12 +34,19 @@ class _Child:
 
     name: str
     start: Callable[[], None]
-    running: Callable[[], bool]
-    exit_code: Callable[[], int | None]
+    process: Callable[[], subprocess.Popen | None]  # the current one; None before the first start
     started_at: float = 0.0
     backoff_s: float = BACKOFF_S
     restart_at: float | None = None
     restarts: int = 0
+
+    def running(self) -> bool:
+        process = self.process()
+        return process is not None and process.poll() is None
+
+    def exit_code(self) -> int | None:
+        process = self.process()
+        return None if process is None else process.poll()
 
 
 class Supervisor:
@@ -51,13 +58,11 @@ class Supervisor:
         self._stop = threading.Event()
         self._children: list[_Child] = []
         if redis is not None:
-            self._children.append(_Child("redis-server", lambda: redis.start(),
-                                         lambda: redis.process is not None and redis.process.poll() is None,
-                                         lambda: None if redis.process is None else redis.process.poll(),
+            self._children.append(_Child("redis-server", lambda: redis.start(), lambda: redis.process,
                                          started_at=time.monotonic()))
         for slot in range(workers):
-            self._children.append(_Child(f"worker {slot + 1}", self._starter(slot), self._checker(slot),
-                                         lambda slot=slot: self.processes[slot] and self.processes[slot].poll()))
+            self._children.append(_Child(f"worker {slot + 1}", self._starter(slot),
+                                         lambda slot=slot: self.processes[slot]))
         self._thread = threading.Thread(target=self._run, name="ctp-supervisor", daemon=True)
 
     def start(self) -> Supervisor:
@@ -80,9 +85,6 @@ class Supervisor:
         def start() -> None:
             self.processes[slot] = self.spawn()
         return start
-
-    def _checker(self, slot: int) -> Callable[[], bool]:
-        return lambda: self.processes[slot] is not None and self.processes[slot].poll() is None
 
     def _run(self) -> None:
         while not self._stop.wait(POLL_S):

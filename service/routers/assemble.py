@@ -120,7 +120,8 @@ async def submit_assembly(request: Request, who: str = Depends(owner)) -> Accept
     faces = await run_in_threadpool(forms.check_mesh, loader, blobs["target"], base_file, settings.mesh_limits, "base")
     base_name = forms.object_name(form, "base", base_file)
     steps: list[AssemblyStep] = []
-    meshes: dict[str, int] = {}
+    meshes: dict[str, tuple[bytes, int]] = {}  # a part is read and checked once, however many steps use it
+    pictures: dict[str, bytes] = {}
     for i, entry in enumerate(plan):
         where = f"plan.{i}"
         file = entry["file"]
@@ -129,20 +130,21 @@ async def submit_assembly(request: Request, who: str = Depends(owner)) -> Accept
                            field=f"{where}.file")
         if file not in meshes:
             data = await forms.read_limited(sources[file], settings.max_upload_bytes, "source", "mesh_file_too_large")
-            meshes[file] = await run_in_threadpool(forms.check_mesh, loader, data, file, settings.mesh_limits, "source")
-            await sources[file].seek(0)
-        blobs[f"source-{i}"] = await sources[file].read()
-        await sources[file].seek(0)
-        faces += meshes[file]
+            meshes[file] = data, await run_in_threadpool(forms.check_mesh, loader, data, file, settings.mesh_limits,
+                                                         "source")
+        blobs[f"source-{i}"], source_faces = meshes[file]
+        faces += source_faces
         check_scene_faces(faces, settings.max_scene_faces)
         if entry.get("image") is not None:
             image = images.get(entry["image"])
             if image is None:
                 raise ApiError(400, "invalid_plan", f"{where}: no image part has the file name {entry['image']!r}",
                                field=f"{where}.image")
-            blobs[f"image-{i}"] = await forms.read_limited(image, settings.max_image_bytes, "image", "image_too_large")
-            await image.seek(0)
-            await run_in_threadpool(forms.check_image, blobs[f"image-{i}"], settings.max_image_pixels)
+            if entry["image"] not in pictures:
+                data = await forms.read_limited(image, settings.max_image_bytes, "image", "image_too_large")
+                await run_in_threadpool(forms.check_image, data, settings.max_image_pixels)
+                pictures[entry["image"]] = data
+            blobs[f"image-{i}"] = pictures[entry["image"]]
         step_options = entry.get("options") or {}
         if not isinstance(step_options, dict) or {"preset", "model"} & set(step_options):
             raise ApiError(400, "invalid_plan", f"{where}: options must be a JSON object of AlignOptions without "

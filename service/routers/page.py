@@ -46,9 +46,14 @@ def index() -> FileResponse:
     return FileResponse(STATIC_DIR / "index.html", headers={"Cache-Control": "no-cache"})
 
 
-def _bounds(option: str) -> dict[str, Any]:
-    """An option's JSON-schema bounds, read from ``AlignOptions`` (the engine's own limits)."""
-    schema = AlignOptions.model_json_schema()["properties"][option]
+@functools.cache
+def _bounds() -> dict[str, dict[str, Any]]:
+    """The page's options' JSON-schema bounds, read once from ``AlignOptions`` (the engine's own limits)."""
+    properties = AlignOptions.model_json_schema()["properties"]
+    return {option: _branch_bounds(properties[option]) for option in ("seed", "restarts")}
+
+
+def _branch_bounds(schema: dict[str, Any]) -> dict[str, Any]:
     for branch in schema.get("anyOf", [schema]):
         if branch.get("type") not in (None, "null"):
             return {k: branch[k] for k in ("minimum", "maximum") if k in branch}
@@ -63,7 +68,7 @@ def page_config(request: Request) -> dict[str, Any]:
         "auth": bool(request.app.state.key_digests),
         "presets": AlignConfig.preset_names(),
         "default_preset": "default",
-        "bounds": {name: _bounds(name) for name in ("seed", "restarts")},
+        "bounds": _bounds(),
         "prompt_max": PROMPT_MAX,
         "name_max": NAME_MAX,
         "formats": list(SUPPORTED_EXTENSIONS),
