@@ -135,7 +135,7 @@ def _step(entry: Any, folder: Path, config, i: int, loader):
 
 def _with_options(config, options: Any, where: str):
     from ctp_core.assemble import config_with
-    from service.schemas import option_overrides
+    from ctp_core.options import option_overrides
 
     if options is None:
         return config

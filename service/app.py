@@ -23,6 +23,7 @@ from fastapi.middleware.cors import CORSMiddleware
 
 from ctp_core.errors import ConfigError
 from ctp_core.io import MeshLimits
+from ctp_core.options import AlignOptions
 from service import logs
 from service.deps import digest
 from service.errors import BodyLimit, install_handlers
@@ -30,7 +31,6 @@ from service.forms import NAME_MAX, OPTIONS_DEPTH, OPTIONS_MAX, PROMPT_MAX
 from service.jobs import Jobs
 from service.routers import assemble, health, page
 from service.routers import jobs as jobs_router
-from service.schemas import AlignOptions
 from service.settings import Settings
 
 log = logging.getLogger("ctp.service")

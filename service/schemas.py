@@ -1,71 +1,19 @@
-"""The HTTP contract's bodies (they generate ``openapi.yaml``) and the mapping of job options onto
-``AlignConfig``.
-
-``AlignOptions`` is derived from ``AlignConfig``'s own fields, so the ranges and descriptions a client
-reads in the schema are the ones the engine enforces; an option left out takes the preset's value.
+"""The HTTP contract's bodies (they generate ``openapi.yaml``) and ``build_config``: a job's options
+(``ctp_core.options``, the vocabulary the CLI's plans share) merged into their preset, with the models this
+service allows; an option left out takes the preset's value.
 """
 
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Annotated, Any
+from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model
+from pydantic import BaseModel, Field
 
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
-from ctp_core.priors import PROVIDERS
+from ctp_core.options import option_of, option_overrides
 from service.jobs import JobError, JobRecord, Progress, Status
-
-# option -> where it lives in AlignConfig.
-OPTION_PATHS: dict[str, tuple[str, ...]] = {
-    "preset": ("preset",),
-    "scale": ("scale",),
-    "seed": ("seed",),
-    "restarts": ("optim", "restarts"),
-    "steps": ("optim", "steps"),
-    "search": ("search", "enabled"),
-    "candidates": ("search", "candidates"),
-    "model": ("model",),
-    "contact_ratio": ("contact_ratio",),
-    "penetration": ("penetration",),
-    "size_ratio": ("size_ratio",),
-    "hparams_provider": ("hparams_provider",),
-    "upright": ("upright",),
-    "upright_judge": ("upright_judge",),
-    "lambda_clip": ("loss", "lambda_clip"),
-}
-_EXTRA_DOC = {
-    "preset": f"named budget ({', '.join(AlignConfig.preset_names())}); the other options override it",
-    "model": "guidance model spec; must be one the service allows (CTP_MODEL, CTP_MODELS)",
-    "seed": "random seed of the restarts and the samples",
-    "restarts": "optimiser starts, one batch (with the search: its best distinct poses)",
-    "search": "search contact poses before the optimiser (false: random starts, as the descent preset)",
-    "lambda_clip": "weight of the prompt (or image) guidance; 0 is a geometry-only run (contact without "
-                   "interpenetration), which needs no model and is accepted while the model is unavailable",
-    "hparams_provider": "scene-prior provider for the values left unset (size_ratio, contact_ratio, penetration)",
-}
-
-
-def _option_field(name: str, path: tuple[str, ...]) -> tuple[Any, Any]:
-    model: type[BaseModel] = AlignConfig
-    for part in path[:-1]:
-        model = model.model_fields[part].annotation
-    info = model.model_fields[path[-1]]
-    description = _EXTRA_DOC.get(name) or info.description
-    annotation = info.annotation | None
-    if info.metadata:
-        annotation = Annotated[annotation, *info.metadata]
-    return annotation, Field(None, description=description)
-
-
-AlignOptions: type[BaseModel] = create_model(
-    "AlignOptions",
-    __config__=ConfigDict(extra="forbid", strict=True,
-                          json_schema_extra={"description": "JSON object in the `options` form field; every key "
-                                             "is optional and unknown keys are refused (unknown_option)."}),
-    **{name: _option_field(name, path) for name, path in OPTION_PATHS.items()},
-)
 
 
 def build_config(options: dict[str, Any], *, default_model: str, allowed_models: list[str]) -> AlignConfig:
@@ -81,42 +29,7 @@ def build_config(options: dict[str, Any], *, default_model: str, allowed_models:
     try:
         return AlignConfig.from_preset(preset, **overrides)
     except ConfigError as exc:
-        raise ConfigError(exc.message, field=_option_of(exc.field)) from None
-
-
-def option_overrides(options: dict[str, Any], where: str = "options") -> dict[str, Any]:
-    """Validate options (AlignOptions names) and nest them as ``AlignConfig`` overrides.
-
-    Raises ConfigError whose ``field`` is ``<where>.<name>``, code ``unknown_option`` or ``invalid_option``.
-    """
-    try:
-        parsed = AlignOptions.model_validate(options)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        name = ".".join(str(p) for p in err["loc"])
-        if err["type"] == "extra_forbidden":
-            raise ConfigError(f"unknown option {name!r}; known: {', '.join(OPTION_PATHS)}",
-                              code="unknown_option", field=f"{where}.{name}") from None
-        raise ConfigError(f"{name}: {err['msg']}", field=f"{where}.{name}") from None
-    given = parsed.model_dump(exclude_none=True)
-    if given.get("hparams_provider", PROVIDERS[0]) not in PROVIDERS:
-        raise ConfigError(f"unknown hparams provider {given['hparams_provider']!r}; choose one of "
-                          f"{', '.join(PROVIDERS)}", field=f"{where}.hparams_provider")
-    overrides: dict[str, Any] = {}
-    for name, value in given.items():
-        *parents, leaf = OPTION_PATHS[name]
-        node = overrides
-        for part in parents:
-            node = node.setdefault(part, {})
-        node[leaf] = value
-    return overrides
-
-
-def _option_of(config_field: str | None) -> str | None:
-    for name, path in OPTION_PATHS.items():
-        if config_field == ".".join(path):
-            return f"options.{name}"
-    return f"options.{config_field}" if config_field else "options"
+        raise ConfigError(exc.message, field=option_of(exc.field)) from None
 
 
 class ErrorBody(BaseModel):

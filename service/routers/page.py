@@ -20,10 +20,10 @@ from fastapi.staticfiles import StaticFiles
 
 from ctp_core.config import AlignConfig
 from ctp_core.io import SUPPORTED_EXTENSIONS
+from ctp_core.options import AlignOptions
 from ctp_core.samples import SAMPLES
 from service.errors import ApiError
 from service.forms import NAME_MAX, PROMPT_MAX
-from service.schemas import AlignOptions
 
 STATIC_DIR = Path(__file__).resolve().parents[1] / "static"
 VENDOR = "static/vendor"
