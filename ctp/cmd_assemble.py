@@ -36,7 +36,7 @@ from ctp.cmd_align import ProgressBar, add_run_arguments, config_from_args
 from ctp_core.errors import ConfigError
 
 _PLAN_KEYS = {"base", "name", "options", "steps"}
-_STEP_KEYS = {"file", "prompt", "image", "name", "on", "options"}
+_ASSEMBLY_FLAGS = "--preset, --model"  # where preset and model are set (not in a plan's options)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -65,8 +65,8 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError("give BASE and at least one --add SOURCE PROMPT (or --plan plan.yaml)", field="add")
         with MeshLoader(1) as loader:  # the same bounded loading as ctp align and the service
             base, base_name = loader.load(args.base, name="base"), args.base.stem
-            steps = [_step({"file": path, "prompt": prompt}, Path.cwd(), config, i, loader) for i, (path, prompt)
-                     in enumerate(args.add)]
+            steps = [_step({"file": str(path), "prompt": prompt}, Path.cwd(), config, i, loader)
+                     for i, (path, prompt) in enumerate(args.add)]
     bar = ProgressBar(sys.stderr, enabled=not args.quiet)
 
     def on_stage(index: int, count: int, step) -> None:
@@ -93,6 +93,7 @@ def read_plan(path: Path, config):
     ConfigError naming the key."""
     import yaml
 
+    from ctp_core.assemble import stage_options
     from ctp_core.loader import MeshLoader
 
     try:
@@ -105,7 +106,8 @@ def read_plan(path: Path, config):
         raise ConfigError("a plan is a mapping with base: FILE and steps: a list", field="plan")
     _known(plan, _PLAN_KEYS, "plan")
     folder = path.parent
-    config = _with_options(config, plan.get("options"), "options")
+    config = _with_options(config, stage_options(plan.get("options"), "options", assembly_options=_ASSEMBLY_FLAGS),
+                           "options")
     base_file = folder / plan["base"]
     with MeshLoader(1) as loader:  # one loading process for every mesh of the plan
         steps = [_step(step, folder, config, i, loader) for i, step in enumerate(plan["steps"])]
@@ -115,35 +117,31 @@ def read_plan(path: Path, config):
 
 def _step(entry: Any, folder: Path, config, i: int, loader):
     from ctp_core import io
-    from ctp_core.assemble import Step
+    from ctp_core.assemble import Step, plan_step
 
     where = f"steps.{i}"
-    if not isinstance(entry, dict) or not isinstance(entry.get("file"), str | Path):
-        raise ConfigError(f"{where}: a step is a mapping with file: SOURCE", field=where)
-    entry = {("on" if key is True else key): value for key, value in entry.items()}  # YAML 1.1 reads on: as true
-    _known(entry, _STEP_KEYS, where)
-    if entry.get("prompt") is not None and entry.get("image") is not None:
-        raise ConfigError(f"{where}: give a prompt or an image, not both", field=f"{where}.prompt")
-    file = folder / entry["file"]
-    image = io.load_image(folder / entry["image"]) if entry.get("image") is not None else None
-    step_options = entry.get("options")
-    return Step(source=loader.load(file, name=f"{where}.file"), name=str(entry.get("name") or file.stem),
-                prompt=None if entry.get("prompt") is None else str(entry["prompt"]), image=image,
-                on=None if entry.get("on") is None else str(entry["on"]),
-                config=_with_options(config, step_options, f"{where}.options") if step_options else None)
+    step = plan_step(_from_yaml(entry), where, assembly_options=_ASSEMBLY_FLAGS)
+    file = folder / step.file
+    image = io.load_image(folder / step.image) if step.image is not None else None
+    return Step(source=loader.load(file, name=f"{where}.file"), name=step.name or file.stem, prompt=step.prompt,
+                image=image, on=step.on,
+                config=_with_options(config, step.options, f"{where}.options") if step.options else None)
 
 
-def _with_options(config, options: Any, where: str):
+def _from_yaml(entry: Any) -> Any:
+    """A YAML step as the plan means it: YAML 1.1 reads the key ``on:`` as true, and bare numbers (``name: 2``)
+    of the text keys as numbers."""
+    if not isinstance(entry, dict):
+        return entry
+    entry = {("on" if key is True else key): value for key, value in entry.items()}
+    return {key: str(value) if key in ("prompt", "name", "on") and isinstance(value, int | float) else value
+            for key, value in entry.items()}
+
+
+def _with_options(config, options: dict[str, Any], where: str):
     from ctp_core.assemble import config_with
     from ctp_core.options import option_overrides
 
-    if options is None:
-        return config
-    if not isinstance(options, dict):
-        raise ConfigError(f"{where} must be a mapping of option names to values", field=where)
-    if {"preset", "model"} & set(options):
-        raise ConfigError(f"{where}: preset and model are set for the whole assembly (--preset, --model)",
-                          field=where)
     return config_with(config, option_overrides(options, where))
 
 

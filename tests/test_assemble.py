@@ -6,6 +6,7 @@ as written (its nodes loaded back), not on the transforms the run reports."""
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -14,7 +15,7 @@ from scipy.spatial.distance import pdist
 
 from ctp.cli import main
 from ctp_core import frames
-from ctp_core.assemble import Step, assemble, config_with
+from ctp_core.assemble import PlanError, PlanStep, Step, assemble, config_with, plan_step
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.export import assembly_glb, assembly_report
@@ -127,6 +128,27 @@ def test_plan_errors_name_the_step(meshes):
     assert err.value.field == "steps.0.hparams_provider"
 
 
+def test_plan_step_is_the_one_rule_of_a_step_s_shape():
+    """The engine checks a plan step's keys for both adapters (``ctp assemble --plan``, ``POST /assemble``)."""
+    assert plan_step({"file": "cup.glb", "image": "cup.png", "on": "plate", "options": {"seed": 1}}, "steps.1",
+                     assembly_options="--preset") == PlanStep("cup.glb", image="cup.png", on="plate",
+                                                              options={"seed": 1})
+    assert plan_step({"file": "cup.glb", "prompt": "x", "options": None}, "steps.0", assembly_options="").options == {}
+    for entry, field, message in [
+        ("cup.glb", "steps.0", "a step is a mapping with file"),
+        ({"prompt": "x"}, "steps.0", "a step is a mapping with file"),
+        ({"file": "cup.glb", "colour": "red"}, "steps.0.colour", "unknown key 'colour'; known: file, image, name, on"),
+        ({"file": "cup.glb", "name": ["cup"]}, "steps.0.name", "steps.0.name must be a string"),
+        ({"file": "cup.glb", "prompt": "x", "image": "cup.png"}, "steps.0.prompt", "a prompt or an image, not both"),
+        ({"file": "cup.glb", "options": [1]}, "steps.0.options", "must be a mapping of option names"),
+        ({"file": "cup.glb", "options": {"model": "random:tiny"}}, "steps.0.options",
+         "preset and model are set for the whole assembly (the flags)"),
+    ]:
+        with pytest.raises(PlanError, match=re.escape(message)) as err:
+            plan_step(entry, "steps.0", assembly_options="the flags")
+        assert isinstance(err.value, ConfigError) and err.value.field == field, entry
+
+
 def test_cli_plan_and_add(tmp_path, meshes, capsys):
     for name, mesh in meshes.items():
         mesh.export(tmp_path / f"{name}.glb")
@@ -156,6 +178,8 @@ def test_cli_plan_and_add(tmp_path, meshes, capsys):
     ("base: table.glb\nsteps:\n  - {file: cup.glb, prompt: x, on: saucer}\n", "not an object placed before"),
     ("base: table.glb\nsteps:\n  - {file: cup.glb, prompt: x, colour: red}\n", "unknown key 'colour'"),
     ("base: table.glb\nsteps:\n  - {file: cup.glb, prompt: x, options: {model: other}}\n", "whole assembly"),
+    ("base: table.glb\noptions: {preset: paper}\nsteps:\n  - {file: cup.glb, prompt: x}\n", "(--preset, --model)"),
+    ("base: table.glb\nsteps:\n  - {file: cup.glb, image: [cup.png]}\n", "steps.0.image must be a string"),
     ("base: table.glb\nsteps: [oops\n", "not valid YAML"),
     ("base: missing.glb\nsteps:\n  - {file: cup.glb, prompt: x}\n", "mesh_unreadable"),
 ])
@@ -178,6 +202,18 @@ def test_table_setting_sample_is_a_valid_plan(tmp_path):
     assert base_name == "table" and [(s.name, s.on, s.prompt) for s in steps] == [
         ("plate", None, "a plate on the table"), ("cup", "plate", "a cup on the plate")]
     assert base.extents.max() > 10 * steps[1].source.extents.max()
+
+
+def test_a_yaml_plan_means_on_and_bare_numbers_as_written(tmp_path, meshes):
+    """YAML 1.1 reads the key ``on:`` as true and ``name: 2`` as a number; the plan means the text."""
+    from ctp.cmd_assemble import read_plan
+
+    for name, mesh in meshes.items():
+        mesh.export(tmp_path / f"{name}.glb")
+    (tmp_path / "plan.yaml").write_text("base: table.glb\nsteps:\n  - {file: plate.glb, prompt: 7, name: 2}\n"
+                                        "  - {file: cup.glb, prompt: x, on: 2}\n")
+    _, _, steps, _ = read_plan(tmp_path / "plan.yaml", AlignConfig.from_preset("test", model="random:tiny"))
+    assert [(s.name, s.prompt, s.on) for s in steps] == [("2", "7", None), ("cup", "x", "2")]
 
 
 def test_a_scene_keeps_its_base_s_up():

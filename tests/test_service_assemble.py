@@ -127,6 +127,9 @@ def test_chained_align_adds_to_a_finished_scene(api, assembled, files):
     ([{"file": "plate.glb", "prompt": "x", "on": "saucer"}], ("plate",), 422, "invalid_plan"),
     ([{"file": "plate.glb", "prompt": "x", "name": "table"}], ("plate",), 422, "invalid_plan"),
     ([{"file": "plate.glb", "prompt": "x", "options": {"model": "random:tiny"}}], ("plate",), 400, "invalid_plan"),
+    ([{"file": "plate.glb", "prompt": "x", "options": [1]}], ("plate",), 400, "invalid_plan"),
+    ([{"file": "plate.glb", "prompt": "x", "image": "x.png"}], ("plate",), 400, "invalid_plan"),
+    ([{"file": "plate.glb", "prompt": 5}], ("plate",), 400, "invalid_plan"),
     ([{"file": "plate.glb", "prompt": "x", "options": {"steps": 0}}], ("plate",), 422, "invalid_option"),
     ([{"file": "plate.glb"}], ("plate",), 422, "invalid_plan"),  # neither prompt nor image, guidance on
     ([{"file": "plate.glb", "prompt": "a plate\x1b[2J on the table"}], ("plate",), 422, "invalid_prompt"),
@@ -141,6 +144,18 @@ def test_bad_plans_are_refused_before_queueing(api, files, plan, sources, status
     answer = api.client.post("/assemble", files=parts, data={"plan": raw, "options": json.dumps(options)},
                              headers=ALPHA)
     assert (answer.status_code, answer.json()["error"]["code"]) == (status, code), answer.text
+
+
+def test_a_step_s_shape_is_refused_as_the_engine_words_it(api, files):
+    """The rule is the engine's (``ctp_core.assemble.plan_step``, as ``ctp assemble --plan``); the API names
+    the step ``plan.<i>`` and says where preset and model go."""
+    answer = post_assembly(api, files, [PLAN[0], {**PLAN[1], "options": {"preset": "paper"}}])
+    assert answer.status_code == 400, answer.text
+    assert answer.json()["error"] == {"code": "invalid_plan", "field": "plan.1.options", "message": (
+        "plan.1.options: preset and model are set for the whole assembly (the options field)")}
+    unknown = post_assembly(api, files, [{**PLAN[0], "colour": "red"}], sources=("plate",)).json()["error"]
+    assert (unknown["field"], unknown["message"]) == (
+        "plan.0.colour", "plan.0: unknown key 'colour'; known: file, image, name, on, options, prompt")
 
 
 def test_a_bad_stage_is_refused_before_queueing_and_named(api, files):

@@ -4,12 +4,11 @@ target of ``POST /align`` (``target_job``): an earlier job's result scene, read 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 from fastapi import APIRouter, Depends, Request
 from fastapi.concurrency import run_in_threadpool
 
-from ctp_core.assemble import check_plan
+from ctp_core.assemble import PlanError, PlanStep, check_plan, plan_step
 from ctp_core.errors import ConfigError, CtpError
 from ctp_core.io import load_objects
 from service import forms
@@ -21,7 +20,6 @@ from service.schemas import Accepted, build_config
 router = APIRouter()
 
 ASSEMBLE_FIELDS = {"base", "base_name", "source", "image", "plan", "options"}
-_STEP_KEYS = {"file", "prompt", "image", "name", "on", "options"}
 
 ASSEMBLE_BODY = {
     "required": True,
@@ -124,7 +122,7 @@ async def submit_assembly(request: Request, who: str = Depends(owner)) -> Accept
     pictures: dict[str, bytes] = {}
     for i, entry in enumerate(plan):
         where = f"plan.{i}"
-        file = entry["file"]
+        file = entry.file
         if file not in sources:
             raise ApiError(400, "invalid_plan", f"{where}: no source part has the file name {file!r}",
                            field=f"{where}.file")
@@ -135,29 +133,24 @@ async def submit_assembly(request: Request, who: str = Depends(owner)) -> Accept
         blobs[f"source-{i}"], source_faces = meshes[file]
         faces += source_faces
         check_scene_faces(faces, settings.max_scene_faces)
-        if entry.get("image") is not None:
-            image = images.get(entry["image"])
+        if entry.image is not None:
+            image = images.get(entry.image)
             if image is None:
-                raise ApiError(400, "invalid_plan", f"{where}: no image part has the file name {entry['image']!r}",
+                raise ApiError(400, "invalid_plan", f"{where}: no image part has the file name {entry.image!r}",
                                field=f"{where}.image")
-            if entry["image"] not in pictures:
+            if entry.image not in pictures:
                 data = await forms.read_limited(image, settings.max_image_bytes, "image", "image_too_large")
                 await run_in_threadpool(forms.check_image, data, settings.max_image_pixels)
-                pictures[entry["image"]] = data
-            blobs[f"image-{i}"] = pictures[entry["image"]]
-        step_options = entry.get("options") or {}
-        if not isinstance(step_options, dict) or {"preset", "model"} & set(step_options):
-            raise ApiError(400, "invalid_plan", f"{where}: options must be a JSON object of AlignOptions without "
-                           "preset and model (those are the assembly's, in the options field)",
-                           field=f"{where}.options")
+                pictures[entry.image] = data
+            blobs[f"image-{i}"] = pictures[entry.image]
         try:
-            step_config = build_config({**options, **step_options}, default_model=settings.model,
+            step_config = build_config({**options, **entry.options}, default_model=settings.model,
                                        allowed_models=settings.allowed_models)
         except ConfigError as exc:
             raise ApiError(422, exc.code, f"{where}: {exc.message}", field=f"{where}.{exc.field}") from None
-        steps.append(AssemblyStep(name=_name(entry.get("name"), file, where), file=file,
-                                  prompt=_prompt(entry, where),
-                                  has_image=entry.get("image") is not None, on=entry.get("on"),
+        prompt = None if entry.prompt is None else forms.clean_prompt(entry.prompt, f"{where}.prompt", where)
+        steps.append(AssemblyStep(name=_name(entry.name, file, where), file=file, prompt=prompt,
+                                  has_image=entry.image is not None, on=entry.on,
                                   config=step_config.model_dump(mode="json")))
     unused = sorted(set(sources) - set(meshes))
     if unused:
@@ -175,8 +168,8 @@ async def submit_assembly(request: Request, who: str = Depends(owner)) -> Accept
     return await enqueue(request, record, blobs, config)
 
 
-def _plan(raw: str | None, max_stages: int) -> list[dict[str, Any]]:
-    """The plan field as a list of step objects (structure only; references are checked later)."""
+def _plan(raw: str | None, max_stages: int) -> list[PlanStep]:
+    """The plan field as its steps (their shape only; references and option values are checked later)."""
     if raw is None or not raw.strip():
         raise ApiError(400, "missing_field", "plan is required: a JSON list of steps", field="plan")
     plan = forms.strict_json(raw, "plan", "invalid_plan", max_chars=4 * forms.OPTIONS_MAX)
@@ -185,18 +178,10 @@ def _plan(raw: str | None, max_stages: int) -> list[dict[str, Any]]:
     if len(plan) > max_stages:
         raise ApiError(413, "too_many_stages", f"the plan has {len(plan)} stages, over the limit of {max_stages}",
                        field="plan")
-    for i, entry in enumerate(plan):
-        if not isinstance(entry, dict) or not isinstance(entry.get("file"), str):
-            raise ApiError(400, "invalid_plan", f"plan.{i}: a step is an object with file: a source part's name",
-                           field=f"plan.{i}")
-        unknown = sorted(set(entry) - _STEP_KEYS)
-        if unknown:
-            raise ApiError(400, "invalid_plan", f"plan.{i}: unknown key {unknown[0]!r}; known: "
-                           f"{', '.join(sorted(_STEP_KEYS))}", field=f"plan.{i}.{unknown[0]}")
-        for key in ("prompt", "image", "name", "on"):
-            if entry.get(key) is not None and not isinstance(entry[key], str):
-                raise ApiError(400, "invalid_plan", f"plan.{i}.{key} must be a string", field=f"plan.{i}.{key}")
-    return plan
+    try:
+        return [plan_step(entry, f"plan.{i}", assembly_options="the options field") for i, entry in enumerate(plan)]
+    except PlanError as exc:
+        raise ApiError(400, "invalid_plan", exc.message, field=exc.field) from None
 
 
 def _parts(form, name: str) -> dict:
@@ -211,13 +196,6 @@ def _parts(form, name: str) -> dict:
                            "is missing or repeated)", field=name)
         parts[filename] = value
     return parts
-
-
-def _prompt(entry: dict[str, Any], where: str) -> str | None:
-    prompt = entry.get("prompt")
-    if prompt is not None and entry.get("image") is not None:
-        raise ApiError(400, "invalid_plan", f"{where}: give a prompt or an image, not both", field=f"{where}.prompt")
-    return None if prompt is None else forms.clean_prompt(prompt, f"{where}.prompt", where)
 
 
 def _name(name: str | None, file: str, where: str) -> str:
