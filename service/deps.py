@@ -9,6 +9,7 @@ from __future__ import annotations
 import hashlib
 import hmac
 import re
+from collections.abc import Sequence
 
 from fastapi import Request
 from fastapi.concurrency import run_in_threadpool
@@ -49,13 +50,18 @@ async def own_job(request: Request, job_id: str, who: str) -> JobRecord:
     return record
 
 
-async def enqueue(request: Request, record: JobRecord, blobs: dict[str, bytes], config: AlignConfig) -> Accepted:
+async def enqueue(request: Request, record: JobRecord, blobs: dict[str, bytes],
+                  configs: Sequence[AlignConfig]) -> Accepted:
     """Queue a validated job (``POST /align`` and ``POST /assemble``): 503 when no live worker can run it
-    (refused now rather than accepted and failed later), 429 over the key's active-job limit."""
+    (refused now rather than accepted and failed later), 429 over the key's active-job limit.
+
+    ``configs`` are what the job runs: an assembly's every stage (each with its own options), so one guided
+    step makes the job need the model however geometry-only the assembly's options are."""
     settings, jobs = request.app.state.settings, request.app.state.jobs
-    unavailable = await run_in_threadpool(jobs.unavailable, config.model if config.uses_model else None)
-    if unavailable is not None:
-        raise ApiError(503, unavailable.code, unavailable.message, unavailable.field)
+    for model in sorted({c.model for c in configs if c.uses_model}) or [None]:  # None: a live worker at all
+        unavailable = await run_in_threadpool(jobs.unavailable, model)
+        if unavailable is not None:
+            raise ApiError(503, unavailable.code, unavailable.message, unavailable.field)
     try:
         await run_in_threadpool(jobs.submit, record, blobs, settings.max_active_jobs)
     except TooManyJobs as exc:

@@ -63,3 +63,19 @@ def test_jobs_the_worker_can_run_are_accepted_and_succeed(api, live_worker):
         assert accepted.status_code == 202, accepted.text
         job = finished(api, accepted.json()["id"])
         assert job["status"] == "succeeded", job
+
+
+def test_an_assembly_with_one_guided_step_needs_the_model(api, live_worker):
+    """Steps carry their own options: the worker loads the model when any stage is guided (its own
+    ``lambda_clip``), whatever the assembly's options say, so readiness looks at every stage's config."""
+    parts = [("base", ("box.glb", BOX)), ("source", ("ball.glb", BALL))]
+    geometry_only = json.dumps({"preset": "test", "lambda_clip": 0})
+    guided = json.dumps([{"file": "ball.glb", "prompt": "a ball on a box", "options": {"lambda_clip": 1}}])
+    refused = api.client.post("/assemble", files=parts, data={"plan": guided, "options": geometry_only})
+    assert (refused.status_code, refused.json()["error"]["code"]) == (503, "model_unavailable"), refused.text
+    assert MISSING in refused.json()["error"]["message"]
+    geometry_step = json.dumps([{"file": "ball.glb", "options": {"lambda_clip": 0}}])  # and the other way round
+    accepted = api.client.post("/assemble", files=parts, data={"plan": geometry_step,
+                                                               "options": json.dumps({"preset": "test"})})
+    assert accepted.status_code == 202, accepted.text  # guided assembly options, but no stage needs the model
+    assert finished(api, accepted.json()["id"])["status"] == "succeeded"

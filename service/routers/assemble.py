@@ -9,6 +9,7 @@ from fastapi import APIRouter, Depends, Request
 from fastapi.concurrency import run_in_threadpool
 
 from ctp_core.assemble import PlanError, PlanStep, check_plan, plan_step
+from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError, CtpError
 from ctp_core.io import load_objects
 from service import forms
@@ -118,6 +119,7 @@ async def submit_assembly(request: Request, who: str = Depends(owner)) -> Accept
     faces = await run_in_threadpool(forms.check_mesh, loader, blobs["target"], base_file, settings.mesh_limits, "base")
     base_name = forms.object_name(form, "base", base_file)
     steps: list[AssemblyStep] = []
+    configs: list[AlignConfig] = []  # every stage's own (the assembly's options, then the step's)
     meshes: dict[str, tuple[bytes, int]] = {}  # a part is read and checked once, however many steps use it
     pictures: dict[str, bytes] = {}
     for i, entry in enumerate(plan):
@@ -148,6 +150,7 @@ async def submit_assembly(request: Request, who: str = Depends(owner)) -> Accept
                                        allowed_models=settings.allowed_models)
         except ConfigError as exc:
             raise ApiError(422, exc.code, f"{where}: {exc.message}", field=f"{where}.{exc.field}") from None
+        configs.append(step_config)
         prompt = None if entry.prompt is None else forms.clean_prompt(entry.prompt, f"{where}.prompt", where)
         steps.append(AssemblyStep(name=_name(entry.name, file, where), file=file, prompt=prompt,
                                   has_image=entry.image is not None, on=entry.on,
@@ -165,7 +168,7 @@ async def submit_assembly(request: Request, who: str = Depends(owner)) -> Accept
                        has_image=any(s.has_image for s in steps), target_name=base_name, target_file=base_file,
                        source_name=steps[-1].name, source_file=steps[-1].file, steps=steps,
                        config=config.model_dump(mode="json"))
-    return await enqueue(request, record, blobs, config)
+    return await enqueue(request, record, blobs, configs)
 
 
 def _plan(raw: str | None, max_stages: int) -> list[PlanStep]:

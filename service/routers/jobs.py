@@ -62,7 +62,7 @@ async def submit(request: Request, who: str = Depends(owner)) -> Accepted:
         target_file=files["target"], source_file=files["source"], config=config.model_dump(mode="json"),
         target_job=target_job, on=on,
     )
-    return await enqueue(request, record, blobs, config)
+    return await enqueue(request, record, blobs, [config])
 
 
 @router.get("/jobs", response_model=JobList, responses=documented(400, 401), summary="The caller's jobs, newest first",
