@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import time
 import uuid
+from types import SimpleNamespace
 
 import pytest
 import redis
@@ -176,3 +177,26 @@ def test_settings_read_comma_lists_and_redis_url(monkeypatch):
     assert settings.redis_url == "redis://h:1/2"
     assert settings.api_keys == ["a", "b", "c"]
     assert settings.allowed_models == [settings.model, "random:tiny"]
+
+
+def test_the_worker_preloads_the_guide_its_jobs_get(monkeypatch):
+    """The preload asks ``guidance.guide_for`` (one rule for which guide a config needs) for a default job's
+    config on this worker, so a job's own ``guide_for`` is a cache hit, not a second load."""
+    from ctp_core import guidance
+    from service.schemas import build_config
+    from worker.main import _preload, where
+    from worker.tasks import Run
+
+    loads, asked = [], []
+    real_guide_for = guidance.guide_for
+    monkeypatch.setattr(guidance, "_CACHE", {})
+    monkeypatch.setattr(guidance, "load_guide", lambda s, **_: loads.append(s) or SimpleNamespace(runtime="torch"))
+    monkeypatch.setattr(guidance, "guide_for", lambda config: asked.append(config) or real_guide_for(config))
+    settings = Settings(model="random:tiny", models="", runtime="torch", device="cpu", threads=None)
+    assert _preload(settings) == {"random:tiny": None}
+    assert [(c.model, c.device, c.runtime, c.threads) for c in asked] == [("random:tiny", "cpu", "torch", None)]
+    run = Run(where=where(settings), loader=None, limits=None, on_progress=lambda *_: None,
+              should_cancel=lambda: False)
+    job = run.config(build_config({"preset": "test"}, default_model=settings.model,
+                                  allowed_models=settings.allowed_models).model_dump(mode="json"))
+    assert real_guide_for(job) is real_guide_for(asked[0]) and len(loads) == 1  # the job reuses the preload

@@ -16,6 +16,7 @@ import socket
 import threading
 import time
 from dataclasses import dataclass
+from typing import Any
 
 from redis import Redis
 from redis.exceptions import RedisError
@@ -139,6 +140,12 @@ def run_worker(settings: Settings, *, burst: bool = False, name: str | None = No
     return 0
 
 
+def where(settings: Settings) -> dict[str, Any]:
+    """Where this worker runs a job (device, threads, forward-only runtime): the only parts of a validated
+    config that are the worker's to decide."""
+    return {"device": settings.device, "threads": settings.threads, "runtime": settings.runtime}
+
+
 def _preload(settings: Settings) -> dict[str, str | None]:
     """Load the default model once for the life of the process and look for the weights of the other
     models the service allows; returns ``{spec: None when this worker can run it, else why not}``, which
@@ -148,15 +155,18 @@ def _preload(settings: Settings) -> dict[str, str | None]:
     from ctp_core import weights
     from ctp_core.config import AlignConfig
     from ctp_core.errors import ModelError
-    from ctp_core.guidance import get_guide
+    from ctp_core.guidance import guide_for
 
     if settings.threads:
         torch.set_num_threads(settings.threads)
     started = time.perf_counter()
     models = {spec: weights.missing(spec) for spec in settings.allowed_models}
+    # The guide of a job with default options on this worker (the same cache entry its jobs get). Built
+    # unvalidated: the guide depends only on these fields, and a forward-only default model refuses the
+    # default options (guided descent) that it would never be asked to run.
+    default_job = AlignConfig.model_construct(model=settings.model, **where(settings))
     try:
-        guide = get_guide(settings.model, device=settings.device, runtime=settings.runtime, threads=settings.threads,
-                          autocast=AlignConfig.model_fields["autocast"].default)
+        guide = guide_for(default_job)
     except ModelError as exc:
         log.error("default model unavailable: %s", exc.message)
         models[settings.model] = exc.message

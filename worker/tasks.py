@@ -25,7 +25,7 @@ from ctp_core.io import MeshLimits, load_image, load_objects
 from ctp_core.loader import MeshLoader
 from ctp_core.progress import ProgressEvent
 from service.jobs import JobError, JobRecord, Progress, Stage, Status
-from worker.main import context
+from worker.main import context, where
 
 log = logging.getLogger("ctp.worker")
 
@@ -35,9 +35,8 @@ _MILESTONES = {"phase_start", "phase_end", "done"}
 
 @dataclass(frozen=True)
 class Run:
-    """What a job runs with on this worker: ``where`` (device, threads, forward-only runtime: the only
-    parts of a validated config that are the worker's to decide), the bounded loader under the service
-    limits, and the callbacks to the job's record."""
+    """What a job runs with on this worker: ``where`` (``worker.main.where``), the bounded loader under the
+    service limits, and the callbacks to the job's record."""
 
     where: dict[str, Any]
     loader: MeshLoader
@@ -73,9 +72,7 @@ def run_job(job_id: str) -> str:
         inputs = {name: ctx.jobs.storage.get(job_id, name) for name in record.inputs()}
         if inputs["target"] is None or inputs.get("source", inputs.get("source-0")) is None:
             raise CtpError("the job's uploads expired before a worker picked it up", code="inputs_expired")
-        run = Run(where={"device": ctx.settings.device, "threads": ctx.settings.threads,
-                         "runtime": ctx.settings.runtime},
-                  loader=ctx.loader, limits=ctx.settings.mesh_limits,
+        run = Run(where=where(ctx.settings), loader=ctx.loader, limits=ctx.settings.mesh_limits,
                   on_progress=lambda p, force: ctx.beat.publish(p, force=force),
                   should_cancel=lambda: ctx.jobs.should_stop(job_id))
         files = (assemble_job if record.kind == "assemble" else align_job)(record, inputs, run)
