@@ -43,8 +43,7 @@ async def owner(request: Request) -> str:
 async def own_job(request: Request, job_id: str, who: str) -> JobRecord:
     """The caller's job, read on the event loop (the hot path: clients poll it); 404 for anyone else's."""
     state = request.app.state
-    raw = await state.aredis.get(state.jobs.record_key(job_id)) if _JOB_ID.fullmatch(job_id) else None
-    record = None if raw is None else JobRecord.model_validate_json(raw)
+    record = await state.jobs.get_async(state.aredis, job_id) if _JOB_ID.fullmatch(job_id) else None
     if record is None or record.owner != who:
         raise ApiError(404, "job_not_found", f"no job {job_id!r}")
     return record

@@ -35,6 +35,8 @@ from rq.serializers import JSONSerializer
 from service.storage import Storage, open_storage
 
 if TYPE_CHECKING:
+    from redis.asyncio import Redis as AsyncRedis
+
     from service.settings import Settings
 
 log = logging.getLogger("ctp.service")
@@ -150,6 +152,11 @@ def new_id() -> str:
     return uuid.uuid4().hex
 
 
+def _record(raw: bytes | None) -> JobRecord | None:
+    """A stored record (None: unknown or expired)."""
+    return None if raw is None else JobRecord.model_validate_json(raw)
+
+
 class Jobs:
     """Job records, the rq queue and the liveness keys of one deployment (one key prefix)."""
 
@@ -189,8 +196,12 @@ class Jobs:
 
     # -- reading ------------------------------------------------------------------------------------
     def get(self, job_id: str) -> JobRecord | None:
-        raw = self.redis.get(self.record_key(job_id))
-        return None if raw is None else JobRecord.model_validate_json(raw)
+        return _record(self.redis.get(self.record_key(job_id)))
+
+    async def get_async(self, aredis: AsyncRedis, job_id: str) -> JobRecord | None:
+        """``get`` on the event loop's client: the API's hot path (clients poll their jobs) stays off the
+        threadpool, where uploads are checked."""
+        return _record(await aredis.get(self.record_key(job_id)))
 
     def owned(self, owner: str, offset: int, limit: int) -> tuple[list[JobRecord], int]:
         """A page of the owner's jobs, newest first, and how many it has; expired ones are forgotten here."""

@@ -200,3 +200,22 @@ def test_the_worker_preloads_the_guide_its_jobs_get(monkeypatch):
     job = run.config(build_config({"preset": "test"}, default_model=settings.model,
                                   allowed_models=settings.allowed_models).model_dump(mode="json"))
     assert real_guide_for(job) is real_guide_for(asked[0]) and len(loads) == 1  # the job reuses the preload
+
+
+def test_the_event_loop_reads_a_record_as_get_does(jobs, private_redis):
+    """``own_job`` (every poll of a job) reads on the event loop's client through ``Jobs.get_async``, the
+    same key and parsing as ``Jobs.get``."""
+    import asyncio
+
+    from redis import asyncio as aioredis
+
+    record = queued(jobs)
+
+    async def read(*job_ids: str):
+        client = aioredis.Redis.from_url(private_redis.url)
+        try:
+            return [await jobs.get_async(client, job_id) for job_id in job_ids]
+        finally:
+            await client.aclose()
+
+    assert asyncio.run(read(record.id, new_id())) == [jobs.get(record.id), None] and jobs.get(record.id) == record
