@@ -767,3 +767,38 @@ def test_a_holder_of_a_long_thin_thing_is_shorter_than_it():
     assert lexicon.lookup("knife_holder").size_m < lexicon.lookup("knife").size_m
     assert lexicon.lookup("bread_cube").size_m < lexicon.lookup("bread").size_m
     assert lexicon.lookup("wood_cube").size_m == lexicon.lookup("cube").size_m  # a cube of wood is a block
+
+
+# --- kinds of misses of the frozen batch19 ----------------------------------------------------------------------
+
+def test_pressed_staked_or_chopped_open_are_cues_that_go_in():
+    for prompt in ("a thumb pressed into the dough", "a marker staked in the field", "an axe splitting open a log"):
+        assert relations.find_cue(prompt).relation.name == "penetrate", prompt
+
+
+def test_a_building_made_of_a_sweet_is_that_sweet_an_ice_cream_van_is_a_van():
+    prior = rules("gingerbread_house", "gumdrop", "a gumdrop pushed into a gingerbread house")
+    assert prior.penetration and prior.size_ratio > 0.1
+    assert rules("garage", "ice_cream_van", "an ice cream van parked in the garage").size_ratio > 0.5
+
+
+def test_on_the_bottom_of_or_beneath_the_water_of_a_filled_ground_is_under_it():
+    prior = rules("aquarium", "treasure_chest", "a treasure chest resting on the gravel of an aquarium full of water")
+    assert prior.penetration and prior.contact_ratio >= 0.8
+    assert rules("lake", "diver", "a diver swimming beneath the surface of the lake").penetration
+    assert not rules("bridge", "boat", "a boat passing under a bridge").penetration
+
+
+def test_a_name_the_prompt_calls_by_a_known_head_takes_its_shape():
+    assert rules("pillow_embroidered_hi", "pin", "a pin stuck in an embroidered pillow").penetration
+
+
+def test_screwed_into_a_machine_is_into_a_threaded_hole_into_a_wall_it_pierces():
+    assert not rules("lamp", "light_bulb", "a light bulb screwed into a lamp").penetration
+    assert rules("wall", "hook", "a hook screwed into the wall").penetration
+
+
+def test_pinned_to_a_person_is_through_their_clothes_stuck_in_a_container_named_for_contents_is_in_them():
+    assert rules("nurse", "badge", "a badge pinned to the nurse's collar").penetration
+    assert rules("ink_pot", "quill", "a quill stuck in the ink pot").penetration
+    assert not rules("lock", "key", "a key stuck in the lock").penetration

@@ -17,8 +17,9 @@ a container. Categories of modifiers (documented here because they decide sizes)
 - ``HOLLOW_WORDS`` ("a carved pumpkin") make the object a container;
 - ``YOUNG_WORDS`` ("baby elephant") make an animal or a food a young, small one (``YOUNG_SCALE``), and
   ``FOLDED_WORDS`` ("a folded towel") a cloth or a sheet a folded, smaller one (``FOLDED_SCALE``);
-- a figure named after a food ("toast soldier", "chocolate bunny", "gingerbread man", "corn dog") is that food,
-  shaped like it: food-sized (``FOOD_FIGURE_M``), no agent, tagged ``food``.
+- a figure named after a food ("toast soldier", "chocolate bunny", "gingerbread man", "corn dog"), or a building or
+  vehicle named after a sweet (``CONFECTIONS``: "a gingerbread house") is that food, shaped like it: food-sized
+  (``FOOD_FIGURE_M``, a building or vehicle ``TOY_SIZE_M``), no agent or container, tagged ``food``.
 """
 
 from __future__ import annotations
@@ -42,6 +43,8 @@ FOLDED_SCALE = 0.4
 TOY_WORDS = frozenset({"toy", "miniature", "model", "plush", "stuffed", "figurine", "lego", "dollhouse"})
 CRAFT_WORDS = frozenset({"paper", "origami", "folded"})
 TOY_MATERIALS = frozenset({"plastic", "tin", "clockwork", "rubber"})
+# Sweets things are built of ("a gingerbread house", "a chocolate car"); an "ice cream van" is a van.
+CONFECTIONS = frozenset({"gingerbread", "chocolate", "candy", "sugar", "marzipan", "cake", "cookie", "biscuit"})
 HOLLOW_WORDS = frozenset({"hollow", "hollowed", "carved", "empty"})
 _CRAFT_DOMAINS = frozenset({"animals", "vehicles"})
 _INDOOR = frozenset({"food and drink", "tableware and kitchen", "bathroom and cosmetics", "furniture and home"})
@@ -120,6 +123,12 @@ def resolve(name: str, prompt: str, mention_at: list[int], other: lexicon.Match 
     A modifier the other object's name has is that object's ("a baby elephant next to its mother", names
     "baby_elephant" and "elephant": "baby" is not the mother's)."""
     match = lexicon.lookup(name)
+    said = [w for start, w in _tokens(prompt) if start in mention_at[:1]]
+    plain = lexicon.lookup(said[0]) if said else None
+    if (match is not None and plain is not None and plain.entry is match.entry and match.phrase not in lexicon.LEXICON
+            and match.phrase not in lexicon.PARTS):  # a "lipstick cover" is no lipstick
+        # "quilt_patchwork_hi" that the prompt calls "a half-finished quilt": a quilt, with a quilt's shape
+        match = replace(plain, how=plain.how + f" (the prompt calls {name!r} a {said[0]})")
     taken = set(lexicon.words(name)) | set(lexicon.words(other_name))
     mods = [w for w in modifiers(prompt, mention_at) if w not in taken]
     if mods:
@@ -189,9 +198,11 @@ def _modified(match: lexicon.Match, words: list[str]) -> lexicon.Match:
             match = replace(match, size_m=match.size_m * scale,
                             how=match.how + f", made for a {wearers[-1].phrase}: x {scale:.2g}")
     foods = [m for w in qualifiers if (m := lexicon.lookup(w)) is not None and m.entry.domain == "food and drink"]
-    if foods and match.has("agent"):
-        match = replace(match, size_m=min(match.size_m, FOOD_FIGURE_M), tags=match.tags - {"agent"} | {"food"},
-                        how=match.how + f", made of {foods[-1].phrase}: {FOOD_FIGURE_M:g} m")
+    built = bool(qualifiers & CONFECTIONS) and entry.domain in {"buildings and places", "vehicles"}
+    if foods and (match.has("agent") or built):
+        size = TOY_SIZE_M if built else FOOD_FIGURE_M  # a gingerbread house is bigger than a gingerbread man
+        match = replace(match, size_m=min(match.size_m, size), tags=match.tags - {"agent", "container"} | {"food"},
+                        how=match.how + f", made of {foods[-1].phrase}: {size:g} m")
     if qualifiers & HOLLOW_WORDS and not match.has("container"):
         match = replace(match, tags=match.tags | {"container"}, how=match.how + ", hollow")
     return match
@@ -272,6 +283,14 @@ def contents_named(prompt: str, mentions: list[int], figure_name: str = "") -> s
         if i not in taken and word not in own and (word in CONTENTS or is_drink(word)):
             return word
     return None
+
+
+def contents_in_name(name: str, figure_name: str = "") -> str | None:
+    """The contents a container is named for ("compost_bin", "ink_pot"), not the figure's own name: what something
+    stuck or buried in it goes into."""
+    own = {f for w in lexicon.words(figure_name) for f in lexicon.singulars(w)}
+    found = [w for w in lexicon.words(name)[:-1] if w not in own and (w in CONTENTS or is_drink(w))]
+    return found[-1] if found else None
 
 
 def _contents(prompt: str, mention_at: list[int], match: lexicon.Match | None) -> str | None:

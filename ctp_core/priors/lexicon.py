@@ -150,6 +150,7 @@ teaspoon 0.14 pointed
 ladle/serving_spoon 0.3 pointed
 fork 0.19 pointed
 knife/kitchen_knife/chef_knife/butter_knife/steak_knife/cleaver 0.28 pointed
+cake_server/pie_server/cake_lifter 0.25 pointed
 chopstick 0.24 pointed
 toothpick/cocktail_stick 0.07 pointed,staked
 skewer/kebab_stick 0.3 pointed,staked
@@ -238,6 +239,7 @@ painting/picture/frame/picture_frame/poster/canvas/map/calendar 0.7 flat
 photo/photograph/polaroid 0.15 flat
 baking_sheet/baking_tray/sheet_pan 0.4 flat
 sign/signboard/plaque 0.6 flat
+ornament/decoration/bauble/trinket/knick_knack 0.1
 sticker/label/decal/note/sticky_note/postcard/card/playing_card 0.09 flat
 letter/paper/sheet/document/page 0.25 flat
 envelope 0.22 flat,container
@@ -314,6 +316,7 @@ pajamas/pyjamas/swimsuit/vest/waistcoat 0.7 soft
 shoebox/shoe_box 0.35 container
 earmuffs 0.2 wrap
 hairclip/hair_clip/barrette/hairpin/earring/brooch/badge/button/name_tag/name_badge 0.03 flat
+boutonniere/buttonhole/corsage/rosette 0.08
 fabric/cloth/felt/linen/cotton/denim/silk/velvet 0.5 flat,soft,pierceable
 yarn/ball_of_yarn/yarn_ball/wool 0.1 soft,round
 knitting_needle 0.35 pointed
@@ -394,8 +397,9 @@ palette 0.35 flat
 paddle/oar 2.0
 wafer 0.08 flat
 ruler 0.3 flat
-shovel/spade/rake/broom/broomstick/mop/pitchfork 1.4 pointed
+shovel/spade/rake/broom/broomstick/mop/pitchfork/garden_fork/digging_fork 1.4 pointed
 sword/katana/sabre/saber 1.0 pointed
+machete/cutlass/kukri/sickle/scythe 0.6 pointed
 dagger 0.35 pointed
 spear/lance/javelin/trident 2.0 pointed
 arrow/dart 0.75 pointed
@@ -470,6 +474,7 @@ soldier/astronaut/pilot/firefighter/policeman/student/teacher/worker/musician/pl
 dancer/runner/tourist/driver/rider/mannequin/zombie/vampire 1.75 agent
 patient/passenger/fisherman/shepherd/gardener/mechanic/plumber/painter/skier/surfer/swimmer/climber 1.75 agent
 waiter/waitress/butler/sailor/diver/golfer/boxer/skater/cyclist/artist/scientist/businessman 1.75 agent
+groom/bridegroom/bride/best_man/bridesmaid 1.75 agent
 boy/girl/kid/child/teen/teenager 1.3 agent
 baby/toddler/infant 0.7 agent
 king/queen/prince/princess/knight/wizard/witch/pirate/cowboy/ninja/samurai/viking/clown/captain 1.8 agent
@@ -583,6 +588,7 @@ construction_crane/tower_crane/~crane 50.0
 windshield/windscreen 1.5 flat
 windshield_wiper/wiper/license_plate/number_plate 0.5 flat
 steering_wheel 0.38
+engine/motor/engine_block/gearbox 0.8
 roof_rack 1.2
 trailer 4.0 container
 caravan/camper/rv/motorhome 7.0 container

@@ -73,9 +73,10 @@ CUES: list[Cue] = [
         r"|stuck " + _ADV + r"(?:in|into|through)|stick(?:s|ing)? " + _ADV + r"(?:in|into|out of|through)"
         r"|buried " + _ADV + r"(?:in|into)"
         r"|pok(?:e|es|ed|ing) (?:out of|through|into)|peek(?:s|ing)? out of|protrud(?:e|es|ing) from"
-        r"|(?:driven|hammered|nailed|pinned|planted|pushed|poked|thrust|sunk|jammed|screwed|shot) " + _ADV
+        r"|(?:driven|hammered|nailed|pinned|planted|pushed|pressed|poked|thrust|sunk|jammed|screwed|shot|staked|dug)"
+        r" " + _ADV
         + r"(?:in|into)"
-        r"|planted (?:on|atop)|carv(?:e|es|ed|ing)|chop(?:s|ped|ping)? (?:into|through)"
+        r"|planted (?:on|atop)|carv(?:e|es|ed|ing)|(?:chop|split|crack)(?:s|ped|ping|ting|ing)? (?:into|through|open)"
         r"|saw(?:s|ed|ing)? (?:through|into)|(?:drill|bor)(?:e|es|ed|ing|s)? (?:a hole )?(?:in|into|through)",
         "penetrate"),
     # garments and headwear

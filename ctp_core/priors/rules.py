@@ -34,8 +34,13 @@ WADING_CONTACT = 0.1  # in contents: the legs
 # pointed thing and does not float sinks whole into a liquid (pickles in brine, a coin in a fountain), not into a
 # paste, a foam or a soil (strawberries in whipped cream).
 _WHOLLY_UNDER = re.compile(r"\b(?:submerged|underwater|under (?:the )?water|at the bottom|sunk|buried"
+                           r"|on the (?:bottom|floor|gravel|bed) of"
                            r"|sinking|sank|dropped)\b")
-_WATER_SAID = re.compile(r"\b(?:submerged|underwater|under (?:the )?water)\b")
+_WATER_SAID = re.compile(r"\b(?:submerged|underwater|(?:under|beneath|below) (?:the )?(?:water|waves|surface))\b")
+# On the bottom of something full of contents: under them ("an ornament on the gravel of an aquarium of water").
+_ON_BOTTOM = re.compile(r"\b(?:on|along|across) the (?:bottom|floor|gravel|bed|sand|pebbles) of\b")
+# Screwed into something no point goes into (an engine, a lamp): into its threaded hole.
+_SCREWED = re.compile(r"screw|bolt")
 _HIDDEN = re.compile(r"\b(?:hidden|hiding|hides|nestled|concealed|buried)\b")
 _GROWS = re.compile(r"\b(?:growing|grows|grown|planted|rooted|sprouting)\b")
 _BURIED = re.compile(r"\b(?:buried|burying|burrow(?:s|ed|ing)?)\b")
@@ -77,7 +82,8 @@ class RulesProvider:
         relation, why = _relation(cue, target, source, source if figure else target)
         holder, held = (target, source) if figure else (source, target)
         if (relation.name == "hold" and holder is not None and holder.has("pointed") and not holder.has("agent")
-                and holder.size_m <= FASTENER_MAX_M and _pierceable(held)):  # "pins holding a pattern on the fabric"
+                and (holder.size_m <= FASTENER_MAX_M or holder.has("staked")) and _pierceable(held)):
+            # "pins holding a pattern on the fabric", "a skewer holding a burger together"
             figure = not figure
             relation = relations.RELATIONS["penetrate"]
             why = f"'{cue.text}' said of a pointed {holder.phrase}: a fastener in the {held.phrase}"
@@ -97,9 +103,16 @@ class RulesProvider:
             filled = context.contents_after(prompt, cue.end, figure_name)
         if filled is None and relation.name == "in" and ground is not None and ground.has("container"):
             filled = context.contents_named(prompt, target_at + source_at, figure_name)  # "scooping salsa from"
+        if filled is None and relation.name == "penetrate" and ground is not None and ground.has("container"):
+            filled = context.contents_in_name(ground_name, figure_name)  # "a fork stuck in the compost bin"
+        if (filled is not None and relation.name in _SUPPORT | {"under"} and ground is not None
+                and (_ON_BOTTOM.search(text) or relation.name == "under" and _WATER_SAID.search(text))):
+            relation, why = relations.RELATIONS["in"], why + f"; under the {filled} it holds"
         afloat = cue is not None and re.match(r"float|swim|bob|paddl", cue.text) is not None
         if filled is None and ground is not None and ground.has("container") and _WATER_SAID.search(text):
             filled = "water"  # "a toy submarine underwater in the bathtub"
+            if relation.name == "under":  # "a submarine beneath the waves of the sea"
+                relation, why = relations.RELATIONS["in"], why + "; under the water it holds"
         if (filled is None and ground is not None and ground.has("container") and relation.name == "penetrate"
                 and _BURIED.search(text)):
             filled = "its contents"  # "a plastic dinosaur half buried in the sandpit": in its sand
@@ -280,8 +293,11 @@ def _penetration(relation, figure: bool, target, source, filled: str | None, flo
     stick is skewered by it; anything inside a solid food that is no container (a coin in a cake) is embedded,
     unless it is tucked into a fold of it (a fortune cookie's paper). Found in ``estimate``: contents the prompt
     names outside the objects ("scooping salsa from a bowl"), the contents of a container something is buried in
-    (a sandpit's sand), a solid something is frozen, trapped or encased in (ice, amber); a short pointed thing that
-    fastens or holds a pierceable solid (a safety pin, sewing pins) goes through it.
+    (a sandpit's sand) or that is named for its contents (a compost bin), a solid something is frozen, trapped or
+    encased in (ice, amber); what rests on the bottom of filled contents or is beneath their surface is under them; a
+    short or staked pointed thing that fastens or holds a pierceable solid (a safety pin, a skewer through a burger)
+    goes through it. Something screwed into what no point goes into (an engine, a lamp) is in a threaded hole, and an
+    accessory pinned to a person goes through their clothes.
     """
     ground, fig = (target, source) if figure else (source, target)
     fig_name = fig.phrase if fig is not None else "source" if figure else "target"
@@ -292,10 +308,13 @@ def _penetration(relation, figure: bool, target, source, filled: str | None, flo
     if relation.penetration == "yes":
         if ground is not None and ground.has("container") and not _CUTS.match(cue_text):
             return False, "goes into an opening of the ground: no penetration"
+        if ground is not None and _SCREWED.match(cue_text) and not _pierceable(ground):
+            return False, f"screwed into a threaded hole of the {ground.phrase}: no penetration"
         return True, "the relation cuts or pierces: penetration"
     if relation.penetration == "if_pointed" and fig is not None and fig.has("pointed") and _pierceable(ground):
         return True, f"a pointed {fig.phrase} into a solid {ground.phrase}: penetration"
-    if (cue_text.startswith("pinned") and fig is not None and ground is not None and ground.has("soft")
+    if (cue_text.startswith("pinned") and fig is not None and ground is not None
+            and (ground.has("soft") or ground.entry.domain == "people and characters (agents)")  # their clothes
             and fig.entry.domain == "clothing and accessories"):  # a brooch, a badge: its own pin
         return True, f"a {fig.phrase} pinned to a {ground.phrase}: its pin through the cloth, penetration"
     if (relation.name == "attach" and cue_text.startswith("stuck") and _pierceable(ground)
