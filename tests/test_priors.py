@@ -711,3 +711,94 @@ def test_hidden_in_a_mass_is_inside_it_hidden_in_a_container_is_not():
 
 def test_streams_and_creeks_are_bodies_of_water():
     assert rules("creek", "frog", "a frog swimming in a creek").penetration
+
+
+# --- kinds of misses of the frozen batch18 ----------------------------------------------------------------------
+
+def test_frozen_or_trapped_in_a_solid_is_wholly_inside_it_not_in_a_tree_or_a_net():
+    for target, source, prompt in [("ice_block", "coin", "a coin frozen inside a block of ice"),
+                                   ("resin", "beetle", "a beetle trapped in a drop of resin")]:
+        prior = rules(target, source, prompt)
+        assert prior.penetration and prior.contact_ratio >= 0.8, prompt
+    assert not rules("tree", "kite", "a kite trapped in a tree").penetration
+    assert not rules("net", "bird", "a bird trapped in a net").penetration
+
+
+def test_tucked_into_a_food_is_in_a_fold_of_it_baked_into_it_is_embedded():
+    assert not rules("taco", "napkin", "a napkin tucked into a taco").penetration
+    assert not rules("cookie", "note", "a note tucked inside a cookie").penetration
+    assert rules("cookie", "raisins", "raisins baked into a cookie").penetration
+
+
+def test_contents_the_prompt_names_outside_the_objects_fill_the_ground():
+    assert rules("dip_bowl", "carrot_stick", "a carrot stick scooping hummus from a bowl").penetration
+    assert not rules("bowl", "carrot_stick", "a carrot stick in a bowl").penetration
+    assert not rules("soup_bowl", "spoon", "a spoon in a soup bowl").penetration  # a modifier, no contents
+
+
+def test_buried_in_a_container_is_in_what_it_holds():
+    assert rules("sandbox", "toy_car", "a toy car buried in the sandbox").penetration
+    assert not rules("sandbox", "toy_car", "a toy car in the sandbox").penetration
+
+
+def test_a_short_pointed_fastener_goes_through_the_solid_it_holds_or_fastens():
+    assert rules("cushion", "safety_pin", "a safety pin fastening a cushion cover").penetration
+    prior = rules("fabric", "pins", "pins holding a label on the fabric")
+    assert prior.penetration and prior.source_is_figure
+    assert not rules("clipboard", "pen", "a pen clipped to a clipboard").penetration
+    assert not rules("plate", "chopsticks", "chopsticks holding a dumpling above a plate").penetration
+
+
+def test_food_shaped_things_on_a_stick_are_skewered_and_adverbs_do_not_hide_a_cue():
+    assert rules("stick", "corn_dog", "a corn dog on a stick").penetration
+    assert rules("plank", "saw", "a saw stuck halfway through a plank").penetration
+    assert relations.find_cue("a spade pushed deep into the soil").relation.name == "penetrate"
+
+
+def test_plastic_or_tin_creatures_are_toys_and_fish_are_wholly_under_water():
+    assert rules("shelf", "horse", "a plastic horse on the shelf").size_ratio < 1.0
+    assert rules("lake", "rowboat", "a rowboat on the lake").size_ratio > 0.01  # vehicles stay vehicles
+    assert rules("bathtub", "goldfish", "a goldfish in a bathtub of water").contact_ratio >= 0.8
+    assert rules("bathtub", "duck", "a duck in a bathtub of water").contact_ratio <= 0.5
+
+
+def test_a_holder_of_a_long_thin_thing_is_shorter_than_it():
+    assert rules("pen_holder_2", "pen", "a pen in a pen holder").size_ratio > 1.0
+    assert lexicon.lookup("knife_holder").size_m < lexicon.lookup("knife").size_m
+    assert lexicon.lookup("bread_cube").size_m < lexicon.lookup("bread").size_m
+    assert lexicon.lookup("wood_cube").size_m == lexicon.lookup("cube").size_m  # a cube of wood is a block
+
+
+# --- kinds of misses of the frozen batch19 ----------------------------------------------------------------------
+
+def test_pressed_staked_or_chopped_open_are_cues_that_go_in():
+    for prompt in ("a thumb pressed into the dough", "a marker staked in the field", "an axe splitting open a log"):
+        assert relations.find_cue(prompt).relation.name == "penetrate", prompt
+
+
+def test_a_building_made_of_a_sweet_is_that_sweet_an_ice_cream_van_is_a_van():
+    prior = rules("gingerbread_house", "gumdrop", "a gumdrop pushed into a gingerbread house")
+    assert prior.penetration and prior.size_ratio > 0.1
+    assert rules("garage", "ice_cream_van", "an ice cream van parked in the garage").size_ratio > 0.5
+
+
+def test_on_the_bottom_of_or_beneath_the_water_of_a_filled_ground_is_under_it():
+    prior = rules("aquarium", "treasure_chest", "a treasure chest resting on the gravel of an aquarium full of water")
+    assert prior.penetration and prior.contact_ratio >= 0.8
+    assert rules("lake", "diver", "a diver swimming beneath the surface of the lake").penetration
+    assert not rules("bridge", "boat", "a boat passing under a bridge").penetration
+
+
+def test_a_name_the_prompt_calls_by_a_known_head_takes_its_shape():
+    assert rules("pillow_embroidered_hi", "pin", "a pin stuck in an embroidered pillow").penetration
+
+
+def test_screwed_into_a_machine_is_into_a_threaded_hole_into_a_wall_it_pierces():
+    assert not rules("lamp", "light_bulb", "a light bulb screwed into a lamp").penetration
+    assert rules("wall", "hook", "a hook screwed into the wall").penetration
+
+
+def test_pinned_to_a_person_is_through_their_clothes_stuck_in_a_container_named_for_contents_is_in_them():
+    assert rules("nurse", "badge", "a badge pinned to the nurse's collar").penetration
+    assert rules("ink_pot", "quill", "a quill stuck in the ink pot").penetration
+    assert not rules("lock", "key", "a key stuck in the lock").penetration

@@ -11,13 +11,15 @@ a container. Categories of modifiers (documented here because they decide sizes)
   drum"), or the agent sense when the relation needs someone (a mouse eating cheese);
 - ``TOY_WORDS`` ("toy robot", "miniature house") make an object hand-sized (``TOY_SIZE_M``) unless it is a toy
   already (a "toy box" is a lexicon phrase: a box for toys); ``CRAFT_WORDS`` ("paper crane", "origami boat") do
-  the same for animals and vehicles;
+  the same for animals and vehicles, and ``TOY_MATERIALS`` ("a plastic dinosaur", "a tin soldier") for
+  creatures, people and vehicles (a plastic chair stays a chair);
 - a garment named after an animal or a small person ("dog coat", "baby shoes") is scaled to its wearer;
 - ``HOLLOW_WORDS`` ("a carved pumpkin") make the object a container;
 - ``YOUNG_WORDS`` ("baby elephant") make an animal or a food a young, small one (``YOUNG_SCALE``), and
   ``FOLDED_WORDS`` ("a folded towel") a cloth or a sheet a folded, smaller one (``FOLDED_SCALE``);
-- a figure named after a food ("toast soldier", "chocolate bunny", "gingerbread man") is that food, shaped
-  like it: food-sized (``FOOD_FIGURE_M``) and no agent.
+- a figure named after a food ("toast soldier", "chocolate bunny", "gingerbread man", "corn dog"), or a building or
+  vehicle named after a sweet (``CONFECTIONS``: "a gingerbread house") is that food, shaped like it: food-sized
+  (``FOOD_FIGURE_M``, a building or vehicle ``TOY_SIZE_M``), no agent or container, tagged ``food``.
 """
 
 from __future__ import annotations
@@ -40,6 +42,9 @@ FOLDED_WORDS = frozenset({"folded", "rolled", "crumpled", "stacked"})
 FOLDED_SCALE = 0.4
 TOY_WORDS = frozenset({"toy", "miniature", "model", "plush", "stuffed", "figurine", "lego", "dollhouse"})
 CRAFT_WORDS = frozenset({"paper", "origami", "folded"})
+TOY_MATERIALS = frozenset({"plastic", "tin", "clockwork", "rubber"})
+# Sweets things are built of ("a gingerbread house", "a chocolate car"); an "ice cream van" is a van.
+CONFECTIONS = frozenset({"gingerbread", "chocolate", "candy", "sugar", "marzipan", "cake", "cookie", "biscuit"})
 HOLLOW_WORDS = frozenset({"hollow", "hollowed", "carved", "empty"})
 _CRAFT_DOMAINS = frozenset({"animals", "vehicles"})
 _INDOOR = frozenset({"food and drink", "tableware and kitchen", "bathroom and cosmetics", "furniture and home"})
@@ -56,6 +61,7 @@ brine water seawater saltwater coffee tea cocoa chocolate soup stew broth milk j
 lemonade cola punch
 milkshake smoothie yogurt yoghurt cream custard batter dough sauce gravy ketchup mustard honey jam syrup oil
 paint ink glue wax foam bubbles soil dirt earth compost sand mud snow cement concrete jelly porridge oatmeal rice
+salsa guacamole hummus fondue pesto mayonnaise blood sugar flour
 """)
 _FILL_WORDS = frozenset({"of", "with", "full", "filled", "containing"})
 # Made into a paste, a liquid or a foam: "a pot of melted cheese", "a bowl of mashed potatoes".
@@ -63,7 +69,7 @@ _MELTED = frozenset({"melted", "molten", "liquid", "liquified", "whipped", "mash
 # Contents a small thing sinks into whole (the others, pastes, foams and soils, hold it half sunk).
 LIQUIDS = lexicon.word_set("""
 water seawater saltwater coffee tea cocoa soup stew broth milk juice wine beer whiskey whisky soda lemonade cola
-punch brine oil
+punch brine oil blood
 """)
 # Heaps: what goes into a pile of anything (leaves, laundry, dirt) is buried in it, below its surface.
 HEAPS = lexicon.word_set("pile heap mound")
@@ -117,6 +123,12 @@ def resolve(name: str, prompt: str, mention_at: list[int], other: lexicon.Match 
     A modifier the other object's name has is that object's ("a baby elephant next to its mother", names
     "baby_elephant" and "elephant": "baby" is not the mother's)."""
     match = lexicon.lookup(name)
+    said = [w for start, w in _tokens(prompt) if start in mention_at[:1]]
+    plain = lexicon.lookup(said[0]) if said else None
+    if (match is not None and plain is not None and plain.entry is match.entry and match.phrase not in lexicon.LEXICON
+            and match.phrase not in lexicon.PARTS):  # a "lipstick cover" is no lipstick
+        # "quilt_patchwork_hi" that the prompt calls "a half-finished quilt": a quilt, with a quilt's shape
+        match = replace(plain, how=plain.how + f" (the prompt calls {name!r} a {said[0]})")
     taken = set(lexicon.words(name)) | set(lexicon.words(other_name))
     mods = [w for w in modifiers(prompt, mention_at) if w not in taken]
     if mods:
@@ -169,6 +181,9 @@ def _modified(match: lexicon.Match, words: list[str]) -> lexicon.Match:
     qualifiers = {w for w in words if w not in match.phrase.split()}  # "toy box" is a lexicon phrase of its own
     if qualifiers & TOY_WORDS and entry.domain != "toys and figures" and match.size_m > TOY_SIZE_M:
         match = replace(match, size_m=TOY_SIZE_M, how=match.how + f", a toy: {TOY_SIZE_M:g} m")
+    toy_made = qualifiers & TOY_MATERIALS - ({"rubber"} if entry.domain == "vehicles" else set())  # a dinghy
+    if toy_made and (entry.domain == "vehicles" or "agent" in entry.tags) and match.size_m > TOY_SIZE_M:
+        match = replace(match, size_m=TOY_SIZE_M, how=match.how + f", {min(toy_made)}: a toy, {TOY_SIZE_M:g} m")
     if qualifiers & CRAFT_WORDS and entry.domain in _CRAFT_DOMAINS and match.size_m > CRAFT_SIZE_M:
         match = replace(match, size_m=CRAFT_SIZE_M, how=match.how + f", folded paper: {CRAFT_SIZE_M:g} m")
     young = qualifiers & YOUNG_WORDS
@@ -183,9 +198,11 @@ def _modified(match: lexicon.Match, words: list[str]) -> lexicon.Match:
             match = replace(match, size_m=match.size_m * scale,
                             how=match.how + f", made for a {wearers[-1].phrase}: x {scale:.2g}")
     foods = [m for w in qualifiers if (m := lexicon.lookup(w)) is not None and m.entry.domain == "food and drink"]
-    if foods and match.has("agent"):
-        match = replace(match, size_m=min(match.size_m, FOOD_FIGURE_M), tags=match.tags - {"agent"},
-                        how=match.how + f", made of {foods[-1].phrase}: {FOOD_FIGURE_M:g} m")
+    built = bool(qualifiers & CONFECTIONS) and entry.domain in {"buildings and places", "vehicles"}
+    if foods and (match.has("agent") or built):
+        size = TOY_SIZE_M if built else FOOD_FIGURE_M  # a gingerbread house is bigger than a gingerbread man
+        match = replace(match, size_m=min(match.size_m, size), tags=match.tags - {"agent", "container"} | {"food"},
+                        how=match.how + f", made of {foods[-1].phrase}: {size:g} m")
     if qualifiers & HOLLOW_WORDS and not match.has("container"):
         match = replace(match, tags=match.tags | {"container"}, how=match.how + ", hollow")
     return match
@@ -252,6 +269,28 @@ def contents_after(prompt: str, cue_end: int, figure_name: str = "") -> str | No
     known = lexicon.lookup(" ".join(phrase))
     drink = known is not None and known.has("filled") and known.entry.domain == "food and drink"
     return " ".join(phrase) if drink else None
+
+
+def contents_named(prompt: str, mentions: list[int], figure_name: str = "") -> str | None:
+    """A contents word the prompt says outside the objects' noun phrases ("a chip scooping salsa from a bowl",
+    "a ladle stirring the soup in a pot"): what the ground holds, when the figure goes in it. A word right before
+    a mention is that object's modifier ("a soup spoon"), never its contents, and so is the figure's own name."""
+    tokens = _tokens(prompt)
+    starts = [start for start, _ in tokens]
+    taken = {starts.index(at) - k for at in mentions if at in starts for k in range(3)}
+    own = {f for w in lexicon.words(figure_name) for f in lexicon.singulars(w)}
+    for i, (_, word) in enumerate(tokens):
+        if i not in taken and word not in own and (word in CONTENTS or is_drink(word)):
+            return word
+    return None
+
+
+def contents_in_name(name: str, figure_name: str = "") -> str | None:
+    """The contents a container is named for ("compost_bin", "ink_pot"), not the figure's own name: what something
+    stuck or buried in it goes into."""
+    own = {f for w in lexicon.words(figure_name) for f in lexicon.singulars(w)}
+    found = [w for w in lexicon.words(name)[:-1] if w not in own and (w in CONTENTS or is_drink(w))]
+    return found[-1] if found else None
 
 
 def _contents(prompt: str, mention_at: list[int], match: lexicon.Match | None) -> str | None:

@@ -19,6 +19,7 @@ Tags:
 - ``soft``: drapes or settles onto a support (cushion, cat, towel).
 - ``wrap``: a garment or band that hugs what wears it (scarf, glove, collar).
 - ``agent``: a person, character or animal that can hold, wear, ride.
+- ``aquatic``: a creature that lives under water (a fish, a jellyfish): in a liquid it is wholly under.
 - ``pierceable``: a solid a pointed thing goes into when pushed (wood, soil, foam, a dartboard, fabric); solid
   food, plants and ``soft`` things are pierceable without the tag.
 - ``filled``: holds contents that close its opening off (a drink, a soup, a pond): what goes *in* it passes
@@ -51,7 +52,7 @@ melon/pumpkin/pineapple 0.3
 coconut 0.15 round
 avocado/mango 0.1
 tomato/onion/potato 0.08 round
-carrot/cucumber/zucchini/eggplant 0.2 pointed
+carrot/cucumber/zucchini/eggplant/celery/parsnip/leek 0.2 pointed
 corn/corn_cob/corn_on_the_cob/cob 0.2
 mushroom 0.06
 egg 0.06 round
@@ -67,6 +68,9 @@ pepperoni 0.04 flat
 cheese 0.1
 cheese_slice/ham/bacon/lettuce/salmon_fillet/salmon 0.12 flat
 steak/meat/chicken/fish_fillet 0.2
+shrimp/prawn/calamari/squid_ring/tofu/halloumi/paneer 0.06
+tortilla_chip/nacho/crisp/potato_chip 0.06 flat
+chocolate_chip/raisin/sprinkle/currant 0.01
 drumstick 0.15
 clove/peppercorn/seed/bean/almond/peanut/walnut/hazelnut/pistachio/chickpea 0.02
 garlic/chili/chilli 0.06
@@ -98,6 +102,8 @@ wine/beer/juice/milk/water/soda/drink/cocktail/martini/margarita 0.18 container,
 lemonade/cola/whiskey/whisky/punch/champagne/prosecco/vodka/gin/rum/cider/sake 0.18 container,filled
 mojito/daiquiri/pina_colada/sangria/mimosa/negroni/cosmopolitan/gin_and_tonic 0.18 container,filled
 milkshake/smoothie/frappe 0.2 container,filled
+macchiato/latte_macchiato/americano/mocha/flat_white/chai/matcha/frappuccino/kombucha/lassi/eggnog 0.15 container,filled
+lager/ale/stout/spritz/shandy/julep/fizz/toddy/hot_toddy/whiskey_sour 0.18 container,filled
 teabag/tea_bag 0.07 flat
 sugar_cube/ice_cube 0.02
 # --- tableware and kitchen ---
@@ -144,6 +150,7 @@ teaspoon 0.14 pointed
 ladle/serving_spoon 0.3 pointed
 fork 0.19 pointed
 knife/kitchen_knife/chef_knife/butter_knife/steak_knife/cleaver 0.28 pointed
+cake_server/pie_server/cake_lifter 0.25 pointed
 chopstick 0.24 pointed
 toothpick/cocktail_stick 0.07 pointed,staked
 skewer/kebab_stick 0.3 pointed,staked
@@ -232,6 +239,7 @@ painting/picture/frame/picture_frame/poster/canvas/map/calendar 0.7 flat
 photo/photograph/polaroid 0.15 flat
 baking_sheet/baking_tray/sheet_pan 0.4 flat
 sign/signboard/plaque 0.6 flat
+ornament/decoration/bauble/trinket/knick_knack 0.1
 sticker/label/decal/note/sticky_note/postcard/card/playing_card 0.09 flat
 letter/paper/sheet/document/page 0.25 flat
 envelope 0.22 flat,container
@@ -290,6 +298,7 @@ board/plank 1.0 flat,pierceable
 log/tree_trunk/stump/firewood 0.8 pierceable
 wood/timber 0.5 pierceable
 block/cube/brick 0.3
+amber/resin 0.05
 chessboard/chess_board/game_board 0.45 flat
 pawn/chess_piece/rook/bishop 0.05
 dice/die 0.016
@@ -306,7 +315,8 @@ wedding_dress/gown/ball_gown 1.5 soft
 pajamas/pyjamas/swimsuit/vest/waistcoat 0.7 soft
 shoebox/shoe_box 0.35 container
 earmuffs 0.2 wrap
-hairclip/hair_clip/barrette/hairpin/earring/brooch/badge/button 0.03 flat
+hairclip/hair_clip/barrette/hairpin/earring/brooch/badge/button/name_tag/name_badge 0.03 flat
+boutonniere/buttonhole/corsage/rosette 0.08
 fabric/cloth/felt/linen/cotton/denim/silk/velvet 0.5 flat,soft,pierceable
 yarn/ball_of_yarn/yarn_ball/wool 0.1 soft,round
 knitting_needle 0.35 pointed
@@ -329,6 +339,7 @@ sock 0.25 wrap
 stocking/christmas_stocking 0.45 soft
 shoe/boot/sneaker/slipper/sandal 0.3 container
 jacket/coat/shirt/t_shirt/sweater/hoodie/dress/robe/cape/cloak 1.0 soft
+scrubs/uniform/blouse/tunic/overalls/kimono/lab_coat/cardigan/blazer 1.0 soft
 trousers/pants/jeans/skirt/shorts 1.0 soft
 apron 0.8 flat,soft
 backpack/rucksack/schoolbag 0.5 container,soft
@@ -367,13 +378,16 @@ hammer/mallet 0.33
 gavel 0.25
 sound_block/gavel_block 0.12
 axe/hatchet 0.7 pointed
-saw 0.6
+saw/handsaw/hacksaw 0.6 pointed
 screwdriver/chisel 0.25 pointed
 wrench/spanner/pliers 0.25
 nail 0.07 pointed
 screw/bolt 0.05 pointed
 nut/hex_nut/wing_nut/washer/grommet/eyelet 0.015 container
 pin/push_pin/pushpin/thumbtack/tack/needle/sewing_needle 0.03 pointed
+piton/spike/tent_peg/ground_spike 0.15 pointed
+pipette/dropper/burette 0.15 pointed
+test_tube/graduated_cylinder 0.15 container
 scissors 0.2
 pen/pencil/marker/crayon 0.15 pointed
 paintbrush/brush 0.22 pointed
@@ -383,8 +397,9 @@ palette 0.35 flat
 paddle/oar 2.0
 wafer 0.08 flat
 ruler 0.3 flat
-shovel/spade/rake/broom/broomstick/mop/pitchfork 1.4 pointed
+shovel/spade/rake/broom/broomstick/mop/pitchfork/garden_fork/digging_fork 1.4 pointed
 sword/katana/sabre/saber 1.0 pointed
+machete/cutlass/kukri/sickle/scythe 0.6 pointed
 dagger 0.35 pointed
 spear/lance/javelin/trident 2.0 pointed
 arrow/dart 0.75 pointed
@@ -459,6 +474,7 @@ soldier/astronaut/pilot/firefighter/policeman/student/teacher/worker/musician/pl
 dancer/runner/tourist/driver/rider/mannequin/zombie/vampire 1.75 agent
 patient/passenger/fisherman/shepherd/gardener/mechanic/plumber/painter/skier/surfer/swimmer/climber 1.75 agent
 waiter/waitress/butler/sailor/diver/golfer/boxer/skater/cyclist/artist/scientist/businessman 1.75 agent
+groom/bridegroom/bride/best_man/bridesmaid 1.75 agent
 boy/girl/kid/child/teen/teenager 1.3 agent
 baby/toddler/infant 0.7 agent
 king/queen/prince/princess/knight/wizard/witch/pirate/cowboy/ninja/samurai/viking/clown/captain 1.8 agent
@@ -522,10 +538,12 @@ lion/tiger/bear/panda/gorilla/leopard/cheetah 2.0 agent
 monkey/chimpanzee/lemur/koala/raccoon/otter/sloth 0.6 agent
 frog/toad/turtle/tortoise/lizard/snail/crab/lobster 0.2 agent
 snake/python/cobra/eel 2.0 wrap,agent
-fish/trout/carp 0.3 agent
-goldfish/clownfish/guppy 0.06 agent
-shark/dolphin/whale 4.0 agent
+fish/trout/carp/cod/tuna/pike 0.3 aquatic,agent
+jellyfish/octopus/squid/stingray/seahorse 0.3 aquatic,agent
+goldfish/clownfish/guppy/angelfish/minnow/tetra 0.06 aquatic,agent
+shark/dolphin/whale 4.0 aquatic,agent
 bee/butterfly/ladybug/ant/spider/fly/insect/bug/beetle 0.03 agent
+mosquito/gnat/wasp/hornet/moth/flea/tick/mite/louse 0.02 agent
 worm/earthworm/caterpillar/slug 0.08 agent
 beehive/hive/anthill 0.5 container
 spider_web/cobweb/web 0.4 flat
@@ -548,6 +566,7 @@ hammock 3.0 soft
 tree/oak/pine/palm/palm_tree/pine_tree/oak_tree 8.0
 treehouse/tree_house/playhouse 2.5 container
 field/meadow/vegetable_patch/vegetable_garden/garden_patch/farmland 20.0 flat,pierceable
+garden/backyard/yard/orchard/allotment 20.0 flat,pierceable
 christmas_tree/xmas_tree/fir 2.0
 bush/shrub/hedge 1.5
 plant/houseplant/potted_plant/fern/cactus/succulent 0.5
@@ -557,7 +576,7 @@ branch/bough 1.0 pointed
 grass/lawn 5.0 flat
 rock/stone/boulder 0.5 pierceable
 pebble 0.04 round
-sand/dirt/soil/snow/mud 1.0 pierceable
+sand/dirt/soil/snow/mud 5.0 pierceable
 # --- vehicles ---
 pickup/pickup_truck 5.5 container
 tank/battle_tank/army_tank 7.0 container
@@ -569,6 +588,7 @@ construction_crane/tower_crane/~crane 50.0
 windshield/windscreen 1.5 flat
 windshield_wiper/wiper/license_plate/number_plate 0.5 flat
 steering_wheel 0.38
+engine/motor/engine_block/gearbox 0.8
 roof_rack 1.2
 trailer 4.0 container
 caravan/camper/rv/motorhome 7.0 container
@@ -621,6 +641,9 @@ puddle 0.5 flat,filled
 igloo/dome 3.0 container
 moon/planet/earth 100.0 round
 mountain/hill/cliff 100.0
+rock_face/cliff_face/crag/quarry 20.0 pierceable
+slope/ski_slope/piste/hillside 100.0 flat,pierceable
+glacier/ice_sheet/ice_field/ice_shelf 500.0 pierceable
 """
 
 # A part's size as a fraction of its owner's ("teapot lid": 0.6 of a teapot); a holder named for what it holds
@@ -630,12 +653,17 @@ PARTS: dict[str, float] = {
     "stand": 0.8, "handle": 0.4, "jar": 0.6, "tank": 0.6, "container": 0.6, "comb": 0.15, "top": 0.5,
     "seat": 0.4, "wheel": 0.3, "door": 0.5, "roof": 1.0, "blade": 0.6, "tip": 0.1, "head": 0.3,
     "leg": 0.5, "shade": 0.4, "bulb": 0.2, "slice": 0.5, "piece": 0.3, "half": 0.8, "wing": 0.4,
-    "tail": 0.4, "nose": 0.1,
+    "tail": 0.4, "nose": 0.1, "cube": 0.3, "chunk": 0.3, "stick": 1.0,
 }
+# A holder of a long thin thing (a toothbrush, a pen, a brush) is a cup shorter than what it holds.
+POINTED_HOLDER = 0.6
+# Pieces only a food is cut into ("a bread cube", "a carrot stick"; a "wood cube" is a block).
+FOOD_PIECES = frozenset({"cube", "chunk", "stick"})
 # The parts a person, character or animal has (a "hamster wheel" is no part of a hamster).
 AGENT_PARTS = frozenset({"head", "leg", "tail", "wing", "nose", "comb", "tip"})
 # The parts a food has, and what holds one (a "pizza box"; a "wheel of cheese" is a whole cheese, no cheese's wheel).
-FOOD_PARTS = frozenset({"slice", "piece", "half", "top", "tip", "base", "wing", "leg", "lid", "box"})
+FOOD_PARTS = frozenset({"slice", "piece", "half", "top", "tip", "base", "wing", "leg", "lid", "box", "cube", "chunk",
+                        "stick"})
 # Holders named for what they hold ("ring box", "pizza box"): only things small enough to be held ("roof box").
 HOLDERS = frozenset({"box", "case", "holder"})
 HOLDER_MAX_M = 1.2
@@ -814,13 +842,15 @@ def lookup(name: str) -> Match | None:
     if part is not None and not any(end == len(tokens) and end - start > 1 for start, end, _, _ in found):
         owners = [f for f in found if f[1] < len(tokens) and (part in AGENT_PARTS or "agent" not in f[3].tags)
                   and (part in FOOD_PARTS or f[3].domain != "food and drink")
-                  and (part not in HOLDERS or f[3].size_m <= HOLDER_MAX_M)]
+                  and (part not in HOLDERS or f[3].size_m <= HOLDER_MAX_M)
+                  and (part not in FOOD_PIECES or f[3].domain == "food and drink")]
         if owners:
             _, _, phrase, owner = owners[-1]
-            size = owner.size_m * PARTS[part] * scale
+            fraction = POINTED_HOLDER if part == "holder" and "pointed" in owner.tags else PARTS[part]
+            size = owner.size_m * fraction * scale
             tags = frozenset({"container"}) if part in CONTAINER_PARTS else frozenset()
             tags |= {"wrap"} if part in WRAPPING_PARTS else set()
-            return Match(part, owner, size, tags, f"{part} of a {phrase} ({PARTS[part]:g} x {owner.size_m:g} m)")
+            return Match(part, owner, size, tags, f"{part} of a {phrase} ({fraction:g} x {owner.size_m:g} m)")
     if tokens and not any(end == len(tokens) for _, end, _, _ in known):
         head_word = tokens[-1]
         closed = closed_compound(head_word)

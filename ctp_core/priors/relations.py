@@ -62,16 +62,21 @@ class Cue:
 _HEAD = r"(?:the |his |her |its |their |a |an )?(?:[a-z]+\s+){0,2}heads?"
 _BODY = r"(?:hands?|paws?|mouths?|arms?|grip|beak|claws?|fingers?|teeth)"
 _POSS = r"(?:his|her|its|their|the|a|one)"
+# How far or how firmly, between a verb and its preposition: "stuck halfway through", "pushed deep into".
+_ADV = r"(?:(?:halfway|half way|partway|part way|deep|deeply|firmly|straight|right|upright|securely|all the way) )?"
 
 CUES: list[Cue] = [
     # penetration: the penetrating object is the figure
     Cue(r"(?:pierced|cut|stabbed|skewered|impaled|speared) (?:by|with)", "penetrate", True),
     Cue(r"pierc(?:e|es|ed|ing)|stab(?:s|bed|bing)?|impal(?:e|es|ed|ing)|skewer(?:ed|ing)|spear(?:ed|ing)"
         r"|cut(?:s|ting)?(?: through| into)?(?!\s+boards?)|slicing(?: through| into)?|embedded|lodged|penetrat[a-z]*"
-        r"|stuck (?:in|into|through)|stick(?:s|ing)? (?:in|into|out of|through)|buried (?:in|into)"
+        r"|stuck " + _ADV + r"(?:in|into|through)|stick(?:s|ing)? " + _ADV + r"(?:in|into|out of|through)"
+        r"|buried " + _ADV + r"(?:in|into)"
         r"|pok(?:e|es|ed|ing) (?:out of|through|into)|peek(?:s|ing)? out of|protrud(?:e|es|ing) from"
-        r"|(?:driven|hammered|nailed|pinned|planted|pushed|poked|thrust|sunk|jammed|screwed|shot) (?:in|into)"
-        r"|planted (?:on|atop)|carv(?:e|es|ed|ing)|chop(?:s|ped|ping)? (?:into|through)"
+        r"|(?:driven|hammered|nailed|pinned|planted|pushed|pressed|poked|thrust|sunk|jammed|screwed|shot|staked|dug)"
+        r" " + _ADV
+        + r"(?:in|into)"
+        r"|planted (?:on|atop)|carv(?:e|es|ed|ing)|(?:chop|split|crack)(?:s|ped|ping|ting|ing)? (?:into|through|open)"
         r"|saw(?:s|ed|ing)? (?:through|into)|(?:drill|bor)(?:e|es|ed|ing|s)? (?:a hole )?(?:in|into|through)",
         "penetrate"),
     # garments and headwear
@@ -95,7 +100,8 @@ CUES: list[Cue] = [
     Cue(r"(?:walk|run|crawl|stroll|march|hik|climb|roll|skat|ski|slid|trott|gallop|wander)(?:s|ing|ed|e|es)?"
         r" (?:over|across|along|up|down|on)", "stand"),
     Cue(r"hang(?:s|ing)?|hung|dangl(?:e|es|ing)|suspended", "hang"),
-    Cue(r"attached|glued|taped|stuck (?:on|to)|fixed (?:on|to)|fastened|mounted|stapled|clipped|pinned (?:to|on)",
+    Cue(r"attached|glued|taped|stuck (?:on|to)|fixed (?:on|to)|fasten(?:s|ed|ing)?|mounted|stapled|clipped"
+        r"|pinned (?:to|on)",
         "attach"),
     Cue(r"under(?:neath)?|beneath|below", "under"),
     # in water when the ground holds some (rules), else free in air or water

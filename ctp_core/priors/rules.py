@@ -24,6 +24,7 @@ _CUTS = re.compile(r"(?:cut|slic|saw|carv|chop|stab|pierc|drill|bor|punctur)\w*(
 _DRIVEN = re.compile(r"hammer|driv|screw|nail|tapp|pound")
 DRIVEN_MAX_M = 0.25
 DRIVEN_CONTACT = 0.6
+FASTENER_MAX_M = 0.1  # a pointed thing this short that holds or fastens a pierceable solid is a pin through it
 # Someone standing in contents or in a place touches them with the feet (a horse in its stable, a heron wading).
 _ON_FEET = re.compile(r"\b(?:standing|stands|wading|wades|walking|walks|grazing)\b")
 ON_FEET_CONTACT = 0.02  # on a floor
@@ -33,10 +34,21 @@ WADING_CONTACT = 0.1  # in contents: the legs
 # pointed thing and does not float sinks whole into a liquid (pickles in brine, a coin in a fountain), not into a
 # paste, a foam or a soil (strawberries in whipped cream).
 _WHOLLY_UNDER = re.compile(r"\b(?:submerged|underwater|under (?:the )?water|at the bottom|sunk|buried"
+                           r"|on the (?:bottom|floor|gravel|bed) of"
                            r"|sinking|sank|dropped)\b")
-_WATER_SAID = re.compile(r"\b(?:submerged|underwater|under (?:the )?water)\b")
+_WATER_SAID = re.compile(r"\b(?:submerged|underwater|(?:under|beneath|below) (?:the )?(?:water|waves|surface))\b")
+# On the bottom of something full of contents: under them ("an ornament on the gravel of an aquarium of water").
+_ON_BOTTOM = re.compile(r"\b(?:on|along|across) the (?:bottom|floor|gravel|bed|sand|pebbles) of\b")
+# Screwed into something no point goes into (an engine, a lamp): into its threaded hole.
+_SCREWED = re.compile(r"screw|bolt")
 _HIDDEN = re.compile(r"\b(?:hidden|hiding|hides|nestled|concealed|buried)\b")
 _GROWS = re.compile(r"\b(?:growing|grows|grown|planted|rooted|sprouting)\b")
+_BURIED = re.compile(r"\b(?:buried|burying|burrow(?:s|ed|ing)?)\b")
+# Set solid around the figure: "frozen in a block of ice", "trapped in amber", "encased in resin".
+_ENCASED = re.compile(r"\b(?:frozen|trapped|encased|entombed|preserved|fossili[sz]ed|cast)\s+(?:in|inside|within"
+                      r"|into)\b")
+# Put into a fold or a pocket ("a fortune tucked inside a cookie"), not embedded in the food's mass.
+_TUCKED = re.compile(r"\b(?:tucked|tucks|tucking|slipped|slips|slipping)\b")
 _PARTLY_UNDER = re.compile(r"\b(?:dip|dipped|dipping|dunk|dunked|dunking|half|partly|partially)\b")
 SUNK_MAX = 0.5
 IMMERSED_CONTACT = {"whole": 0.9, "part": 0.4, "pointed": 0.3}  # "pointed" also for anything stuck in them
@@ -61,27 +73,56 @@ class RulesProvider:
         notes: list[str] = []
         if figure is None:
             figure = True  # the source is what gets placed: by default it is the figure
-        elif not figure:
-            notes.append("the source is the ground of the relation")
         agent_role = {"wear": "ground", "hold": "ground", "sit": "figure"}.get(cue.cue.relation if cue else "")
         target, source = (
             context.resolve(target_name, prompt, target_at, source, agent_role == ("ground" if figure else "figure"),
                             source_name),
             context.resolve(source_name, prompt, source_at, target, agent_role == ("figure" if figure else "ground"),
                             target_name))
+        relation, why = _relation(cue, target, source, source if figure else target)
+        holder, held = (target, source) if figure else (source, target)
+        if (relation.name == "hold" and holder is not None and holder.has("pointed") and not holder.has("agent")
+                and (holder.size_m <= FASTENER_MAX_M or holder.has("staked")) and _pierceable(held)):
+            # "pins holding a pattern on the fabric", "a skewer holding a burger together"
+            figure = not figure
+            relation = relations.RELATIONS["penetrate"]
+            why = f"'{cue.text}' said of a pointed {holder.phrase}: a fastener in the {held.phrase}"
+        if not figure:
+            notes.append("the source is the ground of the relation")
         ground_name, ground, ground_at = (target_name, target, target_at) if figure else (
             source_name, source, source_at)
-        filled = context.contents(prompt, ground_at, ground, source_name if figure else target_name)
-        relation, why = _relation(cue, target, source, source if figure else target)
-        if filled is None and cue is not None and relation.name in {"in", "penetrate"}:
-            filled = context.contents_after(prompt, cue.end, source_name if figure else target_name)
-        afloat = cue is not None and re.match(r"float|swim|bob|paddl", cue.text) is not None
+        figure_name = source_name if figure else target_name
         text = relations.clean(prompt)
+        if (relation.name == "in" and ground is not None and ground.entry.domain == "food and drink"
+                and not ground.has("container") and _TUCKED.search(text)):
+            ground = replace(ground, tags=ground.tags | {"container"})  # "a fortune tucked inside a fortune cookie"
+            target, source = (ground, source) if figure else (target, ground)
+            notes.append(f"tucked into the {ground_name}: into a fold of it")
+        filled = context.contents(prompt, ground_at, ground, figure_name)
+        if filled is None and cue is not None and relation.name in {"in", "penetrate"}:
+            filled = context.contents_after(prompt, cue.end, figure_name)
+        if filled is None and relation.name == "in" and ground is not None and ground.has("container"):
+            filled = context.contents_named(prompt, target_at + source_at, figure_name)  # "scooping salsa from"
+        if filled is None and relation.name == "penetrate" and ground is not None and ground.has("container"):
+            filled = context.contents_in_name(ground_name, figure_name)  # "a fork stuck in the compost bin"
+        if (filled is not None and relation.name in _SUPPORT | {"under"} and ground is not None
+                and (_ON_BOTTOM.search(text) or relation.name == "under" and _WATER_SAID.search(text))):
+            relation, why = relations.RELATIONS["in"], why + f"; under the {filled} it holds"
+        afloat = cue is not None and re.match(r"float|swim|bob|paddl", cue.text) is not None
         if filled is None and ground is not None and ground.has("container") and _WATER_SAID.search(text):
             filled = "water"  # "a toy submarine underwater in the bathtub"
+            if relation.name == "under":  # "a submarine beneath the waves of the sea"
+                relation, why = relations.RELATIONS["in"], why + "; under the water it holds"
+        if (filled is None and ground is not None and ground.has("container") and relation.name == "penetrate"
+                and _BURIED.search(text)):
+            filled = "its contents"  # "a plastic dinosaur half buried in the sandpit": in its sand
         if (filled is None and ground is not None and relation.name == "in" and not ground.has("container")
                 and _HIDDEN.search(text)):
             filled = f"the {ground.phrase}"  # "a bird nest hidden in a hedge": inside its mass
+        encased = (filled is None and relation.name == "in" and _ENCASED.search(text) is not None
+                   and _solid(ground))
+        if encased:
+            filled = f"the {ground.phrase}"  # "a fish frozen inside a block of ice": wholly in the solid
         if filled is None and ground is not None and relation.name == "in" and _GROWS.search(text):
             filled = "soil"  # "daffodils growing in a flower pot": rooted in the soil it holds
         if (not afloat and filled is not None and relation.name in _SUPPORT and ground is not None
@@ -118,7 +159,7 @@ class RulesProvider:
         in_place = ground is not None and size <= SUNK_MAX and (
             ground.entry.domain == "buildings and places" or _ON_FEET.search(text) is not None)
         contact = DRIVEN_CONTACT if driven and figure else _contact(relation, figure, source, immersed, afloat, text,
-                                                                    size, in_place)
+                                                                    size, in_place, encased)
         return ScenePrior(size_ratio=clamp_size(size), penetration=penetration, contact_ratio=clamp_contact(contact),
                           source=self.name, reason="; ".join(n for n in notes if n),
                           relation=relation.name, source_is_figure=figure)
@@ -222,6 +263,18 @@ def _size_ratio(target_name, source_name, target, source, relation, figure: bool
     return ratio, f"size ratio {clamped:.3g} ({whys[1]} / {whys[0]}{note})"
 
 
+def _solid(ground) -> bool:
+    """A mass a thing can be set in (ice, amber, rock, a cake): no container, creature, sheet, cloth or net, tree or
+    bush."""
+    return ground is not None and not ground.tags & {"container", "agent", "flat", "soft"} and (
+        ground.entry.domain != "plants" or ground.has("pierceable"))
+
+
+def _food(match) -> bool:
+    """A food, or something made of one ("a corn dog", "a chocolate bunny")."""
+    return match.entry.domain == "food and drink" or match.has("food")
+
+
 def _pierceable(ground) -> bool:
     """Solids a pointed thing goes into: tagged ``pierceable`` (wood, soil, foam, a dartboard), solid food,
     plants and soft things; never a container (it has an opening), a person or an animal."""
@@ -237,7 +290,14 @@ def _penetration(relation, figure: bool, target, source, filled: str | None, flo
     pond) is entered below their surface by whatever goes in, is stuck in or floats in it (flat things float on
     top); a container otherwise is entered through its opening; a pointed figure goes into a pierceable solid
     (``_pierceable``), also when "stuck on" it (a candle on a cake), and a food or soft thing "on" a pointed
-    stick is skewered by it; anything inside a solid food that is no container (a coin in a cake) is embedded.
+    stick is skewered by it; anything inside a solid food that is no container (a coin in a cake) is embedded,
+    unless it is tucked into a fold of it (a fortune cookie's paper). Found in ``estimate``: contents the prompt
+    names outside the objects ("scooping salsa from a bowl"), the contents of a container something is buried in
+    (a sandpit's sand) or that is named for its contents (a compost bin), a solid something is frozen, trapped or
+    encased in (ice, amber); what rests on the bottom of filled contents or is beneath their surface is under them; a
+    short or staked pointed thing that fastens or holds a pierceable solid (a safety pin, a skewer through a burger)
+    goes through it. Something screwed into what no point goes into (an engine, a lamp) is in a threaded hole, and an
+    accessory pinned to a person goes through their clothes.
     """
     ground, fig = (target, source) if figure else (source, target)
     fig_name = fig.phrase if fig is not None else "source" if figure else "target"
@@ -248,19 +308,25 @@ def _penetration(relation, figure: bool, target, source, filled: str | None, flo
     if relation.penetration == "yes":
         if ground is not None and ground.has("container") and not _CUTS.match(cue_text):
             return False, "goes into an opening of the ground: no penetration"
+        if ground is not None and _SCREWED.match(cue_text) and not _pierceable(ground):
+            return False, f"screwed into a threaded hole of the {ground.phrase}: no penetration"
         return True, "the relation cuts or pierces: penetration"
     if relation.penetration == "if_pointed" and fig is not None and fig.has("pointed") and _pierceable(ground):
         return True, f"a pointed {fig.phrase} into a solid {ground.phrase}: penetration"
-    if (cue_text.startswith("pinned") and fig is not None and ground is not None and ground.has("soft")
+    if (cue_text.startswith("pinned") and fig is not None and ground is not None
+            and (ground.has("soft") or ground.entry.domain == "people and characters (agents)")  # their clothes
             and fig.entry.domain == "clothing and accessories"):  # a brooch, a badge: its own pin
         return True, f"a {fig.phrase} pinned to a {ground.phrase}: its pin through the cloth, penetration"
     if (relation.name == "attach" and cue_text.startswith("stuck") and _pierceable(ground)
             and not (fig is not None and fig.has("flat"))):
         return True, f"stuck on a {ground.phrase}, which it pierces: penetration"
+    if (relation.name == "attach" and fig is not None and fig.has("pointed") and fig.size_m <= FASTENER_MAX_M
+            and _pierceable(ground)):  # "a safety pin fastening a cloth diaper", "a tack fixed to the board"
+        return True, f"a {fig.phrase} fastens the {ground.phrase} through it: penetration"
     if relation.name == "on" and fig is not None and fig.has("staked") and _pierceable(ground):
         return True, f"a {fig.phrase} stands stuck in the {ground.phrase}: penetration"
     if (relation.name == "on" and ground is not None and ground.has("pointed") and ground.size_m <= 1.0
-            and fig is not None and (fig.entry.domain == "food and drink" or fig.has("soft")) and not fig.has("agent")):
+            and fig is not None and (_food(fig) or fig.has("soft")) and not fig.has("agent")):
         return True, f"a {fig.phrase} on a pointed {ground.phrase}: skewered, penetration"
     if (relation.name == "in" and ground is not None and ground.entry.domain == "food and drink"
             and not ground.has("container") and not ground.has("agent")):
@@ -269,18 +335,22 @@ def _penetration(relation, figure: bool, target, source, filled: str | None, flo
 
 
 def _contact(relation, figure: bool, source, immersed_in: str | None = None, afloat: bool = False,
-             prompt: str = "", size: float = 1.0, in_place: bool = False) -> float:
+             prompt: str = "", size: float = 1.0, in_place: bool = False, encased: bool = False) -> float:
     """The relation's contact for the source's role, adjusted for the source's shape when it is the figure;
     a figure that goes into contents (``immersed_in``) touches them with its whole wetted part: all of it when
-    it goes wholly under (``_immersion``), a part otherwise."""
+    it goes wholly under (``_immersion``) or is set in a solid (``encased``), a part otherwise; so does one
+    that is no blade or stick and is buried or sunk in a solid."""
     if not figure:
         return relation.ground_contact
     contact = relation.figure_contact
     if immersed_in is not None:
         if source is not None and source.has("agent") and _ON_FEET.search(prompt) and not afloat:
             return WADING_CONTACT  # "a heron wading in the pond": its legs
-        how = _immersion(source, immersed_in, afloat, prompt, size)
+        how = "whole" if encased else _immersion(source, immersed_in, afloat, prompt, size)
         return IMMERSED_CONTACT["pointed" if how == "part" and relation.name == "penetrate" else how]
+    if (relation.name == "penetrate" and _WHOLLY_UNDER.search(prompt) and not _PARTLY_UNDER.search(prompt)
+            and not (source is not None and source.has("pointed"))):
+        return IMMERSED_CONTACT["whole"]  # "a dog bone buried in the garden"
     if source is None:
         return contact
     if relation.name == "in" and (source.has("agent") or source.entry.domain == "vehicles") and in_place:
@@ -312,6 +382,8 @@ def _immersion(source, contents: str, afloat: bool, text: str, size: float) -> s
     words = contents.split()
     liquid = words[-1] in context.LIQUIDS or context.is_drink(contents) and not set(words) & context.CONTENTS - \
         context.LIQUIDS  # a "pond" or a "cocktail" is liquid; a "honey jar" is not
+    if source is not None and source.has("aquatic") and liquid and not _PARTLY_UNDER.search(text):
+        return "whole"  # "a goldfish in a bag of water", "a trout swimming in the stream"
     if afloat or _PARTLY_UNDER.search(text) or size > SUNK_MAX or not liquid:
         return "part"
     if source is not None and (source.has("agent") or source.has("soft") or source.entry.domain == "vehicles" or (
