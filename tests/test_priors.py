@@ -802,3 +802,25 @@ def test_pinned_to_a_person_is_through_their_clothes_stuck_in_a_container_named_
     assert rules("nurse", "badge", "a badge pinned to the nurse's collar").penetration
     assert rules("ink_pot", "quill", "a quill stuck in the ink pot").penetration
     assert not rules("lock", "key", "a key stuck in the lock").penetration
+
+
+def test_pushed_through_pierces_a_participle_before_a_noun_is_no_cue_hooks_made_to_pierce_are_pointed():
+    assert rules("sausage", "skewer", "a skewer pushed through a sausage").penetration
+    prior = rules("sausage", "butcher_hook", "a butcher hook through a hanging sausage")
+    assert prior.penetration and prior.relation == "in"
+    assert rules("fish_hook", "maggot", "a maggot threaded onto a fish hook").penetration
+    assert not rules("wall", "coat", "a coat on a coat hook on the wall").penetration
+
+
+def test_a_head_first_stem_takes_the_word_the_prompt_calls_it_by_materials_are_no_heads():
+    assert rules("branch", "Robin_Garden_02", "a robin on a branch").size_ratio == pytest.approx(0.2)
+    prior = rules("cake", "SM_Candle_Wedding", "a wedding candle on a cake")
+    assert prior.penetration and "a wedding candle" in prior.reason
+    assert lexicon.lookup("Chair_Walnut_03").phrase == "chair"
+    assert rules("tea_cup", "lemon_wedge", "a lemon wedge on a tea cup").size_ratio > 1  # still a cup
+
+
+def test_gear_of_a_figurine_and_garments_of_a_small_animal_are_made_to_their_scale():
+    assert rules("figurine", "sword", "a figurine with a sword on its back").size_ratio < 1
+    assert rules("cat", "sweater", "a cat wearing a sweater").size_ratio < 1
+    assert rules("horse", "blanket", "a horse wearing a blanket").size_ratio < 1  # a horse's is full size

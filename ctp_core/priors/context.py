@@ -129,6 +129,7 @@ def resolve(name: str, prompt: str, mention_at: list[int], other: lexicon.Match 
             and match.phrase not in lexicon.PARTS):  # a "lipstick cover" is no lipstick
         # "quilt_patchwork_hi" that the prompt calls "a half-finished quilt": a quilt, with a quilt's shape
         match = replace(plain, how=plain.how + f" (the prompt calls {name!r} a {said[0]})")
+    match = _head_first(name, prompt, mention_at, match, said, plain)
     taken = set(lexicon.words(name)) | set(lexicon.words(other_name))
     mods = [w for w in modifiers(prompt, mention_at) if w not in taken]
     if mods:
@@ -150,6 +151,30 @@ def resolve(name: str, prompt: str, mention_at: list[int], other: lexicon.Match 
         scale = lexicon.SIZE_WORDS[sized[-1]] ** PROMPT_SIZE_POWER
         match = replace(match, size_m=match.size_m * scale, how=match.how + f", {sized[-1]}: x {scale:.2g}")
     return _modified(match, words)
+
+
+def _head_first(name: str, prompt: str, mention_at: list[int], match: lexicon.Match | None, said: list[str],
+                plain: lexicon.Match | None) -> lexicon.Match | None:
+    """A file stem that puts its head first ("Owl_Barn_01", "SM_Candle_Birthday"): the prompt's own phrase
+    of the name's words ("a birthday candle"), or the one word of the name the prompt calls it by ("an owl"
+    for "Owl_Barn_01", where the stem's last word, "barn", is nowhere in the prompt)."""
+    name_words = [w for w in lexicon.words(name) if w not in lexicon.NON_HEAD_WORDS and len(w) > 2]
+    if len(name_words) < 2 or (match is not None and match.phrase in lexicon.PARTS):
+        return match
+    tokens = [w for _, w in _tokens(prompt)]
+    for i in range(len(tokens) - len(name_words) + 1):
+        run = tokens[i:i + len(name_words)]
+        if run != name_words and sorted(lexicon.singulars(w)[-1] for w in run) == sorted(
+                lexicon.singulars(w)[-1] for w in name_words):
+            phrased = lexicon.lookup(" ".join(run))
+            if phrased is not None and phrased.phrase.split()[-1] in lexicon.singulars(run[-1]):
+                return replace(phrased, how=phrased.how + f" (the prompt calls {name!r} a {' '.join(run)})")
+    head = match.phrase.split()[-1] if match is not None else ""
+    said_forms = {f for w in tokens for f in lexicon.singulars(w)}
+    if (plain is not None and said and said[0] in name_words and (match is None or plain.entry is not match.entry)
+            and not {head, *name_words} - {said[0]} & said_forms):
+        return replace(plain, how=plain.how + f" (the prompt calls {name!r} a {said[0]})")
+    return match
 
 
 def _affinity(a: str, b: str) -> float:

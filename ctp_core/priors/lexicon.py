@@ -74,6 +74,7 @@ chocolate_chip/raisin/sprinkle/currant 0.01
 drumstick 0.15
 clove/peppercorn/seed/bean/almond/peanut/walnut/hazelnut/pistachio/chickpea 0.02
 garlic/chili/chilli 0.06
+cinnamon/vanilla_pod/vanilla_bean/lemongrass/licorice/liquorice 0.1
 rice/rice_ball/onigiri 0.07
 sushi/nigiri/maki 0.06
 cake 0.25
@@ -235,6 +236,7 @@ vase 0.3 container
 flower_pot/plant_pot/planter/pot_plant 0.25 container
 clock/wall_clock 0.35 flat
 mirror 0.8 flat
+hand_mirror/compact_mirror/pocket_mirror/vanity_mirror 0.25 flat
 painting/picture/frame/picture_frame/poster/canvas/map/calendar 0.7 flat
 photo/photograph/polaroid 0.15 flat
 baking_sheet/baking_tray/sheet_pan 0.4 flat
@@ -339,6 +341,8 @@ sock 0.25 wrap
 stocking/christmas_stocking 0.45 soft
 shoe/boot/sneaker/slipper/sandal 0.3 container
 jacket/coat/shirt/t_shirt/sweater/hoodie/dress/robe/cape/cloak 1.0 soft
+raincoat/overcoat/trench_coat/parka/anorak/poncho/mackintosh/duffle_coat 1.0 soft
+waders/dungarees/jumpsuit/onesie/wetsuit 1.3 soft,wrap
 scrubs/uniform/blouse/tunic/overalls/kimono/lab_coat/cardigan/blazer 1.0 soft
 trousers/pants/jeans/skirt/shorts 1.0 soft
 apron 0.8 flat,soft
@@ -354,6 +358,9 @@ wreath/garland 0.5
 # --- tools, weapons and equipment ---
 drill/power_drill/electric_drill/hair_trimmer 0.25
 drill_bit 0.1 pointed
+# hooks made to go through what they hold (a coat hook is not)
+fishing_hook/fish_hook 0.03 pointed
+meat_hook/butcher_hook/gaff 0.15 pointed
 toolbox/tool_box/toolkit/tool_chest 0.5 container
 vise/vice/clamp 0.3
 tape_measure/measuring_tape 0.08
@@ -450,6 +457,7 @@ star 0.2
 statue/sculpture 2.0
 # --- toys and figures ---
 spinning_top/yo_yo/yoyo/rubik_cube/slinky 0.06
+jigsaw/jigsaw_puzzle/puzzle 0.6 flat
 rattle/baby_rattle/jack_in_the_box 0.15
 pacifier/dummy/teether 0.06
 baby_bottle 0.18 container
@@ -481,6 +489,7 @@ king/queen/prince/princess/knight/wizard/witch/pirate/cowboy/ninja/samurai/vikin
 superhero/hero/villain/sorcerer/monk/priest/santa/santa_claus/elf/warrior 1.8 agent
 dwarf/gnome/goblin 1.0 agent
 fairy 0.3 agent
+mermaid/merman/centaur/satyr/nymph/genie 1.8 agent
 troll/ogre 3.0 agent
 robot/android/cyborg 1.8 agent
 alien 1.5 agent
@@ -573,7 +582,7 @@ plant/houseplant/potted_plant/fern/cactus/succulent 0.5
 flower/rose/tulip/daisy/sunflower/lily/bouquet 0.4 pointed
 leaf 0.1 flat
 branch/bough 1.0 pointed
-grass/lawn 5.0 flat
+grass/lawn/turf/sod 5.0 flat
 rock/stone/boulder 0.5 pierceable
 pebble 0.04 round
 sand/dirt/soil/snow/mud 5.0 pierceable
@@ -685,7 +694,9 @@ SIZE_WORDS: dict[str, float] = {
 SUBSTANCES = frozenset({"sand", "dirt", "soil", "snow", "mud", "water", "ice", "grass", "hay", "sugar", "salt"})
 MATERIALS = frozenset({"wood", "stone", "glass", "metal", "gold", "silver", "plastic", "paper", "marble", "clay",
                        "steel", "iron", "leather", "rock", "fabric", "cloth", "felt", "cotton", "denim", "silk",
-                       "velvet", "linen", "wool", "yarn"})
+                       "velvet", "linen", "wool", "yarn", "oak", "pine", "walnut", "maple", "birch", "teak", "mahogany",
+                       "cedar", "bamboo", "brass", "copper", "bronze", "chrome", "porcelain", "ceramic", "rubber",
+                       "resin"})
 # Words a file name or a prompt puts around an object's head noun that do not name an object: colours, styles,
 # file-format and asset-pipeline words ("Rubber_Duck_Yellow", "old_lamp_lowpoly", "SM_Chair_02").
 def word_set(text: str) -> frozenset[str]:
@@ -823,7 +834,8 @@ def lookup(name: str) -> Match | None:
     """Resolve an object name to a size, or None when nothing in it is known.
 
     The head of an English compound is its last noun ("coffee cup" is a cup), so the rightmost known
-    phrase wins (materials only when alone); a last word naming a part after a known owner ("teapot
+    phrase wins (materials, wood species and metals included, only when alone: "CoffeeTable_Oak_02" is a
+    coffee table); a last word naming a part after a known owner ("teapot
     lid", "blender_tank") is sized as a fraction of the owner. Size adjectives in the name
     ("ball_small") scale the result; colours, styles and file-pipeline words ("_lowpoly", "_Yellow")
     are not heads. An unknown last word is the head all the same: a closed compound ends in a known

@@ -76,6 +76,7 @@ CUES: list[Cue] = [
         r"|(?:driven|hammered|nailed|pinned|planted|pushed|pressed|poked|thrust|sunk|jammed|screwed|shot|staked|dug)"
         r" " + _ADV
         + r"(?:in|into)"
+        r"|(?:pushed|poked|thrust|jammed|shoved|driven|hammered) " + _ADV + r"through"
         r"|planted (?:on|atop)|carv(?:e|es|ed|ing)|(?:chop|split|crack)(?:s|ped|ping|ting|ing)? (?:into|through|open)"
         r"|saw(?:s|ed|ing)? (?:through|into)|(?:drill|bor)(?:e|es|ed|ing|s)? (?:a hole )?(?:in|into|through)",
         "penetrate"),
@@ -147,10 +148,18 @@ def find_cue(prompt: str, aside=None) -> CueMatch | None:
     for regex, cue in _COMPILED:
         for m in regex.finditer(text):
             found = CueMatch(cue, m.start(), m.end(), m.group(0))
-            if aside is None or not aside(found):
+            if not _adjective(text, found) and (aside is None or not aside(found)):
                 return found
             first = first or found
     return first
+
+
+def _adjective(text: str, cue: CueMatch) -> bool:
+    """A bare participle between an article and a noun describes the noun ("a meat hook through a hanging
+    ham"), it does not relate the two objects."""
+    return (re.fullmatch(r"[a-z]+ing", cue.text) is not None
+            and re.search(r"(?:^|\s)(?:a|an|the)\s+$", text[:cue.start]) is not None
+            and re.match(r"\s+[a-z]", text[cue.end:]) is not None)
 
 
 def source_is_figure(cue: CueMatch, source_at: list[int], target_at: list[int]) -> bool | None:

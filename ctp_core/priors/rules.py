@@ -47,11 +47,15 @@ _BURIED = re.compile(r"\b(?:buried|burying|burrow(?:s|ed|ing)?)\b")
 # Set solid around the figure: "frozen in a block of ice", "trapped in amber", "encased in resin".
 _ENCASED = re.compile(r"\b(?:frozen|trapped|encased|entombed|preserved|fossili[sz]ed|cast)\s+(?:in|inside|within"
                       r"|into)\b")
+# Put onto a pointed thing through its body: bait on a hook, beads on a needle.
+_THREADED = re.compile(r"\b(?:thread(?:s|ed|ing)?|impaled|hooked)\b")
 # Put into a fold or a pocket ("a fortune tucked inside a cookie"), not embedded in the food's mass.
 _TUCKED = re.compile(r"\b(?:tucked|tucks|tucking|slipped|slips|slipping)\b")
 _PARTLY_UNDER = re.compile(r"\b(?:dip|dipped|dipping|dunk|dunked|dunking|half|partly|partially)\b")
 SUNK_MAX = 0.5
 IMMERSED_CONTACT = {"whole": 0.9, "part": 0.4, "pointed": 0.3}  # "pointed" also for anything stuck in them
+# What a figure or a doll carries or wears, whatever the prompt's relation ("with a katana strapped to his back").
+_GEAR = {"clothing and accessories", "tools, weapons and equipment"}
 # Relations whose ground must be an agent (the wearer, the holder, the rider).
 _AGENT_GROUND = {"wear", "hold"}
 
@@ -150,7 +154,7 @@ class RulesProvider:
         size, size_why = _size_ratio(target_name, source_name, target, source, relation, figure)
         notes.insert(0, size_why)
         penetration, pen_why = _penetration(relation, figure, target, source, filled, floating,
-                                            cue.text if cue is not None else "")
+                                            cue.text if cue is not None else "", text)
         notes.append(pen_why)
         immersed = ground.phrase if filled == "its contents" and ground is not None else filled
         immersed = immersed if penetration else None
@@ -241,11 +245,16 @@ def _size_ratio(target_name, source_name, target, source, relation, figure: bool
         return ratio, (f"size ratio {clamp_size(ratio):.3g} (fallback: {', '.join(whys)}; "
                        f"the typical ratio for '{relation.name}')")
     fig_match, ground_match = (source, target) if figure else (target, source)
-    if (relation.name in _AGENT_GROUND and ground_match is not None and fig_match is not None
-            and ground_match.entry.domain == "toys and figures" and fig_match.size_m > 0.5 * ground_match.size_m):
-        scale = ground_match.size_m / PERSON_M  # a doll's hat, an action figure's sword: made to its scale
+    if (ground_match is not None and fig_match is not None and fig_match.size_m > 0.5 * ground_match.size_m
+            and not fig_match.has("agent") and (
+                relation.name in _AGENT_GROUND and ground_match.entry.domain == "toys and figures"
+                or fig_match.entry.domain in _GEAR and ground_match.entry.name == "toy"
+                or relation.name == "wear" and ground_match.entry.domain == "animals"
+                and fig_match.entry.domain == "clothing and accessories" and ground_match.size_m < PERSON_M)):
+        # a doll's hat, an action figure's sword (held, worn or strapped on), a dog's raincoat: made to its scale
+        scale = ground_match.size_m / PERSON_M
         sizes[1 if figure else 0] *= scale
-        whys[1 if figure else 0] += f" x {scale:.2g} (a toy's)"
+        whys[1 if figure else 0] += f" x {scale:.2g} (made to its wearer's scale)"
     ratio = sizes[1] / sizes[0]
     fits = FITS_INSIDE if figure else 1.0 / FITS_INSIDE
     if (relation.name == "in" and ground_match is not None and ground_match.has("container") and fig_match is not None
@@ -283,7 +292,7 @@ def _pierceable(ground) -> bool:
 
 
 def _penetration(relation, figure: bool, target, source, filled: str | None, floating: bool,
-                 cue_text: str = "") -> tuple[bool, str]:
+                 cue_text: str = "", text: str = "") -> tuple[bool, str]:
     """From the relation word and from what the ground is.
 
     Categories: a ground full of contents that close it off (``context.contents``: a drink, a soup, soil, a
@@ -297,7 +306,8 @@ def _penetration(relation, figure: bool, target, source, filled: str | None, flo
     encased in (ice, amber); what rests on the bottom of filled contents or is beneath their surface is under them; a
     short or staked pointed thing that fastens or holds a pierceable solid (a safety pin, a skewer through a burger)
     goes through it. Something screwed into what no point goes into (an engine, a lamp) is in a threaded hole, and an
-    accessory pinned to a person goes through their clothes.
+    accessory pinned to a person goes through their clothes. Since batch20: what is threaded, impaled or hooked onto a
+    pointed thing (bait on a fishing hook) is pierced by it, and hooks made to pierce (fishing, meat hooks) are pointed.
     """
     ground, fig = (target, source) if figure else (source, target)
     fig_name = fig.phrase if fig is not None else "source" if figure else "target"
@@ -326,8 +336,9 @@ def _penetration(relation, figure: bool, target, source, filled: str | None, flo
     if relation.name == "on" and fig is not None and fig.has("staked") and _pierceable(ground):
         return True, f"a {fig.phrase} stands stuck in the {ground.phrase}: penetration"
     if (relation.name == "on" and ground is not None and ground.has("pointed") and ground.size_m <= 1.0
-            and fig is not None and (_food(fig) or fig.has("soft")) and not fig.has("agent")):
-        return True, f"a {fig.phrase} on a pointed {ground.phrase}: skewered, penetration"
+            and (fig is not None and (_food(fig) or fig.has("soft")) and not fig.has("agent")
+                 or _THREADED.search(text))):  # "a worm threaded onto a fishing hook"
+        return True, f"a {fig_name} on a pointed {ground.phrase}: skewered, penetration"
     if (relation.name == "in" and ground is not None and ground.entry.domain == "food and drink"
             and not ground.has("container") and not ground.has("agent")):
         return True, f"inside a solid {ground.phrase}: embedded, penetration"
