@@ -150,7 +150,7 @@ def test_penetration_cues(target, source, prompt, penetration):
     ("king", "crown", "a king wearing a crown", 0.2, 0.45),
     ("table", "orange", "an orange on the table", 0.0, 0.1),      # round: a point
     ("pizza", "salami", "salami slices on a pizza", 0.0, 0.3),    # unknown shape: default resting
-    ("aquarium", "fish", "a fish swimming in the aquarium", 0.0, 0.0),
+    ("aquarium", "fish", "a fish swimming in the aquarium", 0.9, 0.9),  # in the water it holds
 ])
 def test_contact_from_cues_and_shapes(target, source, prompt, low, high):
     assert low <= rules(target, source, prompt).contact_ratio <= high
@@ -364,7 +364,7 @@ def test_sizes_fit_the_scene():
     ("sofa", "blanket", "a blanket over the sofa", "lie", 0.3, 0.6),       # cloth over something drapes
     ("car", "car_cover", "a car cover over the car", "lie", 0.5, 0.7),
     ("house", "balloon", "a balloon floating over the house", "beside", 0.0, 0.0),
-    ("fishbowl", "goldfish", "a goldfish swimming in a fishbowl", "beside", 0.0, 0.0),  # no contents said
+    ("fishbowl", "goldfish", "a goldfish swimming in a fishbowl", "in", 0.9, 0.9),  # afloat: in its water
     ("dune", "camel", "a camel walking over a dune", "stand", 0.0, 0.1),
     ("river", "salmon", "a salmon leaping out of the river", "beside", 0.0, 0.0),
     ("giraffe", "bird", "a bird sitting on the giraffe's head", "stand", 0.0, 0.1),    # creatures don't wear
@@ -824,3 +824,24 @@ def test_gear_of_a_figurine_and_garments_of_a_small_animal_are_made_to_their_sca
     assert rules("figurine", "sword", "a figurine with a sword on its back").size_ratio < 1
     assert rules("cat", "sweater", "a cat wearing a sweater").size_ratio < 1
     assert rules("horse", "blanket", "a horse wearing a blanket").size_ratio < 1  # a horse's is full size
+
+
+def test_afloat_in_a_container_is_in_the_water_it_holds_flat_things_stay_on_top():
+    assert rules("sink", "toy_boat", "a toy boat floating in the sink").penetration
+    assert not rules("bird_bath", "leaf", "a leaf floating in the birdbath").penetration
+    assert not rules("bathtub", "feather", "a feather floating over the bathtub").penetration
+
+
+def test_the_cue_leads_into_a_container_of_contents_whatever_the_mesh_is_named():
+    assert rules("SM_Box_01", "shovel", "a shovel stuck in a sack of soil").penetration
+    assert not rules("SM_Crate_01", "spoon", "a spoon in a crate of cereal").penetration  # loose pieces
+    assert rules("cake", "knife", "a knife cutting a slice of cake").contact_ratio < 0.9  # a slice holds nothing
+
+
+def test_cocktails_are_filled_work_blocks_are_pierceable_an_unknown_stand_belongs_to_its_owner():
+    assert rules("manhattan", "cocktail_cherry", "a cocktail cherry in a manhattan").penetration
+    assert lexicon.lookup("Old_Fashioned").has("filled")
+    assert rules("butcher_block", "cleaver", "a cleaver in the butcher block").penetration
+    prior = rules("curling_stand", "curling_iron", "a curling iron in its stand")
+    assert prior.size_ratio == pytest.approx(1 / 0.8) and "fallback" not in prior.reason
+    assert lexicon.bare_part("music_stand", "curling_iron") is None

@@ -283,17 +283,21 @@ def substance_object(prompt: str, cue_end: int) -> bool:
     return bool(phrase) and phrase[-1][1] in CONTENTS
 
 
-def contents_after(prompt: str, cue_end: int, figure_name: str = "") -> str | None:
+def contents_after(prompt: str, cue_end: int, figure_name: str = "", container: bool = False) -> str | None:
     """The contents the cue itself leads into, when its object is a substance or a drink rather than the ground
-    ("dipped in melted chocolate in a bowl", "buried in the sand" of a beach, "stuck in a pina colada" in a glass)."""
-    phrase = [word for _, word in _object_of(prompt, cue_end)]
+    ("dipped in melted chocolate in a bowl", "buried in the sand" of a beach, "stuck in a pina colada" in a glass),
+    or, when the ground is a ``container``, what fills the one the cue leads into ("stuck in a bag of compost",
+    a mesh named after a bucket)."""
+    found = _object_of(prompt, cue_end)
+    phrase = [word for _, word in found]
     if not phrase or set(phrase) & set(lexicon.words(figure_name)):
         return None
     if phrase[-1] in CONTENTS or (len(phrase) > 1 and phrase[-2] in _MELTED):  # its head: no "wine bottle"
         return phrase[-1]
     known = lexicon.lookup(" ".join(phrase))
-    drink = known is not None and known.has("filled") and known.entry.domain == "food and drink"
-    return " ".join(phrase) if drink else None
+    if known is not None and known.has("filled") and known.entry.domain == "food and drink":
+        return " ".join(phrase)
+    return contents(prompt, [found[-1][0]], None, figure_name) if container else None  # "a bag of compost"
 
 
 def contents_named(prompt: str, mentions: list[int], figure_name: str = "") -> str | None:

@@ -66,6 +66,9 @@ patty 0.1 flat
 pizza 0.35 flat
 pepperoni 0.04 flat
 cheese 0.1
+# cheeses as a block or a wheel (a wedge is a piece)
+parmesan/cheddar/brie/camembert/gouda/edam/stilton/manchego/gruyere/emmental/cheese_block 0.15
+cheese_wheel/wheel_of_cheese 0.4
 cheese_slice/ham/bacon/lettuce/salmon_fillet/salmon 0.12 flat
 steak/meat/chicken/fish_fillet 0.2
 shrimp/prawn/calamari/squid_ring/tofu/halloumi/paneer 0.06
@@ -105,6 +108,10 @@ mojito/daiquiri/pina_colada/sangria/mimosa/negroni/cosmopolitan/gin_and_tonic 0.
 milkshake/smoothie/frappe 0.2 container,filled
 macchiato/latte_macchiato/americano/mocha/flat_white/chai/matcha/frappuccino/kombucha/lassi/eggnog 0.15 container,filled
 lager/ale/stout/spritz/shandy/julep/fizz/toddy/hot_toddy/whiskey_sour 0.18 container,filled
+# cocktails and mixed drinks, served in their glass
+bloody_mary/bloody_caesar/manhattan/old_fashioned/mai_tai/paloma/bellini/tequila_sunrise 0.18 container,filled
+white_russian/long_island_iced_tea/mulled_wine/irish_coffee/pimms/aperol_spritz 0.18 container,filled
+caipirinha/highball/gin_tonic/rum_punch 0.18 container,filled
 teabag/tea_bag 0.07 flat
 sugar_cube/ice_cube 0.02
 # --- tableware and kitchen ---
@@ -145,6 +152,7 @@ tray/platter/cutting_board/chopping_board 0.4 flat
 lid 0.15
 cork/stopper 0.045
 straw/drinking_straw 0.2 pointed
+stirrer/swizzle_stick/coffee_stirrer/stir_stick/dipper/water_dipper 0.15 pointed
 spoon/tablespoon 0.17 pointed
 wooden_spoon/cooking_spoon/stirring_spoon 0.3 pointed
 teaspoon 0.14 pointed
@@ -259,6 +267,7 @@ speaker 0.3
 piano/grand_piano 1.5
 guitar/violin/cello/bass 1.0
 drum 0.5
+xylophone/glockenspiel/marimba 0.7
 trumpet/flute/saxophone 0.6
 drum_stick/drumsticks/~drumstick 0.4 pointed
 door/front_door/gate 2.0 flat
@@ -273,6 +282,7 @@ fireplace 1.5 container
 bathtub/bath 1.7 container
 hot_tub/jacuzzi 2.1 container,filled
 sink/basin 0.6 container
+tap/faucet/spigot/water_tap/garden_tap 0.15
 plug/power_plug/charger 0.06
 power_strip/extension_cord 0.4
 socket/power_outlet/outlet/light_switch 0.1 flat
@@ -283,6 +293,8 @@ oven/stove/cooker/washing_machine/dishwasher/dryer/tumble_dryer 0.9 container
 trash_can/bin/dustbin/wastebasket 0.6 container
 coat_rack/hat_stand/coat_stand 1.8
 hook/peg/coat_hook/knob/doorknob/handle 0.06
+# small fixings: brackets, hinges, latches
+bracket/wall_bracket/shelf_bracket/hinge/latch/hasp/door_latch 0.2
 ring_stand/pencil_holder/pen_holder 0.1 container
 piggy_bank/money_box 0.2 container
 mailbox/letterbox 0.45 container
@@ -298,6 +310,8 @@ cork_board/corkboard/bulletin_board 0.9 flat,pierceable
 whiteboard/blackboard/chalkboard 0.9 flat
 board/plank 1.0 flat,pierceable
 log/tree_trunk/stump/firewood 0.8 pierceable
+# wooden work blocks a blade is struck into
+chopping_block/butcher_block/splitting_block/chopping_stump/splitting_stump 0.5 pierceable
 wood/timber 0.5 pierceable
 block/cube/brick 0.3
 amber/resin 0.05
@@ -318,6 +332,7 @@ pajamas/pyjamas/swimsuit/vest/waistcoat 0.7 soft
 shoebox/shoe_box 0.35 container
 earmuffs 0.2 wrap
 hairclip/hair_clip/barrette/hairpin/earring/brooch/badge/button/name_tag/name_badge 0.03 flat
+cufflink/tie_clip/tie_pin/collar_stud 0.02
 boutonniere/buttonhole/corsage/rosette 0.08
 fabric/cloth/felt/linen/cotton/denim/silk/velvet 0.5 flat,soft,pierceable
 yarn/ball_of_yarn/yarn_ball/wool 0.1 soft,round
@@ -476,6 +491,7 @@ toy/figurine/action_figure/doll/puppet 0.3
 teddy_bear/teddy/plush/stuffed_animal 0.4 soft,agent
 lego/lego_brick/toy_block 0.05
 toy_car 0.1
+toy_soldier/tin_soldier/army_man/plastic_soldier 0.06 agent
 # --- people and characters (agents) ---
 person/human/man/woman/people/adult/guy/lady/gentleman/hiker/farmer/chef/cook/doctor/nurse 1.75 agent
 soldier/astronaut/pilot/firefighter/policeman/student/teacher/worker/musician/player/athlete 1.75 agent
@@ -545,7 +561,8 @@ elephant 6.0 agent
 giraffe 5.0 agent
 lion/tiger/bear/panda/gorilla/leopard/cheetah 2.0 agent
 monkey/chimpanzee/lemur/koala/raccoon/otter/sloth 0.6 agent
-frog/toad/turtle/tortoise/lizard/snail/crab/lobster 0.2 agent
+frog/toad/turtle/tortoise/lizard/crab/lobster 0.2 agent
+snail 0.04 agent
 snake/python/cobra/eel 2.0 wrap,agent
 fish/trout/carp/cod/tuna/pike 0.3 aquatic,agent
 jellyfish/octopus/squid/stingray/seahorse 0.3 aquatic,agent
@@ -817,8 +834,9 @@ def spans(tokens: list[str]) -> list[tuple[int, int, str, Entry]]:
     return found
 
 
-def bare_part(name: str) -> str | None:
-    """The detachable part a name is, when nothing else in it is known ("Lid_01" -> "lid", "pot_lid" -> None)."""
+def bare_part(name: str, owner_name: str = "") -> str | None:
+    """The detachable part a name is, when nothing else in it is known ("Lid_01" -> "lid", "pot_lid" -> None) or
+    its other words are words of its owner's name ("soldering_stand" of a "soldering_iron")."""
     tokens = words(name)
     for i in reversed(range(len(tokens))):
         part = next((w for w in singulars(tokens[i]) if w in DETACHABLE), None)
@@ -826,7 +844,7 @@ def bare_part(name: str) -> str | None:
             if any(start <= i < end and end - start > 1 for start, end, _, _ in spans(tokens)):
                 return None  # a compound that is an object of its own: "spinning top", "coat stand"
             others = [t for t in tokens[:i] + tokens[i + 1:] if t not in NON_HEAD_WORDS and len(t) > 2]
-            return None if others else part  # "music stand", "pot lid": not a bare part
+            return None if set(others) - set(words(owner_name)) else part  # "music stand": not a bare part
     return None
 
 

@@ -104,7 +104,8 @@ class RulesProvider:
             notes.append(f"tucked into the {ground_name}: into a fold of it")
         filled = context.contents(prompt, ground_at, ground, figure_name)
         if filled is None and cue is not None and relation.name in {"in", "penetrate"}:
-            filled = context.contents_after(prompt, cue.end, figure_name)
+            filled = context.contents_after(prompt, cue.end, figure_name,
+                                            ground is not None and ground.has("container"))
         if filled is None and relation.name == "in" and ground is not None and ground.has("container"):
             filled = context.contents_named(prompt, target_at + source_at, figure_name)  # "scooping salsa from"
         if filled is None and relation.name == "penetrate" and ground is not None and ground.has("container"):
@@ -135,6 +136,9 @@ class RulesProvider:
                 and not re.search(r"edge|rim|brink|lip", cue.text)):  # at the edge of a fountain: on its rim
             afloat = True
             why += "; on a body of water: afloat in it"
+        if afloat and filled is None and relation.name == "in" and ground is not None and ground.has("container"):
+            filled = "water"  # "a bath thermometer floating in the baby bath": nothing floats in an empty one
+            why += "; afloat in a container: in the water it holds"
         if afloat and filled is None:
             relation, why = relations.RELATIONS["beside"], f"'{cue.text}' in air or open water: no contact"
         floating = afloat and filled is not None
@@ -218,12 +222,13 @@ def _size_ratio(target_name, source_name, target, source, relation, figure: bool
     """Lexicon sizes; an unknown wearer/holder/rider is a person; otherwise an unknown size falls back
     to the relation's typical figure/ground ratio.
 
-    A name that is only a detachable part ("lid", "cap") belongs to the other object: a teapot's lid
-    is sized from the teapot, a pen's cap from the pen.
+    A name that is only a detachable part ("lid", "cap"), or a part named after the other object ("soldering_stand"
+    next to a "soldering_iron"), belongs to the other object: a teapot's lid is sized from the teapot, a pen's cap
+    from the pen.
     """
-    for part_name, other_name, other, part_is_source in ((source_name, target_name, target, True),
-                                                         (target_name, source_name, source, False)):
-        part = lexicon.bare_part(part_name)
+    for part_name, other_name, other, own, part_is_source in ((source_name, target_name, target, source, True),
+                                                              (target_name, source_name, source, target, False)):
+        part = lexicon.bare_part(part_name, other_name if own is None else "")  # unknown: "soldering_stand"
         if part is not None and other is not None and not other.has("agent"):  # a man has no lid
             fraction = lexicon.PARTS[part]
             ratio = fraction if part_is_source else 1.0 / fraction
