@@ -845,3 +845,9 @@ def test_cocktails_are_filled_work_blocks_are_pierceable_an_unknown_stand_belong
     prior = rules("curling_stand", "curling_iron", "a curling iron in its stand")
     assert prior.size_ratio == pytest.approx(1 / 0.8) and "fallback" not in prior.reason
     assert lexicon.bare_part("music_stand", "curling_iron") is None
+
+
+def test_plunged_into_pierces_stirring_is_in_a_roast_is_solid_food():
+    assert rules("roast_chicken", "carving_knife", "a carving knife plunged into a roast chicken").penetration
+    assert rules("mug", "spoon", "a spoon stirring a mug of soup").penetration
+    assert not rules("pot", "ladle", "a ladle stirring an empty pot").penetration

@@ -66,6 +66,7 @@ patty 0.1 flat
 pizza 0.35 flat
 pepperoni 0.04 flat
 cheese 0.1
+roast_turkey/roast_chicken/roast 0.4
 # cheeses as a block or a wheel (a wedge is a piece)
 parmesan/cheddar/brie/camembert/gouda/edam/stilton/manchego/gruyere/emmental/cheese_block 0.15
 cheese_wheel/wheel_of_cheese 0.4
@@ -126,7 +127,6 @@ grater/peeler/can_opener/bottle_opener/corkscrew/salt_shaker/pepper_shaker/peppe
 tongs 0.3
 oven_mitt/pot_holder 0.3 soft,wrap
 thermometer/meat_thermometer 0.15 pointed
-roast_turkey/roast_chicken/roast 0.4
 kitchen_counter/counter/countertop/kitchen_island 2.0 flat
 dish_rack/drying_rack 0.45 container
 coaster 0.1 flat

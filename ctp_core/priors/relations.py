@@ -73,7 +73,7 @@ CUES: list[Cue] = [
         r"|stuck " + _ADV + r"(?:in|into|through)|stick(?:s|ing)? " + _ADV + r"(?:in|into|out of|through)"
         r"|buried " + _ADV + r"(?:in|into)"
         r"|pok(?:e|es|ed|ing) (?:out of|through|into)|peek(?:s|ing)? out of|protrud(?:e|es|ing) from"
-        r"|(?:driven|hammered|nailed|pinned|planted|pushed|pressed|poked|thrust|sunk|jammed|screwed|shot|staked|dug)"
+        r"|(?:driven|hammered|nailed|pinned|planted|pushed|pressed|poked|thrust|plunged|sunk|jammed|screwed|shot|staked|dug)"
         r" " + _ADV
         + r"(?:in|into)"
         r"|(?:pushed|poked|thrust|jammed|shoved|driven|hammered) " + _ADV + r"through"
@@ -116,6 +116,7 @@ CUES: list[Cue] = [
     Cue(r"(?:at|on) the (?:edge|rim|brink|lip) of", "on"),  # "a pigeon drinking at the edge of a fountain"
     Cue(r"through", "in"),  # penetrates only when a pointed thing goes through a solid
     Cue(r"filled with|full of|contain(?:s|ing)?|holding inside", "in", True),
+    Cue(r"stir(?:s|red|ring)?", "in"),  # "a candy cane stirring a mug of hot chocolate": its end in it
     Cue(r"inside|into|within|in", "in"),
     Cue(r"on top of|on top|atop|onto|upon|on", "on"),
 ]
