@@ -104,8 +104,9 @@ class SearchConfig(_Strict):
     fine_views: int = Field(3, ge=1, le=16, description="views per candidate at the fine stage")
     fine_image_size: int = Field(160, ge=32, le=1024, description="render size of the fine stage")
     fine_zoom: float = Field(
-        0.5, ge=0.0, le=1.0, description="fine views look this far from the target centre toward the "
-        "candidate's source and come closer by the same fraction (a small source fills more pixels)"
+        0.0, ge=0.0, le=1.0, description="fine views look this far from the target centre toward the "
+        "candidate's source and come closer by the same fraction (a small source fills more pixels, but a view "
+        "that crops the goal's source out favours candidates placed elsewhere); 0: views shared by all"
     )
     batch: int = Field(24, ge=1, le=1024, description="candidates per render/encoder call (cancel is "
                        "checked between calls)")
@@ -247,12 +248,12 @@ PRESETS: dict[str, dict] = {
         "optim": {"steps": 2000, "phases": 3, "restarts": 5, "eval_every": 50, "init_rotation": "random"},
         "search": {"enabled": False},
     },
-    # Search then refine (~2 min for a typical pair on 2 cores): the search's 3 best poses, already in
+    # Search then refine (~1 min for a typical pair on 2 cores): the search's 6 best poses, already in
     # contact, get a short low-resolution descent with small steps (they start near an answer).
     "default": {
         "camera": {"views": 2, "image_size": 128, "zoom_last": 0.7},
         "loss": {"samples": 2000},
-        "optim": {"steps": 12, "phases": 2, "restarts": 3, "eval_every": 6, "lr_translation": 0.01,
+        "optim": {"steps": 12, "phases": 2, "restarts": 6, "eval_every": 6, "lr_translation": 0.01,
                   "lr_rotation": 0.02},
         "progress_every": 2,
     },

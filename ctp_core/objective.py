@@ -57,6 +57,28 @@ class Poses:
         return pose_matrix(self.t, self.q, self.log_s).detach().cpu().double().numpy()
 
 
+NEAR = 2.0  # source diagonals: a pose whose source is farther than this from the target places it nowhere
+
+
+def clearance(pair: PreparedPair, index: losses.TargetIndex, poses: Poses, points: int = 64) -> torch.Tensor:
+    """(B,) the smallest distance between each posed source (``points`` of its samples) and the target samples,
+    in source diagonals (normalised frame)."""
+    idx = torch.linspace(0, len(pair.source_samples) - 1, min(points, len(pair.source_samples))).long()
+    posed = apply_pose(pair.source_samples[idx], poses.t, poses.q, poses.log_s).detach().cpu()
+    dist, _ = index.tree.query(posed.reshape(-1, 3).numpy().astype(np.float64), k=1, workers=1)
+    diagonal = 2 * pair.source_radius * poses.log_s.detach().cpu().exp()
+    return torch.as_tensor(dist.reshape(len(poses), -1).min(axis=1), dtype=torch.float32) / diagonal
+
+
+def nearest_best(objectives: torch.Tensor, clear: torch.Tensor) -> int:
+    """The lowest objective among poses within ``NEAR`` of the target (any pose when none is): an image guide
+    can prefer a source gone out of view (an absent source differs less from the goal than a misplaced one),
+    and with no contact term (a relation that does not touch) nothing else keeps it near."""
+    near = clear <= NEAR
+    pool = torch.where(near, objectives, torch.full_like(objectives, torch.inf)) if near.any() else objectives
+    return int(pool.argmin())
+
+
 def combine(terms: dict[str, torch.Tensor], weights: Phase) -> torch.Tensor:
     """The weighted sum, one value per pose: the only place the weights meet the terms."""
     return weights.lambda_clip * terms["clip"] + weights.lambda_icp * terms["icp"] + weights.lambda_pen * terms["pen"]

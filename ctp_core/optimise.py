@@ -18,7 +18,7 @@ import torch
 from ctp_core.cameras import sample_training_views
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
-from ctp_core.objective import Poses, Scorer
+from ctp_core.objective import Poses, Scorer, clearance, nearest_best
 from ctp_core.pose import matrix_to_quaternion, quaternion_product, random_quaternions
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.scene import PreparedPair
@@ -114,7 +114,8 @@ class Optimiser:
         totals["total"] = time.perf_counter() - self.start
         totals["other"] = totals["total"] - spent
         return Outcome(
-            best=int(objectives.argmin()), poses=best, objectives=objectives,
+            best=nearest_best(objectives, clearance(self.scorer.pair, self.scorer.pair.index, best)),
+            poses=best, objectives=objectives,
             terms={k: scores[k] for k in ("clip", "icp", "pen")}, timings=totals,
             phase_timings=phase_timings, clip_images=self.scorer.clip_images, steps_run=self.done,
         )

@@ -6,16 +6,20 @@ lets the guide rank them in batches, with no gradient:
 
 1. ``propose`` (geometry only): points on the target surface (area-weighted, denser where the surface faces up
    and along rims), split into regions (``REGIONS``): surfaces facing up, sideways and down, the target's cavity
-   (inside its convex hull, outside the target as the penetration term defines it) and lateral gaps. Each point
-   gets a source orientation from the source's own frames (its upright frame and its flip turned about +Y, its
-   stable resting poses; uniform rotations in the ``random`` init mode), and ``settle`` slides the source along
-   the approach direction until it touches without interpenetrating. The prompt's relation (``ScenePrior``)
-   only *weights* how many proposals each region gets (``region_weights``); every region keeps a share.
+   (inside its convex hull, outside the target as the penetration term defines it), lateral gaps, drops (the
+   source lowered from above onto a point's column, every ``summits`` peak first: a spire's tip or a head's top
+   has too little area to be drawn) and the floor (standing where the target stands, under or around it). Each
+   point gets a source orientation from the source's own frames (its upright frame and its flip turned about
+   +Y, its stable resting poses; uniform rotations in the ``random`` init mode), and ``settle`` moves the source
+   until it touches without interpenetrating. The prompt's relation (``ScenePrior``) only *weights* how many
+   proposals each region gets (``region_weights``); every region keeps a share. The caller's start is one more
+   candidate where it is near the target.
 2. ``score``: the objective's terms (``objective.Scorer``) of every candidate, ranked by the guide's term where
    there is a guide (``ranking_key``: the proposals satisfy the geometry already), forward only under inference mode,
    ``search.batch`` candidates x views per render and encoder call: first all candidates at a few fixed views
-   framing the target's region (the same cameras for all, so a per-view target is encoded once), then the best
-   ``search.fine`` at more views zoomed toward each candidate's source.
+   framing the target's region (the same cameras for all, so a per-view target is encoded once), then
+   ``search.fine`` of them (``shortlist_of``: the best at distinct places, then the best distinct poses) at
+   more views zoomed toward each candidate's source.
    Between the two, ``sweep`` tries every source orientation at the best few distinct sites of the coarse stage
    (a candidate's orientation is one draw of many; a right place with the wrong turn still ranks well).
 3. ``diverse_top``: the best ``optim.restarts`` poses, near-duplicates suppressed; they start the optimiser.
@@ -28,7 +32,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -39,13 +43,17 @@ from ctp_core import losses, sampling
 from ctp_core.cameras import Cameras, orbit
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
-from ctp_core.objective import Poses, Scorer
+from ctp_core.objective import NEAR, Poses, Scorer, clearance
 from ctp_core.pose import matrix_to_quaternion, quaternion_product, quaternion_to_matrix, random_quaternions
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.scene import PreparedPair
 from ctp_core.schedule import Phase
 
-REGIONS: tuple[str, ...] = ("top", "side", "bottom", "inside", "gap")
+REGIONS: tuple[str, ...] = ("top", "side", "bottom", "inside", "gap", "drop", "floor")
+# How a proposal comes into contact (``settle``): toward the closest target sample (a surface's outward normal
+# is where it starts from), straight down its site's -normal (lowered from above), or not at all (it rests on
+# the floor where it was put and only leaves the target if it starts inside it).
+APPROACHES: tuple[str, ...] = ("closest", "straight", "none")
 UP_FACING = 0.5  # n_y above: "top"; below minus this: "bottom"; else "side"
 SETTLE_POINTS = 256  # source samples checked for penetration when settling proposals
 APPROACH_POINTS = 64  # source samples used while sliding proposals into contact
@@ -59,14 +67,16 @@ CAVITY_PROBES = 4096  # quasi-random points in the target AABB tried as cavity p
 # ground (the target sits on, in or against the source). Unlisted regions weigh 1: weights shift proposals
 # toward where the prompt says, never away from everywhere else (``min_share`` keeps every region).
 FIGURE_WEIGHTS: dict[str, dict[str, float]] = {
-    "on": {"top": 4.0}, "stand": {"top": 4.0}, "sit": {"top": 3.0}, "lie": {"top": 3.0}, "wear": {"top": 4.0},
-    "in": {"inside": 4.0, "top": 1.5}, "beside": {"gap": 4.0, "side": 2.0}, "under": {"bottom": 3.0, "gap": 2.0},
-    "hang": {"side": 2.0, "bottom": 2.0}, "lean": {"side": 3.0}, "attach": {"side": 2.0}, "hold": {"side": 2.0},
-    "wrap": {"side": 2.0}, "penetrate": {"top": 1.5, "side": 1.5},
+    "on": {"top": 4.0, "drop": 4.0}, "stand": {"top": 4.0, "drop": 3.0}, "sit": {"top": 3.0, "drop": 3.0},
+    "lie": {"top": 3.0, "drop": 3.0}, "wear": {"top": 4.0, "drop": 4.0},
+    "in": {"inside": 4.0, "top": 1.5, "drop": 2.0}, "beside": {"gap": 4.0, "side": 2.0, "floor": 3.0},
+    "under": {"bottom": 3.0, "gap": 2.0, "floor": 4.0},
+    "hang": {"side": 2.0, "bottom": 2.0}, "lean": {"side": 3.0, "floor": 2.0}, "attach": {"side": 2.0, "drop": 2.0},
+    "hold": {"side": 2.0}, "wrap": {"side": 2.0}, "penetrate": {"top": 1.5, "side": 1.5, "drop": 1.5},
 }
 GROUND_WEIGHTS: dict[str, dict[str, float]] = {
     "on": {"bottom": 4.0}, "stand": {"bottom": 4.0}, "sit": {"bottom": 3.0}, "lie": {"bottom": 3.0},
-    "wear": {"bottom": 3.0}, "under": {"top": 4.0}, "beside": {"gap": 4.0, "side": 2.0},
+    "wear": {"bottom": 3.0}, "under": {"top": 4.0, "drop": 3.0}, "beside": {"gap": 4.0, "side": 2.0, "floor": 3.0},
 }
 
 
@@ -74,13 +84,15 @@ GROUND_WEIGHTS: dict[str, dict[str, float]] = {
 class Site:
     """Where proposals touch the target: an anchor and approach direction per proposal (normalised frame)."""
 
-    anchor: torch.Tensor  # (N, 3) a target surface point, or a cavity point
-    normal: torch.Tensor  # (N, 3) approach along -normal (outward normal; +Y for cavity points)
+    anchor: torch.Tensor  # (N, 3) a target surface point, a cavity point or a floor point
+    normal: torch.Tensor  # (N, 3) approach along -normal (outward normal; +Y for cavity, drop and floor points)
     gap: torch.Tensor  # (N,) distance kept from the target after contact (lateral proposals)
-    on_surface: torch.Tensor  # (N,) bool: anchor on the surface (else a cavity point)
+    on_surface: torch.Tensor  # (N,) bool: the source starts with its extreme point along -normal at the anchor
+    # (a surface, drop or floor point; else it starts centred there: a cavity point)
+    approach: torch.Tensor  # (N,) index into APPROACHES
 
     def select(self, index) -> Site:
-        return Site(self.anchor[index], self.normal[index], self.gap[index], self.on_surface[index])
+        return Site(*(value[index] for value in vars(self).values()))
 
 
 @dataclass
@@ -99,6 +111,7 @@ class Ranked:
     scored: int  # candidate evaluations (coarse + sweep + fine)
     swept: int  # candidates of the orientation sweep
     seconds: float
+    stages: dict[str, tuple[Poses, torch.Tensor]] = field(default_factory=dict)  # per stage: poses, ranking key
 
 
 def region_weights(relation: str | None, source_is_figure: bool = True) -> dict[str, float]:
@@ -205,6 +218,31 @@ def cavity_points(pair: PreparedPair, seed: int) -> np.ndarray:
     return probes[keep]
 
 
+def summits(points: np.ndarray, radius: float) -> np.ndarray:
+    """Indices of the samples highest in their column and its neighbours (+Y up; a grid of ``radius`` cells over
+    x, z), highest first: a spire's tip, the top of a head, a knob, each bump's peak (small areas that
+    area-weighted sampling rarely draws)."""
+    cells = np.floor(points[:, [0, 2]] / max(radius, 1e-9)).astype(np.int64)
+    cells -= cells.min(0)
+    shape = cells.max(0) + 3  # a border of empty cells around the grid
+    height = np.full(shape, -np.inf)
+    np.maximum.at(height, (cells[:, 0] + 1, cells[:, 1] + 1), points[:, 1])
+    around = np.max([np.roll(np.roll(height, i, 0), j, 1) for i in (-1, 0, 1) for j in (-1, 0, 1)], axis=0)
+    top = height[cells[:, 0] + 1, cells[:, 1] + 1]
+    peaks = np.flatnonzero((points[:, 1] >= top) & (top >= around[cells[:, 0] + 1, cells[:, 1] + 1]))
+    return peaks[np.argsort(-points[peaks, 1], kind="stable")]
+
+
+def floor_points(pair: PreparedPair, count: int, margin: float, rng: np.random.Generator) -> np.ndarray:
+    """(count, 3) points on the plane the target stands on (its lowest point's height, normalised frame, +Y up),
+    uniform over the related object's footprint widened by ``margin`` on every side: things under or beside
+    an object rest where it does."""
+    lo, hi = pair.anchor.points.min(0).values.numpy(), pair.anchor.points.max(0).values.numpy()
+    out = lo - margin + (hi - lo + 2 * margin) * rng.random((count, 3))
+    out[:, 1] = float(pair.target_vertices[:, 1].min())
+    return out
+
+
 def contact_index(pair: PreparedPair, count: int = CONTACT_SAMPLES, seed: int = 0) -> losses.TargetIndex:
     """Denser target samples than the losses' (normalised frame, outward normals) for placing proposals: the
     sampled depth and distance are only as good as the spacing."""
@@ -218,7 +256,8 @@ def contact_index(pair: PreparedPair, count: int = CONTACT_SAMPLES, seed: int = 
 
 
 def settle(pair: PreparedPair, index: losses.TargetIndex, q: torch.Tensor, anchor: torch.Tensor,
-           normal: torch.Tensor, log_s: torch.Tensor, on_surface: bool) -> tuple[torch.Tensor, torch.Tensor]:
+           normal: torch.Tensor, log_s: torch.Tensor, on_surface: bool,
+           approach: str = "closest") -> tuple[torch.Tensor, torch.Tensor]:
     """Source centres (B, 3) that bring each rotated source into contact from outside, approaching along -normal,
     and whether each ended outside (a source wedged where pushing along the normal cannot free it did not).
 
@@ -226,9 +265,10 @@ def settle(pair: PreparedPair, index: losses.TargetIndex, q: torch.Tensor, ancho
     outward ``normal``; the source starts with its extreme point along -normal in the tangent plane there.
     Otherwise it starts centred at ``anchor``. Then, a few times (a sparse subset of the source samples): if a
     sample is inside the target (``losses.signed_depth``), push out along the normal by the deepest; else move
-    toward the target by the smallest distance between source and target samples, along that closest pair
-    (sphere tracing: a step that short cannot pass through a sample), so it ends touching. Last, a denser subset
-    is checked and only pushed out.
+    toward the target by the smallest distance between source and target samples (sphere tracing: a step that
+    short cannot pass through a sample), so it ends touching: along that closest pair (``approach`` "closest"),
+    along -normal ("straight": lowered from above). Last, a denser subset is checked and only pushed out.
+    ``approach`` "none": neither moved nor pushed, only checked (free where it was put, or dropped).
     """
     def subset(count: int) -> torch.Tensor:
         idx = torch.linspace(0, len(pair.source_samples) - 1, min(count, len(pair.source_samples))).long()
@@ -246,34 +286,40 @@ def settle(pair: PreparedPair, index: losses.TargetIndex, q: torch.Tensor, ancho
         support = (-(rotated * normal[:, None, :]).sum(-1)).max(dim=1).values  # extent along -normal
         centre = anchor + normal * (support + tol)[:, None]
 
-    def step(rotated: torch.Tensor, active: torch.Tensor, approach: bool) -> tuple[torch.Tensor, torch.Tensor]:
+    def step(rotated: torch.Tensor, active: torch.Tensor, closing: bool) -> tuple[torch.Tensor, torch.Tensor]:
         """Move the active candidates once; returns the ones that still move and every active one's depth."""
         posed = rotated[active] + centre[active, None, :]
         dist, idx = index.tree.query(posed.reshape(-1, 3).numpy().astype(np.float64), k=2, workers=1)
         idx = torch.as_tensor(idx.reshape(*posed.shape[:2], 2), dtype=torch.long)
-        deepest = losses.signed_depth(posed, index, 0.01, 2, idx=idx).max(dim=1).values
         dist = torch.as_tensor(dist[:, 0].reshape(posed.shape[:2]), dtype=centre.dtype)
+        # behind the sampled surface and mostly along its normal: above a feature thinner than the sample
+        # spacing (a spire's tip) a point is behind the planes of the samples on either side, though outside
+        depth = losses.signed_depth(posed, index, 0.01, 2, idx=idx)
+        deepest = torch.where(depth >= 0.5 * dist, depth, torch.zeros_like(depth)).max(dim=1).values
         gap, nearest = dist.min(dim=1)
         rows = torch.arange(len(active))
         toward = index.points[idx[rows, nearest, 0]] - posed[rows, nearest]  # closest source sample -> its target's
         toward = toward / toward.norm(dim=-1, keepdim=True).clamp_min(1e-12)
         inside = deepest > inside_tol
-        reach = (gap - tol).clamp_min(0.0) if approach else torch.zeros_like(gap)
-        move = torch.where(inside[:, None], normal[active] * (deepest + tol)[:, None], toward * reach[:, None])
+        if approach == "straight":
+            toward = -normal[active]
+        reach = (gap - tol).clamp_min(0.0) if closing else torch.zeros_like(gap)
+        push = normal[active] * (deepest + tol)[:, None] if approach != "none" else torch.zeros_like(toward)
+        move = torch.where(inside[:, None], push, toward * reach[:, None])
         centre[active] = centre[active] + move
         return active[move.norm(dim=-1) >= tol], deepest
 
     # approach with a sparse subset of the source (cheap), then check with a denser one and only push out
     sparse, dense = subset(APPROACH_POINTS), subset(SETTLE_POINTS)
     active = torch.arange(len(centre))
-    for _ in range(SETTLE_ITERATIONS):
-        active, _ = step(sparse, active, approach=True)
+    for _ in range(SETTLE_ITERATIONS if approach != "none" else 0):
+        active, _ = step(sparse, active, closing=True)
         if not len(active):
             break
     active = torch.arange(len(centre))
     depth = torch.zeros(len(centre))
-    for _ in range(PUSH_ITERATIONS):
-        moving, depth[active] = step(dense, active, approach=False)
+    for _ in range(PUSH_ITERATIONS if approach != "none" else 1):  # "none": kept only if free where put
+        moving, depth[active] = step(dense, active, closing=False)
         active = moving
         if not len(active):
             break
@@ -286,7 +332,7 @@ def propose(pair: PreparedPair, config: AlignConfig, weights: dict[str, float], 
 
     Proposals the settling could not free from the target are dropped. ``log_s`` is the source scale of every
     proposal (rigid: kept from the files or the caller's start);
-    ``init`` (one pose) is added as a candidate as given.
+    ``init`` (one pose) is added as a candidate as given when it is within ``objective.NEAR`` of the target.
     """
     cfg = config.search
     rng = np.random.default_rng(config.seed)
@@ -294,45 +340,53 @@ def propose(pair: PreparedPair, config: AlignConfig, weights: dict[str, float], 
     cavity = cavity_points(pair, config.seed)
     sides = regions["side"]
     # unweighted shares: the surface regions by area (sample counts); the cavity as at most a quarter of the
-    # surface and the lateral gaps as half the sides, whatever the number of probes that landed there
+    # surface, the lateral gaps as half the sides, drops from above as a quarter of the surface and the floor as
+    # an eighth, whatever the number of probes that landed there
     available = {"top": len(regions["top"]), "side": len(sides), "bottom": len(regions["bottom"]),
-                 "inside": min(len(cavity), len(points) // 4), "gap": len(sides) // 2}
+                 "inside": min(len(cavity), len(points) // 4), "gap": len(sides) // 2, "drop": len(points) // 4,
+                 "floor": len(points) // 8}
     counts = allocate(available, weights, cfg.candidates, cfg.min_share)
     rotations = orientations(pair, config, generator)
     up = np.array([0.0, 1.0, 0.0])
     diagonal = 2 * pair.source_radius * math.exp(log_s)
-    anchors, dirs, gaps, labels, on_surface = [], [], [], [], []
+    everywhere = np.arange(len(points))
+    parts = []
     for region, n in counts.items():
         if n == 0:
             continue
-        if region == "inside":
-            pick = rng.integers(len(cavity), size=n)
-            anchors.append(cavity[pick])
-            dirs.append(np.tile(up, (n, 1)))
-            gaps.append(np.zeros(n))
-            on_surface.append(np.zeros(n, bool))
+        zero, ones, above = np.zeros(n), np.ones(n, bool), np.tile(up, (n, 1))
+        if region == "inside":  # centred on a cavity point, pushed up out of any wall
+            parts.append((cavity[rng.integers(len(cavity), size=n)], above, zero, ~ones, "closest"))
+        elif region == "floor":  # standing on the plane the target stands on, under it or around it
+            parts.append((floor_points(pair, n, diagonal, rng), above, zero, ones, "none"))
         else:
-            pool = regions["side"] if region == "gap" else regions[region]
+            pool = {"gap": sides, "drop": everywhere}.get(region, regions.get(region))
             w = density[pool] / density[pool].sum()
             pick = pool[rng.choice(len(pool), size=n, p=w)]
-            anchors.append(points[pick])
-            dirs.append(normals[pick])
+            if region == "drop":  # lowered from above onto a point's column: every summit first, then by density
+                peaks = summits(points, diagonal)[: n // 2]
+                pick[: len(peaks)] = peaks
+                parts.append((points[pick], above, zero, ones, "straight"))
+                continue
             choices = np.array([g for g in cfg.gaps if g > 0] or [0.0]) if region == "gap" else np.zeros(1)
-            gaps.append(rng.choice(choices, size=n) * diagonal)
-            on_surface.append(np.ones(n, bool))
-        labels += [region] * n
-    as_t = lambda a: torch.as_tensor(np.concatenate(a), dtype=torch.float32)  # noqa: E731
-    sites = Site(as_t(anchors), as_t(dirs), as_t(gaps), torch.as_tensor(np.concatenate(on_surface)))
+            parts.append((points[pick], normals[pick], rng.choice(choices, size=n) * diagonal, ones, "closest"))
+    labels = [region for region, n in counts.items() if n for _ in range(n)]
+    as_t = lambda i: torch.as_tensor(np.concatenate([p[i] for p in parts]), dtype=torch.float32)  # noqa: E731
+    sites = Site(as_t(0), as_t(1), as_t(2), torch.as_tensor(np.concatenate([p[3] for p in parts])),
+                 torch.as_tensor(np.concatenate([np.full(len(p[0]), APPROACHES.index(p[4])) for p in parts])))
     q = rotations[torch.as_tensor(rng.integers(len(rotations), size=len(sites.anchor)))]
     index = contact_index(pair, seed=config.seed)
     poses, free = place(pair, index, q, sites, log_s)
     labels = [label for label, ok in zip(labels, free.tolist(), strict=True) if ok]
     sites = sites.select(free)
-    if init is not None:  # the caller's start, as given (no site: the orientation sweep skips it)
+    if init is not None and float(clearance(pair, index, init.select(slice(0, 1)))[0]) <= NEAR:
+        # the caller's start, as given, where it is near the target (a start away from it answers no contact
+        # search, yet an image guide can rank it high: an absent source differs less from the goal than a
+        # misplaced one); no site: the orientation sweep skips it
         poses = Poses.cat([init.select(slice(0, 1)), poses])
         labels = ["init", *labels]
         given = Site(init.t[:1].cpu(), torch.tensor([[0.0, 1.0, 0.0]]), torch.zeros(1),
-                     torch.zeros(1, dtype=torch.bool))
+                     torch.zeros(1, dtype=torch.bool), torch.zeros(1, dtype=torch.long))
         sites = Site(*(torch.cat([a, b]) for a, b in zip(vars(given).values(), vars(sites).values(), strict=True)))
     device = pair.source_vertices.device
     return Proposals(Poses(poses.t.to(device), poses.q.to(device), poses.log_s.to(device)), labels, sites,
@@ -347,10 +401,11 @@ def place(pair: PreparedPair, index: losses.TargetIndex, q: torch.Tensor, sites:
     t = torch.empty(len(q), 3)
     free = torch.ones(len(q), dtype=torch.bool)
     for surface in (True, False):
-        sel = sites.on_surface == surface
-        if sel.any():
-            t[sel], free[sel] = settle(pair, index, q[sel], sites.anchor[sel], sites.normal[sel], scale[sel],
-                                       on_surface=surface)
+        for mode, approach in enumerate(APPROACHES):
+            sel = (sites.on_surface == surface) & (sites.approach == mode)
+            if sel.any():
+                t[sel], free[sel] = settle(pair, index, q[sel], sites.anchor[sel], sites.normal[sel], scale[sel],
+                                           on_surface=surface, approach=approach)
     t = t + sites.normal * sites.gap[:, None]
     return Poses(t, q, scale).select(free), free
 
@@ -396,9 +451,12 @@ def coarse_cameras(pair: PreparedPair, config: AlignConfig, log_s: float) -> Cam
 
 def fine_cameras(pair: PreparedPair, config: AlignConfig, poses: Poses) -> Cameras:
     """(B, C) views per candidate: the look-at moves ``fine_zoom`` of the way to its source's centre and the
-    framed radius shrinks toward the source's (but frames at least twice the source)."""
+    framed radius shrinks toward the source's (but frames at least twice the source). With no zoom, (1, C)
+    views shared by every candidate (the same scales: a per-view target is encoded once)."""
     cfg, cam = config.search, config.camera
     views, beta = cfg.fine_views, cfg.fine_zoom
+    if beta == 0 and bool((poses.log_s == poses.log_s[0]).all()):
+        poses = poses.select(slice(0, 1))
     source_radius = pair.source_radius * poses.log_s.exp()
     scene_radius = pair.target_radius + source_radius
     radius = torch.maximum(scene_radius * (1 - beta), 2 * source_radius)
@@ -500,7 +558,7 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
                           should_cancel=should_cancel, progress=lambda n: emit(len(poses) + n))
             poses, coarse = Poses.cat([poses, swept]), torch.cat([coarse, extra])
         emit(total - fine_count)
-        shortlist = diverse_top(poses, coarse, fine_count, *distinct)
+        shortlist = shortlist_of(poses, coarse, fine_count, *distinct)
         fine_poses = poses.select(shortlist)
         fine = score(scorer, fine_poses, weights, fine_cameras(pair, config, fine_poses), batch=cfg.batch,
                      progress=lambda n: emit(total - fine_count + n), should_cancel=should_cancel)
@@ -509,7 +567,17 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
         best = diverse_top(fine_poses, ranked, k, *distinct)
     emit(total, float(ranked[best[0]]))
     return Ranked(fine_poses.select(best), ranked[best], len(poses) + len(fine_poses),
-                  0 if swept is None else len(swept), time.perf_counter() - began)
+                  0 if swept is None else len(swept), time.perf_counter() - began,
+                  {"coarse": (poses, coarse), "fine": (fine_poses, ranked)})
+
+
+def shortlist_of(poses: Poses, objectives: torch.Tensor, k: int, distance: float, angle_deg: float) -> list[int]:
+    """The fine stage's ``k`` candidates: the best at each of the ``k // 2`` best distinct places (any turn), then
+    the best distinct poses. The sweep puts every orientation at its sites, and those rank together: without
+    the first half they would fill the shortlist with two places."""
+    places = diverse_top(poses, objectives, k // 2, distance, 180.0)
+    rest = [i for i in diverse_top(poses, objectives, k, distance, angle_deg) if i not in places]
+    return places + rest[: k - len(places)]
 
 
 def ranking_key(scorer: Scorer, terms: dict[str, torch.Tensor], weights: Phase) -> torch.Tensor:

@@ -44,7 +44,7 @@ def _proposals(target, source, config=CONFIG):
 @pytest.mark.parametrize("name", ["box on table", "ball and cup"])
 def test_proposals_touch_and_do_not_penetrate(pairs, name):
     """Exact signed distances (both targets are closed): no source sample deeper than 1 % of the target's
-    size, and nearly all proposals but the lateral gaps within 1 % of touching."""
+    size, and nearly all proposals but the lateral gaps and those on the floor within 1 % of touching."""
     target, source = pairs[name]
     assert target.is_volume
     pair, props = _proposals(target, source)
@@ -55,11 +55,11 @@ def test_proposals_touch_and_do_not_penetrate(pairs, name):
         m = pair.source_to_target(matrix)
         depth = trimesh.proximity.signed_distance(target, points @ m[:3, :3].T + m[:3, 3]).max()  # > 0 inside
         assert depth <= 0.01 * size, (region, depth)
-        if region != "gap":
+        if region not in ("gap", "floor"):
             touching += depth >= -0.01 * size
-    contacts = sum(r != "gap" for r in props.region)
+    contacts = sum(r not in ("gap", "floor") for r in props.region)
     assert touching >= 0.85 * contacts  # sampled distances leave a few short of contact
-    assert {"top", "side", "bottom"} <= set(props.region)
+    assert {"top", "side", "bottom", "drop", "floor"} <= set(props.region)
     if name == "ball and cup":
         assert "inside" in props.region
 
@@ -69,7 +69,7 @@ def test_proposals_touch_and_do_not_penetrate(pairs, name):
 def test_a_relation_weight_never_zeroes_a_region(relation, figure):
     weights = search.region_weights(relation, figure)
     assert set(weights) == set(search.REGIONS) and min(weights.values()) >= 1.0
-    available = {"top": 300, "side": 900, "bottom": 300, "inside": 40, "gap": 450}
+    available = {"top": 300, "side": 900, "bottom": 300, "inside": 40, "gap": 450, "drop": 375, "floor": 190}
     counts = search.allocate(available, weights, 64, CONFIG.search.min_share)
     assert all(counts[r] >= 1 for r in available)
     plain = search.allocate(available, search.region_weights(None), 64, CONFIG.search.min_share)
@@ -84,6 +84,56 @@ def test_the_prompt_relation_shifts_proposals_without_removing_any(pairs):
     inside = search.propose(pair, CONFIG, search.region_weights("in"), 0.0, gen())
     assert inside.region.count("inside") > plain.region.count("inside")
     assert set(inside.region) == set(plain.region)
+
+
+def _spire() -> trimesh.Trimesh:
+    """A box with a thin cone standing on it: its tip is a tiny part of its area."""
+    box = trimesh.creation.box(extents=(2.0, 1.0, 2.0))
+    cone = trimesh.creation.cone(radius=0.15, height=1.0, sections=24)
+    cone.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))  # tip along +Y
+    cone.apply_translation((0.4, 0.5, -0.3))
+    return trimesh.util.concatenate([box, cone])
+
+
+def test_drops_reach_a_summit_that_area_sampling_misses():
+    """Lowered from above onto the summits: some proposals sit on the spire's tip (the source's lowest point
+    within 0.1 of it, 3 % of the target's size), though the cone's top is under 0.5 % of the surface."""
+    target, source = _spire(), trimesh.creation.icosphere(subdivisions=1, radius=0.08)
+    source.apply_translation((5.0, 5.0, 5.0))
+    pair, props = _proposals(target, source)
+    tip = pair.target_to_normalised.apply(np.array([[0.4, 1.5, -0.3]]))[0]
+    peaks = search.summits(pair.anchor.points.numpy().astype(np.float64), 0.3)
+    assert np.linalg.norm(pair.anchor.points[peaks[0]].numpy() - tip) < 0.2  # the highest summit: the cone's top
+    lowest = []
+    for matrix, region in zip(props.poses.matrices(), props.region, strict=True):
+        if region == "drop":
+            posed = pair.source_samples.numpy() @ matrix[:3, :3].T + matrix[:3, 3]
+            lowest.append(posed[np.argmin(posed[:, 1])])
+    near_tip = np.linalg.norm(np.array(lowest) - tip, axis=1) < 0.1  # resting on the tip (the ball's radius: 0.08)
+    assert near_tip.any()
+
+
+def test_floor_proposals_stand_on_the_targets_floor_beside_or_under_it(pairs):
+    target, source = pairs["box on table"]
+    pair, props = _proposals(target, source)
+    floor = float(pair.target_vertices[:, 1].min())
+    tol = 0.01 * 2 * pair.target_radius
+    heights = [float((pair.source_samples.numpy() @ m[:3, :3].T + m[:3, 3])[:, 1].min())
+               for m, r in zip(props.poses.matrices(), props.region, strict=True) if r == "floor"]
+    assert heights and all(abs(h - floor) < tol for h in heights)  # none pushed onto the table: free as put
+
+
+def test_the_callers_start_is_a_candidate_only_near_the_target(pairs):
+    target, source = pairs["box on table"]
+    pair = scene.prepare_pair(target, source, samples=CONFIG.loss.samples, seed=0)
+    weights = search.region_weights(None)
+    q = torch.tensor([[1.0, 0.0, 0.0, 0.0]])
+    near = objective.Poses(torch.tensor([[0.0, 0.4, 0.0]]), q, torch.zeros(1))
+    far = objective.Poses(torch.tensor([[0.0, 40.0, 0.0]]), q, torch.zeros(1))
+    with_near = search.propose(pair, CONFIG, weights, 0.0, torch.Generator().manual_seed(0), init=near)
+    with_far = search.propose(pair, CONFIG, weights, 0.0, torch.Generator().manual_seed(0), init=far)
+    assert with_near.region[0] == "init" and "init" not in with_far.region
+    assert len(with_near.poses) == len(with_far.poses) + 1
 
 
 def test_the_scorer_scores_n_candidates_then_m_restarts(pairs):
@@ -103,24 +153,27 @@ def test_the_scorer_scores_n_candidates_then_m_restarts(pairs):
     assert not few["objective"].is_inference()  # usable by the optimiser outside inference mode
 
 
-def test_search_counts_every_encoder_image_including_the_oracles(pairs):
+@pytest.mark.parametrize("zoom", [0.0, 0.5])
+def test_search_counts_every_encoder_image_including_the_oracles(pairs, zoom):
+    config = CONFIG.model_copy(update={"search": CONFIG.search.model_copy(update={"fine_zoom": zoom})})
     target, source = pairs["box on table"]
-    pair, props = _proposals(target, source)
+    pair, props = _proposals(target, source, config)
     reference = np.eye(4)
     reference[:3, 3] = -source.bounds.mean(0) + (0, 0.2, 0)
     oracle = targets.ReferenceTarget(reference)
     guide = get_guide("random:tiny")
     oracle.prepare(pair, guide)
-    scorer = objective.Scorer(pair, CONFIG, 0.2, guide=guide, target=oracle)
-    weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
+    scorer = objective.Scorer(pair, config, 0.2, guide=guide, target=oracle)
+    weights = schedule.phases(config, allow_penetration=False)[-1]
     events = []
     ranked = search.search(scorer, props, weights, k=2, on_event=events.append)
-    cfg = CONFIG.search
+    cfg = config.search
     n, fine = len(props.poses), min(cfg.fine, len(props.poses))
     assert 0 < ranked.swept <= cfg.sweep * len(props.rotations)  # every orientation at the best site(s)
     # candidates x views (coarse and sweep), the shared coarse reference views once, the fine ones each
     coarse = (n + ranked.swept) * cfg.coarse_views
-    assert scorer.clip_images == coarse + cfg.coarse_views + 2 * fine * cfg.fine_views
+    refs = cfg.fine_views if cfg.fine_zoom == 0 else fine * cfg.fine_views  # shared fine views without zoom
+    assert scorer.clip_images == coarse + cfg.coarse_views + fine * cfg.fine_views + refs
     assert ranked.scored == n + ranked.swept + fine
     assert len(ranked.poses) == 2 and ranked.objectives[0] <= ranked.objectives[1]
     planned = n + cfg.sweep * len(props.rotations) + fine
@@ -145,6 +198,33 @@ def test_diverse_top_skips_near_duplicates():
     poses = objective.Poses(t, q, torch.zeros(3))
     assert search.diverse_top(poses, torch.tensor([0.0, 0.1, 0.2]), 2, 0.1, 30.0) == [0, 2]
     assert search.diverse_top(poses, torch.tensor([0.0, 0.1, 0.2]), 3, 0.1, 30.0) == [0, 2, 1]
+
+
+def test_the_fine_shortlist_keeps_distinct_places_before_turns():
+    """Ten turns at one place rank best (the sweep's pattern); half the shortlist still goes to other places."""
+    angles = torch.arange(10) * 0.6
+    q_turns = torch.stack([torch.cos(angles / 2), 0 * angles, torch.sin(angles / 2), 0 * angles], dim=1)
+    t = torch.cat([torch.zeros(10, 3), torch.tensor([[float(i), 0.0, 0.0] for i in range(1, 6)])])
+    q = torch.cat([q_turns, torch.tensor([[1.0, 0, 0, 0]]).repeat(5, 1)])
+    poses = objective.Poses(t, q, torch.zeros(15))
+    objectives = torch.arange(15, dtype=torch.float32)  # the ten turns first
+    picked = search.shortlist_of(poses, objectives, 6, 0.1, 30.0)
+    assert len(picked) == len(set(picked)) == 6
+    assert len({tuple(poses.t[i].tolist()) for i in picked}) >= 3  # best turn at the first place + 2 others
+    assert search.diverse_top(poses, objectives, 6, 0.1, 30.0) == [0, 1, 2, 3, 4, 5]  # without: one place
+
+
+def test_the_answer_is_the_best_restart_that_stays_near_the_target(pairs):
+    """A restart whose source drifted out of reach (a guide can prefer an absent source) is not chosen over one
+    near the target, whatever their objectives; when none is near, the lowest objective still wins."""
+    target, source = pairs["box on table"]
+    pair = scene.prepare_pair(target, source, samples=CONFIG.loss.samples, seed=0)
+    q = torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(2, 1)
+    poses = objective.Poses(torch.tensor([[0.0, 30.0, 0.0], [0.0, 0.3, 0.0]]), q, torch.zeros(2))
+    clear = objective.clearance(pair, pair.index, poses)
+    assert clear[0] > objective.NEAR >= clear[1]
+    assert objective.nearest_best(torch.tensor([-1.0, 0.0]), clear) == 1
+    assert objective.nearest_best(torch.tensor([-1.0, 0.0]), torch.tensor([9.0, 9.0])) == 0
 
 
 def test_cancel_during_search(pairs):
