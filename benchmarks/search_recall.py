@@ -105,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=JSON",
                         help="config override, e.g. search.fine=32 (repeatable)")
-    parser.add_argument("--poses", action="store_true", 
+    parser.add_argument("--poses", action="store_true",
                         help="print each refined restart's 4x4 (source file -> target file)")
     parser.add_argument("--cases", default="", help="comma-separated case ids (default: all with a reference)")
     args = parser.parse_args(argv)
