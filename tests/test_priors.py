@@ -851,3 +851,26 @@ def test_plunged_into_pierces_stirring_is_in_a_roast_is_solid_food():
     assert rules("roast_chicken", "carving_knife", "a carving knife plunged into a roast chicken").penetration
     assert rules("mug", "spoon", "a spoon stirring a mug of soup").penetration
     assert not rules("pot", "ladle", "a ladle stirring an empty pot").penetration
+
+
+def test_a_compound_of_a_substance_and_its_place_holds_the_substance():
+    assert context.contents_in_name("mudflat") == "mud" and context.contents_in_name("inkwell") == "ink"
+    assert context.contents_in_name("sandwich") is None and context.contents_in_name("watermelon") is None
+    assert rules("snowdrift", "sled", "a sled stuck in the snowdrift").penetration  # unknown ground, its snow
+    assert rules("sandbox", "toy_trowel", "a toy trowel stuck in the sandbox").penetration
+    assert not rules("sandbox", "toy_truck", "a toy truck in the sandbox").penetration  # on the sand
+    assert rules("cement_footing", "post", "a post set in a cement footing").penetration
+
+
+def test_on_the_sharp_parts_of_something_is_impaled_on_them():
+    assert rules("porcupine", "pear", "a pear stuck on the quills of a porcupine").penetration
+    assert rules("rose_bush", "balloon", "a balloon caught on the thorns of a rose bush").penetration
+    assert not rules("cactus", "wren", "a wren perched on the spines of a cactus").penetration  # someone perched
+
+
+def test_a_pointed_thing_in_a_solid_is_stuck_in_it_any_verb_into_a_pierceable_mass_goes_in():
+    assert rules("door", "dart", "a dart in the door").penetration
+    assert not rules("knife_block", "knife", "a bread knife in the knife block").penetration  # its slot
+    assert not rules("drawer", "fork", "a fork in the drawer").penetration  # a container
+    assert rules("clay", "marble", "a marble sinking into the clay").penetration
+    assert not rules("wall", "toy_car", "a toy car crashing into the wall").penetration  # a flat solid stops it

@@ -73,6 +73,9 @@ punch brine oil blood
 """)
 # Heaps: what goes into a pile of anything (leaves, laundry, dirt) is buried in it, below its surface.
 HEAPS = lexicon.word_set("pile heap mound")
+# Places and receptacles named after the contents they hold, as the end of a one-word compound ("sandpit").
+HOLDS_CONTENTS = lexicon.word_set("pit pits bank banks flat flats drift drifts dune dunes bed beds box bin pile heap "
+                                  "mound field hole well pot can tub tank trap bag sack pan patch bath pool")
 # Mass nouns of loose pieces: they leave gaps, a spoon rests on them.
 DISCRETE = lexicon.word_set("cereal popcorn candy fruit ice gold money change food salad confetti gravel hay straw")
 
@@ -318,8 +321,18 @@ def contents_in_name(name: str, figure_name: str = "") -> str | None:
     """The contents a container is named for ("compost_bin", "ink_pot"), not the figure's own name: what something
     stuck or buried in it goes into."""
     own = {f for w in lexicon.words(figure_name) for f in lexicon.singulars(w)}
-    found = [w for w in lexicon.words(name)[:-1] if w not in own and (w in CONTENTS or is_drink(w))]
+    parts = [part for word in lexicon.words(name) for part in _compound(word)]
+    found = [w for w in parts[:-1] if w not in own and (w in CONTENTS or is_drink(w))]
     return found[-1] if found else None
+
+
+def _compound(word: str) -> list[str]:
+    """A one-word compound of a contents word and a place or a receptacle that holds it, split in two ("sandpit",
+    "snowbank", "mudflat", "inkwell"); any other word whole (a "sandwich", a "watermelon", a "teaspoon")."""
+    for first in sorted(CONTENTS, key=len, reverse=True):
+        if word.startswith(first) and word[len(first):] in HOLDS_CONTENTS:
+            return [first, word[len(first):]]
+    return [word]
 
 
 def _contents(prompt: str, mention_at: list[int], match: lexicon.Match | None) -> str | None:

@@ -49,6 +49,9 @@ _ENCASED = re.compile(r"\b(?:frozen|trapped|encased|entombed|preserved|fossili[s
                       r"|into)\b")
 # Put onto a pointed thing through its body: bait on a hook, beads on a needle.
 _THREADED = re.compile(r"\b(?:thread(?:s|ed|ing)?|impaled|hooked)\b")
+# On the sharp parts of something ("on the spines of a hedgehog", "on the prongs of a fork"): impaled on them.
+_ON_POINTS = re.compile(r"\b(?:on|onto|upon) (?:the |its |his |her |their |a )?(?:[a-z]+ )?(spines?|spikes?|thorns?"
+                        r"|prongs?|tines?|quills?|barbs?|needles?)\b")
 # Put into a fold or a pocket ("a fortune tucked inside a cookie"), not embedded in the food's mass.
 _TUCKED = re.compile(r"\b(?:tucked|tucks|tucking|slipped|slips|slipping)\b")
 _PARTLY_UNDER = re.compile(r"\b(?:dip|dipped|dipping|dunk|dunked|dunking|half|partly|partially)\b")
@@ -108,8 +111,9 @@ class RulesProvider:
                                             ground is not None and ground.has("container"))
         if filled is None and relation.name == "in" and ground is not None and ground.has("container"):
             filled = context.contents_named(prompt, target_at + source_at, figure_name)  # "scooping salsa from"
-        if filled is None and relation.name == "penetrate" and ground is not None and ground.has("container"):
-            filled = context.contents_in_name(ground_name, figure_name)  # "a fork stuck in the compost bin"
+        if filled is None and (relation.name == "penetrate" and ground is not None and ground.has("container")
+                               or relation.name in {"in", "penetrate"} and ground is None):
+            filled = context.contents_in_name(ground_name, figure_name)  # "stuck in the compost bin", "a snowbank"
         if (filled is not None and relation.name in _SUPPORT | {"under"} and ground is not None
                 and (_ON_BOTTOM.search(text) or relation.name == "under" and _WATER_SAID.search(text))):
             relation, why = relations.RELATIONS["in"], why + f"; under the {filled} it holds"
@@ -158,7 +162,7 @@ class RulesProvider:
         size, size_why = _size_ratio(target_name, source_name, target, source, relation, figure)
         notes.insert(0, size_why)
         penetration, pen_why = _penetration(relation, figure, target, source, filled, floating,
-                                            cue.text if cue is not None else "", text)
+                                            cue.text if cue is not None else "", text, ground_name)
         notes.append(pen_why)
         immersed = ground.phrase if filled == "its contents" and ground is not None else filled
         immersed = immersed if penetration else None
@@ -296,8 +300,14 @@ def _pierceable(ground) -> bool:
         ground.has("pierceable") or ground.has("soft") or ground.entry.domain in {"food and drink", "plants"})
 
 
+def _holds_own(ground_name: str, fig) -> bool:
+    """A holder named for what it holds ("knife_block" for a knife): it has a slot for it."""
+    return bool(set(lexicon.singulars(fig.phrase.split()[-1])) & {f for w in lexicon.words(ground_name)
+                                                                   for f in lexicon.singulars(w)})
+
+
 def _penetration(relation, figure: bool, target, source, filled: str | None, floating: bool,
-                 cue_text: str = "", text: str = "") -> tuple[bool, str]:
+                 cue_text: str = "", text: str = "", ground_name: str = "") -> tuple[bool, str]:
     """From the relation word and from what the ground is.
 
     Categories: a ground full of contents that close it off (``context.contents``: a drink, a soup, soil, a
@@ -313,6 +323,10 @@ def _penetration(relation, figure: bool, target, source, filled: str | None, flo
     goes through it. Something screwed into what no point goes into (an engine, a lamp) is in a threaded hole, and an
     accessory pinned to a person goes through their clothes. Since batch20: what is threaded, impaled or hooked onto a
     pointed thing (bait on a fishing hook) is pierced by it, and hooks made to pierce (fishing, meat hooks) are pointed.
+    Since batch23, defaults for what the rules do not know: a pointed thing "in" any solid that is no container, and
+    no holder named for it, is stuck in it (a dart in a door, not a knife in a knife block); any verb "into" a
+    pierceable mass that is no sheet goes in (a pebble sinking into mud); what is on the spines, thorns or prongs of
+    something is impaled on them.
     """
     ground, fig = (target, source) if figure else (source, target)
     fig_name = fig.phrase if fig is not None else "source" if figure else "target"
@@ -338,12 +352,21 @@ def _penetration(relation, figure: bool, target, source, filled: str | None, flo
     if (relation.name == "attach" and fig is not None and fig.has("pointed") and fig.size_m <= FASTENER_MAX_M
             and _pierceable(ground)):  # "a safety pin fastening a cloth diaper", "a tack fixed to the board"
         return True, f"a {fig.phrase} fastens the {ground.phrase} through it: penetration"
+    if (relation.name in {"on", "attach", "hang"} and _ON_POINTS.search(text) is not None
+            and fig is not None and not fig.tags & {"agent", "flat"}):  # "an apple stuck on a hedgehog's spines"
+        return True, f"on the {_ON_POINTS.search(text).group(1)} of the ground: pierced by them, penetration"
     if relation.name == "on" and fig is not None and fig.has("staked") and _pierceable(ground):
         return True, f"a {fig.phrase} stands stuck in the {ground.phrase}: penetration"
     if (relation.name == "on" and ground is not None and ground.has("pointed") and ground.size_m <= 1.0
             and (fig is not None and (_food(fig) or fig.has("soft")) and not fig.has("agent")
                  or _THREADED.search(text))):  # "a worm threaded onto a fishing hook"
         return True, f"a {fig_name} on a pointed {ground.phrase}: skewered, penetration"
+    if (relation.name == "in" and fig is not None and fig.has("pointed") and ground is not None
+            and not ground.tags & {"container", "agent"} and not _holds_own(ground_name, fig)):
+        return True, f"a pointed {fig.phrase} in a solid {ground.phrase}: stuck in it, penetration"  # a knife in a door
+    if (cue_text.endswith("into") and _pierceable(ground) and ground.has("pierceable") and not ground.has("flat")
+            and not (fig is not None and fig.has("agent"))):  # "a pebble sinking into the mud", any verb
+        return True, f"forced into a pierceable {ground.phrase}: penetration"
     if (relation.name == "in" and ground is not None and ground.entry.domain == "food and drink"
             and not ground.has("container") and not ground.has("agent")):
         return True, f"inside a solid {ground.phrase}: embedded, penetration"
