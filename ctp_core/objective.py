@@ -63,8 +63,7 @@ NEAR = 2.0  # source diagonals: a pose whose source is farther than this from th
 def clearance(pair: PreparedPair, index: losses.TargetIndex, poses: Poses, points: int = 64) -> torch.Tensor:
     """(B,) the smallest distance between each posed source (``points`` of its samples) and the target samples,
     in source diagonals (normalised frame)."""
-    idx = torch.linspace(0, len(pair.source_samples) - 1, min(points, len(pair.source_samples))).long()
-    posed = apply_pose(pair.source_samples[idx], poses.t, poses.q, poses.log_s).detach().cpu()
+    posed = apply_pose(pair.source_subset(points), poses.t, poses.q, poses.log_s).detach().cpu()
     dist, _ = index.tree.query(posed.reshape(-1, 3).numpy().astype(np.float64), k=1, workers=1)
     diagonal = 2 * pair.source_radius * poses.log_s.detach().cpu().exp()
     return torch.as_tensor(dist.reshape(len(poses), -1).min(axis=1), dtype=torch.float32) / diagonal
@@ -107,6 +106,17 @@ class Clock:
         finally:
             self.totals[key] += time.perf_counter() - start
             self._active = False
+
+    def mark(self) -> dict[str, float]:
+        """The totals now, for ``since``."""
+        return dict(self.totals)
+
+    def since(self, mark: dict[str, float], started: float) -> dict[str, float]:
+        """Seconds per component spent since ``mark`` (those that ran), ``total`` since ``started`` (perf_counter)
+        and ``other`` (the rest): one clock serves the search, then the refinement and each of its phases."""
+        split = {k: v - mark.get(k, 0.0) for k, v in self.totals.items() if v > mark.get(k, 0.0)}
+        total = time.perf_counter() - started
+        return {**split, "total": total, "other": total - sum(split.values())}
 
 
 class Scorer:

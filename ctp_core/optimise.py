@@ -90,7 +90,7 @@ class Optimiser:
         self.total_steps = sum(p.steps for p in plan)
         self.done = 0
         self.start = time.perf_counter()
-        self._clock_start = dict(self.clock.totals)  # the scorer's clock may have run before (the search)
+        self._clock_start = self.clock.mark()  # the scorer's clock may have run before (the search)
 
     # -- loop ----------------------------------------------------------------------------------------
     def run(self, start: Poses) -> Outcome:
@@ -98,21 +98,13 @@ class Optimiser:
         phase_timings = []
         scores: dict[str, torch.Tensor] = {}
         for phase in self.plan:
-            before = dict(self.clock.totals)
-            t0 = time.perf_counter()
+            before, t0 = self.clock.mark(), time.perf_counter()
             self._emit("phase_start", phase, message=f"phase {phase.index}/{len(self.plan)}")
             best, scores = self._phase(phase, best)
-            split = {k: v - before.get(k, 0.0) for k, v in self.clock.totals.items()}
-            split["total"] = time.perf_counter() - t0
-            split["other"] = split["total"] - sum(v for k, v in split.items() if k != "total")
-            phase_timings.append(split)
+            phase_timings.append(self.clock.since(before, t0))
             self._emit("phase_end", phase, best_objective=float(scores["objective"].min()))
         objectives = scores["objective"]
-        totals = {k: v - self._clock_start.get(k, 0.0) for k, v in self.clock.totals.items()}
-        totals = {k: v for k, v in totals.items() if v > 0}
-        spent = sum(totals.values())
-        totals["total"] = time.perf_counter() - self.start
-        totals["other"] = totals["total"] - spent
+        totals = self.clock.since(self._clock_start, self.start)
         return Outcome(
             best=nearest_best(objectives, clearance(self.scorer.pair, self.scorer.pair.index, best)),
             poses=best, objectives=objectives,

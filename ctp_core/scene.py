@@ -17,6 +17,7 @@ Frames (see ``frames``):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import TYPE_CHECKING, TypeAlias
 
 import numpy as np
@@ -102,17 +103,22 @@ class PreparedPair:
         """What the soft-ICP term pulls toward: the related object's samples, or the whole target's."""
         return self.index if self.attach is None else self.attach
 
-    @property
+    @cached_property
     def target_radius(self) -> float:
         """Half the target AABB diagonal in the normalised frame."""
         lo, hi = self.target_vertices.min(0).values, self.target_vertices.max(0).values
         return float((hi - lo).norm() / 2)
 
-    @property
+    @cached_property
     def source_radius(self) -> float:
         """Half the AABB diagonal of the source samples in the source local frame (unscaled)."""
         lo, hi = self.source_samples.min(0).values, self.source_samples.max(0).values
         return float((hi - lo).norm() / 2)
+
+    def source_subset(self, count: int) -> torch.Tensor:
+        """(min(count, N), 3) evenly spaced source samples (source local frame): a cheap stand-in for all of them."""
+        n = len(self.source_samples)
+        return self.source_samples[torch.linspace(0, n - 1, min(count, n)).long()]
 
     def scene_vertices(self, posed_source: torch.Tensor) -> torch.Tensor:
         """(B, Vs, 3) posed source -> (B, Vt + Vs, 3) vertices of the joined render mesh."""

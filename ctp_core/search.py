@@ -271,9 +271,8 @@ def settle(pair: PreparedPair, index: losses.TargetIndex, q: torch.Tensor, ancho
     ``approach`` "none": neither moved nor pushed, only checked (free where it was put, or dropped).
     """
     def subset(count: int) -> torch.Tensor:
-        idx = torch.linspace(0, len(pair.source_samples) - 1, min(count, len(pair.source_samples))).long()
         rot = quaternion_to_matrix(q) * log_s.exp()[:, None, None]
-        return torch.einsum("bij,nj->bni", rot, pair.source_samples[idx])
+        return torch.einsum("bij,nj->bni", rot, pair.source_subset(count))
 
     tol = 2e-3 * pair.target_radius
     # the sampled depth is only as good as the sample spacing (an edge's neighbour plane votes near corners):
