@@ -152,8 +152,8 @@ def new_id() -> str:
     return uuid.uuid4().hex
 
 
-def _record(raw: bytes | None) -> JobRecord | None:
-    """A stored record (None: unknown or expired)."""
+def parse_record(raw: bytes | str | None) -> JobRecord | None:
+    """A stored record, as read from its key or its events channel (None: unknown or expired)."""
     return None if raw is None else JobRecord.model_validate_json(raw)
 
 
@@ -196,12 +196,12 @@ class Jobs:
 
     # -- reading ------------------------------------------------------------------------------------
     def get(self, job_id: str) -> JobRecord | None:
-        return _record(self.redis.get(self.record_key(job_id)))
+        return parse_record(self.redis.get(self.record_key(job_id)))
 
     async def get_async(self, aredis: AsyncRedis, job_id: str) -> JobRecord | None:
         """``get`` on the event loop's client: the API's hot path (clients poll their jobs) stays off the
         threadpool, where uploads are checked."""
-        return _record(await aredis.get(self.record_key(job_id)))
+        return parse_record(await aredis.get(self.record_key(job_id)))
 
     def owned(self, owner: str, offset: int, limit: int) -> tuple[list[JobRecord], int]:
         """A page of the owner's jobs, newest first, and how many it has; expired ones are forgotten here."""
