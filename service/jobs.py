@@ -152,6 +152,13 @@ def new_id() -> str:
     return uuid.uuid4().hex
 
 
+class _StopFlags(BaseModel):
+    """The fields of a stored record that ``Jobs.should_stop`` reads (the others are skipped)."""
+
+    status: Status
+    cancel_requested: bool = False
+
+
 def parse_record(raw: bytes | str | None) -> JobRecord | None:
     """A stored record, as read from its key or its events channel (None: unknown or expired)."""
     return None if raw is None else JobRecord.model_validate_json(raw)
@@ -215,9 +222,11 @@ class Jobs:
         return [JobRecord.model_validate_json(raw) for raw in raws if raw is not None], self.redis.zcard(key)
 
     def should_stop(self, job_id: str) -> bool:
-        """What a running job polls between steps: cancel requested, or no longer its worker's (reaped)."""
-        record = self.get(job_id)
-        return record is None or record.cancel_requested or record.status != "running"
+        """What a running job polls between steps: cancel requested, or no longer its worker's (reaped).
+        Every optimiser step asks, so only the two fields it needs are parsed from the record."""
+        raw = self.redis.get(self.record_key(job_id))
+        flags = None if raw is None else _StopFlags.model_validate_json(raw)
+        return flags is None or flags.cancel_requested or flags.status != "running"
 
     # -- writing ------------------------------------------------------------------------------------
     def submit(self, record: JobRecord, blobs: dict[str, bytes], max_active: int) -> JobRecord:
