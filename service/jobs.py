@@ -411,11 +411,12 @@ class Jobs:
             self.redis.srem(f"{self.prefix}:workers", *dead)
         return live
 
-    def unavailable(self, model: str | None, *, what: str = "model",
-                    field: str | None = "options.model") -> JobError | None:
+    def unavailable(self, model: str | None, *, what: str = "model", field: str | None = "options.model",
+                    live: dict[str, dict[str, str | None]] | None = None) -> JobError | None:
         """Why a job that needs ``model`` (None: a geometry-only job) cannot succeed if submitted now, or
-        None when a live worker can run it: the one readiness rule of ``/readyz`` and ``POST /align``."""
-        live = self.live_workers()
+        None when a live worker can run it: the one readiness rule of ``/readyz`` and ``POST /align``.
+        ``live``: ``live_workers()`` when the caller has just read it (one read for several models)."""
+        live = self.live_workers() if live is None else live
         if not live:
             return JobError(code="no_worker", message="no worker is alive: start one with `ctp worker` "
                             "(`ctp serve` without REDIS_URL starts one) or wait until it is back")
