@@ -57,8 +57,9 @@ async def enqueue(request: Request, record: JobRecord, blobs: dict[str, bytes],
     ``configs`` are what the job runs: an assembly's every stage (each with its own options), so one guided
     step makes the job need the model however geometry-only the assembly's options are."""
     settings, jobs = request.app.state.settings, request.app.state.jobs
+    live = await run_in_threadpool(jobs.live_workers)
     for model in sorted({c.model for c in configs if c.uses_model}) or [None]:  # None: a live worker at all
-        unavailable = await run_in_threadpool(jobs.unavailable, model)
+        unavailable = jobs.unavailable(model, live=live)
         if unavailable is not None:
             raise ApiError(503, unavailable.code, unavailable.message, unavailable.field)
     try:

@@ -152,8 +152,15 @@ def new_id() -> str:
     return uuid.uuid4().hex
 
 
-def _record(raw: bytes | None) -> JobRecord | None:
-    """A stored record (None: unknown or expired)."""
+class _StopFlags(BaseModel):
+    """The fields of a stored record that ``Jobs.should_stop`` reads (the others are skipped)."""
+
+    status: Status
+    cancel_requested: bool = False
+
+
+def parse_record(raw: bytes | str | None) -> JobRecord | None:
+    """A stored record, as read from its key or its events channel (None: unknown or expired)."""
     return None if raw is None else JobRecord.model_validate_json(raw)
 
 
@@ -196,12 +203,12 @@ class Jobs:
 
     # -- reading ------------------------------------------------------------------------------------
     def get(self, job_id: str) -> JobRecord | None:
-        return _record(self.redis.get(self.record_key(job_id)))
+        return parse_record(self.redis.get(self.record_key(job_id)))
 
     async def get_async(self, aredis: AsyncRedis, job_id: str) -> JobRecord | None:
         """``get`` on the event loop's client: the API's hot path (clients poll their jobs) stays off the
         threadpool, where uploads are checked."""
-        return _record(await aredis.get(self.record_key(job_id)))
+        return parse_record(await aredis.get(self.record_key(job_id)))
 
     def owned(self, owner: str, offset: int, limit: int) -> tuple[list[JobRecord], int]:
         """A page of the owner's jobs, newest first, and how many it has; expired ones are forgotten here."""
@@ -215,9 +222,11 @@ class Jobs:
         return [JobRecord.model_validate_json(raw) for raw in raws if raw is not None], self.redis.zcard(key)
 
     def should_stop(self, job_id: str) -> bool:
-        """What a running job polls between steps: cancel requested, or no longer its worker's (reaped)."""
-        record = self.get(job_id)
-        return record is None or record.cancel_requested or record.status != "running"
+        """What a running job polls between steps: cancel requested, or no longer its worker's (reaped).
+        Every optimiser step asks, so only the two fields it needs are parsed from the record."""
+        raw = self.redis.get(self.record_key(job_id))
+        flags = None if raw is None else _StopFlags.model_validate_json(raw)
+        return flags is None or flags.cancel_requested or flags.status != "running"
 
     # -- writing ------------------------------------------------------------------------------------
     def submit(self, record: JobRecord, blobs: dict[str, bytes], max_active: int) -> JobRecord:
@@ -402,11 +411,12 @@ class Jobs:
             self.redis.srem(f"{self.prefix}:workers", *dead)
         return live
 
-    def unavailable(self, model: str | None, *, what: str = "model",
-                    field: str | None = "options.model") -> JobError | None:
+    def unavailable(self, model: str | None, *, what: str = "model", field: str | None = "options.model",
+                    live: dict[str, dict[str, str | None]] | None = None) -> JobError | None:
         """Why a job that needs ``model`` (None: a geometry-only job) cannot succeed if submitted now, or
-        None when a live worker can run it: the one readiness rule of ``/readyz`` and ``POST /align``."""
-        live = self.live_workers()
+        None when a live worker can run it: the one readiness rule of ``/readyz`` and ``POST /align``.
+        ``live``: ``live_workers()`` when the caller has just read it (one read for several models)."""
+        live = self.live_workers() if live is None else live
         if not live:
             return JobError(code="no_worker", message="no worker is alive: start one with `ctp worker` "
                             "(`ctp serve` without REDIS_URL starts one) or wait until it is back")

@@ -219,3 +219,10 @@ def test_the_event_loop_reads_a_record_as_get_does(jobs, private_redis):
             await client.aclose()
 
     assert asyncio.run(read(record.id, new_id())) == [jobs.get(record.id), None] and jobs.get(record.id) == record
+
+
+def test_a_job_stops_once_its_record_is_gone_or_it_is_not_running(jobs):
+    record = queued(jobs)
+    assert jobs.should_stop(record.id)  # queued: not started by this worker
+    jobs.redis.delete(jobs.record_key(record.id))
+    assert jobs.should_stop(record.id)  # expired

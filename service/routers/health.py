@@ -25,9 +25,8 @@ def healthz() -> Health:
 def readyz(request: Request):
     jobs, settings = request.app.state.jobs, request.app.state.settings
     try:
-        jobs.redis.ping()
-        problem = jobs.unavailable(settings.model, what="the default model (CTP_MODEL)", field=None)
-        live = jobs.live_workers()
+        live = jobs.live_workers()  # a Redis round trip: it raises when Redis does not answer
+        problem = jobs.unavailable(settings.model, what="the default model (CTP_MODEL)", field=None, live=live)
     except redis.exceptions.RedisError:
         return error_response(503, JobError(code="redis_unavailable", message="Redis does not answer"))
     if problem is not None:

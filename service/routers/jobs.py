@@ -13,7 +13,7 @@ from fastapi.responses import StreamingResponse
 from service import forms
 from service.deps import enqueue, own_job, owner
 from service.errors import ApiError, binary, documented
-from service.jobs import OUTPUTS, TERMINAL, JobRecord, Jobs, new_id, now
+from service.jobs import OUTPUTS, TERMINAL, JobRecord, Jobs, new_id, now, parse_record
 from service.routers import assemble
 from service.schemas import Accepted, JobList, JobOut, build_config
 
@@ -136,10 +136,9 @@ async def _sse(aredis: aioredis.Redis, jobs: Jobs, job_id: str):
     pubsub = aredis.pubsub()
     await pubsub.subscribe(jobs.channel(job_id))
     try:
-        raw = await aredis.get(jobs.record_key(job_id))
+        record = await jobs.get_async(aredis, job_id)
         last = None
-        while raw is not None:
-            record = JobRecord.model_validate_json(raw)
+        while record is not None:
             data = JobOut.of(record).model_dump_json()
             ended = record.status in TERMINAL
             if data != last:
@@ -150,9 +149,9 @@ async def _sse(aredis: aioredis.Redis, jobs: Jobs, job_id: str):
             message = await pubsub.get_message(ignore_subscribe_messages=True, timeout=SSE_KEEPALIVE_S)
             if message is None:
                 yield ": keep-alive\n\n"
-                raw = await aredis.get(jobs.record_key(job_id))
+                record = await jobs.get_async(aredis, job_id)
             else:
-                raw = message["data"]
+                record = parse_record(message["data"])
     finally:
         await pubsub.unsubscribe()
         await pubsub.aclose()
