@@ -41,8 +41,9 @@ def scene_glb(result: AlignResult, source_name: str = "source") -> bytes:
     """
     scene = trimesh.Scene()
     if isinstance(result.target, trimesh.Scene):
-        names = [name for name, _ in objects(result.target)]
-        for name, mesh in objects(result.target):
+        placed = objects(result.target)
+        names = [name for name, _ in placed]
+        for name, mesh in placed:
             scene.add_geometry(mesh, node_name=name, geom_name=name)
         source_name = next(n for n in (source_name, *(f"{source_name}-{i}" for i in range(2, len(names) + 3)))
                            if n not in names)
