@@ -470,14 +470,14 @@ def _load_scene(payload: bytes, ext: str, assets: _Assets, limits: MeshLimits, l
 
 
 def _instances(scene: trimesh.Scene, limits: MeshLimits, label: str) -> list[tuple[str, np.ndarray, trimesh.Trimesh]]:
-    """(node, transform, mesh) of every triangle mesh instance, checked against the limits and for NaN."""
+    """(node, transform, mesh) of every triangle mesh instance, checked against the limits and for NaN;
+    the meshes' base colour factors baked into their textures."""
     others = [k for k, g in scene.geometry.items() if not isinstance(g, trimesh.Trimesh)]
     if others:
         scene.delete_geometry(others)
     world = _world_matrices(scene.graph)
-    instances = [(node, world(node), scene.geometry[scene.graph.transforms.node_data[node]["geometry"]])
-                 for node in scene.graph.nodes_geometry
-                 if scene.graph.transforms.node_data[node]["geometry"] in scene.geometry]
+    keys = {node: scene.graph.transforms.node_data[node]["geometry"] for node in scene.graph.nodes_geometry}
+    instances = [(node, world(node), scene.geometry[key]) for node, key in keys.items() if key in scene.geometry]
     faces = sum(len(g.faces) for _, _, g in instances)
     if faces == 0:
         raise MeshError(f"{label}: no triangles in the file", code="mesh_empty")
@@ -487,14 +487,14 @@ def _instances(scene: trimesh.Scene, limits: MeshLimits, label: str) -> list[tup
     for _, matrix, geometry in instances:
         if not (np.isfinite(matrix).all() and np.isfinite(geometry.vertices).all()):
             raise MeshError(f"{label}: vertices or transforms contain NaN or infinity", code="mesh_invalid_values")
+    for geometry in scene.geometry.values():
+        _bake_base_colour_factor(geometry)
     return instances
 
 
 def _flatten(scene: trimesh.Scene, limits: MeshLimits, label: str) -> trimesh.Trimesh:
     """Apply node transforms and concatenate every triangle mesh instance (points and lines dropped)."""
     instances = _instances(scene, limits, label)
-    for geometry in scene.geometry.values():
-        _bake_base_colour_factor(geometry)
     mesh = trimesh.util.concatenate([geometry.copy().apply_transform(matrix) for _, matrix, geometry in instances])
     return _checked(mesh, label)
 
@@ -503,8 +503,6 @@ def _separate(scene: trimesh.Scene, limits: MeshLimits, label: str) -> trimesh.S
     """One node per instance, its mesh moved by the node transform (file frame), in the file's node order."""
     order = {name: i for i, name in enumerate(scene.metadata.get("node_order", []))}
     instances = sorted(_instances(scene, limits, label), key=lambda item: (order.get(item[0], len(order)), item[0]))
-    for geometry in scene.geometry.values():
-        _bake_base_colour_factor(geometry)
     out = trimesh.Scene()
     for node, matrix, geometry in instances:
         mesh = geometry.copy()
