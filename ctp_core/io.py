@@ -380,22 +380,21 @@ def _gltf_budget(tree: dict, binary: int | None, assets: _Assets, limits: MeshLi
                 raise bad(f"node {child} has several parents (the scene graph must be a tree)")
             parent[child] = i
     depths = [0] * len(nodes)  # 1 for a root; found by walking up, each node once
+    too_deep = MeshError(f"{label}: the scene graph is over {limits.max_depth} nodes deep", code="mesh_too_complex")
     for start in range(len(nodes)):
         chain, at = [], start
         while not depths[at]:
             chain.append(at)
             if len(chain) > limits.max_depth:  # a cycle never reaches a root, so it ends here too
-                raise MeshError(f"{label}: the scene graph is over {limits.max_depth} nodes deep",
-                                code="mesh_too_complex")
+                raise too_deep
             if at not in parent:
                 break
             at = parent[at]
-        depth = depths[at] if depths[at] else 0
+        depth = depths[at]  # 0 when the walk ended at a root not yet seen (then the last of chain)
         for node in reversed(chain):
             depth += 1
             if depth > limits.max_depth:
-                raise MeshError(f"{label}: the scene graph is over {limits.max_depth} nodes deep",
-                                code="mesh_too_complex")
+                raise too_deep
             depths[node] = depth
     for s, scene in enumerate(scenes):
         roots = scene.get("nodes", [])
