@@ -78,7 +78,7 @@ def load_objects(data: str | Path | bytes, *, filename: str | None = None, limit
 def _read(data: str | Path | bytes, filename: str | None, limits: MeshLimits,
           name: str | None) -> tuple[trimesh.Scene, str]:
     """The vetted, unflattened scene of an upload, and the label its messages use."""
-    label = name or filename or (str(data) if isinstance(data, str | Path) else "upload")
+    label = label_of(data, filename, name)
 
     def read() -> trimesh.Scene:
         if isinstance(data, str | Path):
@@ -105,6 +105,11 @@ def _read(data: str | Path | bytes, filename: str | None, limits: MeshLimits,
         return _load_scene(payload, ext, assets, limits, label)
 
     return _guarded(read, label), label
+
+
+def label_of(data: str | Path | bytes, filename: str | None = None, name: str | None = None) -> str:
+    """What messages about an upload call it: its name, else its file name, else its path, else "upload"."""
+    return name or filename or (str(data) if isinstance(data, str | Path) else "upload")
 
 
 def _guarded(work, label: str):
