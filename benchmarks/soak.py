@@ -31,6 +31,7 @@ import time
 from pathlib import Path
 
 import httpx
+import numpy as np
 import trimesh
 
 REPO = Path(__file__).resolve().parents[1]
@@ -53,12 +54,17 @@ OPTIONS = {"preset": "test", "model": "random:tiny"}
 TERMINAL = ("succeeded", "failed", "canceled")
 
 
+def _box_and_ball() -> tuple[bytes, bytes]:
+    """The valid pair (GLB bytes): a unit box and a ball to put on it."""
+    return (trimesh.creation.box().export(file_type="glb"),
+            trimesh.creation.icosphere(subdivisions=2, radius=0.3).export(file_type="glb"))
+
+
 def _hostile() -> list[tuple[str, dict, dict]]:
     """(name, files, form fields) of uploads the API must refuse with a 4xx."""
-    box = trimesh.creation.box().export(file_type="glb")
-    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.3).export(file_type="glb")
+    box, ball = _box_and_ball()
     ok = json.dumps(OPTIONS)
-    nan = ply(__import__("numpy").array([[0, 0, 0], [float("nan"), 1, 0], [0, 1, 1]]), [[0, 1, 2]])
+    nan = ply(np.array([[0, 0, 0], [float("nan"), 1, 0], [0, 1, 1]]), [[0, 1, 2]])
 
     def upload(target=("box.glb", box), source=("ball.glb", ball), prompt="a ball on a box", options=ok, **extra):
         return {"target": target, "source": source}, {"prompt": prompt, "options": options, **extra}
@@ -142,8 +148,7 @@ def main(argv: list[str] | None = None) -> int:
     lock = threading.Lock()
     stop = threading.Event()
     sent = [0]
-    box = trimesh.creation.box().export(file_type="glb")
-    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.3).export(file_type="glb")
+    box, ball = _box_and_ball()
     try:
         with httpx.Client(base_url=url, timeout=120) as client:
             deadline = time.monotonic() + 180

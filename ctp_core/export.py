@@ -24,13 +24,13 @@ import trimesh
 from PIL import Image
 
 import ctp_core
+from ctp_core.assemble import Assembly
 from ctp_core.frames import SCENE, Similarity
 from ctp_core.pose import matrix_to_quaternion
 from ctp_core.scene import objects
 
 if TYPE_CHECKING:  # align imports the whole engine; exporting a result needs none of it
     from ctp_core.align import AlignResult
-    from ctp_core.assemble import Assembly
 
 
 def scene_glb(result: AlignResult, source_name: str = "source") -> bytes:
@@ -41,8 +41,9 @@ def scene_glb(result: AlignResult, source_name: str = "source") -> bytes:
     """
     scene = trimesh.Scene()
     if isinstance(result.target, trimesh.Scene):
-        names = [name for name, _ in objects(result.target)]
-        for name, mesh in objects(result.target):
+        placed = objects(result.target)
+        names = [name for name, _ in placed]
+        for name, mesh in placed:
             scene.add_geometry(mesh, node_name=name, geom_name=name)
         source_name = next(n for n in (source_name, *(f"{source_name}-{i}" for i in range(2, len(names) + 3)))
                            if n not in names)
@@ -154,7 +155,7 @@ def write_outputs(result: AlignResult | Assembly, *, glb: Path | None, report_pa
     """Write whichever outputs have a path (of one run or a whole assembly); a preview needs ``result.preview``."""
     if preview is not None and result.preview is None:
         raise ValueError("a preview was requested but the result holds no preview images")
-    make_glb, make_report = (assembly_glb, assembly_report) if hasattr(result, "stages") else (scene_glb, report)
+    make_glb, make_report = (assembly_glb, assembly_report) if isinstance(result, Assembly) else (scene_glb, report)
     outputs = [
         (glb, lambda: make_glb(result)),
         (report_path, lambda: (json.dumps(make_report(result), indent=2) + "\n").encode()),

@@ -78,7 +78,7 @@ def load_objects(data: str | Path | bytes, *, filename: str | None = None, limit
 def _read(data: str | Path | bytes, filename: str | None, limits: MeshLimits,
           name: str | None) -> tuple[trimesh.Scene, str]:
     """The vetted, unflattened scene of an upload, and the label its messages use."""
-    label = name or filename or (str(data) if isinstance(data, str | Path) else "upload")
+    label = label_of(data, filename, name)
 
     def read() -> trimesh.Scene:
         if isinstance(data, str | Path):
@@ -105,6 +105,11 @@ def _read(data: str | Path | bytes, filename: str | None, limits: MeshLimits,
         return _load_scene(payload, ext, assets, limits, label)
 
     return _guarded(read, label), label
+
+
+def label_of(data: str | Path | bytes, filename: str | None = None, name: str | None = None) -> str:
+    """What messages about an upload call it: its name, else its file name, else its path, else "upload"."""
+    return name or filename or (str(data) if isinstance(data, str | Path) else "upload")
 
 
 def _guarded(work, label: str):
@@ -380,22 +385,21 @@ def _gltf_budget(tree: dict, binary: int | None, assets: _Assets, limits: MeshLi
                 raise bad(f"node {child} has several parents (the scene graph must be a tree)")
             parent[child] = i
     depths = [0] * len(nodes)  # 1 for a root; found by walking up, each node once
+    too_deep = MeshError(f"{label}: the scene graph is over {limits.max_depth} nodes deep", code="mesh_too_complex")
     for start in range(len(nodes)):
         chain, at = [], start
         while not depths[at]:
             chain.append(at)
             if len(chain) > limits.max_depth:  # a cycle never reaches a root, so it ends here too
-                raise MeshError(f"{label}: the scene graph is over {limits.max_depth} nodes deep",
-                                code="mesh_too_complex")
+                raise too_deep
             if at not in parent:
                 break
             at = parent[at]
-        depth = depths[at] if depths[at] else 0
+        depth = depths[at]  # 0 when the walk ended at a root not yet seen (then the last of chain)
         for node in reversed(chain):
             depth += 1
             if depth > limits.max_depth:
-                raise MeshError(f"{label}: the scene graph is over {limits.max_depth} nodes deep",
-                                code="mesh_too_complex")
+                raise too_deep
             depths[node] = depth
     for s, scene in enumerate(scenes):
         roots = scene.get("nodes", [])
@@ -470,14 +474,14 @@ def _load_scene(payload: bytes, ext: str, assets: _Assets, limits: MeshLimits, l
 
 
 def _instances(scene: trimesh.Scene, limits: MeshLimits, label: str) -> list[tuple[str, np.ndarray, trimesh.Trimesh]]:
-    """(node, transform, mesh) of every triangle mesh instance, checked against the limits and for NaN."""
+    """(node, transform, mesh) of every triangle mesh instance, checked against the limits and for NaN;
+    the meshes' base colour factors baked into their textures."""
     others = [k for k, g in scene.geometry.items() if not isinstance(g, trimesh.Trimesh)]
     if others:
         scene.delete_geometry(others)
     world = _world_matrices(scene.graph)
-    instances = [(node, world(node), scene.geometry[scene.graph.transforms.node_data[node]["geometry"]])
-                 for node in scene.graph.nodes_geometry
-                 if scene.graph.transforms.node_data[node]["geometry"] in scene.geometry]
+    keys = {node: scene.graph.transforms.node_data[node]["geometry"] for node in scene.graph.nodes_geometry}
+    instances = [(node, world(node), scene.geometry[key]) for node, key in keys.items() if key in scene.geometry]
     faces = sum(len(g.faces) for _, _, g in instances)
     if faces == 0:
         raise MeshError(f"{label}: no triangles in the file", code="mesh_empty")
@@ -487,14 +491,14 @@ def _instances(scene: trimesh.Scene, limits: MeshLimits, label: str) -> list[tup
     for _, matrix, geometry in instances:
         if not (np.isfinite(matrix).all() and np.isfinite(geometry.vertices).all()):
             raise MeshError(f"{label}: vertices or transforms contain NaN or infinity", code="mesh_invalid_values")
+    for geometry in scene.geometry.values():
+        _bake_base_colour_factor(geometry)
     return instances
 
 
 def _flatten(scene: trimesh.Scene, limits: MeshLimits, label: str) -> trimesh.Trimesh:
     """Apply node transforms and concatenate every triangle mesh instance (points and lines dropped)."""
     instances = _instances(scene, limits, label)
-    for geometry in scene.geometry.values():
-        _bake_base_colour_factor(geometry)
     mesh = trimesh.util.concatenate([geometry.copy().apply_transform(matrix) for _, matrix, geometry in instances])
     return _checked(mesh, label)
 
@@ -503,8 +507,6 @@ def _separate(scene: trimesh.Scene, limits: MeshLimits, label: str) -> trimesh.S
     """One node per instance, its mesh moved by the node transform (file frame), in the file's node order."""
     order = {name: i for i, name in enumerate(scene.metadata.get("node_order", []))}
     instances = sorted(_instances(scene, limits, label), key=lambda item: (order.get(item[0], len(order)), item[0]))
-    for geometry in scene.geometry.values():
-        _bake_base_colour_factor(geometry)
     out = trimesh.Scene()
     for node, matrix, geometry in instances:
         mesh = geometry.copy()

@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from ctp_core.errors import CtpError, MeshError
-from ctp_core.io import MeshLimits
+from ctp_core.io import MeshLimits, label_of
 
 _HEADER = struct.Struct("<Q")
 _READY = "ready"
@@ -90,7 +90,7 @@ class MeshLoader:
         self.close()
 
     def _call(self, data, filename, limits: MeshLimits, name, want_mesh: bool):
-        label = name or filename or (str(data) if isinstance(data, str | Path) else "upload")
+        label = label_of(data, filename, name)
         # the loading processes run in the package root, so a relative path is made absolute here
         payload = str(Path(data).absolute()) if isinstance(data, str | Path) else data
         wait = self.timeout_s + self.start_timeout_s  # the longest a holder can keep its process

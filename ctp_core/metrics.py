@@ -187,10 +187,11 @@ def pose_errors(points: np.ndarray, predicted: np.ndarray, reference: np.ndarray
     centroid = points.mean(axis=0, keepdims=True)
     centroid_offset = np.linalg.norm(_apply(predicted, centroid) - _apply(reference, centroid))
     adds = add_s(points, predicted, reference)
+    diagonal = _diagonal(points, reference)
     return {
         "adds": adds,
-        "translation_error": float(offset / _diagonal(points, reference)),
-        "centroid_error": float(centroid_offset / _diagonal(points, reference)),
+        "translation_error": float(offset / diagonal),
+        "centroid_error": float(centroid_offset / diagonal),
         "rotation_error_deg": rotation_error_deg(predicted, reference),
         "scale_error": float(abs(np.log(_similarity_parts(predicted)[0] / _similarity_parts(reference)[0]))),
         "success": bool(adds <= SUCCESS_ADDS),

@@ -11,6 +11,8 @@ are exact (the closest point on a triangle, as trimesh computes it).
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
@@ -19,6 +21,8 @@ from ctp_core import sampling
 
 BATCH = 200_000  # (point, triangle) pairs evaluated at once: about 100 MB of temporaries
 _SAMPLES = 20_000  # surface samples that bound each point's search radius
+# id(mesh) -> (the mesh's content hash when built, its anchor tree); an entry goes with its mesh
+_ANCHORS: dict[int, tuple[int, cKDTree]] = {}
 
 
 def closest_points(mesh: trimesh.Trimesh, points: np.ndarray, batch: int = BATCH
@@ -34,13 +38,19 @@ def min_distance(mesh: trimesh.Trimesh, points: np.ndarray, batch: int = BATCH) 
 
 
 def _anchors(mesh: trimesh.Trimesh) -> cKDTree:
-    """A KD-tree of the mesh's vertices and ``_SAMPLES`` surface samples, built once per mesh and kept in
-    trimesh's cache (dropped when the mesh changes): the baselines ask about one target at every push."""
-    tree = mesh._cache["ctp_proximity_anchors"]
-    if tree is None:
-        anchors = np.concatenate([np.asarray(mesh.vertices, dtype=np.float64),
-                                  sampling.surface_samples(mesh, _SAMPLES, seed=0)[0]])
-        tree = mesh._cache["ctp_proximity_anchors"] = cKDTree(anchors)
+    """A KD-tree of the mesh's vertices and ``_SAMPLES`` surface samples, built once per mesh and kept while
+    the mesh lives and its geometry is unchanged (trimesh's content hash): the baselines ask about one
+    target at every push."""
+    key, version = id(mesh), hash(mesh)
+    cached = _ANCHORS.get(key)
+    if cached is not None and cached[0] == version:
+        return cached[1]
+    anchors = np.concatenate([np.asarray(mesh.vertices, dtype=np.float64),
+                              sampling.surface_samples(mesh, _SAMPLES, seed=0)[0]])
+    tree = cKDTree(anchors)
+    if cached is None:
+        weakref.finalize(mesh, _ANCHORS.pop, key, None)
+    _ANCHORS[key] = (version, tree)
     return tree
 
 
