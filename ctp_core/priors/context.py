@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import replace
+from functools import lru_cache
 
 from ctp_core.priors import lexicon, relations
 
@@ -63,6 +64,7 @@ milkshake smoothie yogurt yoghurt cream custard batter dough sauce gravy ketchup
 paint ink glue wax foam bubbles soil dirt earth compost sand mud snow cement concrete jelly porridge oatmeal rice
 salsa guacamole hummus fondue pesto mayonnaise blood sugar flour
 """)
+_WORD = re.compile(r"[a-z]+")
 _FILL_WORDS = frozenset({"of", "with", "full", "filled", "containing"})
 # Made into a paste, a liquid or a foam: "a pot of melted cheese", "a bowl of mashed potatoes".
 _MELTED = frozenset({"melted", "molten", "liquid", "liquified", "whipped", "mashed", "pureed", "creamed", "blended"})
@@ -100,8 +102,10 @@ def _is_contents(word: str, before: str | None) -> bool:
     return known is None or food
 
 
-def _tokens(prompt: str) -> list[tuple[int, str]]:
-    return [(m.start(), m.group(0)) for m in re.finditer(r"[a-z]+", relations.clean(prompt))]
+@lru_cache(maxsize=64)
+def _tokens(prompt: str) -> tuple[tuple[int, str], ...]:
+    """The prompt's words with their offsets; every reader of one prompt shares a single tokenisation."""
+    return tuple((m.start(), m.group(0)) for m in _WORD.finditer(relations.clean(prompt)))
 
 
 def modifiers(prompt: str, mention_at: list[int]) -> list[str]:
