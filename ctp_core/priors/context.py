@@ -78,6 +78,7 @@ HEAPS = lexicon.word_set("pile heap mound")
 # Places and receptacles named after the contents they hold, as the end of a one-word compound ("sandpit").
 HOLDS_CONTENTS = lexicon.word_set("pit pits bank banks flat flats drift drifts dune dunes bed beds box bin pile heap "
                                   "mound field hole well pot can tub tank trap bag sack pan patch bath pool")
+_CONTENTS_LONGEST_FIRST = sorted(CONTENTS, key=len, reverse=True)  # for ``_compound``, sorted once
 # Mass nouns of loose pieces: they leave gaps, a spoon rests on them.
 DISCRETE = lexicon.word_set("cereal popcorn candy fruit ice gold money change food salad confetti gravel hay straw")
 
@@ -333,7 +334,7 @@ def contents_in_name(name: str, figure_name: str = "") -> str | None:
 def _compound(word: str) -> list[str]:
     """A one-word compound of a contents word and a place or a receptacle that holds it, split in two ("sandpit",
     "snowbank", "mudflat", "inkwell"); any other word whole (a "sandwich", a "watermelon", a "teaspoon")."""
-    for first in sorted(CONTENTS, key=len, reverse=True):
+    for first in _CONTENTS_LONGEST_FIRST:
         if word.startswith(first) and word[len(first):] in HOLDS_CONTENTS:
             return [first, word[len(first):]]
     return [word]
