@@ -104,14 +104,14 @@ def _is_contents(word: str, before: str | None) -> bool:
 
 
 @lru_cache(maxsize=64)
-def _tokens(prompt: str) -> tuple[tuple[int, str], ...]:
+def prompt_words(prompt: str) -> tuple[tuple[int, str], ...]:
     """The prompt's words with their offsets; every reader of one prompt shares a single tokenisation."""
     return tuple((m.start(), m.group(0)) for m in _WORD.finditer(relations.clean(prompt)))
 
 
 def modifiers(prompt: str, mention_at: list[int]) -> list[str]:
     """Up to two words before the first mention of an object in the prompt, stopping at function words."""
-    tokens = _tokens(prompt)
+    tokens = prompt_words(prompt)
     starts = [start for start, _ in tokens]
     if not mention_at or mention_at[0] not in starts:
         return []
@@ -131,7 +131,7 @@ def resolve(name: str, prompt: str, mention_at: list[int], other: lexicon.Match 
     A modifier the other object's name has is that object's ("a baby elephant next to its mother", names
     "baby_elephant" and "elephant": "baby" is not the mother's)."""
     match = lexicon.lookup(name)
-    said = [w for start, w in _tokens(prompt) if start in mention_at[:1]]
+    said = [w for start, w in prompt_words(prompt) if start in mention_at[:1]]
     plain = lexicon.lookup(said[0]) if said else None
     if (match is not None and plain is not None and plain.entry is match.entry and match.phrase not in lexicon.LEXICON
             and match.phrase not in lexicon.PARTS):  # a "lipstick cover" is no lipstick
@@ -151,7 +151,7 @@ def resolve(name: str, prompt: str, mention_at: list[int], other: lexicon.Match 
     words = [*mods, *lexicon.words(name)]
     scene = [(2.0, other.entry)] if other is not None else []
     scene += [(2.0, e) for _, _, phrase, e in lexicon.spans(words) if phrase != match.phrase]
-    scene += [(1.0, e) for _, _, phrase, e in lexicon.spans([w for _, w in _tokens(prompt)])
+    scene += [(1.0, e) for _, _, phrase, e in lexicon.spans([w for _, w in prompt_words(prompt)])
               if phrase != match.phrase and e is not match.entry]
     match = _sense(match, scene, needs_agent)
     sized = [w for w in mods if w in lexicon.SIZE_WORDS]
@@ -169,7 +169,7 @@ def _head_first(name: str, prompt: str, mention_at: list[int], match: lexicon.Ma
     name_words = [w for w in lexicon.words(name) if w not in lexicon.NON_HEAD_WORDS and len(w) > 2]
     if len(name_words) < 2 or (match is not None and match.phrase in lexicon.PARTS):
         return match
-    tokens = [w for _, w in _tokens(prompt)]
+    tokens = [w for _, w in prompt_words(prompt)]
     for i in range(len(tokens) - len(name_words) + 1):
         run = tokens[i:i + len(name_words)]
         if run != name_words and sorted(lexicon.singulars(w)[-1] for w in run) == sorted(
@@ -249,7 +249,7 @@ chuck slot socket hole keyhole mouth opening holder compartment pocket drawer tr
 
 def opening_after(prompt: str, cue_end: int) -> str | None:
     """The opening part a cue leads into ("in the slot of ..."), when the prompt names one right after it."""
-    after = [w for start, w in _tokens(prompt) if start >= cue_end][:3]
+    after = [w for start, w in prompt_words(prompt) if start >= cue_end][:3]
     while after and after[0] in _STOP:
         after.pop(0)
     return after[0] if after and after[0] in OPENINGS else None
@@ -269,7 +269,7 @@ def contents(prompt: str, mention_at: list[int], match: lexicon.Match | None, fi
 def _object_of(prompt: str, cue_end: int, most: int = 3) -> list[tuple[int, str]]:
     """The cue's object: the first run of (at most ``most``) words after it that are no function words."""
     phrase: list[tuple[int, str]] = []
-    for start, word in (t for t in _tokens(prompt) if t[0] >= cue_end):
+    for start, word in (t for t in prompt_words(prompt) if t[0] >= cue_end):
         if word in _STOP:
             if phrase:
                 break
@@ -312,7 +312,7 @@ def contents_named(prompt: str, mentions: list[int], figure_name: str = "") -> s
     """A contents word the prompt says outside the objects' noun phrases ("a chip scooping salsa from a bowl",
     "a ladle stirring the soup in a pot"): what the ground holds, when the figure goes in it. A word right before
     a mention is that object's modifier ("a soup spoon"), never its contents, and so is the figure's own name."""
-    tokens = _tokens(prompt)
+    tokens = prompt_words(prompt)
     starts = [start for start, _ in tokens]
     taken = {starts.index(at) - k for at in mentions if at in starts for k in range(3)}
     own = {f for w in lexicon.words(figure_name) for f in lexicon.singulars(w)}
@@ -345,7 +345,7 @@ def _contents(prompt: str, mention_at: list[int], match: lexicon.Match | None) -
         return "its contents"
     if match is not None and match.phrase.split()[-1] in HEAPS:
         return f"the {match.phrase}"
-    tokens = _tokens(prompt)
+    tokens = prompt_words(prompt)
     starts = [start for start, _ in tokens]
     for at in mention_at:
         if at not in starts:

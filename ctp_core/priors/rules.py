@@ -183,11 +183,8 @@ def _mentions(prompt: str, name: str, match: lexicon.Match | None) -> list[int]:
     The name's head (its lexicon phrase, a synonym of it, or its part word) is preferred; any other
     word of the name ("blender" in "blender_tank") counts only when the head is not mentioned.
     """
-    text = relations.clean(prompt)
-    offsets, tokens = [], []
-    for m in re.finditer(r"[a-z]+", text):
-        offsets.append(m.start())
-        tokens.append(m.group(0))
+    offsets = [start for start, _ in context.prompt_words(prompt)]
+    tokens = [word for _, word in context.prompt_words(prompt)]
     name_words = [w for w in lexicon.words(name) if w not in lexicon.SIZE_WORDS]
     if not name_words:
         return []
