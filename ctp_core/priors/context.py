@@ -178,7 +178,7 @@ def _head_first(name: str, prompt: str, mention_at: list[int], match: lexicon.Ma
             if phrased is not None and phrased.phrase.split()[-1] in lexicon.singulars(run[-1]):
                 return replace(phrased, how=phrased.how + f" (the prompt calls {name!r} a {' '.join(run)})")
     head = match.phrase.split()[-1] if match is not None else ""
-    said_forms = {f for w in tokens for f in lexicon.singulars(w)}
+    said_forms = lexicon.forms(tokens)
     if (plain is not None and said and said[0] in name_words and (match is None or plain.entry is not match.entry)
             and not {head, *name_words} - {said[0]} & said_forms):
         return replace(plain, how=plain.how + f" (the prompt calls {name!r} a {said[0]})")
@@ -315,7 +315,7 @@ def contents_named(prompt: str, mentions: list[int], figure_name: str = "") -> s
     tokens = prompt_words(prompt)
     starts = [start for start, _ in tokens]
     taken = {starts.index(at) - k for at in mentions if at in starts for k in range(3)}
-    own = {f for w in lexicon.words(figure_name) for f in lexicon.singulars(w)}
+    own = lexicon.forms(lexicon.words(figure_name))
     for i, (_, word) in enumerate(tokens):
         if i not in taken and word not in own and (word in CONTENTS or is_drink(word)):
             return word
@@ -325,7 +325,7 @@ def contents_named(prompt: str, mentions: list[int], figure_name: str = "") -> s
 def contents_in_name(name: str, figure_name: str = "") -> str | None:
     """The contents a container is named for ("compost_bin", "ink_pot"), not the figure's own name: what something
     stuck or buried in it goes into."""
-    own = {f for w in lexicon.words(figure_name) for f in lexicon.singulars(w)}
+    own = lexicon.forms(lexicon.words(figure_name))
     parts = [part for word in lexicon.words(name) for part in _compound(word)]
     found = [w for w in parts[:-1] if w not in own and (w in CONTENTS or is_drink(w))]
     return found[-1] if found else None

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import re
 import unicodedata
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 _TABLE = """
@@ -799,6 +800,11 @@ def singulars(word: str) -> list[str]:
             forms.append(word[:-2])
         forms.append(word[:-1])
     return forms
+
+
+def forms(tokens: Iterable[str]) -> set[str]:
+    """All the forms ``singulars`` gives of the tokens: to match words whatever their number."""
+    return {form for token in tokens for form in singulars(token)}
 
 
 def words(text: str) -> list[str]:

@@ -194,7 +194,7 @@ def _mentions(prompt: str, name: str, match: lexicon.Match | None) -> list[int]:
         heads += [offsets[s] for s, _, _, entry in lexicon.spans(tokens) if entry is match.entry]
     if heads:
         return sorted(set(heads))
-    forms = {f for w in name_words for f in lexicon.singulars(w)}
+    forms = lexicon.forms(name_words)
     return [offsets[i] for i, t in enumerate(tokens) if forms & set(lexicon.singulars(t))]
 
 
@@ -299,8 +299,7 @@ def _pierceable(ground) -> bool:
 
 def _holds_own(ground_name: str, fig) -> bool:
     """A holder named for what it holds ("knife_block" for a knife): it has a slot for it."""
-    return bool(set(lexicon.singulars(fig.phrase.split()[-1])) & {f for w in lexicon.words(ground_name)
-                                                                   for f in lexicon.singulars(w)})
+    return bool(set(lexicon.singulars(fig.phrase.split()[-1])) & lexicon.forms(lexicon.words(ground_name)))
 
 
 def _penetration(relation, figure: bool, target, source, filled: str | None, floating: bool,
