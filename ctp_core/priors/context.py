@@ -350,14 +350,15 @@ def _contents(prompt: str, mention_at: list[int], match: lexicon.Match | None) -
     for at in mention_at:
         if at not in starts:
             continue
-        if tokens[starts.index(at)][1] in HEAPS:
-            return f"the {tokens[starts.index(at)][1]}"
-        before = [w for _, w in tokens[max(0, starts.index(at) - 3):starts.index(at)]]
+        i = starts.index(at)
+        if tokens[i][1] in HEAPS:
+            return f"the {tokens[i][1]}"
+        before = [w for _, w in tokens[max(0, i - 3):i]]
         if len(before) == 3 and before[1] == "of" and before[2] in _STOP and (
                 before[0] in CONTENTS or is_drink(before[0])):
             return before[0]  # "in the sand of a sandbox", "the water of the pool"
-        after = [w for _, w in tokens[starts.index(at) + 1:starts.index(at) + 6]]
-        if after[:1] == ["full"] or after[:1] == ["filled"]:
+        after = [w for _, w in tokens[i + 1:i + 6]]
+        if after[:1] in (["full"], ["filled"]):
             after = after[1:]
         if after and after[0] in _FILL_WORDS:
             phrase = []
