@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import replace
+from functools import lru_cache
 
 from ctp_core.priors import lexicon, relations
 
@@ -63,6 +64,7 @@ milkshake smoothie yogurt yoghurt cream custard batter dough sauce gravy ketchup
 paint ink glue wax foam bubbles soil dirt earth compost sand mud snow cement concrete jelly porridge oatmeal rice
 salsa guacamole hummus fondue pesto mayonnaise blood sugar flour
 """)
+_WORD = re.compile(r"[a-z]+")
 _FILL_WORDS = frozenset({"of", "with", "full", "filled", "containing"})
 # Made into a paste, a liquid or a foam: "a pot of melted cheese", "a bowl of mashed potatoes".
 _MELTED = frozenset({"melted", "molten", "liquid", "liquified", "whipped", "mashed", "pureed", "creamed", "blended"})
@@ -76,6 +78,7 @@ HEAPS = lexicon.word_set("pile heap mound")
 # Places and receptacles named after the contents they hold, as the end of a one-word compound ("sandpit").
 HOLDS_CONTENTS = lexicon.word_set("pit pits bank banks flat flats drift drifts dune dunes bed beds box bin pile heap "
                                   "mound field hole well pot can tub tank trap bag sack pan patch bath pool")
+_CONTENTS_LONGEST_FIRST = sorted(CONTENTS, key=len, reverse=True)  # for ``_compound``, sorted once
 # Mass nouns of loose pieces: they leave gaps, a spoon rests on them.
 DISCRETE = lexicon.word_set("cereal popcorn candy fruit ice gold money change food salad confetti gravel hay straw")
 
@@ -100,13 +103,15 @@ def _is_contents(word: str, before: str | None) -> bool:
     return known is None or food
 
 
-def _tokens(prompt: str) -> list[tuple[int, str]]:
-    return [(m.start(), m.group(0)) for m in re.finditer(r"[a-z]+", relations.clean(prompt))]
+@lru_cache(maxsize=64)
+def prompt_words(prompt: str) -> tuple[tuple[int, str], ...]:
+    """The prompt's words with their offsets; every reader of one prompt shares a single tokenisation."""
+    return tuple((m.start(), m.group(0)) for m in _WORD.finditer(relations.clean(prompt)))
 
 
 def modifiers(prompt: str, mention_at: list[int]) -> list[str]:
     """Up to two words before the first mention of an object in the prompt, stopping at function words."""
-    tokens = _tokens(prompt)
+    tokens = prompt_words(prompt)
     starts = [start for start, _ in tokens]
     if not mention_at or mention_at[0] not in starts:
         return []
@@ -126,7 +131,7 @@ def resolve(name: str, prompt: str, mention_at: list[int], other: lexicon.Match 
     A modifier the other object's name has is that object's ("a baby elephant next to its mother", names
     "baby_elephant" and "elephant": "baby" is not the mother's)."""
     match = lexicon.lookup(name)
-    said = [w for start, w in _tokens(prompt) if start in mention_at[:1]]
+    said = [w for start, w in prompt_words(prompt) if start in mention_at[:1]]
     plain = lexicon.lookup(said[0]) if said else None
     if (match is not None and plain is not None and plain.entry is match.entry and match.phrase not in lexicon.LEXICON
             and match.phrase not in lexicon.PARTS):  # a "lipstick cover" is no lipstick
@@ -146,7 +151,7 @@ def resolve(name: str, prompt: str, mention_at: list[int], other: lexicon.Match 
     words = [*mods, *lexicon.words(name)]
     scene = [(2.0, other.entry)] if other is not None else []
     scene += [(2.0, e) for _, _, phrase, e in lexicon.spans(words) if phrase != match.phrase]
-    scene += [(1.0, e) for _, _, phrase, e in lexicon.spans([w for _, w in _tokens(prompt)])
+    scene += [(1.0, e) for _, _, phrase, e in lexicon.spans([w for _, w in prompt_words(prompt)])
               if phrase != match.phrase and e is not match.entry]
     match = _sense(match, scene, needs_agent)
     sized = [w for w in mods if w in lexicon.SIZE_WORDS]
@@ -164,7 +169,7 @@ def _head_first(name: str, prompt: str, mention_at: list[int], match: lexicon.Ma
     name_words = [w for w in lexicon.words(name) if w not in lexicon.NON_HEAD_WORDS and len(w) > 2]
     if len(name_words) < 2 or (match is not None and match.phrase in lexicon.PARTS):
         return match
-    tokens = [w for _, w in _tokens(prompt)]
+    tokens = [w for _, w in prompt_words(prompt)]
     for i in range(len(tokens) - len(name_words) + 1):
         run = tokens[i:i + len(name_words)]
         if run != name_words and sorted(lexicon.singulars(w)[-1] for w in run) == sorted(
@@ -173,7 +178,7 @@ def _head_first(name: str, prompt: str, mention_at: list[int], match: lexicon.Ma
             if phrased is not None and phrased.phrase.split()[-1] in lexicon.singulars(run[-1]):
                 return replace(phrased, how=phrased.how + f" (the prompt calls {name!r} a {' '.join(run)})")
     head = match.phrase.split()[-1] if match is not None else ""
-    said_forms = {f for w in tokens for f in lexicon.singulars(w)}
+    said_forms = lexicon.forms(tokens)
     if (plain is not None and said and said[0] in name_words and (match is None or plain.entry is not match.entry)
             and not {head, *name_words} - {said[0]} & said_forms):
         return replace(plain, how=plain.how + f" (the prompt calls {name!r} a {said[0]})")
@@ -244,7 +249,7 @@ chuck slot socket hole keyhole mouth opening holder compartment pocket drawer tr
 
 def opening_after(prompt: str, cue_end: int) -> str | None:
     """The opening part a cue leads into ("in the slot of ..."), when the prompt names one right after it."""
-    after = [w for start, w in _tokens(prompt) if start >= cue_end][:3]
+    after = [w for start, w in prompt_words(prompt) if start >= cue_end][:3]
     while after and after[0] in _STOP:
         after.pop(0)
     return after[0] if after and after[0] in OPENINGS else None
@@ -264,7 +269,7 @@ def contents(prompt: str, mention_at: list[int], match: lexicon.Match | None, fi
 def _object_of(prompt: str, cue_end: int, most: int = 3) -> list[tuple[int, str]]:
     """The cue's object: the first run of (at most ``most``) words after it that are no function words."""
     phrase: list[tuple[int, str]] = []
-    for start, word in (t for t in _tokens(prompt) if t[0] >= cue_end):
+    for start, word in (t for t in prompt_words(prompt) if t[0] >= cue_end):
         if word in _STOP:
             if phrase:
                 break
@@ -307,10 +312,10 @@ def contents_named(prompt: str, mentions: list[int], figure_name: str = "") -> s
     """A contents word the prompt says outside the objects' noun phrases ("a chip scooping salsa from a bowl",
     "a ladle stirring the soup in a pot"): what the ground holds, when the figure goes in it. A word right before
     a mention is that object's modifier ("a soup spoon"), never its contents, and so is the figure's own name."""
-    tokens = _tokens(prompt)
+    tokens = prompt_words(prompt)
     starts = [start for start, _ in tokens]
     taken = {starts.index(at) - k for at in mentions if at in starts for k in range(3)}
-    own = {f for w in lexicon.words(figure_name) for f in lexicon.singulars(w)}
+    own = lexicon.forms(lexicon.words(figure_name))
     for i, (_, word) in enumerate(tokens):
         if i not in taken and word not in own and (word in CONTENTS or is_drink(word)):
             return word
@@ -320,7 +325,7 @@ def contents_named(prompt: str, mentions: list[int], figure_name: str = "") -> s
 def contents_in_name(name: str, figure_name: str = "") -> str | None:
     """The contents a container is named for ("compost_bin", "ink_pot"), not the figure's own name: what something
     stuck or buried in it goes into."""
-    own = {f for w in lexicon.words(figure_name) for f in lexicon.singulars(w)}
+    own = lexicon.forms(lexicon.words(figure_name))
     parts = [part for word in lexicon.words(name) for part in _compound(word)]
     found = [w for w in parts[:-1] if w not in own and (w in CONTENTS or is_drink(w))]
     return found[-1] if found else None
@@ -329,7 +334,7 @@ def contents_in_name(name: str, figure_name: str = "") -> str | None:
 def _compound(word: str) -> list[str]:
     """A one-word compound of a contents word and a place or a receptacle that holds it, split in two ("sandpit",
     "snowbank", "mudflat", "inkwell"); any other word whole (a "sandwich", a "watermelon", a "teaspoon")."""
-    for first in sorted(CONTENTS, key=len, reverse=True):
+    for first in _CONTENTS_LONGEST_FIRST:
         if word.startswith(first) and word[len(first):] in HOLDS_CONTENTS:
             return [first, word[len(first):]]
     return [word]
@@ -340,19 +345,20 @@ def _contents(prompt: str, mention_at: list[int], match: lexicon.Match | None) -
         return "its contents"
     if match is not None and match.phrase.split()[-1] in HEAPS:
         return f"the {match.phrase}"
-    tokens = _tokens(prompt)
+    tokens = prompt_words(prompt)
     starts = [start for start, _ in tokens]
     for at in mention_at:
         if at not in starts:
             continue
-        if tokens[starts.index(at)][1] in HEAPS:
-            return f"the {tokens[starts.index(at)][1]}"
-        before = [w for _, w in tokens[max(0, starts.index(at) - 3):starts.index(at)]]
+        i = starts.index(at)
+        if tokens[i][1] in HEAPS:
+            return f"the {tokens[i][1]}"
+        before = [w for _, w in tokens[max(0, i - 3):i]]
         if len(before) == 3 and before[1] == "of" and before[2] in _STOP and (
                 before[0] in CONTENTS or is_drink(before[0])):
             return before[0]  # "in the sand of a sandbox", "the water of the pool"
-        after = [w for _, w in tokens[starts.index(at) + 1:starts.index(at) + 6]]
-        if after[:1] == ["full"] or after[:1] == ["filled"]:
+        after = [w for _, w in tokens[i + 1:i + 6]]
+        if after[:1] in (["full"], ["filled"]):
             after = after[1:]
         if after and after[0] in _FILL_WORDS:
             phrase = []

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import re
 import unicodedata
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 _TABLE = """
@@ -714,13 +715,15 @@ MATERIALS = frozenset({"wood", "stone", "glass", "metal", "gold", "silver", "pla
                        "velvet", "linen", "wool", "yarn", "oak", "pine", "walnut", "maple", "birch", "teak", "mahogany",
                        "cedar", "bamboo", "brass", "copper", "bronze", "chrome", "porcelain", "ceramic", "rubber",
                        "resin"})
-# Words a file name or a prompt puts around an object's head noun that do not name an object: colours, styles,
-# file-format and asset-pipeline words ("Rubber_Duck_Yellow", "old_lamp_lowpoly", "SM_Chair_02").
+
+
 def word_set(text: str) -> frozenset[str]:
     """The whitespace-separated words of a table of words."""
     return frozenset(text.split())
 
 
+# Words a file name or a prompt puts around an object's head noun that do not name an object: colours, styles,
+# file-format and asset-pipeline words ("Rubber_Duck_Yellow", "old_lamp_lowpoly", "SM_Chair_02").
 NON_HEAD_WORDS = word_set("""
 red green blue yellow white black brown grey gray pink purple beige golden dark light bright pale striped
 old new vintage antique modern classic rusty broken clean dirty simple cartoon stylized stylised realistic cute
@@ -799,6 +802,11 @@ def singulars(word: str) -> list[str]:
             forms.append(word[:-2])
         forms.append(word[:-1])
     return forms
+
+
+def forms(tokens: Iterable[str]) -> set[str]:
+    """All the forms ``singulars`` gives of the tokens: to match words whatever their number."""
+    return {form for token in tokens for form in singulars(token)}
 
 
 def words(text: str) -> list[str]:

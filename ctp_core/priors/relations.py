@@ -155,12 +155,16 @@ def find_cue(prompt: str, aside=None) -> CueMatch | None:
     return first
 
 
+_PARTICIPLE = re.compile(r"[a-z]+ing")
+_AFTER_ARTICLE = re.compile(r"(?:^|\s)(?:a|an|the)\s+$")
+_BEFORE_WORD = re.compile(r"\s+[a-z]")
+
+
 def _adjective(text: str, cue: CueMatch) -> bool:
     """A bare participle between an article and a noun describes the noun ("a meat hook through a hanging
     ham"), it does not relate the two objects."""
-    return (re.fullmatch(r"[a-z]+ing", cue.text) is not None
-            and re.search(r"(?:^|\s)(?:a|an|the)\s+$", text[:cue.start]) is not None
-            and re.match(r"\s+[a-z]", text[cue.end:]) is not None)
+    return (_PARTICIPLE.fullmatch(cue.text) is not None and _AFTER_ARTICLE.search(text[:cue.start]) is not None
+            and _BEFORE_WORD.match(text[cue.end:]) is not None)
 
 
 def source_is_figure(cue: CueMatch, source_at: list[int], target_at: list[int]) -> bool | None:

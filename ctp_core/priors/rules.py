@@ -20,6 +20,11 @@ FITS_INSIDE = 0.9  # what is inside a container (not a long thing or a plant sti
 _SUPPORT = {"on", "stand", "sit", "lie", "lean", "hang", "attach"}
 # Cues of a blade or a bit that passes through a wall, even a container's (a knife slicing a cardboard box).
 _CUTS = re.compile(r"(?:cut|slic|saw|carv|chop|stab|pierc|drill|bor|punctur)\w*(?:ing|s)\b")  # no "carved"
+# Cues of cutting that someone does with a tool in hand ("a chef cutting a cake"), not with their own body.
+_AGENT_CUTS = re.compile(r"cut|slic|stab|pierc|skewer|spear|impal|carv")
+# Cues of moving on water ("floating in", "a duck paddling on"), and of being at a water body's rim instead.
+_AFLOAT = re.compile(r"float|swim|bob|paddl")
+_AT_EDGE = re.compile(r"edge|rim|brink|lip")
 # Short fasteners driven in (a nail, a screw, a tent peg) are mostly inside what holds them.
 _DRIVEN = re.compile(r"hammer|driv|screw|nail|tapp|pound")
 DRIVEN_MAX_M = 0.25
@@ -117,7 +122,7 @@ class RulesProvider:
         if (filled is not None and relation.name in _SUPPORT | {"under"} and ground is not None
                 and (_ON_BOTTOM.search(text) or relation.name == "under" and _WATER_SAID.search(text))):
             relation, why = relations.RELATIONS["in"], why + f"; under the {filled} it holds"
-        afloat = cue is not None and re.match(r"float|swim|bob|paddl", cue.text) is not None
+        afloat = cue is not None and _AFLOAT.match(cue.text) is not None
         if filled is None and ground is not None and ground.has("container") and _WATER_SAID.search(text):
             filled = "water"  # "a toy submarine underwater in the bathtub"
             if relation.name == "under":  # "a submarine beneath the waves of the sea"
@@ -137,7 +142,7 @@ class RulesProvider:
         if (not afloat and filled is not None and relation.name in _SUPPORT and ground is not None
                 and ground.entry.domain == "buildings and places"  # "a swan gliding on the lake", not "a frog
                 and cue is not None and context.names_next(prompt, cue.end, ground_at)  # on a lily pad in a pond"
-                and not re.search(r"edge|rim|brink|lip", cue.text)):  # at the edge of a fountain: on its rim
+                and not _AT_EDGE.search(cue.text)):  # at the edge of a fountain: on its rim
             afloat = True
             why += "; on a body of water: afloat in it"
         if afloat and filled is None and relation.name == "in" and ground is not None and ground.has("container"):
@@ -183,11 +188,8 @@ def _mentions(prompt: str, name: str, match: lexicon.Match | None) -> list[int]:
     The name's head (its lexicon phrase, a synonym of it, or its part word) is preferred; any other
     word of the name ("blender" in "blender_tank") counts only when the head is not mentioned.
     """
-    text = relations.clean(prompt)
-    offsets, tokens = [], []
-    for m in re.finditer(r"[a-z]+", text):
-        offsets.append(m.start())
-        tokens.append(m.group(0))
+    offsets = [start for start, _ in context.prompt_words(prompt)]
+    tokens = [word for _, word in context.prompt_words(prompt)]
     name_words = [w for w in lexicon.words(name) if w not in lexicon.SIZE_WORDS]
     if not name_words:
         return []
@@ -197,7 +199,7 @@ def _mentions(prompt: str, name: str, match: lexicon.Match | None) -> list[int]:
         heads += [offsets[s] for s, _, _, entry in lexicon.spans(tokens) if entry is match.entry]
     if heads:
         return sorted(set(heads))
-    forms = {f for w in name_words for f in lexicon.singulars(w)}
+    forms = lexicon.forms(name_words)
     return [offsets[i] for i, t in enumerate(tokens) if forms & set(lexicon.singulars(t))]
 
 
@@ -210,7 +212,7 @@ def _relation(cue, target, source, figure) -> tuple[relations.Relation, str]:
         if rel.name == "sit" and figure is not None and not figure.has("agent"):
             return relations.RELATIONS["on"], f"'{cue.text}' said of an object: resting on"
         if (rel.name == "penetrate" and figure is not None and figure.has("agent")
-                and re.match(r"cut|slic|stab|pierc|skewer|spear|impal|carv", cue.text)):  # "a chef cutting a cake"
+                and _AGENT_CUTS.match(cue.text)):  # "a chef cutting a cake"
             return relations.RELATIONS["hold"], f"'{cue.text}' said of someone: handling it, with a tool"
         if rel.name == "wear" and figure is not None and figure.has("agent"):  # "a bird on a giraffe's head"
             return relations.RELATIONS["stand"], f"'{cue.text}' said of a creature: standing on it"
@@ -302,8 +304,7 @@ def _pierceable(ground) -> bool:
 
 def _holds_own(ground_name: str, fig) -> bool:
     """A holder named for what it holds ("knife_block" for a knife): it has a slot for it."""
-    return bool(set(lexicon.singulars(fig.phrase.split()[-1])) & {f for w in lexicon.words(ground_name)
-                                                                   for f in lexicon.singulars(w)})
+    return bool(set(lexicon.singulars(fig.phrase.split()[-1])) & lexicon.forms(lexicon.words(ground_name)))
 
 
 def _penetration(relation, figure: bool, target, source, filled: str | None, floating: bool,
