@@ -56,8 +56,11 @@ def run_case(case, args) -> dict:
     overrides: dict = {}
     for item in args.set:
         path, value = item.split("=", 1)
-        section, key = path.split(".")
-        overrides.setdefault(section, {})[key] = json.loads(value)
+        section, _, key = path.rpartition(".")
+        if section:
+            overrides.setdefault(section, {})[key] = json.loads(value)
+        else:
+            overrides[key] = json.loads(value)
     config = AlignConfig.from_preset(args.preset, seed=args.seed, model=args.model, **overrides)
     guide = inputs.guide
     if guide is None:
@@ -104,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--preset", default="default")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=JSON",
-                        help="config override, e.g. search.fine=32 (repeatable)")
+                        help="config override, e.g. search.fine=32 or autocast=false (repeatable)")
     parser.add_argument("--poses", action="store_true",
                         help="print each refined restart's 4x4 (source file -> target file)")
     parser.add_argument("--cases", default="", help="comma-separated case ids (default: all with a reference)")
