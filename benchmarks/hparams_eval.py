@@ -9,7 +9,7 @@ size uniformly in [0.1, 10], contact uniformly in [0, 1] and penetration by a fa
     python benchmarks/hparams_eval.py [--provider rules|openai] [--errors] [--origin ORIGIN] [--labels FILE]
 
 Origins: ``bench`` (every prompt of ../shared/bench), ``hand`` (labelled before the rules were written),
-``holdout`` (labelled after they were first frozen), ``batch1`` ... ``batch23`` (scenes the first sets lacked:
+``holdout`` (labelled after they were first frozen), ``batch1`` ... ``batch24`` (scenes the first sets lacked:
 kitchen, bathroom, office, garden, toys, clothing, tools, vehicles, animals; each labelled, with a reason,
 and committed while the rules were frozen, before they were run on it; the README gives each batch's
 figure at its freeze and says what changed since).

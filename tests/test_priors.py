@@ -874,3 +874,40 @@ def test_a_pointed_thing_in_a_solid_is_stuck_in_it_any_verb_into_a_pierceable_ma
     assert not rules("drawer", "fork", "a fork in the drawer").penetration  # a container
     assert rules("clay", "marble", "a marble sinking into the clay").penetration
     assert not rules("wall", "toy_car", "a toy car crashing into the wall").penetration  # a flat solid stops it
+
+
+def test_planted_in_a_container_is_in_its_soil_set_into_goes_in():
+    assert rules("planter", "fern", "a fern planted in a ceramic planter").penetration
+    assert not rules("vase", "tulips", "tulips arranged in a vase").penetration  # nothing said to hold soil or water
+    assert rules("patio", "paving_slab", "a paving slab set into the gravel of the patio").penetration
+    assert not rules("garden", "bench", "a bench set in the corner of the garden").penetration  # "set in": placed
+
+
+def test_an_animal_drinking_from_something_has_its_muzzle_in_the_water_someone_drinking_holds_it():
+    deer = rules("pond", "deer", "a deer drinking from the pond")
+    assert deer.penetration and deer.contact_ratio <= 0.05 and deer.size_ratio > 0.5  # at the rim, not inside
+    cat = rules("bowl", "cat", "a cat drinking out of a bowl")
+    assert cat.penetration and "water" in cat.reason
+    man = rules("cup", "man", "a man drinking from a cup")
+    assert not man.penetration and man.relation == "hold"
+
+
+def test_a_biting_or_stinging_insect_pierces_the_skin_other_biters_hold():
+    tick = rules("dog", "tick", "a tick biting the dog's ear")
+    assert tick.penetration and tick.contact_ratio <= 0.05 and tick.source_is_figure
+    assert rules("boy", "wasp", "a wasp stinging a boy's hand").penetration
+    assert not rules("bone", "puppy", "a puppy biting a bone").penetration
+
+
+def test_a_container_between_the_two_objects_leaves_the_relation_to_the_ground():
+    lamp = rules("desk", "pencils", "pencils in a mug on the desk")
+    assert lamp.relation == "on" and not lamp.penetration
+    assert rules("mug", "pencils", "pencils in a mug on the desk").relation == "in"  # the mug itself
+
+
+def test_contents_of_a_container_unknown_standing_up_a_paper_version_unknown_figure_at_most_a_metre():
+    gel = rules("bathroom_shelf", "hair_gel", "a jar of hair gel on the bathroom shelf")
+    assert "jar" in gel.reason and gel.size_ratio < 1.0
+    assert rules("mug", "ruler", "a ruler standing in a mug").size_ratio > 1.0  # sticks out
+    assert rules("cocktail", "flag", "a paper flag in a cocktail").size_ratio < 2.0
+    assert rules("field", "zorbling", "a zorbling lying in the field").size_ratio <= 0.1 + 1e-9

@@ -35,7 +35,8 @@ from ctp_core.priors import lexicon, relations
 PROMPT_SIZE_POWER = 0.5
 PERSON_M = 1.75  # the wearer garments are sized for
 TOY_SIZE_M = 0.3  # a toy or a model of something big fits in the hands
-CRAFT_SIZE_M = 0.2  # a folded-paper animal or vehicle
+CRAFT_SIZE_M = 0.2  # a folded-paper animal or vehicle, and a paper version of anything big (a flag, an umbrella)
+PAPER_LARGE_M = 1.0
 FOOD_FIGURE_M = 0.12  # a sweet or a snack shaped like a person or an animal
 YOUNG_WORDS = frozenset({"baby", "young", "newborn", "infant"})
 YOUNG_SCALE = 0.35  # a calf is about a third of its mother's length
@@ -138,6 +139,8 @@ def resolve(name: str, prompt: str, mention_at: list[int], other: lexicon.Match 
         # "quilt_patchwork_hi" that the prompt calls "a half-finished quilt": a quilt, with a quilt's shape
         match = replace(plain, how=plain.how + f" (the prompt calls {name!r} a {said[0]})")
     match = _head_first(name, prompt, mention_at, match, said, plain)
+    if match is None or match.phrase not in lexicon.LEXICON and match.phrase not in lexicon.PARTS:
+        match = _held_in(name, prompt, mention_at) or match
     taken = set(lexicon.words(name)) | set(lexicon.words(other_name))
     mods = [w for w in modifiers(prompt, mention_at) if w not in taken]
     if mods:
@@ -159,6 +162,27 @@ def resolve(name: str, prompt: str, mention_at: list[int], other: lexicon.Match 
         scale = lexicon.SIZE_WORDS[sized[-1]] ** PROMPT_SIZE_POWER
         match = replace(match, size_m=match.size_m * scale, how=match.how + f", {sized[-1]}: x {scale:.2g}")
     return _modified(match, words)
+
+
+def _held_in(name: str, prompt: str, mention_at: list[int]) -> lexicon.Match | None:
+    """A name the lexicon does not know that the prompt calls the contents of a container ("a bottle of shower
+    gel", "a tub of wood filler"): the object is that container."""
+    tokens = prompt_words(prompt)
+    starts = [start for start, _ in tokens]
+    if not mention_at or mention_at[0] not in starts:
+        return None
+    i = starts.index(mention_at[0])
+    own = lexicon.forms(lexicon.words(name))
+    for k in range(1, 4):
+        if i - k < 1 or tokens[i - k][1] != "of":
+            if i - k >= 1 and tokens[i - k][1] in own:
+                continue
+            return None
+        holder = lexicon.lookup(tokens[i - k - 1][1])
+        if holder is None or not holder.has("container"):
+            return None
+        return replace(holder, how=holder.how + f" (the prompt says a {tokens[i - k - 1][1]} of the {name!r})")
+    return None
 
 
 def _head_first(name: str, prompt: str, mention_at: list[int], match: lexicon.Match | None, said: list[str],
@@ -219,6 +243,8 @@ def _modified(match: lexicon.Match, words: list[str]) -> lexicon.Match:
         match = replace(match, size_m=TOY_SIZE_M, how=match.how + f", {min(toy_made)}: a toy, {TOY_SIZE_M:g} m")
     if qualifiers & CRAFT_WORDS and entry.domain in _CRAFT_DOMAINS and match.size_m > CRAFT_SIZE_M:
         match = replace(match, size_m=CRAFT_SIZE_M, how=match.how + f", folded paper: {CRAFT_SIZE_M:g} m")
+    elif "paper" in qualifiers and match.size_m > PAPER_LARGE_M and "agent" not in entry.tags:
+        match = replace(match, size_m=CRAFT_SIZE_M, how=match.how + f", a paper one: {CRAFT_SIZE_M:g} m")
     young = qualifiers & YOUNG_WORDS
     if young and (entry.domain == "food and drink" or "agent" in entry.tags) and entry.name not in YOUNG_WORDS:
         match = replace(match, size_m=match.size_m * YOUNG_SCALE, how=match.how + f", {min(young)}: x {YOUNG_SCALE:g}")
@@ -283,6 +309,17 @@ def _object_of(prompt: str, cue_end: int, most: int = 3) -> list[tuple[int, str]
 def names_next(prompt: str, cue_end: int, mention_at: list[int]) -> bool:
     """Whether the noun phrase right after the cue (the cue's object) mentions the object."""
     return bool({start for start, _ in _object_of(prompt, cue_end, most=99)} & set(mention_at))
+
+
+def other_container(prompt: str, cue_end: int, mention_at: list[int]) -> bool:
+    """Whether the cue leads into a third object, a container neither name mentions and no container "of" what
+    fills it ("a candle in a bucket on the table": the candle is in the bucket, the bucket on the table)."""
+    phrase = _object_of(prompt, cue_end)
+    if not phrase or {start for start, _ in phrase} & set(mention_at):
+        return False
+    following = [w for start, w in prompt_words(prompt) if start > phrase[-1][0]][:1]
+    known = lexicon.lookup(" ".join(w for _, w in phrase))
+    return following != ["of"] and known is not None and known.has("container")
 
 
 def substance_object(prompt: str, cue_end: int) -> bool:

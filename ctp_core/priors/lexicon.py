@@ -22,6 +22,8 @@ Tags:
 - ``aquatic``: a creature that lives under water (a fish, a jellyfish): in a liquid it is wholly under.
 - ``pierceable``: a solid a pointed thing goes into when pushed (wood, soil, foam, a dartboard, fabric); solid
   food, plants and ``soft`` things are pierceable without the tag.
+- ``bites``: a creature whose bite or sting pierces the skin (a mosquito, a tick, a wasp): biting or stinging
+  someone, it goes into them.
 - ``filled``: holds contents that close its opening off (a drink, a soup, a pond): what goes *in* it passes
   below the surface of the contents, so it penetrates (the prompt can say so too: "a mug of cocoa").
 
@@ -569,8 +571,10 @@ fish/trout/carp/cod/tuna/pike 0.3 aquatic,agent
 jellyfish/octopus/squid/stingray/seahorse 0.3 aquatic,agent
 goldfish/clownfish/guppy/angelfish/minnow/tetra 0.06 aquatic,agent
 shark/dolphin/whale 4.0 aquatic,agent
-bee/butterfly/ladybug/ant/spider/fly/insect/bug/beetle 0.03 agent
-mosquito/gnat/wasp/hornet/moth/flea/tick/mite/louse 0.02 agent
+butterfly/ladybug/ant/spider/fly/insect/bug/beetle 0.03 agent
+bee/bumblebee 0.03 agent,bites
+moth 0.02 agent
+mosquito/gnat/wasp/hornet/flea/tick/mite/louse/midge/horsefly/bedbug 0.02 agent,bites
 worm/earthworm/caterpillar/slug 0.08 agent
 beehive/hive/anthill 0.5 container
 spider_web/cobweb/web 0.4 flat

@@ -76,7 +76,7 @@ CUES: list[Cue] = [
         r"|(?:driven|hammered|nailed|pinned|planted|pushed|pressed|poked|thrust|plunged|sunk|jammed|screwed|shot|staked|dug)"
         r" " + _ADV
         + r"(?:in|into)"
-        r"|(?:pushed|poked|thrust|jammed|shoved|driven|hammered) " + _ADV + r"through"
+        r"|(?:pushed|poked|thrust|jammed|shoved|driven|hammered) " + _ADV + r"through|set " + _ADV + r"into"
         r"|planted (?:on|atop)|carv(?:e|es|ed|ing)|(?:chop|split|crack)(?:s|ped|ping|ting|ing)? (?:into|through|open)"
         r"|saw(?:s|ed|ing)? (?:through|into)|(?:drill|bor)(?:e|es|ed|ing|s)? (?:a hole )?(?:in|into|through)",
         "penetrate"),
@@ -87,7 +87,8 @@ CUES: list[Cue] = [
     # held
     Cue(r"in " + _POSS + r" " + _BODY + r"|held (?:by|in)", "hold"),
     Cue(r"hold(?:s|ing)?|carr(?:y|ies|ying)|grasp(?:s|ing)?|grip(?:s|ping)?|clutch(?:es|ing)?|wield(?:s|ing)?"
-        r"|brandish(?:es|ing)?|play(?:s|ing)|hug(?:s|ging)?|eat(?:s|ing)|bit(?:e|es|ing)", "hold", True),
+        r"|brandish(?:es|ing)?|play(?:s|ing)|hug(?:s|ging)?|eat(?:s|ing)|bit(?:e|es|ing)|sting(?:s|ing)?",
+        "hold", True),
     # supported postures
     Cue(r"rid(?:e|es|ing)|astride|straddl[a-z]+|driv(?:e|es|ing)|(?:sit|sits|sitting|seated|sat)"
         r" (?:on|in|at|astride|inside)", "sit"),
@@ -117,6 +118,8 @@ CUES: list[Cue] = [
     Cue(r"through", "in"),  # penetrates only when a pointed thing goes through a solid
     Cue(r"filled with|full of|contain(?:s|ing)?|holding inside", "in", True),
     Cue(r"stir(?:s|red|ring)?", "in"),  # "a candy cane stirring a mug of hot chocolate": its end in it
+    # "a horse drinking from a trough": an animal's muzzle in the water (rules; someone drinking holds the cup)
+    Cue(r"(?:drink|sip|lapp?)(?:s|ing|ped|ping)?(?: (?:up )?water)? (?:from|out of)", "in"),
     Cue(r"inside|into|within|in", "in"),
     Cue(r"on top of|on top|atop|onto|upon|on", "on"),
 ]

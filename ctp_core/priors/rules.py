@@ -15,6 +15,9 @@ from ctp_core.priors.context import PERSON_M  # an unknown name that holds, wear
 from ctp_core.priors.prior import ScenePrior, clamp_contact, clamp_size
 
 STICKS_OUT = 2.5  # ... and a long thing or a plant that sticks out of it is at most this size of it
+# An unknown figure on or in a known ground is an object someone handles: its size is the relation's typical share
+# of the ground's, but at most this ("an acorn buried in the lawn" is no 4 m acorn).
+UNKNOWN_FIGURE_MAX_M = 1.0
 FITS_INSIDE = 0.9  # what is inside a container (not a long thing or a plant sticking out) is at most this size of it
 # Relations where a ball touches at a point, a sheet lies on a face, a soft thing settles.
 _SUPPORT = {"on", "stand", "sit", "lie", "lean", "hang", "attach"}
@@ -59,6 +62,13 @@ _ON_POINTS = re.compile(r"\b(?:on|onto|upon) (?:the |its |his |her |their |a )?(
                         r"|prongs?|tines?|quills?|barbs?|needles?)\b")
 # Put into a fold or a pocket ("a fortune tucked inside a cookie"), not embedded in the food's mass.
 _TUCKED = re.compile(r"\b(?:tucked|tucks|tucking|slipped|slips|slipping)\b")
+# Drinking from something: an animal's muzzle goes into the water it holds ("a horse drinking from a trough"),
+# someone drinking from a cup holds it.
+# Standing up in a container: what stands in it sticks out of it, like a long thing ("scissors standing in a cup").
+_UPRIGHT = re.compile(r"\b(?:standing|stands|stood|stand)(?: up| upright)? $")
+_DRINKS = re.compile(r"drink|sip|lap")
+DRINKING_CONTACT = 0.02  # also what a biting or stinging insect touches its victim with
+_BITES = re.compile(r"bit|sting")
 _PARTLY_UNDER = re.compile(r"\b(?:dip|dipped|dipping|dunk|dunked|dunking|half|partly|partially)\b")
 SUNK_MAX = 0.5
 IMMERSED_CONTACT = {"whole": 0.9, "part": 0.4, "pointed": 0.3}  # "pointed" also for anything stuck in them
@@ -78,7 +88,9 @@ class RulesProvider:
         target_at, source_at = _mentions(prompt, target_name, target), _mentions(prompt, source_name, source)
         cue = relations.find_cue(prompt, lambda c: (  # "... with only its eyes above the water": about a part
             c.cue.relation not in {"in", "penetrate"} and context.substance_object(prompt, c.end)
-            and not context.names_next(prompt, c.end, target_at + source_at)))
+            and not context.names_next(prompt, c.end, target_at + source_at)
+            or c.text in {"in", "inside"}  # "a candle in a bucket on the table": on the table
+            and context.other_container(prompt, c.end, target_at + source_at)))
         figure = None
         if cue is not None:
             figure = relations.source_is_figure(cue, source_at, target_at)
@@ -92,6 +104,11 @@ class RulesProvider:
             context.resolve(source_name, prompt, source_at, target, agent_role == ("figure" if figure else "ground"),
                             target_name))
         relation, why = _relation(cue, target, source, source if figure else target)
+        drinks = cue is not None and relation.name == "in" and _DRINKS.match(cue.text) is not None
+        drinker = source if figure else target
+        if drinks and not (drinker is not None and drinker.entry.domain == "animals"):
+            figure, drinks = not figure, False  # "a man drinking from a cup": he holds it
+            relation, why = relations.RELATIONS["hold"], f"'{cue.text}' said of someone: holding it"
         holder, held = (target, source) if figure else (source, target)
         if (relation.name == "hold" and holder is not None and holder.has("pointed") and not holder.has("agent")
                 and (holder.size_m <= FASTENER_MAX_M or holder.has("staked")) and _pierceable(held)):
@@ -99,6 +116,13 @@ class RulesProvider:
             figure = not figure
             relation = relations.RELATIONS["penetrate"]
             why = f"'{cue.text}' said of a pointed {holder.phrase}: a fastener in the {held.phrase}"
+        bites = (relation.name == "hold" and cue is not None and _BITES.match(cue.text) is not None
+                 and holder is not None and holder.has("bites") and (held is None or held.has("agent")
+                                                                     or _pierceable(held)))
+        if bites:  # "a mosquito biting a man's arm": its proboscis in the skin
+            figure = not figure
+            relation = relations.RELATIONS["penetrate"]
+            why = f"'{cue.text}' said of a {holder.phrase}: its bite or sting pierces the skin"
         if not figure:
             notes.append("the source is the ground of the relation")
         ground_name, ground, ground_at = (target_name, target, target_at) if figure else (
@@ -122,6 +146,8 @@ class RulesProvider:
         if (filled is not None and relation.name in _SUPPORT | {"under"} and ground is not None
                 and (_ON_BOTTOM.search(text) or relation.name == "under" and _WATER_SAID.search(text))):
             relation, why = relations.RELATIONS["in"], why + f"; under the {filled} it holds"
+        if drinks and filled is None and ground is not None and not ground.has("agent"):
+            filled = context.contents_in_name(ground_name, figure_name) or "water"  # a trough, a bowl: its water
         afloat = cue is not None and _AFLOAT.match(cue.text) is not None
         if filled is None and ground is not None and ground.has("container") and _WATER_SAID.search(text):
             filled = "water"  # "a toy submarine underwater in the bathtub"
@@ -137,8 +163,9 @@ class RulesProvider:
                    and _solid(ground))
         if encased:
             filled = f"the {ground.phrase}"  # "a fish frozen inside a block of ice": wholly in the solid
-        if filled is None and ground is not None and relation.name == "in" and _GROWS.search(text):
-            filled = "soil"  # "daffodils growing in a flower pot": rooted in the soil it holds
+        if filled is None and ground is not None and _GROWS.search(text) and (
+                relation.name == "in" or relation.name == "penetrate" and ground.has("container")):
+            filled = "soil"  # "daffodils growing in a flower pot", "a cactus planted in a pot": rooted in its soil
         if (not afloat and filled is not None and relation.name in _SUPPORT and ground is not None
                 and ground.entry.domain == "buildings and places"  # "a swan gliding on the lake", not "a frog
                 and cue is not None and context.names_next(prompt, cue.end, ground_at)  # on a lily pad in a pond"
@@ -164,7 +191,9 @@ class RulesProvider:
         if relation.name == "under" and not figure:  # "a table under a cup": the cup is on the table
             relation, figure = relations.RELATIONS["on"], True
             notes.append("read as the target resting on the source")
-        size, size_why = _size_ratio(target_name, source_name, target, source, relation, figure)
+        upright = cue is not None and _UPRIGHT.search(text[:cue.start]) is not None
+        size, size_why = _size_ratio(target_name, source_name, target, source,  # a drinker is at the rim, not in
+                                     relations.RELATIONS["on"] if drinks else relation, figure, upright)
         notes.insert(0, size_why)
         penetration, pen_why = _penetration(relation, figure, target, source, filled, floating,
                                             cue.text if cue is not None else "", text, ground_name)
@@ -177,6 +206,8 @@ class RulesProvider:
             ground.entry.domain == "buildings and places" or _ON_FEET.search(text) is not None)
         contact = DRIVEN_CONTACT if driven and figure else _contact(relation, figure, source, immersed, afloat, text,
                                                                     size, in_place, encased)
+        if drinks and penetration or bites:
+            contact = DRINKING_CONTACT  # its muzzle, its proboscis or sting
         return ScenePrior(size_ratio=clamp_size(size), penetration=penetration, contact_ratio=clamp_contact(contact),
                           source=self.name, reason="; ".join(n for n in notes if n),
                           relation=relation.name, source_is_figure=figure)
@@ -224,7 +255,8 @@ def _relation(cue, target, source, figure) -> tuple[relations.Relation, str]:
     return relations.RELATIONS["on"], "no relation cue: assumed resting on"
 
 
-def _size_ratio(target_name, source_name, target, source, relation, figure: bool) -> tuple[float, str]:
+def _size_ratio(target_name, source_name, target, source, relation, figure: bool,
+                upright: bool = False) -> tuple[float, str]:
     """Lexicon sizes; an unknown wearer/holder/rider is a person; otherwise an unknown size falls back
     to the relation's typical figure/ground ratio.
 
@@ -251,6 +283,11 @@ def _size_ratio(target_name, source_name, target, source, relation, figure: bool
         else:
             sizes.append(None)
             whys.append(f"{name!r}: not in the lexicon")
+    fig_i, ground_i = (1, 0) if figure else (0, 1)
+    if (sizes[fig_i] is None and sizes[ground_i] is not None
+            and sizes[ground_i] * relation.figure_size > UNKNOWN_FIGURE_MAX_M):  # "an acorn buried in the lawn"
+        sizes[fig_i] = UNKNOWN_FIGURE_MAX_M
+        whys[fig_i] += f", so at most {UNKNOWN_FIGURE_MAX_M:g} m on a ground this big (fallback)"
     if None in sizes:
         ratio = relation.figure_size if figure else 1.0 / relation.figure_size
         return ratio, (f"size ratio {clamp_size(ratio):.3g} (fallback: {', '.join(whys)}; "
@@ -270,6 +307,7 @@ def _size_ratio(target_name, source_name, target, source, relation, figure: bool
     fits = FITS_INSIDE if figure else 1.0 / FITS_INSIDE
     if (relation.name == "in" and ground_match is not None and ground_match.has("container") and fig_match is not None
             and not fig_match.has("pointed") and fig_match.entry.domain != "plants"  # stems stick out of a vase
+            and not upright  # "scissors standing in a pencil cup" stick out of it
             and (ratio > fits if figure else ratio < fits)):
         return fits, (f"size ratio {fits:.3g} ({whys[1]} / {whys[0]}: the {fig_match.phrase} must fit inside, "
                       f"so no bigger than {FITS_INSIDE:g} of the {ground_match.phrase})")
@@ -327,7 +365,9 @@ def _penetration(relation, figure: bool, target, source, filled: str | None, flo
     Since batch23, defaults for what the rules do not know: a pointed thing "in" any solid that is no container, and
     no holder named for it, is stuck in it (a dart in a door, not a knife in a knife block); any verb "into" a
     pierceable mass that is no sheet goes in (a pebble sinking into mud); what is on the spines, thorns or prongs of
-    something is impaled on them.
+    something is impaled on them. Since batch24 (found in ``estimate``): what is planted in a container is in its
+    soil, an animal drinking from something has its muzzle in the water it holds, and a biting or stinging insect
+    (``bites``) pierces the skin.
     """
     ground, fig = (target, source) if figure else (source, target)
     fig_name = fig.phrase if fig is not None else "source" if figure else "target"
