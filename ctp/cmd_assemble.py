@@ -139,10 +139,9 @@ def _from_yaml(entry: Any) -> Any:
 
 
 def _with_options(config, options: dict[str, Any], where: str):
-    from ctp_core.assemble import config_with
     from ctp_core.options import option_overrides
 
-    return config_with(config, option_overrides(options, where))
+    return config.merged(option_overrides(options, where))
 
 
 def _known(entry: dict, keys: set[str], where: str) -> None:

@@ -22,14 +22,14 @@ import numpy as np
 import trimesh
 
 from ctp_core import frames
-from ctp_core.config import AlignConfig, _merge
+from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled, ConfigError, CtpError
 from ctp_core.progress import CancelCheck, ProgressCallback
 
 if TYPE_CHECKING:  # the engine (torch) loads only when a stage runs: the API checks plans with check_plan
     from ctp_core.align import AlignResult
 
-__all__ = ["STEP_KEYS", "Assembly", "PlanError", "PlanStep", "Placed", "Stage", "Step", "assemble", "config_with",
+__all__ = ["STEP_KEYS", "Assembly", "PlanError", "PlanStep", "Placed", "Stage", "Step", "assemble",
            "plan_step", "stage_options"]
 
 
@@ -90,13 +90,6 @@ def scene_of(objects: Sequence[Placed]) -> trimesh.Scene:
         out.add_geometry(placed.mesh, node_name=placed.name, geom_name=placed.name,
                          transform=np.array(placed.to_scene.matrix))
     return out
-
-
-def config_with(config: AlignConfig, overrides: dict[str, Any]) -> AlignConfig:
-    """``config`` with nested ``AlignConfig`` overrides applied and validated (a step's own options)."""
-    if not overrides:
-        return config
-    return AlignConfig.from_preset(config.preset, **_merge(config.model_dump(exclude={"preset"}), overrides))
 
 
 STEP_KEYS = frozenset({"file", "prompt", "image", "name", "on", "options"})  # one step of a plan

@@ -196,6 +196,12 @@ class AlignConfig(_Strict):
         """Whether the optimiser differentiates the CLIP loss w.r.t. the renders."""
         return self.loss.lambda_clip > 0 and not self.loss.selection_only
 
+    def merged(self, overrides: dict) -> AlignConfig:
+        """This config with nested overrides applied (sections as dicts merge into its own) and validated."""
+        if not overrides:
+            return self
+        return AlignConfig.from_preset(self.preset, **_merge(self.model_dump(exclude={"preset"}), overrides))
+
     @classmethod
     def preset_names(cls) -> list[str]:
         return sorted(PRESETS)

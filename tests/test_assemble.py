@@ -15,7 +15,7 @@ from scipy.spatial.distance import pdist
 
 from ctp.cli import main
 from ctp_core import frames
-from ctp_core.assemble import PlanError, PlanStep, Step, assemble, config_with, plan_step
+from ctp_core.assemble import PlanError, PlanStep, Step, assemble, plan_step
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.export import assembly_glb, assembly_report
@@ -123,8 +123,8 @@ def test_plan_errors_name_the_step(meshes):
     with pytest.raises(ConfigError, match="already used"):
         assemble(meshes["table"], [Step(meshes["cup"], "table", "x")], config, base_name="table")
     with pytest.raises(ConfigError, match="stage 1/1 \\(cup\\): unknown hparams provider") as err:
-        assemble(meshes["table"], [Step(meshes["cup"], "cup", "x", config=config_with(
-            config, {"hparams_provider": "no-such-provider"}))], config, base_name="table")
+        assemble(meshes["table"], [Step(meshes["cup"], "cup", "x", config=config.merged(
+            {"hparams_provider": "no-such-provider"}))], config, base_name="table")
     assert err.value.field == "steps.0.hparams_provider"
 
 
