@@ -146,6 +146,18 @@ def test_bad_plans_are_refused_before_queueing(api, files, plan, sources, status
     assert (answer.status_code, answer.json()["error"]["code"]) == (status, code), answer.text
 
 
+def test_a_plain_align_over_the_scene_limit_is_refused(api, files):
+    """CTP_MAX_SCENE_FACES (300 here) bounds the meshes of any job together, a plain /align's two included: a
+    plate (128 faces) and a ball (320) are each under the per-mesh limit, not together."""
+    ball = trimesh.creation.icosphere(subdivisions=2).export(file_type="glb")
+    answer = api.client.post("/align", data={"prompt": "a ball on the plate", "options": json.dumps(GEOMETRY_ONLY)},
+                             files={"target": ("plate.glb", files["plate"]), "source": ("ball.glb", ball)},
+                             headers=ALPHA)
+    assert answer.status_code == 413, answer.text
+    assert answer.json()["error"]["code"] == "scene_too_large" and "448 faces together" in answer.json()["error"][
+        "message"]
+
+
 def test_a_step_s_shape_is_refused_as_the_engine_words_it(api, files):
     """The rule is the engine's (``ctp_core.assemble.plan_step``, as ``ctp assemble --plan``); the API names
     the step ``plan.<i>`` and says where preset and model go."""

@@ -30,7 +30,8 @@ router = APIRouter()
              description="Two meshes and a prompt; or, with `target_job` instead of `target`, one of your succeeded "
              "jobs' result scene as the target (its objects stay separate and never move), to add one object at "
              "a time. 404 `job_not_found` for an unknown target job or another key's, 409 `job_not_ready` when "
-             "it has not succeeded, 413 `scene_too_large` over `CTP_MAX_SCENE_FACES`.")
+             "it has not succeeded, 413 `scene_too_large` when the meshes together (target and source, or the target "
+             "job's scene and the source) are over `CTP_MAX_SCENE_FACES`.")
 async def submit(request: Request, who: str = Depends(owner)) -> Accepted:
     settings = request.app.state.settings
     form = await forms.read_form(request)
@@ -43,15 +44,16 @@ async def submit(request: Request, who: str = Depends(owner)) -> Accepted:
     if on is not None and target_job is None:
         raise ApiError(400, "invalid_field", "on names an object of a target_job's scene; give target_job", field="on")
     chained = await assemble.chained_target(request, form, who, target_job, on) if target_job is not None else None
+    faces = chained.faces if chained else 0
     for role in ("source",) if chained else ("target", "source"):
         upload = forms.file(form, role)
         files[role] = forms.file_name(upload, role)
         blobs[role] = await forms.read_limited(upload, settings.max_upload_bytes, role, "mesh_file_too_large")
-        faces = await run_in_threadpool(forms.check_mesh, request.app.state.loader, blobs[role], files[role],
-                                        settings.mesh_limits, role)
+        faces += await run_in_threadpool(forms.check_mesh, request.app.state.loader, blobs[role], files[role],
+                                         settings.mesh_limits, role)
+    assemble.check_scene_faces(faces, settings.max_scene_faces)  # all meshes of the job together
     if chained:
         files["target"], blobs["target"], on = chained.file, chained.data, chained.on
-        assemble.check_scene_faces(chained.faces + faces, settings.max_scene_faces)
     if image is not None:
         blobs["image"] = await forms.read_limited(image, settings.max_image_bytes, "image", "image_too_large")
         await run_in_threadpool(forms.check_image, blobs["image"], settings.max_image_pixels)
