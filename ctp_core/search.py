@@ -141,9 +141,11 @@ def orientations(pair: PreparedPair, config: AlignConfig, generator: torch.Gener
 
     The upright frame and its flip, each turned in ``search.yaw_steps`` about +Y, and the ``search.stable_poses``
     most probable resting poses (trimesh, on the source's convex hull) turned the same way; in the ``random``
-    init mode as many uniform rotations instead.
+    init mode as many uniform rotations instead (the resting poses are not computed).
     """
     cfg = config.search
+    if config.optim.init_rotation == "random":  # as many as the source's own frames give at most
+        return random_quaternions(cfg.yaw_steps * (2 + cfg.stable_poses), generator)
     yaw = torch.arange(cfg.yaw_steps, dtype=torch.float32) * (2 * math.pi / cfg.yaw_steps)
     turns = torch.stack([torch.cos(yaw / 2), 0 * yaw, torch.sin(yaw / 2), 0 * yaw], dim=1)
     up = pair.source_upright.rotation
@@ -155,10 +157,7 @@ def orientations(pair: PreparedPair, config: AlignConfig, generator: torch.Gener
         bases += [z_to_y @ np.asarray(m)[:3, :3] for m in rests[: cfg.stable_poses]]
     base = torch.tensor(np.stack([matrix_to_quaternion(b) for b in bases]), dtype=torch.float32)
     q = quaternion_product(turns[:, None].expand(-1, len(base), -1), base[None].expand(len(turns), -1, -1))
-    q = q.reshape(-1, 4)
-    if config.optim.init_rotation == "random":
-        return random_quaternions(len(q), generator)
-    return q
+    return q.reshape(-1, 4)
 
 
 def _stable_poses(source: trimesh.Trimesh, seed: int) -> list[np.ndarray]:

@@ -268,3 +268,15 @@ def test_align_end_to_end_with_the_default_preset(pairs):
     assert metrics.contact_distance(table, placed) <= 0.02
     assert metrics.intersection_over_union(table, placed).iou <= 0.02
     assert result.clip_images > cfg.search.candidates * cfg.search.coarse_views
+
+
+def test_random_init_mode_draws_uniform_orientations_without_resting_poses(pairs, monkeypatch):
+    target, source = pairs["box on table"]
+    pair = scene.prepare_pair(target, source, samples=CONFIG.loss.samples, seed=0)
+    config = CONFIG.model_copy(update={"optim": CONFIG.optim.model_copy(update={"init_rotation": "random"})})
+    monkeypatch.setattr(search, "_stable_poses", lambda *a: pytest.fail("resting poses computed in random mode"))
+    q = search.orientations(pair, config, torch.Generator().manual_seed(0))
+    cfg = config.search
+    assert q.shape == (cfg.yaw_steps * (2 + cfg.stable_poses), 4)
+    torch.testing.assert_close(q.norm(dim=1), torch.ones(len(q)))
+    assert (q[:, [0, 2]].norm(dim=1) < 0.999).any()  # not only turns about +Y
