@@ -99,25 +99,35 @@ def run_case(case, args) -> dict:
     return row
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def case_parser(description: str) -> argparse.ArgumentParser:
+    """The arguments every per-case instrument here takes: roots, model, preset, seed, case ids."""
+    parser = argparse.ArgumentParser(description=description)
     parser.add_argument("roots", nargs="+", type=Path)
-    parser.add_argument("--guide", default="pixels", choices=["pixels", "oracle"])
     parser.add_argument("--model", default="random:ViT-B-32")
     parser.add_argument("--preset", default="default")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=JSON",
-                        help="config override, e.g. search.fine=32 or autocast=false (repeatable)")
-    parser.add_argument("--poses", action="store_true",
-                        help="print each refined restart's 4x4 (source file -> target file)")
     parser.add_argument("--cases", default="", help="comma-separated case ids (default: all with a reference)")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def each_case(args: argparse.Namespace, run_case) -> int:
+    """Print ``run_case(case, args)`` as one JSON line for every case with a reference under ``args.roots``."""
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     ids = [c for c in args.cases.split(",") if c] or None
     cases = [c for root in args.roots for c in discover(root) if c.reference is not None and (not ids or c.id in ids)]
     for case in cases:
         print(json.dumps(run_case(case, args)), flush=True)
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = case_parser(__doc__.split("\n\n")[0])
+    parser.add_argument("--guide", default="pixels", choices=["pixels", "oracle"])
+    parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=JSON",
+                        help="config override, e.g. search.fine=32 or autocast=false (repeatable)")
+    parser.add_argument("--poses", action="store_true",
+                        help="print each refined restart's 4x4 (source file -> target file)")
+    return each_case(parser.parse_args(argv), run_case)
 
 
 if __name__ == "__main__":
