@@ -69,13 +69,31 @@ def clearance(pair: PreparedPair, index: losses.TargetIndex, poses: Poses, point
     return torch.as_tensor(dist.reshape(len(poses), -1).min(axis=1), dtype=torch.float32) / diagonal
 
 
-def nearest_best(objectives: torch.Tensor, clear: torch.Tensor) -> int:
-    """The lowest objective among poses within ``NEAR`` of the target (any pose when none is): an image guide
-    can prefer a source gone out of view (an absent source differs less from the goal than a misplaced one),
-    and with no contact term (a relation that does not touch) nothing else keeps it near."""
+TOUCH = 0.1  # source diagonals: a refined pose this close to the target touches it (the samples' spacing)
+FREE = 0.01  # source diagonals: a mean sampled depth below this is no interpenetration
+
+
+def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, diagonal: torch.Tensor, *, guided: bool,
+                  touches: bool, penetrates: bool) -> int:
+    """The answer among refined poses: those within ``NEAR`` of the target (any when none is: an image guide can
+    prefer a source gone out of view, an absent source differing less from the goal than a misplaced one), and
+    with a guide the lowest guide term among them that touch (``touches``: the relation's contact ratio is > 0)
+    and do not interpenetrate (unless ``penetrates``); else, or when none qualifies, the lowest objective.
+
+    Why the guide alone: at contact the soft-ICP term measures how the samples fall, not contact (its spread
+    over touching restarts was ~1e-4 x its weight of ~100 against the guide's ~3e-3 on cur-s01 with the pixels
+    guide), so the weighted sum picked by sample noise; the search ranks its candidates the same way
+    (``search.ranking_key``). ``clear`` and ``diagonal`` are per pose, in source diagonals and normalised units.
+    """
+    key = terms["objective"]
+    clear, diagonal = clear.to(key.device), diagonal.to(key.device)
     near = clear <= NEAR
-    pool = torch.where(near, objectives, torch.full_like(objectives, torch.inf)) if near.any() else objectives
-    return int(pool.argmin())
+    pool = near if near.any() else torch.ones_like(near)
+    if guided:
+        fit = pool & ((clear <= TOUCH) | (not touches)) & ((terms["pen"] <= FREE * diagonal) | penetrates)
+        if fit.any():
+            pool, key = fit, terms["clip"]
+    return int(torch.where(pool, key, torch.full_like(key, torch.inf)).argmin())
 
 
 def combine(terms: dict[str, torch.Tensor], weights: Phase) -> torch.Tensor:

@@ -223,8 +223,27 @@ def test_the_answer_is_the_best_restart_that_stays_near_the_target(pairs):
     poses = objective.Poses(torch.tensor([[0.0, 30.0, 0.0], [0.0, 0.3, 0.0]]), q, torch.zeros(2))
     clear = objective.clearance(pair, pair.index, poses)
     assert clear[0] > objective.NEAR >= clear[1]
-    assert objective.nearest_best(torch.tensor([-1.0, 0.0]), clear) == 1
-    assert objective.nearest_best(torch.tensor([-1.0, 0.0]), torch.tensor([9.0, 9.0])) == 0
+    terms = {"objective": torch.tensor([-1.0, 0.0]), "clip": torch.tensor([-1.0, 0.0]), "pen": torch.zeros(2)}
+    one = torch.ones(2)
+    for guided in (False, True):
+        rule = {"guided": guided, "touches": False, "penetrates": False}
+        assert objective.select_answer(terms, clear, one, **rule) == 1
+        assert objective.select_answer(terms, torch.tensor([9.0, 9.0]), one, **rule) == 0
+
+
+def test_with_a_guide_the_answer_is_the_best_guide_term_among_restarts_that_touch_and_do_not_penetrate():
+    """At contact the soft-ICP term is sample noise x its weight: a guided answer is the lowest guide term among
+    the near restarts that touch (where the relation touches) and are free (where penetration is forbidden)."""
+    terms = {"objective": torch.tensor([-0.91, -0.95, -0.99, -0.90]),
+             "clip": torch.tensor([-0.99, -0.98, -0.999, -0.9995]), "pen": torch.tensor([0.0, 0.0, 0.0, 0.5])}
+    clear = torch.tensor([0.01, 0.0, 0.5, 0.0])  # the third floats half a diagonal off; the fourth is inside
+    one = torch.ones(4)
+    assert objective.select_answer(terms, clear, one, guided=False, touches=True, penetrates=False) == 2
+    assert objective.select_answer(terms, clear, one, guided=True, touches=True, penetrates=False) == 0
+    assert objective.select_answer(terms, clear, one, guided=True, touches=False, penetrates=False) == 2
+    assert objective.select_answer(terms, clear, one, guided=True, touches=True, penetrates=True) == 3
+    apart = torch.tensor([0.5, 0.5, 0.5, 0.5])  # none touches: the objective decides
+    assert objective.select_answer(terms, apart, one, guided=True, touches=True, penetrates=False) == 2
 
 
 def test_cancel_during_search(pairs):
