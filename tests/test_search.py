@@ -1,11 +1,13 @@
 """The search stage alone and inside align: proposals, relation weights, the shared scorer, cancel, counts."""
 
+import math
+
 import numpy as np
 import pytest
 import torch
 import trimesh
 
-from ctp_core import metrics, objective, scene, schedule, search, targets
+from ctp_core import metrics, objective, pose, scene, schedule, search, targets
 from ctp_core.align import align, prepare, propose
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
@@ -178,6 +180,73 @@ def test_search_counts_every_encoder_image_including_the_oracles(pairs, zoom):
     assert len(ranked.poses) == 2 and ranked.objectives[0] <= ranked.objectives[1]
     planned = n + cfg.sweep * len(props.rotations) + fine
     assert all(e.stage == "search" for e in events) and events[-1].step == events[-1].steps == planned
+    assert [e.step for e in events] == sorted(e.step for e in events)
+
+
+def _small_ball_on_table():
+    """A big table and a ball a twentieth of its length resting on it at x = 0.5 (file frame): the reference."""
+    table = trimesh.creation.box(extents=(2.0, 0.2, 1.2))
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.05)
+    ball.apply_translation((-3.0, 1.0, 2.0))
+    reference = np.eye(4)
+    reference[:3, 3] = np.array([0.5, 0.15, 0.2]) - ball.bounds.mean(0)
+    return table, ball, reference
+
+
+def test_tiles_only_where_the_source_is_small_and_each_frames_its_sources(pairs):
+    pair, props = _proposals(*pairs["box on table"])
+    assert search.tiles_of(pair, CONFIG, props.poses) is None  # the block is a fifth of the table: no tiles
+    table, ball, _ = _small_ball_on_table()
+    pair, props = _proposals(table, ball)
+    tile, centres, radius = search.tiles_of(pair, CONFIG, props.poses)
+    assert len(centres) > 1 and tile.shape == (len(props.poses),)
+    reach = (props.poses.t - centres[tile]).norm(dim=-1) + pair.source_radius
+    assert bool((reach <= radius + 1e-5).all())  # every source wholly inside its tile's framed radius
+
+
+def test_tile_scores_rank_the_change_a_source_makes_in_its_tiles_views():
+    """Pixels guide, oracle target: the reference pose changes its tile's views toward the reference (negative),
+    a ball elsewhere on the table away from it (positive), and a source that draws nothing is not judged (inf)."""
+    from ctp_core.bench.guides import PixelGuide
+
+    table, ball, reference = _small_ball_on_table()
+    pair = scene.prepare_pair(table, ball, samples=CONFIG.loss.samples, seed=0)
+    guide, oracle = PixelGuide(size=32), targets.ReferenceTarget(reference)
+    oracle.prepare(pair, guide)
+    scorer = objective.Scorer(pair, CONFIG, 0.2, guide=guide, target=oracle)
+    weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
+    elsewhere = reference.copy()
+    elsewhere[:3, 3] += (-1.0, 0.0, -0.3)
+    matrices = [pair.local_to_normalised(m) for m in (reference, elsewhere)]
+    scale = float(np.cbrt(np.linalg.det(matrices[0][:3, :3])))
+    t = torch.tensor(np.array([m[:3, 3] for m in matrices]), dtype=torch.float32)
+    q = torch.tensor(np.array([pose.matrix_to_quaternion(m[:3, :3] / scale) for m in matrices]), dtype=torch.float32)
+    poses = objective.Poses(t, q, torch.full((2,), math.log(scale)))
+    poses = objective.Poses.cat([poses, objective.Poses(t[:1] + torch.tensor([[0.0, -0.15, 0.0]]), q[:1],
+                                                        poses.log_s[:1])])  # inside the table top: hidden
+    keys = search.tile_score(scorer, poses, weights, batch=8)
+    assert keys[0] < 0 < keys[1] and torch.isinf(keys[2])
+
+
+def test_the_tile_stage_counts_its_images_and_adds_its_restarts():
+    table, ball, reference = _small_ball_on_table()
+    pair, props = _proposals(table, ball)
+    guide, oracle = get_guide("random:tiny"), targets.ReferenceTarget(reference)
+    oracle.prepare(pair, guide)
+    scorer = objective.Scorer(pair, CONFIG, 0.2, guide=guide, target=oracle)
+    weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
+    events = []
+    ranked = search.search(scorer, props, weights, k=2, on_event=events.append)
+    cfg, n = CONFIG.search, len(props.poses)
+    tiles = len(search.tiles_of(pair, CONFIG, props.poses)[1])
+    fine = min(cfg.fine, n)
+    coarse = (n + ranked.swept) * cfg.coarse_views + cfg.coarse_views
+    tiled = n * cfg.coarse_views + 2 * tiles * cfg.coarse_views  # each tile: its reference and its empty views
+    assert scorer.clip_images == coarse + tiled + fine * cfg.fine_views + cfg.fine_views
+    assert ranked.scored == n + ranked.swept + n + fine and "tiles" in ranked.stages
+    assert 2 < len(ranked.poses) <= 2 + cfg.tile_restarts  # the fine stage's 2, then the tile stage's
+    planned = n + cfg.sweep * len(props.rotations) + n + fine
+    assert events[-1].step == events[-1].steps == planned
     assert [e.step for e in events] == sorted(e.step for e in events)
 
 
