@@ -70,29 +70,29 @@ def clearance(pair: PreparedPair, index: losses.TargetIndex, poses: Poses, point
 
 
 TOUCH = 0.1  # source diagonals: a refined pose this close to the target touches it (the samples' spacing)
-FREE = 0.01  # source diagonals: a mean sampled depth below this is no interpenetration
 
 
-def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, diagonal: torch.Tensor, *, guided: bool,
-                  touches: bool, penetrates: bool) -> int:
+def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, weights: Phase, *, guided: bool,
+                  touches: bool) -> int:
     """The answer among refined poses: those within ``NEAR`` of the target (any when none is: an image guide can
-    prefer a source gone out of view, an absent source differing less from the goal than a misplaced one), and
-    with a guide the lowest guide term among them that touch (``touches``: the relation's contact ratio is > 0)
-    and do not interpenetrate (unless ``penetrates``); else, or when none qualifies, the lowest objective.
+    prefer a source gone out of view, an absent source differing less from the goal than a misplaced one); with
+    a guide, among them those that touch (``touches``: the relation's contact ratio is > 0), the lowest
+    objective without its soft-ICP term (the guide's and the penetration's); otherwise, or when none touches,
+    the lowest objective.
 
-    Why the guide alone: at contact the soft-ICP term measures how the samples fall, not contact (its spread
-    over touching restarts was ~1e-4 x its weight of ~100 against the guide's ~3e-3 on cur-s01 with the pixels
-    guide), so the weighted sum picked by sample noise; the search ranks its candidates the same way
-    (``search.ranking_key``). ``clear`` and ``diagonal`` are per pose, in source diagonals and normalised units.
+    Why not soft-ICP: at contact it measures how the samples fall, not contact (on cur-s01 with the pixels guide
+    the restart refined onto the reference, guide term -0.999, lost to one a diagonal away, -0.996, by 0.004 of
+    weighted soft-ICP); the search ranks its candidates by the guide the same way (``search.ranking_key``).
+    ``clear``: per pose, in source diagonals (``clearance``).
     """
     key = terms["objective"]
-    clear, diagonal = clear.to(key.device), diagonal.to(key.device)
+    clear = clear.to(key.device)
     near = clear <= NEAR
     pool = near if near.any() else torch.ones_like(near)
     if guided:
-        fit = pool & ((clear <= TOUCH) | (not touches)) & ((terms["pen"] <= FREE * diagonal) | penetrates)
+        fit = pool & ((clear <= TOUCH) | (not touches))
         if fit.any():
-            pool, key = fit, terms["clip"]
+            pool, key = fit, combine({**terms, "icp": torch.zeros_like(key)}, weights)
     return int(torch.where(pool, key, torch.full_like(key, torch.inf)).argmin())
 
 

@@ -107,10 +107,8 @@ class Optimiser:
         totals = self.clock.since(self._clock_start, self.start)
         scorer, last = self.scorer, self.plan[-1]
         return Outcome(
-            best=select_answer(scores, clearance(scorer.pair, scorer.pair.index, best),
-                               2 * scorer.pair.source_radius * best.log_s.detach().cpu().exp(),
-                               guided=scorer.use_clip, touches=scorer.contact_ratio > 0,
-                               penetrates=last.lambda_pen == 0),
+            best=select_answer(scores, clearance(scorer.pair, scorer.pair.index, best), last,
+                               guided=scorer.use_clip, touches=scorer.contact_ratio > 0),
             poses=best, objectives=objectives,
             terms={k: scores[k] for k in ("clip", "icp", "pen")}, timings=totals,
             phase_timings=phase_timings, clip_images=self.scorer.clip_images, steps_run=self.done,

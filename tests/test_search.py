@@ -292,27 +292,31 @@ def test_the_answer_is_the_best_restart_that_stays_near_the_target(pairs):
     poses = objective.Poses(torch.tensor([[0.0, 30.0, 0.0], [0.0, 0.3, 0.0]]), q, torch.zeros(2))
     clear = objective.clearance(pair, pair.index, poses)
     assert clear[0] > objective.NEAR >= clear[1]
-    terms = {"objective": torch.tensor([-1.0, 0.0]), "clip": torch.tensor([-1.0, 0.0]), "pen": torch.zeros(2)}
-    one = torch.ones(2)
+    terms = {"objective": torch.tensor([-1.0, 0.0]), "clip": torch.tensor([-1.0, 0.0]), "icp": torch.zeros(2),
+             "pen": torch.zeros(2)}
+    weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
     for guided in (False, True):
-        rule = {"guided": guided, "touches": False, "penetrates": False}
-        assert objective.select_answer(terms, clear, one, **rule) == 1
-        assert objective.select_answer(terms, torch.tensor([9.0, 9.0]), one, **rule) == 0
+        rule = {"guided": guided, "touches": False}
+        assert objective.select_answer(terms, clear, weights, **rule) == 1
+        assert objective.select_answer(terms, torch.tensor([9.0, 9.0]), weights, **rule) == 0
 
 
-def test_with_a_guide_the_answer_is_the_best_guide_term_among_restarts_that_touch_and_do_not_penetrate():
-    """At contact the soft-ICP term is sample noise x its weight: a guided answer is the lowest guide term among
-    the near restarts that touch (where the relation touches) and are free (where penetration is forbidden)."""
-    terms = {"objective": torch.tensor([-0.91, -0.95, -0.99, -0.90]),
-             "clip": torch.tensor([-0.99, -0.98, -0.999, -0.9995]), "pen": torch.tensor([0.0, 0.0, 0.0, 0.5])}
-    clear = torch.tensor([0.01, 0.0, 0.5, 0.0])  # the third floats half a diagonal off; the fourth is inside
-    one = torch.ones(4)
-    assert objective.select_answer(terms, clear, one, guided=False, touches=True, penetrates=False) == 2
-    assert objective.select_answer(terms, clear, one, guided=True, touches=True, penetrates=False) == 0
-    assert objective.select_answer(terms, clear, one, guided=True, touches=False, penetrates=False) == 2
-    assert objective.select_answer(terms, clear, one, guided=True, touches=True, penetrates=True) == 3
+def test_with_a_guide_the_answer_leaves_out_soft_icp_among_restarts_that_touch():
+    """At contact the soft-ICP term is sample noise x its weight: a guided answer is the lowest guide and
+    penetration terms among the near restarts that touch (where the relation touches)."""
+    weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
+    assert weights.lambda_icp > 0 and weights.lambda_pen > 0
+    terms = {"clip": torch.tensor([-0.99, -0.98, -0.999, -0.9995]), "icp": torch.tensor([0.0, 0.0, 0.0, 0.0]),
+             "pen": torch.tensor([0.0, 0.0, 0.0, 1.0])}  # the fourth is deep inside
+    terms["icp"] = torch.tensor([1.0, 0.0, 0.0, 0.0]) * 0.05 / weights.lambda_icp  # noise that outweighs the guide
+    terms["objective"] = objective.combine(terms, weights)
+    clear = torch.tensor([0.01, 0.0, 0.5, 0.0])  # the third floats half a diagonal off
+    plain = {"guided": False, "touches": True}
+    assert objective.select_answer(terms, clear, weights, **plain) == 2
+    assert objective.select_answer(terms, clear, weights, guided=True, touches=True) == 0
+    assert objective.select_answer(terms, clear, weights, guided=True, touches=False) == 2
     apart = torch.tensor([0.5, 0.5, 0.5, 0.5])  # none touches: the objective decides
-    assert objective.select_answer(terms, apart, one, guided=True, touches=True, penetrates=False) == 2
+    assert objective.select_answer(terms, apart, weights, guided=True, touches=True) == 2
 
 
 def test_cancel_during_search(pairs):
