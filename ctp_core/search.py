@@ -48,7 +48,7 @@ from ctp_core import losses, sampling
 from ctp_core.cameras import Cameras, orbit
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
-from ctp_core.objective import NEAR, Poses, Scorer, clearance
+from ctp_core.objective import NEAR, Poses, Scorer, clearance, sample_spacing
 from ctp_core.pose import matrix_to_quaternion, quaternion_product, quaternion_to_matrix, random_quaternions
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.scene import PreparedPair
@@ -283,7 +283,7 @@ def settle(pair: PreparedPair, index: losses.TargetIndex, q: torch.Tensor, ancho
     tol = 2e-3 * pair.target_radius
     # the sampled depth is only as good as the sample spacing (an edge's neighbour plane votes near corners):
     # count a sample inside only past a third of that spacing
-    spacing = math.sqrt(float(pair.target.area) / len(index.points)) * pair.target_to_normalised.scale
+    spacing = sample_spacing(pair, len(index.points))
     inside_tol = max(tol, spacing / 3)
     centre = anchor.clone()
     if on_surface:

@@ -297,8 +297,9 @@ def test_the_answer_is_the_best_restart_that_stays_near_the_target(pairs):
     weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
     for guided in (False, True):
         rule = {"guided": guided, "touches": False}
-        assert objective.select_answer(terms, clear, weights, **rule) == 1
-        assert objective.select_answer(terms, torch.tensor([9.0, 9.0]), weights, **rule) == 0
+        limit = objective.touch_limit(pair, poses)
+        assert objective.select_answer(terms, clear, limit, weights, **rule) == 1
+        assert objective.select_answer(terms, torch.tensor([9.0, 9.0]), limit, weights, **rule) == 0
 
 
 def test_with_a_guide_the_answer_leaves_out_soft_icp_among_restarts_that_touch():
@@ -311,12 +312,27 @@ def test_with_a_guide_the_answer_leaves_out_soft_icp_among_restarts_that_touch()
     terms["icp"] = torch.tensor([1.0, 0.0, 0.0, 0.0]) * 0.05 / weights.lambda_icp  # noise that outweighs the guide
     terms["objective"] = objective.combine(terms, weights)
     clear = torch.tensor([0.01, 0.0, 0.5, 0.0])  # the third floats half a diagonal off
+    limit = torch.full((4,), objective.TOUCH)
     plain = {"guided": False, "touches": True}
-    assert objective.select_answer(terms, clear, weights, **plain) == 2
-    assert objective.select_answer(terms, clear, weights, guided=True, touches=True) == 0
-    assert objective.select_answer(terms, clear, weights, guided=True, touches=False) == 2
+    assert objective.select_answer(terms, clear, limit, weights, **plain) == 2
+    assert objective.select_answer(terms, clear, limit, weights, guided=True, touches=True) == 0
+    assert objective.select_answer(terms, clear, limit, weights, guided=True, touches=False) == 2
+    assert objective.select_answer(terms, clear, limit + 0.5, weights, guided=True, touches=True) == 2  # in reach
     apart = torch.tensor([0.5, 0.5, 0.5, 0.5])  # none touches: the objective decides
-    assert objective.select_answer(terms, apart, weights, guided=True, touches=True) == 2
+    assert objective.select_answer(terms, apart, limit, weights, guided=True, touches=True) == 2
+
+
+def test_the_touch_limit_grows_with_the_target_sample_spacing(pairs):
+    """A small source on a big target can touch it farther from the nearest target sample than TOUCH diagonals."""
+    target, source = pairs["box on table"]
+    q, t = torch.tensor([[1.0, 0.0, 0.0, 0.0]]), torch.zeros(1, 3)
+    limits = []
+    for samples in (200, 5000):
+        pair = scene.prepare_pair(target, source, samples=samples, seed=0)
+        limits.append(float(objective.touch_limit(pair, objective.Poses(t, q, torch.zeros(1)))[0]))
+        spacing = objective.sample_spacing(pair, samples) / (2 * pair.source_radius)
+        assert limits[-1] == pytest.approx(objective.TOUCH + spacing, rel=1e-5)
+    assert limits[0] > limits[1] > objective.TOUCH
 
 
 def test_cancel_during_search(pairs):
