@@ -112,6 +112,14 @@ class SearchConfig(_Strict):
                        "checked between calls)")
     yaw_steps: int = Field(8, ge=1, le=72, description="turns about +Y of each source orientation")
     stable_poses: int = Field(4, ge=0, le=32, description="most probable resting poses of the source used")
+    tile_restarts: int = Field(
+        2, ge=0, le=16, description="restarts added from the tile stage (to optim.restarts) where the source is "
+        "small in the coarse views; 0: no tile stage"
+    )
+    tile_radius: float = Field(
+        3.0, gt=0.0, le=100.0, description="tile stage: the radius a tile frames, in source radii (at least a "
+        "third of the scene's); used only where that is at most half the scene's radius"
+    )
     gaps: tuple[float, ...] = Field(
         (0.0, 0.1, 0.3), description="lateral proposals: gaps to the target, in source diagonals"
     )

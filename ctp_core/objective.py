@@ -8,6 +8,7 @@ only on the fixed evaluation views). The weights are a ``schedule.Phase``'s, so 
 
 from __future__ import annotations
 
+import math
 import time
 from collections import defaultdict
 from contextlib import contextmanager
@@ -69,13 +70,44 @@ def clearance(pair: PreparedPair, index: losses.TargetIndex, poses: Poses, point
     return torch.as_tensor(dist.reshape(len(poses), -1).min(axis=1), dtype=torch.float32) / diagonal
 
 
-def nearest_best(objectives: torch.Tensor, clear: torch.Tensor) -> int:
-    """The lowest objective among poses within ``NEAR`` of the target (any pose when none is): an image guide
-    can prefer a source gone out of view (an absent source differs less from the goal than a misplaced one),
-    and with no contact term (a relation that does not touch) nothing else keeps it near."""
+TOUCH = 0.1  # source diagonals: a refined pose this close to the target touches it (plus the samples' spacing)
+
+
+def sample_spacing(pair: PreparedPair, count: int) -> float:
+    """The spacing of ``count`` samples on the target's surface, normalised units: how far a point on the surface
+    can be from its nearest sample."""
+    return math.sqrt(float(pair.target.area) / count) * pair.target_to_normalised.scale
+
+
+def touch_limit(pair: PreparedPair, poses: Poses) -> torch.Tensor:
+    """(B,) the ``clearance`` (source diagonals) under which a pose touches: ``TOUCH`` plus the spacing of the
+    target samples (a small source on a big target is farther from the nearest sample than from the surface)."""
+    diagonal = 2 * pair.source_radius * poses.log_s.detach().cpu().exp()
+    return TOUCH + sample_spacing(pair, len(pair.index.points)) / diagonal
+
+
+def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: torch.Tensor, weights: Phase, *,
+                  guided: bool, touches: bool) -> int:
+    """The answer among refined poses: those within ``NEAR`` of the target (any when none is: an image guide can
+    prefer a source gone out of view, an absent source differing less from the goal than a misplaced one); with
+    a guide, among them those that touch (``touches``: the relation's contact ratio is > 0), the lowest
+    objective without its soft-ICP term (the guide's and the penetration's); otherwise, or when none touches,
+    the lowest objective.
+
+    Why not soft-ICP: at contact it measures how the samples fall, not contact (on cur-s01 with the pixels guide
+    the restart refined onto the reference, guide term -0.999, lost to one a diagonal away, -0.996, by 0.004 of
+    weighted soft-ICP); the search ranks its candidates by the guide the same way (``search.ranking_key``).
+    ``clear`` and ``limit``: per pose, in source diagonals (``clearance``, ``touch_limit``).
+    """
+    key = terms["objective"]
+    clear, limit = clear.to(key.device), limit.to(key.device)
     near = clear <= NEAR
-    pool = torch.where(near, objectives, torch.full_like(objectives, torch.inf)) if near.any() else objectives
-    return int(pool.argmin())
+    pool = near if near.any() else torch.ones_like(near)
+    if guided:
+        fit = pool & ((clear <= limit) | (not touches))
+        if fit.any():
+            pool, key = fit, combine({**terms, "icp": torch.zeros_like(key)}, weights)
+    return int(torch.where(pool, key, torch.full_like(key, torch.inf)).argmin())
 
 
 def combine(terms: dict[str, torch.Tensor], weights: Phase) -> torch.Tensor:

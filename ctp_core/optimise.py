@@ -18,7 +18,7 @@ import torch
 from ctp_core.cameras import sample_training_views
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
-from ctp_core.objective import Poses, Scorer, clearance, nearest_best
+from ctp_core.objective import Poses, Scorer, clearance, select_answer, touch_limit
 from ctp_core.pose import matrix_to_quaternion, quaternion_product, random_quaternions
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.scene import PreparedPair
@@ -105,8 +105,11 @@ class Optimiser:
             self._emit("phase_end", phase, best_objective=float(scores["objective"].min()))
         objectives = scores["objective"]
         totals = self.clock.since(self._clock_start, self.start)
+        scorer, last = self.scorer, self.plan[-1]
         return Outcome(
-            best=nearest_best(objectives, clearance(self.scorer.pair, self.scorer.pair.index, best)),
+            best=select_answer(scores, clearance(scorer.pair, scorer.pair.index, best),
+                               touch_limit(scorer.pair, best), last, guided=scorer.use_clip,
+                               touches=scorer.contact_ratio > 0),
             poses=best, objectives=objectives,
             terms={k: scores[k] for k in ("clip", "icp", "pen")}, timings=totals,
             phase_timings=phase_timings, clip_images=self.scorer.clip_images, steps_run=self.done,

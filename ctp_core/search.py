@@ -22,7 +22,12 @@ lets the guide rank them in batches, with no gradient:
    more views zoomed toward each candidate's source.
    Between the two, ``sweep`` tries every source orientation at the best few distinct sites of the coarse stage
    (a candidate's orientation is one draw of many; a right place with the wrong turn still ranks well).
-3. ``diverse_top``: the best ``optim.restarts`` poses, near-duplicates suppressed; they start the optimiser.
+   Where the source is small in those views (a cup on a big table), a *tile* stage also scores every proposal in
+   views framed on its tile (a cell of the space around the target, a few source radii wide) by how much it
+   changes the tile's view toward the guide: the guide's term minus that of the same view without the source
+   (views framed on different tiles differ in what they show of the target, so only the change compares).
+3. ``diverse_top``: the best ``optim.restarts`` poses, near-duplicates suppressed (``search.tile_restarts`` of
+   them the tile stage's best); they start the optimiser.
 
 Frames: every pose maps the source local frame to the normalised frame (``pose``); points and directions here
 are in the normalised frame.
@@ -43,7 +48,7 @@ from ctp_core import losses, sampling
 from ctp_core.cameras import Cameras, orbit
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
-from ctp_core.objective import NEAR, Poses, Scorer, clearance
+from ctp_core.objective import NEAR, Poses, Scorer, clearance, sample_spacing
 from ctp_core.pose import matrix_to_quaternion, quaternion_product, quaternion_to_matrix, random_quaternions
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.scene import PreparedPair
@@ -55,6 +60,7 @@ REGIONS: tuple[str, ...] = ("top", "side", "bottom", "inside", "gap", "drop", "f
 # the floor where it was put and only leaves the target if it starts inside it).
 APPROACHES: tuple[str, ...] = ("closest", "straight", "none")
 UP_FACING = 0.5  # n_y above: "top"; below minus this: "bottom"; else "side"
+HIDDEN = 1e-6  # tile stage: a smaller change of the guide's term than this is a source its views do not see
 SETTLE_POINTS = 256  # source samples checked for penetration when settling proposals
 APPROACH_POINTS = 64  # source samples used while sliding proposals into contact
 CONTACT_SAMPLES = 6000  # target samples for settling proposals (the losses use ``loss.samples``)
@@ -107,8 +113,8 @@ class Proposals:
 @dataclass
 class Ranked:
     poses: Poses  # the kept poses, best first
-    objectives: torch.Tensor  # (K,) their fine-stage objective
-    scored: int  # candidate evaluations (coarse + sweep + fine)
+    objectives: torch.Tensor  # (K,) their ranking key at the stage that kept them (fine; tile: the tile stage's)
+    scored: int  # candidate evaluations (coarse + sweep + tile + fine)
     swept: int  # candidates of the orientation sweep
     seconds: float
     stages: dict[str, tuple[Poses, torch.Tensor]] = field(default_factory=dict)  # per stage: poses, ranking key
@@ -276,7 +282,7 @@ def settle(pair: PreparedPair, index: losses.TargetIndex, q: torch.Tensor, ancho
     tol = 2e-3 * pair.target_radius
     # the sampled depth is only as good as the sample spacing (an edge's neighbour plane votes near corners):
     # count a sample inside only past a third of that spacing
-    spacing = math.sqrt(float(pair.target.area) / len(index.points)) * pair.target_to_normalised.scale
+    spacing = sample_spacing(pair, len(index.points))
     inside_tol = max(tol, spacing / 3)
     centre = anchor.clone()
     if on_surface:
@@ -431,20 +437,76 @@ def _scene_radius(pair: PreparedPair, log_s: float) -> float:
     return pair.target_radius + pair.source_radius * math.exp(log_s)
 
 
-def coarse_cameras(pair: PreparedPair, config: AlignConfig, log_s: float) -> Cameras:
-    """(1, C) fixed views around the target centre that frame the target and any source touching it.
+def coarse_cameras(pair: PreparedPair, config: AlignConfig, log_s: float, look_at: torch.Tensor | None = None,
+                   radius: float | None = None) -> Cameras:
+    """(K, C) fixed views (K = 1: around the target centre) that frame the target and any source touching it,
+    or, given ``look_at`` (K, 3) and ``radius``, that frame that much around each point (the tile stage).
 
     They depend on the target and the source's size only (never on a candidate or a reference pose).
     """
     cfg, cam = config.search, config.camera
     views = cfg.coarse_views
     fov = cam.eval_fov_deg
-    distance = _scene_radius(pair, log_s) / math.sin(math.radians(fov) / 2) * 1.05
-    azimuth = torch.arange(views, dtype=torch.float32)[None] * (360.0 / views) + 45.0
-    full = lambda v: torch.full((1, views), float(v))  # noqa: E731
+    look_at = torch.zeros(1, 3) if look_at is None else look_at.cpu()
+    radius = _scene_radius(pair, log_s) if radius is None else radius
+    distance = radius / math.sin(math.radians(fov) / 2) * 1.05
+    azimuth = torch.arange(views, dtype=torch.float32)[None].expand(len(look_at), -1) * (360.0 / views) + 45.0
+    full = lambda v: torch.full((len(look_at), views), float(v))  # noqa: E731
     device = pair.source_vertices.device
-    return orbit(torch.zeros(1, 3), azimuth, full(cam.eval_elevation_deg), full(distance), full(fov),
+    return orbit(look_at, azimuth, full(cam.eval_elevation_deg), full(distance), full(fov),
                  cfg.coarse_image_size).to(device)
+
+
+def tiles_of(pair: PreparedPair, config: AlignConfig, poses: Poses) -> tuple[torch.Tensor, torch.Tensor, float] | None:
+    """Each pose's tile (N,), the tiles' centres (K, 3) and the radius a tile's views frame, or None where the
+    source is not small in the coarse views (a tile would frame more than half the scene's radius).
+
+    Tiles are the occupied cells of a grid of ``search.tile_radius`` source radii (at least a third of the
+    scene's radius) over the normalised frame; a tile's centre is the mean of its poses' source centres.
+    """
+    cfg = config.search
+    log_s = float(poses.log_s[0])
+    scene = _scene_radius(pair, log_s)
+    cell = max(cfg.tile_radius * pair.source_radius * math.exp(log_s), scene / 3)
+    if cfg.tile_restarts == 0 or cell > scene / 2 or not len(poses):
+        return None
+    keys = torch.floor(poses.t.cpu() / cell).to(torch.long)
+    _, tile = torch.unique(keys, dim=0, return_inverse=True)
+    count = int(tile.max()) + 1
+    centres = torch.zeros(count, 3).index_add_(0, tile, poses.t.cpu()) / torch.bincount(tile)[:, None]
+    # a source centred anywhere in its cell lies within the cell's half-diagonal plus its own radius of the centre
+    return tile, centres, cell * (math.sqrt(3) / 2) + pair.source_radius * math.exp(log_s)
+
+
+def tile_score(scorer: Scorer, poses: Poses, weights: Phase, *, batch: int, progress=lambda scored: None,
+               should_cancel: CancelCheck | None = None) -> torch.Tensor | None:
+    """(N,) each pose's ranking key in the coarse views of its tile (``tiles_of``) minus that of the same views
+    without the source (lower: the source moves the view toward the guide), or None with no tiles or no guide.
+
+    Views framed on different tiles show different parts of the target, so only the change a source makes to
+    its own tile's views compares across tiles. The empty view is the scene with a point-sized source. A pose
+    that changes nothing (its source hidden from the tile's views, e.g. under a table top) cannot be judged there:
+    its key is inf (the coarse stage still ranks it), not the 0 that would rank it above every visible source.
+    """
+    tiles = tiles_of(scorer.pair, scorer.config, poses) if scorer.use_clip else None
+    if tiles is None:
+        return None
+    tile, centres, radius = tiles
+    cameras = coarse_cameras(scorer.pair, scorer.config, float(poses.log_s[0]), centres, radius)
+    out = torch.zeros(len(poses))
+    done = 0
+    for k in range(len(centres)):
+        members = torch.nonzero(tile == k)[:, 0]
+        cams = cameras.rows(k, k + 1)
+        targets = shared_targets(scorer, cams)
+        empty = Poses(centres[k : k + 1].to(poses.t), poses.q[:1], torch.full_like(poses.log_s[:1], -30.0))
+        base = score(scorer, empty, weights, cams, batch=1, targets=targets)
+        change = score(scorer, poses.select(members), weights, cams, batch=batch, targets=targets,
+                       should_cancel=should_cancel).cpu() - base.cpu()
+        out[members] = torch.where(change.abs() > HIDDEN, change, torch.full_like(change, torch.inf))
+        done += len(members)
+        progress(done)
+    return out
 
 
 def fine_cameras(pair: PreparedPair, config: AlignConfig, poses: Poses) -> Cameras:
@@ -534,7 +596,8 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
     log_s = float(poses.log_s[0])
     fine_count = min(cfg.fine, len(poses))
     sweep_count = cfg.sweep * (len(proposals.rotations) if proposals.rotations is not None else 0)
-    total = len(poses) + sweep_count + fine_count
+    tiled_count = len(poses) if scorer.use_clip and tiles_of(pair, config, poses) is not None else 0
+    total = len(poses) + sweep_count + tiled_count + fine_count
 
     def emit(done: int, best: float | None = None) -> None:
         if on_event:
@@ -555,6 +618,9 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
             extra = score(scorer, swept, weights, cameras, batch=cfg.batch, targets=targets,
                           should_cancel=should_cancel, progress=lambda n: emit(len(poses) + n))
             poses, coarse = Poses.cat([poses, swept]), torch.cat([coarse, extra])
+        proposed = proposals.poses
+        tiled = tile_score(scorer, proposed, weights, batch=cfg.batch, should_cancel=should_cancel,
+                           progress=lambda n: emit(total - fine_count - tiled_count + n))
         emit(total - fine_count)
         shortlist = shortlist_of(poses, coarse, fine_count, *distinct)
         fine_poses = poses.select(shortlist)
@@ -563,10 +629,29 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
         # the fine views see each candidate closer; the coarse ones see all in the same frame: rank by both
         ranked = 0.5 * (fine + coarse[shortlist])
         best = diverse_top(fine_poses, ranked, k, *distinct)
-    emit(total, float(ranked[best[0]]))
-    return Ranked(fine_poses.select(best), ranked[best], len(poses) + len(fine_poses),
-                  0 if swept is None else len(swept), time.perf_counter() - began,
-                  {"coarse": (poses, coarse), "fine": (fine_poses, ranked)})
+        kept, objectives = fine_poses.select(best), ranked[best]
+        stages = {"coarse": (poses, coarse), "fine": (fine_poses, ranked)}
+        if tiled is not None:
+            picks = diverse_top(proposed, tiled, k, *distinct)
+            kept, objectives = merge(kept, objectives, proposed.select(picks), tiled[picks], cfg.tile_restarts,
+                                     distinct)
+            stages["tiles"] = (proposed, tiled)
+    emit(total, float(objectives[0]))
+    return Ranked(kept, objectives, len(poses) + len(fine_poses) + (0 if tiled is None else len(tiled)),
+                  0 if swept is None else len(swept), time.perf_counter() - began, stages)
+
+
+def merge(first: Poses, first_keys: torch.Tensor, second: Poses, second_keys: torch.Tensor, m: int,
+          distinct: tuple[float, float]) -> tuple[Poses, torch.Tensor]:
+    """All of ``first``, then up to ``m`` of ``second`` (best first) that are no near-duplicate of a kept pose
+    (``diverse_top``'s test); each with its own stage's key."""
+    both = Poses.cat([first, second])
+    keys = torch.cat([first_keys.cpu(), second_keys.cpu()])
+    order = torch.cat([torch.arange(len(first)), torch.arange(len(second)) + len(first)]).float()
+    finite = torch.cat([torch.ones(len(first), dtype=torch.bool), torch.isfinite(second_keys.cpu())])
+    order[~finite] = torch.inf  # a tile key of inf: not judged there
+    keep = [i for i in diverse_top(both, order, len(first) + m, *distinct) if finite[i]]
+    return both.select(keep[: len(first) + m]), keys[keep[: len(first) + m]]
 
 
 def shortlist_of(poses: Poses, objectives: torch.Tensor, k: int, distance: float, angle_deg: float) -> list[int]:

@@ -1,11 +1,13 @@
 """The search stage alone and inside align: proposals, relation weights, the shared scorer, cancel, counts."""
 
+import math
+
 import numpy as np
 import pytest
 import torch
 import trimesh
 
-from ctp_core import metrics, objective, scene, schedule, search, targets
+from ctp_core import metrics, objective, pose, scene, schedule, search, targets
 from ctp_core.align import align, prepare, propose
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
@@ -181,6 +183,73 @@ def test_search_counts_every_encoder_image_including_the_oracles(pairs, zoom):
     assert [e.step for e in events] == sorted(e.step for e in events)
 
 
+def _small_ball_on_table():
+    """A big table and a ball a twentieth of its length resting on it at x = 0.5 (file frame): the reference."""
+    table = trimesh.creation.box(extents=(2.0, 0.2, 1.2))
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.05)
+    ball.apply_translation((-3.0, 1.0, 2.0))
+    reference = np.eye(4)
+    reference[:3, 3] = np.array([0.5, 0.15, 0.2]) - ball.bounds.mean(0)
+    return table, ball, reference
+
+
+def test_tiles_only_where_the_source_is_small_and_each_frames_its_sources(pairs):
+    pair, props = _proposals(*pairs["box on table"])
+    assert search.tiles_of(pair, CONFIG, props.poses) is None  # the block is a fifth of the table: no tiles
+    table, ball, _ = _small_ball_on_table()
+    pair, props = _proposals(table, ball)
+    tile, centres, radius = search.tiles_of(pair, CONFIG, props.poses)
+    assert len(centres) > 1 and tile.shape == (len(props.poses),)
+    reach = (props.poses.t - centres[tile]).norm(dim=-1) + pair.source_radius
+    assert bool((reach <= radius + 1e-5).all())  # every source wholly inside its tile's framed radius
+
+
+def test_tile_scores_rank_the_change_a_source_makes_in_its_tiles_views():
+    """Pixels guide, oracle target: the reference pose changes its tile's views toward the reference (negative),
+    a ball elsewhere on the table away from it (positive), and a source that draws nothing is not judged (inf)."""
+    from ctp_core.bench.guides import PixelGuide
+
+    table, ball, reference = _small_ball_on_table()
+    pair = scene.prepare_pair(table, ball, samples=CONFIG.loss.samples, seed=0)
+    guide, oracle = PixelGuide(size=32), targets.ReferenceTarget(reference)
+    oracle.prepare(pair, guide)
+    scorer = objective.Scorer(pair, CONFIG, 0.2, guide=guide, target=oracle)
+    weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
+    elsewhere = reference.copy()
+    elsewhere[:3, 3] += (-1.0, 0.0, -0.3)
+    matrices = [pair.local_to_normalised(m) for m in (reference, elsewhere)]
+    scale = float(np.cbrt(np.linalg.det(matrices[0][:3, :3])))
+    t = torch.tensor(np.array([m[:3, 3] for m in matrices]), dtype=torch.float32)
+    q = torch.tensor(np.array([pose.matrix_to_quaternion(m[:3, :3] / scale) for m in matrices]), dtype=torch.float32)
+    poses = objective.Poses(t, q, torch.full((2,), math.log(scale)))
+    poses = objective.Poses.cat([poses, objective.Poses(t[:1] + torch.tensor([[0.0, -0.15, 0.0]]), q[:1],
+                                                        poses.log_s[:1])])  # inside the table top: hidden
+    keys = search.tile_score(scorer, poses, weights, batch=8)
+    assert keys[0] < 0 < keys[1] and torch.isinf(keys[2])
+
+
+def test_the_tile_stage_counts_its_images_and_adds_its_restarts():
+    table, ball, reference = _small_ball_on_table()
+    pair, props = _proposals(table, ball)
+    guide, oracle = get_guide("random:tiny"), targets.ReferenceTarget(reference)
+    oracle.prepare(pair, guide)
+    scorer = objective.Scorer(pair, CONFIG, 0.2, guide=guide, target=oracle)
+    weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
+    events = []
+    ranked = search.search(scorer, props, weights, k=2, on_event=events.append)
+    cfg, n = CONFIG.search, len(props.poses)
+    tiles = len(search.tiles_of(pair, CONFIG, props.poses)[1])
+    fine = min(cfg.fine, n)
+    coarse = (n + ranked.swept) * cfg.coarse_views + cfg.coarse_views
+    tiled = n * cfg.coarse_views + 2 * tiles * cfg.coarse_views  # each tile: its reference and its empty views
+    assert scorer.clip_images == coarse + tiled + fine * cfg.fine_views + cfg.fine_views
+    assert ranked.scored == n + ranked.swept + n + fine and "tiles" in ranked.stages
+    assert 2 < len(ranked.poses) <= 2 + cfg.tile_restarts  # the fine stage's 2, then the tile stage's
+    planned = n + cfg.sweep * len(props.rotations) + n + fine
+    assert events[-1].step == events[-1].steps == planned
+    assert [e.step for e in events] == sorted(e.step for e in events)
+
+
 def test_the_sweep_tries_every_orientation_at_the_best_site(pairs):
     target, source = pairs["box on table"]
     pair, props = _proposals(target, source)
@@ -223,8 +292,47 @@ def test_the_answer_is_the_best_restart_that_stays_near_the_target(pairs):
     poses = objective.Poses(torch.tensor([[0.0, 30.0, 0.0], [0.0, 0.3, 0.0]]), q, torch.zeros(2))
     clear = objective.clearance(pair, pair.index, poses)
     assert clear[0] > objective.NEAR >= clear[1]
-    assert objective.nearest_best(torch.tensor([-1.0, 0.0]), clear) == 1
-    assert objective.nearest_best(torch.tensor([-1.0, 0.0]), torch.tensor([9.0, 9.0])) == 0
+    terms = {"objective": torch.tensor([-1.0, 0.0]), "clip": torch.tensor([-1.0, 0.0]), "icp": torch.zeros(2),
+             "pen": torch.zeros(2)}
+    weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
+    for guided in (False, True):
+        rule = {"guided": guided, "touches": False}
+        limit = objective.touch_limit(pair, poses)
+        assert objective.select_answer(terms, clear, limit, weights, **rule) == 1
+        assert objective.select_answer(terms, torch.tensor([9.0, 9.0]), limit, weights, **rule) == 0
+
+
+def test_with_a_guide_the_answer_leaves_out_soft_icp_among_restarts_that_touch():
+    """At contact the soft-ICP term is sample noise x its weight: a guided answer is the lowest guide and
+    penetration terms among the near restarts that touch (where the relation touches)."""
+    weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
+    assert weights.lambda_icp > 0 and weights.lambda_pen > 0
+    terms = {"clip": torch.tensor([-0.99, -0.98, -0.999, -0.9995]), "icp": torch.tensor([0.0, 0.0, 0.0, 0.0]),
+             "pen": torch.tensor([0.0, 0.0, 0.0, 1.0])}  # the fourth is deep inside
+    terms["icp"] = torch.tensor([1.0, 0.0, 0.0, 0.0]) * 0.05 / weights.lambda_icp  # noise that outweighs the guide
+    terms["objective"] = objective.combine(terms, weights)
+    clear = torch.tensor([0.01, 0.0, 0.5, 0.0])  # the third floats half a diagonal off
+    limit = torch.full((4,), objective.TOUCH)
+    plain = {"guided": False, "touches": True}
+    assert objective.select_answer(terms, clear, limit, weights, **plain) == 2
+    assert objective.select_answer(terms, clear, limit, weights, guided=True, touches=True) == 0
+    assert objective.select_answer(terms, clear, limit, weights, guided=True, touches=False) == 2
+    assert objective.select_answer(terms, clear, limit + 0.5, weights, guided=True, touches=True) == 2  # in reach
+    apart = torch.tensor([0.5, 0.5, 0.5, 0.5])  # none touches: the objective decides
+    assert objective.select_answer(terms, apart, limit, weights, guided=True, touches=True) == 2
+
+
+def test_the_touch_limit_grows_with_the_target_sample_spacing(pairs):
+    """A small source on a big target can touch it farther from the nearest target sample than TOUCH diagonals."""
+    target, source = pairs["box on table"]
+    q, t = torch.tensor([[1.0, 0.0, 0.0, 0.0]]), torch.zeros(1, 3)
+    limits = []
+    for samples in (200, 5000):
+        pair = scene.prepare_pair(target, source, samples=samples, seed=0)
+        limits.append(float(objective.touch_limit(pair, objective.Poses(t, q, torch.zeros(1)))[0]))
+        spacing = objective.sample_spacing(pair, samples) / (2 * pair.source_radius)
+        assert limits[-1] == pytest.approx(objective.TOUCH + spacing, rel=1e-5)
+    assert limits[0] > limits[1] > objective.TOUCH
 
 
 def test_cancel_during_search(pairs):
