@@ -66,8 +66,12 @@ def clearance(pair: PreparedPair, index: losses.TargetIndex, poses: Poses, point
     in source diagonals (normalised frame)."""
     posed = apply_pose(pair.source_subset(points), poses.t, poses.q, poses.log_s).detach().cpu()
     dist, _ = index.tree.query(posed.reshape(-1, 3).numpy().astype(np.float64), k=1, workers=1)
-    diagonal = 2 * pair.source_radius * poses.log_s.detach().cpu().exp()
-    return torch.as_tensor(dist.reshape(len(poses), -1).min(axis=1), dtype=torch.float32) / diagonal
+    return torch.as_tensor(dist.reshape(len(poses), -1).min(axis=1), dtype=torch.float32) / _diagonal(pair, poses)
+
+
+def _diagonal(pair: PreparedPair, poses: Poses) -> torch.Tensor:
+    """(B,) each posed source's diagonal, normalised units (CPU): the unit of ``clearance`` and ``touch_limit``."""
+    return 2 * pair.source_radius * poses.log_s.detach().cpu().exp()
 
 
 TOUCH = 0.1  # source diagonals: a refined pose this close to the target touches it (plus the samples' spacing)
@@ -82,8 +86,7 @@ def sample_spacing(pair: PreparedPair, count: int) -> float:
 def touch_limit(pair: PreparedPair, poses: Poses) -> torch.Tensor:
     """(B,) the ``clearance`` (source diagonals) under which a pose touches: ``TOUCH`` plus the spacing of the
     target samples (a small source on a big target is farther from the nearest sample than from the surface)."""
-    diagonal = 2 * pair.source_radius * poses.log_s.detach().cpu().exp()
-    return TOUCH + sample_spacing(pair, len(pair.index.points)) / diagonal
+    return TOUCH + sample_spacing(pair, len(pair.index.points)) / _diagonal(pair, poses)
 
 
 def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: torch.Tensor, weights: Phase, *,

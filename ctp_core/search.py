@@ -478,19 +478,16 @@ def tiles_of(pair: PreparedPair, config: AlignConfig, poses: Poses) -> tuple[tor
     return tile, centres, cell * (math.sqrt(3) / 2) + pair.source_radius * math.exp(log_s)
 
 
-def tile_score(scorer: Scorer, poses: Poses, weights: Phase, *, batch: int, progress=lambda scored: None,
-               should_cancel: CancelCheck | None = None) -> torch.Tensor | None:
-    """(N,) each pose's ranking key in the coarse views of its tile (``tiles_of``) minus that of the same views
-    without the source (lower: the source moves the view toward the guide), or None with no tiles or no guide.
+def tile_score(scorer: Scorer, poses: Poses, weights: Phase, tiles: tuple[torch.Tensor, torch.Tensor, float], *,
+               batch: int, progress=lambda scored: None, should_cancel: CancelCheck | None = None) -> torch.Tensor:
+    """(N,) each pose's ranking key in the coarse views of its tile (``tiles``: ``tiles_of`` of ``poses``) minus
+    that of the same views without the source (lower: the source moves the view toward the guide).
 
     Views framed on different tiles show different parts of the target, so only the change a source makes to
     its own tile's views compares across tiles. The empty view is the scene with a point-sized source. A pose
     that changes nothing (its source hidden from the tile's views, e.g. under a table top) cannot be judged there:
     its key is inf (the coarse stage still ranks it), not the 0 that would rank it above every visible source.
     """
-    tiles = tiles_of(scorer.pair, scorer.config, poses) if scorer.use_clip else None
-    if tiles is None:
-        return None
     tile, centres, radius = tiles
     cameras = coarse_cameras(scorer.pair, scorer.config, float(poses.log_s[0]), centres, radius)
     out = torch.zeros(len(poses))
@@ -596,7 +593,8 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
     log_s = float(poses.log_s[0])
     fine_count = min(cfg.fine, len(poses))
     sweep_count = cfg.sweep * (len(proposals.rotations) if proposals.rotations is not None else 0)
-    tiled_count = len(poses) if scorer.use_clip and tiles_of(pair, config, poses) is not None else 0
+    tiles = tiles_of(pair, config, poses) if scorer.use_clip else None  # no guide: nothing to tell tiles apart
+    tiled_count = len(poses) if tiles is not None else 0
     total = len(poses) + sweep_count + tiled_count + fine_count
 
     def emit(done: int, best: float | None = None) -> None:
@@ -619,8 +617,9 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
                           should_cancel=should_cancel, progress=lambda n: emit(len(poses) + n))
             poses, coarse = Poses.cat([poses, swept]), torch.cat([coarse, extra])
         proposed = proposals.poses
-        tiled = tile_score(scorer, proposed, weights, batch=cfg.batch, should_cancel=should_cancel,
-                           progress=lambda n: emit(total - fine_count - tiled_count + n))
+        tiled = None if tiles is None else tile_score(
+            scorer, proposed, weights, tiles, batch=cfg.batch, should_cancel=should_cancel,
+            progress=lambda n: emit(total - fine_count - tiled_count + n))
         emit(total - fine_count)
         shortlist = shortlist_of(poses, coarse, fine_count, *distinct)
         fine_poses = poses.select(shortlist)
@@ -647,7 +646,7 @@ def merge(first: Poses, first_keys: torch.Tensor, second: Poses, second_keys: to
     (``diverse_top``'s test); each with its own stage's key."""
     both = Poses.cat([first, second])
     keys = torch.cat([first_keys.cpu(), second_keys.cpu()])
-    order = torch.cat([torch.arange(len(first)), torch.arange(len(second)) + len(first)]).float()
+    order = torch.arange(len(both), dtype=torch.float32)
     finite = torch.cat([torch.ones(len(first), dtype=torch.bool), torch.isfinite(second_keys.cpu())])
     order[~finite] = torch.inf  # a tile key of inf: not judged there
     keep = [i for i in diverse_top(both, order, len(first) + m, *distinct) if finite[i]]

@@ -224,7 +224,7 @@ def test_tile_scores_rank_the_change_a_source_makes_in_its_tiles_views():
     poses = objective.Poses(t, q, torch.full((2,), math.log(scale)))
     poses = objective.Poses.cat([poses, objective.Poses(t[:1] + torch.tensor([[0.0, -0.15, 0.0]]), q[:1],
                                                         poses.log_s[:1])])  # inside the table top: hidden
-    keys = search.tile_score(scorer, poses, weights, batch=8)
+    keys = search.tile_score(scorer, poses, weights, search.tiles_of(pair, CONFIG, poses), batch=8)
     assert keys[0] < 0 < keys[1] and torch.isinf(keys[2])
 
 

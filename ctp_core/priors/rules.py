@@ -219,8 +219,8 @@ def _mentions(prompt: str, name: str, match: lexicon.Match | None) -> list[int]:
     The name's head (its lexicon phrase, a synonym of it, or its part word) is preferred; any other
     word of the name ("blender" in "blender_tank") counts only when the head is not mentioned.
     """
-    offsets = [start for start, _ in context.prompt_words(prompt)]
-    tokens = [word for _, word in context.prompt_words(prompt)]
+    words = context.prompt_words(prompt)
+    offsets, tokens = [start for start, _ in words], [word for _, word in words]
     name_words = [w for w in lexicon.words(name) if w not in lexicon.SIZE_WORDS]
     if not name_words:
         return []
@@ -301,8 +301,8 @@ def _size_ratio(target_name, source_name, target, source, relation, figure: bool
                 and fig_match.entry.domain == "clothing and accessories" and ground_match.size_m < PERSON_M)):
         # a doll's hat, an action figure's sword (held, worn or strapped on), a dog's raincoat: made to its scale
         scale = ground_match.size_m / PERSON_M
-        sizes[1 if figure else 0] *= scale
-        whys[1 if figure else 0] += f" x {scale:.2g} (made to its wearer's scale)"
+        sizes[fig_i] *= scale
+        whys[fig_i] += f" x {scale:.2g} (made to its wearer's scale)"
     ratio = sizes[1] / sizes[0]
     fits = FITS_INSIDE if figure else 1.0 / FITS_INSIDE
     if (relation.name == "in" and ground_match is not None and ground_match.has("container") and fig_match is not None
