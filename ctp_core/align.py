@@ -215,7 +215,7 @@ def result(run: Run, outcome, prompt: str | None, *, on_event: ProgressCallback 
     if on_event:
         steps = sum(p.steps for p in run.plan)
         on_event(ProgressEvent(kind="done", phase=len(run.plan), phases=len(run.plan), step=outcome.steps_run,
-                               steps=steps, restarts=config.optim.restarts,
+                               steps=steps, restarts=len(answers),
                                elapsed_s=time.perf_counter() - run.started, eta_s=0.0,
                                best_objective=answer.objective, message="done"))
     return answer

@@ -89,11 +89,13 @@ class Optimiser:
         self.clock = scorer.clock
         self.total_steps = sum(p.steps for p in plan)
         self.done = 0
+        self.restarts = cfg.optim.restarts  # the batch run() is given; the search may keep fewer or add some
         self.start = time.perf_counter()
         self._clock_start = self.clock.mark()  # the scorer's clock may have run before (the search)
 
     # -- loop ----------------------------------------------------------------------------------------
     def run(self, start: Poses) -> Outcome:
+        self.restarts = len(start)
         best = start.detached()
         phase_timings = []
         scores: dict[str, torch.Tensor] = {}
@@ -173,5 +175,5 @@ class Optimiser:
         elapsed = time.perf_counter() - self.start
         eta = elapsed / self.done * (self.total_steps - self.done) if self.done else None
         self.on_event(ProgressEvent(kind=kind, phase=phase.index, phases=len(self.plan), step=self.done,
-                                    steps=self.total_steps, restarts=self.scorer.config.optim.restarts,
+                                    steps=self.total_steps, restarts=self.restarts,
                                     elapsed_s=elapsed, eta_s=eta, **fields))

@@ -270,7 +270,11 @@ def test_upload_follow_view_download_and_a_refused_upload(api, worker, browser, 
 
 
 def test_cancel_from_the_page(api, worker, browser):
-    """A longer run (the default preset, one of the examples): watch it optimise, then cancel it."""
+    """A longer run (the default preset, one of the examples): watch it optimise, then cancel it.
+
+    With random:tiny the default refinement (8 restarts) lasts seconds, so a loaded machine could finish the job
+    before the click lands; asking for 48 (the search keeps at most its 24 shortlisted, plus the tile stage's)
+    keeps it refining long enough that the cancel surely lands mid-run."""
     from selenium.webdriver.common.by import By
     from selenium.webdriver.support.ui import Select
 
@@ -279,9 +283,11 @@ def test_cancel_from_the_page(api, worker, browser):
     find(By.CSS_SELECTOR, "[data-sample='cup-on-table']").click()
     wait_for(lambda: "table.glb" in find(By.ID, "chosen-target").text, 20, "the example's files")
     Select(find(By.ID, "opt-preset")).select_by_value("default")
+    find(By.ID, "opt-restarts").send_keys("48")
     find(By.ID, "submit").click()
-    wait_for(lambda: find(By.ID, "eta").text.startswith("about") and find(By.ID, "quality").text, 180,
-             "an ETA and an objective", interval_s=0.25)
+    wait_for(lambda: find(By.ID, "stage").text.lower().startswith("refine") and find(By.ID, "eta").text.startswith(
+        "about") and find(By.ID, "quality").text, 180, "the refinement with an ETA and an objective", interval_s=0.25)
+    assert int(re.search(r"(\d+) restarts", find(By.ID, "steps").text).group(1)) > 8  # the default's 6 + 2
     shoot(driver, "progress-running")
     find(By.ID, "cancel").click()
     wait_for(lambda: find(By.ID, "stage").text.lower() == "canceled", 120, "the job to stop")

@@ -8,7 +8,7 @@ import torch
 import trimesh
 
 from ctp_core import metrics, objective, pose, scene, schedule, search, targets
-from ctp_core.align import align, prepare, propose
+from ctp_core.align import align, prepare, propose, refine
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
 from ctp_core.guidance import get_guide
@@ -355,6 +355,17 @@ def test_stages_are_callable_alone(pairs):
     assert run.prior.relation == "on" and len(props.poses) >= CONFIG.search.candidates // 2  # wedged ones dropped
     off = CONFIG.model_copy(update={"search": CONFIG.search.model_copy(update={"enabled": False})})
     assert propose(prepare(*pairs["box on table"], None, off)).region == ["random"] * off.optim.restarts
+
+
+def test_refinement_progress_counts_the_restarts_it_was_given(pairs):
+    """The search may keep fewer starts than ``optim.restarts`` (or add the tile stage's): progress says how many
+    are refined, not how many were configured."""
+    run = prepare(*pairs["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box")
+    starts = propose(run).poses.select(slice(0, 3))
+    events = []
+    outcome = refine(run, starts, on_event=events.append)
+    assert CONFIG.optim.restarts != 3 and len(outcome.objectives) == 3
+    assert events and {e.restarts for e in events} == {3}
 
 
 def test_align_end_to_end_with_the_default_preset(pairs):
