@@ -8,11 +8,11 @@ import torch
 import trimesh
 
 from ctp.cli import main
-from ctp_core import objective, schedule
+from ctp_core import objective, runtime, schedule
 from ctp_core.align import align
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
-from ctp_core.guidance import get_guide
+from ctp_core.guidance import cpu_has_fast_bf16, get_guide
 from ctp_core.scene import prepare_pair
 from ctp_core.targets import TextTarget
 
@@ -117,7 +117,9 @@ def test_cli_align_end_to_end(tmp_path, meshes, capsys):
                                    "target_upright"]
     assert data["extra"]["clip_images"] > 0 and len(data["extra"]["phase_timings"]) == data["config"]["optim"]["phases"]
     assert list(data["extra"]["target_upright"]) == ["rotation", "changed", "reason"]
-    assert (summary["model"], summary["runtime"]) == ("random:tiny", "torch")
+    # runtime auto: torch where the CPU has native bf16, ONNX Runtime fp32 on the others (AVX2-only EPYCs)
+    expected = runtime.resolve("auto", device="cpu", bf16=cpu_has_fast_bf16())
+    assert (summary["model"], summary["runtime"]) == ("random:tiny", expected)
     assert preview.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
