@@ -89,7 +89,7 @@ class Optimiser:
         self.clock = scorer.clock
         self.total_steps = sum(p.steps for p in plan)
         self.done = 0
-        self.restarts = cfg.optim.restarts  # the batch run() is given; the search may keep fewer or add some
+        self.restarts = 0  # set by run(): the batch it is given (the search may keep fewer or add some)
         self.start = time.perf_counter()
         self._clock_start = self.clock.mark()  # the scorer's clock may have run before (the search)
 
