@@ -1,6 +1,12 @@
-"""The README's commands, run as they stand in README.md (read from it, never a copy): the Quick start's
+"""The documentation's commands, run as they stand (read from the pages, never a copy): the Quick start's
 ``ctp align`` on the generated sample pair, the curl walk-through and the Python client against a real
-``ctp serve``, and the command-line synopsis, which must be what the parsers accept.
+``ctp serve``, and the command-line synopsis, which must be what the parsers accept; and the service's
+settings table, which must name every setting once.
+
+Each block is marked in the Markdown (``<!-- readme-test:MARKER -->`` before a fenced block, the synopsis
+between ``<!-- synopsis:start ... -->`` and ``<!-- synopsis:end -->``) and is looked up in README.md and
+docs/*.md together, so a block can move between pages without touching this file; a marker that is missing,
+or found in two places, fails with the pages named.
 
 Two things are supplied around the text, because a test cannot do them itself: ``make install`` (these
 tests already run in the venv it built; the line is checked to be that call and nothing else) and the
@@ -28,14 +34,23 @@ from ctp_core.samples import get_sample
 from service.embedded import free_port
 from tests.conftest import REPO, service_env, wait_for
 
-README = (REPO / "README.md").read_text()
+PAGES = {path.relative_to(REPO).as_posix(): path.read_text()
+         for path in [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]}
+
+
+def only_one(pattern: str, what: str) -> re.Match:
+    """The one match of ``pattern`` over README.md and docs/*.md; missing or found twice fails, naming the pages."""
+    found = [(page, m) for page, text in PAGES.items() for m in re.finditer(pattern, text, re.S)]
+    assert found, f"no page has {what} (looked in {', '.join(PAGES)})"
+    assert len(found) == 1, f"{what} is in more than one place: {', '.join(page for page, _ in found)}"
+    return found[0][1]
 
 
 def block(marker: str) -> str:
-    """The first fenced code block after ``<!-- readme-test:MARKER -->``."""
-    found = re.search(rf"<!-- readme-test:{marker} -->\s*```\w*\n(.*?)```", README, re.S)
-    assert found, f"README.md has no code block after <!-- readme-test:{marker} -->"
-    return found.group(1)
+    """The fenced code block after ``<!-- readme-test:MARKER -->``, wherever that page is."""
+    tag = f"<!-- readme-test:{marker} -->"
+    only_one(re.escape(tag), tag)
+    return only_one(rf"{re.escape(tag)}\s*```\w*\n(.*?)```", f"a code block after {tag}").group(1)
 
 
 def bash(script: str, cwd, env) -> subprocess.CompletedProcess:
@@ -105,10 +120,11 @@ def test_service_walk_through_and_client_run_as_written(tmp_path):
 
 
 def test_synopsis_is_what_the_parsers_accept():
-    found = re.search(r"<!-- synopsis:start.*?-->\s*```\n(.*?)```\s*<!-- synopsis:end -->", README, re.S)
-    assert found, "README.md has no synopsis block"
+    only_one(re.escape("<!-- synopsis:start"), "<!-- synopsis:start")
+    found = only_one(r"<!-- synopsis:start.*?-->\s*```\n(.*?)```\s*<!-- synopsis:end -->", "the synopsis block")
     assert found.group(1).rstrip() == synopsis(), (
-        'the README synopsis is stale: paste the output of python -c "from ctp.cli import synopsis; print(synopsis())"')
+        "the synopsis is stale: paste into its page the output of "
+        'python -c "from ctp.cli import synopsis; print(synopsis())"')
 
 
 def test_hparams_needs_no_prompt(capsys):
@@ -119,6 +135,25 @@ def test_hparams_needs_no_prompt(capsys):
 def test_every_setting_is_in_the_settings_table_once():
     from service.settings import Settings
 
-    rows = re.findall(r"^\| `((?:CTP_)?[A-Z_]+)` \|", README, re.M)
+    rows = [row for text in PAGES.values() for row in re.findall(r"^\| `((?:CTP_)?[A-Z_]+)` \|", text, re.M)]
     names = ["REDIS_URL" if n == "redis_url" else f"CTP_{n.upper()}" for n in Settings.model_fields]
-    assert sorted(rows) == sorted(names), "README's settings table and service/settings.py disagree"
+    assert sorted(rows) == sorted(names), "the settings table (docs/service.md) and service/settings.py disagree"
+
+
+def test_relative_links_point_at_files_and_headings():
+    # The pages link each other and the repository with paths relative to their own folder; an anchor must be one
+    # of the target page's headings, slugged as GitHub does.
+    def anchors(page: str) -> set[str]:
+        return {re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-")
+                for h in re.findall(r"^#+ (.*)$", PAGES[page], re.M)}
+
+    broken = []
+    for page, text in PAGES.items():
+        for link, anchor in re.findall(r"\]\(([^)#\s]*)(?:#([^)\s]*))?\)", text):
+            if "://" in link:
+                continue
+            path = (REPO / page).parent.joinpath(link or page.rsplit("/", 1)[-1]).resolve()
+            target = path.relative_to(REPO.resolve()).as_posix() if path.is_relative_to(REPO.resolve()) else None
+            if not path.exists() or (anchor and (target not in PAGES or anchor not in anchors(target))):
+                broken.append(f"{page}: {link}#{anchor}" if anchor else f"{page}: {link}")
+    assert not broken, f"links to missing files or headings: {broken}"
