@@ -11,6 +11,7 @@ from types import SimpleNamespace
 import pytest
 import redis
 
+from ctp_core.config import AlignConfig
 from service.jobs import JobError, JobRecord, Jobs, Progress, TooManyJobs, new_id, now
 from service.settings import Settings
 from service.storage import DirStorage, RedisStorage
@@ -25,7 +26,7 @@ def jobs(private_redis):
 
 
 def queued(jobs: Jobs, owner: str = "me", max_active: int = 10) -> JobRecord:
-    record = JobRecord(id=new_id(), owner=owner, created_at=now(), prompt="p")
+    record = JobRecord(id=new_id(), owner=owner, created_at=now(), prompt="p", config=AlignConfig())
     return jobs.submit(record, {"target": b"t", "source": b"s"}, max_active)
 
 
@@ -184,8 +185,8 @@ def test_the_worker_preloads_the_guide_its_jobs_get(monkeypatch):
     config on this worker, so a job's own ``guide_for`` is a cache hit, not a second load."""
     from ctp_core import guidance
     from service.schemas import build_config
-    from worker.main import _preload, where
-    from worker.tasks import Run
+    from worker.main import _preload
+    from worker.tasks import served
 
     loads, asked = [], []
     real_guide_for = guidance.guide_for
@@ -195,10 +196,8 @@ def test_the_worker_preloads_the_guide_its_jobs_get(monkeypatch):
     settings = Settings(model="random:tiny", models="", runtime="torch", device="cpu", threads=None)
     assert _preload(settings) == {"random:tiny": None}
     assert [(c.model, c.device, c.runtime, c.threads) for c in asked] == [("random:tiny", "cpu", "torch", None)]
-    run = Run(where=where(settings), loader=None, limits=None, on_progress=lambda *_: None,
-              should_cancel=lambda: False)
-    job = run.config(build_config({"preset": "test"}, default_model=settings.model,
-                                  allowed_models=settings.allowed_models).model_dump(mode="json"))
+    stored = build_config({"preset": "test"}, default_model=settings.model, allowed_models=settings.allowed_models)
+    job = served(JobRecord(id=new_id(), owner="me", created_at=now(), config=stored), settings).config
     assert real_guide_for(job) is real_guide_for(asked[0]) and len(loads) == 1  # the job reuses the preload
 
 

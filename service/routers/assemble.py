@@ -106,20 +106,20 @@ async def submit_assembly(request: Request, who: str = Depends(owner)) -> Accept
         prompt = None if entry.prompt is None else forms.clean_prompt(entry.prompt, f"{where}.prompt", where)
         steps.append(AssemblyStep(name=_name(entry.name, file, where), file=file, prompt=prompt,
                                   has_image=entry.image is not None, on=entry.on,
-                                  config=step_config.model_dump(mode="json")))
+                                  config=step_config))
     unused = sorted(set(sources) - set(meshes))
     if unused:
         raise ApiError(400, "invalid_plan", f"source part {unused[0]!r} is not used by any step", field="source")
     try:
         check_plan(base_name, [(s.name, s.on, s.prompt is not None or s.has_image or
-                                s.config["loss"]["lambda_clip"] == 0) for s in steps])
+                                s.config.loss.lambda_clip == 0) for s in steps])
     except ConfigError as exc:
         raise ApiError(422, "invalid_plan", exc.message,
                        field=f"plan.{(exc.field or '').removeprefix('steps.')}") from None
     record = JobRecord(id=new_id(), owner=who, created_at=now(), kind="assemble", prompt=None,  # per stage: steps
                        has_image=any(s.has_image for s in steps), target_name=base_name, target_file=base_file,
                        source_name=steps[-1].name, source_file=steps[-1].file, steps=steps,
-                       config=config.model_dump(mode="json"))
+                       config=config)
     return await enqueue(request, record, blobs, configs)
 
 

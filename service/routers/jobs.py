@@ -61,7 +61,7 @@ async def submit(request: Request, who: str = Depends(owner)) -> Accepted:
         id=new_id(), owner=who, created_at=now(), prompt=prompt, has_image=image is not None,
         target_name=forms.object_name(form, "target", on or files["target"]),
         source_name=forms.object_name(form, "source", files["source"]),
-        target_file=files["target"], source_file=files["source"], config=config.model_dump(mode="json"),
+        target_file=files["target"], source_file=files["source"], config=config,
         target_job=target_job, on=on,
     )
     return await enqueue(request, record, blobs, [config])
