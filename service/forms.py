@@ -250,3 +250,10 @@ def check_image(data: bytes, max_pixels: int) -> None:
         load_image(data, max_pixels=max_pixels)
     except ImageError as exc:
         raise ApiError(413 if exc.code == "image_too_large" else 422, exc.code, exc.message, field="image") from None
+
+
+def check_scene_faces(faces: int, limit: int) -> None:
+    """All meshes of one job together (``check_mesh``'s counts summed) against ``CTP_MAX_SCENE_FACES``."""
+    if faces > limit:
+        raise ApiError(413, "scene_too_large", f"the job's meshes have {faces:,} faces together, over the limit "
+                       f"of {limit:,}", field="source")

@@ -32,6 +32,7 @@ from rq.exceptions import InvalidJobOperation, NoSuchJobError
 from rq.job import Job as RqJob
 from rq.serializers import JSONSerializer
 
+from ctp_core.config import AlignConfig
 from service.storage import Storage, open_storage
 
 if TYPE_CHECKING:
@@ -94,14 +95,19 @@ class JobError(BaseModel):
 
 
 class AssemblyStep(BaseModel):
-    """One stage of an assembly job: its source (blob ``source-<i>``), guide, name, relation and config."""
+    """One stage of an assembly job as stored: its source (blob ``source-<i>``), guide, name, relation and config.
+
+    The plan's step as the client wrote it is ``ctp_core.plan.PlanStep`` (file names, options); this is that
+    step once checked (the uploads stored as blobs, the options merged into a config), and the worker turns
+    it into the engine's ``ctp_core.assemble.Step`` (meshes loaded, the reference picture decoded)."""
 
     name: str
     file: str = Field(description="the source's file name (its extension gives the format)")
     prompt: str | None = None
     has_image: bool = Field(False, description="guided by the reference picture in blob image-<i>")
     on: str | None = Field(None, description="the placed object it relates to; None: the last placed one")
-    config: dict[str, Any] = Field(default_factory=dict, description="AlignConfig of this stage")
+    config: AlignConfig = Field(description="this stage's config (the assembly's options, then the step's), "
+                                "validated at submit")
 
 
 class JobRecord(BaseModel):
@@ -127,7 +133,8 @@ class JobRecord(BaseModel):
     source_name: str = "source"
     target_file: str = "target.glb"
     source_file: str = "source.glb"
-    config: dict[str, Any] = Field(default_factory=dict, description="AlignConfig, validated at submit")
+    config: AlignConfig = Field(description="validated at submit; the worker applies its device, runtime and "
+                                "threads when it takes the job")
     kind: Literal["align", "assemble"] = "align"
     target_job: str | None = Field(None, description="the job whose result scene is the target (POST /align)")
     on: str | None = Field(None, description="with target_job: the object of its scene the source relates to")

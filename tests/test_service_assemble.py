@@ -188,20 +188,19 @@ def test_a_failing_stage_is_named(files):
     from ctp_core.loader import MeshLoader
     from service.jobs import AssemblyStep, JobRecord, new_id, now
     from service.schemas import build_config
-    from worker.tasks import Run, assemble_job
+    from worker.tasks import JobContext, assemble_job
 
-    config = build_config(GEOMETRY_ONLY, default_model="random:tiny",
-                          allowed_models=["random:tiny"]).model_dump(mode="json")
+    config = build_config(GEOMETRY_ONLY, default_model="random:tiny", allowed_models=["random:tiny"]).merged(
+        {"device": "cpu", "threads": 1, "runtime": "torch"})  # as a worker runs it (worker.tasks.served)
     steps = [AssemblyStep(name="plate", file="plate.glb", prompt=PLAN[0]["prompt"], config=config),
              AssemblyStep(name="cup", file="cup.glb", prompt=PLAN[1]["prompt"], on="plate",
-                          config={**config, "hparams_provider": "no-such-provider"})]
+                          config=config.model_copy(update={"hparams_provider": "no-such-provider"}))]
     record = JobRecord(id=new_id(), owner="public", created_at=now(), kind="assemble", target_name="table",
                        target_file="table.glb", source_name="cup", source_file="cup.glb", steps=steps, config=config)
     inputs = {"target": files["table"], "source-0": files["plate"], "source-1": files["cup"]}
     with MeshLoader(1) as loader, pytest.raises(CtpError) as err:
-        assemble_job(record, inputs, Run(where={"device": "cpu", "threads": 1, "runtime": "torch"}, loader=loader,
-                                         limits=MeshLimits(), on_progress=lambda _p, _force: None,
-                                         should_cancel=lambda: False))
+        assemble_job(record, inputs, JobContext(loader=loader, limits=MeshLimits(),
+                                                on_progress=lambda _p, _force: None, should_cancel=lambda: False))
     assert err.value.message.startswith("stage 2/2 (cup): "), err.value.message
     assert err.value.field == "steps.1.hparams_provider"
 
@@ -209,6 +208,7 @@ def test_a_failing_stage_is_named(files):
 def test_the_time_limit_scales_with_the_stages(private_redis):
     import redis
 
+    from ctp_core.config import AlignConfig
     from service.jobs import AssemblyStep, JobRecord, Jobs, new_id, now
     from service.storage import RedisStorage
 
@@ -216,8 +216,9 @@ def test_the_time_limit_scales_with_the_stages(private_redis):
     jobs = Jobs(client, RedisStorage(client, "asm-unit", 60), prefix="asm-unit", ttl_s=60, job_timeout_s=100,
                 lease_s=5)
     try:
-        steps = [AssemblyStep(name=f"s{i}", file="s.glb", prompt="p") for i in range(3)]
-        record = jobs.submit(JobRecord(id=new_id(), owner="me", created_at=now(), kind="assemble", steps=steps),
+        steps = [AssemblyStep(name=f"s{i}", file="s.glb", prompt="p", config=AlignConfig()) for i in range(3)]
+        record = jobs.submit(JobRecord(id=new_id(), owner="me", created_at=now(), kind="assemble", steps=steps,
+                                       config=AlignConfig()),
                              {"target": b"b", **{f"source-{i}": b"s" for i in range(3)}}, 5)
         assert jobs.queue.fetch_job(record.id).timeout == 300
         assert record.inputs()[:3] == ["target", "source-0", "image-0"]

@@ -11,6 +11,7 @@ from types import SimpleNamespace
 import pytest
 import redis
 
+from ctp_core.config import AlignConfig
 from service.jobs import JobError, JobRecord, Jobs, Progress, TooManyJobs, new_id, now
 from service.settings import Settings
 from service.storage import DirStorage, RedisStorage
@@ -25,7 +26,7 @@ def jobs(private_redis):
 
 
 def queued(jobs: Jobs, owner: str = "me", max_active: int = 10) -> JobRecord:
-    record = JobRecord(id=new_id(), owner=owner, created_at=now(), prompt="p")
+    record = JobRecord(id=new_id(), owner=owner, created_at=now(), prompt="p", config=AlignConfig())
     return jobs.submit(record, {"target": b"t", "source": b"s"}, max_active)
 
 
@@ -184,8 +185,8 @@ def test_the_worker_preloads_the_guide_its_jobs_get(monkeypatch):
     config on this worker, so a job's own ``guide_for`` is a cache hit, not a second load."""
     from ctp_core import guidance
     from service.schemas import build_config
-    from worker.main import _preload, where
-    from worker.tasks import Run
+    from worker.main import _preload
+    from worker.tasks import served
 
     loads, asked = [], []
     real_guide_for = guidance.guide_for
@@ -195,11 +196,48 @@ def test_the_worker_preloads_the_guide_its_jobs_get(monkeypatch):
     settings = Settings(model="random:tiny", models="", runtime="torch", device="cpu", threads=None)
     assert _preload(settings) == {"random:tiny": None}
     assert [(c.model, c.device, c.runtime, c.threads) for c in asked] == [("random:tiny", "cpu", "torch", None)]
-    run = Run(where=where(settings), loader=None, limits=None, on_progress=lambda *_: None,
-              should_cancel=lambda: False)
-    job = run.config(build_config({"preset": "test"}, default_model=settings.model,
-                                  allowed_models=settings.allowed_models).model_dump(mode="json"))
+    stored = build_config({"preset": "test"}, default_model=settings.model, allowed_models=settings.allowed_models)
+    job = served(JobRecord(id=new_id(), owner="me", created_at=now(), config=stored), settings).config
     assert real_guide_for(job) is real_guide_for(asked[0]) and len(loads) == 1  # the job reuses the preload
+
+
+ONNX_MODEL = "onnx:/nonexistent/ctp-onnx"  # forward only: ONNX Runtime on the CPU, no torch weights
+
+
+@pytest.mark.parametrize(("device", "runtime", "threads", "model", "why"), [
+    ("cpu", "torch", None, ONNX_MODEL, "runs only in ONNX Runtime on the CPU"),
+    ("cuda", "auto", None, ONNX_MODEL, "runs only in ONNX Runtime on the CPU"),
+    ("cuda", "onnx", None, "random:tiny", "runtime 'onnx' is ONNX Runtime on the CPU"),
+    ("cpu", "auto", 300, "random:tiny", "threads: Input should be less than or equal to 256"),
+])
+def test_a_worker_refuses_a_job_its_settings_cannot_serve(device, runtime, threads, model, why):
+    """The job's options were validated at submit under the default device and runtime; the worker's own
+    (CTP_DEVICE, CTP_RUNTIME, CTP_THREADS) are checked when it takes the job, and a run they cannot serve is
+    ``worker_cannot_serve``, saying the worker's settings and why, not an option error blamed on the client.
+    An assembly's every stage is checked, not only the assembly's own config."""
+    from ctp_core.errors import CtpError
+    from service.jobs import AssemblyStep
+    from service.schemas import build_config
+    from worker.tasks import served
+
+    settings = Settings(model="random:tiny", models=ONNX_MODEL, device=device, runtime=runtime, threads=threads)
+    config = build_config({"preset": "test", "lambda_clip": 0, "model": model}, default_model=settings.model,
+                          allowed_models=settings.allowed_models)
+    align = JobRecord(id=new_id(), owner="me", created_at=now(), prompt="p", config=config)
+    assembly = align.model_copy(update={"kind": "assemble", "config": AlignConfig(model="random:tiny"),
+                                        "steps": [AssemblyStep(name="cup", file="cup.glb", config=config)]})
+    for record in (align, assembly):
+        with pytest.raises(CtpError) as refused:
+            served(record, settings)
+        assert refused.value.code == "worker_cannot_serve" and refused.value.field is None
+        message = refused.value.message
+        assert message.startswith(f"this worker runs jobs with device {device} (CTP_DEVICE), ") and why in message
+        assert f"runtime {runtime} (CTP_RUNTIME) and cannot serve this one: " in message
+    ok = Settings(model="random:tiny", models=ONNX_MODEL, device="cpu", runtime="onnx", threads=2)
+    run = served(assembly, ok)
+    assert (run.steps[0].config.device, run.steps[0].config.runtime, run.steps[0].config.threads) == ("cpu", "onnx", 2)
+    assert run.steps[0].config == config.model_copy(update={"runtime": "onnx", "threads": 2})
+    assert assembly.steps[0].config == config  # the stored record is not changed
 
 
 def test_the_event_loop_reads_a_record_as_get_does(jobs, private_redis):

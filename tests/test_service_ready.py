@@ -1,7 +1,8 @@
 """Readiness means "a job submitted now can succeed": a real worker whose default model has no weights
 here (an ``hf:`` path that does not exist) makes ``/readyz`` and ``POST /align`` answer 503
 ``model_unavailable`` with the worker's reason, while jobs it can run (another allowed model, or a
-geometry-only job that needs no model) are still accepted and succeed."""
+geometry-only job that needs no model) are still accepted and succeed. What only the worker knows (its
+device and runtime) it checks when it takes a job: a job it cannot serve fails at once."""
 
 from __future__ import annotations
 
@@ -13,11 +14,12 @@ from tests.conftest import Api, Worker, service_env, wait_for
 from tests.test_service import BALL, BOX, FAST, submit
 
 MISSING = "hf:/nonexistent/ctp-weights"
+ONNX = "onnx:/nonexistent/ctp-onnx"  # forward only: ONNX Runtime on the CPU, while this worker's runtime is torch
 
 
 @pytest.fixture(scope="module")
 def env(private_redis):
-    return service_env(private_redis.url, "no-weights", model=MISSING, models="random:tiny")
+    return service_env(private_redis.url, "no-weights", model=MISSING, models=f"random:tiny,{ONNX}")
 
 
 @pytest.fixture(scope="module")
@@ -79,3 +81,38 @@ def test_an_assembly_with_one_guided_step_needs_the_model(api, live_worker):
                                                                "options": json.dumps({"preset": "test"})})
     assert accepted.status_code == 202, accepted.text  # guided assembly options, but no stage needs the model
     assert finished(api, accepted.json()["id"])["status"] == "succeeded"
+
+
+def test_a_job_the_worker_cannot_serve_fails_when_it_is_taken(api, live_worker, env):
+    """A geometry-only job may name any allowed model, so POST /align accepts the forward-only ``onnx:`` one;
+    this worker's runtime (CTP_RUNTIME=torch) cannot serve it, which the worker finds when it takes the job:
+    failed with ``worker_cannot_serve`` before any mesh or model loads (the assembly's uploads here are not
+    meshes at all, which a worker that loaded them would fail as ``mesh_unreadable``)."""
+    import redis
+
+    from service.jobs import AssemblyStep, JobRecord, Jobs, new_id, now
+    from service.schemas import build_config
+    from service.storage import RedisStorage
+
+    accepted = submit(api, options={"preset": "test", "lambda_clip": 0, "model": ONNX})
+    assert accepted.status_code == 202, accepted.text
+    client = redis.Redis.from_url(env["REDIS_URL"])
+    jobs = Jobs(client, RedisStorage(client, env["CTP_QUEUE"], 600), prefix=env["CTP_QUEUE"], ttl_s=600,
+                job_timeout_s=60, lease_s=5)
+    try:
+        config = build_config({"preset": "test", "lambda_clip": 0, "model": ONNX}, default_model=MISSING,
+                              allowed_models=[MISSING, ONNX])
+        steps = [AssemblyStep(name="ball", file="ball.glb", config=config)]
+        assembly = jobs.submit(JobRecord(id=new_id(), owner="public", created_at=now(), kind="assemble",
+                                         target_file="box.glb", steps=steps, config=config),
+                               {"target": b"not a mesh", "source-0": b"nor this"}, 10)
+    finally:
+        client.close()
+    for job_id in (accepted.json()["id"], assembly.id):
+        job = finished(api, job_id)
+        assert job["status"] == "failed" and job["error"]["code"] == "worker_cannot_serve", job
+        message = job["error"]["message"]
+        assert message.startswith("this worker runs jobs with device cpu (CTP_DEVICE), ")
+        assert f"runtime torch (CTP_RUNTIME) and cannot serve this one: model {ONNX!r} runs only in " in message
+        progress = job["progress"]
+        assert (progress["stage"]["name"], progress["message"]) == ("loading", "failed: worker_cannot_serve")

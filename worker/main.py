@@ -142,7 +142,8 @@ def run_worker(settings: Settings, *, burst: bool = False, name: str | None = No
 
 def where(settings: Settings) -> dict[str, Any]:
     """Where this worker runs a job (device, threads, forward-only runtime): the only parts of a validated
-    config that are the worker's to decide."""
+    config that are the worker's to decide (``worker.tasks.served`` applies them to a job and refuses the
+    job when they cannot serve it)."""
     return {"device": settings.device, "threads": settings.threads, "runtime": settings.runtime}
 
 

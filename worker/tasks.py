@@ -18,13 +18,14 @@ from rq.timeouts import JobTimeoutException
 from ctp_core.align import align
 from ctp_core.assemble import Step, assemble
 from ctp_core.config import AlignConfig
-from ctp_core.errors import Canceled, CtpError
+from ctp_core.errors import Canceled, ConfigError, CtpError
 from ctp_core.export import assembly_glb, assembly_report, preview_png, report, scene_glb
 from ctp_core.guidance import guide_for
 from ctp_core.io import MeshLimits, load_image, load_objects
 from ctp_core.loader import MeshLoader
 from ctp_core.progress import ProgressEvent
 from service.jobs import JobError, JobRecord, Progress, Stage, Status
+from service.settings import Settings
 from worker.main import context, where
 
 log = logging.getLogger("ctp.worker")
@@ -34,18 +35,14 @@ _MILESTONES = {"phase_start", "phase_end", "done"}
 
 
 @dataclass(frozen=True)
-class Run:
-    """What a job runs with on this worker: ``where`` (``worker.main.where``), the bounded loader under the
-    service limits, and the callbacks to the job's record."""
+class JobContext:
+    """What a job runs with on this worker besides its record: the bounded loader under the service limits,
+    and the callbacks to the job's record (progress, cancel)."""
 
-    where: dict[str, Any]
     loader: MeshLoader
     limits: MeshLimits
     on_progress: Callable[[Progress, bool], None]
     should_cancel: Callable[[], bool]
-
-    def config(self, stored: dict[str, Any]) -> AlignConfig:
-        return AlignConfig.model_validate({**stored, **self.where})
 
     def load(self, data: bytes | None, filename: str) -> trimesh.Trimesh:
         """An upload, loaded in a loading process exactly as the API checked it."""
@@ -55,6 +52,30 @@ class Run:
         """The job's guidance model (process-cached: the one the worker preloaded is not loaded again)."""
         self.on_progress(Progress(stage=stage, kind="model", message=f"loading model {config.model}"), True)
         return guide_for(config)
+
+
+def served(record: JobRecord, settings: Settings) -> JobRecord:
+    """The job as this worker runs it: its configs (an assembly's and every stage's) with the worker's
+    device, runtime and threads (``worker.main.where``) applied.
+
+    The client's options were validated at submit, under the default device and runtime; a run that these
+    settings cannot serve (a forward-only ``onnx:`` model on the torch runtime or on CUDA, an ONNX runtime on
+    CUDA, more threads than a run may have) is the worker's to refuse, so it raises ``worker_cannot_serve``
+    here, when the job is taken and before any mesh or model loads.
+    """
+    overrides = where(settings)
+    shown = ", ".join(f"{key} {value} (CTP_{key.upper()})" for key, value in overrides.items() if value is not None)
+
+    def run_here(config: AlignConfig) -> AlignConfig:
+        try:
+            return config.merged(overrides)
+        except ConfigError as exc:
+            raise CtpError(f"this worker runs jobs with {shown} and cannot serve this one: {exc.message}",
+                           code="worker_cannot_serve") from None
+
+    config = run_here(record.config)
+    steps = [s.model_copy(update={"config": run_here(s.config)}) for s in record.steps]
+    return record.model_copy(update={"config": config, "steps": steps})
 
 
 def run_job(job_id: str) -> str:
@@ -69,13 +90,14 @@ def run_job(job_id: str) -> str:
     status: Status = "failed"
     error: JobError | None = None
     try:
+        record = served(record, ctx.settings)
         inputs = {name: ctx.jobs.storage.get(job_id, name) for name in record.inputs()}
         if inputs["target"] is None or inputs.get("source", inputs.get("source-0")) is None:
             raise CtpError("the job's uploads expired before a worker picked it up", code="inputs_expired")
-        run = Run(where=where(ctx.settings), loader=ctx.loader, limits=ctx.settings.mesh_limits,
-                  on_progress=lambda p, force: ctx.beat.publish(p, force=force),
-                  should_cancel=lambda: ctx.jobs.should_stop(job_id))
-        files = (assemble_job if record.kind == "assemble" else align_job)(record, inputs, run)
+        job = JobContext(loader=ctx.loader, limits=ctx.settings.mesh_limits,
+                         on_progress=lambda p, force: ctx.beat.publish(p, force=force),
+                         should_cancel=lambda: ctx.jobs.should_stop(job_id))
+        files = (assemble_job if record.kind == "assemble" else align_job)(record, inputs, job)
         for name, data in files.items():
             ctx.jobs.storage.put(job_id, name, data)
         status = "succeeded"
@@ -95,43 +117,44 @@ def run_job(job_id: str) -> str:
     return status
 
 
-def align_job(record: JobRecord, inputs: dict[str, bytes | None], run: Run) -> dict[str, bytes]:
+def align_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobContext) -> dict[str, bytes]:
     """Run ``ctp_core.align`` on a job's uploads; returns ``result.glb``, ``report.json``, ``preview.png``.
 
-    The config was validated when the job was accepted; only where it runs is the worker's (``Run.where``).
+    ``record`` is as ``served`` returns it: its config is the one this worker runs.
     """
-    config = run.config(record.config)
-    run.on_progress(Progress(stage=Stage(name="loading"), kind="loading", message="loading meshes"), True)
+    config = record.config
+    job.on_progress(Progress(stage=Stage(name="loading"), kind="loading", message="loading meshes"), True)
     # A chained job's target is an earlier result scene (this service's own output), read back as its objects.
     if record.target_job:
-        target = load_objects(inputs["target"], filename=record.target_file, limits=run.limits)
+        target = load_objects(inputs["target"], filename=record.target_file, limits=job.limits)
     else:
-        target = run.load(inputs["target"], record.target_file)
-    source = run.load(inputs["source"], record.source_file)
+        target = job.load(inputs["target"], record.target_file)
+    source = job.load(inputs["source"], record.source_file)
     image = load_image(inputs["image"]) if inputs.get("image") is not None else None
-    guide = run.guide(config, Stage(name="model")) if config.uses_model else None
+    guide = job.guide(config, Stage(name="model")) if config.uses_model else None
 
     def on_event(event: ProgressEvent) -> None:
-        run.on_progress(progress_of(event), event.kind in _MILESTONES)
+        job.on_progress(progress_of(event), event.kind in _MILESTONES)
 
     result = align(target, source, record.prompt, config, on=record.on, image=image, target_name=record.target_name,
-                   source_name=record.source_name, guide=guide, on_event=on_event, should_cancel=run.should_cancel)
-    run.on_progress(_exporting(config, objective=result.objective), True)
+                   source_name=record.source_name, guide=guide, on_event=on_event, should_cancel=job.should_cancel)
+    job.on_progress(_exporting(config, objective=result.objective), True)
     return _results(scene_glb(result, source_name=record.source_name), report(result), result.preview)
 
 
-def assemble_job(record: JobRecord, inputs: dict[str, bytes | None], run: Run) -> dict[str, bytes]:
-    """Run ``ctp_core.assemble`` on an assembly job: the model loaded once, progress per stage, the whole
-    scene's GLB, report and preview out. A failure names its stage (message and field ``steps.<i>``)."""
-    config = run.config(record.config)
+def assemble_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobContext) -> dict[str, bytes]:
+    """Run ``ctp_core.assemble`` on an assembly job (``record`` as ``served`` returns it): the model loaded
+    once, progress per stage, the whole scene's GLB, report and preview out. A failure names its stage
+    (message and field ``steps.<i>``)."""
+    config = record.config
     count = record.stage_count
-    run.on_progress(Progress(stage=Stage(name="loading", count=count), kind="loading", message="loading meshes"), True)
-    base = run.load(inputs["target"], record.target_file)
-    steps = [Step(source=run.load(inputs[f"source-{i}"], s.file), name=s.name, prompt=s.prompt, on=s.on,
-                  config=run.config(s.config),
+    job.on_progress(Progress(stage=Stage(name="loading", count=count), kind="loading", message="loading meshes"), True)
+    base = job.load(inputs["target"], record.target_file)
+    steps = [Step(source=job.load(inputs[f"source-{i}"], s.file), name=s.name, prompt=s.prompt, on=s.on,
+                  config=s.config,
                   image=load_image(inputs[f"image-{i}"]) if inputs.get(f"image-{i}") is not None else None)
              for i, s in enumerate(record.steps)]
-    guide = run.guide(config, Stage(name="model", count=count)) if any(s.config.uses_model for s in steps) else None
+    guide = job.guide(config, Stage(name="model", count=count)) if any(s.config.uses_model for s in steps) else None
     current = Stage(name="search", count=count)
 
     def on_stage(index: int, total: int, step: Step) -> None:
@@ -139,11 +162,11 @@ def assemble_job(record: JobRecord, inputs: dict[str, bytes | None], run: Run) -
         current = Stage(name="search", index=index, count=total, label=step.prompt or f"{step.name} (image-guided)")
 
     def on_event(event: ProgressEvent) -> None:
-        run.on_progress(progress_of(event, current), event.kind in _MILESTONES)
+        job.on_progress(progress_of(event, current), event.kind in _MILESTONES)
 
     try:
         assembly = assemble(base, steps, config, base_name=record.target_name, guide=guide, on_event=on_event,
-                            on_stage=on_stage, should_cancel=run.should_cancel)
+                            on_stage=on_stage, should_cancel=job.should_cancel)
     except (CtpError, JobTimeoutException):
         raise  # the library names the stage of its own errors
     except Exception as exc:
@@ -151,7 +174,7 @@ def assemble_job(record: JobRecord, inputs: dict[str, bytes | None], run: Run) -
         raise CtpError(f"stage {current.index}/{count} ({record.steps[current.index - 1].name}): "
                        f"{type(exc).__name__}: {exc}", code="internal_error",
                        field=f"steps.{current.index - 1}") from exc
-    run.on_progress(_exporting(config, current.model_copy(update={"name": "exporting"})), True)
+    job.on_progress(_exporting(config, current.model_copy(update={"name": "exporting"})), True)
     return _results(assembly_glb(assembly), assembly_report(assembly), assembly.preview)
 
 

@@ -1,19 +1,15 @@
-"""The assembly API: ``POST /assemble`` builds a scene one object at a time as one job, and the chained
-target of ``POST /align`` (``target_job``): an earlier job's result scene, read back as its objects."""
+"""The assembly API: ``POST /assemble`` builds a scene one object at a time as one job."""
 
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 from fastapi import APIRouter, Depends, Request
 from fastapi.concurrency import run_in_threadpool
 
 from ctp_core.assemble import PlanError, PlanStep, check_plan, plan_step
 from ctp_core.config import AlignConfig
-from ctp_core.errors import ConfigError, CtpError
-from ctp_core.io import load_objects
+from ctp_core.errors import ConfigError
 from service import forms
-from service.deps import enqueue, own_job, owner
+from service.deps import enqueue, owner
 from service.errors import ApiError, documented
 from service.jobs import AssemblyStep, JobRecord, new_id, now
 from service.schemas import Accepted, build_config
@@ -48,50 +44,6 @@ ASSEMBLE_BODY = {
         },
     }}},
 }
-
-
-@dataclass(frozen=True)
-class ChainedTarget:
-    """An earlier job's result scene as the target of a new one."""
-
-    file: str
-    data: bytes
-    on: str  # the object the source relates to
-    faces: int
-
-
-async def chained_target(request: Request, form, who: str, job_id: str, on: str | None) -> ChainedTarget:
-    """The result scene of the caller's succeeded job ``job_id``: 404 for another key's, 409 unfinished."""
-    if "target" in form:
-        raise ApiError(400, "invalid_field", "give a target file or target_job, not both", field="target_job")
-    record = await own_job(request, job_id.strip(), who)
-    if record.status != "succeeded":
-        raise ApiError(409, "job_not_ready", f"job {record.id} is {record.status}; only a succeeded job's "
-                       "scene can be a target", field="target_job")
-    state = request.app.state
-    data = await run_in_threadpool(state.jobs.storage.get, record.id, "result.glb")
-    if data is None:
-        raise ApiError(404, "job_not_found", f"the results of job {record.id} have expired", field="target_job")
-    file = f"{record.id}.glb"
-    try:  # the service's own output, read in-process: only a corrupt store fails here
-        scene = await run_in_threadpool(_load_objects, data, file, state.settings.mesh_limits)
-    except CtpError as exc:
-        raise ApiError(422, exc.code, exc.message, field="target_job") from None
-    names = list(scene.geometry)  # load_objects: one geometry per node, named as it, in the file's order
-    if on is not None and on not in names:
-        raise ApiError(422, "invalid_name", f"on: job {record.id}'s scene has no object {on!r} "
-                       f"(it has {', '.join(names)})", field="on")
-    return ChainedTarget(file, data, on or names[-1], sum(len(m.faces) for m in scene.geometry.values()))
-
-
-def check_scene_faces(faces: int, limit: int) -> None:
-    if faces > limit:
-        raise ApiError(413, "scene_too_large", f"the job's meshes have {faces:,} faces together, over the limit "
-                       f"of {limit:,}", field="source")
-
-
-def _load_objects(data: bytes, filename: str, limits):
-    return load_objects(data, filename=filename, limits=limits, name=filename)
 
 
 @router.post("/assemble", status_code=202, response_model=Accepted, openapi_extra={"requestBody": ASSEMBLE_BODY},
@@ -134,7 +86,7 @@ async def submit_assembly(request: Request, who: str = Depends(owner)) -> Accept
                                                          "source")
         blobs[f"source-{i}"], source_faces = meshes[file]
         faces += source_faces
-        check_scene_faces(faces, settings.max_scene_faces)
+        forms.check_scene_faces(faces, settings.max_scene_faces)
         if entry.image is not None:
             image = images.get(entry.image)
             if image is None:
@@ -154,20 +106,20 @@ async def submit_assembly(request: Request, who: str = Depends(owner)) -> Accept
         prompt = None if entry.prompt is None else forms.clean_prompt(entry.prompt, f"{where}.prompt", where)
         steps.append(AssemblyStep(name=_name(entry.name, file, where), file=file, prompt=prompt,
                                   has_image=entry.image is not None, on=entry.on,
-                                  config=step_config.model_dump(mode="json")))
+                                  config=step_config))
     unused = sorted(set(sources) - set(meshes))
     if unused:
         raise ApiError(400, "invalid_plan", f"source part {unused[0]!r} is not used by any step", field="source")
     try:
         check_plan(base_name, [(s.name, s.on, s.prompt is not None or s.has_image or
-                                s.config["loss"]["lambda_clip"] == 0) for s in steps])
+                                s.config.loss.lambda_clip == 0) for s in steps])
     except ConfigError as exc:
         raise ApiError(422, "invalid_plan", exc.message,
                        field=f"plan.{(exc.field or '').removeprefix('steps.')}") from None
     record = JobRecord(id=new_id(), owner=who, created_at=now(), kind="assemble", prompt=None,  # per stage: steps
                        has_image=any(s.has_image for s in steps), target_name=base_name, target_file=base_file,
                        source_name=steps[-1].name, source_file=steps[-1].file, steps=steps,
-                       config=config.model_dump(mode="json"))
+                       config=config)
     return await enqueue(request, record, blobs, configs)
 
 

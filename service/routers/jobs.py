@@ -11,10 +11,10 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
 
 from service import forms
+from service.chained import chained_target
 from service.deps import enqueue, own_job, owner
 from service.errors import ApiError, binary, documented
 from service.jobs import OUTPUTS, TERMINAL, JobRecord, Jobs, new_id, now, parse_record
-from service.routers import assemble
 from service.schemas import Accepted, JobList, JobOut, build_config
 
 log = logging.getLogger("ctp.service")
@@ -43,7 +43,7 @@ async def submit(request: Request, who: str = Depends(owner)) -> Accepted:
     target_job, on = forms.text(form, "target_job"), forms.text(form, "on")
     if on is not None and target_job is None:
         raise ApiError(400, "invalid_field", "on names an object of a target_job's scene; give target_job", field="on")
-    chained = await assemble.chained_target(request, form, who, target_job, on) if target_job is not None else None
+    chained = await chained_target(request, form, who, target_job, on) if target_job is not None else None
     faces = chained.faces if chained else 0
     for role in ("source",) if chained else ("target", "source"):
         upload = forms.file(form, role)
@@ -51,7 +51,7 @@ async def submit(request: Request, who: str = Depends(owner)) -> Accepted:
         blobs[role] = await forms.read_limited(upload, settings.max_upload_bytes, role, "mesh_file_too_large")
         faces += await run_in_threadpool(forms.check_mesh, request.app.state.loader, blobs[role], files[role],
                                          settings.mesh_limits, role)
-    assemble.check_scene_faces(faces, settings.max_scene_faces)  # all meshes of the job together
+    forms.check_scene_faces(faces, settings.max_scene_faces)  # all meshes of the job together
     if chained:
         files["target"], blobs["target"], on = chained.file, chained.data, chained.on
     if image is not None:
@@ -61,7 +61,7 @@ async def submit(request: Request, who: str = Depends(owner)) -> Accepted:
         id=new_id(), owner=who, created_at=now(), prompt=prompt, has_image=image is not None,
         target_name=forms.object_name(form, "target", on or files["target"]),
         source_name=forms.object_name(form, "source", files["source"]),
-        target_file=files["target"], source_file=files["source"], config=config.model_dump(mode="json"),
+        target_file=files["target"], source_file=files["source"], config=config,
         target_job=target_job, on=on,
     )
     return await enqueue(request, record, blobs, [config])
