@@ -29,8 +29,7 @@ from ctp_core.bench import protocol
 from ctp_core.bench.guides import guide_inputs
 from ctp_core.config import AlignConfig
 from ctp_core.guidance import guide_for
-from ctp_core.objective import Poses
-from ctp_core.pose import apply_pose
+from ctp_core.pose import Poses, apply_pose
 
 
 @contextmanager

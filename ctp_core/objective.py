@@ -9,10 +9,6 @@ only on the fixed evaluation views). The weights are a ``schedule.Phase``'s, so 
 from __future__ import annotations
 
 import math
-import time
-from collections import defaultdict
-from contextlib import contextmanager
-from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -21,42 +17,11 @@ from ctp_core import losses, render
 from ctp_core.cameras import Cameras, evaluation_views
 from ctp_core.config import AlignConfig
 from ctp_core.guidance import Guide
-from ctp_core.pose import apply_pose, pose_matrix
+from ctp_core.pose import Poses, apply_pose
+from ctp_core.progress import Clock
 from ctp_core.scene import PreparedPair
 from ctp_core.schedule import Phase
 from ctp_core.targets import GuidanceTarget
-
-
-@dataclass
-class Poses:
-    """A batch of poses, source local -> normalised (see ``pose``)."""
-
-    t: torch.Tensor  # (B, 3)
-    q: torch.Tensor  # (B, 4)
-    log_s: torch.Tensor  # (B,)
-
-    def __len__(self) -> int:
-        return self.t.shape[0]
-
-    def detached(self) -> Poses:
-        return Poses(self.t.detach().clone(), self.q.detach().clone(), self.log_s.detach().clone())
-
-    def where(self, mask: torch.Tensor, other: Poses) -> Poses:
-        """Per restart: self where mask, else other."""
-        pick = lambda a, b: torch.where(mask.reshape(-1, *[1] * (a.dim() - 1)), a, b)  # noqa: E731
-        return Poses(pick(self.t, other.t), pick(self.q, other.q), pick(self.log_s, other.log_s))
-
-    def select(self, index: torch.Tensor | slice | list[int]) -> Poses:
-        return Poses(self.t[index], self.q[index], self.log_s[index])
-
-    @staticmethod
-    def cat(parts: list[Poses]) -> Poses:
-        return Poses(torch.cat([p.t for p in parts]), torch.cat([p.q for p in parts]),
-                     torch.cat([p.log_s for p in parts]))
-
-    def matrices(self) -> np.ndarray:
-        return pose_matrix(self.t, self.q, self.log_s).detach().cpu().double().numpy()
-
 
 NEAR = 2.0  # source diagonals: a pose whose source is farther than this from the target places it nowhere
 
@@ -116,42 +81,6 @@ def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: to
 def combine(terms: dict[str, torch.Tensor], weights: Phase) -> torch.Tensor:
     """The weighted sum, one value per pose: the only place the weights meet the terms."""
     return weights.lambda_clip * terms["clip"] + weights.lambda_icp * terms["icp"] + weights.lambda_pen * terms["pen"]
-
-
-class Clock:
-    """Wall time per component (render / clip / geometry / eval / search).
-
-    Spans do not nest: time inside an outer span (e.g. the render inside an evaluation) counts for
-    the outer one only, so the parts add up to the total.
-    """
-
-    def __init__(self):
-        self.totals: dict[str, float] = defaultdict(float)
-        self._active = False
-
-    @contextmanager
-    def time(self, key: str):
-        if self._active:
-            yield
-            return
-        self._active = True
-        start = time.perf_counter()
-        try:
-            yield
-        finally:
-            self.totals[key] += time.perf_counter() - start
-            self._active = False
-
-    def mark(self) -> dict[str, float]:
-        """The totals now, for ``since``."""
-        return dict(self.totals)
-
-    def since(self, mark: dict[str, float], started: float) -> dict[str, float]:
-        """Seconds per component spent since ``mark`` (those that ran), ``total`` since ``started`` (perf_counter)
-        and ``other`` (the rest): one clock serves the search, then the refinement and each of its phases."""
-        split = {k: v - mark.get(k, 0.0) for k, v in self.totals.items() if v > mark.get(k, 0.0)}
-        total = time.perf_counter() - started
-        return {**split, "total": total, "other": total - sum(split.values())}
 
 
 class Scorer:

@@ -48,8 +48,8 @@ from ctp_core import losses, sampling
 from ctp_core.cameras import Cameras, orbit
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
-from ctp_core.objective import NEAR, Poses, Scorer, clearance, sample_spacing
-from ctp_core.pose import matrix_to_quaternion, quaternion_product, quaternion_to_matrix, random_quaternions
+from ctp_core.objective import NEAR, Scorer, clearance, sample_spacing
+from ctp_core.pose import Poses, matrix_to_quaternion, quaternion_product, quaternion_to_matrix, random_quaternions
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.scene import PreparedPair
 from ctp_core.schedule import Phase

@@ -8,7 +8,7 @@ import torch
 import trimesh
 
 from ctp.cli import main
-from ctp_core import objective, runtime, schedule
+from ctp_core import objective, pose, runtime, schedule
 from ctp_core.align import align
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
@@ -44,7 +44,7 @@ def test_clip_gradient_reaches_translation_rotation_and_scale(meshes):
     from ctp_core.cameras import sample_training_views
 
     cams = sample_training_views(torch.zeros(1, 3), cfg.camera, 1.0, torch.Generator().manual_seed(0))
-    scorer.clip_term(objective.Poses(t, q, log_s), cams, weight=phase.lambda_clip)
+    scorer.clip_term(pose.Poses(t, q, log_s), cams, weight=phase.lambda_clip)
     for name, p in (("t", t), ("q", q), ("log_s", log_s)):
         assert p.grad is not None and torch.isfinite(p.grad).all() and p.grad.abs().sum() > 0, name
 

@@ -130,8 +130,8 @@ def test_the_callers_start_is_a_candidate_only_near_the_target(pairs):
     pair = scene.prepare_pair(target, source, samples=CONFIG.loss.samples, seed=0)
     weights = search.region_weights(None)
     q = torch.tensor([[1.0, 0.0, 0.0, 0.0]])
-    near = objective.Poses(torch.tensor([[0.0, 0.4, 0.0]]), q, torch.zeros(1))
-    far = objective.Poses(torch.tensor([[0.0, 40.0, 0.0]]), q, torch.zeros(1))
+    near = pose.Poses(torch.tensor([[0.0, 0.4, 0.0]]), q, torch.zeros(1))
+    far = pose.Poses(torch.tensor([[0.0, 40.0, 0.0]]), q, torch.zeros(1))
     with_near = search.propose(pair, CONFIG, weights, 0.0, torch.Generator().manual_seed(0), init=near)
     with_far = search.propose(pair, CONFIG, weights, 0.0, torch.Generator().manual_seed(0), init=far)
     assert with_near.region[0] == "init" and "init" not in with_far.region
@@ -221,8 +221,8 @@ def test_tile_scores_rank_the_change_a_source_makes_in_its_tiles_views():
     scale = float(np.cbrt(np.linalg.det(matrices[0][:3, :3])))
     t = torch.tensor(np.array([m[:3, 3] for m in matrices]), dtype=torch.float32)
     q = torch.tensor(np.array([pose.matrix_to_quaternion(m[:3, :3] / scale) for m in matrices]), dtype=torch.float32)
-    poses = objective.Poses(t, q, torch.full((2,), math.log(scale)))
-    poses = objective.Poses.cat([poses, objective.Poses(t[:1] + torch.tensor([[0.0, -0.15, 0.0]]), q[:1],
+    poses = pose.Poses(t, q, torch.full((2,), math.log(scale)))
+    poses = pose.Poses.cat([poses, pose.Poses(t[:1] + torch.tensor([[0.0, -0.15, 0.0]]), q[:1],
                                                         poses.log_s[:1])])  # inside the table top: hidden
     keys = search.tile_score(scorer, poses, weights, search.tiles_of(pair, CONFIG, poses), batch=8)
     assert keys[0] < 0 < keys[1] and torch.isinf(keys[2])
@@ -264,7 +264,7 @@ def test_the_sweep_tries_every_orientation_at_the_best_site(pairs):
 def test_diverse_top_skips_near_duplicates():
     t = torch.tensor([[0.0, 0, 0], [0.01, 0, 0], [1.0, 0, 0]])
     q = torch.tensor([[1.0, 0, 0, 0]] * 3)
-    poses = objective.Poses(t, q, torch.zeros(3))
+    poses = pose.Poses(t, q, torch.zeros(3))
     assert search.diverse_top(poses, torch.tensor([0.0, 0.1, 0.2]), 2, 0.1, 30.0) == [0, 2]
     assert search.diverse_top(poses, torch.tensor([0.0, 0.1, 0.2]), 3, 0.1, 30.0) == [0, 2, 1]
 
@@ -275,7 +275,7 @@ def test_the_fine_shortlist_keeps_distinct_places_before_turns():
     q_turns = torch.stack([torch.cos(angles / 2), 0 * angles, torch.sin(angles / 2), 0 * angles], dim=1)
     t = torch.cat([torch.zeros(10, 3), torch.tensor([[float(i), 0.0, 0.0] for i in range(1, 6)])])
     q = torch.cat([q_turns, torch.tensor([[1.0, 0, 0, 0]]).repeat(5, 1)])
-    poses = objective.Poses(t, q, torch.zeros(15))
+    poses = pose.Poses(t, q, torch.zeros(15))
     objectives = torch.arange(15, dtype=torch.float32)  # the ten turns first
     picked = search.shortlist_of(poses, objectives, 6, 0.1, 30.0)
     assert len(picked) == len(set(picked)) == 6
@@ -289,7 +289,7 @@ def test_the_answer_is_the_best_restart_that_stays_near_the_target(pairs):
     target, source = pairs["box on table"]
     pair = scene.prepare_pair(target, source, samples=CONFIG.loss.samples, seed=0)
     q = torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(2, 1)
-    poses = objective.Poses(torch.tensor([[0.0, 30.0, 0.0], [0.0, 0.3, 0.0]]), q, torch.zeros(2))
+    poses = pose.Poses(torch.tensor([[0.0, 30.0, 0.0], [0.0, 0.3, 0.0]]), q, torch.zeros(2))
     clear = objective.clearance(pair, pair.index, poses)
     assert clear[0] > objective.NEAR >= clear[1]
     terms = {"objective": torch.tensor([-1.0, 0.0]), "clip": torch.tensor([-1.0, 0.0]), "icp": torch.zeros(2),
@@ -329,7 +329,7 @@ def test_the_touch_limit_grows_with_the_target_sample_spacing(pairs):
     limits = []
     for samples in (200, 5000):
         pair = scene.prepare_pair(target, source, samples=samples, seed=0)
-        limits.append(float(objective.touch_limit(pair, objective.Poses(t, q, torch.zeros(1)))[0]))
+        limits.append(float(objective.touch_limit(pair, pose.Poses(t, q, torch.zeros(1)))[0]))
         spacing = objective.sample_spacing(pair, samples) / (2 * pair.source_radius)
         assert limits[-1] == pytest.approx(objective.TOUCH + spacing, rel=1e-5)
     assert limits[0] > limits[1] > objective.TOUCH
