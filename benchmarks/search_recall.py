@@ -67,7 +67,7 @@ def run_case(case, args) -> dict:
         from ctp_core.guidance import guide_for
         guide = guide_for(config)
     started = time.perf_counter()
-    run = align.prepare(target, source, case.prompt, config, guide=guide, guidance=inputs.guidance,
+    run = align.prepare(target, source, case.prompt, config, guide=guide, goal=inputs.goal,
                         target_name=case.target_name, source_name=case.source_name)
     proposals = align.propose(run, init)
     ranked = search.search(run.scorer, proposals, run.plan[0], k=config.optim.restarts)

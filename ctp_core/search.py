@@ -17,7 +17,7 @@ lets the guide rank them in batches, with no gradient:
 2. ``score``: the objective's terms (``objective.Scorer``) of every candidate, ranked by the guide's term where
    there is a guide (``ranking_key``: the proposals satisfy the geometry already), forward only under inference mode,
    ``search.batch`` candidates x views per render and encoder call: first all candidates at a few fixed views
-   framing the target's region (the same cameras for all, so a per-view target is encoded once), then
+   framing the target's region (the same cameras for all, so a per-view goal is encoded once), then
    ``search.fine`` of them (``shortlist_of``: the best at distinct places, then the best distinct poses) at
    more views zoomed toward each candidate's source.
    Between the two, ``sweep`` tries every source orientation at the best few distinct sites of the coarse stage
@@ -495,10 +495,10 @@ def tile_score(scorer: Scorer, poses: Poses, weights: Phase, tiles: tuple[torch.
     for k in range(len(centres)):
         members = torch.nonzero(tile == k)[:, 0]
         cams = cameras.rows(k, k + 1)
-        targets = shared_targets(scorer, cams)
+        goal_embeddings = embed_shared_goal(scorer, cams)
         empty = Poses(centres[k : k + 1].to(poses.t), poses.q[:1], torch.full_like(poses.log_s[:1], -30.0))
-        base = score(scorer, empty, weights, cams, batch=1, targets=targets)
-        change = score(scorer, poses.select(members), weights, cams, batch=batch, targets=targets,
+        base = score(scorer, empty, weights, cams, batch=1, goal_embeddings=goal_embeddings)
+        change = score(scorer, poses.select(members), weights, cams, batch=batch, goal_embeddings=goal_embeddings,
                        should_cancel=should_cancel).cpu() - base.cpu()
         out[members] = torch.where(change.abs() > HIDDEN, change, torch.full_like(change, torch.inf))
         done += len(members)
@@ -509,7 +509,7 @@ def tile_score(scorer: Scorer, poses: Poses, weights: Phase, tiles: tuple[torch.
 def fine_cameras(pair: PreparedPair, config: AlignConfig, poses: Poses) -> Cameras:
     """(B, C) views per candidate: the look-at moves ``fine_zoom`` of the way to its source's centre and the
     framed radius shrinks toward the source's (but frames at least twice the source). With no zoom, (1, C)
-    views shared by every candidate (the same scales: a per-view target is encoded once)."""
+    views shared by every candidate (the same scales: a per-view goal is encoded once)."""
     cfg, cam = config.search, config.camera
     views, beta = cfg.fine_views, cfg.fine_zoom
     if beta == 0 and bool((poses.log_s == poses.log_s[0]).all()):
@@ -527,31 +527,31 @@ def fine_cameras(pair: PreparedPair, config: AlignConfig, poses: Poses) -> Camer
                  cfg.fine_image_size).to(pair.source_vertices.device)
 
 
-def shared_targets(scorer: Scorer, cameras: Cameras) -> torch.Tensor | None:
-    """The guidance target for (1, C) cameras shared by every candidate (a per-view target encodes them once)."""
+def embed_shared_goal(scorer: Scorer, cameras: Cameras) -> torch.Tensor | None:
+    """The goal's embeddings for (1, C) cameras shared by every candidate (a per-view goal encodes them once)."""
     if not scorer.use_clip:
         return None
     with torch.inference_mode():
-        targets = scorer.target_embeddings(cameras)
-    return targets.clone()
+        embeddings = scorer.embed_goal(cameras)
+    return embeddings.clone()
 
 
 def score(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, batch: int,
-          targets: torch.Tensor | None = None, progress=lambda scored: None,
+          goal_embeddings: torch.Tensor | None = None, progress=lambda scored: None,
           should_cancel: CancelCheck | None = None) -> torch.Tensor:
     """(N,) objectives of ``poses`` on ``cameras`` ((1, C) shared or (N, C)), ``batch`` poses per call, forward
-    only; ``progress(scored)`` after each batch, cancel checked before each. ``targets``: ``shared_targets`` of
-    shared cameras, when already computed."""
+    only; ``progress(scored)`` after each batch, cancel checked before each. ``goal_embeddings``:
+    ``embed_shared_goal`` of shared cameras, when already computed."""
     shared = cameras.fov_deg.shape[0] == 1
-    if shared and targets is None and scorer.use_clip:
-        targets = shared_targets(scorer, cameras)
+    if shared and goal_embeddings is None and scorer.use_clip:
+        goal_embeddings = embed_shared_goal(scorer, cameras)
     out = []
     for lo in range(0, len(poses), batch):
         if should_cancel is not None and should_cancel():
             raise Canceled("the run was cancelled")
         chunk = poses.select(slice(lo, lo + batch))
         cams = cameras if shared else cameras.rows(lo, lo + batch)
-        out.append(ranking_key(scorer, scorer.score(chunk, weights, cams, targets), weights))
+        out.append(ranking_key(scorer, scorer.score(chunk, weights, cams, goal_embeddings), weights))
         progress(lo + len(chunk))
     return torch.cat(out)
 
@@ -607,13 +607,13 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
     emit(0)
     with scorer.clock.time("search"):
         cameras = coarse_cameras(pair, config, log_s)
-        targets = shared_targets(scorer, cameras)
+        goal_embeddings = embed_shared_goal(scorer, cameras)
         distinct = _distinct(pair, config, log_s)
-        coarse = score(scorer, poses, weights, cameras, batch=cfg.batch, targets=targets, progress=emit,
+        coarse = score(scorer, poses, weights, cameras, batch=cfg.batch, goal_embeddings=goal_embeddings, progress=emit,
                        should_cancel=should_cancel)
         swept = sweep(proposals, pair, coarse, cfg.sweep, distinct[0]) if sweep_count else None
         if swept is not None and len(swept):
-            extra = score(scorer, swept, weights, cameras, batch=cfg.batch, targets=targets,
+            extra = score(scorer, swept, weights, cameras, batch=cfg.batch, goal_embeddings=goal_embeddings,
                           should_cancel=should_cancel, progress=lambda n: emit(len(poses) + n))
             poses, coarse = Poses.cat([poses, swept]), torch.cat([coarse, extra])
         proposed = proposals.poses

@@ -12,9 +12,9 @@ from ctp_core import objective, pose, runtime, schedule
 from ctp_core.align import align
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
+from ctp_core.goals import TextGoal
 from ctp_core.guidance import cpu_has_fast_bf16, get_guide
 from ctp_core.scene import prepare_pair
-from ctp_core.targets import TextTarget
 
 
 def _coloured(mesh: trimesh.Trimesh, rgb) -> trimesh.Trimesh:
@@ -34,9 +34,9 @@ def test_clip_gradient_reaches_translation_rotation_and_scale(meshes):
     cfg = AlignConfig.from_preset("test", model="random:tiny", scale=True)
     pair = prepare_pair(*meshes, samples=200, seed=0)
     guide = get_guide("random:tiny")
-    target = TextTarget("a cup on the table")
-    target.prepare(pair, guide)
-    scorer = objective.Scorer(pair, cfg, 1.0, guide=guide, target=target)
+    goal = TextGoal("a cup on the table")
+    goal.prepare(pair, guide)
+    scorer = objective.Scorer(pair, cfg, 1.0, guide=guide, goal=goal)
     phase = schedule.phases(cfg, allow_penetration=False)[0]
     t = torch.tensor([[0.2, 0.4, 0.1]], requires_grad=True)
     q = torch.tensor([[0.9, 0.1, 0.3, 0.0]], requires_grad=True)

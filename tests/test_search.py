@@ -7,7 +7,7 @@ import pytest
 import torch
 import trimesh
 
-from ctp_core import metrics, objective, pose, scene, schedule, search, targets
+from ctp_core import goals, metrics, objective, pose, scene, schedule, search
 from ctp_core.align import align, prepare, propose, refine
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
@@ -142,9 +142,9 @@ def test_the_scorer_scores_n_candidates_then_m_restarts(pairs):
     target, source = pairs["box on table"]
     pair, props = _proposals(target, source)
     guide = get_guide("random:tiny")
-    text = targets.TextTarget("a box on the table")
+    text = goals.TextGoal("a box on the table")
     text.prepare(pair, guide)
-    scorer = objective.Scorer(pair, CONFIG, 0.2, guide=guide, target=text)
+    scorer = objective.Scorer(pair, CONFIG, 0.2, guide=guide, goal=text)
     weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
     many = scorer.evaluate(props.poses, weights)
     few = scorer.evaluate(props.poses.select(slice(0, 3)), weights)
@@ -162,10 +162,10 @@ def test_search_counts_every_encoder_image_including_the_oracles(pairs, zoom):
     pair, props = _proposals(target, source, config)
     reference = np.eye(4)
     reference[:3, 3] = -source.bounds.mean(0) + (0, 0.2, 0)
-    oracle = targets.ReferenceTarget(reference)
+    oracle = goals.ReferenceGoal(reference)
     guide = get_guide("random:tiny")
     oracle.prepare(pair, guide)
-    scorer = objective.Scorer(pair, config, 0.2, guide=guide, target=oracle)
+    scorer = objective.Scorer(pair, config, 0.2, guide=guide, goal=oracle)
     weights = schedule.phases(config, allow_penetration=False)[-1]
     events = []
     ranked = search.search(scorer, props, weights, k=2, on_event=events.append)
@@ -211,9 +211,9 @@ def test_tile_scores_rank_the_change_a_source_makes_in_its_tiles_views():
 
     table, ball, reference = _small_ball_on_table()
     pair = scene.prepare_pair(table, ball, samples=CONFIG.loss.samples, seed=0)
-    guide, oracle = PixelGuide(size=32), targets.ReferenceTarget(reference)
+    guide, oracle = PixelGuide(size=32), goals.ReferenceGoal(reference)
     oracle.prepare(pair, guide)
-    scorer = objective.Scorer(pair, CONFIG, 0.2, guide=guide, target=oracle)
+    scorer = objective.Scorer(pair, CONFIG, 0.2, guide=guide, goal=oracle)
     weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
     elsewhere = reference.copy()
     elsewhere[:3, 3] += (-1.0, 0.0, -0.3)
@@ -231,9 +231,9 @@ def test_tile_scores_rank_the_change_a_source_makes_in_its_tiles_views():
 def test_the_tile_stage_counts_its_images_and_adds_its_restarts():
     table, ball, reference = _small_ball_on_table()
     pair, props = _proposals(table, ball)
-    guide, oracle = get_guide("random:tiny"), targets.ReferenceTarget(reference)
+    guide, oracle = get_guide("random:tiny"), goals.ReferenceGoal(reference)
     oracle.prepare(pair, guide)
-    scorer = objective.Scorer(pair, CONFIG, 0.2, guide=guide, target=oracle)
+    scorer = objective.Scorer(pair, CONFIG, 0.2, guide=guide, goal=oracle)
     weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
     events = []
     ranked = search.search(scorer, props, weights, k=2, on_event=events.append)
