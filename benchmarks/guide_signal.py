@@ -24,7 +24,7 @@ import numpy as np
 import torch
 from search_recall import case_parser, each_case, errors  # a sibling script (benchmarks/ is on sys.path)
 
-from ctp_core import align, metrics, render, sampling, search
+from ctp_core import align, metrics, ranking, render, sampling
 from ctp_core.bench import protocol
 from ctp_core.bench.guides import guide_inputs
 from ctp_core.config import AlignConfig
@@ -72,7 +72,7 @@ def run_case(case, args) -> dict:
                         target_name=case.target_name, source_name=case.source_name)
     proposals = align.propose(run, init)
     pair, poses = run.pair, proposals.poses
-    cameras = search.coarse_cameras(pair, config, float(poses.log_s[0]))
+    cameras = ranking.coarse_cameras(pair, config, float(poses.log_s[0]))
     nothing = Poses(torch.zeros(1, 3), poses.q[:1], torch.full((1,), -30.0))  # a point-sized source: not drawn
     with precision(guide, False), torch.inference_mode():
         goal_views = run.scorer.embed_goal(cameras)[0]  # (C, D): the reference seen by each view

@@ -132,24 +132,24 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
 
 
 def propose(run: Run, init: np.ndarray | None = None):
-    """Search on: contact proposals (``search.propose``); off: the random starts (``optimise.initial_poses``).
+    """Search on: contact proposals (``proposals.propose``); off: the random starts (``optimise.initial_poses``).
 
     ``init`` (source file -> target file 4x4) is one candidate (search) or replaces restart 0 (no search), and
     fixes the source scale either way.
     """
-    from ctp_core import optimise, search
+    from ctp_core import optimise, proposals
 
     config, pair = run.config, run.pair
     generator = torch.Generator().manual_seed(config.seed)
     starts = optimise.initial_poses(pair, config, run.prior.size_ratio, generator, init=init)
     if not config.search.enabled:
-        return search.Proposals(starts, ["random"] * len(starts))
+        return proposals.Proposals(starts, ["random"] * len(starts))
     t0 = time.perf_counter()
-    weights = search.region_weights(run.prior.relation, run.prior.source_is_figure)
+    weights = proposals.region_weights(run.prior.relation, run.prior.source_is_figure)
     given = starts.select(slice(0, 1)) if init is not None else None
-    proposals = search.propose(pair, config, weights, float(starts.log_s[0]), generator, init=given)
+    proposed = proposals.propose(pair, config, weights, float(starts.log_s[0]), generator, init=given)
     run.timings["propose_s"] = round(time.perf_counter() - t0, 3)
-    return proposals
+    return proposed
 
 
 def score(run: Run, proposals, *, on_event: ProgressCallback | None = None,
@@ -157,15 +157,15 @@ def score(run: Run, proposals, *, on_event: ProgressCallback | None = None,
     """The optimiser's starts: the search's diverse best ``optim.restarts`` (forward-only scoring), or the
     proposals as they are when the search is off.
 
-    The search ranks by the guide alone where there is one (``search.ranking_key``), otherwise by the first
+    The search ranks by the guide alone where there is one (``ranking.ranking_key``), otherwise by the first
     phase's objective: its proposals already touch without interpenetrating.
     """
-    from ctp_core import search
+    from ctp_core import ranking
 
     if not run.config.search.enabled:
         return proposals.poses
-    ranked = search.search(run.scorer, proposals, run.plan[0], k=run.config.optim.restarts, on_event=on_event,
-                           should_cancel=should_cancel, phases=len(run.plan), started=run.started)
+    ranked = ranking.search(run.scorer, proposals, run.plan[0], k=run.config.optim.restarts, on_event=on_event,
+                            should_cancel=should_cancel, phases=len(run.plan), started=run.started)
     run.timings["search_s"] = round(ranked.seconds, 3)
     run.timings["search_candidates"] = ranked.scored
     return ranked.poses

@@ -64,7 +64,7 @@ def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: to
 
     Why not soft-ICP: at contact it measures how the samples fall, not contact (on cur-s01 with the pixels guide
     the restart refined onto the reference, guide term -0.999, lost to one a diagonal away, -0.996, by 0.004 of
-    weighted soft-ICP); the search ranks its candidates by the guide the same way (``search.ranking_key``).
+    weighted soft-ICP); the search ranks its candidates by the guide the same way (``ranking.ranking_key``).
     ``clear`` and ``limit``: per pose, in source diagonals (``clearance``, ``touch_limit``).
     """
     key = terms["objective"]
