@@ -20,8 +20,16 @@ from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # the stages import these lazily: importing align stays light
     from ctp_core import canonical
+    from ctp_core.goals import Goal
+    from ctp_core.guidance import Guide
+    from ctp_core.objective import Scorer
+    from ctp_core.optimise import Outcome
+    from ctp_core.pose import Poses
+    from ctp_core.proposals import Proposals
+    from ctp_core.scene import PreparedPair
+    from ctp_core.schedule import Phase
 
 __all__ = ["AlignResult", "ProgressEvent", "align"]
 
@@ -74,11 +82,11 @@ class Run:
     """What the stages share: the prepared pair, the priors, the objective and the phase plan."""
 
     config: AlignConfig
-    pair: Any  # scene.PreparedPair
+    pair: PreparedPair
     prior: priors.ScenePrior
-    scorer: Any  # objective.Scorer
-    plan: list  # schedule.Phase per refinement phase
-    goal: Any  # a goals object, or None (geometry only)
+    scorer: Scorer
+    plan: list[Phase]  # one per refinement phase
+    goal: Goal | None  # None: geometry only
     started: float
     timings: dict[str, float] = field(default_factory=dict)
     names: dict[str, str | None] = field(default_factory=dict)  # target, source, on: what the priors read
@@ -86,7 +94,8 @@ class Run:
 
 def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, prompt: str | None,
             config: AlignConfig, *, on: str | None = None, image: np.ndarray | None = None,
-            target_name: str = "target", source_name: str = "source", guide=None, goal=None) -> Run:
+            target_name: str = "target", source_name: str = "source", guide: Guide | None = None,
+            goal: Goal | None = None) -> Run:
     """Priors, the normalised and canonicalised pair, the guide and its goal, the objective and the plan.
 
     A scene target's priors read the object ``on`` (its name is ``target_name``, its size the extent)."""
@@ -131,7 +140,7 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
                {"target": target_name, "source": source_name, "on": on})
 
 
-def propose(run: Run, init: np.ndarray | None = None):
+def propose(run: Run, init: np.ndarray | None = None) -> Proposals:
     """Search on: contact proposals (``proposals.propose``); off: the random starts (``optimise.initial_poses``).
 
     ``init`` (source file -> target file 4x4) is one candidate (search) or replaces restart 0 (no search), and
@@ -152,8 +161,8 @@ def propose(run: Run, init: np.ndarray | None = None):
     return proposed
 
 
-def score(run: Run, proposals, *, on_event: ProgressCallback | None = None,
-          should_cancel: CancelCheck | None = None):
+def score(run: Run, proposals: Proposals, *, on_event: ProgressCallback | None = None,
+          should_cancel: CancelCheck | None = None) -> Poses:
     """The optimiser's starts: the search's diverse best ``optim.restarts`` (forward-only scoring), or the
     proposals as they are when the search is off.
 
@@ -171,8 +180,8 @@ def score(run: Run, proposals, *, on_event: ProgressCallback | None = None,
     return ranked.poses
 
 
-def refine(run: Run, starts, *, on_event: ProgressCallback | None = None,
-           should_cancel: CancelCheck | None = None):
+def refine(run: Run, starts: Poses, *, on_event: ProgressCallback | None = None,
+           should_cancel: CancelCheck | None = None) -> Outcome:
     """The phased optimiser from ``starts`` (one restart each); returns its ``Outcome``."""
     from ctp_core import optimise
 
@@ -180,7 +189,7 @@ def refine(run: Run, starts, *, on_event: ProgressCallback | None = None,
     return runner.run(starts)
 
 
-def result(run: Run, outcome, prompt: str | None, *, on_event: ProgressCallback | None = None) -> AlignResult:
+def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: ProgressCallback | None = None) -> AlignResult:
     """The answer in file frames with its report fields and a preview, from the restart whose best pose has
     the lowest objective on the fixed evaluation views (``Outcome.best``)."""
     from ctp_core import scene
@@ -230,8 +239,8 @@ def align(
     image: np.ndarray | None = None,
     target_name: str = "target",
     source_name: str = "source",
-    guide=None,
-    goal=None,
+    guide: Guide | None = None,
+    goal: Goal | None = None,
     init: np.ndarray | None = None,
     on_event: ProgressCallback | None = None,
     should_cancel: CancelCheck | None = None,
