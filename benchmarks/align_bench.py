@@ -71,7 +71,7 @@ def case(args) -> None:
 
 def _timed(case, preset: str, model: str, stop_after: int) -> dict:
     """One oracle-guided run from the case's rigid protocol start; cancelled after ``stop_after`` steps if > 0."""
-    from ctp_core import targets
+    from ctp_core import goals
     from ctp_core.bench import protocol
     from ctp_core.errors import Canceled
 
@@ -89,7 +89,7 @@ def _timed(case, preset: str, model: str, stop_after: int) -> dict:
 
     start = time.perf_counter()
     try:
-        result = align(target, source, case.prompt, cfg, init=init, guidance=targets.ReferenceTarget(case.reference),
+        result = align(target, source, case.prompt, cfg, init=init, goal=goals.ReferenceGoal(case.reference),
                        target_name=case.target_name, source_name=case.source_name, on_event=on_event,
                        should_cancel=lambda: 0 < stop_after <= seen["step"])
     except Canceled:

@@ -24,13 +24,12 @@ import numpy as np
 import torch
 from search_recall import case_parser, each_case, errors  # a sibling script (benchmarks/ is on sys.path)
 
-from ctp_core import align, metrics, render, sampling, search
+from ctp_core import align, metrics, ranking, render, sampling
 from ctp_core.bench import protocol
 from ctp_core.bench.guides import guide_inputs
 from ctp_core.config import AlignConfig
 from ctp_core.guidance import guide_for
-from ctp_core.objective import Poses
-from ctp_core.pose import apply_pose
+from ctp_core.pose import Poses, apply_pose
 
 
 @contextmanager
@@ -69,23 +68,23 @@ def run_case(case, args) -> dict:
     inputs = guide_inputs("oracle", case, target, source, protocol.case_rng(args.seed, case.id, "guide"))
     config = AlignConfig.from_preset(args.preset, seed=args.seed, model=args.model)
     guide = guide_for(config)
-    run = align.prepare(target, source, case.prompt, config, guide=guide, guidance=inputs.guidance,
+    run = align.prepare(target, source, case.prompt, config, guide=guide, goal=inputs.goal,
                         target_name=case.target_name, source_name=case.source_name)
     proposals = align.propose(run, init)
     pair, poses = run.pair, proposals.poses
-    cameras = search.coarse_cameras(pair, config, float(poses.log_s[0]))
+    cameras = ranking.coarse_cameras(pair, config, float(poses.log_s[0]))
     nothing = Poses(torch.zeros(1, 3), poses.q[:1], torch.full((1,), -30.0))  # a point-sized source: not drawn
     with precision(guide, False), torch.inference_mode():
-        target_views = run.scorer.target_embeddings(cameras)[0]  # (C, D): the reference seen by each view
+        goal_views = run.scorer.embed_goal(cameras)[0]  # (C, D): the reference seen by each view
         empty = embeddings(guide, pair, nothing, cameras)[0]
-        fp32 = (embeddings(guide, pair, poses, cameras) * target_views).sum(-1).mean(dim=1)
+        fp32 = (embeddings(guide, pair, poses, cameras) * goal_views).sum(-1).mean(dim=1)
     with precision(guide, True):
-        rounded = (embeddings(guide, pair, poses, cameras) * target_views).sum(-1).mean(dim=1)
+        rounded = (embeddings(guide, pair, poses, cameras) * goal_views).sum(-1).mean(dim=1)
     points = sampling.surface_samples(source, 500, args.seed)[0]
     placed = errors(pair, poses, case.reference, points)[:, 0] <= metrics.PLACEMENT_RADIUS
     return {"case": case.id, "model": args.model, "autocast": guide.autocast, "proposals": len(poses),
             "placing": int(placed.sum()),
-            "source_change": float(1 - (empty * target_views).sum(-1).mean()),
+            "source_change": float(1 - (empty * goal_views).sum(-1).mean()),
             "spread": float(fp32.std()), "rounding": float((rounded - fp32).abs().max()),
             "rank_fp32": best_rank(fp32, placed), "rank_autocast": best_rank(rounded, placed)}
 

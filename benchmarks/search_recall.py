@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ctp_core import align, metrics, sampling, search
+from ctp_core import align, metrics, ranking, sampling
 from ctp_core.bench import protocol
 from ctp_core.bench.cases import discover
 from ctp_core.bench.guides import guide_inputs
@@ -67,10 +67,10 @@ def run_case(case, args) -> dict:
         from ctp_core.guidance import guide_for
         guide = guide_for(config)
     started = time.perf_counter()
-    run = align.prepare(target, source, case.prompt, config, guide=guide, guidance=inputs.guidance,
+    run = align.prepare(target, source, case.prompt, config, guide=guide, goal=inputs.goal,
                         target_name=case.target_name, source_name=case.source_name)
     proposals = align.propose(run, init)
-    ranked = search.search(run.scorer, proposals, run.plan[0], k=config.optim.restarts)
+    ranked = ranking.search(run.scorer, proposals, run.plan[0], k=config.optim.restarts)
     outcome = align.refine(run, ranked.poses)
     answer = align.result(run, outcome, case.prompt)
     row = {"case": case.id, "relation": case.relation, "seconds": round(time.perf_counter() - started, 1)}

@@ -1,7 +1,7 @@
-"""``ctp example``: write a generated sample pair (``ctp_core.samples``) to try ``ctp align`` and the service on.
+"""``ctp example``: write a generated example pair (``ctp_core.examples``) to try ``ctp align`` and the service on.
 
 Prints the paths written (target first) on stdout, and on stderr the ``ctp align`` line that places the
-sample's source by its prompt. Exit codes: 0 written; 2 bad usage (an unknown sample).
+example's source by its prompt. Exit codes: 0 written; 2 bad usage (an unknown example).
 """
 
 from __future__ import annotations
@@ -11,23 +11,23 @@ import shlex
 import sys
 from pathlib import Path
 
-from ctp_core.samples import SAMPLES, get_sample
+from ctp_core.examples import EXAMPLES, get_example
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("name", nargs="?", default="cup-on-table", choices=sorted(SAMPLES),
-                        metavar="|".join(sorted(SAMPLES)),
+    parser.add_argument("name", nargs="?", default="cup-on-table", choices=sorted(EXAMPLES),
+                        metavar="|".join(sorted(EXAMPLES)),
                         help="which sample pair (default: %(default)s)")
     parser.add_argument("--dir", type=Path, default=Path("."), metavar="DIR",
                         help="folder to write into (default: here)")
 
 
 def run(args: argparse.Namespace) -> int:
-    sample = get_sample(args.name)
-    target, source = sample.write(args.dir)
+    example = get_example(args.name)
+    target, source = example.write(args.dir)
     print(target)
     print(source)
-    command = ["ctp", "align", str(target), str(source), "--prompt", sample.prompt, "--target-name",
-               sample.target_name, "--source-name", sample.source_name, "--preset", "test", "--model", "random:tiny"]
-    print(f"{sample.name}: {sample.prompt!r}; try:\n  {shlex.join(command)}", file=sys.stderr)
+    command = ["ctp", "align", str(target), str(source), "--prompt", example.prompt, "--target-name",
+               example.target_name, "--source-name", example.source_name, "--preset", "test", "--model", "random:tiny"]
+    print(f"{example.name}: {example.prompt!r}; try:\n  {shlex.join(command)}", file=sys.stderr)
     return 0

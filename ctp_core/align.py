@@ -20,8 +20,16 @@ from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # the stages import these lazily: importing align stays light
     from ctp_core import canonical
+    from ctp_core.goals import Goal
+    from ctp_core.guidance import Guide
+    from ctp_core.objective import Scorer
+    from ctp_core.optimise import Outcome
+    from ctp_core.pose import Poses
+    from ctp_core.proposals import Proposals
+    from ctp_core.scene import PreparedPair
+    from ctp_core.schedule import Phase
 
 __all__ = ["AlignResult", "ProgressEvent", "align"]
 
@@ -42,7 +50,7 @@ class AlignResult:
     preview: np.ndarray | None = None  # (V, H, W, 3) uint8 views of the final scene
     best_restart: int | None = None  # the restart the answer comes from
     on: str | None = None  # the placed object an assembly step relates to
-    guidance: str | None = None  # what guided the run, in words
+    guided_by: str | None = None  # what guided the run, in words (the report's "guidance")
     model: str | None = None  # the guidance model; None for a geometry-only run
     runtime: str | None = None  # the guide's runtime ("torch", "onnx"); None without a guide
     clip_images: int = 0  # images the encoder scored
@@ -74,11 +82,11 @@ class Run:
     """What the stages share: the prepared pair, the priors, the objective and the phase plan."""
 
     config: AlignConfig
-    pair: Any  # scene.PreparedPair
+    pair: PreparedPair
     prior: priors.ScenePrior
-    scorer: Any  # objective.Scorer
-    plan: list  # schedule.Phase per refinement phase
-    guidance: Any  # a targets object, or None (geometry only)
+    scorer: Scorer
+    plan: list[Phase]  # one per refinement phase
+    goal: Goal | None  # None: geometry only
     started: float
     timings: dict[str, float] = field(default_factory=dict)
     names: dict[str, str | None] = field(default_factory=dict)  # target, source, on: what the priors read
@@ -86,12 +94,12 @@ class Run:
 
 def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, prompt: str | None,
             config: AlignConfig, *, on: str | None = None, image: np.ndarray | None = None,
-            target_name: str = "target", source_name: str = "source", guide=None, guidance=None) -> Run:
-    """Priors, the normalised and canonicalised pair, the guide and its target, the objective and the plan.
+            target_name: str = "target", source_name: str = "source", guide: Guide | None = None,
+            goal: Goal | None = None) -> Run:
+    """Priors, the normalised and canonicalised pair, the guide and its goal, the objective and the plan.
 
     A scene target's priors read the object ``on`` (its name is ``target_name``, its size the extent)."""
-    from ctp_core import guidance as guidance_mod
-    from ctp_core import objective, scene, schedule, targets
+    from ctp_core import goals, guidance, objective, scene, schedule
 
     started = time.perf_counter()
     if config.threads:
@@ -106,7 +114,7 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
     )
     judge = None
     if config.upright and config.upright_judge:
-        guide = guide or guidance_mod.guide_for(config)
+        guide = guide or guidance.guide_for(config)
         # a scene's up is its base's (scene.base), judged under the base's own name
         base_name, base = (target_name, target) if isinstance(target, trimesh.Trimesh) else scene.objects(target)[0]
         judge = scene.upright_judge(base, guide, base_name, device=config.device)
@@ -114,66 +122,66 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
                               canonicalise=config.upright, judge=judge, on=on)
     prepared = time.perf_counter()
 
-    if guidance is None and config.loss.lambda_clip > 0:
+    if goal is None and config.loss.lambda_clip > 0:
         if image is not None:
-            guidance = targets.ImageTarget(image)
+            goal = goals.ImageGoal(image)
         elif prompt:
-            guidance = targets.TextTarget(prompt)
-    if guidance is not None and config.loss.lambda_clip > 0:
-        guide = guide or guidance_mod.guide_for(config)
-        guidance.prepare(pair, guide)
+            goal = goals.TextGoal(prompt)
+    if goal is not None and config.loss.lambda_clip > 0:
+        guide = guide or guidance.guide_for(config)
+        goal.prepare(pair, guide)
     else:
-        guidance = None
+        goal = None
     loaded = time.perf_counter()
-    scorer = objective.Scorer(pair, config, prior.contact_ratio, guide=guide, target=guidance)
+    scorer = objective.Scorer(pair, config, prior.contact_ratio, guide=guide, goal=goal)
     plan = schedule.phases(config, allow_penetration=prior.penetration)
-    return Run(config, pair, prior, scorer, plan, guidance, started,
+    return Run(config, pair, prior, scorer, plan, goal, started,
                {"prepare_s": round(prepared - started, 3), "model_s": round(loaded - prepared, 3)},
                {"target": target_name, "source": source_name, "on": on})
 
 
-def propose(run: Run, init: np.ndarray | None = None):
-    """Search on: contact proposals (``search.propose``); off: the random starts (``optimise.initial_poses``).
+def propose(run: Run, init: np.ndarray | None = None) -> Proposals:
+    """Search on: contact proposals (``proposals.propose``); off: the random starts (``optimise.initial_poses``).
 
     ``init`` (source file -> target file 4x4) is one candidate (search) or replaces restart 0 (no search), and
     fixes the source scale either way.
     """
-    from ctp_core import optimise, search
+    from ctp_core import optimise, proposals
 
     config, pair = run.config, run.pair
     generator = torch.Generator().manual_seed(config.seed)
     starts = optimise.initial_poses(pair, config, run.prior.size_ratio, generator, init=init)
     if not config.search.enabled:
-        return search.Proposals(starts, ["random"] * len(starts))
+        return proposals.Proposals(starts, ["random"] * len(starts))
     t0 = time.perf_counter()
-    weights = search.region_weights(run.prior.relation, run.prior.source_is_figure)
+    weights = proposals.region_weights(run.prior.relation, run.prior.source_is_figure)
     given = starts.select(slice(0, 1)) if init is not None else None
-    proposals = search.propose(pair, config, weights, float(starts.log_s[0]), generator, init=given)
+    proposed = proposals.propose(pair, config, weights, float(starts.log_s[0]), generator, init=given)
     run.timings["propose_s"] = round(time.perf_counter() - t0, 3)
-    return proposals
+    return proposed
 
 
-def score(run: Run, proposals, *, on_event: ProgressCallback | None = None,
-          should_cancel: CancelCheck | None = None):
+def score(run: Run, proposals: Proposals, *, on_event: ProgressCallback | None = None,
+          should_cancel: CancelCheck | None = None) -> Poses:
     """The optimiser's starts: the search's diverse best ``optim.restarts`` (forward-only scoring), or the
     proposals as they are when the search is off.
 
-    The search ranks by the guide alone where there is one (``search.ranking_key``), otherwise by the first
+    The search ranks by the guide alone where there is one (``ranking.ranking_key``), otherwise by the first
     phase's objective: its proposals already touch without interpenetrating.
     """
-    from ctp_core import search
+    from ctp_core import ranking
 
     if not run.config.search.enabled:
         return proposals.poses
-    ranked = search.search(run.scorer, proposals, run.plan[0], k=run.config.optim.restarts, on_event=on_event,
-                           should_cancel=should_cancel, phases=len(run.plan), started=run.started)
+    ranked = ranking.search(run.scorer, proposals, run.plan[0], k=run.config.optim.restarts, on_event=on_event,
+                            should_cancel=should_cancel, phases=len(run.plan), started=run.started)
     run.timings["search_s"] = round(ranked.seconds, 3)
     run.timings["search_candidates"] = ranked.scored
     return ranked.poses
 
 
-def refine(run: Run, starts, *, on_event: ProgressCallback | None = None,
-           should_cancel: CancelCheck | None = None):
+def refine(run: Run, starts: Poses, *, on_event: ProgressCallback | None = None,
+           should_cancel: CancelCheck | None = None) -> Outcome:
     """The phased optimiser from ``starts`` (one restart each); returns its ``Outcome``."""
     from ctp_core import optimise
 
@@ -181,7 +189,7 @@ def refine(run: Run, starts, *, on_event: ProgressCallback | None = None,
     return runner.run(starts)
 
 
-def result(run: Run, outcome, prompt: str | None, *, on_event: ProgressCallback | None = None) -> AlignResult:
+def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: ProgressCallback | None = None) -> AlignResult:
     """The answer in file frames with its report fields and a preview, from the restart whose best pose has
     the lowest objective on the fixed evaluation views (``Outcome.best``)."""
     from ctp_core import scene
@@ -198,15 +206,15 @@ def result(run: Run, outcome, prompt: str | None, *, on_event: ProgressCallback 
          **{k: float(v[i]) for k, v in outcome.terms.items()}, "source_to_target": answers[i].tolist()}
         for i in range(len(answers))
     ]
-    guidance = run.guidance
+    goal = run.goal
     answer = AlignResult(
         source_to_target=answers[best], objective=float(outcome.objectives[best]),
         target=pair.target, source=pair.source, prompt=prompt, config=config,
         hparams={**run.prior.to_dict(), "target_name": run.names.get("target"),  # the names the priors read
                  "source_name": run.names.get("source")},
         restarts=restarts, timings=timings, preview=preview, best_restart=best, on=run.names.get("on"),
-        guidance=guidance.description if guidance is not None else "none (geometry only)",
-        model=config.model if guidance is not None else None,
+        guided_by=goal.description if goal is not None else "none (geometry only)",
+        model=config.model if goal is not None else None,
         runtime=getattr(run.scorer.guide, "runtime", None),  # the pixels guide has none
         clip_images=outcome.clip_images,
         phase_timings=[{k: round(v, 3) for k, v in p.items()} for p in outcome.phase_timings],
@@ -231,8 +239,8 @@ def align(
     image: np.ndarray | None = None,
     target_name: str = "target",
     source_name: str = "source",
-    guide=None,
-    guidance=None,
+    guide: Guide | None = None,
+    goal: Goal | None = None,
     init: np.ndarray | None = None,
     on_event: ProgressCallback | None = None,
     should_cancel: CancelCheck | None = None,
@@ -240,8 +248,8 @@ def align(
     """Place ``source`` relative to ``target`` (both in file frames) so renders agree with the prompt.
 
     The stages: ``prepare`` -> ``propose`` -> ``score`` -> ``refine`` -> ``result``.
-    ``image`` (H, W, 3 uint8) guides by a reference picture instead of the text; ``guidance`` (a
-    ``targets`` object) overrides both (the benchmark's oracle). ``guide`` is a preloaded
+    ``image`` (H, W, 3 uint8) guides by a reference picture instead of the text; ``goal`` (a
+    ``goals`` object) overrides both (the benchmark's oracle). ``guide`` is a preloaded
     vision-language model (``guidance.get_guide``); without one the configured model is loaded (and
     cached per process). ``init`` (4x4, source file -> target file) is one more search candidate (or,
     search off, replaces the first random start) and fixes the source's scale.
@@ -251,7 +259,7 @@ def align(
     Raises ``errors.Canceled`` when ``should_cancel()`` turns true, other ``CtpError`` on bad input.
     """
     run = prepare(target, source, prompt, config, on=on, image=image, target_name=target_name,
-                  source_name=source_name, guide=guide, guidance=guidance)
+                  source_name=source_name, guide=guide, goal=goal)
     proposals = propose(run, init)
     starts = score(run, proposals, on_event=on_event, should_cancel=should_cancel)
     outcome = refine(run, starts, on_event=on_event, should_cancel=should_cancel)

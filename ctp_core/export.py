@@ -113,7 +113,7 @@ def _extra(result: AlignResult) -> dict:
     """The run's provenance fields under the report's ``extra`` key, in the order the report has always had."""
     upright = result.target_upright
     return {
-        "best_restart": result.best_restart, "on": result.on, "guidance": result.guidance,
+        "best_restart": result.best_restart, "on": result.on, "guidance": result.guided_by,
         "runtime": result.runtime, "clip_images": result.clip_images, "phase_timings": result.phase_timings,
         "target_upright": None if upright is None else {"rotation": upright.rotation.tolist(),
                                                         "changed": upright.changed, "reason": upright.reason},

@@ -11,16 +11,16 @@ import torch
 from scipy.spatial import cKDTree
 
 
-def clip_loss(image_embeddings: torch.Tensor, target_embeddings: torch.Tensor) -> torch.Tensor:
-    """L_clip = -mean over views of cos(e_img, e_target).
+def clip_loss(image_embeddings: torch.Tensor, goal_embeddings: torch.Tensor) -> torch.Tensor:
+    """L_clip = -mean over views of cos(e_img, e_goal).
 
-    image_embeddings (B, C, D); target_embeddings (D,) for a text or image prompt, or (B, C, D) for a
-    per-view target (the oracle guide). Both are expected L2-normalised; we normalise again so a
+    image_embeddings (B, C, D); goal_embeddings (D,) for a text or image prompt, or (B, C, D) for a
+    per-view goal (the oracle guide). Both are expected L2-normalised; we normalise again so a
     caller's rounding (bf16) cannot push |cos| past 1.
     """
     img = torch.nn.functional.normalize(image_embeddings.float(), dim=-1)
-    tgt = torch.nn.functional.normalize(target_embeddings.float(), dim=-1)
-    cos = (img * tgt).sum(-1) if tgt.dim() == 3 else img @ tgt
+    goal = torch.nn.functional.normalize(goal_embeddings.float(), dim=-1)
+    cos = (img * goal).sum(-1) if goal.dim() == 3 else img @ goal
     return -cos.mean(dim=-1)
 
 

@@ -9,10 +9,6 @@ only on the fixed evaluation views). The weights are a ``schedule.Phase``'s, so 
 from __future__ import annotations
 
 import math
-import time
-from collections import defaultdict
-from contextlib import contextmanager
-from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -20,43 +16,12 @@ import torch
 from ctp_core import losses, render
 from ctp_core.cameras import Cameras, evaluation_views
 from ctp_core.config import AlignConfig
+from ctp_core.goals import Goal
 from ctp_core.guidance import Guide
-from ctp_core.pose import apply_pose, pose_matrix
+from ctp_core.pose import Poses, apply_pose
+from ctp_core.progress import Clock
 from ctp_core.scene import PreparedPair
 from ctp_core.schedule import Phase
-from ctp_core.targets import GuidanceTarget
-
-
-@dataclass
-class Poses:
-    """A batch of poses, source local -> normalised (see ``pose``)."""
-
-    t: torch.Tensor  # (B, 3)
-    q: torch.Tensor  # (B, 4)
-    log_s: torch.Tensor  # (B,)
-
-    def __len__(self) -> int:
-        return self.t.shape[0]
-
-    def detached(self) -> Poses:
-        return Poses(self.t.detach().clone(), self.q.detach().clone(), self.log_s.detach().clone())
-
-    def where(self, mask: torch.Tensor, other: Poses) -> Poses:
-        """Per restart: self where mask, else other."""
-        pick = lambda a, b: torch.where(mask.reshape(-1, *[1] * (a.dim() - 1)), a, b)  # noqa: E731
-        return Poses(pick(self.t, other.t), pick(self.q, other.q), pick(self.log_s, other.log_s))
-
-    def select(self, index: torch.Tensor | slice | list[int]) -> Poses:
-        return Poses(self.t[index], self.q[index], self.log_s[index])
-
-    @staticmethod
-    def cat(parts: list[Poses]) -> Poses:
-        return Poses(torch.cat([p.t for p in parts]), torch.cat([p.q for p in parts]),
-                     torch.cat([p.log_s for p in parts]))
-
-    def matrices(self) -> np.ndarray:
-        return pose_matrix(self.t, self.q, self.log_s).detach().cpu().double().numpy()
-
 
 NEAR = 2.0  # source diagonals: a pose whose source is farther than this from the target places it nowhere
 
@@ -99,7 +64,7 @@ def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: to
 
     Why not soft-ICP: at contact it measures how the samples fall, not contact (on cur-s01 with the pixels guide
     the restart refined onto the reference, guide term -0.999, lost to one a diagonal away, -0.996, by 0.004 of
-    weighted soft-ICP); the search ranks its candidates by the guide the same way (``search.ranking_key``).
+    weighted soft-ICP); the search ranks its candidates by the guide the same way (``ranking.ranking_key``).
     ``clear`` and ``limit``: per pose, in source diagonals (``clearance``, ``touch_limit``).
     """
     key = terms["objective"]
@@ -118,50 +83,14 @@ def combine(terms: dict[str, torch.Tensor], weights: Phase) -> torch.Tensor:
     return weights.lambda_clip * terms["clip"] + weights.lambda_icp * terms["icp"] + weights.lambda_pen * terms["pen"]
 
 
-class Clock:
-    """Wall time per component (render / clip / geometry / eval / search).
-
-    Spans do not nest: time inside an outer span (e.g. the render inside an evaluation) counts for
-    the outer one only, so the parts add up to the total.
-    """
-
-    def __init__(self):
-        self.totals: dict[str, float] = defaultdict(float)
-        self._active = False
-
-    @contextmanager
-    def time(self, key: str):
-        if self._active:
-            yield
-            return
-        self._active = True
-        start = time.perf_counter()
-        try:
-            yield
-        finally:
-            self.totals[key] += time.perf_counter() - start
-            self._active = False
-
-    def mark(self) -> dict[str, float]:
-        """The totals now, for ``since``."""
-        return dict(self.totals)
-
-    def since(self, mark: dict[str, float], started: float) -> dict[str, float]:
-        """Seconds per component spent since ``mark`` (those that ran), ``total`` since ``started`` (perf_counter)
-        and ``other`` (the rest): one clock serves the search, then the refinement and each of its phases."""
-        split = {k: v - mark.get(k, 0.0) for k, v in self.totals.items() if v > mark.get(k, 0.0)}
-        total = time.perf_counter() - started
-        return {**split, "total": total, "other": total - sum(split.values())}
-
-
 class Scorer:
     """The objective's terms for any batch of poses; counts every image the guide encodes in ``clip_images``."""
 
     def __init__(self, pair: PreparedPair, config: AlignConfig, contact_ratio: float, guide: Guide | None = None,
-                 target: GuidanceTarget | None = None, clock: Clock | None = None):
+                 goal: Goal | None = None, clock: Clock | None = None):
         self.pair, self.config, self.contact_ratio = pair, config, contact_ratio
-        self.guide, self.target = guide, target
-        self.use_clip = target is not None and guide is not None and config.loss.lambda_clip > 0
+        self.guide, self.goal = guide, goal
+        self.use_clip = goal is not None and guide is not None and config.loss.lambda_clip > 0
         self.clock = clock or Clock()
         self.clip_images = 0
         self._eval: tuple[Cameras, torch.Tensor] | None = None
@@ -178,15 +107,15 @@ class Scorer:
                 pen = torch.zeros_like(icp)
         return {"icp": icp, "pen": pen, "centroid": pts.mean(dim=1)}
 
-    def target_embeddings(self, cameras: Cameras) -> torch.Tensor:
-        """The guidance target for these cameras; a per-view target (the oracle) encodes one image per view."""
+    def embed_goal(self, cameras: Cameras) -> torch.Tensor:
+        """The goal's embeddings for these cameras; a per-view goal (the oracle) encodes one image per view."""
         with self.clock.time("clip"):
-            embeddings = self.target.embeddings(cameras)
+            embeddings = self.goal.embeddings(cameras)
         if embeddings.dim() == 3:
             self.clip_images += embeddings.shape[0] * embeddings.shape[1]
         return embeddings
 
-    def clip_term(self, poses: Poses, cameras: Cameras, targets: torch.Tensor | None = None,
+    def clip_term(self, poses: Poses, cameras: Cameras, goal_embeddings: torch.Tensor | None = None,
                   weight: float = 0.0) -> torch.Tensor:
         """L_clip per pose. With ``weight`` > 0 (and grad enabled), ``weight * L_clip`` is back-propagated
         through the renderer to the poses; otherwise forward only."""
@@ -196,12 +125,12 @@ class Scorer:
             verts = pair.scene_vertices(apply_pose(pair.source_vertices, poses.t, poses.q, poses.log_s))
             images = render.render(pair.mesh, verts, cameras)
         batch, views = images.shape[:2]
-        if targets is None:
-            targets = self.target_embeddings(cameras)
+        if goal_embeddings is None:
+            goal_embeddings = self.embed_goal(cameras)
         with self.clock.time("clip"):
             leaf = images.detach().requires_grad_(grad) if grad else images
             emb = guide.encode_images(leaf.reshape(batch * views, *images.shape[2:])).reshape(batch, views, -1)
-            value = losses.clip_loss(emb, targets)
+            value = losses.clip_loss(emb, goal_embeddings)
             if grad:
                 (image_grad,) = torch.autograd.grad(value.sum() * weight, leaf)
         self.clip_images += batch * views
@@ -210,22 +139,22 @@ class Scorer:
                 images.backward(image_grad)
         return value.detach()
 
-    def score(self, poses: Poses, weights: Phase, cameras: Cameras, targets: torch.Tensor | None = None,
+    def score(self, poses: Poses, weights: Phase, cameras: Cameras, goal_embeddings: torch.Tensor | None = None,
               batch: int | None = None) -> dict[str, torch.Tensor]:
         """Every term and the objective of ``poses`` on ``cameras``, forward only, ``batch`` poses per call.
 
-        ``cameras`` are (1, C) shared by every pose (a per-view target is then encoded once for all) or
-        (len(poses), C) per pose; ``targets`` are precomputed target embeddings for shared cameras.
+        ``cameras`` are (1, C) shared by every pose (a per-view goal is then encoded once for all) or
+        (len(poses), C) per pose; ``goal_embeddings`` are the goal's, precomputed for shared cameras.
         """
         with torch.inference_mode():
-            out = self._score(poses, weights, cameras, targets, batch)
+            out = self._score(poses, weights, cameras, goal_embeddings, batch)
         return {k: v.clone() for k, v in out.items()}  # normal tensors, usable outside inference mode
 
-    def _score(self, poses: Poses, weights: Phase, cameras: Cameras, targets: torch.Tensor | None,
+    def _score(self, poses: Poses, weights: Phase, cameras: Cameras, goal_embeddings: torch.Tensor | None,
                batch: int | None) -> dict[str, torch.Tensor]:
         shared = cameras.fov_deg.shape[0] == 1
-        if self.use_clip and shared and targets is None:
-            targets = self.target_embeddings(cameras)
+        if self.use_clip and shared and goal_embeddings is None:
+            goal_embeddings = self.embed_goal(cameras)
         step = batch or len(poses)
         parts: list[dict[str, torch.Tensor]] = []
         for lo in range(0, len(poses), step):
@@ -234,8 +163,8 @@ class Scorer:
             del terms["centroid"]
             if self.use_clip:
                 cams = cameras.expand(len(chunk)) if shared else cameras.rows(lo, lo + step)
-                part_targets = targets if shared else None
-                terms["clip"] = self.clip_term(chunk, cams, part_targets)
+                part = goal_embeddings if shared else None
+                terms["clip"] = self.clip_term(chunk, cams, part)
             else:
                 terms["clip"] = torch.zeros_like(terms["icp"])
             parts.append(terms)
@@ -244,22 +173,22 @@ class Scorer:
         return out
 
     def evaluation_cameras(self) -> tuple[Cameras, torch.Tensor | None]:
-        """The fixed selection views (1, C) around the target centre and their target embeddings, made once."""
+        """The fixed selection views (1, C) around the target centre and the goal's embeddings there, made once."""
         if self._eval is None:
             origin = torch.zeros(1, 3, device=self.pair.source_vertices.device)
             cams = evaluation_views(origin, self.config.camera)
-            targets = None
+            goal_embeddings = None
             if self.use_clip:
                 with torch.inference_mode():
-                    targets = self.target_embeddings(cams)
-                targets = targets.clone()
-            self._eval = (cams, targets)
+                    goal_embeddings = self.embed_goal(cams)
+                goal_embeddings = goal_embeddings.clone()
+            self._eval = (cams, goal_embeddings)
         return self._eval
 
     def evaluate(self, poses: Poses, weights: Phase) -> dict[str, torch.Tensor]:
         """The selection objective on the fixed evaluation views, for any number of poses."""
         with self.clock.time("eval"):
-            cams, targets = self.evaluation_cameras()
-            return self.score(poses, weights, cams, targets)
+            cams, goal_embeddings = self.evaluation_cameras()
+            return self.score(poses, weights, cams, goal_embeddings)
 
 

@@ -18,8 +18,8 @@ import torch
 from ctp_core.cameras import sample_training_views
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
-from ctp_core.objective import Poses, Scorer, clearance, select_answer, touch_limit
-from ctp_core.pose import matrix_to_quaternion, quaternion_product, random_quaternions
+from ctp_core.objective import Scorer, clearance, select_answer, touch_limit
+from ctp_core.pose import Poses, matrix_to_quaternion, quaternion_product, random_quaternions
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.scene import PreparedPair
 from ctp_core.schedule import Phase

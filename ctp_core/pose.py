@@ -9,6 +9,7 @@ pass so Adam can move it freely; log s keeps the scale positive.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -93,3 +94,34 @@ def pose_matrix(t: torch.Tensor, q: torch.Tensor, log_s: torch.Tensor) -> torch.
     out[:, :3, 3] = t
     out[:, 3, 3] = 1.0
     return out
+
+
+@dataclass
+class Poses:
+    """A batch of poses, source local -> normalised (see ``pose``)."""
+
+    t: torch.Tensor  # (B, 3)
+    q: torch.Tensor  # (B, 4)
+    log_s: torch.Tensor  # (B,)
+
+    def __len__(self) -> int:
+        return self.t.shape[0]
+
+    def detached(self) -> Poses:
+        return Poses(self.t.detach().clone(), self.q.detach().clone(), self.log_s.detach().clone())
+
+    def where(self, mask: torch.Tensor, other: Poses) -> Poses:
+        """Per restart: self where mask, else other."""
+        pick = lambda a, b: torch.where(mask.reshape(-1, *[1] * (a.dim() - 1)), a, b)  # noqa: E731
+        return Poses(pick(self.t, other.t), pick(self.q, other.q), pick(self.log_s, other.log_s))
+
+    def select(self, index: torch.Tensor | slice | list[int]) -> Poses:
+        return Poses(self.t[index], self.q[index], self.log_s[index])
+
+    @staticmethod
+    def cat(parts: list[Poses]) -> Poses:
+        return Poses(torch.cat([p.t for p in parts]), torch.cat([p.q for p in parts]),
+                     torch.cat([p.log_s for p in parts]))
+
+    def matrices(self) -> np.ndarray:
+        return pose_matrix(self.t, self.q, self.log_s).detach().cpu().double().numpy()

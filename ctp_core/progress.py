@@ -1,12 +1,15 @@
-"""Progress events: what a run reports while it works, and how it is asked to stop.
+"""Progress events: what a run reports while it works, how it is asked to stop, and the clock of its parts.
 
 The optimiser calls ``on_event(ProgressEvent)``; the CLI draws a bar from it and the worker publishes
-it. ``should_cancel()`` is polled between steps.
+it. ``should_cancel()`` is polled between steps. ``Clock`` times the parts of a run (its phase timings).
 """
 
 from __future__ import annotations
 
+import time
+from collections import defaultdict
 from collections.abc import Callable
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -40,3 +43,39 @@ class ProgressEvent:
 
 ProgressCallback = Callable[[ProgressEvent], None]
 CancelCheck = Callable[[], bool]
+
+
+class Clock:
+    """Wall time per component (render / clip / geometry / eval / search).
+
+    Spans do not nest: time inside an outer span (e.g. the render inside an evaluation) counts for
+    the outer one only, so the parts add up to the total.
+    """
+
+    def __init__(self):
+        self.totals: dict[str, float] = defaultdict(float)
+        self._active = False
+
+    @contextmanager
+    def time(self, key: str):
+        if self._active:
+            yield
+            return
+        self._active = True
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.totals[key] += time.perf_counter() - start
+            self._active = False
+
+    def mark(self) -> dict[str, float]:
+        """The totals now, for ``since``."""
+        return dict(self.totals)
+
+    def since(self, mark: dict[str, float], started: float) -> dict[str, float]:
+        """Seconds per component spent since ``mark`` (those that ran), ``total`` since ``started`` (perf_counter)
+        and ``other`` (the rest): one clock serves the search, then the refinement and each of its phases."""
+        split = {k: v - mark.get(k, 0.0) for k, v in self.totals.items() if v > mark.get(k, 0.0)}
+        total = time.perf_counter() - started
+        return {**split, "total": total, "other": total - sum(split.values())}

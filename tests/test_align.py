@@ -8,13 +8,13 @@ import torch
 import trimesh
 
 from ctp.cli import main
-from ctp_core import objective, runtime, schedule
+from ctp_core import objective, pose, runtime, schedule
 from ctp_core.align import align
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
+from ctp_core.goals import TextGoal
 from ctp_core.guidance import cpu_has_fast_bf16, get_guide
 from ctp_core.scene import prepare_pair
-from ctp_core.targets import TextTarget
 
 
 def _coloured(mesh: trimesh.Trimesh, rgb) -> trimesh.Trimesh:
@@ -34,9 +34,9 @@ def test_clip_gradient_reaches_translation_rotation_and_scale(meshes):
     cfg = AlignConfig.from_preset("test", model="random:tiny", scale=True)
     pair = prepare_pair(*meshes, samples=200, seed=0)
     guide = get_guide("random:tiny")
-    target = TextTarget("a cup on the table")
-    target.prepare(pair, guide)
-    scorer = objective.Scorer(pair, cfg, 1.0, guide=guide, target=target)
+    goal = TextGoal("a cup on the table")
+    goal.prepare(pair, guide)
+    scorer = objective.Scorer(pair, cfg, 1.0, guide=guide, goal=goal)
     phase = schedule.phases(cfg, allow_penetration=False)[0]
     t = torch.tensor([[0.2, 0.4, 0.1]], requires_grad=True)
     q = torch.tensor([[0.9, 0.1, 0.3, 0.0]], requires_grad=True)
@@ -44,7 +44,7 @@ def test_clip_gradient_reaches_translation_rotation_and_scale(meshes):
     from ctp_core.cameras import sample_training_views
 
     cams = sample_training_views(torch.zeros(1, 3), cfg.camera, 1.0, torch.Generator().manual_seed(0))
-    scorer.clip_term(objective.Poses(t, q, log_s), cams, weight=phase.lambda_clip)
+    scorer.clip_term(pose.Poses(t, q, log_s), cams, weight=phase.lambda_clip)
     for name, p in (("t", t), ("q", q), ("log_s", log_s)):
         assert p.grad is not None and torch.isfinite(p.grad).all() and p.grad.abs().sum() > 0, name
 

@@ -195,7 +195,7 @@ def test_cli_refuses_a_bad_plan_with_exit_2(tmp_path, meshes, capsys, plan, mess
 
 def test_table_setting_sample_is_a_valid_plan(tmp_path):
     from ctp.cmd_assemble import read_plan
-    from ctp_core.samples import write_table_setting
+    from ctp_core.examples import write_table_setting
 
     config = AlignConfig.from_preset("test", model="random:tiny")
     base, base_name, steps, _ = read_plan(write_table_setting(tmp_path), config)
@@ -218,16 +218,16 @@ def test_a_yaml_plan_means_on_and_bare_numbers_as_written(tmp_path, meshes):
 
 def test_a_scene_keeps_its_base_s_up():
     """A plate hung at a leg's foot makes table + plate rest best upside down; the scene's up stays the table's."""
-    from ctp_core import canonical, samples
+    from ctp_core import canonical, examples
     from ctp_core.assemble import Placed, scene_of
     from ctp_core.scene import geometry, prepare_pair
 
-    table, plate = samples._table(), samples._plate()
+    table, plate = examples._table(), examples._plate()
     plate.apply_scale(0.96)
     hung = trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0))  # on edge at a leg, rim below the floor
     hung[:3, 3] = (-0.586, 0.046, 0.340)
     placed = scene_of([Placed("table", table, frames.Similarity(np.eye(4), frames.SCENE, frames.SCENE)),
                        Placed("plate", plate, frames.Similarity(hung, frames.SOURCE_FILE, frames.SCENE))])
     assert canonical.upright_rotation(geometry(placed)).changed  # the whole scene would turn over
-    pair = prepare_pair(placed, samples._cup(), samples=200, seed=0, on="plate")
+    pair = prepare_pair(placed, examples._cup(), samples=200, seed=0, on="plate")
     assert not pair.target_upright.changed and pair.target_upright.rotation.tolist() == np.eye(3).tolist()

@@ -13,15 +13,15 @@ import pytest
 from ctp.cli import main
 from ctp.cmd_align import ProgressBar
 from ctp.cmd_serve import _say_if_default_model_missing
+from ctp_core.examples import get_example
 from ctp_core.progress import ProgressEvent
-from ctp_core.samples import get_sample
 from service.embedded import EmbeddedRedis
 from tests.conftest import REPO
 
 
 @pytest.fixture(scope="module")
 def pair(tmp_path_factory):
-    return get_sample("cup-on-table").write(tmp_path_factory.mktemp("pair"))
+    return get_example("cup-on-table").write(tmp_path_factory.mktemp("pair"))
 
 
 def one_line(capsys) -> str:

@@ -80,7 +80,7 @@ def test_penetration_gradient_pushes_out():
     assert src.grad[0, 0, 2] < 0  # descending raises the point out of the target
 
 
-def test_clip_loss_fixed_and_per_view_targets():
+def test_clip_loss_fixed_and_per_view_goals():
     emb = torch.nn.functional.normalize(torch.randn(2, 3, 8), dim=-1)
     assert torch.allclose(losses.clip_loss(emb, emb), torch.full((2,), -1.0), atol=1e-6)
     text = torch.nn.functional.normalize(torch.randn(8), dim=0)

@@ -30,7 +30,7 @@ import trimesh
 
 from ctp.cli import main, synopsis
 from ctp.cmd_serve import stop_processes
-from ctp_core.samples import get_sample
+from ctp_core.examples import get_example
 from service.embedded import free_port
 from tests.conftest import REPO, service_env, wait_for
 
@@ -83,7 +83,7 @@ def test_quick_start_align_runs_as_written(tmp_path):
 
 @pytest.mark.skipif(shutil.which("curl") is None, reason="the walk-through needs curl, which is not installed")
 def test_service_walk_through_and_client_run_as_written(tmp_path):
-    get_sample("cup-on-table").write(tmp_path / "try")  # what the Quick start's `ctp example --dir try` wrote
+    get_example("cup-on-table").write(tmp_path / "try")  # what the Quick start's `ctp example --dir try` wrote
     port = free_port()
     env = {**service_env("unused", "ctp"), "XDG_CACHE_HOME": str(tmp_path / "cache")}
     del env["REDIS_URL"]

@@ -1,4 +1,5 @@
-"""The search stage alone and inside align: proposals, relation weights, the shared scorer, cancel, counts."""
+"""The search stage alone (``proposals``, ``ranking``) and inside align: proposals, relation weights, the shared
+scorer, cancel, counts."""
 
 import math
 
@@ -7,7 +8,7 @@ import pytest
 import torch
 import trimesh
 
-from ctp_core import metrics, objective, pose, scene, schedule, search, targets
+from ctp_core import goals, metrics, objective, pose, proposals, ranking, scene, schedule
 from ctp_core.align import align, prepare, propose, refine
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
@@ -39,7 +40,7 @@ def pairs():
 
 def _proposals(target, source, config=CONFIG):
     pair = scene.prepare_pair(target, source, samples=config.loss.samples, seed=0)
-    props = search.propose(pair, config, search.region_weights(None), 0.0, torch.Generator().manual_seed(0))
+    props = proposals.propose(pair, config, proposals.region_weights(None), 0.0, torch.Generator().manual_seed(0))
     return pair, props
 
 
@@ -69,12 +70,12 @@ def test_proposals_touch_and_do_not_penetrate(pairs, name):
 @pytest.mark.parametrize("figure", [True, False])
 @pytest.mark.parametrize("relation", [None, "other", *RELATIONS])
 def test_a_relation_weight_never_zeroes_a_region(relation, figure):
-    weights = search.region_weights(relation, figure)
-    assert set(weights) == set(search.REGIONS) and min(weights.values()) >= 1.0
+    weights = proposals.region_weights(relation, figure)
+    assert set(weights) == set(proposals.REGIONS) and min(weights.values()) >= 1.0
     available = {"top": 300, "side": 900, "bottom": 300, "inside": 40, "gap": 450, "drop": 375, "floor": 190}
-    counts = search.allocate(available, weights, 64, CONFIG.search.min_share)
+    counts = proposals.allocate(available, weights, 64, CONFIG.search.min_share)
     assert all(counts[r] >= 1 for r in available)
-    plain = search.allocate(available, search.region_weights(None), 64, CONFIG.search.min_share)
+    plain = proposals.allocate(available, proposals.region_weights(None), 64, CONFIG.search.min_share)
     assert all(counts[r] >= min(plain[r], max(1, int(CONFIG.search.min_share * plain[r]))) for r in available)
 
 
@@ -82,8 +83,8 @@ def test_the_prompt_relation_shifts_proposals_without_removing_any(pairs):
     target, source = pairs["ball and cup"]
     pair = scene.prepare_pair(target, source, samples=CONFIG.loss.samples, seed=0)
     gen = lambda: torch.Generator().manual_seed(0)  # noqa: E731
-    plain = search.propose(pair, CONFIG, search.region_weights(None), 0.0, gen())
-    inside = search.propose(pair, CONFIG, search.region_weights("in"), 0.0, gen())
+    plain = proposals.propose(pair, CONFIG, proposals.region_weights(None), 0.0, gen())
+    inside = proposals.propose(pair, CONFIG, proposals.region_weights("in"), 0.0, gen())
     assert inside.region.count("inside") > plain.region.count("inside")
     assert set(inside.region) == set(plain.region)
 
@@ -104,7 +105,7 @@ def test_drops_reach_a_summit_that_area_sampling_misses():
     source.apply_translation((5.0, 5.0, 5.0))
     pair, props = _proposals(target, source)
     tip = pair.target_to_normalised.apply(np.array([[0.4, 1.5, -0.3]]))[0]
-    peaks = search.summits(pair.anchor.points.numpy().astype(np.float64), 0.3)
+    peaks = proposals.summits(pair.anchor.points.numpy().astype(np.float64), 0.3)
     assert np.linalg.norm(pair.anchor.points[peaks[0]].numpy() - tip) < 0.2  # the highest summit: the cone's top
     lowest = []
     for matrix, region in zip(props.poses.matrices(), props.region, strict=True):
@@ -128,12 +129,12 @@ def test_floor_proposals_stand_on_the_targets_floor_beside_or_under_it(pairs):
 def test_the_callers_start_is_a_candidate_only_near_the_target(pairs):
     target, source = pairs["box on table"]
     pair = scene.prepare_pair(target, source, samples=CONFIG.loss.samples, seed=0)
-    weights = search.region_weights(None)
+    weights = proposals.region_weights(None)
     q = torch.tensor([[1.0, 0.0, 0.0, 0.0]])
-    near = objective.Poses(torch.tensor([[0.0, 0.4, 0.0]]), q, torch.zeros(1))
-    far = objective.Poses(torch.tensor([[0.0, 40.0, 0.0]]), q, torch.zeros(1))
-    with_near = search.propose(pair, CONFIG, weights, 0.0, torch.Generator().manual_seed(0), init=near)
-    with_far = search.propose(pair, CONFIG, weights, 0.0, torch.Generator().manual_seed(0), init=far)
+    near = pose.Poses(torch.tensor([[0.0, 0.4, 0.0]]), q, torch.zeros(1))
+    far = pose.Poses(torch.tensor([[0.0, 40.0, 0.0]]), q, torch.zeros(1))
+    with_near = proposals.propose(pair, CONFIG, weights, 0.0, torch.Generator().manual_seed(0), init=near)
+    with_far = proposals.propose(pair, CONFIG, weights, 0.0, torch.Generator().manual_seed(0), init=far)
     assert with_near.region[0] == "init" and "init" not in with_far.region
     assert len(with_near.poses) == len(with_far.poses) + 1
 
@@ -142,9 +143,9 @@ def test_the_scorer_scores_n_candidates_then_m_restarts(pairs):
     target, source = pairs["box on table"]
     pair, props = _proposals(target, source)
     guide = get_guide("random:tiny")
-    text = targets.TextTarget("a box on the table")
+    text = goals.TextGoal("a box on the table")
     text.prepare(pair, guide)
-    scorer = objective.Scorer(pair, CONFIG, 0.2, guide=guide, target=text)
+    scorer = objective.Scorer(pair, CONFIG, 0.2, guide=guide, goal=text)
     weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
     many = scorer.evaluate(props.poses, weights)
     few = scorer.evaluate(props.poses.select(slice(0, 3)), weights)
@@ -162,13 +163,13 @@ def test_search_counts_every_encoder_image_including_the_oracles(pairs, zoom):
     pair, props = _proposals(target, source, config)
     reference = np.eye(4)
     reference[:3, 3] = -source.bounds.mean(0) + (0, 0.2, 0)
-    oracle = targets.ReferenceTarget(reference)
+    oracle = goals.ReferenceGoal(reference)
     guide = get_guide("random:tiny")
     oracle.prepare(pair, guide)
-    scorer = objective.Scorer(pair, config, 0.2, guide=guide, target=oracle)
+    scorer = objective.Scorer(pair, config, 0.2, guide=guide, goal=oracle)
     weights = schedule.phases(config, allow_penetration=False)[-1]
     events = []
-    ranked = search.search(scorer, props, weights, k=2, on_event=events.append)
+    ranked = ranking.search(scorer, props, weights, k=2, on_event=events.append)
     cfg = config.search
     n, fine = len(props.poses), min(cfg.fine, len(props.poses))
     assert 0 < ranked.swept <= cfg.sweep * len(props.rotations)  # every orientation at the best site(s)
@@ -195,10 +196,10 @@ def _small_ball_on_table():
 
 def test_tiles_only_where_the_source_is_small_and_each_frames_its_sources(pairs):
     pair, props = _proposals(*pairs["box on table"])
-    assert search.tiles_of(pair, CONFIG, props.poses) is None  # the block is a fifth of the table: no tiles
+    assert ranking.tiles_of(pair, CONFIG, props.poses) is None  # the block is a fifth of the table: no tiles
     table, ball, _ = _small_ball_on_table()
     pair, props = _proposals(table, ball)
-    tile, centres, radius = search.tiles_of(pair, CONFIG, props.poses)
+    tile, centres, radius = ranking.tiles_of(pair, CONFIG, props.poses)
     assert len(centres) > 1 and tile.shape == (len(props.poses),)
     reach = (props.poses.t - centres[tile]).norm(dim=-1) + pair.source_radius
     assert bool((reach <= radius + 1e-5).all())  # every source wholly inside its tile's framed radius
@@ -211,9 +212,9 @@ def test_tile_scores_rank_the_change_a_source_makes_in_its_tiles_views():
 
     table, ball, reference = _small_ball_on_table()
     pair = scene.prepare_pair(table, ball, samples=CONFIG.loss.samples, seed=0)
-    guide, oracle = PixelGuide(size=32), targets.ReferenceTarget(reference)
+    guide, oracle = PixelGuide(size=32), goals.ReferenceGoal(reference)
     oracle.prepare(pair, guide)
-    scorer = objective.Scorer(pair, CONFIG, 0.2, guide=guide, target=oracle)
+    scorer = objective.Scorer(pair, CONFIG, 0.2, guide=guide, goal=oracle)
     weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
     elsewhere = reference.copy()
     elsewhere[:3, 3] += (-1.0, 0.0, -0.3)
@@ -221,24 +222,24 @@ def test_tile_scores_rank_the_change_a_source_makes_in_its_tiles_views():
     scale = float(np.cbrt(np.linalg.det(matrices[0][:3, :3])))
     t = torch.tensor(np.array([m[:3, 3] for m in matrices]), dtype=torch.float32)
     q = torch.tensor(np.array([pose.matrix_to_quaternion(m[:3, :3] / scale) for m in matrices]), dtype=torch.float32)
-    poses = objective.Poses(t, q, torch.full((2,), math.log(scale)))
-    poses = objective.Poses.cat([poses, objective.Poses(t[:1] + torch.tensor([[0.0, -0.15, 0.0]]), q[:1],
+    poses = pose.Poses(t, q, torch.full((2,), math.log(scale)))
+    poses = pose.Poses.cat([poses, pose.Poses(t[:1] + torch.tensor([[0.0, -0.15, 0.0]]), q[:1],
                                                         poses.log_s[:1])])  # inside the table top: hidden
-    keys = search.tile_score(scorer, poses, weights, search.tiles_of(pair, CONFIG, poses), batch=8)
+    keys = ranking.tile_score(scorer, poses, weights, ranking.tiles_of(pair, CONFIG, poses), batch=8)
     assert keys[0] < 0 < keys[1] and torch.isinf(keys[2])
 
 
 def test_the_tile_stage_counts_its_images_and_adds_its_restarts():
     table, ball, reference = _small_ball_on_table()
     pair, props = _proposals(table, ball)
-    guide, oracle = get_guide("random:tiny"), targets.ReferenceTarget(reference)
+    guide, oracle = get_guide("random:tiny"), goals.ReferenceGoal(reference)
     oracle.prepare(pair, guide)
-    scorer = objective.Scorer(pair, CONFIG, 0.2, guide=guide, target=oracle)
+    scorer = objective.Scorer(pair, CONFIG, 0.2, guide=guide, goal=oracle)
     weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
     events = []
-    ranked = search.search(scorer, props, weights, k=2, on_event=events.append)
+    ranked = ranking.search(scorer, props, weights, k=2, on_event=events.append)
     cfg, n = CONFIG.search, len(props.poses)
-    tiles = len(search.tiles_of(pair, CONFIG, props.poses)[1])
+    tiles = len(ranking.tiles_of(pair, CONFIG, props.poses)[1])
     fine = min(cfg.fine, n)
     coarse = (n + ranked.swept) * cfg.coarse_views + cfg.coarse_views
     tiled = n * cfg.coarse_views + 2 * tiles * cfg.coarse_views  # each tile: its reference and its empty views
@@ -254,7 +255,7 @@ def test_the_sweep_tries_every_orientation_at_the_best_site(pairs):
     target, source = pairs["box on table"]
     pair, props = _proposals(target, source)
     objectives = torch.arange(len(props.poses), dtype=torch.float32)  # the first proposal is the best
-    swept = search.sweep(props, pair, objectives, 1, 0.1)
+    swept = ranking.sweep(props, pair, objectives, 1, 0.1)
     assert 0 < len(swept) <= len(props.rotations)
     turns = torch.nn.functional.normalize(swept.q, dim=-1) @ torch.nn.functional.normalize(props.rotations, dim=-1).T
     assert (turns.abs().max(dim=1).values > 0.9999).all()  # each is one of the source's orientations
@@ -264,9 +265,9 @@ def test_the_sweep_tries_every_orientation_at_the_best_site(pairs):
 def test_diverse_top_skips_near_duplicates():
     t = torch.tensor([[0.0, 0, 0], [0.01, 0, 0], [1.0, 0, 0]])
     q = torch.tensor([[1.0, 0, 0, 0]] * 3)
-    poses = objective.Poses(t, q, torch.zeros(3))
-    assert search.diverse_top(poses, torch.tensor([0.0, 0.1, 0.2]), 2, 0.1, 30.0) == [0, 2]
-    assert search.diverse_top(poses, torch.tensor([0.0, 0.1, 0.2]), 3, 0.1, 30.0) == [0, 2, 1]
+    poses = pose.Poses(t, q, torch.zeros(3))
+    assert ranking.diverse_top(poses, torch.tensor([0.0, 0.1, 0.2]), 2, 0.1, 30.0) == [0, 2]
+    assert ranking.diverse_top(poses, torch.tensor([0.0, 0.1, 0.2]), 3, 0.1, 30.0) == [0, 2, 1]
 
 
 def test_the_fine_shortlist_keeps_distinct_places_before_turns():
@@ -275,12 +276,12 @@ def test_the_fine_shortlist_keeps_distinct_places_before_turns():
     q_turns = torch.stack([torch.cos(angles / 2), 0 * angles, torch.sin(angles / 2), 0 * angles], dim=1)
     t = torch.cat([torch.zeros(10, 3), torch.tensor([[float(i), 0.0, 0.0] for i in range(1, 6)])])
     q = torch.cat([q_turns, torch.tensor([[1.0, 0, 0, 0]]).repeat(5, 1)])
-    poses = objective.Poses(t, q, torch.zeros(15))
+    poses = pose.Poses(t, q, torch.zeros(15))
     objectives = torch.arange(15, dtype=torch.float32)  # the ten turns first
-    picked = search.shortlist_of(poses, objectives, 6, 0.1, 30.0)
+    picked = ranking.shortlist_of(poses, objectives, 6, 0.1, 30.0)
     assert len(picked) == len(set(picked)) == 6
     assert len({tuple(poses.t[i].tolist()) for i in picked}) >= 3  # best turn at the first place + 2 others
-    assert search.diverse_top(poses, objectives, 6, 0.1, 30.0) == [0, 1, 2, 3, 4, 5]  # without: one place
+    assert ranking.diverse_top(poses, objectives, 6, 0.1, 30.0) == [0, 1, 2, 3, 4, 5]  # without: one place
 
 
 def test_the_answer_is_the_best_restart_that_stays_near_the_target(pairs):
@@ -289,7 +290,7 @@ def test_the_answer_is_the_best_restart_that_stays_near_the_target(pairs):
     target, source = pairs["box on table"]
     pair = scene.prepare_pair(target, source, samples=CONFIG.loss.samples, seed=0)
     q = torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(2, 1)
-    poses = objective.Poses(torch.tensor([[0.0, 30.0, 0.0], [0.0, 0.3, 0.0]]), q, torch.zeros(2))
+    poses = pose.Poses(torch.tensor([[0.0, 30.0, 0.0], [0.0, 0.3, 0.0]]), q, torch.zeros(2))
     clear = objective.clearance(pair, pair.index, poses)
     assert clear[0] > objective.NEAR >= clear[1]
     terms = {"objective": torch.tensor([-1.0, 0.0]), "clip": torch.tensor([-1.0, 0.0]), "icp": torch.zeros(2),
@@ -329,7 +330,7 @@ def test_the_touch_limit_grows_with_the_target_sample_spacing(pairs):
     limits = []
     for samples in (200, 5000):
         pair = scene.prepare_pair(target, source, samples=samples, seed=0)
-        limits.append(float(objective.touch_limit(pair, objective.Poses(t, q, torch.zeros(1)))[0]))
+        limits.append(float(objective.touch_limit(pair, pose.Poses(t, q, torch.zeros(1)))[0]))
         spacing = objective.sample_spacing(pair, samples) / (2 * pair.source_radius)
         assert limits[-1] == pytest.approx(objective.TOUCH + spacing, rel=1e-5)
     assert limits[0] > limits[1] > objective.TOUCH
@@ -393,8 +394,8 @@ def test_random_init_mode_draws_uniform_orientations_without_resting_poses(pairs
     target, source = pairs["box on table"]
     pair = scene.prepare_pair(target, source, samples=CONFIG.loss.samples, seed=0)
     config = CONFIG.model_copy(update={"optim": CONFIG.optim.model_copy(update={"init_rotation": "random"})})
-    monkeypatch.setattr(search, "_stable_poses", lambda *a: pytest.fail("resting poses computed in random mode"))
-    q = search.orientations(pair, config, torch.Generator().manual_seed(0))
+    monkeypatch.setattr(proposals, "_stable_poses", lambda *a: pytest.fail("resting poses computed in random mode"))
+    q = proposals.orientations(pair, config, torch.Generator().manual_seed(0))
     cfg = config.search
     assert q.shape == (cfg.yaw_steps * (2 + cfg.stable_poses), 4)
     torch.testing.assert_close(q.norm(dim=1), torch.ones(len(q)))

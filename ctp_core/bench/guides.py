@@ -3,7 +3,7 @@
 - ``text``: the case prompt (the product's use).
 - ``image``: one picture of the reference arrangement from a random view (image-guided alignment).
 - ``oracle``: per view, the reference arrangement rendered with the same camera
-  (``targets.ReferenceTarget``). The problem then has a known optimum, so pose error measures the
+  (``goals.ReferenceGoal``). The problem then has a known optimum, so pose error measures the
   optimiser with whatever encoder is at hand, random ones included (issue 6).
 - ``pixels``: the oracle without an encoder (``PixelGuide``): per view, the image distance to the reference
   rendered by the same camera. An upper-bound instrument, never a product number: with it a miss is the
@@ -21,7 +21,7 @@ import numpy as np
 import torch
 import trimesh
 
-from ctp_core import render, scene
+from ctp_core import goals, render, scene
 from ctp_core.bench.cases import Case
 from ctp_core.cameras import framing_cameras
 from ctp_core.errors import ConfigError
@@ -40,7 +40,7 @@ class GuideInputs:
     kind: str
     prompt: str
     image: np.ndarray | None = None  # (H, W, 3) uint8
-    guidance: object | None = None  # a ctp_core.targets object
+    goal: goals.Goal | None = None
     description: str = ""
     guide: object | None = None  # replaces the encoder (the pixels guide)
 
@@ -103,8 +103,6 @@ def reference_image(target: trimesh.Trimesh, source: trimesh.Trimesh, reference:
 def guide_inputs(kind: str, case: Case, target: trimesh.Trimesh, source: trimesh.Trimesh,
                  rng: np.random.Generator) -> GuideInputs:
     """Build one guide for a case; ``image`` and ``oracle`` need the case's reference arrangement."""
-    from ctp_core import targets
-
     if kind not in GUIDES:
         raise ConfigError(f"guide must be one of {', '.join(GUIDES)}, got {kind!r}", field="guide")
     if kind == "text":
@@ -116,9 +114,9 @@ def guide_inputs(kind: str, case: Case, target: trimesh.Trimesh, source: trimesh
         image = reference_image(target, source, case.reference, rng)
         return GuideInputs(kind, case.prompt, image=image, description="image: reference arrangement, random view")
     if kind == "pixels":
-        return GuideInputs(kind, case.prompt, guidance=targets.ReferenceTarget(case.reference),
+        return GuideInputs(kind, case.prompt, goal=goals.ReferenceGoal(case.reference),
                            description=PIXELS_LABEL, guide=PixelGuide())
-    return GuideInputs(kind, case.prompt, guidance=targets.ReferenceTarget(case.reference),
+    return GuideInputs(kind, case.prompt, goal=goals.ReferenceGoal(case.reference),
                        description="oracle: reference arrangement rendered per view")
 
 
@@ -127,7 +125,7 @@ class SelectionScore:
 
     Text and image: each view of the candidate (views framing it) against the prompt or picture
     embedding. Oracle and pixels: each view against the reference seen by the same camera (views framing
-    the reference), as ``ReferenceTarget`` does during optimisation.
+    the reference), as ``ReferenceGoal`` does during optimisation.
     """
 
     def __init__(self, inputs: GuideInputs, target: trimesh.Trimesh, source: trimesh.Trimesh, guide: Guide,

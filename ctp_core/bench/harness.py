@@ -185,11 +185,11 @@ def _run_align(method: str, init: np.ndarray, index: int, data: _CaseData, optio
     inputs = data.guide if method == "ctp" and config.loss.lambda_clip > 0 else None
     result = align(data.target, data.source, data.case.prompt, config, init=init,
                    guide=inputs.guide if inputs else None, image=inputs.image if inputs else None,
-                   guidance=inputs.guidance if inputs else None,
+                   goal=inputs.goal if inputs else None,
                    target_name=data.case.target_name, source_name=data.case.source_name)
     return {"source_to_target": result.source_to_target, "time_s": time.perf_counter() - started,
             "clip_images": int(result.clip_images), "timings": result.timings,
-            "extra": {"best_restart": result.best_restart, "guidance": result.guidance,
+            "extra": {"best_restart": result.best_restart, "guidance": result.guided_by,
                       "hparams": result.hparams}}
 
 

@@ -3,7 +3,7 @@
 ``/`` is the page (``service/static/index.html``; its script reads the JSON API like any client),
 ``/static`` its files and the vendored libraries (``service/static/vendor``, each with its licence),
 ``/page/config`` what the page needs to know of this deployment, ``/samples/...`` the built-in example
-pairs (``ctp_core.samples``), ``/docs`` and ``/redoc`` the API docs on the vendored Swagger UI and ReDoc.
+pairs (``ctp_core.examples``), ``/docs`` and ``/redoc`` the API docs on the vendored Swagger UI and ReDoc.
 None of these routes is part of the API contract: they stay out of ``openapi.yaml``.
 """
 
@@ -19,9 +19,9 @@ from fastapi.responses import FileResponse, HTMLResponse
 from fastapi.staticfiles import StaticFiles
 
 from ctp_core.config import AlignConfig
+from ctp_core.examples import EXAMPLES
 from ctp_core.io import SUPPORTED_EXTENSIONS
 from ctp_core.options import AlignOptions
-from ctp_core.samples import SAMPLES
 from service.errors import ApiError
 from service.forms import NAME_MAX, PROMPT_MAX
 
@@ -76,21 +76,21 @@ def page_config(request: Request) -> dict[str, Any]:
         "max_image_bytes": settings.max_image_bytes,
         "samples": [{"name": s.name, "prompt": s.prompt, "target_name": s.target_name,
                      "source_name": s.source_name, "target_file": s.target_file, "source_file": s.source_file}
-                    for s in SAMPLES.values()],
+                    for s in EXAMPLES.values()],
     }
 
 
 @functools.cache
 def _sample_files(name: str) -> dict[str, bytes]:
-    return SAMPLES[name].files()
+    return EXAMPLES[name].files()
 
 
 @router.get("/samples/{name}/{file}")
 def sample_file(name: str, file: str) -> Response:
     """One GLB of a built-in pair, generated once per process."""
-    data = _sample_files(name).get(file) if name in SAMPLES else None
+    data = _sample_files(name).get(file) if name in EXAMPLES else None
     if data is None:
-        raise ApiError(404, "not_found", f"no sample file {name}/{file}; samples: {', '.join(SAMPLES)}")
+        raise ApiError(404, "not_found", f"no sample file {name}/{file}; samples: {', '.join(EXAMPLES)}")
     return Response(data, media_type="model/gltf-binary", headers={"Cache-Control": "max-age=3600"})
 
 

@@ -1,7 +1,7 @@
-"""What the rendered views are compared with: a text, an image, or the reference arrangement.
+"""The goal: what the guide compares the rendered views with: a text, an image, or the reference arrangement.
 
-The optimiser asks a target for embeddings given the step's cameras, so a target may be per view:
-the oracle (``ReferenceTarget``) renders the known arrangement with the same cameras, which gives the
+The optimiser asks a goal for embeddings given the step's cameras, so a goal may be per view:
+the oracle (``ReferenceGoal``) renders the known arrangement with the same cameras, which gives the
 problem a known optimum and lets the benchmark measure the optimiser with any encoder (random
 encoders carry no view-invariant semantics, so per-view matching is the form that works for them).
 """
@@ -19,17 +19,17 @@ from ctp_core.guidance import Guide
 from ctp_core.scene import PreparedPair
 
 
-class GuidanceTarget(Protocol):
+class Goal(Protocol):
     description: str
 
     def prepare(self, pair: PreparedPair, guide: Guide) -> None:
         """Compute whatever is fixed for the run (text/image embedding, reference vertices)."""
 
     def embeddings(self, cameras: Cameras) -> torch.Tensor:
-        """(D,) for a fixed target, or (B, C, D) matching the cameras' batch for a per-view one."""
+        """(D,) for a fixed goal, or (B, C, D) matching the cameras' batch for a per-view one."""
 
 
-class TextTarget:
+class TextGoal:
     def __init__(self, prompt: str):
         self.prompt = prompt
         self.description = f"text: {prompt!r}"
@@ -41,7 +41,7 @@ class TextTarget:
         return self._embedding
 
 
-class ImageTarget:
+class ImageGoal:
     """Image-guided alignment: the embedding of a reference picture replaces the text's."""
 
     def __init__(self, image: np.ndarray):
@@ -55,7 +55,7 @@ class ImageTarget:
         return self._embedding
 
 
-class ReferenceTarget:
+class ReferenceGoal:
     """The oracle: per view, the embedding of the reference arrangement seen by the same camera."""
 
     def __init__(self, source_to_target: np.ndarray):

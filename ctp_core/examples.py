@@ -1,6 +1,6 @@
-"""Small sample pairs made in code: something to try ``ctp align``, the service and the web page on.
+"""Small example pairs made in code: something to try ``ctp align``, the service and the web page on.
 
-Each sample is two coloured meshes generated here (no third-party data, nothing to license), a few kB as
+Each example is two coloured meshes generated here (no third-party data, nothing to license), a few kB as
 GLB, with the prompt and the object names the priors should read. Units are metres, +Y up, each mesh in
 its own file frame with its base at y = 0 (the source sits wherever it was modelled: the engine places it).
 """
@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-__all__ = ["SAMPLES", "Sample", "get_sample", "write_table_setting"]
+__all__ = ["EXAMPLES", "Example", "get_example", "write_table_setting"]
 
 
 def _coloured(mesh: trimesh.Trimesh, rgb: tuple[int, int, int]) -> trimesh.Trimesh:
@@ -80,7 +80,7 @@ def _apple() -> trimesh.Trimesh:
 
 
 @dataclass(frozen=True)
-class Sample:
+class Example:
     """A generated pair: the target stays put, the source is placed by the prompt."""
 
     name: str
@@ -123,18 +123,18 @@ def _glb(mesh: trimesh.Trimesh) -> bytes:
     return trimesh.exchange.gltf.export_glb(trimesh.Scene(mesh))
 
 
-SAMPLES: dict[str, Sample] = {s.name: s for s in (
-    Sample("cup-on-table", "a cup on the table", "table", "cup", _table, _cup),
-    Sample("apple-in-bowl", "an apple in a bowl", "bowl", "apple", _bowl, _apple),
+EXAMPLES: dict[str, Example] = {e.name: e for e in (
+    Example("cup-on-table", "a cup on the table", "table", "cup", _table, _cup),
+    Example("apple-in-bowl", "an apple in a bowl", "bowl", "apple", _bowl, _apple),
 )}
 
 
-def get_sample(name: str) -> Sample:
-    """A sample by name; KeyError lists the known ones."""
+def get_example(name: str) -> Example:
+    """An example by name; KeyError lists the known ones."""
     try:
-        return SAMPLES[name]
+        return EXAMPLES[name]
     except KeyError:
-        raise KeyError(f"unknown sample {name!r}; known: {', '.join(SAMPLES)}") from None
+        raise KeyError(f"unknown example {name!r}; known: {', '.join(EXAMPLES)}") from None
 
 
 TABLE_SETTING_PLAN = """\

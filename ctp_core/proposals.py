@@ -1,33 +1,19 @@
-"""Global search before the optimiser: propose poses in contact, score them forward only, keep a diverse best few.
+"""Where the search's candidates come from: poses that already touch the target, from geometry alone.
 
 The benchmark protocol (and any user's file) starts the source anywhere with any rotation, and local descent
 spends its whole budget getting close. The search instead enumerates poses that already touch the target and
-lets the guide rank them in batches, with no gradient:
+lets the guide rank them in batches, with no gradient (``ranking``).
 
-1. ``propose`` (geometry only): points on the target surface (area-weighted, denser where the surface faces up
-   and along rims), split into regions (``REGIONS``): surfaces facing up, sideways and down, the target's cavity
-   (inside its convex hull, outside the target as the penetration term defines it), lateral gaps, drops (the
-   source lowered from above onto a point's column, every ``summits`` peak first: a spire's tip or a head's top
-   has too little area to be drawn) and the floor (standing where the target stands, under or around it). Each
-   point gets a source orientation from the source's own frames (its upright frame and its flip turned about
-   +Y, its stable resting poses; uniform rotations in the ``random`` init mode), and ``settle`` moves the source
-   until it touches without interpenetrating. The prompt's relation (``ScenePrior``) only *weights* how many
-   proposals each region gets (``region_weights``); every region keeps a share. The caller's start is one more
-   candidate where it is near the target.
-2. ``score``: the objective's terms (``objective.Scorer``) of every candidate, ranked by the guide's term where
-   there is a guide (``ranking_key``: the proposals satisfy the geometry already), forward only under inference mode,
-   ``search.batch`` candidates x views per render and encoder call: first all candidates at a few fixed views
-   framing the target's region (the same cameras for all, so a per-view target is encoded once), then
-   ``search.fine`` of them (``shortlist_of``: the best at distinct places, then the best distinct poses) at
-   more views zoomed toward each candidate's source.
-   Between the two, ``sweep`` tries every source orientation at the best few distinct sites of the coarse stage
-   (a candidate's orientation is one draw of many; a right place with the wrong turn still ranks well).
-   Where the source is small in those views (a cup on a big table), a *tile* stage also scores every proposal in
-   views framed on its tile (a cell of the space around the target, a few source radii wide) by how much it
-   changes the tile's view toward the guide: the guide's term minus that of the same view without the source
-   (views framed on different tiles differ in what they show of the target, so only the change compares).
-3. ``diverse_top``: the best ``optim.restarts`` poses, near-duplicates suppressed (``search.tile_restarts`` of
-   them the tile stage's best); they start the optimiser.
+``propose``: points on the target surface (area-weighted, denser where the surface faces up and along rims),
+split into regions (``REGIONS``): surfaces facing up, sideways and down, the target's cavity (inside its convex
+hull, outside the target as the penetration term defines it), lateral gaps, drops (the source lowered from
+above onto a point's column, every ``summits`` peak first: a spire's tip or a head's top has too little area to
+be drawn) and the floor (standing where the target stands, under or around it). Each point gets a source
+orientation from the source's own frames (its upright frame and its flip turned about +Y, its stable resting
+poses; uniform rotations in the ``random`` init mode), and ``settle`` moves the source until it touches without
+interpenetrating. The prompt's relation (``ScenePrior``) only *weights* how many proposals each region gets
+(``region_weights``); every region keeps a share. The caller's start is one more candidate where it is near the
+target.
 
 Frames: every pose maps the source local frame to the normalised frame (``pose``); points and directions here
 are in the normalised frame.
@@ -36,8 +22,7 @@ are in the normalised frame.
 from __future__ import annotations
 
 import math
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -45,14 +30,10 @@ import trimesh
 from scipy.spatial import Delaunay, QhullError
 
 from ctp_core import losses, sampling
-from ctp_core.cameras import Cameras, orbit
 from ctp_core.config import AlignConfig
-from ctp_core.errors import Canceled
-from ctp_core.objective import NEAR, Poses, Scorer, clearance, sample_spacing
-from ctp_core.pose import matrix_to_quaternion, quaternion_product, quaternion_to_matrix, random_quaternions
-from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
+from ctp_core.objective import NEAR, clearance, sample_spacing
+from ctp_core.pose import Poses, matrix_to_quaternion, quaternion_product, quaternion_to_matrix, random_quaternions
 from ctp_core.scene import PreparedPair
-from ctp_core.schedule import Phase
 
 REGIONS: tuple[str, ...] = ("top", "side", "bottom", "inside", "gap", "drop", "floor")
 # How a proposal comes into contact (``settle``): toward the closest target sample (a surface's outward normal
@@ -60,7 +41,6 @@ REGIONS: tuple[str, ...] = ("top", "side", "bottom", "inside", "gap", "drop", "f
 # the floor where it was put and only leaves the target if it starts inside it).
 APPROACHES: tuple[str, ...] = ("closest", "straight", "none")
 UP_FACING = 0.5  # n_y above: "top"; below minus this: "bottom"; else "side"
-HIDDEN = 1e-6  # tile stage: a smaller change of the guide's term than this is a source its views do not see
 SETTLE_POINTS = 256  # source samples checked for penetration when settling proposals
 APPROACH_POINTS = 64  # source samples used while sliding proposals into contact
 CONTACT_SAMPLES = 6000  # target samples for settling proposals (the losses use ``loss.samples``)
@@ -110,16 +90,6 @@ class Proposals:
     index: losses.TargetIndex | None = None  # the contact samples they were placed with
 
 
-@dataclass
-class Ranked:
-    poses: Poses  # the kept poses, best first
-    objectives: torch.Tensor  # (K,) their ranking key at the stage that kept them (fine; tile: the tile stage's)
-    scored: int  # candidate evaluations (coarse + sweep + tile + fine)
-    swept: int  # candidates of the orientation sweep
-    seconds: float
-    stages: dict[str, tuple[Poses, torch.Tensor]] = field(default_factory=dict)  # per stage: poses, ranking key
-
-
 def region_weights(relation: str | None, source_is_figure: bool = True) -> dict[str, float]:
     """Weight of every region for a relation read from the prompt; at least 1 each (1: no preference)."""
     table = FIGURE_WEIGHTS if source_is_figure else GROUND_WEIGHTS
@@ -141,7 +111,6 @@ def allocate(available: dict[str, int], weights: dict[str, float], total: int, m
     return {r: counts.get(r, 0) for r in available}
 
 
-# -- proposals ------------------------------------------------------------------------------------------------
 def orientations(pair: PreparedPair, config: AlignConfig, generator: torch.Generator) -> torch.Tensor:
     """(R, 4) source orientations, source local -> normalised, from the source's own frames.
 
@@ -412,270 +381,3 @@ def place(pair: PreparedPair, index: losses.TargetIndex, q: torch.Tensor, sites:
                                            on_surface=surface, approach=approach)
     t = t + sites.normal * sites.gap[:, None]
     return Poses(t, q, scale).select(free), free
-
-
-def sweep(proposals: Proposals, pair: PreparedPair, objectives: torch.Tensor, positions: int,
-          distance: float) -> Poses:
-    """Every source orientation at the best ``positions`` distinct sites (by ``objectives``): a coarse
-    candidate's orientation is one draw of many, and a good site with the wrong turn can still rank high."""
-    placed = torch.tensor([region != "init" for region in proposals.region])
-    if positions == 0 or not placed.any():
-        return Poses(torch.zeros(0, 3), torch.zeros(0, 4), torch.zeros(0))
-    candidates = torch.nonzero(placed)[:, 0]
-    poses = proposals.poses.select(candidates)
-    best = diverse_top(poses, objectives[candidates], positions, distance, 180.0)  # distinct places, any turn
-    rotations = proposals.rotations
-    sites = proposals.sites.select(candidates[best].repeat_interleave(len(rotations)))
-    q = rotations.repeat(len(best), 1)
-    swept, _ = place(pair, proposals.index, q, sites, float(poses.log_s[0]))
-    device = pair.source_vertices.device
-    return Poses(swept.t.to(device), swept.q.to(device), swept.log_s.to(device))
-
-
-# -- scoring --------------------------------------------------------------------------------------------------
-def _scene_radius(pair: PreparedPair, log_s: float) -> float:
-    return pair.target_radius + pair.source_radius * math.exp(log_s)
-
-
-def coarse_cameras(pair: PreparedPair, config: AlignConfig, log_s: float, look_at: torch.Tensor | None = None,
-                   radius: float | None = None) -> Cameras:
-    """(K, C) fixed views (K = 1: around the target centre) that frame the target and any source touching it,
-    or, given ``look_at`` (K, 3) and ``radius``, that frame that much around each point (the tile stage).
-
-    They depend on the target and the source's size only (never on a candidate or a reference pose).
-    """
-    cfg, cam = config.search, config.camera
-    views = cfg.coarse_views
-    fov = cam.eval_fov_deg
-    look_at = torch.zeros(1, 3) if look_at is None else look_at.cpu()
-    radius = _scene_radius(pair, log_s) if radius is None else radius
-    distance = radius / math.sin(math.radians(fov) / 2) * 1.05
-    azimuth = torch.arange(views, dtype=torch.float32)[None].expand(len(look_at), -1) * (360.0 / views) + 45.0
-    full = lambda v: torch.full((len(look_at), views), float(v))  # noqa: E731
-    device = pair.source_vertices.device
-    return orbit(look_at, azimuth, full(cam.eval_elevation_deg), full(distance), full(fov),
-                 cfg.coarse_image_size).to(device)
-
-
-def tiles_of(pair: PreparedPair, config: AlignConfig, poses: Poses) -> tuple[torch.Tensor, torch.Tensor, float] | None:
-    """Each pose's tile (N,), the tiles' centres (K, 3) and the radius a tile's views frame, or None where the
-    source is not small in the coarse views (a tile would frame more than half the scene's radius).
-
-    Tiles are the occupied cells of a grid of ``search.tile_radius`` source radii (at least a third of the
-    scene's radius) over the normalised frame; a tile's centre is the mean of its poses' source centres.
-    """
-    cfg = config.search
-    log_s = float(poses.log_s[0])
-    scene = _scene_radius(pair, log_s)
-    cell = max(cfg.tile_radius * pair.source_radius * math.exp(log_s), scene / 3)
-    if cfg.tile_restarts == 0 or cell > scene / 2 or not len(poses):
-        return None
-    keys = torch.floor(poses.t.cpu() / cell).to(torch.long)
-    _, tile = torch.unique(keys, dim=0, return_inverse=True)
-    count = int(tile.max()) + 1
-    centres = torch.zeros(count, 3).index_add_(0, tile, poses.t.cpu()) / torch.bincount(tile)[:, None]
-    # a source centred anywhere in its cell lies within the cell's half-diagonal plus its own radius of the centre
-    return tile, centres, cell * (math.sqrt(3) / 2) + pair.source_radius * math.exp(log_s)
-
-
-def tile_score(scorer: Scorer, poses: Poses, weights: Phase, tiles: tuple[torch.Tensor, torch.Tensor, float], *,
-               batch: int, progress=lambda scored: None, should_cancel: CancelCheck | None = None) -> torch.Tensor:
-    """(N,) each pose's ranking key in the coarse views of its tile (``tiles``: ``tiles_of`` of ``poses``) minus
-    that of the same views without the source (lower: the source moves the view toward the guide).
-
-    Views framed on different tiles show different parts of the target, so only the change a source makes to
-    its own tile's views compares across tiles. The empty view is the scene with a point-sized source. A pose
-    that changes nothing (its source hidden from the tile's views, e.g. under a table top) cannot be judged there:
-    its key is inf (the coarse stage still ranks it), not the 0 that would rank it above every visible source.
-    """
-    tile, centres, radius = tiles
-    cameras = coarse_cameras(scorer.pair, scorer.config, float(poses.log_s[0]), centres, radius)
-    out = torch.zeros(len(poses))
-    done = 0
-    for k in range(len(centres)):
-        members = torch.nonzero(tile == k)[:, 0]
-        cams = cameras.rows(k, k + 1)
-        targets = shared_targets(scorer, cams)
-        empty = Poses(centres[k : k + 1].to(poses.t), poses.q[:1], torch.full_like(poses.log_s[:1], -30.0))
-        base = score(scorer, empty, weights, cams, batch=1, targets=targets)
-        change = score(scorer, poses.select(members), weights, cams, batch=batch, targets=targets,
-                       should_cancel=should_cancel).cpu() - base.cpu()
-        out[members] = torch.where(change.abs() > HIDDEN, change, torch.full_like(change, torch.inf))
-        done += len(members)
-        progress(done)
-    return out
-
-
-def fine_cameras(pair: PreparedPair, config: AlignConfig, poses: Poses) -> Cameras:
-    """(B, C) views per candidate: the look-at moves ``fine_zoom`` of the way to its source's centre and the
-    framed radius shrinks toward the source's (but frames at least twice the source). With no zoom, (1, C)
-    views shared by every candidate (the same scales: a per-view target is encoded once)."""
-    cfg, cam = config.search, config.camera
-    views, beta = cfg.fine_views, cfg.fine_zoom
-    if beta == 0 and bool((poses.log_s == poses.log_s[0]).all()):
-        poses = poses.select(slice(0, 1))
-    source_radius = pair.source_radius * poses.log_s.exp()
-    scene_radius = pair.target_radius + source_radius
-    radius = torch.maximum(scene_radius * (1 - beta), 2 * source_radius)
-    fov = cam.eval_fov_deg
-    distance = (radius / math.sin(math.radians(fov) / 2) * 1.05)[:, None].expand(-1, views)
-    look_at = beta * poses.t
-    azimuth = (torch.arange(views, dtype=torch.float32) * (360.0 / views) + 15.0).expand(len(poses), -1)
-    elevation = torch.tensor([cam.eval_elevation_deg + (10.0 if i % 2 else -10.0) for i in range(views)])
-    full = lambda v: torch.full((len(poses), views), float(v))  # noqa: E731
-    return orbit(look_at.cpu(), azimuth, elevation.expand(len(poses), -1), distance.cpu(), full(fov),
-                 cfg.fine_image_size).to(pair.source_vertices.device)
-
-
-def shared_targets(scorer: Scorer, cameras: Cameras) -> torch.Tensor | None:
-    """The guidance target for (1, C) cameras shared by every candidate (a per-view target encodes them once)."""
-    if not scorer.use_clip:
-        return None
-    with torch.inference_mode():
-        targets = scorer.target_embeddings(cameras)
-    return targets.clone()
-
-
-def score(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, batch: int,
-          targets: torch.Tensor | None = None, progress=lambda scored: None,
-          should_cancel: CancelCheck | None = None) -> torch.Tensor:
-    """(N,) objectives of ``poses`` on ``cameras`` ((1, C) shared or (N, C)), ``batch`` poses per call, forward
-    only; ``progress(scored)`` after each batch, cancel checked before each. ``targets``: ``shared_targets`` of
-    shared cameras, when already computed."""
-    shared = cameras.fov_deg.shape[0] == 1
-    if shared and targets is None and scorer.use_clip:
-        targets = shared_targets(scorer, cameras)
-    out = []
-    for lo in range(0, len(poses), batch):
-        if should_cancel is not None and should_cancel():
-            raise Canceled("the run was cancelled")
-        chunk = poses.select(slice(lo, lo + batch))
-        cams = cameras if shared else cameras.rows(lo, lo + batch)
-        out.append(ranking_key(scorer, scorer.score(chunk, weights, cams, targets), weights))
-        progress(lo + len(chunk))
-    return torch.cat(out)
-
-
-
-
-def diverse_top(poses: Poses, objectives: torch.Tensor, k: int, distance: float, angle_deg: float) -> list[int]:
-    """Indices of the ``k`` best poses (lowest objective), skipping any within ``distance`` (normalised units) and
-    ``angle_deg`` of one already kept; duplicates fill in only when too few distinct poses exist."""
-    order = torch.argsort(objectives).tolist()
-    q = torch.nn.functional.normalize(poses.q, dim=-1)
-    kept: list[int] = []
-    for i in order:
-        if len(kept) == k:
-            break
-        if kept:
-            near = (poses.t[kept] - poses.t[i]).norm(dim=-1) < distance
-            dot = (q[kept] @ q[i]).abs().clamp(max=1.0)
-            close = torch.rad2deg(2 * torch.acos(dot)) < angle_deg
-            if bool((near & close).any()):
-                continue
-        kept.append(i)
-    kept += [i for i in order if i not in kept][: k - len(kept)]
-    return kept
-
-
-def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
-           on_event: ProgressCallback | None = None, should_cancel: CancelCheck | None = None,
-           phases: int = 1, started: float | None = None) -> Ranked:
-    """Coarse then fine scoring of ``proposals`` and the diverse best ``k`` (see module docstring).
-
-    Events: kind ``step`` with stage ``search``, step/steps = candidate evaluations done / planned.
-    """
-    config, pair = scorer.config, scorer.pair
-    cfg = config.search
-    began = time.perf_counter()
-    started = began if started is None else started
-    poses = proposals.poses
-    log_s = float(poses.log_s[0])
-    fine_count = min(cfg.fine, len(poses))
-    sweep_count = cfg.sweep * (len(proposals.rotations) if proposals.rotations is not None else 0)
-    tiles = tiles_of(pair, config, poses) if scorer.use_clip else None  # no guide: nothing to tell tiles apart
-    tiled_count = len(poses) if tiles is not None else 0
-    total = len(poses) + sweep_count + tiled_count + fine_count
-
-    def emit(done: int, best: float | None = None) -> None:
-        if on_event:
-            elapsed = time.perf_counter() - started
-            on_event(ProgressEvent(kind="step", phase=0, phases=phases, step=done, steps=total, restarts=k,
-                                   elapsed_s=elapsed, eta_s=None, best_objective=best, stage="search",
-                                   message=f"search: {done}/{total} candidates scored"))
-
-    emit(0)
-    with scorer.clock.time("search"):
-        cameras = coarse_cameras(pair, config, log_s)
-        targets = shared_targets(scorer, cameras)
-        distinct = _distinct(pair, config, log_s)
-        coarse = score(scorer, poses, weights, cameras, batch=cfg.batch, targets=targets, progress=emit,
-                       should_cancel=should_cancel)
-        swept = sweep(proposals, pair, coarse, cfg.sweep, distinct[0]) if sweep_count else None
-        if swept is not None and len(swept):
-            extra = score(scorer, swept, weights, cameras, batch=cfg.batch, targets=targets,
-                          should_cancel=should_cancel, progress=lambda n: emit(len(poses) + n))
-            poses, coarse = Poses.cat([poses, swept]), torch.cat([coarse, extra])
-        proposed = proposals.poses
-        tiled = None if tiles is None else tile_score(
-            scorer, proposed, weights, tiles, batch=cfg.batch, should_cancel=should_cancel,
-            progress=lambda n: emit(total - fine_count - tiled_count + n))
-        emit(total - fine_count)
-        shortlist = shortlist_of(poses, coarse, fine_count, *distinct)
-        fine_poses = poses.select(shortlist)
-        fine = score(scorer, fine_poses, weights, fine_cameras(pair, config, fine_poses), batch=cfg.batch,
-                     progress=lambda n: emit(total - fine_count + n), should_cancel=should_cancel)
-        # the fine views see each candidate closer; the coarse ones see all in the same frame: rank by both
-        ranked = 0.5 * (fine + coarse[shortlist])
-        best = diverse_top(fine_poses, ranked, k, *distinct)
-        kept, objectives = fine_poses.select(best), ranked[best]
-        stages = {"coarse": (poses, coarse), "fine": (fine_poses, ranked)}
-        if tiled is not None:
-            picks = diverse_top(proposed, tiled, k, *distinct)
-            kept, objectives = merge(kept, objectives, proposed.select(picks), tiled[picks], cfg.tile_restarts,
-                                     distinct)
-            stages["tiles"] = (proposed, tiled)
-    emit(total, float(objectives[0]))
-    return Ranked(kept, objectives, len(poses) + len(fine_poses) + (0 if tiled is None else len(tiled)),
-                  0 if swept is None else len(swept), time.perf_counter() - began, stages)
-
-
-def merge(first: Poses, first_keys: torch.Tensor, second: Poses, second_keys: torch.Tensor, m: int,
-          distinct: tuple[float, float]) -> tuple[Poses, torch.Tensor]:
-    """All of ``first``, then up to ``m`` of ``second`` (best first) that are no near-duplicate of a kept pose
-    (``diverse_top``'s test); each with its own stage's key."""
-    both = Poses.cat([first, second])
-    keys = torch.cat([first_keys.cpu(), second_keys.cpu()])
-    order = torch.arange(len(both), dtype=torch.float32)
-    finite = torch.cat([torch.ones(len(first), dtype=torch.bool), torch.isfinite(second_keys.cpu())])
-    order[~finite] = torch.inf  # a tile key of inf: not judged there
-    keep = [i for i in diverse_top(both, order, len(first) + m, *distinct) if finite[i]]
-    return both.select(keep[: len(first) + m]), keys[keep[: len(first) + m]]
-
-
-def shortlist_of(poses: Poses, objectives: torch.Tensor, k: int, distance: float, angle_deg: float) -> list[int]:
-    """The fine stage's ``k`` candidates: the best at each of the ``k // 2`` best distinct places (any turn), then
-    the best distinct poses. The sweep puts every orientation at its sites, and those rank together: without
-    the first half they would fill the shortlist with two places."""
-    places = diverse_top(poses, objectives, k // 2, distance, 180.0)
-    rest = [i for i in diverse_top(poses, objectives, k, distance, angle_deg) if i not in places]
-    return places + rest[: k - len(places)]
-
-
-def ranking_key(scorer: Scorer, terms: dict[str, torch.Tensor], weights: Phase) -> torch.Tensor:
-    """What the search ranks its candidates by (lower is better): the guide's term alone when there is a guide,
-    else the objective (geometry only).
-
-    The proposals touch without interpenetrating by construction, so among them the geometric terms measure
-    how the target's samples happen to fall (soft-ICP at contact is about sigma² and varies with sample density),
-    not contact: on pb3d-blender with the oracle and random:ViT-B-32, the soft-ICP's spread over touching
-    candidates was ~0.01 against the guide's ~1e-4, so any weighted sum ranked as geometry alone did. The
-    refinement and the final selection use the whole objective.
-    """
-    return terms["clip"] if scorer.use_clip else terms["objective"]
-
-
-def _distinct(pair: PreparedPair, config: AlignConfig, log_s: float) -> tuple[float, float]:
-    src = pair.source_samples
-    diagonal = float((src.max(0).values - src.min(0).values).norm()) * math.exp(log_s)
-    return config.search.distinct_translation * diagonal, config.search.distinct_rotation_deg
