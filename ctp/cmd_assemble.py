@@ -93,8 +93,8 @@ def read_plan(path: Path, config):
     ConfigError naming the key."""
     import yaml
 
-    from ctp_core.assemble import stage_options
     from ctp_core.loader import MeshLoader
+    from ctp_core.plan import stage_options
 
     try:
         plan = yaml.safe_load(path.read_text())
@@ -117,7 +117,8 @@ def read_plan(path: Path, config):
 
 def _step(entry: Any, folder: Path, config, i: int, loader):
     from ctp_core import io
-    from ctp_core.assemble import Step, plan_step
+    from ctp_core.assemble import Step
+    from ctp_core.plan import plan_step
 
     where = f"steps.{i}"
     step = plan_step(_from_yaml(entry), where, assembly_options=_ASSEMBLY_FLAGS)

@@ -15,11 +15,12 @@ from scipy.spatial.distance import pdist
 
 from ctp.cli import main
 from ctp_core import frames
-from ctp_core.assemble import PlanError, PlanStep, Step, assemble, plan_step
+from ctp_core.assemble import Step, assemble
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.export import assembly_glb, assembly_report
 from ctp_core.io import load_objects
+from ctp_core.plan import PlanError, PlanStep, plan_step
 from ctp_core.scene import objects
 
 TOUCH_M = 0.01  # a gap under 1 cm (the scene is 1.2 m wide) is contact for these soft terms

@@ -8,10 +8,10 @@ from dataclasses import dataclass
 from fastapi import APIRouter, Depends, Request
 from fastapi.concurrency import run_in_threadpool
 
-from ctp_core.assemble import PlanError, PlanStep, check_plan, plan_step
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError, CtpError
 from ctp_core.io import load_objects
+from ctp_core.plan import PlanError, PlanStep, check_plan, plan_step
 from service import forms
 from service.deps import enqueue, own_job, owner
 from service.errors import ApiError, documented
