@@ -179,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
                "translation": [round(v, 6) for v in result.translation.tolist()],
                "seconds": round(time.perf_counter() - started, 2), "preset": config.preset,
                "model": result.model, "runtime": result.runtime,
-               "hparams": result.hparams.get("source"),
-               "names": {"target": result.hparams["target_name"], "source": result.hparams["source_name"]}}
+               "hparams": result.priors.get("provider"),
+               "names": {"target": result.priors["target_name"], "source": result.priors["source_name"]}}
     print(json.dumps(summary))
     return 0

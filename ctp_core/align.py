@@ -36,7 +36,7 @@ class AlignResult:
     source: trimesh.Trimesh  # source file frame (apply source_to_target to place it)
     prompt: str | None
     config: AlignConfig
-    hparams: dict[str, Any]
+    priors: dict[str, Any]  # ScenePrior.to_dict() and the names the priors read (the report's ``hparams``)
     restarts: list[dict[str, Any]]
     timings: dict[str, float]
     preview: np.ndarray | None = None  # (V, H, W, 3) uint8 views of the final scene
@@ -202,7 +202,7 @@ def result(run: Run, outcome, prompt: str | None, *, on_event: ProgressCallback 
     answer = AlignResult(
         source_to_target=answers[best], objective=float(outcome.objectives[best]),
         target=pair.target, source=pair.source, prompt=prompt, config=config,
-        hparams={**run.prior.to_dict(), "target_name": run.names.get("target"),  # the names the priors read
+        priors={**run.prior.to_dict(), "target_name": run.names.get("target"),  # the names the priors read
                  "source_name": run.names.get("source")},
         restarts=restarts, timings=timings, preview=preview, best_restart=best, on=run.names.get("on"),
         guidance=guidance.description if guidance is not None else "none (geometry only)",

@@ -82,7 +82,7 @@ def option_overrides(options: dict[str, Any], where: str = "options") -> dict[st
         raise ConfigError(f"{name}: {err['msg']}", field=f"{where}.{name}") from None
     given = parsed.model_dump(exclude_none=True)
     if given.get("hparams_provider", PROVIDERS[0]) not in PROVIDERS:
-        raise ConfigError(f"unknown hparams provider {given['hparams_provider']!r}; choose one of "
+        raise ConfigError(f"unknown priors provider {given['hparams_provider']!r}; choose one of "
                           f"{', '.join(PROVIDERS)}", field=f"{where}.hparams_provider")
     overrides: dict[str, Any] = {}
     for name, value in given.items():

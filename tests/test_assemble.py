@@ -123,7 +123,7 @@ def test_plan_errors_name_the_step(meshes):
     assert err.value.field == "steps.0.on"
     with pytest.raises(ConfigError, match="already used"):
         assemble(meshes["table"], [Step(meshes["cup"], "table", "x")], config, base_name="table")
-    with pytest.raises(ConfigError, match="stage 1/1 \\(cup\\): unknown hparams provider") as err:
+    with pytest.raises(ConfigError, match="stage 1/1 \\(cup\\): unknown priors provider") as err:
         assemble(meshes["table"], [Step(meshes["cup"], "cup", "x", config=config.merged(
             {"hparams_provider": "no-such-provider"}))], config, base_name="table")
     assert err.value.field == "steps.0.hparams_provider"

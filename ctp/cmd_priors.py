@@ -1,4 +1,5 @@
-"""``ctp hparams``: print the scene priors for a (target, source, prompt) triple as JSON.
+"""``ctp priors`` (``ctp hparams``, its deprecated alias): print the scene priors for a (target, source,
+prompt) triple as JSON (the report's ``hparams`` entry, without the names).
 
 What ``ctp align`` would use, without loading a mesh or a model: handy to check a prompt's reading
 before a long run, or to test an LLM endpoint (``--provider openai`` with CTP_LLM_* set).
@@ -48,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
         target_extent=_number(args.target_extent, "target-extent"),
         source_extent=_number(args.source_extent, "source-extent"),
     )
-    print(json.dumps(prior.to_dict(), indent=2))
+    print(json.dumps(priors.to_report(prior.to_dict()), indent=2))
     return 0
 
 
