@@ -28,8 +28,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     guide.add_argument("--prompt", metavar="TEXT", help="text describing the arrangement")
     guide.add_argument("--image", type=Path, metavar="REF.png", help="reference picture (PNG/JPEG) instead of a prompt")
     add_run_arguments(parser)
-    parser.add_argument("--target-name", metavar="NAME", help="object name for the priors (default: file stem)")
-    parser.add_argument("--source-name", metavar="NAME", help="object name for the priors (default: file stem)")
+    parser.add_argument("--target-name", metavar="NAME",
+                        help="object name for the priors (default: from the file name)")
+    parser.add_argument("--source-name", metavar="NAME",
+                        help="object name for the priors (default: from the file name)")
     parser.add_argument("--judge-up", action="store_true",
                         help="let the guidance model pick the target's up from renders named --target-name "
                         "(needs real weights)")
@@ -171,8 +173,8 @@ def run(args: argparse.Namespace) -> int:
     image = io.load_image(args.image) if args.image else None
     started = time.perf_counter()
     result = align(target, source, args.prompt, config, image=image,
-                   target_name=args.target_name or args.target.stem,
-                   source_name=args.source_name or args.source.stem,
+                   target_name=args.target_name or io.default_name(args.target.name, "target"),
+                   source_name=args.source_name or io.default_name(args.source.name, "source"),
                    on_event=ProgressBar(enabled=not args.quiet))
     export.write_outputs(result, glb=args.out, report_path=args.report, preview=args.preview)
     summary = {"out": str(args.out), "objective": round(result.objective, 6), "scale": round(result.scale, 6),

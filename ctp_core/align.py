@@ -16,7 +16,7 @@ import torch
 import trimesh
 
 from ctp_core import frames, priors
-from ctp_core.config import AlignConfig
+from ctp_core.config import PENETRATION, AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 
@@ -101,7 +101,7 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
     prior = priors.resolve_priors(
         priors.get_provider(config.hparams_provider), target_name, source_name, prompt or "",
         size_ratio=config.size_ratio, contact_ratio=config.contact_ratio,
-        penetration={"auto": None, "allow": True, "forbid": False}[config.penetration],
+        penetration=PENETRATION[config.penetration],
         target_extent=float(scene.attachment(target, on).extents.max()), source_extent=float(source.extents.max()),
     )
     judge = None

@@ -19,11 +19,11 @@ from fastapi.responses import FileResponse, HTMLResponse
 from fastapi.staticfiles import StaticFiles
 
 from ctp_core.config import AlignConfig
-from ctp_core.io import SUPPORTED_EXTENSIONS
+from ctp_core.io import NAME_MAX, SUPPORTED_EXTENSIONS
 from ctp_core.options import AlignOptions
 from ctp_core.samples import SAMPLES
 from service.errors import ApiError
-from service.forms import NAME_MAX, PROMPT_MAX
+from service.forms import PROMPT_MAX
 
 STATIC_DIR = Path(__file__).resolve().parents[1] / "static"
 VENDOR = "static/vendor"
