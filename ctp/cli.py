@@ -21,11 +21,13 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "align": ("ctp.cmd_align", "place SOURCE relative to TARGET from a text prompt (in-process)"),
     "example": ("ctp.cmd_example", "write a generated sample pair (target and source GLB) to try ctp on"),
     "assemble": ("ctp.cmd_assemble", "build a scene one object at a time: BASE --add SOURCE PROMPT ... or --plan"),
-    "hparams": ("ctp.cmd_hparams", "print the scene priors (size ratio, penetration, contact ratio)"),
+    "priors": ("ctp.cmd_priors", "print the scene priors (size ratio, penetration, contact ratio)"),
     "bench": ("ctp.cmd_bench", "run the evaluation harness over benchmark cases"),
     "serve": ("ctp.cmd_serve", "start the HTTP API (embedded Redis + worker when REDIS_URL is unset)"),
     "worker": ("ctp.cmd_serve", "run a queue worker against REDIS_URL"),
 }
+# A command's deprecated spellings -> the command: still accepted and listed by ``ctp --help``, not in the synopsis.
+ALIASES: dict[str, str] = {"hparams": "priors"}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -35,7 +37,9 @@ def main(argv: list[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (_, help_text) in COMMANDS.items():
         sub.add_parser(name, help=help_text, add_help=False)
-    if not argv or argv[0] in ("-h", "--help") or argv[0] not in COMMANDS:
+        for alias in (a for a, command in ALIASES.items() if command == name):
+            sub.add_parser(alias, help=f"deprecated alias of {name}", add_help=False)
+    if not argv or argv[0] in ("-h", "--help") or argv[0] not in (*COMMANDS, *ALIASES):
         if argv and argv[0] not in ("-h", "--help"):
             parser.print_usage(sys.stderr)
             print(f"ctp: error: unknown command {argv[0]!r}", file=sys.stderr)
@@ -70,10 +74,14 @@ class _Parser(argparse.ArgumentParser):
 
 
 def command_parser(name: str, width: int | None = None) -> tuple[object, argparse.ArgumentParser]:
-    """The sub-command's module and its argument parser (``width``: a fixed usage width)."""
-    module = importlib.import_module(COMMANDS[name][0])
+    """The sub-command's module and its argument parser (``width``: a fixed usage width); ``name`` may be an alias."""
+    command = ALIASES.get(name, name)
+    module_name, description = COMMANDS[command]
+    module = importlib.import_module(module_name)
+    if command != name:
+        description = f"deprecated alias of {command}: {description}"
     formatter = argparse.HelpFormatter if width is None else (lambda prog: argparse.HelpFormatter(prog, width=width))
-    parser = _Parser(prog=f"ctp {name}", description=COMMANDS[name][1], formatter_class=formatter)
+    parser = _Parser(prog=f"ctp {name}", description=description, formatter_class=formatter)
     module.add_arguments(parser, name) if _takes_name(module) else module.add_arguments(parser)
     return module, parser
 

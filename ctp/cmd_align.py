@@ -14,10 +14,12 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import get_args
+from types import UnionType
+from typing import Any, Literal, Union, get_args, get_origin
 
-from ctp_core.config import Penetration, Runtime
+from ctp_core.config import Runtime
 from ctp_core.errors import ConfigError, ImageError, MeshError
+from ctp_core.priors import PROVIDERS
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -28,75 +30,81 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     guide.add_argument("--prompt", metavar="TEXT", help="text describing the arrangement")
     guide.add_argument("--image", type=Path, metavar="REF.png", help="reference picture (PNG/JPEG) instead of a prompt")
     add_run_arguments(parser)
-    parser.add_argument("--target-name", metavar="NAME", help="object name for the priors (default: file stem)")
-    parser.add_argument("--source-name", metavar="NAME", help="object name for the priors (default: file stem)")
-    parser.add_argument("--judge-up", action="store_true",
-                        help="let the guidance model pick the target's up from renders named --target-name "
-                        "(needs real weights)")
+    parser.add_argument("--target-name", metavar="NAME",
+                        help="object name for the priors (default: from the file name)")
+    parser.add_argument("--source-name", metavar="NAME",
+                        help="object name for the priors (default: from the file name)")
+    add_switch(parser, "--judge-up", "upright_judge", True,
+               "let the guidance model pick the target's up from renders named --target-name (needs real weights)")
 
 
 def add_run_arguments(parser: argparse.ArgumentParser) -> None:
-    """Outputs and run options shared by ``ctp align`` and ``ctp assemble``."""
+    """Outputs and run options shared by ``ctp align`` and ``ctp assemble``.
+
+    A run option's flag is ``--<option>`` (``options.OPTION_PATHS``) or a switch setting it, with its type or
+    choices from the ``AlignConfig`` field behind it; ``config_from_args`` nests the values the same way.
+    """
     parser.add_argument("--out", type=Path, default=Path("scene.glb"), metavar="scene.glb",
                         help="output GLB (default scene.glb)")
     parser.add_argument("--report", type=Path, metavar="report.json", help="write the JSON report here")
     parser.add_argument("--preview", type=Path, metavar="preview.png", help="write a 4-view preview PNG here")
-    parser.add_argument("--preset", default="default", metavar="NAME",
-                        help="default (search, then a short refinement) | descent | paper | test")
-    parser.add_argument("--model", metavar="SPEC",
-                        help="guidance model: hf:REPO_OR_PATH, open_clip:ARCH:TAG, random:ARCH")
-    parser.add_argument("--scale", action="store_true", help="optimise isotropic scale too")
-    parser.add_argument("--restarts", type=int, metavar="N")
-    parser.add_argument("--steps", type=int, metavar="N", help="total steps per restart over all phases")
-    parser.add_argument("--candidates", type=int, metavar="N", help="poses the search scores (default: the preset's)")
-    parser.add_argument("--no-search", action="store_true",
-                        help="no search: the optimiser starts from random poses (as the descent preset)")
-    parser.add_argument("--seed", type=int, metavar="N")
+    add_option(parser, "preset", "NAME", "default (search, then a short refinement) | descent | paper | test",
+               default="default")
+    add_option(parser, "model", "SPEC", "guidance model: hf:REPO_OR_PATH, open_clip:ARCH:TAG, random:ARCH")
+    add_switch(parser, "--scale", "scale", True, "optimise isotropic scale too")
+    add_option(parser, "restarts", "N")
+    add_option(parser, "steps", "N", "total steps per restart over all phases")
+    add_option(parser, "candidates", "N", "poses the search scores (default: the preset's)")
+    add_switch(parser, "--no-search", "search", False,
+               "no search: the optimiser starts from random poses (as the descent preset)")
+    add_option(parser, "seed", "N")
     parser.add_argument("--device", choices=["cpu", "cuda"])
     parser.add_argument("--threads", type=int, metavar="N", help="torch CPU threads (and ONNX Runtime's)")
     parser.add_argument("--runtime", choices=get_args(Runtime),
                         help="where forward-only encoding runs (selection, judge): ONNX Runtime fp32 or int8, "
                         "torch, or auto (default; README)")
-    parser.add_argument("--contact-ratio", type=float, metavar="R", help="soft-ICP ratio r in [0, 1] (default: prior)")
-    parser.add_argument("--penetration", choices=get_args(Penetration))
-    parser.add_argument("--size-ratio", type=float, metavar="S", help="source/target size in [0.01, 100] (scale mode)")
-    parser.add_argument("--hparams-provider", metavar="NAME", help="rules | openai (default rules)")
+    add_option(parser, "contact_ratio", "R", "soft-ICP ratio r in [0, 1] (default: prior)")
+    add_option(parser, "penetration")
+    add_option(parser, "size_ratio", "S", "source/target size in [0.01, 100] (scale mode)")
+    add_option(parser, "hparams_provider", "NAME", f"{' | '.join(PROVIDERS)} (default {PROVIDERS[0]})")
     parser.add_argument("--selection-only", action="store_true",
                         help="reference-code behaviour: text picks the best pose but gives no gradient")
-    parser.add_argument("--no-guidance", action="store_true", help="geometry only (lambda_clip = 0)")
-    parser.add_argument("--keep-up", action="store_true",
-                        help="keep the target file's +Y as up (no automatic upright turn of the target)")
+    add_switch(parser, "--no-guidance", "lambda_clip", 0.0, "geometry only (lambda_clip = 0)")
+    add_switch(parser, "--keep-up", "upright", False,
+               "keep the target file's +Y as up (no automatic upright turn of the target)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def add_option(parser: argparse.ArgumentParser, name: str, metavar: str | None = None, help: str | None = None,
+               default: Any = None) -> None:
+    """``--<name>`` for the run option ``name``: an int, a float, a string, or one of a Literal's choices."""
+    from ctp_core.options import config_field
+
+    kind = config_field(name).annotation
+    if get_origin(kind) in (Union, UnionType):  # optional: X | None
+        kind = next(a for a in get_args(kind) if a is not type(None))
+    typed = ({"choices": get_args(kind)} if get_origin(kind) is Literal else
+             {"type": kind} if kind in (int, float) else {})
+    parser.add_argument(f"--{name.replace('_', '-')}", dest=name, metavar=metavar, help=help, default=default, **typed)
+
+
+def add_switch(parser: argparse.ArgumentParser, flag: str, name: str, value: Any, help: str) -> None:
+    """A flag without a value that sets the run option ``name`` to ``value``."""
+    parser.add_argument(flag, dest=name, action="store_const", const=value, help=help)
 
 
 def config_from_args(args: argparse.Namespace):
     """Preset + the flags the user gave (unset flags leave the preset's values)."""
     from ctp_core.config import AlignConfig
+    from ctp_core.options import OPTION_PATHS, nest
 
-    top = {"model": args.model, "scale": args.scale or None, "seed": args.seed, "device": args.device,
-           "threads": args.threads, "runtime": args.runtime, "contact_ratio": args.contact_ratio,
-           "penetration": args.penetration,
-           "size_ratio": args.size_ratio, "hparams_provider": args.hparams_provider}
-    overrides = {k: v for k, v in top.items() if v is not None}
-    if args.keep_up:
-        overrides["upright"] = False
-    if getattr(args, "judge_up", False):
-        overrides["upright_judge"] = True
-    optim = {k: v for k, v in {"restarts": args.restarts, "steps": args.steps}.items() if v is not None}
-    loss = {}
+    given = {name: getattr(args, name) for name in OPTION_PATHS if getattr(args, name, None) is not None}
+    overrides = nest({name: value for name, value in given.items() if name != "preset"})
+    overrides.update({k: v for k, v in {"device": args.device, "threads": args.threads, "runtime": args.runtime}.items()
+                      if v is not None})
     if args.selection_only:
-        loss["selection_only"] = True
-    if args.no_guidance:
-        loss["lambda_clip"] = 0.0
-    if optim:
-        overrides["optim"] = optim
-    search = {k: v for k, v in {"candidates": args.candidates, "enabled": False if args.no_search else None}.items()
-              if v is not None}
-    if search:
-        overrides["search"] = search
-    if loss:
-        overrides["loss"] = loss
-    return AlignConfig.from_preset(args.preset, **overrides)
+        overrides.setdefault("loss", {})["selection_only"] = True
+    return AlignConfig.from_preset(given["preset"], **overrides)
 
 
 class ProgressBar:
@@ -157,7 +165,7 @@ def check_inputs(args: argparse.Namespace) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if not args.prompt and not args.image and not args.no_guidance:
+    if not args.prompt and not args.image and args.lambda_clip is None:  # --no-guidance not given
         raise ConfigError("give --prompt TEXT or --image REF.png (or --no-guidance)", field="prompt")
     check_inputs(args)
     config = config_from_args(args)
@@ -171,15 +179,15 @@ def run(args: argparse.Namespace) -> int:
     image = io.load_image(args.image) if args.image else None
     started = time.perf_counter()
     result = align(target, source, args.prompt, config, image=image,
-                   target_name=args.target_name or args.target.stem,
-                   source_name=args.source_name or args.source.stem,
+                   target_name=args.target_name or io.default_name(args.target.name, "target"),
+                   source_name=args.source_name or io.default_name(args.source.name, "source"),
                    on_event=ProgressBar(enabled=not args.quiet))
     export.write_outputs(result, glb=args.out, report_path=args.report, preview=args.preview)
     summary = {"out": str(args.out), "objective": round(result.objective, 6), "scale": round(result.scale, 6),
                "translation": [round(v, 6) for v in result.translation.tolist()],
                "seconds": round(time.perf_counter() - started, 2), "preset": config.preset,
                "model": result.model, "runtime": result.runtime,
-               "hparams": result.hparams.get("source"),
-               "names": {"target": result.hparams["target_name"], "source": result.hparams["source_name"]}}
+               "hparams": result.priors.get("provider"),
+               "names": {"target": result.priors["target_name"], "source": result.priors["source_name"]}}
     print(json.dumps(summary))
     return 0

@@ -3,17 +3,18 @@
     ctp assemble BASE --add SOURCE "PROMPT" [--add SOURCE "PROMPT" ...]
     ctp assemble --plan plan.yaml
 
-Each ``--add`` places one object relative to the one added before it (names are the file stems). A
+Each ``--add`` places one object relative to the one added before it (names come from the file names:
+``coffee_cup.glb`` is "coffee cup"). A
 plan file says more (paths are relative to the plan file)::
 
     base: table.glb              # the object that stays put; its file frame is the scene frame
-    name: table                  # optional; default the file stem
+    name: table                  # optional; default from the file name
     options: {seed: 1}           # optional: run options for every stage (the API's option names,
                                  # over the command's flags; preset and model come from --preset, --model)
     steps:
       - file: plate.glb
         prompt: a plate on the table
-        name: plate              # optional; default the file stem; names must be unique
+        name: plate              # optional; default from the file name; names must be unique
         on: table                # optional: the placed object it relates to; default the last placed
       - file: cup.glb
         image: cup_on_plate.png  # a reference picture instead of a prompt
@@ -51,7 +52,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ctp_core import export
+    from ctp_core import export, io
     from ctp_core.assemble import assemble
     from ctp_core.loader import MeshLoader
 
@@ -64,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
         if args.base is None or not args.add:
             raise ConfigError("give BASE and at least one --add SOURCE PROMPT (or --plan plan.yaml)", field="add")
         with MeshLoader(1) as loader:  # the same bounded loading as ctp align and the service
-            base, base_name = loader.load(args.base, name="base"), args.base.stem
+            base, base_name = loader.load(args.base, name="base"), io.default_name(args.base.name, "base")
             steps = [_step({"file": str(path), "prompt": prompt}, Path.cwd(), config, i, loader)
                      for i, (path, prompt) in enumerate(args.add)]
     bar = ProgressBar(sys.stderr, enabled=not args.quiet)
@@ -93,8 +94,9 @@ def read_plan(path: Path, config):
     ConfigError naming the key."""
     import yaml
 
-    from ctp_core.assemble import stage_options
+    from ctp_core import io
     from ctp_core.loader import MeshLoader
+    from ctp_core.plan import stage_options
 
     try:
         plan = yaml.safe_load(path.read_text())
@@ -112,18 +114,20 @@ def read_plan(path: Path, config):
     with MeshLoader(1) as loader:  # one loading process for every mesh of the plan
         steps = [_step(step, folder, config, i, loader) for i, step in enumerate(plan["steps"])]
         base = loader.load(base_file, name="base")
-    return base, str(plan.get("name") or base_file.stem), steps, config
+    return base, str(plan.get("name") or io.default_name(base_file.name, "base")), steps, config
 
 
 def _step(entry: Any, folder: Path, config, i: int, loader):
     from ctp_core import io
-    from ctp_core.assemble import Step, plan_step
+    from ctp_core.assemble import Step
+    from ctp_core.plan import plan_step
 
     where = f"steps.{i}"
     step = plan_step(_from_yaml(entry), where, assembly_options=_ASSEMBLY_FLAGS)
     file = folder / step.file
     image = io.load_image(folder / step.image) if step.image is not None else None
-    return Step(source=loader.load(file, name=f"{where}.file"), name=step.name or file.stem, prompt=step.prompt,
+    return Step(source=loader.load(file, name=f"{where}.file"), name=step.name or io.default_name(file.name, "object"),
+                prompt=step.prompt,
                 image=image, on=step.on,
                 config=_with_options(config, step.options, f"{where}.options") if step.options else None)
 

@@ -12,8 +12,10 @@ import shlex
 import sys
 import time
 from pathlib import Path
+from typing import get_args
 
 from ctp.cli import EXIT_FAILED
+from ctp_core.config import Runtime
 from ctp_core.errors import ConfigError
 
 COMMANDS = "commands.txt"
@@ -58,7 +60,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--jobs", type=int, default=1, help="cases run in parallel processes")
     parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
     parser.add_argument("--threads", type=int, help="torch CPU threads per run")
-    parser.add_argument("--runtime", choices=["auto", "torch", "onnx", "onnx-int8"],
+    parser.add_argument("--runtime", choices=get_args(Runtime),
                         help="where forward-only encoding runs (scoring, selection, metrics; default auto)")
     parser.add_argument("--resume", action="store_true", help="keep finished rows of OUT/results.jsonl")
     parser.add_argument("--summary-only", action="store_true",

@@ -16,7 +16,7 @@ import torch
 import trimesh
 
 from ctp_core import frames, priors
-from ctp_core.config import AlignConfig
+from ctp_core.config import PENETRATION, AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 
@@ -44,7 +44,7 @@ class AlignResult:
     source: trimesh.Trimesh  # source file frame (apply source_to_target to place it)
     prompt: str | None
     config: AlignConfig
-    hparams: dict[str, Any]
+    priors: dict[str, Any]  # ScenePrior.to_dict() and the names the priors read (the report's ``hparams``)
     restarts: list[dict[str, Any]]
     timings: dict[str, float]
     preview: np.ndarray | None = None  # (V, H, W, 3) uint8 views of the final scene
@@ -109,7 +109,7 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
     prior = priors.resolve_priors(
         priors.get_provider(config.hparams_provider), target_name, source_name, prompt or "",
         size_ratio=config.size_ratio, contact_ratio=config.contact_ratio,
-        penetration={"auto": None, "allow": True, "forbid": False}[config.penetration],
+        penetration=PENETRATION[config.penetration],
         target_extent=float(scene.attachment(target, on).extents.max()), source_extent=float(source.extents.max()),
     )
     judge = None
@@ -210,7 +210,7 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
     answer = AlignResult(
         source_to_target=answers[best], objective=float(outcome.objectives[best]),
         target=pair.target, source=pair.source, prompt=prompt, config=config,
-        hparams={**run.prior.to_dict(), "target_name": run.names.get("target"),  # the names the priors read
+        priors={**run.prior.to_dict(), "target_name": run.names.get("target"),  # the names the priors read
                  "source_name": run.names.get("source")},
         restarts=restarts, timings=timings, preview=preview, best_restart=best, on=run.names.get("on"),
         guided_by=goal.description if goal is not None else "none (geometry only)",

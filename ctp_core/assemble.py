@@ -1,13 +1,14 @@
 """Iterative assembly (method.md "Other applications"): build a scene one object at a time.
 
-``assemble(base, steps, config)`` places each step's source in turn. Stage k runs the one ``align``
-pipeline with the scene of the objects placed in stages 0..k-1 as its target: the soft-ICP term
+``assemble(base, steps, config)`` places each step's source in turn (the plan a user writes, and its
+checks, are ``plan``'s). Step k runs the one ``align`` pipeline with the scene of the objects placed in
+steps 0..k-1 as its target: the soft-ICP term
 attaches the source to the object the step relates to (``on``, default the last placed one), the
 penetration term and the renders see every placed object with its own materials, and the priors get
 the source's name and the related object's name and size. Placed objects never move.
 
 Frames (``frames``): the *scene* frame is the base's file frame. Every object keeps its own file
-frame; ``Placed.to_scene`` maps it into the scene (the identity for the base). A stage's target is
+frame; ``Placed.to_scene`` maps it into the scene (the identity for the base). A step's target is
 already in the scene frame, so its answer (source file -> target file) is the source's ``to_scene``.
 """
 
@@ -16,7 +17,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import trimesh
@@ -24,13 +25,13 @@ import trimesh
 from ctp_core import frames
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled, ConfigError, CtpError
+from ctp_core.plan import check_plan
 from ctp_core.progress import CancelCheck, ProgressCallback
 
-if TYPE_CHECKING:  # the engine (torch) loads only when a stage runs: the API checks plans with check_plan
+if TYPE_CHECKING:  # the engine (torch) loads only when a step runs: the API checks plans with plan.check_plan
     from ctp_core.align import AlignResult
 
-__all__ = ["STEP_KEYS", "Assembly", "PlanError", "PlanStep", "Placed", "Stage", "Step", "assemble",
-           "plan_step", "stage_options"]
+__all__ = ["Assembly", "Placed", "Step", "StepResult", "assemble", "scene_of"]
 
 
 @dataclass(frozen=True)
@@ -55,8 +56,8 @@ class Placed:
 
 
 @dataclass
-class Stage:
-    """What stage ``index`` (1-based) of ``count`` did: the step, the object it related to, the run."""
+class StepResult:
+    """What step ``index`` (1-based) of ``count`` did: the step, the object it related to, the run."""
 
     index: int
     count: int
@@ -70,7 +71,7 @@ class Assembly:
     """The placed objects (base first) and the record of every stage."""
 
     objects: list[Placed]
-    stages: list[Stage]
+    stages: list[StepResult]
     timings: dict[str, float] = field(default_factory=dict)
 
     @property
@@ -90,58 +91,6 @@ def scene_of(objects: Sequence[Placed]) -> trimesh.Scene:
         out.add_geometry(placed.mesh, node_name=placed.name, geom_name=placed.name,
                          transform=np.array(placed.to_scene.matrix))
     return out
-
-
-STEP_KEYS = frozenset({"file", "prompt", "image", "name", "on", "options"})  # one step of a plan
-_ASSEMBLY_ONLY = frozenset({"preset", "model"})  # the whole assembly's: one model is loaded for every stage
-
-
-class PlanError(ConfigError):
-    """A plan step of the wrong shape (a bad option value is a plain ``ConfigError``): the CLI prints it,
-    the API answers 400 ``invalid_plan``."""
-
-
-@dataclass(frozen=True)
-class PlanStep:
-    """One step of a plan as written (``file`` and ``image`` name files; the adapters read them)."""
-
-    file: str
-    prompt: str | None = None
-    image: str | None = None
-    name: str | None = None  # None: the adapter's default (the file stem)
-    on: str | None = None
-    options: dict[str, Any] = field(default_factory=dict)
-
-
-def plan_step(entry: Any, where: str, *, assembly_options: str) -> PlanStep:
-    """A plan step (a mapping of ``STEP_KEYS``) checked for shape: ``file`` given, no unknown key, the text
-    keys strings, a prompt or an image (not both), ``options`` a mapping without preset and model (set for
-    the whole assembly where ``assembly_options`` says). Raises ``PlanError`` with ``field`` ``<where>[.<key>]``."""
-    if not isinstance(entry, dict) or not isinstance(entry.get("file"), str):
-        raise PlanError(f"{where}: a step is a mapping with file: its source's file name", field=where)
-    unknown = sorted(set(entry) - STEP_KEYS, key=str)
-    if unknown:
-        raise PlanError(f"{where}: unknown key {unknown[0]!r}; known: {', '.join(sorted(STEP_KEYS))}",
-                        field=f"{where}.{unknown[0]}")
-    for key in ("prompt", "image", "name", "on"):
-        if entry.get(key) is not None and not isinstance(entry[key], str):
-            raise PlanError(f"{where}.{key} must be a string", field=f"{where}.{key}")
-    if entry.get("prompt") is not None and entry.get("image") is not None:
-        raise PlanError(f"{where}: give a prompt or an image, not both", field=f"{where}.prompt")
-    return PlanStep(file=entry["file"], prompt=entry.get("prompt"), image=entry.get("image"), name=entry.get("name"),
-                    on=entry.get("on"), options=stage_options(entry.get("options"), f"{where}.options",
-                                                              assembly_options=assembly_options))
-
-
-def stage_options(options: Any, where: str, *, assembly_options: str) -> dict[str, Any]:
-    """Run options that apply per stage (``None``: none): a mapping without preset and model."""
-    if options is None:
-        return {}
-    if not isinstance(options, dict):
-        raise PlanError(f"{where} must be a mapping of option names to values", field=where)
-    if _ASSEMBLY_ONLY & set(options):
-        raise PlanError(f"{where}: preset and model are set for the whole assembly ({assembly_options})", field=where)
-    return options
 
 
 StageCallback = Callable[[int, int, Step], None]
@@ -170,7 +119,7 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
 
         guide = guide_for(config)
     placed = [Placed(base_name, base, frames.Similarity(np.eye(4), frames.SCENE, frames.SCENE))]
-    stages: list[Stage] = []
+    stages: list[StepResult] = []
     for index, (step, stage_config) in enumerate(zip(steps, configs, strict=True), start=1):
         on = step.on or placed[-1].name
         if on_stage is not None:
@@ -188,25 +137,5 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
         # The stage's target file frame is the scene frame (every placed object is in it).
         placed.append(Placed(step.name, step.source,
                              frames.Similarity(result.source_to_target, frames.SOURCE_FILE, frames.SCENE)))
-        stages.append(Stage(index, len(steps), step, on, result))
+        stages.append(StepResult(index, len(steps), step, on, result))
     return Assembly(placed, stages, {"total_s": round(time.perf_counter() - started, 3)})
-
-
-def check_plan(base_name: str, steps: Sequence[tuple[str, str | None, bool]]) -> None:
-    """Each step's (name, on, guided): names unique and non-empty, every ``on`` an object placed before
-    it, a prompt or an image wherever the guidance term is on. Raises ConfigError naming the step."""
-    if not steps:
-        raise ConfigError("an assembly needs at least one step", field="steps")
-    names = [base_name]
-    for i, (name, on, guided) in enumerate(steps):
-        if not name or not name.strip():
-            raise ConfigError(f"step {i + 1} has no name", field=f"steps.{i}.name")
-        if name in names:
-            raise ConfigError(f"step {i + 1}: the name {name!r} is already used; names must be unique",
-                              field=f"steps.{i}.name")
-        if on is not None and on not in names:
-            raise ConfigError(f"step {i + 1} ({name}): on {on!r} is not an object placed before it "
-                              f"({', '.join(names)})", field=f"steps.{i}.on")
-        if not guided:
-            raise ConfigError(f"step {i + 1} ({name}) needs a prompt or an image", field=f"steps.{i}.prompt")
-        names.append(name)

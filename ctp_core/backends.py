@@ -1,14 +1,13 @@
 """The guidance model backends: a spec's prefix -> its loader, and whether it gives gradients.
 
 Kept free of torch and transformers so configuration validation (the API process imports no torch)
-can refuse a run a backend cannot serve before any model loads. A loader is named ``module:function``
-and imported on first use; it takes ``(spec, rest_of_spec, guidance.LoadRequest)`` and returns a
-``guidance.Guide``.
+can refuse a run a backend cannot serve before any model loads. A backend's loader (in ``loaders``,
+which needs torch) is imported on first use; it takes ``(spec, rest_of_spec, guidance.LoadRequest)`` and
+returns a ``guidance.Guide``.
 """
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -19,19 +18,21 @@ from ctp_core.errors import ModelSpecError
 class Backend:
     prefix: str
     usage: str  # what a spec of this backend looks like, for messages
-    loader: str  # "module:function"
     differentiable: bool = True  # False: forward only (no image gradients, so no CLIP term to descend)
 
     def load_function(self) -> Callable:
-        module, name = self.loader.split(":")
-        return getattr(importlib.import_module(module), name)
+        """This backend's loader, ``loaders.load_<prefix>``; imported here, on first use, as it needs torch."""
+        from ctp_core import loaders
+
+        return {"hf": loaders.load_hf, "open_clip": loaders.load_open_clip, "random": loaders.load_random,
+                "onnx": loaders.load_onnx}[self.prefix]
 
 
 BACKENDS: dict[str, Backend] = {b.prefix: b for b in (
-    Backend("hf", "hf:REPO_OR_PATH", "ctp_core.guidance:_load_hf"),
-    Backend("open_clip", "open_clip:ARCH:TAG", "ctp_core.guidance:_load_open_clip"),
-    Backend("random", "random:ARCH", "ctp_core.guidance:_load_random"),
-    Backend("onnx", "onnx:DIR", "ctp_core.guidance:_load_onnx", differentiable=False),
+    Backend("hf", "hf:REPO_OR_PATH"),
+    Backend("open_clip", "open_clip:ARCH:TAG"),
+    Backend("random", "random:ARCH"),
+    Backend("onnx", "onnx:DIR", differentiable=False),
 )}
 
 

@@ -21,8 +21,10 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from ctp_core import backends
 from ctp_core.errors import ConfigError
 
-Penetration = Literal["auto", "allow", "forbid"]
-Runtime = Literal["auto", "torch", "onnx", "onnx-int8"]
+# The penetration words -> what the priors get: auto lets the prior decide; allow and forbid override it.
+PENETRATION: dict[str, bool | None] = {"auto": None, "allow": True, "forbid": False}
+Penetration = Literal[tuple(PENETRATION)]
+Runtime = Literal["auto", "torch", "onnx", "onnx-int8"]  # the runtimes, spelled once (runtime.RUNTIMES)
 
 
 class _Strict(BaseModel):

@@ -24,6 +24,7 @@ import trimesh
 from PIL import Image
 
 import ctp_core
+from ctp_core import priors
 from ctp_core.assemble import Assembly
 from ctp_core.frames import SCENE, Similarity
 from ctp_core.pose import matrix_to_quaternion
@@ -102,7 +103,7 @@ def _run(result: AlignResult, answer: dict | None = None) -> dict:
         "seed": config.seed,
         "preset": config.preset,
         "config": config.model_dump(mode="json"),
-        "hparams": _jsonable(result.hparams),
+        "hparams": _jsonable(priors.to_report(result.priors)),
         "restarts": _jsonable(result.restarts),
         "timings": _jsonable(result.timings),
         "extra": _jsonable(_extra(result)),

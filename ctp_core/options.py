@@ -10,6 +10,7 @@ from __future__ import annotations
 from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model
+from pydantic.fields import FieldInfo
 
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
@@ -45,11 +46,17 @@ _EXTRA_DOC = {
 }
 
 
-def _option_field(name: str, path: tuple[str, ...]) -> tuple[Any, Any]:
+def config_field(name: str) -> FieldInfo:
+    """The ``AlignConfig`` field behind option ``name`` (its type, range and description)."""
     model: type[BaseModel] = AlignConfig
-    for part in path[:-1]:
+    *parents, leaf = OPTION_PATHS[name]
+    for part in parents:
         model = model.model_fields[part].annotation
-    info = model.model_fields[path[-1]]
+    return model.model_fields[leaf]
+
+
+def _option_field(name: str) -> tuple[Any, Any]:
+    info = config_field(name)
     description = _EXTRA_DOC.get(name) or info.description
     annotation = info.annotation | None
     if info.metadata:
@@ -62,7 +69,7 @@ AlignOptions: type[BaseModel] = create_model(
     __config__=ConfigDict(extra="forbid", strict=True,
                           json_schema_extra={"description": "JSON object in the `options` form field; every key "
                                              "is optional and unknown keys are refused (unknown_option)."}),
-    **{name: _option_field(name, path) for name, path in OPTION_PATHS.items()},
+    **{name: _option_field(name) for name in OPTION_PATHS},
 )
 
 
@@ -82,10 +89,16 @@ def option_overrides(options: dict[str, Any], where: str = "options") -> dict[st
         raise ConfigError(f"{name}: {err['msg']}", field=f"{where}.{name}") from None
     given = parsed.model_dump(exclude_none=True)
     if given.get("hparams_provider", PROVIDERS[0]) not in PROVIDERS:
-        raise ConfigError(f"unknown hparams provider {given['hparams_provider']!r}; choose one of "
+        raise ConfigError(f"unknown priors provider {given['hparams_provider']!r}; choose one of "
                           f"{', '.join(PROVIDERS)}", field=f"{where}.hparams_provider")
+    return nest(given)
+
+
+def nest(values: dict[str, Any]) -> dict[str, Any]:
+    """Option values by name as nested ``AlignConfig`` overrides (``{"restarts": 2}`` -> ``{"optim": {"restarts":
+    2}}``); not validated here (``option_overrides`` validates, ``AlignConfig`` always does)."""
     overrides: dict[str, Any] = {}
-    for name, value in given.items():
+    for name, value in values.items():
         *parents, leaf = OPTION_PATHS[name]
         node = overrides
         for part in parents:

@@ -30,13 +30,16 @@ import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import get_args
 
 import numpy as np
 import torch
 
+from ctp_core.config import Runtime
+
 log = logging.getLogger(__name__)
 
-RUNTIMES = ("auto", "torch", "onnx", "onnx-int8")
+RUNTIMES: tuple[str, ...] = get_args(Runtime)  # config.Runtime as a tuple
 OPSET = 20
 FORMAT = 1  # bump when what a cache directory holds changes
 VISION, VISION_INT8, TEXT, META = "vision.onnx", "vision.int8.onnx", "text.onnx", "meta.json"

@@ -22,12 +22,12 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.middleware.cors import CORSMiddleware
 
 from ctp_core.errors import ConfigError
-from ctp_core.io import MeshLimits
+from ctp_core.io import NAME_MAX, MeshLimits
 from ctp_core.options import AlignOptions
 from service import logs
 from service.deps import digest
 from service.errors import BodyLimit, install_handlers
-from service.forms import NAME_MAX, OPTIONS_DEPTH, OPTIONS_MAX, PROMPT_MAX
+from service.forms import OPTIONS_DEPTH, OPTIONS_MAX, PROMPT_MAX
 from service.jobs import Jobs
 from service.routers import assemble, health, page
 from service.routers import jobs as jobs_router

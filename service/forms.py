@@ -20,14 +20,13 @@ from fastapi import Request
 from starlette.datastructures import UploadFile
 
 from ctp_core.errors import CtpError, ImageError, MeshError
-from ctp_core.io import MeshLimits, load_image
+from ctp_core.io import NAME_MAX, MeshLimits, default_name, load_image
 from ctp_core.loader import LoaderUnavailable, MeshLoader
 from service.errors import ApiError
 
 log = logging.getLogger("ctp.service")
 
 PROMPT_MAX = 500
-NAME_MAX = 100
 OPTIONS_MAX = 16 * 1024  # characters of the options JSON
 OPTIONS_DEPTH = 8  # nesting of the options JSON (AlignOptions is flat)
 INT_MAX = 2**63 - 1  # JSON integers must fit in 64 bits
@@ -215,11 +214,6 @@ def file_name(upload: UploadFile, role: str) -> str:
         raise ApiError(422, "invalid_name", f"the {role} file name holds control characters or is over 255 "
                        "characters", field=role)
     return name
-
-
-def default_name(filename: str, fallback: str) -> str:
-    """An object's name from its file name ("coffee_cup.glb" -> "coffee cup"), cut to NAME_MAX."""
-    return PurePath(filename).stem.replace("_", " ").replace("-", " ").strip()[:NAME_MAX] or fallback
 
 
 async def read_limited(upload: UploadFile, max_bytes: int, field: str, code: str) -> bytes:

@@ -63,7 +63,7 @@ def test_align_is_deterministic_and_reports_progress(meshes):
     assert events[-1].step == cfg.optim.steps and events[-1].fraction == 1.0
     assert len(a.restarts) == cfg.optim.restarts
     assert a.objective == min(r["objective"] for r in a.restarts)
-    assert a.hparams["source"] and 0 <= a.hparams["contact_ratio"] <= 1
+    assert a.priors["provider"] and 0 <= a.priors["contact_ratio"] <= 1
     assert a.preview.shape == (4, 224, 224, 3) and a.preview.dtype == np.uint8
     # rigid: the scale of the answer is the file-relative scale (1)
     assert a.scale == pytest.approx(1.0, rel=1e-5)

@@ -15,11 +15,12 @@ from scipy.spatial.distance import pdist
 
 from ctp.cli import main
 from ctp_core import frames
-from ctp_core.assemble import PlanError, PlanStep, Step, assemble, plan_step
+from ctp_core.assemble import Step, assemble
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.export import assembly_glb, assembly_report
 from ctp_core.io import load_objects
+from ctp_core.plan import PlanError, PlanStep, plan_step
 from ctp_core.scene import objects
 
 TOUCH_M = 0.01  # a gap under 1 cm (the scene is 1.2 m wide) is contact for these soft terms
@@ -122,7 +123,7 @@ def test_plan_errors_name_the_step(meshes):
     assert err.value.field == "steps.0.on"
     with pytest.raises(ConfigError, match="already used"):
         assemble(meshes["table"], [Step(meshes["cup"], "table", "x")], config, base_name="table")
-    with pytest.raises(ConfigError, match="stage 1/1 \\(cup\\): unknown hparams provider") as err:
+    with pytest.raises(ConfigError, match="stage 1/1 \\(cup\\): unknown priors provider") as err:
         assemble(meshes["table"], [Step(meshes["cup"], "cup", "x", config=config.merged(
             {"hparams_provider": "no-such-provider"}))], config, base_name="table")
     assert err.value.field == "steps.0.hparams_provider"

@@ -61,7 +61,7 @@ def test_all_cases_render_and_export(tmp_path):
         assert (views < 0.98).any(dim=1).float().mean() > 0.005, f"{case['id']}: nothing drawn"
         preview = (views.permute(0, 2, 3, 1).numpy() * 255).round().astype(np.uint8)
         result = AlignResult(source_to_target=placement, objective=0.0, target=target, source=source,
-                             prompt=case["prompt"], config=config, hparams={}, restarts=[], timings={},
+                             prompt=case["prompt"], config=config, priors={}, restarts=[], timings={},
                              preview=preview)
         out = tmp_path / case["id"]
         export.write_outputs(result, glb=out / "scene.glb", report_path=out / "report.json",

@@ -37,7 +37,7 @@ def _result(preview: np.ndarray | None = None) -> AlignResult:
     matrix[:3, 3] = [-60.0, 12.0, 5.0]
     return AlignResult(
         source_to_target=matrix, objective=-0.31, target=target, source=source, prompt="a ball on a box",
-        config=AlignConfig.from_preset("test", seed=3), hparams={"size_ratio": np.float32(0.2)},
+        config=AlignConfig.from_preset("test", seed=3), priors={"size_ratio": np.float32(0.2)},
         restarts=[{"restart": 0, "objective": -0.31}], timings={"total_s": 1.5}, preview=preview,
         model="random:tiny", best_restart=0, clip_images=np.int64(12),
         phase_timings=[{"phase_s": np.float32(0.5)}], target_upright=canonical.identity(),

@@ -1,5 +1,5 @@
 """Scene priors: the provider interface, the rules (lexicon, cues, roles), explicit overrides, the
-OpenAI-compatible provider against a real local HTTP server, and ``ctp hparams``."""
+OpenAI-compatible provider against a real local HTTP server, and ``ctp priors``."""
 
 from __future__ import annotations
 
@@ -39,7 +39,7 @@ def test_get_provider_returns_named_providers_and_refuses_unknown_names():
         assert provider.name == name
         prior = provider.estimate("table", "cup", "a cup on the table")
         assert isinstance(prior, ScenePrior)
-        assert set(prior.to_dict()) == {"size_ratio", "penetration", "contact_ratio", "source", "reason", "relation",
+        assert set(prior.to_dict()) == {"size_ratio", "penetration", "contact_ratio", "provider", "reason", "relation",
                                         "source_is_figure"}
     with pytest.raises(ConfigError) as err:
         get_provider("llama")
@@ -49,7 +49,7 @@ def test_get_provider_returns_named_providers_and_refuses_unknown_names():
 def test_rules_are_deterministic():
     a = rules("bowl", "apples", "apples in a bowl")
     assert a == rules("bowl", "apples", "apples in a bowl")
-    assert a.source == "rules"
+    assert a.provider == "rules"
 
 
 # --- clamping ---------------------------------------------------------------------------------------
@@ -77,20 +77,20 @@ class Refusing:
         raise AssertionError("the provider must not be asked when every value is explicit")
 
 
-def test_explicit_values_win_and_are_named_in_source():
+def test_explicit_values_win_and_are_named_in_provider():
     prior = resolve_priors(get_provider("rules"), "apple", "knife", "a knife cuts an apple",
                            size_ratio=0.02, contact_ratio=0.9)
     assert prior.size_ratio == 0.02  # explicit: kept outside the clamp range
     assert prior.contact_ratio == 0.9
     assert prior.penetration is True  # from the rules
-    assert prior.source == "rules; explicit: size_ratio, contact_ratio"
+    assert prior.provider == "rules; explicit: size_ratio, contact_ratio"
     prior = resolve_priors(get_provider("rules"), "apple", "knife", "a knife cuts an apple", penetration=False)
-    assert prior.penetration is False and "explicit: penetration" in prior.source
+    assert prior.penetration is False and "explicit: penetration" in prior.provider
 
 
 def test_all_explicit_skips_the_provider():
     prior = resolve_priors(Refusing(), "a", "b", "", size_ratio=2.0, penetration=True, contact_ratio=0.0)
-    assert (prior.size_ratio, prior.penetration, prior.contact_ratio, prior.source) == (2.0, True, 0.0, "explicit")
+    assert (prior.size_ratio, prior.penetration, prior.contact_ratio, prior.provider) == (2.0, True, 0.0, "explicit")
 
 
 @pytest.mark.parametrize("kwargs", [{"size_ratio": 0.0}, {"size_ratio": 500.0}, {"contact_ratio": 1.5},
@@ -439,7 +439,7 @@ def test_openai_provider_asks_three_questions_and_parses_varied_answers():
         provider = get_provider("openai", server.settings(model="llama-3-8b", api_key="sk-test"))
         prior = provider.estimate("apple", "kitchen_knife", "a knife cuts an apple")
     assert (prior.size_ratio, prior.penetration, prior.contact_ratio) == (0.3, True, 0.25)
-    assert prior.source == "openai"
+    assert prior.provider == "openai"
     assert len(server.requests) == 3
     first = server.requests[0]
     assert first["path"] == "/v1/chat/completions"
@@ -451,7 +451,7 @@ def test_openai_provider_asks_three_questions_and_parses_varied_answers():
 def test_openai_answers_are_clamped():
     with ChatServer(by_question("250", "false", "1.7")) as server:
         prior = get_provider("openai", server.settings()).estimate("cup", "table", "a cup on a table")
-    assert (prior.size_ratio, prior.contact_ratio, prior.source) == (10.0, 1.0, "openai")
+    assert (prior.size_ratio, prior.contact_ratio, prior.provider) == (10.0, 1.0, "openai")
 
 
 @pytest.mark.parametrize("reply,why", [
@@ -465,8 +465,8 @@ def test_openai_malformed_answers_fall_back_to_rules(reply, why):
     with ChatServer(reply) as server:
         prior = get_provider("openai", server.settings()).estimate("bowl", "apples", "apples in a bowl")
     expected = rules("bowl", "apples", "apples in a bowl")
-    assert prior.source.startswith("rules (fallback: ")
-    assert why in prior.source and why in prior.reason
+    assert prior.provider.startswith("rules (fallback: ")
+    assert why in prior.provider and why in prior.reason
     assert (prior.size_ratio, prior.penetration, prior.contact_ratio) == (
         expected.size_ratio, expected.penetration, expected.contact_ratio)
 
@@ -477,7 +477,7 @@ def test_openai_slow_answer_times_out_and_falls_back_fast():
         prior = get_provider("openai", server.settings(timeout_s=0.2, retries=1)).estimate(
             "table", "cup", "a cup on the table")
         elapsed = time.perf_counter() - started
-    assert prior.source.startswith("rules (fallback: ReadTimeout")
+    assert prior.provider.startswith("rules (fallback: ReadTimeout")
     assert elapsed < 1.4  # two 0.2 s attempts, then no further questions
     assert len(server.requests) == 2
 
@@ -491,15 +491,15 @@ def test_openai_retries_a_bad_answer():
 
     with ChatServer(flaky) as server:
         prior = get_provider("openai", server.settings(retries=1)).estimate("table", "cup", "a cup on the table")
-    assert prior.source == "openai" and len(calls) == 4
+    assert prior.provider == "openai" and len(calls) == 4
 
 
 def test_openai_unreachable_or_unconfigured_falls_back():
     prior = get_provider("openai", PriorSettings(base_url="http://127.0.0.1:9/v1", timeout_s=0.5, retries=0)).estimate(
         "table", "cup", "a cup on the table")
-    assert prior.source.startswith("rules (fallback: ConnectError")
+    assert prior.provider.startswith("rules (fallback: ConnectError")
     prior = get_provider("openai", PriorSettings(base_url=None)).estimate("table", "cup", "a cup on the table")
-    assert "CTP_LLM_BASE_URL" in prior.source
+    assert "CTP_LLM_BASE_URL" in prior.provider
 
 
 def test_settings_come_from_the_environment(monkeypatch):
@@ -544,13 +544,23 @@ def test_parse_answer_refuses_non_answers(text, key):
 # --- CLI --------------------------------------------------------------------------------------------
 
 def test_cli_prints_the_prior(capsys):
-    assert ctp_main(["hparams", "--target", "wood", "--source", "axe", "--prompt", "an axe embedded in wood"]) == 0
+    assert ctp_main(["priors", "--target", "wood", "--source", "axe", "--prompt", "an axe embedded in wood"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["penetration"] is True and out["source"] == "rules"
-    assert ctp_main(["hparams", "--target", "wood", "--source", "axe", "--prompt", "an axe embedded in wood",
+    assert ctp_main(["priors", "--target", "wood", "--source", "axe", "--prompt", "an axe embedded in wood",
                      "--penetration", "forbid", "--size-ratio", "3"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["penetration"] is False and out["size_ratio"] == 3.0 and "explicit" in out["source"]
+
+
+def test_cli_hparams_is_a_deprecated_alias_of_priors(capsys):
+    argv = ["--target", "wood", "--source", "axe", "--prompt", "an axe embedded in wood"]
+    assert ctp_main(["priors", *argv]) == 0
+    expected = capsys.readouterr().out
+    assert ctp_main(["hparams", *argv]) == 0
+    assert capsys.readouterr().out == expected
+    assert ctp_main(["--help"]) == 0
+    assert "deprecated alias of priors" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("argv", [
@@ -561,7 +571,7 @@ def test_cli_prints_the_prior(capsys):
     ["--target", "table", "--source", "cup", "--penetration", "maybe"],
 ])
 def test_cli_bad_input_exits_2_with_one_line(argv, capsys):
-    assert ctp_main(["hparams", *argv]) == 2
+    assert ctp_main(["priors", *argv]) == 2
     captured = capsys.readouterr()
     assert captured.out == ""
     assert len(captured.err.strip().splitlines()) == 1 and captured.err.startswith("error: ")

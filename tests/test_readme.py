@@ -127,8 +127,8 @@ def test_synopsis_is_what_the_parsers_accept():
         'python -c "from ctp.cli import synopsis; print(synopsis())"')
 
 
-def test_hparams_needs_no_prompt(capsys):
-    assert main(["hparams", "--target", "table", "--source", "cup"]) == 0
+def test_priors_needs_no_prompt(capsys):
+    assert main(["priors", "--target", "table", "--source", "cup"]) == 0
     assert json.loads(capsys.readouterr().out)["penetration"] is False
 
 

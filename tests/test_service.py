@@ -171,7 +171,7 @@ BAD_INPUTS = {
     "deeply nested options": (dict(options="[" * 100_000 + "]" * 100_000), 400, "invalid_options", "options"),
     "options nested past the limit": (dict(options='{"seed": ' + "[" * 20 + "]" * 20 + "}"), 400,
                                       "invalid_options", "options"),
-    "unknown hparams provider": (dict(options={**FAST, "hparams_provider": "oracle"}), 422, "invalid_option",
+    "unknown priors provider": (dict(options={**FAST, "hparams_provider": "oracle"}), 422, "invalid_option",
                                  "options.hparams_provider"),
     "no prompt or image": (dict(prompt=None), 400, "missing_field", "prompt"),
     "unknown option": (dict(options={**FAST, "temperature": 1}), 422, "unknown_option", "options.temperature"),

@@ -7,6 +7,9 @@ from __future__ import annotations
 
 import io
 import json
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -15,7 +18,7 @@ from PIL import Image
 
 from ctp_core.io import load_objects
 from ctp_core.scene import objects
-from tests.conftest import service_env, wait_for
+from tests.conftest import REPO, service_env, wait_for
 from tests.test_assemble import GEOMETRY_ONLY, check_contacts, table_plate_cup
 
 ALPHA, BETA = ({"Authorization": f"Bearer {k}"} for k in ("alpha", "beta"))
@@ -159,7 +162,7 @@ def test_a_plain_align_over_the_scene_limit_is_refused(api, files):
 
 
 def test_a_step_s_shape_is_refused_as_the_engine_words_it(api, files):
-    """The rule is the engine's (``ctp_core.assemble.plan_step``, as ``ctp assemble --plan``); the API names
+    """The rule is the engine's (``ctp_core.plan.plan_step``, as ``ctp assemble --plan``); the API names
     the step ``plan.<i>`` and says where preset and model go."""
     answer = post_assembly(api, files, [PLAN[0], {**PLAN[1], "options": {"preset": "paper"}}])
     assert answer.status_code == 400, answer.text
@@ -270,3 +273,13 @@ def test_control_characters_in_a_source_file_name(api, files):
                              headers={**ALPHA, "Content-Type": f"multipart/form-data; boundary={boundary}"})
     assert (answer.status_code, answer.json()["error"]["code"], answer.json()["error"]["field"]) == (
         422, "invalid_name", "source"), answer.text
+
+
+def test_the_api_process_imports_no_torch():
+    """The API checks plans and options with torch-free modules (``plan``, ``config``, ``options``); only the
+    workers load the engine. A fresh interpreter, so what the other tests imported does not count."""
+    probe = subprocess.run([sys.executable, "-c", "import service.app, sys; print('torch' in sys.modules)"],
+                           cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)}, capture_output=True, text=True,
+                           timeout=120)
+    assert probe.returncode == 0, probe.stderr
+    assert probe.stdout.strip() == "False"

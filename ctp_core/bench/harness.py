@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from ctp_core import metrics, sampling
+from ctp_core import metrics, priors, sampling
 from ctp_core.bench import baselines, protocol
 from ctp_core.bench.cases import Case
 from ctp_core.bench.guides import GUIDES, GuideInputs, PixelGuide, SelectionScore, guide_inputs
@@ -190,7 +190,7 @@ def _run_align(method: str, init: np.ndarray, index: int, data: _CaseData, optio
     return {"source_to_target": result.source_to_target, "time_s": time.perf_counter() - started,
             "clip_images": int(result.clip_images), "timings": result.timings,
             "extra": {"best_restart": result.best_restart, "guidance": result.guided_by,
-                      "hparams": result.hparams}}
+                      "hparams": priors.to_report(result.priors)}}
 
 
 def _run_b1(method: str, init: np.ndarray, index: int, data: _CaseData, options: BenchOptions) -> dict:

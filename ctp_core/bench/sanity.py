@@ -39,7 +39,7 @@ def geometry_contact(case: Case, *, preset: str = "descent", seed: int = 0, step
     overlap = metrics.intersection_over_union(target, placed)
     return {
         "case": case.id, "penetration_allowed": allow, "contact": contact, "intersection": overlap.iou,
-        "intersection_method": overlap.method, "contact_ratio": result.hparams["contact_ratio"],
+        "intersection_method": overlap.method, "contact_ratio": result.priors["contact_ratio"],
         "passed": allow or (contact <= CONTACT_LIMIT and overlap.iou <= INTERSECTION_LIMIT),
         "seconds": round(time.perf_counter() - start, 2),
     }

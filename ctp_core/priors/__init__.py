@@ -13,11 +13,11 @@ import math
 from ctp_core.errors import ConfigError
 from ctp_core.priors import lexicon
 from ctp_core.priors.openai import OpenAIProvider, PriorSettings
-from ctp_core.priors.prior import PriorProvider, ScenePrior, clamp_size
+from ctp_core.priors.prior import PriorProvider, ScenePrior, clamp_size, to_report
 from ctp_core.priors.rules import RulesProvider
 
 __all__ = ["PROVIDERS", "OpenAIProvider", "PriorProvider", "PriorSettings", "RulesProvider", "ScenePrior",
-           "get_provider", "mesh_size_ratio", "resolve_priors"]
+           "get_provider", "mesh_size_ratio", "resolve_priors", "to_report"]
 
 PROVIDERS = ("rules", "openai")
 EXPLICIT_SIZE_RANGE = (0.01, 100.0)  # what a caller may ask for (AlignConfig.size_ratio)
@@ -32,7 +32,7 @@ def get_provider(name: str = "rules", settings: PriorSettings | None = None) -> 
         return RulesProvider()
     if name == "openai":
         return OpenAIProvider(settings or PriorSettings())
-    raise ConfigError(f"unknown hparams provider {name!r}; choose one of {', '.join(PROVIDERS)}",
+    raise ConfigError(f"unknown priors provider {name!r}; choose one of {', '.join(PROVIDERS)}",
                       field="hparams_provider")
 
 
@@ -75,7 +75,7 @@ def resolve_priors(
     """The provider's estimate with the caller's explicit values on top.
 
     Explicit values always win and are kept as given (a size ratio in [0.01, 100], a contact ratio in
-    [0, 1]; ConfigError otherwise); ``source`` lists them. Mesh extents (longest sides, file units)
+    [0, 1]; ConfigError otherwise); ``provider`` lists them. Mesh extents (longest sides, file units)
     replace the estimated size ratio only when ``mesh_size_ratio`` finds them plausible. The provider
     is not asked when all three are explicit.
     """
@@ -98,7 +98,7 @@ def resolve_priors(
         size_ratio=float(prior.size_ratio if size_ratio is None else size_ratio),
         penetration=bool(prior.penetration if penetration is None else penetration),
         contact_ratio=float(prior.contact_ratio if contact_ratio is None else contact_ratio),
-        source=prior.source + ("; explicit: " + ", ".join(explicit) if explicit else ""),
+        provider=prior.provider + ("; explicit: " + ", ".join(explicit) if explicit else ""),
         reason="; ".join(reasons),
         relation=prior.relation,
         source_is_figure=prior.source_is_figure,

@@ -4,7 +4,7 @@ vLLM, llama.cpp's server, Ollama and hosted APIs all speak ``POST {base_url}/cha
 the paper, each value is its own question answered as one JSON value; answers are parsed leniently
 (code fences, surrounding prose, ``{"size_ratio": 0.3}`` or a bare ``0.3``, "yes"/"no") and clamped.
 Any failure (no endpoint configured, connection refused, timeout, HTTP error, an answer that is not a
-value) falls back to the rules for all three values, and ``source`` says why: a run never stops for a
+value) falls back to the rules for all three values, and ``provider`` says why: a run never stops for a
 flaky endpoint.
 """
 
@@ -81,7 +81,7 @@ class OpenAIProvider:
             return self._fall_back(target_name, source_name, prompt, why)
         rules = self.fallback.estimate(target_name, source_name, prompt)  # the relation is read by the rules
         return ScenePrior(size_ratio=clamp_size(answers["size_ratio"]), penetration=answers["penetration"],
-                          contact_ratio=clamp_contact(answers["contact_ratio"]), source=self.name,
+                          contact_ratio=clamp_contact(answers["contact_ratio"]), provider=self.name,
                           reason=f"answered by {self.settings.model or 'the endpoint default model'}",
                           relation=rules.relation, source_is_figure=rules.source_is_figure)
 
@@ -108,7 +108,7 @@ class OpenAIProvider:
     def _fall_back(self, target_name: str, source_name: str, prompt: str, why: str) -> ScenePrior:
         prior = self.fallback.estimate(target_name, source_name, prompt)
         return ScenePrior(prior.size_ratio, prior.penetration, prior.contact_ratio,
-                          source=f"{prior.source} (fallback: {why})",
+                          provider=f"{prior.provider} (fallback: {why})",
                           reason=f"openai provider failed ({why}); {prior.reason}",
                           relation=prior.relation, source_is_figure=prior.source_is_figure)
 

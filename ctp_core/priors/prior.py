@@ -19,7 +19,7 @@ class ScenePrior:
     size_ratio: float  # source/target bbox size; clamped to SIZE_RANGE unless given explicitly
     penetration: bool
     contact_ratio: float  # [0, 1] -> soft-ICP ratio r
-    source: str  # "rules", "openai", "rules (fallback: <why>)", or with "; explicit: <fields>"
+    provider: str  # "rules", "openai", "rules (fallback: <why>)", or with "; explicit: <fields>"
     reason: str  # short, for humans
     # the spatial relation read from the prompt (a key of ``relations.RELATIONS``: "on", "in", "beside" ...)
     # and whether the source is its figure (the thing placed) or its ground; None when the provider does not
@@ -29,6 +29,12 @@ class ScenePrior:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+def to_report(values: dict) -> dict:
+    """Priors (``ScenePrior.to_dict``, maybe with more keys) as reports and ``ctp priors`` write them: the
+    provider under ``source``, the spelling the report has always had (kept for compatibility)."""
+    return {("source" if key == "provider" else key): value for key, value in values.items()}
 
 
 class PriorProvider(Protocol):

@@ -209,7 +209,7 @@ class RulesProvider:
         if drinks and penetration or bites:
             contact = DRINKING_CONTACT  # its muzzle, its proboscis or sting
         return ScenePrior(size_ratio=clamp_size(size), penetration=penetration, contact_ratio=clamp_contact(contact),
-                          source=self.name, reason="; ".join(n for n in notes if n),
+                          provider=self.name, reason="; ".join(n for n in notes if n),
                           relation=relation.name, source_is_figure=figure)
 
 

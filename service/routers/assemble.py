@@ -5,9 +5,10 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, Request
 from fastapi.concurrency import run_in_threadpool
 
-from ctp_core.assemble import PlanError, PlanStep, check_plan, plan_step
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
+from ctp_core.io import NAME_MAX, default_name
+from ctp_core.plan import PlanError, PlanStep, check_plan, plan_step
 from service import forms
 from service.deps import enqueue, owner
 from service.errors import ApiError, documented
@@ -26,7 +27,7 @@ ASSEMBLE_BODY = {
         "properties": {
             "base": forms.file_field("the object that stays put (formats as POST /align's target); its file "
                                       "frame is the scene frame"),
-            "base_name": {"type": "string", "maxLength": forms.NAME_MAX,
+            "base_name": {"type": "string", "maxLength": NAME_MAX,
                           "description": "what the base is (\"table\"); default: its file name"},
             "source": {"type": "array", "items": forms.file_field("a mesh to place"),
                        "description": "one part per source file, each with a distinct file name; the plan's "
@@ -154,4 +155,4 @@ def _parts(form, name: str) -> dict:
 
 
 def _name(name: str | None, file: str, where: str) -> str:
-    return forms.default_name(file, "object") if name is None else forms.clean_name(name, f"{where}.name")
+    return default_name(file, "object") if name is None else forms.clean_name(name, f"{where}.name")

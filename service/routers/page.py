@@ -20,10 +20,10 @@ from fastapi.staticfiles import StaticFiles
 
 from ctp_core.config import AlignConfig
 from ctp_core.examples import EXAMPLES
-from ctp_core.io import SUPPORTED_EXTENSIONS
+from ctp_core.io import NAME_MAX, SUPPORTED_EXTENSIONS
 from ctp_core.options import AlignOptions
 from service.errors import ApiError
-from service.forms import NAME_MAX, PROMPT_MAX
+from service.forms import PROMPT_MAX
 
 STATIC_DIR = Path(__file__).resolve().parents[1] / "static"
 VENDOR = "static/vendor"

@@ -1,4 +1,5 @@
-"""``ctp hparams``: print the scene priors for a (target, source, prompt) triple as JSON.
+"""``ctp priors`` (``ctp hparams``, its deprecated alias): print the scene priors for a (target, source,
+prompt) triple as JSON (the report's ``hparams`` entry, without the names).
 
 What ``ctp align`` would use, without loading a mesh or a model: handy to check a prompt's reading
 before a long run, or to test an LLM endpoint (``--provider openai`` with CTP_LLM_* set).
@@ -11,9 +12,9 @@ import argparse
 import json
 import math
 
+from ctp_core import priors
+from ctp_core.config import PENETRATION
 from ctp_core.errors import ConfigError
-
-PENETRATION = {"auto": None, "allow": True, "forbid": False}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -23,9 +24,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--source", required=True, metavar="NAME", help="source object name (the one placed)")
     parser.add_argument("--prompt", default="", metavar="TEXT", help="text describing the arrangement (optional: "
                         "relation cues such as on, inside, embedded in)")
-    parser.add_argument("--provider", default="rules", metavar="NAME", help="rules | openai (default rules)")
+    parser.add_argument("--provider", default=priors.PROVIDERS[0], metavar="NAME",
+                        help=f"{' | '.join(priors.PROVIDERS)} (default {priors.PROVIDERS[0]})")
     parser.add_argument("--size-ratio", metavar="S", help="explicit source/target size in [0.01, 100]")
-    parser.add_argument("--penetration", default="auto", metavar="auto|allow|forbid", help="auto | allow | forbid")
+    parser.add_argument("--penetration", default="auto", metavar="|".join(PENETRATION), help=" | ".join(PENETRATION))
     parser.add_argument("--contact-ratio", metavar="R", help="explicit soft-ICP ratio in [0, 1]")
     parser.add_argument("--target-extent", metavar="L",
                         help="target mesh longest side in file units (may inform the size)")
@@ -33,8 +35,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ctp_core import priors
-
     for flag in ("target", "source"):
         if not (getattr(args, flag) or "").strip():
             raise ConfigError(f"--{flag} NAME is required", field=flag)
@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
         target_extent=_number(args.target_extent, "target-extent"),
         source_extent=_number(args.source_extent, "source-extent"),
     )
-    print(json.dumps(prior.to_dict(), indent=2))
+    print(json.dumps(priors.to_report(prior.to_dict()), indent=2))
     return 0
 
 

@@ -1,4 +1,4 @@
-"""Score a scene-prior provider on the hand-labelled triples in ``hparams_labels.jsonl``.
+"""Score a scene-prior provider on the hand-labelled triples in ``priors_labels.jsonl``.
 
 Prints penetration accuracy, size-ratio MAE and contact-ratio MAE for the provider and for a random
 baseline (the paper's table: LLM 98.4 %, 0.46, 0.25; random 50 %, 3.30, 0.33). Size ratios, label and
@@ -6,7 +6,7 @@ estimate alike, are clamped to [0.1, 10] before the error, as in the paper. The 
 size uniformly in [0.1, 10], contact uniformly in [0, 1] and penetration by a fair coin, averaged over
 ``--random-trials`` draws per triple.
 
-    python benchmarks/hparams_eval.py [--provider rules|openai] [--errors] [--origin ORIGIN] [--labels FILE]
+    python benchmarks/priors_eval.py [--provider rules|openai] [--errors] [--origin ORIGIN] [--labels FILE]
 
 Origins: ``bench`` (every prompt of ../shared/bench), ``hand`` (labelled before the rules were written),
 ``holdout`` (labelled after they were first frozen), ``batch1`` ... ``batch24`` (scenes the first sets lacked:
@@ -29,7 +29,7 @@ from pathlib import Path
 from ctp_core.priors import get_provider
 from ctp_core.priors.prior import SIZE_RANGE, clamp_size
 
-LABELS = Path(__file__).with_name("hparams_labels.jsonl")
+LABELS = Path(__file__).with_name("priors_labels.jsonl")
 
 
 def load(path: Path) -> list[dict]:

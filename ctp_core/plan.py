@@ -1,0 +1,86 @@
+"""The assembly plan as written: what a step may say, checked for shape before any mesh is read.
+
+The vocabulary ``ctp assemble --plan`` and ``POST /assemble`` share (``plan_step``, ``check_plan``);
+``assemble`` runs a checked plan. Kept free of trimesh and torch so the API checks plans without them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from ctp_core.errors import ConfigError
+
+__all__ = ["STEP_KEYS", "PlanError", "PlanStep", "check_plan", "plan_step", "stage_options"]
+
+STEP_KEYS = frozenset({"file", "prompt", "image", "name", "on", "options"})  # one step of a plan
+_ASSEMBLY_ONLY = frozenset({"preset", "model"})  # the whole assembly's: one model is loaded for every stage
+
+
+class PlanError(ConfigError):
+    """A plan step of the wrong shape (a bad option value is a plain ``ConfigError``): the CLI prints it,
+    the API answers 400 ``invalid_plan``."""
+
+
+@dataclass(frozen=True)
+class PlanStep:
+    """One step of a plan as written (``file`` and ``image`` name files; the adapters read them)."""
+
+    file: str
+    prompt: str | None = None
+    image: str | None = None
+    name: str | None = None  # None: the adapter's default (the file stem)
+    on: str | None = None
+    options: dict[str, Any] = field(default_factory=dict)
+
+
+def plan_step(entry: Any, where: str, *, assembly_options: str) -> PlanStep:
+    """A plan step (a mapping of ``STEP_KEYS``) checked for shape: ``file`` given, no unknown key, the text
+    keys strings, a prompt or an image (not both), ``options`` a mapping without preset and model (set for
+    the whole assembly where ``assembly_options`` says). Raises ``PlanError`` with ``field`` ``<where>[.<key>]``."""
+    if not isinstance(entry, dict) or not isinstance(entry.get("file"), str):
+        raise PlanError(f"{where}: a step is a mapping with file: its source's file name", field=where)
+    unknown = sorted(set(entry) - STEP_KEYS, key=str)
+    if unknown:
+        raise PlanError(f"{where}: unknown key {unknown[0]!r}; known: {', '.join(sorted(STEP_KEYS))}",
+                        field=f"{where}.{unknown[0]}")
+    for key in ("prompt", "image", "name", "on"):
+        if entry.get(key) is not None and not isinstance(entry[key], str):
+            raise PlanError(f"{where}.{key} must be a string", field=f"{where}.{key}")
+    if entry.get("prompt") is not None and entry.get("image") is not None:
+        raise PlanError(f"{where}: give a prompt or an image, not both", field=f"{where}.prompt")
+    return PlanStep(file=entry["file"], prompt=entry.get("prompt"), image=entry.get("image"), name=entry.get("name"),
+                    on=entry.get("on"), options=stage_options(entry.get("options"), f"{where}.options",
+                                                              assembly_options=assembly_options))
+
+
+def stage_options(options: Any, where: str, *, assembly_options: str) -> dict[str, Any]:
+    """Run options that apply per stage (``None``: none): a mapping without preset and model."""
+    if options is None:
+        return {}
+    if not isinstance(options, dict):
+        raise PlanError(f"{where} must be a mapping of option names to values", field=where)
+    if _ASSEMBLY_ONLY & set(options):
+        raise PlanError(f"{where}: preset and model are set for the whole assembly ({assembly_options})", field=where)
+    return options
+
+
+def check_plan(base_name: str, steps: Sequence[tuple[str, str | None, bool]]) -> None:
+    """Each step's (name, on, guided): names unique and non-empty, every ``on`` an object placed before
+    it, a prompt or an image wherever the guidance term is on. Raises ConfigError naming the step."""
+    if not steps:
+        raise ConfigError("an assembly needs at least one step", field="steps")
+    names = [base_name]
+    for i, (name, on, guided) in enumerate(steps):
+        if not name or not name.strip():
+            raise ConfigError(f"step {i + 1} has no name", field=f"steps.{i}.name")
+        if name in names:
+            raise ConfigError(f"step {i + 1}: the name {name!r} is already used; names must be unique",
+                              field=f"steps.{i}.name")
+        if on is not None and on not in names:
+            raise ConfigError(f"step {i + 1} ({name}): on {on!r} is not an object placed before it "
+                              f"({', '.join(names)})", field=f"steps.{i}.on")
+        if not guided:
+            raise ConfigError(f"step {i + 1} ({name}) needs a prompt or an image", field=f"steps.{i}.prompt")
+        names.append(name)
