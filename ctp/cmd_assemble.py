@@ -70,21 +70,21 @@ def run(args: argparse.Namespace) -> int:
                      for i, (path, prompt) in enumerate(args.add)]
     bar = ProgressBar(sys.stderr, enabled=not args.quiet)
 
-    def on_stage(index: int, count: int, step) -> None:
+    def on_step(index: int, count: int, step) -> None:
         if not args.quiet:
             what = step.prompt if step.prompt is not None else "(image-guided)"
             sys.stderr.write(f"stage {index}/{count}: {step.name}: {what}\n")
             sys.stderr.flush()
 
     started = time.perf_counter()
-    assembly = assemble(base, steps, config, base_name=base_name, on_event=bar, on_stage=on_stage)
+    assembly = assemble(base, steps, config, base_name=base_name, on_event=bar, on_step=on_step)
     export.write_outputs(assembly, glb=args.out, report_path=args.report, preview=args.preview)
     summary = {"out": str(args.out), "seconds": round(time.perf_counter() - started, 2), "preset": config.preset,
                "model": config.model if config.loss.lambda_clip > 0 else None,
                "objects": [{"name": p.name, "scale": round(p.to_scene.scale, 6),
                             "translation": [round(v, 6) for v in p.to_scene.translation.tolist()]}
                            for p in assembly.objects],
-               "objectives": [round(s.result.objective, 6) for s in assembly.stages]}
+               "objectives": [round(s.result.objective, 6) for s in assembly.results]}
     print(json.dumps(summary))
     return 0
 
@@ -96,7 +96,7 @@ def read_plan(path: Path, config):
 
     from ctp_core import io
     from ctp_core.loader import MeshLoader
-    from ctp_core.plan import stage_options
+    from ctp_core.plan import step_options
 
     try:
         plan = yaml.safe_load(path.read_text())
@@ -108,7 +108,7 @@ def read_plan(path: Path, config):
         raise ConfigError("a plan is a mapping with base: FILE and steps: a list", field="plan")
     _known(plan, _PLAN_KEYS, "plan")
     folder = path.parent
-    config = _with_options(config, stage_options(plan.get("options"), "options", assembly_options=_ASSEMBLY_FLAGS),
+    config = _with_options(config, step_options(plan.get("options"), "options", assembly_options=_ASSEMBLY_FLAGS),
                            "options")
     base_file = folder / plan["base"]
     with MeshLoader(1) as loader:  # one loading process for every mesh of the plan

@@ -43,7 +43,7 @@ class Step:
     prompt: str | None = None
     image: np.ndarray | None = None  # (H, W, 3) uint8 reference picture instead of the prompt
     on: str | None = None  # the placed object it relates to; None: the last placed one
-    config: AlignConfig | None = None  # this stage's options; None: the assembly's config
+    config: AlignConfig | None = None  # this step's options; None: the assembly's config
 
 
 @dataclass
@@ -68,16 +68,16 @@ class StepResult:
 
 @dataclass
 class Assembly:
-    """The placed objects (base first) and the record of every stage."""
+    """The placed objects (base first) and the record of every step."""
 
     objects: list[Placed]
-    stages: list[StepResult]
+    results: list[StepResult]
     timings: dict[str, float] = field(default_factory=dict)
 
     @property
     def preview(self) -> np.ndarray | None:
-        """(V, H, W, 3) uint8 views of the whole scene: the last stage renders every object."""
-        return self.stages[-1].result.preview if self.stages else None
+        """(V, H, W, 3) uint8 views of the whole scene: the last step renders every object."""
+        return self.results[-1].result.preview if self.results else None
 
     def scene(self) -> trimesh.Scene:
         """Every object as its own named node: its mesh (own file frame, own materials) under ``to_scene``."""
@@ -93,17 +93,18 @@ def scene_of(objects: Sequence[Placed]) -> trimesh.Scene:
     return out
 
 
-StageCallback = Callable[[int, int, Step], None]
+StepCallback = Callable[[int, int, Step], None]
 
 
 def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, *, base_name: str = "base",
-             guide=None, on_event: ProgressCallback | None = None, on_stage: StageCallback | None = None,
+             guide=None, on_event: ProgressCallback | None = None, on_step: StepCallback | None = None,
              should_cancel: CancelCheck | None = None) -> Assembly:
     """Place ``steps`` one after another around ``base`` (its file frame is the scene frame).
 
-    ``on_stage(index, count, step)`` is called as each stage starts; ``on_event`` gets every stage's
-    optimiser events. The guidance model is loaded once for all stages (every stage uses
-    ``config.model``). A stage's ``CtpError`` is re-raised with the stage named in its message and
+    ``on_step(index, count, step)`` is called as each step starts; ``on_event`` gets every step's
+    optimiser events. The guidance model is loaded once for all steps (every step uses
+    ``config.model``). A step's ``CtpError`` is re-raised with the step named in its message (as "stage k/n",
+    the word the report and the API use) and
     ``field`` ``steps.<i>[.<its field>]``; ``Canceled`` passes through.
     """
     from ctp_core.align import align
@@ -119,13 +120,13 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
 
         guide = guide_for(config)
     placed = [Placed(base_name, base, frames.Similarity(np.eye(4), frames.SCENE, frames.SCENE))]
-    stages: list[StepResult] = []
-    for index, (step, stage_config) in enumerate(zip(steps, configs, strict=True), start=1):
+    results: list[StepResult] = []
+    for index, (step, step_config) in enumerate(zip(steps, configs, strict=True), start=1):
         on = step.on or placed[-1].name
-        if on_stage is not None:
-            on_stage(index, len(steps), step)
+        if on_step is not None:
+            on_step(index, len(steps), step)
         try:
-            result = align(scene_of(placed), step.source, step.prompt, stage_config, on=on, image=step.image,
+            result = align(scene_of(placed), step.source, step.prompt, step_config, on=on, image=step.image,
                            target_name=on, source_name=step.name, guide=guide, on_event=on_event,
                            should_cancel=should_cancel)
         except Canceled:
@@ -134,8 +135,8 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
             where = f"steps.{index - 1}" + (f".{exc.field}" if exc.field else "")
             raise type(exc)(f"stage {index}/{len(steps)} ({step.name}): {exc.message}", code=exc.code,
                             field=where) from exc
-        # The stage's target file frame is the scene frame (every placed object is in it).
+        # The step's target file frame is the scene frame (every placed object is in it).
         placed.append(Placed(step.name, step.source,
                              frames.Similarity(result.source_to_target, frames.SOURCE_FILE, frames.SCENE)))
-        stages.append(StepResult(index, len(steps), step, on, result))
-    return Assembly(placed, stages, {"total_s": round(time.perf_counter() - started, 3)})
+        results.append(StepResult(index, len(steps), step, on, result))
+    return Assembly(placed, results, {"total_s": round(time.perf_counter() - started, 3)})

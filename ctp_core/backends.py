@@ -1,7 +1,7 @@
 """The guidance model backends: a spec's prefix -> its loader, and whether it gives gradients.
 
 Kept free of torch and transformers so configuration validation (the API process imports no torch)
-can refuse a run a backend cannot serve before any model loads. A backend's loader (in ``loaders``,
+can refuse a run a backend cannot serve before any model loads. A backend's loader (in ``guide_loaders``,
 which needs torch) is imported on first use; it takes ``(spec, rest_of_spec, guidance.LoadRequest)`` and
 returns a ``guidance.Guide``.
 """
@@ -21,11 +21,11 @@ class Backend:
     differentiable: bool = True  # False: forward only (no image gradients, so no CLIP term to descend)
 
     def load_function(self) -> Callable:
-        """This backend's loader, ``loaders.load_<prefix>``; imported here, on first use, as it needs torch."""
-        from ctp_core import loaders
+        """This backend's loader, ``guide_loaders.load_<prefix>``; imported here, on first use, as it needs torch."""
+        from ctp_core import guide_loaders
 
-        return {"hf": loaders.load_hf, "open_clip": loaders.load_open_clip, "random": loaders.load_random,
-                "onnx": loaders.load_onnx}[self.prefix]
+        return {"hf": guide_loaders.load_hf, "open_clip": guide_loaders.load_open_clip,
+                "random": guide_loaders.load_random, "onnx": guide_loaders.load_onnx}[self.prefix]
 
 
 BACKENDS: dict[str, Backend] = {b.prefix: b for b in (

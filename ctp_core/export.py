@@ -80,13 +80,13 @@ def report(result: AlignResult) -> dict:
 
 def assembly_report(assembly: Assembly) -> dict:
     """The record of an assembly: every object's file -> scene transform, then each stage's run."""
-    first = assembly.stages[0].result.config
+    first = assembly.results[0].result.config
     return {
         "frame": SCENE,
         "objects": [{"name": p.name, "transform": transform(p.to_scene)} for p in assembly.objects],
         "stages": [{"stage": s.index, "of": s.count, "name": s.step.name, "on": s.on,
                     "image_guided": s.step.image is not None,
-                    **_run(s.result, transform(assembly.objects[s.index].to_scene))} for s in assembly.stages],
+                    **_run(s.result, transform(assembly.objects[s.index].to_scene))} for s in assembly.results],
         "model": first.model, "seed": first.seed, "preset": first.preset,
         "timings": _jsonable(assembly.timings),
         **_provenance(),

@@ -17,13 +17,13 @@ Model specs (the strings of ``ctp align --model``):
   checkpoint path.
 - ``random:ARCH``: the same architecture with deterministic random weights (seeded, built from a
   config in code, nothing read or downloaded) for tests and benchmarks on machines without weights.
-  ``ARCH`` is one of ``loaders.RANDOM_ARCHS`` (``ViT-B-32``, ``ViT-B-16``, ``ViT-L-14``, ``tiny``).
+  ``ARCH`` is one of ``guide_loaders.RANDOM_ARCHS`` (``ViT-B-32``, ``ViT-B-16``, ``ViT-L-14``, ``tiny``).
 - ``onnx:DIR``: a directory of exported towers (an entry of the ONNX cache, see ``runtime``), run by
   ONNX Runtime without torch weights. Forward only: ``Guide.differentiable`` is False, and a run that
   needs image gradients is refused when it is configured (``config``).
 
 The backends are a registry (``backends.BACKENDS``: spec prefix -> loader, differentiable or not); the
-loaders that build a ``Guide`` for each are in ``loaders``.
+loaders that build a ``Guide`` for each are in ``guide_loaders``.
 
 Runtime of the forward-only calls (``runtime``: ``auto``, ``torch``, ``onnx``, ``onnx-int8``): with
 ``onnx``/``onnx-int8`` the guide exports its towers once (cached) and runs ``encode_images``,

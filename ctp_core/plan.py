@@ -12,7 +12,7 @@ from typing import Any
 
 from ctp_core.errors import ConfigError
 
-__all__ = ["STEP_KEYS", "PlanError", "PlanStep", "check_plan", "plan_step", "stage_options"]
+__all__ = ["STEP_KEYS", "PlanError", "PlanStep", "check_plan", "plan_step", "step_options"]
 
 STEP_KEYS = frozenset({"file", "prompt", "image", "name", "on", "options"})  # one step of a plan
 _ASSEMBLY_ONLY = frozenset({"preset", "model"})  # the whole assembly's: one model is loaded for every stage
@@ -51,11 +51,11 @@ def plan_step(entry: Any, where: str, *, assembly_options: str) -> PlanStep:
     if entry.get("prompt") is not None and entry.get("image") is not None:
         raise PlanError(f"{where}: give a prompt or an image, not both", field=f"{where}.prompt")
     return PlanStep(file=entry["file"], prompt=entry.get("prompt"), image=entry.get("image"), name=entry.get("name"),
-                    on=entry.get("on"), options=stage_options(entry.get("options"), f"{where}.options",
+                    on=entry.get("on"), options=step_options(entry.get("options"), f"{where}.options",
                                                               assembly_options=assembly_options))
 
 
-def stage_options(options: Any, where: str, *, assembly_options: str) -> dict[str, Any]:
+def step_options(options: Any, where: str, *, assembly_options: str) -> dict[str, Any]:
     """Run options that apply per stage (``None``: none): a mapping without preset and model."""
     if options is None:
         return {}

@@ -72,7 +72,7 @@ def assembly(meshes):
     stages = []
     steps = [Step(meshes[name], name, prompt, on=on) for name, prompt, on in PLAN]
     result = assemble(meshes["table"], steps, config, base_name="table",
-                      on_stage=lambda i, n, step: stages.append((i, n, step.name)))
+                      on_step=lambda i, n, step: stages.append((i, n, step.name)))
     assert stages == [(1, 2, "plate"), (2, 2, "cup")]
     return result
 
@@ -93,7 +93,7 @@ def test_glb_reproduces_every_object_and_its_materials(assembly, meshes):
 
 
 def test_placed_objects_never_move(assembly, meshes):
-    first, second = assembly.stages
+    first, second = assembly.results
     plate_after_stage_1 = frames.Similarity(first.result.source_to_target, frames.SOURCE_FILE, frames.SCENE)
     seen_by_stage_2 = dict(objects(second.result.target))
     np.testing.assert_allclose(seen_by_stage_2["plate"].vertices, plate_after_stage_1.apply(meshes["plate"].vertices),

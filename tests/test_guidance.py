@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from ctp_core import guidance, loaders
+from ctp_core import guidance, guide_loaders
 from ctp_core.errors import ModelError
 from ctp_core.guidance import ImageTransform, byte_tokenize, downloads_allowed, get_guide, load_guide
 
@@ -182,10 +182,10 @@ def test_hf_local_directory_loads_offline_and_matches_the_model(tmp_path, monkey
     prompts = ["a cat", "a hat on a dog"]
     batch = tokenizer(prompts, padding=True, return_tensors="pt")
     with torch.no_grad():
-        expected_text = loaders._pooled(model.get_text_features(**batch))
+        expected_text = guide_loaders._pooled(model.get_text_features(**batch))
         pixels = (_images(2, size=32) - torch.tensor([0.5, 0.4, 0.3]).view(1, 3, 1, 1)) / torch.tensor(
             [0.2, 0.25, 0.3]).view(1, 3, 1, 1)
-        expected_img = loaders._pooled(model.get_image_features(pixel_values=pixels))
+        expected_img = guide_loaders._pooled(model.get_image_features(pixel_values=pixels))
     torch.testing.assert_close(guide.encode_text(prompts), torch.nn.functional.normalize(expected_text, dim=-1))
     torch.testing.assert_close(guide.encode_images(_images(2, size=32)),
                                torch.nn.functional.normalize(expected_img, dim=-1))

@@ -157,7 +157,7 @@ def assemble_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobCon
     guide = job.guide(config, Stage(name="model", count=count)) if any(s.config.uses_model for s in steps) else None
     current = Stage(name="search", count=count)
 
-    def on_stage(index: int, total: int, step: Step) -> None:
+    def on_step(index: int, total: int, step: Step) -> None:
         nonlocal current
         current = Stage(name="search", index=index, count=total, label=step.prompt or f"{step.name} (image-guided)")
 
@@ -166,7 +166,7 @@ def assemble_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobCon
 
     try:
         assembly = assemble(base, steps, config, base_name=record.target_name, guide=guide, on_event=on_event,
-                            on_stage=on_stage, should_cancel=job.should_cancel)
+                            on_step=on_step, should_cancel=job.should_cancel)
     except (CtpError, JobTimeoutException):
         raise  # the library names the stage of its own errors
     except Exception as exc:
