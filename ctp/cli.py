@@ -87,7 +87,7 @@ def command_parser(name: str, width: int | None = None) -> tuple[object, argpars
 
 
 def synopsis(width: int = 112) -> str:
-    """Every sub-command's usage line, generated from its parser: the README's synopsis is exactly this (a
+    """Every sub-command's usage line, generated from its parser: docs/cli.md's synopsis is exactly this (a
     test compares them; print it with ``python -c "from ctp.cli import synopsis; print(synopsis())"``)."""
     prefix = len("usage: ")  # argparse's continuation lines are indented past it
     usages = (command_parser(name, width)[1].format_usage().rstrip().splitlines() for name in COMMANDS)

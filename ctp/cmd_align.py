@@ -62,7 +62,7 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threads", type=int, metavar="N", help="torch CPU threads (and ONNX Runtime's)")
     parser.add_argument("--runtime", choices=get_args(Runtime),
                         help="where forward-only encoding runs (selection, judge): ONNX Runtime fp32 or int8, "
-                        "torch, or auto (default; README)")
+                        "torch, or auto (default; docs/guidance.md)")
     add_option(parser, "contact_ratio", "R", "soft-ICP ratio r in [0, 1] (default: prior)")
     add_option(parser, "penetration")
     add_option(parser, "size_ratio", "S", "source/target size in [0.01, 100] (scale mode)")

@@ -24,7 +24,7 @@ base), a bottle lying on its side ~1/11 of it standing, so no margin separates t
 authored pose is the safer error (a flipped table ruins "a cup on the table"), and a lying upload is
 still placed correctly in its own file frame. Known misses: figures that cannot stand on their own
 (no resting pose has +Y up), tables (upside down rests better), cubes and spheres (no single up).
-Measured on ``../shared/bench`` by ``benchmarks/canonical_bench.py`` (figures in the README).
+Measured on ``../shared/bench`` by ``benchmarks/canonical_bench.py`` (figures in docs/engine.md).
 
 4. **A judge** (optional, semantic): geometry cannot tell a table on its legs from one on its top, or
    where a figure's head is; a vision-language model can. ``judge`` scores candidate rotations (in

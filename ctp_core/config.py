@@ -7,7 +7,7 @@ instead of threading keyword arguments through the layers.
 Presets:
 - ``paper``: the paper's budget (2000 steps, 8 views per step, 3 phases, 5 restarts).
 - ``default``: search, then a short refinement: a typical pair in about two minutes on a 2-core CPU
-  (README, "Presets").
+  (docs/presets-and-search.md, "Presets").
 - ``descent``: the earlier default, local descent only from random starts (about ten minutes a pair).
 - ``test``: seconds; for CI and smoke tests (search included, tiny).
 """
@@ -147,7 +147,7 @@ class AlignConfig(_Strict):
     runtime: Runtime = Field(
         "auto", description="where forward-only encoding runs (scoring, selection, judge): torch, onnx (ONNX "
         "Runtime fp32), onnx-int8 (dynamic int8 vision tower), auto (onnx on CPUs without native bf16, else "
-        "torch; README); the gradient path is always torch"
+        "torch; docs/guidance.md); the gradient path is always torch"
     )
     scale: bool = Field(False, description="optimise isotropic scale too")
     size_ratio: float | None = Field(None, ge=0.01, le=100.0, description="source/target size; None: prior")
@@ -159,7 +159,7 @@ class AlignConfig(_Strict):
     )
     upright_judge: bool = Field(
         False, description="let the guidance model choose the target's up (renders under candidate ups against "
-        "'a photo of a TARGET_NAME'); needs real weights and a target name; its accuracy is unmeasured (README)"
+        "'a photo of a TARGET_NAME'); needs real weights and a target name; its accuracy is unmeasured (docs/engine.md)"
     )
     hparams_provider: str = Field("rules", description="scene-prior provider (priors.py)")
     threads: int | None = Field(None, ge=1, le=256, description="torch CPU threads; None leaves torch's")
@@ -267,7 +267,7 @@ PRESETS: dict[str, dict] = {
     # Search then refine (under 2 min for a typical pair on a 2-core AVX2 CPU, fp32): the search's 6 best
     # poses, already in contact, get a short low-resolution descent with small steps (they start near an
     # answer), one random view per step (each step draws a new one; on an AVX2 CPU a gradient image costs ~2.6
-    # forward ones in ONNX Runtime: 203 vs 77 ms for ViT-B/32, README).
+    # forward ones in ONNX Runtime: 203 vs 77 ms for ViT-B/32, docs/guidance.md).
     "default": {
         "camera": {"views": 1, "image_size": 128, "zoom_last": 0.7},
         "loss": {"samples": 2000},

@@ -30,7 +30,7 @@ Runtime of the forward-only calls (``runtime``: ``auto``, ``torch``, ``onnx``, `
 ``score`` and ``encode_reference_image`` in ONNX Runtime whenever gradients are disabled
 (``torch.no_grad`` / ``torch.inference_mode``; ``encode_text`` always is), and in torch whenever they
 are enabled, so the optimiser's gradient path is unchanged. If export or loading fails the guide logs
-one line and stays on torch. ``auto`` follows ``runtime.resolve`` (measured; README).
+one line and stays on torch. ``auto`` follows ``runtime.resolve`` (measured; docs/guidance.md).
 
 Offline by default: weights are only read from disk unless the caller passes ``offline=False`` or
 the environment allows downloads (``CTP_ALLOW_DOWNLOAD=1``, or ``HF_HUB_OFFLINE=0``). Missing

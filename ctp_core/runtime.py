@@ -54,7 +54,7 @@ def cache_root() -> Path:
 
 
 def resolve(runtime: str, *, device: str, bf16: bool) -> str:
-    """The runtime ``auto`` stands for (measured rule, README "Guidance models"); others unchanged.
+    """The runtime ``auto`` stands for (measured rule, docs/guidance.md); others unchanged.
 
     ``auto``: torch on CUDA and on CPUs where the guide runs bf16 autocast (native bf16 beat ONNX
     Runtime fp32 there), ONNX Runtime fp32 on other CPUs (faster than torch fp32, same cosines to 1e-6).

@@ -64,7 +64,7 @@ class Settings(BaseSettings):
     device: Literal["cpu", "cuda"] = Field("cpu", description="where workers run the model and the optimiser")
     threads: int | None = Field(None, ge=1, description="torch CPU threads per worker; unset: torch's default")
     runtime: Runtime = Field("auto", description="where workers run forward-only encoding: auto, torch, onnx, "
-                             "onnx-int8 (README, Guidance models)")
+                             "onnx-int8 (docs/guidance.md)")
     # Liveness: a worker refreshes a lease on itself and on its running job every heartbeat; a job whose
     # lease lapses (worker killed, machine gone) is failed by the API's reaper with code worker_lost.
     heartbeat_s: float = Field(2.0, gt=0, description="worker heartbeat period")
