@@ -17,6 +17,7 @@ from pathlib import Path
 from types import UnionType
 from typing import Any, Literal, Union, get_args, get_origin
 
+from ctp_core import names
 from ctp_core.config import Runtime
 from ctp_core.errors import ConfigError, ImageError, MeshError
 from ctp_core.priors import PROVIDERS
@@ -179,8 +180,8 @@ def run(args: argparse.Namespace) -> int:
     image = io.load_image(args.image) if args.image else None
     started = time.perf_counter()
     result = align(target, source, args.prompt, config, image=image,
-                   target_name=args.target_name or io.default_name(args.target.name, "target"),
-                   source_name=args.source_name or io.default_name(args.source.name, "source"),
+                   target_name=args.target_name or names.default_name(args.target.name, "target"),
+                   source_name=args.source_name or names.default_name(args.source.name, "source"),
                    on_event=ProgressBar(enabled=not args.quiet))
     export.write_outputs(result, glb=args.out, report_path=args.report, preview=args.preview)
     summary = {"out": str(args.out), "objective": round(result.objective, 6), "scale": round(result.scale, 6),

@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from ctp.cmd_align import ProgressBar, add_run_arguments, config_from_args
+from ctp_core import names
 from ctp_core.errors import ConfigError
 
 _PLAN_KEYS = {"base", "name", "options", "steps"}
@@ -52,7 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ctp_core import export, io
+    from ctp_core import export
     from ctp_core.assemble import assemble
     from ctp_core.loader import MeshLoader
 
@@ -65,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         if args.base is None or not args.add:
             raise ConfigError("give BASE and at least one --add SOURCE PROMPT (or --plan plan.yaml)", field="add")
         with MeshLoader(1) as loader:  # the same bounded loading as ctp align and the service
-            base, base_name = loader.load(args.base, name="base"), io.default_name(args.base.name, "base")
+            base, base_name = loader.load(args.base, name="base"), names.default_name(args.base.name, "base")
             steps = [_step({"file": str(path), "prompt": prompt}, Path.cwd(), config, i, loader)
                      for i, (path, prompt) in enumerate(args.add)]
     bar = ProgressBar(sys.stderr, enabled=not args.quiet)
@@ -94,7 +95,6 @@ def read_plan(path: Path, config):
     ConfigError naming the key."""
     import yaml
 
-    from ctp_core import io
     from ctp_core.loader import MeshLoader
     from ctp_core.plan import step_options
 
@@ -114,7 +114,7 @@ def read_plan(path: Path, config):
     with MeshLoader(1) as loader:  # one loading process for every mesh of the plan
         steps = [_step(step, folder, config, i, loader) for i, step in enumerate(plan["steps"])]
         base = loader.load(base_file, name="base")
-    return base, str(plan.get("name") or io.default_name(base_file.name, "base")), steps, config
+    return base, str(plan.get("name") or names.default_name(base_file.name, "base")), steps, config
 
 
 def _step(entry: Any, folder: Path, config, i: int, loader):
@@ -126,9 +126,8 @@ def _step(entry: Any, folder: Path, config, i: int, loader):
     step = plan_step(_from_yaml(entry), where, assembly_options=_ASSEMBLY_FLAGS)
     file = folder / step.file
     image = io.load_image(folder / step.image) if step.image is not None else None
-    return Step(source=loader.load(file, name=f"{where}.file"), name=step.name or io.default_name(file.name, "object"),
-                prompt=step.prompt,
-                image=image, on=step.on,
+    return Step(source=loader.load(file, name=f"{where}.file"),
+                name=step.name or names.default_name(file.name, "object"), prompt=step.prompt, image=image, on=step.on,
                 config=_with_options(config, step.options, f"{where}.options") if step.options else None)
 
 

@@ -20,7 +20,7 @@ import struct
 import zipfile
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
-from pathlib import Path, PurePath
+from pathlib import Path
 from urllib.parse import unquote
 
 import numpy as np
@@ -32,9 +32,6 @@ from ctp_core.errors import ImageError, MeshError
 SUPPORTED_EXTENSIONS = (".glb", ".gltf", ".obj", ".ply", ".stl", ".zip")
 _MESH_EXTENSIONS = tuple(e for e in SUPPORTED_EXTENSIONS if e != ".zip")
 _CHUNK = 1 << 20
-NAME_MAX = 100  # characters of an object's name (the service refuses longer ones)
-
-
 @dataclass(frozen=True)
 class MeshLimits:
     """Budgets an upload must fit (defaults suit a CPU worker; the service may lower them)."""
@@ -47,12 +44,6 @@ class MeshLimits:
     # cube of the depth (a 25 kB chain of 500 nodes took trimesh 10 s), so a file over these is refused.
     max_nodes: int = 10_000
     max_depth: int = 128
-
-
-def default_name(filename: str, fallback: str) -> str:
-    """An object's name from its file name ("coffee_cup.glb" -> "coffee cup"), cut to NAME_MAX; ``fallback``
-    when nothing is left. The one rule of the CLI and the service for an object the user did not name."""
-    return PurePath(filename).stem.replace("_", " ").replace("-", " ").strip()[:NAME_MAX] or fallback
 
 
 def load_mesh(data: str | Path | bytes, *, filename: str | None = None, limits: MeshLimits = MeshLimits(),

@@ -22,7 +22,8 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.middleware.cors import CORSMiddleware
 
 from ctp_core.errors import ConfigError
-from ctp_core.io import NAME_MAX, MeshLimits
+from ctp_core.io import MeshLimits
+from ctp_core.names import NAME_MAX
 from ctp_core.options import AlignOptions
 from service import logs
 from service.deps import digest

@@ -21,6 +21,8 @@ from typing import Any
 
 import httpx
 
+from ctp_core.names import default_name
+
 MeshInput = str | Path | tuple[str, bytes]  # a path, or (file name with extension, bytes)
 TERMINAL = ("succeeded", "failed", "canceled")
 
@@ -71,14 +73,15 @@ class Client:
         """Submit a whole scene as one job; returns ``{id, status, links}``.
 
         Each step is ``{"file": MeshInput, "prompt": str}`` or ``{"file": ..., "image": MeshInput}``, with
-        optional ``name`` (default the file stem), ``on`` (a placed object's name; default the last placed)
-        and ``options`` (this stage's AlignOptions)."""
+        optional ``name`` (default from the file name, as the CLI and the service name it:
+        ``names.default_name``), ``on`` (a placed object's name; default the last placed) and ``options`` (this
+        step's AlignOptions)."""
         files: list[tuple[str, tuple[str, bytes]]] = [("base", _file(base))]
         plan = []
         for i, step in enumerate(steps):
             entry = {k: v for k, v in step.items() if k not in ("file", "image")}
             name, data = _file(step["file"])
-            entry.setdefault("name", Path(name).stem)
+            entry.setdefault("name", default_name(name, "object"))
             entry["file"] = f"{i}-{name}"  # distinct part names, whatever the files are called
             files.append(("source", (entry["file"], data)))
             if step.get("image") is not None:

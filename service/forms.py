@@ -20,8 +20,9 @@ from fastapi import Request
 from starlette.datastructures import UploadFile
 
 from ctp_core.errors import CtpError, ImageError, MeshError
-from ctp_core.io import NAME_MAX, MeshLimits, default_name, load_image
+from ctp_core.io import MeshLimits, load_image
 from ctp_core.loader import LoaderUnavailable, MeshLoader
+from ctp_core.names import NAME_MAX, default_name
 from service.errors import ApiError
 
 log = logging.getLogger("ctp.service")

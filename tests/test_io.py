@@ -12,7 +12,7 @@ import trimesh
 from PIL import Image
 
 from ctp_core.errors import ImageError, MeshError
-from ctp_core.io import NAME_MAX, MeshLimits, default_name, load_image, load_mesh
+from ctp_core.io import MeshLimits, load_image, load_mesh
 from ctp_core.structures import MeshArrays
 
 
@@ -313,10 +313,3 @@ def test_zip_symlink_member_is_refused():
         archive.writestr(link, "/etc/passwd")
     assert _code(out.getvalue(), "m.zip") == "mesh_zip_invalid"
 
-
-def test_default_name_reads_the_file_name():
-    """The one rule of ``ctp align``, ``ctp assemble`` and the service for an object the user did not name."""
-    assert default_name("coffee_cup.glb", "source") == "coffee cup"
-    assert default_name("dir/Owl-Barn_01.obj.zip", "source") == "Owl Barn 01.obj"
-    assert default_name("_-_.ply", "target") == "target"
-    assert default_name("x" * 300 + ".stl", "source") == "x" * NAME_MAX

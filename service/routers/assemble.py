@@ -7,7 +7,7 @@ from fastapi.concurrency import run_in_threadpool
 
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
-from ctp_core.io import NAME_MAX, default_name
+from ctp_core.names import NAME_MAX, default_name
 from ctp_core.plan import PlanError, PlanStep, check_plan, plan_step
 from service import forms
 from service.deps import enqueue, owner

@@ -20,7 +20,8 @@ from fastapi.staticfiles import StaticFiles
 
 from ctp_core.config import AlignConfig
 from ctp_core.examples import EXAMPLES
-from ctp_core.io import NAME_MAX, SUPPORTED_EXTENSIONS
+from ctp_core.io import SUPPORTED_EXTENSIONS
+from ctp_core.names import NAME_MAX
 from ctp_core.options import AlignOptions
 from service.errors import ApiError
 from service.forms import PROMPT_MAX
