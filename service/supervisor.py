@@ -36,6 +36,7 @@ class _Child:
     start: Callable[[], None]
     process: Callable[[], subprocess.Popen | None]  # the current one; None before the first start
     started_at: float = 0.0
+    first_backoff_s: float = BACKOFF_S
     backoff_s: float = BACKOFF_S
     restart_at: float | None = None
     restarts: int = 0
@@ -52,7 +53,8 @@ class _Child:
 class Supervisor:
     """Keeps ``workers`` worker processes (started by ``spawn``) and the embedded Redis, if any, running."""
 
-    def __init__(self, spawn: Callable[[], subprocess.Popen], workers: int, redis: EmbeddedRedis | None = None):
+    def __init__(self, spawn: Callable[[], subprocess.Popen], workers: int, redis: EmbeddedRedis | None = None,
+                 *, worker_backoff_s: float = BACKOFF_S):
         self.spawn = spawn
         self.processes: list[subprocess.Popen | None] = [None] * workers
         self._stop = threading.Event()
@@ -62,7 +64,8 @@ class Supervisor:
                                          started_at=time.monotonic()))
         for slot in range(workers):
             self._children.append(_Child(f"worker {slot + 1}", self._starter(slot),
-                                         lambda slot=slot: self.processes[slot]))
+                                         lambda slot=slot: self.processes[slot], first_backoff_s=worker_backoff_s,
+                                         backoff_s=worker_backoff_s))
         self._thread = threading.Thread(target=self._run, name="ctp-supervisor", daemon=True)
 
     def start(self) -> Supervisor:
@@ -101,7 +104,7 @@ class Supervisor:
         now = time.monotonic()
         if child.running():
             if now - child.started_at > STABLE_S:
-                child.backoff_s = BACKOFF_S
+                child.backoff_s = child.first_backoff_s
             return
         if child.restart_at is None:  # just found dead
             child.restart_at = now + child.backoff_s
