@@ -3,7 +3,8 @@
 A thread polls them every ``POLL_S``. A worker that exited (killed, crashed, lost its Redis) is
 started again after a back-off that doubles from ``BACKOFF_S`` to ``BACKOFF_MAX_S`` while it keeps
 dying and resets once one has lived ``STABLE_S``; the job it was running is failed ``worker_lost`` by
-the API's reaper as before. A redis-server that exited is started again on the same port with the
+the API's reaper as before, and jobs submitted meanwhile are accepted and queued (the "last seen" grace,
+``service.jobs``). A redis-server that exited is started again on the same port with the
 same data directory, so the append-only file brings back every queued job (``appendfsync
 everysec``: a hard kill may lose the last second of writes). Each restart is logged. In the compose
 layout, restart policies do the same (``docker/compose.yaml``).
@@ -51,7 +52,8 @@ class _Child:
 
 
 class Supervisor:
-    """Keeps ``workers`` worker processes (started by ``spawn``) and the embedded Redis, if any, running."""
+    """Keeps ``workers`` worker processes (started by ``spawn``) and the embedded Redis, if any, running.
+    ``worker_backoff_s``: a worker's first back-off (``BACKOFF_S``; a test lengthens it to hold a restart open)."""
 
     def __init__(self, spawn: Callable[[], subprocess.Popen], workers: int, redis: EmbeddedRedis | None = None,
                  *, worker_backoff_s: float = BACKOFF_S):
