@@ -76,11 +76,14 @@ an earlier job's scene. Jobs run on queue workers; records and results expire af
   `mesh_invalid_values` (NaN/inf), `mesh_external_reference` (glTF URIs), `mesh_zip_invalid` (bombs,
   paths out of the archive, encrypted or symbolic-link members, not exactly one mesh), `invalid_image`
 - 429: `too_many_jobs` (queued plus running jobs per key, `CTP_MAX_ACTIVE_JOBS`)
-- 503: `redis_unavailable`; `no_worker` (no worker is alive); `model_unavailable` (no live worker can run
+- 503: `redis_unavailable`; `no_worker` (no worker is alive, and none was seen within the grace,
+  `CTP_WORKER_GRACE_S`); `model_unavailable` (no live worker can run
   the job's model, e.g. its weights are not on the workers and downloads are off; the message says why);
   `loader_unavailable` (shutting down, or every loading process busy).
   `POST /align` and `POST /assemble` answer these up front instead of accepting a job that would fail; a job with
   `lambda_clip` 0 (geometry only) needs no model. `GET /readyz` gives the same codes for the default model.
+  While a worker is being restarted (none live, one seen within the grace) jobs are judged by what it could run,
+  accepted and queued, and `GET /readyz` answers 200 `restarting`.
 
 Uploads are loaded, before anything is queued, in separate loading processes with a wall-time and a
 memory limit, so no upload can stall or exhaust the API.

@@ -16,7 +16,7 @@ from fastapi.concurrency import run_in_threadpool
 
 from ctp_core.config import AlignConfig
 from service.errors import ApiError
-from service.jobs import JobRecord, TooManyJobs
+from service.jobs import JobError, JobRecord, Jobs, TooManyJobs
 from service.schemas import Accepted, links
 
 _JOB_ID = re.compile(r"[0-9a-f]{32}")
@@ -51,19 +51,29 @@ async def own_job(request: Request, job_id: str, who: str) -> JobRecord:
 
 async def enqueue(request: Request, record: JobRecord, blobs: dict[str, bytes],
                   configs: Sequence[AlignConfig]) -> Accepted:
-    """Queue a validated job (``POST /align`` and ``POST /assemble``): 503 when no live worker can run it
-    (refused now rather than accepted and failed later), 429 over the key's active-job limit.
+    """Queue a validated job (``POST /align`` and ``POST /assemble``): 503 when no worker can run it (refused
+    now rather than accepted and failed later; a worker being restarted counts, ``Jobs.unavailable``), 429 over
+    the key's active-job limit.
 
     ``configs`` are what the job runs: an assembly's every stage (each with its own options), so one guided
     step makes the job need the model however geometry-only the assembly's options are."""
     settings, jobs = request.app.state.settings, request.app.state.jobs
-    live = await run_in_threadpool(jobs.live_workers)
-    for model in sorted({c.model for c in configs if c.uses_model}) or [None]:  # None: a live worker at all
-        unavailable = jobs.unavailable(model, live=live)
-        if unavailable is not None:
-            raise ApiError(503, unavailable.code, unavailable.message, unavailable.field)
+    unavailable = await run_in_threadpool(_unavailable, jobs, {c.model for c in configs if c.uses_model})
+    if unavailable is not None:
+        raise ApiError(503, unavailable.code, unavailable.message, unavailable.field)
     try:
         await run_in_threadpool(jobs.submit, record, blobs, settings.max_active_jobs)
     except TooManyJobs as exc:
         raise ApiError(429, "too_many_jobs", str(exc)) from None
     return Accepted(id=record.id, status="queued", links=links(record.id))
+
+
+def _unavailable(jobs: Jobs, models: set[str]) -> JobError | None:
+    """The first reason a job needing ``models`` cannot run (Redis read once: live, then seen if none is)."""
+    live = jobs.live_workers()
+    seen = None if live else jobs.seen_workers()
+    for model in sorted(models) or [None]:  # None: a worker at all
+        unavailable = jobs.unavailable(model, live=live, seen=seen)
+        if unavailable is not None:
+            return unavailable
+    return None

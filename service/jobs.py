@@ -13,6 +13,13 @@ Liveness: a running job holds a lease key ``{prefix}:lease:{id}`` that its worke
 heartbeat. ``reap`` fails running jobs whose lease lapsed (worker SIGKILLed, machine gone) with code
 ``worker_lost``; they are not retried, because a job that kills its worker (memory) would otherwise
 take every worker down in turn. Clients may resubmit.
+
+Workers: each heartbeat refreshes the worker's own lease ``{prefix}:worker:{name}`` (``lease_s``) with
+the models it can run, and a "last seen" record ``{prefix}:seen:{name}`` that outlives the lease by the
+grace (``worker_grace_s``). While no worker is live but one was seen within the grace (a worker being
+restarted: killed, back-off, start-up, model load), jobs are still judged by what the last-seen workers
+offered and accepted; they wait in the queue until a worker is back. A clean exit drops the lease but not
+the record, so it does not end the grace early.
 """
 
 from __future__ import annotations
@@ -159,6 +166,13 @@ def new_id() -> str:
     return uuid.uuid4().hex
 
 
+class SeenWorker(BaseModel):
+    """A worker seen within the grace (``Jobs.seen_workers``): how long ago, and what it could run then."""
+
+    since_s: float
+    models: dict[str, str | None]
+
+
 class _StopFlags(BaseModel):
     """The fields of a stored record that ``Jobs.should_stop`` reads (the others are skipped)."""
 
@@ -175,9 +189,10 @@ class Jobs:
     """Job records, the rq queue and the liveness keys of one deployment (one key prefix)."""
 
     def __init__(self, redis: Redis, storage: Storage, *, prefix: str, ttl_s: int, job_timeout_s: int,
-                 lease_s: int):
+                 lease_s: int, worker_grace_s: float = 0.0):
         self.redis, self.storage, self.prefix = redis, storage, prefix
         self.ttl_s, self.job_timeout_s, self.lease_s = ttl_s, job_timeout_s, lease_s
+        self.worker_grace_s = worker_grace_s  # how long a heartbeat's "last seen" record lives; 0: none written
         self.queue = Queue(prefix, connection=redis, serializer=JSONSerializer)
 
     @classmethod
@@ -186,7 +201,7 @@ class Jobs:
         client = Redis.from_url(settings.redis_url, health_check_interval=30)
         return cls(client, open_storage(client, settings.queue, settings.job_ttl_s, settings.storage_dir),
                    prefix=settings.queue, ttl_s=settings.job_ttl_s, job_timeout_s=settings.job_timeout_s,
-                   lease_s=settings.lease_s)
+                   lease_s=settings.lease_s, worker_grace_s=settings.worker_grace_s)
 
     # -- keys ---------------------------------------------------------------------------------------
     def record_key(self, job_id: str) -> str:
@@ -386,9 +401,17 @@ class Jobs:
     def _models_key(self, worker: str) -> str:
         return f"{self.prefix}:models:{worker}"
 
+    def _seen_key(self, worker: str) -> str:
+        return f"{self.prefix}:seen:{worker}"
+
+    @property
+    def _seen_set(self) -> str:
+        return f"{self.prefix}:seen"
+
     def heartbeat(self, worker: str, job_id: str | None, models: dict[str, str | None] | None = None) -> None:
         """A worker is alive (and so is its running job): refresh both leases. ``models`` is what the worker
-        can run, ``{spec: None when it can, else why not}``; it lives as long as the worker's lease."""
+        can run, ``{spec: None when it can, else why not}``; it lives as long as the worker's lease. With a
+        grace, the worker's "last seen" record (its models) is refreshed too and lives ``worker_grace_s``."""
         with self.redis.pipeline(transaction=False) as pipe:
             pipe.set(self._worker_key(worker), job_id or "", ex=self.lease_s)
             pipe.sadd(f"{self.prefix}:workers", worker)
@@ -396,9 +419,19 @@ class Jobs:
                 pipe.set(self._models_key(worker), json.dumps(models), ex=self.lease_s)
             if job_id is not None:
                 pipe.set(self._lease_key(job_id), worker, ex=self.lease_s, xx=True)
+            grace_ms = int(self.worker_grace_s * 1000)
+            if grace_ms > 0:
+                # The grace travels in the record: "seen s ago" is the grace less the key's time to live, which
+                # Redis keeps, so no two machines' clocks are compared.
+                pipe.set(self._seen_key(worker), json.dumps({"models": models or {}, "grace_s": self.worker_grace_s}),
+                         px=grace_ms)
+                pipe.sadd(self._seen_set, worker)
+                pipe.pexpire(self._seen_set, grace_ms)
             pipe.execute()
 
     def worker_gone(self, worker: str) -> None:
+        """A worker's clean exit: it is no longer live. Its "last seen" record stays for the rest of the grace
+        (a supervised or orchestrated worker that exits is usually started again)."""
         self.redis.delete(self._worker_key(worker), self._models_key(worker))
         self.redis.srem(f"{self.prefix}:workers", worker)
 
@@ -418,20 +451,54 @@ class Jobs:
             self.redis.srem(f"{self.prefix}:workers", *dead)
         return live
 
+    def seen_workers(self) -> dict[str, SeenWorker]:
+        """Workers seen within the grace (live ones included) -> when and with which models; forgets the
+        others. Empty without a grace."""
+        names = [raw.decode() for raw in self.redis.smembers(self._seen_set)]
+        if not names:
+            return {}
+        with self.redis.pipeline(transaction=False) as pipe:
+            for name in names:
+                pipe.get(self._seen_key(name))
+                pipe.pttl(self._seen_key(name))
+            replies = pipe.execute()
+        seen = {}
+        for name, raw, ttl_ms in zip(names, replies[0::2], replies[1::2], strict=True):
+            if raw is None:
+                continue
+            record = json.loads(raw)
+            left_s = ttl_ms / 1000 if ttl_ms >= 0 else 0.0
+            seen[name] = SeenWorker(since_s=round(max(0.0, float(record["grace_s"]) - left_s), 1),
+                                    models=record["models"])
+        gone = [name for name in names if name not in seen]
+        if gone:
+            self.redis.srem(self._seen_set, *gone)
+        return seen
+
     def unavailable(self, model: str | None, *, what: str = "model", field: str | None = "options.model",
-                    live: dict[str, dict[str, str | None]] | None = None) -> JobError | None:
+                    live: dict[str, dict[str, str | None]] | None = None,
+                    seen: dict[str, SeenWorker] | None = None) -> JobError | None:
         """Why a job that needs ``model`` (None: a geometry-only job) cannot succeed if submitted now, or
-        None when a live worker can run it: the one readiness rule of ``/readyz`` and ``POST /align``.
-        ``live``: ``live_workers()`` when the caller has just read it (one read for several models)."""
+        None when a worker can run it: the one readiness rule of ``/readyz`` and ``POST /align``.
+
+        A live worker decides. When none is live, the workers seen within the grace decide (their last
+        models): a worker that is restarting keeps the service accepting jobs, which wait in the queue.
+        ``live`` / ``seen``: ``live_workers()`` / ``seen_workers()`` when the caller has just read them (one
+        read for several models); ``seen`` is read only when no worker is live."""
         live = self.live_workers() if live is None else live
+        judged, who, note = live, "live worker", ""
         if not live:
-            return JobError(code="no_worker", message="no worker is alive: start one with `ctp worker` "
-                            "(`ctp serve` without REDIS_URL starts one) or wait until it is back")
-        if model is None or any(model in models and models[model] is None for models in live.values()):
+            seen = self.seen_workers() if seen is None else seen
+            if not seen:
+                return JobError(code="no_worker", message="no worker is alive: start one with `ctp worker` "
+                                "(`ctp serve` without REDIS_URL starts one) or wait until it is back")
+            judged = {name: s.models for name, s in seen.items()}
+            who, note = "recently seen worker", " (none is live now)"
+        if model is None or any(model in models and models[model] is None for models in judged.values()):
             return None
-        reasons = sorted({models[model] for models in live.values() if models.get(model)})
-        why = "; ".join(reasons) if reasons else "no live worker offers it"
-        return JobError(code="model_unavailable", message=f"no live worker can run {what} {model!r}: {why}",
+        reasons = sorted({models[model] for models in judged.values() if models.get(model)})
+        why = "; ".join(reasons) if reasons else f"no {who} offers it"
+        return JobError(code="model_unavailable", message=f"no {who}{note} can run {what} {model!r}: {why}",
                         field=field)
 
     def reap(self) -> list[str]:

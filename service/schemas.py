@@ -6,7 +6,7 @@ service allows; an option left out takes the preset's value.
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
@@ -101,8 +101,15 @@ class Health(BaseModel):
 
 
 class Ready(BaseModel):
-    status: str = Field(description="ready")
+    status: Literal["ready", "restarting"] = Field(
+        description="ready: a live worker can run the default model; restarting: no worker is live now, but one "
+        "that could was seen within the grace (CTP_WORKER_GRACE_S), e.g. while it is restarted; jobs are "
+        "accepted and wait in the queue until a worker is back")
     redis: bool = Field(description="Redis answered")
-    workers: int = Field(description="workers that sent a heartbeat within the lease (CTP_LEASE_S)")
-    models: list[str] = Field(description="the models at least one live worker can run now (the default among "
-                              "them, or the answer is 503)")
+    workers: int = Field(description="workers that sent a heartbeat within the lease (CTP_LEASE_S); 0 while "
+                         "restarting")
+    models: list[str] = Field(description="the models jobs are accepted for: those at least one live worker can "
+                              "run now, or while restarting those the workers seen within the grace could run "
+                              "(the default among them, or the answer is 503)")
+    since_s: float | None = Field(None, description="restarting: seconds since a worker was last seen (the "
+                                  "answer turns 503 no_worker once this passes the grace); null when ready")

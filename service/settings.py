@@ -70,6 +70,11 @@ class Settings(BaseSettings):
     heartbeat_s: float = Field(2.0, gt=0, description="worker heartbeat period")
     lease_s: int = Field(15, ge=2, description="a worker or running job silent this long is considered dead")
     progress_every_s: float = Field(3.0, gt=0, description="a running job republishes progress at least this often")
+    # A worker seen this recently still counts while none is live (its restart: supervisor back-off up to 30 s,
+    # start-up and model load about 15 to 25 s, from its last heartbeat): jobs are accepted and wait in the queue.
+    worker_grace_s: float = Field(90.0, ge=0, description="after the last worker's lease lapsed, jobs are still "
+                                  "accepted (queued) and /readyz says restarting until no worker has been seen "
+                                  "for this long; 0: no grace")
     # HTTP.
     api_keys: Annotated[list[str], NoDecode] = Field(
         default_factory=list, description="bearer tokens; when set every call but /healthz and /readyz needs one "

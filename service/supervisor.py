@@ -3,7 +3,8 @@
 A thread polls them every ``POLL_S``. A worker that exited (killed, crashed, lost its Redis) is
 started again after a back-off that doubles from ``BACKOFF_S`` to ``BACKOFF_MAX_S`` while it keeps
 dying and resets once one has lived ``STABLE_S``; the job it was running is failed ``worker_lost`` by
-the API's reaper as before. A redis-server that exited is started again on the same port with the
+the API's reaper as before, and jobs submitted meanwhile are accepted and queued (the "last seen" grace,
+``service.jobs``). A redis-server that exited is started again on the same port with the
 same data directory, so the append-only file brings back every queued job (``appendfsync
 everysec``: a hard kill may lose the last second of writes). Each restart is logged. In the compose
 layout, restart policies do the same (``docker/compose.yaml``).
@@ -36,6 +37,7 @@ class _Child:
     start: Callable[[], None]
     process: Callable[[], subprocess.Popen | None]  # the current one; None before the first start
     started_at: float = 0.0
+    first_backoff_s: float = BACKOFF_S
     backoff_s: float = BACKOFF_S
     restart_at: float | None = None
     restarts: int = 0
@@ -50,9 +52,11 @@ class _Child:
 
 
 class Supervisor:
-    """Keeps ``workers`` worker processes (started by ``spawn``) and the embedded Redis, if any, running."""
+    """Keeps ``workers`` worker processes (started by ``spawn``) and the embedded Redis, if any, running.
+    ``worker_backoff_s``: a worker's first back-off (``BACKOFF_S``; a test lengthens it to hold a restart open)."""
 
-    def __init__(self, spawn: Callable[[], subprocess.Popen], workers: int, redis: EmbeddedRedis | None = None):
+    def __init__(self, spawn: Callable[[], subprocess.Popen], workers: int, redis: EmbeddedRedis | None = None,
+                 *, worker_backoff_s: float = BACKOFF_S):
         self.spawn = spawn
         self.processes: list[subprocess.Popen | None] = [None] * workers
         self._stop = threading.Event()
@@ -62,7 +66,8 @@ class Supervisor:
                                          started_at=time.monotonic()))
         for slot in range(workers):
             self._children.append(_Child(f"worker {slot + 1}", self._starter(slot),
-                                         lambda slot=slot: self.processes[slot]))
+                                         lambda slot=slot: self.processes[slot], first_backoff_s=worker_backoff_s,
+                                         backoff_s=worker_backoff_s))
         self._thread = threading.Thread(target=self._run, name="ctp-supervisor", daemon=True)
 
     def start(self) -> Supervisor:
@@ -101,7 +106,7 @@ class Supervisor:
         now = time.monotonic()
         if child.running():
             if now - child.started_at > STABLE_S:
-                child.backoff_s = BACKOFF_S
+                child.backoff_s = child.first_backoff_s
             return
         if child.restart_at is None:  # just found dead
             child.restart_at = now + child.backoff_s

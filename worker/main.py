@@ -3,7 +3,9 @@
 ``SimpleWorker`` runs jobs in this process instead of forking a child per job, so the vision-language
 model loaded at start-up (``guidance.get_guide`` caches it per process) serves every job, and torch
 never has to survive a fork. The heartbeat thread keeps this worker visible to ``/readyz`` with the
-models it can run (checked once at start: the default loaded, the others' weights looked for), holds the
+models it can run (checked once at start: the default loaded, the others' weights looked for; a "last
+seen" record keeps them counted for ``CTP_WORKER_GRACE_S`` after the worker dies or exits, so jobs are
+still accepted while it is restarted, ``service.jobs``), holds the
 lease of the running job (lapsed lease: the API's reaper fails the job with ``worker_lost``) and
 republishes progress when the optimiser has been quiet for a while.
 """

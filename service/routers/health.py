@@ -18,18 +18,30 @@ def healthz() -> Health:
 
 
 @router.get("/readyz", response_model=Ready, responses=documented(503),
-            summary="A job submitted now can succeed: Redis answers and a live worker can run the default model",
-            description="503 with `redis_unavailable`, `no_worker` (no worker is alive) or `model_unavailable` "
-            "(no live worker can run the default model, e.g. its weights are not on the workers; the message "
-            "says why). Jobs that need no model (`lambda_clip` 0) may still be accepted then.")
+            summary="A job submitted now can succeed: Redis answers and a worker can run the default model",
+            description="200 `ready` when a live worker can run the default model; 200 `restarting` (with "
+            "`since_s`) when no worker is live but one that could was seen within the grace "
+            "(`CTP_WORKER_GRACE_S`, e.g. a worker being restarted): jobs are accepted then and wait in the "
+            "queue until a worker is back. 503 with `redis_unavailable`, `no_worker` (no worker has been seen "
+            "for longer than the grace) or `model_unavailable` (no worker can run the default model, e.g. its "
+            "weights are not on the workers; the message says why). Jobs that need no model (`lambda_clip` 0) "
+            "may still be accepted then.")
 def readyz(request: Request):
     jobs, settings = request.app.state.jobs, request.app.state.settings
     try:
         live = jobs.live_workers()  # a Redis round trip: it raises when Redis does not answer
-        problem = jobs.unavailable(settings.model, what="the default model (CTP_MODEL)", field=None, live=live)
+        seen = None if live else jobs.seen_workers()
+        problem = jobs.unavailable(settings.model, what="the default model (CTP_MODEL)", field=None, live=live,
+                                   seen=seen)
     except redis.exceptions.RedisError:
         return error_response(503, JobError(code="redis_unavailable", message="Redis does not answer"))
     if problem is not None:
         return error_response(503, problem)
-    models = sorted({spec for served in live.values() for spec, why in served.items() if why is None})
-    return Ready(status="ready", redis=True, workers=len(live), models=models)
+    if live:
+        return Ready(status="ready", redis=True, workers=len(live), models=_runnable(live.values()))
+    return Ready(status="restarting", redis=True, workers=0, models=_runnable(s.models for s in seen.values()),
+                 since_s=min(s.since_s for s in seen.values()))
+
+
+def _runnable(offers) -> list[str]:
+    return sorted({spec for served in offers for spec, why in served.items() if why is None})
