@@ -590,5 +590,5 @@ def poses_of(matrix: np.ndarray, device: str | torch.device = "cpu") -> Poses:
     m = np.asarray(matrix, dtype=np.float64)
     scale = float(np.cbrt(abs(np.linalg.det(m[:3, :3]))))
     q = matrix_to_quaternion(m[:3, :3] / scale)
-    as_t = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=device)  # noqa: E731
+    as_t = lambda a: torch.as_tensor(np.array(a), dtype=torch.float32, device=device)  # noqa: E731
     return Poses(as_t(m[None, :3, 3]), as_t(q[None]), as_t([math.log(scale)]))
