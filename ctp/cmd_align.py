@@ -188,7 +188,7 @@ def run(args: argparse.Namespace) -> int:
                "translation": [round(v, 6) for v in result.translation.tolist()],
                "seconds": round(time.perf_counter() - started, 2), "preset": config.preset,
                "model": result.model, "runtime": result.runtime,
-               "hparams": result.priors.get("provider"),
+               "hparams": result.priors.get("provider"), "relation": result.relation,
                "names": {"target": result.priors["target_name"], "source": result.priors["source_name"]}}
     print(json.dumps(summary))
     return 0

@@ -56,6 +56,9 @@ class AlignResult:
     clip_images: int = 0  # images the encoder scored
     phase_timings: list[dict[str, float]] = field(default_factory=list)  # per refinement phase
     target_upright: canonical.Upright | None = None  # the target's canonical pose (file frame -> upright frame)
+    # the answer's relation verdict (predicates.RelationVerdict.to_dict: name, role figure/ground, score, holds,
+    # stable); None when the priors read no relation
+    relation: dict[str, Any] | None = None
 
     @property
     def transform(self) -> frames.Similarity:
@@ -192,7 +195,7 @@ def refine(run: Run, starts: Poses, *, on_event: ProgressCallback | None = None,
 def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: ProgressCallback | None = None) -> AlignResult:
     """The answer in file frames with its report fields and a preview, from the restart whose best pose has
     the lowest objective on the fixed evaluation views (``Outcome.best``)."""
-    from ctp_core import scene
+    from ctp_core import predicates, scene
 
     config, pair, best = run.config, run.pair, outcome.best
     matrices = outcome.poses.matrices()
@@ -220,6 +223,8 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
         phase_timings=[{k: round(v, 3) for k, v in p.items()} for p in outcome.phase_timings],
         target_upright=pair.target_upright,
     )
+    verdict = predicates.verdict(pair, matrices[best], run.prior.relation, run.prior.source_is_figure)
+    answer.relation = verdict.to_dict() if verdict is not None else None
     if on_event:
         steps = sum(p.steps for p in run.plan)
         on_event(ProgressEvent(kind="done", phase=len(run.plan), phases=len(run.plan), step=outcome.steps_run,

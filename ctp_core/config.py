@@ -162,6 +162,10 @@ class AlignConfig(_Strict):
         "'a photo of a TARGET_NAME'); needs real weights and a target name; its accuracy is unmeasured (docs/engine.md)"
     )
     hparams_provider: str = Field("rules", description="scene-prior provider (priors.py)")
+    relation: bool = Field(
+        True, description="judge poses by the prompt's relation (predicates.py, docs/relations.md) where the search, "
+        "refinement and selection use it; off: the no-relation ablation (the report's relation verdict stays)"
+    )
     threads: int | None = Field(None, ge=1, le=256, description="torch CPU threads; None leaves torch's")
     progress_every: int = Field(5, ge=1, description="steps between progress events")
     camera: CameraConfig = CameraConfig()

@@ -104,6 +104,7 @@ def _run(result: AlignResult, answer: dict | None = None) -> dict:
         "preset": config.preset,
         "config": config.model_dump(mode="json"),
         "hparams": _jsonable(priors.to_report(result.priors)),
+        "relation": _jsonable(result.relation),  # predicates.RelationVerdict of the answer; None without one
         "restarts": _jsonable(result.restarts),
         "timings": _jsonable(result.timings),
         "extra": _jsonable(_extra(result)),

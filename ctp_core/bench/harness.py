@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from ctp_core import metrics, priors, sampling
+from ctp_core import metrics, predicates, priors, sampling
 from ctp_core.bench import baselines, protocol
 from ctp_core.bench.cases import Case
 from ctp_core.bench.guides import GUIDES, GuideInputs, PixelGuide, SelectionScore, guide_inputs
@@ -40,6 +40,7 @@ OPTIMISED = ("ctp", "geometry")  # methods that run align() and take a preset an
 B2_STARTS = 5  # the paper's N for the multi-start baseline
 EVAL_VIEWS = 8  # fixed evaluation views of the semantic metric (paper)
 POSE_SAMPLES = 2000  # source surface samples for ADD-S
+RELATION_SAMPLES = 2000  # target samples per object for the relation metrics (the default preset's loss samples)
 
 # name -> (preset replacing --preset or None, config overrides). Each reuses an optimiser switch.
 ABLATIONS: dict[str, tuple[str | None, dict]] = {
@@ -139,6 +140,35 @@ class _CaseData:
     notes: dict[str, str]
     guide: GuideInputs | None = None
     guide_error: str | None = None
+    judge: tuple | None = None  # (prepared pair, relation, source is figure): the relation metrics (``_judge``)
+
+
+def _judge(data: _CaseData) -> tuple:
+    """What the relation metrics judge every method's answer by: the pair prepared as ``align`` prepares it (the
+    geometric upright turn) and the relation the priors read from the case's prompt (the rules provider), not the
+    case's coarse ``relation`` label: the label's vocabulary ("on_top", "attached", "other") is the benchmark's,
+    it does not say whether the source is the figure, and the priors' relation is what a run would use."""
+    if data.judge is None:
+        from ctp_core import scene
+
+        case, target, source = data.case, data.target, data.source
+        prior = priors.resolve_priors(priors.get_provider("rules"), case.target_name, case.source_name, case.prompt,
+                                      target_extent=float(target.extents.max()),
+                                      source_extent=float(source.extents.max()))
+        pair = scene.prepare_pair(target, source, samples=RELATION_SAMPLES, seed=0)
+        data.judge = (pair, prior.relation, prior.source_is_figure)
+    return data.judge
+
+
+def relation_metrics(data: _CaseData, pose: np.ndarray) -> dict:
+    """``relation`` (the priors' relation or None), ``relation_score``, ``relation_holds`` and ``stable`` (None
+    where the relation is unknown, or for ``stable`` not a resting one: ``predicates.STABLE_RELATIONS``)."""
+    pair, relation, figure = _judge(data)
+    verdict = predicates.verdict(pair, pair.local_to_normalised(pose), relation, figure)
+    if verdict is None:
+        return {"relation": None, "relation_score": None, "relation_holds": None, "stable": None}
+    return {"relation": verdict.name, "relation_score": verdict.score, "relation_holds": verdict.holds,
+            "stable": verdict.stable}
 
 
 def _metric_encoders(specs: Iterable[str], prompt: str, config: AlignConfig) -> tuple[list, dict[str, str]]:
@@ -165,6 +195,7 @@ def evaluate(data: _CaseData, pose: np.ndarray) -> dict:
     placed.apply_transform(pose)
     out = metrics.intersection_over_union(data.target, placed).to_dict()
     out["contact"] = metrics.contact_distance(data.target, placed)
+    out.update(relation_metrics(data, pose))
     if data.case.reference is not None:
         out.update(metrics.pose_errors(data.points, pose, data.case.reference))
         out["placement_success"] = metrics.placement_success(out["centroid_error"], out["iou"])

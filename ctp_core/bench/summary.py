@@ -66,17 +66,21 @@ def _encoders(rows: list[dict]) -> list[str]:
 def table(rows: list[dict]) -> str:
     """The Markdown table: per variant, mean / median of every metric over its ok rows."""
     specs = _encoders(rows)
-    head = ["variant", "ok/runs", "success", "placement", "ADD-S", "rot err °", "trans err", "IoU", "contact",
+    head = ["variant", "ok/runs", "success", "placement", "relation holds", "stable", "ADD-S", "rot err °",
+            "trans err", "IoU", "contact",
             *[f"semantic {s}" for s in specs], "time s", "CLIP images"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for name, group in sorted(_groups(rows).items()):
         ok = [r for r in group if r.get("status") == "ok"]
         success = [r["metrics"]["success"] for r in ok if "success" in r["metrics"]]
         placed = [r["metrics"]["placement_success"] for r in ok if "placement_success" in r["metrics"]]
+        # None: no relation read from the prompt (or, for stable, not a resting one); rows before them lack the keys
+        related = [r["metrics"]["relation_holds"] for r in ok if r["metrics"].get("relation_holds") is not None]
+        steady = [r["metrics"]["stable"] for r in ok if r["metrics"].get("stable") is not None]
         clip = np.array([r.get("clip_images", 0) for r in ok], dtype=float)
         cells = [
             name, f"{len(ok)}/{len(group)}",
-            _rate(success), _rate(placed),
+            _rate(success), _rate(placed), _rate(related), _rate(steady),
             _mean_median(_values(group, "adds")), _mean_median(_values(group, "rotation_error_deg"), 1),
             _mean_median(_values(group, "translation_error")), _mean_median(_values(group, "iou"), 4),
             _mean_median(_values(group, "contact"), 4), *[_mean_median(_semantic(group, s), 4) for s in specs],
@@ -223,6 +227,9 @@ def write_summary(rows: list[dict], out: Path, commands: list[str] = ()) -> Path
     parts += [f"{len(cases)} cases, {len(rows)} runs. Cells are mean / median over runs; success is "
               f"ADD-S ≤ {SUCCESS_ADDS} (cases with a reference only); placement is the centroid "
               f"within {PLACEMENT_RADIUS} source diagonals of the reference and IoU ≤ {PLACEMENT_IOU}; "
+              "relation holds is the answer judged by the relation the priors read from the prompt "
+              "(ctp_core/predicates.py, docs/relations.md), stable its centre of mass over its support (resting "
+              "relations only), each over the runs where it applies; "
               "pose errors are relative to the source "
               "diagonal; contact is the closest surface distance over the target's longest side.", "",
               table(rows), "", "## Per case: ADD-S (IoU)", "", per_case(rows), "", "## Notes", ""]

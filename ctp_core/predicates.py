@@ -1,0 +1,594 @@
+"""The prompt's relation judged by the geometry: how far a posed source is from satisfying it.
+
+``relation_score(pair, poses, relation, source_is_figure)`` gives one value per pose, shape (B,), in the
+objective's batched layout: 0 when the relation holds, growing with the violation, in diagonals of the
+relation's *figure* (the thing placed; the source unless ``source_is_figure`` is false), so the same
+arrangement scores the same at any file scale. Each score is a sum of smooth hinges (``hinge``) on distances
+and heights measured in the normalised frame (+Y up, the target upright; ``scene``), from surface samples and
+their outward normals; it is differentiable in the pose (nearest-sample *selection* carries no gradient, as in
+``losses``), so it can be a refinement term as well as a ranking key and a report. ``holds(score)`` is the
+verdict; ``verdict`` packs one pose's verdict for reports (``RelationVerdict``). ``stable`` is the
+centre-of-mass-over-support check, usable as a metric and as an objective term.
+
+Roles: with the source as the figure ("a cup on a table") the figure is the posed source and the *ground* is
+the target (the related object of a scene, ``PreparedPair.anchor``); with the source as the ground ("a table
+under a vase") the same definitions are read the other way round: the target is the figure and the posed
+source its ground. The definitions, in words, are in ``docs/relations.md`` and in each ``_score_*`` docstring.
+"""
+
+from __future__ import annotations
+
+import math
+import weakref
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import torch
+from scipy.spatial import ConvexHull, QhullError
+
+from ctp_core import losses, sampling
+from ctp_core.pose import Poses, apply_pose, quaternion_to_matrix
+from ctp_core.priors.relations import RELATIONS
+from ctp_core.scene import PreparedPair
+
+# --- constants (figure diagonals unless said otherwise) ------------------------------------------------------
+FIGURE_POINTS = 192  # figure samples a score looks at: enough to find a contact patch, cheap for hundreds of poses
+GROUND_POINTS = 256  # samples of a *posed* ground (the source in the ground role), compared by brute force
+UP_FACING = 0.5  # a ground normal with n_y above this faces up (the search's "top" region, ``proposals``)
+CONTACT = 0.03  # touching: within this of the ground surface (``_gap``: along the nearest normal): a cup's base
+# on a table is within a few hundredths of its diagonal of the sampled top once settled by the search
+SMOOTH = 0.02  # width of the quadratic start of every hinge: gradients stay continuous at the threshold
+SOFT = 0.01  # temperature of the smooth minima/maxima over samples: a hundredth of a diagonal
+HOLDS = 0.02  # a relation holds when its score is at most this (hinges are exactly 0 once within tolerance)
+ON_TOP = 0.05  # "on top of": no ground surface higher than the figure's top by more than this over it
+IN_DEPTH = 0.1  # "in": the figure's lowest point this far below the rim (less is resting on the rim)
+UNDER_REACH = 0.5  # "under": a downward-facing ground sample above the figure within this of its centre's column
+BESIDE_GAP = 0.5  # "beside": the gap at most this many *mean* diagonals of figure and ground
+LEAN_RISE = 0.25  # "lean": the side contact at least this far above the figure's bottom (lying flat: ~0)
+HANG_DROP = 0.05  # "hang": the centre of mass at least this far below the contact's mean height
+WEAR_CENTRE = 0.5  # "wear": the ground's summit within this many figure half-widths of the centre's column
+PENETRATE = (0.02, 0.9)  # "penetrate": the share of the figure inside the ground, in this open range
+WRAP_SHARE = 0.3  # "wrap": at least this share of the figure touching (the relation table's contact is 0.6)
+FAR = 1.0  # a condition that has nothing to measure against (no overhead surface at all): a whole diagonal
+
+RESTING = ("on", "stand", "sit", "lie")
+STABLE_RELATIONS = (*RESTING, "in", "under", "beside", "lean", "wear")  # where ``stable`` applies
+RELATION_NAMES: tuple[str, ...] = tuple(RELATIONS)
+
+
+@dataclass(frozen=True)
+class RelationVerdict:
+    """One pose's relation, as reports show it: the name, the source's role, the score and the verdict."""
+
+    name: str
+    role: str  # "figure" (the source is the thing placed) or "ground" (the target is placed on/in/... the source)
+    score: float  # figure diagonals; 0 when it holds
+    holds: bool
+    stable: bool | None = None  # centre of mass over its support; None where the relation is not a resting one
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def known(relation: str | None) -> bool:
+    """Whether ``relation`` is one of the vocabulary's (``priors.relations.RELATIONS``); None is not."""
+    return relation in RELATIONS
+
+
+def holds(scores: torch.Tensor | float) -> torch.Tensor | bool:
+    """The verdict of scores from ``relation_score``: at most ``HOLDS``."""
+    if isinstance(scores, torch.Tensor):
+        return scores <= HOLDS
+    return bool(scores <= HOLDS)
+
+
+def hinge(x: torch.Tensor, width: float = SMOOTH) -> torch.Tensor:
+    """0 for x <= 0, x^2 / 2w up to w, then x - w/2: a hinge with a continuous gradient."""
+    pos = x.clamp_min(0.0)
+    return torch.where(pos < width, pos * pos / (2 * width), pos - width / 2)
+
+
+def soft_min(x: torch.Tensor, tau: torch.Tensor | float, dim: int = -1, mask: torch.Tensor | None = None
+             ) -> torch.Tensor:
+    """The softmax(-x/tau)-weighted mean of x over ``dim``: smooth, never below the minimum, near it for a
+    small tau; entries outside ``mask`` are left out (all out: +inf)."""
+    logits = -x / tau
+    if mask is not None:
+        logits = logits.masked_fill(~mask, -torch.inf)
+    w = torch.softmax(logits, dim=dim)
+    out = (torch.nan_to_num(w, nan=0.0) * torch.where(torch.isfinite(x), x, torch.zeros_like(x))).sum(dim)
+    if mask is not None:
+        out = torch.where(mask.any(dim), out, torch.full_like(out, torch.inf))
+    return out
+
+
+def soft_max(x: torch.Tensor, tau: torch.Tensor | float, dim: int = -1, mask: torch.Tensor | None = None
+             ) -> torch.Tensor:
+    return -soft_min(-x, tau, dim, mask)
+
+
+# --- one side of a relation, posed -------------------------------------------------------------------------------
+
+@dataclass
+class Side:
+    """One object's samples in the normalised frame: (B or 1, N, 3) points and outward unit normals."""
+
+    points: torch.Tensor
+    normals: torch.Tensor
+    centre: torch.Tensor  # (B or 1, 3) centre of mass stand-in: the mean of area-weighted surface samples
+    diagonal: torch.Tensor  # (B or 1,) AABB diagonal, normalised units
+    spacing: torch.Tensor  # (B or 1,) how far a surface point can be from its nearest sample
+    tree: losses.TargetIndex | None = None  # a static side (the target): KD-tree queries instead of brute force
+
+    @property
+    def static(self) -> bool:
+        return self.tree is not None
+
+
+class _Ground:
+    """Nearest ground samples to figure points, optionally restricted to a subset (e.g. up-facing)."""
+
+    def __init__(self, side: Side, trees: dict[str, losses.TargetIndex | None]):
+        self.side, self.trees = side, trees
+
+    def mask(self, which: str) -> torch.Tensor:
+        ny = self.side.normals[..., 1]
+        return {"all": torch.ones_like(ny, dtype=torch.bool), "up": ny > UP_FACING, "down": ny < -UP_FACING,
+                "side": ny.abs() <= UP_FACING, "not_down": ny >= -UP_FACING}[which]
+
+    def nearest(self, points: torch.Tensor, which: str = "all") -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(u, n, found) for (B, N, 3) points: nearest ground sample of the subset, its normal, whether the subset
+        has any sample (B, N) (points of a pose whose subset is empty get a far sample)."""
+        side = self.side
+        if side.static:
+            tree = self.trees.get(which)
+            if tree is None:  # an empty subset
+                far = torch.full_like(points, 1e6)
+                return far, torch.zeros_like(points), torch.zeros(points.shape[:2], dtype=torch.bool)
+            idx = tree.neighbours(points, 1)[..., 0]
+            return tree.points[idx], tree.normals[idx], torch.ones(points.shape[:2], dtype=torch.bool)
+        mask = self.mask(which)  # (B, M)
+        with torch.no_grad():
+            d = torch.cdist(points.detach(), side.points.detach())
+            d = d.masked_fill(~mask[:, None, :], torch.inf)
+            idx = d.argmin(-1)  # (B, N)
+        found = mask.any(-1)[:, None].expand(idx.shape)
+        gather = lambda a: torch.gather(a, 1, idx[..., None].expand(-1, -1, 3))  # noqa: E731
+        return gather(side.points), gather(side.normals), found
+
+
+def _gap(points: torch.Tensor, ground: _Ground, which: str = "all") -> tuple[torch.Tensor, torch.Tensor]:
+    """(B, N) distance from each point to the ground surface (the sampled surface as discs of the samples'
+    spacing; 0 behind it), and the signed height along the normal (positive outside)."""
+    u, n, found = ground.nearest(points, which)
+    diff = points - u
+    along = (diff * n).sum(-1)
+    tangent = (diff - along[..., None] * n).norm(dim=-1)
+    spacing = ground.side.spacing.reshape(-1, 1)
+    gap = torch.sqrt(along.clamp_min(0.0) ** 2 + (tangent - spacing).clamp_min(0.0) ** 2 + 1e-12)
+    far = torch.full_like(gap, 1e6)
+    return torch.where(found, gap, far), torch.where(found, along, far)
+
+
+# --- convex hulls: indices from detached points, geometry from live ones (gradients reach the points) -------------
+
+def _hull_distance_2d(query: torch.Tensor, points: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+    """(B,) signed distance of query (B, 2) to the convex hull of points (B or 1, N, 2) (positive outside; the
+    maximum over the hull's edge lines, exact inside and a lower bound outside). Fewer than three usable points:
+    the distance to the nearest of them (a line's or a point's footprint)."""
+    out = []
+    shared = points.shape[0] == 1 and mask is None  # one hull for every pose (a static ground)
+    edges = _edges_2d(points[0]) if shared else None
+    for i in range(query.shape[0]):
+        pts = points[i if points.shape[0] > 1 else 0]
+        if mask is not None:
+            pts = pts[mask[i if mask.shape[0] > 1 else 0]]
+        out.append(_one_hull_2d(query[i], pts, edges if shared else _edges_2d(pts)))
+    return torch.stack(out)
+
+
+def _edges_2d(pts: torch.Tensor) -> torch.Tensor | None:
+    """(E, 2) indices of the convex hull's edges; None when there is no 2-D hull (fewer than 3 points, a line)."""
+    if len(pts) < 3:
+        return None
+    try:
+        return torch.as_tensor(ConvexHull(pts.detach().cpu().double().numpy()).simplices, device=pts.device)
+    except (QhullError, ValueError):
+        return None
+
+
+def _one_hull_2d(q: torch.Tensor, pts: torch.Tensor, simplices: torch.Tensor | None) -> torch.Tensor:
+    if len(pts) == 0:
+        return torch.tensor(FAR * 1e3, dtype=q.dtype, device=q.device)
+    if simplices is None:  # collinear or too few: the distance to the nearest of the points
+        return (pts - q).norm(dim=-1).min()
+    a, c = pts[simplices[:, 0]], pts[simplices[:, 1]]
+    edge = c - a
+    normal = torch.stack([edge[:, 1], -edge[:, 0]], -1)
+    normal = normal / normal.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    inner = pts.mean(0)
+    sign = torch.sign(((a - inner) * normal).sum(-1)).detach()  # orient every edge normal outward
+    normal = normal * torch.where(sign == 0, torch.ones_like(sign), sign)[:, None]
+    return ((q - a) * normal).sum(-1).max()
+
+
+def _hull_distance_3d(query: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """(B,) signed distance of query (B, 3) to the convex hull of points (B or 1, N, 3) (positive outside; the
+    maximum over the facet planes). A flat ground has no hull: the distance to its nearest point."""
+    out = []
+    cache: dict[int, tuple] = {}
+    for i in range(query.shape[0]):
+        j = i if points.shape[0] > 1 else 0
+        pts = points[j]
+        if j not in cache:
+            try:
+                hull = ConvexHull(pts.detach().cpu().double().numpy())
+                cache[j] = (torch.as_tensor(hull.simplices, device=pts.device),)
+            except (QhullError, ValueError):
+                cache[j] = (None,)
+        (simplices,) = cache[j]
+        if simplices is None:
+            out.append((pts - query[i]).norm(dim=-1).min())
+            continue
+        a, b_, c = pts[simplices[:, 0]], pts[simplices[:, 1]], pts[simplices[:, 2]]
+        normal = torch.linalg.cross(b_ - a, c - a)
+        normal = normal / normal.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+        sign = torch.sign(((a - pts.mean(0)) * normal).sum(-1)).detach()
+        normal = normal * torch.where(sign == 0, torch.ones_like(sign), sign)[:, None]
+        out.append(((query[i] - a) * normal).sum(-1).max())
+    return torch.stack(out)
+
+
+# --- what a pair needs once ---------------------------------------------------------------------------------------
+
+@dataclass
+class Features:
+    """Per-pair samples the scores reuse (built once by ``features``; the target never moves)."""
+
+    source_points: torch.Tensor  # (FIGURE_POINTS, 3) source local frame
+    source_normals: torch.Tensor  # (FIGURE_POINTS, 3) source local frame, unit
+    source_centre: torch.Tensor  # (3,) source local frame: mean of area-weighted samples
+    source_spacing: float  # source local units: sqrt(area / count)
+    target: Side  # the related object (``PreparedPair.anchor``), static
+    target_trees: dict[str, losses.TargetIndex | None]  # per normal subset ("up", "down", "side", ...)
+    target_figure: Side  # a subset of the target as a figure (the ground role), static
+    floor: float  # the height the target stands on: its lowest point (every object of a scene)
+
+
+_FEATURES: dict[int, tuple[weakref.ref, Features]] = {}
+
+
+def features(pair: PreparedPair) -> Features:
+    """The pair's ``Features``, built on first use and kept while the pair lives."""
+    key = id(pair)
+    cached = _FEATURES.get(key)
+    if cached is not None and cached[0]() is pair:
+        return cached[1]
+    built = _build(pair)
+    _FEATURES[key] = (weakref.ref(pair), built)
+    weakref.finalize(pair, _FEATURES.pop, key, None)
+    return built
+
+
+def _build(pair: PreparedPair) -> Features:
+    device = pair.source_samples.device
+    as_t = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=device)  # noqa: E731
+    pts, nrm = sampling.surface_samples(pair.source, FIGURE_POINTS, seed=17)
+    local = pair.source_to_local
+    s_points = as_t(local.apply(pts))
+    s_normals = torch.nn.functional.normalize(as_t(local.apply_directions(nrm)), dim=-1)
+    s_area = float(pair.source.area) * local.scale**2
+    anchor = pair.anchor
+    t_points, t_normals = anchor.points, torch.nn.functional.normalize(anchor.normals, dim=-1)
+    lo, hi = t_points.min(0).values, t_points.max(0).values
+    diag = (hi - lo).norm()
+    t_area = float(sum(m.area for m in pair.target_outward)) * pair.target_to_normalised.scale**2
+    t_spacing = math.sqrt(t_area / len(pair.index.points))
+    target = Side(t_points[None], t_normals[None], t_points.mean(0)[None], diag[None],
+                  torch.tensor([t_spacing], device=device), anchor)
+    ny = t_normals[:, 1]
+    subsets = {"all": torch.ones_like(ny, dtype=torch.bool), "up": ny > UP_FACING, "down": ny < -UP_FACING,
+               "side": ny.abs() <= UP_FACING, "not_down": ny >= -UP_FACING}
+    trees = {k: (anchor if k == "all" else losses.TargetIndex(t_points[m], t_normals[m]) if m.any() else None)
+             for k, m in subsets.items()}
+    pick = torch.linspace(0, len(t_points) - 1, min(GROUND_POINTS, len(t_points))).long()
+    figure = Side(t_points[pick][None], t_normals[pick][None], t_points.mean(0)[None], diag[None],
+                  torch.tensor([t_spacing], device=device), anchor)
+    centre = as_t(local.apply(pts.mean(0)[None])[0])
+    return Features(s_points, s_normals, centre, math.sqrt(s_area / FIGURE_POINTS), target, trees, figure,
+                    float(pair.target_vertices[:, 1].min()))
+
+
+def posed_source(feat: Features, poses: Poses) -> Side:
+    """The source's samples at each pose, (B, N, 3), with its centre, diagonal and sample spacing."""
+    pts = apply_pose(feat.source_points, poses.t, poses.q, poses.log_s)
+    rot = quaternion_to_matrix(poses.q)
+    nrm = torch.einsum("bij,nj->bni", rot, feat.source_normals)
+    centre = apply_pose(feat.source_centre[None], poses.t, poses.q, poses.log_s)[:, 0]
+    scale = poses.log_s.exp()
+    local = feat.source_points
+    diag = (local.max(0).values - local.min(0).values).norm() * scale
+    return Side(pts, nrm, centre, diag, feat.source_spacing * scale)
+
+
+def _roles(pair: PreparedPair, poses: Poses, source_is_figure: bool) -> tuple[Side, _Ground, torch.Tensor]:
+    """(figure, ground, floor height (B,)) for either role."""
+    feat = features(pair)
+    source = posed_source(feat, poses)
+    b = len(poses)
+    if source_is_figure:
+        floor = torch.full((b,), feat.floor, device=source.points.device)
+        return source, _Ground(feat.target, feat.target_trees), floor
+    fig = feat.target_figure
+    figure = Side(fig.points.expand(b, -1, -1), fig.normals.expand(b, -1, -1), fig.centre.expand(b, -1),
+                  fig.diagonal.expand(b), fig.spacing.expand(b))
+    floor = soft_min(source.points[..., 1], SOFT * source.diagonal[:, None])  # the ground's lowest level
+    return figure, _Ground(source, {}), floor
+
+
+# --- the relations ------------------------------------------------------------------------------------------------
+
+@dataclass
+class _Ctx:
+    figure: Side
+    ground: _Ground
+    floor: torch.Tensor  # (B,)
+
+    @property
+    def unit(self) -> torch.Tensor:  # (B,) figure diagonal
+        return self.figure.diagonal
+
+    def tol(self) -> torch.Tensor:
+        """(B,) contact tolerance, normalised units (the sample spacing is in ``_gap`` already: tangentially)."""
+        return CONTACT * self.unit
+
+    def tau(self) -> torch.Tensor:
+        return (SOFT * self.unit)[:, None]
+
+    def bottom(self) -> torch.Tensor:
+        return soft_min(self.figure.points[..., 1], self.tau())
+
+    def top(self) -> torch.Tensor:
+        return soft_max(self.figure.points[..., 1], self.tau())
+
+    def h(self, x: torch.Tensor) -> torch.Tensor:
+        """hinge of a length in normalised units, in figure diagonals."""
+        return hinge(x / self.unit)
+
+    def finite(self, x: torch.Tensor) -> torch.Tensor:
+        """x with +inf (nothing to measure against) replaced by ``FAR`` figure diagonals."""
+        return torch.where(torch.isfinite(x) & (x < 1e3), x, FAR * self.unit)
+
+    def touching(self, which: str = "all") -> torch.Tensor:
+        """Violation of contact with the ground's ``which`` surface: smooth min gap over the figure - tolerance."""
+        gap, _ = _gap(self.figure.points, self.ground, which)
+        return self.h(self.finite(soft_min(gap, self.tau())) - self.tol())
+
+
+def _score_resting(c: _Ctx) -> torch.Tensor:
+    """Resting on (``on``, ``stand``, ``sit``, ``lie``): supported from below by ground surface that faces up;
+    its centre of mass over that support; and on top of it: no part of the ground higher than the figure's top
+    over the figure's footprint (a cup on a table's lower shelf, or under the table, is not on it).
+
+    Sum of: the figure's lowest part within contact of up-facing ground surface (the bottom band: samples
+    within ``CONTACT`` of the figure's lowest point, their smooth minimum gap to up-facing samples);
+    ``stable`` (the centre's horizontal distance outside the footprint of the support patch); the height
+    of the ground above the figure's top, over its footprint, past ``ON_TOP``.
+    """
+    fig = c.figure
+    gap, _ = _gap(fig.points, c.ground, "up")
+    band = fig.points[..., 1] <= (c.bottom() + c.tol())[:, None]
+    support = c.h(c.finite(soft_min(gap, c.tau(), mask=band)) - c.tol())
+    return support + _stability(c) + _overhead(c)
+
+
+def _overhead(c: _Ctx) -> torch.Tensor:
+    """How far ground surface rises above the figure's top over its footprint (figure diagonals, hinged)."""
+    fig, ground = c.figure, c.ground.side
+    radius = _half_width(fig)  # (B,)
+    gp = ground.points.expand(fig.points.shape[0], -1, -1)
+    horizontal = (gp[..., [0, 2]] - fig.centre[:, None, [0, 2]]).norm(dim=-1)
+    over = horizontal <= radius[:, None]
+    height = soft_max(gp[..., 1], c.tau(), mask=over)
+    height = torch.where(torch.isfinite(height), height, torch.full_like(height, -1e3))
+    return c.h(height - c.top() - ON_TOP * c.unit)
+
+
+def _half_width(fig: Side) -> torch.Tensor:
+    """(B,) the figure's horizontal half-extent about its centre (the largest horizontal sample distance)."""
+    return (fig.points[..., [0, 2]] - fig.centre[:, None, [0, 2]]).norm(dim=-1).max(-1).values.detach()
+
+
+def _support_mask(c: _Ctx) -> torch.Tensor:
+    """(B, N) the figure samples that bear weight: touching ground surface that does not face down, or the floor."""
+    gap, _ = _gap(c.figure.points, c.ground, "not_down")
+    tol = c.tol()[:, None]
+    return (gap <= tol) | (c.figure.points[..., 1] - c.floor[:, None] <= tol)
+
+
+def _stability(c: _Ctx) -> torch.Tensor:
+    """Horizontal distance (figure diagonals, hinged) of the centre's projection outside the convex footprint
+    of the support patch; a whole ``FAR`` with no support at all."""
+    mask = _support_mask(c).detach()
+    dist = _hull_distance_2d(c.figure.centre[:, [0, 2]], c.figure.points[..., [0, 2]], mask)
+    dist = torch.where(mask.any(-1), dist, torch.full_like(dist, FAR) * c.unit)
+    return c.h(dist)
+
+
+def _score_in(c: _Ctx) -> torch.Tensor:
+    """``in``: inside the ground's cavity: the figure's lowest point below the ground's rim (its top) by at least
+    ``IN_DEPTH`` and inside the ground's convex hull under its centre (so inside the hull's footprint), resting
+    on the inner floor or walls (in contact with the ground). A candle in a holder or a lipstick in its cover
+    sticks out above the rim: its centre need not be below it, its foot must."""
+    fig, ground = c.figure, c.ground.side
+    rim = ground.points[..., 1].max(-1).values.expand_as(c.unit)
+    foot = torch.stack([fig.centre[:, 0], c.bottom(), fig.centre[:, 2]], -1)
+    hull = _hull_distance_3d(foot, ground.points)
+    return c.h(c.bottom() - rim + IN_DEPTH * c.unit) + c.h(hull) + c.touching()
+
+
+def _score_under(c: _Ctx) -> torch.Tensor:
+    """``under``: below a downward-facing part of the ground and inside its footprint, standing where the ground
+    stands (its lowest level). Sum of: the horizontal distance from the figure's centre to the nearest
+    downward-facing ground sample above the figure's top, past ``UNDER_REACH`` figure half-widths (a vertical
+    shortfall counts as distance too); the figure's centre outside the ground's footprint; its bottom above
+    the floor past contact."""
+    fig, ground = c.figure, c.ground.side
+    gp = ground.points.expand(fig.points.shape[0], -1, -1)
+    down = c.ground.mask("down").expand(gp.shape[:2])
+    horizontal = (gp[..., [0, 2]] - fig.centre[:, None, [0, 2]]).norm(dim=-1)
+    below = (c.top()[:, None] - gp[..., 1]).clamp_min(0.0)  # the ground sample lower than the figure's top
+    reach = soft_min(horizontal + below, c.tau(), mask=down)
+    reach = torch.where(torch.isfinite(reach), reach, FAR * c.unit)
+    overhead = c.h(reach - UNDER_REACH * _half_width(fig))
+    inside = c.h(_hull_distance_2d(fig.centre[:, [0, 2]], ground.points[..., [0, 2]]))
+    return overhead + inside + c.h(c.bottom() - c.floor - c.tol())
+
+
+def _score_beside(c: _Ctx) -> torch.Tensor:
+    """``beside`` (next to, behind, in front of): on the ground's floor (the figure's bottom at the ground's
+    lowest level), its centre outside the ground's footprint, and a gap to the ground at most ``BESIDE_GAP``
+    mean diagonals; contact is not required."""
+    fig, ground = c.figure, c.ground.side
+    floor = c.h((c.bottom() - c.floor).abs() - c.tol())
+    outside = c.h(-_hull_distance_2d(fig.centre[:, [0, 2]], ground.points[..., [0, 2]]))
+    gap, _ = _gap(fig.points, c.ground)
+    mean_diag = (c.unit + ground.diagonal.expand_as(c.unit)) / 2
+    near = c.h(c.finite(soft_min(gap, c.tau())) - BESIDE_GAP * mean_diag)
+    return floor + outside + near
+
+
+def _score_lean(c: _Ctx) -> torch.Tensor:
+    """``lean``: touching a side of the ground (a sideways-facing surface) at least ``LEAN_RISE`` above the
+    figure's bottom, while that bottom is on the floor (a board lying flat against a box's foot only touches
+    at the floor)."""
+    fig = c.figure
+    gap, _ = _gap(fig.points, c.ground, "side")
+    raised = fig.points[..., 1] >= (c.bottom() + LEAN_RISE * c.unit)[:, None]
+    side = c.h(c.finite(soft_min(gap, c.tau(), mask=raised)) - c.tol())
+    return side + c.h(c.bottom() - c.floor - c.tol())
+
+
+def _score_hang(c: _Ctx) -> torch.Tensor:
+    """``hang``: in contact with the ground, the contact at the figure's upper part: the centre of mass at least
+    ``HANG_DROP`` below the highest touching sample (a ring hangs from a peg through it; resting on top of the
+    peg, its centre is above every contact)."""
+    fig = c.figure
+    gap, _ = _gap(fig.points, c.ground)
+    touching = gap <= c.tol()[:, None]
+    nearest = gap <= gap.min(-1, keepdim=True).values  # no contact: the nearest sample stands for it
+    height = soft_max(fig.points[..., 1], c.tau(), mask=(touching | nearest).detach())
+    return c.touching() + c.h(fig.centre[:, 1] - height + HANG_DROP * c.unit)
+
+
+def _score_wear(c: _Ctx) -> torch.Tensor:
+    """``wear``: on a summit of the ground (a peak of its top surface: a head's top, ``proposals.summits`` with
+    the figure's width as the neighbourhood; the one nearest the figure), covering it: that summit within
+    ``WEAR_CENTRE`` figure half-widths of the figure's centre column, the figure's bottom below it, in contact."""
+    fig, ground = c.figure, c.ground.side
+    width = _half_width(fig)
+    peaks = _summits(ground, float(width.mean()))  # (B or 1, P, 3)
+    offset = (peaks[..., [0, 2]] - fig.centre[:, None, [0, 2]]).norm(dim=-1)  # (B, P)
+    above = (c.bottom()[:, None] - peaks[..., 1]).clamp_min(0.0)  # the figure's bottom above the peak: not covering
+    cost = soft_min(hinge((offset - WEAR_CENTRE * width[:, None]) / c.unit[:, None])
+                    + hinge(above / c.unit[:, None]), SOFT)
+    return cost + c.touching()
+
+
+def _summits(ground: Side, radius: float) -> torch.Tensor:
+    """(B or 1, P, 3) the ground's summit samples (``proposals.summits``: highest in their column and its
+    neighbours, ``radius`` cells); a posed ground (one per pose) keeps its highest sample only."""
+    from ctp_core.proposals import summits
+
+    if not ground.static:
+        idx = ground.points[..., 1].argmax(-1)
+        return torch.gather(ground.points, 1, idx[:, None, None].expand(-1, 1, 3))
+    pts = ground.points[0]
+    peaks = summits(pts.detach().cpu().double().numpy(), radius)
+    return pts[torch.as_tensor(peaks, dtype=torch.long, device=pts.device)][None]
+
+
+def _score_penetrate(c: _Ctx) -> torch.Tensor:
+    """``penetrate``: a bounded share of the figure inside the ground (between ``PENETRATE``'s bounds, as a
+    smooth count of samples behind the ground's surface), so it enters through the surface and stays partly
+    out."""
+    _, along = _gap(c.figure.points, c.ground)
+    inside = torch.sigmoid(-along / c.tau()).mean(-1)
+    lo, hi = PENETRATE
+    return hinge(lo - inside) + hinge(inside - hi)
+
+
+def _score_attach(c: _Ctx) -> torch.Tensor:
+    """``attach``: in contact with the ground's surface (glued, mounted, clipped: a face or a foot)."""
+    return c.touching()
+
+
+def _score_hold(c: _Ctx) -> torch.Tensor:
+    """``hold``: in contact with the ground, at its side surfaces (a hand closes around a handle from the side),
+    not set on top of it: the figure's centre below the ground's top."""
+    ground_top = c.ground.side.points[..., 1].max(-1).values
+    return c.touching("side") + c.h(c.figure.centre[:, 1] - ground_top)
+
+
+def _score_wrap(c: _Ctx) -> torch.Tensor:
+    """``wrap``: around a part of the ground: at least ``WRAP_SHARE`` of the figure's samples touching it (a
+    smooth count)."""
+    gap, _ = _gap(c.figure.points, c.ground)
+    share = torch.sigmoid((c.tol()[:, None] - gap) / c.tau()).mean(-1)
+    return c.touching() + hinge(WRAP_SHARE - share)
+
+
+SCORES: dict[str, Callable[[_Ctx], torch.Tensor]] = {
+    "on": _score_resting, "stand": _score_resting, "sit": _score_resting, "lie": _score_resting,
+    "in": _score_in, "under": _score_under, "beside": _score_beside, "lean": _score_lean, "hang": _score_hang,
+    "wear": _score_wear, "penetrate": _score_penetrate, "attach": _score_attach, "hold": _score_hold,
+    "wrap": _score_wrap,
+}
+assert set(SCORES) == set(RELATIONS), "every relation of the vocabulary has a score"
+
+
+def relation_score(pair: PreparedPair, poses: Poses, relation: str | None, source_is_figure: bool = True
+                   ) -> torch.Tensor:
+    """(B,) how far each pose is from satisfying ``relation`` (figure diagonals; 0 when it holds).
+
+    ``source_is_figure`` false reads it the other way round (the target placed relative to the posed source).
+    An unknown relation or None has no term: zeros (``known`` says which). Differentiable in ``poses``.
+    """
+    if not known(relation):
+        return torch.zeros(len(poses), device=poses.t.device)
+    figure, ground, floor = _roles(pair, poses, source_is_figure)
+    return SCORES[relation](_Ctx(figure, ground, floor))
+
+
+def stable(pair: PreparedPair, poses: Poses, source_is_figure: bool = True) -> torch.Tensor:
+    """(B,) how far the figure's centre of mass is from being over its support (figure diagonals, hinged; 0 when
+    stable): its horizontal projection against the convex footprint of the samples touching ground surface that
+    does not face down, or the floor. Differentiable in ``poses``; ``holds`` gives the verdict."""
+    figure, ground, floor = _roles(pair, poses, source_is_figure)
+    return _stability(_Ctx(figure, ground, floor))
+
+
+def verdict(pair: PreparedPair, pose: Poses | np.ndarray, relation: str | None, source_is_figure: bool = True
+            ) -> RelationVerdict | None:
+    """One pose's verdict (a 1-pose ``Poses`` or a 4x4 source local -> normalised); None without a relation."""
+    if not known(relation):
+        return None
+    if not isinstance(pose, Poses):
+        pose = poses_of(pose, pair.source_samples.device)
+    with torch.no_grad():
+        score = float(relation_score(pair, pose, relation, source_is_figure)[0])
+        steady = bool(holds(float(stable(pair, pose, source_is_figure)[0]))) if relation in STABLE_RELATIONS else None
+    return RelationVerdict(relation, "figure" if source_is_figure else "ground", round(score, 4), bool(holds(score)),
+                           steady)
+
+
+def poses_of(matrix: np.ndarray, device: str | torch.device = "cpu") -> Poses:
+    """A 1-pose ``Poses`` from a (4, 4) similarity, source local -> normalised."""
+    from ctp_core.pose import matrix_to_quaternion
+
+    m = np.asarray(matrix, dtype=np.float64)
+    scale = float(np.cbrt(abs(np.linalg.det(m[:3, :3]))))
+    q = matrix_to_quaternion(m[:3, :3] / scale)
+    as_t = lambda a: torch.as_tensor(np.array(a), dtype=torch.float32, device=device)  # noqa: E731
+    return Poses(as_t(m[None, :3, 3]), as_t(q[None]), as_t([math.log(scale)]))

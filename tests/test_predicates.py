@@ -1,0 +1,197 @@
+"""Relation predicates (``ctp_core.predicates``) on generated pairs whose answer is known.
+
+Every scene is built in its file frame with +Y up and prepared without the upright turn, so "up" is known;
+each test places the source at a few touching (or near) alternatives and checks that the relation's score
+ranks the intended one first and that it alone holds.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from ctp_core import predicates
+from ctp_core.pose import Poses
+from ctp_core.scene import prepare_pair
+
+
+def box(extents, centre) -> trimesh.Trimesh:
+    return trimesh.creation.box(extents=extents, transform=trimesh.transformations.translation_matrix(centre))
+
+
+def table() -> trimesh.Trimesh:
+    """A 2 x 2 top (0.1 thick, its upper face at y = 1.05) on four legs standing on y = 0."""
+    parts = [box([2, 0.1, 2], [0, 1.0, 0])]
+    parts += [box([0.1, 0.95, 0.1], [x, 0.475, z]) for x in (-0.9, 0.9) for z in (-0.9, 0.9)]
+    return trimesh.util.concatenate(parts)
+
+
+def cup() -> trimesh.Trimesh:
+    """An open box 0.6 wide, 0.6 high (floor 0.05 thick), standing on y = 0."""
+    parts = [box([0.6, 0.05, 0.6], [0, 0.025, 0]), box([0.05, 0.6, 0.6], [-0.275, 0.3, 0]),
+             box([0.05, 0.6, 0.6], [0.275, 0.3, 0]), box([0.5, 0.6, 0.05], [0, 0.3, -0.275]),
+             box([0.5, 0.6, 0.05], [0, 0.3, 0.275])]
+    return trimesh.util.concatenate(parts)
+
+
+def pose(translation, rotation=None) -> np.ndarray:
+    """A source file -> target file 4x4: rotation (3x3, about the source's own origin) then translation."""
+    m = np.eye(4)
+    if rotation is not None:
+        m[:3, :3] = rotation
+    m[:3, 3] = translation
+    return m
+
+
+def rot(axis, degrees) -> np.ndarray:
+    return trimesh.transformations.rotation_matrix(math.radians(degrees), axis)[:3, :3]
+
+
+def poses(pair, matrices) -> Poses:
+    return Poses.cat([predicates.poses_of(pair.local_to_normalised(m)) for m in matrices])
+
+
+def prepared(target, source, scale: float = 1.0):
+    target, source = target.copy(), source.copy()
+    target.apply_scale(scale)
+    source.apply_scale(scale)
+    return prepare_pair(target, source, samples=1500, seed=0, canonicalise=False)
+
+
+def scores(target, source, matrices, relation, figure=True, scale=1.0) -> torch.Tensor:
+    pair = prepared(target, source, scale)
+    scaled = [np.diag([1, 1, 1, 1.0]) @ m for m in matrices]
+    for m in scaled:
+        m[:3, 3] *= scale
+    return predicates.relation_score(pair, poses(pair, scaled), relation, figure)
+
+
+BALL = trimesh.creation.icosphere(subdivisions=3, radius=0.2)
+# a ball on the table top, under it on the floor, beside it on the floor, and on the top's edge (its centre
+# beyond the edge: it would roll off)
+BALL_POSES = {"on": pose([0, 1.25, 0]), "under": pose([0, 0.2, 0]), "beside": pose([1.35, 0.2, 0]),
+              "edge": pose([1.12, 1.05 + math.sqrt(0.2**2 - 0.12**2), 0])}
+
+
+@pytest.mark.parametrize("relation", ["on", "under", "beside"])
+def test_ball_and_table_each_relation_ranks_its_pose_first(relation):
+    names = list(BALL_POSES)
+    s = scores(table(), BALL, list(BALL_POSES.values()), relation)
+    assert names[int(s.argmin())] == relation, dict(zip(names, s.tolist(), strict=True))
+    verdicts = dict(zip(names, predicates.holds(s).tolist(), strict=True))
+    assert verdicts[relation] and sum(verdicts.values()) == 1, verdicts
+
+
+def test_ball_on_the_edge_is_not_on_and_not_stable():
+    pair = prepared(table(), BALL)
+    p = poses(pair, [BALL_POSES["on"], BALL_POSES["edge"]])
+    steady = predicates.holds(predicates.stable(pair, p))
+    assert steady.tolist() == [True, False]
+
+
+def test_stick_in_a_cup_rather_than_beside_it():
+    stick = trimesh.creation.cylinder(radius=0.03, height=0.9)  # centred: bottom at -0.45
+    alternatives = [pose([0, 0.05 + 0.45, 0]), pose([0.5, 0.45, 0]), pose([0, 0.6 + 0.03, 0], rot([0, 0, 1], 90))]
+    s = scores(cup(), stick, alternatives, "in")  # in it, standing beside it, lying across its rim
+    assert int(s.argmin()) == 0 and predicates.holds(s).tolist() == [True, False, False], s
+
+
+def test_cap_worn_on_a_head_rather_than_beside_it():
+    head = trimesh.creation.icosphere(subdivisions=3, radius=0.5)
+    head.apply_translation([0, 0.5, 0])
+    cap = trimesh.creation.cone(radius=0.3, height=0.3)  # base on z = 0
+    up = rot([1, 0, 0], -90)  # cone axis +Z -> +Y
+    alternatives = [pose([0, 0.9, 0], up), pose([1.0, 0.0, 0], up), pose([0.52, 0.5, 0], rot([0, 0, 1], -90) @ up)]
+    s = scores(head, cap, alternatives, "wear")  # on the top, on the floor beside it, against its side
+    assert int(s.argmin()) == 0 and predicates.holds(s).tolist() == [True, False, False], s
+
+
+def test_board_leaning_on_a_box_rather_than_lying_flat():
+    crate = box([1, 1, 1], [0, 0.5, 0])
+    board = box([0.05, 1.2, 0.4], [0, 0, 0])
+    tilt = rot([0, 0, 1], 30)  # its top toward the box
+    corners = (tilt @ (np.array([[sx * 0.025, sy * 0.6, 0] for sx in (-1, 1) for sy in (-1, 1)]).T)).T
+    low, reach = corners[:, 1].min(), corners[:, 0].min()
+    leaning = pose([0.5 - reach, -low, 0], tilt)
+    flat_floor = pose([0.5 + 0.6, 0.025, 0], rot([0, 0, 1], 90))  # lying on the floor, its end at the box's foot
+    flat_top = pose([0, 1.025, 0], rot([0, 0, 1], 90))  # lying on the box
+    s = scores(crate, board, [leaning, flat_floor, flat_top], "lean")
+    assert int(s.argmin()) == 0 and predicates.holds(s).tolist() == [True, False, False], s
+    lie = scores(crate, board, [leaning, flat_floor, flat_top], "lie")
+    assert int(lie.argmin()) == 2, lie
+
+
+def test_ring_hanging_on_a_hook_rather_than_lying_under_it():
+    wall = box([1, 1, 0.1], [0, 1.0, -0.05])
+    peg = trimesh.creation.cylinder(radius=0.03, height=0.4)  # along z
+    peg.apply_translation([0, 1.0, 0.2])
+    hook = trimesh.util.concatenate([wall, peg])
+    ring = trimesh.creation.torus(major_radius=0.15, minor_radius=0.02)  # in the xy plane
+    hanging = pose([0, 1.0 + 0.03 + 0.02 - 0.15, 0.25])  # its inner top on the peg's top
+    under = pose([0, 0.3, 0.25], rot([1, 0, 0], 90))  # lying flat, below the peg, touching nothing
+    on_top = pose([0, 1.0 + 0.03 + 0.02, 0.3], rot([1, 0, 0], 90))  # lying on the peg
+    s = scores(hook, ring, [hanging, under, on_top], "hang")
+    assert int(s.argmin()) == 0 and predicates.holds(s).tolist() == [True, False, False], s
+
+
+def test_cup_upright_is_stable_and_tipped_on_its_edge_is_not():
+    mug = trimesh.creation.cylinder(radius=0.1, height=0.25)
+    mug.apply_transform(trimesh.transformations.rotation_matrix(-math.pi / 2, [1, 0, 0]))  # axis +Y
+    upright = pose([0, 1.05 + 0.125, 0])
+    tip = rot([0, 0, 1], 70)  # resting on one point of its base's rim, its centre past it (tips over past 39°)
+    turned = mug.vertices @ tip.T
+    corner = turned[turned[:, 1].argmin()]
+    tipped = pose([-corner[0], 1.05 - corner[1], 0], tip)
+    pair = prepared(table(), mug)
+    p = poses(pair, [upright, tipped])
+    assert predicates.holds(predicates.stable(pair, p)).tolist() == [True, False]
+    on = predicates.relation_score(pair, p, "on")
+    assert predicates.holds(on).tolist() == [True, False]
+
+
+def test_ground_role_reads_the_relation_the_other_way_round():
+    """"a table under a vase": the table is the source and the ground; the vase (target) must be on it."""
+    vase = trimesh.creation.cylinder(radius=0.15, height=0.5)
+    vase.apply_transform(trimesh.transformations.rotation_matrix(-math.pi / 2, [1, 0, 0]))
+    vase.apply_translation([0, 0.25, 0])  # standing on y = 0 in its file
+    below = pose([0, -1.05, 0])  # the table's top under the vase's base
+    aside = pose([3.0, 0, 0])  # the table standing beside the vase
+    s = scores(vase, table(), [below, aside], "on", figure=False)
+    assert predicates.holds(s).tolist() == [True, False], s
+
+
+@pytest.mark.parametrize("scale", [1e-3, 1e3])
+def test_scores_are_scale_free(scale):
+    plain = scores(table(), BALL, list(BALL_POSES.values()), "on")
+    scaled = scores(table(), BALL, list(BALL_POSES.values()), "on", scale=scale)
+    assert predicates.holds(plain).tolist() == predicates.holds(scaled).tolist()
+    assert torch.allclose(plain, scaled, rtol=1e-2, atol=1e-3)
+
+
+@pytest.mark.parametrize("relation", list(predicates.SCORES))
+def test_batched_equals_one_by_one_and_gradients_are_finite(relation):
+    pair = prepared(table(), BALL)
+    p = poses(pair, list(BALL_POSES.values()))
+    batched = predicates.relation_score(pair, p, relation)
+    single = torch.cat([predicates.relation_score(pair, p.select([i]), relation) for i in range(len(p))])
+    assert torch.allclose(batched, single, atol=1e-5)
+    leaf = Poses(p.t.clone().requires_grad_(True), p.q.clone().requires_grad_(True),
+                 p.log_s.clone().requires_grad_(True))
+    total = predicates.relation_score(pair, leaf, relation).sum() + predicates.stable(pair, leaf).sum()
+    total.backward()
+    for g in (leaf.t.grad, leaf.q.grad, leaf.log_s.grad):
+        assert g is None or torch.isfinite(g).all()
+
+
+def test_unknown_relation_has_no_term_and_verdict_reports():
+    pair = prepared(table(), BALL)
+    p = poses(pair, list(BALL_POSES.values()))
+    assert predicates.relation_score(pair, p, None).tolist() == [0.0] * 4
+    assert predicates.relation_score(pair, p, "levitate").tolist() == [0.0] * 4
+    assert predicates.verdict(pair, p.matrices()[0], None) is None
+    v = predicates.verdict(pair, p.matrices()[0], "on")
+    assert v.to_dict() == {"name": "on", "role": "figure", "score": 0.0, "holds": True, "stable": True}
