@@ -4,15 +4,21 @@ Runs ``ctp serve --workers 2`` (embedded Redis, supervised workers) on 127.0.0.1
 model, then for ``--minutes`` (or ``--requests``) sends, from ``--clients`` threads, a mix of valid jobs
 (the ``test`` preset) and hostile uploads (the refusals the tests pin down: a deep node chain, a wide
 scene graph cut at the wall-time limit, bad ``data:`` buffers, symlinks and bombs in zips, NaN vertices,
-too many faces, control characters, 65-bit integers, deep JSON). Every few seconds (uniform in
-``--kill-every``) it SIGKILLs one worker at random; the supervisor brings it back.
+too many faces, control characters, 65-bit integers, deep JSON), and with ``--extreme-share`` valid uploads
+in extreme units and size ratios (a sphere of radius 5,000 beside a 0.3 m box, either way round; micrometre and
+kilometre pairs; a needle; a 1e-4 ratio). Every few seconds (uniform in ``--kill-every``; ``0 0``: never) it
+SIGKILLs one worker at random; the supervisor brings it back.
 
 It reports, and checks: every valid job ends ``succeeded``, or ``failed`` with ``worker_lost`` (its
-worker was the one killed), none stuck; every hostile request is a 4xx; no 5xx but 503s while a
-dependency is down; the API process's peak RSS (the bound is ``--rss-mb``). A measurement, not a
-test: it prints JSON and exits 1 when a check fails.
+worker was the one killed), none stuck; every extreme job ends ``succeeded`` or ``failed`` with a documented
+code (``job_too_large``, or ``worker_lost`` only where a kill explains it); no worker died but those killed (a
+worker process that disappears otherwise is a death); every hostile request is a 4xx; no 5xx but 503s while a
+dependency is down; the API process's peak RSS (the bound is ``--rss-mb``); the p99 latency of
+``GET /jobs/{id}`` (the bound is ``--status-p99-ms``). A measurement, not a test: it prints JSON and exits 1
+when a check fails.
 
     python benchmarks/soak.py --minutes 3
+    python benchmarks/soak.py --minutes 4 --kill-every 0 0 --extreme-share 0.5 --valid-share 0.5
 """
 
 from __future__ import annotations
@@ -58,6 +64,29 @@ def _box_and_ball() -> tuple[bytes, bytes]:
     """The valid pair (GLB bytes): a unit box and a ball to put on it."""
     return (trimesh.creation.box().export(file_type="glb"),
             trimesh.creation.icosphere(subdivisions=2, radius=0.3).export(file_type="glb"))
+
+
+def _sphere(radius: float) -> bytes:
+    """A binary PLY sphere, as the issue's report uploaded it."""
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=radius)
+    return ply(mesh.vertices, mesh.faces)
+
+
+def _box(side: float) -> bytes:
+    return trimesh.creation.box(extents=[side] * 3).export(file_type="glb")
+
+
+def _extreme() -> list[tuple[str, dict]]:
+    """Valid uploads in extreme units or size ratios: (name, files). The first is the issue's worker killer."""
+    needle = trimesh.creation.box(extents=[0.001, 1.0, 0.001]).export(file_type="glb")
+    return [
+        ("r5000 sphere <- 0.3 m box", {"target": ("big.ply", _sphere(5000.0)), "source": ("box.glb", _box(0.3))}),
+        ("0.3 m box <- r5000 sphere", {"target": ("box.glb", _box(0.3)), "source": ("big.ply", _sphere(5000.0))}),
+        ("micrometre pair", {"target": ("a.ply", _sphere(1.5e-7)), "source": ("b.glb", _box(3e-7))}),
+        ("kilometre pair", {"target": ("a.ply", _sphere(1.5e5)), "source": ("b.glb", _box(3e5))}),
+        ("ratio 1e-4", {"target": ("a.ply", _sphere(1500.0)), "source": ("b.glb", _box(0.3))}),
+        ("needle <- box", {"target": ("needle.glb", needle), "source": ("b.glb", _box(0.3))}),
+    ]
 
 
 def _hostile() -> list[tuple[str, dict, dict]]:
@@ -121,8 +150,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--requests", type=int, default=5000, help="stop sending after this many")
     parser.add_argument("--clients", type=int, default=3, help="threads sending requests")
     parser.add_argument("--valid-share", type=float, default=0.3, help="share of requests that are valid jobs")
-    parser.add_argument("--kill-every", type=float, nargs=2, default=(10.0, 25.0), metavar=("MIN_S", "MAX_S"))
+    parser.add_argument("--extreme-share", type=float, default=0.0,
+                        help="share of the valid jobs whose uploads are in extreme units or size ratios")
+    parser.add_argument("--kill-every", type=float, nargs=2, default=(10.0, 25.0), metavar=("MIN_S", "MAX_S"),
+                        help="seconds between worker kills, uniform; 0 0: no kills")
     parser.add_argument("--rss-mb", type=float, default=600.0, help="bound on the API process's RSS")
+    parser.add_argument("--status-p99-ms", type=float, default=250.0, help="bound on GET /jobs/{id}'s p99 latency")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path, default=None, help="also write the figures here")
     args = parser.parse_args(argv)
@@ -142,13 +175,17 @@ def main(argv: list[str] | None = None) -> int:
     counts: collections.Counter = collections.Counter()
     statuses: collections.Counter = collections.Counter()
     valid: list[str] = []
+    kind: dict[str, str] = {}  # job id -> "valid" or the extreme pair's name
+    latencies: list[float] = []
     kills: list[float] = []
+    deaths: list[int] = []  # worker pids that vanished without being killed here
     rss: list[float] = []
     loader_rss: list[float] = [0.0]
     lock = threading.Lock()
     stop = threading.Event()
     sent = [0]
     box, ball = _box_and_ball()
+    extreme = _extreme()
     try:
         with httpx.Client(base_url=url, timeout=120) as client:
             deadline = time.monotonic() + 180
@@ -174,6 +211,9 @@ def main(argv: list[str] | None = None) -> int:
                     if local.random() < args.valid_share and in_flight < 6:
                         name, files, data = "valid", {"target": ("box.glb", box), "source": ("ball.glb", ball)}, {
                             "prompt": "a ball on top of a box", "options": json.dumps(OPTIONS)}
+                        if local.random() < args.extreme_share:
+                            label, files = local.choice(extreme)
+                            name = f"extreme {label}"
                     else:
                         name, files, data = local.choice(hostile)
                     try:
@@ -184,15 +224,30 @@ def main(argv: list[str] | None = None) -> int:
                         continue
                     with lock:
                         counts[f"{name}: {answer.status_code}"] += 1
-                        if name == "valid" and answer.status_code == 202:
+                        if name.startswith(("valid", "extreme")) and answer.status_code == 202:
                             valid.append(answer.json()["id"])
+                            kind[valid[-1]] = name
+
+        killed: set[int] = set()
 
         def kill_loop() -> None:
+            if max(args.kill_every) <= 0:
+                return
             while not stop.wait(rng.uniform(*args.kill_every)):
                 pids = _children_running(serve.pid, " worker")
                 if pids:
-                    os.kill(rng.choice(pids), signal.SIGKILL)
+                    victim = rng.choice(pids)
+                    killed.add(victim)
+                    os.kill(victim, signal.SIGKILL)
                     kills.append(time.monotonic())
+
+        def watch_workers() -> None:
+            """A worker pid that disappears without a kill from here died (memory, a crash)."""
+            known = set(_children_running(serve.pid, " worker"))
+            while not stop.wait(0.5):
+                now = set(_children_running(serve.pid, " worker"))
+                deaths.extend(pid for pid in known - now if pid not in killed)
+                known = now
 
         def watch_rss() -> None:
             while not stop.wait(0.5):
@@ -201,7 +256,7 @@ def main(argv: list[str] | None = None) -> int:
 
         started = time.monotonic()
         threads = [threading.Thread(target=send, args=(args.seed + i,)) for i in range(args.clients)]
-        helpers = [threading.Thread(target=kill_loop, daemon=True), threading.Thread(target=watch_rss, daemon=True)]
+        helpers = [threading.Thread(target=f, daemon=True) for f in (kill_loop, watch_rss, watch_workers)]
         for t in [*threads, *helpers]:
             t.start()
         ended: dict[str, dict] = {}
@@ -209,7 +264,9 @@ def main(argv: list[str] | None = None) -> int:
             def poll() -> None:
                 for job_id in [j for j in list(valid) if j not in ended]:
                     try:
+                        asked = time.perf_counter()
                         job = client.get(f"/jobs/{job_id}").json()
+                        latencies.append(time.perf_counter() - asked)
                     except (httpx.TransportError, ValueError):
                         continue
                     if job.get("status") in TERMINAL:
@@ -228,8 +285,12 @@ def main(argv: list[str] | None = None) -> int:
             while len(ended) < len(valid) and time.monotonic() < drain:
                 poll()
                 time.sleep(1.0)
-        outcomes = collections.Counter(
-            j["status"] if j["status"] != "failed" else f"failed {j['error']['code']}" for j in ended.values())
+        def outcome(job: dict) -> str:
+            return job["status"] if job["status"] != "failed" else f"failed {job['error']['code']}"
+
+        outcomes = collections.Counter(outcome(j) for i, j in ended.items() if kind[i] == "valid")
+        extreme_outcomes = collections.Counter(f"{kind[i]}: {outcome(j)}" for i, j in ended.items()
+                                               if kind[i] != "valid")
     finally:
         stop.set()
         stop_processes([serve], grace_s=60)
@@ -238,6 +299,11 @@ def main(argv: list[str] | None = None) -> int:
     figures = {
         "sending_s": round(sending_s, 1), "requests": sent[0], "worker_kills": len(kills),
         "valid_accepted": len(valid), "valid_outcomes": dict(outcomes), "valid_stuck": len(valid) - len(ended),
+        "extreme_outcomes": dict(sorted(extreme_outcomes.items())), "worker_deaths": len(deaths),
+        "status_latency_ms": {"requests": len(latencies),
+                              "p50": round(1000 * float(np.percentile(latencies, 50)), 1) if latencies else None,
+                              "p99": round(1000 * float(np.percentile(latencies, 99)), 1) if latencies else None,
+                              "bound_p99": args.status_p99_ms},
         "hostile_4xx": sum(v for k, v in hostile_answers.items() if k.rsplit(": ", 1)[-1].startswith("4")),
         "hostile_other": {k: v for k, v in hostile_answers.items() if not k.rsplit(": ", 1)[-1].startswith("4")},
         "answers": dict(sorted(counts.items())),
@@ -246,9 +312,14 @@ def main(argv: list[str] | None = None) -> int:
                        "end": round(rss[-1], 1) if rss else None, "bound": args.rss_mb},
         "loader_process_rss_peak_mb": round(max(loader_rss), 1),
     }
+    lost = outcomes.get("failed worker_lost", 0) + sum(v for k, v in extreme_outcomes.items()
+                                                        if k.endswith("failed worker_lost"))
+    p99 = figures["status_latency_ms"]["p99"]
     ok = (figures["valid_stuck"] == 0 and figures["status_500"] == 0 and not figures["hostile_other"]
           and set(outcomes) <= {"succeeded", "failed worker_lost"}
-          and outcomes.get("failed worker_lost", 0) <= len(kills) and max(rss, default=0) <= args.rss_mb)
+          and all(k.endswith(("succeeded", "failed job_too_large", "failed worker_lost")) for k in extreme_outcomes)
+          and lost <= len(kills) and not deaths and max(rss, default=0) <= args.rss_mb
+          and (p99 is None or p99 <= args.status_p99_ms))
     figures["ok"] = ok
     print(json.dumps(figures, indent=2))
     if args.json:
