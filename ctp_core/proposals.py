@@ -195,15 +195,35 @@ def cavity_points(pair: PreparedPair, seed: int) -> np.ndarray:
 def summits(points: np.ndarray, radius: float) -> np.ndarray:
     """Indices of the samples highest in their column and its neighbours (+Y up; a grid of ``radius`` cells over
     x, z), highest first: a spire's tip, the top of a head, a knob, each bump's peak (small areas that
-    area-weighted sampling rarely draws)."""
-    cells = np.floor(points[:, [0, 2]] / max(radius, 1e-9)).astype(np.int64)
-    cells -= cells.min(0)
-    shape = cells.max(0) + 3  # a border of empty cells around the grid
-    height = np.full(shape, -np.inf)
-    np.maximum.at(height, (cells[:, 0] + 1, cells[:, 1] + 1), points[:, 1])
-    around = np.max([np.roll(np.roll(height, i, 0), j, 1) for i in (-1, 0, 1) for j in (-1, 0, 1)], axis=0)
-    top = height[cells[:, 0] + 1, cells[:, 1] + 1]
-    peaks = np.flatnonzero((points[:, 1] >= top) & (top >= around[cells[:, 0] + 1, cells[:, 1] + 1]))
+    area-weighted sampling rarely draws).
+
+    Only the occupied cells are kept (sorted integer keys; the 8 neighbours found by binary search): time
+    O(N log N) and memory O(N) for N samples, whatever ``radius`` (a dense grid of ``radius`` cells grew with the
+    target's extent over the source's size squared: 21,000² cells for a 0.3 m source beside a 5 km target).
+    The cell is at least a millionth of the samples' x/z extent (keys stay far within int64).
+    """
+    if not len(points):
+        return np.zeros(0, dtype=np.int64)
+    xz = points[:, [0, 2]]
+    cell = max(radius, float(np.ptp(xz, axis=0).max()) * 1e-6, 1e-9)
+    cells = np.floor(xz / cell).astype(np.int64)
+    cells -= cells.min(0) - 1  # a border of one empty cell, so no neighbour key wraps into another row
+    width = int(cells[:, 1].max()) + 2
+    key = cells[:, 0] * width + cells[:, 1]
+    occupied, inverse = np.unique(key, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    top = np.full(len(occupied), -np.inf)
+    np.maximum.at(top, inverse, points[:, 1])
+    around = top.copy()
+    for i in (-1, 0, 1):
+        for j in (-1, 0, 1):
+            if i or j:
+                near = occupied + (i * width + j)
+                at = np.minimum(np.searchsorted(occupied, near), len(occupied) - 1)
+                hit = occupied[at] == near
+                around[hit] = np.maximum(around[hit], top[at[hit]])
+    mine = top[inverse]
+    peaks = np.flatnonzero((points[:, 1] >= mine) & (mine >= around[inverse]))
     return peaks[np.argsort(-points[peaks, 1], kind="stable")]
 
 
