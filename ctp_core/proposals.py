@@ -29,7 +29,7 @@ import torch
 import trimesh
 from scipy.spatial import Delaunay, QhullError
 
-from ctp_core import losses, sampling
+from ctp_core import canonical, losses, sampling
 from ctp_core.config import AlignConfig
 from ctp_core.objective import NEAR, clearance, sample_spacing
 from ctp_core.pose import Poses, matrix_to_quaternion, quaternion_product, quaternion_to_matrix, random_quaternions
@@ -127,7 +127,7 @@ def orientations(pair: PreparedPair, config: AlignConfig, generator: torch.Gener
     flip = np.diag([1.0, -1.0, -1.0])  # half turn about x: upside down
     bases = [up, flip @ up]
     if cfg.stable_poses:
-        rests = _stable_poses(pair.source, config.seed)
+        rests = _stable_poses(canonical.unit_size(pair.source), config.seed)  # rotations do not depend on size
         z_to_y = trimesh.transformations.rotation_matrix(-math.pi / 2, [1, 0, 0])[:3, :3]  # rests stand on +Z
         bases += [z_to_y @ np.asarray(m)[:3, :3] for m in rests[: cfg.stable_poses]]
     base = torch.tensor(np.stack([matrix_to_quaternion(b) for b in bases]), dtype=torch.float32)
@@ -137,7 +137,10 @@ def orientations(pair: PreparedPair, config: AlignConfig, generator: torch.Gener
 
 def _stable_poses(source: trimesh.Trimesh, seed: int) -> list[np.ndarray]:
     """trimesh's resting poses of the source's convex hull, most probable first; none for a flat source (a
-    single face or a planar mesh has no 3-D hull to rest on: its own frames are the orientations)."""
+    single face or a planar mesh has no 3-D hull to rest on: its own frames are the orientations).
+
+    Pass a unit-size copy (``canonical.unit_size``): trimesh's tolerances are absolute, and at 1e-6 the hull of
+    a box has no faces (no resting poses at all)."""
     try:
         hull = source.convex_hull
         if len(hull.vertices) > HULL_POINTS:  # trimesh's stable poses loop over hull faces: keep the hull small
