@@ -276,6 +276,7 @@ def settle(pair: PreparedPair, index: losses.TargetIndex, q: torch.Tensor, ancho
     # count a sample inside only past a third of that spacing
     spacing = sample_spacing(pair, len(index.points))
     inside_tol = max(tol, spacing / 3)
+    low, high = index.points.min(0).values - spacing - tol, index.points.max(0).values + spacing + tol
     centre = anchor.clone()
     if on_surface:
         rotated = subset(SETTLE_POINTS)
@@ -291,6 +292,11 @@ def settle(pair: PreparedPair, index: losses.TargetIndex, q: torch.Tensor, ancho
         # behind the sampled surface and mostly along its normal: above a feature thinner than the sample
         # spacing (a spire's tip) a point is behind the planes of the samples on either side, though outside
         depth = losses.signed_depth(posed, index, 0.01, 2, idx=idx)
+        # a sample outside the target's box (by more than a sample spacing) is outside the target: far from a
+        # surface thinner than the spacing (a plate under a source 100 times its size) the nearest sample's side
+        # is a coin toss, and a wrong "inside" pushed such a source hundreds of radii away
+        within = ((posed >= low) & (posed <= high)).all(dim=-1)
+        depth = torch.where(within, depth, torch.zeros_like(depth))
         deepest = torch.where(depth >= 0.5 * dist, depth, torch.zeros_like(depth)).max(dim=1).values
         gap, nearest = dist.min(dim=1)
         rows = torch.arange(len(active))
