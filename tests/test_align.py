@@ -112,7 +112,7 @@ def test_cli_align_end_to_end(tmp_path, meshes, capsys):
     np.testing.assert_allclose(np.array(data["transform"]["matrix"]), summary_matrix(summary, data), atol=1e-9)
     assert data["prompt"] == "a cup on the table" and data["model"] == "random:tiny"
     assert list(data) == ["transform", "objective", "prompt", "model", "seed", "preset", "config", "hparams",
-                          "restarts", "timings", "extra", "versions", "created_at"]
+                          "restarts", "timings", "extra", "warnings", "versions", "created_at"]
     assert list(data["extra"]) == ["best_restart", "on", "guidance", "runtime", "clip_images", "phase_timings",
                                    "target_upright"]
     assert data["extra"]["clip_images"] > 0 and len(data["extra"]["phase_timings"]) == data["config"]["optim"]["phases"]
