@@ -184,6 +184,8 @@ def run(args: argparse.Namespace) -> int:
                    source_name=args.source_name or names.default_name(args.source.name, "source"),
                    on_event=ProgressBar(enabled=not args.quiet))
     export.write_outputs(result, glb=args.out, report_path=args.report, preview=args.preview)
+    for warning in result.warnings:  # one line each, whatever --quiet says (the report has them too)
+        print(f"warning: {warning['code']}: {warning['message']}", file=sys.stderr)
     summary = {"out": str(args.out), "objective": round(result.objective, 6), "scale": round(result.scale, 6),
                "translation": [round(v, 6) for v in result.translation.tolist()],
                "seconds": round(time.perf_counter() - started, 2), "preset": config.preset,

@@ -7,6 +7,7 @@ file frame. Everything in between (normalisation, canonical pose, optimisation) 
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -31,7 +32,14 @@ if TYPE_CHECKING:  # the stages import these lazily: importing align stays light
     from ctp_core.scene import PreparedPair
     from ctp_core.schedule import Phase
 
-__all__ = ["AlignResult", "ProgressEvent", "align"]
+__all__ = ["AlignResult", "ProgressEvent", "align", "scale_ratio_warning"]
+
+# Source/target size ratios (AABB diagonals, the source as placed) the method does well within. The search's
+# views frame the whole scene (coarse and fine at 128-160 px at the default preset; the tile stage's at least a
+# third of it), so beyond 1e-3 either way the smaller object renders under a pixel in every one of them: the
+# guide cannot see it, and its placement rests on the geometry (contact) alone. The run still ends, with a
+# ``scale_ratio_extreme`` warning.
+SIZE_RATIO_RANGE = (1e-3, 1e3)
 
 
 @dataclass
@@ -59,6 +67,7 @@ class AlignResult:
     # the answer's relation verdict (predicates.RelationVerdict.to_dict: name, role figure/ground, score, holds,
     # stable); None when the priors read no relation
     relation: dict[str, Any] | None = None
+    warnings: list[dict[str, Any]] = field(default_factory=list)  # {"code", "message", ...}: the run went on
 
     @property
     def transform(self) -> frames.Similarity:
@@ -93,6 +102,7 @@ class Run:
     started: float
     timings: dict[str, float] = field(default_factory=dict)
     names: dict[str, str | None] = field(default_factory=dict)  # target, source, on: what the priors read
+    warnings: list[dict[str, Any]] = field(default_factory=list)  # AlignResult.warnings
 
 
 def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, prompt: str | None,
@@ -154,6 +164,10 @@ def propose(run: Run, init: np.ndarray | None = None) -> Proposals:
     config, pair = run.config, run.pair
     generator = torch.Generator().manual_seed(config.seed)
     starts = optimise.initial_poses(pair, config, run.prior.size_ratio, generator, init=init)
+    ratio = math.exp(float(starts.log_s[0])) * pair.source_radius / max(pair.target_radius, 1e-30)
+    warning = scale_ratio_warning(ratio)
+    if warning is not None and not any(w["code"] == warning["code"] for w in run.warnings):
+        run.warnings.append(warning)
     if not config.search.enabled:
         return proposals.Proposals(starts, ["random"] * len(starts))
     t0 = time.perf_counter()
@@ -222,6 +236,7 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
         clip_images=outcome.clip_images,
         phase_timings=[{k: round(v, 3) for k, v in p.items()} for p in outcome.phase_timings],
         target_upright=pair.target_upright,
+        warnings=list(run.warnings),
     )
     verdict = predicates.verdict(pair, matrices[best], run.prior.relation, run.prior.source_is_figure)
     answer.relation = verdict.to_dict() if verdict is not None else None
@@ -232,6 +247,19 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
                                elapsed_s=time.perf_counter() - run.started, eta_s=0.0,
                                best_objective=answer.objective, message="done"))
     return answer
+
+
+def scale_ratio_warning(ratio: float) -> dict[str, Any] | None:
+    """The report's ``scale_ratio_extreme`` warning where the source/target size ratio (AABB diagonals, the
+    source as placed) is outside ``SIZE_RATIO_RANGE``; None inside it."""
+    low, high = SIZE_RATIO_RANGE
+    if low <= ratio <= high:
+        return None
+    small, large = ("source", "target") if ratio < low else ("target", "source")
+    return {"code": "scale_ratio_extreme", "size_ratio": float(ratio), "range": [low, high],
+            "message": f"the source is {ratio:.3g} times the size of the target (outside {low:g} to {high:g}): the "
+                       f"{small} renders under a pixel in the views that frame the {large}, so the prompt cannot "
+                       f"guide where it goes; the placement rests on contact alone"}
 
 
 def align(

@@ -82,7 +82,7 @@ def identity(reason: str = "not canonicalised") -> Upright:
 def upright_rotation(mesh: trimesh.Trimesh, seed: int = 0, judge: Judge | None = None,
                      margin: float = 0.01) -> Upright:
     """Estimate the upright frame of ``mesh`` (file frame); deterministic by ``seed`` (and the judge)."""
-    mesh = _unit_size(mesh)
+    mesh = unit_size(mesh)
     axes = dominant_axes(mesh, seed)
     candidates = resting_poses(mesh)
     if judge is not None:
@@ -295,14 +295,14 @@ def _yaw_to_axes(rotation: np.ndarray, axes: np.ndarray) -> np.ndarray:
     return trimesh.transformations.rotation_matrix(yaw, _Y)[:3, :3] @ rotation
 
 
-def _unit_size(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+def unit_size(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     """The geometry alone, centred and scaled to a longest side of 1 (same orientations, file frame axes).
 
     Directions do not depend on size, but trimesh's tolerances do: the faces of a 1e-6 box have no
     normals at its own scale.
     """
     extent = float(mesh.extents.max())
-    vertices = (np.asarray(mesh.vertices, dtype=np.float64) - mesh.bounds.mean(axis=0)) / extent
+    vertices = (np.asarray(mesh.vertices, dtype=np.float64) - mesh.bounds.mean(axis=0)) / (extent or 1.0)
     return trimesh.Trimesh(vertices, np.asarray(mesh.faces), process=False)
 
 

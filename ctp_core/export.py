@@ -108,6 +108,7 @@ def _run(result: AlignResult, answer: dict | None = None) -> dict:
         "restarts": _jsonable(result.restarts),
         "timings": _jsonable(result.timings),
         "extra": _jsonable(_extra(result)),
+        "warnings": _jsonable(result.warnings),  # {"code", "message", ...}: what the run went on despite
     }
 
 

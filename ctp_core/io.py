@@ -14,6 +14,7 @@ import base64
 import binascii
 import io
 import json
+import math
 import posixpath
 import stat
 import struct
@@ -513,10 +514,21 @@ def _separate(scene: trimesh.Scene, limits: MeshLimits, label: str) -> trimesh.S
     return out
 
 
+def merge_digits(extent: float) -> int:
+    """Decimal digits vertices are merged at (``trimesh`` ``merge_vertices``): trimesh's 8 (1e-8) for a mesh of
+    extent 1 cm or more, finer below so that the tolerance stays a millionth of the mesh (down to 1e-24)."""
+    if not (math.isfinite(extent) and 0 < extent < 1e-2):
+        return 8
+    return min(30, math.ceil(6 - math.log10(extent)))
+
+
 def _checked(mesh: trimesh.Trimesh, label: str) -> trimesh.Trimesh:
     if not np.isfinite(mesh.vertices).all():
         raise MeshError(f"{label}: vertices overflow once node transforms are applied", code="mesh_invalid_values")
-    mesh.merge_vertices()  # what trimesh's default processing does: shared vertices where UVs agree
+    # what trimesh's default processing does: shared vertices where UVs agree, at trimesh's absolute 1e-8
+    # (8 digits) for any mesh of 1 cm or more; a smaller one merges at a millionth of its size instead (at 1e-8 a
+    # 0.3 µm sphere kept 26 of its 642 vertices)
+    mesh.merge_vertices(digits_vertex=merge_digits(float(mesh.extents.max()) if len(mesh.vertices) else 0.0))
     if not mesh.area > 0 or not mesh.extents.max() > 0:
         raise MeshError(f"{label}: the mesh has no surface area", code="mesh_empty")
     return mesh

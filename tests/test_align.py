@@ -114,7 +114,7 @@ def test_cli_align_end_to_end(tmp_path, meshes, capsys):
     assert data["relation"]["name"] == "on" and data["relation"]["role"] == "figure"  # predicates.RelationVerdict
     assert summary["relation"] == data["relation"]
     assert list(data) == ["transform", "objective", "prompt", "model", "seed", "preset", "config", "hparams",
-                          "relation", "restarts", "timings", "extra", "versions", "created_at"]
+                          "relation", "restarts", "timings", "extra", "warnings", "versions", "created_at"]
     assert list(data["extra"]) == ["best_restart", "on", "guidance", "runtime", "clip_images", "phase_timings",
                                    "target_upright"]
     assert data["extra"]["clip_images"] > 0 and len(data["extra"]["phase_timings"]) == data["config"]["optim"]["phases"]
