@@ -111,8 +111,10 @@ _OUT_OF_MEMORY = ("DefaultCPUAllocator: can't allocate memory", "Failed to alloc
 def _allocation(exc: BaseException) -> str:
     """What could not be allocated, in a few words (torch's message is a C++ enforce dump)."""
     text = str(exc)
-    if match := re.search(r"allocate (\d+) bytes", text):
-        return f"an allocation of {int(match.group(1)) / 2**30:.2f} GiB failed"
+    if match := re.search(r"allocate (\d+) bytes|buffer of size (\d+)", text):  # torch, ONNX Runtime
+        size = int(match.group(1) or match.group(2))
+        return f"an allocation of {size / 2**30:.2f} GiB failed" if size >= 2**30 else \
+            f"an allocation of {size / 2**20:.0f} MiB failed"
     if match := re.search(r"allocate ([\d.]+ [KMGTPE]?i?B)", text):
         return f"an allocation of {match.group(1)} failed"
     return f"an allocation failed ({type(exc).__name__})"

@@ -173,6 +173,8 @@ def job_memory(budget_mb: int) -> Iterator[int | None]:
         return
     import resource
 
+    _warm_native()
+    data = _vm_data_bytes() or data
     soft, hard = resource.getrlimit(resource.RLIMIT_DATA)
     limit = data + budget_mb * MiB
     for bound in (soft, hard):  # an operator's own, lower, limit stays in force
@@ -183,6 +185,30 @@ def job_memory(budget_mb: int) -> Iterator[int | None]:
         yield budget_mb
     finally:
         resource.setrlimit(resource.RLIMIT_DATA, (soft, hard))
+
+
+_warm = False
+
+
+def _warm_native() -> None:
+    """Give the native libraries the buffers they keep for the life of the process, once, before any job runs
+    under a ceiling. OpenBLAS (numpy's and scipy's) allocates its work buffers on first use and, when that
+    allocation fails, retries forever (OpenMathLib/OpenBLAS#5289): a job that reached the ceiling in, say,
+    its first ``scipy.spatial.Delaunay`` would hang instead of failing. Warmed, they reuse the buffers."""
+    global _warm
+    if _warm:
+        return
+    import numpy as np
+    import scipy.linalg
+    import torch
+
+    square = np.asfortranarray(np.eye(1024) + 1.0)  # large enough that OpenBLAS runs it on all its threads
+    square @ square
+    np.linalg.svd(square[:64, :64])
+    scipy.linalg.blas.dgemm(1.0, square, square)
+    scipy.linalg.lu_factor(square[:64, :64])
+    torch.ones(512, 512) @ torch.ones(512, 512)  # and torch's intra-op threads
+    _warm = True
 
 
 def _vm_data_bytes() -> int | None:
