@@ -2,7 +2,8 @@
 
 Exit codes (all sub-commands): 0 success, 1 run failed, 2 bad usage or input (a refused mesh, an option
 out of range), 3 the vision-language model is unavailable, 130 interrupted. Typed engine errors are
-printed here, once for every sub-command, as one line ``error: CODE: message``; never a traceback.
+printed here, once for every sub-command, as one line ``error: CODE: message``; never a traceback. Nor for a
+run out of memory (an allocation failed: ``job_too_large``, exit 1).
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import importlib
 import os
 import sys
 
-from ctp_core.errors import ConfigError, CtpError, ImageError, MeshError, ModelError
+from ctp_core.errors import ConfigError, CtpError, ImageError, JobTooLarge, MeshError, ModelError, forget, out_of_memory
 
 EXIT_FAILED, EXIT_INPUT, EXIT_MODEL = 1, 2, 3
 
@@ -62,6 +63,13 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:
+        if not out_of_memory(exc):
+            raise
+        forget(exc)
+        too_large = JobTooLarge.of(exc)  # an allocation failed (a ulimit, the machine): one line, no traceback
+        print(f"error: {too_large.code}: {too_large.message}", file=sys.stderr)
+        return exit_code(too_large)
 
 
 class UsageError(Exception):

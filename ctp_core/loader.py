@@ -228,6 +228,10 @@ def _serve(memory_bytes: int) -> None:
     replies = os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)  # anything a library prints goes to stderr, never into the replies
     requests = os.fdopen(0, "rb")
+    # Started mid-job by a worker, this process inherits the job's data ceiling (worker.tasks.job_memory),
+    # sized to the worker's memory, not ours: our own limit is the address space below.
+    _, data_hard = resource.getrlimit(resource.RLIMIT_DATA)
+    resource.setrlimit(resource.RLIMIT_DATA, (data_hard, data_hard))
     resource.setrlimit(resource.RLIMIT_AS, (memory_bytes, memory_bytes))
     from ctp_core import io
 

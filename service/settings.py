@@ -55,6 +55,9 @@ class Settings(BaseSettings):
     max_scene_faces: int = Field(1_000_000, ge=1, description="faces of all meshes of one job together (an "
                                  "assembly's base and sources, a chained job's target scene and source)")
     job_timeout_s: int = Field(3600, ge=1, description="a running job is failed after this long")
+    job_memory_mb: int = Field(4096, ge=0, description="memory one running job may use on top of the worker's own "
+                               "(MiB; a soft RLIMIT_DATA per job, Linux): past it the job fails job_too_large and "
+                               "the worker takes the next one; 0: no ceiling")
     job_ttl_s: int = Field(24 * 3600, ge=60, description="job records, uploads and results expire after this")
     # Engine.
     model: str = Field(DEFAULT_MODEL, description="guidance model of jobs that do not name one")

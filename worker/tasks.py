@@ -6,9 +6,12 @@ the calls into ``ctp_core``: bytes in, result files out.
 
 from __future__ import annotations
 
+import gc
 import json
 import logging
-from collections.abc import Callable
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -18,14 +21,14 @@ from rq.timeouts import JobTimeoutException
 from ctp_core.align import align
 from ctp_core.assemble import Step, assemble
 from ctp_core.config import AlignConfig
-from ctp_core.errors import Canceled, ConfigError, CtpError
+from ctp_core.errors import Canceled, ConfigError, CtpError, JobTooLarge, forget, out_of_memory
 from ctp_core.export import assembly_glb, assembly_report, preview_png, report, scene_glb
 from ctp_core.guidance import guide_for
 from ctp_core.io import MeshLimits, load_image, load_objects
 from ctp_core.loader import MeshLoader
 from ctp_core.progress import ProgressEvent
 from service.jobs import JobError, JobRecord, Progress, Stage, Status
-from service.settings import Settings
+from service.settings import MiB, Settings
 from worker.main import context, where
 
 log = logging.getLogger("ctp.worker")
@@ -89,18 +92,26 @@ def run_job(job_id: str) -> str:
     ctx.beat.begin(job_id)
     status: Status = "failed"
     error: JobError | None = None
+    stage = Stage(name="loading")  # the stage of the job's last progress: where an allocation failed
+    budget_mb: int | None = None
+
+    def on_progress(progress: Progress, force: bool) -> None:
+        nonlocal stage
+        stage = progress.stage
+        ctx.beat.publish(progress, force=force)
+
     try:
-        record = served(record, ctx.settings)
-        inputs = {name: ctx.jobs.storage.get(job_id, name) for name in record.inputs()}
-        if inputs["target"] is None or inputs.get("source", inputs.get("source-0")) is None:
-            raise CtpError("the job's uploads expired before a worker picked it up", code="inputs_expired")
-        job = JobContext(loader=ctx.loader, limits=ctx.settings.mesh_limits,
-                         on_progress=lambda p, force: ctx.beat.publish(p, force=force),
-                         should_cancel=lambda: ctx.jobs.should_stop(job_id))
-        files = (assemble_job if record.kind == "assemble" else align_job)(record, inputs, job)
-        for name, data in files.items():
-            ctx.jobs.storage.put(job_id, name, data)
-        status = "succeeded"
+        with job_memory(ctx.settings.job_memory_mb) as budget_mb:
+            record = served(record, ctx.settings)
+            inputs = {name: ctx.jobs.storage.get(job_id, name) for name in record.inputs()}
+            if inputs["target"] is None or inputs.get("source", inputs.get("source-0")) is None:
+                raise CtpError("the job's uploads expired before a worker picked it up", code="inputs_expired")
+            job = JobContext(loader=ctx.loader, limits=ctx.settings.mesh_limits, on_progress=on_progress,
+                             should_cancel=lambda: ctx.jobs.should_stop(job_id))
+            files = (assemble_job if record.kind == "assemble" else align_job)(record, inputs, job)
+            for name, data in files.items():
+                ctx.jobs.storage.put(job_id, name, data)
+            status = "succeeded"
     except Canceled as exc:
         status, error = "canceled", JobError(code=exc.code, message="canceled while running")
     except CtpError as exc:
@@ -109,12 +120,106 @@ def run_job(job_id: str) -> str:
         limit_s = ctx.settings.job_timeout_s * record.stage_count
         error = JobError(code="job_timeout", message=f"the job ran over {limit_s} s")
     except Exception as exc:
-        log.exception("job crashed", extra={"job_id": job_id, "worker": ctx.name})
-        error = JobError(code="internal_error", message=f"{type(exc).__name__}: {exc}")
+        if out_of_memory(exc):  # the ceiling (job_memory) is lifted by now; free what the job held
+            forget(exc)
+            error = too_large(exc, stage, budget_mb)
+            log.warning("job too large: %s", error.message, extra={"job_id": job_id, "worker": ctx.name})
+        else:
+            log.exception("job crashed", extra={"job_id": job_id, "worker": ctx.name})
+            error = JobError(code="internal_error", message=f"{type(exc).__name__}: {exc}")
     finally:
         ctx.beat.end()
+    if error is not None and error.code == JobTooLarge.code:
+        gc.collect()  # frames in reference cycles: give their memory back before the next job
     ctx.jobs.finish(job_id, status, error)
     return status
+
+
+def too_large(exc: BaseException, stage: Stage, budget_mb: int | None) -> JobError:
+    """A ``job_too_large`` error for an allocation failure in ``stage`` (an assembly's: field ``steps.<i>``)."""
+    where = stage.name if stage.count == 1 else f"{stage.name} of alignment {stage.index}/{stage.count}"
+    error = JobTooLarge.of(exc, stage=where, budget_mb=budget_mb)
+    if stage.count > 1 and stage.name in ("search", "refine"):
+        error.field = f"steps.{stage.index - 1}"
+    return JobError(**error.to_dict())
+
+
+_warned_no_ceiling = False
+
+
+@contextmanager
+def job_memory(budget_mb: int) -> Iterator[int | None]:
+    """The per-job memory ceiling: a soft ``RLIMIT_DATA`` of this process's data size at job start plus
+    ``budget_mb`` (``CTP_JOB_MEMORY_MB``; 0: none) while the job runs, restored after it; yields the budget
+    in force, or None.
+
+    ``RLIMIT_DATA`` (Linux 4.7+) counts private writable memory only: heap, anonymous mappings, thread
+    stacks; not the shared libraries nor the address space that glibc's malloc arenas reserve per thread,
+    which ``RLIMIT_AS`` would charge. Over it an allocation fails inside the job (``MemoryError``, torch's
+    ``RuntimeError``): the job fails ``job_too_large`` and this worker lives on. Measured with torch and ONNX
+    Runtime loaded: docs/service.md, "Memory ceiling". Between jobs (heartbeat, rq, Redis) nothing is limited.
+    """
+    global _warned_no_ceiling
+    if not budget_mb:
+        yield None
+        return
+    data = _vm_data_bytes()
+    if data is None:
+        if not _warned_no_ceiling:
+            _warned_no_ceiling = True
+            log.warning("CTP_JOB_MEMORY_MB=%d is not enforced on %s: no per-job memory ceiling (Linux only)",
+                        budget_mb, sys.platform)
+        yield None
+        return
+    import resource
+
+    _warm_native()
+    data = _vm_data_bytes() or data
+    soft, hard = resource.getrlimit(resource.RLIMIT_DATA)
+    limit = data + budget_mb * MiB
+    for bound in (soft, hard):  # an operator's own, lower, limit stays in force
+        if bound != resource.RLIM_INFINITY:
+            limit = min(limit, bound)
+    resource.setrlimit(resource.RLIMIT_DATA, (limit, hard))
+    try:
+        yield budget_mb
+    finally:
+        resource.setrlimit(resource.RLIMIT_DATA, (soft, hard))
+
+
+_warm = False
+
+
+def _warm_native() -> None:
+    """Give the native libraries the buffers they keep for the life of the process, once, before any job runs
+    under a ceiling. OpenBLAS (numpy's and scipy's) allocates its work buffers on first use and, when that
+    allocation fails, retries forever (OpenMathLib/OpenBLAS#5289): a job that reached the ceiling in, say,
+    its first ``scipy.spatial.Delaunay`` would hang instead of failing. Warmed, they reuse the buffers."""
+    global _warm
+    if _warm:
+        return
+    import numpy as np
+    import scipy.linalg
+    import torch
+
+    square = np.asfortranarray(np.eye(1024) + 1.0)  # large enough that OpenBLAS runs it on all its threads
+    square @ square
+    np.linalg.svd(square[:64, :64])
+    scipy.linalg.blas.dgemm(1.0, square, square)
+    scipy.linalg.lu_factor(square[:64, :64])
+    torch.ones(512, 512) @ torch.ones(512, 512)  # and torch's intra-op threads
+    _warm = True
+
+
+def _vm_data_bytes() -> int | None:
+    """This process's private writable memory (``VmData``), or None where there is none to read (not Linux)."""
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        with open("/proc/self/status") as status:
+            return next(int(line.split()[1]) * 1024 for line in status if line.startswith("VmData:"))
+    except (OSError, StopIteration, ValueError):
+        return None
 
 
 def align_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobContext) -> dict[str, bytes]:
@@ -170,6 +275,8 @@ def assemble_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobCon
     except (CtpError, JobTimeoutException):
         raise  # the library names the stage of its own errors
     except Exception as exc:
+        if out_of_memory(exc):
+            raise  # run_job: job_too_large, with the stage from the last progress
         log.exception("assembly stage crashed", extra={"job_id": record.id})
         raise CtpError(f"stage {current.index}/{count} ({record.steps[current.index - 1].name}): "
                        f"{type(exc).__name__}: {exc}", code="internal_error",
