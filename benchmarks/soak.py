@@ -295,7 +295,7 @@ def main(argv: list[str] | None = None) -> int:
         stop.set()
         stop_processes([serve], grace_s=60)
         log.close()
-    hostile_answers = {k: v for k, v in counts.items() if not k.startswith("valid")}
+    hostile_answers = {k: v for k, v in counts.items() if not k.startswith(("valid", "extreme"))}
     figures = {
         "sending_s": round(sending_s, 1), "requests": sent[0], "worker_kills": len(kills),
         "valid_accepted": len(valid), "valid_outcomes": dict(outcomes), "valid_stuck": len(valid) - len(ended),
