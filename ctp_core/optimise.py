@@ -30,7 +30,7 @@ class Outcome:
     best: int  # index of the chosen restart
     poses: Poses  # best pose of every restart
     objectives: torch.Tensor  # (B,) on the evaluation views, last phase's weights
-    terms: dict[str, torch.Tensor]  # (B,) each: clip, icp, pen of the best poses
+    terms: dict[str, torch.Tensor]  # (B,) each: clip, icp, pen, rel of the best poses
     timings: dict[str, float]
     phase_timings: list[dict[str, float]]
     clip_images: int
@@ -111,9 +111,11 @@ class Optimiser:
         return Outcome(
             best=select_answer(scores, clearance(scorer.pair, scorer.pair.index, best),
                                touch_limit(scorer.pair, best), last, guided=scorer.use_clip,
-                               touches=scorer.contact_ratio > 0),
+                               touches=scorer.contact_ratio > 0,
+                               override=scorer.gate.override if scorer.gate is not None else 1.0,
+                               share=scorer.config.search.min_share),
             poses=best, objectives=objectives,
-            terms={k: scores[k] for k in ("clip", "icp", "pen")}, timings=totals,
+            terms={k: scores[k] for k in ("clip", "icp", "pen", "rel")}, timings=totals,
             phase_timings=phase_timings, clip_images=self.scorer.clip_images, steps_run=self.done,
         )
 
@@ -137,14 +139,17 @@ class Optimiser:
             opt.zero_grad(set_to_none=True)
             poses = Poses(t, q, log_s)
             geo = self.scorer.geometry(poses, phase)
-            last = {"icp": geo["icp"].detach(), "pen": geo["pen"].detach()}
+            last = {"icp": geo["icp"].detach(), "pen": geo["pen"].detach(), "rel": geo["rel"].detach()}
             if self.clip_gradient:
                 with torch.no_grad():
                     look_at = phase.look_at_beta * geo["centroid"]  # target centre is the origin
                 cams = sample_training_views(look_at, cfg.camera, phase.zoom, self.generator)
                 last["clip"] = self.scorer.clip_term(poses, cams, weight=phase.lambda_clip)
             with self.clock.time("geometry"):
-                (phase.lambda_icp * geo["icp"] + phase.lambda_pen * geo["pen"]).sum().backward()
+                loss = phase.lambda_icp * geo["icp"] + phase.lambda_pen * geo["pen"]
+                if phase.lambda_rel and self.scorer.relation is not None:  # the relation pulls toward where it holds
+                    loss = loss + phase.lambda_rel * (geo["rel"] + geo["stable"])
+                loss.sum().backward()
             opt.step()
             self._perturb(opt)
             sched.step()
