@@ -58,7 +58,7 @@ class LossConfig(_Strict):
     lambda_icp: tuple[float, float] = Field((1.0, 100.0), description="first and last phase (log-spaced)")
     lambda_pen: tuple[float, float] = Field((10.0, 1000.0), description="first and last phase (log-spaced)")
     lambda_rel: tuple[float, float] = Field(
-        (1.0, 10.0), description="the prompt's relation (predicates.relation_score, plus predicates.stable for "
+        (10.0, 100.0), description="the prompt's relation (predicates.relation_score, plus predicates.stable for "
         "the other relations that rest on something), first and last phase (log-spaced); 0 when "
         "``relation`` is off or the prompt has no known relation"
     )

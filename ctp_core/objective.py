@@ -68,7 +68,9 @@ def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: to
     objective without its soft-ICP term (the guide's and the penetration's); otherwise, or when none touches,
     the lowest objective. The relation orders first, as in the search (``rank_key``): the restarts where it
     holds, plus, with a guide, a share of the others (``override`` x ``share``, at least one when the
-    override is > 0: ``Gate``); ``override`` 0 (a guide with no signal) selects as without a guide.
+    override is > 0: ``Gate``); ``override`` 0 (a guide with no signal) selects as without a guide. An admitted
+    restart that fails the relation still pays its weighted relation term in the objective (``lambda_rel`` x its
+    score): the guide overrides the relation at the selection only by more than that.
 
     Why not soft-ICP: at contact it measures how the samples fall, not contact (on cur-s01 with the pixels guide
     the restart refined onto the reference, guide term -0.999, lost to one a diagonal away, -0.996, by 0.004 of

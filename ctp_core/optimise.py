@@ -18,7 +18,7 @@ import torch
 from ctp_core.cameras import sample_training_views
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
-from ctp_core.objective import Scorer, clearance, select_answer, touch_limit
+from ctp_core.objective import Scorer, clearance, holding, select_answer, touch_limit
 from ctp_core.pose import Poses, matrix_to_quaternion, quaternion_product, random_quaternions
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.scene import PreparedPair
@@ -72,6 +72,15 @@ def initial_poses(pair: PreparedPair, config: AlignConfig, size_ratio: float, ge
         log_s = torch.full((count,), math.log(scale))
     device = pair.source_vertices.device
     return Poses(t.to(device), q.to(device), log_s.to(device))
+
+
+def improves(now: dict[str, torch.Tensor], best: dict[str, torch.Tensor]) -> torch.Tensor:
+    """(B,) whether each restart's new pose replaces its best: the relation first (a pose where the prompt's
+    relation holds beats one where it does not, ``objective.holding``), then the lower objective. Without the
+    first rule a pose that holds (a ball on the floor beside a table, touching a leg) is traded for a lifted one
+    with a little less penetration, weighted more than the relation's violation."""
+    held, was = holding(now), holding(best)
+    return (held & ~was) | ((held == was) & (now["objective"] < best["objective"]))
 
 
 class Optimiser:
@@ -157,7 +166,7 @@ class Optimiser:
             if (step + 1) % cfg.optim.eval_every == 0 or step + 1 == phase.steps:
                 current = Poses(t, q, log_s).detached()
                 now = self.scorer.evaluate(current, phase)
-                better = now["objective"] < scores["objective"]
+                better = improves(now, scores)
                 best = current.where(better, best)
                 scores = {k: torch.where(better, now[k], scores[k]) for k in scores}
             if (step + 1) % cfg.progress_every == 0 or step + 1 == phase.steps:
