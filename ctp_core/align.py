@@ -150,7 +150,7 @@ def propose(run: Run, init: np.ndarray | None = None) -> Proposals:
     ``init`` (source file -> target file 4x4) is one candidate (search) or replaces restart 0 (no search), and
     fixes the source scale either way.
     """
-    from ctp_core import optimise, proposals
+    from ctp_core import optimise, proposals, relation_proposals
 
     config, pair = run.config, run.pair
     generator = torch.Generator().manual_seed(config.seed)
@@ -161,6 +161,8 @@ def propose(run: Run, init: np.ndarray | None = None) -> Proposals:
     weights = proposals.region_weights(run.prior.relation, run.prior.source_is_figure)
     given = starts.select(slice(0, 1)) if init is not None else None
     proposed = proposals.propose(pair, config, weights, float(starts.log_s[0]), generator, init=given)
+    proposed = relation_proposals.extend(pair, config, proposed, run.prior.relation, run.prior.source_is_figure,
+                                         config.seed)  # poses the regions do not reach ("lean")
     run.timings["propose_s"] = round(time.perf_counter() - t0, 3)
     return proposed
 

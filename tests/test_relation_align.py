@@ -14,9 +14,10 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from test_predicates import cup, rot, table
+from test_predicates import box, cup, rot, table
 
-from ctp_core import objective, ranking, schedule
+from ctp_core import align as stages
+from ctp_core import objective, predicates, ranking, schedule
 from ctp_core.align import align
 from ctp_core.config import AlignConfig
 
@@ -119,3 +120,19 @@ def test_a_guide_whose_spread_is_within_its_noise_does_not_override_the_relation
     clear, limit = torch.zeros(3), torch.full((3,), objective.TOUCH)
     assert objective.select_answer(terms, clear, limit, WEIGHTS, guided=True, touches=True, override=0.0) == 2
     assert objective.select_answer(terms, clear, limit, WEIGHTS, guided=True, touches=True, override=1.0) == 1
+
+
+def test_lean_proposals_stand_tilted_against_a_side_where_the_regions_have_none():
+    """A stick leaning against a box: no region proposal leans (upright beside it or lying); the lean
+    proposals (``relation_proposals``) do, and only where the relation is on."""
+    target, stick = box([1, 1, 1], [0, 0.5, 0]), trimesh.creation.cylinder(radius=0.03, height=1.4)
+    for relation in (True, False):
+        config = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0}, upright=False, relation=relation)
+        run = stages.prepare(target, stick, "a stick leaning against the box", config, target_name="box",
+                             source_name="stick")
+        props = stages.propose(run)
+        lean = torch.tensor([r == "lean" for r in props.region])
+        assert bool(lean.any()) == relation
+        with torch.inference_mode():
+            held = predicates.holds(predicates.relation_score(run.pair, props.poses, "lean"))
+        assert not held[~lean].any() and (held[lean].all() if relation else True)
