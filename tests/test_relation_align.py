@@ -136,3 +136,17 @@ def test_lean_proposals_stand_tilted_against_a_side_where_the_regions_have_none(
         with torch.inference_mode():
             held = predicates.holds(predicates.relation_score(run.pair, props.poses, "lean"))
         assert not held[~lean].any() and (held[lean].all() if relation else True)
+
+
+def test_an_assembly_judges_each_step_by_its_own_relation_on_its_own_object():
+    """Step by step (``assemble``): each step's prompt gives its relation, its ``on`` object is the ground: a
+    ball under the table, then a cone cap on the ball."""
+    from ctp_core.assemble import Step, assemble
+
+    config = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0}, upright=False)
+    steps = [Step(BALL, "ball", "a ball under the table", on="table"),
+             Step(_cap(), "cap", "a cap on the ball's head", on="ball")]
+    assembly = assemble(table(), steps, config, base_name="table")
+    verdicts = [(r.on, r.result.relation) for r in assembly.results]
+    assert [(on, v["name"]) for on, v in verdicts] == [("table", "under"), ("ball", "wear")], verdicts
+    assert all(v["holds"] for _, v in verdicts), verdicts
