@@ -1,7 +1,8 @@
 """How the search ranks its candidates (``proposals``): score them forward only, keep a diverse best few.
 
-``score``: the objective's terms (``objective.Scorer``) of every candidate, ranked by the guide's term where
-there is a guide (``ranking_key``: the proposals satisfy the geometry already), forward only under inference
+``score``: the objective's terms (``objective.Scorer``) of every candidate, ranked by the prompt's relation first,
+then by the guide's term where there is a guide with signal (``ranking_key``, ``guide_noise``: the proposals
+satisfy the geometry already), forward only under inference
 mode, ``search.batch`` candidates x views per render and encoder call: first all candidates at a few fixed views
 framing the target's region (the same cameras for all, so a per-view goal is encoded once), then
 ``search.fine`` of them (``shortlist_of``: the best at distinct places, then the best distinct poses) at more
