@@ -146,7 +146,8 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
     else:
         goal = None
     loaded = time.perf_counter()
-    scorer = objective.Scorer(pair, config, prior.contact_ratio, guide=guide, goal=goal)
+    scorer = objective.Scorer(pair, config, prior.contact_ratio, guide=guide, goal=goal, relation=prior.relation,
+                              source_is_figure=prior.source_is_figure)
     plan = schedule.phases(config, allow_penetration=prior.penetration)
     return Run(config, pair, prior, scorer, plan, goal, started,
                {"prepare_s": round(prepared - started, 3), "model_s": round(loaded - prepared, 3)},
@@ -159,7 +160,7 @@ def propose(run: Run, init: np.ndarray | None = None) -> Proposals:
     ``init`` (source file -> target file 4x4) is one candidate (search) or replaces restart 0 (no search), and
     fixes the source scale either way.
     """
-    from ctp_core import optimise, proposals
+    from ctp_core import optimise, proposals, relation_proposals
 
     config, pair = run.config, run.pair
     generator = torch.Generator().manual_seed(config.seed)
@@ -174,6 +175,8 @@ def propose(run: Run, init: np.ndarray | None = None) -> Proposals:
     weights = proposals.region_weights(run.prior.relation, run.prior.source_is_figure)
     given = starts.select(slice(0, 1)) if init is not None else None
     proposed = proposals.propose(pair, config, weights, float(starts.log_s[0]), generator, init=given)
+    proposed = relation_proposals.extend(pair, config, proposed, run.prior.relation, run.prior.source_is_figure,
+                                         config.seed)  # poses the regions do not reach ("lean")
     run.timings["propose_s"] = round(time.perf_counter() - t0, 3)
     return proposed
 
@@ -183,8 +186,9 @@ def score(run: Run, proposals: Proposals, *, on_event: ProgressCallback | None =
     """The optimiser's starts: the search's diverse best ``optim.restarts`` (forward-only scoring), or the
     proposals as they are when the search is off.
 
-    The search ranks by the guide alone where there is one (``ranking.ranking_key``), otherwise by the first
-    phase's objective: its proposals already touch without interpenetrating.
+    The search ranks by the prompt's relation first, then by the guide where there is one and it tells the
+    candidates apart (``ranking.ranking_key``, ``objective.Gate``), otherwise by the first phase's objective:
+    its proposals already touch without interpenetrating.
     """
     from ctp_core import ranking
 
@@ -194,6 +198,10 @@ def score(run: Run, proposals: Proposals, *, on_event: ProgressCallback | None =
                             should_cancel=should_cancel, phases=len(run.plan), started=run.started)
     run.timings["search_s"] = round(ranked.seconds, 3)
     run.timings["search_candidates"] = ranked.scored
+    if run.scorer.relation is not None:
+        run.timings["search_relation_holds"] = ranked.holding  # of the coarse and sweep candidates
+    if ranked.gate is not None:  # the guide's spread over the candidates, its noise, how far it may override
+        run.timings.update({f"guide_{k}": v for k, v in ranked.gate.items()})
     return ranked.poses
 
 

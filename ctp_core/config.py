@@ -57,6 +57,11 @@ class LossConfig(_Strict):
     lambda_clip: float = Field(1.0, ge=0.0, description="0 gives the geometry-only optimiser")
     lambda_icp: tuple[float, float] = Field((1.0, 100.0), description="first and last phase (log-spaced)")
     lambda_pen: tuple[float, float] = Field((10.0, 1000.0), description="first and last phase (log-spaced)")
+    lambda_rel: tuple[float, float] = Field(
+        (10.0, 100.0), description="the prompt's relation (predicates.relation_score, plus predicates.stable for "
+        "the other relations that rest on something), first and last phase (log-spaced); 0 when "
+        "``relation`` is off or the prompt has no known relation"
+    )
     sigma_icp: tuple[float, float] = Field(
         (0.1, 0.02), description="soft-ICP softmax width, first and last phase (log-spaced), normalised frame; "
         "narrowing it turns the soft pull toward a neighbourhood's centroid into a closest-point pull"

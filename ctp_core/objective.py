@@ -1,19 +1,25 @@
-"""The objective L = l_clip*L_clip + l_icp*L_icp(r) + l_pen*L_pen of a batch of poses (method.md "Objective").
+"""The objective L = l_clip*L_clip + l_icp*L_icp(r) + l_pen*L_pen + l_rel*(L_rel + L_stable) of a batch of poses
+(method.md "Objective"; the relation terms: ``predicates``, docs/relations.md).
 
 One ``Scorer`` per run computes the terms for any batch of poses on any cameras: the search scores hundreds of
 candidates with it (forward only), the optimiser its restarts (with the CLIP gradient during steps, forward
 only on the fixed evaluation views). The weights are a ``schedule.Phase``'s, so the CLIP weight has one source
 (``config.loss.lambda_clip`` through the phase plan); ``combine`` is the one place the terms are summed.
+
+The prompt's relation also *orders* poses before any weighted sum (``rank_key``): the poses where it holds
+(``predicates.holds``) come first, then the others; a guide orders the poses where it holds plus a share of the
+others it likes best, as far as ``Gate`` (its spread over the candidates against its noise) lets it.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 
-from ctp_core import losses, render
+from ctp_core import losses, predicates, render
 from ctp_core.cameras import Cameras, evaluation_views
 from ctp_core.config import AlignConfig
 from ctp_core.goals import Goal
@@ -55,12 +61,16 @@ def touch_limit(pair: PreparedPair, poses: Poses) -> torch.Tensor:
 
 
 def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: torch.Tensor, weights: Phase, *,
-                  guided: bool, touches: bool) -> int:
+                  guided: bool, touches: bool, override: float = 1.0, share: float = 0.08) -> int:
     """The answer among refined poses: those within ``NEAR`` of the target (any when none is: an image guide can
     prefer a source gone out of view, an absent source differing less from the goal than a misplaced one); with
     a guide, among them those that touch (``touches``: the relation's contact ratio is > 0), the lowest
     objective without its soft-ICP term (the guide's and the penetration's); otherwise, or when none touches,
-    the lowest objective.
+    the lowest objective. The relation orders first, as in the search (``rank_key``): the restarts where it
+    holds, plus, with a guide, a share of the others (``override`` x ``share``, at least one when the
+    override is > 0: ``Gate``); ``override`` 0 (a guide with no signal) selects as without a guide. An admitted
+    restart that fails the relation still pays its weighted relation term in the objective (``lambda_rel`` x its
+    score): the guide overrides the relation at the selection only by more than that.
 
     Why not soft-ICP: at contact it measures how the samples fall, not contact (on cur-s01 with the pixels guide
     the restart refined onto the reference, guide term -0.999, lost to one a diagonal away, -0.996, by 0.004 of
@@ -68,6 +78,8 @@ def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: to
     ``clear`` and ``limit``: per pose, in source diagonals (``clearance``, ``touch_limit``).
     """
     key = terms["objective"]
+    if guided and override <= 0:  # a guide without signal: the geometry alone
+        guided, key = False, combine({**terms, "clip": torch.zeros_like(key)}, weights)
     clear, limit = clear.to(key.device), limit.to(key.device)
     near = clear <= NEAR
     pool = near if near.any() else torch.ones_like(near)
@@ -75,20 +87,90 @@ def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: to
         fit = pool & ((clear <= limit) | (not touches))
         if fit.any():
             pool, key = fit, combine({**terms, "icp": torch.zeros_like(key)}, weights)
-    return int(torch.where(pool, key, torch.full_like(key, torch.inf)).argmin())
+    key = torch.where(pool, key.double(), torch.full_like(key, torch.inf, dtype=torch.float64))
+    ranked = rank_key({**terms, "objective": key}, weights, guide_key=key if guided else None,
+                      override=override, share=share, geometric=key)
+    return int(ranked.argmin())
+
+
+TIER = 1e6  # ``rank_key``: added to the key of a pose outside the relation's pool (keys are float64)
+GATE_FULL = 4.0  # ``Gate``: a guide whose spread is this many times its noise may override the relation fully
+
+
+@dataclass(frozen=True)
+class Gate:
+    """How far a guide may override the relation: its scores' spread over the search's candidates (standard
+    deviation) against its noise (the largest change of the score of a few candidates moved by a negligible
+    amount: ``ranking.guide_noise``). ``override`` grows from 0 (spread at most the noise: the guide does not
+    tell the candidates apart, so it must not undo the geometry) to 1 at ``GATE_FULL`` times the noise."""
+
+    spread: float
+    noise: float
+
+    @property
+    def ratio(self) -> float:
+        return self.spread / self.noise if self.noise > 0 else math.inf
+
+    @property
+    def override(self) -> float:
+        return float(min(1.0, max(0.0, (self.ratio - 1.0) / (GATE_FULL - 1.0))))
+
+    def to_dict(self) -> dict[str, float]:
+        return {"spread": self.spread, "noise": self.noise, "override": round(self.override, 3)}
+
+
+def holding(terms: dict[str, torch.Tensor]) -> torch.Tensor:
+    """(B,) bool: where the relation holds (``predicates.holds`` of the ``rel`` term; everywhere without one)."""
+    rel = terms.get("rel")
+    if rel is None:
+        return torch.ones_like(terms["objective"], dtype=torch.bool)
+    return predicates.holds(rel)
+
+
+def rank_key(terms: dict[str, torch.Tensor], weights: Phase, *, guide_key: torch.Tensor | None = None,
+             override: float = 1.0, share: float = 0.08, geometric: torch.Tensor | None = None) -> torch.Tensor:
+    """(B,) float64 ranking key (lower is better), the relation first.
+
+    Without a guide (``guide_key`` None) or with ``override`` 0: the geometric objective (``geometric``, else
+    ``combine`` without the guide's term) plus ``TIER`` where the relation does not hold. With a guide: its key
+    over the *pool*, the poses where the relation holds plus the ``ceil(override x share x others)`` others
+    that the guide ranks best (a misread prompt must not make the right answer unreachable: ``share`` is the
+    search's ``min_share``, the principle of the region weights); ``TIER`` added outside the pool.
+    """
+    holds = holding(terms).to(terms["objective"].device)
+    if guide_key is None or override <= 0:
+        if geometric is None:
+            geometric = combine({**terms, "clip": torch.zeros_like(terms["objective"])}, weights)
+        return geometric.double() + TIER * (~holds).double()
+    key = guide_key.double()
+    pool = holds.clone()
+    others = torch.nonzero(~holds)[:, 0]
+    admit = math.ceil(override * share * len(others)) if len(others) else 0
+    if admit:
+        pool[others[torch.argsort(key[others])[:admit]]] = True
+    return key + TIER * (~pool).double()
 
 
 def combine(terms: dict[str, torch.Tensor], weights: Phase) -> torch.Tensor:
-    """The weighted sum, one value per pose: the only place the weights meet the terms."""
-    return weights.lambda_clip * terms["clip"] + weights.lambda_icp * terms["icp"] + weights.lambda_pen * terms["pen"]
+    """The weighted sum, one value per pose: the only place the weights meet the terms (``rel`` and ``stable``
+    count where present: the relation's, ``Scorer.relation_terms``)."""
+    out = weights.lambda_clip * terms["clip"] + weights.lambda_icp * terms["icp"] + weights.lambda_pen * terms["pen"]
+    if weights.lambda_rel and "rel" in terms:
+        out = out + weights.lambda_rel * (terms["rel"] + terms.get("stable", torch.zeros_like(out)))
+    return out
 
 
 class Scorer:
     """The objective's terms for any batch of poses; counts every image the guide encodes in ``clip_images``."""
 
     def __init__(self, pair: PreparedPair, config: AlignConfig, contact_ratio: float, guide: Guide | None = None,
-                 goal: Goal | None = None, clock: Clock | None = None):
+                 goal: Goal | None = None, clock: Clock | None = None, *, relation: str | None = None,
+                 source_is_figure: bool = True):
         self.pair, self.config, self.contact_ratio = pair, config, contact_ratio
+        # the prompt's relation where it judges poses (None: unknown, or ``config.relation`` off: zero terms)
+        self.relation = relation if config.relation and predicates.known(relation) else None
+        self.source_is_figure = source_is_figure
+        self.gate: Gate | None = None  # the guide's gate, measured by the search (None: not measured, trusted)
         self.guide, self.goal = guide, goal
         self.use_clip = goal is not None and guide is not None and config.loss.lambda_clip > 0
         self.clock = clock or Clock()
@@ -105,7 +187,22 @@ class Scorer:
                 pen = losses.penetration(pts, self.pair.index, cfg.sigma_pen, cfg.c_pen, cfg.icp_neighbours)
             else:
                 pen = torch.zeros_like(icp)
-        return {"icp": icp, "pen": pen, "centroid": pts.mean(dim=1)}
+        return {"icp": icp, "pen": pen, **self.relation_terms(poses), "centroid": pts.mean(dim=1)}
+
+    def relation_terms(self, poses: Poses) -> dict[str, torch.Tensor]:
+        """``rel``: how far each pose is from the prompt's relation (``predicates.relation_score``, figure
+        diagonals, 0 where it holds); ``stable``: its centre of mass off its support (``predicates.stable``), for
+        the relations that rest on something besides the resting ones (``on``, ``stand``, ... include it in
+        their score already); zeros without a relation. Differentiable (a refinement term)."""
+        zeros = torch.zeros(len(poses), device=poses.t.device)
+        if self.relation is None:
+            return {"rel": zeros, "stable": zeros}
+        with self.clock.time("relation"):
+            rel = predicates.relation_score(self.pair, poses, self.relation, self.source_is_figure)
+            steady = zeros
+            if self.relation in predicates.STABLE_RELATIONS and self.relation not in predicates.RESTING:
+                steady = predicates.stable(self.pair, poses, self.source_is_figure)
+        return {"rel": rel, "stable": steady}
 
     def embed_goal(self, cameras: Cameras) -> torch.Tensor:
         """The goal's embeddings for these cameras; a per-view goal (the oracle) encodes one image per view."""

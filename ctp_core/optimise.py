@@ -18,7 +18,7 @@ import torch
 from ctp_core.cameras import sample_training_views
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
-from ctp_core.objective import Scorer, clearance, select_answer, touch_limit
+from ctp_core.objective import Scorer, clearance, holding, select_answer, touch_limit
 from ctp_core.pose import Poses, matrix_to_quaternion, quaternion_product, random_quaternions
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.scene import PreparedPair
@@ -30,7 +30,7 @@ class Outcome:
     best: int  # index of the chosen restart
     poses: Poses  # best pose of every restart
     objectives: torch.Tensor  # (B,) on the evaluation views, last phase's weights
-    terms: dict[str, torch.Tensor]  # (B,) each: clip, icp, pen of the best poses
+    terms: dict[str, torch.Tensor]  # (B,) each: clip, icp, pen, rel of the best poses
     timings: dict[str, float]
     phase_timings: list[dict[str, float]]
     clip_images: int
@@ -74,6 +74,15 @@ def initial_poses(pair: PreparedPair, config: AlignConfig, size_ratio: float, ge
     return Poses(t.to(device), q.to(device), log_s.to(device))
 
 
+def improves(now: dict[str, torch.Tensor], best: dict[str, torch.Tensor]) -> torch.Tensor:
+    """(B,) whether each restart's new pose replaces its best: the relation first (a pose where the prompt's
+    relation holds beats one where it does not, ``objective.holding``), then the lower objective. Without the
+    first rule a pose that holds (a ball on the floor beside a table, touching a leg) is traded for a lifted one
+    with a little less penetration, weighted more than the relation's violation."""
+    held, was = holding(now), holding(best)
+    return (held & ~was) | ((held == was) & (now["objective"] < best["objective"]))
+
+
 class Optimiser:
     """Runs the phase plan over a batch of restarts; one instance per run."""
 
@@ -111,9 +120,11 @@ class Optimiser:
         return Outcome(
             best=select_answer(scores, clearance(scorer.pair, scorer.pair.index, best),
                                touch_limit(scorer.pair, best), last, guided=scorer.use_clip,
-                               touches=scorer.contact_ratio > 0),
+                               touches=scorer.contact_ratio > 0,
+                               override=scorer.gate.override if scorer.gate is not None else 1.0,
+                               share=scorer.config.search.min_share),
             poses=best, objectives=objectives,
-            terms={k: scores[k] for k in ("clip", "icp", "pen")}, timings=totals,
+            terms={k: scores[k] for k in ("clip", "icp", "pen", "rel")}, timings=totals,
             phase_timings=phase_timings, clip_images=self.scorer.clip_images, steps_run=self.done,
         )
 
@@ -137,14 +148,17 @@ class Optimiser:
             opt.zero_grad(set_to_none=True)
             poses = Poses(t, q, log_s)
             geo = self.scorer.geometry(poses, phase)
-            last = {"icp": geo["icp"].detach(), "pen": geo["pen"].detach()}
+            last = {"icp": geo["icp"].detach(), "pen": geo["pen"].detach(), "rel": geo["rel"].detach()}
             if self.clip_gradient:
                 with torch.no_grad():
                     look_at = phase.look_at_beta * geo["centroid"]  # target centre is the origin
                 cams = sample_training_views(look_at, cfg.camera, phase.zoom, self.generator)
                 last["clip"] = self.scorer.clip_term(poses, cams, weight=phase.lambda_clip)
             with self.clock.time("geometry"):
-                (phase.lambda_icp * geo["icp"] + phase.lambda_pen * geo["pen"]).sum().backward()
+                loss = phase.lambda_icp * geo["icp"] + phase.lambda_pen * geo["pen"]
+                if phase.lambda_rel and self.scorer.relation is not None:  # the relation pulls toward where it holds
+                    loss = loss + phase.lambda_rel * (geo["rel"] + geo["stable"])
+                loss.sum().backward()
             opt.step()
             self._perturb(opt)
             sched.step()
@@ -152,7 +166,7 @@ class Optimiser:
             if (step + 1) % cfg.optim.eval_every == 0 or step + 1 == phase.steps:
                 current = Poses(t, q, log_s).detached()
                 now = self.scorer.evaluate(current, phase)
-                better = now["objective"] < scores["objective"]
+                better = improves(now, scores)
                 best = current.where(better, best)
                 scores = {k: torch.where(better, now[k], scores[k]) for k in scores}
             if (step + 1) % cfg.progress_every == 0 or step + 1 == phase.steps:

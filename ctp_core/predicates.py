@@ -265,7 +265,8 @@ def features(pair: PreparedPair) -> Features:
     cached = _FEATURES.get(key)
     if cached is not None and cached[0]() is pair:
         return cached[1]
-    built = _build(pair)
+    with torch.inference_mode(False), torch.no_grad():  # normal tensors: the refinement's gradient reuses them
+        built = _build(pair)
     _FEATURES[key] = (weakref.ref(pair), built)
     weakref.finalize(pair, _FEATURES.pop, key, None)
     return built

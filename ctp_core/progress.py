@@ -35,6 +35,7 @@ class ProgressEvent:
     best_objective: float | None = None
     message: str = ""
     stage: StageName = "refine"
+    relation_holds: int | None = None  # search: candidates scored so far where the prompt's relation holds
 
     @property
     def fraction(self) -> float:

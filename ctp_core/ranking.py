@@ -1,7 +1,8 @@
 """How the search ranks its candidates (``proposals``): score them forward only, keep a diverse best few.
 
-``score``: the objective's terms (``objective.Scorer``) of every candidate, ranked by the guide's term where
-there is a guide (``ranking_key``: the proposals satisfy the geometry already), forward only under inference
+``score``: the objective's terms (``objective.Scorer``) of every candidate, ranked by the prompt's relation first,
+then by the guide's term where there is a guide with signal (``ranking_key``, ``guide_noise``: the proposals
+satisfy the geometry already), forward only under inference
 mode, ``search.batch`` candidates x views per render and encoder call: first all candidates at a few fixed views
 framing the target's region (the same cameras for all, so a per-view goal is encoded once), then
 ``search.fine`` of them (``shortlist_of``: the best at distinct places, then the best distinct poses) at more
@@ -31,14 +32,17 @@ import torch
 from ctp_core.cameras import Cameras, orbit
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
-from ctp_core.objective import Scorer
-from ctp_core.pose import Poses
+from ctp_core.objective import TIER, Gate, Scorer, holding, rank_key
+from ctp_core.pose import Poses, quaternion_product
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.proposals import Proposals, place
 from ctp_core.scene import PreparedPair
 from ctp_core.schedule import Phase
 
 HIDDEN = 1e-6  # tile stage: a smaller change of the guide's term than this is a source its views do not see
+GATE_PROBES = 4  # ``guide_noise``: candidates scored again, moved by a negligible amount
+GATE_SHIFT = 0.01  # ... by this many source diagonals
+GATE_TURN_DEG = 1.0  # ... and turned this much about +Y
 
 
 @dataclass
@@ -49,6 +53,8 @@ class Ranked:
     swept: int  # candidates of the orientation sweep
     seconds: float
     stages: dict[str, tuple[Poses, torch.Tensor]] = field(default_factory=dict)  # per stage: poses, ranking key
+    holding: int = 0  # coarse and sweep candidates where the prompt's relation holds (all without one)
+    gate: dict[str, float] | None = None  # the guide's ``Gate`` (spread, noise, override); None without a guide
 
 
 def _scene_radius(pair: PreparedPair, log_s: float) -> float:
@@ -98,8 +104,9 @@ def tiles_of(pair: PreparedPair, config: AlignConfig, poses: Poses) -> tuple[tor
 
 def tile_score(scorer: Scorer, poses: Poses, weights: Phase, tiles: tuple[torch.Tensor, torch.Tensor, float], *,
                batch: int, progress=lambda scored: None, should_cancel: CancelCheck | None = None) -> torch.Tensor:
-    """(N,) each pose's ranking key in the coarse views of its tile (``tiles``: ``tiles_of`` of ``poses``) minus
-    that of the same views without the source (lower: the source moves the view toward the guide).
+    """(N,) each pose's ranking key (``ranking_key``: the relation first) by the guide's term in the coarse views
+    of its tile (``tiles``: ``tiles_of`` of ``poses``) minus that of the same views without the source (lower:
+    the source moves the view toward the guide).
 
     Views framed on different tiles show different parts of the target, so only the change a source makes to
     its own tile's views compares across tiles. The empty view is the scene with a point-sized source. A pose
@@ -108,20 +115,27 @@ def tile_score(scorer: Scorer, poses: Poses, weights: Phase, tiles: tuple[torch.
     """
     tile, centres, radius = tiles
     cameras = coarse_cameras(scorer.pair, scorer.config, float(poses.log_s[0]), centres, radius)
-    out = torch.zeros(len(poses))
+    change = torch.zeros(len(poses))
+    parts: list[tuple[torch.Tensor, dict[str, torch.Tensor]]] = []
     done = 0
     for k in range(len(centres)):
         members = torch.nonzero(tile == k)[:, 0]
         cams = cameras.rows(k, k + 1)
         goal_embeddings = embed_shared_goal(scorer, cams)
         empty = Poses(centres[k : k + 1].to(poses.t), poses.q[:1], torch.full_like(poses.log_s[:1], -30.0))
-        base = score(scorer, empty, weights, cams, batch=1, goal_embeddings=goal_embeddings)
-        change = score(scorer, poses.select(members), weights, cams, batch=batch, goal_embeddings=goal_embeddings,
-                       should_cancel=should_cancel).cpu() - base.cpu()
-        out[members] = torch.where(change.abs() > HIDDEN, change, torch.full_like(change, torch.inf))
+        base = terms_of(scorer, empty, weights, cams, batch=1, goal_embeddings=goal_embeddings)["clip"]
+        part = terms_of(scorer, poses.select(members), weights, cams, batch=batch, goal_embeddings=goal_embeddings,
+                        should_cancel=should_cancel)
+        moved = part["clip"] - base
+        change[members] = torch.where(moved.abs() > HIDDEN, moved, torch.full_like(moved, torch.inf))
+        parts.append((members, part))
         done += len(members)
         progress(done)
-    return out
+    terms = {key: torch.zeros(len(poses)) for key in parts[0][1]} if parts else {"objective": torch.zeros(0)}
+    for members, part in parts:
+        for key, value in part.items():
+            terms[key][members] = value
+    return ranking_key(scorer, terms, weights, guide_key=change)
 
 
 def fine_cameras(pair: PreparedPair, config: AlignConfig, poses: Poses) -> Cameras:
@@ -154,24 +168,61 @@ def embed_shared_goal(scorer: Scorer, cameras: Cameras) -> torch.Tensor | None:
     return embeddings.clone()
 
 
-def score(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, batch: int,
-          goal_embeddings: torch.Tensor | None = None, progress=lambda scored: None,
-          should_cancel: CancelCheck | None = None) -> torch.Tensor:
-    """(N,) objectives of ``poses`` on ``cameras`` ((1, C) shared or (N, C)), ``batch`` poses per call, forward
-    only; ``progress(scored)`` after each batch, cancel checked before each. ``goal_embeddings``:
-    ``embed_shared_goal`` of shared cameras, when already computed."""
+def terms_of(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, batch: int,
+             goal_embeddings: torch.Tensor | None = None, progress=lambda scored: None,
+             should_cancel: CancelCheck | None = None) -> dict[str, torch.Tensor]:
+    """The objective's terms (``Scorer.score``: clip, icp, pen, rel, stable, objective) of ``poses`` on ``cameras``
+    ((1, C) shared or (N, C)), ``batch`` poses per call, forward only, on the CPU; ``progress(scored)`` after
+    each batch, cancel checked before each. ``goal_embeddings``: ``embed_shared_goal`` of shared cameras, when
+    already computed."""
     shared = cameras.fov_deg.shape[0] == 1
     if shared and goal_embeddings is None and scorer.use_clip:
         goal_embeddings = embed_shared_goal(scorer, cameras)
-    out = []
+    out: list[dict[str, torch.Tensor]] = []
     for lo in range(0, len(poses), batch):
         if should_cancel is not None and should_cancel():
             raise Canceled("the run was cancelled")
         chunk = poses.select(slice(lo, lo + batch))
         cams = cameras if shared else cameras.rows(lo, lo + batch)
-        out.append(ranking_key(scorer, scorer.score(chunk, weights, cams, goal_embeddings), weights))
+        out.append({k: v.cpu() for k, v in scorer.score(chunk, weights, cams, goal_embeddings).items()})
         progress(lo + len(chunk))
-    return torch.cat(out)
+    if not out:
+        return {k: torch.zeros(0) for k in ("clip", "icp", "pen", "rel", "stable", "objective")}
+    return {k: torch.cat([part[k] for part in out]) for k in out[0]}
+
+
+def score(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, batch: int,
+          goal_embeddings: torch.Tensor | None = None, progress=lambda scored: None,
+          should_cancel: CancelCheck | None = None) -> torch.Tensor:
+    """(N,) ranking keys (``ranking_key``) of ``poses`` on ``cameras``: ``terms_of``, then ranked together."""
+    terms = terms_of(scorer, poses, weights, cameras, batch=batch, goal_embeddings=goal_embeddings,
+                     progress=progress, should_cancel=should_cancel)
+    return ranking_key(scorer, terms, weights)
+
+
+def guide_noise(scorer: Scorer, poses: Poses, terms: dict[str, torch.Tensor], weights: Phase, cameras: Cameras,
+                goal_embeddings: torch.Tensor | None) -> Gate:
+    """The guide's ``Gate`` from a stage's candidates: the spread (standard deviation) of its term over them,
+    against its noise: the largest change of its term when ``GATE_PROBES`` of them (spread over its order) are
+    moved by ``GATE_SHIFT`` of the source's diagonal and turned ``GATE_TURN_DEG`` about +Y (a change the
+    geometry and any placement metric cannot tell; renders then differ a little at the source's edges and the
+    encoder's rounding (bf16 under autocast) differs with them). Costs ``GATE_PROBES`` candidates' encodes,
+    about 3 % of the coarse stage; ``benchmarks/guide_signal.py`` compares the same spread to the bf16
+    rounding offline."""
+    clip = terms["clip"]
+    order = torch.argsort(clip)
+    picks = order[torch.linspace(0, len(order) - 1, min(GATE_PROBES, len(order))).round().long()].unique()
+    probe = poses.select(picks)
+    generator = torch.Generator().manual_seed(scorer.config.seed)
+    direction = torch.nn.functional.normalize(torch.randn(len(picks), 3, generator=generator), dim=-1)
+    diagonal = 2 * scorer.pair.source_radius * probe.log_s.exp()
+    half = math.radians(GATE_TURN_DEG) / 2
+    turn = torch.tensor([math.cos(half), 0.0, math.sin(half), 0.0]).expand(len(picks), 4)
+    moved = Poses(probe.t + (GATE_SHIFT * diagonal)[:, None] * direction.to(probe.t),
+                  quaternion_product(turn.to(probe.q), probe.q), probe.log_s)
+    again = terms_of(scorer, moved, weights, cameras, batch=len(picks), goal_embeddings=goal_embeddings)["clip"]
+    noise = float((again - clip[picks]).abs().max())
+    return Gate(float(clip.std()) if len(clip) > 1 else 0.0, noise)
 
 
 def diverse_top(poses: Poses, objectives: torch.Tensor, k: int, distance: float, angle_deg: float) -> list[int]:
@@ -213,25 +264,42 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
     tiled_count = len(poses) if tiles is not None else 0
     total = len(poses) + sweep_count + tiled_count + fine_count
 
+    relation = scorer.relation
+    held = [0, 0]  # candidates where the relation holds, of those scored (coarse and sweep)
+
     def emit(done: int, best: float | None = None) -> None:
         if on_event:
             elapsed = time.perf_counter() - started
+            message = f"search: {done}/{total} candidates scored"
+            if relation is not None and held[1]:
+                message += f"; {held[0]} of {held[1]} hold '{relation}'"
             on_event(ProgressEvent(kind="step", phase=0, phases=phases, step=done, steps=total, restarts=k,
                                    elapsed_s=elapsed, eta_s=None, best_objective=best, stage="search",
-                                   message=f"search: {done}/{total} candidates scored"))
+                                   message=message, relation_holds=held[0] if relation is not None and held[1]
+                                   else None))
 
     emit(0)
     with scorer.clock.time("search"):
         cameras = coarse_cameras(pair, config, log_s)
         goal_embeddings = embed_shared_goal(scorer, cameras)
         distinct = _distinct(pair, config, log_s)
-        coarse = score(scorer, poses, weights, cameras, batch=cfg.batch, goal_embeddings=goal_embeddings, progress=emit,
-                       should_cancel=should_cancel)
+        terms = terms_of(scorer, poses, weights, cameras, batch=cfg.batch, goal_embeddings=goal_embeddings,
+                         progress=emit, should_cancel=should_cancel)
+        if scorer.use_clip and len(poses) > 1:  # how far the guide may override the relation (``Gate``)
+            scorer.gate = guide_noise(scorer, poses, terms, weights, cameras, goal_embeddings)
+            if scorer.gate.override == 0:
+                tiles = None  # a guide with no signal cannot tell tiles apart either
+                total -= tiled_count
+                tiled_count = 0
+        coarse = ranking_key(scorer, terms, weights)
         swept = sweep(proposals, pair, coarse, cfg.sweep, distinct[0]) if sweep_count else None
         if swept is not None and len(swept):
-            extra = score(scorer, swept, weights, cameras, batch=cfg.batch, goal_embeddings=goal_embeddings,
-                          should_cancel=should_cancel, progress=lambda n: emit(len(poses) + n))
-            poses, coarse = Poses.cat([poses, swept]), torch.cat([coarse, extra])
+            extra = terms_of(scorer, swept, weights, cameras, batch=cfg.batch, goal_embeddings=goal_embeddings,
+                             should_cancel=should_cancel, progress=lambda n: emit(len(poses) + n))
+            poses = Poses.cat([poses, swept])
+            terms = {k: torch.cat([terms[k], extra[k]]) for k in terms}
+            coarse = ranking_key(scorer, terms, weights)
+        held[:] = [int(holding(terms).sum()), len(poses)]
         proposed = proposals.poses
         tiled = None if tiles is None else tile_score(
             scorer, proposed, weights, tiles, batch=cfg.batch, should_cancel=should_cancel,
@@ -251,9 +319,15 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
             kept, objectives = merge(kept, objectives, proposed.select(picks), tiled[picks], cfg.tile_restarts,
                                      distinct)
             stages["tiles"] = (proposed, tiled)
-    emit(total, float(objectives[0]))
+    emit(total, _untiered(float(objectives[0])) if len(objectives) else None)
     return Ranked(kept, objectives, len(poses) + len(fine_poses) + (0 if tiled is None else len(tiled)),
-                  0 if swept is None else len(swept), time.perf_counter() - began, stages)
+                  0 if swept is None else len(swept), time.perf_counter() - began, stages, held[0],
+                  None if scorer.gate is None else scorer.gate.to_dict())
+
+
+def _untiered(key: float) -> float:
+    """A ranking key without its relation tier (``objective.TIER``): the objective or guide term it ranks by."""
+    return key - TIER * round(key / TIER)
 
 
 def merge(first: Poses, first_keys: torch.Tensor, second: Poses, second_keys: torch.Tensor, m: int,
@@ -278,17 +352,26 @@ def shortlist_of(poses: Poses, objectives: torch.Tensor, k: int, distance: float
     return places + rest[: k - len(places)]
 
 
-def ranking_key(scorer: Scorer, terms: dict[str, torch.Tensor], weights: Phase) -> torch.Tensor:
-    """What the search ranks its candidates by (lower is better): the guide's term alone when there is a guide,
-    else the objective (geometry only).
+def ranking_key(scorer: Scorer, terms: dict[str, torch.Tensor], weights: Phase,
+                guide_key: torch.Tensor | None = None) -> torch.Tensor:
+    """What the search ranks a stage's candidates by (lower is better; ``objective.rank_key``): the prompt's
+    relation first (where it holds, then the rest), then, with a guide, the guide's term (``guide_key``: the
+    tile stage's change) over the candidates where it holds plus a share of the others the guide likes best
+    (``search.min_share`` x the ``Gate``'s override); without a guide, or one whose spread is within its noise
+    (``scorer.gate``), the geometric objective.
 
-    The proposals touch without interpenetrating by construction, so among them the geometric terms measure
-    how the target's samples happen to fall (soft-ICP at contact is about sigma² and varies with sample density),
-    not contact: on pb3d-blender with the oracle and random:ViT-B-32, the soft-ICP's spread over touching
-    candidates was ~0.01 against the guide's ~1e-4, so any weighted sum ranked as geometry alone did. The
-    refinement and the final selection use the whole objective.
+    Why the guide's term alone and not a weighted sum: the proposals touch without interpenetrating by
+    construction, so among them the geometric terms measure how the target's samples happen to fall (soft-ICP
+    at contact is about sigma² and varies with sample density), not contact: on pb3d-blender with the oracle
+    and random:ViT-B-32, the soft-ICP's spread over touching candidates was ~0.01 against the guide's ~1e-4, so
+    any weighted sum ranked as geometry alone did. The refinement and the final selection use the whole
+    objective.
     """
-    return terms["clip"] if scorer.use_clip else terms["objective"]
+    gate = scorer.gate
+    override = gate.override if gate is not None else 1.0
+    guided = scorer.use_clip and override > 0
+    key = (terms["clip"] if guide_key is None else guide_key) if guided else None
+    return rank_key(terms, weights, guide_key=key, override=override, share=scorer.config.search.min_share)
 
 
 def _distinct(pair: PreparedPair, config: AlignConfig, log_s: float) -> tuple[float, float]:

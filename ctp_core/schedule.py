@@ -23,6 +23,7 @@ class Phase:
     sigma_icp: float
     look_at_beta: float  # 0: look at the target centre; 1: at the posed source centroid
     zoom: float  # camera distance factor
+    lambda_rel: float = 0.0  # the relation term (``objective.Scorer``: zeros without a known relation)
 
 
 def log_spaced(first: float, last: float, count: int) -> list[float]:
@@ -47,12 +48,14 @@ def phases(config: AlignConfig, allow_penetration: bool) -> list[Phase]:
     icp = log_spaced(*config.loss.lambda_icp, count)
     sigma = log_spaced(*config.loss.sigma_icp, count)
     pen = [0.0] * count if allow_penetration else log_spaced(*config.loss.lambda_pen, count)
+    rel = log_spaced(*config.loss.lambda_rel, count) if config.relation else [0.0] * count
     if cam.schedule and count > 1:
         betas = list(np.linspace(0.0, cam.look_at_beta_last, count))
         zooms = [cam.zoom_last ** (i / (count - 1)) for i in range(count)]
     else:
         betas, zooms = [0.0] * count, [1.0] * count
     return [
-        Phase(i + 1, steps, config.loss.lambda_clip, icp[i], pen[i], sigma[i], float(betas[i]), float(zooms[i]))
+        Phase(i + 1, steps, config.loss.lambda_clip, icp[i], pen[i], sigma[i], float(betas[i]), float(zooms[i]),
+              rel[i])
         for i, steps in enumerate(split_steps(config.optim.steps, count))
     ]

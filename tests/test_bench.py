@@ -185,7 +185,7 @@ def test_guides_needing_a_reference_skip_cases_without_one(tmp_path):
 
 
 @pytest.mark.parametrize("name", ["no-guidance", "no-icp", "no-pen", "no-phases", "no-camera-schedule",
-                                  "selection-only", "paper"])
+                                  "selection-only", "no-relation", "paper"])
 def test_every_ablation_changes_its_switch(name):
     from ctp_core.bench.harness import BenchOptions
 
@@ -198,6 +198,7 @@ def test_every_ablation_changes_its_switch(name):
         "no-phases": config.optim.phases == 1,
         "no-camera-schedule": config.camera.schedule is False,
         "selection-only": config.loss.selection_only is True,
+        "no-relation": config.relation is False and base.relation is True,
         "paper": config.preset == "paper" and config.optim.steps > base.optim.steps,
     }
     assert changed[name]

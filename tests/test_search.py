@@ -173,8 +173,9 @@ def test_search_counts_every_encoder_image_including_the_oracles(pairs, zoom):
     cfg = config.search
     n, fine = len(props.poses), min(cfg.fine, len(props.poses))
     assert 0 < ranked.swept <= cfg.sweep * len(props.rotations)  # every orientation at the best site(s)
-    # candidates x views (coarse and sweep), the shared coarse reference views once, the fine ones each
-    coarse = (n + ranked.swept) * cfg.coarse_views
+    # candidates x views (coarse and sweep, the guide's noise probes), the shared coarse reference views once,
+    # the fine ones each
+    coarse = (n + ranked.swept + min(ranking.GATE_PROBES, n)) * cfg.coarse_views
     refs = cfg.fine_views if cfg.fine_zoom == 0 else fine * cfg.fine_views  # shared fine views without zoom
     assert scorer.clip_images == coarse + cfg.coarse_views + fine * cfg.fine_views + refs
     assert ranked.scored == n + ranked.swept + fine
@@ -229,7 +230,9 @@ def test_tile_scores_rank_the_change_a_source_makes_in_its_tiles_views():
     assert keys[0] < 0 < keys[1] and torch.isinf(keys[2])
 
 
-def test_the_tile_stage_counts_its_images_and_adds_its_restarts():
+def test_the_tile_stage_counts_its_images_and_adds_its_restarts(monkeypatch):
+    # a guide the gate trusts (random:tiny's spread is within its noise here: no tile stage then)
+    monkeypatch.setattr(ranking, "guide_noise", lambda *args: objective.Gate(1.0, 0.0))
     table, ball, reference = _small_ball_on_table()
     pair, props = _proposals(table, ball)
     guide, oracle = get_guide("random:tiny"), goals.ReferenceGoal(reference)

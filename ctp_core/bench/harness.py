@@ -50,6 +50,7 @@ ABLATIONS: dict[str, tuple[str | None, dict]] = {
     "no-phases": (None, {"optim": {"phases": 1}}),
     "no-camera-schedule": (None, {"camera": {"schedule": False}}),
     "selection-only": (None, {"loss": {"selection_only": True}}),
+    "no-relation": (None, {"relation": False}),  # the prompt's relation judges no pose (the verdict stays)
     "paper": ("paper", {}),
 }
 RESULTS = "results.jsonl"

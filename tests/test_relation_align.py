@@ -1,0 +1,152 @@
+"""The prompt's relation where poses are judged: the search's ranking, the guide's gate, the refinement and the
+selection (``objective.rank_key``, ``objective.Gate``, ``ranking.ranking_key``, ``align``).
+
+Generated pairs whose answer is known (``test_predicates``' scenes, +Y up, prepared without the upright turn);
+geometry only (``lambda_clip`` 0), the ``test`` preset: a second or two per run.
+"""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+from test_predicates import box, cup, rot, table
+
+from ctp_core import align as stages
+from ctp_core import objective, predicates, ranking, schedule
+from ctp_core.align import align
+from ctp_core.config import AlignConfig
+
+
+def _cap() -> trimesh.Trimesh:
+    cap = trimesh.creation.cone(radius=0.3, height=0.3)
+    cap.apply_transform(np.r_[np.c_[rot([1, 0, 0], -90), np.zeros(3)], [[0, 0, 0, 1]]])  # axis +Z -> +Y
+    return cap
+
+
+def _head() -> trimesh.Trimesh:
+    head = trimesh.creation.icosphere(subdivisions=2, radius=0.5)
+    head.apply_translation([0, 0.5, 0])
+    return head
+
+
+BALL = trimesh.creation.icosphere(subdivisions=2, radius=0.2)
+PENCIL = trimesh.creation.cylinder(radius=0.03, height=0.9)
+CASES = {  # prompt: target, source, names, the relation the priors read
+    "a ball on the table": (table, lambda: BALL, "table", "ball", "on"),
+    "a ball under the table": (table, lambda: BALL, "table", "ball", "under"),
+    "a ball beside the table": (table, lambda: BALL, "table", "ball", "beside"),
+    "a cap on the head": (_head, _cap, "head", "cap", "wear"),
+    "a pencil in the cup": (cup, lambda: PENCIL, "cup", "pencil", "in"),
+}
+
+
+def _align(prompt: str, relation: bool = True, on_event=None):
+    make_target, make_source, target_name, source_name, _ = CASES[prompt]
+    config = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0}, relation=relation, upright=False)
+    return align(make_target(), make_source(), prompt, config, target_name=target_name, source_name=source_name,
+                 on_event=on_event)
+
+
+@pytest.mark.parametrize("prompt", list(CASES))
+def test_geometry_only_align_ends_where_the_relation_says(prompt):
+    result = _align(prompt)
+    assert result.relation["name"] == CASES[prompt][4]
+    assert result.relation["holds"], result.relation
+
+
+def test_without_the_relation_the_geometry_alone_does_not_reach_under_or_beside():
+    """The no-relation ablation (``config.relation`` off): soft-ICP and penetration say touching, not where."""
+    verdicts = [_align(p, relation=False).relation for p in ("a ball under the table", "a ball beside the table")]
+    assert not all(v["holds"] for v in verdicts), verdicts
+
+
+def test_the_search_progress_says_how_many_candidates_hold_the_relation():
+    events = []
+    result = _align("a ball beside the table", on_event=events.append)
+    search = [e for e in events if e.stage == "search" and e.relation_holds is not None]
+    assert search and "hold 'beside'" in search[-1].message
+    assert search[-1].relation_holds == result.timings["search_relation_holds"] > 0
+
+
+WEIGHTS = schedule.phases(AlignConfig.from_preset("test"), allow_penetration=False)[-1]
+
+
+def _terms(rel, icp, clip=None):
+    terms = {"rel": torch.tensor(rel), "icp": torch.tensor(icp), "pen": torch.zeros(len(rel)),
+             "stable": torch.zeros(len(rel)), "clip": torch.zeros(len(rel)) if clip is None else torch.tensor(clip)}
+    terms["objective"] = objective.combine(terms, WEIGHTS)
+    return terms
+
+
+def test_ranking_puts_the_candidates_that_hold_the_relation_first():
+    """Without a guide: the relation, then the geometric objective (the best objective fails the relation)."""
+    terms = _terms([0.5, 0.0, 0.01, 0.3], [0.0, 0.02, 0.03, 0.001])
+    key = objective.rank_key(terms, WEIGHTS)
+    assert torch.argsort(key).tolist() == [1, 2, 3, 0]
+
+
+def _scorer(gate):
+    return SimpleNamespace(gate=gate, use_clip=True, config=AlignConfig.from_preset("test"))
+
+
+def test_a_guide_ranks_among_the_holding_candidates_plus_a_share_of_the_others():
+    """A guide the gate trusts orders the candidates where the relation holds and the others it likes best
+    (``min_share`` of them, at least one): a misread prompt keeps the guide's favourite reachable."""
+    rel = [0.0] * 4 + [1.0] * 20
+    clip = [-0.5, -0.6, -0.55, -0.4] + [-0.9] + [-0.1] * 19  # the guide's best fails the relation
+    terms = _terms(rel, [0.0] * 24, clip)
+    key = ranking.ranking_key(_scorer(objective.Gate(spread=1.0, noise=0.01)), terms, WEIGHTS)
+    admitted = math.ceil(AlignConfig.from_preset("test").search.min_share * 20)
+    assert admitted == 2 and torch.argsort(key).tolist()[:5] == [4, 1, 2, 0, 3]
+    assert int((key > objective.TIER / 2).sum()) == 20 - admitted  # the rest: after every pooled candidate
+
+
+def test_a_guide_whose_spread_is_within_its_noise_does_not_override_the_relation():
+    """The gate: spread over the candidates at most the guide's noise -> override 0 -> rank by relation and
+    geometry; the guide's favourite (failing the relation, worse geometry) stays last."""
+    gate = objective.Gate(spread=1e-4, noise=2e-4)
+    assert gate.override == 0.0 and objective.Gate(1.0, 0.1).override == 1.0
+    assert 0 < objective.Gate(2e-4, 1e-4).override < 1
+    terms = _terms([1.0, 0.0, 0.0], [0.0, 0.02, 0.01], clip=[-0.9, -0.3, -0.2])
+    key = ranking.ranking_key(_scorer(gate), terms, WEIGHTS)
+    assert torch.argsort(key).tolist() == [2, 1, 0]
+    # the selection of the refined answer follows the same gate: geometry without signal, the guide with it
+    # (the restart failing the relation pays its weighted relation term there: lambda_rel x its score)
+    clear, limit = torch.zeros(3), torch.full((3,), objective.TOUCH)
+    assert objective.select_answer(terms, clear, limit, WEIGHTS, guided=True, touches=True, override=0.0) == 2
+    assert objective.select_answer(terms, clear, limit, WEIGHTS, guided=True, touches=True, override=1.0) == 1
+
+
+def test_lean_proposals_stand_tilted_against_a_side_where_the_regions_have_none():
+    """A stick leaning against a box: no region proposal leans (upright beside it or lying); the lean
+    proposals (``relation_proposals``) do, and only where the relation is on."""
+    target, stick = box([1, 1, 1], [0, 0.5, 0]), trimesh.creation.cylinder(radius=0.03, height=1.4)
+    for relation in (True, False):
+        config = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0}, upright=False, relation=relation)
+        run = stages.prepare(target, stick, "a stick leaning against the box", config, target_name="box",
+                             source_name="stick")
+        props = stages.propose(run)
+        lean = torch.tensor([r == "lean" for r in props.region])
+        assert bool(lean.any()) == relation
+        with torch.inference_mode():
+            held = predicates.holds(predicates.relation_score(run.pair, props.poses, "lean"))
+        assert not held[~lean].any() and (held[lean].all() if relation else True)
+
+
+def test_an_assembly_judges_each_step_by_its_own_relation_on_its_own_object():
+    """Step by step (``assemble``): each step's prompt gives its relation, its ``on`` object is the ground: a
+    ball under the table, then a cone cap on the ball."""
+    from ctp_core.assemble import Step, assemble
+
+    config = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0}, upright=False)
+    steps = [Step(BALL, "ball", "a ball under the table", on="table"),
+             Step(_cap(), "cap", "a cap on the ball's head", on="ball")]
+    assembly = assemble(table(), steps, config, base_name="table")
+    verdicts = [(r.on, r.result.relation) for r in assembly.results]
+    assert [(on, v["name"]) for on, v in verdicts] == [("table", "under"), ("ball", "wear")], verdicts
+    assert all(v["holds"] for _, v in verdicts), verdicts
