@@ -24,11 +24,12 @@ def clip_loss(image_embeddings: torch.Tensor, goal_embeddings: torch.Tensor) -> 
     return -cos.mean(dim=-1)
 
 
-class TargetIndex:
-    """Target surface samples with a KD-tree, built once per run (the target never moves)."""
+class SurfaceIndex:
+    """Surface samples with outward normals and a KD-tree, built once per run in a frame where the surface
+    never moves: the target's in the normalised frame, the source's in its local frame."""
 
     def __init__(self, points: torch.Tensor, normals: torch.Tensor):
-        self.points = points  # (M, 3) normalised frame
+        self.points = points  # (M, 3) the surface's frame
         self.normals = normals  # (M, 3) outward unit normals
         self.tree = cKDTree(points.detach().cpu().numpy().astype(np.float64))
 
@@ -41,7 +42,7 @@ class TargetIndex:
         return idx.long()
 
 
-def soft_icp(source: torch.Tensor, index: TargetIndex, ratio: float, sigma: float, k: int) -> torch.Tensor:
+def soft_icp(source: torch.Tensor, index: SurfaceIndex, ratio: float, sigma: float, k: int) -> torch.Tensor:
     """Fractional soft-ICP: attach the fraction ``ratio`` of the source that is already closest.
 
     source (B, N, 3) posed samples. For each source point d_i = min_j |v_i - u_j|; keep the
@@ -63,14 +64,14 @@ def soft_icp(source: torch.Tensor, index: TargetIndex, ratio: float, sigma: floa
     return (alpha * sq).sum(-1).mean(dim=1)
 
 
-def signed_depth(source: torch.Tensor, index: TargetIndex, sigma: float, k: int,
+def signed_depth(source: torch.Tensor, index: SurfaceIndex, sigma: float | torch.Tensor, k: int,
                  idx: torch.Tensor | None = None) -> torch.Tensor:
     """(B, N) signed depth of each source point below the target surface (positive inside).
 
     The distance along the target's outward normal at a softmax-weighted nearest target point (width
     ``sigma``). Inside/outside comes from the target normals: ``scene`` orients them outward (trimesh winding
     fix); for an open surface "inside" means behind the surface's oriented side. ``idx`` (B, N, k): the
-    neighbours when the caller has them already.
+    neighbours when the caller has them already. ``sigma``: a float, or (B, 1, 1) for one width per pose.
     """
     idx = index.neighbours(source, k) if idx is None else idx  # (B, N, k)
     u = index.points[idx]
@@ -81,9 +82,26 @@ def signed_depth(source: torch.Tensor, index: TargetIndex, sigma: float, k: int,
     return (alpha * (diff * nrm).sum(-1)).sum(-1)
 
 
-def penetration(source: torch.Tensor, index: TargetIndex, sigma: float, margin: float, k: int) -> torch.Tensor:
+def penetration(source: torch.Tensor, index: SurfaceIndex, sigma: float, margin: float, k: int) -> torch.Tensor:
     """Mean of max(0, depth - margin) over source samples (the reference drops the margin; we keep it).
 
     depth is ``signed_depth``: positive inside the target.
     """
     return torch.relu(signed_depth(source, index, sigma, k) - margin).mean(dim=1)
+
+
+def enclosed_penetration(points: torch.Tensor, inside: torch.Tensor, source: SurfaceIndex, scale: torch.Tensor,
+                         area_ratio: torch.Tensor, sigma: float, margin: float, k: int) -> torch.Tensor:
+    """(B,) the other half of the penetration: target samples inside the posed source.
+
+    ``penetration`` sees only source samples inside the target, so a source straddling a thin wall (a ball
+    through a mug's side) has most of its samples outside, on either side of the wall, and is barely charged;
+    the wall's own samples inside the source are. ``points`` (B, K, 3): target samples near each pose, in that
+    pose's source local frame; ``inside`` (B, K) which of them count; ``scale`` (B,) the pose's scale (local
+    -> normalised lengths). The depth (normalised units) past ``margin`` is summed with the weight of the area
+    each sample stands for, over the posed source's area (``area_ratio``, (B,)): the same mean over the source's
+    surface that ``penetration`` takes, so the two halves add up.
+    """
+    width = (sigma / scale).reshape(-1, 1, 1)  # the softmax width in local units
+    depth = signed_depth(points, source, width, k) * scale[:, None]
+    return (torch.relu(depth - margin) * inside).sum(1) * area_ratio

@@ -24,7 +24,7 @@ from ctp_core.cameras import Cameras, evaluation_views
 from ctp_core.config import AlignConfig
 from ctp_core.goals import Goal
 from ctp_core.guidance import Guide
-from ctp_core.pose import Poses, apply_pose
+from ctp_core.pose import Poses, apply_pose, quaternion_to_matrix
 from ctp_core.progress import Clock
 from ctp_core.scene import PreparedPair
 from ctp_core.schedule import Phase
@@ -32,7 +32,7 @@ from ctp_core.schedule import Phase
 NEAR = 2.0  # source diagonals: a pose whose source is farther than this from the target places it nowhere
 
 
-def clearance(pair: PreparedPair, index: losses.TargetIndex, poses: Poses, points: int = 64) -> torch.Tensor:
+def clearance(pair: PreparedPair, index: losses.SurfaceIndex, poses: Poses, points: int = 64) -> torch.Tensor:
     """(B,) the smallest distance between each posed source (``points`` of its samples) and the target samples,
     in source diagonals (normalised frame)."""
     posed = apply_pose(pair.source_subset(points), poses.t, poses.q, poses.log_s).detach().cpu()
@@ -45,6 +45,7 @@ def _diagonal(pair: PreparedPair, poses: Poses) -> torch.Tensor:
     return 2 * pair.source_radius * poses.log_s.detach().cpu().exp()
 
 
+ENCLOSED_SAMPLES = 512  # target samples a pose's enclosed penetration looks at (its bounding sphere's nearest)
 TOUCH = 0.1  # source diagonals: a refined pose this close to the target touches it (plus the samples' spacing)
 
 
@@ -119,12 +120,21 @@ class Gate:
         return {"spread": self.spread, "noise": self.noise, "override": round(self.override, 3)}
 
 
+SUNK = 0.01  # source diagonals of penetration (``sunk``) past which a pose intersects: a sphere pressed into a
+# plane by a tenth of its diagonal (forward and enclosed halves ~ depth^2 / radius / 2 each side summed)
+
+
 def holding(terms: dict[str, torch.Tensor]) -> torch.Tensor:
-    """(B,) bool: where the relation holds (``predicates.holds`` of the ``rel`` term; everywhere without one)."""
-    rel = terms.get("rel")
-    if rel is None:
-        return torch.ones_like(terms["objective"], dtype=torch.bool)
-    return predicates.holds(rel)
+    """(B,) bool: where the relation holds (``predicates.holds`` of the ``rel`` term; everywhere without one) and
+    the pose does not intersect the target (``sunk`` at most ``SUNK``; 0 where penetration is allowed). Without
+    the second rule a ball pulled into a mug's wall by "in" (its foot inside the hull, below the rim) outranked
+    every clean pose beside the mug: intersecting is worse than the relation failing."""
+    held = torch.ones_like(terms["objective"], dtype=torch.bool)
+    if "rel" in terms:
+        held = predicates.holds(terms["rel"])
+    if "sunk" in terms:
+        held = held & (terms["sunk"].to(held.device) <= SUNK)
+    return held
 
 
 def rank_key(terms: dict[str, torch.Tensor], weights: Phase, *, guide_key: torch.Tensor | None = None,
@@ -178,16 +188,38 @@ class Scorer:
         self._eval: tuple[Cameras, torch.Tensor] | None = None
 
     def geometry(self, poses: Poses, weights: Phase) -> dict[str, torch.Tensor]:
-        """Soft-ICP and penetration (zero when the phase switches it off), and the posed centroid."""
+        """Soft-ICP and penetration (zero when the phase switches it off), the penetration in source diagonals
+        (``sunk``: what ``holding`` reads), the relation's terms and the posed centroid."""
         cfg = self.config.loss
         with self.clock.time("geometry"):
             pts = apply_pose(self.pair.source_samples, poses.t, poses.q, poses.log_s)
             icp = losses.soft_icp(pts, self.pair.anchor, self.contact_ratio, weights.sigma_icp, cfg.icp_neighbours)
             if weights.lambda_pen > 0:
                 pen = losses.penetration(pts, self.pair.index, cfg.sigma_pen, cfg.c_pen, cfg.icp_neighbours)
+                pen = pen + self.enclosed(poses)
             else:
                 pen = torch.zeros_like(icp)
-        return {"icp": icp, "pen": pen, **self.relation_terms(poses), "centroid": pts.mean(dim=1)}
+            sunk = pen.detach() / _diagonal(self.pair, poses).to(pen.device)
+        return {"icp": icp, "pen": pen, "sunk": sunk, **self.relation_terms(poses), "centroid": pts.mean(dim=1)}
+
+    def enclosed(self, poses: Poses) -> torch.Tensor:
+        """(B,) ``losses.enclosed_penetration``: the target samples within each posed source's bounding sphere
+        (at most ``ENCLOSED_SAMPLES``, nearest its centre), taken into its local frame."""
+        pair, cfg = self.pair, self.config.loss
+        scale = poses.log_s.exp()
+        count = min(ENCLOSED_SAMPLES, len(pair.index.points))
+        centres = poses.t.detach().cpu().numpy().astype(np.float64)
+        dist, idx = pair.index.tree.query(centres, k=count, workers=1)
+        dist, idx = dist.reshape(len(poses), count), idx.reshape(len(poses), count)
+        reach = scale.detach().cpu().numpy()[:, None] * pair.source_radius
+        inside = torch.as_tensor(dist <= reach, dtype=torch.float32, device=poses.t.device)
+        if not bool(inside.any()):
+            return torch.zeros(len(poses), device=poses.t.device)
+        near = pair.index.points[torch.as_tensor(idx, device=poses.t.device)] - poses.t[:, None]
+        local = torch.einsum("bji,bkj->bki", quaternion_to_matrix(poses.q), near) / scale[:, None, None]
+        area_ratio = sample_spacing(pair, len(pair.index.points)) ** 2 / (pair.source_area * scale**2)
+        return losses.enclosed_penetration(local, inside, pair.source_surface, scale, area_ratio, cfg.sigma_pen,
+                                           cfg.c_pen, cfg.icp_neighbours)
 
     def relation_terms(self, poses: Poses) -> dict[str, torch.Tensor]:
         """``rel``: how far each pose is from the prompt's relation (``predicates.relation_score``, figure

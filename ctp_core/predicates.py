@@ -119,7 +119,7 @@ class Side:
     centre: torch.Tensor  # (B or 1, 3) centre of mass stand-in: the mean of area-weighted surface samples
     diagonal: torch.Tensor  # (B or 1,) AABB diagonal, normalised units
     spacing: torch.Tensor  # (B or 1,) how far a surface point can be from its nearest sample
-    tree: losses.TargetIndex | None = None  # a static side (the target): KD-tree queries instead of brute force
+    tree: losses.SurfaceIndex | None = None  # a static side (the target): KD-tree queries instead of brute force
 
     @property
     def static(self) -> bool:
@@ -129,7 +129,7 @@ class Side:
 class _Ground:
     """Nearest ground samples to figure points, optionally restricted to a subset (e.g. up-facing)."""
 
-    def __init__(self, side: Side, trees: dict[str, losses.TargetIndex | None]):
+    def __init__(self, side: Side, trees: dict[str, losses.SurfaceIndex | None]):
         self.side, self.trees = side, trees
 
     def mask(self, which: str) -> torch.Tensor:
@@ -251,7 +251,7 @@ class Features:
     source_centre: torch.Tensor  # (3,) source local frame: mean of area-weighted samples
     source_spacing: float  # source local units: sqrt(area / count)
     target: Side  # the related object (``PreparedPair.anchor``), static
-    target_trees: dict[str, losses.TargetIndex | None]  # per normal subset ("up", "down", "side", ...)
+    target_trees: dict[str, losses.SurfaceIndex | None]  # per normal subset ("up", "down", "side", ...)
     target_figure: Side  # a subset of the target as a figure (the ground role), static
     floor: float  # the height the target stands on: its lowest point (every object of a scene)
 
@@ -291,7 +291,7 @@ def _build(pair: PreparedPair) -> Features:
     ny = t_normals[:, 1]
     subsets = {"all": torch.ones_like(ny, dtype=torch.bool), "up": ny > UP_FACING, "down": ny < -UP_FACING,
                "side": ny.abs() <= UP_FACING, "not_down": ny >= -UP_FACING}
-    trees = {k: (anchor if k == "all" else losses.TargetIndex(t_points[m], t_normals[m]) if m.any() else None)
+    trees = {k: (anchor if k == "all" else losses.SurfaceIndex(t_points[m], t_normals[m]) if m.any() else None)
              for k, m in subsets.items()}
     pick = torch.linspace(0, len(t_points) - 1, min(GROUND_POINTS, len(t_points))).long()
     figure = Side(t_points[pick][None], t_normals[pick][None], t_points.mean(0)[None], diag[None],

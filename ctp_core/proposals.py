@@ -87,7 +87,7 @@ class Proposals:
     region: list[str]  # (N,) which region each was drawn from ("init" for the caller's start)
     sites: Site | None = None  # (N,) where each touches (None: not placed by the search, e.g. random starts)
     rotations: torch.Tensor | None = None  # (R, 4) the source orientations the proposals were drawn from
-    index: losses.TargetIndex | None = None  # the contact samples they were placed with
+    index: losses.SurfaceIndex | None = None  # the contact samples they were placed with
 
 
 def region_weights(relation: str | None, source_is_figure: bool = True) -> dict[str, float]:
@@ -240,7 +240,7 @@ def floor_points(pair: PreparedPair, count: int, margin: float, rng: np.random.G
     return out
 
 
-def contact_index(pair: PreparedPair, count: int = CONTACT_SAMPLES, seed: int = 0) -> losses.TargetIndex:
+def contact_index(pair: PreparedPair, count: int = CONTACT_SAMPLES, seed: int = 0) -> losses.SurfaceIndex:
     """Denser target samples than the losses' (normalised frame, outward normals) for placing proposals: the
     sampled depth and distance are only as good as the spacing."""
     parts = pair.target_outward  # a scene of placed objects: all of them, oriented once by prepare_pair
@@ -249,10 +249,10 @@ def contact_index(pair: PreparedPair, count: int = CONTACT_SAMPLES, seed: int = 
     points, normals = sampling.surface_samples(oriented, count, seed)
     frame = pair.target_to_normalised
     as_t = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
-    return losses.TargetIndex(as_t(frame.apply(points)), as_t(frame.apply_directions(normals)))
+    return losses.SurfaceIndex(as_t(frame.apply(points)), as_t(frame.apply_directions(normals)))
 
 
-def settle(pair: PreparedPair, index: losses.TargetIndex, q: torch.Tensor, anchor: torch.Tensor,
+def settle(pair: PreparedPair, index: losses.SurfaceIndex, q: torch.Tensor, anchor: torch.Tensor,
            normal: torch.Tensor, log_s: torch.Tensor, on_surface: bool,
            approach: str = "closest") -> tuple[torch.Tensor, torch.Tensor]:
     """Source centres (B, 3) that bring each rotated source into contact from outside, approaching along -normal,
@@ -395,7 +395,7 @@ def propose(pair: PreparedPair, config: AlignConfig, weights: dict[str, float], 
                      rotations, index)
 
 
-def place(pair: PreparedPair, index: losses.TargetIndex, q: torch.Tensor, sites: Site,
+def place(pair: PreparedPair, index: losses.SurfaceIndex, q: torch.Tensor, sites: Site,
           log_s: float) -> tuple[Poses, torch.Tensor]:
     """Poses with orientations ``q`` settled into contact at ``sites`` (``settle``), then moved out by each site's
     gap; returns the poses that ended free of the target and the mask of which did."""

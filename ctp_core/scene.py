@@ -27,7 +27,7 @@ import trimesh
 from ctp_core import canonical, frames, render, sampling
 from ctp_core.cameras import framing_cameras
 from ctp_core.errors import ConfigError
-from ctp_core.losses import TargetIndex
+from ctp_core.losses import SurfaceIndex
 from ctp_core.structures import MeshArrays
 
 if TYPE_CHECKING:
@@ -93,13 +93,14 @@ class PreparedPair:
     mesh: render.RenderMesh  # target object(s) then source, joined (faces index target verts first)
     target_vertices: torch.Tensor  # (Vt, 3) normalised frame, every target object
     source_vertices: torch.Tensor  # (Vs, 3) source local frame
-    index: TargetIndex  # target samples + outward normals, normalised frame, every target object
+    index: SurfaceIndex  # target samples + outward normals, normalised frame, every target object
     source_samples: torch.Tensor  # (N, 3) source local frame
+    source_surface: SurfaceIndex  # source samples + outward normals, source local frame (what is inside the source)
     target_outward: list[trimesh.Trimesh]  # each target object, file frame, outward winding (``outward``)
-    attach: TargetIndex | None = None  # samples of the object the source relates to; None: all of ``index``
+    attach: SurfaceIndex | None = None  # samples of the object the source relates to; None: all of ``index``
 
     @property
-    def anchor(self) -> TargetIndex:
+    def anchor(self) -> SurfaceIndex:
         """What the soft-ICP term pulls toward: the related object's samples, or the whole target's."""
         return self.index if self.attach is None else self.attach
 
@@ -114,6 +115,11 @@ class PreparedPair:
         """Half the AABB diagonal of the source samples in the source local frame (unscaled)."""
         lo, hi = self.source_samples.min(0).values, self.source_samples.max(0).values
         return float((hi - lo).norm() / 2)
+
+    @cached_property
+    def source_area(self) -> float:
+        """The source's surface area in the source local frame (unscaled)."""
+        return float(self.source.area) * self.source_to_local.scale**2
 
     def source_subset(self, count: int) -> torch.Tensor:
         """(min(count, N), 3) evenly spaced source samples (source local frame): a cheap stand-in for all of them."""
@@ -170,8 +176,9 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
     sampled = [sampling.surface_samples(m, samples, seed + 2 * i) for i, m in enumerate(oriented)]
     t_pts, t_nrm = (np.concatenate(parts_of) for parts_of in zip(*sampled, strict=True))
     s_pts, _ = sampling.surface_samples(source, samples, seed + 1)
+    s_out, s_nrm = sampling.surface_samples(outward(source), samples, seed + 1)
     as_tensor = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=device)  # noqa: E731
-    index = lambda p, n: TargetIndex(as_tensor(target_to_norm.apply(p)),  # noqa: E731
+    index = lambda p, n: SurfaceIndex(as_tensor(target_to_norm.apply(p)),  # noqa: E731
                                      as_tensor(target_to_norm.apply_directions(n)))
     position = None if on is None else _position([name for name, _ in parts], on)
     attach = index(*sampled[position]) if position is not None and len(parts) > 1 else None
@@ -187,6 +194,8 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
         source_vertices=as_tensor(source_to_local.apply(source_arrays.vertices)),
         index=index(t_pts, t_nrm),
         source_samples=as_tensor(source_to_local.apply(s_pts)),
+        source_surface=SurfaceIndex(as_tensor(source_to_local.apply(s_out)),
+                                    as_tensor(source_to_local.apply_directions(s_nrm))),
         target_outward=oriented,
         attach=attach,
     )

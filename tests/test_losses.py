@@ -7,14 +7,14 @@ import torch
 from ctp_core import losses
 
 
-def _plane(n: int = 21, z: float = 0.0) -> losses.TargetIndex:
+def _plane(n: int = 21, z: float = 0.0) -> losses.SurfaceIndex:
     """A grid of target samples on the plane z = const with outward normal +z."""
     g = torch.linspace(-1, 1, n)
     xx, yy = torch.meshgrid(g, g, indexing="ij")
     pts = torch.stack([xx.flatten(), yy.flatten(), torch.full((n * n,), z)], dim=1)
     nrm = torch.zeros_like(pts)
     nrm[:, 2] = 1
-    return losses.TargetIndex(pts, nrm)
+    return losses.SurfaceIndex(pts, nrm)
 
 
 def _dense_soft_icp(src: torch.Tensor, tgt: torch.Tensor, ratio: float, sigma: float) -> torch.Tensor:
@@ -31,14 +31,14 @@ def _dense_soft_icp(src: torch.Tensor, tgt: torch.Tensor, ratio: float, sigma: f
 
 
 def test_soft_icp_single_target_point_is_squared_distance():
-    index = losses.TargetIndex(torch.zeros(1, 3), torch.tensor([[0.0, 0.0, 1.0]]))
+    index = losses.SurfaceIndex(torch.zeros(1, 3), torch.tensor([[0.0, 0.0, 1.0]]))
     src = torch.tensor([[[0.3, 0.0, 0.0], [0.0, 0.4, 0.0]]])
     value = losses.soft_icp(src, index, ratio=1.0, sigma=0.1, k=8)
     assert value.item() == pytest.approx((0.09 + 0.16) / 2, rel=1e-5)
 
 
 def test_soft_icp_ratio_keeps_only_the_closest_fraction():
-    index = losses.TargetIndex(torch.zeros(1, 3), torch.tensor([[0.0, 0.0, 1.0]]))
+    index = losses.SurfaceIndex(torch.zeros(1, 3), torch.tensor([[0.0, 0.0, 1.0]]))
     src = torch.tensor([[[0.1, 0, 0], [0.2, 0, 0], [0.3, 0, 0], [0.4, 0, 0]]])
     half = losses.soft_icp(src, index, ratio=0.5, sigma=0.1, k=1)
     assert half.item() == pytest.approx((0.01 + 0.04) / 2, rel=1e-5)
@@ -49,7 +49,7 @@ def test_soft_icp_equals_dense_formula_when_k_covers_all_targets(ratio):
     gen = torch.Generator().manual_seed(0)
     tgt = torch.randn(40, 3, generator=gen)
     src = torch.randn(3, 25, 3, generator=gen) * 0.7 + 0.2
-    index = losses.TargetIndex(tgt, torch.nn.functional.normalize(torch.randn(40, 3, generator=gen), dim=1))
+    index = losses.SurfaceIndex(tgt, torch.nn.functional.normalize(torch.randn(40, 3, generator=gen), dim=1))
     knn = losses.soft_icp(src, index, ratio=ratio, sigma=0.3, k=40)
     dense = _dense_soft_icp(src, tgt, ratio, 0.3)
     torch.testing.assert_close(knn, dense, rtol=1e-5, atol=1e-6)
@@ -86,3 +86,67 @@ def test_clip_loss_fixed_and_per_view_goals():
     text = torch.nn.functional.normalize(torch.randn(8), dim=0)
     expected = -(emb @ text).mean(dim=1)
     torch.testing.assert_close(losses.clip_loss(emb, text), expected)
+
+
+def _wall_pair():
+    """A thin wall (2 x 2 x 0.02, its faces at z = +-0.01) and a ball of radius 0.3, prepared as a run prepares."""
+    import trimesh
+
+    from ctp_core.config import AlignConfig
+    from ctp_core.objective import Scorer
+    from ctp_core.scene import prepare_pair
+    from ctp_core.schedule import phases
+
+    wall = trimesh.creation.box(extents=(2.0, 2.0, 0.02))
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
+    pair = prepare_pair(wall, ball, samples=3000, seed=0, canonicalise=False)
+    config = AlignConfig.from_preset("descent", penetration="forbid", loss={"lambda_clip": 0.0})
+    return pair, Scorer(pair, config, contact_ratio=0.3), phases(config, allow_penetration=False)[-1]
+
+
+def _ball_at(pair, z: float):
+    from ctp_core.pose import Poses
+
+    radius = 0.3 * pair.target_to_normalised.scale  # the ball's radius in the normalised frame
+    return Poses(torch.tensor([[0.0, 0.0, z * radius]]), torch.tensor([[1.0, 0.0, 0.0, 0.0]]), torch.zeros(1))
+
+
+def test_a_ball_through_a_thin_wall_is_charged_by_the_wall_samples_inside_it():
+    """Through the wall's middle almost every ball sample lies outside the 0.02-thick wall, so the source-side
+    half alone barely sees it; the wall samples inside the ball do. Resting on the wall costs (almost) nothing."""
+    pair, scorer, phase = _wall_pair()
+    cfg = scorer.config.loss
+    through, resting = _ball_at(pair, 0.0), _ball_at(pair, 1.0 + 0.01 / 0.3)
+    from ctp_core.pose import apply_pose
+
+    def source_half(poses):
+        pts = apply_pose(pair.source_samples, poses.t, poses.q, poses.log_s)
+        return float(losses.penetration(pts, pair.index, cfg.sigma_pen, cfg.c_pen, cfg.icp_neighbours)[0])
+
+    diag = 2 * pair.source_radius  # the ball's AABB diagonal, 2 sqrt(3) r
+    assert source_half(through) / diag < 0.005  # the blind spot this half has
+    # exactly: the disc's two faces, depth r - rho, over the ball's area: r / 6, i.e. 0.048 AABB diagonals
+    assert float(scorer.enclosed(through)[0]) / diag == pytest.approx(1 / (12 * 3**0.5), rel=0.15)
+    assert float(scorer.geometry(through, phase)["sunk"][0]) > 0.04
+    assert float(scorer.geometry(resting, phase)["sunk"][0]) < 0.001
+
+
+def test_the_enclosed_half_pushes_a_ball_out_of_a_wall():
+    """Its gradient moves a ball sunk a third of its radius into the wall's top face back up (+z)."""
+    pair, scorer, _ = _wall_pair()
+    poses = _ball_at(pair, 0.7)
+    t = poses.t.clone().requires_grad_(True)
+    from ctp_core.pose import Poses
+
+    scorer.enclosed(Poses(t, poses.q, poses.log_s)).sum().backward()
+    assert t.grad[0, 2] < 0 and abs(float(t.grad[0, 2])) > 10 * float(t.grad[0, :2].abs().max())
+
+
+def test_holding_excludes_a_pose_that_intersects():
+    """The relation's tier (``objective.holding``): a pose where the relation holds but that is sunk into the
+    target past ``SUNK`` ranks with the poses where it fails."""
+    from ctp_core.objective import SUNK, holding
+
+    terms = {"objective": torch.zeros(3), "rel": torch.tensor([0.0, 0.0, 0.5]),
+             "sunk": torch.tensor([0.0, 2 * SUNK, 0.0])}
+    assert holding(terms).tolist() == [True, False, False]
