@@ -18,7 +18,7 @@ import torch
 from ctp_core.cameras import sample_training_views
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
-from ctp_core.objective import Scorer, clearance, holding, select_answer, touch_limit
+from ctp_core.objective import Scorer, clearance, combine, holding, select_answer, touch_limit
 from ctp_core.pose import Poses, matrix_to_quaternion, quaternion_product, random_quaternions
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.scene import PreparedPair
@@ -155,9 +155,9 @@ class Optimiser:
                 cams = sample_training_views(look_at, cfg.camera, phase.zoom, self.generator)
                 last["clip"] = self.scorer.clip_term(poses, cams, weight=phase.lambda_clip)
             with self.clock.time("geometry"):
-                loss = phase.lambda_icp * geo["icp"] + phase.lambda_pen * geo["pen"]
-                if phase.lambda_rel and self.scorer.relation is not None:  # the relation pulls toward where it holds
-                    loss = loss + phase.lambda_rel * (geo["rel"] + geo["stable"])
+                # the objective without the guide's term (its gradient went back in ``clip_term``); the relation's
+                # terms pull toward where it holds
+                loss = combine({**geo, "clip": torch.zeros_like(geo["icp"])}, phase)
                 loss.sum().backward()
             opt.step()
             self._perturb(opt)
