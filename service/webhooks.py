@@ -85,8 +85,10 @@ def check_url(url: str) -> tuple[str, int]:
     """An http(s) URL with a host (``invalid_webhook`` otherwise); returns its host and port."""
     if len(url) > URL_MAX:
         raise WebhookInvalid("invalid_webhook", f"the webhook URL is over {URL_MAX} characters")
+    if any(ord(c) <= 32 or ord(c) == 127 for c in url):
+        raise WebhookInvalid("invalid_webhook", "the webhook URL holds spaces or control characters")
     try:
-        parts = urlsplit(url.strip())
+        parts = urlsplit(url)
         port = parts.port
     except ValueError as exc:
         raise WebhookInvalid("invalid_webhook", f"the webhook URL is malformed: {exc}") from None
