@@ -132,7 +132,16 @@ def settled(api, job_id, timeout_s=120):
 def test_deliveries_are_signed_retried_after_a_500_and_progress_is_throttled(api, worker, receiver):
     accepted = post(api, webhook=receiver.url("/fail-once"), webhook_events="start,progress,completed")
     assert accepted.status_code == 202, accepted.text
+    changes = []  # the job's progress as its event stream shows it: every change the worker wrote
+
+    def follow():
+        with api.client.stream("GET", accepted.json()["links"]["events"], headers=ALPHA, timeout=120) as stream:
+            changes.extend(json.loads(line[6:])["progress"] for line in stream.iter_lines() if line[:6] == "data: ")
+
+    follower = threading.Thread(target=follow)
+    follower.start()
     job = settled(api, accepted.json()["id"])
+    follower.join()
     assert job["status"] == "succeeded"
     got = receiver.of(job["id"])  # every one verified
     types = [d["payload"]["type"] for d in sorted(got, key=lambda d: _seconds(d["payload"]["timestamp"]))]
@@ -146,7 +155,8 @@ def test_deliveries_are_signed_retried_after_a_500_and_progress_is_throttled(api
     assert completed[1]["payload"]["data"]["status"] == "succeeded"
     # progress: at most one a second (the events' own times), though the worker writes progress every 0.5 s
     progress = [d["payload"] for d in got if d["payload"]["type"] == "progress"]
-    assert progress, types
+    running = {json.dumps(p, sort_keys=True) for p in changes if p["kind"] not in ("queued", "done")}
+    assert 0 < len(progress) < len(running), (types, len(running))
     stamps = sorted(_seconds(p["timestamp"]) for p in progress)
     assert all(b - a >= 0.99 for a, b in zip(stamps, stamps[1:], strict=False)), stamps
     assert len({d["headers"]["webhook-id"] for d in got}) == len(got) - 1  # one retry: the completed event
@@ -220,18 +230,23 @@ def test_concurrent_submits_with_one_key_make_one_job(api, worker):
     barrier = threading.Barrier(2)
     answers: list[httpx.Response] = []
 
+    spans: list[tuple[float, float]] = []
+
     def send():
         with httpx.Client(base_url=api.url, timeout=60) as client:
             barrier.wait()
+            started = time.monotonic()
             answers.append(client.post("/align", files={"target": ("box.glb", BOX), "source": ("ball.glb", BALL)},
                                        data={"prompt": "a ball on top of a box", "options": json.dumps(FAST)},
                                        headers={**ALPHA, "Idempotency-Key": key}))
+            spans.append((started, time.monotonic()))
 
     threads = [threading.Thread(target=send) for _ in range(2)]
     for thread in threads:
         thread.start()
     for thread in threads:
         thread.join()
+    assert max(s for s, _ in spans) < min(e for _, e in spans)  # the two requests overlapped
     assert sorted(a.status_code for a in answers) == [200, 202], [a.text for a in answers]
     assert answers[0].json()["id"] == answers[1].json()["id"]
     assert api.client.get("/jobs", headers=ALPHA).json()["total"] == before + 1
