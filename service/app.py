@@ -31,7 +31,7 @@ from service.deps import digest
 from service.errors import BodyLimit, install_handlers
 from service.forms import OPTIONS_DEPTH, OPTIONS_MAX, PROMPT_MAX
 from service.jobs import Jobs
-from service.routers import assemble, health, page
+from service.routers import assemble, health, page, webhooks
 from service.routers import jobs as jobs_router
 from service.settings import Settings
 
@@ -155,6 +155,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(page.router)
     app.mount("/static", page.static_files(), name="static")
     app.include_router(assemble.router)
+    app.webhooks.include_router(webhooks.router)
 
     def openapi() -> dict[str, Any]:
         if app.openapi_schema is None:

@@ -21,13 +21,14 @@ import logging
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
+from datetime import UTC, datetime
 
 import httpx
 from redis.exceptions import RedisError
 
 from service.jobs import JobRecord, Jobs
-from service.schemas import JobOut
-from service.webhooks import Delivery, WebhookInvalid, check_url, payload, resolve, signature
+from service.schemas import JobOut, WebhookPayload
+from service.webhooks import Delivery, WebhookInvalid, check_url, resolve, signature
 
 log = logging.getLogger("ctp.service")
 
@@ -75,8 +76,9 @@ class Deliverer(threading.Thread):
 
     def _attempt(self, delivery: Delivery) -> None:
         try:
-            job = JobOut.of(JobRecord.model_validate_json(delivery.record)).model_dump(mode="json")
-            status, error = self._post(delivery, payload(delivery.event, delivery.created, job))
+            body = WebhookPayload(type=delivery.event, timestamp=datetime.fromtimestamp(delivery.created, UTC),
+                                  data=JobOut.of(JobRecord.model_validate_json(delivery.record)))
+            status, error = self._post(delivery, body.model_dump_json().encode())
             delivery.attempts += 1
             delivered = status is not None and 200 <= status < 300
             next_at = time.time() + min(BACKOFF_MAX_S, BACKOFF_FIRST_S * 2 ** (delivery.attempts - 1))

@@ -89,6 +89,16 @@ class JobOut(BaseModel):
                    webhook=r.webhook, links=links(r.id))
 
 
+class WebhookPayload(BaseModel):
+    """The body of a webhook delivery (Standard Webhooks' shape)."""
+
+    type: Literal["start", "progress", "completed"] = Field(description="the event: start (a worker took the "
+                                                             "job), progress, completed (succeeded, failed or "
+                                                             "canceled)")
+    timestamp: datetime = Field(description="when the event happened (UTC)")
+    data: JobOut = Field(description="the job as GET /jobs/{id} showed it right after the event")
+
+
 class JobList(BaseModel):
     """A page of the caller's jobs, newest first."""
 

@@ -19,11 +19,9 @@ import base64
 import hashlib
 import hmac
 import ipaddress
-import json
 import socket
 import time
 import uuid
-from datetime import UTC, datetime
 from typing import Literal
 from urllib.parse import urlsplit
 
@@ -193,10 +191,3 @@ class Outbox:
             pipe.zrem(self._due_key, delivery.id)
             pipe.delete(self._key(delivery.id))
             pipe.execute()
-
-
-def payload(event: str, created: float, job: dict) -> bytes:
-    """A delivery's body: ``{type, timestamp, data}`` (Standard Webhooks' shape), ``data`` the job as
-    ``GET /jobs/{id}`` showed it right after the event."""
-    stamp = datetime.fromtimestamp(created, UTC).isoformat().replace("+00:00", "Z")
-    return json.dumps({"type": event, "timestamp": stamp, "data": job}, separators=(",", ":")).encode()
