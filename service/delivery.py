@@ -44,7 +44,10 @@ class Deliverer(threading.Thread):
         super().__init__(name="ctp-webhooks", daemon=True)
         self.jobs, self.key, self.allow_private, self.retry_s = jobs, key, allow_private, retry_s
         self.hold_s = 4 * timeout_s + 10  # longer than one attempt can take: connect, write, read
+        # No kept-alive connections: one is pinned to a checked address and, for https, to the host name its
+        # certificate was checked against, so it must not carry another webhook's request.
         self.http = httpx.Client(follow_redirects=False, trust_env=False, timeout=timeout_s,
+                                 limits=httpx.Limits(max_keepalive_connections=0),
                                  headers={"user-agent": "ctp-webhooks"})
         self.pool = ThreadPoolExecutor(IN_FLIGHT, thread_name_prefix="ctp-webhook")
         self._stop_event = threading.Event()
