@@ -353,3 +353,43 @@ def test_url_checks_without_http():
     with pytest.raises(WebhookInvalid) as refused:
         resolve("64:ff9b::7f00:1", 80, allow_private=False)  # NAT64 of 127.0.0.1
     assert refused.value.code == "webhook_url_refused"
+
+
+def test_events_are_queued_with_the_change_that_caused_them(private_redis):
+    """Start, progress (one a second however often it changes) and completed go to the outbox in the transaction
+    that changes the job, from a worker's calls or the API's (a queued job canceled)."""
+    import redis
+
+    from ctp_core.config import AlignConfig
+    from service.jobs import JobRecord, Jobs, Progress, new_id, now
+    from service.storage import RedisStorage
+    from service.webhooks import Webhook
+
+    client = redis.Redis.from_url(private_redis.url)
+    prefix = f"outbox-{uuid.uuid4().hex[:8]}"
+    jobs = Jobs(client, RedisStorage(client, prefix, 600), prefix=prefix, ttl_s=600, job_timeout_s=60, lease_s=5)
+
+    def submitted(events):
+        record = JobRecord(id=new_id(), owner="me", created_at=now(), prompt="p", config=AlignConfig(),
+                           webhook=Webhook(url="http://example.com/", events=events))
+        return jobs.submit(record, {"target": b"t", "source": b"s"}, 10)
+
+    job = submitted(["start", "progress", "completed"])
+    jobs.start(job.id, "w1")
+    for step in range(1, 6):
+        jobs.set_progress(job.id, Progress(kind="step", step=step, steps=5))
+    jobs.finish(job.id, "succeeded")
+    due = jobs.outbox.claim(10, hold_s=60)
+    assert [d.event for d in due] == ["start", "progress", "completed"]
+    assert [JobRecord.model_validate_json(d.record).status for d in due] == ["running", "running", "succeeded"]
+    assert JobRecord.model_validate_json(due[1].record).progress.step == 1  # the first; the next four were < 1 s
+    assert jobs.get(job.id).webhook.pending == 3 and jobs.outbox.claim(10, hold_s=60) == []  # claimed: hidden
+    canceled = submitted(["completed"])
+    jobs.cancel(canceled.id)
+    (delivery,) = jobs.outbox.claim(10, hold_s=60)
+    assert (delivery.job_id, delivery.event) == (canceled.id, "completed")
+    jobs.outbox.done(delivery)
+    assert jobs.delivery_done(canceled.id, delivered=True, final=True, status=204, error=None).webhook.model_dump(
+        include={"delivered", "pending", "attempts", "last_status"}) == {"delivered": 1, "pending": 0, "attempts": 1,
+                                                                          "last_status": 204}
+    client.close()
