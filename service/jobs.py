@@ -9,6 +9,9 @@ server-sent events stream, so the API, the workers and the reaper can race witho
     queued -> running -> succeeded | failed | canceled
     queued -> canceled                      (DELETE before a worker picks it up)
 
+A change that is an event the job's webhook subscribes to (start, progress at most once a second, completed)
+also queues a delivery in the webhook outbox, in the same transaction (``service.webhooks``).
+
 Liveness: a running job holds a lease key ``{prefix}:lease:{id}`` that its worker refreshes every
 heartbeat. ``reap`` fails running jobs whose lease lapsed (worker SIGKILLed, machine gone) with code
 ``worker_lost``; they are not retried, because a job that kills its worker (memory) would otherwise
