@@ -26,11 +26,12 @@ from ctp_core.io import MeshLimits
 from ctp_core.names import NAME_MAX
 from ctp_core.options import AlignOptions
 from service import logs
+from service.delivery import Deliverer
 from service.deps import digest
 from service.errors import BodyLimit, install_handlers
 from service.forms import OPTIONS_DEPTH, OPTIONS_MAX, PROMPT_MAX
 from service.jobs import Jobs
-from service.routers import assemble, health, page
+from service.routers import assemble, health, page, webhooks
 from service.routers import jobs as jobs_router
 from service.settings import Settings
 
@@ -56,11 +57,13 @@ an earlier job's scene. Jobs run on queue workers; records and results expire af
   text belongs or the reverse, text that is not UTF-8), `unknown_field`, `invalid_options` (options is
   not a JSON object, is over {OPTIONS_MAX} characters or {OPTIONS_DEPTH} levels deep, or holds an integer
   beyond 64 bits, NaN or infinity), `invalid_plan` (an assembly plan that is not a JSON list of steps, or
-  names a file part not sent)
+  names a file part not sent), `invalid_field` also for `webhook_events` without `webhook`,
+  `invalid_idempotency_key` (not 1 to 255 visible ASCII characters)
 - 401: `unauthorized`
 - 404: `job_not_found` (also a `target_job` that is unknown or another key's), `not_found`
 - 409: `job_not_ready` (result of a job that has not succeeded, or such a `target_job`), `job_finished`
-  (cancel of an ended job)
+  (cancel of an ended job), `idempotency_conflict` (an `Idempotency-Key` already used for a different request),
+  `idempotency_in_progress` (the first request with that key is still being checked after a minute)
 - 413: `request_too_large`, `mesh_file_too_large`, `mesh_too_large` (faces, glTF instances counted),
   `mesh_too_complex` (a glTF scene graph over {MeshLimits.max_nodes:,} nodes or {MeshLimits.max_depth}
   deep by default, or a mesh whose loading ran past its wall time (`CTP_LOAD_TIMEOUT_S`) or memory
@@ -74,7 +77,10 @@ an earlier job's scene. Jobs run on queue workers; records and results expire af
   `mesh_empty`, `mesh_unreadable` (corrupt, or a glTF whose accessors, buffer views or
   buffers disagree, including a `data:` buffer whose `byteLength` is not its decoded size),
   `mesh_invalid_values` (NaN/inf), `mesh_external_reference` (glTF URIs), `mesh_zip_invalid` (bombs,
-  paths out of the archive, encrypted or symbolic-link members, not exactly one mesh), `invalid_image`
+  paths out of the archive, encrypted or symbolic-link members, not exactly one mesh), `invalid_image`,
+  `invalid_webhook` (not an http(s) URL with a host that resolves, or unknown `webhook_events`),
+  `webhook_url_refused` (the webhook's host resolves to a loopback, private, link-local, multicast or other
+  non-public address; `CTP_WEBHOOK_ALLOW_PRIVATE` allows them), `webhooks_disabled` (no `CTP_WEBHOOK_SECRET`)
 - 429: `too_many_jobs` (queued plus running jobs per key, `CTP_MAX_ACTIVE_JOBS`)
 - 503: `redis_unavailable`; `no_worker` (no worker is alive, and none was seen within the grace,
   `CTP_WORKER_GRACE_S`); `model_unavailable` (no live worker can run
@@ -84,6 +90,13 @@ an earlier job's scene. Jobs run on queue workers; records and results expire af
   `lambda_clip` 0 (geometry only) needs no model. `GET /readyz` gives the same codes for the default model.
   While a worker is being restarted (none live, one seen within the grace) jobs are judged by what it could run,
   accepted and queued, and `GET /readyz` answers 200 `restarting`.
+
+**Webhooks, retries and waiting.** `webhook` (and `webhook_events`: `start`, `progress`, `completed`;
+default `completed`) on a submit POSTs the job's events there, signed as Standard Webhooks does (headers
+`webhook-id`, `webhook-timestamp`, `webhook-signature: v1,<base64 HMAC-SHA256 of "{{id}}.{{timestamp}}.{{body}}">`
+with the deployment's secret), retried with back-off; the job's `webhook` says how delivery went. An
+`Idempotency-Key` header makes a retried submit answer the job of the first one instead of starting another.
+`Prefer: wait=N` (at most 60) answers 200 with the finished job when it ends within N seconds.
 
 Uploads are loaded, before anything is queued, in separate loading processes with a wall-time and a
 memory limit, so no upload can stall or exhaust the API.
@@ -112,10 +125,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def lifespan(app: FastAPI):
         app.state.aredis = aioredis.Redis.from_url(settings.redis_url)
         reaper = asyncio.create_task(_reap_forever(jobs, settings.heartbeat_s))
+        deliverer = None
+        if settings.webhook_key is not None:
+            deliverer = Deliverer(jobs, settings.webhook_key, allow_private=settings.webhook_allow_private,
+                                  retry_s=settings.webhook_retry_s, timeout_s=settings.webhook_timeout_s)
+            deliverer.start()
         try:
             yield
         finally:
             reaper.cancel()
+            if deliverer is not None:
+                await run_in_threadpool(deliverer.stop)
             loader.close()
             await app.state.aredis.aclose()
             jobs.redis.close()
@@ -135,6 +155,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(page.router)
     app.mount("/static", page.static_files(), name="static")
     app.include_router(assemble.router)
+    app.webhooks.include_router(webhooks.router)
 
     def openapi() -> dict[str, Any]:
         if app.openapi_schema is None:

@@ -9,13 +9,17 @@
     spoon = client.submit(None, "spoon.glb", "a spoon in the cup", target_job=job["id"])
     scene = client.assemble("table.glb", [{"file": "plate.glb", "prompt": "a plate on the table"},
                                           {"file": "cup.glb", "prompt": "a cup on the plate"}])
+
+    # called back when it ends, safe to retry (one job per key), answered at once if done within 30 s:
+    job = client.submit("sundae.glb", "cherry.glb", "a cherry on top of a sundae", webhook="https://example.com/hook",
+                        idempotency_key=str(uuid.uuid4()), wait=30)
 """
 
 from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -53,11 +57,18 @@ class Client:
     def submit(self, target: MeshInput | None, source: MeshInput, prompt: str | None = None, *,
                image: MeshInput | None = None, options: dict[str, Any] | None = None,
                target_name: str | None = None, source_name: str | None = None,
-               target_job: str | None = None, on: str | None = None) -> dict[str, Any]:
-        """Upload a pair; returns ``{id, status, links}``. Needs a prompt or an image.
+               target_job: str | None = None, on: str | None = None, webhook: str | None = None,
+               webhook_events: Sequence[str] | None = None, idempotency_key: str | None = None,
+               wait: int | None = None) -> dict[str, Any]:
+        """Upload a pair; returns ``{id, status, links}`` (queued), or the whole job (as ``status``) when it
+        ended within ``wait`` seconds or ``idempotency_key`` was used before for this same request. Needs a
+        prompt or an image.
 
         ``target_job`` (with ``target`` None) uses that succeeded job's result scene as the target; ``on``
-        names the object of it the source relates to (default: the last placed one)."""
+        names the object of it the source relates to (default: the last placed one). ``webhook``: a URL the
+        job's ``webhook_events`` (default ``completed``) are POSTed to, signed. ``idempotency_key``: a retry
+        with the same key answers the first request's job instead of starting another (``ServiceError`` 409
+        ``idempotency_conflict`` when the request differs). ``wait``: up to 60 s (``Prefer: wait``)."""
         files = {"source": _file(source)}
         if target is not None:
             files["target"] = _file(target)
@@ -65,12 +76,16 @@ class Client:
             files["image"] = _file(image)
         data = {k: v for k, v in {"prompt": prompt, "target_name": target_name, "source_name": source_name,
                                   "target_job": target_job, "on": on,
-                                  "options": json.dumps(options) if options else None}.items() if v is not None}
-        return self._json(self.http.post("/align", files=files, data=data))
+                                  "options": json.dumps(options) if options else None,
+                                  **_webhook(webhook, webhook_events)}.items() if v is not None}
+        return self._submit("/align", files, data, idempotency_key, wait)
 
     def assemble(self, base: MeshInput, steps: list[dict[str, Any]], *, options: dict[str, Any] | None = None,
-                 base_name: str | None = None) -> dict[str, Any]:
-        """Submit a whole scene as one job; returns ``{id, status, links}``.
+                 base_name: str | None = None, webhook: str | None = None,
+                 webhook_events: Sequence[str] | None = None, idempotency_key: str | None = None,
+                 wait: int | None = None) -> dict[str, Any]:
+        """Submit a whole scene as one job; returns ``{id, status, links}``, or the job (``webhook``,
+        ``idempotency_key`` and ``wait`` as in ``submit``).
 
         Each step is ``{"file": MeshInput, "prompt": str}`` or ``{"file": ..., "image": MeshInput}``, with
         optional ``name`` (default from the file name, as the CLI and the service name it:
@@ -90,8 +105,18 @@ class Client:
                 files.append(("image", (entry["image"], image)))
             plan.append(entry)
         data = {k: v for k, v in {"plan": json.dumps(plan), "base_name": base_name,
-                                  "options": json.dumps(options) if options else None}.items() if v is not None}
-        return self._json(self.http.post("/assemble", files=files, data=data))
+                                  "options": json.dumps(options) if options else None,
+                                  **_webhook(webhook, webhook_events)}.items() if v is not None}
+        return self._submit("/assemble", files, data, idempotency_key, wait)
+
+    def _submit(self, path: str, files, data: dict[str, str], idempotency_key: str | None,
+                wait: int | None) -> dict[str, Any]:
+        headers = {"Idempotency-Key": idempotency_key} if idempotency_key is not None else {}
+        timeout = self.http.timeout
+        if wait is not None:
+            headers["Prefer"] = f"wait={wait}"
+            timeout = httpx.Timeout(timeout.connect, read=(timeout.read or 0) + wait)  # the answer comes after it
+        return self._json(self.http.post(path, files=files, data=data, headers=headers, timeout=timeout))
 
     def status(self, job_id: str) -> dict[str, Any]:
         return self._json(self.http.get(f"/jobs/{job_id}"))
@@ -147,6 +172,10 @@ class Client:
             raise ServiceError(answer.status_code, error.get("code", "http_error"), error.get("message", ""),
                                error.get("field"))
         return body
+
+
+def _webhook(url: str | None, events: Sequence[str] | None) -> dict[str, str | None]:
+    return {"webhook": url, "webhook_events": ",".join(events) if events is not None else None}
 
 
 def _file(item: MeshInput) -> tuple[str, bytes]:

@@ -17,7 +17,6 @@ from fastapi.concurrency import run_in_threadpool
 from ctp_core.config import AlignConfig
 from service.errors import ApiError
 from service.jobs import JobError, JobRecord, Jobs, TooManyJobs
-from service.schemas import Accepted, links
 
 _JOB_ID = re.compile(r"[0-9a-f]{32}")
 
@@ -50,10 +49,10 @@ async def own_job(request: Request, job_id: str, who: str) -> JobRecord:
 
 
 async def enqueue(request: Request, record: JobRecord, blobs: dict[str, bytes],
-                  configs: Sequence[AlignConfig]) -> Accepted:
-    """Queue a validated job (``POST /align`` and ``POST /assemble``): 503 when no worker can run it (refused
-    now rather than accepted and failed later; a worker being restarted counts, ``Jobs.unavailable``), 429 over
-    the key's active-job limit.
+                  configs: Sequence[AlignConfig]) -> None:
+    """Queue a validated job (``POST /align`` and ``POST /assemble``, through ``service.submit``): 503 when no
+    worker can run it (refused now rather than accepted and failed later; a worker being restarted counts,
+    ``Jobs.unavailable``), 429 over the key's active-job limit.
 
     ``configs`` are what the job runs: an assembly's every stage (each with its own options), so one guided
     step makes the job need the model however geometry-only the assembly's options are."""
@@ -65,7 +64,6 @@ async def enqueue(request: Request, record: JobRecord, blobs: dict[str, bytes],
         await run_in_threadpool(jobs.submit, record, blobs, settings.max_active_jobs)
     except TooManyJobs as exc:
         raise ApiError(429, "too_many_jobs", str(exc)) from None
-    return Accepted(id=record.id, status="queued", links=links(record.id))
 
 
 def _unavailable(jobs: Jobs, models: set[str]) -> JobError | None:

@@ -20,7 +20,8 @@ log = logging.getLogger("ctp.service")
 
 _ERRORS = {status: {"model": ErrorBody, "description": text} for status, text in {
     400: "malformed request", 401: "missing or unknown API key", 404: "unknown job (or another key's)",
-    409: "the job is not in a state that allows this", 413: "an upload is over a limit",
+    409: "the job is not in a state that allows this, or an Idempotency-Key conflicts",
+    413: "an upload is over a limit",
     415: "unsupported mesh format", 422: "invalid input", 429: "too many active jobs for this key",
     503: "Redis, the workers or the model are unavailable (redis_unavailable, no_worker, model_unavailable)",
 }.items()}

@@ -24,6 +24,7 @@ from ctp_core.io import MeshLimits, load_image
 from ctp_core.loader import LoaderUnavailable, MeshLoader
 from ctp_core.names import NAME_MAX, default_name
 from service.errors import ApiError
+from service.webhooks import DEFAULT_EVENTS, EVENTS, URL_MAX
 
 log = logging.getLogger("ctp.service")
 
@@ -34,8 +35,9 @@ INT_MAX = 2**63 - 1  # JSON integers must fit in 64 bits
 # C0 control characters; a prompt may hold tab, newline and carriage return, a name none of them.
 _PROMPT_CONTROL = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
 _NAME_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+WEBHOOK_FIELDS = {"webhook", "webhook_events"}  # both submit routes (service.submit)
 FORM_FIELDS = {"target", "source", "prompt", "image", "options", "target_name", "source_name",
-               "target_job", "on"}
+               "target_job", "on", *WEBHOOK_FIELDS}
 
 # MeshError codes that are not 422.
 _MESH_STATUS = {"mesh_file_too_large": 413, "mesh_too_large": 413, "mesh_too_complex": 413,
@@ -46,6 +48,16 @@ def file_field(description: str) -> dict[str, Any]:
     """A file part of a documented multipart body."""
     return {"type": "string", "format": "binary", "description": description}
 
+
+WEBHOOK_PROPERTIES = {
+    "webhook": {"type": "string", "format": "uri", "maxLength": URL_MAX, "description": "http(s) URL to POST "
+                "the job's events to, signed as Standard Webhooks does (docs/service.md, Webhooks); its host must "
+                "resolve to public addresses (422 `webhook_url_refused` otherwise, unless the service allows "
+                "private ones); 422 `webhooks_disabled` when the service has no signing secret"},
+    "webhook_events": {"type": "string", "default": ",".join(DEFAULT_EVENTS), "description": "with `webhook`: "
+                       f"comma-separated events to send, of {', '.join(EVENTS)} (progress at most once a second; "
+                       "completed: succeeded, failed or canceled)"},
+}
 
 ALIGN_BODY = {
     "required": True,
@@ -73,6 +85,7 @@ ALIGN_BODY = {
                             "default: its file name"},
             "source_name": {"type": "string", "maxLength": NAME_MAX,
                             "description": "what the source is (\"cherry\"); default: its file name"},
+            **WEBHOOK_PROPERTIES,
         },
     }}},
 }
@@ -82,7 +95,7 @@ async def read_form(request: Request, fields: set[str] = FORM_FIELDS, max_files:
     if not request.headers.get("content-type", "").startswith("multipart/form-data"):
         raise ApiError(400, "invalid_request", f"send multipart/form-data (fields {', '.join(sorted(fields))})")
     try:
-        form = await request.form(max_files=max_files, max_fields=8)
+        form = await request.form(max_files=max_files, max_fields=10)
     except ApiError:
         raise
     except Exception as exc:  # python-multipart and Starlette raise several types for a broken body

@@ -9,6 +9,9 @@ server-sent events stream, so the API, the workers and the reaper can race witho
     queued -> running -> succeeded | failed | canceled
     queued -> canceled                      (DELETE before a worker picks it up)
 
+A change that is an event the job's webhook subscribes to (start, progress at most once a second, completed)
+also queues a delivery in the webhook outbox, in the same transaction (``service.webhooks``).
+
 Liveness: a running job holds a lease key ``{prefix}:lease:{id}`` that its worker refreshes every
 heartbeat. ``reap`` fails running jobs whose lease lapsed (worker SIGKILLed, machine gone) with code
 ``worker_lost``; they are not retried, because a job that kills its worker (memory) would otherwise
@@ -24,9 +27,12 @@ the record, so it does not end the grace early.
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
+import hashlib
 import json
 import logging
+import time
 import uuid
 from collections.abc import Callable
 from datetime import UTC, datetime
@@ -41,6 +47,7 @@ from rq.serializers import JSONSerializer
 
 from ctp_core.config import AlignConfig
 from service.storage import Storage, open_storage
+from service.webhooks import PROGRESS_EVERY_S, Outbox, Webhook
 
 if TYPE_CHECKING:
     from redis.asyncio import Redis as AsyncRedis
@@ -146,6 +153,9 @@ class JobRecord(BaseModel):
     target_job: str | None = Field(None, description="the job whose result scene is the target (POST /align)")
     on: str | None = Field(None, description="with target_job: the object of its scene the source relates to")
     steps: list[AssemblyStep] = Field(default_factory=list, description="an assembly's stages")
+    webhook: Webhook | None = Field(None, description="where events of this job are delivered, and how that went")
+    webhook_progress_at: float | None = Field(None, description="when its last progress event was queued (Unix "
+                                              "seconds): the throttle")
 
     @property
     def stage_count(self) -> int:
@@ -194,6 +204,7 @@ class Jobs:
         self.ttl_s, self.job_timeout_s, self.lease_s = ttl_s, job_timeout_s, lease_s
         self.worker_grace_s = worker_grace_s  # how long a heartbeat's "last seen" record lives; 0: none written
         self.queue = Queue(prefix, connection=redis, serializer=JSONSerializer)
+        self.outbox = Outbox(redis, prefix, ttl_s)
 
     @classmethod
     def from_settings(cls, settings: Settings) -> Jobs:
@@ -219,6 +230,10 @@ class Jobs:
     def channel(self, job_id: str) -> str:
         return f"{self.prefix}:events:{job_id}"
 
+    def idempotency_key(self, owner: str, key: str) -> str:
+        """Where a submit's ``Idempotency-Key`` is remembered: per owner, the client's key hashed (any bytes)."""
+        return f"{self.prefix}:idem:{owner}:{hashlib.sha256(key.encode()).hexdigest()[:32]}"
+
     @property
     def _running_key(self) -> str:
         return f"{self.prefix}:running"
@@ -231,6 +246,25 @@ class Jobs:
         """``get`` on the event loop's client: the API's hot path (clients poll their jobs) stays off the
         threadpool, where uploads are checked."""
         return parse_record(await aredis.get(self.record_key(job_id)))
+
+    async def wait_async(self, aredis: AsyncRedis, job_id: str, timeout_s: float) -> JobRecord | None:
+        """The record once the job ended, or as it is after ``timeout_s`` (``Prefer: wait``): follows the job's
+        events channel, subscribed before the first read so that no change between the two is missed."""
+        deadline = asyncio.get_running_loop().time() + timeout_s
+        pubsub = aredis.pubsub()
+        await pubsub.subscribe(self.channel(job_id))
+        try:
+            record = await self.get_async(aredis, job_id)
+            while record is not None and record.status not in TERMINAL:
+                left = deadline - asyncio.get_running_loop().time()
+                if left <= 0:
+                    break
+                message = await pubsub.get_message(ignore_subscribe_messages=True, timeout=min(left, 1.0))
+                record = parse_record(message["data"]) if message else await self.get_async(aredis, job_id)
+            return record
+        finally:
+            await pubsub.unsubscribe()
+            await pubsub.aclose()
 
     def owned(self, owner: str, offset: int, limit: int) -> tuple[list[JobRecord], int]:
         """A page of the owner's jobs, newest first, and how many it has; expired ones are forgotten here."""
@@ -379,20 +413,48 @@ class Jobs:
                     raw = pipe.get(key)
                     if raw is None:
                         return None
-                    new = change(JobRecord.model_validate_json(raw))
+                    old = JobRecord.model_validate_json(raw)
+                    new = change(old)
                     if new is None:
                         pipe.unwatch()
-                        return JobRecord.model_validate_json(raw)
+                        return old
+                    event = _webhook_event(old, new)
+                    if event is not None:
+                        new = new.model_copy(update={
+                            "webhook": new.webhook.model_copy(update={"pending": new.webhook.pending + 1}),
+                            "webhook_progress_at": time.time() if event == "progress" else new.webhook_progress_at})
                     data = new.model_dump_json()
                     pipe.multi()
                     pipe.set(key, data, keepttl=True)
                     pipe.publish(self.channel(job_id), data)
+                    if event is not None:
+                        self.outbox.add(pipe, job_id, event, new.webhook.url, data)
                     if also is not None:
                         also(pipe, new)
                     pipe.execute()
                     return new
                 except WatchError:
                     continue
+
+    def delivery_done(self, job_id: str, *, delivered: bool, final: bool, status: int | None,
+                      error: str | None) -> JobRecord | None:
+        """Count one delivery attempt of the job's webhook (``service.delivery``); ``final``: its event is
+        delivered or given up, no longer pending."""
+
+        def change(r: JobRecord) -> JobRecord | None:
+            if r.webhook is None:
+                return None
+            hook = r.webhook
+            update = {"attempts": hook.attempts + 1, "last_status": status, "last_error": error}
+            if final:
+                update["pending"] = max(0, hook.pending - 1)
+                if delivered:
+                    update["delivered"] = hook.delivered + 1
+                else:
+                    update["failed"] = hook.failed + 1
+            return r.model_copy(update={"webhook": hook.model_copy(update=update)})
+
+        return self._update(job_id, change)
 
     # -- liveness -----------------------------------------------------------------------------------
     def _worker_key(self, worker: str) -> str:
@@ -517,3 +579,21 @@ class Jobs:
             elif record is None or record.status in TERMINAL:
                 self.redis.srem(self._running_key, job_id)
         return reaped
+
+
+def _webhook_event(old: JobRecord, new: JobRecord) -> str | None:
+    """The webhook event a change of a job is, when its webhook subscribes to it: ``start`` (it began
+    running), ``completed`` (it ended: succeeded, failed or canceled), ``progress`` (its progress moved, at
+    most one a second, ``PROGRESS_EVERY_S``)."""
+    if new.webhook is None or new.status == old.status == "queued":
+        return None
+    if new.status in TERMINAL:
+        event = None if old.status in TERMINAL else "completed"
+    elif new.status == "running" and old.status != "running":
+        event = "start"
+    elif new.progress != old.progress and (new.webhook_progress_at is None
+                                           or time.time() - new.webhook_progress_at >= PROGRESS_EVERY_S):
+        event = "progress"
+    else:
+        event = None
+    return event if event in new.webhook.events else None

@@ -14,6 +14,7 @@ from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.options import option_of, option_overrides
 from service.jobs import JobError, JobRecord, Progress, Status
+from service.webhooks import Webhook
 
 
 def build_config(options: dict[str, Any], *, default_model: str, allowed_models: list[str]) -> AlignConfig:
@@ -59,7 +60,7 @@ class Accepted(BaseModel):
     """The answer to a valid submission: the job is queued."""
 
     id: str = Field(description="job id")
-    status: Status = Field(description="always queued")
+    status: Status = Field(description="queued (or running, after a `Prefer: wait` that ran out)")
     links: Links
 
 
@@ -76,6 +77,8 @@ class JobOut(BaseModel):
     cancel_requested: bool = Field(description="a DELETE was received; a running job stops at its next step")
     prompt: str | None = Field(None, description="the text prompt (null for image-guided jobs without one)")
     image_guided: bool = Field(description="guided by a reference image instead of the text")
+    webhook: Webhook | None = Field(None, description="the job's webhook and how its deliveries went; null "
+                                    "when it was submitted without one")
     links: Links
 
     @classmethod
@@ -83,7 +86,17 @@ class JobOut(BaseModel):
         return cls(id=r.id, status=r.status, progress=r.progress, created_at=r.created_at,
                    started_at=r.started_at, finished_at=r.finished_at, error=r.error,
                    cancel_requested=r.cancel_requested, prompt=r.prompt, image_guided=r.has_image,
-                   links=links(r.id))
+                   webhook=r.webhook, links=links(r.id))
+
+
+class WebhookPayload(BaseModel):
+    """The body of a webhook delivery (Standard Webhooks' shape)."""
+
+    type: Literal["start", "progress", "completed"] = Field(description="the event: start (a worker took the "
+                                                             "job), progress, completed (succeeded, failed or "
+                                                             "canceled)")
+    timestamp: datetime = Field(description="when the event happened (UTC)")
+    data: JobOut = Field(description="the job as GET /jobs/{id} showed it right after the event")
 
 
 class JobList(BaseModel):

@@ -15,6 +15,7 @@ from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 from ctp_core.config import Runtime
 from ctp_core.io import MeshLimits
 from ctp_core.loader import MeshLoader
+from service.webhooks import secret_bytes
 
 MiB = 1024 * 1024
 DEFAULT_MODEL = "hf:openai/clip-vit-base-patch32"
@@ -85,6 +86,17 @@ class Settings(BaseSettings):
     )
     cors_origins: Annotated[list[str], NoDecode] = Field(default_factory=list, description="allowed web origins")
     log_level: str = Field("INFO", description="Python logging level name")
+    # Webhooks (service.webhooks): signed with one secret per deployment, delivered by the API processes.
+    webhook_secret: str | None = Field(
+        None, description="signing secret of webhook deliveries, `whsec_` then base64 of at least 16 bytes "
+        "(Standard Webhooks); unset: submits that ask for a webhook are refused (422 webhooks_disabled)",
+    )
+    webhook_allow_private: bool = Field(False, description="let webhooks call loopback, private, link-local and "
+                                        "other non-public addresses (tests, single-box deployments)")
+    webhook_retry_s: float = Field(3600.0, gt=0, description="a start or completed event whose delivery fails is "
+                                   "retried (back-off 1 s doubling to 5 min) until this long after it happened")
+    webhook_timeout_s: float = Field(10.0, gt=0, description="time limit of one delivery attempt's connect, send "
+                                     "and each read")
 
     @field_validator("models", "api_keys", "cors_origins", mode="before")
     @classmethod
@@ -92,6 +104,18 @@ class Settings(BaseSettings):
         if isinstance(value, str):
             return [item.strip() for item in value.split(",") if item.strip()]
         return value
+
+    @field_validator("webhook_secret")
+    @classmethod
+    def _webhook_secret(cls, value: str | None) -> str | None:
+        if value:
+            secret_bytes(value)  # ValueError: the setting is refused at start
+        return value or None
+
+    @property
+    def webhook_key(self) -> bytes | None:
+        """The HMAC key deliveries are signed with; None: webhooks are off."""
+        return secret_bytes(self.webhook_secret) if self.webhook_secret else None
 
     @property
     def mesh_limits(self) -> MeshLimits:

@@ -2,22 +2,22 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, Request
+from fastapi import APIRouter, Depends, Request, Response
 from fastapi.concurrency import run_in_threadpool
 
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.names import NAME_MAX, default_name
 from ctp_core.plan import PlanError, PlanStep, check_plan, plan_step
-from service import forms
-from service.deps import enqueue, owner
-from service.errors import ApiError, documented
-from service.jobs import AssemblyStep, JobRecord, new_id, now
+from service import forms, submit
+from service.deps import owner
+from service.errors import ApiError
+from service.jobs import AssemblyStep, JobRecord, now
 from service.schemas import Accepted, build_config
 
 router = APIRouter()
 
-ASSEMBLE_FIELDS = {"base", "base_name", "source", "image", "plan", "options"}
+ASSEMBLE_FIELDS = {"base", "base_name", "source", "image", "plan", "options", *forms.WEBHOOK_FIELDS}
 
 ASSEMBLE_BODY = {
     "required": True,
@@ -42,13 +42,14 @@ ASSEMBLE_BODY = {
             "options": {"type": "string", "contentMediaType": "application/json",
                         "contentSchema": {"$ref": "#/components/schemas/AlignOptions"},
                         "description": "JSON object of run options (AlignOptions) for every stage"},
+            **forms.WEBHOOK_PROPERTIES,
         },
     }}},
 }
 
 
 @router.post("/assemble", status_code=202, response_model=Accepted, openapi_extra={"requestBody": ASSEMBLE_BODY},
-             responses=documented(400, 401, 413, 415, 422, 429, 503), summary="Submit an assembly job",
+             responses=submit.RESPONSES, summary="Submit an assembly job",
              description="Build a scene one object at a time: stage k places the k-th step's source against "
              "everything placed before it (placed objects never move), as one job whose progress names the "
              "stage (`progress.stage.index`/`count`, `label` = its prompt). Its results are one GLB with every "
@@ -56,10 +57,20 @@ ASSEMBLE_BODY = {
              "Refused before anything is queued: a malformed plan (400 `invalid_plan`), more stages than "
              "`CTP_MAX_STAGES` (413 `too_many_stages`), all meshes together over `CTP_MAX_SCENE_FACES` (413 "
              "`scene_too_large`), a bad reference between steps (422 `invalid_plan`), plus the mesh, image and "
-             "option codes of POST /align. The job's time limit is `CTP_JOB_TIMEOUT_S` per stage.")
-async def submit_assembly(request: Request, who: str = Depends(owner)) -> Accepted:
+             "option codes of POST /align. The job's time limit is `CTP_JOB_TIMEOUT_S` per stage. `webhook`, "
+             "`Idempotency-Key` and `Prefer: wait` work as on POST /align.")
+async def submit_assembly(request: Request, who: str = Depends(owner),
+                          idempotency_key: str | None = submit.IDEMPOTENCY_KEY,
+                          prefer: str | None = submit.PREFER) -> Response:
     settings = request.app.state.settings
     form = await forms.read_form(request, ASSEMBLE_FIELDS, max_files=1 + 2 * settings.max_stages)
+    return await submit.accept(request, who, form, lambda job_id: _assembly_job(request, form, who, job_id),
+                               idempotency_key=idempotency_key, prefer=prefer)
+
+
+async def _assembly_job(request: Request, form, who: str, job_id: str) -> submit.Built:
+    """The assembly a ``POST /assemble`` form asks for, checked: its record, uploads and every stage's config."""
+    settings = request.app.state.settings
     plan = _plan(forms.text(form, "plan"), settings.max_stages)
     options = forms.options(form)
     config = build_config(options, default_model=settings.model, allowed_models=settings.allowed_models)
@@ -117,11 +128,11 @@ async def submit_assembly(request: Request, who: str = Depends(owner)) -> Accept
     except ConfigError as exc:
         raise ApiError(422, "invalid_plan", exc.message,
                        field=f"plan.{(exc.field or '').removeprefix('steps.')}") from None
-    record = JobRecord(id=new_id(), owner=who, created_at=now(), kind="assemble", prompt=None,  # per stage: steps
+    record = JobRecord(id=job_id, owner=who, created_at=now(), kind="assemble", prompt=None,  # per stage: steps
                        has_image=any(s.has_image for s in steps), target_name=base_name, target_file=base_file,
                        source_name=steps[-1].name, source_file=steps[-1].file, steps=steps,
                        config=config)
-    return await enqueue(request, record, blobs, configs)
+    return record, blobs, configs
 
 
 def _plan(raw: str | None, max_stages: int) -> list[PlanStep]:

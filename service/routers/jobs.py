@@ -11,10 +11,11 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
 
 from service import forms
+from service import submit as submit_
 from service.chained import chained_target
-from service.deps import enqueue, own_job, owner
+from service.deps import own_job, owner
 from service.errors import ApiError, binary, documented
-from service.jobs import OUTPUTS, TERMINAL, JobRecord, Jobs, new_id, now, parse_record
+from service.jobs import OUTPUTS, TERMINAL, JobRecord, Jobs, now, parse_record
 from service.schemas import Accepted, JobList, JobOut, build_config
 
 log = logging.getLogger("ctp.service")
@@ -26,15 +27,25 @@ router = APIRouter()
 
 
 @router.post("/align", status_code=202, response_model=Accepted, openapi_extra={"requestBody": forms.ALIGN_BODY},
-             responses=documented(400, 401, 404, 409, 413, 415, 422, 429, 503), summary="Submit an alignment job",
+             responses=submit_.RESPONSES, summary="Submit an alignment job",
              description="Two meshes and a prompt; or, with `target_job` instead of `target`, one of your succeeded "
              "jobs' result scene as the target (its objects stay separate and never move), to add one object at "
              "a time. 404 `job_not_found` for an unknown target job or another key's, 409 `job_not_ready` when "
              "it has not succeeded, 413 `scene_too_large` when the meshes together (target and source, or the target "
-             "job's scene and the source) are over `CTP_MAX_SCENE_FACES`.")
-async def submit(request: Request, who: str = Depends(owner)) -> Accepted:
-    settings = request.app.state.settings
+             "job's scene and the source) are over `CTP_MAX_SCENE_FACES`. With `webhook` the job's events are "
+             "POSTed there; with `Idempotency-Key` a retried submit answers the first one's job (409 "
+             "`idempotency_conflict` for the same key on a different request); with `Prefer: wait=N` a job that "
+             "ends within N seconds is answered 200 with the finished job.")
+async def submit(request: Request, who: str = Depends(owner), idempotency_key: str | None = submit_.IDEMPOTENCY_KEY,
+                 prefer: str | None = submit_.PREFER) -> Response:
     form = await forms.read_form(request)
+    return await submit_.accept(request, who, form, lambda job_id: _align_job(request, form, who, job_id),
+                                idempotency_key=idempotency_key, prefer=prefer)
+
+
+async def _align_job(request: Request, form, who: str, job_id: str) -> submit_.Built:
+    """The alignment a ``POST /align`` form asks for, checked: its record, uploads and config."""
+    settings = request.app.state.settings
     prompt, image = forms.prompt_and_image(form)
     options = forms.options(form)
     config = build_config(options, default_model=settings.model, allowed_models=settings.allowed_models)
@@ -58,13 +69,13 @@ async def submit(request: Request, who: str = Depends(owner)) -> Accepted:
         blobs["image"] = await forms.read_limited(image, settings.max_image_bytes, "image", "image_too_large")
         await run_in_threadpool(forms.check_image, blobs["image"], settings.max_image_pixels)
     record = JobRecord(
-        id=new_id(), owner=who, created_at=now(), prompt=prompt, has_image=image is not None,
+        id=job_id, owner=who, created_at=now(), prompt=prompt, has_image=image is not None,
         target_name=forms.object_name(form, "target", on or files["target"]),
         source_name=forms.object_name(form, "source", files["source"]),
         target_file=files["target"], source_file=files["source"], config=config,
         target_job=target_job, on=on,
     )
-    return await enqueue(request, record, blobs, [config])
+    return record, blobs, [config]
 
 
 @router.get("/jobs", response_model=JobList, responses=documented(400, 401), summary="The caller's jobs, newest first",
