@@ -53,11 +53,13 @@ class Client:
     def submit(self, target: MeshInput | None, source: MeshInput, prompt: str | None = None, *,
                image: MeshInput | None = None, options: dict[str, Any] | None = None,
                target_name: str | None = None, source_name: str | None = None,
-               target_job: str | None = None, on: str | None = None) -> dict[str, Any]:
+               target_job: str | None = None, on: str | None = None, queue: str | None = None) -> dict[str, Any]:
         """Upload a pair; returns ``{id, status, links}``. Needs a prompt or an image.
 
         ``target_job`` (with ``target`` None) uses that succeeded job's result scene as the target; ``on``
-        names the object of it the source relates to (default: the last placed one)."""
+        names the object of it the source relates to (default: the last placed one). ``queue``: the named
+        queue to run on (option ``queue``; default the service's)."""
+        options = _with_queue(options, queue)
         files = {"source": _file(source)}
         if target is not None:
             files["target"] = _file(target)
@@ -69,13 +71,14 @@ class Client:
         return self._json(self.http.post("/align", files=files, data=data))
 
     def assemble(self, base: MeshInput, steps: list[dict[str, Any]], *, options: dict[str, Any] | None = None,
-                 base_name: str | None = None) -> dict[str, Any]:
+                 base_name: str | None = None, queue: str | None = None) -> dict[str, Any]:
         """Submit a whole scene as one job; returns ``{id, status, links}``.
 
         Each step is ``{"file": MeshInput, "prompt": str}`` or ``{"file": ..., "image": MeshInput}``, with
         optional ``name`` (default from the file name, as the CLI and the service name it:
         ``names.default_name``), ``on`` (a placed object's name; default the last placed) and ``options`` (this
-        step's AlignOptions)."""
+        step's AlignOptions). ``queue`` as for ``submit``."""
+        options = _with_queue(options, queue)
         files: list[tuple[str, tuple[str, bytes]]] = [("base", _file(base))]
         plan = []
         for i, step in enumerate(steps):
@@ -121,8 +124,14 @@ class Client:
                 raise TimeoutError(f"job {job_id} still {job['status']} after {timeout_s} s")
 
     def download(self, job_id: str, name: str = "result.glb", to: str | Path | None = None) -> bytes:
-        """``result.glb``, ``report.json`` or ``preview.png`` of a succeeded job; also written to ``to``."""
+        """``result.glb``, ``report.json`` or ``preview.png`` of a succeeded job; also written to ``to``. A job
+        whose ``links.downloads`` is ``redirect`` answers 307: the file is fetched from that presigned URL,
+        without the API key (the URL carries its own signature, and the store is not the API)."""
         answer = self.http.get(f"/jobs/{job_id}/{name}")
+        if answer.status_code == 307:
+            request = self.http.build_request("GET", answer.headers["location"])
+            request.headers.pop("Authorization", None)
+            answer = self.http.send(request)
         if answer.status_code != 200:
             self._json(answer)
         if to is not None:
@@ -147,6 +156,10 @@ class Client:
             raise ServiceError(answer.status_code, error.get("code", "http_error"), error.get("message", ""),
                                error.get("field"))
         return body
+
+
+def _with_queue(options: dict[str, Any] | None, queue: str | None) -> dict[str, Any] | None:
+    return options if queue is None else {**(options or {}), "queue": queue}
 
 
 def _file(item: MeshInput) -> tuple[str, bytes]:

@@ -1,7 +1,7 @@
 """Shared fixtures: a private real Redis, and helpers that run the API (real uvicorn on 127.0.0.1) and
 workers (real ``ctp worker`` processes) against it.
 
-Each service test picks its own queue name, so tests share one Redis without seeing each other's jobs.
+Each service test picks its own key prefix, so tests share one Redis without seeing each other's jobs.
 """
 
 from __future__ import annotations
@@ -45,10 +45,11 @@ def private_redis(tmp_path_factory):
     server.stop()
 
 
-def service_env(redis_url: str, queue: str, **settings) -> dict[str, str]:
-    """The environment of a service on ``queue``: fast liveness, the tiny random model."""
+def service_env(redis_url: str, prefix: str, **settings) -> dict[str, str]:
+    """The environment of a deployment under the Redis key prefix ``prefix``: fast liveness, the tiny random
+    model."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("CTP_") and k != "REDIS_URL"}
-    env.update(REDIS_URL=redis_url, CTP_QUEUE=queue, CTP_MODEL="random:tiny", CTP_HEARTBEAT_S="0.5",
+    env.update(REDIS_URL=redis_url, CTP_KEY_PREFIX=prefix, CTP_MODEL="random:tiny", CTP_HEARTBEAT_S="0.5",
                CTP_LEASE_S="5", CTP_PROGRESS_EVERY_S="1", CTP_LOG_LEVEL="WARNING", CTP_THREADS="1",
                CTP_RUNTIME="torch",  # workers start without exporting a model (tests/test_runtime.py covers it)
                OMP_WAIT_POLICY="PASSIVE", OMP_NUM_THREADS="1")
@@ -113,8 +114,8 @@ def park_worker(env: dict[str, str], models: dict[str, str | None] | None = None
     from service.storage import RedisStorage
 
     client = redis.Redis.from_url(env["REDIS_URL"])
-    queue, name = env["CTP_QUEUE"], f"parked-{os.getpid()}"
-    jobs = Jobs(client, RedisStorage(client, queue, 600), prefix=queue, ttl_s=600, job_timeout_s=60, lease_s=lease_s)
+    prefix, name = env["CTP_KEY_PREFIX"], f"parked-{os.getpid()}"
+    jobs = Jobs(client, RedisStorage(client, prefix, 600), prefix=prefix, ttl_s=600, job_timeout_s=60, lease_s=lease_s)
     jobs.heartbeat(name, None, {env["CTP_MODEL"]: None} if models is None else models)
 
     def leave() -> None:
@@ -141,7 +142,7 @@ def wait_ready(api: Api, workers: int = 1, timeout_s: float = 90) -> None:
              f"{workers} worker(s) on /readyz", interval_s=0.25)
 
 
-# A service test module defines a module-scoped ``env`` fixture (its Redis queue and settings); these
+# A service test module defines a module-scoped ``env`` fixture (its key prefix and settings); these
 # two then give it a uvicorn API and one worker process for the module's duration.
 @pytest.fixture(scope="module")
 def api(env):

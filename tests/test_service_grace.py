@@ -108,7 +108,7 @@ def test_readyz_restarting_then_no_worker_after_the_grace(private_redis):
     worker has been seen for longer than the grace, 503 no_worker for both."""
     env = service_env(private_redis.url, f"grace-api-{uuid.uuid4().hex[:6]}")
     api = Api(env)
-    jobs = jobs_with_grace(private_redis.url, env["CTP_QUEUE"], lease_s=2, grace_s=4)
+    jobs = jobs_with_grace(private_redis.url, env["CTP_KEY_PREFIX"], lease_s=2, grace_s=4)
     try:
         jobs.heartbeat("w", None, {"random:tiny": None})  # what a worker's heartbeat writes
         code, body = readyz(api)

@@ -34,7 +34,7 @@ def test_submit_stores_inputs_record_and_rq_job(jobs):
     record = queued(jobs)
     assert jobs.get(record.id).status == "queued"
     assert jobs.storage.get(record.id, "target") == b"t"
-    assert jobs.queue.get_job_ids() == [record.id]
+    assert jobs.rq_queue().get_job_ids() == [record.id]
     assert 0 < jobs.redis.ttl(f"{jobs.prefix}:job:{record.id}") <= 600
 
 
@@ -42,7 +42,7 @@ def test_cancel_wins_over_a_later_pickup(jobs):
     record = queued(jobs)
     assert jobs.cancel(record.id).status == "canceled"
     assert jobs.start(record.id, "w1") is None  # the worker skips it
-    assert jobs.queue.get_job_ids() == []
+    assert jobs.rq_queue().get_job_ids() == []
     assert jobs.storage.get(record.id, "target") is None  # inputs dropped
 
 
@@ -110,7 +110,9 @@ def test_reaper_fails_jobs_whose_lease_lapsed_and_spares_live_ones(jobs):
 def test_live_workers_are_those_with_current_leases_only(jobs):
     jobs.heartbeat("a", None)
     jobs.heartbeat("b", None, {"random:tiny": None})
-    assert jobs.live_workers() == {"a": {}, "b": {"random:tiny": None}}
+    live = jobs.live_workers()
+    assert {name: offer.models for name, offer in live.items()} == {"a": {}, "b": {"random:tiny": None}}
+    assert [offer.queues for offer in live.values()] == [["default"], ["default"]]  # a heartbeat's default
     jobs.worker_gone("a")
     assert list(jobs.live_workers()) == ["b"]
     time.sleep(1.2)  # lease_s = 1
