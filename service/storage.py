@@ -142,8 +142,8 @@ class S3Storage:
                  public_url: str | None = None, lifecycle: bool = True):
         self.bucket, self.prefix, self.ttl_s = bucket, prefix, ttl_s
         # A non-AWS endpoint (MinIO, moto) is addressed by path: bucket names are not resolvable host names there.
-        config = Config(s3={"addressing_style": "path"} if endpoint_url else {}, retries={"mode": "standard"},
-                        connect_timeout=5, read_timeout=60)
+        config = Config(s3={"addressing_style": "path"} if endpoint_url else {}, signature_version="s3v4",
+                        retries={"mode": "standard"}, connect_timeout=5, read_timeout=60)
         session = boto3.session.Session()  # sessions are not thread-safe, the clients made from one are
         self.client = session.client("s3", endpoint_url=endpoint_url, config=config)
         # Presigned URLs are signed for the host clients will ask (a compose service's name is not theirs).

@@ -12,6 +12,7 @@ import subprocess
 import sys
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from unittest import mock
 
@@ -88,11 +89,11 @@ class Api:
 
 
 class Worker:
-    """A ``ctp worker`` process; ``kill`` is a SIGKILL, as when a machine dies."""
+    """A ``ctp worker`` process (in ``cwd``); ``kill`` is a SIGKILL, as when a machine dies."""
 
-    def __init__(self, env: dict[str, str], log_path: Path):
+    def __init__(self, env: dict[str, str], log_path: Path, cwd: Path = REPO):
         self.log = open(log_path, "ab")  # noqa: SIM115 - closed in stop()
-        self.process = subprocess.Popen([sys.executable, "-m", "ctp", "worker"], env=env, cwd=REPO,
+        self.process = subprocess.Popen([sys.executable, "-m", "ctp", "worker"], env=env, cwd=cwd,
                                         stdout=self.log, stderr=subprocess.STDOUT)
 
     def kill(self) -> None:
@@ -104,7 +105,60 @@ class Worker:
         self.log.close()
 
 
-def park_worker(env: dict[str, str], models: dict[str, str | None] | None = None, lease_s: int = 120):
+@dataclass(frozen=True)
+class S3Server:
+    """A real S3-protocol server on loopback (``s3_server``) and the one bucket the tests use."""
+
+    url: str
+    bucket: str
+    credentials: dict[str, str]  # the standard AWS variables, as a deployment would set them
+
+    def env(self, env: dict[str, str], **settings) -> dict[str, str]:
+        """``env`` (``service_env``'s) with its uploads and results in this store, under its key prefix."""
+        return {**env, **self.credentials, "CTP_STORAGE": "s3", "CTP_S3_BUCKET": self.bucket,
+                "CTP_S3_ENDPOINT_URL": self.url, "CTP_S3_PREFIX": f"{env['CTP_KEY_PREFIX']}/",
+                **{f"CTP_{k.upper()}": str(v) for k, v in settings.items()}}
+
+    def client(self):
+        import boto3
+
+        return boto3.client("s3", endpoint_url=self.url, aws_access_key_id=self.credentials["AWS_ACCESS_KEY_ID"],
+                            aws_secret_access_key=self.credentials["AWS_SECRET_ACCESS_KEY"], region_name="us-east-1")
+
+
+@pytest.fixture(scope="session")
+def s3_server(tmp_path_factory):
+    """moto's standalone S3 server (a real HTTP server speaking the S3 protocol) in its own process on a free
+    loopback port, with one bucket; the test process gets its credentials in the standard variables."""
+    pytest.importorskip("moto.server", reason="moto[server] (a dev dependency) is not installed")
+    port = free_port()
+    log = open(tmp_path_factory.mktemp("moto") / "moto.log", "wb")  # noqa: SIM115 - closed below
+    process = subprocess.Popen([sys.executable, "-m", "moto.server", "-H", "127.0.0.1", "-p", str(port)],
+                               stdout=log, stderr=subprocess.STDOUT)
+    credentials = {"AWS_ACCESS_KEY_ID": "ctp-test", "AWS_SECRET_ACCESS_KEY": "ctp-test-secret",
+                   "AWS_DEFAULT_REGION": "us-east-1", "AWS_EC2_METADATA_DISABLED": "true"}
+    server = S3Server(f"http://127.0.0.1:{port}", "ctp-test", credentials)
+
+    def up() -> bool:
+        try:
+            return httpx.get(server.url, timeout=1).status_code < 500
+        except httpx.TransportError:
+            return process.poll() is not None  # died: stop waiting, the bucket creation says why
+
+    try:
+        wait_for(up, 30, "moto's S3 server to answer", interval_s=0.1)
+        server.client().create_bucket(Bucket=server.bucket)
+        with pytest.MonkeyPatch.context() as patch:
+            for name, value in credentials.items():
+                patch.setenv(name, value)
+            yield server
+    finally:
+        stop_processes([process], grace_s=5)
+        log.close()
+
+
+def park_worker(env: dict[str, str], models: dict[str, str | None] | None = None, lease_s: int = 120,
+                queues: list[str] | None = None):
     """A live worker as the API sees it (its heartbeat, written by ``Jobs.heartbeat`` like a real worker's)
     with no rq consumer behind it: jobs submitted meanwhile are accepted and stay queued. Returns the
     function that makes it leave."""
@@ -116,7 +170,7 @@ def park_worker(env: dict[str, str], models: dict[str, str | None] | None = None
     client = redis.Redis.from_url(env["REDIS_URL"])
     prefix, name = env["CTP_KEY_PREFIX"], f"parked-{os.getpid()}"
     jobs = Jobs(client, RedisStorage(client, prefix, 600), prefix=prefix, ttl_s=600, job_timeout_s=60, lease_s=lease_s)
-    jobs.heartbeat(name, None, {env["CTP_MODEL"]: None} if models is None else models)
+    jobs.heartbeat(name, None, {env["CTP_MODEL"]: None} if models is None else models, queues)
 
     def leave() -> None:
         jobs.worker_gone(name)
