@@ -79,6 +79,18 @@ def test_a_live_worker_decides_over_the_last_seen_ones(jobs):
     assert sorted(jobs.seen_workers()) == ["a", "b"]
 
 
+def test_a_queue_whose_workers_restart_keeps_accepting_while_other_queues_are_live(jobs):
+    jobs.heartbeat("g", None, {"random:tiny": None}, ["gpu"])
+    jobs.heartbeat("c", None, {"random:tiny": None})
+    jobs.worker_gone("g")  # the only gpu worker restarts; the default queue's is live
+    assert list(jobs.live_workers()) == ["c"]
+    assert jobs.unavailable("random:tiny", queue="gpu") is None  # judged by the gpu worker seen within the grace
+    assert jobs.unavailable("hf:big", queue="gpu").message == (
+        "no recently seen worker of queue 'gpu' (none is live now) can run model 'hf:big': no recently seen worker "
+        "of queue 'gpu' offers it")
+    assert jobs.unavailable(None, queue="tpu").code == "queue_not_served"
+
+
 def test_past_the_grace_no_worker_again_and_records_are_forgotten(private_redis):
     jobs = jobs_with_grace(private_redis.url, f"grace-{uuid.uuid4().hex[:8]}", lease_s=1, grace_s=3)
     jobs.heartbeat("a", None, {"random:tiny": None})
