@@ -58,12 +58,12 @@ class Links(BaseModel):
     preview: str = Field(description="PNG strip of the final scene's views; 409 until succeeded")
     cancel: str = Field(description="DELETE this to cancel")
     downloads: Literal["stream", "redirect"] = Field(
-        "stream", description="how result, report and preview answer once the job succeeded: stream (200 with "
+        description="how result, report and preview answer once the job succeeded: stream (200 with "
         "the file, from the API) or redirect (307 to a short-lived URL of the object store, CTP_S3_PRESIGN_S; "
         "follow it without the Authorization header, which the URL does not need)")
 
 
-def links(job_id: str, downloads: Literal["stream", "redirect"] = "stream") -> Links:
+def links(job_id: str, downloads: Literal["stream", "redirect"]) -> Links:
     base = f"/jobs/{job_id}"
     return Links(self=base, events=f"{base}/events", result=f"{base}/result.glb", report=f"{base}/report.json",
                  preview=f"{base}/preview.png", cancel=base, downloads=downloads)

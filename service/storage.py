@@ -19,7 +19,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Literal, Protocol
 
 import boto3
 from botocore.config import Config
@@ -130,7 +130,7 @@ class S3Storage:
     """Blobs as objects ``{prefix}{job}/{name}`` of one bucket of an S3-compatible store (boto3).
 
     Credentials come from the standard AWS chain (environment, shared files, instance or task role), so a
-    worker needs object read/write and nothing else. Expiry: the first ``sweep`` (the API's reaper calls it
+    worker needs object read, write and delete and nothing else. Expiry: the first ``sweep`` (the API's reaper calls it
     at start; workers never do) puts a lifecycle rule on the bucket that expires this prefix after the job
     TTL, rounded up to whole days (the rule's unit; the store removes expired objects within about a day
     after that, and the job records that name them are gone at the TTL anyway). A store or a credential that
@@ -149,7 +149,7 @@ class S3Storage:
         # Presigned URLs are signed for the host clients will ask (a compose service's name is not theirs).
         self.signer = (session.client("s3", endpoint_url=public_url, config=config)
                        if public_url and public_url != endpoint_url else self.client)
-        self.expiry: str | None = None if lifecycle else "sweep"  # decided at the first sweep
+        self.expiry: Literal["lifecycle", "sweep"] | None = None if lifecycle else "sweep"  # set by the first sweep
 
     def _key(self, job_id: str, name: str) -> str:
         _check(job_id, name)
@@ -202,7 +202,7 @@ class S3Storage:
     def rule_id(self) -> str:
         return f"ctp-expire-{self.prefix}"[:255]
 
-    def _put_lifecycle_rule(self) -> str:
+    def _put_lifecycle_rule(self) -> Literal["lifecycle", "sweep"]:
         """Install (or update) this prefix's expiry rule, keeping the bucket's other rules; returns how objects
         expire from now on: "lifecycle", or "sweep" when the store or the credentials refuse the rule."""
         rule = {"ID": self.rule_id, "Filter": {"Prefix": self.prefix}, "Status": "Enabled",
