@@ -24,7 +24,7 @@ from ctp_core.io import MeshLimits, load_image
 from ctp_core.loader import LoaderUnavailable, MeshLoader
 from ctp_core.names import NAME_MAX, default_name
 from service.errors import ApiError
-from service.settings import QUEUE_NAME
+from service.settings import QUEUE_NAME, QUEUE_RULE
 
 log = logging.getLogger("ctp.service")
 
@@ -153,8 +153,7 @@ def job_options(form, default_queue: str) -> tuple[dict[str, Any], str]:
     engine = options(form)
     queue = engine.pop("queue", default_queue)
     if not isinstance(queue, str) or not re.match(QUEUE_NAME, queue):
-        raise ApiError(422, "invalid_option", "queue must be a queue name: 1 to 32 of a-z, 0-9, '_' and '-', "
-                       "starting with a letter or digit", field="options.queue")
+        raise ApiError(422, "invalid_option", f"queue must be a queue name: {QUEUE_RULE}", field="options.queue")
     return engine, queue
 
 

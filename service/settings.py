@@ -23,6 +23,7 @@ DEFAULT_MODEL = "hf:openai/clip-vit-base-patch32"
 DEFAULT_QUEUE = "default"
 # A named queue becomes part of Redis keys and rq queue names: short, plain.
 QUEUE_NAME = r"^[a-z0-9][a-z0-9_-]{0,31}$"
+QUEUE_RULE = "1 to 32 of a-z, 0-9, '_' and '-', starting with a letter or digit"
 
 
 class Settings(BaseSettings):
@@ -133,8 +134,7 @@ class Settings(BaseSettings):
     def _queue_names(cls, value: list[str]) -> list[str]:
         bad = [name for name in value if not re.match(QUEUE_NAME, name)]
         if bad:
-            raise ValueError(f"queue names are 1 to 32 of a-z, 0-9, '_' and '-', starting with a letter or digit: "
-                             f"{', '.join(map(repr, bad))}")
+            raise ValueError(f"queue names are {QUEUE_RULE}: {', '.join(map(repr, bad))}")
         return list(dict.fromkeys(value))
 
     @model_validator(mode="after")
