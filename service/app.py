@@ -33,7 +33,9 @@ from service.forms import OPTIONS_DEPTH, OPTIONS_MAX, PROMPT_MAX
 from service.jobs import Jobs
 from service.routers import assemble, health, page, webhooks
 from service.routers import jobs as jobs_router
+from service.schemas import JobOptions
 from service.settings import Settings
+from service.storage import StorageUnavailable
 
 log = logging.getLogger("ctp.service")
 
@@ -80,16 +82,26 @@ an earlier job's scene. Jobs run on queue workers; records and results expire af
   paths out of the archive, encrypted or symbolic-link members, not exactly one mesh), `invalid_image`,
   `invalid_webhook` (not an http(s) URL with a host that resolves, or unknown `webhook_events`),
   `webhook_url_refused` (the webhook's host resolves to a loopback, private, link-local, multicast or other
-  non-public address; `CTP_WEBHOOK_ALLOW_PRIVATE` allows them), `webhooks_disabled` (no `CTP_WEBHOOK_SECRET`)
+  non-public address; `CTP_WEBHOOK_ALLOW_PRIVATE` allows them), `webhooks_disabled` (no `CTP_WEBHOOK_SECRET`),
+  `queue_not_served` (the job's `queue` option names a queue no worker serves, live or seen within the grace;
+  the message lists those served)
 - 429: `too_many_jobs` (queued plus running jobs per key, `CTP_MAX_ACTIVE_JOBS`)
-- 503: `redis_unavailable`; `no_worker` (no worker is alive, and none was seen within the grace,
+- 503: `redis_unavailable`; `storage_unavailable` (the object store, `CTP_STORAGE=s3`, did not answer or
+  refused); `no_worker` (no worker is alive, and none was seen within the grace,
   `CTP_WORKER_GRACE_S`); `model_unavailable` (no live worker can run
   the job's model, e.g. its weights are not on the workers and downloads are off; the message says why);
   `loader_unavailable` (shutting down, or every loading process busy).
   `POST /align` and `POST /assemble` answer these up front instead of accepting a job that would fail; a job with
   `lambda_clip` 0 (geometry only) needs no model. `GET /readyz` gives the same codes for the default model.
-  While a worker is being restarted (none live, one seen within the grace) jobs are judged by what it could run,
-  accepted and queued, and `GET /readyz` answers 200 `restarting`.
+  While a worker is being restarted (none of its queue live, one seen within the grace) jobs are judged by what it
+  could run, accepted and queued, and `GET /readyz` answers 200 `restarting`.
+
+**Queues.** Workers serve named queues (`CTP_QUEUES`, e.g. GPU and CPU workers); a job goes to the one its
+`queue` option names, default the deployment's (`CTP_DEFAULT_QUEUE`), and is judged by that queue's workers.
+
+**Downloads.** A job's `links.downloads` says how its result, report and preview answer: `stream` (200 with the
+file) or `redirect` (307 to a short-lived presigned URL of the object store; follow it without the
+Authorization header).
 
 **Webhooks, retries and waiting.** `webhook` (and `webhook_events`: `start`, `progress`, `completed`;
 default `completed`) on a submit POSTs the job's events there, signed as Standard Webhooks does (headers
@@ -107,8 +119,8 @@ after the job was accepted), `invalid_option`, a mesh code, ...), `inputs_expire
 job needed more memory than `CTP_JOB_MEMORY_MB`; the message names the stage, the worker goes on to the next job),
 `worker_lost` (its worker was killed or lost its machine; not retried), `worker_cannot_serve` (the worker's own
 `CTP_DEVICE` / `CTP_RUNTIME` / `CTP_THREADS` cannot run this job, checked when it takes the job, before anything
-loads) or `internal_error`. An assembly's
-failure names its stage in the message (`stage 2/3 (plate): ...`) and in `field` (`steps.1`).
+loads), `storage_unavailable` (the worker could not read its uploads or store its results) or `internal_error`.
+An assembly's failure names its stage in the message (`stage 2/3 (plate): ...`) and in `field` (`steps.1`).
 """
 
 
@@ -160,8 +172,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     def openapi() -> dict[str, Any]:
         if app.openapi_schema is None:
             schema = FastAPI.openapi(app)
-            schema["components"]["schemas"]["AlignOptions"] = AlignOptions.model_json_schema(
-                ref_template="#/components/schemas/{model}")
+            for model in (AlignOptions, JobOptions):
+                schema["components"]["schemas"][model.__name__] = model.model_json_schema(
+                    ref_template="#/components/schemas/{model}")
             app.openapi_schema = schema
         return app.openapi_schema
 
@@ -178,6 +191,6 @@ async def _reap_forever(jobs: Jobs, period_s: float) -> None:
             if time.monotonic() - last_sweep > SWEEP_EVERY_S:
                 await run_in_threadpool(jobs.storage.sweep)
                 last_sweep = time.monotonic()
-        except redis.exceptions.RedisError as exc:
-            log.warning("reaper: redis unavailable: %s", exc)
+        except (redis.exceptions.RedisError, StorageUnavailable) as exc:
+            log.warning("reaper: %s", exc)
         await asyncio.sleep(period_s)

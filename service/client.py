@@ -59,7 +59,7 @@ class Client:
                target_name: str | None = None, source_name: str | None = None,
                target_job: str | None = None, on: str | None = None, webhook: str | None = None,
                webhook_events: Sequence[str] | None = None, idempotency_key: str | None = None,
-               wait: int | None = None) -> dict[str, Any]:
+               wait: int | None = None, queue: str | None = None) -> dict[str, Any]:
         """Upload a pair; returns ``{id, status, links}`` (queued), or the whole job (as ``status``) when it
         ended within ``wait`` seconds or ``idempotency_key`` was used before for this same request. Needs a
         prompt or an image.
@@ -68,7 +68,9 @@ class Client:
         names the object of it the source relates to (default: the last placed one). ``webhook``: a URL the
         job's ``webhook_events`` (default ``completed``) are POSTed to, signed. ``idempotency_key``: a retry
         with the same key answers the first request's job instead of starting another (``ServiceError`` 409
-        ``idempotency_conflict`` when the request differs). ``wait``: up to 60 s (``Prefer: wait``)."""
+        ``idempotency_conflict`` when the request differs). ``wait``: up to 60 s (``Prefer: wait``).
+        ``queue``: the named queue to run on (option ``queue``; default the service's)."""
+        options = _with_queue(options, queue)
         files = {"source": _file(source)}
         if target is not None:
             files["target"] = _file(target)
@@ -83,14 +85,15 @@ class Client:
     def assemble(self, base: MeshInput, steps: list[dict[str, Any]], *, options: dict[str, Any] | None = None,
                  base_name: str | None = None, webhook: str | None = None,
                  webhook_events: Sequence[str] | None = None, idempotency_key: str | None = None,
-                 wait: int | None = None) -> dict[str, Any]:
+                 wait: int | None = None, queue: str | None = None) -> dict[str, Any]:
         """Submit a whole scene as one job; returns ``{id, status, links}``, or the job (``webhook``,
-        ``idempotency_key`` and ``wait`` as in ``submit``).
+        ``idempotency_key``, ``wait`` and ``queue`` as in ``submit``).
 
         Each step is ``{"file": MeshInput, "prompt": str}`` or ``{"file": ..., "image": MeshInput}``, with
         optional ``name`` (default from the file name, as the CLI and the service name it:
         ``names.default_name``), ``on`` (a placed object's name; default the last placed) and ``options`` (this
-        step's AlignOptions)."""
+        step's AlignOptions). ``queue`` as for ``submit``."""
+        options = _with_queue(options, queue)
         files: list[tuple[str, tuple[str, bytes]]] = [("base", _file(base))]
         plan = []
         for i, step in enumerate(steps):
@@ -146,8 +149,14 @@ class Client:
                 raise TimeoutError(f"job {job_id} still {job['status']} after {timeout_s} s")
 
     def download(self, job_id: str, name: str = "result.glb", to: str | Path | None = None) -> bytes:
-        """``result.glb``, ``report.json`` or ``preview.png`` of a succeeded job; also written to ``to``."""
+        """``result.glb``, ``report.json`` or ``preview.png`` of a succeeded job; also written to ``to``. A job
+        whose ``links.downloads`` is ``redirect`` answers 307: the file is fetched from that presigned URL,
+        without the API key (the URL carries its own signature, and the store is not the API)."""
         answer = self.http.get(f"/jobs/{job_id}/{name}")
+        if answer.status_code == 307:
+            request = self.http.build_request("GET", answer.headers["location"])
+            request.headers.pop("Authorization", None)
+            answer = self.http.send(request)
         if answer.status_code != 200:
             self._json(answer)
         if to is not None:
@@ -176,6 +185,10 @@ class Client:
 
 def _webhook(url: str | None, events: Sequence[str] | None) -> dict[str, str | None]:
     return {"webhook": url, "webhook_events": ",".join(events) if events is not None else None}
+
+
+def _with_queue(options: dict[str, Any] | None, queue: str | None) -> dict[str, Any] | None:
+    return options if queue is None else {**(options or {}), "queue": queue}
 
 
 def _file(item: MeshInput) -> tuple[str, bytes]:

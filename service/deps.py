@@ -50,28 +50,30 @@ async def own_job(request: Request, job_id: str, who: str) -> JobRecord:
 
 async def enqueue(request: Request, record: JobRecord, blobs: dict[str, bytes],
                   configs: Sequence[AlignConfig]) -> None:
-    """Queue a validated job (``POST /align`` and ``POST /assemble``, through ``service.submit``): 503 when no
-    worker can run it (refused now rather than accepted and failed later; a worker being restarted counts,
-    ``Jobs.unavailable``), 429 over the key's active-job limit.
+    """Queue a validated job (``POST /align`` and ``POST /assemble``, through ``service.submit``) on its named
+    queue: 503 when no worker can run it and 422 ``queue_not_served`` when no worker serves its queue (refused
+    now rather than accepted and failed later; a worker being restarted counts, ``Jobs.unavailable``), 429 over
+    the key's active-job limit.
 
     ``configs`` are what the job runs: an assembly's every stage (each with its own options), so one guided
     step makes the job need the model however geometry-only the assembly's options are."""
     settings, jobs = request.app.state.settings, request.app.state.jobs
-    unavailable = await run_in_threadpool(_unavailable, jobs, {c.model for c in configs if c.uses_model})
+    unavailable = await run_in_threadpool(_unavailable, jobs, {c.model for c in configs if c.uses_model},
+                                          record.queue)
     if unavailable is not None:
-        raise ApiError(503, unavailable.code, unavailable.message, unavailable.field)
+        status = 422 if unavailable.code == "queue_not_served" else 503  # the request's to change, not a wait
+        raise ApiError(status, unavailable.code, unavailable.message, unavailable.field)
     try:
         await run_in_threadpool(jobs.submit, record, blobs, settings.max_active_jobs)
     except TooManyJobs as exc:
         raise ApiError(429, "too_many_jobs", str(exc)) from None
 
 
-def _unavailable(jobs: Jobs, models: set[str]) -> JobError | None:
-    """The first reason a job needing ``models`` cannot run (Redis read once: live, then seen if none is)."""
+def _unavailable(jobs: Jobs, models: set[str], queue: str) -> JobError | None:
+    """The first reason a job on ``queue`` needing ``models`` cannot run (live workers read once)."""
     live = jobs.live_workers()
-    seen = None if live else jobs.seen_workers()
     for model in sorted(models) or [None]:  # None: a worker at all
-        unavailable = jobs.unavailable(model, live=live, seen=seen)
+        unavailable = jobs.unavailable(model, queue=queue, live=live)
         if unavailable is not None:
             return unavailable
     return None

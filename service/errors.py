@@ -15,6 +15,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from ctp_core.errors import CtpError
 from service.jobs import JobError
 from service.schemas import ErrorBody
+from service.storage import StorageUnavailable
 
 log = logging.getLogger("ctp.service")
 
@@ -23,7 +24,8 @@ _ERRORS = {status: {"model": ErrorBody, "description": text} for status, text in
     409: "the job is not in a state that allows this, or an Idempotency-Key conflicts",
     413: "an upload is over a limit",
     415: "unsupported mesh format", 422: "invalid input", 429: "too many active jobs for this key",
-    503: "Redis, the workers or the model are unavailable (redis_unavailable, no_worker, model_unavailable)",
+    503: "Redis, the object store, the workers or the model are unavailable (redis_unavailable, "
+         "storage_unavailable, no_worker, model_unavailable)",
 }.items()}
 
 
@@ -66,6 +68,12 @@ def install_handlers(app: FastAPI) -> None:
     async def _redis_down(_request: Request, exc: Exception):
         log.error("redis unavailable: %s", exc)
         return error_response(503, JobError(code="redis_unavailable", message="the job store is unreachable"))
+
+    @app.exception_handler(StorageUnavailable)
+    async def _storage_down(_request: Request, exc: StorageUnavailable):
+        log.error("storage unavailable: %s", exc)
+        return error_response(503, JobError(code="storage_unavailable", message="the object store that holds "
+                                            "uploads and results is unreachable or refused the request"))
 
     @app.exception_handler(StarletteHTTPException)
     async def _http_error(_request: Request, exc: StarletteHTTPException):

@@ -24,6 +24,7 @@ from ctp_core.io import MeshLimits, load_image
 from ctp_core.loader import LoaderUnavailable, MeshLoader
 from ctp_core.names import NAME_MAX, default_name
 from service.errors import ApiError
+from service.settings import QUEUE_NAME, QUEUE_RULE
 from service.webhooks import DEFAULT_EVENTS, EVENTS, URL_MAX
 
 log = logging.getLogger("ctp.service")
@@ -78,8 +79,8 @@ ALIGN_BODY = {
                        "description": "what the arrangement should look like; required unless `image` is given"},
             "image": file_field("reference picture (PNG or JPEG) for image-guided alignment instead of the text"),
             "options": {"type": "string", "contentMediaType": "application/json",
-                        "contentSchema": {"$ref": "#/components/schemas/AlignOptions"},
-                        "description": "JSON object of run options (AlignOptions)"},
+                        "contentSchema": {"$ref": "#/components/schemas/JobOptions"},
+                        "description": "JSON object of run options (JobOptions: AlignOptions and queue)"},
             "target_name": {"type": "string", "maxLength": NAME_MAX,
                             "description": "what the target is (\"sundae\"), for the scene priors; "
                             "default: its file name"},
@@ -157,6 +158,16 @@ def options(form) -> dict[str, Any]:
     if not isinstance(parsed, dict):
         raise ApiError(400, "invalid_options", "options must be a JSON object", field="options")
     return parsed
+
+
+def job_options(form, default_queue: str) -> tuple[dict[str, Any], str]:
+    """The job's options for the engine (AlignOptions), and the named queue it asks for (the service's own option,
+    ``queue``; default ``default_queue``): 422 ``invalid_option`` for a name no queue can have."""
+    engine = options(form)
+    queue = engine.pop("queue", default_queue)
+    if not isinstance(queue, str) or not re.match(QUEUE_NAME, queue):
+        raise ApiError(422, "invalid_option", f"queue must be a queue name: {QUEUE_RULE}", field="options.queue")
+    return engine, queue
 
 
 def strict_json(raw: str, field: str, code: str, max_chars: int = OPTIONS_MAX) -> Any:

@@ -17,12 +17,17 @@ heartbeat. ``reap`` fails running jobs whose lease lapsed (worker SIGKILLed, mac
 ``worker_lost``; they are not retried, because a job that kills its worker (memory) would otherwise
 take every worker down in turn. Clients may resubmit.
 
+Queues: a job goes to one named queue (its ``queue``, default the deployment's), the rq queue
+``{prefix}:{queue}``; a worker takes jobs from the queues it serves (``CTP_QUEUES``), so GPU and CPU
+workers can share one deployment.
+
 Workers: each heartbeat refreshes the worker's own lease ``{prefix}:worker:{name}`` (``lease_s``) with
-the models it can run, and a "last seen" record ``{prefix}:seen:{name}`` that outlives the lease by the
-grace (``worker_grace_s``). While no worker is live but one was seen within the grace (a worker being
-restarted: killed, back-off, start-up, model load), jobs are still judged by what the last-seen workers
-offered and accepted; they wait in the queue until a worker is back. A clean exit drops the lease but not
-the record, so it does not end the grace early.
+its offer ``{prefix}:offer:{name}`` (the queues it serves, the models it can run), and a "last seen"
+record ``{prefix}:seen:{name}`` that outlives the lease by the grace (``worker_grace_s``). A job is judged
+by the live workers that serve its queue; while none does but one was seen within the grace (a worker
+being restarted: killed, back-off, start-up, model load), by what the last-seen ones offered, and it is
+accepted and waits in its queue until a worker is back. A clean exit drops the lease but not the record,
+so it does not end the grace early.
 """
 
 from __future__ import annotations
@@ -46,6 +51,7 @@ from rq.job import Job as RqJob
 from rq.serializers import JSONSerializer
 
 from ctp_core.config import AlignConfig
+from service.settings import DEFAULT_QUEUE
 from service.storage import Storage, open_storage
 from service.webhooks import PROGRESS_EVERY_S, Outbox, Webhook
 
@@ -156,6 +162,9 @@ class JobRecord(BaseModel):
     webhook: Webhook | None = Field(None, description="where events of this job are delivered, and how that went")
     webhook_progress_at: float | None = Field(None, description="when its last progress event was queued (Unix "
                                               "seconds): the throttle")
+    queue: str = Field(DEFAULT_QUEUE, description="the named queue it was sent to")
+    downloads: Literal["stream", "redirect"] = Field("stream", description="how its result downloads answer, "
+                                                     "as the API that accepted it was set (Links.downloads)")
 
     @property
     def stage_count(self) -> int:
@@ -176,11 +185,18 @@ def new_id() -> str:
     return uuid.uuid4().hex
 
 
-class SeenWorker(BaseModel):
-    """A worker seen within the grace (``Jobs.seen_workers``): how long ago, and what it could run then."""
+class Offer(BaseModel):
+    """What a worker serves, as its heartbeat publishes it: the named queues it takes jobs from and the models
+    it can run (``{spec: None when it can, else why not}``)."""
+
+    queues: list[str] = Field(default_factory=lambda: [DEFAULT_QUEUE])
+    models: dict[str, str | None] = Field(default_factory=dict)
+
+
+class SeenWorker(Offer):
+    """A worker seen within the grace (``Jobs.seen_workers``): how long ago, and what it offered then."""
 
     since_s: float
-    models: dict[str, str | None]
 
 
 class _StopFlags(BaseModel):
@@ -190,29 +206,39 @@ class _StopFlags(BaseModel):
     cancel_requested: bool = False
 
 
+def serving(workers: dict[str, Offer], queue: str) -> dict[str, dict[str, str | None]]:
+    """The workers (live or seen) that serve ``queue`` -> the models each can run."""
+    return {name: offer.models for name, offer in workers.items() if queue in offer.queues}
+
+
 def parse_record(raw: bytes | str | None) -> JobRecord | None:
     """A stored record, as read from its key or its events channel (None: unknown or expired)."""
     return None if raw is None else JobRecord.model_validate_json(raw)
 
 
 class Jobs:
-    """Job records, the rq queue and the liveness keys of one deployment (one key prefix)."""
+    """Job records, the rq queues and the liveness keys of one deployment (one key prefix)."""
 
     def __init__(self, redis: Redis, storage: Storage, *, prefix: str, ttl_s: int, job_timeout_s: int,
-                 lease_s: int, worker_grace_s: float = 0.0):
+                 lease_s: int, worker_grace_s: float = 0.0, default_queue: str = DEFAULT_QUEUE):
         self.redis, self.storage, self.prefix = redis, storage, prefix
         self.ttl_s, self.job_timeout_s, self.lease_s = ttl_s, job_timeout_s, lease_s
         self.worker_grace_s = worker_grace_s  # how long a heartbeat's "last seen" record lives; 0: none written
-        self.queue = Queue(prefix, connection=redis, serializer=JSONSerializer)
         self.outbox = Outbox(redis, prefix, ttl_s)
+        self.default_queue = default_queue
 
     @classmethod
     def from_settings(cls, settings: Settings) -> Jobs:
         """The job store of a deployment, as the API and every worker reach it (``settings.redis_url``)."""
         client = Redis.from_url(settings.redis_url, health_check_interval=30)
-        return cls(client, open_storage(client, settings.queue, settings.job_ttl_s, settings.storage_dir),
-                   prefix=settings.queue, ttl_s=settings.job_ttl_s, job_timeout_s=settings.job_timeout_s,
-                   lease_s=settings.lease_s, worker_grace_s=settings.worker_grace_s)
+        return cls(client, open_storage(client, settings), prefix=settings.key_prefix, ttl_s=settings.job_ttl_s,
+                   job_timeout_s=settings.job_timeout_s, lease_s=settings.lease_s,
+                   worker_grace_s=settings.worker_grace_s, default_queue=settings.default_queue)
+
+    def rq_queue(self, name: str | None = None) -> Queue:
+        """The rq queue of a named queue (default: the deployment's), namespaced by the key prefix so that
+        deployments sharing a Redis never take each other's jobs."""
+        return Queue(f"{self.prefix}:{name or self.default_queue}", connection=self.redis, serializer=JSONSerializer)
 
     # -- keys ---------------------------------------------------------------------------------------
     def record_key(self, job_id: str) -> str:
@@ -303,7 +329,7 @@ class Jobs:
             self.redis.set(self.record_key(record.id), record.model_dump_json(), ex=self.ttl_s)
             self.redis.zadd(self._owned_key(record.owner), {record.id: record.created_at.timestamp()})
             self.redis.expire(self._owned_key(record.owner), self.ttl_s)
-            self.queue.enqueue(TASK, record.id, job_id=record.id,
+            self.rq_queue(record.queue).enqueue(TASK, record.id, job_id=record.id,
                                job_timeout=self.job_timeout_s * record.stage_count, result_ttl=0,
                                failure_ttl=self.ttl_s, description=f"{record.kind} {record.id}")
         except Exception:
@@ -312,7 +338,7 @@ class Jobs:
             self.redis.delete(self.record_key(record.id))
             self.storage.delete(record.id, list(blobs))
             raise
-        log.info("job queued", extra={"job_id": record.id, "owner": record.owner})
+        log.info("job queued", extra={"job_id": record.id, "owner": record.owner, "queue": record.queue})
         return record
 
     def start(self, job_id: str, worker: str) -> JobRecord | None:
@@ -460,8 +486,8 @@ class Jobs:
     def _worker_key(self, worker: str) -> str:
         return f"{self.prefix}:worker:{worker}"
 
-    def _models_key(self, worker: str) -> str:
-        return f"{self.prefix}:models:{worker}"
+    def _offer_key(self, worker: str) -> str:
+        return f"{self.prefix}:offer:{worker}"
 
     def _seen_key(self, worker: str) -> str:
         return f"{self.prefix}:seen:{worker}"
@@ -470,22 +496,24 @@ class Jobs:
     def _seen_set(self) -> str:
         return f"{self.prefix}:seen"
 
-    def heartbeat(self, worker: str, job_id: str | None, models: dict[str, str | None] | None = None) -> None:
-        """A worker is alive (and so is its running job): refresh both leases. ``models`` is what the worker
-        can run, ``{spec: None when it can, else why not}``; it lives as long as the worker's lease. With a
-        grace, the worker's "last seen" record (its models) is refreshed too and lives ``worker_grace_s``."""
+    def heartbeat(self, worker: str, job_id: str | None, models: dict[str, str | None] | None = None,
+                  queues: list[str] | None = None) -> None:
+        """A worker is alive (and so is its running job): refresh both leases. Its offer, the ``queues`` it
+        serves (default: the default queue) and the ``models`` it can run (``{spec: None when it can, else why
+        not}``), lives as long as the worker's lease. With a grace, the worker's "last seen" record (its offer)
+        is refreshed too and lives ``worker_grace_s``."""
+        offer = Offer(queues=queues or [self.default_queue], models=models or {})
         with self.redis.pipeline(transaction=False) as pipe:
             pipe.set(self._worker_key(worker), job_id or "", ex=self.lease_s)
             pipe.sadd(f"{self.prefix}:workers", worker)
-            if models is not None:
-                pipe.set(self._models_key(worker), json.dumps(models), ex=self.lease_s)
+            pipe.set(self._offer_key(worker), offer.model_dump_json(), ex=self.lease_s)
             if job_id is not None:
                 pipe.set(self._lease_key(job_id), worker, ex=self.lease_s, xx=True)
             grace_ms = int(self.worker_grace_s * 1000)
             if grace_ms > 0:
                 # The grace travels in the record: "seen s ago" is the grace less the key's time to live, which
                 # Redis keeps, so no two machines' clocks are compared.
-                pipe.set(self._seen_key(worker), json.dumps({"models": models or {}, "grace_s": self.worker_grace_s}),
+                pipe.set(self._seen_key(worker), json.dumps({**offer.model_dump(), "grace_s": self.worker_grace_s}),
                          px=grace_ms)
                 pipe.sadd(self._seen_set, worker)
                 pipe.pexpire(self._seen_set, grace_ms)
@@ -494,19 +522,19 @@ class Jobs:
     def worker_gone(self, worker: str) -> None:
         """A worker's clean exit: it is no longer live. Its "last seen" record stays for the rest of the grace
         (a supervised or orchestrated worker that exits is usually started again)."""
-        self.redis.delete(self._worker_key(worker), self._models_key(worker))
+        self.redis.delete(self._worker_key(worker), self._offer_key(worker))
         self.redis.srem(f"{self.prefix}:workers", worker)
 
-    def live_workers(self) -> dict[str, dict[str, str | None]]:
-        """Workers whose lease is current -> the models each published; forgets the others (O(workers),
-        not a key-space scan)."""
+    def live_workers(self) -> dict[str, Offer]:
+        """Workers whose lease is current -> the offer each published; forgets the others (O(workers), not a
+        key-space scan)."""
         names = [raw.decode() for raw in self.redis.smembers(f"{self.prefix}:workers")]
         with self.redis.pipeline(transaction=False) as pipe:
             for name in names:
                 pipe.exists(self._worker_key(name))
-                pipe.get(self._models_key(name))
+                pipe.get(self._offer_key(name))
             replies = pipe.execute()
-        live = {name: json.loads(raw) if raw else {}
+        live = {name: Offer.model_validate_json(raw) if raw else Offer()
                 for name, ok, raw in zip(names, replies[0::2], replies[1::2], strict=True) if ok}
         dead = [name for name in names if name not in live]
         if dead:
@@ -530,32 +558,42 @@ class Jobs:
                 continue
             record = json.loads(raw)
             left_s = ttl_ms / 1000 if ttl_ms >= 0 else 0.0
-            seen[name] = SeenWorker(since_s=round(max(0.0, float(record["grace_s"]) - left_s), 1),
-                                    models=record["models"])
+            seen[name] = SeenWorker(since_s=round(max(0.0, float(record.pop("grace_s")) - left_s), 1), **record)
         gone = [name for name in names if name not in seen]
         if gone:
             self.redis.srem(self._seen_set, *gone)
         return seen
 
-    def unavailable(self, model: str | None, *, what: str = "model", field: str | None = "options.model",
-                    live: dict[str, dict[str, str | None]] | None = None,
+    def unavailable(self, model: str | None, *, queue: str | None = None, what: str = "model",
+                    field: str | None = "options.model", live: dict[str, Offer] | None = None,
                     seen: dict[str, SeenWorker] | None = None) -> JobError | None:
-        """Why a job that needs ``model`` (None: a geometry-only job) cannot succeed if submitted now, or
-        None when a worker can run it: the one readiness rule of ``/readyz`` and ``POST /align``.
+        """Why a job on ``queue`` (default: the deployment's) that needs ``model`` (None: a geometry-only job)
+        cannot succeed if submitted now, or None when a worker can run it: the one readiness rule of
+        ``/readyz`` and the submits.
 
-        A live worker decides. When none is live, the workers seen within the grace decide (their last
-        models): a worker that is restarting keeps the service accepting jobs, which wait in the queue.
-        ``live`` / ``seen``: ``live_workers()`` / ``seen_workers()`` when the caller has just read them (one
-        read for several models); ``seen`` is read only when no worker is live."""
+        The live workers that serve the queue decide. When none does, the workers seen within the grace that
+        served it decide (their last offer): a worker that is restarting keeps its queue accepting jobs, which
+        wait in it. No worker at all, live or seen: ``no_worker``; workers, but none for this queue:
+        ``queue_not_served``. ``live`` / ``seen``: ``live_workers()`` / ``seen_workers()`` when the caller has
+        just read them (one read for several models); ``seen`` is read only when no live worker serves the
+        queue. ``field``: the request field blamed for a missing model (None: none, as for ``/readyz``)."""
+        queue = queue or self.default_queue
         live = self.live_workers() if live is None else live
-        judged, who, note = live, "live worker", ""
-        if not live:
+        judged = serving(live, queue)
+        where = "" if queue == self.default_queue else f" of queue {queue!r}"
+        who, note = f"live worker{where}", ""
+        if not judged:
             seen = self.seen_workers() if seen is None else seen
-            if not seen:
+            if not live and not seen:
                 return JobError(code="no_worker", message="no worker is alive: start one with `ctp worker` "
                                 "(`ctp serve` without REDIS_URL starts one) or wait until it is back")
-            judged = {name: s.models for name, s in seen.items()}
-            who, note = "recently seen worker", " (none is live now)"
+            judged = serving(seen, queue)
+            if not judged:
+                served = sorted({q for offer in [*live.values(), *seen.values()] for q in offer.queues})
+                return JobError(code="queue_not_served", message=f"no worker serves queue {queue!r} (served now: "
+                                f"{', '.join(served)}): ask for one of those, or start workers with "
+                                f"CTP_QUEUES={queue}", field=field and "options.queue")
+            who, note = f"recently seen worker{where}", " (none is live now)"
         if model is None or any(model in models and models[model] is None for models in judged.values()):
             return None
         reasons = sorted({models[model] for models in judged.values() if models.get(model)})

@@ -8,12 +8,13 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Any, Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, create_model
 
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
-from ctp_core.options import option_of, option_overrides
+from ctp_core.options import AlignOptions, option_of, option_overrides
 from service.jobs import JobError, JobRecord, Progress, Status
+from service.settings import QUEUE_NAME
 from service.webhooks import Webhook
 
 
@@ -33,6 +34,15 @@ def build_config(options: dict[str, Any], *, default_model: str, allowed_models:
         raise ConfigError(exc.message, field=option_of(exc.field)) from None
 
 
+# The options field of a submit: the engine's options and the service's own, where the job runs (for the schema;
+# service.forms.job_options splits them, build_config checks the engine's).
+JobOptions: type[BaseModel] = create_model(
+    "JobOptions", __base__=AlignOptions,
+    queue=(str | None, Field(None, pattern=QUEUE_NAME, description="the named queue the job goes to (default: "
+                             "the deployment's, CTP_DEFAULT_QUEUE); 422 queue_not_served when no worker serves it")),
+)
+
+
 class ErrorBody(BaseModel):
     """Every 4xx/5xx answer of this API."""
 
@@ -48,12 +58,16 @@ class Links(BaseModel):
     report: str = Field(description="transform, objective, priors, timings as JSON; 409 until succeeded")
     preview: str = Field(description="PNG strip of the final scene's views; 409 until succeeded")
     cancel: str = Field(description="DELETE this to cancel")
+    downloads: Literal["stream", "redirect"] = Field(
+        description="how result, report and preview answer once the job succeeded: stream (200 with "
+        "the file, from the API) or redirect (307 to a short-lived URL of the object store, CTP_S3_PRESIGN_S; "
+        "follow it without the Authorization header, which the URL does not need)")
 
 
-def links(job_id: str) -> Links:
+def links(job_id: str, downloads: Literal["stream", "redirect"]) -> Links:
     base = f"/jobs/{job_id}"
     return Links(self=base, events=f"{base}/events", result=f"{base}/result.glb", report=f"{base}/report.json",
-                 preview=f"{base}/preview.png", cancel=base)
+                 preview=f"{base}/preview.png", cancel=base, downloads=downloads)
 
 
 class Accepted(BaseModel):
@@ -79,6 +93,7 @@ class JobOut(BaseModel):
     image_guided: bool = Field(description="guided by a reference image instead of the text")
     webhook: Webhook | None = Field(None, description="the job's webhook and how its deliveries went; null "
                                     "when it was submitted without one")
+    queue: str = Field(description="the named queue it was sent to (option queue)")
     links: Links
 
     @classmethod
@@ -86,7 +101,7 @@ class JobOut(BaseModel):
         return cls(id=r.id, status=r.status, progress=r.progress, created_at=r.created_at,
                    started_at=r.started_at, finished_at=r.finished_at, error=r.error,
                    cancel_requested=r.cancel_requested, prompt=r.prompt, image_guided=r.has_image,
-                   webhook=r.webhook, links=links(r.id))
+                   webhook=r.webhook, queue=r.queue, links=links(r.id, r.downloads))
 
 
 class WebhookPayload(BaseModel):
@@ -115,14 +130,18 @@ class Health(BaseModel):
 
 class Ready(BaseModel):
     status: Literal["ready", "restarting"] = Field(
-        description="ready: a live worker can run the default model; restarting: no worker is live now, but one "
-        "that could was seen within the grace (CTP_WORKER_GRACE_S), e.g. while it is restarted; jobs are "
-        "accepted and wait in the queue until a worker is back")
+        description="ready: a live worker of the default queue can run the default model; restarting: no worker of "
+        "the default queue is live now, but one that could was seen within the grace (CTP_WORKER_GRACE_S), e.g. "
+        "while it is restarted; jobs are accepted and wait in the queue until a worker is back")
     redis: bool = Field(description="Redis answered")
-    workers: int = Field(description="workers that sent a heartbeat within the lease (CTP_LEASE_S); 0 while "
-                         "restarting")
-    models: list[str] = Field(description="the models jobs are accepted for: those at least one live worker can "
-                              "run now, or while restarting those the workers seen within the grace could run "
-                              "(the default among them, or the answer is 503)")
+    workers: int = Field(description="workers, of any queue, that sent a heartbeat within the lease "
+                         "(CTP_LEASE_S); none of them serves the default queue while restarting")
+    models: list[str] = Field(description="the models jobs on the default queue are accepted for: those at least "
+                              "one live worker of it can run now, or while restarting those the workers seen "
+                              "within the grace could run (the default among them, or the answer is 503)")
+    queues: dict[str, list[str]] = Field(
+        default_factory=dict, description="every named queue jobs are accepted for (option queue) -> the models "
+        "they may need there: those its live workers can run, or while none is live those its workers seen "
+        "within the grace could run")
     since_s: float | None = Field(None, description="restarting: seconds since a worker was last seen (the "
                                   "answer turns 503 no_worker once this passes the grace); null when ready")

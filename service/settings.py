@@ -1,15 +1,17 @@
-"""Service settings, read once from the environment (``CTP_*``, plus the conventional ``REDIS_URL``).
+"""Service settings, read once from the environment (``CTP_*``, plus the conventional ``REDIS_URL`` and, for
+S3 storage, the standard AWS credential chain).
 
 The API and the workers read the same variables, so a worker on another machine needs only the same
-environment (at least ``REDIS_URL``) to join; nothing else is shared but Redis.
+environment (``REDIS_URL`` and the storage settings) to join; nothing else is shared but Redis and the store.
 """
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import AliasChoices, Field, field_validator
+from pydantic import AliasChoices, Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 from ctp_core.config import Runtime
@@ -19,6 +21,10 @@ from service.webhooks import secret_bytes
 
 MiB = 1024 * 1024
 DEFAULT_MODEL = "hf:openai/clip-vit-base-patch32"
+DEFAULT_QUEUE = "default"
+# A named queue becomes part of Redis keys and rq queue names: short, plain.
+QUEUE_NAME = r"^[a-z0-9][a-z0-9_-]{0,31}$"
+QUEUE_RULE = "1 to 32 of a-z, 0-9, '_' and '-', starting with a letter or digit"
 
 
 class Settings(BaseSettings):
@@ -33,11 +39,41 @@ class Settings(BaseSettings):
     redis_dir: Path | None = Field(
         None, description="data directory of the embedded Redis; unset: $XDG_CACHE_HOME/ctp/redis",
     )
-    queue: str = Field("ctp", description="rq queue name and Redis key prefix")
+    # Before named queues, CTP_QUEUE was both the rq queue and the key prefix; it still sets the prefix.
+    key_prefix: str = Field(
+        "ctp", validation_alias=AliasChoices("CTP_KEY_PREFIX", "CTP_QUEUE", "key_prefix"),
+        pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]*$",
+        description="prefix of every Redis key of this deployment (records, leases, its rq queues "
+        "`{prefix}:{queue}`); deployments sharing a Redis need distinct prefixes",
+    )
+    default_queue: str = Field(DEFAULT_QUEUE, pattern=QUEUE_NAME,
+                               description="the named queue of jobs that do not ask for one (option queue)")
+    queues: Annotated[list[str], NoDecode] = Field(
+        default_factory=list, description="the named queues a worker takes jobs from, first listed first; "
+        "unset: the default queue",
+    )
+    storage: Literal["redis", "dir", "s3"] | None = Field(
+        None, description="where uploads and results live: redis, dir (CTP_STORAGE_DIR) or s3 (CTP_S3_*); "
+        "unset: dir when CTP_STORAGE_DIR is set, else redis",
+    )
     storage_dir: Path | None = Field(
         None, description="uploads and results as files under this directory (shared by API and workers) "
-        "instead of in Redis; for large deployments",
+        "instead of in Redis",
     )
+    # S3-compatible object storage (service.storage.S3Storage); credentials come from the standard AWS chain.
+    s3_bucket: str | None = Field(None, description="the bucket of uploads and results (CTP_STORAGE=s3)")
+    s3_prefix: str = Field("ctp/", description="key prefix of this deployment's objects in the bucket (its "
+                           "expiry rule covers exactly this prefix)")
+    s3_endpoint_url: str | None = Field(None, description="the store's URL for a non-AWS store (MinIO, ...); "
+                                        "unset: AWS S3")
+    s3_public_url: str | None = Field(None, description="the store's URL as clients reach it, for presigned "
+                                      "downloads; unset: CTP_S3_ENDPOINT_URL")
+    s3_presign_s: int = Field(0, ge=0, le=7 * 24 * 3600, description="0: results are streamed through the "
+                              "API; more: a result download answers 307 to a presigned URL of the store that is "
+                              "valid this many seconds")
+    s3_lifecycle: bool = Field(True, description="expire objects with a lifecycle rule on the bucket (set by the "
+                               "API at start); false, or when the store refuses the rule: the API's sweep "
+                               "deletes them")
     # Limits. A request is refused before anything is queued when it breaks one of them.
     max_request_bytes: int = Field(120 * MiB, ge=1, description="whole multipart request body")
     max_upload_bytes: int = Field(50 * MiB, ge=1, description="one mesh file")
@@ -98,7 +134,7 @@ class Settings(BaseSettings):
     webhook_timeout_s: float = Field(10.0, gt=0, description="time limit of one delivery attempt's connect, send "
                                      "and each read")
 
-    @field_validator("models", "api_keys", "cors_origins", mode="before")
+    @field_validator("models", "api_keys", "cors_origins", "queues", mode="before")
     @classmethod
     def _comma_list(cls, value):
         if isinstance(value, str):
@@ -116,6 +152,38 @@ class Settings(BaseSettings):
     def webhook_key(self) -> bytes | None:
         """The HMAC key deliveries are signed with; None: webhooks are off."""
         return secret_bytes(self.webhook_secret) if self.webhook_secret else None
+
+    @field_validator("queues")
+    @classmethod
+    def _queue_names(cls, value: list[str]) -> list[str]:
+        bad = [name for name in value if not re.match(QUEUE_NAME, name)]
+        if bad:
+            raise ValueError(f"queue names are {QUEUE_RULE}: {', '.join(map(repr, bad))}")
+        return list(dict.fromkeys(value))
+
+    @model_validator(mode="after")
+    def _storage_settings(self) -> Settings:
+        if self.storage == "dir" and self.storage_dir is None:
+            raise ValueError("CTP_STORAGE=dir needs CTP_STORAGE_DIR")
+        if self.storage_backend == "s3" and not self.s3_bucket:
+            raise ValueError("CTP_STORAGE=s3 needs CTP_S3_BUCKET")
+        if self.s3_presign_s and self.storage_backend != "s3":
+            raise ValueError("CTP_S3_PRESIGN_S needs CTP_STORAGE=s3 (only an object store can serve a download)")
+        return self
+
+    @property
+    def storage_backend(self) -> Literal["redis", "dir", "s3"]:
+        return self.storage or ("dir" if self.storage_dir is not None else "redis")
+
+    @property
+    def served_queues(self) -> list[str]:
+        """The named queues a worker with these settings takes jobs from, in order."""
+        return self.queues or [self.default_queue]
+
+    @property
+    def downloads(self) -> Literal["stream", "redirect"]:
+        """How result downloads answer (``Links.downloads``): the bytes, or 307 to a presigned URL."""
+        return "redirect" if self.s3_presign_s else "stream"
 
     @property
     def mesh_limits(self) -> MeshLimits:

@@ -96,7 +96,7 @@ async def _answer(request: Request, record: JobRecord, wait_s: int | None, repla
             record = await state.jobs.wait_async(state.aredis, record.id, wait_s) or record
     if replay or record.status in TERMINAL:
         return JSONResponse(JobOut.of(record).model_dump(mode="json"), status_code=200, headers=headers)
-    accepted = Accepted(id=record.id, status=record.status, links=links(record.id))
+    accepted = Accepted(id=record.id, status=record.status, links=links(record.id, record.downloads))
     return JSONResponse(accepted.model_dump(mode="json"), status_code=202, headers=headers)
 
 

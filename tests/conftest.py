@@ -1,7 +1,7 @@
 """Shared fixtures: a private real Redis, and helpers that run the API (real uvicorn on 127.0.0.1) and
 workers (real ``ctp worker`` processes) against it.
 
-Each service test picks its own queue name, so tests share one Redis without seeing each other's jobs.
+Each service test picks its own key prefix, so tests share one Redis without seeing each other's jobs.
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ import subprocess
 import sys
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from unittest import mock
 
@@ -45,10 +46,11 @@ def private_redis(tmp_path_factory):
     server.stop()
 
 
-def service_env(redis_url: str, queue: str, **settings) -> dict[str, str]:
-    """The environment of a service on ``queue``: fast liveness, the tiny random model."""
+def service_env(redis_url: str, prefix: str, **settings) -> dict[str, str]:
+    """The environment of a deployment under the Redis key prefix ``prefix``: fast liveness, the tiny random
+    model."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("CTP_") and k != "REDIS_URL"}
-    env.update(REDIS_URL=redis_url, CTP_QUEUE=queue, CTP_MODEL="random:tiny", CTP_HEARTBEAT_S="0.5",
+    env.update(REDIS_URL=redis_url, CTP_KEY_PREFIX=prefix, CTP_MODEL="random:tiny", CTP_HEARTBEAT_S="0.5",
                CTP_LEASE_S="5", CTP_PROGRESS_EVERY_S="1", CTP_LOG_LEVEL="WARNING", CTP_THREADS="1",
                CTP_RUNTIME="torch",  # workers start without exporting a model (tests/test_runtime.py covers it)
                OMP_WAIT_POLICY="PASSIVE", OMP_NUM_THREADS="1")
@@ -87,11 +89,11 @@ class Api:
 
 
 class Worker:
-    """A ``ctp worker`` process; ``kill`` is a SIGKILL, as when a machine dies."""
+    """A ``ctp worker`` process (in ``cwd``); ``kill`` is a SIGKILL, as when a machine dies."""
 
-    def __init__(self, env: dict[str, str], log_path: Path):
+    def __init__(self, env: dict[str, str], log_path: Path, cwd: Path = REPO):
         self.log = open(log_path, "ab")  # noqa: SIM115 - closed in stop()
-        self.process = subprocess.Popen([sys.executable, "-m", "ctp", "worker"], env=env, cwd=REPO,
+        self.process = subprocess.Popen([sys.executable, "-m", "ctp", "worker"], env=env, cwd=cwd,
                                         stdout=self.log, stderr=subprocess.STDOUT)
 
     def kill(self) -> None:
@@ -103,7 +105,60 @@ class Worker:
         self.log.close()
 
 
-def park_worker(env: dict[str, str], models: dict[str, str | None] | None = None, lease_s: int = 120):
+@dataclass(frozen=True)
+class S3Server:
+    """A real S3-protocol server on loopback (``s3_server``) and the one bucket the tests use."""
+
+    url: str
+    bucket: str
+    credentials: dict[str, str]  # the standard AWS variables, as a deployment would set them
+
+    def env(self, env: dict[str, str], **settings) -> dict[str, str]:
+        """``env`` (``service_env``'s) with its uploads and results in this store, under its key prefix."""
+        return {**env, **self.credentials, "CTP_STORAGE": "s3", "CTP_S3_BUCKET": self.bucket,
+                "CTP_S3_ENDPOINT_URL": self.url, "CTP_S3_PREFIX": f"{env['CTP_KEY_PREFIX']}/",
+                **{f"CTP_{k.upper()}": str(v) for k, v in settings.items()}}
+
+    def client(self):
+        import boto3
+
+        return boto3.client("s3", endpoint_url=self.url, aws_access_key_id=self.credentials["AWS_ACCESS_KEY_ID"],
+                            aws_secret_access_key=self.credentials["AWS_SECRET_ACCESS_KEY"], region_name="us-east-1")
+
+
+@pytest.fixture(scope="session")
+def s3_server(tmp_path_factory):
+    """moto's standalone S3 server (a real HTTP server speaking the S3 protocol) in its own process on a free
+    loopback port, with one bucket; the test process gets its credentials in the standard variables."""
+    pytest.importorskip("moto.server", reason="moto[server] (a dev dependency) is not installed")
+    port = free_port()
+    log = open(tmp_path_factory.mktemp("moto") / "moto.log", "wb")  # noqa: SIM115 - closed below
+    process = subprocess.Popen([sys.executable, "-m", "moto.server", "-H", "127.0.0.1", "-p", str(port)],
+                               stdout=log, stderr=subprocess.STDOUT)
+    credentials = {"AWS_ACCESS_KEY_ID": "ctp-test", "AWS_SECRET_ACCESS_KEY": "ctp-test-secret",
+                   "AWS_DEFAULT_REGION": "us-east-1", "AWS_EC2_METADATA_DISABLED": "true"}
+    server = S3Server(f"http://127.0.0.1:{port}", "ctp-test", credentials)
+
+    def up() -> bool:
+        try:
+            return httpx.get(server.url, timeout=1).status_code < 500
+        except httpx.TransportError:
+            return process.poll() is not None  # died: stop waiting, the bucket creation says why
+
+    try:
+        wait_for(up, 30, "moto's S3 server to answer", interval_s=0.1)
+        server.client().create_bucket(Bucket=server.bucket)
+        with pytest.MonkeyPatch.context() as patch:
+            for name, value in credentials.items():
+                patch.setenv(name, value)
+            yield server
+    finally:
+        stop_processes([process], grace_s=5)
+        log.close()
+
+
+def park_worker(env: dict[str, str], models: dict[str, str | None] | None = None, lease_s: int = 120,
+                queues: list[str] | None = None):
     """A live worker as the API sees it (its heartbeat, written by ``Jobs.heartbeat`` like a real worker's)
     with no rq consumer behind it: jobs submitted meanwhile are accepted and stay queued. Returns the
     function that makes it leave."""
@@ -113,9 +168,9 @@ def park_worker(env: dict[str, str], models: dict[str, str | None] | None = None
     from service.storage import RedisStorage
 
     client = redis.Redis.from_url(env["REDIS_URL"])
-    queue, name = env["CTP_QUEUE"], f"parked-{os.getpid()}"
-    jobs = Jobs(client, RedisStorage(client, queue, 600), prefix=queue, ttl_s=600, job_timeout_s=60, lease_s=lease_s)
-    jobs.heartbeat(name, None, {env["CTP_MODEL"]: None} if models is None else models)
+    prefix, name = env["CTP_KEY_PREFIX"], f"parked-{os.getpid()}"
+    jobs = Jobs(client, RedisStorage(client, prefix, 600), prefix=prefix, ttl_s=600, job_timeout_s=60, lease_s=lease_s)
+    jobs.heartbeat(name, None, {env["CTP_MODEL"]: None} if models is None else models, queues)
 
     def leave() -> None:
         jobs.worker_gone(name)
@@ -141,7 +196,7 @@ def wait_ready(api: Api, workers: int = 1, timeout_s: float = 90) -> None:
              f"{workers} worker(s) on /readyz", interval_s=0.25)
 
 
-# A service test module defines a module-scoped ``env`` fixture (its Redis queue and settings); these
+# A service test module defines a module-scoped ``env`` fixture (its key prefix and settings); these
 # two then give it a uvicorn API and one worker process for the module's duration.
 @pytest.fixture(scope="module")
 def api(env):

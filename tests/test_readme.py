@@ -135,7 +135,7 @@ def test_priors_needs_no_prompt(capsys):
 def test_every_setting_is_in_the_settings_table_once():
     from service.settings import Settings
 
-    rows = [row for text in PAGES.values() for row in re.findall(r"^\| `((?:CTP_)?[A-Z_]+)` \|", text, re.M)]
+    rows = [row for text in PAGES.values() for row in re.findall(r"^\| `((?:CTP_)?[A-Z0-9_]+)` \|", text, re.M)]
     names = ["REDIS_URL" if n == "redis_url" else f"CTP_{n.upper()}" for n in Settings.model_fields]
     assert sorted(rows) == sorted(names), "the settings table (docs/service.md) and service/settings.py disagree"
 

@@ -186,6 +186,8 @@ BAD_INPUTS = {
     "unknown preset": (dict(options={"preset": "turbo"}), 422, "invalid_option", "options.preset"),
     "model not served": (dict(options={**FAST, "model": "hf:someone/huge"}), 422, "invalid_option", "options.model"),
     "options not an object": (dict(options=[1, 2]), 400, "invalid_options", "options"),
+    "queue not a queue name": (dict(options={**FAST, "queue": "GPU 2"}), 422, "invalid_option", "options.queue"),
+    "queue not a string": (dict(options={**FAST, "queue": 1}), 422, "invalid_option", "options.queue"),
     "unknown form field": (dict(colour="red"), 400, "unknown_field", "colour"),
 }
 
@@ -292,7 +294,7 @@ def test_readyz_lists_the_models_a_worker_can_run(api, worker):
     answer = api.client.get("/readyz")
     assert answer.status_code == 200
     assert answer.json() == {"status": "ready", "redis": True, "workers": 1, "models": ["random:tiny"],
-                             "since_s": None}
+                             "queues": {"default": ["random:tiny"]}, "since_s": None}
 
 
 def test_end_to_end_with_progress_events(api, worker):

@@ -223,7 +223,7 @@ def test_the_time_limit_scales_with_the_stages(private_redis):
         record = jobs.submit(JobRecord(id=new_id(), owner="me", created_at=now(), kind="assemble", steps=steps,
                                        config=AlignConfig()),
                              {"target": b"b", **{f"source-{i}": b"s" for i in range(3)}}, 5)
-        assert jobs.queue.fetch_job(record.id).timeout == 300
+        assert jobs.rq_queue().fetch_job(record.id).timeout == 300
         assert record.inputs()[:3] == ["target", "source-0", "image-0"]
         jobs.cancel(record.id)
         assert jobs.storage.get(record.id, "source-2") is None  # an assembly's inputs are dropped too

@@ -79,6 +79,18 @@ def test_a_live_worker_decides_over_the_last_seen_ones(jobs):
     assert sorted(jobs.seen_workers()) == ["a", "b"]
 
 
+def test_a_queue_whose_workers_restart_keeps_accepting_while_other_queues_are_live(jobs):
+    jobs.heartbeat("g", None, {"random:tiny": None}, ["gpu"])
+    jobs.heartbeat("c", None, {"random:tiny": None})
+    jobs.worker_gone("g")  # the only gpu worker restarts; the default queue's is live
+    assert list(jobs.live_workers()) == ["c"]
+    assert jobs.unavailable("random:tiny", queue="gpu") is None  # judged by the gpu worker seen within the grace
+    assert jobs.unavailable("hf:big", queue="gpu").message == (
+        "no recently seen worker of queue 'gpu' (none is live now) can run model 'hf:big': no recently seen worker "
+        "of queue 'gpu' offers it")
+    assert jobs.unavailable(None, queue="tpu").code == "queue_not_served"
+
+
 def test_past_the_grace_no_worker_again_and_records_are_forgotten(private_redis):
     jobs = jobs_with_grace(private_redis.url, f"grace-{uuid.uuid4().hex[:8]}", lease_s=1, grace_s=3)
     jobs.heartbeat("a", None, {"random:tiny": None})
@@ -108,7 +120,7 @@ def test_readyz_restarting_then_no_worker_after_the_grace(private_redis):
     worker has been seen for longer than the grace, 503 no_worker for both."""
     env = service_env(private_redis.url, f"grace-api-{uuid.uuid4().hex[:6]}")
     api = Api(env)
-    jobs = jobs_with_grace(private_redis.url, env["CTP_QUEUE"], lease_s=2, grace_s=4)
+    jobs = jobs_with_grace(private_redis.url, env["CTP_KEY_PREFIX"], lease_s=2, grace_s=4)
     try:
         jobs.heartbeat("w", None, {"random:tiny": None})  # what a worker's heartbeat writes
         code, body = readyz(api)

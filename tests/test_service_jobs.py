@@ -34,7 +34,7 @@ def test_submit_stores_inputs_record_and_rq_job(jobs):
     record = queued(jobs)
     assert jobs.get(record.id).status == "queued"
     assert jobs.storage.get(record.id, "target") == b"t"
-    assert jobs.queue.get_job_ids() == [record.id]
+    assert jobs.rq_queue().get_job_ids() == [record.id]
     assert 0 < jobs.redis.ttl(f"{jobs.prefix}:job:{record.id}") <= 600
 
 
@@ -42,7 +42,7 @@ def test_cancel_wins_over_a_later_pickup(jobs):
     record = queued(jobs)
     assert jobs.cancel(record.id).status == "canceled"
     assert jobs.start(record.id, "w1") is None  # the worker skips it
-    assert jobs.queue.get_job_ids() == []
+    assert jobs.rq_queue().get_job_ids() == []
     assert jobs.storage.get(record.id, "target") is None  # inputs dropped
 
 
@@ -110,7 +110,9 @@ def test_reaper_fails_jobs_whose_lease_lapsed_and_spares_live_ones(jobs):
 def test_live_workers_are_those_with_current_leases_only(jobs):
     jobs.heartbeat("a", None)
     jobs.heartbeat("b", None, {"random:tiny": None})
-    assert jobs.live_workers() == {"a": {}, "b": {"random:tiny": None}}
+    live = jobs.live_workers()
+    assert {name: offer.models for name, offer in live.items()} == {"a": {}, "b": {"random:tiny": None}}
+    assert [offer.queues for offer in live.values()] == [["default"], ["default"]]  # a heartbeat's default
     jobs.worker_gone("a")
     assert list(jobs.live_workers()) == ["b"]
     time.sleep(1.2)  # lease_s = 1
@@ -130,7 +132,23 @@ def test_unavailable_says_no_worker_then_which_model_is_missing(jobs):
     assert sorted(jobs.live_workers()) == ["a", "b"]
     jobs.worker_gone("a")
     assert jobs.unavailable("random:tiny").code == "model_unavailable"  # the one worker that had it left
-    assert not jobs.redis.exists(f"{jobs.prefix}:models:a")
+    assert not jobs.redis.exists(f"{jobs.prefix}:offer:a")
+
+
+def test_named_queues_are_judged_by_their_own_workers_and_route_jobs(jobs):
+    jobs.heartbeat("g", None, {"hf:big": None, "random:tiny": "no GPU model here"}, ["gpu"])
+    jobs.heartbeat("c", None, {"random:tiny": None})  # the default queue
+    assert jobs.unavailable("random:tiny") is None and jobs.unavailable("hf:big", queue="gpu") is None
+    assert jobs.unavailable("hf:big").code == "model_unavailable"  # the default queue's workers cannot run it
+    assert jobs.unavailable("random:tiny", queue="gpu").message == (
+        "no live worker of queue 'gpu' can run model 'random:tiny': no GPU model here")
+    refused = jobs.unavailable(None, queue="tpu")
+    assert (refused.code, refused.field) == ("queue_not_served", "options.queue")
+    assert "served now: default, gpu" in refused.message and "CTP_QUEUES=tpu" in refused.message
+    record = JobRecord(id=new_id(), owner="me", created_at=now(), prompt="p", config=AlignConfig(), queue="gpu")
+    jobs.submit(record, {"target": b"t", "source": b"s"}, 10)
+    assert jobs.rq_queue("gpu").name == f"{jobs.prefix}:gpu"  # namespaced: deployments sharing a Redis stay apart
+    assert (jobs.rq_queue("gpu").get_job_ids(), jobs.rq_queue().get_job_ids()) == ([record.id], [])
 
 
 def test_active_job_cap_is_per_owner_and_self_heals(jobs):
@@ -178,6 +196,19 @@ def test_settings_read_comma_lists_and_redis_url(monkeypatch):
     assert settings.redis_url == "redis://h:1/2"
     assert settings.api_keys == ["a", "b", "c"]
     assert settings.allowed_models == [settings.model, "random:tiny"]
+    assert (settings.key_prefix, settings.served_queues, settings.storage_backend) == ("ctp", ["default"], "redis")
+
+
+def test_queue_settings_and_the_old_queue_variable(monkeypatch):
+    monkeypatch.setenv("CTP_QUEUE", "old")  # before named queues: rq queue and key prefix; now the prefix
+    monkeypatch.setenv("CTP_QUEUES", "gpu, default,gpu")
+    settings = Settings()
+    assert (settings.key_prefix, settings.served_queues) == ("old", ["gpu", "default"])
+    monkeypatch.setenv("CTP_KEY_PREFIX", "new")
+    assert Settings().key_prefix == "new"
+    monkeypatch.setenv("CTP_QUEUES", "gpu,GPU 2")
+    with pytest.raises(ValueError, match="'GPU 2'"):
+        Settings()
 
 
 def test_the_worker_preloads_the_guide_its_jobs_get(monkeypatch):

@@ -97,7 +97,7 @@ def test_a_job_the_worker_cannot_serve_fails_when_it_is_taken(api, live_worker, 
     accepted = submit(api, options={"preset": "test", "lambda_clip": 0, "model": ONNX})
     assert accepted.status_code == 202, accepted.text
     client = redis.Redis.from_url(env["REDIS_URL"])
-    jobs = Jobs(client, RedisStorage(client, env["CTP_QUEUE"], 600), prefix=env["CTP_QUEUE"], ttl_s=600,
+    jobs = Jobs(client, RedisStorage(client, env["CTP_KEY_PREFIX"], 600), prefix=env["CTP_KEY_PREFIX"], ttl_s=600,
                 job_timeout_s=60, lease_s=5)
     try:
         config = build_config({"preset": "test", "lambda_clip": 0, "model": ONNX}, default_model=MISSING,

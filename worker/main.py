@@ -1,13 +1,14 @@
-"""One worker process: an rq ``SimpleWorker`` plus a heartbeat thread.
+"""One worker process: an rq ``SimpleWorker`` on the named queues it serves (``CTP_QUEUES``) plus a heartbeat
+thread. It needs only the Redis URL and the storage settings: nothing on its disk is shared with the API.
 
 ``SimpleWorker`` runs jobs in this process instead of forking a child per job, so the vision-language
 model loaded at start-up (``guidance.get_guide`` caches it per process) serves every job, and torch
-never has to survive a fork. The heartbeat thread keeps this worker visible to ``/readyz`` with the
-models it can run (checked once at start: the default loaded, the others' weights looked for; a "last
-seen" record keeps them counted for ``CTP_WORKER_GRACE_S`` after the worker dies or exits, so jobs are
-still accepted while it is restarted, ``service.jobs``), holds the
-lease of the running job (lapsed lease: the API's reaper fails the job with ``worker_lost``) and
-republishes progress when the optimiser has been quiet for a while.
+never has to survive a fork. The heartbeat thread keeps this worker visible to ``/readyz`` with its
+queues and the models it can run (checked once at start: the default loaded, the others' weights looked for;
+a "last seen" record keeps them counted for ``CTP_WORKER_GRACE_S`` after the worker dies or exits, so jobs
+are still accepted while it is restarted, ``service.jobs``), holds the lease of the running job (lapsed
+lease: the API's reaper fails the job with ``worker_lost``) and republishes progress when the optimiser has
+been quiet for a while.
 """
 
 from __future__ import annotations
@@ -37,10 +38,10 @@ class Heartbeat(threading.Thread):
     """Refresh this worker's and its job's leases; keep a running job's progress fresh."""
 
     def __init__(self, jobs: Jobs, name: str, period_s: float, progress_every_s: float,
-                 models: dict[str, str | None] | None = None):
+                 models: dict[str, str | None] | None = None, queues: list[str] | None = None):
         super().__init__(name="ctp-heartbeat", daemon=True)
         self.jobs, self.worker, self.period_s, self.progress_every_s = jobs, name, period_s, progress_every_s
-        self.models = models or {}
+        self.models, self.queues = models or {}, queues
         self._stop_event = threading.Event()
         self._lock = threading.Lock()
         self.job_id: str | None = None
@@ -50,7 +51,7 @@ class Heartbeat(threading.Thread):
     def run(self) -> None:
         while not self._stop_event.is_set():
             try:
-                self.jobs.heartbeat(self.worker, self.job_id, self.models)
+                self.jobs.heartbeat(self.worker, self.job_id, self.models, self.queues)
                 self._refresh_progress()
             except RedisError as exc:  # Redis restarting: keep beating, the next one may land
                 log.warning("heartbeat failed: %s", exc, extra={"worker": self.worker})
@@ -123,15 +124,17 @@ def run_worker(settings: Settings, *, burst: bool = False, name: str | None = No
     name = name or f"{socket.gethostname()}.{os.getpid()}"
     jobs = Jobs.from_settings(settings)
     models = _preload(settings)
-    beat = Heartbeat(jobs, name, settings.heartbeat_s, settings.progress_every_s, models)
+    queues = settings.served_queues
+    beat = Heartbeat(jobs, name, settings.heartbeat_s, settings.progress_every_s, models, queues)
     loader = settings.mesh_loader(processes=1)
     _CONTEXT = WorkerContext(settings, jobs, name, beat, loader)
     beat.start()
     # rq gets a connection of its own: it raises the socket timeout above its blocking dequeue, which the
     # heartbeat thread's connections (redis-py's default timeout) must not share.
-    worker = SimpleWorker([settings.queue], connection=Redis.from_url(settings.redis_url), serializer=JSONSerializer,
-                          name=name)
-    log.info("worker ready", extra={"worker": name})
+    # Listed first, taken first: a worker serving "gpu,cpu" empties its gpu queue before taking a cpu job.
+    worker = SimpleWorker([jobs.rq_queue(q).name for q in queues], connection=Redis.from_url(settings.redis_url),
+                          serializer=JSONSerializer, name=name)
+    log.info("worker ready", extra={"worker": name, "queues": queues})
     try:
         worker.work(burst=burst, logging_level=settings.log_level.upper())
     finally:

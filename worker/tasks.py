@@ -29,6 +29,7 @@ from ctp_core.loader import MeshLoader
 from ctp_core.progress import ProgressEvent
 from service.jobs import JobError, JobRecord, Progress, Stage, Status
 from service.settings import MiB, Settings
+from service.storage import StorageUnavailable
 from worker.main import context, where
 
 log = logging.getLogger("ctp.worker")
@@ -116,6 +117,8 @@ def run_job(job_id: str) -> str:
         status, error = "canceled", JobError(code=exc.code, message="canceled while running")
     except CtpError as exc:
         error = JobError(**exc.to_dict())
+    except StorageUnavailable as exc:
+        error = JobError(code="storage_unavailable", message=str(exc))
     except JobTimeoutException:
         limit_s = ctx.settings.job_timeout_s * record.stage_count
         error = JobError(code="job_timeout", message=f"the job ran over {limit_s} s")

@@ -40,8 +40,9 @@ ASSEMBLE_BODY = {
                      "default the file stem), `on` (the placed object it relates to; default the last placed "
                      "one), `options` (AlignOptions of this stage, without preset and model)"},
             "options": {"type": "string", "contentMediaType": "application/json",
-                        "contentSchema": {"$ref": "#/components/schemas/AlignOptions"},
-                        "description": "JSON object of run options (AlignOptions) for every stage"},
+                        "contentSchema": {"$ref": "#/components/schemas/JobOptions"},
+                        "description": "JSON object of run options (JobOptions: AlignOptions for every stage, and "
+                        "the job's queue)"},
             **forms.WEBHOOK_PROPERTIES,
         },
     }}},
@@ -72,7 +73,7 @@ async def _assembly_job(request: Request, form, who: str, job_id: str) -> submit
     """The assembly a ``POST /assemble`` form asks for, checked: its record, uploads and every stage's config."""
     settings = request.app.state.settings
     plan = _plan(forms.text(form, "plan"), settings.max_stages)
-    options = forms.options(form)
+    options, queue = forms.job_options(form, settings.default_queue)
     config = build_config(options, default_model=settings.model, allowed_models=settings.allowed_models)
     sources = _parts(form, "source")
     images = _parts(form, "image")
@@ -131,7 +132,7 @@ async def _assembly_job(request: Request, form, who: str, job_id: str) -> submit
     record = JobRecord(id=job_id, owner=who, created_at=now(), kind="assemble", prompt=None,  # per stage: steps
                        has_image=any(s.has_image for s in steps), target_name=base_name, target_file=base_file,
                        source_name=steps[-1].name, source_file=steps[-1].file, steps=steps,
-                       config=config)
+                       config=config, queue=queue, downloads=settings.downloads)
     return record, blobs, configs
 
 

@@ -6,7 +6,7 @@ import redis
 from fastapi import APIRouter, Request
 
 from service.errors import documented, error_response
-from service.jobs import JobError
+from service.jobs import JobError, serving
 from service.schemas import Health, Ready
 
 router = APIRouter()
@@ -19,28 +19,33 @@ def healthz() -> Health:
 
 @router.get("/readyz", response_model=Ready, responses=documented(503),
             summary="A job submitted now can succeed: Redis answers and a worker can run the default model",
-            description="200 `ready` when a live worker can run the default model; 200 `restarting` (with "
-            "`since_s`) when no worker is live but one that could was seen within the grace "
-            "(`CTP_WORKER_GRACE_S`, e.g. a worker being restarted): jobs are accepted then and wait in the "
-            "queue until a worker is back. 503 with `redis_unavailable`, `no_worker` (no worker has been seen "
-            "for longer than the grace) or `model_unavailable` (no worker can run the default model, e.g. its "
-            "weights are not on the workers; the message says why). Jobs that need no model (`lambda_clip` 0) "
-            "may still be accepted then.")
+            description="200 `ready` when a live worker of the default queue can run the default model; 200 "
+            "`restarting` (with `since_s`) when no worker of the default queue is live but one that could was seen "
+            "within the grace (`CTP_WORKER_GRACE_S`, e.g. a worker being restarted): jobs are accepted then and "
+            "wait in the queue until a worker is back. 503 with `redis_unavailable`, `no_worker` (no worker has "
+            "been seen for longer than the grace), `queue_not_served` (workers are live, but none serves the "
+            "default queue, `CTP_DEFAULT_QUEUE`) or `model_unavailable` (no worker can run the default model, "
+            "e.g. its weights are not on the workers; the message says why). Jobs that need no model "
+            "(`lambda_clip` 0), or that ask for another queue, may still be accepted then.")
 def readyz(request: Request):
     jobs, settings = request.app.state.jobs, request.app.state.settings
     try:
         live = jobs.live_workers()  # a Redis round trip: it raises when Redis does not answer
-        seen = None if live else jobs.seen_workers()
+        seen = jobs.seen_workers()
         problem = jobs.unavailable(settings.model, what="the default model (CTP_MODEL)", field=None, live=live,
                                    seen=seen)
     except redis.exceptions.RedisError:
         return error_response(503, JobError(code="redis_unavailable", message="Redis does not answer"))
     if problem is not None:
         return error_response(503, problem)
-    if live:
-        return Ready(status="ready", redis=True, workers=len(live), models=_runnable(live.values()))
-    return Ready(status="restarting", redis=True, workers=0, models=_runnable(s.models for s in seen.values()),
-                 since_s=min(s.since_s for s in seen.values()))
+    # Each queue as the submits judge it: by its live workers, else by those seen within the grace.
+    names = sorted({queue for offer in [*live.values(), *seen.values()] for queue in offer.queues})
+    queues = {name: _runnable((serving(live, name) or serving(seen, name)).values()) for name in names}
+    models = queues[settings.default_queue]
+    if serving(live, settings.default_queue):
+        return Ready(status="ready", redis=True, workers=len(live), models=models, queues=queues)
+    since_s = min(s.since_s for s in seen.values() if settings.default_queue in s.queues)
+    return Ready(status="restarting", redis=True, workers=len(live), models=models, queues=queues, since_s=since_s)
 
 
 def _runnable(offers) -> list[str]:

@@ -8,7 +8,7 @@ import logging
 import redis.asyncio as aioredis
 from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import StreamingResponse
+from fastapi.responses import RedirectResponse, StreamingResponse
 
 from service import forms
 from service import submit as submit_
@@ -22,6 +22,9 @@ log = logging.getLogger("ctp.service")
 
 SSE_KEEPALIVE_S = 10.0
 JOBS_PAGE_MAX = 100
+REDIRECT = {307: {"description": "the job's `links.downloads` is `redirect`: the file is at the `Location`, a "
+                  "presigned URL of the object store valid `CTP_S3_PRESIGN_S` seconds (it needs no "
+                  "Authorization header)"}}
 
 router = APIRouter()
 
@@ -47,7 +50,7 @@ async def _align_job(request: Request, form, who: str, job_id: str) -> submit_.B
     """The alignment a ``POST /align`` form asks for, checked: its record, uploads and config."""
     settings = request.app.state.settings
     prompt, image = forms.prompt_and_image(form)
-    options = forms.options(form)
+    options, queue = forms.job_options(form, settings.default_queue)
     config = build_config(options, default_model=settings.model, allowed_models=settings.allowed_models)
     blobs: dict[str, bytes] = {}
     files: dict[str, str] = {}
@@ -73,7 +76,7 @@ async def _align_job(request: Request, form, who: str, job_id: str) -> submit_.B
         target_name=forms.object_name(form, "target", on or files["target"]),
         source_name=forms.object_name(form, "source", files["source"]),
         target_file=files["target"], source_file=files["source"], config=config,
-        target_job=target_job, on=on,
+        target_job=target_job, on=on, queue=queue, downloads=settings.downloads,
     )
     return record, blobs, [config]
 
@@ -129,14 +132,21 @@ def _add_output_route(name: str, media_type: str) -> None:
         record = await own_job(request, job_id, who)
         if record.status != "succeeded":
             raise ApiError(409, "job_not_ready", f"job {job_id} is {record.status}; results exist once it succeeded")
-        data = await run_in_threadpool(request.app.state.jobs.storage.get, job_id, name)
+        storage, presign_s = request.app.state.jobs.storage, request.app.state.settings.s3_presign_s
+        filename = f"{job_id}-{name}"
+        if record.downloads == "redirect" and presign_s:  # what the job's links promised, while still configured
+            url = await run_in_threadpool(storage.url, job_id, name, presign_s, media_type=media_type,
+                                          filename=filename)
+            if url is not None:
+                return RedirectResponse(url, status_code=307)
+        data = await run_in_threadpool(storage.get, job_id, name)
         if data is None:
             raise ApiError(404, "job_not_found", f"the results of job {job_id} have expired")
         return Response(data, media_type=media_type,
-                        headers={"Content-Disposition": f'attachment; filename="{job_id}-{name}"'})
+                        headers={"Content-Disposition": f'attachment; filename="{filename}"'})
 
     router.add_api_route(f"/jobs/{{job_id}}/{name}", download, methods=["GET"], response_class=Response,
-                         responses={**binary(media_type, name), **documented(401, 404, 409)},
+                         responses={**binary(media_type, name), **REDIRECT, **documented(401, 404, 409)},
                          operation_id=f"download_{name.replace('.', '_')}", summary=f"Download {name}")
 
 
