@@ -162,13 +162,11 @@ def rank_key(terms: dict[str, torch.Tensor], weights: Phase, *, guide_key: torch
 
 
 def combine(terms: dict[str, torch.Tensor], weights: Phase) -> torch.Tensor:
-    """The weighted sum, one value per pose: the only place the weights meet the terms (``rel``, ``stable`` and
-    ``centred`` count where present: the relation's, ``Scorer.relation_terms``)."""
+    """The weighted sum, one value per pose: the only place the weights meet the terms (``rel`` and ``stable``
+    count where present: the relation's, ``Scorer.relation_terms``)."""
     out = weights.lambda_clip * terms["clip"] + weights.lambda_icp * terms["icp"] + weights.lambda_pen * terms["pen"]
     if weights.lambda_rel and "rel" in terms:
-        zeros = torch.zeros_like(out)
-        relation = terms["rel"] + terms.get("stable", zeros) + predicates.CENTRED * terms.get("centred", zeros)
-        out = out + weights.lambda_rel * relation
+        out = out + weights.lambda_rel * (terms["rel"] + terms.get("stable", torch.zeros_like(out)))
     return out
 
 
@@ -227,20 +225,16 @@ class Scorer:
         """``rel``: how far each pose is from the prompt's relation (``predicates.relation_score``, figure
         diagonals, 0 where it holds); ``stable``: its centre of mass off its support (``predicates.stable``), for
         the relations that rest on something besides the resting ones (``on``, ``stand``, ... include it in
-        their score already); ``centred``: its distance from the ground's middle (``predicates.centred``), for
-        the relations that do not say where on, in or under; zeros without a relation. Differentiable (a
-        refinement term)."""
+        their score already); zeros without a relation. Differentiable (a refinement term)."""
         zeros = torch.zeros(len(poses), device=poses.t.device)
         if self.relation is None:
-            return {"rel": zeros, "stable": zeros, "centred": zeros}
+            return {"rel": zeros, "stable": zeros}
         with self.clock.time("relation"):
             rel = predicates.relation_score(self.pair, poses, self.relation, self.source_is_figure)
-            steady = middle = zeros
+            steady = zeros
             if self.relation in predicates.STABLE_RELATIONS and self.relation not in predicates.RESTING:
                 steady = predicates.stable(self.pair, poses, self.source_is_figure)
-            if self.relation in predicates.CENTRED_RELATIONS:
-                middle = predicates.centred(self.pair, poses, self.source_is_figure)
-        return {"rel": rel, "stable": steady, "centred": middle}
+        return {"rel": rel, "stable": steady}
 
     def embed_goal(self, cameras: Cameras) -> torch.Tensor:
         """The goal's embeddings for these cameras; a per-view goal (the oracle) encodes one image per view."""

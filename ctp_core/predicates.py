@@ -50,12 +50,10 @@ HANG_DROP = 0.05  # "hang": the centre of mass at least this far below the conta
 WEAR_CENTRE = 0.5  # "wear": the ground's summit within this many figure half-widths of the centre's column
 PENETRATE = (0.02, 0.9)  # "penetrate": the share of the figure inside the ground, in this open range
 WRAP_SHARE = 0.3  # "wrap": at least this share of the figure touching (the relation table's contact is 0.6)
-CENTRED = 0.1  # weight of ``centred`` beside the relation's score: a preference, never part of the verdict
 FAR = 1.0  # a condition that has nothing to measure against (no overhead surface at all): a whole diagonal
 
 RESTING = ("on", "stand", "sit", "lie")
 STABLE_RELATIONS = (*RESTING, "in", "under", "beside", "lean", "wear")  # where ``stable`` applies
-CENTRED_RELATIONS = (*RESTING, "in", "under")  # where ``centred`` applies: the ground has a middle to prefer
 RELATION_NAMES: tuple[str, ...] = tuple(RELATIONS)
 
 
@@ -570,21 +568,6 @@ def stable(pair: PreparedPair, poses: Poses, source_is_figure: bool = True) -> t
     does not face down, or the floor. Differentiable in ``poses``; ``holds`` gives the verdict."""
     figure, ground, floor = _roles(pair, poses, source_is_figure)
     return _stability(_Ctx(figure, ground, floor))
-
-
-def centred(pair: PreparedPair, poses: Poses, source_is_figure: bool = True) -> torch.Tensor:
-    """(B,) the figure's horizontal distance from the ground's centre (the mean of its area-weighted samples), in
-    *ground* diagonals: 0 in the middle, about 0.35 at a table's corner.
-
-    A preference, not part of any relation: "on", "in" and "under" hold anywhere over, in or under the ground,
-    and the geometry alone then has nothing to choose by (a cup on any spot of a table top touches and is
-    stable). Where nothing else says where, the middle is what people mean and what arrangements show (of the
-    dev references that rest on, in or under their ground, most have their centre within a tenth of the
-    ground's half-width of its middle; docs/relations.md). Differentiable in ``poses``."""
-    figure, ground, _ = _roles(pair, poses, source_is_figure)
-    side = ground.side
-    offset = (figure.centre[:, [0, 2]] - side.centre[:, [0, 2]]).norm(dim=-1)
-    return offset / side.diagonal
 
 
 def verdict(pair: PreparedPair, pose: Poses | np.ndarray, relation: str | None, source_is_figure: bool = True

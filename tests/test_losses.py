@@ -150,4 +150,3 @@ def test_holding_excludes_a_pose_that_intersects():
     terms = {"objective": torch.zeros(3), "rel": torch.tensor([0.0, 0.0, 0.5]),
              "sunk": torch.tensor([0.0, 2 * SUNK, 0.0])}
     assert holding(terms).tolist() == [True, False, False]
-

@@ -150,28 +150,3 @@ def test_an_assembly_judges_each_step_by_its_own_relation_on_its_own_object():
     verdicts = [(r.on, r.result.relation) for r in assembly.results]
     assert [(on, v["name"]) for on, v in verdicts] == [("table", "under"), ("ball", "wear")], verdicts
     assert all(v["holds"] for _, v in verdicts), verdicts
-
-
-def test_centred_prefers_the_middle_of_the_ground_and_leaves_the_verdict_alone():
-    """``predicates.centred``: 0 over the table's middle, growing toward its corner, in table diagonals; the
-    relation holds at both spots (a preference is not part of the verdict)."""
-    from test_predicates import pose, prepared
-
-    pair = prepared(table(), BALL)
-    middle, corner = pose([0, 1.25, 0]), pose([0.75, 1.25, 0.75])
-    values = [float(predicates.centred(pair, predicates.poses_of(pair.local_to_normalised(m)))[0])
-              for m in (middle, corner)]
-    diagonal = math.sqrt(2**2 + 1.05**2 + 2**2)  # the table's AABB diagonal (its samples' spread is a bit less)
-    assert values[0] < 0.01
-    assert values[1] == pytest.approx(0.75 * math.sqrt(2) / diagonal, rel=0.1)
-    for m in (middle, corner):
-        assert predicates.verdict(pair, pair.local_to_normalised(m), "on").holds
-
-
-def test_geometry_only_on_ends_near_the_middle():
-    """Without a guide nothing else says where on a table: the answer is within a ball's diagonal of the
-    middle, not at whichever edge the search happened to rank first."""
-    result = _align("a ball on the table")
-    centre = result.source.bounds.mean(0) @ result.source_to_target[:3, :3].T + result.source_to_target[:3, 3]
-    assert result.relation["holds"], result.relation
-    assert math.hypot(centre[0], centre[2]) < 2 * 0.2 * math.sqrt(3), centre
