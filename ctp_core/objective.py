@@ -76,6 +76,8 @@ def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: to
     Why not soft-ICP: at contact it measures how the samples fall, not contact (on cur-s01 with the pixels guide
     the restart refined onto the reference, guide term -0.999, lost to one a diagonal away, -0.996, by 0.004 of
     weighted soft-ICP); the search ranks its candidates by the guide the same way (``ranking.ranking_key``).
+    Penetration likewise counts only past ``SUNK``: at contact the two halves see a few samples a hair inside
+    (on cur-s01 with pixels, 3e-5, times lambda_pen 1000, outweighed the guide's 0.005 for the reference).
     ``clear`` and ``limit``: per pose, in source diagonals (``clearance``, ``touch_limit``).
     """
     key = terms["objective"]
@@ -87,7 +89,10 @@ def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: to
     if guided:
         fit = pool & ((clear <= limit) | (not touches))
         if fit.any():
-            pool, key = fit, combine({**terms, "icp": torch.zeros_like(key)}, weights)
+            pen = terms["pen"]
+            if "sunk" in terms:  # penetration counts where the pose intersects (``SUNK``), not at contact
+                pen = torch.where(terms["sunk"].to(pen.device) > SUNK, pen, torch.zeros_like(pen))
+            pool, key = fit, combine({**terms, "icp": torch.zeros_like(key), "pen": pen}, weights)
     key = torch.where(pool, key.double(), torch.full_like(key, torch.inf, dtype=torch.float64))
     ranked = rank_key({**terms, "objective": key}, weights, guide_key=key if guided else None,
                       override=override, share=share, geometric=key)

@@ -150,3 +150,16 @@ def test_an_assembly_judges_each_step_by_its_own_relation_on_its_own_object():
     verdicts = [(r.on, r.result.relation) for r in assembly.results]
     assert [(on, v["name"]) for on, v in verdicts] == [("table", "under"), ("ball", "wear")], verdicts
     assert all(v["holds"] for _, v in verdicts), verdicts
+
+
+def test_a_guided_selection_charges_penetration_only_where_a_pose_intersects():
+    """At contact the penetration halves see a few samples a hair inside (``sunk`` far under ``SUNK``): the guide
+    decides between two touching restarts there; past ``SUNK`` the penetration's weight counts again."""
+    terms = _terms([0.0, 0.0], [0.0, 0.0], clip=[-0.997, -0.992])
+    clear, limit = torch.zeros(2), torch.full((2,), objective.TOUCH)
+    pen = 0.05 / WEIGHTS.lambda_pen  # weighted, ten times the guide's difference
+    for sunk, chosen in ((0.1 * objective.SUNK, 0), (2 * objective.SUNK, 1)):
+        terms.update(pen=torch.tensor([pen, 0.0]), sunk=torch.tensor([sunk, 0.0]))
+        terms["objective"] = objective.combine(terms, WEIGHTS)
+        assert objective.select_answer(terms, clear, limit, WEIGHTS, guided=True, touches=True,
+                                       override=1.0) == chosen
