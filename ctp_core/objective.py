@@ -90,8 +90,8 @@ def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: to
         fit = pool & ((clear <= limit) | (not touches))
         if fit.any():
             pen = terms["pen"]
-            if "sunk" in terms:  # penetration counts where the pose intersects (``SUNK``), not at contact
-                pen = torch.where(terms["sunk"].to(pen.device) > SUNK, pen, torch.zeros_like(pen))
+            if "sunk" in terms:  # penetration counts where the pose intersects, not at contact
+                pen = torch.where(intersecting(terms).to(pen.device), pen, torch.zeros_like(pen))
             pool, key = fit, combine({**terms, "icp": torch.zeros_like(key), "pen": pen}, weights)
     key = torch.where(pool, key.double(), torch.full_like(key, torch.inf, dtype=torch.float64))
     ranked = rank_key({**terms, "objective": key}, weights, guide_key=key if guided else None,
@@ -134,12 +134,16 @@ def holding(terms: dict[str, torch.Tensor]) -> torch.Tensor:
     the pose does not intersect the target (``sunk`` at most ``SUNK``; 0 where penetration is allowed). Without
     the second rule a ball pulled into a mug's wall by "in" (its foot inside the hull, below the rim) outranked
     every clean pose beside the mug: intersecting is worse than the relation failing."""
-    held = torch.ones_like(terms["objective"], dtype=torch.bool)
-    if "rel" in terms:
-        held = predicates.holds(terms["rel"])
-    if "sunk" in terms:
-        held = held & (terms["sunk"].to(held.device) <= SUNK)
-    return held
+    held = predicates.holds(terms["rel"]) if "rel" in terms else torch.ones_like(terms["objective"], dtype=torch.bool)
+    return held & ~intersecting(terms).to(held.device)
+
+
+def intersecting(terms: dict[str, torch.Tensor]) -> torch.Tensor:
+    """(B,) bool: where the pose is sunk into the target past ``SUNK`` (nowhere without a ``sunk`` term)."""
+    sunk = terms.get("sunk")
+    if sunk is None:
+        return torch.zeros_like(terms["objective"], dtype=torch.bool)
+    return sunk > SUNK
 
 
 def rank_key(terms: dict[str, torch.Tensor], weights: Phase, *, guide_key: torch.Tensor | None = None,
