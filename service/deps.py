@@ -16,7 +16,7 @@ from fastapi.concurrency import run_in_threadpool
 
 from ctp_core.config import AlignConfig
 from service.errors import ApiError
-from service.jobs import JobError, JobRecord, Jobs, TooManyJobs
+from service.jobs import JobError, JobRecord, Jobs, TooManyJobs, serving
 
 _JOB_ID = re.compile(r"[0-9a-f]{32}")
 
@@ -70,10 +70,11 @@ async def enqueue(request: Request, record: JobRecord, blobs: dict[str, bytes],
 
 
 def _unavailable(jobs: Jobs, models: set[str], queue: str) -> JobError | None:
-    """The first reason a job on ``queue`` needing ``models`` cannot run (live workers read once)."""
+    """The first reason a job on ``queue`` needing ``models`` cannot run (the workers read once, not per model)."""
     live = jobs.live_workers()
+    seen = None if serving(live, queue) else jobs.seen_workers()  # needed only when no live worker serves it
     for model in sorted(models) or [None]:  # None: a worker at all
-        unavailable = jobs.unavailable(model, queue=queue, live=live)
+        unavailable = jobs.unavailable(model, queue=queue, live=live, seen=seen)
         if unavailable is not None:
             return unavailable
     return None

@@ -211,6 +211,11 @@ def serving(workers: dict[str, Offer], queue: str) -> dict[str, dict[str, str | 
     return {name: offer.models for name, offer in workers.items() if queue in offer.queues}
 
 
+def served_queues(*workers: dict[str, Offer]) -> list[str]:
+    """Every queue the given workers (live, seen) serve, sorted."""
+    return sorted({queue for group in workers for offer in group.values() for queue in offer.queues})
+
+
 def parse_record(raw: bytes | str | None) -> JobRecord | None:
     """A stored record, as read from its key or its events channel (None: unknown or expired)."""
     return None if raw is None else JobRecord.model_validate_json(raw)
@@ -589,7 +594,7 @@ class Jobs:
                                 "(`ctp serve` without REDIS_URL starts one) or wait until it is back")
             judged = serving(seen, queue)
             if not judged:
-                served = sorted({q for offer in [*live.values(), *seen.values()] for q in offer.queues})
+                served = served_queues(live, seen)
                 return JobError(code="queue_not_served", message=f"no worker serves queue {queue!r} (served now: "
                                 f"{', '.join(served)}): ask for one of those, or start workers with "
                                 f"CTP_QUEUES={queue}", field=field and "options.queue")

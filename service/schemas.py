@@ -15,7 +15,7 @@ from ctp_core.errors import ConfigError
 from ctp_core.options import AlignOptions, option_of, option_overrides
 from service.jobs import JobError, JobRecord, Progress, Status
 from service.settings import QUEUE_NAME
-from service.webhooks import Webhook
+from service.webhooks import Event, Webhook
 
 
 def build_config(options: dict[str, Any], *, default_model: str, allowed_models: list[str]) -> AlignConfig:
@@ -107,9 +107,8 @@ class JobOut(BaseModel):
 class WebhookPayload(BaseModel):
     """The body of a webhook delivery (Standard Webhooks' shape)."""
 
-    type: Literal["start", "progress", "completed"] = Field(description="the event: start (a worker took the "
-                                                             "job), progress, completed (succeeded, failed or "
-                                                             "canceled)")
+    type: Event = Field(description="the event: start (a worker took the job), progress, completed (succeeded, "
+                        "failed or canceled)")
     timestamp: datetime = Field(description="when the event happened (UTC)")
     data: JobOut = Field(description="the job as GET /jobs/{id} showed it right after the event")
 

@@ -22,14 +22,14 @@ import ipaddress
 import socket
 import time
 import uuid
-from typing import Literal
+from typing import Literal, get_args
 from urllib.parse import urlsplit
 
 from pydantic import BaseModel, Field
 from redis import Redis
 
 Event = Literal["start", "progress", "completed"]
-EVENTS: tuple[str, ...] = ("start", "progress", "completed")
+EVENTS: tuple[str, ...] = get_args(Event)
 DEFAULT_EVENTS: tuple[str, ...] = ("completed",)
 PROGRESS_EVERY_S = 1.0  # at most one progress event a second per job
 URL_MAX = 2048

@@ -6,7 +6,7 @@ import redis
 from fastapi import APIRouter, Request
 
 from service.errors import documented, error_response
-from service.jobs import JobError, serving
+from service.jobs import JobError, served_queues, serving
 from service.schemas import Health, Ready
 
 router = APIRouter()
@@ -39,7 +39,7 @@ def readyz(request: Request):
     if problem is not None:
         return error_response(503, problem)
     # Each queue as the submits judge it: by its live workers, else by those seen within the grace.
-    names = sorted({queue for offer in [*live.values(), *seen.values()] for queue in offer.queues})
+    names = served_queues(live, seen)
     queues = {name: _runnable((serving(live, name) or serving(seen, name)).values()) for name in names}
     models = queues[settings.default_queue]
     if serving(live, settings.default_queue):
