@@ -49,8 +49,8 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
                         help="output GLB (default scene.glb)")
     parser.add_argument("--report", type=Path, metavar="report.json", help="write the JSON report here")
     parser.add_argument("--preview", type=Path, metavar="preview.png", help="write a 4-view preview PNG here")
-    add_option(parser, "preset", "NAME", "default (search, then a short refinement) | descent | paper | test",
-               default="default")
+    add_option(parser, "preset", "NAME", "default (search, then a short refinement) | fast (the relation and the "
+               "geometry choose, the guide glances) | descent | paper | test", default="default")
     add_option(parser, "model", "SPEC", "guidance model: hf:REPO_OR_PATH, open_clip:ARCH:TAG, random:ARCH")
     add_switch(parser, "--scale", "scale", True, "optimise isotropic scale too")
     add_option(parser, "restarts", "N")
@@ -69,7 +69,8 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
     add_option(parser, "size_ratio", "S", "source/target size in [0.01, 100] (scale mode)")
     add_option(parser, "hparams_provider", "NAME", f"{' | '.join(PROVIDERS)} (default {PROVIDERS[0]})")
     parser.add_argument("--selection-only", action="store_true",
-                        help="reference-code behaviour: text picks the best pose but gives no gradient")
+                        help="the guide picks the best pose but gives no gradient (the default and fast presets "
+                             "already do; descent and paper descend it)")
     add_switch(parser, "--no-guidance", "lambda_clip", 0.0, "geometry only (lambda_clip = 0)")
     add_switch(parser, "--keep-up", "upright", False,
                "keep the target file's +Y as up (no automatic upright turn of the target)")

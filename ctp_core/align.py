@@ -198,6 +198,8 @@ def score(run: Run, proposals: Proposals, *, on_event: ProgressCallback | None =
                             should_cancel=should_cancel, phases=len(run.plan), started=run.started)
     run.timings["search_s"] = round(ranked.seconds, 3)
     run.timings["search_candidates"] = ranked.scored
+    if ranked.screened:  # the geometry's screen before the guide saw its shortlist
+        run.timings["search_screened"] = ranked.screened
     if run.scorer.relation is not None:
         run.timings["search_relation_holds"] = ranked.holding  # of the coarse and sweep candidates
     if ranked.gate is not None:  # the guide's spread over the candidates, its noise, how far it may override

@@ -69,6 +69,11 @@ class Cameras:
         up = None if self.up is None else self.up[lo:hi]
         return replace(self, eye=self.eye[lo:hi], at=self.at[lo:hi], fov_deg=self.fov_deg[lo:hi], up=up)
 
+    def take(self, index: Tensor) -> Cameras:
+        """Rows ``index`` (N,) of the batch, repeats allowed (each candidate the cameras of its group)."""
+        up = None if self.up is None else self.up[index]
+        return replace(self, eye=self.eye[index], at=self.at[index], fov_deg=self.fov_deg[index], up=up)
+
     def to(self, device: torch.device | str) -> Cameras:
         up = self.up.to(device) if self.up is not None else None
         return replace(self, eye=self.eye.to(device), at=self.at.to(device), fov_deg=self.fov_deg.to(device), up=up)

@@ -6,8 +6,9 @@ instead of threading keyword arguments through the layers.
 
 Presets:
 - ``paper``: the paper's budget (2000 steps, 8 views per step, 3 phases, 5 restarts).
-- ``default``: search, then a short refinement: a typical pair in about two minutes on a 2-core CPU
-  (docs/presets-and-search.md, "Presets").
+- ``default``: search, then a short refinement: the guide sees only what the relation and the geometry leave
+  possible; about 20 s a pair on a 2-core CPU (docs/presets-and-search.md, "Presets").
+- ``fast``: the relation and the geometry choose, the guide glances at a few candidates: interactive use.
 - ``descent``: the earlier default, local descent only from random starts (about ten minutes a pair).
 - ``test``: seconds; for CI and smoke tests (search included, tiny).
 """
@@ -102,11 +103,20 @@ class SearchConfig(_Strict):
     forward only, coarse to fine; its diverse best ``optim.restarts`` poses start the optimiser."""
 
     enabled: bool = Field(True, description="off: the optimiser starts from random poses (method.md Initialise)")
-    candidates: int = Field(144, ge=1, le=20000, description="contact proposals scored at the coarse stage")
+    candidates: int = Field(144, ge=1, le=20000, description="contact proposals made (and scored by the geometry)")
+    shortlist: int = Field(
+        0, ge=0, le=20000, description="with a guide, the proposals whose images it sees at the coarse stage, "
+        "chosen by the relation and the geometry (distinct places where the relation holds first, then a "
+        "``min_share`` of the others: ``ranking.encoder_shortlist``); 0: all of them"
+    )
     coarse_views: int = Field(2, ge=1, le=16, description="fixed views of the coarse stage, the same for all")
     coarse_image_size: int = Field(128, ge=32, le=1024, description="render size of the coarse stage")
     sweep: int = Field(2, ge=0, le=64, description="best distinct coarse sites re-tried with every source "
                        "orientation (at the coarse views)")
+    sweep_keep: int = Field(
+        0, ge=0, le=1000, description="of the sweep's turns, this many per site reach the guide, chosen as "
+        "``shortlist`` is; 0: all"
+    )
     fine: int = Field(24, ge=1, le=1000, description="best coarse candidates rescored at the fine stage")
     fine_views: int = Field(3, ge=1, le=16, description="views per candidate at the fine stage")
     fine_image_size: int = Field(160, ge=32, le=1024, description="render size of the fine stage")
@@ -273,16 +283,30 @@ PRESETS: dict[str, dict] = {
         "optim": {"steps": 2000, "phases": 3, "restarts": 5, "eval_every": 50, "init_rotation": "random"},
         "search": {"enabled": False},
     },
-    # Search then refine (under 2 min for a typical pair on a 2-core AVX2 CPU, fp32): the search's 6 best
-    # poses, already in contact, get a short low-resolution descent with small steps (they start near an
-    # answer), one random view per step (each step draws a new one; on an AVX2 CPU a gradient image costs ~2.6
-    # forward ones in ONNX Runtime: 203 vs 77 ms for ViT-B/32, docs/guidance.md).
+    # Search, then a short refinement: about 20 s a pair on a 2-core AVX2 CPU (fp32; docs/presets-and-search.md,
+    # measured with the oracle through random:ViT-B-32). The guide sees only what can be the answer: the 48
+    # proposals the relation and the geometry shortlist, 8 turns at each of the 2 best sites, the best 12 again
+    # at the fine views; then the geometry refines its 4 best poses (+1 from the tile stage) in 8 small steps and
+    # the guide chooses among them (selection only: in the pixels runs its gradient placed no more cases, and on
+    # an AVX2 CPU a gradient image costs ~2.6 forward ones, docs/guidance.md).
     "default": {
         "camera": {"views": 1, "image_size": 128, "zoom_last": 0.7},
-        "loss": {"samples": 2000},
-        "optim": {"steps": 12, "phases": 2, "restarts": 6, "eval_every": 6, "lr_translation": 0.01,
+        "loss": {"samples": 2000, "selection_only": True},
+        "optim": {"steps": 8, "phases": 2, "restarts": 4, "eval_every": 4, "lr_translation": 0.01,
                   "lr_rotation": 0.02},
+        "search": {"shortlist": 48, "sweep_keep": 8, "fine": 12, "tile_restarts": 1},
         "progress_every": 2,
+    },
+    # The page's first look and interactive use: the relation and the geometry choose; the guide sees 12
+    # proposals at the coarse views and 4 at the fine ones, and picks among 2 restarts refined by the geometry
+    # alone (no gradient images).
+    "fast": {
+        "camera": {"views": 1, "image_size": 128, "eval_views": 2},
+        "loss": {"samples": 2000, "selection_only": True},
+        "optim": {"steps": 4, "phases": 1, "restarts": 2, "eval_every": 4, "lr_translation": 0.01,
+                  "lr_rotation": 0.02},
+        "search": {"shortlist": 12, "sweep": 0, "fine": 4, "fine_views": 2, "tile_restarts": 0},
+        "progress_every": 1,
     },
     # The earlier default: local descent from random starts (~10 min for a typical pair on 2 cores).
     "descent": {

@@ -45,6 +45,7 @@ def _diagonal(pair: PreparedPair, poses: Poses) -> torch.Tensor:
     return 2 * pair.source_radius * poses.log_s.detach().cpu().exp()
 
 
+SCREEN_POINTS = 256  # ``Scorer.screen``: source samples of the geometric screen before the guide
 ENCLOSED_SAMPLES = 512  # target samples a pose's enclosed penetration looks at (its bounding sphere's nearest)
 TOUCH = 0.1  # source diagonals: a refined pose this close to the target touches it (plus the samples' spacing)
 
@@ -170,6 +171,14 @@ def rank_key(terms: dict[str, torch.Tensor], weights: Phase, *, guide_key: torch
     return key + TIER * (~pool).double()
 
 
+def goal_rows(goal_embeddings: torch.Tensor | None, lo: int, hi: int, shared: bool) -> torch.Tensor | None:
+    """The goal's embeddings for poses lo:hi: per-pose ones (N, C, D) sliced; those of shared cameras (1, C, D),
+    a fixed goal's (D,) or None as they are."""
+    if shared or goal_embeddings is None or goal_embeddings.dim() < 3:
+        return goal_embeddings
+    return goal_embeddings[lo:hi]
+
+
 def combine(terms: dict[str, torch.Tensor], weights: Phase) -> torch.Tensor:
     """The weighted sum, one value per pose: the only place the weights meet the terms (``rel`` and ``stable``
     count where present: the relation's, ``Scorer.relation_terms``)."""
@@ -196,12 +205,22 @@ class Scorer:
         self.clip_images = 0
         self._eval: tuple[Cameras, torch.Tensor] | None = None
 
-    def geometry(self, poses: Poses, weights: Phase) -> dict[str, torch.Tensor]:
+    @property
+    def guided(self) -> bool:
+        """Whether scoring encodes images: a guide, and one the search has not found without signal (``Gate``
+        override 0: its scores spread no more than its noise). Once it has, the guide ranks nothing (the geometry
+        does, ``rank_key``), so its images are not encoded: the rest of the search, the refinement's gradient and
+        the selection's views run on the geometry alone."""
+        return self.use_clip and (self.gate is None or self.gate.override > 0)
+
+    def geometry(self, poses: Poses, weights: Phase, points: int | None = None) -> dict[str, torch.Tensor]:
         """Soft-ICP and penetration (zero when the phase switches it off), the penetration in source diagonals
-        (``sunk``: what ``holding`` reads), the relation's terms and the posed centroid."""
+        (``sunk``: what ``holding`` reads), the relation's terms and the posed centroid. ``points``: on that many
+        of the source's samples (``PreparedPair.source_subset``) instead of all."""
         cfg = self.config.loss
+        samples = self.pair.source_samples if points is None else self.pair.source_subset(points)
         with self.clock.time("geometry"):
-            pts = apply_pose(self.pair.source_samples, poses.t, poses.q, poses.log_s)
+            pts = apply_pose(samples, poses.t, poses.q, poses.log_s)
             icp = losses.soft_icp(pts, self.pair.anchor, self.contact_ratio, weights.sigma_icp, cfg.icp_neighbours)
             if weights.lambda_pen > 0:
                 pen = losses.penetration(pts, self.pair.index, cfg.sigma_pen, cfg.c_pen, cfg.icp_neighbours)
@@ -210,6 +229,18 @@ class Scorer:
                 pen = torch.zeros_like(icp)
             sunk = pen.detach() / _diagonal(self.pair, poses).to(pen.device)
         return {"icp": icp, "pen": pen, "sunk": sunk, **self.relation_terms(poses), "centroid": pts.mean(dim=1)}
+
+    def screen(self, poses: Poses, weights: Phase) -> dict[str, torch.Tensor]:
+        """The geometry's terms and objective (``clip`` 0) on ``SCREEN_POINTS`` of the source's samples, forward
+        only: enough to tell where the relation holds and which poses intersect (the relation's own features are
+        fewer still), at a fraction of the cost. The search screens every proposal with it before the guide
+        sees any (``ranking.encoder_shortlist``)."""
+        with torch.inference_mode():
+            terms = self.geometry(poses, weights, points=SCREEN_POINTS)
+            del terms["centroid"]
+            terms["clip"] = torch.zeros_like(terms["icp"])
+            terms["objective"] = combine(terms, weights)
+        return {k: v.clone().cpu() for k, v in terms.items()}
 
     def enclosed(self, poses: Poses) -> torch.Tensor:
         """(B,) ``losses.enclosed_penetration``: the target samples within each posed source's bounding sphere
@@ -278,20 +309,22 @@ class Scorer:
         return value.detach()
 
     def score(self, poses: Poses, weights: Phase, cameras: Cameras, goal_embeddings: torch.Tensor | None = None,
-              batch: int | None = None) -> dict[str, torch.Tensor]:
+              batch: int | None = None, *, encode: bool = True) -> dict[str, torch.Tensor]:
         """Every term and the objective of ``poses`` on ``cameras``, forward only, ``batch`` poses per call.
 
         ``cameras`` are (1, C) shared by every pose (a per-view goal is then encoded once for all) or
-        (len(poses), C) per pose; ``goal_embeddings`` are the goal's, precomputed for shared cameras.
+        (len(poses), C) per pose; ``goal_embeddings`` are the goal's, precomputed: for shared cameras, or
+        (len(poses), C, D) per pose (poses that share cameras share their goal's images: the tile stage).
+        ``encode`` False (or a run not ``guided``): the geometry's terms only, ``clip`` 0, nothing rendered.
         """
         with torch.inference_mode():
-            out = self._score(poses, weights, cameras, goal_embeddings, batch)
+            out = self._score(poses, weights, cameras, goal_embeddings, batch, encode and self.guided)
         return {k: v.clone() for k, v in out.items()}  # normal tensors, usable outside inference mode
 
     def _score(self, poses: Poses, weights: Phase, cameras: Cameras, goal_embeddings: torch.Tensor | None,
-               batch: int | None) -> dict[str, torch.Tensor]:
+               batch: int | None, encode: bool) -> dict[str, torch.Tensor]:
         shared = cameras.fov_deg.shape[0] == 1
-        if self.use_clip and shared and goal_embeddings is None:
+        if encode and shared and goal_embeddings is None:
             goal_embeddings = self.embed_goal(cameras)
         step = batch or len(poses)
         parts: list[dict[str, torch.Tensor]] = []
@@ -299,10 +332,9 @@ class Scorer:
             chunk = poses.select(slice(lo, lo + step))
             terms = self.geometry(chunk, weights)
             del terms["centroid"]
-            if self.use_clip:
+            if encode:
                 cams = cameras.expand(len(chunk)) if shared else cameras.rows(lo, lo + step)
-                part = goal_embeddings if shared else None
-                terms["clip"] = self.clip_term(chunk, cams, part)
+                terms["clip"] = self.clip_term(chunk, cams, goal_rows(goal_embeddings, lo, lo + step, shared))
             else:
                 terms["clip"] = torch.zeros_like(terms["icp"])
             parts.append(terms)
@@ -316,17 +348,24 @@ class Scorer:
             origin = torch.zeros(1, 3, device=self.pair.source_vertices.device)
             cams = evaluation_views(origin, self.config.camera)
             goal_embeddings = None
-            if self.use_clip:
+            if self.guided:
                 with torch.inference_mode():
                     goal_embeddings = self.embed_goal(cams)
                 goal_embeddings = goal_embeddings.clone()
             self._eval = (cams, goal_embeddings)
         return self._eval
 
-    def evaluate(self, poses: Poses, weights: Phase) -> dict[str, torch.Tensor]:
-        """The selection objective on the fixed evaluation views, for any number of poses."""
+    def evaluate(self, poses: Poses, weights: Phase, clip: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """The selection objective on the fixed evaluation views, for any number of poses. ``clip``: the guide's
+        term of these poses on these views, already known (a phase starts from the poses the last one ended
+        with evaluated): only the geometry is computed again, under this phase's weights."""
         with self.clock.time("eval"):
             cams, goal_embeddings = self.evaluation_cameras()
-            return self.score(poses, weights, cams, goal_embeddings)
+            if clip is None:
+                return self.score(poses, weights, cams, goal_embeddings)
+            out = self.score(poses, weights, cams, encode=False)
+        out["clip"] = clip.clone()
+        out["objective"] = combine(out, weights)
+        return out
 
 

@@ -94,7 +94,7 @@ class Optimiser:
         self.should_cancel = should_cancel or (lambda: False)
         cfg = scorer.config
         self.generator = torch.Generator().manual_seed(cfg.seed)
-        self.clip_gradient = scorer.use_clip and not cfg.loss.selection_only
+        self.clip_gradient = scorer.guided and not cfg.loss.selection_only
         self.clock = scorer.clock
         self.total_steps = sum(p.steps for p in plan)
         self.done = 0
@@ -111,7 +111,7 @@ class Optimiser:
         for phase in self.plan:
             before, t0 = self.clock.mark(), time.perf_counter()
             self._emit("phase_start", phase, message=f"phase {phase.index}/{len(self.plan)}")
-            best, scores = self._phase(phase, best)
+            best, scores = self._phase(phase, best, scores.get("clip"))
             phase_timings.append(self.clock.since(before, t0))
             self._emit("phase_end", phase, best_objective=float(scores["objective"].min()))
         objectives = scores["objective"]
@@ -128,7 +128,9 @@ class Optimiser:
             phase_timings=phase_timings, clip_images=self.scorer.clip_images, steps_run=self.done,
         )
 
-    def _phase(self, phase: Phase, start: Poses) -> tuple[Poses, dict[str, torch.Tensor]]:
+    def _phase(self, phase: Phase, start: Poses, clip: torch.Tensor | None) -> tuple[Poses, dict[str, torch.Tensor]]:
+        """One phase from ``start`` (each restart's best so far); ``clip``: their guide's term on the evaluation
+        views, known when an earlier phase evaluated them (None in the first)."""
         cfg = self.scorer.config
         t = start.t.clone().requires_grad_(True)
         q = start.q.clone().requires_grad_(True)
@@ -141,7 +143,7 @@ class Optimiser:
         sched = torch.optim.lr_scheduler.CosineAnnealingWarmRestarts(
             opt, T_0=cfg.optim.cosine_t0, T_mult=cfg.optim.cosine_t_mult)
         best = start.detached()
-        scores = self.scorer.evaluate(best, phase)
+        scores = self.scorer.evaluate(best, phase, clip)
         for step in range(phase.steps):
             if self.should_cancel():
                 raise Canceled("the run was cancelled")

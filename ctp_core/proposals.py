@@ -89,6 +89,11 @@ class Proposals:
     rotations: torch.Tensor | None = None  # (R, 4) the source orientations the proposals were drawn from
     index: losses.SurfaceIndex | None = None  # the contact samples they were placed with
 
+    def select(self, index: list[int]) -> Proposals:
+        """These proposals at ``index`` (the orientations and contact samples are shared)."""
+        sites = None if self.sites is None else self.sites.select(torch.as_tensor(index, dtype=torch.long))
+        return Proposals(self.poses.select(index), [self.region[i] for i in index], sites, self.rotations, self.index)
+
 
 def region_weights(relation: str | None, source_is_figure: bool = True) -> dict[str, float]:
     """Weight of every region for a relation read from the prompt; at least 1 each (1: no preference)."""

@@ -32,7 +32,7 @@ import torch
 from ctp_core.cameras import Cameras, orbit
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
-from ctp_core.objective import TIER, Gate, Scorer, holding, rank_key
+from ctp_core.objective import TIER, Gate, Scorer, goal_rows, holding, rank_key
 from ctp_core.pose import Poses, quaternion_product
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.proposals import Proposals, place
@@ -55,6 +55,7 @@ class Ranked:
     stages: dict[str, tuple[Poses, torch.Tensor]] = field(default_factory=dict)  # per stage: poses, ranking key
     holding: int = 0  # coarse and sweep candidates where the prompt's relation holds (all without one)
     gate: dict[str, float] | None = None  # the guide's ``Gate`` (spread, noise, override); None without a guide
+    screened: int = 0  # poses the geometry screened before the guide saw the shortlist (proposals, sweep turns)
 
 
 def _scene_radius(pair: PreparedPair, log_s: float) -> float:
@@ -112,29 +113,23 @@ def tile_score(scorer: Scorer, poses: Poses, weights: Phase, tiles: tuple[torch.
     its own tile's views compares across tiles. The empty view is the scene with a point-sized source. A pose
     that changes nothing (its source hidden from the tile's views, e.g. under a table top) cannot be judged there:
     its key is inf (the coarse stage still ranks it), not the 0 that would rank it above every visible source.
+    Every pose is scored with its own tile's cameras and goal images in batches across tiles (``batch`` per
+    call): the goal's views of all tiles in one call, the empty views in one, not a few small calls per tile.
     """
     tile, centres, radius = tiles
-    cameras = coarse_cameras(scorer.pair, scorer.config, float(poses.log_s[0]), centres, radius)
-    change = torch.zeros(len(poses))
-    parts: list[tuple[torch.Tensor, dict[str, torch.Tensor]]] = []
-    done = 0
-    for k in range(len(centres)):
-        members = torch.nonzero(tile == k)[:, 0]
-        cams = cameras.rows(k, k + 1)
-        goal_embeddings = embed_shared_goal(scorer, cams)
-        empty = Poses(centres[k : k + 1].to(poses.t), poses.q[:1], torch.full_like(poses.log_s[:1], -30.0))
-        base = terms_of(scorer, empty, weights, cams, batch=1, goal_embeddings=goal_embeddings)["clip"]
-        part = terms_of(scorer, poses.select(members), weights, cams, batch=batch, goal_embeddings=goal_embeddings,
-                        should_cancel=should_cancel)
-        moved = part["clip"] - base
-        change[members] = torch.where(moved.abs() > HIDDEN, moved, torch.full_like(moved, torch.inf))
-        parts.append((members, part))
-        done += len(members)
-        progress(done)
-    terms = {key: torch.zeros(len(poses)) for key in parts[0][1]} if parts else {"objective": torch.zeros(0)}
-    for members, part in parts:
-        for key, value in part.items():
-            terms[key][members] = value
+    cameras = coarse_cameras(scorer.pair, scorer.config, float(poses.log_s[0]), centres, radius)  # (K, C)
+    goal_embeddings = embed_shared_goal(scorer, cameras)  # (K, C, D) for a per-view goal, (D,) otherwise
+    own_goal = goal_embeddings
+    if goal_embeddings is not None and goal_embeddings.dim() == 3:
+        own_goal = goal_embeddings[tile.to(goal_embeddings.device)]
+    count = len(centres)
+    empty = Poses(centres.to(poses.t), poses.q[:1].expand(count, 4), torch.full((count,), -30.0).to(poses.log_s))
+    base = terms_of(scorer, empty, weights, cameras, batch=batch, goal_embeddings=goal_embeddings,
+                    should_cancel=should_cancel)["clip"]
+    terms = terms_of(scorer, poses, weights, cameras.take(tile.to(cameras.eye.device)), batch=batch,
+                     goal_embeddings=own_goal, progress=progress, should_cancel=should_cancel)
+    moved = terms["clip"] - base[tile]
+    change = torch.where(moved.abs() > HIDDEN, moved, torch.full_like(moved, torch.inf))
     return ranking_key(scorer, terms, weights, guide_key=change)
 
 
@@ -160,8 +155,9 @@ def fine_cameras(pair: PreparedPair, config: AlignConfig, poses: Poses) -> Camer
 
 
 def embed_shared_goal(scorer: Scorer, cameras: Cameras) -> torch.Tensor | None:
-    """The goal's embeddings for (1, C) cameras shared by every candidate (a per-view goal encodes them once)."""
-    if not scorer.use_clip:
+    """The goal's embeddings for fixed cameras, (1, C) shared by every candidate or (K, C) shared by each of K
+    groups (the tile stage): a per-view goal encodes each view once, not once per candidate."""
+    if not scorer.guided:
         return None
     with torch.inference_mode():
         embeddings = scorer.embed_goal(cameras)
@@ -174,9 +170,9 @@ def terms_of(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, 
     """The objective's terms (``Scorer.score``: clip, icp, pen, rel, stable, objective) of ``poses`` on ``cameras``
     ((1, C) shared or (N, C)), ``batch`` poses per call, forward only, on the CPU; ``progress(scored)`` after
     each batch, cancel checked before each. ``goal_embeddings``: ``embed_shared_goal`` of shared cameras, when
-    already computed."""
+    already computed, or (N, C, D) per pose for per-pose cameras."""
     shared = cameras.fov_deg.shape[0] == 1
-    if shared and goal_embeddings is None and scorer.use_clip:
+    if shared and goal_embeddings is None and scorer.guided:
         goal_embeddings = embed_shared_goal(scorer, cameras)
     out: list[dict[str, torch.Tensor]] = []
     for lo in range(0, len(poses), batch):
@@ -184,7 +180,8 @@ def terms_of(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, 
             raise Canceled("the run was cancelled")
         chunk = poses.select(slice(lo, lo + batch))
         cams = cameras if shared else cameras.rows(lo, lo + batch)
-        out.append({k: v.cpu() for k, v in scorer.score(chunk, weights, cams, goal_embeddings).items()})
+        goal = goal_rows(goal_embeddings, lo, lo + batch, shared)
+        out.append({k: v.cpu() for k, v in scorer.score(chunk, weights, cams, goal).items()})
         progress(lo + len(chunk))
     if not out:
         return {k: torch.zeros(0) for k in ("clip", "icp", "pen", "sunk", "rel", "stable", "objective")}
@@ -256,10 +253,21 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
     cfg = config.search
     began = time.perf_counter()
     started = began if started is None else started
+    log_s = float(proposals.poses.log_s[0])
+    cameras = coarse_cameras(pair, config, log_s)
+    distinct = _distinct(pair, config, log_s)
+    screened = 0
+    if scorer.use_clip and 0 < cfg.shortlist < len(proposals.poses):  # only what can be the answer reaches the encoder
+        screened = len(proposals.poses)
+        with scorer.clock.time("search"):
+            geometric = scorer.screen(proposals.poses, weights)
+        proposals = proposals.select(encoder_shortlist(proposals.poses, geometric, weights, cfg.shortlist,
+                                                       distinct, cfg.min_share))
     poses = proposals.poses
-    log_s = float(poses.log_s[0])
     fine_count = min(cfg.fine, len(poses))
     sweep_count = cfg.sweep * (len(proposals.rotations) if proposals.rotations is not None else 0)
+    if cfg.sweep_keep:
+        sweep_count = min(sweep_count, cfg.sweep * cfg.sweep_keep)
     tiles = tiles_of(pair, config, poses) if scorer.use_clip else None  # no guide: nothing to tell tiles apart
     tiled_count = len(poses) if tiles is not None else 0
     total = len(poses) + sweep_count + tiled_count + fine_count
@@ -280,9 +288,7 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
 
     emit(0)
     with scorer.clock.time("search"):
-        cameras = coarse_cameras(pair, config, log_s)
         goal_embeddings = embed_shared_goal(scorer, cameras)
-        distinct = _distinct(pair, config, log_s)
         terms = terms_of(scorer, poses, weights, cameras, batch=cfg.batch, goal_embeddings=goal_embeddings,
                          progress=emit, should_cancel=should_cancel)
         if scorer.use_clip and len(poses) > 1:  # how far the guide may override the relation (``Gate``)
@@ -293,6 +299,10 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
                 tiled_count = 0
         coarse = ranking_key(scorer, terms, weights)
         swept = sweep(proposals, pair, coarse, cfg.sweep, distinct[0]) if sweep_count else None
+        if swept is not None and cfg.sweep_keep and len(swept) > sweep_count:  # the turns the geometry allows
+            screened += len(swept)
+            swept = swept.select(encoder_shortlist(swept, scorer.screen(swept, weights), weights, sweep_count,
+                                                   distinct, cfg.min_share))
         if swept is not None and len(swept):
             extra = terms_of(scorer, swept, weights, cameras, batch=cfg.batch, goal_embeddings=goal_embeddings,
                              should_cancel=should_cancel, progress=lambda n: emit(len(poses) + n))
@@ -322,7 +332,7 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
     emit(total, _untiered(float(objectives[0])) if len(objectives) else None)
     return Ranked(kept, objectives, len(poses) + len(fine_poses) + (0 if tiled is None else len(tiled)),
                   0 if swept is None else len(swept), time.perf_counter() - began, stages, held[0],
-                  None if scorer.gate is None else scorer.gate.to_dict())
+                  None if scorer.gate is None else scorer.gate.to_dict(), screened)
 
 
 def _untiered(key: float) -> float:
@@ -350,6 +360,25 @@ def shortlist_of(poses: Poses, objectives: torch.Tensor, k: int, distance: float
     places = diverse_top(poses, objectives, k // 2, distance, 180.0)
     rest = [i for i in diverse_top(poses, objectives, k, distance, angle_deg) if i not in places]
     return places + rest[: k - len(places)]
+
+
+def encoder_shortlist(poses: Poses, terms: dict[str, torch.Tensor], weights: Phase, k: int,
+                      distinct: tuple[float, float], share: float) -> list[int]:
+    """Indices of the ``k`` candidates whose images the guide will see, chosen without it from their geometric
+    ``terms`` (``Scorer.screen``): where the prompt's relation holds, the best at distinct
+    places first (``shortlist_of``: the guide is what tells places apart, so they must reach it), then
+    ``ceil(share x k)`` where it fails, best by the geometry (a misread prompt must not make the right answer
+    unreachable: ``search.min_share``, the principle of the region weights); slots one side cannot fill go to
+    the other. A candidate the relation rules out costs no encoder image (issue 24: most of a search's images
+    scored poses the geometry could rule out)."""
+    key = rank_key(terms, weights)
+    held = holding(terms)
+    others = int((~held).sum())
+    reserve = min(others, math.ceil(share * k)) if held.any() else others
+    inside = [i for i in shortlist_of(poses, torch.where(held, key, torch.inf), k - reserve, *distinct) if held[i]]
+    outside = torch.where(held, torch.inf, key)
+    rest = [i for i in shortlist_of(poses, outside, k - len(inside), *distinct) if not held[i]]
+    return inside + rest
 
 
 def ranking_key(scorer: Scorer, terms: dict[str, torch.Tensor], weights: Phase,

@@ -403,3 +403,132 @@ def test_random_init_mode_draws_uniform_orientations_without_resting_poses(pairs
     assert q.shape == (cfg.yaw_steps * (2 + cfg.stable_poses), 4)
     torch.testing.assert_close(q.norm(dim=1), torch.ones(len(q)))
     assert (q[:, [0, 2]].norm(dim=1) < 0.999).any()  # not only turns about +Y
+
+
+def _terms(rel: list[float], objective_: list[float]) -> dict[str, torch.Tensor]:
+    zero = torch.zeros(len(rel))
+    return {"rel": torch.tensor(rel), "sunk": zero, "icp": torch.tensor(objective_), "pen": zero, "stable": zero,
+            "clip": zero, "objective": torch.tensor(objective_)}
+
+
+def test_the_encoder_shortlist_takes_distinct_places_where_the_relation_holds_and_a_share_of_the_rest():
+    """Ten poses a unit apart: the first six hold the relation. Five slots: the four best that hold, and one
+    reserved (ceil(0.08 x 5)) for the best that fails, so a misread prompt keeps the right answer reachable;
+    where too few hold, the others fill the slots."""
+    poses = pose.Poses(torch.tensor([[float(i), 0.0, 0.0] for i in range(10)]),
+                       torch.tensor([[1.0, 0.0, 0.0, 0.0]]).expand(10, 4), torch.zeros(10))
+    weights = schedule.phases(CONFIG, allow_penetration=False)[0]
+    rel = [0.0] * 6 + [1.0] * 4
+    key = [5.0, 4.0, 3.0, 2.0, 1.0, 0.0, 9.0, 8.0, 7.0, 6.0]  # lower is better
+    picked = ranking.encoder_shortlist(poses, _terms(rel, key), weights, 5, (0.5, 30.0), 0.08)
+    assert sorted(picked) == [2, 3, 4, 5, 9]
+    few = ranking.encoder_shortlist(poses, _terms([0.0, 0.0] + [1.0] * 8, key), weights, 5, (0.5, 30.0), 0.08)
+    assert sorted(few) == [0, 1, 3, 4, 5]  # both that hold, the three best others
+    # near-duplicates (the same place and turn) do not take two slots while distinct places remain
+    dup = pose.Poses.cat([poses.select([5, 5, 4]), poses.select([0])])
+    picked = ranking.encoder_shortlist(dup, _terms([0.0] * 4, [0.0, 0.0, 1.0, 2.0]), weights, 3, (0.5, 30.0), 0.08)
+    assert sorted(picked) == [0, 2, 3]
+
+
+def _text_scorer(pair, config, relation=None):
+    guide, text = get_guide("random:tiny"), goals.TextGoal("a box on the table")
+    text.prepare(pair, guide)
+    return objective.Scorer(pair, config, 0.2, guide=guide, goal=text, relation=relation)
+
+
+def test_the_guide_sees_only_the_shortlist_and_the_turns_the_geometry_allows(pairs, monkeypatch):
+    """``search.shortlist`` of the proposals reach the encoder (screened by the geometry, ``Scorer.screen``),
+    ``sweep_keep`` turns per site: the images are counted exactly (a text goal encodes no images)."""
+    monkeypatch.setattr(ranking, "guide_noise", lambda *args: objective.Gate(1.0, 0.0))  # a guide with signal
+    config = CONFIG.model_copy(update={"search": CONFIG.search.model_copy(update={"shortlist": 10,
+                                                                                  "sweep_keep": 5})})
+    pair, props = _proposals(*pairs["box on table"], config)
+    assert len(props.poses) > 10
+    scorer = _text_scorer(pair, config, relation="on")
+    weights = schedule.phases(config, allow_penetration=False)[0]
+    ranked = ranking.search(scorer, props, weights, k=2)
+    cfg = config.search
+    assert ranked.swept == cfg.sweep * cfg.sweep_keep
+    fine = min(cfg.fine, 10 + ranked.swept)
+    assert scorer.clip_images == (10 + ranked.swept) * cfg.coarse_views + fine * cfg.fine_views
+    assert ranked.scored == 10 + ranked.swept + fine
+    assert ranked.screened == len(props.poses) + cfg.sweep * len(props.rotations)  # every proposal and turn
+    # the shortlisted are those the relation admits, but for the share kept for the others
+    held = int(objective.holding(scorer.screen(props.poses, weights)).sum())
+    shortlisted = ranked.stages["coarse"][0].select(slice(0, 10))  # the coarse stage's first 10, then the sweep
+    assert held >= 10 > int(objective.holding(scorer.screen(shortlisted, weights)).sum()) >= 9
+
+
+def test_a_guide_without_signal_encodes_nothing_after_the_coarse_stage(pairs, monkeypatch):
+    """Gate override 0 (its spread within its noise): the geometry ranks, so the sweep, the fine stage, the
+    refinement's gradient and the selection's views encode no image."""
+    monkeypatch.setattr(ranking, "guide_noise", lambda *args: objective.Gate(0.0, 1.0))
+    run = prepare(*pairs["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box")
+    props = propose(run)
+    ranked = ranking.search(run.scorer, props, run.plan[0], k=2)
+    coarse = len(props.poses) * CONFIG.search.coarse_views
+    assert not run.scorer.guided and run.scorer.clip_images == coarse and ranked.swept > 0
+    outcome = refine(run, ranked.poses)
+    assert outcome.clip_images == coarse and len(outcome.objectives) == 2
+
+
+def test_a_phase_starts_from_the_guide_terms_the_last_one_measured(pairs):
+    """The evaluation views are fixed, so a phase's start (the last phase's best poses) is not encoded again:
+    eval images = restarts x views x (1 + the evaluations in each phase), and the terms are the same."""
+    config = CONFIG.model_copy(update={"search": CONFIG.search.model_copy(update={"enabled": False})})
+    run = prepare(*pairs["box on table"], "a box on the table", config, target_name="table", source_name="box")
+    starts = propose(run).poses
+    outcome = refine(run, starts)
+    opt, views = config.optim, config.camera
+    per_phase = math.ceil(opt.steps / opt.phases / opt.eval_every)
+    assert opt.phases == 2 and len(starts) == opt.restarts
+    expected = opt.restarts * views.eval_views * (1 + opt.phases * per_phase) + opt.steps * opt.restarts * views.views
+    assert outcome.clip_images == expected
+    scorer, last = run.scorer, run.plan[-1]
+    again = scorer.evaluate(outcome.poses, last, outcome.terms["clip"])
+    fresh = scorer.evaluate(outcome.poses, last)
+    torch.testing.assert_close(again["objective"], fresh["objective"], atol=1e-5, rtol=0)
+
+
+def test_the_tile_stage_encodes_across_tiles_in_full_batches():
+    """All tiles' goal views in one encoder call, their empty views and the poses ``batch`` at a time across
+    tiles (it was a few small calls per tile: ~100 on a table of 34 tiles)."""
+    table, ball, reference = _small_ball_on_table()
+    pair, props = _proposals(table, ball)
+    guide, oracle = get_guide("random:tiny"), goals.ReferenceGoal(reference)
+    oracle.prepare(pair, guide)
+    scorer = objective.Scorer(pair, CONFIG, 0.2, guide=guide, goal=oracle)
+    weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
+    tiles = ranking.tiles_of(pair, CONFIG, props.poses)
+    count, n, batch = len(tiles[1]), len(props.poses), 16
+    assert count > 2
+    calls = []
+    encode = guide.encode_images
+    guide.encode_images = lambda images: calls.append(len(images)) or encode(images)
+    try:
+        keys = ranking.tile_score(scorer, props.poses, weights, tiles, batch=batch)
+    finally:
+        guide.encode_images = encode
+    views = CONFIG.search.coarse_views
+    assert len(calls) == 1 + math.ceil(count / batch) + math.ceil(n / batch)
+    assert sum(calls) == (2 * count + n) * views and keys.shape == (n,)
+
+
+def test_the_fast_preset_places_in_contact_within_its_encoder_budget(pairs):
+    """``fast``: the relation and the geometry choose, the guide glances: no gradient images, and at most the
+    shortlist (and the gate's probes) at the coarse views, the fine few, and each restart's start and end on the
+    evaluation views. ``default`` takes no gradient either; ``descent`` and ``paper`` descend the guide."""
+    assert not AlignConfig.from_preset("default").needs_image_gradient
+    assert all(AlignConfig.from_preset(name).needs_image_gradient for name in ("descent", "paper"))
+    cfg = AlignConfig.from_preset("fast", model="random:tiny", loss={"samples": 600},
+                                  search={"coarse_image_size": 64, "fine_image_size": 64})
+    result = align(*pairs["box on table"], "a box on the table", cfg, target_name="table", source_name="box")
+    s, cam, opt = cfg.search, cfg.camera, cfg.optim
+    budget = ((s.shortlist + ranking.GATE_PROBES) * s.coarse_views + s.fine * s.fine_views
+              + opt.restarts * cam.eval_views * (1 + opt.phases))
+    assert 0 < result.clip_images <= budget
+    placed = result.source.copy()
+    placed.apply_transform(result.source_to_target)
+    table = pairs["box on table"][0]
+    assert metrics.contact_distance(table, placed) <= 0.02
+    assert metrics.intersection_over_union(table, placed).iou <= 0.02

@@ -169,7 +169,7 @@ def _preload(settings: Settings) -> dict[str, str | None]:
     models = {spec: weights.missing(spec) for spec in settings.allowed_models}
     # The guide of a job with default options on this worker (the same cache entry its jobs get). Built
     # unvalidated: the guide depends only on these fields, and a forward-only default model refuses the
-    # default options (guided descent) that it would never be asked to run.
+    # configuration's class defaults (which descend the guide), options it would never be asked to run.
     default_job = AlignConfig.model_construct(model=settings.model, **where(settings))
     try:
         guide = guide_for(default_job)
