@@ -10,6 +10,7 @@ cd "$(dirname "$0")/.."
 out=${1:-${OUT:-gpu-check}}
 mkdir -p "$out"
 log="$out/gpu_check.log"
+work=$(mktemp -d)  # the bench's folders (plots and all) stay here
 device=${CTP_GPU_CHECK_DEVICE:-cuda}
 cases=${CTP_GPU_CHECK_CASES:+--cases $CTP_GPU_CHECK_CASES}
 python=${PYTHON:-python3}
@@ -17,12 +18,12 @@ export OMP_WAIT_POLICY=PASSIVE PYTHONUNBUFFERED=1
 {
   echo "== gpu_check $(date -u +%FT%TZ) commit $(git rev-parse --short HEAD 2>/dev/null || echo '?') device $device"
   command -v nvidia-smi >/dev/null && nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv
-  if [ -d .whl ] && ls .whl/*.whl >/dev/null 2>&1; then
+  export PYTHONPATH=$PWD
+  if ! "$python" -c "import trimesh, manifold3d, rtree, embreex, pydantic" 2>/dev/null; then
+    ls .whl/*.whl >/dev/null 2>&1 || { echo "the engine's packages are missing and no .whl/ came: run benchmarks/gpu_wheels.sh here and carry .whl"; exit 1; }
     "$python" -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/ctp-site \
       .whl/*.whl || { echo "installing the carried wheels failed"; exit 1; }
     export PYTHONPATH=/tmp/ctp-site:$PWD
-  else
-    export PYTHONPATH=$PWD
   fi
   "$python" -c "import torch; print('torch', torch.__version__, 'cuda', torch.cuda.is_available())"
   echo "== CUDA tests"
@@ -31,9 +32,10 @@ export OMP_WAIT_POLICY=PASSIVE PYTHONUNBUFFERED=1
   for preset in default fast; do
     echo "== ctp bench --preset $preset --device $device"
     "$python" -m ctp bench .bench --with-reference --method ctp --guide oracle --model random:ViT-B-32 \
-      --preset "$preset" --device "$device" $cases --out "$out/bench-$preset" --quiet
-    cat "$out/bench-$preset/summary.md" 2>/dev/null | head -40
-    "$python" - "$out/bench-$preset/results.jsonl" <<'PY'
+      --preset "$preset" --device "$device" $cases --out "$work/bench-$preset" --quiet
+    cp "$work/bench-$preset/results.jsonl" "$out/results-$preset.jsonl"  # $OUT takes few files: the rows, the log
+    grep -A3 "^| variant" "$work/bench-$preset/summary.md"
+    "$python" - "$work/bench-$preset/results.jsonl" <<'PY'
 import json, statistics, sys
 rows = [json.loads(line) for line in open(sys.argv[1])]
 times = [r["time_s"] for r in rows if r.get("status") == "ok"]

@@ -230,15 +230,20 @@ def test_tile_scores_rank_the_change_a_source_makes_in_its_tiles_views():
     assert keys[0] < 0 < keys[1] and torch.isinf(keys[2])
 
 
-def test_the_tile_stage_counts_its_images_and_adds_its_restarts(monkeypatch):
-    # a guide the gate trusts (random:tiny's spread is within its noise here: no tile stage then)
-    monkeypatch.setattr(ranking, "guide_noise", lambda *args: objective.Gate(1.0, 0.0))
+def _small_ball_oracle():
+    """The small ball on the big table, its proposals, and a scorer guided by the oracle through random:tiny."""
     table, ball, reference = _small_ball_on_table()
     pair, props = _proposals(table, ball)
     guide, oracle = get_guide("random:tiny"), goals.ReferenceGoal(reference)
     oracle.prepare(pair, guide)
     scorer = objective.Scorer(pair, CONFIG, 0.2, guide=guide, goal=oracle)
-    weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
+    return pair, props, guide, scorer, schedule.phases(CONFIG, allow_penetration=False)[-1]
+
+
+def test_the_tile_stage_counts_its_images_and_adds_its_restarts(monkeypatch):
+    # a guide the gate trusts (random:tiny's spread is within its noise here: no tile stage then)
+    monkeypatch.setattr(ranking, "guide_noise", lambda *args: objective.Gate(1.0, 0.0))
+    pair, props, guide, scorer, weights = _small_ball_oracle()
     events = []
     ranked = ranking.search(scorer, props, weights, k=2, on_event=events.append)
     cfg, n = CONFIG.search, len(props.poses)
@@ -493,12 +498,7 @@ def test_a_phase_starts_from_the_guide_terms_the_last_one_measured(pairs):
 def test_the_tile_stage_encodes_across_tiles_in_full_batches():
     """All tiles' goal views in one encoder call, their empty views and the poses ``batch`` at a time across
     tiles (it was a few small calls per tile: ~100 on a table of 34 tiles)."""
-    table, ball, reference = _small_ball_on_table()
-    pair, props = _proposals(table, ball)
-    guide, oracle = get_guide("random:tiny"), goals.ReferenceGoal(reference)
-    oracle.prepare(pair, guide)
-    scorer = objective.Scorer(pair, CONFIG, 0.2, guide=guide, goal=oracle)
-    weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
+    pair, props, guide, scorer, weights = _small_ball_oracle()
     tiles = ranking.tiles_of(pair, CONFIG, props.poses)
     count, n, batch = len(tiles[1]), len(props.poses), 16
     assert count > 2
