@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 from pathlib import Path
@@ -112,24 +111,25 @@ def config_from_args(args: argparse.Namespace):
 class ProgressBar:
     """One redrawn line on a terminal; one line per phase event otherwise (logs stay readable).
 
-    Beside the step count it shows what a person can follow, from the last step's losses (means over the
-    restarts): ``match``, the cosine between the rendered views and the prompt (or image) under the
-    guidance model, higher is better; ``gap``, the contact distance between the objects (the root of the
-    soft-ICP term, in % of the target's size), lower is better. The objective itself is not shown: its
-    weights change between phases, so its value jumps although nothing got worse.
+    Beside the step count it shows what a person can follow, from the engine's readout of the restarts' best poses
+    on the fixed evaluation views (``ProgressEvent``): ``holds``, in how many the prompt's relation holds (of
+    the candidates scored, in the search); ``match``, the best restart's cosine between its views and the prompt
+    (or image) under the guidance model, higher is better; ``gap``, its distance to the target, % of the source's
+    size, lower is better. The objective itself is not shown: its weights change between phases, so its value
+    jumps although nothing got worse.
     """
 
-    LEGEND = ("progress: match = cosine between the views and the prompt (higher is better); "
-              "gap = distance between the touching parts, % of the target's size (lower is better)")
+    LEGEND = ("progress: holds = where the prompt's relation holds; match = cosine between the best restart's "
+              "views and the prompt (higher is better); gap = its distance to the target, % of the source's size")
 
     def __init__(self, stream=sys.stderr, enabled: bool = True):
         self.stream, self.enabled = stream, enabled
         self.tty = stream.isatty()
         self._legend = False
-        self._losses: dict[str, float] = {}
+        self._readout = ""
 
     def __call__(self, event) -> None:
-        self._losses = event.losses or self._losses  # phase events carry none: show the last step's
+        self._readout = readout(event) or self._readout  # a phase start carries none: show the last
         if not self.enabled or (not self.tty and event.kind == "step"):
             return
         if not self._legend:
@@ -140,7 +140,7 @@ class ProgressBar:
         eta = f"{event.eta_s:4.0f}s" if event.eta_s is not None else "   ?"
         where = (f"search {event.step}/{event.steps} candidates" if event.stage == "search" else
                  f"phase {event.phase}/{event.phases} step {event.step}/{event.steps}")
-        line = f"[{'#' * filled}{'.' * (width - filled)}] {where} eta {eta}{figures(self._losses)}"
+        line = f"[{'#' * filled}{'.' * (width - filled)}] {where} eta {eta}{self._readout}"
         if self.tty:
             self.stream.write("\r" + line + "\033[K" + ("\n" if event.kind == "done" else ""))
         else:
@@ -148,13 +148,15 @@ class ProgressBar:
         self.stream.flush()
 
 
-def figures(losses: dict[str, float]) -> str:
-    """`` match M gap G%`` from a step's losses (each part only when its term ran)."""
+def readout(event) -> str:
+    """`` holds H/N match M gap G%`` from an event's readout (each part only where the event has it)."""
     out = ""
-    if losses.get("clip"):  # L_clip = -cosine; absent (or 0) when the guidance is off
-        out += f" match {-losses['clip']:.3f}"
-    if "icp" in losses:  # soft-ICP: mean squared distance in the normalised frame (target longest side 2)
-        out += f" gap {100 * math.sqrt(max(losses['icp'], 0.0)) / 2:.1f}%"
+    if event.relation_holds is not None and event.relation_checked:
+        out += f" holds {event.relation_holds}/{event.relation_checked}"
+    if event.guide_match is not None:
+        out += f" match {event.guide_match:.3f}"
+    if event.contact_gap is not None:
+        out += f" gap {100 * event.contact_gap:.1f}%"
     return out
 
 

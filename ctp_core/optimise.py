@@ -113,7 +113,7 @@ class Optimiser:
             self._emit("phase_start", phase, message=f"phase {phase.index}/{len(self.plan)}")
             best, scores = self._phase(phase, best, scores.get("clip"))
             phase_timings.append(self.clock.since(before, t0))
-            self._emit("phase_end", phase, best_objective=float(scores["objective"].min()))
+            self._emit("phase_end", phase, **self._readout(best, scores))
         objectives = scores["objective"]
         totals = self.clock.since(self._clock_start, self.start)
         scorer, last = self.scorer, self.plan[-1]
@@ -173,8 +173,22 @@ class Optimiser:
                 scores = {k: torch.where(better, now[k], scores[k]) for k in scores}
             if (step + 1) % cfg.progress_every == 0 or step + 1 == phase.steps:
                 losses_now = {k: float(v.mean()) for k, v in last.items()}
-                self._emit("step", phase, losses=losses_now, best_objective=float(scores["objective"].min()))
+                self._emit("step", phase, losses=losses_now, **self._readout(best, scores))
         return best, scores
+
+    def _readout(self, best: Poses, scores: dict[str, torch.Tensor]) -> dict:
+        """The progress figures of the restarts' best poses so far (evaluation views): the lowest objective, and
+        what a person reads instead of it (its scale changes with each phase's weights): the best restart's
+        match to the guide (mean cosine; none without one, or with one whose gate is 0) and its gap to the
+        target (source diagonals), and in how many restarts the prompt's relation holds."""
+        scorer = self.scorer
+        i = int(scores["objective"].argmin())
+        gap = clearance(scorer.pair, scorer.pair.index, best.select(slice(i, i + 1)))
+        relation = scorer.relation
+        return {"best_objective": float(scores["objective"][i]), "contact_gap": float(gap[0]),
+                "guide_match": -float(scores["clip"][i]) if scorer.guided else None, "relation": relation,
+                "relation_holds": int(holding(scores).sum()) if relation is not None else None,
+                "relation_checked": len(best) if relation is not None else None}
 
     def _perturb(self, opt: torch.optim.Optimizer) -> None:
         """Zero-mean Gaussian pose noise after each step, sigma = noise * current lr (method.md)."""

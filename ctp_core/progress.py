@@ -35,7 +35,12 @@ class ProgressEvent:
     best_objective: float | None = None
     message: str = ""
     stage: StageName = "refine"
-    relation_holds: int | None = None  # search: candidates scored so far where the prompt's relation holds
+    # what a person reads instead of the objective (whose scale changes with each phase's weights):
+    relation: str | None = None  # the prompt's relation where it judges poses (None: unknown or off)
+    relation_holds: int | None = None  # where it holds: of the candidates scored so far (search), of the restarts
+    relation_checked: int | None = None  # ... out of this many
+    guide_match: float | None = None  # the best restart's mean cosine to the guide's goal, evaluation views
+    contact_gap: float | None = None  # the best restart's gap to the target, source diagonals (0: touching)
 
     @property
     def fraction(self) -> float:

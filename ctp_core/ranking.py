@@ -275,16 +275,22 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
     relation = scorer.relation
     held = [0, 0]  # candidates where the relation holds, of those scored (coarse and sweep)
 
-    def emit(done: int, best: float | None = None) -> None:
+    def emit(done: int, best: float | None = None, restarts: int | None = None) -> None:
+        """A search event; ``restarts``: the refinement's count once known (the kept poses), before that the
+        planned one (``k``, plus the tile stage's where it runs: the message says what it adds)."""
         if on_event:
             elapsed = time.perf_counter() - started
+            tiled = cfg.tile_restarts if tiles is not None else 0
             message = f"search: {done}/{total} candidates scored"
             if relation is not None and held[1]:
                 message += f"; {held[0]} of {held[1]} hold '{relation}'"
-            on_event(ProgressEvent(kind="step", phase=0, phases=phases, step=done, steps=total, restarts=k,
-                                   elapsed_s=elapsed, eta_s=None, best_objective=best, stage="search",
-                                   message=message, relation_holds=held[0] if relation is not None and held[1]
-                                   else None))
+            message += f"; {k} restarts" + (f" + {tiled} from the tile stage" if tiled else "")
+            counted = relation is not None and held[1]
+            on_event(ProgressEvent(kind="step", phase=0, phases=phases, step=done, steps=total,
+                                   restarts=restarts if restarts is not None else k + tiled, elapsed_s=elapsed,
+                                   eta_s=None, best_objective=best, stage="search", message=message,
+                                   relation=relation, relation_holds=held[0] if counted else None,
+                                   relation_checked=held[1] if counted else None))
 
     emit(0)
     with scorer.clock.time("search"):
@@ -329,7 +335,7 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
             kept, objectives = merge(kept, objectives, proposed.select(picks), tiled[picks], cfg.tile_restarts,
                                      distinct)
             stages["tiles"] = (proposed, tiled)
-    emit(total, _untiered(float(objectives[0])) if len(objectives) else None)
+    emit(total, _untiered(float(objectives[0])) if len(objectives) else None, restarts=len(kept))
     return Ranked(kept, objectives, len(poses) + len(fine_poses) + (0 if tiled is None else len(tiled)),
                   0 if swept is None else len(swept), time.perf_counter() - began, stages, held[0],
                   None if scorer.gate is None else scorer.gate.to_dict(), screened)

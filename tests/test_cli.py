@@ -86,22 +86,22 @@ def test_example_writes_the_sample_pair_and_says_what_to_run(tmp_path, capsys):
     assert "ctp align" in err and "'an apple in a bowl'" in err and "--target-name bowl" in err
 
 
-def event(kind: str, step: int, **losses) -> ProgressEvent:
+def event(kind: str, step: int, **readout) -> ProgressEvent:
     return ProgressEvent(kind=kind, phase=1, phases=2, step=step, steps=10, restarts=2, elapsed_s=1.0, eta_s=9.0,
-                         losses=losses, best_objective=266.8)
+                         best_objective=266.8, **readout)
 
 
-def test_progress_shows_match_and_contact_gap_not_the_objective():
+def test_progress_shows_the_readout_not_the_objective():
     stream = io.StringIO()
     bar = ProgressBar(stream)
     bar(event("phase_start", 0))
-    bar(event("step", 5, clip=-0.2468, icp=0.0004, pen=0.0))  # not drawn off a terminal, but remembered
+    bar(event("step", 5, relation="on", relation_holds=2, relation_checked=3, guide_match=0.2468,
+              contact_gap=0.0104))  # not drawn off a terminal, but remembered
     bar(event("phase_end", 5))
     lines = stream.getvalue().splitlines()
     assert lines[0] == ProgressBar.LEGEND and "match" in lines[0] and "gap" in lines[0]
     assert lines[1] == "phase_start: [....................] phase 1/2 step 0/10 eta    9s"
-    # match = -L_clip (a cosine); gap = sqrt(soft-ICP) in the normalised frame (target side 2) = 1.0 % of it
-    assert lines[2] == "phase_end: [##########..........] phase 1/2 step 5/10 eta    9s match 0.247 gap 1.0%"
+    assert lines[2] == "phase_end: [##########..........] phase 1/2 step 5/10 eta    9s holds 2/3 match 0.247 gap 1.0%"
     assert "266" not in stream.getvalue()
 
 

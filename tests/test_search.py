@@ -532,3 +532,21 @@ def test_the_fast_preset_places_in_contact_within_its_encoder_budget(pairs):
     table = pairs["box on table"][0]
     assert metrics.contact_distance(table, placed) <= 0.02
     assert metrics.intersection_over_union(table, placed).iou <= 0.02
+
+
+def test_progress_reads_the_relation_the_guide_and_the_gap(pairs, monkeypatch):
+    """What the page and the CLI show instead of the objective: the search says where the relation holds among the
+    candidates scored and one restart count (planned, then kept); the refinement, in how many restarts it holds,
+    the best restart's guide match (a cosine) and its gap to the target."""
+    monkeypatch.setattr(ranking, "guide_noise", lambda *args: objective.Gate(1.0, 0.0))  # a guide with signal
+    run = prepare(*pairs["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box")
+    events = []
+    ranked = ranking.search(run.scorer, propose(run), run.plan[0], k=2, on_event=events.append)
+    assert {e.restarts for e in events[:-1]} == {2} and events[-1].restarts == len(ranked.poses)
+    counted = [e for e in events if e.relation_holds is not None]
+    assert counted and all(e.relation == "on" and 0 <= e.relation_holds <= e.relation_checked for e in counted)
+    refined = []
+    refine(run, ranked.poses, on_event=refined.append)
+    steps = [e for e in refined if e.kind in ("step", "phase_end")]
+    assert steps and all(e.relation == "on" and e.relation_checked == len(ranked.poses) for e in steps)
+    assert all(-1 <= e.guide_match <= 1 and 0 <= e.contact_gap < 0.2 for e in steps)

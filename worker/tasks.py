@@ -246,7 +246,7 @@ def align_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobContex
 
     result = align(target, source, record.prompt, config, on=record.on, image=image, target_name=record.target_name,
                    source_name=record.source_name, guide=guide, on_event=on_event, should_cancel=job.should_cancel)
-    job.on_progress(_exporting(config, objective=result.objective), True)
+    job.on_progress(_exporting(config, objective=result.objective, restarts=len(result.restarts)), True)
     return _results(scene_glb(result, source_name=record.source_name), report(result), result.preview)
 
 
@@ -296,10 +296,13 @@ def _results(glb: bytes, report_: dict[str, Any], preview) -> dict[str, bytes]:
     return files
 
 
-def _exporting(config: AlignConfig, stage: Stage | None = None, objective: float | None = None) -> Progress:
+def _exporting(config: AlignConfig, stage: Stage | None = None, objective: float | None = None,
+               restarts: int | None = None) -> Progress:
+    """The exporting progress; ``restarts``: those the run refined (the search keeps fewer than configured or adds
+    the tile stage's), the configured count where unknown (an assembly)."""
     return Progress(stage=stage or Stage(name="exporting"), kind="exporting", phase=config.optim.phases,
                     phases=config.optim.phases, step=config.optim.steps, steps=config.optim.steps,
-                    restarts=config.optim.restarts, fraction=1.0, eta_s=0.0,
+                    restarts=config.optim.restarts if restarts is None else restarts, fraction=1.0, eta_s=0.0,
                     objective=None if objective is None else round(objective, 5), message="writing results")
 
 
@@ -312,8 +315,11 @@ def progress_of(event: ProgressEvent, stage: Stage | None = None) -> Progress:
     else:
         stage = stage.model_copy(update={"name": event.stage})
         message = f'stage {stage.index}/{stage.count}: "{stage.label}": {message}'
+    rounded = lambda value, digits: None if value is None else round(value, digits)  # noqa: E731
     return Progress(stage=stage, kind=event.kind, phase=event.phase, phases=event.phases,
                     step=event.step, steps=event.steps,
                     restarts=event.restarts, fraction=round(event.fraction, 4),
-                    eta_s=None if event.eta_s is None else round(event.eta_s, 1),
-                    objective=None if event.best_objective is None else round(event.best_objective, 5), message=message)
+                    eta_s=rounded(event.eta_s, 1), objective=rounded(event.best_objective, 5), message=message,
+                    relation=event.relation, relation_holds=event.relation_holds,
+                    relation_checked=event.relation_checked, guide_match=rounded(event.guide_match, 4),
+                    contact_gap=rounded(event.contact_gap, 4))

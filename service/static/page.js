@@ -14,7 +14,7 @@ const state = {
   viewer: null,
   result: null, // {id, blobs: {file name: Blob}}
   urls: [], // blob URLs to revoke when the next result replaces this one
-  objectives: [],
+  figures: [], // the progress readout's figure (guide match, else -gap) over time, for the spark line
   nextPage: null,
 };
 
@@ -205,7 +205,7 @@ async function follow(id) {
   if (state.following) state.following.abort();
   const controller = new AbortController();
   state.following = controller;
-  state.objectives = [];
+  state.figures = [];
   drawSpark();
   $("quality").textContent = "";
   $("progress").hidden = false;
@@ -246,7 +246,7 @@ function renderProgress(job) {
   if (p.stage && p.stage.count > 1) {
     stage += ` - object ${p.stage.index} of ${p.stage.count}${p.stage.label ? ` (${p.stage.label})` : ""}`;
   }
-  if (p.phases && job.status === "running") stage += ` - phase ${p.phase} of ${p.phases}`;
+  if (p.phase && p.phases && job.status === "running") stage += ` - phase ${p.phase} of ${p.phases}`; // none in the search
   $("stage").textContent = stage;
   // 100 % once the job has succeeded, not while its results are still being written.
   const percent = job.status === "succeeded" ? 100 : Math.min(99, Math.floor(100 * p.fraction));
@@ -259,20 +259,38 @@ function renderProgress(job) {
   if (p.eta_s != null && !TERMINAL.includes(job.status)) times.push(`about ${duration(p.eta_s)} left`);
   if (p.elapsed_s) times.push(`${duration(p.elapsed_s)} elapsed`);
   $("eta").textContent = times.join(", ");
-  if (p.objective != null) { // null at a phase start: the last figure stays up
-    $("quality").textContent = `objective ${p.objective.toFixed(4)} (best restart; lower is better)`;
-    if (state.objectives.at(-1) !== p.objective) state.objectives.push(p.objective);
+  const quality = readout(p);
+  if (quality) { // nothing at a phase start: the last figures stay up
+    $("quality").textContent = quality;
+    const figure = p.guide_match ?? (p.contact_gap == null ? null : -p.contact_gap); // higher is better
+    if (figure != null && state.figures.at(-1) !== figure) state.figures.push(figure);
     drawSpark();
   }
   $("message").textContent = p.message + (job.cancel_requested && job.status === "running" ? " - cancel requested" : "");
   $("cancel").disabled = TERMINAL.includes(job.status) || job.cancel_requested;
 }
 
+// What a person reads instead of the objective (its scale changes with each phase's weights): the relation's
+// verdict, the best restart's match to the guide and its gap to the target; the objective only when none is known.
+function readout(p) {
+  const parts = [];
+  if (p.relation && p.relation_checked) {
+    const what = p.stage && p.stage.name === "search" ? "candidates scored" : "restarts";
+    parts.push(`'${p.relation}' holds for ${p.relation_holds} of ${p.relation_checked} ${what}`);
+  }
+  if (p.guide_match != null) parts.push(`guide match ${p.guide_match.toFixed(3)} (best restart; higher is better)`);
+  if (p.contact_gap != null) {
+    parts.push(p.contact_gap < 0.005 ? "touching" : `gap ${(100 * p.contact_gap).toFixed(1)} % of the source's size`);
+  }
+  if (!parts.length && p.objective != null) parts.push(`objective ${p.objective.toFixed(4)} (best restart; lower is better)`);
+  return parts.join(" - ");
+}
+
 function drawSpark() {
   const canvas = $("spark");
   const ctx = canvas.getContext("2d");
   ctx.clearRect(0, 0, canvas.width, canvas.height);
-  const values = state.objectives;
+  const values = state.figures;
   canvas.hidden = values.length < 2;
   if (values.length < 2) return;
   const lo = Math.min(...values);
