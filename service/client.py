@@ -121,6 +121,12 @@ class Client:
             timeout = httpx.Timeout(timeout.connect, read=(timeout.read or 0) + wait)  # the answer comes after it
         return self._json(self.http.post(path, files=files, data=data, headers=headers, timeout=timeout))
 
+    def inspect(self, mesh: MeshInput) -> dict[str, Any]:
+        """What a job would make of one mesh, before any job (``POST /inspect``): ``faces``, ``vertices``,
+        ``extents`` and ``size`` in the file's units, the ``up`` the service will use (file frame) and whether it
+        is ``turned``; a file a job would refuse raises ``ServiceError`` with the same code."""
+        return self._json(self.http.post("/inspect", files={"mesh": _file(mesh)}))
+
     def status(self, job_id: str) -> dict[str, Any]:
         return self._json(self.http.get(f"/jobs/{job_id}"))
 

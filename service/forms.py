@@ -13,6 +13,7 @@ import logging
 import math
 import re
 import time
+from contextlib import contextmanager
 from pathlib import PurePath
 from typing import Any
 
@@ -247,20 +248,33 @@ async def read_limited(upload: UploadFile, max_bytes: int, field: str, code: str
     return await upload.read()
 
 
-def check_mesh(loader: MeshLoader, data: bytes, filename: str, limits: MeshLimits, role: str) -> int:
-    """Parse exactly as the worker will (in a loading process, bounded), so a queued job never fails on
-    its input; returns its face count."""
-    started = time.perf_counter()
+@contextmanager
+def _mesh_errors(role: str):
+    """The bounded loader's refusals as the API's errors, on the form field ``role``."""
     try:
-        faces = loader.check(data, filename, limits)
+        yield
     except LoaderUnavailable as exc:
         raise ApiError(503, exc.code, exc.message, field=role) from None
     except MeshError as exc:
         raise ApiError(_MESH_STATUS.get(exc.code, 422), exc.code, exc.message, field=role) from None
     except CtpError as exc:
         raise ApiError(422, exc.code, exc.message, field=role) from None
+
+
+def check_mesh(loader: MeshLoader, data: bytes, filename: str, limits: MeshLimits, role: str) -> int:
+    """Parse exactly as the worker will (in a loading process, bounded), so a queued job never fails on
+    its input; returns its face count."""
+    started = time.perf_counter()
+    with _mesh_errors(role):
+        faces = loader.check(data, filename, limits)
     log.debug("mesh checked", extra={"duration_ms": round(1000 * (time.perf_counter() - started))})
     return faces
+
+
+def load_mesh(loader: MeshLoader, data: bytes, filename: str, limits: MeshLimits, role: str):
+    """``check_mesh``'s parse, returning the ``trimesh.Trimesh`` (``POST /inspect`` reads it)."""
+    with _mesh_errors(role):
+        return loader.load(data, filename=filename, limits=limits, name=filename)
 
 
 def check_image(data: bytes, max_pixels: int) -> None:

@@ -8,6 +8,7 @@ Screenshots of the form, the progress and the result go to ``runs/screens/`` (gi
 from __future__ import annotations
 
 import base64
+import io
 import json
 import os
 import re
@@ -206,6 +207,16 @@ def test_upload_follow_view_download_and_a_refused_upload(api, worker, browser, 
     find(By.ID, "file-target").send_keys(str(tmp_path / "table.glb"))
     drop_file(driver, "drop-source", "ball.glb", source)
     assert "ball.glb" in find(By.ID, "chosen-source").text
+    # each input appears at once in its own small 3D view, with what the service makes of it (POST /inspect)
+    drawn = lambda: all(find(By.ID, f"preview-{r}").get_attribute("data-ready") == "1" for r in ("target", "source"))  # noqa: E731
+    wait_for(drawn, 30, "both input previews drawn, with the up arrow")
+    faces = len(trimesh.load(io.BytesIO(target), file_type="glb", force="mesh").faces)
+    info = find(By.ID, "inspect-target").text
+    assert f"{faces:,} faces" in info and "file's units" in info and "up: the file's" in info, info
+    colours = driver.execute_script(CANVAS_COLOURS.replace("#viewer canvas", "#preview-source canvas"), BACKGROUND)
+    assert colours["differ"] > 0.02 * colours["total"], colours  # the ball is drawn
+    find(By.ID, "drop-target").location_once_scrolled_into_view  # noqa: B018
+    shoot(driver, "previews")
     find(By.ID, "prompt").send_keys("a ball on top of a table")
     Select(find(By.ID, "opt-preset")).select_by_value("test")
     find(By.ID, "opt-seed").send_keys("3")
@@ -259,6 +270,9 @@ def test_upload_follow_view_download_and_a_refused_upload(api, worker, browser, 
     broken = tmp_path / "broken.glb"
     broken.write_bytes(b"glTF" + bytes(range(256)) * 4)
     find(By.ID, "file-target").send_keys(str(broken))
+    wait_for(lambda: find(By.ID, "inspect-target").get_attribute("data-state") == "refused", 20,
+             "the preview's refusal")
+    assert find(By.ID, "inspect-target").text.startswith("mesh_unreadable: ")  # before any job
     find(By.ID, "submit").click()
     wait_for(lambda: find(By.ID, "error").is_displayed(), 20, "the error message")
     expected = api.client.post("/align", headers=AUTH, data={"prompt": "a ball on top of a table"},

@@ -192,6 +192,41 @@ BAD_INPUTS = {
 }
 
 
+def test_inspect_reads_one_mesh_as_a_job_would(api):
+    """``POST /inspect``: the size in the file's units, the faces, and the up the service will use (a cone
+    standing on its tip, upside down in the file, is turned over; a box is kept as authored); nothing is queued."""
+    cone = trimesh.creation.cone(radius=0.05, height=0.3, sections=24)  # its tip up the file's z
+    cone.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))  # tip down the file's -y
+    answer = api.client.post("/inspect", files={"mesh": ("cone.ply", cone.export(file_type="ply"))})
+    assert answer.status_code == 200, answer.text
+    seen = answer.json()
+    assert (seen["file"], seen["faces"], seen["vertices"]) == ("cone.ply", len(cone.faces), len(cone.vertices))
+    np.testing.assert_allclose(seen["extents"], cone.extents, rtol=1e-5)
+    assert seen["size"] == pytest.approx(0.3, rel=1e-5) and seen["turned"], seen
+    assert seen["up"] == pytest.approx([0, -1, 0], abs=1e-3) and seen["reason"]
+    box = api.client.post("/inspect", files={"mesh": ("box.glb", BOX)}).json()
+    assert not box["turned"] and box["up"] == pytest.approx([0, 1, 0]) and box["faces"] == 12
+
+    from service.client import Client, ServiceError
+
+    with Client(api.url) as client:  # the Python client says the same
+        assert client.inspect(("box.glb", BOX)) == box
+        with pytest.raises(ServiceError) as refused:
+            client.inspect(("box.docx", BOX))
+    assert (refused.value.status, refused.value.code, refused.value.field) == (415, "mesh_unknown_format", "mesh")
+
+
+@pytest.mark.parametrize("case", ["corrupt glb", "wrong extension", "gltf external uri", "nan vertices", "2M faces"])
+def test_inspect_refuses_what_a_job_would_with_the_same_code(api, case):
+    kwargs, status, code, _ = BAD_INPUTS[case]
+    (name, data), = kwargs.values()
+    answer = api.client.post("/inspect", files={"mesh": (name, data)})
+    assert (answer.status_code, answer.json()["error"]["code"], answer.json()["error"]["field"]) == (
+        status, code, "mesh"), answer.text
+    stray = api.client.post("/inspect", files={"mesh": ("box.glb", BOX)}, data={"prompt": "a box"})
+    assert (stray.status_code, stray.json()["error"]["code"]) == (400, "unknown_field")
+
+
 @pytest.mark.parametrize("case", list(BAD_INPUTS))
 def test_bad_input_is_refused_with_its_code(api, case):
     kwargs, status, code, field = BAD_INPUTS[case]

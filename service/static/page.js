@@ -12,6 +12,8 @@ const state = {
   files: { target: null, source: null },
   following: null, // AbortController of the event stream being read
   viewer: null,
+  previews: { target: null, source: null }, // input previews (Viewer), made on the first file of each slot
+  previewed: { target: null, source: null }, // the file each slot's preview is for (a newer one wins)
   result: null, // {id, blobs: {file name: Blob}}
   urls: [], // blob URLs to revoke when the next result replaces this one
   figures: [], // the progress readout's figure (guide match, else -gap) over time, for the spark line
@@ -89,6 +91,56 @@ export function setFile(role, file) {
   state.files[role] = file;
   $(`chosen-${role}`).textContent = file ? `${file.name} (${size(file.size)})` : "or drop a mesh here";
   $(`drop-${role}`).classList.toggle("has-file", Boolean(file));
+  previewInput(role, file);
+}
+
+/** The input preview: the file in a small 3D view as the browser reads it, and what the service makes of it
+ * (POST /inspect: size in the file's units, faces, the up it will use, drawn as an arrow), so a wrong file, a
+ * model on its side or in the wrong units shows before the job; a file a job would refuse is refused here. */
+async function previewInput(role, file) {
+  const box = $(`preview-${role}`);
+  const info = $(`inspect-${role}`);
+  state.previewed[role] = file;
+  const current = () => state.previewed[role] === file;
+  box.hidden = !file;
+  delete box.dataset.ready;
+  delete info.dataset.state;
+  info.classList.remove("bad");
+  info.textContent = file ? "reading..." : "";
+  if (!file) return;
+  state.previews[role] = state.previews[role] || new Viewer(box);
+  const viewer = state.previews[role];
+  const drawn = viewer.showFile(file).then(() => true, (err) => {
+    if (current()) box.dataset.ready = "none";
+    console.info(`preview of ${file.name}: ${err.message}`);
+    return false;
+  });
+  const body = new FormData();
+  body.append("mesh", file, file.name);
+  try {
+    const seen = await api.json("inspect", { method: "POST", body });
+    if (!current()) return;
+    info.textContent = describeInput(seen);
+    info.dataset.state = "ok";
+    if (await drawn && current()) {
+      viewer.showUp(seen.up);
+      box.dataset.ready = "1";
+    }
+  } catch (err) {
+    if (!current()) return;
+    info.textContent = `${err.code}: ${err.detail ?? err.message}`;
+    info.dataset.state = "refused";
+    info.classList.add("bad");
+  }
+}
+
+function describeInput(seen) {
+  const number = (v) => (v >= 100 || v < 0.01 ? v.toPrecision(3) : v.toFixed(v < 1 ? 3 : 2));
+  const axis = ["X", "Y", "Z"].find((_, i) => Math.abs(seen.up[i]) > 0.99);
+  const i = ["X", "Y", "Z"].indexOf(axis);
+  const up = axis ? `${seen.up[i] > 0 ? "+" : "-"}${axis}` : `(${seen.up.map((v) => v.toFixed(2)).join(", ")})`;
+  return `${seen.extents.map(number).join(" × ")} in the file's units, ${seen.faces.toLocaleString("en")} faces; `
+    + (seen.turned ? `up: the file's ${up} (turned upright)` : "up: the file's +Y, as authored");
 }
 
 function wireDrop(role) {

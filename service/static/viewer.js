@@ -1,7 +1,11 @@
 // The result viewer: a GLB scene (three.js, vendored) with orbit and zoom, each top-level node (the
-// "target" and the "source" of an alignment) listed with a visibility toggle and an optional tint.
+// "target" and the "source" of an alignment) listed with a visibility toggle and an optional tint. The same
+// viewer previews an input file as the browser reads it, with the up the service will use.
 import * as THREE from "three";
 import { GLTFLoader } from "three/addons/loaders/GLTFLoader.js";
+import { OBJLoader } from "three/addons/loaders/OBJLoader.js";
+import { PLYLoader } from "three/addons/loaders/PLYLoader.js";
+import { STLLoader } from "three/addons/loaders/STLLoader.js";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
 
 const BACKGROUND = 0xf0f2f5;
@@ -45,9 +49,43 @@ export class Viewer {
 
   /** Show a GLB (an ArrayBuffer); returns its parts: [{name, object, tint}] in file order. */
   async show(buffer) {
-    const gltf = await new GLTFLoader().parseAsync(buffer, "");
+    return this.showModel((await new GLTFLoader().parseAsync(buffer, "")).scene);
+  }
+
+  /** Show an uploaded mesh file as the browser reads it (an input preview): GLB, glTF with embedded buffers,
+   * OBJ, PLY or STL by its extension; throws for others (an OBJ+MTL zip). */
+  async showFile(file) {
+    const ext = file.name.toLowerCase().split(".").pop();
+    const plain = (geometry) => {
+      if (!geometry.hasAttribute("normal")) geometry.computeVertexNormals();
+      const material = new THREE.MeshStandardMaterial({ color: 0xb0b7c3, roughness: 0.8,
+        vertexColors: geometry.hasAttribute("color") });
+      return new THREE.Mesh(geometry, material);
+    };
+    if (ext === "glb" || ext === "gltf") return this.show(await file.arrayBuffer());
+    if (ext === "obj") return this.showModel(new OBJLoader().parse(await file.text()));
+    if (ext === "ply") return this.showModel(plain(new PLYLoader().parse(await file.arrayBuffer())));
+    if (ext === "stl") return this.showModel(plain(new STLLoader().parse(await file.arrayBuffer())));
+    throw new Error(`no 3D preview for .${ext} files in the browser`);
+  }
+
+  /** Draw the up the service will use (a unit vector in the file frame) as an arrow through the model. */
+  showUp(up) {
+    if (this.arrow) this.scene.remove(this.arrow);
+    if (!this.model) return;
+    const box = new THREE.Box3().setFromObject(this.model);
+    const length = box.getSize(new THREE.Vector3()).length() * 0.75;
+    const direction = new THREE.Vector3(...up).normalize();
+    const start = box.getCenter(new THREE.Vector3()).addScaledVector(direction, -length / 2);
+    this.arrow = new THREE.ArrowHelper(direction, start, length, 0x16a34a, length * 0.2, length * 0.1);
+    this.scene.add(this.arrow);
+    this.render();
+  }
+
+  showModel(model) {
     if (this.model) this.scene.remove(this.model);
-    this.model = gltf.scene;
+    if (this.arrow) this.scene.remove(this.arrow);
+    this.model = model;
     this.scene.add(this.model);
     this.parts = this.model.children.map((object, i) => {
       const materials = new Map();
