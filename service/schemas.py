@@ -94,6 +94,10 @@ class JobOut(BaseModel):
     webhook: Webhook | None = Field(None, description="the job's webhook and how its deliveries went; null "
                                     "when it was submitted without one")
     queue: str = Field(description="the named queue it was sent to (option queue)")
+    target_job: str | None = Field(None, description="the job whose result scene is this one's target (POST /align "
+                                   "with target_job: an object added to that scene); null otherwise")
+    stages: int = Field(1, description="objects this job places: 1 for POST /align, the plan's steps for POST "
+                        "/assemble")
     links: Links
 
     @classmethod
@@ -101,7 +105,8 @@ class JobOut(BaseModel):
         return cls(id=r.id, status=r.status, progress=r.progress, created_at=r.created_at,
                    started_at=r.started_at, finished_at=r.finished_at, error=r.error,
                    cancel_requested=r.cancel_requested, prompt=r.prompt, image_guided=r.has_image,
-                   webhook=r.webhook, queue=r.queue, links=links(r.id, r.downloads))
+                   webhook=r.webhook, queue=r.queue, target_job=r.target_job, stages=r.stage_count,
+                   links=links(r.id, r.downloads))
 
 
 class WebhookPayload(BaseModel):

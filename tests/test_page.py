@@ -284,6 +284,53 @@ def test_upload_follow_view_download_and_a_refused_upload(api, worker, browser, 
     shoot(driver, "refused")
 
 
+def test_add_an_object_to_a_result_from_the_page(api, worker, browser, tmp_path):
+    """"Add an object to this scene" on a result: the form takes that scene as the target (its preview shows it),
+    the job goes out with ``target_job``, its result holds the scene's objects and the new one, and the job list
+    shows it under the job it adds to."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import Select
+
+    target, source = table_and_ball()
+    first = api.client.post("/align", headers=AUTH,
+                            files={"target": ("table.glb", target), "source": ("ball.glb", source)},
+                            data={"prompt": "a ball on a table", "options": json.dumps({"preset": "test"})})
+    first = first.json()["id"]
+    status = lambda job_id: api.client.get(f"/jobs/{job_id}", headers=AUTH).json()["status"]  # noqa: E731
+    wait_for(lambda: status(first) == "succeeded", 240, "the first job")
+
+    driver, find = browser, browser.find_element
+    open_page(driver, api)
+    opener = f"#jobs-body tr[data-id='{first}'] button"
+    wait_for(lambda: driver.find_elements(By.CSS_SELECTOR, opener), 20, "the job list")
+    find(By.CSS_SELECTOR, opener).click()
+    wait_for(lambda: find(By.ID, "viewer").get_attribute("data-ready"), 60, "the first result")
+    find(By.ID, "add-object").click()
+    assert find(By.ID, "chosen-target").text == f"the scene of job {first[:8]} (its objects stay put)"
+    wait_for(lambda: find(By.ID, "preview-target").get_attribute("data-ready") == "1", 30, "the scene's preview")
+    cube = trimesh.creation.box((0.1, 0.1, 0.1))
+    drop_file(driver, "drop-source", "cube.glb", cube.export(file_type="glb"))
+    find(By.ID, "prompt").send_keys("a cube on the ball")
+    Select(find(By.ID, "opt-preset")).select_by_value("test")
+    shoot(driver, "add-object-form")
+    find(By.ID, "submit").click()
+    wait_for(lambda: find(By.ID, "percent").text == "100 %", 240, "the chained job", interval_s=0.25)
+    assert find(By.ID, "stage").text.lower() == "succeeded"
+    second = find(By.ID, "job-id").text
+    job = api.client.get(f"/jobs/{second}", headers=AUTH).json()
+    assert (job["target_job"], job["stages"]) == (first, 1)
+    scene = trimesh.load(io.BytesIO(api.client.get(f"/jobs/{second}/result.glb", headers=AUTH).content),
+                         file_type="glb")
+    assert len(scene.graph.nodes_geometry) == 3  # the table and the ball, kept, and the cube
+    wait_for(lambda: driver.find_elements(By.CSS_SELECTOR, f"#jobs-body tr[data-id='{second}']"), 20, "the new row")
+    rows = [r.get_attribute("data-id") for r in driver.find_elements(By.CSS_SELECTOR, "#jobs-body tr")]
+    assert rows.index(second) == rows.index(first) + 1  # under the job it adds to
+    added = find(By.CSS_SELECTOR, f"#jobs-body tr[data-id='{second}']").text
+    assert "↳ a cube on the ball" in added and f"added to the scene of {first[:8]}" in added
+    find(By.ID, "result").location_once_scrolled_into_view  # noqa: B018
+    shoot(driver, "add-object-result")
+
+
 def test_cancel_from_the_page(api, worker, browser):
     """A longer run (the default preset, one of the examples): watch it optimise, then cancel it.
 

@@ -14,6 +14,7 @@ const state = {
   viewer: null,
   previews: { target: null, source: null }, // input previews (Viewer), made on the first file of each slot
   previewed: { target: null, source: null }, // the file each slot's preview is for (a newer one wins)
+  chained: null, // {id, file}: the target slot holds that job's result scene, sent as target_job
   result: null, // {id, blobs: {file name: Blob}}
   urls: [], // blob URLs to revoke when the next result replaces this one
   figures: [], // the progress readout's figure (guide match, else -gap) over time, for the spark line
@@ -201,7 +202,9 @@ async function submit(event) {
   // Nothing is checked here that the service checks: its answer (code, message, field) is what is shown.
   const data = new FormData();
   for (const role of ROLES) {
-    if (state.files[role]) data.append(role, state.files[role], state.files[role].name);
+    const chained = role === "target" && state.chained && state.files.target === state.chained.file;
+    if (chained) data.append("target_job", state.chained.id); // the scene itself, read back as its objects
+    else if (state.files[role]) data.append(role, state.files[role], state.files[role].name);
     const name = $(`name-${role}`).value.trim();
     if (name) data.append(`${role}_name`, name);
   }
@@ -368,6 +371,20 @@ async function cancel(id) {
 
 // -- the result -------------------------------------------------------------------------------------
 
+/** "Add an object to this scene": the next job's target is this result's scene (target_job), its objects
+ * kept apart and in place; the form keeps the other settings, and the scene shows in the target's preview. */
+function addObject() {
+  const { id, blobs } = state.result;
+  const file = new File([blobs["result.glb"]], `scene-${id.slice(0, 8)}.glb`, { type: "model/gltf-binary" });
+  setFile("target", file);
+  state.chained = { id, file };
+  $("chosen-target").textContent = `the scene of job ${id.slice(0, 8)} (its objects stay put)`;
+  setFile("source", null);
+  for (const field of ["name-target", "name-source", "prompt"]) $(field).value = "";
+  $("new-job").scrollIntoView();
+  $("prompt").focus();
+}
+
 async function showResult(id) {
   clearError();
   const viewerBox = $("viewer");
@@ -472,14 +489,17 @@ async function refreshJobs(more = false) {
   }
   const body = $("jobs-body");
   if (!more) body.replaceChildren();
-  for (const job of page.jobs) {
+  for (const [job, depth] of grouped(page.jobs)) {
     const row = body.insertRow();
     row.dataset.id = job.id;
     row.insertCell().textContent = new Date(job.created_at).toLocaleString();
     const status = row.insertCell();
     status.textContent = job.status + (job.error && job.error.code !== job.status ? ` (${job.error.code})` : "");
     status.className = `status-${job.status}`;
-    row.insertCell().textContent = job.prompt ?? "(reference image)";
+    const what = row.insertCell();
+    what.textContent = `${"↳ ".repeat(depth)}${job.prompt ?? "(reference image)"}`
+      + (job.stages > 1 ? ` (an assembly of ${job.stages} objects)` : "")
+      + (job.target_job ? ` (added to the scene of ${job.target_job.slice(0, 8)})` : "");
     const open = document.createElement("button");
     open.type = "button";
     open.textContent = job.status === "succeeded" ? "Open" : TERMINAL.includes(job.status) ? "Details" : "Follow";
@@ -488,6 +508,25 @@ async function refreshJobs(more = false) {
   }
   state.nextPage = page.next;
   $("jobs-more").hidden = !page.next;
+}
+
+/** The page's jobs with each job that adds to another's scene right under it (newest first, as listed), and
+ * its depth in the chain: a scene built object by object reads as one group. */
+function grouped(jobs) {
+  const listed = new Set(jobs.map((job) => job.id));
+  const children = new Map();
+  for (const job of jobs) {
+    if (job.target_job && listed.has(job.target_job)) {
+      children.set(job.target_job, [...(children.get(job.target_job) || []), job]);
+    }
+  }
+  const out = [];
+  const visit = (job, depth) => {
+    out.push([job, depth]);
+    for (const child of children.get(job.id) || []) visit(child, depth + 1);
+  };
+  for (const job of jobs) if (!(job.target_job && listed.has(job.target_job))) visit(job, 0);
+  return out;
 }
 
 async function reopen(job) {
@@ -529,6 +568,7 @@ async function init() {
   document.querySelectorAll("input[name=guide]").forEach((r) => r.addEventListener("change", guideChanged));
   $("align-form").addEventListener("submit", submit);
   document.querySelectorAll("[data-file]").forEach((b) => b.addEventListener("click", () => download(b.dataset.file)));
+  $("add-object").addEventListener("click", addObject);
   $("jobs-refresh").addEventListener("click", () => refreshJobs());
   $("jobs-more").addEventListener("click", () => refreshJobs(true));
   $("key-form").addEventListener("submit", (e) => {
