@@ -56,6 +56,12 @@ def sample_spacing(pair: PreparedPair, count: int) -> float:
     return math.sqrt(float(pair.target.area) / count) * pair.target_to_normalised.scale
 
 
+def contact_gap(pair: PreparedPair, poses: Poses) -> torch.Tensor:
+    """(B,) each pose's gap to the target in source diagonals: its ``clearance`` less the target samples' spacing
+    (a small source on a big target is farther from the nearest sample than from the surface), at least 0."""
+    return (clearance(pair, pair.index, poses) - (touch_limit(pair, poses) - TOUCH)).clamp(min=0)
+
+
 def touch_limit(pair: PreparedPair, poses: Poses) -> torch.Tensor:
     """(B,) the ``clearance`` (source diagonals) under which a pose touches: ``TOUCH`` plus the spacing of the
     target samples (a small source on a big target is farther from the nearest sample than from the surface)."""

@@ -18,7 +18,7 @@ import torch
 from ctp_core.cameras import sample_training_views
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
-from ctp_core.objective import Scorer, clearance, combine, holding, select_answer, touch_limit
+from ctp_core.objective import Scorer, clearance, combine, contact_gap, holding, select_answer, touch_limit
 from ctp_core.pose import Poses, matrix_to_quaternion, quaternion_product, random_quaternions
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.scene import PreparedPair
@@ -180,10 +180,11 @@ class Optimiser:
         """The progress figures of the restarts' best poses so far (evaluation views): the lowest objective, and
         what a person reads instead of it (its scale changes with each phase's weights): the best restart's
         match to the guide (mean cosine; none without one, or with one whose gate is 0) and its gap to the
-        target (source diagonals), and in how many restarts the prompt's relation holds."""
+        target (source diagonals, within the target samples' spacing), and in how many restarts the prompt's
+        relation holds."""
         scorer = self.scorer
         i = int(scores["objective"].argmin())
-        gap = clearance(scorer.pair, scorer.pair.index, best.select(slice(i, i + 1)))
+        gap = contact_gap(scorer.pair, best.select(slice(i, i + 1)))
         relation = scorer.relation
         return {"best_objective": float(scores["objective"][i]), "contact_gap": float(gap[0]),
                 "guide_match": -float(scores["clip"][i]) if scorer.guided else None, "relation": relation,

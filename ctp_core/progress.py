@@ -40,7 +40,8 @@ class ProgressEvent:
     relation_holds: int | None = None  # where it holds: of the candidates scored so far (search), of the restarts
     relation_checked: int | None = None  # ... out of this many
     guide_match: float | None = None  # the best restart's mean cosine to the guide's goal, evaluation views
-    contact_gap: float | None = None  # the best restart's gap to the target, source diagonals (0: touching)
+    contact_gap: float | None = None  # the best restart's gap to the target, source diagonals, within the target
+    # samples' spacing (0: touching)
 
     @property
     def fraction(self) -> float:

@@ -1,5 +1,9 @@
 """How the search ranks its candidates (``proposals``): score them forward only, keep a diverse best few.
 
+First the geometry screens every proposal (``Scorer.screen``: the relation's verdict, penetration, contact; no
+render) and only ``search.shortlist`` of them reach the guide (``encoder_shortlist``: distinct places where the
+relation holds, and a share of the others), so the encoder's images go to what can be the answer; a guide whose
+spread is within its noise (``Gate`` override 0) encodes nothing after the coarse stage (``Scorer.guided``).
 ``score``: the objective's terms (``objective.Scorer``) of every candidate, ranked by the prompt's relation first,
 then by the guide's term where there is a guide with signal (``ranking_key``, ``guide_noise``: the proposals
 satisfy the geometry already), forward only under inference

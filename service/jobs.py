@@ -114,7 +114,8 @@ class Progress(BaseModel):
                                       "cosine between its views and the goal (higher is better); null without a "
                                       "guide, or with one that does not tell the candidates apart")
     contact_gap: float | None = Field(None, description="the best restart's gap to the target in source "
-                                      "diagonals (0: touching); null during the search")
+                                      "diagonals, within the target's sample spacing (0: touching); null during "
+                                      "the search")
 
 
 class JobError(BaseModel):

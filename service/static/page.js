@@ -18,6 +18,7 @@ const state = {
   result: null, // {id, blobs: {file name: Blob}}
   urls: [], // blob URLs to revoke when the next result replaces this one
   figures: [], // the progress readout's figure (guide match, else -gap) over time, for the spark line
+  readout: false, // whether this job's progress has shown a readout (then the objective is never shown)
   nextPage: null,
 };
 
@@ -261,6 +262,7 @@ async function follow(id) {
   const controller = new AbortController();
   state.following = controller;
   state.figures = [];
+  state.readout = false;
   drawSpark();
   $("quality").textContent = "";
   $("progress").hidden = false;
@@ -337,7 +339,12 @@ function readout(p) {
   if (p.contact_gap != null) {
     parts.push(p.contact_gap < 0.005 ? "touching" : `gap ${(100 * p.contact_gap).toFixed(1)} % of the source's size`);
   }
-  if (!parts.length && p.objective != null) parts.push(`objective ${p.objective.toFixed(4)} (best restart; lower is better)`);
+  // the objective only while no readout came (a run without a relation, before its refinement); the exporting
+  // and done events carry none, and the last readout stays up
+  if (!parts.length && p.objective != null && !state.figures.length && !state.readout) {
+    return `objective ${p.objective.toFixed(4)} (best restart; lower is better)`;
+  }
+  if (parts.length) state.readout = true;
   return parts.join(" - ");
 }
 
