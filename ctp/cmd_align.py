@@ -17,7 +17,7 @@ from types import UnionType
 from typing import Any, Literal, Union, get_args, get_origin
 
 from ctp_core import names
-from ctp_core.config import Runtime
+from ctp_core.config import MAX_ALTERNATIVES, Runtime
 from ctp_core.errors import ConfigError, ImageError, MeshError
 from ctp_core.priors import PROVIDERS
 
@@ -36,6 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="object name for the priors (default: from the file name)")
     add_switch(parser, "--judge-up", "upright_judge", True,
                "let the guidance model pick the target's up from renders named --target-name (needs real weights)")
+    parser.add_argument("--alternatives", type=int, default=1, metavar="N",
+                        help="also write the next best distinct placements, up to N in all with the answer "
+                             "(--out's name with -2, -3, ... before .glb; at most 4, as many as the run refined)")
 
 
 def add_run_arguments(parser: argparse.ArgumentParser) -> None:
@@ -171,6 +174,8 @@ def check_inputs(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     if not args.prompt and not args.image and args.lambda_clip is None:  # --no-guidance not given
         raise ConfigError("give --prompt TEXT or --image REF.png (or --no-guidance)", field="prompt")
+    if not 1 <= args.alternatives <= MAX_ALTERNATIVES:
+        raise ConfigError(f"--alternatives must be 1 to {MAX_ALTERNATIVES}", field="alternatives")
     check_inputs(args)
     config = config_from_args(args)
     from ctp_core import export, io  # the engine (torch, trimesh): seconds to import
@@ -187,6 +192,11 @@ def run(args: argparse.Namespace) -> int:
                    source_name=args.source_name or names.default_name(args.source.name, "source"),
                    on_event=ProgressBar(enabled=not args.quiet))
     export.write_outputs(result, glb=args.out, report_path=args.report, preview=args.preview)
+    others = []
+    for k in range(1, min(args.alternatives, len(result.alternatives))):
+        path = args.out.with_name(f"{args.out.stem}-{k + 1}{args.out.suffix}")
+        path.write_bytes(export.scene_glb(result.alternative(k)))
+        others.append(str(path))
     for warning in result.warnings:  # one line each, whatever --quiet says (the report has them too)
         print(f"warning: {warning['code']}: {warning['message']}", file=sys.stderr)
     summary = {"out": str(args.out), "objective": round(result.objective, 6), "scale": round(result.scale, 6),
@@ -195,5 +205,7 @@ def run(args: argparse.Namespace) -> int:
                "model": result.model, "runtime": result.runtime,
                "hparams": result.priors.get("provider"), "relation": result.relation,
                "names": {"target": result.priors["target_name"], "source": result.priors["source_name"]}}
+    if others:
+        summary["alternatives"] = others
     print(json.dumps(summary))
     return 0

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -17,7 +17,7 @@ import torch
 import trimesh
 
 from ctp_core import frames, priors
-from ctp_core.config import PENETRATION, AlignConfig
+from ctp_core.config import MAX_ALTERNATIVES, PENETRATION, AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 
@@ -68,6 +68,15 @@ class AlignResult:
     # stable); None when the priors read no relation
     relation: dict[str, Any] | None = None
     warnings: list[dict[str, Any]] = field(default_factory=list)  # {"code", "message", ...}: the run went on
+    # the best distinct placements the run refined, the answer first (``alternatives``): restart, source_to_target
+    # (file frames, 4x4), objective, the guide's and geometry's terms, relation verdict
+    alternatives: list[dict[str, Any]] = field(default_factory=list)
+    thumbnails: np.ndarray | None = None  # (K, H, W, 3) uint8: one view of each alternative
+
+    def alternative(self, k: int) -> AlignResult:
+        """This result with alternative ``k`` as its answer (0: the answer itself), for its GLB."""
+        return replace(self, source_to_target=np.asarray(self.alternatives[k]["source_to_target"], dtype=np.float64),
+                       objective=self.alternatives[k]["objective"], best_restart=self.alternatives[k]["restart"])
 
     @property
     def transform(self) -> frames.Similarity:
@@ -250,6 +259,16 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
     )
     verdict = predicates.verdict(pair, matrices[best], run.prior.relation, run.prior.source_is_figure)
     answer.relation = verdict.to_dict() if verdict is not None else None
+    picks = alternatives(run, outcome)
+    for i in picks:
+        judged = predicates.verdict(pair, matrices[i], run.prior.relation, run.prior.source_is_figure)
+        answer.alternatives.append({
+            "restart": i, "source_to_target": answers[i], "objective": float(outcome.objectives[i]),
+            **{k: float(outcome.terms[k][i]) for k in ("clip", "icp", "pen", "rel")},
+            "relation": judged.to_dict() if judged is not None else None})
+    thumbs = [scene.render_pair(pair, matrices[i], views=1, image_size=THUMBNAIL)[0] for i in picks]
+    answer.thumbnails = (torch.stack(thumbs).permute(0, 2, 3, 1).clamp(0, 1).cpu().numpy() * 255).round().astype(
+        np.uint8)
     if on_event:
         steps = sum(p.steps for p in run.plan)
         on_event(ProgressEvent(kind="done", phase=len(run.plan), phases=len(run.plan), step=outcome.steps_run,
@@ -257,6 +276,28 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
                                elapsed_s=time.perf_counter() - run.started, eta_s=0.0,
                                best_objective=answer.objective, message="done"))
     return answer
+
+
+THUMBNAIL = 160  # pixels, one view of each alternative
+
+
+def alternatives(run: Run, outcome: Outcome) -> list[int]:
+    """Restart indices of the best distinct placements the run refined, the answer first, at most
+    ``MAX_ALTERNATIVES``: the others ordered as the selection would (where the relation holds and nothing
+    intersects first, then the objective on the evaluation views), near ones (``search.distinct_translation``
+    source diagonals *and* ``distinct_rotation_deg``, as the search counts duplicates) and those that ended far
+    from the target (over ``objective.NEAR`` source diagonals) left out. A prompt like "a cup on the table" has
+    many right answers; a person picks among these."""
+    from ctp_core import objective, ranking
+
+    poses, terms = outcome.poses, {**outcome.terms, "objective": outcome.objectives}
+    key = outcome.objectives.double().cpu() + objective.TIER * (~objective.holding(terms)).double().cpu()
+    far = objective.clearance(run.pair, run.pair.index, poses) > objective.NEAR
+    key[far] = torch.inf
+    key[outcome.best] = -torch.inf
+    distance, angle = ranking.distinct_of(run.pair, run.config, float(poses.log_s[0]))
+    kept = ranking.diverse_top(poses, key, MAX_ALTERNATIVES, distance, angle, fill=False)
+    return [i for i in kept if torch.isfinite(key[i]) or i == outcome.best]
 
 
 def scale_ratio_warning(ratio: float) -> dict[str, Any] | None:

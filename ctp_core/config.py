@@ -26,6 +26,7 @@ from ctp_core.errors import ConfigError
 PENETRATION: dict[str, bool | None] = {"auto": None, "allow": True, "forbid": False}
 Penetration = Literal[tuple(PENETRATION)]
 Runtime = Literal["auto", "torch", "onnx", "onnx-int8"]  # the runtimes, spelled once (runtime.RUNTIMES)
+MAX_ALTERNATIVES = 4  # distinct placements a result offers, the answer among them (align.alternatives)
 
 
 class _Strict(BaseModel):

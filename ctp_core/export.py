@@ -26,7 +26,7 @@ from PIL import Image
 import ctp_core
 from ctp_core import priors
 from ctp_core.assemble import Assembly
-from ctp_core.frames import SCENE, Similarity
+from ctp_core.frames import SCENE, SOURCE_FILE, TARGET_FILE, Similarity
 from ctp_core.pose import matrix_to_quaternion
 from ctp_core.scene import objects
 
@@ -106,6 +106,12 @@ def _run(result: AlignResult, answer: dict | None = None) -> dict:
         "hparams": _jsonable(priors.to_report(result.priors)),
         "relation": _jsonable(result.relation),  # predicates.RelationVerdict of the answer; None without one
         "restarts": _jsonable(result.restarts),
+        # the best distinct placements, the answer first (an assembly's stages: none, their frames differ)
+        "alternatives": [] if answer is not None else [
+            _jsonable({**{k: v for k, v in a.items() if k != "source_to_target"},
+                       "transform": transform(Similarity(np.asarray(a["source_to_target"], dtype=np.float64),
+                                                         SOURCE_FILE, TARGET_FILE))})
+            for a in result.alternatives],
         "timings": _jsonable(result.timings),
         "extra": _jsonable(_extra(result)),
         "warnings": _jsonable(result.warnings),  # {"code", "message", ...}: what the run went on despite
@@ -134,6 +140,13 @@ def _provenance() -> dict:
         },
         "created_at": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
     }
+
+
+def strip_png(images: np.ndarray) -> bytes:
+    """(K, H, W, 3) uint8 views -> one PNG, side by side with no gaps (image k at x = k W: a page can show each)."""
+    buffer = io.BytesIO()
+    Image.fromarray(np.concatenate(list(images), axis=1)).save(buffer, format="PNG")
+    return buffer.getvalue()
 
 
 def preview_png(images: np.ndarray) -> bytes:

@@ -124,7 +124,7 @@ class Optimiser:
                                override=scorer.gate.override if scorer.gate is not None else 1.0,
                                share=scorer.config.search.min_share),
             poses=best, objectives=objectives,
-            terms={k: scores[k] for k in ("clip", "icp", "pen", "rel")}, timings=totals,
+            terms={k: scores[k] for k in ("clip", "icp", "pen", "rel", "sunk")}, timings=totals,
             phase_timings=phase_timings, clip_images=self.scorer.clip_images, steps_run=self.done,
         )
 

@@ -226,9 +226,10 @@ def guide_noise(scorer: Scorer, poses: Poses, terms: dict[str, torch.Tensor], we
     return Gate(float(clip.std()) if len(clip) > 1 else 0.0, noise)
 
 
-def diverse_top(poses: Poses, objectives: torch.Tensor, k: int, distance: float, angle_deg: float) -> list[int]:
+def diverse_top(poses: Poses, objectives: torch.Tensor, k: int, distance: float, angle_deg: float, *,
+                fill: bool = True) -> list[int]:
     """Indices of the ``k`` best poses (lowest objective), skipping any within ``distance`` (normalised units) and
-    ``angle_deg`` of one already kept; duplicates fill in only when too few distinct poses exist."""
+    ``angle_deg`` of one already kept; duplicates fill in only when too few distinct poses exist (``fill``)."""
     order = torch.argsort(objectives).tolist()
     q = torch.nn.functional.normalize(poses.q, dim=-1)
     kept: list[int] = []
@@ -242,7 +243,8 @@ def diverse_top(poses: Poses, objectives: torch.Tensor, k: int, distance: float,
             if bool((near & close).any()):
                 continue
         kept.append(i)
-    kept += [i for i in order if i not in kept][: k - len(kept)]
+    if fill:
+        kept += [i for i in order if i not in kept][: k - len(kept)]
     return kept
 
 
@@ -259,7 +261,7 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
     started = began if started is None else started
     log_s = float(proposals.poses.log_s[0])
     cameras = coarse_cameras(pair, config, log_s)
-    distinct = _distinct(pair, config, log_s)
+    distinct = distinct_of(pair, config, log_s)
     screened = 0
     if scorer.use_clip and 0 < cfg.shortlist < len(proposals.poses):  # only what can be the answer reaches the encoder
         screened = len(proposals.poses)
@@ -413,7 +415,8 @@ def ranking_key(scorer: Scorer, terms: dict[str, torch.Tensor], weights: Phase,
     return rank_key(terms, weights, guide_key=key, override=override, share=scorer.config.search.min_share)
 
 
-def _distinct(pair: PreparedPair, config: AlignConfig, log_s: float) -> tuple[float, float]:
+def distinct_of(pair: PreparedPair, config: AlignConfig, log_s: float) -> tuple[float, float]:
+    """When two poses count as one (``diverse_top``): closer than this (normalised units) and this angle (deg)."""
     src = pair.source_samples
     diagonal = float((src.max(0).values - src.min(0).values).norm()) * math.exp(log_s)
     return config.search.distinct_translation * diagonal, config.search.distinct_rotation_deg

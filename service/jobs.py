@@ -66,7 +66,25 @@ Status = Literal["queued", "running", "succeeded", "failed", "canceled"]
 TERMINAL: frozenset[str] = frozenset({"succeeded", "failed", "canceled"})
 INPUTS = ("target", "source", "image")  # an assembly's are "target" (its base), "source-<i>", "image-<i>"
 # Result files: name -> media type.
-OUTPUTS = {"result.glb": "model/gltf-binary", "report.json": "application/json", "preview.png": "image/png"}
+OUTPUTS = {"result.glb": "model/gltf-binary", "report.json": "application/json", "preview.png": "image/png",
+           "alternatives.png": "image/png"}
+
+
+def alternative_blob(k: int) -> str:
+    """The stored name of alternative ``k``'s GLB (``result.glb?alternative=k``): the answer's is ``result.glb``."""
+    return "result.glb" if k == 0 else f"alternative-{k}.glb"
+
+
+class Alternative(BaseModel):
+    """One of the best distinct placements a job refined (the report's ``alternatives`` has them whole)."""
+
+    index: int = Field(description="0 for the answer, then the next best distinct ones: ?alternative=index")
+    objective: float = Field(description="its objective on the evaluation views (lower is better)")
+    guide_match: float | None = Field(None, description="mean cosine between its views and the goal; null "
+                                      "without a guide")
+    relation_holds: bool | None = Field(None, description="whether the prompt's relation holds there; null "
+                                        "without one")
+
 TASK = "worker.tasks.run_job"  # by name: the API never imports the engine
 
 
@@ -171,6 +189,8 @@ class JobRecord(BaseModel):
     target_job: str | None = Field(None, description="the job whose result scene is the target (POST /align)")
     on: str | None = Field(None, description="with target_job: the object of its scene the source relates to")
     steps: list[AssemblyStep] = Field(default_factory=list, description="an assembly's stages")
+    alternatives: list[Alternative] = Field(default_factory=list, description="the best distinct placements, the "
+                                            "answer first, once the job succeeded")
     webhook: Webhook | None = Field(None, description="where events of this job are delivered, and how that went")
     webhook_progress_at: float | None = Field(None, description="when its last progress event was queued (Unix "
                                               "seconds): the throttle")
@@ -379,8 +399,10 @@ class Jobs:
         return self._update(job_id, lambda r: r.model_copy(update={"progress": progress})
                             if r.status == "running" else None)
 
-    def finish(self, job_id: str, status: Status, error: JobError | None = None) -> JobRecord | None:
-        """running -> a terminal status; frees the key's slot and drops the inputs."""
+    def finish(self, job_id: str, status: Status, error: JobError | None = None,
+               alternatives: list[Alternative] | None = None) -> JobRecord | None:
+        """running -> a terminal status; frees the key's slot and drops the inputs; a succeeded job keeps its
+        ``alternatives``."""
         assert status in TERMINAL
 
         def change(r: JobRecord) -> JobRecord | None:
@@ -395,7 +417,7 @@ class Jobs:
                 message = f"failed: {error.code}" if status == "failed" and error else status
                 progress = progress.model_copy(update={"eta_s": None, "message": message})
             return r.model_copy(update={"status": status, "finished_at": now(), "error": error,
-                                        "progress": progress})
+                                        "progress": progress, "alternatives": alternatives or []})
 
         record = self._update(job_id, change, self._release)
         if record is not None and record.status == status:

@@ -102,7 +102,7 @@ def test_cli_align_end_to_end(tmp_path, meshes, capsys):
     out, report, preview = tmp_path / "scene.glb", tmp_path / "report.json", tmp_path / "preview.png"
     code = main(["align", str(target), str(source), "--prompt", "a cup on the table", "--preset", "test",
                  "--model", "random:tiny", "--out", str(out), "--report", str(report),
-                 "--preview", str(preview), "--quiet"])
+                 "--preview", str(preview), "--quiet", "--alternatives", "3"])
     assert code == 0
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert summary["out"] == str(out)
@@ -114,7 +114,17 @@ def test_cli_align_end_to_end(tmp_path, meshes, capsys):
     assert data["relation"]["name"] == "on" and data["relation"]["role"] == "figure"  # predicates.RelationVerdict
     assert summary["relation"] == data["relation"]
     assert list(data) == ["transform", "objective", "prompt", "model", "seed", "preset", "config", "hparams",
-                          "relation", "restarts", "timings", "extra", "warnings", "versions", "created_at"]
+                          "relation", "restarts", "alternatives", "timings", "extra", "warnings", "versions",
+                          "created_at"]
+    # the best distinct placements, the answer first; --alternatives 3 wrote the next two beside --out
+    alternatives = data["alternatives"]
+    assert alternatives[0]["restart"] == data["extra"]["best_restart"]
+    assert alternatives[0]["transform"]["matrix"] == data["transform"]["matrix"]
+    written = [str(tmp_path / f"scene-{k}.glb") for k in range(2, min(3, len(alternatives)) + 1)]
+    assert summary.get("alternatives", []) == written and len(alternatives) >= 2
+    for k, path in enumerate(written, start=1):
+        placed = trimesh.load(path, force="scene").graph["source"][0]
+        np.testing.assert_allclose(placed, alternatives[k]["transform"]["matrix"], atol=1e-6)
     assert list(data["extra"]) == ["best_restart", "on", "guidance", "runtime", "clip_images", "phase_timings",
                                    "target_upright"]
     assert data["extra"]["clip_images"] > 0 and len(data["extra"]["phase_timings"]) == data["config"]["optim"]["phases"]
@@ -185,3 +195,28 @@ def test_degenerate_meshes_align(case):
     distance = np.linalg.norm(matrix[:3, :3] @ source.bounds.mean(0) + matrix[:3, 3]
                               - target.bounds.mean(0))
     assert distance < 10 * target.extents.max()
+
+
+def test_alternatives_are_distinct_placements_the_answer_first(meshes):
+    """Up to ``MAX_ALTERNATIVES`` of the refined restarts, no two within the search's duplicate thresholds (0.25
+    source diagonals and 30 degrees), the answer first, each with its relation verdict and a thumbnail; a
+    result's alternative k has that placement as its answer."""
+    from ctp_core.config import MAX_ALTERNATIVES
+
+    config = AlignConfig.from_preset("test", model="random:tiny", optim={"restarts": 6})
+    result = align(*meshes, "a cup on the table", config, target_name="table", source_name="cup")
+    alternatives = result.alternatives
+    assert 2 <= len(alternatives) <= MAX_ALTERNATIVES and alternatives[0]["restart"] == result.best_restart
+    np.testing.assert_allclose(alternatives[0]["source_to_target"], result.source_to_target)
+    diagonal = float(np.linalg.norm(result.source.extents))
+    for i, a in enumerate(alternatives):
+        for b in alternatives[:i]:
+            ma, mb = np.asarray(a["source_to_target"]), np.asarray(b["source_to_target"])
+            apart = np.linalg.norm(ma[:3, 3] - mb[:3, 3]) / diagonal
+            turn = np.degrees(np.arccos(np.clip((np.trace(ma[:3, :3] @ mb[:3, :3].T) - 1) / 2, -1, 1)))
+            assert apart >= 0.25 - 1e-6 or turn >= 30 - 1e-3, (apart, turn)
+        assert a["relation"]["name"] == "on"
+    assert result.thumbnails.shape == (len(alternatives), 160, 160, 3)
+    second = result.alternative(1)
+    np.testing.assert_allclose(second.source_to_target, alternatives[1]["source_to_target"])
+    assert second.best_restart == alternatives[1]["restart"] and result.best_restart == alternatives[0]["restart"]

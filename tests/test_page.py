@@ -331,6 +331,48 @@ def test_add_an_object_to_a_result_from_the_page(api, worker, browser, tmp_path)
     shoot(driver, "add-object-result")
 
 
+def test_choose_among_alternatives_from_the_page(api, worker, browser):
+    """The result's strip of alternatives: a click shows that placement in the 3D view, and the GLB download is
+    that one's (the same bytes as result.glb?alternative=k)."""
+    from selenium.webdriver.common.by import By
+
+    target, source = table_and_ball()
+    answer = api.client.post("/align", headers=AUTH,
+                             files={"target": ("table.glb", target), "source": ("ball.glb", source)},
+                             data={"prompt": "a ball on a table",
+                                   "options": json.dumps({"preset": "test", "restarts": 6})})
+    job_id = answer.json()["id"]
+    job = wait_for(lambda: (j := api.client.get(f"/jobs/{job_id}", headers=AUTH).json())["status"] == "succeeded"
+                   and j, 240, "the job")
+    assert len(job["alternatives"]) >= 2, job["alternatives"]
+
+    driver, find = browser, browser.find_element
+    open_page(driver, api)
+    opener = f"#jobs-body tr[data-id='{job_id}'] button"
+    wait_for(lambda: driver.find_elements(By.CSS_SELECTOR, opener), 20, "the job list")
+    find(By.CSS_SELECTOR, opener).click()
+    wait_for(lambda: find(By.ID, "viewer").get_attribute("data-ready") and find(By.ID, "alternatives").is_displayed(),
+             60, "the result and its alternatives")
+    buttons = driver.find_elements(By.CSS_SELECTOR, "#alternatives button")
+    assert len(buttons) == len(job["alternatives"]) and buttons[0].text.startswith("answer")
+    assert "chosen" in buttons[0].get_attribute("class") and find(By.ID, "add-object").is_enabled()
+    buttons[1].click()
+    wait_for(lambda: find(By.ID, "viewer").get_attribute("data-alternative") == "1"
+             and find(By.ID, "viewer").get_attribute("data-ready"), 30, "the second placement shown")
+    assert "chosen" in buttons[1].get_attribute("class") and not find(By.ID, "add-object").is_enabled()
+    find(By.ID, "result").location_once_scrolled_into_view  # noqa: B018
+    shoot(driver, "alternative")
+    find(By.CSS_SELECTOR, "[data-file='result.glb']").click()
+    downloaded = driver.downloads / f"{job_id}-result-2.glb"
+    wait_for(downloaded.exists, 20, "the alternative's GLB download")
+    time.sleep(0.2)
+    assert downloaded.read_bytes() == api.client.get(f"/jobs/{job_id}/result.glb", params={"alternative": 1},
+                                                     headers=AUTH).content
+    buttons[0].click()
+    wait_for(lambda: find(By.ID, "viewer").get_attribute("data-alternative") == "0", 30, "the answer again")
+    assert find(By.ID, "add-object").is_enabled()
+
+
 def test_cancel_from_the_page(api, worker, browser):
     """A longer run (the default preset, one of the examples): watch it optimise, then cancel it.
 

@@ -363,7 +363,23 @@ def test_end_to_end_with_progress_events(api, worker):
     np.testing.assert_allclose(scene.graph["source"][0], matrix, atol=1e-5)
     preview = Image.open(io.BytesIO(api.client.get(links["preview"]).content))
     assert preview.format == "PNG" and preview.width > 0
-    assert api.client.get(accepted.json()["links"]["self"]).json()["status"] == "succeeded"
+    job = api.client.get(accepted.json()["links"]["self"]).json()
+    assert job["status"] == "succeeded"
+    # the best distinct placements, the answer first: each one's GLB, their views side by side
+    alternatives = job["alternatives"]
+    assert [a["index"] for a in alternatives] == list(range(len(alternatives))) and len(alternatives) >= 2
+    assert [a["objective"] for a in alternatives] == [a["objective"] for a in report["alternatives"]]
+    assert alternatives[0]["relation_holds"] == report["relation"]["holds"]
+    assert api.client.get(links["result"], params={"alternative": 0}).content == api.client.get(links["result"]).content
+    second = trimesh.load(io.BytesIO(api.client.get(links["result"], params={"alternative": 1}).content),
+                          file_type="glb")
+    np.testing.assert_allclose(second.graph["source"][0], report["alternatives"][1]["transform"]["matrix"], atol=1e-5)
+    past = api.client.get(links["result"], params={"alternative": len(alternatives)})
+    assert (past.status_code, past.json()["error"]["code"]) == (404, "alternative_not_found")
+    wrong = api.client.get(links["report"], params={"alternative": 1})
+    assert (wrong.status_code, wrong.json()["error"]["code"]) == (400, "invalid_request")
+    strip = Image.open(io.BytesIO(api.client.get(f"{links['self']}/alternatives.png").content))
+    assert strip.size == (160 * len(alternatives), 160)
     again = api.client.delete(links["cancel"])
     assert (again.status_code, again.json()["error"]["code"]) == (409, "job_finished")
 

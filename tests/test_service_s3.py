@@ -19,7 +19,7 @@ import redis
 from ctp.cmd_serve import stop_processes
 from service.client import Client, ServiceError
 from service.embedded import free_port
-from service.jobs import OUTPUTS, Jobs
+from service.jobs import OUTPUTS, Jobs, alternative_blob
 from service.storage import S3Storage, StorageUnavailable
 from tests.conftest import REPO, Api, Worker, park_worker, service_env, wait_for
 from tests.test_service import BALL, BOX, FAST, submit
@@ -235,10 +235,12 @@ def test_api_and_workers_without_a_shared_disk_on_named_queues(private_redis, s3
                 assert client.download(job_id, name) == stored and stored
         # An API that streams serves the same jobs itself: what the links promised, while it is still configured.
         assert api_view.client.get(f"/jobs/{others[0]}/report.json").status_code == 200
-        # Nothing lost, nothing left: every job's record; each succeeded job's three results; no upload of any.
+        # Nothing lost, nothing left: every job's record; each succeeded job's results; no upload of any.
         assert all(record_of(env, job_id) is not None for job_id in [doomed, *succeeded])
+        stored = {job_id: [*OUTPUTS, *(alternative_blob(k) for k in range(1, len(record_of(env, job_id).alternatives)))]
+                  for job_id in succeeded}  # and the other alternatives' GLBs
         assert objects(s3_server, f"{prefix}/") == sorted(f"{job_id}/{name}" for job_id in succeeded
-                                                          for name in OUTPUTS)
+                                                          for name in stored[job_id])
     finally:
         client.close()
         api_view.stop()

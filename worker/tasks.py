@@ -22,12 +22,12 @@ from ctp_core.align import align
 from ctp_core.assemble import Step, assemble
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled, ConfigError, CtpError, JobTooLarge, forget, out_of_memory
-from ctp_core.export import assembly_glb, assembly_report, preview_png, report, scene_glb
+from ctp_core.export import assembly_glb, assembly_report, preview_png, report, scene_glb, strip_png
 from ctp_core.guidance import guide_for
 from ctp_core.io import MeshLimits, load_image, load_objects
 from ctp_core.loader import MeshLoader
 from ctp_core.progress import ProgressEvent
-from service.jobs import JobError, JobRecord, Progress, Stage, Status
+from service.jobs import Alternative, JobError, JobRecord, Progress, Stage, Status, alternative_blob
 from service.settings import MiB, Settings
 from service.storage import StorageUnavailable
 from worker.main import context, where
@@ -93,6 +93,7 @@ def run_job(job_id: str) -> str:
     ctx.beat.begin(job_id)
     status: Status = "failed"
     error: JobError | None = None
+    alternatives: list[Alternative] = []  # a succeeded alignment's best distinct placements
     stage = Stage(name="loading")  # the stage of the job's last progress: where an allocation failed
     budget_mb: int | None = None
 
@@ -112,6 +113,7 @@ def run_job(job_id: str) -> str:
             files = (assemble_job if record.kind == "assemble" else align_job)(record, inputs, job)
             for name, data in files.items():
                 ctx.jobs.storage.put(job_id, name, data)
+            alternatives = alternatives_of(json.loads(files["report.json"]))
             status = "succeeded"
     except Canceled as exc:
         status, error = "canceled", JobError(code=exc.code, message="canceled while running")
@@ -134,7 +136,7 @@ def run_job(job_id: str) -> str:
         ctx.beat.end()
     if error is not None and error.code == JobTooLarge.code:
         gc.collect()  # frames in reference cycles: give their memory back before the next job
-    ctx.jobs.finish(job_id, status, error)
+    ctx.jobs.finish(job_id, status, error, alternatives)
     return status
 
 
@@ -247,7 +249,19 @@ def align_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobContex
     result = align(target, source, record.prompt, config, on=record.on, image=image, target_name=record.target_name,
                    source_name=record.source_name, guide=guide, on_event=on_event, should_cancel=job.should_cancel)
     job.on_progress(_exporting(config, objective=result.objective, restarts=len(result.restarts)), True)
-    return _results(scene_glb(result, source_name=record.source_name), report(result), result.preview)
+    files = _results(scene_glb(result, source_name=record.source_name), report(result), result.preview)
+    for k in range(1, len(result.alternatives)):  # the answer's is result.glb
+        files[alternative_blob(k)] = scene_glb(result.alternative(k), source_name=record.source_name)
+    if result.thumbnails is not None:
+        files["alternatives.png"] = strip_png(result.thumbnails)
+    return files
+
+
+def alternatives_of(report_: dict[str, Any]) -> list[Alternative]:
+    """The job record's summary of a report's ``alternatives`` (GET /jobs/{id})."""
+    return [Alternative(index=k, objective=a["objective"], guide_match=None if not a.get("clip") else -a["clip"],
+                        relation_holds=None if a.get("relation") is None else a["relation"]["holds"])
+            for k, a in enumerate(report_.get("alternatives", []))]
 
 
 def assemble_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobContext) -> dict[str, bytes]:

@@ -10,12 +10,13 @@ from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import RedirectResponse, StreamingResponse
 
+from ctp_core.config import MAX_ALTERNATIVES
 from service import forms
 from service import submit as submit_
 from service.chained import chained_target
 from service.deps import own_job, owner
 from service.errors import ApiError, binary, documented
-from service.jobs import OUTPUTS, TERMINAL, JobRecord, Jobs, now, parse_record
+from service.jobs import OUTPUTS, TERMINAL, JobRecord, Jobs, alternative_blob, now, parse_record
 from service.schemas import Accepted, JobList, JobOut, build_config
 
 log = logging.getLogger("ctp.service")
@@ -127,19 +128,34 @@ async def job_events(job_id: str, request: Request, who: str = Depends(owner)):
                              headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
 
 
+ALTERNATIVE = Query(None, ge=0, lt=MAX_ALTERNATIVES, description="result.glb only: 0 for the answer (the "
+                    "default), 1 to 3 for the next best distinct placements the job refined (`alternatives` in GET "
+                    "/jobs/{id}); 404 `alternative_not_found` past the job's own")
+
+
 def _add_output_route(name: str, media_type: str) -> None:
-    async def download(job_id: str, request: Request, who: str = Depends(owner)) -> Response:
+    async def download(job_id: str, request: Request, who: str = Depends(owner),
+                       alternative: int | None = ALTERNATIVE) -> Response:
         record = await own_job(request, job_id, who)
         if record.status != "succeeded":
             raise ApiError(409, "job_not_ready", f"job {job_id} is {record.status}; results exist once it succeeded")
+        stored = name
+        if alternative is not None and name == "result.glb":
+            if alternative >= max(1, len(record.alternatives)):
+                raise ApiError(404, "alternative_not_found", f"job {job_id} has {len(record.alternatives)} "
+                               f"alternatives; asked for {alternative}", field="alternative")
+            stored = alternative_blob(alternative)
+        elif alternative is not None:
+            raise ApiError(400, "invalid_request", f"only result.glb takes ?alternative, not {name}",
+                           field="alternative")
         storage, presign_s = request.app.state.jobs.storage, request.app.state.settings.s3_presign_s
-        filename = f"{job_id}-{name}"
+        filename = f"{job_id}-{stored}"
         if record.downloads == "redirect" and presign_s:  # what the job's links promised, while still configured
-            url = await run_in_threadpool(storage.url, job_id, name, presign_s, media_type=media_type,
+            url = await run_in_threadpool(storage.url, job_id, stored, presign_s, media_type=media_type,
                                           filename=filename)
             if url is not None:
                 return RedirectResponse(url, status_code=307)
-        data = await run_in_threadpool(storage.get, job_id, name)
+        data = await run_in_threadpool(storage.get, job_id, stored)
         if data is None:
             raise ApiError(404, "job_not_found", f"the results of job {job_id} have expired")
         return Response(data, media_type=media_type,

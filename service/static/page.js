@@ -396,11 +396,12 @@ async function showResult(id) {
   clearError();
   const viewerBox = $("viewer");
   delete viewerBox.dataset.ready; // set again once this result is drawn
-  let glb, report, preview;
+  let glb, report, preview, strip;
   try {
-    [glb, report, preview] = await Promise.all([
+    [glb, report, preview, strip] = await Promise.all([
       api.blob(`jobs/${id}/result.glb`), api.blob(`jobs/${id}/report.json`),
       api.blob(`jobs/${id}/preview.png`).catch(() => null), // a run may have no preview
+      api.blob(`jobs/${id}/alternatives.png`).catch(() => null), // nor an assembly alternatives
     ]);
   } catch (err) {
     showError(err);
@@ -408,11 +409,13 @@ async function showResult(id) {
   }
   state.urls.forEach((url) => URL.revokeObjectURL(url));
   state.urls = [];
-  state.result = { id, blobs: { "result.glb": glb, "report.json": report, "preview.png": preview } };
+  state.result = { id, alternative: 0, glbs: { 0: glb },
+                   blobs: { "result.glb": glb, "report.json": report, "preview.png": preview } };
   $("result").hidden = false;
   $("result-id").textContent = id;
   const facts = JSON.parse(await report.text());
   showFacts(facts);
+  showAlternatives(facts.alternatives || [], strip);
   if (preview) {
     const url = URL.createObjectURL(preview);
     state.urls.push(url);
@@ -427,6 +430,62 @@ async function showResult(id) {
   } catch (err) {
     showError({ code: "viewer_error", detail: `the scene could not be shown: ${err.message}` });
   }
+}
+
+/** The strip of alternatives: each distinct placement the run refined (the answer first) as a thumbnail cut
+ * from alternatives.png (the views side by side), with its relation verdict and guide match; a click shows it
+ * in the 3D view, and the GLB download follows the one shown. */
+function showAlternatives(alternatives, strip) {
+  const box = $("alternatives");
+  box.replaceChildren();
+  box.hidden = alternatives.length < 2 || !strip;
+  if (box.hidden) return;
+  const url = URL.createObjectURL(strip);
+  state.urls.push(url);
+  alternatives.forEach((alt, k) => {
+    const button = Object.assign(document.createElement("button"), { type: "button", className: "alternative" });
+    button.dataset.alternative = String(k);
+    button.style.backgroundImage = `url(${url})`;
+    button.style.backgroundSize = `${alternatives.length * 100}% 100%`;
+    button.style.backgroundPosition = `${(100 * k) / (alternatives.length - 1)}% 0`;
+    const holds = alt.relation ? (alt.relation.holds ? ` - '${alt.relation.name}' holds` : ` - not '${alt.relation.name}'`) : "";
+    const match = alt.clip ? ` - match ${(-alt.clip).toFixed(3)}` : "";
+    const caption = document.createElement("span");
+    caption.textContent = `${k === 0 ? "answer" : `#${k + 1}`}${holds}${match}`;
+    button.append(caption);
+    button.title = caption.textContent;
+    button.addEventListener("click", () => chooseAlternative(k));
+    box.append(button);
+  });
+  markAlternative();
+}
+
+async function chooseAlternative(k) {
+  const result = state.result;
+  const viewerBox = $("viewer");
+  try {
+    result.glbs[k] = result.glbs[k] || await api.blob(`jobs/${result.id}/result.glb?alternative=${k}`);
+    if (state.result !== result) return; // another result was opened meanwhile
+    delete viewerBox.dataset.ready;
+    result.alternative = k;
+    result.blobs["result.glb"] = result.glbs[k];
+    showParts(await state.viewer.show(await result.glbs[k].arrayBuffer()));
+    viewerBox.dataset.ready = "1";
+  } catch (err) {
+    showError(err);
+  }
+  markAlternative();
+}
+
+function markAlternative() {
+  const k = state.result.alternative;
+  $("viewer").dataset.alternative = String(k);
+  for (const button of document.querySelectorAll("#alternatives button")) {
+    button.classList.toggle("chosen", button.dataset.alternative === String(k));
+  }
+  // a chained job builds on the job's answer (its result.glb): offered while the answer is shown
+  $("add-object").disabled = k !== 0;
+  $("add-object").title = k === 0 ? "" : "the next object is added to the job's answer: show it first";
 }
 
 function showParts(parts) {
@@ -476,7 +535,9 @@ function download(file) {
   const blob = state.result && state.result.blobs[file];
   if (!blob) return;
   const url = URL.createObjectURL(blob);
-  const link = Object.assign(document.createElement("a"), { href: url, download: `${state.result.id}-${file}` });
+  const k = file === "result.glb" ? state.result.alternative : 0;
+  const name = k ? `${state.result.id}-result-${k + 1}.glb` : `${state.result.id}-${file}`;
+  const link = Object.assign(document.createElement("a"), { href: url, download: name });
   document.body.append(link);
   link.click();
   link.remove();
