@@ -360,6 +360,9 @@ def test_choose_among_alternatives_from_the_page(api, worker, browser):
     wait_for(lambda: find(By.ID, "viewer").get_attribute("data-alternative") == "1"
              and find(By.ID, "viewer").get_attribute("data-ready"), 30, "the second placement shown")
     assert "chosen" in buttons[1].get_attribute("class") and not find(By.ID, "add-object").is_enabled()
+    report = api.client.get(f"/jobs/{job_id}/report.json", headers=AUTH).json()
+    shown = report["alternatives"][1]["transform"]["translation"]
+    assert ", ".join(f"{v:.3f}" for v in shown) in find(By.ID, "transform").text  # the facts follow the view
     find(By.ID, "result").location_once_scrolled_into_view  # noqa: B018
     shoot(driver, "alternative")
     find(By.CSS_SELECTOR, "[data-file='result.glb']").click()

@@ -414,6 +414,7 @@ async function showResult(id) {
   $("result").hidden = false;
   $("result-id").textContent = id;
   const facts = JSON.parse(await report.text());
+  state.result.facts = facts;
   showFacts(facts);
   showAlternatives(facts.alternatives || [], strip);
   if (preview) {
@@ -469,6 +470,8 @@ async function chooseAlternative(k) {
     delete viewerBox.dataset.ready;
     result.alternative = k;
     result.blobs["result.glb"] = result.glbs[k];
+    const alt = result.facts.alternatives[k]; // the facts table shows the placement shown
+    showFacts({ ...result.facts, transform: alt.transform, objective: alt.objective });
     showParts(await state.viewer.show(await result.glbs[k].arrayBuffer()));
     viewerBox.dataset.ready = "1";
   } catch (err) {
