@@ -233,8 +233,7 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
     config, pair, best = run.config, run.pair, outcome.best
     matrices = outcome.poses.matrices()
     answers = [pair.source_to_target(m) for m in matrices]
-    preview = scene.render_pair(pair, matrices[best], views=4, image_size=224)
-    preview = (preview.permute(0, 2, 3, 1).clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8)
+    preview = _uint8(scene.render_pair(pair, matrices[best], views=4, image_size=224))
     timings = {f"optimise_{k}_s": round(v, 3) for k, v in outcome.timings.items()}
     timings.update(run.timings, total_s=round(time.perf_counter() - run.started, 3))
     restarts = [
@@ -266,9 +265,8 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
             "restart": i, "source_to_target": answers[i], "objective": float(outcome.objectives[i]),
             **{k: float(outcome.terms[k][i]) for k in ("clip", "icp", "pen", "rel")},
             "relation": judged.to_dict() if judged is not None else None})
-    thumbs = [scene.render_pair(pair, matrices[i], views=1, image_size=THUMBNAIL)[0] for i in picks]
-    answer.thumbnails = (torch.stack(thumbs).permute(0, 2, 3, 1).clamp(0, 1).cpu().numpy() * 255).round().astype(
-        np.uint8)
+    answer.thumbnails = _uint8(torch.stack([scene.render_pair(pair, matrices[i], views=1, image_size=THUMBNAIL)[0]
+                                            for i in picks]))
     if on_event:
         steps = sum(p.steps for p in run.plan)
         on_event(ProgressEvent(kind="done", phase=len(run.plan), phases=len(run.plan), step=outcome.steps_run,
@@ -281,10 +279,16 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
 THUMBNAIL = 160  # pixels, one view of each alternative
 
 
+def _uint8(images: torch.Tensor) -> np.ndarray:
+    """(V, 3, H, W) renders in [0, 1] -> (V, H, W, 3) uint8 (a preview, thumbnails)."""
+    return (images.permute(0, 2, 3, 1).clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8)
+
+
 def alternatives(run: Run, outcome: Outcome) -> list[int]:
     """Restart indices of the best distinct placements the run refined, the answer first, at most
-    ``MAX_ALTERNATIVES``: the others ordered as the selection would (where the relation holds and nothing
-    intersects first, then the objective on the evaluation views), near ones (``search.distinct_translation``
+    ``MAX_ALTERNATIVES``: the others where the relation holds and nothing intersects first (``holding``), then by
+    the objective on the evaluation views (not the selection's own key, which leaves soft-ICP out among touching
+    poses with a guide: ``select_answer``), near ones (``search.distinct_translation``
     source diagonals *and* ``distinct_rotation_deg``, as the search counts duplicates) and those that ended far
     from the target (over ``objective.NEAR`` source diagonals) left out. A prompt like "a cup on the table" has
     many right answers; a person picks among these."""

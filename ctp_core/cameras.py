@@ -66,11 +66,11 @@ class Cameras:
 
     def rows(self, lo: int, hi: int) -> Cameras:
         """Rows lo:hi of the batch (the cameras of some of the restarts or candidates)."""
-        up = None if self.up is None else self.up[lo:hi]
-        return replace(self, eye=self.eye[lo:hi], at=self.at[lo:hi], fov_deg=self.fov_deg[lo:hi], up=up)
+        return self.take(slice(lo, hi))
 
-    def take(self, index: Tensor) -> Cameras:
-        """Rows ``index`` (N,) of the batch, repeats allowed (each candidate the cameras of its group)."""
+    def take(self, index: Tensor | slice) -> Cameras:
+        """Rows ``index`` ((N,) or a slice) of the batch, repeats allowed (each candidate the cameras of its
+        group)."""
         up = None if self.up is None else self.up[index]
         return replace(self, eye=self.eye[index], at=self.at[index], fov_deg=self.fov_deg[index], up=up)
 

@@ -26,7 +26,7 @@ from PIL import Image
 import ctp_core
 from ctp_core import priors
 from ctp_core.assemble import Assembly
-from ctp_core.frames import SCENE, SOURCE_FILE, TARGET_FILE, Similarity
+from ctp_core.frames import SCENE, Similarity
 from ctp_core.pose import matrix_to_quaternion
 from ctp_core.scene import objects
 
@@ -109,9 +109,8 @@ def _run(result: AlignResult, answer: dict | None = None) -> dict:
         # the best distinct placements, the answer first (an assembly's stages: none, their frames differ)
         "alternatives": [] if answer is not None else [
             _jsonable({**{k: v for k, v in a.items() if k != "source_to_target"},
-                       "transform": transform(Similarity(np.asarray(a["source_to_target"], dtype=np.float64),
-                                                         SOURCE_FILE, TARGET_FILE))})
-            for a in result.alternatives],
+                       "transform": transform(result.alternative(k).transform)})
+            for k, a in enumerate(result.alternatives)],
         "timings": _jsonable(result.timings),
         "extra": _jsonable(_extra(result)),
         "warnings": _jsonable(result.warnings),  # {"code", "message", ...}: what the run went on despite

@@ -177,12 +177,14 @@ def rank_key(terms: dict[str, torch.Tensor], weights: Phase, *, guide_key: torch
     return key + TIER * (~pool).double()
 
 
-def goal_rows(goal_embeddings: torch.Tensor | None, lo: int, hi: int, shared: bool) -> torch.Tensor | None:
-    """The goal's embeddings for poses lo:hi: per-pose ones (N, C, D) sliced; those of shared cameras (1, C, D),
-    a fixed goal's (D,) or None as they are."""
+def goal_rows(goal_embeddings: torch.Tensor | None, rows: slice | torch.Tensor,
+              shared: bool = False) -> torch.Tensor | None:
+    """The goal's embeddings for some poses: per-pose (or per-group) ones (N, C, D) at ``rows`` (a slice, or an
+    index with repeats: each pose its group's); those of cameras shared by every pose (1, C, D), a fixed goal's
+    (D,) or None as they are."""
     if shared or goal_embeddings is None or goal_embeddings.dim() < 3:
         return goal_embeddings
-    return goal_embeddings[lo:hi]
+    return goal_embeddings[rows]
 
 
 def combine(terms: dict[str, torch.Tensor], weights: Phase) -> torch.Tensor:
@@ -242,10 +244,7 @@ class Scorer:
         fewer still), at a fraction of the cost. The search screens every proposal with it before the guide
         sees any (``ranking.encoder_shortlist``)."""
         with torch.inference_mode():
-            terms = self.geometry(poses, weights, points=SCREEN_POINTS)
-            del terms["centroid"]
-            terms["clip"] = torch.zeros_like(terms["icp"])
-            terms["objective"] = combine(terms, weights)
+            terms = self._score(poses, weights, None, None, None, encode=False, points=SCREEN_POINTS)
         return {k: v.clone().cpu() for k, v in terms.items()}
 
     def enclosed(self, poses: Poses) -> torch.Tensor:
@@ -327,20 +326,22 @@ class Scorer:
             out = self._score(poses, weights, cameras, goal_embeddings, batch, encode and self.guided)
         return {k: v.clone() for k, v in out.items()}  # normal tensors, usable outside inference mode
 
-    def _score(self, poses: Poses, weights: Phase, cameras: Cameras, goal_embeddings: torch.Tensor | None,
-               batch: int | None, encode: bool) -> dict[str, torch.Tensor]:
-        shared = cameras.fov_deg.shape[0] == 1
+    def _score(self, poses: Poses, weights: Phase, cameras: Cameras | None, goal_embeddings: torch.Tensor | None,
+               batch: int | None, encode: bool, points: int | None = None) -> dict[str, torch.Tensor]:
+        """``score``'s work, without inference mode or copies; ``cameras`` may be None where nothing is encoded,
+        ``points``: the geometry on that many source samples (``geometry``)."""
+        shared = cameras is not None and cameras.fov_deg.shape[0] == 1
         if encode and shared and goal_embeddings is None:
             goal_embeddings = self.embed_goal(cameras)
         step = batch or len(poses)
         parts: list[dict[str, torch.Tensor]] = []
         for lo in range(0, len(poses), step):
             chunk = poses.select(slice(lo, lo + step))
-            terms = self.geometry(chunk, weights)
+            terms = self.geometry(chunk, weights, points)
             del terms["centroid"]
             if encode:
                 cams = cameras.expand(len(chunk)) if shared else cameras.rows(lo, lo + step)
-                terms["clip"] = self.clip_term(chunk, cams, goal_rows(goal_embeddings, lo, lo + step, shared))
+                terms["clip"] = self.clip_term(chunk, cams, goal_rows(goal_embeddings, slice(lo, lo + step), shared))
             else:
                 terms["clip"] = torch.zeros_like(terms["icp"])
             parts.append(terms)

@@ -123,15 +123,12 @@ def tile_score(scorer: Scorer, poses: Poses, weights: Phase, tiles: tuple[torch.
     tile, centres, radius = tiles
     cameras = coarse_cameras(scorer.pair, scorer.config, float(poses.log_s[0]), centres, radius)  # (K, C)
     goal_embeddings = embed_shared_goal(scorer, cameras)  # (K, C, D) for a per-view goal, (D,) otherwise
-    own_goal = goal_embeddings
-    if goal_embeddings is not None and goal_embeddings.dim() == 3:
-        own_goal = goal_embeddings[tile.to(goal_embeddings.device)]
     count = len(centres)
     empty = Poses(centres.to(poses.t), poses.q[:1].expand(count, 4), torch.full((count,), -30.0).to(poses.log_s))
     base = terms_of(scorer, empty, weights, cameras, batch=batch, goal_embeddings=goal_embeddings,
                     should_cancel=should_cancel)["clip"]
     terms = terms_of(scorer, poses, weights, cameras.take(tile.to(cameras.eye.device)), batch=batch,
-                     goal_embeddings=own_goal, progress=progress, should_cancel=should_cancel)
+                     goal_embeddings=goal_rows(goal_embeddings, tile), progress=progress, should_cancel=should_cancel)
     moved = terms["clip"] - base[tile]
     change = torch.where(moved.abs() > HIDDEN, moved, torch.full_like(moved, torch.inf))
     return ranking_key(scorer, terms, weights, guide_key=change)
@@ -184,7 +181,7 @@ def terms_of(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, 
             raise Canceled("the run was cancelled")
         chunk = poses.select(slice(lo, lo + batch))
         cams = cameras if shared else cameras.rows(lo, lo + batch)
-        goal = goal_rows(goal_embeddings, lo, lo + batch, shared)
+        goal = goal_rows(goal_embeddings, slice(lo, lo + batch), shared)
         out.append({k: v.cpu() for k, v in scorer.score(chunk, weights, cams, goal).items()})
         progress(lo + len(chunk))
     if not out:

@@ -93,7 +93,7 @@ def run_job(job_id: str) -> str:
     ctx.beat.begin(job_id)
     status: Status = "failed"
     error: JobError | None = None
-    alternatives: list[Alternative] = []  # a succeeded alignment's best distinct placements
+    alternatives: list[Alternative] = []  # a succeeded alignment's best distinct placements (the record keeps them)
     stage = Stage(name="loading")  # the stage of the job's last progress: where an allocation failed
     budget_mb: int | None = None
 
@@ -110,10 +110,9 @@ def run_job(job_id: str) -> str:
                 raise CtpError("the job's uploads expired before a worker picked it up", code="inputs_expired")
             job = JobContext(loader=ctx.loader, limits=ctx.settings.mesh_limits, on_progress=on_progress,
                              should_cancel=lambda: ctx.jobs.should_stop(job_id))
-            files = (assemble_job if record.kind == "assemble" else align_job)(record, inputs, job)
+            files, alternatives = (assemble_job if record.kind == "assemble" else align_job)(record, inputs, job)
             for name, data in files.items():
                 ctx.jobs.storage.put(job_id, name, data)
-            alternatives = alternatives_of(json.loads(files["report.json"]))
             status = "succeeded"
     except Canceled as exc:
         status, error = "canceled", JobError(code=exc.code, message="canceled while running")
@@ -227,8 +226,12 @@ def _vm_data_bytes() -> int | None:
         return None
 
 
-def align_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobContext) -> dict[str, bytes]:
-    """Run ``ctp_core.align`` on a job's uploads; returns ``result.glb``, ``report.json``, ``preview.png``.
+JobOutput = tuple[dict[str, bytes], list[Alternative]]  # a job's files (``service.jobs.OUTPUTS``), its alternatives
+
+
+def align_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobContext) -> JobOutput:
+    """Run ``ctp_core.align`` on a job's uploads; returns ``result.glb``, ``report.json``, ``preview.png``, the other
+    alternatives' GLBs and ``alternatives.png``, and the alternatives' summary for the job record.
 
     ``record`` is as ``served`` returns it: its config is the one this worker runs.
     """
@@ -254,17 +257,17 @@ def align_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobContex
         files[alternative_blob(k)] = scene_glb(result.alternative(k), source_name=record.source_name)
     if result.thumbnails is not None:
         files["alternatives.png"] = strip_png(result.thumbnails)
-    return files
+    return files, alternatives_of(result.alternatives)
 
 
-def alternatives_of(report_: dict[str, Any]) -> list[Alternative]:
-    """The job record's summary of a report's ``alternatives`` (GET /jobs/{id})."""
+def alternatives_of(alternatives: list[dict[str, Any]]) -> list[Alternative]:
+    """The job record's summary of a result's ``AlignResult.alternatives`` (GET /jobs/{id})."""
     return [Alternative(index=k, objective=a["objective"], guide_match=None if not a.get("clip") else -a["clip"],
                         relation_holds=None if a.get("relation") is None else a["relation"]["holds"])
-            for k, a in enumerate(report_.get("alternatives", []))]
+            for k, a in enumerate(alternatives)]
 
 
-def assemble_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobContext) -> dict[str, bytes]:
+def assemble_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobContext) -> JobOutput:
     """Run ``ctp_core.assemble`` on an assembly job (``record`` as ``served`` returns it): the model loaded
     once, progress per stage, the whole scene's GLB, report and preview out. A failure names its stage
     (message and field ``steps.<i>``)."""
@@ -299,7 +302,7 @@ def assemble_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobCon
                        f"{type(exc).__name__}: {exc}", code="internal_error",
                        field=f"steps.{current.index - 1}") from exc
     job.on_progress(_exporting(config, current.model_copy(update={"name": "exporting"})), True)
-    return _results(assembly_glb(assembly), assembly_report(assembly), assembly.preview)
+    return _results(assembly_glb(assembly), assembly_report(assembly), assembly.preview), []  # no alternatives
 
 
 def _results(glb: bytes, report_: dict[str, Any], preview) -> dict[str, bytes]:

@@ -394,8 +394,7 @@ function addObject() {
 
 async function showResult(id) {
   clearError();
-  const viewerBox = $("viewer");
-  delete viewerBox.dataset.ready; // set again once this result is drawn
+  delete $("viewer").dataset.ready; // set again once this result is drawn (showScene)
   let glb, report, preview, strip;
   try {
     [glb, report, preview, strip] = await Promise.all([
@@ -425,12 +424,19 @@ async function showResult(id) {
   $("preview").hidden = !preview;
   document.querySelector("[data-file='preview.png']").disabled = !preview;
   try {
-    state.viewer = state.viewer || new Viewer(viewerBox);
-    showParts(await state.viewer.show(await glb.arrayBuffer()));
-    viewerBox.dataset.ready = "1";
+    await showScene(glb);
   } catch (err) {
     showError({ code: "viewer_error", detail: `the scene could not be shown: ${err.message}` });
   }
+}
+
+/** Draw a result GLB in the 3D view, with its parts' toggles; the view is marked ready once it is drawn. */
+async function showScene(glb) {
+  const viewerBox = $("viewer");
+  delete viewerBox.dataset.ready;
+  state.viewer = state.viewer || new Viewer(viewerBox);
+  showParts(await state.viewer.show(await glb.arrayBuffer()));
+  viewerBox.dataset.ready = "1";
 }
 
 /** The strip of alternatives: each distinct placement the run refined (the answer first) as a thumbnail cut
@@ -463,17 +469,14 @@ function showAlternatives(alternatives, strip) {
 
 async function chooseAlternative(k) {
   const result = state.result;
-  const viewerBox = $("viewer");
   try {
     result.glbs[k] = result.glbs[k] || await api.blob(`jobs/${result.id}/result.glb?alternative=${k}`);
     if (state.result !== result) return; // another result was opened meanwhile
-    delete viewerBox.dataset.ready;
     result.alternative = k;
     result.blobs["result.glb"] = result.glbs[k];
     const alt = result.facts.alternatives[k]; // the facts table shows the placement shown
     showFacts({ ...result.facts, transform: alt.transform, objective: alt.objective });
-    showParts(await state.viewer.show(await result.glbs[k].arrayBuffer()));
-    viewerBox.dataset.ready = "1";
+    await showScene(result.glbs[k]);
   } catch (err) {
     showError(err);
   }
