@@ -43,7 +43,7 @@ class SurfaceIndex:
 
 
 def soft_icp(source: torch.Tensor, index: SurfaceIndex, ratio: float, sigma: float, k: int) -> torch.Tensor:
-    """Fractional soft-ICP: attach the fraction ``ratio`` of the source that is already closest.
+    """Fractional soft-ICP: attach the fraction ``ratio`` of the source that is already closest (0: none).
 
     source (B, N, 3) posed samples. For each source point d_i = min_j |v_i - u_j|; keep the
     K = floor(ratio * N) smallest (the selection carries no gradient), then
@@ -52,6 +52,8 @@ def soft_icp(source: torch.Tensor, index: SurfaceIndex, ratio: float, sigma: flo
     with k >= M it is the dense formula exactly.
     """
     n = source.shape[1]
+    if ratio <= 0:  # attach nothing: "a ball under the table" need not touch it (the relation places it)
+        return source.new_zeros(source.shape[0])
     keep = max(1, int(np.floor(ratio * n)))
     idx = index.neighbours(source, k)  # (B, N, k)
     u = index.points[idx]  # (B, N, k, 3)

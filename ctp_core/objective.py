@@ -106,6 +106,7 @@ def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: to
     return int(ranked.argmin())
 
 
+PREFER = 0.1  # ``combine``: weight of ``predicates.preference`` (the usual arrangement) relative to the relation's
 TIER = 1e6  # ``rank_key``: added to the key of a pose outside the relation's pool (keys are float64)
 GATE_FULL = 4.0  # ``Gate``: a guide whose spread is this many times its noise may override the relation fully
 
@@ -192,7 +193,9 @@ def combine(terms: dict[str, torch.Tensor], weights: Phase) -> torch.Tensor:
     count where present: the relation's, ``Scorer.relation_terms``)."""
     out = weights.lambda_clip * terms["clip"] + weights.lambda_icp * terms["icp"] + weights.lambda_pen * terms["pen"]
     if weights.lambda_rel and "rel" in terms:
-        out = out + weights.lambda_rel * (terms["rel"] + terms.get("stable", torch.zeros_like(out)))
+        zeros = torch.zeros_like(out)
+        out = out + weights.lambda_rel * (terms["rel"] + terms.get("stable", zeros)
+                                          + PREFER * terms.get("prefer", zeros))
     return out
 
 
@@ -270,16 +273,28 @@ class Scorer:
         """``rel``: how far each pose is from the prompt's relation (``predicates.relation_score``, figure
         diagonals, 0 where it holds); ``stable``: its centre of mass off its support (``predicates.stable``), for
         the relations that rest on something besides the resting ones (``on``, ``stand``, ... include it in
-        their score already); zeros without a relation. Differentiable (a refinement term)."""
+        their score already); ``prefer``: ``predicates.preference`` x ``preference_weight``; zeros without a
+        relation. Differentiable (a refinement term)."""
         zeros = torch.zeros(len(poses), device=poses.t.device)
         if self.relation is None:
-            return {"rel": zeros, "stable": zeros}
+            return {"rel": zeros, "stable": zeros, "prefer": zeros}
         with self.clock.time("relation"):
             rel = predicates.relation_score(self.pair, poses, self.relation, self.source_is_figure)
             steady = zeros
             if self.relation in predicates.STABLE_RELATIONS and self.relation not in predicates.RESTING:
                 steady = predicates.stable(self.pair, poses, self.source_is_figure)
-        return {"rel": rel, "stable": steady}
+            prefer = predicates.preference(self.pair, poses, self.relation, self.source_is_figure)
+        return {"rel": rel, "stable": steady, "prefer": prefer * self.preference_weight}
+
+    @property
+    def preference_weight(self) -> float:
+        """How much ``predicates.preference`` (the usual arrangement among poses where the relation holds) counts:
+        fully without a guide, and with one as much as its ``Gate`` says it cannot tell poses apart (1 less its
+        override): a guide with signal is the judge of where (a cup on a table's corner when the picture says
+        so); one without must not leave it to soft-ICP, which favours corners."""
+        if not self.use_clip or self.gate is None:
+            return 1.0
+        return 1.0 - self.gate.override
 
     def embed_goal(self, cameras: Cameras) -> torch.Tensor:
         """The goal's embeddings for these cameras; a per-view goal (the oracle) encodes one image per view."""

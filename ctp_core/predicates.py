@@ -51,6 +51,10 @@ WEAR_CENTRE = 0.5  # "wear": the ground's summit within this many figure half-wi
 PENETRATE = (0.02, 0.9)  # "penetrate": the share of the figure inside the ground, in this open range
 WRAP_SHARE = 0.3  # "wrap": at least this share of the figure touching (the relation table's contact is 0.6)
 FAR = 1.0  # a condition that has nothing to measure against (no overhead surface at all): a whole diagonal
+# ``preference``: among poses where the relation holds, which is the usual arrangement (see its docstring)
+OFF_CENTRE = 0.5  # weight of the figure's distance from the ground's middle (in the ground's half-widths)
+ENCLOSING_RAYS = 16  # ``_enclosure``: horizontal directions looked along from the figure's foot
+FOOT = 0.05  # ``_enclosure``: the figure's foot, this far above its lowest point
 
 RESTING = ("on", "stand", "sit", "lie")
 STABLE_RELATIONS = (*RESTING, "in", "under", "beside", "lean", "wear")  # where ``stable`` applies
@@ -161,7 +165,12 @@ class _Ground:
 def _gap(points: torch.Tensor, ground: _Ground, which: str = "all") -> tuple[torch.Tensor, torch.Tensor]:
     """(B, N) distance from each point to the ground surface (the sampled surface as discs of the samples'
     spacing; 0 behind it), and the signed height along the normal (positive outside)."""
-    u, n, found = ground.nearest(points, which)
+    return _gap_to(points, ground, *ground.nearest(points, which))
+
+
+def _gap_to(points: torch.Tensor, ground: _Ground, u: torch.Tensor, n: torch.Tensor, found: torch.Tensor
+            ) -> tuple[torch.Tensor, torch.Tensor]:
+    """``_gap`` to given nearest ground samples ``u`` with normals ``n`` (``_Ground.nearest``)."""
     diff = points - u
     along = (diff * n).sum(-1)
     tangent = (diff - along[..., None] * n).norm(dim=-1)
@@ -341,8 +350,15 @@ class _Ctx:
         return self.figure.diagonal
 
     def tol(self) -> torch.Tensor:
-        """(B,) contact tolerance, normalised units (the sample spacing is in ``_gap`` already: tangentially)."""
+        """(B,) height tolerance, normalised units: ``CONTACT`` figure diagonals (a bottom band, the floor)."""
         return CONTACT * self.unit
+
+    def reach(self) -> torch.Tensor:
+        """(B,) contact tolerance of a gap to the ground's surface: ``tol``, and at least a third of the ground's
+        sample spacing, as ``proposals.settle`` counts contact (the spacing is in ``_gap`` tangentially; along the
+        normal a coarsely sampled tip rises between its samples: a small cross settled on a church's spire stood
+        1.15 x ``tol`` above its nearest up-facing sample)."""
+        return torch.maximum(self.tol(), self.ground.side.spacing.reshape(-1).expand_as(self.unit) / 3)
 
     def tau(self) -> torch.Tensor:
         return (SOFT * self.unit)[:, None]
@@ -364,7 +380,7 @@ class _Ctx:
     def touching(self, which: str = "all") -> torch.Tensor:
         """Violation of contact with the ground's ``which`` surface: smooth min gap over the figure - tolerance."""
         gap, _ = _gap(self.figure.points, self.ground, which)
-        return self.h(self.finite(soft_min(gap, self.tau())) - self.tol())
+        return self.h(self.finite(soft_min(gap, self.tau())) - self.reach())
 
 
 def _score_resting(c: _Ctx) -> torch.Tensor:
@@ -380,8 +396,24 @@ def _score_resting(c: _Ctx) -> torch.Tensor:
     fig = c.figure
     gap, _ = _gap(fig.points, c.ground, "up")
     band = fig.points[..., 1] <= (c.bottom() + c.tol())[:, None]
-    support = c.h(c.finite(soft_min(gap, c.tau(), mask=band)) - c.tol())
-    return support + _stability(c) + _overhead(c)
+    support = c.h(c.finite(soft_min(gap, c.tau(), mask=band)) - c.reach())
+    return torch.minimum(support, _apex(c)) + _stability(c) + _overhead(c)
+
+
+def _apex(c: _Ctx) -> torch.Tensor:
+    """Support by a summit: a cross on a spire's tip, a ball on a post's top. The tip is a point, sampled
+    sparsely and facing sideways around it, so no up-facing sample need be near; it bears the figure when a
+    summit of the ground (``_summits``, the figure's half-width as the neighbourhood) lies under the figure's
+    footprint (within its half-width of the centre's column) at its bottom (within ``reach`` and the ground's
+    sample spacing): 0 there, ``FAR`` elsewhere (the up-facing support, ``_score_resting``, says how far). A
+    cup touching a table's leg with its base's edge is beside no summit: the table's top is higher."""
+    fig = c.figure
+    width = _half_width(fig)
+    peaks = _summits(c.ground.side, float(width.mean())).detach()  # (B or 1, P, 3)
+    offset = (peaks[..., [0, 2]] - fig.centre[:, None, [0, 2]]).norm(dim=-1)
+    slack = (c.reach() + c.ground.side.spacing.reshape(-1).expand_as(c.unit))[:, None]
+    under = (offset <= width[:, None]) & ((peaks[..., 1] - c.bottom()[:, None]).abs() <= slack)
+    return torch.where(under.detach().any(-1), torch.zeros_like(c.unit), torch.full_like(c.unit, FAR))
 
 
 def _overhead(c: _Ctx) -> torch.Tensor:
@@ -404,17 +436,21 @@ def _half_width(fig: Side) -> torch.Tensor:
 def _support_mask(c: _Ctx) -> torch.Tensor:
     """(B, N) the figure samples that bear weight: touching ground surface that does not face down, or the floor."""
     gap, _ = _gap(c.figure.points, c.ground, "not_down")
-    tol = c.tol()[:, None]
-    return (gap <= tol) | (c.figure.points[..., 1] - c.floor[:, None] <= tol)
+    return (gap <= c.reach()[:, None]) | (c.figure.points[..., 1] - c.floor[:, None] <= c.tol()[:, None])
+
+
+def _support_depth(c: _Ctx) -> torch.Tensor:
+    """(B,) signed horizontal distance of the centre's projection to the convex footprint of the support patch
+    (positive outside, normalised units); a whole ``FAR`` figure diagonal with no support at all."""
+    mask = _support_mask(c).detach()
+    dist = _hull_distance_2d(c.figure.centre[:, [0, 2]], c.figure.points[..., [0, 2]], mask)
+    return torch.where(mask.any(-1), dist, torch.full_like(dist, FAR) * c.unit)
 
 
 def _stability(c: _Ctx) -> torch.Tensor:
     """Horizontal distance (figure diagonals, hinged) of the centre's projection outside the convex footprint
-    of the support patch; a whole ``FAR`` with no support at all."""
-    mask = _support_mask(c).detach()
-    dist = _hull_distance_2d(c.figure.centre[:, [0, 2]], c.figure.points[..., [0, 2]], mask)
-    dist = torch.where(mask.any(-1), dist, torch.full_like(dist, FAR) * c.unit)
-    return c.h(dist)
+    of the support patch (``_support_depth``)."""
+    return c.h(_support_depth(c))
 
 
 def _score_in(c: _Ctx) -> torch.Tensor:
@@ -467,7 +503,7 @@ def _score_lean(c: _Ctx) -> torch.Tensor:
     fig = c.figure
     gap, _ = _gap(fig.points, c.ground, "side")
     raised = fig.points[..., 1] >= (c.bottom() + LEAN_RISE * c.unit)[:, None]
-    side = c.h(c.finite(soft_min(gap, c.tau(), mask=raised)) - c.tol())
+    side = c.h(c.finite(soft_min(gap, c.tau(), mask=raised)) - c.reach())
     return side + c.h(c.bottom() - c.floor - c.tol())
 
 
@@ -477,7 +513,7 @@ def _score_hang(c: _Ctx) -> torch.Tensor:
     peg, its centre is above every contact)."""
     fig = c.figure
     gap, _ = _gap(fig.points, c.ground)
-    touching = gap <= c.tol()[:, None]
+    touching = gap <= c.reach()[:, None]
     nearest = gap <= gap.min(-1, keepdim=True).values  # no contact: the nearest sample stands for it
     height = soft_max(fig.points[..., 1], c.tau(), mask=(touching | nearest).detach())
     return c.touching() + c.h(fig.centre[:, 1] - height + HANG_DROP * c.unit)
@@ -536,7 +572,7 @@ def _score_wrap(c: _Ctx) -> torch.Tensor:
     """``wrap``: around a part of the ground: at least ``WRAP_SHARE`` of the figure's samples touching it (a
     smooth count)."""
     gap, _ = _gap(c.figure.points, c.ground)
-    share = torch.sigmoid((c.tol()[:, None] - gap) / c.tau()).mean(-1)
+    share = torch.sigmoid((c.reach()[:, None] - gap) / c.tau()).mean(-1)
     return c.touching() + hinge(WRAP_SHARE - share)
 
 
@@ -568,6 +604,76 @@ def stable(pair: PreparedPair, poses: Poses, source_is_figure: bool = True) -> t
     does not face down, or the floor. Differentiable in ``poses``; ``holds`` gives the verdict."""
     figure, ground, floor = _roles(pair, poses, source_is_figure)
     return _stability(_Ctx(figure, ground, floor))
+
+
+def preference(pair: PreparedPair, poses: Poses, relation: str | None, source_is_figure: bool = True
+               ) -> torch.Tensor:
+    """(B,) how far each pose is from the *usual* arrangement of a relation that holds in many places (lower is
+    better, about 0 to 2; zeros where the relation says nothing more): "a cup on the table" holds on the whole
+    top, the corner included, and geometry at contact (soft-ICP) favours corners and edges, where more target
+    samples fall near the source. Read among poses where the relation holds; never part of the verdict.
+
+    - resting (``on``, ``stand``, ``sit``, ``lie``): on the *top* (``drop``: the ground's highest point above
+      the figure's bottom, in figure diagonals: a cross "on top of" a church sits on its spire, not on a lower
+      roof; a cup on a plate's inner floor is a fraction of its own size below the plate's rim), resting
+      *steadily* (``unsteady``: 1 less the depth of the centre's projection inside its support's footprint, in
+      its half-widths, at least 0: a plate lying flat rather than on its rim, a cup on its base rather than its
+      side) and *near the middle* (``OFF_CENTRE`` x the horizontal distance of the figure's centre from the
+      middle of the ground's footprint, in the ground's half-widths);
+    - ``in``, ``under``, ``lean``: near the middle (a ball under a table's middle, not by a leg; a board leaning
+      on a face's middle rather than on a corner); ``in`` also *held by its sides* (1 less ``_enclosure``: the
+      share of horizontal directions from the figure's foot that meet the ground: 1 in a mug, a bun, a candle
+      holder's cup; a candle within the convex hull of a candelabra's open frame, where "in" holds too, is
+      half surrounded at best);
+    - ``wear``: on the top (``drop``: the highest summit, a head's, not a shoulder);
+    - the others (``beside``: which side is the guide's to say; ``hang``, ``penetrate``, ...): zeros.
+    Differentiable in ``poses`` but for the counts (a refinement term: ``objective.PREFER`` x ``lambda_rel``,
+    and with a guide only as far as it cannot tell poses apart, ``Scorer.relation_terms``).
+    """
+    zeros = torch.zeros(len(poses), device=poses.t.device)
+    if relation not in (*RESTING, "in", "under", "lean", "wear"):
+        return zeros
+    figure, ground, floor = _roles(pair, poses, source_is_figure)
+    c = _Ctx(figure, ground, floor)
+    out = zeros
+    if relation in (*RESTING, "wear"):
+        top = soft_max(ground.side.points[..., 1], c.tau()).expand_as(c.unit)
+        out = out + (top - c.bottom()).clamp_min(0.0) / c.unit
+    if relation in RESTING:
+        depth = -_support_depth(c)
+        out = out + (1.0 - depth / _half_width(figure).clamp_min(1e-9)).clamp(0.0, 1.0)
+    if relation == "in":
+        out = out + 1.0 - _enclosure(c)
+    if relation != "wear":
+        gp = ground.side.points[..., [0, 2]]
+        low, high = gp.min(1).values, gp.max(1).values
+        half = ((high - low).norm(dim=-1) / 2).clamp_min(1e-9)
+        out = out + OFF_CENTRE * (figure.centre[:, [0, 2]] - (low + high) / 2).norm(dim=-1) / half
+    return out
+
+
+def _enclosure(c: _Ctx) -> torch.Tensor:
+    """(B,) ``enclosure`` of the figure's foot: its centre's column, ``FOOT`` above its lowest point."""
+    foot = torch.stack([c.figure.centre[:, 0], c.bottom() + FOOT * c.unit, c.figure.centre[:, 2]], -1)
+    return enclosure(foot, c.ground.side.points, c.ground.side.spacing, FOOT * c.unit)
+
+
+def enclosure(foot: torch.Tensor, ground: torch.Tensor, spacing: torch.Tensor | float,
+              lift: torch.Tensor | float) -> torch.Tensor:
+    """(B,) the share of ``ENCLOSING_RAYS`` horizontal directions from each ``foot`` (B, 3) along which a
+    ``ground`` sample (B or 1, N, 3) lies within ``spacing`` of the ray (the samples as discs, as in ``_gap``):
+    1 in a mug, a bun, a candle holder's cup. Samples lower than ``lift`` / 2 below the foot do not count (the
+    foot stands ``lift`` above the floor it stands on, whose samples, as discs, would block every ray). A
+    count: no gradient."""
+    with torch.no_grad():
+        angle = torch.arange(ENCLOSING_RAYS, device=foot.device) * (2 * math.pi / ENCLOSING_RAYS)
+        dirs = torch.stack([angle.cos(), torch.zeros_like(angle), angle.sin()], -1)
+        rel = ground - foot[:, None, :]  # (B, N, 3)
+        along = rel @ dirs.T  # (B, N, D)
+        perp = (rel.pow(2).sum(-1, keepdim=True) - along.pow(2)).clamp_min(0.0)
+        radius = torch.as_tensor(spacing, device=foot.device).reshape(-1, 1, 1)
+        around = rel[..., 1:2] > -torch.as_tensor(lift, device=foot.device).reshape(-1, 1, 1) / 2
+        return ((along > 0) & (perp <= radius**2) & around).any(1).float().mean(-1)
 
 
 def verdict(pair: PreparedPair, pose: Poses | np.ndarray, relation: str | None, source_is_figure: bool = True

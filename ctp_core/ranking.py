@@ -185,7 +185,7 @@ def terms_of(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, 
         out.append({k: v.cpu() for k, v in scorer.score(chunk, weights, cams, goal).items()})
         progress(lo + len(chunk))
     if not out:
-        return {k: torch.zeros(0) for k in ("clip", "icp", "pen", "sunk", "rel", "stable", "objective")}
+        return {k: torch.zeros(0) for k in ("clip", "icp", "pen", "sunk", "rel", "stable", "prefer", "objective")}
     return {k: torch.cat([part[k] for part in out]) for k in out[0]}
 
 

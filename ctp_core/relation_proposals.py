@@ -12,6 +12,13 @@ their outward normal made horizontal), then moved straight toward the target unt
 (``proposals.settle``'s "straight" approach). Added only where the relation is "lean" with the source as the
 figure and ``config.relation`` is on: ``extend`` returns the proposals unchanged otherwise.
 
+``in``: the source standing in the target's most enclosed up-facing places (the floors of its cavities: the
+share of horizontal directions around a point that meet the target, ``predicates.enclosure``, weighting the
+draw), half on its longest principal axis (a candle in a holder's cup, a pencil in a mug), half in its own
+resting frames (a hot dog in its bun), lowered onto the point. The regions' cavity proposals centre the source
+on a point inside the target's hull: a candle standing in a shallow cup on top of a tall holder has its centre
+above the rim (pb3d-candle_stick: 1 of the 111 proposals held "in" where the reference stands).
+
 Not done (docs/relations.md lists them): "hang" (a ring threaded on a thin part), "under" (the floor under a
 down-facing part), "beside" (the floor just outside the footprint): the regions already give some poses where
 those hold on the dev cases.
@@ -24,7 +31,9 @@ import math
 import numpy as np
 import torch
 
+from ctp_core import predicates
 from ctp_core.config import AlignConfig
+from ctp_core.objective import sample_spacing
 from ctp_core.pose import Poses, quaternion_product, quaternion_to_matrix
 from ctp_core.proposals import APPROACHES, Proposals, Site, place, surface_regions
 from ctp_core.scene import PreparedPair
@@ -32,14 +41,17 @@ from ctp_core.scene import PreparedPair
 LEAN_TILTS = (15.0, 30.0, 45.0)  # degrees from the source's frame toward the target
 LEAN_SHARE = 0.25  # lean proposals, as a share of ``search.candidates``
 LEAN_POINTS = 128  # source samples for the tilted source's extent
+CONTAINED_SHARE = 0.25  # "in" proposals, as a share of ``search.candidates``
+ENCLOSURE_BATCH = 64  # up-facing points whose enclosure is measured at once (memory: batch x samples x rays)
 
 
 def extend(pair: PreparedPair, config: AlignConfig, proposals: Proposals, relation: str | None,
            source_is_figure: bool, seed: int) -> Proposals:
     """``proposals`` plus those that satisfy ``relation`` by construction (see the module docstring)."""
-    if not config.relation or not source_is_figure or relation != "lean" or proposals.rotations is None:
+    build = {"lean": lean, "in": contained}.get(relation or "")
+    if not config.relation or not source_is_figure or build is None or proposals.rotations is None:
         return proposals
-    extra = lean(pair, config, proposals, seed)
+    extra = build(pair, config, proposals, seed)
     if extra is None or not len(extra.poses):
         return proposals
     sites = Site(*(torch.cat([a, b]) for a, b in zip(vars(proposals.sites).values(), vars(extra.sites).values(),
@@ -79,6 +91,38 @@ def lean(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: in
     device = pair.source_vertices.device
     return Proposals(Poses(placed.t.to(device), placed.q.to(device), placed.log_s.to(device)),
                      ["lean"] * len(placed), sites.select(free), proposals.rotations, proposals.index)
+
+
+def contained(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int) -> Proposals | None:
+    """Sources standing in the target's most enclosed up-facing places (``extend``); None where no up-facing
+    point is enclosed at all."""
+    points, _, regions, density = surface_regions(pair)
+    top = regions["top"]
+    if not len(top):
+        return None
+    log_s = float(proposals.poses.log_s[0])
+    lift = predicates.FOOT * 2 * pair.source_radius * math.exp(log_s)  # the source's foot, as the predicate's
+    ground = torch.as_tensor(points, dtype=torch.float32)
+    feet = ground[torch.as_tensor(top)] + torch.tensor([0.0, lift, 0.0])
+    spacing = sample_spacing(pair, len(points))
+    held = torch.cat([predicates.enclosure(chunk, ground[None], spacing, lift)
+                      for chunk in feet.split(ENCLOSURE_BATCH)]).numpy().astype(np.float64)
+    weights = density[top] * held**4
+    if weights.sum() <= 0:
+        return None
+    rng = np.random.default_rng(seed + 29)
+    count = max(1, math.ceil(CONTAINED_SHARE * config.search.candidates))
+    pick = top[rng.choice(len(top), size=count, p=weights / weights.sum())]
+    upright = _long_axis_up(pair, rng, count // 2)
+    resting = proposals.rotations[torch.as_tensor(rng.integers(len(proposals.rotations), size=count - len(upright)))]
+    q = torch.cat([upright, resting.cpu()])
+    sites = Site(torch.as_tensor(points[pick], dtype=torch.float32), torch.tensor([0.0, 1.0, 0.0]).expand(count, 3),
+                 torch.zeros(count), torch.ones(count, dtype=torch.bool),
+                 torch.full((count,), APPROACHES.index("straight"), dtype=torch.long))
+    placed, free = place(pair, proposals.index, q, sites, log_s)
+    device = pair.source_vertices.device
+    return Proposals(Poses(placed.t.to(device), placed.q.to(device), placed.log_s.to(device)),
+                     ["contained"] * len(placed), sites.select(free), proposals.rotations, proposals.index)
 
 
 def _long_axis_up(pair: PreparedPair, rng: np.random.Generator, count: int) -> torch.Tensor:

@@ -195,3 +195,80 @@ def test_unknown_relation_has_no_term_and_verdict_reports():
     assert predicates.verdict(pair, p.matrices()[0], None) is None
     v = predicates.verdict(pair, p.matrices()[0], "on")
     assert v.to_dict() == {"name": "on", "role": "figure", "score": 0.0, "holds": True, "stable": True}
+
+
+# --- the usual arrangement among poses where the relation holds (``predicates.preference``) ----------------------
+
+def _preference(target, source, matrices, relation) -> tuple[torch.Tensor, torch.Tensor]:
+    pair = prepared(target, source)
+    p = poses(pair, matrices)
+    return predicates.preference(pair, p, relation), predicates.relation_score(pair, p, relation)
+
+
+def test_a_cup_on_a_table_prefers_the_middle_of_the_top_to_its_corner():
+    mug = trimesh.creation.cylinder(radius=0.1, height=0.25)
+    mug.apply_transform(trimesh.transformations.rotation_matrix(-math.pi / 2, [1, 0, 0]))  # axis +Y
+    middle, corner = pose([0, 1.05 + 0.125, 0]), pose([0.85, 1.05 + 0.125, 0.85])
+    prefer, score = _preference(table(), mug, [middle, corner], "on")
+    assert predicates.holds(score).tolist() == [True, True], score  # both are "on"
+    assert prefer[0] < prefer[1] - 0.3, prefer
+
+
+def test_a_plate_on_a_table_prefers_lying_flat_to_standing_on_its_rim():
+    plate = trimesh.creation.cylinder(radius=0.3, height=0.03)
+    plate.apply_transform(trimesh.transformations.rotation_matrix(-math.pi / 2, [1, 0, 0]))  # lying: axis +Y
+    flat = pose([0, 1.05 + 0.015, 0])
+    on_rim = pose([0, 1.05 + 0.3, 0], rot([1, 0, 0], 90))  # its axis horizontal, balanced on its rim, centred
+    prefer, score = _preference(table(), plate, [flat, on_rim], "on")
+    assert predicates.holds(score)[0], score
+    assert prefer[0] < prefer[1] - 0.5, prefer
+
+
+def test_on_top_of_prefers_the_highest_surface():
+    """A small box on a tower's top rather than on its lower step (both hold "on": up-facing, nothing above)."""
+    tower = trimesh.util.concatenate([box([2, 1, 2], [0, 0.5, 0]), box([0.6, 1, 0.6], [0, 1.5, 0])])
+    cube = box([0.2, 0.2, 0.2], [0, 0, 0])
+    top, step = pose([0, 2.1, 0]), pose([0.75, 1.1, 0.75])
+    prefer, score = _preference(tower, cube, [top, step], "on")
+    assert predicates.holds(score).tolist() == [True, True], score
+    assert prefer[0] < prefer[1] - 1.0, prefer
+
+
+def test_a_cross_balanced_on_a_spire_tip_rests_on_it_and_one_touching_its_side_does_not():
+    """Support by sideways-facing surface on every side of the contact (a cone's tip); a figure touching one
+    side of it with its bottom is pushed sideways, not held up."""
+    spire = trimesh.creation.cone(radius=0.3, height=2.0, sections=48)
+    spire.apply_transform(trimesh.transformations.rotation_matrix(-math.pi / 2, [1, 0, 0]))  # tip at y = 2
+    cross = box([0.1, 0.3, 0.02], [0, 0, 0])
+    on_tip = pose([0, 2.0 - 0.01 + 0.15, 0])  # settled as the search settles: a hair into the sampled tip
+    side_x = 0.3 * (1 - 1.0 / 2.0) + 0.05  # the cone's radius at y = 1, plus the cross's half-width
+    against_side = pose([side_x + 0.01, 1.0 + 0.15, 0])
+    score = scores(spire, cross, [on_tip, against_side], "on")
+    assert predicates.holds(score).tolist() == [True, False], score
+
+
+def test_in_prefers_a_cavity_that_holds_the_figure_by_its_sides_to_an_open_frame():
+    """Within a frame of four posts (inside its convex hull, below its top: "in" holds) a stick is not held by
+    anything around its foot; in the cup on the frame's top it is."""
+    posts = [box([0.05, 1.0, 0.05], [x, 0.5, z]) for x in (-0.3, 0.3) for z in (-0.3, 0.3)]
+    holder = cup()
+    holder.apply_translation([0, 1.0, 0])
+    boards = [box([0.7, 0.02, 0.7], [0, y, 0]) for y in (0.01, 0.99)]
+    stand = trimesh.util.concatenate([*posts, *boards, holder])
+    stick = trimesh.creation.cylinder(radius=0.03, height=0.5)  # along z
+    upright = rot([1, 0, 0], -90)
+    in_cup, in_frame = pose([0, 1.05 + 0.25, 0], upright), pose([0.1, 0.02 + 0.25, 0.1], upright)  # on a board
+    prefer, score = _preference(stand, stick, [in_cup, in_frame], "in")
+    assert predicates.holds(score).tolist() == [True, True], score
+    assert prefer[0] < prefer[1] - 0.3, prefer
+
+
+def test_preference_is_zero_where_the_relation_says_nothing_more_and_batched_equals_one_by_one():
+    pair = prepared(table(), BALL)
+    p = poses(pair, list(BALL_POSES.values()))
+    for relation in ("beside", "hang", "penetrate", None):
+        assert predicates.preference(pair, p, relation).tolist() == [0.0] * 4
+    for relation in ("on", "in", "under", "lean", "wear"):
+        batched = predicates.preference(pair, p, relation)
+        single = torch.cat([predicates.preference(pair, p.select([i]), relation) for i in range(len(p))])
+        assert torch.allclose(batched, single, atol=1e-5), relation
