@@ -31,7 +31,7 @@ from service.deps import digest
 from service.errors import BodyLimit, install_handlers
 from service.forms import OPTIONS_DEPTH, OPTIONS_MAX, PROMPT_MAX
 from service.jobs import Jobs
-from service.routers import assemble, health, inspect, page, webhooks
+from service.routers import adjust, assemble, health, inspect, page, webhooks
 from service.routers import jobs as jobs_router
 from service.schemas import JobOptions
 from service.settings import Settings
@@ -168,6 +168,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(inspect.router)
     app.mount("/static", page.static_files(), name="static")
     app.include_router(assemble.router)
+    app.include_router(adjust.router)
     app.webhooks.include_router(webhooks.router)
 
     def openapi() -> dict[str, Any]:
