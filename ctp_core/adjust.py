@@ -19,7 +19,7 @@ falls the way the run's views looked down.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 import numpy as np
 import torch
@@ -32,7 +32,7 @@ from ctp_core.pose import Poses, apply_pose
 from ctp_core.scene import PreparedPair, Target, prepare_pair
 
 Settle = Literal["none", "drop", "push"]
-SETTLES: tuple[str, ...] = ("none", "drop", "push")
+SETTLES: tuple[str, ...] = get_args(Settle)
 ROUNDS = 8  # ``proposals.settle`` calls at most: each runs its own few sphere-tracing steps
 STILL = 1e-3  # source diagonals: a round that moved the source less than this ends the settling
 FLOOR_POINTS = 256  # source samples whose lowest is kept on the floor plane
@@ -76,8 +76,10 @@ def adjust(target: Target, source: trimesh.Trimesh, source_to_target: np.ndarray
         start = frames.checked_similarity(source_to_target, frames.SOURCE_FILE, frames.TARGET_FILE)
     except ValueError as exc:
         raise ConfigError(f"transform: {exc}", code="invalid_transform", field="transform") from None
-    target_up = None if upright is None else canonical.Upright(np.asarray(upright, dtype=np.float64),
-                                                                 not np.allclose(upright, np.eye(3)), "as the job")
+    target_up = None
+    if upright is not None:
+        rotation = np.asarray(upright, dtype=np.float64)
+        target_up = canonical.Upright(rotation, not np.allclose(rotation, np.eye(3)), "as the job turned it")
     pair = prepare_pair(target, source, samples=config.loss.samples, seed=config.seed, device="cpu",
                         canonicalise=config.upright, on=on, target_up=target_up)
     pose = predicates.poses_of(pair.local_to_normalised(start.matrix))
@@ -91,7 +93,7 @@ def adjust(target: Target, source: trimesh.Trimesh, source_to_target: np.ndarray
             moved = float((placed.t - pose.t).norm() / objective.source_diagonal(pair, pose)[0])
             pose = placed
     with torch.no_grad():
-        scorer = objective.Scorer(pair, config, contact_ratio=1.0)
+        scorer = objective.Scorer(pair, config, contact_ratio=1.0)  # soft-ICP's ratio: not read here
         sunk = float(scorer.geometry(pose, schedule.phases(config, allow_penetration=False)[-1])["sunk"][0])
         gap = float(objective.contact_gap(pair, pose)[0])
     verdict = predicates.verdict(pair, pose, relation, source_is_figure)
@@ -143,14 +145,14 @@ def _settle(pair: PreparedPair, pose: Poses, normal: torch.Tensor, seed: int, *,
     index = proposals.contact_index(pair, seed=seed)
     diagonal = float(objective.source_diagonal(pair, pose)[0])
     level = float(pair.target_vertices[:, 1].min())
-    lowest_point = pair.source_subset(FLOOR_POINTS)
+    samples = pair.source_subset(FLOOR_POINTS)
     t = pose.t.detach().clone()
     far = float(t.norm()) + 2 * (pair.target_radius + diagonal)  # past this it is only moving away from the target
     for _ in range(ROUNDS):
         centre, _ = proposals.settle(pair, index, pose.q, t, normal[None], pose.log_s, on_surface=False,
                                      approach="straight")
         if floor:
-            lowest = float(apply_pose(lowest_point, centre, pose.q, pose.log_s)[0, :, 1].min())
+            lowest = float(apply_pose(samples, centre, pose.q, pose.log_s)[0, :, 1].min())
             if lowest < level:  # nothing of the target under it: it rests where the target stands
                 centre = centre + torch.tensor([0.0, level - lowest, 0.0])
                 return Poses(centre, pose.q, pose.log_s), True

@@ -224,3 +224,16 @@ def test_drop_push_save_and_chain_on_the_adjusted_scene(api, worker):
     matrix, geometry = scene.graph["source"]  # the adjusted job's source, one of the chained job's target objects
     placed = scene.geometry[geometry].copy().apply_transform(matrix)
     assert np.allclose(placed.bounds, BALL.copy().apply_transform(final).bounds, atol=1e-5)
+
+    # the chained job adjusts the same way: its cube (the last of three objects) lifted, dropped and saved
+    chained_id = chained.json()["id"]
+    cube_at = api.client.get(f"/jobs/{chained_id}/report.json", headers=AUTH).json()["transform"]["matrix"]
+    redone = post(api, chained_id, {"transform": moved(cube_at, dy=0.3), "settle": "drop", "save": True}).json()
+    assert redone["status"] == "succeeded" and redone["result"]["settled"], redone
+    assert redone["result"]["touching"] and redone["result"]["penetration"] < 0.01, redone
+    resaved = trimesh.load(io.BytesIO(api.client.get(f"/jobs/{chained_id}/result.glb", headers=AUTH).content),
+                           file_type="glb")
+    assert list(resaved.graph.nodes_geometry) == list(scene.graph.nodes_geometry)  # the same three nodes
+    assert np.allclose(resaved.graph["cube"][0], redone["result"]["transform"], atol=1e-6)
+    for kept in ("target", "source"):  # the objects it was added to stay put
+        assert np.allclose(resaved.graph[kept][0], scene.graph[kept][0])
