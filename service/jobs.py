@@ -87,7 +87,7 @@ class Alternative(BaseModel):
                                         "without one")
 
 
-class Adjusted(BaseModel):
+class SavedAdjustment(BaseModel):
     """A saved adjustment (``POST /jobs/{id}/adjust`` with ``save``): ``result.glb`` and ``report.json`` hold the
     adjusted scene, ``original.glb`` the run's own answer."""
 
@@ -210,7 +210,7 @@ class JobRecord(BaseModel):
     queue: str = Field(DEFAULT_QUEUE, description="the named queue it was sent to")
     downloads: Literal["stream", "redirect"] = Field("stream", description="how its result downloads answer, "
                                                      "as the API that accepted it was set (Links.downloads)")
-    adjusted: Adjusted | None = Field(None, description="a succeeded alignment's saved adjustment, the latest")
+    adjusted: SavedAdjustment | None = Field(None, description="a succeeded alignment's saved adjustment, the latest")
 
     @property
     def stage_count(self) -> int:
@@ -440,7 +440,7 @@ class Jobs:
                                               "code": error.code if error else None})
         return record
 
-    def mark_adjusted(self, job_id: str, adjusted: Adjusted) -> JobRecord | None:
+    def mark_adjusted(self, job_id: str, adjusted: SavedAdjustment) -> JobRecord | None:
         """A saved adjustment of a succeeded job (its files are stored already); None for an unknown id."""
         return self._update(job_id, lambda r: r.model_copy(update={"adjusted": adjusted})
                             if r.status == "succeeded" else None)

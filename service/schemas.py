@@ -13,7 +13,7 @@ from pydantic import BaseModel, Field, create_model
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.options import AlignOptions, option_of, option_overrides
-from service.jobs import Adjusted, Alternative, JobError, JobRecord, Progress, Status
+from service.jobs import Alternative, JobError, JobRecord, Progress, SavedAdjustment, Status
 from service.settings import QUEUE_NAME
 from service.webhooks import Event, Webhook
 
@@ -101,7 +101,7 @@ class JobOut(BaseModel):
     alternatives: list[Alternative] = Field(default_factory=list, description="a succeeded alignment's best "
                                             "distinct placements, the answer first: each one's GLB at "
                                             "result.glb?alternative=k and a view at thumbnail.png?alternative=k")
-    adjusted: Adjusted | None = Field(None, description="a saved adjustment (POST /jobs/{id}/adjust with save), "
+    adjusted: SavedAdjustment | None = Field(None, description="a saved adjustment (POST /jobs/{id}/adjust with save), "
                                       "the latest: result.glb and report.json are the adjusted scene, original.glb "
                                       "the run's own; null until one is saved")
     links: Links

@@ -43,12 +43,12 @@ from ctp_core.progress import ProgressEvent
 from service.adjustments import AdjustmentRecord, Adjustments, AdjustOutcome
 from service.jobs import (
     ORIGINAL,
-    Adjusted,
     Alternative,
     JobError,
     JobRecord,
     Jobs,
     Progress,
+    SavedAdjustment,
     Stage,
     Status,
     alternative_blob,
@@ -225,8 +225,9 @@ def adjust_job(adjustment: AdjustmentRecord, jobs: Jobs, limits: MeshLimits) -> 
         jobs.storage.put(adjustment.job, "result.glb", arrangement_glb(target, source, done.source_to_target, name))
         jobs.storage.put(adjustment.job, "report.json", json.dumps(adjusted_report(
             facts, done, at=saved_at.isoformat(timespec="seconds")), indent=2).encode())
-        jobs.mark_adjusted(adjustment.job, Adjusted(saved_at=saved_at, adjustment=adjustment.id, transform=matrix,
-                                                    penetration=done.penetration, contact_gap=done.contact_gap))
+        jobs.mark_adjusted(adjustment.job, SavedAdjustment(
+            saved_at=saved_at, adjustment=adjustment.id, transform=matrix, penetration=done.penetration,
+            contact_gap=done.contact_gap))
     return AdjustOutcome(transform=matrix, saved=request.save, **done.to_dict())
 
 
