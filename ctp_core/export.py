@@ -31,28 +31,36 @@ from ctp_core.pose import matrix_to_quaternion
 from ctp_core.scene import objects
 
 if TYPE_CHECKING:  # align imports the whole engine; exporting a result needs none of it
+    from ctp_core.adjust import Adjusted
     from ctp_core.align import AlignResult
 
 
 def scene_glb(result: AlignResult, source_name: str = "source") -> bytes:
-    """One GLB with named nodes and their materials: "target" (identity) and "source" (placed).
+    """One GLB with named nodes and their materials: "target" (identity) and "source" (placed)."""
+    return arrangement_glb(result.target, result.source, result.source_to_target, source_name)
+
+
+def arrangement_glb(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, source_to_target: np.ndarray,
+                    source_name: str = "source") -> bytes:
+    """A target (file frame, untouched) and the source under its source file -> target file matrix, as one GLB.
 
     A scene target (the objects placed so far) keeps one node per object under its own name, and the
-    source's node is then named ``source_name`` (made unique among them).
+    source's node is then named ``source_name`` (made unique among them); a single mesh target's nodes are
+    "target" and "source". The source is the last node (``adjust`` reads it back so).
     """
     scene = trimesh.Scene()
-    if isinstance(result.target, trimesh.Scene):
-        placed = objects(result.target)
+    if isinstance(target, trimesh.Scene):
+        placed = objects(target)
         names = [name for name, _ in placed]
         for name, mesh in placed:
             scene.add_geometry(mesh, node_name=name, geom_name=name)
         source_name = next(n for n in (source_name, *(f"{source_name}-{i}" for i in range(2, len(names) + 3)))
                            if n not in names)
     else:
-        scene.add_geometry(result.target, node_name="target", geom_name="target")
+        scene.add_geometry(target, node_name="target", geom_name="target")
         source_name = "source"
-    scene.add_geometry(result.source, node_name=source_name, geom_name=source_name,
-                       transform=np.asarray(result.source_to_target, dtype=np.float64))
+    scene.add_geometry(source, node_name=source_name, geom_name=source_name,
+                       transform=np.asarray(source_to_target, dtype=np.float64))
     return trimesh.exchange.gltf.export_glb(scene)
 
 
@@ -91,6 +99,16 @@ def assembly_report(assembly: Assembly) -> dict:
         "timings": _jsonable(assembly.timings),
         **_provenance(),
     }
+
+
+def adjusted_report(original: dict, adjusted: Adjusted, *, at: str) -> dict:
+    """A job's report once a person saved an adjusted placement (``adjust``): ``transform`` is the adjusted one,
+    ``adjusted`` true and ``adjustment`` its measures, when (``at``, ISO 8601) and the run's own answer
+    (``original_transform``, kept through later saves). The rest (objective, relation, restarts, alternatives)
+    still describes the run's answer."""
+    first = original.get("adjustment", {}).get("original_transform", original["transform"])
+    return {**original, "transform": transform(adjusted.transform), "adjusted": True,
+            "adjustment": {**_jsonable(adjusted.to_dict()), "saved_at": at, "original_transform": first}}
 
 
 def _run(result: AlignResult, answer: dict | None = None) -> dict:

@@ -99,6 +99,48 @@ class Similarity:
         return np.asarray(directions, dtype=np.float64) @ self.rotation.T
 
 
+SIMILARITY_TOLERANCE = 1e-4  # ``checked_similarity``: how far from a rotation times one scale a given 4x4 may be
+
+
+def checked_similarity(matrix, from_frame: str, to_frame: str) -> Similarity:
+    """A 4x4 from outside (a client's, row-major nested lists) as a ``Similarity``, or ``ValueError`` saying what
+    is wrong with it: not 4x4, not finite, a last row other than 0 0 0 1, a mirror or a degenerate one, a shear or
+    an uneven scale. Within ``SIMILARITY_TOLERANCE`` its linear part is snapped to the nearest rotation times one
+    scale, so rounding by a browser or JSON never leaves a slightly skewed matrix in a scene."""
+    try:
+        m = np.asarray(matrix, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError("a 4x4 matrix is 4 rows of 4 numbers") from None
+    if m.shape != (4, 4):
+        raise ValueError(f"a 4x4 matrix is 4 rows of 4 numbers, got shape {m.shape}")
+    if not np.isfinite(m).all():
+        raise ValueError("the matrix holds NaN or infinity")
+    if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=SIMILARITY_TOLERANCE):
+        raise ValueError(f"the last row of a similarity is 0 0 0 1, got {m[3].tolist()}")
+    linear = m[:3, :3]
+    det = float(np.linalg.det(linear))
+    if not det > 0:
+        raise ValueError("the matrix mirrors or flattens the object (determinant <= 0)")
+    scale = float(np.cbrt(det))
+    u, _, vt = np.linalg.svd(linear / scale)
+    rotation = u @ vt
+    if np.abs(linear / scale - rotation).max() > SIMILARITY_TOLERANCE:
+        raise ValueError("the matrix shears or scales unevenly: only a rotation, one scale and a translation are "
+                         "allowed")
+    return Similarity.from_parts(rotation, m[:3, 3], scale, from_frame, to_frame)
+
+
+def checked_direction(direction) -> np.ndarray:
+    """A direction from outside (3 numbers, any length but 0) as a unit vector, or ``ValueError``."""
+    try:
+        d = np.asarray(direction, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError("a direction is 3 numbers") from None
+    if d.shape != (3,) or not np.isfinite(d).all() or not np.linalg.norm(d) > 0:
+        raise ValueError("a direction is 3 finite numbers, not all 0")
+    return d / np.linalg.norm(d)
+
+
 def rotate(rotation: np.ndarray, from_frame: str, to_frame: str) -> Similarity:
     """A pure rotation between two frames sharing an origin (e.g. target file -> target upright)."""
     return Similarity.from_parts(rotation, np.zeros(3), 1.0, from_frame, to_frame)

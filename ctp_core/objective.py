@@ -37,10 +37,10 @@ def clearance(pair: PreparedPair, index: losses.SurfaceIndex, poses: Poses, poin
     in source diagonals (normalised frame)."""
     posed = apply_pose(pair.source_subset(points), poses.t, poses.q, poses.log_s).detach().cpu()
     dist, _ = index.tree.query(posed.reshape(-1, 3).numpy().astype(np.float64), k=1, workers=1)
-    return torch.as_tensor(dist.reshape(len(poses), -1).min(axis=1), dtype=torch.float32) / _diagonal(pair, poses)
+    return torch.as_tensor(dist.reshape(len(poses), -1).min(axis=1), dtype=torch.float32) / source_diagonal(pair, poses)
 
 
-def _diagonal(pair: PreparedPair, poses: Poses) -> torch.Tensor:
+def source_diagonal(pair: PreparedPair, poses: Poses) -> torch.Tensor:
     """(B,) each posed source's diagonal, normalised units (CPU): the unit of ``clearance`` and ``touch_limit``."""
     return 2 * pair.source_radius * poses.log_s.detach().cpu().exp()
 
@@ -65,7 +65,7 @@ def contact_gap(pair: PreparedPair, poses: Poses) -> torch.Tensor:
 def touch_limit(pair: PreparedPair, poses: Poses) -> torch.Tensor:
     """(B,) the ``clearance`` (source diagonals) under which a pose touches: ``TOUCH`` plus the spacing of the
     target samples (a small source on a big target is farther from the nearest sample than from the surface)."""
-    return TOUCH + sample_spacing(pair, len(pair.index.points)) / _diagonal(pair, poses)
+    return TOUCH + sample_spacing(pair, len(pair.index.points)) / source_diagonal(pair, poses)
 
 
 def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: torch.Tensor, weights: Phase, *,
@@ -238,7 +238,7 @@ class Scorer:
                 pen = pen + self.enclosed(poses)
             else:
                 pen = torch.zeros_like(icp)
-            sunk = pen.detach() / _diagonal(self.pair, poses).to(pen.device)
+            sunk = pen.detach() / source_diagonal(self.pair, poses).to(pen.device)
         return {"icp": icp, "pen": pen, "sunk": sunk, **self.relation_terms(poses), "centroid": pts.mean(dim=1)}
 
     def screen(self, poses: Poses, weights: Phase) -> dict[str, torch.Tensor]:

@@ -152,16 +152,20 @@ class PreparedPair:
 
 def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed: int,
                  device: str = "cpu", canonicalise: bool = True, judge: canonical.Judge | None = None,
-                 on: str | None = None) -> PreparedPair:
+                 on: str | None = None, target_up: canonical.Upright | None = None) -> PreparedPair:
     """Normalise, canonicalise and sample a pair once per run (everything later reuses it).
 
     ``canonicalise`` turns a clearly lying or upside-down target upright (renders then show it as
     CLIP expects), by ``judge`` when given (``upright_judge``); the source's upright frame is always
     computed from geometry, as the starting orientation. A scene target's up is its base's (``base``);
     it gets ``samples`` samples per object; ``on`` names the object the soft-ICP term attaches to.
+    ``target_up``: the target's upright turn when it is known already (a stored result's, ``adjust``): a later
+    look at the same scene must have the same up as the run, which a judge may have chosen.
     """
     whole, up_from = geometry(target), base(target)
-    target_up = canonical.upright_rotation(up_from, seed=seed, judge=judge) if canonicalise else canonical.identity()
+    if target_up is None:
+        target_up = (canonical.upright_rotation(up_from, seed=seed, judge=judge) if canonicalise
+                     else canonical.identity())
     source_up = canonical.upright_rotation(source, seed=seed)
     target_to_norm = frames.target_to_normalised(whole.vertices, target_up.rotation)
     source_to_local = frames.source_local(source.bounds, target_to_norm)

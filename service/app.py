@@ -31,7 +31,7 @@ from service.deps import digest
 from service.errors import BodyLimit, install_handlers
 from service.forms import OPTIONS_DEPTH, OPTIONS_MAX, PROMPT_MAX
 from service.jobs import Jobs
-from service.routers import assemble, health, inspect, page, webhooks
+from service.routers import adjust, assemble, health, inspect, page, webhooks
 from service.routers import jobs as jobs_router
 from service.schemas import JobOptions
 from service.settings import Settings
@@ -47,7 +47,9 @@ Place one 3D object relative to another from a text prompt (Copy-Transform-Paste
 Submit two meshes and a prompt to `POST /align`, follow `GET /jobs/{{id}}` (or its server-sent
 `events`), then download `result.glb`; `GET /jobs` lists the caller's jobs. `POST /assemble` builds a
 scene of several objects, one stage each, as one job; `POST /align` with `target_job` adds one object to
-an earlier job's scene. Jobs run on queue workers; records and results expire after the configured TTL
+an earlier job's scene. `POST /jobs/{{id}}/adjust` measures a placement of the source made by hand, settles it
+into contact ("drop", "push") and with `save` stores it as the job's result (the run's own at `original.glb`).
+Jobs run on queue workers; records and results expire after the configured TTL
 (`CTP_JOB_TTL_S`). A web page for all of this is at `/`; these docs work offline (`/docs`, `/redoc`).
 
 **Authentication.** When the service has API keys (`CTP_API_KEYS`), every call except `/healthz` and
@@ -62,10 +64,12 @@ an earlier job's scene. Jobs run on queue workers; records and results expire af
   names a file part not sent), `invalid_field` also for `webhook_events` without `webhook`,
   `invalid_idempotency_key` (not 1 to 255 visible ASCII characters)
 - 401: `unauthorized`
-- 404: `job_not_found` (also a `target_job` that is unknown or another key's), `not_found`
-- 409: `job_not_ready` (result of a job that has not succeeded, or such a `target_job`), `job_finished`
-  (cancel of an ended job), `idempotency_conflict` (an `Idempotency-Key` already used for a different request),
-  `idempotency_in_progress` (the first request with that key is still being checked after a minute)
+- 404: `job_not_found` (also a `target_job` that is unknown or another key's), `not_found`,
+  `adjustment_not_found`, `not_adjusted` (`original.glb` of a job with no saved adjustment)
+- 409: `job_not_ready` (result of a job that has not succeeded, or such a `target_job`, or an adjustment of one),
+  `not_adjustable` (an adjustment of an assembly), `job_finished` (cancel of an ended job), `idempotency_conflict`
+  (an `Idempotency-Key` already used for a different request), `idempotency_in_progress` (the first request with
+  that key is still being checked after a minute)
 - 413: `request_too_large`, `mesh_file_too_large`, `mesh_too_large` (faces, glTF instances counted),
   `mesh_too_complex` (a glTF scene graph over {MeshLimits.max_nodes:,} nodes or {MeshLimits.max_depth}
   deep by default, or a mesh whose loading ran past its wall time (`CTP_LOAD_TIMEOUT_S`) or memory
@@ -84,7 +88,8 @@ an earlier job's scene. Jobs run on queue workers; records and results expire af
   `webhook_url_refused` (the webhook's host resolves to a loopback, private, link-local, multicast or other
   non-public address; `CTP_WEBHOOK_ALLOW_PRIVATE` allows them), `webhooks_disabled` (no `CTP_WEBHOOK_SECRET`),
   `queue_not_served` (the job's `queue` option names a queue no worker serves, live or seen within the grace;
-  the message lists those served)
+  the message lists those served), `invalid_transform` (an adjustment's transform that is not a rotation, one
+  scale and a translation), `invalid_direction` (a push without a direction)
 - 429: `too_many_jobs` (queued plus running jobs per key, `CTP_MAX_ACTIVE_JOBS`)
 - 503: `redis_unavailable`; `storage_unavailable` (the object store, `CTP_STORAGE=s3`, did not answer or
   refused); `no_worker` (no worker is alive, and none was seen within the grace,
@@ -168,6 +173,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(inspect.router)
     app.mount("/static", page.static_files(), name="static")
     app.include_router(assemble.router)
+    app.include_router(adjust.router)
     app.webhooks.include_router(webhooks.router)
 
     def openapi() -> dict[str, Any]:

@@ -5,6 +5,11 @@
     final = client.wait(job["id"], on_progress=lambda j: print(j["progress"]["message"]))
     client.download(job["id"], "result.glb", to="scene.glb")
 
+    # moved by hand 0.2 up, dropped back into contact and saved as the job's result (original.glb keeps the run's):
+    moved = json.loads(client.download(job["id"], "report.json"))["transform"]["matrix"]
+    moved[1][3] += 0.2
+    done = client.adjust(job["id"], moved, settle="drop", save=True)  # done["result"]: transform, contact_gap, ...
+
     # one more object on that scene (its objects stay as they are), or a whole scene as one job:
     spoon = client.submit(None, "spoon.glb", "a spoon in the cup", target_job=job["id"])
     scene = client.assemble("table.glb", [{"file": "plate.glb", "prompt": "a plate on the table"},
@@ -126,6 +131,29 @@ class Client:
         ``extents`` and ``size`` in the file's units, the ``up`` the service will use (file frame) and whether it
         is ``turned``; a file a job would refuse raises ``ServiceError`` with the same code."""
         return self._json(self.http.post("/inspect", files={"mesh": _file(mesh)}))
+
+    def adjust(self, job_id: str, transform, *, settle: str = "none", direction: Sequence[float] | None = None,
+               save: bool = False, wait: int = 30, timeout_s: float = 120.0) -> dict[str, Any]:
+        """Adjust a succeeded alignment by hand (``POST /jobs/{id}/adjust``) and return the ended adjustment:
+        ``transform`` (4x4, source file -> target file, row-major; a numpy array will do) measured there, after
+        ``settle`` "drop" (along the target's up) or "push" (along ``direction``, target file frame) into contact,
+        and with ``save`` stored as the job's result (``original.glb`` keeps the run's own). Its ``status`` is
+        succeeded or failed (``error``); its ``result`` has the ``transform`` it ended at, ``penetration``,
+        ``contact_gap``, ``touching``, ``settled``, ``relation``. Waits ``wait`` s in the request (``Prefer: wait``),
+        then reads it until it ends; ``TimeoutError`` after ``timeout_s``."""
+        body = {"transform": [list(map(float, row)) for row in transform], "settle": settle, "save": save}
+        if direction is not None:
+            body["direction"] = [float(v) for v in direction]
+        timeout = httpx.Timeout(self.http.timeout.connect, read=(self.http.timeout.read or 0) + wait)
+        adjustment = self._json(self.http.post(f"/jobs/{job_id}/adjust", json=body, headers={"Prefer": f"wait={wait}"},
+                                               timeout=timeout))
+        deadline = time.monotonic() + timeout_s
+        while adjustment["status"] not in ("succeeded", "failed"):
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"adjustment {adjustment['id']} of job {job_id} still {adjustment['status']}")
+            time.sleep(0.25)
+            adjustment = self._json(self.http.get(adjustment["link"]))
+        return adjustment
 
     def status(self, job_id: str) -> dict[str, Any]:
         return self._json(self.http.get(f"/jobs/{job_id}"))

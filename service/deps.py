@@ -58,15 +58,20 @@ async def enqueue(request: Request, record: JobRecord, blobs: dict[str, bytes],
     ``configs`` are what the job runs: an assembly's every stage (each with its own options), so one guided
     step makes the job need the model however geometry-only the assembly's options are."""
     settings, jobs = request.app.state.settings, request.app.state.jobs
-    unavailable = await run_in_threadpool(_unavailable, jobs, {c.model for c in configs if c.uses_model},
-                                          record.queue)
-    if unavailable is not None:
-        status = 422 if unavailable.code == "queue_not_served" else 503  # the request's to change, not a wait
-        raise ApiError(status, unavailable.code, unavailable.message, unavailable.field)
+    await check_workers(request, {c.model for c in configs if c.uses_model}, record.queue)
     try:
         await run_in_threadpool(jobs.submit, record, blobs, settings.max_active_jobs)
     except TooManyJobs as exc:
         raise ApiError(429, "too_many_jobs", str(exc)) from None
+
+
+async def check_workers(request: Request, models: set[str], queue: str) -> None:
+    """Refuse work no worker can run now: 503 (no worker, the model unavailable) or 422 ``queue_not_served``;
+    ``models`` empty: any worker of ``queue`` will do (``Jobs.unavailable``)."""
+    unavailable = await run_in_threadpool(_unavailable, request.app.state.jobs, models, queue)
+    if unavailable is not None:
+        status = 422 if unavailable.code == "queue_not_served" else 503  # the request's to change, not a wait
+        raise ApiError(status, unavailable.code, unavailable.message, unavailable.field)
 
 
 def _unavailable(jobs: Jobs, models: set[str], queue: str) -> JobError | None:

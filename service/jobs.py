@@ -68,6 +68,7 @@ INPUTS = ("target", "source", "image")  # an assembly's are "target" (its base),
 # Result files: name -> media type.
 OUTPUTS = {"result.glb": "model/gltf-binary", "report.json": "application/json", "preview.png": "image/png",
            "alternatives.png": "image/png"}
+ORIGINAL = "original.glb"  # once an adjustment is saved (``service.adjustments``): the run's own result.glb, kept
 
 
 def alternative_blob(k: int) -> str:
@@ -84,6 +85,18 @@ class Alternative(BaseModel):
                                       "without a guide")
     relation_holds: bool | None = Field(None, description="whether the prompt's relation holds there; null "
                                         "without one")
+
+
+class SavedAdjustment(BaseModel):
+    """A saved adjustment (``POST /jobs/{id}/adjust`` with ``save``): ``result.glb`` and ``report.json`` hold the
+    adjusted scene, ``original.glb`` the run's own answer."""
+
+    saved_at: datetime = Field(description="when it was saved (UTC)")
+    adjustment: str = Field(description="the adjustment that saved it (GET /jobs/{id}/adjust/{adjustment})")
+    transform: list[list[float]] = Field(description="the source's 4x4 now, source file -> target file, row-major")
+    penetration: float = Field(description="penetration into the target over the source's diagonal, there")
+    contact_gap: float = Field(description="gap to the target in source diagonals, there (0: touching)")
+
 
 TASK = "worker.tasks.run_job"  # by name: the API never imports the engine
 
@@ -197,6 +210,7 @@ class JobRecord(BaseModel):
     queue: str = Field(DEFAULT_QUEUE, description="the named queue it was sent to")
     downloads: Literal["stream", "redirect"] = Field("stream", description="how its result downloads answer, "
                                                      "as the API that accepted it was set (Links.downloads)")
+    adjusted: SavedAdjustment | None = Field(None, description="a succeeded alignment's saved adjustment, the latest")
 
     @property
     def stage_count(self) -> int:
@@ -426,6 +440,11 @@ class Jobs:
                                               "code": error.code if error else None})
         return record
 
+    def mark_adjusted(self, job_id: str, adjusted: SavedAdjustment) -> JobRecord | None:
+        """A saved adjustment of a succeeded job (its files are stored already); None for an unknown id."""
+        return self._update(job_id, lambda r: r.model_copy(update={"adjusted": adjusted})
+                            if r.status == "succeeded" else None)
+
     def cancel(self, job_id: str) -> JobRecord | None:
         """queued: canceled now and removed from the queue; running: flagged, the worker stops at its
         next step; finished: unchanged. None for an unknown id."""
@@ -557,6 +576,10 @@ class Jobs:
                 pipe.sadd(self._seen_set, worker)
                 pipe.pexpire(self._seen_set, grace_ms)
             pipe.execute()
+
+    def worker_live(self, worker: str) -> bool:
+        """Whether ``worker``'s lease is current (it is alive)."""
+        return bool(self.redis.exists(self._worker_key(worker)))
 
     def worker_gone(self, worker: str) -> None:
         """A worker's clean exit: it is no longer live. Its "last seen" record stays for the rest of the grace

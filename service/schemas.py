@@ -13,7 +13,7 @@ from pydantic import BaseModel, Field, create_model
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.options import AlignOptions, option_of, option_overrides
-from service.jobs import Alternative, JobError, JobRecord, Progress, Status
+from service.jobs import Alternative, JobError, JobRecord, Progress, SavedAdjustment, Status
 from service.settings import QUEUE_NAME
 from service.webhooks import Event, Webhook
 
@@ -101,6 +101,9 @@ class JobOut(BaseModel):
     alternatives: list[Alternative] = Field(default_factory=list, description="a succeeded alignment's best "
                                             "distinct placements, the answer first: each one's GLB at "
                                             "result.glb?alternative=k and a view at thumbnail.png?alternative=k")
+    adjusted: SavedAdjustment | None = Field(None, description="a saved adjustment (POST /jobs/{id}/adjust with save), "
+                                      "the latest: result.glb and report.json are the adjusted scene, original.glb "
+                                      "the run's own; null until one is saved")
     links: Links
 
     @classmethod
@@ -109,7 +112,7 @@ class JobOut(BaseModel):
                    started_at=r.started_at, finished_at=r.finished_at, error=r.error,
                    cancel_requested=r.cancel_requested, prompt=r.prompt, image_guided=r.has_image,
                    webhook=r.webhook, queue=r.queue, target_job=r.target_job, stages=r.stage_count,
-                   alternatives=r.alternatives, links=links(r.id, r.downloads))
+                   alternatives=r.alternatives, adjusted=r.adjusted, links=links(r.id, r.downloads))
 
 
 class WebhookPayload(BaseModel):

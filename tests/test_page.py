@@ -10,11 +10,13 @@ from __future__ import annotations
 import base64
 import io
 import json
+import math
 import os
 import re
 import shutil
 import time
 
+import numpy as np
 import pytest
 import trimesh
 
@@ -421,3 +423,139 @@ def test_docs_render_offline(api, browser):
         browser.get(api.url + path)
         wait_for(lambda sel=selector: browser.find_elements(By.CSS_SELECTOR, sel), 30, f"{path} to render")
         assert "/jobs" in browser.find_element(By.TAG_NAME, "body").text
+
+
+HANDLE = """
+    // Where one of the move handle's arrows is on screen (viewport pixels): TransformControls draws its gizmo at
+    // the pivot, sized by its distance to the camera (its own formula), each arrow's picker from 0 to 0.6 of that.
+    const axis = arguments[0];
+    const box = document.getElementById('viewer');
+    const v = box.viewer, cam = v.camera, rect = box.querySelector('canvas').getBoundingClientRect();
+    v.model.updateMatrixWorld(true);
+    const origin = v.pivot.getWorldPosition(v.pivot.position.clone());
+    const size = origin.distanceTo(cam.position) * Math.min(1.9 * Math.tan(Math.PI * cam.fov / 360) / cam.zoom, 7)
+      * v.handles.size / 4;
+    const at = (t) => {
+      const p = origin.clone();
+      p[axis] += t * size;
+      p.project(cam);
+      return [rect.left + (p.x + 1) / 2 * rect.width, rect.top + (1 - p.y) / 2 * rect.height];
+    };
+    return {grab: at(0.45), tip: at(1.0)};
+"""
+SOURCE_MATRIX = "return document.getElementById('viewer').viewer.sourceMatrix()"
+
+
+def drag_handle(driver, axis: str, pixels: int) -> None:
+    """A real drag with the mouse: hover the move handle's arrow of ``axis`` ("x", "y", "z"), press, move
+    ``pixels`` along it as it shows on screen, in steps, release."""
+    from selenium.webdriver.common.actions.action_builder import ActionBuilder
+
+    where = driver.execute_script(HANDLE, axis)
+    (x, y), (tip_x, tip_y) = where["grab"], where["tip"]
+    length = math.hypot(tip_x - x, tip_y - y)
+    assert length > 10, where  # the arrow shows from this view, not end-on
+    actions = ActionBuilder(driver)
+    pointer = actions.pointer_action
+    pointer.move_to_location(round(x), round(y)).pause(0.3).pointer_down().pause(0.2)
+    for step in range(1, 11):
+        pointer.move_to_location(round(x + (tip_x - x) * pixels * step / 10 / length),
+                                 round(y + (tip_y - y) * pixels * step / 10 / length)).pause(0.05)
+    pointer.pointer_up()
+    actions.perform()
+
+
+def test_adjust_the_source_by_hand_drop_it_and_save(api, worker, browser):
+    """The result's handles: a real mouse drag of the move handle's up arrow lifts the source, "Push along view"
+    and "Reset" go and come back, a drag of one scale axis scales it evenly, then dragged along the table and up,
+    "Drop to contact" lowers it onto the table (the worker's settle) and "Save" stores it: the job's result.glb
+    has the source node at the saved transform, touching the table (measured on the GLB with trimesh), and
+    original.glb is the run's own GLB. Screenshots of each step in runs/screens/adjust-*.png."""
+    from selenium.webdriver.common.by import By
+
+    target, source = table_and_ball()
+    answer = api.client.post("/align", headers=AUTH,
+                             files={"target": ("table.glb", target), "source": ("ball.glb", source)},
+                             data={"prompt": "a ball on top of a table",
+                                   "options": json.dumps({"preset": "test", "seed": 3})})
+    job_id = answer.json()["id"]
+    wait_for(lambda: api.client.get(f"/jobs/{job_id}", headers=AUTH).json()["status"] == "succeeded", 240, "the job")
+    report = api.client.get(f"/jobs/{job_id}/report.json", headers=AUTH).json()
+    assert report["relation"]["holds"], report["relation"]  # the ball on the table: dropping it lands it there again
+    original = api.client.get(f"/jobs/{job_id}/result.glb", headers=AUTH).content
+
+    driver, find = browser, browser.find_element
+    open_page(driver, api)
+    opener = f"#jobs-body tr[data-id='{job_id}'] button"
+    wait_for(lambda: driver.find_elements(By.CSS_SELECTOR, opener), 20, "the job list")
+    find(By.CSS_SELECTOR, opener).click()
+    wait_for(lambda: find(By.ID, "viewer").get_attribute("data-ready"), 60, "the result")
+    assert find(By.ID, "adjust").is_displayed() and not find(By.ID, "adjust-save").is_enabled()
+    shown = np.array(driver.execute_script(SOURCE_MATRIX))
+    assert np.allclose(shown, report["transform"]["matrix"], atol=1e-5)  # the GLB's source node, as the report says
+    find(By.CSS_SELECTOR, "input[name=adjust-mode][value=translate]").click()
+    find(By.ID, "viewer").location_once_scrolled_into_view  # noqa: B018 - the drag needs it on screen
+    shoot(driver, "adjust-handles")
+
+    state = lambda: find(By.ID, "adjust-state").get_attribute("data-state")  # noqa: E731
+    drag_handle(driver, "y", 120)
+    wait_for(lambda: state() == "moved", 10, "the drag to move the source")
+    lifted = np.array(driver.execute_script(SOURCE_MATRIX))
+    assert lifted[1, 3] > shown[1, 3] + 0.05, (lifted, shown)  # up, the arrow's axis
+    assert np.allclose(lifted[[0, 2], 3], shown[[0, 2], 3], atol=1e-6) and np.allclose(lifted[:3, :3], shown[:3, :3])
+    assert f"{lifted[1, 3]:.3f}" in find(By.ID, "transform").text  # the facts follow the source
+    shoot(driver, "adjust-dragged")
+
+    find(By.ID, "adjust-push").click()  # the way the view looks: onto something, or nothing met
+    wait_for(lambda: state() in ("settled", "unsettled"), 60, "the push")
+    find(By.ID, "adjust-reset").click()
+    assert state() == "idle" and np.allclose(driver.execute_script(SOURCE_MATRIX), shown, atol=1e-6)
+
+    find(By.CSS_SELECTOR, "input[name=adjust-mode][value=scale]").click()
+    drag_handle(driver, "x", 40)  # one axis of the scale handle: the page keeps the scale one factor
+    wait_for(lambda: state() == "moved", 10, "the scale drag")
+    linear = np.array(driver.execute_script(SOURCE_MATRIX))[:3, :3] @ np.linalg.inv(shown[:3, :3])
+    factors = np.linalg.svd(linear, compute_uv=False)
+    assert abs(factors[0] - 1) > 0.05 and np.allclose(factors, factors[0], rtol=1e-6), factors
+    find(By.ID, "adjust-reset").click()
+    find(By.CSS_SELECTOR, "input[name=adjust-mode][value=translate]").click()
+
+    drag_handle(driver, "x", 60)  # along the table, then up off it
+    drag_handle(driver, "y", 120)
+    wait_for(lambda: state() == "moved", 10, "the second drag")
+    lifted = np.array(driver.execute_script(SOURCE_MATRIX))
+    assert lifted[0, 3] > shown[0, 3] + 0.03 and lifted[1, 3] > shown[1, 3] + 0.05, (lifted, shown)
+    find(By.ID, "adjust-drop").click()
+    wait_for(lambda: state() in ("settled", "unsettled", "failed"), 60, "the drop")
+    line = find(By.ID, "adjust-state").text
+    assert state() == "settled" and line.startswith("dropped - touching - penetration"), line
+    dropped = np.array(driver.execute_script(SOURCE_MATRIX))
+    assert dropped[1, 3] < lifted[1, 3] - 0.03 and np.allclose(dropped[[0, 2], 3], lifted[[0, 2], 3], atol=1e-5)
+    assert not np.allclose(dropped, shown, atol=0.03)  # a placement of its own, not the run's
+    shoot(driver, "adjust-dropped")
+
+    find(By.ID, "adjust-save").click()
+    wait_for(lambda: state() in ("saved", "failed"), 60, "the save")
+    assert state() == "saved", find(By.ID, "adjust-state").text
+    wait_for(lambda: find(By.ID, "viewer").get_attribute("data-ready"), 30, "the saved result shown")
+    assert "adjusted" in find(By.ID, "transform").text
+    assert find(By.CSS_SELECTOR, "[data-file='original.glb']").is_displayed()
+    find(By.ID, "result").location_once_scrolled_into_view  # noqa: B018
+    shoot(driver, "adjust-saved")
+
+    find(By.CSS_SELECTOR, "[data-file='result.glb']").click()  # the page's download is the saved scene
+    downloaded = driver.downloads / f"{job_id}-result.glb"
+    wait_for(downloaded.exists, 20, "the GLB download")
+    time.sleep(0.2)
+    glb = downloaded.read_bytes()
+    assert glb == api.client.get(f"/jobs/{job_id}/result.glb", headers=AUTH).content
+    scene = trimesh.load(io.BytesIO(glb), file_type="glb")
+    node, geometry = scene.graph["source"]
+    assert np.allclose(node, dropped, atol=1e-5)  # the source node holds the saved transform
+    ball = scene.geometry[geometry].copy().apply_transform(node)
+    table = scene.geometry[scene.graph["target"][1]].copy().apply_transform(scene.graph["target"][0])
+    inside = float(trimesh.proximity.signed_distance(table, ball.vertices).max())  # > 0: a ball vertex in the table
+    diagonal = float(np.linalg.norm(ball.extents))
+    assert -0.02 * diagonal < inside < 0.02 * diagonal, inside  # touching: no gap, no penetration past 2 %
+    assert api.client.get(f"/jobs/{job_id}/original.glb", headers=AUTH).content == original
+    assert api.client.get(f"/jobs/{job_id}/report.json", headers=AUTH).json()["adjusted"] is True

@@ -1,7 +1,9 @@
-"""The rq task: take a queued job, run the engine on it, store its results or its error.
+"""The rq tasks: take a queued job, run the engine on it, store its results or its error; and adjust a
+succeeded job's result by hand (``run_adjustment``).
 
 ``run_job`` is the adapter (status, progress, leases, errors); ``align_job`` and ``assemble_job`` are
-the calls into ``ctp_core``: bytes in, result files out.
+the calls into ``ctp_core``: bytes in, result files out. ``run_adjustment`` and ``adjust_job`` are the same
+pair for an adjustment (``service.adjustments``).
 """
 
 from __future__ import annotations
@@ -11,23 +13,47 @@ import json
 import logging
 import sys
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 import trimesh
 from rq.timeouts import JobTimeoutException
 
+from ctp_core.adjust import adjust, read_back
 from ctp_core.align import align
 from ctp_core.assemble import Step, assemble
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled, ConfigError, CtpError, JobTooLarge, forget, out_of_memory
-from ctp_core.export import assembly_glb, assembly_report, preview_png, report, scene_glb, strip_png
+from ctp_core.export import (
+    adjusted_report,
+    arrangement_glb,
+    assembly_glb,
+    assembly_report,
+    preview_png,
+    report,
+    scene_glb,
+    strip_png,
+)
 from ctp_core.guidance import guide_for
 from ctp_core.io import MeshLimits, load_image, load_objects
 from ctp_core.loader import MeshLoader
 from ctp_core.progress import ProgressEvent
-from service.jobs import Alternative, JobError, JobRecord, Progress, Stage, Status, alternative_blob
+from service.adjustments import AdjustmentRecord, Adjustments, AdjustOutcome
+from service.jobs import (
+    ORIGINAL,
+    Alternative,
+    JobError,
+    JobRecord,
+    Jobs,
+    Progress,
+    SavedAdjustment,
+    Stage,
+    Status,
+    alternative_blob,
+    now,
+)
 from service.settings import MiB, Settings
 from service.storage import StorageUnavailable
 from worker.main import context, where
@@ -137,6 +163,72 @@ def run_job(job_id: str) -> str:
         gc.collect()  # frames in reference cycles: give their memory back before the next job
     ctx.jobs.finish(job_id, status, error, alternatives)
     return status
+
+
+def run_adjustment(adjustment_id: str) -> str:
+    """rq entry point of an adjustment (by name, JSON-serialised id only); returns its final status.
+
+    Under the job memory ceiling and the job time limit like a job, but without a job lease: a reader of the
+    adjustment fails it when its worker is gone (``Adjustments.get``). A save holds the job's adjust lock from
+    reading the result to writing it."""
+    ctx = context()
+    adjustments = Adjustments(ctx.jobs)
+    adjustment = adjustments.start(adjustment_id, ctx.name)
+    if adjustment is None:
+        return "skipped"
+    log.info("adjustment started", extra={"job_id": adjustment.job, "adjustment": adjustment_id, "worker": ctx.name})
+    outcome, error, budget_mb = None, None, None
+    try:
+        with (job_memory(ctx.settings.job_memory_mb) as budget_mb,
+              adjustments.lock(adjustment.job) if adjustment.request.save else nullcontext()):
+            outcome = adjust_job(adjustment, ctx.jobs, ctx.settings.mesh_limits)
+    except CtpError as exc:
+        error = JobError(**exc.to_dict())
+    except StorageUnavailable as exc:
+        error = JobError(code="storage_unavailable", message=str(exc))
+    except JobTimeoutException:
+        error = JobError(code="job_timeout", message=f"the adjustment ran over {ctx.settings.job_timeout_s} s")
+    except Exception as exc:
+        if out_of_memory(exc):
+            forget(exc)
+            error = too_large(exc, Stage(name="adjust"), budget_mb)
+        else:
+            log.exception("adjustment crashed", extra={"job_id": adjustment.job, "adjustment": adjustment_id})
+            error = JobError(code="internal_error", message=f"{type(exc).__name__}: {exc}")
+    status = "failed" if error is not None else "succeeded"
+    adjustments.finish(adjustment_id, status, outcome, error)
+    return status
+
+
+def adjust_job(adjustment: AdjustmentRecord, jobs: Jobs, limits: MeshLimits) -> AdjustOutcome:
+    """Run ``ctp_core.adjust`` on a succeeded job's stored result (its inputs are gone by now): the scene read
+    back from ``result.glb``, the frames and the relation from ``report.json``. With ``save``, the adjusted scene
+    and report replace them (the run's own GLB kept once as ``original.glb``) and the job record says so."""
+    record = jobs.get(adjustment.job)
+    stored = {name: jobs.storage.get(adjustment.job, name) for name in ("result.glb", "report.json")}
+    if record is None or record.status != "succeeded" or None in stored.values():
+        raise CtpError(f"job {adjustment.job}'s results are gone (expired)", code="job_not_ready")
+    facts = json.loads(stored["report.json"])
+    at = np.asarray(facts["transform"]["matrix"], dtype=np.float64)  # the stored result.glb's source node
+    target, source, name = read_back(load_objects(stored["result.glb"], filename="result.glb", limits=limits), at)
+    upright = (facts.get("extra") or {}).get("target_upright")
+    relation = facts.get("relation") or {}
+    request = adjustment.request
+    done = adjust(target, source, np.asarray(request.transform), record.config, settle=request.settle,
+                  direction=request.direction, upright=None if upright is None else upright["rotation"],
+                  on=record.on, relation=relation.get("name"), source_is_figure=relation.get("role") != "ground")
+    matrix = done.source_to_target.tolist()
+    if request.save:
+        saved_at = now()
+        if jobs.storage.get(adjustment.job, ORIGINAL) is None:  # the run's own, kept through later saves
+            jobs.storage.put(adjustment.job, ORIGINAL, stored["result.glb"])
+        jobs.storage.put(adjustment.job, "result.glb", arrangement_glb(target, source, done.source_to_target, name))
+        jobs.storage.put(adjustment.job, "report.json", json.dumps(adjusted_report(
+            facts, done, at=saved_at.isoformat(timespec="seconds")), indent=2).encode())
+        jobs.mark_adjusted(adjustment.job, SavedAdjustment(
+            saved_at=saved_at, adjustment=adjustment.id, transform=matrix, penetration=done.penetration,
+            contact_gap=done.contact_gap))
+    return AdjustOutcome(transform=matrix, saved=request.save, **done.to_dict())
 
 
 def too_large(exc: BaseException, stage: Stage, budget_mb: int | None) -> JobError:

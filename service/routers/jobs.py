@@ -16,7 +16,7 @@ from service import submit as submit_
 from service.chained import chained_target
 from service.deps import own_job, owner
 from service.errors import ApiError, binary, documented
-from service.jobs import OUTPUTS, TERMINAL, JobRecord, Jobs, alternative_blob, now, parse_record
+from service.jobs import ORIGINAL, OUTPUTS, TERMINAL, JobRecord, Jobs, alternative_blob, now, parse_record
 from service.schemas import Accepted, JobList, JobOut, build_config
 
 log = logging.getLogger("ctp.service")
@@ -139,6 +139,9 @@ def _add_output_route(name: str, media_type: str) -> None:
         record = await own_job(request, job_id, who)
         if record.status != "succeeded":
             raise ApiError(409, "job_not_ready", f"job {job_id} is {record.status}; results exist once it succeeded")
+        if name == ORIGINAL and record.adjusted is None:
+            raise ApiError(404, "not_adjusted", f"job {job_id} has no saved adjustment: its result.glb is the "
+                           "original")
         stored = name
         if alternative is not None and name == "result.glb":
             if alternative >= max(1, len(record.alternatives)):
@@ -166,7 +169,8 @@ def _add_output_route(name: str, media_type: str) -> None:
                          operation_id=f"download_{name.replace('.', '_')}", summary=f"Download {name}")
 
 
-for _name, _media_type in OUTPUTS.items():
+# original.glb: the run's own scene, once an adjustment replaced result.glb (POST /jobs/{id}/adjust with save)
+for _name, _media_type in {**OUTPUTS, ORIGINAL: OUTPUTS["result.glb"]}.items():
     _add_output_route(_name, _media_type)
 
 

@@ -1,7 +1,7 @@
 // The ctp page: a client of the JSON API like any other (POST /align, GET /jobs/{id}/events, results).
 // Every call goes through fetch with the API key, when there is one, in the Authorization header (never
 // in a URL); results are fetched as blobs and shown from blob URLs, so the same code works with keys on.
-import { Viewer } from "./viewer.js";
+import { Viewer, similarityParts } from "./viewer.js";
 
 const $ = (id) => document.getElementById(id);
 const ROLES = ["target", "source"];
@@ -415,6 +415,7 @@ async function showResult(id) {
   const facts = JSON.parse(await report.text());
   state.result.facts = facts;
   showFacts(facts);
+  document.querySelector("[data-file='original.glb']").hidden = !facts.adjusted;
   showAlternatives(facts.alternatives || [], strip);
   if (preview) {
     const url = URL.createObjectURL(preview);
@@ -430,12 +431,16 @@ async function showResult(id) {
   }
 }
 
-/** Draw a result GLB in the 3D view, with its parts' toggles; the view is marked ready once it is drawn. */
+/** Draw a result GLB in the 3D view, with its parts' toggles and the handles on its source; the view is marked
+ * ready once it is drawn. */
 async function showScene(glb) {
   const viewerBox = $("viewer");
   delete viewerBox.dataset.ready;
   state.viewer = state.viewer || new Viewer(viewerBox);
-  showParts(await state.viewer.show(await glb.arrayBuffer()));
+  viewerBox.viewer = state.viewer; // for scripts (the browser test finds the handles through it)
+  const parts = await state.viewer.show(await glb.arrayBuffer());
+  showParts(parts);
+  makeAdjustable(parts);
   viewerBox.dataset.ready = "1";
 }
 
@@ -515,6 +520,7 @@ function showParts(parts) {
 }
 
 function showFacts(report) {
+  state.result.shownFacts = report;
   $("result-prompt").textContent = report.prompt ? `"${report.prompt}"` : "guided by a reference image";
   const t = report.transform || {};
   const fixed = (values, digits) => (values || []).map((v) => Number(v).toFixed(digits)).join(", ");
@@ -528,6 +534,10 @@ function showFacts(report) {
     ["model", report.model || ""],
     ["preset, seed", `${report.preset ?? ""}, ${report.seed ?? ""}`],
   ];
+  if (report.adjusted) {
+    rows.push(["adjusted", `by hand, saved ${new Date(report.adjustment.saved_at).toLocaleString()} `
+      + "(the objective is the run's; original.glb keeps its placement)"]);
+  }
   const table = $("transform");
   table.replaceChildren();
   for (const [name, value] of rows) {
@@ -537,8 +547,18 @@ function showFacts(report) {
   }
 }
 
-function download(file) {
-  const blob = state.result && state.result.blobs[file];
+async function download(file) {
+  const result = state.result;
+  if (!result) return;
+  let blob = result.blobs[file];
+  if (!blob && file === "original.glb") { // the run's own placement, once an adjustment was saved
+    try {
+      blob = result.blobs[file] = await api.blob(`jobs/${result.id}/original.glb`);
+    } catch (err) {
+      showError(err);
+      return;
+    }
+  }
   if (!blob) return;
   const url = URL.createObjectURL(blob);
   const k = file === "result.glb" ? state.result.alternative : 0;
@@ -548,6 +568,107 @@ function download(file) {
   link.click();
   link.remove();
   setTimeout(() => URL.revokeObjectURL(url), 60_000);
+}
+
+// -- adjusting the result by hand -------------------------------------------------------------------
+
+/** Handles on the result's source (an alignment's last node; an assembly has no one source) and the buttons that
+ * settle, reset and save it (POST /jobs/{id}/adjust, run by a worker: the settling is the search's own). */
+function makeAdjustable(parts) {
+  const facts = state.result.facts;
+  const box = $("adjust");
+  box.hidden = !facts.transform || Boolean(facts.objects) || parts.length < 2;
+  if (box.hidden) return;
+  state.viewer.adjustable(parts.at(-1));
+  state.viewer.onAdjust = (rows) => {
+    state.result.dirty = true;
+    showTransform(rows);
+    setAdjustState("moved", "moved by hand - not saved");
+  };
+  state.result.shown = state.viewer.sourceMatrix(); // what Reset goes back to
+  state.result.dirty = false;
+  setAdjustState("idle", facts.adjusted ? "this placement was adjusted by hand and saved" : "");
+}
+
+/** The adjust line's state (``data-state``: idle, moved, busy, settled, unsettled, saved, failed) and text; Save
+ * is offered while the placement shown differs from the stored one. */
+function setAdjustState(name, text, bad = false) {
+  const line = $("adjust-state");
+  line.dataset.state = name;
+  line.textContent = text;
+  line.classList.toggle("bad", bad);
+  for (const id of ["adjust-drop", "adjust-push", "adjust-reset"]) $(id).disabled = name === "busy";
+  $("adjust-save").disabled = name === "busy" || !state.result.dirty;
+}
+
+/** The facts table follows the source as it is moved (the report's other numbers stay the run's). */
+function showTransform(rows) {
+  showFacts({ ...state.result.shownFacts, transform: similarityParts(rows) });
+}
+
+/** Send an adjustment and wait for it (Prefer: wait, then reading it until it ends); a failed one throws. */
+async function adjustment(body) {
+  let adjusted = await api.json(`jobs/${state.result.id}/adjust`, {
+    method: "POST", body: JSON.stringify(body), headers: { "Content-Type": "application/json", Prefer: "wait=30" } });
+  while (!["succeeded", "failed"].includes(adjusted.status)) {
+    await new Promise((resolve) => setTimeout(resolve, 500));
+    adjusted = await api.json(adjusted.link.replace(/^\//, ""));
+  }
+  if (adjusted.status === "failed") throw new ApiError(422, adjusted.error);
+  return adjusted.result;
+}
+
+function describeOutcome(outcome, how) {
+  const percent = (v) => `${(100 * v).toFixed(1)} %`;
+  if (outcome.settled === false) return "nothing to touch that way: left where it was";
+  const parts = [how === "drop" ? "dropped" : "pushed"];
+  parts.push(outcome.on_floor ? "resting where the target stands"
+    : outcome.contact_gap < 0.005 ? "touching" : `gap ${percent(outcome.contact_gap)} of the source's size`);
+  parts.push(`penetration ${percent(outcome.penetration)}`);
+  if (outcome.relation) parts.push(`'${outcome.relation.name}' ${outcome.relation.holds ? "holds" : "does not hold"}`);
+  return `${parts.join(" - ")} - not saved`;
+}
+
+/** "Drop to contact" (along the target's up) or "Push along view" (the way the camera looks). */
+async function settle(how) {
+  const { viewer } = state;
+  const result = state.result;
+  const body = { transform: viewer.sourceMatrix(), settle: how };
+  if (how === "push") body.direction = viewer.viewDirection();
+  const before = $("adjust-state").dataset.state;
+  setAdjustState("busy", how === "drop" ? "dropping..." : "pushing...");
+  try {
+    const outcome = await adjustment(body);
+    if (state.result !== result) return; // another result was opened meanwhile
+    if (outcome.settled) {
+      viewer.placeSource(outcome.transform);
+      showTransform(outcome.transform);
+      result.dirty = true;
+    }
+    setAdjustState(outcome.settled ? "settled" : "unsettled", describeOutcome(outcome, how));
+  } catch (err) {
+    if (state.result === result) setAdjustState(before, `${err.code}: ${err.detail ?? err.message}`, true);
+  }
+}
+
+async function saveAdjusted() {
+  const result = state.result;
+  setAdjustState("busy", "saving...");
+  try {
+    await adjustment({ transform: state.viewer.sourceMatrix(), save: true });
+    if (state.result !== result) return;
+    await showResult(result.id); // the job's result is the adjusted scene now
+    setAdjustState("saved", "saved: the job's result.glb is this placement (original.glb keeps the run's own)");
+  } catch (err) {
+    if (state.result === result) setAdjustState("failed", `${err.code}: ${err.detail ?? err.message}`, true);
+  }
+}
+
+function resetAdjusted() {
+  state.viewer.placeSource(state.result.shown);
+  showTransform(state.result.shown);
+  state.result.dirty = false;
+  setAdjustState("idle", "");
 }
 
 // -- recent jobs ------------------------------------------------------------------------------------
@@ -643,6 +764,13 @@ async function init() {
   $("align-form").addEventListener("submit", submit);
   document.querySelectorAll("[data-file]").forEach((b) => b.addEventListener("click", () => download(b.dataset.file)));
   $("add-object").addEventListener("click", addObject);
+  document.querySelectorAll("input[name=adjust-mode]").forEach((r) => r.addEventListener("change", () => {
+    state.viewer?.setHandles(document.querySelector("input[name=adjust-mode]:checked").value || null);
+  }));
+  $("adjust-drop").addEventListener("click", () => settle("drop"));
+  $("adjust-push").addEventListener("click", () => settle("push"));
+  $("adjust-reset").addEventListener("click", resetAdjusted);
+  $("adjust-save").addEventListener("click", saveAdjusted);
   $("jobs-refresh").addEventListener("click", () => refreshJobs());
   $("jobs-more").addEventListener("click", () => refreshJobs(true));
   $("key-form").addEventListener("submit", (e) => {

@@ -1,15 +1,31 @@
 // The result viewer: a GLB scene (three.js, vendored) with orbit and zoom, each top-level node (the
 // "target" and the "source" of an alignment) listed with a visibility toggle and an optional tint. The same
-// viewer previews an input file as the browser reads it, with the up the service will use.
+// viewer previews an input file as the browser reads it, with the up the service will use. On a result the
+// source can be moved, turned and scaled by hand (TransformControls' handles, about its box centre).
+//
+// Frames: the GLB's root is the target file frame (the target node is identity); a source matrix read or set
+// here is the source node's, source file frame -> target file frame, as rows (the report's transform.matrix).
 import * as THREE from "three";
 import { GLTFLoader } from "three/addons/loaders/GLTFLoader.js";
 import { OBJLoader } from "three/addons/loaders/OBJLoader.js";
 import { PLYLoader } from "three/addons/loaders/PLYLoader.js";
 import { STLLoader } from "three/addons/loaders/STLLoader.js";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
+import { TransformControls } from "three/addons/controls/TransformControls.js";
 
 const BACKGROUND = 0xf0f2f5;
 const TINTS = [0x3b82f6, 0xf97316, 0x22c55e, 0xa855f7, 0xeab308];
+
+/** A similarity given as 4 rows (source file -> target file) as the report writes one: matrix, translation,
+ * rotation as a quaternion (w, x, y, z) and the one scale. */
+export function similarityParts(rows) {
+  const position = new THREE.Vector3();
+  const rotation = new THREE.Quaternion();
+  const scale = new THREE.Vector3();
+  new THREE.Matrix4().set(...rows.flat()).decompose(position, rotation, scale);
+  return { matrix: rows, translation: position.toArray(), rotation_wxyz: [rotation.w, rotation.x, rotation.y, rotation.z],
+           scale: scale.x };
+}
 
 export class Viewer {
   constructor(container) {
@@ -29,6 +45,8 @@ export class Viewer {
     this.controls.addEventListener("change", () => this.render());
     this.parts = [];
     this.model = null;
+    this.pivot = null; // the handles' object: at the source's box centre, the source under it
+    this.onAdjust = null; // called with the source's matrix (rows) whenever a handle moves it
     new ResizeObserver(() => this.resize()).observe(container);
   }
 
@@ -83,6 +101,8 @@ export class Viewer {
   }
 
   showModel(model) {
+    this.handles?.detach();
+    this.pivot = null;
     if (this.model) this.scene.remove(this.model);
     if (this.arrow) this.scene.remove(this.arrow);
     this.model = model;
@@ -97,6 +117,84 @@ export class Viewer {
     this.frame();
     this.resize();
     return this.parts;
+  }
+
+  /** The handles' object on ``part`` (a result's source): a pivot at its box centre with the source under it,
+   * its world placement kept. The handles stay hidden until ``setHandles`` picks a mode. */
+  adjustable(part) {
+    if (!this.handles) {
+      this.handles = new TransformControls(this.camera, this.renderer.domElement);
+      this.handles.addEventListener("change", () => this.render());
+      this.handles.addEventListener("dragging-changed", (e) => { this.controls.enabled = !e.value; });
+      this.handles.addEventListener("mouseDown", () => { this.scaleStart = this.pivot.scale.x; });
+      this.handles.addEventListener("objectChange", () => this.handlesMoved());
+      this.scene.add(this.handles.getHelper());
+    }
+    this.source = part.object;
+    this.pivot = new THREE.Group();
+    this.pivot.name = "handles";
+    this.model.add(this.pivot);
+    this.recentre();
+    this.setHandles(this.mode || null);
+  }
+
+  /** "translate", "rotate", "scale", or null for none (the view only orbits). */
+  setHandles(mode) {
+    this.mode = mode;
+    if (!this.pivot || !mode) {
+      this.handles?.detach();
+    } else {
+      this.handles.attach(this.pivot);
+      this.handles.setMode(mode);
+    }
+    this.render();
+  }
+
+  /** Scale stays one factor (a similarity: the service refuses uneven scales): the axis a handle changed since
+   * the drag began (the others stay at the start, as TransformControls scales from it) sets all three. */
+  handlesMoved() {
+    if (this.mode === "scale") {
+      const start = this.scaleStart;
+      const { x, y, z } = this.pivot.scale;
+      this.pivot.scale.setScalar([x, y, z].reduce((a, b) => (Math.abs(b - start) > Math.abs(a - start) ? b : a)));
+    }
+    if (this.onAdjust) this.onAdjust(this.sourceMatrix());
+  }
+
+  /** The source node's matrix now, source file -> target file, as 4 rows. */
+  sourceMatrix() {
+    this.model.updateMatrixWorld(true);
+    const m = new THREE.Matrix4().copy(this.model.matrixWorld).invert().multiply(this.source.matrixWorld);
+    const e = m.elements; // column-major
+    return [0, 1, 2, 3].map((r) => [0, 1, 2, 3].map((c) => e[c * 4 + r]));
+  }
+
+  /** Put the source node at a matrix (4 rows, source file -> target file); the handles follow it. */
+  placeSource(rows) {
+    this.model.attach(this.source);
+    new THREE.Matrix4().set(...rows.flat()).decompose(this.source.position, this.source.quaternion, this.source.scale);
+    this.recentre();
+    this.render();
+  }
+
+  /** The pivot back at the source's box centre, unturned and unscaled, with the source under it. */
+  recentre() {
+    this.model.attach(this.source);
+    this.pivot.position.set(0, 0, 0);
+    this.pivot.quaternion.identity();
+    this.pivot.scale.setScalar(1);
+    this.model.updateMatrixWorld(true);
+    const centre = new THREE.Box3().setFromObject(this.source).getCenter(new THREE.Vector3());
+    this.pivot.position.copy(this.model.worldToLocal(centre));
+    this.pivot.updateMatrixWorld(true);
+    this.pivot.attach(this.source);
+  }
+
+  /** The direction the camera looks (eye into the scene), target file frame: "push along view". */
+  viewDirection() {
+    const d = this.camera.getWorldDirection(new THREE.Vector3());
+    d.transformDirection(new THREE.Matrix4().copy(this.model.matrixWorld).invert());
+    return [d.x, d.y, d.z];
   }
 
   /** Put the whole scene in view from a three-quarter angle above it. */

@@ -1,0 +1,163 @@
+"""Adjust a result by hand: a placement a person moved (the page's handles), measured as the search measures
+its poses, and, when asked, brought into contact first with the search's own ``proposals.settle``.
+
+Frames: the transform in and out maps the *source file* frame to the *target file* frame (a report's
+``transform.matrix``, a result GLB's source node matrix); a ``direction`` is in the target file frame too (the
+page's 3D view shows the GLB in it). Settling happens in the *normalised* frame (``scene``), whose +Y is the
+target's up: its upright turn as the job made it (``upright``, the report's ``extra.target_upright``), so "drop"
+falls the way the run's views looked down.
+
+``settle``:
+- ``none``: measured where it is (the person moved it and wants it kept there);
+- ``drop``: lowered along the target's up until it touches the target, or rests on the plane the target stands
+  on (the search's floor proposals) when nothing of the target is under it; a source sunk into the target comes
+  up out of it first;
+- ``push``: moved along ``direction`` (the page sends its view direction, eye into the scene) until it touches;
+  when nothing is met that way it is left where it was (``settled`` False).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any, Literal, get_args
+
+import numpy as np
+import torch
+import trimesh
+
+from ctp_core import canonical, frames, objective, predicates, proposals, schedule
+from ctp_core.config import AlignConfig
+from ctp_core.errors import ConfigError
+from ctp_core.pose import Poses, apply_pose
+from ctp_core.scene import PreparedPair, Target, prepare_pair
+
+Settle = Literal["none", "drop", "push"]
+SETTLES: tuple[str, ...] = get_args(Settle)
+ROUNDS = 8  # ``proposals.settle`` calls at most: each runs its own few sphere-tracing steps
+STILL = 1e-3  # source diagonals: a round that moved the source less than this ends the settling
+FLOOR_POINTS = 256  # source samples whose lowest is kept on the floor plane
+
+
+@dataclass(frozen=True)
+class Adjusted:
+    """An adjusted placement and how it sits (lengths in source diagonals, as the search's progress reports)."""
+
+    source_to_target: np.ndarray  # (4, 4) source file -> target file
+    settle: str
+    settled: bool | None  # drop / push: whether it came to rest touching (False: nothing met, left as given)
+    moved: float  # how far settling moved it (0 for ``none``)
+    on_floor: bool  # drop: it rests on the plane the target stands on, not on the target
+    penetration: float  # the search's ``sunk``: penetration over the posed source's diagonal (``objective.SUNK``)
+    contact_gap: float  # ``objective.contact_gap``: 0 when touching, within the target's sample spacing
+    touching: bool  # ``contact_gap`` within ``objective.TOUCH``: what the answer's selection counts as touching
+    relation: dict[str, Any] | None  # ``predicates.RelationVerdict`` of the report's relation here; None without
+
+    @property
+    def transform(self) -> frames.Similarity:
+        return frames.Similarity(self.source_to_target, frames.SOURCE_FILE, frames.TARGET_FILE)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The measures as JSON (the transform is the caller's to write, ``export.transform``)."""
+        return {k: v for k, v in asdict(self).items() if k != "source_to_target"}
+
+
+def adjust(target: Target, source: trimesh.Trimesh, source_to_target: np.ndarray, config: AlignConfig, *,
+           settle: Settle = "none", direction: np.ndarray | None = None, upright: np.ndarray | None = None,
+           on: str | None = None, relation: str | None = None, source_is_figure: bool = True) -> Adjusted:
+    """Measure (and with ``settle``, first settle) the source at ``source_to_target`` against ``target``.
+
+    ``config``: the job's (its loss samples, seed and penetration terms); ``upright``: (3, 3) target file ->
+    upright rotation the job used (None: found from the geometry, as a run without a judge finds it); ``on``,
+    ``relation``, ``source_is_figure``: the job's, for the verdict. Runs on the CPU: one pose, no model.
+    """
+    if settle not in SETTLES:
+        raise ConfigError(f"settle is one of {', '.join(SETTLES)}, not {settle!r}", field="settle")
+    try:
+        start = frames.checked_similarity(source_to_target, frames.SOURCE_FILE, frames.TARGET_FILE)
+    except ValueError as exc:
+        raise ConfigError(f"transform: {exc}", code="invalid_transform", field="transform") from None
+    target_up = None
+    if upright is not None:
+        rotation = np.asarray(upright, dtype=np.float64)
+        target_up = canonical.Upright(rotation, not np.allclose(rotation, np.eye(3)), "as the job turned it")
+    pair = prepare_pair(target, source, samples=config.loss.samples, seed=config.seed, device="cpu",
+                        canonicalise=config.upright, on=on, target_up=target_up)
+    pose = predicates.poses_of(pair.local_to_normalised(start.matrix))
+    settled, on_floor, moved = None, False, 0.0
+    if settle != "none":
+        normal = _approach_normal(pair, settle, direction)
+        placed, on_floor = _settle(pair, pose, normal, config.seed, floor=settle == "drop")
+        touches = bool(objective.contact_gap(pair, placed)[0] <= objective.TOUCH) or on_floor
+        settled = touches
+        if touches:
+            moved = float((placed.t - pose.t).norm() / objective.source_diagonal(pair, pose)[0])
+            pose = placed
+    with torch.no_grad():
+        scorer = objective.Scorer(pair, config, contact_ratio=1.0)  # soft-ICP's ratio: not read here
+        sunk = float(scorer.geometry(pose, schedule.phases(config, allow_penetration=False)[-1])["sunk"][0])
+        gap = float(objective.contact_gap(pair, pose)[0])
+    verdict = predicates.verdict(pair, pose, relation, source_is_figure)
+    return Adjusted(source_to_target=pair.source_to_target(pose.matrices()[0]), settle=settle, settled=settled,
+                    moved=round(moved, 5), on_floor=on_floor, penetration=round(sunk, 6), contact_gap=round(gap, 5),
+                    touching=gap <= objective.TOUCH, relation=None if verdict is None else verdict.to_dict())
+
+
+def read_back(scene: trimesh.Scene, source_to_target: np.ndarray) -> tuple[Target, trimesh.Trimesh, str]:
+    """A result scene (``export.arrangement_glb``) as ``io.load_objects`` reads it back, every node moved into the
+    target file frame, split into the target (its one mesh, or the objects placed before), the source in its
+    own file frame (the last node, moved back by ``source_to_target``, the report's transform) and the source's
+    node name."""
+    names = list(scene.geometry)  # load_objects: one geometry per node, named as it, in the file's order
+    if len(names) < 2:
+        raise ConfigError(f"a result scene holds a target and a source; this one holds {len(names)} object(s)",
+                          field="result.glb")
+    *before, name = names
+    back = frames.Similarity(source_to_target, frames.SOURCE_FILE, frames.TARGET_FILE).inverse()
+    source = scene.geometry[name].copy().apply_transform(back.matrix)
+    if len(before) == 1:
+        target = scene.geometry[before[0]]
+    else:
+        target = trimesh.Scene()
+        for part in before:
+            target.add_geometry(scene.geometry[part], node_name=part, geom_name=part)
+    return target, source, name
+
+
+def _approach_normal(pair: PreparedPair, settle: str, direction: np.ndarray | None) -> torch.Tensor:
+    """(3,) the normal ``proposals.settle`` approaches against (it moves along -normal), normalised frame: +Y (up)
+    for a drop, the opposite of ``direction`` (target file frame) for a push."""
+    if settle == "drop":
+        return torch.tensor([0.0, 1.0, 0.0])
+    try:
+        d = frames.checked_direction(direction)
+    except ValueError as exc:
+        raise ConfigError(f"push needs a direction (target file frame): {exc}", code="invalid_direction",
+                          field="direction") from None
+    along = pair.target_to_normalised.apply_directions(d[None])[0]
+    return torch.as_tensor(-along / np.linalg.norm(along), dtype=torch.float32)
+
+
+def _settle(pair: PreparedPair, pose: Poses, normal: torch.Tensor, seed: int, *,
+            floor: bool) -> tuple[Poses, bool]:
+    """``pose`` moved along -``normal`` by ``proposals.settle`` (straight approach, the search's contact samples)
+    until it stops moving; with ``floor``, never below the plane the target stands on (normalised +Y up). Returns
+    the pose and whether the floor stopped it."""
+    index = proposals.contact_index(pair, seed=seed)
+    diagonal = float(objective.source_diagonal(pair, pose)[0])
+    level = float(pair.target_vertices[:, 1].min())
+    samples = pair.source_subset(FLOOR_POINTS)
+    t = pose.t.detach().clone()
+    far = float(t.norm()) + 2 * (pair.target_radius + diagonal)  # past this it is only moving away from the target
+    for _ in range(ROUNDS):
+        centre, _ = proposals.settle(pair, index, pose.q, t, normal[None], pose.log_s, on_surface=False,
+                                     approach="straight")
+        if floor:
+            lowest = float(apply_pose(samples, centre, pose.q, pose.log_s)[0, :, 1].min())
+            if lowest < level:  # nothing of the target under it: it rests where the target stands
+                centre = centre + torch.tensor([0.0, level - lowest, 0.0])
+                return Poses(centre, pose.q, pose.log_s), True
+        still = float((centre - t).norm()) < STILL * diagonal
+        t = centre
+        if still or float(t.norm()) > far:
+            break
+    return Poses(t, pose.q, pose.log_s), False
