@@ -469,8 +469,8 @@ def _score_under(c: _Ctx) -> torch.Tensor:
     """``under``: below a downward-facing part of the ground and inside its footprint, standing where the ground
     stands (its lowest level). Sum of: the horizontal distance from the figure's centre to the nearest
     downward-facing ground sample above the figure's top, past ``UNDER_REACH`` figure half-widths (a vertical
-    shortfall counts as distance too); the figure's centre outside the ground's footprint; its bottom above
-    the floor past contact."""
+    shortfall counts as distance too); the figure's centre outside the ground's footprint; its bottom off the
+    floor (above or below it) past contact."""
     fig, ground = c.figure, c.ground.side
     gp = ground.points.expand(fig.points.shape[0], -1, -1)
     down = c.ground.mask("down").expand(gp.shape[:2])
@@ -480,7 +480,7 @@ def _score_under(c: _Ctx) -> torch.Tensor:
     reach = torch.where(torch.isfinite(reach), reach, FAR * c.unit)
     overhead = c.h(reach - UNDER_REACH * _half_width(fig))
     inside = c.h(_hull_distance_2d(fig.centre[:, [0, 2]], ground.points[..., [0, 2]]))
-    return overhead + inside + c.h(c.bottom() - c.floor - c.tol())
+    return overhead + inside + c.h((c.bottom() - c.floor).abs() - c.tol())
 
 
 def _score_beside(c: _Ctx) -> torch.Tensor:
@@ -504,7 +504,7 @@ def _score_lean(c: _Ctx) -> torch.Tensor:
     gap, _ = _gap(fig.points, c.ground, "side")
     raised = fig.points[..., 1] >= (c.bottom() + LEAN_RISE * c.unit)[:, None]
     side = c.h(c.finite(soft_min(gap, c.tau(), mask=raised)) - c.reach())
-    return side + c.h(c.bottom() - c.floor - c.tol())
+    return side + c.h((c.bottom() - c.floor).abs() - c.tol())
 
 
 def _score_hang(c: _Ctx) -> torch.Tensor:

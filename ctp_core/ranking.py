@@ -409,7 +409,8 @@ def ranking_key(scorer: Scorer, terms: dict[str, torch.Tensor], weights: Phase,
     override = gate.override if gate is not None else 1.0
     guided = scorer.use_clip and override > 0
     key = (terms["clip"] if guide_key is None else guide_key) if guided else None
-    return rank_key(terms, weights, guide_key=key, override=override, share=scorer.config.search.min_share)
+    return rank_key(terms, weights, guide_key=key, override=override, share=scorer.config.search.min_share,
+                    tie=gate.noise if gate is not None else 0.0)
 
 
 def distinct_of(pair: PreparedPair, config: AlignConfig, log_s: float) -> tuple[float, float]:
