@@ -69,7 +69,7 @@ def touch_limit(pair: PreparedPair, poses: Poses) -> torch.Tensor:
 
 
 def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: torch.Tensor, weights: Phase, *,
-                  guided: bool, touches: bool, override: float = 1.0, share: float = 0.08, noise: float = 0.0) -> int:
+                  guided: bool, touches: bool, override: float = 1.0, share: float = 0.08, tie: float = 0.0) -> int:
     """The answer among refined poses: those within ``NEAR`` of the target (any when none is: an image guide can
     prefer a source gone out of view, an absent source differing less from the goal than a misplaced one); with
     a guide, among them those that touch (``touches``: the relation's contact ratio is > 0), the lowest
@@ -85,10 +85,11 @@ def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: to
     weighted soft-ICP); the search ranks its candidates by the guide the same way (``ranking.ranking_key``).
     Penetration likewise counts only past ``SUNK``: at contact the two halves see a few samples a hair inside
     (on cur-s01 with pixels, 3e-5, times lambda_pen 1000, outweighed the guide's 0.005 for the reference).
-    The usual arrangement (``prefer``) breaks what the guide cannot tell: it counts ``noise`` (the guide's, the
-    ``Gate``'s) per unit, not its objective weight, which would outweigh any guide (pixels on cur-s01: a
-    restart a third of a diagonal from the reference, the guide's best by 0.004, lost by its cup's support
-    patch, sampled, to one 0.6 away).
+    The usual arrangement (``prefer``, already x (1 - override): ``Scorer.preference_weight``) breaks what the
+    guide cannot tell: it counts ``tie`` per unit (``GATE_FULL`` x the ``Gate``'s noise: a difference the gate
+    would trust fully), not its objective weight, which would outweigh any guide (pixels on cur-s01: a restart a
+    third of a diagonal from the reference, the guide's best by 0.004, lost by its cup's sampled support patch
+    to one 0.6 away).
     ``clear`` and ``limit``: per pose, in source diagonals (``clearance``, ``touch_limit``).
     """
     key = terms["objective"]
@@ -105,7 +106,7 @@ def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: to
                 pen = torch.where(intersecting(terms).to(pen.device), pen, torch.zeros_like(pen))
             zeros = torch.zeros_like(key)
             key = combine({**terms, "icp": zeros, "pen": pen, "prefer": zeros}, weights)
-            pool, key = fit, key + noise * terms.get("prefer", zeros)
+            pool, key = fit, key + tie * terms.get("prefer", zeros)
     key = torch.where(pool, key.double(), torch.full_like(key, torch.inf, dtype=torch.float64))
     ranked = rank_key({**terms, "objective": key}, weights, guide_key=key if guided else None,
                       override=override, share=share, geometric=key)
@@ -170,7 +171,8 @@ def rank_key(terms: dict[str, torch.Tensor], weights: Phase, *, guide_key: torch
     over the *pool*, the poses where the relation holds plus the ``ceil(override x share x others)`` others
     that the guide ranks best (a misread prompt must not make the right answer unreachable: ``share`` is the
     search's ``min_share``, the principle of the region weights); ``TIER`` added outside the pool; plus ``tie``
-    (the guide's noise) per unit of ``prefer``: the usual arrangement breaks what the guide cannot tell.
+    (``GATE_FULL`` x the guide's noise) per unit of ``prefer``: the usual arrangement breaks what the guide
+    cannot tell.
     """
     holds = holding(terms).to(terms["objective"].device)
     if guide_key is None or override <= 0:

@@ -613,8 +613,9 @@ def preference(pair: PreparedPair, poses: Poses, relation: str | None, source_is
     top, the corner included, and geometry at contact (soft-ICP) favours corners and edges, where more target
     samples fall near the source. Read among poses where the relation holds; never part of the verdict.
 
-    - resting (``on``, ``stand``, ``sit``, ``lie``): on the *top* (``drop``: the ground's highest point above
-      the figure's bottom, in figure diagonals: a cross "on top of" a church sits on its spire, not on a lower
+    - resting (``on``, ``stand``, ``sit``, ``lie``): on the *top* (``drop``: the height between the ground's
+      highest point and the figure's bottom, in figure diagonals, either way: held a hair above a table's top,
+      within the contact tolerance, is not resting on it; a cross "on top of" a church sits on its spire, not on a lower
       roof; a cup on a plate's inner floor is a fraction of its own size below the plate's rim), resting
       *steadily* (``unsteady``: 1 less the depth of the centre's projection inside its support's footprint, in
       its half-widths, at least 0: a plate lying flat rather than on its rim, a cup on its base rather than its
@@ -636,9 +637,9 @@ def preference(pair: PreparedPair, poses: Poses, relation: str | None, source_is
     figure, ground, floor = _roles(pair, poses, source_is_figure)
     c = _Ctx(figure, ground, floor)
     out = zeros
-    if relation in (*RESTING, "wear"):
-        top = soft_max(ground.side.points[..., 1], c.tau()).expand_as(c.unit)
-        out = out + (top - c.bottom()).clamp_min(0.0) / c.unit
+    if relation in (*RESTING, "wear"):  # hard extremes: the smooth ones sit a few tau out, and would lift a plate
+        top = ground.side.points[..., 1].max(-1).values.expand_as(c.unit)
+        out = out + (top - figure.points[..., 1].min(-1).values).abs() / c.unit
     if relation in RESTING:
         depth = -_support_depth(c)
         out = out + (1.0 - depth / _half_width(figure).clamp_min(1e-9)).clamp(0.0, 1.0)

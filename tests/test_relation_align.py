@@ -168,16 +168,16 @@ def test_a_guided_selection_charges_penetration_only_where_a_pose_intersects():
 def test_the_usual_arrangement_ranks_without_a_guide_and_breaks_only_the_guides_ties():
     """``prefer`` (``predicates.preference``): in the objective without a guide (the middle of the table over
     its corner, both holding "on"); with one, worth the guide's noise per unit: it decides between restarts the
-    guide cannot tell apart and never outweighs a difference the guide can tell."""
+    guide cannot tell apart (``GATE_FULL`` noises per unit) and never outweighs a difference it can tell."""
     terms = _terms([0.0, 0.0], [0.0, 0.0], clip=[-0.997, -0.993])
     terms["prefer"] = torch.tensor([0.9, 0.2])  # the guide's favourite is the less usual arrangement
     terms["objective"] = objective.combine(terms, WEIGHTS)
     clear, limit = torch.zeros(2), torch.full((2,), objective.TOUCH)
     assert objective.select_answer(terms, clear, limit, WEIGHTS, guided=False, touches=True) == 1
     assert objective.select_answer(terms, clear, limit, WEIGHTS, guided=True, touches=True, override=1.0,
-                                   noise=5e-4) == 0  # the guide's 0.004 is 8 noises
+                                   tie=objective.GATE_FULL * 5e-4) == 0  # the guide's 0.004 is 8 noises
     assert objective.select_answer(terms, clear, limit, WEIGHTS, guided=True, touches=True, override=0.2,
-                                   noise=0.01) == 1  # within the noise: the preference breaks the tie
+                                   tie=objective.GATE_FULL * 0.01) == 1  # within its noise: the preference decides
     key = ranking.ranking_key(_scorer(objective.Gate(spread=0.02, noise=5e-4)), terms, WEIGHTS)
     assert torch.argsort(key).tolist() == [0, 1]
     key = ranking.ranking_key(_scorer(objective.Gate(spread=0.02, noise=0.01)), terms, WEIGHTS)
