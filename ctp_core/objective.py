@@ -285,16 +285,10 @@ class Scorer:
         the relations that rest on something besides the resting ones (``on``, ``stand``, ... include it in
         their score already); ``prefer``: ``predicates.preference`` x ``preference_weight``; zeros without a
         relation. Differentiable (a refinement term)."""
-        zeros = torch.zeros(len(poses), device=poses.t.device)
-        if self.relation is None:
-            return {"rel": zeros, "stable": zeros, "prefer": zeros}
         with self.clock.time("relation"):
-            rel = predicates.relation_score(self.pair, poses, self.relation, self.source_is_figure)
-            steady = zeros
-            if self.relation in predicates.STABLE_RELATIONS and self.relation not in predicates.RESTING:
-                steady = predicates.stable(self.pair, poses, self.source_is_figure)
-            prefer = predicates.preference(self.pair, poses, self.relation, self.source_is_figure)
-        return {"rel": rel, "stable": steady, "prefer": prefer * self.preference_weight}
+            out = predicates.terms(self.pair, poses, self.relation, self.source_is_figure)
+        out["prefer"] = out["prefer"] * self.preference_weight
+        return out
 
     @property
     def preference_weight(self) -> float:

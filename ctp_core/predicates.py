@@ -57,6 +57,7 @@ ENCLOSING_RAYS = 16  # ``_enclosure``: horizontal directions looked along from t
 FOOT = 0.05  # ``_enclosure``: the figure's foot, this far above its lowest point
 
 RESTING = ("on", "stand", "sit", "lie")
+PREFERRED = (*RESTING, "in", "under", "lean", "wear")  # where ``preference`` says more than holding
 STABLE_RELATIONS = (*RESTING, "in", "under", "beside", "lean", "wear")  # where ``stable`` applies
 RELATION_NAMES: tuple[str, ...] = tuple(RELATIONS)
 
@@ -344,6 +345,7 @@ class _Ctx:
     figure: Side
     ground: _Ground
     floor: torch.Tensor  # (B,)
+    depth: torch.Tensor | None = None  # ``_support_depth``, once computed (a convex hull per pose)
 
     @property
     def unit(self) -> torch.Tensor:  # (B,) figure diagonal
@@ -442,9 +444,11 @@ def _support_mask(c: _Ctx) -> torch.Tensor:
 def _support_depth(c: _Ctx) -> torch.Tensor:
     """(B,) signed horizontal distance of the centre's projection to the convex footprint of the support patch
     (positive outside, normalised units); a whole ``FAR`` figure diagonal with no support at all."""
-    mask = _support_mask(c).detach()
-    dist = _hull_distance_2d(c.figure.centre[:, [0, 2]], c.figure.points[..., [0, 2]], mask)
-    return torch.where(mask.any(-1), dist, torch.full_like(dist, FAR) * c.unit)
+    if c.depth is None:
+        mask = _support_mask(c).detach()
+        dist = _hull_distance_2d(c.figure.centre[:, [0, 2]], c.figure.points[..., [0, 2]], mask)
+        c.depth = torch.where(mask.any(-1), dist, torch.full_like(dist, FAR) * c.unit)
+    return c.depth
 
 
 def _stability(c: _Ctx) -> torch.Tensor:
@@ -594,16 +598,27 @@ def relation_score(pair: PreparedPair, poses: Poses, relation: str | None, sourc
     """
     if not known(relation):
         return torch.zeros(len(poses), device=poses.t.device)
-    figure, ground, floor = _roles(pair, poses, source_is_figure)
-    return SCORES[relation](_Ctx(figure, ground, floor))
+    return SCORES[relation](_Ctx(*_roles(pair, poses, source_is_figure)))
+
+
+def terms(pair: PreparedPair, poses: Poses, relation: str | None, source_is_figure: bool = True
+          ) -> dict[str, torch.Tensor]:
+    """``rel`` (``relation_score``), ``stable`` (``stable`` for the ``STABLE_RELATIONS`` that do not rest on
+    their ground: the resting ones include it in their score; zeros otherwise) and ``prefer`` (``preference``),
+    from one posing of the samples and one support footprint per pose (the objective's relation terms)."""
+    zeros = torch.zeros(len(poses), device=poses.t.device)
+    if not known(relation):
+        return {"rel": zeros, "stable": zeros, "prefer": zeros}
+    c = _Ctx(*_roles(pair, poses, source_is_figure))
+    steady = _stability(c) if relation in STABLE_RELATIONS and relation not in RESTING else zeros
+    return {"rel": SCORES[relation](c), "stable": steady, "prefer": _preference(c, relation)}
 
 
 def stable(pair: PreparedPair, poses: Poses, source_is_figure: bool = True) -> torch.Tensor:
     """(B,) how far the figure's centre of mass is from being over its support (figure diagonals, hinged; 0 when
     stable): its horizontal projection against the convex footprint of the samples touching ground surface that
     does not face down, or the floor. Differentiable in ``poses``; ``holds`` gives the verdict."""
-    figure, ground, floor = _roles(pair, poses, source_is_figure)
-    return _stability(_Ctx(figure, ground, floor))
+    return _stability(_Ctx(*_roles(pair, poses, source_is_figure)))
 
 
 def preference(pair: PreparedPair, poses: Poses, relation: str | None, source_is_figure: bool = True
@@ -631,12 +646,16 @@ def preference(pair: PreparedPair, poses: Poses, relation: str | None, source_is
     Differentiable in ``poses`` but for the counts (a refinement term: ``objective.PREFER`` x ``lambda_rel``,
     and with a guide only as far as it cannot tell poses apart, ``Scorer.relation_terms``).
     """
-    zeros = torch.zeros(len(poses), device=poses.t.device)
-    if relation not in (*RESTING, "in", "under", "lean", "wear"):
-        return zeros
-    figure, ground, floor = _roles(pair, poses, source_is_figure)
-    c = _Ctx(figure, ground, floor)
-    out = zeros
+    if relation not in PREFERRED:
+        return torch.zeros(len(poses), device=poses.t.device)
+    return _preference(_Ctx(*_roles(pair, poses, source_is_figure)), relation)
+
+
+def _preference(c: _Ctx, relation: str) -> torch.Tensor:
+    figure, ground = c.figure, c.ground
+    out = torch.zeros_like(c.unit)
+    if relation not in PREFERRED:
+        return out
     if relation in (*RESTING, "wear"):  # hard extremes: the smooth ones sit a few tau out, and would lift a plate
         top = ground.side.points[..., 1].max(-1).values.expand_as(c.unit)
         out = out + (top - figure.points[..., 1].min(-1).values).abs() / c.unit

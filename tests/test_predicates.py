@@ -272,3 +272,15 @@ def test_preference_is_zero_where_the_relation_says_nothing_more_and_batched_equ
         batched = predicates.preference(pair, p, relation)
         single = torch.cat([predicates.preference(pair, p.select([i]), relation) for i in range(len(p))])
         assert torch.allclose(batched, single, atol=1e-5), relation
+
+
+@pytest.mark.parametrize("relation", [*predicates.SCORES, None])
+def test_terms_equal_the_predicates_one_by_one(relation):
+    """``terms`` (what the objective reads, one support footprint per pose) equals the public predicates."""
+    pair = prepared(table(), BALL)
+    p = poses(pair, list(BALL_POSES.values()))
+    got = predicates.terms(pair, p, relation)
+    assert torch.allclose(got["rel"], predicates.relation_score(pair, p, relation))
+    assert torch.allclose(got["prefer"], predicates.preference(pair, p, relation))
+    own = relation in predicates.STABLE_RELATIONS and relation not in predicates.RESTING
+    assert torch.allclose(got["stable"], predicates.stable(pair, p) if own else torch.zeros(len(p)))
