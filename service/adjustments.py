@@ -23,9 +23,8 @@ from datetime import datetime
 from typing import Literal
 
 from pydantic import BaseModel, Field
-from redis import WatchError
 
-from service.jobs import JobError, Jobs, now
+from service.jobs import JobError, Jobs, compare_and_set, now
 
 log = logging.getLogger("ctp.service")
 
@@ -161,22 +160,4 @@ class Adjustments:
 
     def _update(self, adjustment_id: str, change) -> AdjustmentRecord | None:
         """Compare-and-set one record (a worker finishing it and a reader failing it may race)."""
-        key = self.key(adjustment_id)
-        with self.jobs.redis.pipeline() as pipe:
-            while True:
-                try:
-                    pipe.watch(key)
-                    raw = pipe.get(key)
-                    if raw is None:
-                        return None
-                    old = AdjustmentRecord.model_validate_json(raw)
-                    new = change(old)
-                    if new is None:
-                        pipe.unwatch()
-                        return old
-                    pipe.multi()
-                    pipe.set(key, new.model_dump_json(), keepttl=True)
-                    pipe.execute()
-                    return new
-                except WatchError:
-                    continue
+        return compare_and_set(self.jobs.redis, self.key(adjustment_id), AdjustmentRecord, change)

@@ -41,7 +41,7 @@ import time
 import uuid
 from collections.abc import Callable
 from datetime import UTC, datetime
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, TypeVar
 
 from pydantic import BaseModel, Field
 from redis import Redis, WatchError
@@ -59,6 +59,8 @@ if TYPE_CHECKING:
     from redis.asyncio import Redis as AsyncRedis
 
     from service.settings import Settings
+
+M = TypeVar("M", bound=BaseModel)  # ``compare_and_set``: the record model
 
 log = logging.getLogger("ctp.service")
 
@@ -490,35 +492,24 @@ class Jobs:
         """Compare-and-set one record; ``change`` returns the new record or None for no change.
         Returns the record as stored afterwards (None when the id is unknown)."""
         key = self.record_key(job_id)
-        with self.redis.pipeline() as pipe:
-            while True:
-                try:
-                    pipe.watch(key)
-                    raw = pipe.get(key)
-                    if raw is None:
-                        return None
-                    old = JobRecord.model_validate_json(raw)
-                    new = change(old)
-                    if new is None:
-                        pipe.unwatch()
-                        return old
-                    event = _webhook_event(old, new)
-                    if event is not None:
-                        new = new.model_copy(update={
-                            "webhook": new.webhook.model_copy(update={"pending": new.webhook.pending + 1}),
-                            "webhook_progress_at": time.time() if event == "progress" else new.webhook_progress_at})
-                    data = new.model_dump_json()
-                    pipe.multi()
-                    pipe.set(key, data, keepttl=True)
-                    pipe.publish(self.channel(job_id), data)
-                    if event is not None:
-                        self.outbox.add(pipe, job_id, event, new.webhook.url, data)
-                    if also is not None:
-                        also(pipe, new)
-                    pipe.execute()
-                    return new
-                except WatchError:
-                    continue
+
+        def write(pipe, old: JobRecord, new: JobRecord) -> JobRecord:
+            event = _webhook_event(old, new)
+            if event is not None:
+                new = new.model_copy(update={
+                    "webhook": new.webhook.model_copy(update={"pending": new.webhook.pending + 1}),
+                    "webhook_progress_at": time.time() if event == "progress" else new.webhook_progress_at})
+            data = new.model_dump_json()
+            pipe.multi()
+            pipe.set(key, data, keepttl=True)
+            pipe.publish(self.channel(job_id), data)
+            if event is not None:
+                self.outbox.add(pipe, job_id, event, new.webhook.url, data)
+            if also is not None:
+                also(pipe, new)
+            return new
+
+        return compare_and_set(self.redis, key, JobRecord, change, write)
 
     def delivery_done(self, job_id: str, *, delivered: bool, final: bool, status: int | None,
                       error: str | None) -> JobRecord | None:
@@ -697,3 +688,32 @@ def _webhook_event(old: JobRecord, new: JobRecord) -> str | None:
     else:
         event = None
     return event if event in new.webhook.events else None
+
+
+def compare_and_set(redis, key: str, model: type[M], change: Callable[[M], M | None],
+                    write: Callable[[Any, M, M], M] | None = None) -> M | None:
+    """Read-modify-write one JSON record under WATCH, retried when another writer got there first: ``change``
+    returns the new record or None for no change; ``write(pipe, old, new)`` queues the writes after MULTI and
+    returns what was stored (default: the record itself, its TTL kept). None when the key is absent."""
+    def plain(pipe, old: M, new: M) -> M:
+        pipe.multi()
+        pipe.set(key, new.model_dump_json(), keepttl=True)
+        return new
+
+    with redis.pipeline() as pipe:
+        while True:
+            try:
+                pipe.watch(key)
+                raw = pipe.get(key)
+                if raw is None:
+                    return None
+                old = model.model_validate_json(raw)
+                new = change(old)
+                if new is None:
+                    pipe.unwatch()
+                    return old
+                stored = (write or plain)(pipe, old, new)
+                pipe.execute()
+                return stored
+            except WatchError:
+                continue
