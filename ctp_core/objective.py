@@ -86,8 +86,8 @@ def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: to
     Penetration likewise counts only past ``SUNK``: at contact the two halves see a few samples a hair inside
     (on cur-s01 with pixels, 3e-5, times lambda_pen 1000, outweighed the guide's 0.005 for the reference).
     The usual arrangement (``prefer``, already x (1 - override): ``Scorer.preference_weight``) breaks what the
-    guide cannot tell: it counts ``tie`` per unit (``GATE_FULL`` x the ``Gate``'s noise: a difference the gate
-    would trust fully), not its objective weight, which would outweigh any guide (pixels on cur-s01: a restart a
+    guide cannot tell: it counts ``tie`` per unit (``Gate.tie``: a difference the gate would trust fully), not
+    its objective weight, which would outweigh any guide (pixels on cur-s01: a restart a
     third of a diagonal from the reference, the guide's best by 0.004, lost by its cup's sampled support patch
     to one 0.6 away).
     ``clear`` and ``limit``: per pose, in source diagonals (``clearance``, ``touch_limit``).
@@ -136,6 +136,12 @@ class Gate:
     def override(self) -> float:
         return float(min(1.0, max(0.0, (self.ratio - 1.0) / (GATE_FULL - 1.0))))
 
+    @property
+    def tie(self) -> float:
+        """What one unit of ``prefer`` is worth where the guide orders (``rank_key``, ``select_answer``): a
+        difference of the guide's term the gate would trust fully (``GATE_FULL`` x its noise)."""
+        return GATE_FULL * self.noise
+
     def to_dict(self) -> dict[str, float]:
         return {"spread": self.spread, "noise": self.noise, "override": round(self.override, 3)}
 
@@ -171,7 +177,7 @@ def rank_key(terms: dict[str, torch.Tensor], weights: Phase, *, guide_key: torch
     over the *pool*, the poses where the relation holds plus the ``ceil(override x share x others)`` others
     that the guide ranks best (a misread prompt must not make the right answer unreachable: ``share`` is the
     search's ``min_share``, the principle of the region weights); ``TIER`` added outside the pool; plus ``tie``
-    (``GATE_FULL`` x the guide's noise) per unit of ``prefer``: the usual arrangement breaks what the guide
+    (``Gate.tie``) per unit of ``prefer``: the usual arrangement breaks what the guide
     cannot tell.
     """
     holds = holding(terms).to(terms["objective"].device)

@@ -18,7 +18,7 @@ import torch
 from ctp_core.cameras import sample_training_views
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
-from ctp_core.objective import GATE_FULL, Scorer, clearance, combine, contact_gap, holding, select_answer, touch_limit
+from ctp_core.objective import Scorer, clearance, combine, contact_gap, holding, select_answer, touch_limit
 from ctp_core.pose import Poses, matrix_to_quaternion, quaternion_product, random_quaternions
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.scene import PreparedPair
@@ -123,7 +123,7 @@ class Optimiser:
                                touches=scorer.contact_ratio > 0,
                                override=scorer.gate.override if scorer.gate is not None else 1.0,
                                share=scorer.config.search.min_share,
-                               tie=GATE_FULL * scorer.gate.noise if scorer.gate is not None else 0.0),
+                               tie=scorer.gate.tie if scorer.gate is not None else 0.0),
             poses=best, objectives=objectives,
             terms={k: scores[k] for k in ("clip", "icp", "pen", "rel", "sunk")}, timings=totals,
             phase_timings=phase_timings, clip_images=self.scorer.clip_images, steps_run=self.done,

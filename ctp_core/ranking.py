@@ -36,7 +36,7 @@ import torch
 from ctp_core.cameras import Cameras, orbit
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
-from ctp_core.objective import GATE_FULL, TIER, Gate, Scorer, goal_rows, holding, rank_key
+from ctp_core.objective import TIER, Gate, Scorer, goal_rows, holding, rank_key
 from ctp_core.pose import Poses, quaternion_product
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.proposals import Proposals, place
@@ -410,7 +410,7 @@ def ranking_key(scorer: Scorer, terms: dict[str, torch.Tensor], weights: Phase,
     guided = scorer.use_clip and override > 0
     key = (terms["clip"] if guide_key is None else guide_key) if guided else None
     return rank_key(terms, weights, guide_key=key, override=override, share=scorer.config.search.min_share,
-                    tie=GATE_FULL * gate.noise if gate is not None else 0.0)
+                    tie=gate.tie if gate is not None else 0.0)
 
 
 def distinct_of(pair: PreparedPair, config: AlignConfig, log_s: float) -> tuple[float, float]:

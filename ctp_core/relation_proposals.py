@@ -85,12 +85,7 @@ def lean(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: in
     floor = float(pair.target_vertices[:, 1].min())
     start = torch.as_tensor(points[side[pick]], dtype=torch.float32) + n * (behind + 1e-3 * pair.target_radius)[:, None]
     start[:, 1] = floor - rotated[..., 1].min(dim=1).values + 1e-3 * pair.target_radius
-    sites = Site(start, n, torch.zeros(count), torch.zeros(count, dtype=torch.bool),
-                 torch.full((count,), APPROACHES.index("straight"), dtype=torch.long))
-    placed, free = place(pair, proposals.index, q, sites, log_s)
-    device = pair.source_vertices.device
-    return Proposals(Poses(placed.t.to(device), placed.q.to(device), placed.log_s.to(device)),
-                     ["lean"] * len(placed), sites.select(free), proposals.rotations, proposals.index)
+    return _lowered(pair, proposals, q, start, n, False, log_s, "lean")
 
 
 def contained(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int) -> Proposals | None:
@@ -116,13 +111,22 @@ def contained(pair: PreparedPair, config: AlignConfig, proposals: Proposals, see
     upright = _long_axis_up(pair, rng, count // 2)
     resting = proposals.rotations[torch.as_tensor(rng.integers(len(proposals.rotations), size=count - len(upright)))]
     q = torch.cat([upright, resting.cpu()])
-    sites = Site(torch.as_tensor(points[pick], dtype=torch.float32), torch.tensor([0.0, 1.0, 0.0]).expand(count, 3),
-                 torch.zeros(count), torch.ones(count, dtype=torch.bool),
+    up = torch.tensor([0.0, 1.0, 0.0]).expand(count, 3)
+    return _lowered(pair, proposals, q, torch.as_tensor(points[pick], dtype=torch.float32), up, True, log_s,
+                    "contained")
+
+
+def _lowered(pair: PreparedPair, proposals: Proposals, q: torch.Tensor, anchor: torch.Tensor, normal: torch.Tensor,
+             on_surface: bool, log_s: float, label: str) -> Proposals:
+    """Sources turned by ``q`` moved straight along -``normal`` from ``anchor`` into contact (``proposals.place``),
+    those that end free of the target, labelled ``label``."""
+    count = len(q)
+    sites = Site(anchor, normal, torch.zeros(count), torch.full((count,), on_surface, dtype=torch.bool),
                  torch.full((count,), APPROACHES.index("straight"), dtype=torch.long))
     placed, free = place(pair, proposals.index, q, sites, log_s)
     device = pair.source_vertices.device
     return Proposals(Poses(placed.t.to(device), placed.q.to(device), placed.log_s.to(device)),
-                     ["contained"] * len(placed), sites.select(free), proposals.rotations, proposals.index)
+                     [label] * len(placed), sites.select(free), proposals.rotations, proposals.index)
 
 
 def _long_axis_up(pair: PreparedPair, rng: np.random.Generator, count: int) -> torch.Tensor:
