@@ -83,19 +83,20 @@ def adjust(target: Target, source: trimesh.Trimesh, source_to_target: np.ndarray
     pair = prepare_pair(target, source, samples=config.loss.samples, seed=config.seed, device="cpu",
                         canonicalise=config.upright, on=on, target_up=target_up)
     pose = predicates.poses_of(pair.local_to_normalised(start.matrix))
-    settled, on_floor, moved = None, False, 0.0
+    settled, on_floor, moved, gap = None, False, 0.0, None
     if settle != "none":
         normal = _approach_normal(pair, settle, direction)
         placed, on_floor = _settle(pair, pose, normal, config.seed, floor=settle == "drop")
-        touches = bool(objective.contact_gap(pair, placed)[0] <= objective.TOUCH) or on_floor
-        settled = touches
-        if touches:
+        placed_gap = float(objective.contact_gap(pair, placed)[0])
+        settled = placed_gap <= objective.TOUCH or on_floor
+        if settled:
             moved = float((placed.t - pose.t).norm() / objective.source_diagonal(pair, pose)[0])
-            pose = placed
+            pose, gap = placed, placed_gap
     with torch.no_grad():
         scorer = objective.Scorer(pair, config, contact_ratio=1.0)  # soft-ICP's ratio: not read here
         sunk = float(scorer.geometry(pose, schedule.phases(config, allow_penetration=False)[-1])["sunk"][0])
-        gap = float(objective.contact_gap(pair, pose)[0])
+        if gap is None:  # the pose as given (none, or a settling that met nothing)
+            gap = float(objective.contact_gap(pair, pose)[0])
     verdict = predicates.verdict(pair, pose, relation, source_is_figure)
     return Adjusted(source_to_target=pair.source_to_target(pose.matrices()[0]), settle=settle, settled=settled,
                     moved=round(moved, 5), on_floor=on_floor, penetration=round(sunk, 6), contact_gap=round(gap, 5),
@@ -145,7 +146,7 @@ def _settle(pair: PreparedPair, pose: Poses, normal: torch.Tensor, seed: int, *,
     index = proposals.contact_index(pair, seed=seed)
     diagonal = float(objective.source_diagonal(pair, pose)[0])
     level = float(pair.target_vertices[:, 1].min())
-    samples = pair.source_subset(FLOOR_POINTS)
+    samples = pair.source_subset(FLOOR_POINTS) if floor else None
     t = pose.t.detach().clone()
     far = float(t.norm()) + 2 * (pair.target_radius + diagonal)  # past this it is only moving away from the target
     for _ in range(ROUNDS):

@@ -100,7 +100,8 @@ class JobOut(BaseModel):
                         "/assemble")
     alternatives: list[Alternative] = Field(default_factory=list, description="a succeeded alignment's best "
                                             "distinct placements, the answer first: each one's GLB at "
-                                            "result.glb?alternative=k and a view at thumbnail.png?alternative=k")
+                                            "result.glb?alternative=k and a view in alternatives.png (image k "
+                                            "at x = k x its width)")
     adjusted: SavedAdjustment | None = Field(None, description="a saved adjustment (POST /jobs/{id}/adjust with save), "
                                       "the latest: result.glb and report.json are the adjusted scene, original.glb "
                                       "the run's own; null until one is saved")

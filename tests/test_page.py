@@ -170,6 +170,18 @@ def open_page(driver, api) -> None:
     wait_for(lambda: driver.find_element(By.ID, "key-state").text == "key set", 5, "the key to be taken")
 
 
+def open_result(driver, api, job_id: str, shown=None, what: str = "the result") -> None:
+    """``open_page``, then the job's row in the job list, until the 3D view holds its result (and ``shown``)."""
+    from selenium.webdriver.common.by import By
+
+    open_page(driver, api)
+    opener = f"#jobs-body tr[data-id='{job_id}'] button"
+    wait_for(lambda: driver.find_elements(By.CSS_SELECTOR, opener), 20, "the job list")
+    driver.find_element(By.CSS_SELECTOR, opener).click()
+    ready = lambda: driver.find_element(By.ID, "viewer").get_attribute("data-ready")  # noqa: E731
+    wait_for(lambda: ready() and (shown is None or shown()), 60, what)
+
+
 CANVAS_COLOURS = """
     const canvas = document.querySelector('#viewer canvas');
     const copy = Object.assign(document.createElement('canvas'), {width: canvas.width, height: canvas.height});
@@ -302,11 +314,7 @@ def test_add_an_object_to_a_result_from_the_page(api, worker, browser, tmp_path)
     wait_for(lambda: status(first) == "succeeded", 240, "the first job")
 
     driver, find = browser, browser.find_element
-    open_page(driver, api)
-    opener = f"#jobs-body tr[data-id='{first}'] button"
-    wait_for(lambda: driver.find_elements(By.CSS_SELECTOR, opener), 20, "the job list")
-    find(By.CSS_SELECTOR, opener).click()
-    wait_for(lambda: find(By.ID, "viewer").get_attribute("data-ready"), 60, "the first result")
+    open_result(driver, api, first, what="the first result")
     find(By.ID, "add-object").click()
     assert find(By.ID, "chosen-target").text == f"the scene of job {first[:8]} (its objects stay put)"
     wait_for(lambda: find(By.ID, "preview-target").get_attribute("data-ready") == "1", 30, "the scene's preview")
@@ -349,12 +357,8 @@ def test_choose_among_alternatives_from_the_page(api, worker, browser):
     assert len(job["alternatives"]) >= 2, job["alternatives"]
 
     driver, find = browser, browser.find_element
-    open_page(driver, api)
-    opener = f"#jobs-body tr[data-id='{job_id}'] button"
-    wait_for(lambda: driver.find_elements(By.CSS_SELECTOR, opener), 20, "the job list")
-    find(By.CSS_SELECTOR, opener).click()
-    wait_for(lambda: find(By.ID, "viewer").get_attribute("data-ready") and find(By.ID, "alternatives").is_displayed(),
-             60, "the result and its alternatives")
+    open_result(driver, api, job_id, lambda: find(By.ID, "alternatives").is_displayed(),
+                "the result and its alternatives")
     buttons = driver.find_elements(By.CSS_SELECTOR, "#alternatives button")
     assert len(buttons) == len(job["alternatives"]) and buttons[0].text.startswith("answer")
     assert "chosen" in buttons[0].get_attribute("class") and find(By.ID, "add-object").is_enabled()
@@ -485,11 +489,7 @@ def test_adjust_the_source_by_hand_drop_it_and_save(api, worker, browser):
     original = api.client.get(f"/jobs/{job_id}/result.glb", headers=AUTH).content
 
     driver, find = browser, browser.find_element
-    open_page(driver, api)
-    opener = f"#jobs-body tr[data-id='{job_id}'] button"
-    wait_for(lambda: driver.find_elements(By.CSS_SELECTOR, opener), 20, "the job list")
-    find(By.CSS_SELECTOR, opener).click()
-    wait_for(lambda: find(By.ID, "viewer").get_attribute("data-ready"), 60, "the result")
+    open_result(driver, api, job_id)
     assert find(By.ID, "adjust").is_displayed() and not find(By.ID, "adjust-save").is_enabled()
     shown = np.array(driver.execute_script(SOURCE_MATRIX))
     assert np.allclose(shown, report["transform"]["matrix"], atol=1e-5)  # the GLB's source node, as the report says

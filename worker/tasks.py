@@ -142,21 +142,9 @@ def run_job(job_id: str) -> str:
             status = "succeeded"
     except Canceled as exc:
         status, error = "canceled", JobError(code=exc.code, message="canceled while running")
-    except CtpError as exc:
-        error = JobError(**exc.to_dict())
-    except StorageUnavailable as exc:
-        error = JobError(code="storage_unavailable", message=str(exc))
-    except JobTimeoutException:
-        limit_s = ctx.settings.job_timeout_s * record.stage_count
-        error = JobError(code="job_timeout", message=f"the job ran over {limit_s} s")
     except Exception as exc:
-        if out_of_memory(exc):  # the ceiling (job_memory) is lifted by now; free what the job held
-            forget(exc)
-            error = too_large(exc, stage, budget_mb)
-            log.warning("job too large: %s", error.message, extra={"job_id": job_id, "worker": ctx.name})
-        else:
-            log.exception("job crashed", extra={"job_id": job_id, "worker": ctx.name})
-            error = JobError(code="internal_error", message=f"{type(exc).__name__}: {exc}")
+        error = failure(exc, stage, budget_mb, "job", ctx.settings.job_timeout_s * record.stage_count,
+                        {"job_id": job_id, "worker": ctx.name})
     finally:
         ctx.beat.end()
     if error is not None and error.code == JobTooLarge.code:
@@ -182,22 +170,32 @@ def run_adjustment(adjustment_id: str) -> str:
         with (job_memory(ctx.settings.job_memory_mb) as budget_mb,
               adjustments.lock(adjustment.job) if adjustment.request.save else nullcontext()):
             outcome = adjust_job(adjustment, ctx.jobs, ctx.settings.mesh_limits)
-    except CtpError as exc:
-        error = JobError(**exc.to_dict())
-    except StorageUnavailable as exc:
-        error = JobError(code="storage_unavailable", message=str(exc))
-    except JobTimeoutException:
-        error = JobError(code="job_timeout", message=f"the adjustment ran over {ctx.settings.job_timeout_s} s")
     except Exception as exc:
-        if out_of_memory(exc):
-            forget(exc)
-            error = too_large(exc, Stage(name="adjust"), budget_mb)
-        else:
-            log.exception("adjustment crashed", extra={"job_id": adjustment.job, "adjustment": adjustment_id})
-            error = JobError(code="internal_error", message=f"{type(exc).__name__}: {exc}")
+        error = failure(exc, Stage(name="adjust"), budget_mb, "adjustment", ctx.settings.job_timeout_s,
+                        {"job_id": adjustment.job, "adjustment": adjustment_id, "worker": ctx.name})
     status = "failed" if error is not None else "succeeded"
     adjustments.finish(adjustment_id, status, outcome, error)
     return status
+
+
+def failure(exc: Exception, stage: Stage, budget_mb: int | None, what: str, limit_s: int,
+            extra: dict[str, str]) -> JobError:
+    """The error ``what`` (a job, an adjustment) ends with when ``exc`` ends it (``limit_s``: its time limit):
+    the engine's own code, the store's, the time limit, ``job_too_large`` for an allocation failure in ``stage``
+    (the memory ceiling is lifted by now; what the work held is freed), else ``internal_error``, logged."""
+    if isinstance(exc, CtpError):
+        return JobError(**exc.to_dict())
+    if isinstance(exc, StorageUnavailable):
+        return JobError(code="storage_unavailable", message=str(exc))
+    if isinstance(exc, JobTimeoutException):
+        return JobError(code="job_timeout", message=f"the {what} ran over {limit_s} s")
+    if out_of_memory(exc):
+        forget(exc)
+        error = too_large(exc, stage, budget_mb)
+        log.warning("%s too large: %s", what, error.message, extra=extra)
+        return error
+    log.exception("%s crashed", what, extra=extra)
+    return JobError(code="internal_error", message=f"{type(exc).__name__}: {exc}")
 
 
 def adjust_job(adjustment: AdjustmentRecord, jobs: Jobs, limits: MeshLimits) -> AdjustOutcome:
@@ -205,9 +203,12 @@ def adjust_job(adjustment: AdjustmentRecord, jobs: Jobs, limits: MeshLimits) -> 
     back from ``result.glb``, the frames and the relation from ``report.json``. With ``save``, the adjusted scene
     and report replace them (the run's own GLB kept once as ``original.glb``) and the job record says so."""
     record = jobs.get(adjustment.job)
+    gone = CtpError(f"job {adjustment.job}'s results are gone (expired)", code="job_not_ready")
+    if record is None or record.status != "succeeded":
+        raise gone
     stored = {name: jobs.storage.get(adjustment.job, name) for name in ("result.glb", "report.json")}
-    if record is None or record.status != "succeeded" or None in stored.values():
-        raise CtpError(f"job {adjustment.job}'s results are gone (expired)", code="job_not_ready")
+    if None in stored.values():
+        raise gone
     facts = json.loads(stored["report.json"])
     at = np.asarray(facts["transform"]["matrix"], dtype=np.float64)  # the stored result.glb's source node
     target, source, name = read_back(load_objects(stored["result.glb"], filename="result.glb", limits=limits), at)
