@@ -121,7 +121,8 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
     """Priors, the normalised and canonicalised pair, the guide and its goal, the objective and the plan.
 
     A scene target's priors read the object ``on`` (its name is ``target_name``, its size the extent)."""
-    from ctp_core import goals, guidance, objective, scene, schedule
+    from ctp_core import canonical, goals, guidance, objective, scene, schedule
+    from ctp_core.priors.relations import RELATIONS
 
     started = time.perf_counter()
     if config.threads:
@@ -134,14 +135,19 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
         penetration=PENETRATION[config.penetration],
         target_extent=float(scene.attachment(target, on).extents.max()), source_extent=float(source.extents.max()),
     )
+    # what hangs is hung on something fixed in place, whose resting poses as a free object say nothing of its up
+    mounted = prior.source_is_figure and prior.relation in RELATIONS and RELATIONS[prior.relation].mounted
+    upright = config.upright and not mounted
     judge = None
-    if config.upright and config.upright_judge:
+    if upright and config.upright_judge:
         guide = guide or guidance.guide_for(config)
         # a scene's up is its base's (scene.base), judged under the base's own name
         base_name, base = (target_name, target) if isinstance(target, trimesh.Trimesh) else scene.objects(target)[0]
         judge = scene.upright_judge(base, guide, base_name, device=config.device)
+    kept = canonical.identity(f"kept as authored: the target is what the source is hung on ({prior.relation}), "
+                              "fixed in place") if mounted and config.upright else None
     pair = scene.prepare_pair(target, source, samples=config.loss.samples, seed=config.seed, device=config.device,
-                              canonicalise=config.upright, judge=judge, on=on)
+                              canonicalise=upright, judge=judge, on=on, target_up=kept)
     prepared = time.perf_counter()
 
     if goal is None and config.loss.lambda_clip > 0:

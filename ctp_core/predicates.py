@@ -50,6 +50,8 @@ HANG_DROP = 0.05  # "hang": the centre of mass at least this far below the conta
 WEAR_CENTRE = 0.5  # "wear": the ground's summit within this many figure half-widths of the centre's column
 PENETRATE = (0.02, 0.9)  # "penetrate": the share of the figure inside the ground, in this open range
 WRAP_SHARE = 0.3  # "wrap": at least this share of the figure touching (the relation table's contact is 0.6)
+FIXED = 0.5  # ``preference`` "hang": hung under a down-facing surface (fixed to a ceiling) rather than resting on
+# an up-facing one (a peg's top), in figure diagonals
 FAR = 1.0  # a condition that has nothing to measure against (no overhead surface at all): a whole diagonal
 # ``preference``: among poses where the relation holds, which is the usual arrangement (see its docstring)
 OFF_CENTRE = 0.5  # weight of the figure's distance from the ground's middle (in the ground's half-widths)
@@ -57,7 +59,7 @@ ENCLOSING_RAYS = 16  # ``_enclosure``: horizontal directions looked along from t
 FOOT = 0.05  # ``_enclosure``: the figure's foot, this far above its lowest point
 
 RESTING = ("on", "stand", "sit", "lie")
-PREFERRED = (*RESTING, "in", "under", "lean", "wear")  # where ``preference`` says more than holding
+PREFERRED = (*RESTING, "in", "under", "lean", "wear", "hang")  # where ``preference`` says more than holding
 STABLE_RELATIONS = (*RESTING, "in", "under", "beside", "lean", "wear")  # where ``stable`` applies
 RELATION_NAMES: tuple[str, ...] = tuple(RELATIONS)
 
@@ -643,7 +645,10 @@ def preference(pair: PreparedPair, poses: Poses, relation: str | None, source_is
       holder's cup; a candle within the convex hull of a candelabra's open frame, where "in" holds too, is
       half surrounded at best);
     - ``wear``: on the top (``drop``: the highest summit, a head's, not a shoulder);
-    - the others (``beside``: which side is the guide's to say; ``hang``, ``penetrate``, ...): zeros.
+    - ``hang``: hung freely from something that bears it (``_borne``): a ring on a peg, its centre straight
+      below the peg, rather than flat against the wall the peg stands out from (where the contact above its
+      centre is with the wall's side) or hooked over the wall's top edge with its centre out in front;
+    - the others (``beside``: which side is the guide's to say; ``penetrate``, ...): zeros.
     Differentiable in ``poses`` but for the counts (a refinement term: ``objective.PREFER`` x ``lambda_rel``,
     and with a guide only as far as it cannot tell poses apart, ``Scorer.relation_terms``).
     """
@@ -665,11 +670,34 @@ def _preference(c: _Ctx, relation: str) -> torch.Tensor:
         out = out + (1.0 - depth / _half_width(figure).clamp_min(1e-9)).clamp(0.0, 1.0)
     if relation == "in":
         out = out + 1.0 - _enclosure(c)
+    if relation == "hang":
+        return out + _borne(c)
     if relation != "wear":
         gp = ground.side.points[..., [0, 2]]
         low, high = gp.min(1).values, gp.max(1).values
         half = ((high - low).norm(dim=-1) / 2).clamp_min(1e-9)
         out = out + OFF_CENTRE * (figure.centre[:, [0, 2]] - (low + high) / 2).norm(dim=-1) / half
+    return out
+
+
+def _borne(c: _Ctx) -> torch.Tensor:
+    """(B,) how far the figure is from hanging freely from ground that bears it, in figure diagonals: its centre
+    ``HANG_DROP`` below its highest sample touching an up-facing ground surface (a peg's or a hook's top, a
+    branch: it rests there) and *plumb*: straight below that sample, as a hung thing swings to rest (a ring
+    hooked over a wall's top edge with its centre out in front is not). Touching only a down-facing surface
+    there (a lamp under a ceiling) it needs a fixing the geometry cannot see: ``FIXED`` more. ``FAR`` where it
+    touches neither (only sides: flat against a wall)."""
+    fig, reach = c.figure, c.reach()[:, None]
+    out = torch.full_like(c.unit, FAR)
+    for which, extra in (("down", FIXED), ("up", 0.0)):  # near the surface, not merely behind a sample's plane
+        gap, along = _gap(fig.points.detach(), c.ground, which)
+        bearing = (gap <= reach) & (along >= -reach)
+        borne = bearing.any(-1)
+        highest = fig.points[..., 1].detach().masked_fill(~bearing, -torch.inf).argmax(-1)
+        support = fig.points[torch.arange(len(highest)), highest]  # (B, 3); any sample where nothing bears it
+        hung = c.h(fig.centre[:, 1] - support[:, 1] + HANG_DROP * c.unit)
+        plumb = (fig.centre[:, [0, 2]] - support[:, [0, 2]]).norm(dim=-1) / c.unit
+        out = torch.where(borne, torch.minimum(out, hung + plumb + extra), out)
     return out
 
 

@@ -19,9 +19,17 @@ resting frames (a hot dog in its bun), lowered onto the point. The regions' cavi
 on a point inside the target's hull: a candle standing in a shallow cup on top of a tall holder has its centre
 above the rim (pb3d-candle_stick: 1 of the 111 proposals held "in" where the reference stands).
 
-Not done (docs/relations.md lists them): "hang" (a ring threaded on a thin part), "under" (the floor under a
-down-facing part), "beside" (the floor just outside the footprint): the regions already give some poses where
-those hold on the dev cases.
+``hang``: the source hung by a *hook point* on an up-facing point of a *thin* part of the target (a peg, a
+branch, a rail), turned as it would hang: its centre straight below the hook point (any turn about +Y), the
+hook point just above the target's point, then lowered into contact. A hook point is a sample whose normal
+faces along its plumb line (toward the source's centre: the inside of a ring's loop, a hook's bend, a hanger's
+crook) and whose plumb line meets the source again beyond it (the loop closes under it); the part fits when
+the target's vertical thickness under its point (down to its next down-facing surface) is less than that
+clearance. The regions approach the target from outside, so a ring never comes to be threaded on a peg
+(cur-s07: 88 proposals held "hang", every one a ring flat against the wall, none on the peg).
+
+Not done (docs/relations.md lists them): "under" (the floor under a down-facing part), "beside" (the floor
+just outside the footprint): the regions already give some poses where those hold on the dev cases.
 """
 
 from __future__ import annotations
@@ -30,6 +38,7 @@ import math
 
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 
 from ctp_core import predicates
 from ctp_core.config import AlignConfig
@@ -43,12 +52,15 @@ LEAN_SHARE = 0.25  # lean proposals, as a share of ``search.candidates``
 LEAN_POINTS = 128  # source samples for the tilted source's extent
 CONTAINED_SHARE = 0.25  # "in" proposals, as a share of ``search.candidates``
 ENCLOSURE_BATCH = 64  # up-facing points whose enclosure is measured at once (memory: batch x samples x rays)
+HANG_SHARE = 0.25  # "hang" proposals, as a share of ``search.candidates``
+HOOK_FACING = 0.5  # a hook point's normal: at least this cosine toward the source's centre
+HOOK_REACH = 0.1  # a hook point: at least this many source diagonals from the source's centre
 
 
 def extend(pair: PreparedPair, config: AlignConfig, proposals: Proposals, relation: str | None,
            source_is_figure: bool, seed: int) -> Proposals:
     """``proposals`` plus those that satisfy ``relation`` by construction (see the module docstring)."""
-    build = {"lean": lean, "in": contained}.get(relation or "")
+    build = {"lean": lean, "in": contained, "hang": hung}.get(relation or "")
     if not config.relation or not source_is_figure or build is None or proposals.rotations is None:
         return proposals
     extra = build(pair, config, proposals, seed)
@@ -116,6 +128,86 @@ def contained(pair: PreparedPair, config: AlignConfig, proposals: Proposals, see
                     "contained")
 
 
+def hung(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int) -> Proposals | None:
+    """Sources hung by a hook point on a thin up-facing part of the target (``extend``); None where the source has
+    no hook point or no up-facing part of the target is thin enough to pass into one."""
+    feat = predicates.features(pair)
+    local, normals = feat.source_points.cpu().double().numpy(), feat.source_normals.cpu().double().numpy()
+    toward = feat.source_centre.cpu().double().numpy() - local
+    reach = np.linalg.norm(toward, axis=1)
+    plumb = toward / np.maximum(reach, 1e-12)[:, None]  # hung by a point, the centre settles straight below it
+    diagonal = float(np.linalg.norm(np.ptp(local, axis=0)))
+    hooks = np.flatnonzero(((normals * plumb).sum(1) > HOOK_FACING) & (reach > HOOK_REACH * diagonal))
+    log_s = float(proposals.poses.log_s[0])
+    clearance = _clearance(local, plumb, hooks, feat.source_spacing) * math.exp(log_s)
+    hooks, clearance = hooks[np.isfinite(clearance)], clearance[np.isfinite(clearance)]
+    points, _, regions, density = surface_regions(pair)
+    spacing = sample_spacing(pair, len(points))
+    top = regions["top"]
+    thickness = _thickness(points, top, regions["bottom"], spacing)
+    fits = thickness < (clearance.max() if len(hooks) else 0.0)
+    if not fits.any():
+        return None
+    rng = np.random.default_rng(seed + 31)
+    count = max(1, math.ceil(HANG_SHARE * config.search.candidates))
+    weights = density[top] * fits
+    pick = rng.choice(len(top), size=count, p=weights / weights.sum())
+    hook = np.array([rng.choice(hooks[clearance > thickness[i]]) for i in pick])
+    down = np.array([0.0, -1.0, 0.0])
+    q = torch.cat([quaternion_product(_yaw(rng.uniform(0, 2 * math.pi)), _turn(plumb[h], down)[None]) for h in hook])
+    hook_posed = torch.einsum("bij,bj->bi", quaternion_to_matrix(q), torch.as_tensor(local[hook], dtype=torch.float32))
+    start = torch.as_tensor(points[top[pick]], dtype=torch.float32) - hook_posed * math.exp(log_s)
+    start[:, 1] += spacing
+    up = torch.tensor([0.0, 1.0, 0.0]).expand(count, 3)
+    return _lowered(pair, proposals, q, start, up, False, log_s, "hang")
+
+
+def _clearance(local: np.ndarray, plumb: np.ndarray, hooks: np.ndarray, spacing: float) -> np.ndarray:
+    """(H,) how far each hook point's plumb line (toward the source's centre) runs inside the source's loop
+    before it meets the source again (another sample within ``spacing`` of the line, beyond it): how thick a
+    part hung in the hook can be; inf where the line meets nothing (no loop or bend closes under it)."""
+    rel = local[None, :, :] - local[hooks, None, :]  # (H, N, 3)
+    along = (rel * plumb[hooks, None, :]).sum(-1)
+    off = np.sqrt(np.clip((rel**2).sum(-1) - along**2, 0.0, None))
+    on_line = (along > 2 * spacing) & (off <= spacing)
+    return np.where(on_line, along, np.inf).min(1)
+
+
+def _thickness(points: np.ndarray, top: np.ndarray, bottom: np.ndarray, spacing: float) -> np.ndarray:
+    """(T,) the target's vertical thickness under each up-facing sample ``top``: down to the highest down-facing
+    sample below it within ``spacing`` of its column (the part's underside); inf where there is none."""
+    if not len(bottom):
+        return np.full(len(top), np.inf)
+    tree = cKDTree(points[bottom][:, [0, 2]])
+    out = np.full(len(top), np.inf)
+    for k, near in enumerate(tree.query_ball_point(points[top][:, [0, 2]], r=spacing, workers=1)):
+        below = points[bottom[near], 1]
+        below = below[below < points[top[k], 1]]
+        if len(below):
+            out[k] = points[top[k], 1] - below.max()
+    return out
+
+
+def _turn(a: np.ndarray, b: np.ndarray) -> torch.Tensor:
+    """(4,) the shortest rotation taking unit vector ``a`` onto unit vector ``b`` (half a turn about an axis
+    across ``a`` when they are opposite)."""
+    a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
+    v, c = np.cross(a, b), float(np.dot(a, b))
+    if np.linalg.norm(v) < 1e-9:
+        if c > 0:
+            return torch.tensor([1.0, 0.0, 0.0, 0.0])
+        across = np.cross(a, [0.0, 0.0, 1.0] if abs(a[2]) < 0.9 else [1.0, 0.0, 0.0])
+        return torch.as_tensor(np.r_[0.0, across / np.linalg.norm(across)], dtype=torch.float32)
+    angle = math.atan2(np.linalg.norm(v), c)
+    return torch.as_tensor(np.r_[math.cos(angle / 2), v / np.linalg.norm(v) * math.sin(angle / 2)],
+                           dtype=torch.float32)
+
+
+def _yaw(angle: float) -> torch.Tensor:
+    """(1, 4) a turn by ``angle`` about +Y."""
+    return torch.tensor([[math.cos(angle / 2), 0.0, math.sin(angle / 2), 0.0]])
+
+
 def _lowered(pair: PreparedPair, proposals: Proposals, q: torch.Tensor, anchor: torch.Tensor, normal: torch.Tensor,
              on_surface: bool, log_s: float, label: str) -> Proposals:
     """Sources turned by ``q`` moved straight along -``normal`` from ``anchor`` into contact (``proposals.place``),
@@ -136,17 +228,6 @@ def _long_axis_up(pair: PreparedPair, rng: np.random.Generator, count: int) -> t
     _, _, vt = np.linalg.svd(local - local.mean(0), full_matrices=False)
     axis = vt[0] / np.linalg.norm(vt[0])
     up = np.array([0.0, 1.0, 0.0])
-    out = []
-    for i in range(count):
-        a = axis if i % 2 == 0 else -axis
-        v, c = np.cross(a, up), float(np.dot(a, up))
-        if np.linalg.norm(v) < 1e-9:  # already along +Y (or -Y: half a turn about X)
-            q_up = np.array([1.0, 0.0, 0.0, 0.0]) if c > 0 else np.array([0.0, 1.0, 0.0, 0.0])
-        else:
-            angle = math.atan2(np.linalg.norm(v), c)
-            q_up = np.r_[math.cos(angle / 2), v / np.linalg.norm(v) * math.sin(angle / 2)]
-        yaw = rng.uniform(0, 2 * math.pi)
-        out.append(np.array([math.cos(yaw / 2), 0.0, math.sin(yaw / 2), 0.0]))
-        out[-1] = quaternion_product(torch.as_tensor(out[-1], dtype=torch.float32)[None],
-                                     torch.as_tensor(q_up, dtype=torch.float32)[None])[0]
-    return torch.stack(out) if out else torch.zeros(0, 4)
+    turns = [quaternion_product(_yaw(rng.uniform(0, 2 * math.pi)), _turn(axis if i % 2 == 0 else -axis, up)[None])
+             for i in range(count)]
+    return torch.cat(turns) if turns else torch.zeros(0, 4)

@@ -125,16 +125,25 @@ def test_board_leaning_on_a_box_rather_than_lying_flat():
     assert int(lie.argmin()) == 2, lie
 
 
-def test_ring_hanging_on_a_hook_rather_than_lying_under_it():
+def wall_with_peg() -> trimesh.Trimesh:
+    """A wall 1 x 1 (0.1 thick, its front face at z = 0) with a peg 0.03 in radius along +z at y = 1."""
     wall = box([1, 1, 0.1], [0, 1.0, -0.05])
     peg = trimesh.creation.cylinder(radius=0.03, height=0.4)  # along z
     peg.apply_translation([0, 1.0, 0.2])
-    hook = trimesh.util.concatenate([wall, peg])
-    ring = trimesh.creation.torus(major_radius=0.15, minor_radius=0.02)  # in the xy plane
+    return trimesh.util.concatenate([wall, peg])
+
+
+def ring() -> trimesh.Trimesh:
+    """A ring in the xy plane, 0.13 inside radius."""
+    return trimesh.creation.torus(major_radius=0.15, minor_radius=0.02)
+
+
+def test_ring_hanging_on_a_hook_rather_than_lying_under_it():
+    hook, ring_ = wall_with_peg(), ring()
     hanging = pose([0, 1.0 + 0.03 + 0.02 - 0.15, 0.25])  # its inner top on the peg's top
     under = pose([0, 0.3, 0.25], rot([1, 0, 0], 90))  # lying flat, below the peg, touching nothing
     on_top = pose([0, 1.0 + 0.03 + 0.02, 0.3], rot([1, 0, 0], 90))  # lying on the peg
-    s = scores(hook, ring, [hanging, under, on_top], "hang")
+    s = scores(hook, ring_, [hanging, under, on_top], "hang")
     assert int(s.argmin()) == 0 and predicates.holds(s).tolist() == [True, False, False], s
 
 
@@ -263,12 +272,25 @@ def test_in_prefers_a_cavity_that_holds_the_figure_by_its_sides_to_an_open_frame
     assert prefer[0] < prefer[1] - 0.3, prefer
 
 
+def test_a_ring_on_a_peg_prefers_hanging_freely_to_swung_aside_stuck_under_the_wall_or_flat_against_it():
+    """All four hold "hang" (contact above the centre); the usual arrangement rests on what bears it, plumb."""
+    swing = math.radians(40)  # the peg touches the ring's inside 40 degrees off its top: the centre not below it
+    threaded = pose([0, 0.9, 0.25])
+    swung = pose([0.1 * math.sin(swing), 1.0 - 0.1 * math.cos(swing), 0.25])
+    flat = pose([0.3, 0.9, 0.02])  # against the wall's front, beside the peg: its contact above is a side
+    stuck = pose([0.3, 0.5 - 0.17, -0.05])  # its top against the wall's underside (y = 0.5): held by nothing seen
+    prefer, score = _preference(wall_with_peg(), ring(), [threaded, swung, flat, stuck], "hang")
+    assert predicates.holds(score).tolist() == [True, True, True, True], score
+    assert prefer[0] < 0.05 and prefer[0] + 0.05 < prefer[1] < prefer[3] < prefer[2] == predicates.FAR, prefer
+    assert prefer[3] >= predicates.FIXED, prefer
+
+
 def test_preference_is_zero_where_the_relation_says_nothing_more_and_batched_equals_one_by_one():
     pair = prepared(table(), BALL)
     p = poses(pair, list(BALL_POSES.values()))
-    for relation in ("beside", "hang", "penetrate", None):
+    for relation in ("beside", "penetrate", None):
         assert predicates.preference(pair, p, relation).tolist() == [0.0] * 4
-    for relation in ("on", "in", "under", "lean", "wear"):
+    for relation in ("on", "in", "under", "lean", "wear", "hang"):
         batched = predicates.preference(pair, p, relation)
         single = torch.cat([predicates.preference(pair, p.select([i]), relation) for i in range(len(p))])
         assert torch.allclose(batched, single, atol=1e-5), relation

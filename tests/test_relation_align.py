@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from test_predicates import box, cup, rot, table
+from test_predicates import box, cup, ring, rot, table, wall_with_peg
 
 from ctp_core import align as stages
 from ctp_core import objective, predicates, ranking, schedule
@@ -208,3 +208,38 @@ def test_a_ball_under_the_table_ends_under_its_middle_and_a_cup_on_it_on_its_top
         assert result.relation["holds"], result.relation
         assert np.hypot(centre[0], centre[2]) < 0.45, (prompt, centre)  # the top is 2 x 2: its corner is 1.27 out
         assert height[0] <= centre[1] <= height[1], (prompt, centre)
+
+
+def test_a_ring_hung_on_a_peg_is_threaded_on_it_and_the_wall_keeps_its_file_up():
+    """The upright step would lay the wall on its back (a thin slab topples); what things hang on is fixed in
+    place, so it keeps its file frame, and the hang proposals (``relation_proposals.hung``) thread the ring on
+    the peg, which the preference (hanging freely, plumb) then chooses over the ring flat against the wall."""
+    wall, ring_ = wall_with_peg(), ring()
+    config = AlignConfig.from_preset("default", loss={"lambda_clip": 0.0})  # the test preset's 3 hang proposals
+    # seldom leave its few refinement steps a plumb one
+    run = stages.prepare(wall, ring_, "a ring hanging on the peg", config, target_name="peg", source_name="ring")
+    assert run.prior.relation == "hang" and not run.pair.target_upright.changed
+    assert "kept as authored" in run.pair.target_upright.reason
+    props = stages.propose(run)
+    assert "hang" in props.region
+    result = align(wall, ring_, "a ring hanging on the peg", config, target_name="peg", source_name="ring")
+    centre = trimesh.transform_points(ring_.vertices, result.source_to_target).mean(0)
+    assert result.relation["holds"], result.relation
+    # threaded: the peg (y = 1, x = 0, z from 0 to 0.4) passes through the ring's hole, its centre below the peg
+    assert abs(centre[0]) < 0.05 and 0.85 < centre[1] < 0.95 and 0.0 < centre[2] < 0.4, centre
+    on = stages.prepare(wall, ring_, "a ring on the peg", config, target_name="peg", source_name="ring")
+    assert on.prior.relation == "on" and on.pair.target_upright.changed  # read "on": turned to lie on its back
+
+
+@pytest.mark.parametrize(("target", "source", "expected"), [
+    (wall_with_peg, ring, True),  # a loop and a peg thinner than its hole
+    (wall_with_peg, lambda: BALL, False),  # no hook point: a ball's normals all face away from its centre
+    (lambda: box([1, 1, 1], [0, 0.5, 0]), ring, False),  # no part of a block is thin enough to pass into the ring
+])
+def test_hang_proposals_need_a_hook_on_the_source_and_a_part_of_the_target_thin_enough_for_it(target, source,
+                                                                                                 expected):
+    config = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0})
+    run = stages.prepare(target(), source(), "a thing hanging on the stand", config, target_name="stand",
+                         source_name="thing")
+    assert run.prior.relation == "hang"
+    assert ("hang" in stages.propose(run).region) == expected
