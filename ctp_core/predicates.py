@@ -59,7 +59,8 @@ ENCLOSING_RAYS = 16  # ``_enclosure``: horizontal directions looked along from t
 FOOT = 0.05  # ``_enclosure``: the figure's foot, this far above its lowest point
 
 RESTING = ("on", "stand", "sit", "lie")
-PREFERRED = (*RESTING, "in", "under", "lean", "wear", "hang")  # where ``preference`` says more than holding
+# where ``preference`` says more than holding
+PREFERRED = (*RESTING, "in", "under", "lean", "wear", "hang", "penetrate")
 STABLE_RELATIONS = (*RESTING, "in", "under", "beside", "lean", "wear")  # where ``stable`` applies
 RELATION_NAMES: tuple[str, ...] = tuple(RELATIONS)
 
@@ -648,7 +649,10 @@ def preference(pair: PreparedPair, poses: Poses, relation: str | None, source_is
     - ``hang``: hung freely from something that bears it (``_borne``): a ring on a peg, its centre straight
       below the peg, rather than flat against the wall the peg stands out from (where the contact above its
       centre is with the wall's side) or hooked over the wall's top edge with its centre out in front;
-    - the others (``beside``: which side is the guide's to say; ``penetrate``, ...): zeros.
+    - ``penetrate``: near the middle, *end first* (``_end_first``: a stick stuck into a block stands in its top
+      rather than lying sunk along it) and *from above the floor* (the figure's depth below the floor the ground
+      stands on, in figure diagonals: driven up through a block's base it would pass through the floor);
+    - the others (``beside``: which side is the guide's to say; ``attach``, ``hold``, ``wrap``): zeros.
     Differentiable in ``poses`` but for the counts (a refinement term: ``objective.PREFER`` x ``lambda_rel``,
     and with a guide only as far as it cannot tell poses apart, ``Scorer.relation_terms``).
     """
@@ -672,6 +676,8 @@ def _preference(c: _Ctx, relation: str) -> torch.Tensor:
         out = out + 1.0 - _enclosure(c)
     if relation == "hang":
         return out + _borne(c)
+    if relation == "penetrate":
+        out = out + _end_first(c) + c.h(c.floor - c.figure.points[..., 1].min(-1).values)
     if relation != "wear":
         gp = ground.side.points[..., [0, 2]]
         low, high = gp.min(1).values, gp.max(1).values
@@ -699,6 +705,22 @@ def _borne(c: _Ctx) -> torch.Tensor:
         plumb = (fig.centre[:, [0, 2]] - support[:, [0, 2]]).norm(dim=-1) / c.unit
         out = torch.where(borne, torch.minimum(out, hung + plumb + extra), out)
     return out
+
+
+def _end_first(c: _Ctx) -> torch.Tensor:
+    """(B,) 1 less how squarely the figure's long axis (its samples' principal direction) crosses the ground's
+    surface where it enters (the mean |cosine| with the ground's normals at the figure's samples within contact
+    of that surface, either side): 0 for a stick driven straight in, 1 for one lying sunk along the surface;
+    ``FAR`` where nothing crosses it."""
+    fig, reach = c.figure, c.reach()[:, None]
+    centred = fig.points - fig.points.mean(1, keepdim=True)
+    axis = torch.linalg.eigh(centred.transpose(1, 2) @ centred)[1][..., -1]  # (B, 3), the largest eigenvalue's
+    u, n, found = c.ground.nearest(fig.points.detach())
+    gap, along = _gap_to(fig.points, c.ground, u, n, found)
+    entry = ((gap <= reach) & (along.abs() <= reach)).detach()
+    cos = (n * axis[:, None, :]).sum(-1).abs()
+    share = (cos * entry).sum(-1) / entry.sum(-1).clamp_min(1)
+    return torch.where(entry.any(-1), 1.0 - share, torch.full_like(share, FAR))
 
 
 def _enclosure(c: _Ctx) -> torch.Tensor:

@@ -28,6 +28,12 @@ the target's vertical thickness under its point (down to its next down-facing su
 clearance. The regions approach the target from outside, so a ring never comes to be threaded on a peg
 (cur-s07: 88 proposals held "hang", every one a ring flat against the wall, none on the peg).
 
+``penetrate``: the source driven end first into the target: on its longest principal axis along the inward
+normal of a surface sample that does not face down, ``PIERCE_DEPTH`` of its length in, raised where it would
+pass below the floor; not settled (it is meant to intersect). The regions settle every proposal free of the
+target, so what held "penetrate" lay half sunk along a surface (cur-s08: every restart a stick lying across the
+block's top or along its base, none standing in it).
+
 Not done (docs/relations.md lists them): "under" (the floor under a down-facing part), "beside" (the floor
 just outside the footprint): the regions already give some poses where those hold on the dev cases.
 """
@@ -53,6 +59,8 @@ LEAN_POINTS = 128  # source samples for the tilted source's extent
 CONTAINED_SHARE = 0.25  # "in" proposals, as a share of ``search.candidates``
 ENCLOSURE_BATCH = 64  # up-facing points whose enclosure is measured at once (memory: batch x samples x rays)
 HANG_SHARE = 0.25  # "hang" proposals, as a share of ``search.candidates``
+PIERCE_SHARE = 0.25  # "penetrate" proposals, as a share of ``search.candidates``
+PIERCE_DEPTH = (0.1, 0.5)  # "penetrate": how much of its length the source is driven in, uniform in this range
 HOOK_FACING = 0.5  # a hook point's normal: at least this cosine toward the source's centre
 HOOK_REACH = 0.1  # a hook point: at least this many source diagonals from the source's centre
 
@@ -60,7 +68,7 @@ HOOK_REACH = 0.1  # a hook point: at least this many source diagonals from the s
 def extend(pair: PreparedPair, config: AlignConfig, proposals: Proposals, relation: str | None,
            source_is_figure: bool, seed: int) -> Proposals:
     """``proposals`` plus those that satisfy ``relation`` by construction (see the module docstring)."""
-    build = {"lean": lean, "in": contained, "hang": hung}.get(relation or "")
+    build = {"lean": lean, "in": contained, "hang": hung, "penetrate": pierced}.get(relation or "")
     if not config.relation or not source_is_figure or build is None or proposals.rotations is None:
         return proposals
     extra = build(pair, config, proposals, seed)
@@ -162,6 +170,39 @@ def hung(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: in
     return _lowered(pair, proposals, q, start, up, False, log_s, "hang")
 
 
+def pierced(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int) -> Proposals:
+    """Sources driven end first into the target (``extend``): on the longest principal axis along the inward
+    normal of a surface sample that does not face down (either end first, any turn about that axis),
+    ``PIERCE_DEPTH`` of their length in, raised where that would pass below the floor the target stands on.
+    Not settled: they are meant to intersect."""
+    points, normals, regions, density = surface_regions(pair)
+    rng = np.random.default_rng(seed + 37)
+    count = max(1, math.ceil(PIERCE_SHARE * config.search.candidates))
+    weights = density.copy()
+    weights[regions["bottom"]] = 0.0  # from below, it would pass through the floor the target stands on
+    pick = rng.choice(len(points), size=count, p=weights / weights.sum())
+    inward = -normals[pick] / np.linalg.norm(normals[pick], axis=1, keepdims=True)
+    up = np.array([0.0, 1.0, 0.0])
+    standing = _long_axis_up(pair, rng, count)  # on its long axis, either end up, turned about it
+    q = torch.cat([quaternion_product(_turn(up, d)[None], standing[i:i + 1]) for i, d in enumerate(inward)])
+    local = pair.source_subset(LEAN_POINTS).cpu()
+    log_s = float(proposals.poses.log_s[0])
+    rotated = torch.einsum("bij,nj->bni", quaternion_to_matrix(q), local) * math.exp(log_s)
+    d = torch.as_tensor(inward, dtype=torch.float32)
+    along = (rotated * d[:, None, :]).sum(-1)  # extent along the inward normal
+    lead, length = along.max(1).values, along.max(1).values - along.min(1).values
+    depth = torch.as_tensor(rng.uniform(*PIERCE_DEPTH, size=count), dtype=torch.float32) * length
+    t = torch.as_tensor(points[pick], dtype=torch.float32) - d * (lead - depth)[:, None]
+    # not through the floor the target stands on: raised to it where it would pass below (less deep from above)
+    t[:, 1] += (float(pair.target_vertices[:, 1].min()) - (t[:, 1] + rotated[..., 1].min(1).values)).clamp_min(0.0)
+    anchor, normal = torch.as_tensor(points[pick], dtype=torch.float32), -d
+    sites = Site(anchor, normal, torch.zeros(count), torch.ones(count, dtype=torch.bool),
+                 torch.full((count,), APPROACHES.index("straight"), dtype=torch.long))
+    device = pair.source_vertices.device
+    return Proposals(Poses(t.to(device), q.to(device), torch.full((count,), log_s, device=device)),
+                     ["pierce"] * count, sites, proposals.rotations, proposals.index)
+
+
 def _clearance(local: np.ndarray, plumb: np.ndarray, hooks: np.ndarray, spacing: float) -> np.ndarray:
     """(H,) how far each hook point's plumb line (toward the source's centre) runs inside the source's loop
     before it meets the source again (another sample within ``spacing`` of the line, beyond it): how thick a
@@ -231,3 +272,4 @@ def _long_axis_up(pair: PreparedPair, rng: np.random.Generator, count: int) -> t
     turns = [quaternion_product(_yaw(rng.uniform(0, 2 * math.pi)), _turn(axis if i % 2 == 0 else -axis, up)[None])
              for i in range(count)]
     return torch.cat(turns) if turns else torch.zeros(0, 4)
+

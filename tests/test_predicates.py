@@ -288,9 +288,9 @@ def test_a_ring_on_a_peg_prefers_hanging_freely_to_swung_aside_stuck_under_the_w
 def test_preference_is_zero_where_the_relation_says_nothing_more_and_batched_equals_one_by_one():
     pair = prepared(table(), BALL)
     p = poses(pair, list(BALL_POSES.values()))
-    for relation in ("beside", "penetrate", None):
+    for relation in ("beside", "attach", None):
         assert predicates.preference(pair, p, relation).tolist() == [0.0] * 4
-    for relation in ("on", "in", "under", "lean", "wear", "hang"):
+    for relation in ("on", "in", "under", "lean", "wear", "hang", "penetrate"):
         batched = predicates.preference(pair, p, relation)
         single = torch.cat([predicates.preference(pair, p.select([i]), relation) for i in range(len(p))])
         assert torch.allclose(batched, single, atol=1e-5), relation
@@ -306,3 +306,14 @@ def test_terms_equal_the_predicates_one_by_one(relation):
     assert torch.allclose(got["prefer"], predicates.preference(pair, p, relation))
     own = relation in predicates.STABLE_RELATIONS and relation not in predicates.RESTING
     assert torch.allclose(got["stable"], predicates.stable(pair, p) if own else torch.zeros(len(p)))
+
+
+def test_a_stick_stuck_into_a_block_prefers_standing_in_its_top_to_lying_sunk_along_it_or_rising_through_its_base():
+    block, stick = box([0.3, 0.3, 0.3], [0, 0.15, 0]), trimesh.creation.cylinder(radius=0.015, height=0.8)  # along z
+    upright = rot([1, 0, 0], -90)  # the stick's axis +z -> +y
+    into_top = pose([0, 0.3 + 0.4 - 0.1, 0], upright)  # 0.1 of it in, through the top's middle
+    lying = pose([0, 0.3, 0])  # along z, half sunk in the top along its whole width
+    through_base = pose([0, 0.1 - 0.4, 0], upright)  # 0.1 in, through the base: most of it under the floor
+    prefer, score = _preference(block, stick, [into_top, lying, through_base], "penetrate")
+    assert predicates.holds(score).tolist() == [True, True, True], score
+    assert prefer[0] < 0.1 and prefer[0] + 0.5 < prefer[1] and prefer[0] + 0.5 < prefer[2], prefer

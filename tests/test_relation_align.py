@@ -243,3 +243,29 @@ def test_hang_proposals_need_a_hook_on_the_source_and_a_part_of_the_target_thin_
                          source_name="thing")
     assert run.prior.relation == "hang"
     assert ("hang" in stages.propose(run).region) == expected
+
+
+def test_penetrate_proposals_drive_the_source_end_first_into_the_target_never_up_through_its_base():
+    block, stick = box([0.3, 0.3, 0.3], [0, 0.15, 0]), trimesh.creation.cylinder(radius=0.015, height=0.8)
+    config = AlignConfig.from_preset("default", loss={"lambda_clip": 0.0})
+    run = stages.prepare(block, stick, "a stick sticking into the block", config, target_name="block",
+                         source_name="stick")
+    assert run.prior.relation == "penetrate"
+    props = stages.propose(run)
+    pierce = [i for i, r in enumerate(props.region) if r == "pierce"]
+    assert pierce
+    with torch.inference_mode():
+        poses = props.poses.select(pierce)
+        held = predicates.holds(predicates.relation_score(run.pair, poses, "penetrate"))
+        floor = float(run.pair.target_vertices[:, 1].min())
+        lowest = predicates.posed_source(predicates.features(run.pair), poses).points[..., 1].min(-1).values
+    assert held.float().mean() > 0.9, held
+    assert (lowest > floor - 1e-3).all(), lowest  # none enters from below, through the floor
+    result = align(block, stick, "a stick sticking into the block", config, target_name="block", source_name="stick")
+    ends = trimesh.transform_points(np.array([[0, 0, -0.4], [0, 0, 0.4]]), result.source_to_target)
+    assert result.relation["holds"], result.relation
+    top, bottom = ends[np.argmax(ends[:, 1])], ends[np.argmin(ends[:, 1])]
+    axis = (top - bottom) / np.linalg.norm(top - bottom)
+    entry = bottom + axis * (0.3 - bottom[1]) / axis[1]  # where its axis crosses the top's plane
+    assert bottom[1] > -1e-3 and top[1] > 0.6 and axis[1] > math.cos(math.radians(30)), ends  # above the floor
+    assert np.abs(entry[[0, 2]]).max() < 0.15, entry  # in through the top
