@@ -714,7 +714,8 @@ def _end_first(c: _Ctx) -> torch.Tensor:
     ``FAR`` where nothing crosses it."""
     fig, reach = c.figure, c.reach()[:, None]
     centred = fig.points - fig.points.mean(1, keepdim=True)
-    axis = torch.linalg.eigh(centred.transpose(1, 2) @ centred)[1][..., -1]  # (B, 3), the largest eigenvalue's
+    # (B, 3), the largest eigenvalue's; no gradient through it (eigh's is unbounded where eigenvalues meet: a ball)
+    axis = torch.linalg.eigh((centred.transpose(1, 2) @ centred).detach())[1][..., -1]
     u, n, found = c.ground.nearest(fig.points.detach())
     gap, along = _gap_to(fig.points, c.ground, u, n, found)
     entry = ((gap <= reach) & (along.abs() <= reach)).detach()
