@@ -9,8 +9,7 @@ where ``predicates.relation_score`` holds, docs/benchmarks.md "Relation predicat
 ``LEAN_TILTS`` about the horizontal axis along a side of the target, so its top tips toward the target; its
 lowest point on the floor the target stands on, just outside a side sample (the "side" region's samples,
 their outward normal made horizontal), then moved straight toward the target until it touches
-(``proposals.settle``'s "straight" approach). Added only where the relation is "lean" with the source as the
-figure and ``config.relation`` is on: ``extend`` returns the proposals unchanged otherwise.
+(``proposals.settle``'s "straight" approach).
 
 ``in``: the source standing in the target's most enclosed up-facing places (the floors of its cavities: the
 share of horizontal directions around a point that meet the target, ``predicates.enclosure``, weighting the
@@ -33,6 +32,9 @@ normal of a surface sample that does not face down, ``PIERCE_DEPTH`` of its leng
 pass below the floor; not settled (it is meant to intersect). The regions settle every proposal free of the
 target, so what held "penetrate" lay half sunk along a surface (cur-s08: every restart a stick lying across the
 block's top or along its base, none standing in it).
+
+Each kind is made only where it is the prompt's relation with the source as the figure and ``config.relation``
+is on, in place of as many region proposals (``extend``); otherwise the proposals are unchanged.
 
 Not done (docs/relations.md lists them): "under" (the floor under a down-facing part), "beside" (the floor
 just outside the footprint): the regions already give some poses where those hold on the dev cases.
