@@ -20,25 +20,24 @@ import time
 
 from search_recall import case_parser, each_case  # a sibling script (benchmarks/ is on sys.path)
 
-from ctp_core import goals
 from ctp_core.align import align
 from ctp_core.bench import protocol
-from ctp_core.bench.guides import PixelGuide
-from ctp_core.config import AlignConfig
+from ctp_core.bench.guides import guide_inputs
+from ctp_core.bench.harness import BenchOptions
 
 
 def timed(case, target, source, init, args, relation: bool) -> float:
-    """Seconds of one ``align`` of the case with the relation on or off."""
-    config = AlignConfig.from_preset(args.preset, seed=args.seed, relation=relation, model=args.model)
-    extra = {}
-    if args.guide == "geometry":
-        config = config.model_copy(update={"loss": config.loss.model_copy(update={"lambda_clip": 0.0})})
-    else:  # the reference per view (``ctp bench --guide oracle``), compared as pixels or by the model
-        extra = {"goal": goals.ReferenceGoal(case.reference)} | ({"guide": PixelGuide()} if args.guide == "pixels"
-                                                                 else {})
+    """Seconds of one ``align`` of the case with the relation on or off, configured and guided as ``ctp bench``
+    runs it (``--method geometry``, or ``ctp`` with ``--guide``, and ``--ablation no-relation`` when off)."""
+    method = "geometry" if args.guide == "geometry" else "ctp"
+    options = BenchOptions(methods=[method], preset=args.preset, seed=args.seed, model=args.model,
+                           guide="text" if method == "geometry" else args.guide,
+                           ablation=None if relation else "no-relation")
+    inputs = None if method == "geometry" else guide_inputs(args.guide, case, target, source,
+                                                             protocol.case_rng(args.seed, case.id, "guide"))
     started = time.perf_counter()
-    align(target, source, case.prompt, config, init=init, target_name=case.target_name,
-          source_name=case.source_name, **extra)
+    align(target, source, case.prompt, options.config(method), init=init, target_name=case.target_name,
+          source_name=case.source_name, guide=inputs.guide if inputs else None, goal=inputs.goal if inputs else None)
     return time.perf_counter() - started
 
 

@@ -137,17 +137,16 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
     )
     # what hangs is hung on something fixed in place, whose resting poses as a free object say nothing of its up
     mounted = prior.source_is_figure and prior.relation in RELATIONS and RELATIONS[prior.relation].mounted
-    upright = config.upright and not mounted
+    kept = canonical.identity(f"kept as authored: the target is what the source is hung on ({prior.relation}), "
+                              "fixed in place") if mounted and config.upright else None
     judge = None
-    if upright and config.upright_judge:
+    if config.upright and config.upright_judge and kept is None:
         guide = guide or guidance.guide_for(config)
         # a scene's up is its base's (scene.base), judged under the base's own name
         base_name, base = (target_name, target) if isinstance(target, trimesh.Trimesh) else scene.objects(target)[0]
         judge = scene.upright_judge(base, guide, base_name, device=config.device)
-    kept = canonical.identity(f"kept as authored: the target is what the source is hung on ({prior.relation}), "
-                              "fixed in place") if mounted and config.upright else None
     pair = scene.prepare_pair(target, source, samples=config.loss.samples, seed=config.seed, device=config.device,
-                              canonicalise=upright, judge=judge, on=on, target_up=kept)
+                              canonicalise=config.upright, judge=judge, on=on, target_up=kept)
     prepared = time.perf_counter()
 
     if goal is None and config.loss.lambda_clip > 0:

@@ -25,7 +25,8 @@ faces along its plumb line (toward the source's centre: the inside of a ring's l
 crook) and whose plumb line meets the source again beyond it (the loop closes under it); the part fits when
 the target's vertical thickness under its point (down to its next down-facing surface) is less than that
 clearance. The regions approach the target from outside, so a ring never comes to be threaded on a peg
-(cur-s07: 88 proposals held "hang", every one a ring flat against the wall, none on the peg).
+(cur-s07, its wall kept upright: the search's four starts were rings against the wall's side or hooked over
+its top edge, none on the peg).
 
 ``penetrate``: the source driven end first into the target: on its longest principal axis along the inward
 normal of a surface sample that does not face down, ``PIERCE_DEPTH`` of its length in, raised where it would
@@ -207,12 +208,8 @@ def pierced(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed:
     t = torch.as_tensor(points[pick], dtype=torch.float32) - d * (lead - depth)[:, None]
     # not through the floor the target stands on: raised to it where it would pass below (less deep from above)
     t[:, 1] += (float(pair.target_vertices[:, 1].min()) - (t[:, 1] + rotated[..., 1].min(1).values)).clamp_min(0.0)
-    anchor, normal = torch.as_tensor(points[pick], dtype=torch.float32), -d
-    sites = Site(anchor, normal, torch.zeros(count), torch.ones(count, dtype=torch.bool),
-                 torch.full((count,), APPROACHES.index("straight"), dtype=torch.long))
-    device = pair.source_vertices.device
-    return Proposals(Poses(t.to(device), q.to(device), torch.full((count,), log_s, device=device)),
-                     ["pierce"] * count, sites, proposals.rotations, proposals.index)
+    sites = _sites(torch.as_tensor(points[pick], dtype=torch.float32), -d, True)
+    return _labelled(pair, proposals, Poses(t, q, torch.full((count,), log_s)), sites, "pierce")
 
 
 def _clearance(local: np.ndarray, plumb: np.ndarray, hooks: np.ndarray, spacing: float) -> np.ndarray:
@@ -265,13 +262,24 @@ def _lowered(pair: PreparedPair, proposals: Proposals, q: torch.Tensor, anchor: 
              on_surface: bool, log_s: float, label: str) -> Proposals:
     """Sources turned by ``q`` moved straight along -``normal`` from ``anchor`` into contact (``proposals.place``),
     those that end free of the target, labelled ``label``."""
-    count = len(q)
-    sites = Site(anchor, normal, torch.zeros(count), torch.full((count,), on_surface, dtype=torch.bool),
-                 torch.full((count,), APPROACHES.index("straight"), dtype=torch.long))
+    sites = _sites(anchor, normal, on_surface)
     placed, free = place(pair, proposals.index, q, sites, log_s)
+    return _labelled(pair, proposals, placed, sites.select(free), label)
+
+
+def _sites(anchor: torch.Tensor, normal: torch.Tensor, on_surface: bool) -> Site:
+    """Sites at ``anchor`` approached straight along -``normal``, no gap kept."""
+    count = len(anchor)
+    return Site(anchor, normal, torch.zeros(count), torch.full((count,), on_surface, dtype=torch.bool),
+                torch.full((count,), APPROACHES.index("straight"), dtype=torch.long))
+
+
+def _labelled(pair: PreparedPair, proposals: Proposals, poses: Poses, sites: Site, label: str) -> Proposals:
+    """``poses`` at ``sites`` as proposals labelled ``label`` on the pair's device, sharing ``proposals``'
+    orientations and contact samples."""
     device = pair.source_vertices.device
-    return Proposals(Poses(placed.t.to(device), placed.q.to(device), placed.log_s.to(device)),
-                     [label] * len(placed), sites.select(free), proposals.rotations, proposals.index)
+    return Proposals(Poses(poses.t.to(device), poses.q.to(device), poses.log_s.to(device)), [label] * len(poses),
+                     sites, proposals.rotations, proposals.index)
 
 
 def _long_axis_up(pair: PreparedPair, rng: np.random.Generator, count: int) -> torch.Tensor:
