@@ -43,9 +43,10 @@ class Inspection(BaseModel):
 @router.post("/inspect", response_model=Inspection, openapi_extra={"requestBody": INSPECT_BODY},
              responses=documented(400, 401, 413, 415, 422, 503), summary="Read one mesh as a job would",
              description="Runs the bounded loader and the upright step on one mesh and says its size (file units), "
-             "faces and the up the service will use; queues nothing. A file a job would refuse is refused with the "
-             "same codes (413 `mesh_file_too_large`, `mesh_too_large`; 415 `mesh_unknown_format`; 422 "
-             "`mesh_unreadable` and the others), on the field `mesh`.")
+             "faces and the up the service will use (a job whose prompt hangs the source on this mesh keeps its "
+             "file frame instead: what things hang on is fixed in place); queues nothing. A file a job would refuse "
+             "is refused with the same codes (413 `mesh_file_too_large`, `mesh_too_large`; 415 "
+             "`mesh_unknown_format`; 422 `mesh_unreadable` and the others), on the field `mesh`.")
 async def inspect(request: Request, _who: str = Depends(owner)) -> Inspection:
     settings = request.app.state.settings
     form = await forms.read_form(request, {"mesh"}, max_files=1)
