@@ -9,6 +9,9 @@ them, scored at the coarse views by the guide and the geometry; printed per case
   chance), over all proposals, and ``agreement_seen`` over the ones the search lets the guide see
   (``ranking.encoder_shortlist``); ``z``: the first's distance from chance in standard errors;
 - ``gate``: the run's ``Gate`` as the search measures it on what it lets the guide see (spread, noise, override);
+- ``views_agree``: the rank correlation (Spearman) between the guide's term seen by the first coarse view alone
+  and by the second alone, over the holding proposals it sees (what it orders), and ``views_agree_seen`` over all
+  it sees: a guide that sees where the source is agrees with itself from another side;
 - ``guide_places`` / ``geometry_places``: whether the guide's best holding proposal places, and the geometry's
   (``rank_key`` without a guide; the usual arrangement included).
 
@@ -22,6 +25,7 @@ from __future__ import annotations
 
 import math
 import sys
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -48,6 +52,23 @@ def agreement(terms: dict[str, torch.Tensor]) -> tuple[float, int, int] | None:
 def agreement_z(share: float, held: int, failed: int) -> float:
     """``agreement``'s distance above chance in standard errors under chance (Mann-Whitney, no ties)."""
     return (share - 0.5) / math.sqrt((held + failed + 1) / (12.0 * held * failed))
+
+
+def view_term(scorer, poses, cameras, view: int, batch: int) -> torch.Tensor:
+    """(N,) the guide's term of ``poses`` seen by one of the shared ``cameras`` alone."""
+    one = replace(cameras, eye=cameras.eye[:, [view]], at=cameras.at[:, [view]], fov_deg=cameras.fov_deg[:, [view]],
+                  up=None if cameras.up is None else cameras.up[:, [view]])
+    goal = ranking.embed_shared_goal(scorer, one)
+    with torch.inference_mode():
+        return torch.cat([scorer.clip_term(poses.select(slice(lo, lo + batch)), one, goal)
+                          for lo in range(0, len(poses), batch)])
+
+
+def spearman(a: torch.Tensor, b: torch.Tensor) -> float | None:
+    if len(a) < 3:
+        return None
+    ra, rb = (torch.argsort(torch.argsort(x)).double() for x in (a, b))
+    return float(torch.corrcoef(torch.stack([ra, rb]))[0, 1])
 
 
 def places(pair, poses, key: torch.Tensor, held: torch.Tensor, reference, points) -> bool | None:
@@ -79,6 +100,9 @@ def run_case(case, args) -> dict:
     shown = agreement({k: v[seen] for k, v in terms.items()})
     gate = ranking.guide_noise(scorer, poses.select(seen), {k: v[seen] for k, v in terms.items()}, weights, cameras,
                                ranking.embed_shared_goal(scorer, cameras))
+    shown_poses = poses.select(seen)
+    first, second = (view_term(scorer, shown_poses, cameras, v, config.search.batch) for v in (0, 1))
+    mask = held[seen]
     points = sampling.surface_samples(source, 500, args.seed)[0]
     geometric = objective.rank_key(terms, weights)
     return {"case": case.id, "guide": args.guide, "model": args.model, "relation": scorer.relation,
@@ -87,6 +111,7 @@ def run_case(case, args) -> dict:
             "z": None if every is None else round(agreement_z(*every), 2),
             "agreement_seen": None if shown is None else round(shown[0], 3),
             "seen_failed": int((~held[seen]).sum()),
+            "views_agree": spearman(first[mask], second[mask]), "views_agree_seen": spearman(first, second),
             "gate": {k: (round(v, 4) if isinstance(v, float) else v) for k, v in gate.to_dict().items()},
             "guide_places": places(run.pair, poses, terms["clip"], held, case.reference, points),
             "geometry_places": places(run.pair, poses, geometric, held, case.reference, points)}

@@ -450,7 +450,7 @@ def _half_width(fig: Side) -> torch.Tensor:
 
 def _support_mask(c: _Ctx) -> torch.Tensor:
     """(B, N) the figure samples that bear weight: touching ground surface that does not face down, or the floor."""
-    gap = _bearing_gap(c.figure.points, c.ground, "not_down", c.reach())
+    gap, _ = _gap(c.figure.points, c.ground, "not_down")
     return (gap <= c.reach()[:, None]) | (c.figure.points[..., 1] - c.floor[:, None] <= c.tol()[:, None])
 
 
