@@ -95,7 +95,15 @@ class Cue:
 _HEAD = r"(?:the |his |her |its |their |a |an )?(?:[a-z]+\s+){0,2}heads?"
 _BODY = r"(?:hands?|paws?|mouths?|arms?|grip|beak|claws?|fingers?|teeth)"
 _POSS = r"(?:his|her|its|their|the|a|one)"
-_SIDE_DET = r"(?:the |its |his |her |their |one's )?"  # "to the left of", "on its left"
+
+
+def _side(words: str, before: str = "to|on|at|by", bare: str = "[ _]") -> str:
+    """A side's wordings: "to the left of", "on its left", "at the left-hand end of", "left of", "left_of" (``bare``:
+    what joins the side and "of" with no preposition before)."""
+    return (r"(?:" + before + r") (?:the |its |his |her |their )?" + words + r"(?:[- ]hand)?(?: side| end)?(?: of)?|"
+            + words + r"(?:[- ]hand)?(?: side)?" + bare + "of")
+
+
 # How far or how firmly, between a verb and its preposition: "stuck halfway through", "pushed deep into".
 _ADV = r"(?:(?:halfway|half way|partway|part way|deep|deeply|firmly|straight|right|upright|securely|all the way) )?"
 
@@ -125,17 +133,15 @@ CUES: list[Cue] = [
         "hold", True),
     # where, in the ground's own frame, before the contact words they contain ("on the left side of" is left, not
     # on; "sitting in front of" is front); the wordings of SpatialSense, Sr3D, Holodeck and LayoutVLM
-    Cue(r"(?:to|on|at|by) " + _SIDE_DET + r"left(?:[- ]hand)?(?: side| end)?(?: of)?|left(?:[- ]hand)?(?: side)?[ _]of",
-        "left"),
-    Cue(r"(?:to|on|at|by) " + _SIDE_DET + r"right(?:[- ]hand)?(?: side| end)?(?: of)?|right(?:[- ]hand)?(?: side)?[ _]of",
-        "right"),
-    Cue(r"in front(?: of)?|(?:at|to|by) " + _SIDE_DET + r"front(?: side| end)?(?: of)?|front[ _]of|opposite|across from",
-        "front"),
-    Cue(r"behind|in back of|(?:at|to|by) " + _SIDE_DET + r"(?:back|rear)(?: side| end)?(?: of)?|back[ _]of", "behind"),
+    Cue(_side("left"), "left"),
+    Cue(_side("right"), "right"),
+    Cue(r"in front(?: of)?|opposite|across from|" + _side("front", "to|at|by", "_"), "front"),  # "on the front of": on it
+    Cue(r"behind|in back of|" + _side("(?:back|rear)", "to|at|by", "_"), "behind"),  # "on the back of a horse": on it
     Cue(r"fac(?:e|es|ing) away(?: from)?|turned away from|look(?:s|ing)? away from|point(?:s|ing)? away from"
         r"|with (?:its|his|her|their) backs? (?:to|toward|towards)", "facing_away"),
-    Cue(r"fac(?:e|es|ing)(?:[ _](?:to|toward|towards))?|turned (?:to|toward|towards)|look(?:s|ing)? (?:at|toward|towards)"
-        r"|point(?:s|ing)?[ _](?:at|to|toward|towards)|oriented (?:to|toward|towards)", "facing"),
+    Cue(r"fac(?:e|es|ing)(?:[ _](?:to|toward|towards))?|turned (?:to|toward|towards)"
+        r"|look(?:s|ing)? (?:at|toward|towards)|point(?:s|ing)?[ _](?:at|to|toward|towards)"
+        r"|oriented (?:to|toward|towards)", "facing"),
     Cue(r"align(?:s|ed)?[ _](?:with|to)|parallel (?:to|with)|in line with|lined up with|(?:in|with) the same"
         r" direction as", "aligned"),
     Cue(r"not far from|near(?:by)?|close (?:to|by)|closest to|in the vicinity of|a short distance from|within reach of",
