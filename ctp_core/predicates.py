@@ -58,6 +58,8 @@ FAR = 1.0  # a condition that has nothing to measure against (no overhead surfac
 # ``preference``: among poses where the relation holds, which is the usual arrangement (see its docstring)
 NEAR_GAP = 1.0  # "near": the gap at most this many *mean* diagonals of figure and ground (twice ``BESIDE_GAP``)
 FAR_GAP = 2.0  # "far": the gap at least this many mean diagonals
+CLEAR = 2 * CONTACT  # "above", "below": the gap's bound in the score; what holds is a gap of at least ``CONTACT``
+# (the score's tolerance, ``HOLDS`` + ``SMOOTH`` / 2, takes the rest): not touching
 FACING = math.cos(math.radians(45.0))  # orientations: the figure's front within 45 degrees of the wanted direction
 OFF_CENTRE = 0.5  # weight of the figure's distance from the ground's middle (in the ground's half-widths)
 ENCLOSING_RAYS = 16  # ``_enclosure``: horizontal directions looked along from the figure's foot
@@ -595,16 +597,16 @@ def _beyond(c: _Ctx, direction: torch.Tensor) -> torch.Tensor:
 
 def _score_above(c: _Ctx) -> torch.Tensor:
     """``above`` (no contact: a painting above a sofa, a lamp over a table; Sr3D's): the figure's bottom higher than
-    the ground's top by more than contact (``CONTACT``), their footprints overlapping (``_overlap``)."""
+    the ground's top by more than contact (``CLEAR``), their footprints overlapping (``_overlap``)."""
     top = c.ground.side.points[..., 1].max(-1).values.expand_as(c.unit)
-    return c.h(top + c.tol() - c.bottom()) + _overlap(c)
+    return c.h(top + CLEAR * c.unit - c.bottom()) + _overlap(c)
 
 
 def _score_below(c: _Ctx) -> torch.Tensor:
     """``below`` (Sr3D's): the figure's top lower than the ground's bottom by more than contact, their footprints
     overlapping (``_overlap``); ``under`` is what stands on the floor beneath a table's top."""
     bottom = c.ground.side.points[..., 1].min(-1).values.expand_as(c.unit)
-    return c.h(c.top() + c.tol() - bottom) + _overlap(c)
+    return c.h(c.top() + CLEAR * c.unit - bottom) + _overlap(c)
 
 
 def _overlap(c: _Ctx) -> torch.Tensor:

@@ -1,0 +1,153 @@
+"""The directional relations (``predicates``: sides, above/below, near/far, orientations) on generated pairs whose
+answer is known.
+
+Scenes are built in their file frame with +Y up and the glTF front (+Z), prepared without the upright turn; the
+fronts come through ``PreparedPair.target_front`` / ``front_trusted`` / ``source_front`` as the file gives them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+from test_predicates import box, pose, poses, prepared, rot, table
+
+from ctp_core import predicates
+
+
+def sofa() -> trimesh.Trimesh:
+    """A sofa-like block facing +Z: a seat 2 wide (x), 0.9 deep (z), 0.45 high, its backrest along -Z up to 0.9."""
+    return trimesh.util.concatenate([box([2, 0.45, 0.9], [0, 0.225, 0]), box([2, 0.45, 0.2], [0, 0.675, -0.35])])
+
+
+def chair() -> trimesh.Trimesh:
+    """A chair-like block facing +Z (its back along -Z), 0.5 wide, standing on y = 0 in its file, centred."""
+    return trimesh.util.concatenate([box([0.5, 0.45, 0.5], [0, -0.2, 0]), box([0.5, 0.5, 0.08], [0, 0.27, -0.21])])
+
+
+BOX = box([0.5, 0.5, 0.5], [0, 0, 0])  # centred: on the floor at y = 0.25
+ON_FLOOR = 0.25
+SIDE_POSES = {"left": pose([1.6, ON_FLOOR, 0]), "right": pose([-1.6, ON_FLOOR, 0]),
+              "front": pose([0, ON_FLOOR, 1.1]), "behind": pose([0, ON_FLOOR, -1.1])}
+
+
+def _holding(pair, matrices, relation) -> list[bool]:
+    return predicates.holds(predicates.relation_score(pair, poses(pair, matrices), relation)).tolist()
+
+
+@pytest.mark.parametrize("side", list(SIDE_POSES))
+def test_each_side_of_a_sofa_holds_where_the_box_is_in_the_sofas_own_frame(side):
+    """glTF: front +Z, up +Y, so the object's own left is +X (up x front): a box at +X is on the sofa's left."""
+    pair = prepared(sofa(), BOX)
+    held = dict(zip(SIDE_POSES, _holding(pair, list(SIDE_POSES.values()), side), strict=True))
+    assert held == {s: s == side for s in SIDE_POSES}, held
+
+
+def test_a_box_level_with_the_sofas_end_but_well_in_front_of_it_is_in_front_not_left():
+    pair = prepared(sofa(), BOX)
+    corner = [pose([1.2, ON_FLOOR, 0.9])]  # beyond the left end by 0.2, beyond the front by 0.45
+    assert _holding(pair, corner, "front") == [True] and _holding(pair, corner, "left") == [False]
+
+
+def test_the_sides_turn_with_the_targets_front():
+    """The same sofa turned to face +X (its front in the normalised frame): its left is then -Z."""
+    pair = prepared(sofa(), BOX)
+    pair.target_front = np.array([1.0, 0.0, 0.0])
+    assert _holding(pair, [pose([0, ON_FLOOR, -1.1]), pose([0, ON_FLOOR, 1.1])], "left") == [True, False]
+
+
+def test_an_untrusted_front_judges_the_sides_in_the_viewers_frame():
+    """No front to trust: the preview's first camera (azimuth 30 degrees, on the +Z side) is the viewer; the sofa
+    faces it, so the sofa's own right (-X) is the viewer's left, and the report says so."""
+    pair = prepared(sofa(), BOX)
+    matrices = [SIDE_POSES["right"], SIDE_POSES["left"]]
+    assert _holding(pair, matrices, "left") == [False, True]
+    pair.front_trusted = False
+    assert _holding(pair, matrices, "left") == [True, False]
+    verdict = predicates.verdict(pair, poses(pair, matrices[:1]).matrices()[0], "left")
+    assert verdict.to_dict()["frame"] == "viewer" and verdict.side == "left" and verdict.holds
+
+
+def test_beside_on_a_side_must_stand_near_it():
+    pair = prepared(sofa(), BOX)
+    assert _holding(pair, [pose([5.0, ON_FLOOR, 0]), pose([1.6, 1.5, 0])], "left") == [False, False]  # far; in the air
+
+
+PICTURE = box([0.8, 0.6, 0.05], [0, 0, 0])
+
+
+def test_a_picture_above_a_table_without_touching_it_and_not_beside_it():
+    pair = prepared(table(), PICTURE)
+    above = pose([0, 1.6, -0.95])  # over the table's back edge, 0.25 clear of its top (1.05)
+    resting = pose([0, 1.05 + 0.3, 0])  # standing on the top: contact, "on"
+    aside = pose([2.0, 1.6, 0])  # as high, but beside the table
+    assert _holding(pair, [above, resting, aside], "above") == [True, False, False]
+
+
+def test_a_ball_below_a_hanging_lamp_and_not_above_it():
+    lamp = box([0.6, 0.2, 0.6], [0, 2.0, 0])
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.2)
+    pair = prepared(lamp, ball)
+    below, over = pose([0, 1.0, 0.1]), pose([0, 2.5, 0])
+    assert _holding(pair, [below, over], "below") == [True, False]
+    assert _holding(pair, [below, over], "above") == [False, True]
+
+
+def test_near_and_far_are_bands_in_the_objects_mean_diagonal():
+    """Sofa diagonal 2.39, box 0.87: mean 1.63; near within 1 (1.63), far beyond 2 (3.26) of that."""
+    pair = prepared(sofa(), BOX)
+    matrices = [pose([1.6, ON_FLOOR, 0]), pose([1.0 + 0.25 + 2.5, ON_FLOOR, 0]), pose([1.0 + 0.25 + 4.0, ON_FLOOR, 0])]
+    assert _holding(pair, matrices, "near") == [True, False, False]
+    assert _holding(pair, matrices, "far") == [False, False, True]
+
+
+DESK = box([1.4, 0.75, 0.7], [0, 0.375, 0])  # facing +Z
+CHAIR_AT = [0, 0.425, 1.0]  # in front of the desk, on the floor (the chair's file origin 0.425 above its feet)
+
+
+def test_a_chair_facing_the_desk_facing_away_or_turned_aside():
+    pair = prepared(DESK, chair())
+    turned = {"toward": rot([0, 1, 0], 180), "away": np.eye(3), "aside": rot([0, 1, 0], 90)}
+    matrices = [pose(CHAIR_AT, r) for r in turned.values()]
+    assert _holding(pair, matrices, "facing") == [True, False, False]
+    assert _holding(pair, matrices, "facing_away") == [False, True, False]
+    assert _holding(pair, matrices, "aligned") == [False, True, False]  # its front the desk's way: +Z
+
+
+def test_a_reading_of_two_relations_holds_when_both_do_and_the_verdict_says_each():
+    pair = prepared(DESK, chair())
+    facing, away = pose(CHAIR_AT, rot([0, 1, 0], 180)), pose(CHAIR_AT)
+    assert _holding(pair, [facing, away], "front+facing") == [True, False]
+    verdict = predicates.verdict(pair, poses(pair, [away]).matrices()[0], "front+facing").to_dict()
+    assert verdict["side"] == "front" and verdict["frame"] == "target" and not verdict["holds"]
+    assert [(p["name"], p["holds"]) for p in verdict["parts"]] == [("front", True), ("facing", False)]
+    assert verdict["stable"]
+
+
+def test_the_source_front_turns_with_the_pose():
+    """A chair whose file front is +X (``source_front``) faces the desk (-Z from it) turned by +90 degrees about +Y,
+    not by 180 (its front then -X) nor by -90 (+Z: away)."""
+    pair = prepared(DESK, chair())
+    pair.source_front = np.array([1.0, 0.0, 0.0])
+    matrices = [pose(CHAIR_AT, rot([0, 1, 0], angle)) for angle in (90, 180, -90)]
+    assert _holding(pair, matrices, "facing") == [True, False, False]
+
+
+@pytest.mark.parametrize("relation", ["left", "above", "near", "far", "facing", "front+facing"])
+def test_directional_scores_are_scale_free(relation):
+    matrices = [pose([1.6, ON_FLOOR, 0]), pose([0.5, 1.6, 0.4], rot([0, 1, 0], 90)), pose([0, ON_FLOOR, 2.0])]
+    plain = predicates.relation_score(prepared(sofa(), BOX), poses(prepared(sofa(), BOX), matrices), relation)
+    for scale in (1e-3, 1e3):
+        pair = prepared(sofa(), BOX, scale)
+        scaled = [m.copy() for m in matrices]
+        for m in scaled:
+            m[:3, 3] *= scale
+        score = predicates.relation_score(pair, poses(pair, scaled), relation)
+        assert torch.allclose(plain, score, rtol=1e-2, atol=1e-3), (plain, score)
+
+
+def test_a_contact_relations_verdict_keeps_its_shape():
+    pair = prepared(table(), BOX)
+    verdict = predicates.verdict(pair, poses(pair, [pose([0, 1.3, 0])]).matrices()[0], "on").to_dict()
+    assert set(verdict) == {"name", "role", "score", "holds", "stable"}
