@@ -135,8 +135,9 @@ CUES: list[Cue] = [
     # on; "sitting in front of" is front); the wordings of SpatialSense, Sr3D, Holodeck and LayoutVLM
     Cue(_side("left"), "left"),
     Cue(_side("right"), "right"),
-    Cue(r"in front(?: of)?|opposite|across from|" + _side("front", "to|at|by", "_"), "front"),  # "on the front of": on it
-    Cue(r"behind|in back of|" + _side("(?:back|rear)", "to|at|by", "_"), "behind"),  # "on the back of a horse": on it
+    # "on the front of", "on the back of a horse": on it
+    Cue(r"in front(?: of)?|opposite|across from|" + _side("front", "to|at|by", "_"), "front"),
+    Cue(r"behind|in back of|" + _side("(?:back|rear)", "to|at|by", "_"), "behind"),
     Cue(r"fac(?:e|es|ing) away(?: from)?|turned away from|look(?:s|ing)? away from|point(?:s|ing)? away from"
         r"|with (?:its|his|her|their) backs? (?:to|toward|towards)", "facing_away"),
     Cue(r"fac(?:e|es|ing)(?:[ _](?:to|toward|towards))?|turned (?:to|toward|towards)"
