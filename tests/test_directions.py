@@ -13,7 +13,10 @@ import torch
 import trimesh
 from test_predicates import box, pose, poses, prepared, rot, table
 
+from ctp_core import align as stages
 from ctp_core import predicates
+from ctp_core.align import align
+from ctp_core.config import AlignConfig
 
 
 def sofa() -> trimesh.Trimesh:
@@ -151,3 +154,74 @@ def test_a_contact_relations_verdict_keeps_its_shape():
     pair = prepared(table(), BOX)
     verdict = predicates.verdict(pair, poses(pair, [pose([0, 1.3, 0])]).matrices()[0], "on").to_dict()
     assert set(verdict) == {"name", "role", "score", "holds", "stable"}
+
+
+# --- whole runs: geometry only (``lambda_clip`` 0, the ``test`` preset, as ``--no-guidance``) -------------------
+
+def _wall_and_table() -> trimesh.Scene:
+    """A 2 x 2 table (top at 1.05) against a wall along its back (-Z) edge: the picture's ground is the table."""
+    scene = trimesh.Scene()
+    scene.add_geometry(table(), node_name="table", geom_name="table")
+    scene.add_geometry(box([3, 2.5, 0.1], [0, 1.25, -1.05]), node_name="wall", geom_name="wall")
+    return scene
+
+
+def _run(target, source, prompt, target_name, source_name, **kwargs):
+    config = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0}, upright=False)
+    return align(target, source, prompt, config, target_name=target_name, source_name=source_name, **kwargs)
+
+
+def _posed(result, mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    return mesh.copy().apply_transform(result.source_to_target)
+
+
+def test_a_box_to_the_left_of_a_sofa_ends_on_its_own_left():
+    result = _run(sofa(), BOX, "a box to the left of the sofa", "sofa", "box")
+    verdict = result.relation
+    assert verdict["name"] == "left" and verdict["side"] == "left" and verdict["frame"] == "target", verdict
+    assert verdict["holds"] and verdict["stable"], verdict
+    placed = _posed(result, BOX)
+    assert placed.bounds[0, 0] > 1.0 - 1e-3 and abs(placed.bounds[0, 1]) < 0.02  # beyond its +X end, on the floor
+
+
+def test_a_picture_above_a_table_against_a_wall_ends_clear_over_the_table():
+    result = _run(_wall_and_table(), PICTURE, "a picture above the table", "table", "picture", on="table")
+    verdict = result.relation
+    assert verdict["name"] == "above" and verdict["holds"], verdict
+    placed = _posed(result, PICTURE)
+    centre = placed.bounds.mean(0)
+    assert placed.bounds[0, 1] > 1.05 and abs(centre[0]) < 1.0 and -1.0 < centre[2] < 1.0, placed.bounds
+
+
+def test_a_chair_in_front_of_a_desk_facing_it_ends_there_turned_to_it():
+    result = _run(DESK, chair(), "a chair in front of the desk, facing it", "desk", "chair")
+    verdict = result.relation
+    assert verdict["name"] == "front+facing" and verdict["side"] == "front" and verdict["holds"], verdict
+    assert [p["holds"] for p in verdict["parts"]] == [True, True], verdict
+    placed = _posed(result, chair())
+    front = result.source_to_target[:3, :3] @ np.array([0.0, 0.0, 1.0])  # the chair's file front, turned
+    assert placed.bounds.mean(0)[2] > 0.35 and front[2] < -np.cos(np.radians(45)), (placed.bounds, front)
+
+
+def test_a_box_far_from_the_sofa_and_one_near_it():
+    far = _posed(_run(sofa(), BOX, "a box far from the sofa", "sofa", "box"), BOX)
+    near = _run(sofa(), BOX, "a box near the sofa", "sofa", "box")
+    assert near.relation["holds"] and near.relation["name"] == "near", near.relation
+    gap = lambda placed: trimesh.proximity.closest_point(sofa(), placed.vertices)[1].min()  # noqa: E731
+    assert gap(far) > 2 * 1.62 > 1.62 > gap(_posed(near, BOX)), (gap(far), gap(_posed(near, BOX)))
+
+
+def test_directional_proposals_hold_their_relation_and_replace_as_many_region_proposals():
+    counts = {}
+    for relation in (True, False):
+        config = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0}, upright=False, relation=relation)
+        run = stages.prepare(sofa(), BOX, "a box behind the sofa", config, target_name="sofa", source_name="box")
+        props = stages.propose(run)
+        made = torch.tensor([r == "behind" for r in props.region])
+        assert bool(made.any()) == relation
+        if relation:
+            with torch.inference_mode():
+                held = predicates.holds(predicates.relation_score(run.pair, props.poses, "behind"))
+            assert held[made].float().mean() > 0.9 and held[made].sum() > held[~made].sum(), held
+        counts[relation] = len(props.region)
+    assert counts[True] == counts[False], counts
