@@ -148,7 +148,7 @@ CUES: list[Cue] = [
     Cue(r"not far from|near(?:by)?|close (?:to|by)|closest to|in the vicinity of|a short distance from|within reach of",
         "near"),
     Cue(r"far(?: away| off)? from|farthest from|furthest from|a long way from|distant from|at a distance from"
-        r"|(?:away|apart) from", "far"),
+        r"|(?<!facing )(?<!faces )(?<!face )(?<!turned )(?<!looking )(?<!pointing )(?:away|apart) from", "far"),
     # supported postures
     Cue(r"rid(?:e|es|ing)|astride|straddl[a-z]+|driv(?:e|es|ing)|(?:sit|sits|sitting|seated|sat)"
         r" (?:on|in|at|astride|inside)", "sit"),
