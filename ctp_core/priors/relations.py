@@ -212,16 +212,23 @@ def clean(prompt: str) -> str:
 def find_cue(prompt: str, aside=None, kinds: set[str] | None = None) -> CueMatch | None:
     """The relation cue of a prompt: the first-priority cue found, the earliest if it occurs twice; a cue that
     ``aside(cue)`` says is about something else ("with only its eyes above the water") yields to the next one
-    found, and is the answer only when there is no other. ``kinds``: only cues of relations of these kinds."""
+    found, and is the answer only when there is no other; so do the cues within it (the "in" of "in front of the
+    fireplace"). ``kinds``: only cues of relations of these kinds."""
     text = clean(prompt)
     first = None
+    set_aside: list[tuple[int, int]] = []
     for regex, cue in _COMPILED:
         if kinds is not None and RELATIONS[cue.relation].kind not in kinds:
             continue
         for m in regex.finditer(text):
             found = CueMatch(cue, m.start(), m.end(), m.group(0))
-            if not _adjective(text, found) and (aside is None or not aside(found)):
+            if any(start <= found.start and found.end <= end for start, end in set_aside):
+                continue
+            about_other = aside is not None and aside(found)
+            if not _adjective(text, found) and not about_other:
                 return found
+            if about_other:
+                set_aside.append((found.start, found.end))
             first = first or found
     return first
 

@@ -90,7 +90,9 @@ class RulesProvider:
             return (c.cue.relation not in {"in", "penetrate"} and context.substance_object(prompt, c.end)
                     and not context.names_next(prompt, c.end, target_at + source_at)
                     or c.text in {"in", "inside"}  # "a candle in a bucket on the table": on the table
-                    and context.other_container(prompt, c.end, target_at + source_at))
+                    and context.other_container(prompt, c.end, target_at + source_at)
+                    or relations.RELATIONS[c.cue.relation].kind != "contact"  # "... to the left of the plate"
+                    and context.about_another(prompt, c.end, target_at + source_at))
 
         # a position first ("in front of the sofa, facing it": front), an orientation alone ("facing the sofa")
         cue = relations.find_cue(prompt, aside, relations.PLACING) or relations.find_cue(prompt, aside)
@@ -245,9 +247,6 @@ def _mentions(prompt: str, name: str, match: lexicon.Match | None) -> list[int]:
     return [offsets[i] for i, t in enumerate(tokens) if forms & set(lexicon.singulars(t))]
 
 
-_PRONOUN = re.compile(r"\s+(?:it|them|him|her|each other|one another)(?![a-z])")
-
-
 def _orientation(prompt: str, cue: relations.CueMatch | None, relation: relations.Relation, aside,
                  ground_at: list[int]) -> relations.CueMatch | None:
     """An orientation said after a position about the same ground ("in front of the desk, facing it", "next to the
@@ -257,8 +256,7 @@ def _orientation(prompt: str, cue: relations.CueMatch | None, relation: relation
     turn = relations.find_cue(prompt, aside, {"orientation"})
     if turn is None or turn.start < cue.end and cue.start < turn.end:
         return None
-    said_of = _PRONOUN.match(relations.clean(prompt)[turn.end:]) or context.names_next(prompt, turn.end, ground_at)
-    return turn if said_of else None
+    return turn if not context.about_another(prompt, turn.end, ground_at) else None
 
 
 def _relation(cue, target, source, figure) -> tuple[relations.Relation, str]:
