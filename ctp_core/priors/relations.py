@@ -97,11 +97,17 @@ _BODY = r"(?:hands?|paws?|mouths?|arms?|grip|beak|claws?|fingers?|teeth)"
 _POSS = r"(?:his|her|its|their|the|a|one)"
 
 
-def _side(words: str, before: str = "to|on|at|by", bare: str = "[ _]") -> str:
+def _side(words: str, before: str = "to|on|at|by", bare: str = "[ _]", of: str = "(?: of)?") -> str:
     """A side's wordings: "to the left of", "on its left", "at the left-hand end of", "left of", "left_of" (``bare``:
-    what joins the side and "of" with no preposition before)."""
-    return (r"(?:" + before + r") (?:the |its |his |her |their )?" + words + r"(?:[- ]hand)?(?: side| end)?(?: of)?|"
-            + words + r"(?:[- ]hand)?(?: side)?" + bare + "of")
+    what joins the side and "of" with no preposition before; ``of``: after a preposition). Not after a verb of
+    fastening: "attached to the front of a bicycle", "strapped to the back of a scooter" are on it."""
+    return (_FASTENED + r"(?:(?:" + before + r") (?:the |its |his |her |their )?" + words
+            + r"(?:[- ]hand)?(?: side| end)?" + of + "|" + words + r"(?:[- ]hand)?(?: side)?" + bare + "of)")
+
+
+_FASTENED = "".join(f"(?<!{verb} )" for verb in ("attached", "strapped", "hitched", "fixed", "mounted", "clipped",
+                                                 "tied", "bolted", "fastened", "glued", "taped", "pinned", "stuck",
+                                                 "chained", "secured", "nailed", "screwed"))
 
 
 # How far or how firmly, between a verb and its preposition: "stuck halfway through", "pushed deep into".
@@ -136,11 +142,13 @@ CUES: list[Cue] = [
     Cue(_side("left"), "left"),
     Cue(_side("right"), "right"),
     # "on the front of", "on the back of a horse": on it
-    Cue(r"in front(?: of)?|opposite|across from|" + _side("front", "to|at|by", "_"), "front"),
-    Cue(r"behind|in back of|" + _side("(?:back|rear)", "to|at|by", "_"), "behind"),
+    # "by the front door", "at the front of the desk" (its front edge), "strapped to his back": no side
+    Cue(r"in front(?: of)?|opposite|across from|" + _side("front", "to|by", "_", " of"), "front"),
+    Cue(r"behind|in back of|" + _side("(?:back|rear)", "to|at|by", "_", " of"), "behind"),
     Cue(r"fac(?:e|es|ing) away(?: from)?|turned away from|look(?:s|ing)? away from|point(?:s|ing)? away from"
         r"|with (?:its|his|her|their) backs? (?:to|toward|towards)", "facing_away"),
-    Cue(r"fac(?:e|es|ing)(?:[ _](?:to|toward|towards))?|turned (?:to|toward|towards)"
+    Cue(r"facing(?:[ _](?:to|toward|towards))?|fac(?:e|es)[ _](?:to|toward|towards)"  # "a rock face": no facing
+        r"|faces(?= (?:the|a|an|its|his|her|their) )|turned (?:to|toward|towards)"
         r"|look(?:s|ing)? (?:at|toward|towards)|point(?:s|ing)?[ _](?:at|to|toward|towards)"
         r"|oriented (?:to|toward|towards)", "facing"),
     Cue(r"align(?:s|ed)?[ _](?:with|to)|parallel (?:to|with)|in line with|lined up with|(?:in|with) the same"
