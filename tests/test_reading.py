@@ -5,6 +5,7 @@ figure and side (``benchmarks/reading.py`` prints the same as an accuracy table)
 from __future__ import annotations
 
 import csv
+import json
 from pathlib import Path
 
 import pytest
@@ -26,3 +27,13 @@ def test_the_reader_reads_the_relation_its_figure_and_its_side(row):
     prior = get_provider("rules").estimate(row["target"], row["source"], row["prompt"])
     got = (prior.relation, "source" if prior.source_is_figure else "target", relations.side_of(prior.relation) or "")
     assert got == (row["relation"], row["figure"], row["side"]), prior.reason
+
+
+def test_ctp_priors_shows_the_reading_and_its_side(capsys):
+    from ctp.cli import main as ctp_main
+
+    argv = ["priors", "--target", "desk", "--source", "chair", "--prompt", "a chair in front of the desk, facing it"]
+    assert ctp_main(argv) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["relation"] == "front+facing" and out["source_is_figure"] is True
+    assert "desk's front side" in out["reason"] and "'facing' -> facing too" in out["reason"]
