@@ -14,6 +14,10 @@ Roles: with the source as the figure ("a cup on a table") the figure is the pose
 the target (the related object of a scene, ``PreparedPair.anchor``); with the source as the ground ("a table
 under a vase") the same definitions are read the other way round: the target is the figure and the posed
 source its ground. The definitions, in words, are in ``docs/relations.md`` and in each ``_score_*`` docstring.
+
+Directions (sides, orientations) are the ground's own (``axes``: its front from ``PreparedPair.target_front`` or the
+posed source's ``source_front``), or the viewer's where the pair's fronts cannot be trusted; a reading of two
+relations (``front+facing``) scores their sum.
 """
 
 from __future__ import annotations
@@ -55,12 +59,12 @@ WRAP_SHARE = 0.3  # "wrap": at least this share of the figure touching (the rela
 FIXED = 0.5  # ``preference`` "hang": hung under a down-facing surface (fixed to a ceiling) rather than resting on
 # an up-facing one (a peg's top), in figure diagonals
 FAR = 1.0  # a condition that has nothing to measure against (no overhead surface at all): a whole diagonal
-# ``preference``: among poses where the relation holds, which is the usual arrangement (see its docstring)
 NEAR_GAP = 1.0  # "near": the gap at most this many *mean* diagonals of figure and ground (twice ``BESIDE_GAP``)
 FAR_GAP = 2.0  # "far": the gap at least this many mean diagonals
 CLEAR = 2 * CONTACT  # "above", "below": the gap's bound in the score; what holds is a gap of at least ``CONTACT``
 # (the score's tolerance, ``HOLDS`` + ``SMOOTH`` / 2, takes the rest): not touching
 FACING = math.cos(math.radians(45.0))  # orientations: the figure's front within 45 degrees of the wanted direction
+# ``preference``: among poses where the relation holds, which is the usual arrangement (see its docstring)
 OFF_CENTRE = 0.5  # weight of the figure's distance from the ground's middle (in the ground's half-widths)
 ENCLOSING_RAYS = 16  # ``_enclosure``: horizontal directions looked along from the figure's foot
 FOOT = 0.05  # ``_enclosure``: the figure's foot, this far above its lowest point
