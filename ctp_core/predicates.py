@@ -406,7 +406,8 @@ def _context(pair: PreparedPair, poses: Poses, source_is_figure: bool) -> _Ctx:
     target = as_t(pair.target_front).expand(len(poses), 3)
     ground_front, figure_front = (target, own) if source_is_figure else (own, target)
     front, left = axes(ground_front, pair.front_trusted)
-    return _Ctx(figure, ground, floor, front=front, left=left, heading=_horizontal(figure_front))
+    flat = figure_front * torch.tensor([1.0, 0.0, 1.0], device=figure_front.device)
+    return _Ctx(figure, ground, floor, front=front, left=left, heading=flat)
 
 
 # --- the relations ------------------------------------------------------------------------------------------------
@@ -419,7 +420,8 @@ class _Ctx:
     depth: torch.Tensor | None = None  # ``_support_depth``, once computed (a convex hull per pose)
     front: torch.Tensor | None = None  # (B, 3) the ground's front, horizontal (``axes``): sides are named from it
     left: torch.Tensor | None = None  # (B, 3) the ground's left, horizontal
-    heading: torch.Tensor | None = None  # (B, 3) the figure's own front, horizontal: orientations judge it
+    heading: torch.Tensor | None = None  # (B, 3) the figure's own front (unit), its vertical part dropped: as long
+    # as the cosine of its elevation, so a front pointing up faces nothing (a chair lying on its back)
 
     @property
     def unit(self) -> torch.Tensor:  # (B,) figure diagonal
@@ -634,16 +636,16 @@ def _score_far(c: _Ctx) -> torch.Tensor:
 
 
 def _score_facing(c: _Ctx, sign: float) -> torch.Tensor:
-    """``facing`` (sign 1; Holodeck's "face to") and ``facing_away`` (-1): the figure's own front (horizontal)
-    within 45 degrees (``FACING``) of the direction to the ground's centre, or of the direction away from it. In
-    cosine units (scale-free by nature)."""
+    """``facing`` (sign 1; Holodeck's "face to") and ``facing_away`` (-1): the figure's own front within 45 degrees
+    (``FACING``) of the horizontal direction to the ground's centre, or of the direction away from it (a chair lying
+    on its back, its front up, faces nothing). In cosine units (scale-free by nature)."""
     toward = _horizontal(c.ground.side.centre - c.figure.centre)
     return hinge(FACING - sign * (c.heading * toward).sum(-1))
 
 
 def _score_aligned(c: _Ctx) -> torch.Tensor:
-    """``aligned`` (with): the figure's front within 45 degrees of the ground's (``axes``; the viewer's frame makes
-    it face the viewer). In cosine units."""
+    """``aligned`` (with): the figure's front within 45 degrees of the ground's horizontal front (``axes``; the
+    viewer's frame makes it face the viewer). In cosine units."""
     return hinge(FACING - (c.heading * c.front).sum(-1))
 
 

@@ -225,3 +225,11 @@ def test_directional_proposals_hold_their_relation_and_replace_as_many_region_pr
             assert held[made].float().mean() > 0.9 and held[made].sum() > held[~made].sum(), held
         counts[relation] = len(props.region)
     assert counts[True] == counts[False], counts
+
+
+def test_a_chair_lying_on_its_back_faces_nothing():
+    """Its front (+Z in its file) turned to point up, a hair toward the desk: no orientation holds."""
+    pair = prepared(DESK, chair())
+    on_its_back = pose([0, 0.3, 1.0], rot([0, 1, 0], 180) @ rot([1, 0, 0], -85))
+    for relation in ("facing", "facing_away", "aligned"):
+        assert _holding(pair, [on_its_back], relation) == [False], relation
