@@ -2,7 +2,8 @@
 answer is known.
 
 Scenes are built in their file frame with +Y up and the glTF front (+Z), prepared without the upright turn; the
-fronts come through ``PreparedPair.target_front`` / ``front_trusted`` / ``source_front`` as the file gives them.
+fronts come through ``PreparedPair.target_front`` / ``front_trusted`` / ``source_front``: stated here for the
+predicates (``prepared``), from the file's convention for whole runs (the meshes are marked as read from GLB).
 """
 
 from __future__ import annotations
@@ -11,7 +12,8 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from test_predicates import box, pose, poses, prepared, rot, table
+from test_predicates import box, pose, poses, rot, table
+from test_predicates import prepared as prepared_plain
 
 from ctp_core import align as stages
 from ctp_core import predicates
@@ -19,14 +21,36 @@ from ctp_core.align import align
 from ctp_core.config import AlignConfig
 
 
+def gltf(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """``mesh`` as if read from a GLB (``io`` records the format): glTF's convention gives +Y up and front +Z."""
+    mesh.metadata["file_format"] = "glb"
+    return mesh
+
+
+def prepared(target, source, scale: float = 1.0):
+    """A pair with the glTF fronts stated: the target's front +Z, trusted; the source's front +Z."""
+    pair = prepared_plain(target, source, scale)
+    pair.target_front, pair.front_trusted = np.array([0.0, 0.0, 1.0]), True
+    pair.source_front = np.array([0.0, 0.0, 1.0])
+    return pair
+
+
 def sofa() -> trimesh.Trimesh:
     """A sofa-like block facing +Z: a seat 2 wide (x), 0.9 deep (z), 0.45 high, its backrest along -Z up to 0.9."""
-    return trimesh.util.concatenate([box([2, 0.45, 0.9], [0, 0.225, 0]), box([2, 0.45, 0.2], [0, 0.675, -0.35])])
+    return gltf(trimesh.util.concatenate([box([2, 0.45, 0.9], [0, 0.225, 0]),
+                                          box([2, 0.45, 0.2], [0, 0.675, -0.35])]))
 
 
 def chair() -> trimesh.Trimesh:
     """A chair-like block facing +Z (its back along -Z), 0.5 wide, standing on y = 0 in its file, centred."""
-    return trimesh.util.concatenate([box([0.5, 0.45, 0.5], [0, -0.2, 0]), box([0.5, 0.5, 0.08], [0, 0.27, -0.21])])
+    return gltf(trimesh.util.concatenate([box([0.5, 0.45, 0.5], [0, -0.2, 0]),
+                                          box([0.5, 0.5, 0.08], [0, 0.27, -0.21])]))
+
+
+def desk() -> trimesh.Trimesh:
+    """A desk-like block facing +Z: 1.4 wide, 0.7 deep, 0.75 high, a shelf along its back edge (not symmetric)."""
+    return gltf(trimesh.util.concatenate([box([1.4, 0.75, 0.7], [0, 0.375, 0]),
+                                          box([1.4, 0.3, 0.15], [0, 0.9, -0.275])]))
 
 
 BOX = box([0.5, 0.5, 0.5], [0, 0, 0])  # centred: on the floor at y = 0.25
@@ -105,7 +129,7 @@ def test_near_and_far_are_bands_in_the_objects_mean_diagonal():
     assert _holding(pair, matrices, "far") == [False, False, True]
 
 
-DESK = box([1.4, 0.75, 0.7], [0, 0.375, 0])  # facing +Z
+DESK = desk()
 CHAIR_AT = [0, 0.425, 1.0]  # in front of the desk, on the floor (the chair's file origin 0.425 above its feet)
 
 
