@@ -60,8 +60,8 @@ def view_term(scorer, poses, cameras, view: int, batch: int) -> torch.Tensor:
                   up=None if cameras.up is None else cameras.up[:, [view]])
     goal = ranking.embed_shared_goal(scorer, one)
     with torch.inference_mode():
-        return torch.cat([scorer.clip_term(poses.select(slice(lo, lo + batch)), one, goal)
-                          for lo in range(0, len(poses), batch)])
+        chunks = [poses.select(slice(lo, lo + batch)) for lo in range(0, len(poses), batch)]
+        return torch.cat([scorer.clip_term(c, one.expand(len(c)), goal) for c in chunks])
 
 
 def spearman(a: torch.Tensor, b: torch.Tensor) -> float | None:
