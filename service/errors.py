@@ -19,13 +19,27 @@ from service.storage import StorageUnavailable
 
 log = logging.getLogger("ctp.service")
 
-_ERRORS = {status: {"model": ErrorBody, "description": text} for status, text in {
+# Retry-After (s) of a 503, by code: about how long that outage lasts, so that a client neither hammers a service that
+# is restarting a part nor waits much past its return (docs/service.md, "Retry-After"). redis_unavailable: the
+# supervisor restarts a dead embedded Redis after 1 s and the API answers again within about 2; storage_unavailable:
+# the SDK has already retried within the request, so this is more than a blip; loader_unavailable: the request has
+# already waited a whole load's time limit for a loading process; no_worker: a worker is restarted within the
+# supervisor's longest back-off (30 s); model_unavailable, queue_not_served (/readyz): the deployment has to change.
+RETRY_AFTER_S = {"redis_unavailable": 2, "storage_unavailable": 5, "loader_unavailable": 10, "no_worker": 30,
+                 "model_unavailable": 60, "queue_not_served": 60}
+RETRY_AFTER_OTHER_S = 30  # a 503 of a code not listed above
+RETRY_AFTER = {"Retry-After": {"required": True, "description": "seconds to wait before retrying (429: when one of "
+                               "the key's jobs is likely to end; 503: by code, docs/service.md)",
+                               "schema": {"type": "integer", "minimum": 1}}}
+
+_ERRORS = {status: {"model": ErrorBody, "description": text,
+                     **({"headers": RETRY_AFTER} if status in (429, 503) else {})} for status, text in {
     400: "malformed request", 401: "missing or unknown API key", 404: "unknown job (or another key's)",
     409: "the job is not in a state that allows this, or an Idempotency-Key conflicts",
     413: "an upload is over a limit",
     415: "unsupported mesh format", 422: "invalid input", 429: "too many active jobs for this key",
-    503: "Redis, the object store, the workers or the model are unavailable (redis_unavailable, "
-         "storage_unavailable, no_worker, model_unavailable)",
+    503: "Redis, the object store, the workers, the model or the mesh loaders are unavailable (redis_unavailable, "
+         "storage_unavailable, no_worker, model_unavailable, loader_unavailable)",
 }.items()}
 
 
@@ -38,6 +52,9 @@ class ApiError(Exception):
 
 
 def error_response(status: int, error: JobError, headers=None) -> JSONResponse:
+    """The stable error body; a 503 carries its ``Retry-After`` (a 429's comes with the error: ``Jobs.retry_after``)."""
+    if status == 503:
+        headers = {"Retry-After": str(RETRY_AFTER_S.get(error.code, RETRY_AFTER_OTHER_S)), **(headers or {})}
     return JSONResponse(ErrorBody(error=error).model_dump(mode="json"), status_code=status, headers=headers)
 
 
