@@ -182,6 +182,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             for model in (AlignOptions, JobOptions):
                 schema["components"]["schemas"][model.__name__] = model.model_json_schema(
                     ref_template="#/components/schemas/{model}")
+            # FastAPI documents a 422 of its own on every operation with parameters; this API answers a malformed
+            # request 400 invalid_request (service.errors), documented where it can happen (and a webhook receiver
+            # answers what it likes: any 2xx delivers).
+            for operation in (op for part in ("paths", "webhooks") for path in schema.get(part, {}).values()
+                              for op in path.values()):
+                if operation["responses"].get("422", {}).get("description") == "Validation Error":
+                    del operation["responses"]["422"]
+            for unused in ("HTTPValidationError", "ValidationError"):
+                schema["components"]["schemas"].pop(unused, None)
             app.openapi_schema = schema
         return app.openapi_schema
 

@@ -11,6 +11,7 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match, Route
 
 from ctp_core.errors import CtpError
 from service.jobs import JobError
@@ -93,15 +94,25 @@ def install_handlers(app: FastAPI) -> None:
                                             "uploads and results is unreachable or refused the request"))
 
     @app.exception_handler(StarletteHTTPException)
-    async def _http_error(_request: Request, exc: StarletteHTTPException):
+    async def _http_error(request: Request, exc: StarletteHTTPException):
         code = "not_found" if exc.status_code == 404 else "invalid_request"
-        return error_response(exc.status_code, JobError(code=code, message=str(exc.detail)), exc.headers)
+        headers = exc.headers
+        if exc.status_code == 405:  # Starlette's Allow names only the first route of the path
+            headers = {**(headers or {}), "Allow": ", ".join(_allowed(request))}
+        return error_response(exc.status_code, JobError(code=code, message=str(exc.detail)), headers)
 
     @app.exception_handler(RequestValidationError)
     async def _invalid(_request: Request, exc: RequestValidationError):
         err = exc.errors()[0]
         return error_response(400, JobError(code="invalid_request", message=str(err.get("msg")),
                                             field=".".join(str(p) for p in err.get("loc", ())[1:]) or None))
+
+
+def _allowed(request: Request) -> list[str]:
+    """Every method some route serves at the request's path (a path's methods can be spread over routes)."""
+    methods = {method for route in request.app.router.routes if isinstance(route, Route)
+               and route.matches(request.scope)[0] != Match.NONE for method in route.methods or ()}
+    return sorted(methods)
 
 
 class BodyLimit:

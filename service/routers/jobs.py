@@ -23,6 +23,7 @@ log = logging.getLogger("ctp.service")
 
 SSE_KEEPALIVE_S = 10.0
 JOBS_PAGE_MAX = 100
+OFFSET_MAX = 2**53 - 1  # what every JSON client holds exactly; Redis ranges take 64-bit integers
 REDIRECT = {307: {"description": "the job's `links.downloads` is `redirect`: the file is at the `Location`, a "
                   "presigned URL of the object store valid `CTP_S3_PRESIGN_S` seconds (it needs no "
                   "Authorization header)"}}
@@ -82,11 +83,12 @@ async def _align_job(request: Request, form, who: str, job_id: str) -> submit_.B
     return record, blobs, [config]
 
 
-@router.get("/jobs", response_model=JobList, responses=documented(400, 401), summary="The caller's jobs, newest first",
+@router.get("/jobs", response_model=JobList, responses=documented(400, 401, 503),
+            summary="The caller's jobs, newest first",
             description="Jobs submitted with the caller's key (all jobs when the service has no keys) that have "
             "not expired (`CTP_JOB_TTL_S`), a page at a time.")
 async def list_jobs(request: Request, who: str = Depends(owner),
-                    offset: int = Query(0, ge=0, description="jobs to skip"),
+                    offset: int = Query(0, ge=0, le=OFFSET_MAX, description="jobs to skip"),
                     limit: int = Query(20, ge=1, le=JOBS_PAGE_MAX, description="page size")) -> JobList:
     records, total = await run_in_threadpool(request.app.state.jobs.owned, who, offset, limit)
     after = offset + limit
@@ -94,7 +96,7 @@ async def list_jobs(request: Request, who: str = Depends(owner),
                    next=f"/jobs?offset={after}&limit={limit}" if after < total else None)
 
 
-@router.get("/jobs/{job_id}", response_model=JobOut, responses=documented(401, 404), summary="A job's state")
+@router.get("/jobs/{job_id}", response_model=JobOut, responses=documented(401, 404, 503), summary="A job's state")
 async def get_job(job_id: str, request: Request, who: str = Depends(owner)) -> JobOut:
     return JobOut.of(await own_job(request, job_id, who))
 
@@ -103,7 +105,7 @@ async def get_job(job_id: str, request: Request, who: str = Depends(owner)) -> J
                description="A queued job is canceled at once (200, status canceled); a running one is "
                "flagged and stops at its next optimisation step (202, cancel_requested true).",
                responses={202: {"model": JobOut, "description": "cancel requested; the job is still running"},
-                          **documented(401, 404, 409)})
+                          **documented(401, 404, 409, 503)})
 async def cancel_job(job_id: str, request: Request, response: Response, who: str = Depends(owner)) -> JobOut:
     record = await own_job(request, job_id, who)
     if record.status in TERMINAL:
@@ -115,7 +117,7 @@ async def cancel_job(job_id: str, request: Request, response: Response, who: str
 
 
 @router.get("/jobs/{job_id}/events", responses={
-    **documented(401, 404),
+    **documented(401, 404, 503),
     200: {"description": "`text/event-stream`: an `event: progress` whose data is the job (as GET "
                          "/jobs/{id}) whenever it changes, comment lines as keep-alives, and a last "
                          "`event: end` with the final job, after which the stream closes.",
@@ -165,7 +167,7 @@ def _add_output_route(name: str, media_type: str) -> None:
                         headers={"Content-Disposition": f'attachment; filename="{filename}"'})
 
     router.add_api_route(f"/jobs/{{job_id}}/{name}", download, methods=["GET"], response_class=Response,
-                         responses={**binary(media_type, name), **REDIRECT, **documented(401, 404, 409)},
+                         responses={**binary(media_type, name), **REDIRECT, **documented(400, 401, 404, 409, 503)},
                          operation_id=f"download_{name.replace('.', '_')}", summary=f"Download {name}")
 
 
