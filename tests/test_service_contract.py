@@ -5,6 +5,8 @@ client waits that long), and a bounded schemathesis run finds nothing the schema
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
@@ -12,7 +14,7 @@ import httpx
 import pytest
 
 from service.client import Client, ServiceError
-from tests.conftest import Api, park_worker, service_env
+from tests.conftest import REPO, Api, park_worker, service_env
 from tests.test_service import BALL, BOX, FAST
 
 LIMIT = 4
@@ -99,3 +101,20 @@ def test_every_503_says_when_to_retry(private_redis):
             assert answer.headers["retry-after"] == "30"
     finally:
         lonely.stop()
+
+
+def test_a_bounded_schemathesis_run_finds_nothing(private_redis, tmp_path):
+    """Every schemathesis check, seeded, 30 examples per operation and phase (``tests/schemathesis.toml``, where the
+    one exclusion is explained), against ``openapi.yaml`` on a server with a live worker: zero failures."""
+    pytest.importorskip("schemathesis", reason="schemathesis (a dev dependency) is not installed")
+    env = service_env(private_redis.url, "contract-fuzz", max_active_jobs=1000)
+    server, leave = Api(env), park_worker(env)
+    try:
+        run = subprocess.run([sys.executable, "-m", "schemathesis.cli", "--no-color", "--config-file",
+                              str(REPO / "tests" / "schemathesis.toml"), "run", str(REPO / "openapi.yaml"),
+                              "--url", server.url, "--report-dir", str(tmp_path)],
+                             cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    finally:
+        leave()
+        server.stop()
+    assert run.returncode == 0 and " passed" in run.stdout, run.stdout[-6000:] + run.stderr[-2000:]
