@@ -11,7 +11,7 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
-from starlette.routing import Match, Route
+from starlette.routing import Match
 
 from ctp_core.errors import CtpError
 from service.jobs import JobError
@@ -19,6 +19,8 @@ from service.schemas import ErrorBody
 from service.storage import StorageUnavailable
 
 log = logging.getLogger("ctp.service")
+
+HTTP_METHODS = ("GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS")  # what a 405's Allow can list
 
 # Retry-After (s) of a 503, by code: about how long that outage lasts, so that a client neither hammers a service that
 # is restarting a part nor waits much past its return (docs/service.md, "Retry-After"). redis_unavailable: the
@@ -64,10 +66,10 @@ def documented(*statuses: int) -> dict[int | str, dict[str, Any]]:
     return {s: _ERRORS[s] for s in statuses}
 
 
-def binary(media_type: str, description: str) -> dict[int | str, dict[str, Any]]:
-    """The schema's 200 response for a file download."""
-    return {200: {"description": description,
-                  "content": {media_type: {"schema": {"type": "string", "format": "binary"}}}}}
+def download_response(media_type: str, description: str) -> dict[int | str, dict[str, Any]]:
+    """The schema's 200 response for a file download: bytes, or a JSON object for a JSON file."""
+    schema = {"type": "object"} if media_type == "application/json" else {"type": "string", "format": "binary"}
+    return {200: {"description": description, "content": {media_type: {"schema": schema}}}}
 
 
 def install_handlers(app: FastAPI) -> None:
@@ -109,10 +111,10 @@ def install_handlers(app: FastAPI) -> None:
 
 
 def _allowed(request: Request) -> list[str]:
-    """Every method some route serves at the request's path (a path's methods can be spread over routes)."""
-    methods = {method for route in request.app.router.routes if isinstance(route, Route)
-               and route.matches(request.scope)[0] != Match.NONE for method in route.methods or ()}
-    return sorted(methods)
+    """The methods the app routes at the request's path, asked of its router one method at a time (a path's
+    methods can be spread over routes, and FastAPI nests included routers)."""
+    return [method for method in HTTP_METHODS if any(
+        route.matches({**request.scope, "method": method})[0] == Match.FULL for route in request.app.router.routes)]
 
 
 class BodyLimit:

@@ -83,16 +83,17 @@ ALIGN_BODY = {
         "type": "object",
         "additionalProperties": False,  # 400 unknown_field
         "required": ["source"],
-        # a prompt or a picture guides it (400 missing_field without both); a target file or an earlier job's scene
+        # a prompt or a picture guides it (400 missing_field without both); the target is a file or an earlier
+        # job's scene (400 missing_field / invalid_field without one or with both)
         "allOf": [{"anyOf": [{"required": ["prompt"]}, {"required": ["image"]}]},
-                  {"anyOf": [{"required": ["target"]}, {"required": ["target_job"]}]}],
+                  {"oneOf": [{"required": ["target"]}, {"required": ["target_job"]}]}],
         "dependentRequired": {"on": ["target_job"], "webhook_events": ["webhook"]},
         "properties": {
             "target": mesh_field("the mesh that stays put (GLB, glTF with embedded buffers, OBJ, OBJ+MTL in a "
                                   ".zip, PLY, STL); required unless `target_job` is given"),
-            "target_job": {"type": "string", "description": "instead of `target`: the id of one of your succeeded "
-                           "jobs, whose result scene becomes the target, read back as its separate objects "
-                           "(404 for an unknown job or another key's, 409 if it has not succeeded)"},
+            "target_job": {"type": "string", "description": "instead of `target` (not with it): the id of one of "
+                           "your succeeded jobs, whose result scene becomes the target, read back as its separate "
+                           "objects (404 for an unknown job or another key's, 409 if it has not succeeded)"},
             "on": {"type": "string", "maxLength": NAME_MAX, "description": "with `target_job`: the object of that "
                    "scene the source relates to (soft-ICP attaches to it); default the last placed one"},
             "source": mesh_field("the mesh to place, same formats"),

@@ -5,6 +5,7 @@ client waits that long), and a bounded schemathesis run finds nothing the schema
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import threading
@@ -14,7 +15,7 @@ import httpx
 import pytest
 
 from service.client import Client, ServiceError
-from tests.conftest import REPO, Api, park_worker, service_env
+from tests.conftest import REPO, Api, Worker, park_worker, service_env, wait_ready
 from tests.test_service import BALL, BOX, FAST
 
 LIMIT = 4
@@ -103,18 +104,37 @@ def test_every_503_says_when_to_retry(private_redis):
         lonely.stop()
 
 
+def test_the_bounds_the_fuzzer_found_are_4xx(api, parked):
+    """What schemathesis found before the contract was exact, each as its own regression."""
+    huge = api.client.get("/jobs", params={"offset": 2**64})  # was a 500 from Redis
+    assert (huge.status_code, huge.json()["error"]["field"]) == (400, "offset"), huge.text
+    assert api.client.get("/jobs", params={"offset": 2**53 - 1}).json()["jobs"] == []
+    allow = api.client.request("PUT", f"/jobs/{'0' * 32}")  # GET and DELETE are two routes of one path
+    assert (allow.status_code, allow.headers["allow"]) == (405, "GET, DELETE")
+    both = api.client.post("/align", files={"target": ("box.glb", BOX), "source": ("ball.glb", BALL)},
+                           data={"target_job": "0" * 32, "prompt": "a ball on a box"})
+    assert (both.status_code, both.json()["error"]["code"], both.json()["error"]["field"]) == (
+        400, "invalid_field", "target")
+
+
 def test_a_bounded_schemathesis_run_finds_nothing(private_redis, tmp_path):
     """Every schemathesis check, seeded, 30 examples per operation and phase (``tests/schemathesis.toml``, where the
-    one exclusion is explained), against ``openapi.yaml`` on a server with a live worker: zero failures."""
+    one exclusion is explained), against ``openapi.yaml`` on a server with a real worker: zero failures. The job
+    routes are called with a succeeded job's id (``CTP_FUZZ_JOB``), so their answers are checked beyond 404."""
     pytest.importorskip("schemathesis", reason="schemathesis (a dev dependency) is not installed")
     env = service_env(private_redis.url, "contract-fuzz", max_active_jobs=1000)
-    server, leave = Api(env), park_worker(env)
+    server = Api(env)
+    worker = Worker(env, tmp_path / "worker.log")
     try:
+        wait_ready(server)
+        with Client(server.url) as client:
+            job = client.submit(("box.glb", BOX), ("ball.glb", BALL), "a ball on a box", options=FAST)
+            assert client.wait(job["id"], timeout_s=120)["status"] == "succeeded"
         run = subprocess.run([sys.executable, "-m", "schemathesis.cli", "--no-color", "--config-file",
                               str(REPO / "tests" / "schemathesis.toml"), "run", str(REPO / "openapi.yaml"),
-                              "--url", server.url, "--report-dir", str(tmp_path)],
+                              "--url", server.url], env={**os.environ, "CTP_FUZZ_JOB": job["id"]},
                              cwd=tmp_path, capture_output=True, text=True, timeout=300)
     finally:
-        leave()
+        worker.stop()
         server.stop()
     assert run.returncode == 0 and " passed" in run.stdout, run.stdout[-6000:] + run.stderr[-2000:]
