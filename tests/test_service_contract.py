@@ -118,9 +118,10 @@ def test_the_bounds_the_fuzzer_found_are_4xx(api, parked):
 
 
 def test_a_bounded_schemathesis_run_finds_nothing(private_redis, tmp_path):
-    """Every schemathesis check, seeded, 30 examples per operation and phase (``tests/schemathesis.toml``, where the
-    one exclusion is explained), against ``openapi.yaml`` on a server with a real worker: zero failures. The job
-    routes are called with a succeeded job's id (``CTP_FUZZ_JOB``), so their answers are checked beyond 404."""
+    """Every schemathesis check, deterministic, 30 examples per operation and phase (``tests/schemathesis.toml``,
+    where the one exclusion is explained), against ``openapi.yaml`` on a server with a real worker: zero failures.
+    The job routes are called with a succeeded job's id (``CTP_FUZZ_JOB``), so their answers are checked beyond
+    404."""
     pytest.importorskip("schemathesis", reason="schemathesis (a dev dependency) is not installed")
     env = service_env(private_redis.url, "contract-fuzz", max_active_jobs=1000)
     server = Api(env)
