@@ -114,7 +114,7 @@ class TooManyJobs(Exception):
 
 # 429's Retry-After bounds (s): an estimate under a second is rounded up to one; the upper bound is what a client
 # waits when none of the key's jobs has an estimate yet (all queued, or loading): about the first minute of a job.
-RETRY_AFTER_S = (1, 60)
+SLOT_RETRY_S = (1, 60)
 
 # Admission of one job under its key's limit, atomic (``Jobs.submit``). KEYS: the key's active set, the job's record,
 # the key's owned index; ARGV: job id, limit, record JSON, TTL (s), created (Unix s), the record key prefix, then
@@ -430,12 +430,12 @@ class Jobs:
 
     def retry_after(self, owner: str) -> int:
         """Seconds until one of ``owner``'s jobs is likely to end and free a slot: the soonest estimate of its
-        running jobs (``progress.eta_s``), within ``RETRY_AFTER_S``; the upper bound when none has one yet."""
+        running jobs (``progress.eta_s``), within ``SLOT_RETRY_S``; the upper bound when none has one yet."""
         ids = [raw.decode() for raw in self.redis.smembers(self._active_key(owner))]
         records = [parse_record(raw) for raw in self.redis.mget([self.record_key(i) for i in ids])] if ids else []
         etas = [r.progress.eta_s for r in records if r is not None and r.status == "running"
                 and r.progress.eta_s is not None]
-        low, high = RETRY_AFTER_S
+        low, high = SLOT_RETRY_S
         return high if not etas else min(high, max(low, math.ceil(min(etas))))
 
     def start(self, job_id: str, worker: str) -> JobRecord | None:
