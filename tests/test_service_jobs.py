@@ -318,3 +318,18 @@ def test_concurrent_submits_admit_exactly_the_limit(jobs):
         assert len(admitted) == limit
         assert jobs.redis.scard(f"{jobs.prefix}:active:racer-{trial}") == limit
         assert all(r.retry_after_s == 60 for r in results if isinstance(r, TooManyJobs))  # none has an ETA yet
+
+
+def test_a_refused_submit_says_when_a_slot_is_likely_free(jobs):
+    """Retry-After of a 429: the soonest estimate of the key's running jobs, rounded up, within 1 to 60 s."""
+    first, _ = queued(jobs, max_active=2), queued(jobs, max_active=2)
+    with pytest.raises(TooManyJobs) as none_running:
+        queued(jobs, max_active=2)
+    assert none_running.value.retry_after_s == 60  # nothing has an estimate yet
+    jobs.start(first.id, "w1")
+    jobs.set_progress(first.id, Progress(kind="step", eta_s=7.2))
+    with pytest.raises(TooManyJobs) as soon:
+        queued(jobs, max_active=2)
+    assert soon.value.retry_after_s == 8
+    jobs.set_progress(first.id, Progress(kind="step", eta_s=0.1))
+    assert jobs.retry_after("me") == 1
