@@ -62,7 +62,7 @@ async def enqueue(request: Request, record: JobRecord, blobs: dict[str, bytes],
     try:
         await run_in_threadpool(jobs.submit, record, blobs, settings.max_active_jobs)
     except TooManyJobs as exc:
-        raise ApiError(429, "too_many_jobs", str(exc)) from None
+        raise ApiError(429, "too_many_jobs", str(exc), headers={"Retry-After": str(exc.retry_after_s)}) from None
 
 
 async def check_workers(request: Request, models: set[str], queue: str) -> None:

@@ -23,18 +23,20 @@ ASSEMBLE_BODY = {
     "required": True,
     "content": {"multipart/form-data": {"schema": {
         "type": "object",
+        "additionalProperties": False,  # 400 unknown_field
         "required": ["base", "source", "plan"],
+        "dependentRequired": {"webhook_events": ["webhook"]},
         "properties": {
-            "base": forms.file_field("the object that stays put (formats as POST /align's target); its file "
+            "base": forms.mesh_field("the object that stays put (formats as POST /align's target); its file "
                                       "frame is the scene frame"),
             "base_name": {"type": "string", "maxLength": NAME_MAX,
                           "description": "what the base is (\"table\"); default: its file name"},
-            "source": {"type": "array", "items": forms.file_field("a mesh to place"),
+            "source": {"type": "array", "items": forms.mesh_field("a mesh to place"),
                        "description": "one part per source file, each with a distinct file name; the plan's "
                        "steps name them by `file`"},
-            "image": {"type": "array", "items": forms.file_field("a reference picture (PNG or JPEG)"),
+            "image": {"type": "array", "items": forms.image_field("a reference picture"),
                       "description": "reference pictures of image-guided steps, named by a step's `image`"},
-            "plan": {"type": "string", "contentMediaType": "application/json",
+            "plan": {"type": "string", "minLength": 1, "contentMediaType": "application/json",
                      "description": "JSON list, one object per stage in placing order: `file` (a source part's "
                      "file name, required), `prompt` or `image` (an image part's file name), `name` (unique; "
                      "default the file stem), `on` (the placed object it relates to; default the last placed "
@@ -45,7 +47,7 @@ ASSEMBLE_BODY = {
                         "the job's queue)"},
             **forms.WEBHOOK_PROPERTIES,
         },
-    }}},
+    }, "encoding": {"image": forms.IMAGE_ENCODING}}},
 }
 
 
