@@ -53,7 +53,8 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--preview", type=Path, metavar="preview.png", help="write a 4-view preview PNG here")
     add_option(parser, "preset", "NAME", "default (search, then a short refinement) | fast (the relation and the "
                "geometry choose, the guide glances) | descent | paper | test", default="default")
-    add_option(parser, "model", "SPEC", "guidance model: hf:REPO_OR_PATH, open_clip:ARCH:TAG, random:ARCH")
+    add_option(parser, "model", "SPEC", "guidance model: auto (default: the default CLIP model where its weights are "
+               "here, else none), hf:REPO_OR_PATH, open_clip:ARCH:TAG, onnx:DIR, random:ARCH (random weights: tests)")
     add_switch(parser, "--scale", "scale", True, "optimise isotropic scale too")
     add_option(parser, "restarts", "N")
     add_option(parser, "steps", "N", "total steps per restart over all phases")
@@ -202,7 +203,7 @@ def run(args: argparse.Namespace) -> int:
     summary = {"out": str(args.out), "objective": round(result.objective, 6), "scale": round(result.scale, 6),
                "translation": [round(v, 6) for v in result.translation.tolist()],
                "seconds": round(time.perf_counter() - started, 2), "preset": config.preset,
-               "model": result.model, "runtime": result.runtime,
+               "model": result.model, "guide": result.guide, "guide_why": result.guide_why, "runtime": result.runtime,
                "hparams": result.priors.get("provider"), "relation": result.relation,
                "names": {"target": result.priors["target_name"], "source": result.priors["source_name"]}}
     if others:
