@@ -195,7 +195,7 @@ def _fetch(client, url: str, folder: Path, commit: str, file: _File, repo: str, 
                                      code="model_unreachable", field="name")
                 have = have if answer.status_code == 206 else 0  # 200: the server sends it whole
                 with open(part, "ab" if have else "wb") as out:
-                    for chunk in answer.iter_bytes(CHUNK):
+                    for chunk in answer.iter_bytes():  # as it arrives: a broken answer keeps what came
                         out.write(chunk)
                         have += len(chunk)
                         if on_progress is not None:
