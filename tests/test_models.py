@@ -151,7 +151,8 @@ def test_a_broken_download_resumes_where_it_stopped(hub, tmp_path, tiny_files):
         model_store.pull(REPO_ID, cache_dir=tmp_path, endpoint=hub.url)
     assert broken.value.code == "model_unreachable"
     seen: list[tuple[int, int]] = []
-    model = model_store.pull(REPO_ID, cache_dir=tmp_path, endpoint=hub.url, on_progress=lambda d, t: seen.append((d, t)))
+    model = model_store.pull(REPO_ID, cache_dir=tmp_path, endpoint=hub.url,
+                             on_progress=lambda done, total: seen.append((done, total)))
     assert hub.ranges == ["bytes=1000-"]
     assert model.ready and model.sha256 == hashlib.sha256(tiny_files["model.safetensors"]).hexdigest()
     assert seen[-1][0] == seen[-1][1] == sum(len(v) for k, v in tiny_files.items() if k != "flax_model.msgpack")
