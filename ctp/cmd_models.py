@@ -18,7 +18,7 @@ DEFAULT_NAME = DEFAULT_MODEL.removeprefix("hf:")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    actions = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
+    actions = parser.add_subparsers(dest="action", required=True)
     actions.add_parser("list", help="cached models: spec, size, the weights' sha256, ready or not, the default")
     pull = actions.add_parser("pull", help="download a model into the cache (resumable, verified)")
     pull.add_argument("name", nargs="?", default=DEFAULT_NAME, metavar="NAME",
