@@ -92,7 +92,7 @@ def _say_if_default_model_missing(spec: str) -> None:
     auto, that jobs run without a guide and the command that gets the model (``ctp_core.guide_choice``)."""
     from ctp_core.config import AUTO
     from ctp_core.guide_choice import NONE, choose, pull_command
-    from ctp_core.weights import missing
+    from ctp_core.weights import looks_local, missing
 
     if spec == AUTO:
         choice = choose()
@@ -102,7 +102,8 @@ def _say_if_default_model_missing(spec: str) -> None:
         return
     reason = missing(spec)
     if reason:
-        get = f"`{pull_command(spec)}` gets it" if spec.startswith("hf:") else "provide its weights"
+        hub = spec.startswith("hf:") and not looks_local(spec.removeprefix("hf:"))
+        get = f"`{pull_command(spec)}` gets it (or CTP_ALLOW_DOWNLOAD=1)" if hub else "provide its weights"
         print(f"ctp: the default model {spec} cannot run here ({reason.split('. ')[0]}), so jobs that need it are "
               f"refused (503 model_unavailable); {get}, or start with CTP_MODEL=auto to run jobs without a guide",
               file=sys.stderr)
