@@ -181,6 +181,8 @@ def run(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     from ctp_core import export, io  # the engine (torch, trimesh): seconds to import
     from ctp_core.align import align
+    from ctp_core.config import AUTO
+    from ctp_core.guide_choice import NONE, pull_command
     from ctp_core.loader import MeshLoader
 
     with MeshLoader(1) as loader:  # the same bounded loading as the service (ctp_core.loader)
@@ -200,6 +202,9 @@ def run(args: argparse.Namespace) -> int:
         others.append(str(path))
     for warning in result.warnings:  # one line each, whatever --quiet says (the report has them too)
         print(f"warning: {warning['code']}: {warning['message']}", file=sys.stderr)
+    if result.guide == NONE and config.model == AUTO and config.uses_model:  # auto found no model: say so, once
+        print(f"note: no guide: {result.guide_why.removeprefix('auto: ')}; `{pull_command()}` gets the model",
+              file=sys.stderr)
     summary = {"out": str(args.out), "objective": round(result.objective, 6), "scale": round(result.scale, 6),
                "translation": [round(v, 6) for v in result.translation.tolist()],
                "seconds": round(time.perf_counter() - started, 2), "preset": config.preset,

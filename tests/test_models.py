@@ -219,23 +219,26 @@ def test_ctp_align_with_default_options_states_its_guide(tmp_path):
     args = ("align", "try/table.glb", "try/cup.glb", "--prompt", "a cup on the table", "--preset", "test", "--quiet",
             "--out", "try/scene.glb", "--report", "try/report.json")
 
-    def run(home: Path) -> dict:
+    def run(home: Path) -> tuple[dict, str]:
         done = subprocess.run([sys.executable, "-m", "ctp", *args], cwd=tmp_path, env=hf_env(home), capture_output=True,
                               text=True, timeout=300)
         assert done.returncode == 0, done.stderr
         summary = json.loads(done.stdout)
         report = json.loads((tmp_path / "try" / "report.json").read_text())
         assert (report["guide"], report["guide_why"]) == (summary["guide"], summary["guide_why"])
-        return summary
+        return summary, done.stderr
 
-    bare = run(tmp_path / "empty")
+    bare, said = run(tmp_path / "empty")
     assert bare["guide"] == "none" and bare["model"] is None
     assert "not in the Hugging Face cache" in bare["guide_why"]
+    assert said.startswith("note: no guide: the default model hf:openai/clip-vit-base-patch32 is not here") and \
+        said.rstrip().endswith("`ctp models pull openai/clip-vit-base-patch32` gets the model")
     cache = tmp_path / "hf" / "hub"
     snapshot = cache / f"models--{DEFAULT_MODEL.removeprefix('hf:').replace('/', '--')}" / "snapshots" / COMMIT
     snapshot.mkdir(parents=True)
     _save_tiny_hf_clip(snapshot)
     (snapshot.parents[1] / "refs").mkdir()
     (snapshot.parents[1] / "refs" / "main").write_text(COMMIT)
-    cached = run(tmp_path / "hf")
+    cached, said = run(tmp_path / "hf")
+    assert "note:" not in said
     assert cached["guide"] == cached["model"] == DEFAULT_MODEL and cached["guide_why"].startswith("auto: ")
