@@ -74,6 +74,9 @@ class AlignResult:
     # (file frames, 4x4), objective, the guide's and geometry's terms, relation verdict
     alternatives: list[dict[str, Any]] = field(default_factory=list)
     thumbnails: np.ndarray | None = None  # (K, H, W, 3) uint8: one view of each alternative
+    # the guide's say over the geometry as the search measured it (``objective.Gate.to_dict``: spread, noise,
+    # override, who chose, a summary line); None without a guide or a search
+    guide_say: dict[str, Any] | None = None
 
     def alternative(self, k: int) -> AlignResult:
         """This result with alternative ``k`` as its answer (0: the answer itself), for its GLB."""
@@ -219,7 +222,7 @@ def score(run: Run, proposals: Proposals, *, on_event: ProgressCallback | None =
     if run.scorer.relation is not None:
         run.timings["search_relation_holds"] = ranked.holding  # of the coarse and sweep candidates
     if ranked.gate is not None:  # the guide's spread over the candidates, its noise, how far it may override
-        run.timings.update({f"guide_{k}": v for k, v in ranked.gate.items()})
+        run.timings.update({f"guide_{k}": ranked.gate[k] for k in ("spread", "noise", "override")})
     return ranked.poses
 
 
@@ -262,6 +265,7 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
         phase_timings=[{k: round(v, 3) for k, v in p.items()} for p in outcome.phase_timings],
         target_upright=pair.target_upright,
         warnings=list(run.warnings),
+        guide_say=None if run.scorer.gate is None else run.scorer.gate.to_dict(),
     )
     verdict = predicates.verdict(pair, matrices[best], run.prior.relation, run.prior.source_is_figure)
     answer.relation = verdict.to_dict() if verdict is not None else None

@@ -172,6 +172,14 @@ def _gap(points: torch.Tensor, ground: _Ground, which: str = "all") -> tuple[tor
     return _gap_to(points, ground, *ground.nearest(points, which))
 
 
+def _bearing_gap(points: torch.Tensor, ground: _Ground, which: str, reach: torch.Tensor) -> torch.Tensor:
+    """(B, N) ``_gap`` from the side the ground surface faces: a point further behind it than ``reach`` (B,) is as
+    far as it is deep. ``_gap`` is 0 anywhere behind, which makes a thin ground (a plate, a board) bear a figure
+    from either side: a ball hanging under a board is not resting on it."""
+    gap, along = _gap(points, ground, which)
+    return torch.maximum(gap, -along - reach[:, None])
+
+
 def _gap_to(points: torch.Tensor, ground: _Ground, u: torch.Tensor, n: torch.Tensor, found: torch.Tensor
             ) -> tuple[torch.Tensor, torch.Tensor]:
     """``_gap`` to given nearest ground samples ``u`` with normals ``n`` (``_Ground.nearest``)."""
@@ -390,17 +398,18 @@ class _Ctx:
 
 
 def _score_resting(c: _Ctx) -> torch.Tensor:
-    """Resting on (``on``, ``stand``, ``sit``, ``lie``): supported from below by ground surface that faces up;
-    its centre of mass over that support; and on top of it: no part of the ground higher than the figure's top
+    """Resting on (``on``, ``stand``, ``sit``, ``lie``): supported from below by ground surface that faces up,
+    on the side it faces (so the centre of mass is above the contact: never from under a thin ground); its
+    centre of mass over that support; and on top of it: no part of the ground higher than the figure's top
     over the figure's footprint (a cup on a table's lower shelf, or under the table, is not on it).
 
     Sum of: the figure's lowest part within contact of up-facing ground surface (the bottom band: samples
-    within ``CONTACT`` of the figure's lowest point, their smooth minimum gap to up-facing samples);
+    within ``CONTACT`` of the figure's lowest point, their smooth minimum ``_bearing_gap`` to up-facing samples);
     ``stable`` (the centre's horizontal distance outside the footprint of the support patch); the height
     of the ground above the figure's top, over its footprint, past ``ON_TOP``.
     """
     fig = c.figure
-    gap, _ = _gap(fig.points, c.ground, "up")
+    gap = _bearing_gap(fig.points, c.ground, "up", c.reach())
     band = fig.points[..., 1] <= (c.bottom() + c.tol())[:, None]
     support = c.h(c.finite(soft_min(gap, c.tau(), mask=band)) - c.reach())
     return torch.minimum(support, _apex(c)) + _stability(c) + _overhead(c)
@@ -441,7 +450,7 @@ def _half_width(fig: Side) -> torch.Tensor:
 
 def _support_mask(c: _Ctx) -> torch.Tensor:
     """(B, N) the figure samples that bear weight: touching ground surface that does not face down, or the floor."""
-    gap, _ = _gap(c.figure.points, c.ground, "not_down")
+    gap = _bearing_gap(c.figure.points, c.ground, "not_down", c.reach())
     return (gap <= c.reach()[:, None]) | (c.figure.points[..., 1] - c.floor[:, None] <= c.tol()[:, None])
 
 
