@@ -179,6 +179,12 @@ def test_offline_or_unreachable_is_one_line_and_a_failure(tmp_path):
     assert ctp("models", "pull", "/some/folder", env=hf_env(tmp_path)).returncode == 2
 
 
+def test_choosing_and_pulling_import_no_torch():
+    code = "import sys; from ctp_core import guide_choice, model_store; print('torch' in sys.modules)"
+    run = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert run.stdout.strip() == "False", run.stderr
+
+
 def test_the_progress_bar_redraws_on_a_terminal_only():
     class Tty(io.StringIO):
         def isatty(self):

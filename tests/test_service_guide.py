@@ -62,6 +62,7 @@ def test_a_job_asking_for_guidance_is_refused_up_front(api, worker):
         assert refused.status_code == 503, refused.text
         error = refused.json()["error"]
         assert (error["code"], error["field"]) == ("model_unavailable", "options.model")
+        assert error["message"].startswith("this job asks for guidance itself (a reference image, lambda_clip or ")
         assert DEFAULT_MODEL in error["message"] and "ctp models pull" in error["message"]
 
 
