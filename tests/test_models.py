@@ -86,6 +86,13 @@ class FakeHub:
         return out
 
 
+@pytest.fixture(autouse=True)
+def hub_settings(monkeypatch):
+    """The Hub settings of the machine running the tests do not reach the pulls here (each test sets its own)."""
+    for name in ("HF_HUB_OFFLINE", "HF_ENDPOINT", "HF_TOKEN", "CTP_ALLOW_DOWNLOAD"):
+        monkeypatch.delenv(name, raising=False)
+
+
 @pytest.fixture(scope="module")
 def tiny_files(tmp_path_factory) -> dict[str, bytes]:
     folder = tmp_path_factory.mktemp("tiny-clip")
