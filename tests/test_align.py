@@ -114,8 +114,8 @@ def test_cli_align_end_to_end(tmp_path, meshes, capsys):
     assert data["relation"]["name"] == "on" and data["relation"]["role"] == "figure"  # predicates.RelationVerdict
     assert summary["relation"] == data["relation"]
     assert list(data) == ["transform", "objective", "prompt", "model", "guide", "guide_why", "seed", "preset",
-                          "config", "hparams", "relation", "guide_say", "restarts", "alternatives", "timings", "extra", "warnings", "versions",
-                          "created_at"]
+                          "config", "hparams", "relation", "guide_say", "restarts", "alternatives", "timings",
+                          "extra", "warnings", "versions", "created_at"]
     # the best distinct placements, the answer first; --alternatives 3 wrote the next two beside --out
     alternatives = data["alternatives"]
     assert alternatives[0]["restart"] == data["extra"]["best_restart"]
