@@ -155,7 +155,9 @@ def where(settings: Settings) -> dict[str, Any]:
 def _preload(settings: Settings) -> dict[str, str | None]:
     """Load the default model once for the life of the process and look for the weights of the other
     models the service allows; returns ``{spec: None when this worker can run it, else why not}``, which
-    the heartbeat publishes so that the API refuses jobs no worker can run (``Jobs.unavailable``)."""
+    the heartbeat publishes so that the API refuses jobs no worker can run (``Jobs.unavailable``). Under
+    ``auto`` every worker runs the default jobs (with or without a guide), and what it loads is what auto picks
+    now (``guide_choice.choose``; each job chooses again as it is taken)."""
     import torch
 
     from ctp_core import guide_choice, weights
