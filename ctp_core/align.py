@@ -16,7 +16,7 @@ import numpy as np
 import torch
 import trimesh
 
-from ctp_core import frames, priors
+from ctp_core import frames, guide_choice, priors
 from ctp_core.config import MAX_ALTERNATIVES, PENETRATION, AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
@@ -60,6 +60,8 @@ class AlignResult:
     on: str | None = None  # the placed object an assembly step relates to
     guided_by: str | None = None  # what guided the run, in words (the report's "guidance")
     model: str | None = None  # the guidance model; None for a geometry-only run
+    guide: str = "none"  # the guide chosen for the run: a model spec or "none" (guide_choice.GuideChoice)
+    guide_why: str = ""  # why that guide
     runtime: str | None = None  # the guide's runtime ("torch", "onnx"); None without a guide
     clip_images: int = 0  # images the encoder scored
     phase_timings: list[dict[str, float]] = field(default_factory=list)  # per refinement phase
@@ -341,6 +343,7 @@ def align(
     init: np.ndarray | None = None,
     on_event: ProgressCallback | None = None,
     should_cancel: CancelCheck | None = None,
+    choice: guide_choice.GuideChoice | None = None,
 ) -> AlignResult:
     """Place ``source`` relative to ``target`` (both in file frames) so renders agree with the prompt.
 
@@ -353,11 +356,16 @@ def align(
     A ``trimesh.Scene`` target is a scene of placed objects (``scene.objects``): ``on`` names the one
     the source relates to (soft-ICP attaches to it, the search proposes on it; ``target_name`` and its size
     feed the priors), while renders and the penetration term see them all.
+    Model ``auto`` is resolved first (``guide_choice.resolve``; ``choice``: ``auto``'s pick made already for this
+    run, a worker's); the result says which guide ran and why.
     Raises ``errors.Canceled`` when ``should_cancel()`` turns true, other ``CtpError`` on bad input.
     """
+    config, chosen = guide_choice.resolve(config, image=image is not None, choice=choice)
     run = prepare(target, source, prompt, config, on=on, image=image, target_name=target_name,
                   source_name=source_name, guide=guide, goal=goal)
     proposals = propose(run, init)
     starts = score(run, proposals, on_event=on_event, should_cancel=should_cancel)
     outcome = refine(run, starts, on_event=on_event, should_cancel=should_cancel)
-    return result(run, outcome, prompt, on_event=on_event)
+    answer = result(run, outcome, prompt, on_event=on_event)
+    answer.guide, answer.guide_why = chosen.guide, chosen.why
+    return answer

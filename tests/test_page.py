@@ -247,6 +247,8 @@ def test_upload_follow_view_download_and_a_refused_upload(api, worker, browser, 
     assert find(By.ID, "stage").text.lower() == "succeeded"
     quality = find(By.ID, "quality").text  # the readout, not the raw objective
     assert "'on' holds for" in quality and ("touching" in quality or "gap" in quality), quality
+    assert find(By.ID, "guide").text == "guide: random:tiny"  # the job's guide (CTP_MODEL names one: no banner)
+    assert not find(By.ID, "guide-banner").is_displayed()
     wait_for(lambda: find(By.ID, "viewer").get_attribute("data-ready"), 60, "the 3D viewer")
 
     colours = driver.execute_script(CANVAS_COLOURS, BACKGROUND)

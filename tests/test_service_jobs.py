@@ -197,7 +197,8 @@ def test_settings_read_comma_lists_and_redis_url(monkeypatch):
     settings = Settings()
     assert settings.redis_url == "redis://h:1/2"
     assert settings.api_keys == ["a", "b", "c"]
-    assert settings.allowed_models == [settings.model, "random:tiny"]
+    # auto, the default, allows the default CLIP model too: what jobs that ask for guidance get
+    assert settings.allowed_models == ["auto", "hf:openai/clip-vit-base-patch32", "random:tiny"]
     assert (settings.key_prefix, settings.served_queues, settings.storage_backend) == ("ctp", ["default"], "redis")
 
 

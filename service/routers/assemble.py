@@ -7,6 +7,7 @@ from fastapi.concurrency import run_in_threadpool
 
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
+from ctp_core.guide_choice import asks_for_guide
 from ctp_core.names import NAME_MAX, default_name
 from ctp_core.plan import PlanError, PlanStep, check_plan, plan_step
 from service import forms, submit
@@ -76,7 +77,10 @@ async def _assembly_job(request: Request, form, who: str, job_id: str) -> submit
     settings = request.app.state.settings
     plan = _plan(forms.text(form, "plan"), settings.max_stages)
     options, queue = forms.job_options(form, settings.default_queue)
-    config = build_config(options, default_model=settings.model, allowed_models=settings.allowed_models)
+    # one guide for all stages (it is loaded once): a stage that asks for guidance asks it for the assembly
+    guided = any(asks_for_guide({**options, **e.options}, e.image is not None) for e in plan)
+    config = build_config(options, default_model=settings.model, allowed_models=settings.allowed_models,
+                          image=guided)
     sources = _parts(form, "source")
     images = _parts(form, "image")
     base = forms.file(form, "base")
@@ -114,7 +118,7 @@ async def _assembly_job(request: Request, form, who: str, job_id: str) -> submit
             blobs[f"image-{i}"] = pictures[entry.image]
         try:
             step_config = build_config({**options, **entry.options}, default_model=settings.model,
-                                       allowed_models=settings.allowed_models)
+                                       allowed_models=settings.allowed_models, image=guided)
         except ConfigError as exc:
             raise ApiError(422, exc.code, f"{where}: {exc.message}", field=f"{where}.{exc.field}") from None
         configs.append(step_config)

@@ -58,7 +58,8 @@ async def _align_job(request: Request, form, who: str, job_id: str) -> submit_.B
     settings = request.app.state.settings
     prompt, image = forms.prompt_and_image(form)
     options, queue = forms.job_options(form, settings.default_queue)
-    config = build_config(options, default_model=settings.model, allowed_models=settings.allowed_models)
+    config = build_config(options, default_model=settings.model, allowed_models=settings.allowed_models,
+                          image=image is not None)
     blobs: dict[str, bytes] = {}
     files: dict[str, str] = {}
     target_job, on = forms.text(form, "target_job"), forms.text(form, "on")
