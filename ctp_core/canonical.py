@@ -15,18 +15,23 @@ orientation, so a lying or upside-down target spoils every view. Three cues, all
    base, not a bridge over bumps), ``h`` the height it then stands (authored objects stand up).
 3. **Rotational symmetry**: when the surface has an axis of (near) rotational symmetry, only the
    resting poses on that axis compete (a tree or a glass stands on its axis even with a rough base).
+4. **Legs**: a resting pose whose contact with the floor is three or more separate feet (``feet``: the
+   surface within 2 % of the object's size of the floor falls apart into that many pieces, each 6 %
+   apart) is how furniture and animals stand, and outranks every flat base: a table's top is a better
+   base than four leg tips by the other cues, so without this the table is turned upside down.
 
 An upload is left as authored (identity, ``changed=False``) unless it is clearly lying, tilted or
-upside down: there must be a candidate with a real base (fill >= 0.5) or on the symmetry axis, and
-the file's +Y must not be a resting pose scoring at least 1/20 of it. The margin is wide on purpose:
+upside down: there must be a candidate with a real base (fill >= 0.5), on legs or on the symmetry axis,
+and the file's +Y must not be a resting pose scoring at least 1/20 of the best; where some pose stands on
+legs, the file's +Y stays only if it stands on legs too. The margin is wide on purpose:
 an authored table on its legs scores ~1/16 of the same table upside down (its top is a perfect
 base), a bottle lying on its side ~1/11 of it standing, so no margin separates the two; keeping an
 authored pose is the safer error (a flipped table ruins "a cup on the table"), and a lying upload is
 still placed correctly in its own file frame. Known misses: figures that cannot stand on their own
-(no resting pose has +Y up), tables (upside down rests better), cubes and spheres (no single up).
+(no resting pose has +Y up), cubes and spheres (no single up).
 Measured on ``../shared/bench`` by ``benchmarks/canonical_bench.py`` (figures in docs/engine.md).
 
-4. **A judge** (optional, semantic): geometry cannot tell a table on its legs from one on its top, or
+5. **A judge** (optional, semantic): geometry cannot tell a table on its legs from one on its top, or
    where a figure's head is; a vision-language model can. ``judge`` scores candidate rotations (in
    practice: renders of the object under each, against "a photo of a NAME", ``scene.upright_judge``)
    and picks among the file's +Y, the best resting poses and the six dominant-axis directions. The
@@ -40,6 +45,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import trimesh
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import QhullError, cKDTree
 
 from ctp_core import sampling
@@ -48,12 +55,17 @@ _INLIER_COS = np.cos(np.radians(5.0))
 _SNAP_COS = np.cos(np.radians(5.0))
 _AUTHORED_COS = np.cos(np.radians(8.0))  # a resting pose this close to the file's +Y is the authored one
 _AXIS_COS = np.cos(np.radians(10.0))  # a resting pose this close to the symmetry axis stands on it
-_BASE_FILL = 0.5  # share of a facet the mesh must touch to count as a real base
+BASE_FILL = 0.5  # share of a facet the mesh must touch to count as a real base
 _KEEP_RATIO = 0.05  # the file's +Y stays unless the best pose scores 20x more: rotate only when clear
 _MAX_FACES = 20_000  # normals sampled for RANSAC: plenty for three axes, bounded time
 _Y = np.array([0.0, 1.0, 0.0])
 _JUDGED_POSES = 4  # best resting poses offered to a judge, besides the file's +Y and the dominant axes
 _DISTINCT_COS = np.cos(np.radians(10.0))  # candidate ups closer than this are one candidate
+_FOOT_BAND = 0.02  # share of the longest side: the surface this close to the floor is what touches it
+_FOOT_GAP = 0.06  # share of the longest side: touching pieces further apart than this are separate feet
+_FOOT_SAMPLES = 6000  # surface samples the feet are counted from (plus every vertex: a leg may end in a point)
+LEGS = 3  # separate feet that make a pose "on legs"
+_Z = np.array([0.0, 0.0, 1.0])
 
 Judge = Callable[[np.ndarray], np.ndarray]
 """Scores (K,) for candidate rotations (K, 3, 3), file frame -> upright frame; higher is more upright."""
@@ -68,6 +80,11 @@ class Upright:
     reason: str
     axes: np.ndarray = field(default_factory=lambda: np.eye(3))  # (3, 3) dominant axes (rows), file frame
     candidates: list[dict] = field(default_factory=list)  # resting or judged poses, best first, file frame
+    # the object's front, a unit vector in the file frame at right angles to ``up`` (``orientation``), whether a
+    # convention or the user gave it (False: a guess, or no front at all), and why
+    front: np.ndarray = field(default_factory=lambda: _Z.copy())
+    front_trusted: bool = False
+    front_reason: str = "no front given: the file's +Z, not trusted"
 
     @property
     def up(self) -> np.ndarray:
@@ -89,18 +106,27 @@ def upright_rotation(mesh: trimesh.Trimesh, seed: int = 0, judge: Judge | None =
         return _judged(axes, candidates, judge, margin)
     axis = symmetry_axis(mesh, seed)
     on_axis = [] if axis is None else [c for c in candidates if abs(np.dot(c["up"], axis)) > _AXIS_COS]
-    bases = on_axis or [c for c in candidates if c["fill"] >= _BASE_FILL]
+    bases = on_axis or [c for c in candidates if c["fill"] >= BASE_FILL or c["feet"] >= LEGS]
+    legged = [c for c in bases if c["feet"] >= LEGS]
+    bases = legged or bases
     if not bases:
         return Upright(np.eye(3), False, "no flat base to stand on: kept as authored", axes, candidates)
     best = bases[0]
     as_file = [c for c in candidates if np.dot(c["up"], _Y) > _AUTHORED_COS]
-    if as_file and as_file[0]["score"] >= _KEEP_RATIO * best["score"]:
-        return Upright(np.eye(3), False, "already upright: the file's +Y is a resting pose", axes, candidates)
+    # where something stands on legs, the file's +Y must stand on legs too: its top down would score as well
+    if as_file and (as_file[0]["feet"] >= LEGS if legged else as_file[0]["score"] >= _KEEP_RATIO * best["score"]):
+        return Upright(np.eye(3), False, "already upright: the file's +Y is a resting pose"
+                       + (" on legs" if legged else ""), axes, candidates)
     up = _snapped(np.asarray(best["up"]), axes)
     rotation = _standing_on(up, axes)
-    reason = (f"rests on a base ({best['fill']:.0%} contact, p={best['probability']:.2f}) with up "
-              f"{np.round(up, 3).tolist()} in the file frame; the file's +Y "
-              + (f"scores {as_file[0]['score'] / best['score']:.0%} of it" if as_file else "is not a resting pose"))
+    if legged:
+        reason = (f"stands on {best['feet']} legs with up {np.round(up, 3).tolist()} in the file frame; the "
+                  "file's +Y does not stand on legs")
+    else:
+        reason = (f"rests on a base ({best['fill']:.0%} contact, p={best['probability']:.2f}) with up "
+                  f"{np.round(up, 3).tolist()} in the file frame; the file's +Y "
+                  + (f"scores {as_file[0]['score'] / best['score']:.0%} of it" if as_file
+                     else "is not a resting pose"))
     return Upright(rotation, True, reason, axes, candidates)
 
 
@@ -199,7 +225,7 @@ def resting_poses(mesh: trimesh.Trimesh, min_probability: float = 0.005) -> list
     """Hull facets the object can stand on, scored (see module docstring), best first; file frame.
 
     Each: ``up`` (unit, file frame), ``probability``, ``fill``, ``height`` (share of the longest
-    extent), ``score``. The hull's centroid stands in for the centre of mass: uploads are rarely
+    extent), ``score``, ``feet`` (separate pieces touching the floor, ``_feet``). The hull's centroid stands in for the centre of mass: uploads are rarely
     watertight, so the mesh's own volume is not to be trusted.
     """
     with np.errstate(invalid="ignore", divide="ignore"):  # a flat hull has no centre of mass
@@ -214,6 +240,7 @@ def resting_poses(mesh: trimesh.Trimesh, min_probability: float = 0.005) -> list
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     face_normals = np.asarray(mesh.face_normals)
     face_areas = np.asarray(mesh.area_faces)
+    surface = np.concatenate([sampling.surface_samples(mesh, _FOOT_SAMPLES, 0)[0], vertices])
 
     normals, areas, triangles = hull.face_normals, hull.area_faces, hull.triangles
     angles = _solid_angles(triangles, centre) / (4 * np.pi)
@@ -236,8 +263,20 @@ def resting_poses(mesh: trimesh.Trimesh, min_probability: float = 0.005) -> list
         fill = min(float(face_areas[touching].sum() / areas[group].sum()), 1.0)
         height = float(np.ptp(depth) / extent)
         poses.append({"up": (-down).tolist(), "probability": probability, "fill": fill, "height": height,
-                      "score": probability * (0.05 + fill) * height**2})
+                      "score": probability * (0.05 + fill) * height**2, "feet": _feet(surface, down, extent)})
     return sorted(poses, key=lambda p: -p["score"])
+
+
+def _feet(points: np.ndarray, down: np.ndarray, extent: float) -> int:
+    """How many separate pieces of the surface (``points``, file frame) touch the floor below along ``down``:
+    single-linkage clusters of the points within ``_FOOT_BAND`` of it, linked within ``_FOOT_GAP``."""
+    depth = points @ down
+    touching = points[depth > depth.max() - _FOOT_BAND * extent]
+    if len(touching) < LEGS:
+        return len(touching)
+    links = cKDTree(touching).query_pairs(_FOOT_GAP * extent, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(links)), (links[:, 0], links[:, 1])), shape=(len(touching),) * 2)
+    return int(connected_components(graph, directed=False)[0])
 
 
 def _solid_angles(triangles: np.ndarray, origin: np.ndarray) -> np.ndarray:
@@ -266,10 +305,10 @@ def _snapped(up: np.ndarray, axes: np.ndarray) -> np.ndarray:
 
 def _standing_on(up: np.ndarray, axes: np.ndarray) -> np.ndarray:
     """The rotation (file -> upright) that turns ``up`` onto +Y, squared to the dominant axes."""
-    return _yaw_to_axes(_turn_onto(up, _Y), axes)
+    return _yaw_to_axes(turn_onto(up, _Y), axes)
 
 
-def _turn_onto(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def turn_onto(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The smallest rotation taking unit vector ``a`` onto unit vector ``b`` (3, 3)."""
     axis = np.cross(a, b)
     sin, cos = np.linalg.norm(axis), float(a @ b)
