@@ -225,8 +225,8 @@ def resting_poses(mesh: trimesh.Trimesh, min_probability: float = 0.005) -> list
     """Hull facets the object can stand on, scored (see module docstring), best first; file frame.
 
     Each: ``up`` (unit, file frame), ``probability``, ``fill``, ``height`` (share of the longest
-    extent), ``score``, ``feet`` (separate pieces touching the floor, ``_feet``). The hull's centroid stands in for the centre of mass: uploads are rarely
-    watertight, so the mesh's own volume is not to be trusted.
+    extent), ``score``, ``feet`` (separate pieces touching the floor, ``_feet``). The hull's centroid stands in
+    for the centre of mass: uploads are rarely watertight, so the mesh's own volume is not to be trusted.
     """
     with np.errstate(invalid="ignore", divide="ignore"):  # a flat hull has no centre of mass
         try:

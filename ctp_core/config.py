@@ -187,7 +187,8 @@ class AlignConfig(_Strict):
     source_up: Direction = Field("file", description="the source's up, as target_up: its starting orientation")
     source_front: Direction = Field("file", description="the source's front, as target_front")
     upright_judge: bool = Field(
-        False, description="let the guidance model choose the target's up as target_up auto does (renders under candidate ups against "
+        False, description="let the guidance model choose the target's up as target_up auto does (renders under "
+        "candidate ups against "
         "'a photo of a TARGET_NAME'); needs real weights and a target name; its accuracy is unmeasured (docs/engine.md)"
     )
     hparams_provider: str = Field("rules", description="scene-prior provider (priors.py)")
@@ -206,6 +207,10 @@ class AlignConfig(_Strict):
     def _phases_fit(self) -> AlignConfig:
         if self.optim.steps < self.optim.phases:
             raise ValueError("steps must be at least the number of phases")
+        for role in ("target", "source"):
+            up, front = getattr(self, f"{role}_up"), getattr(self, f"{role}_front")
+            if up[0] in "+-" and front[0] in "+-" and up[1] == front[1]:
+                raise ValueError(f"{role}_front {front} is not at right angles to {role}_up {up}")
         return self
 
     @property

@@ -54,6 +54,9 @@ class Axes:
                                   field=name)
 
 
+FROM_FILE = Axes()  # the default: up and front from the file
+
+
 def axis(name: str) -> np.ndarray:
     """``+x`` .. ``-z`` as a unit vector of the file frame."""
     vector = np.zeros(3)
@@ -66,18 +69,20 @@ def file_format(mesh: trimesh.Trimesh) -> str | None:
     return mesh.metadata.get("file_format")
 
 
-def orient(mesh: trimesh.Trimesh, axes: Axes = Axes(), *, seed: int = 0,
-           judge: canonical.Judge | None = None) -> canonical.Upright:
+def orient(mesh: trimesh.Trimesh, axes: Axes = FROM_FILE, *, seed: int = 0, judge: canonical.Judge | None = None,
+           role: str = "target") -> canonical.Upright:
     """Up (as the rotation file -> upright frame) and front (file frame) of ``mesh`` by ``axes``, with reasons.
 
-    ``judge``: lets a guidance model choose among candidate ups where ``up`` is ``auto``.
+    ``judge``: lets a guidance model choose among candidate ups where ``up`` is ``auto``; ``role`` names the
+    option a refused front is reported on (``<role>_front``).
     """
     fmt = file_format(mesh)
     convention = CONVENTIONS.get(fmt or "")
     if axes.up == "auto":
         guess = canonical.upright_rotation(mesh, seed=seed, judge=judge)
-        upright = canonical.Upright(guess.rotation, guess.changed, f"up: auto (geometric guess): {guess.reason}",
-                                    guess.axes, guess.candidates)
+        how = "the guidance model's judgement" if judge is not None else "geometric guess"
+        upright = canonical.Upright(guess.rotation, guess.changed, f"up: auto ({how}): {guess.reason}", guess.axes,
+                                    guess.candidates)
     elif axes.up != "file":
         up = axis(axes.up)
         upright = _standing(up, f"up: {axes.up} as given")

@@ -156,8 +156,8 @@ class PreparedPair:
 def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed: int,
                  device: str = "cpu", canonicalise: bool = True, judge: canonical.Judge | None = None,
                  on: str | None = None, target_up: canonical.Upright | None = None,
-                 target_axes: orientation.Axes = orientation.Axes(),
-                 source_axes: orientation.Axes = orientation.Axes()) -> PreparedPair:
+                 target_axes: orientation.Axes = orientation.FROM_FILE,
+                 source_axes: orientation.Axes = orientation.FROM_FILE) -> PreparedPair:
     """Normalise, orient and sample a pair once per run (everything later reuses it).
 
     Each object's up and front come from its file first (``orientation.orient`` by ``target_axes`` and
@@ -171,11 +171,11 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
     """
     whole, up_from = geometry(target), base(target)
     if target_up is None:
-        target_up = orientation.orient(up_from, target_axes if canonicalise else orientation.Axes("+y", target_axes.front),
-                                       seed=seed, judge=judge)
+        axes = target_axes if canonicalise else orientation.Axes("+y", target_axes.front)
+        target_up = orientation.orient(up_from, axes, seed=seed, judge=judge)
         if not canonicalise:
             target_up.reason = "up: the file's +Y (the upright step is off)"
-    source_up = orientation.orient(source, source_axes, seed=seed)
+    source_up = orientation.orient(source, source_axes, seed=seed, role="source")
     target_to_norm = frames.target_to_normalised(whole.vertices, target_up.rotation)
     source_to_local = frames.source_local(source.bounds, target_to_norm)
 
