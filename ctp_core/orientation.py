@@ -7,10 +7,11 @@ axes is right by construction. So, per object (``Axes``, the options ``up`` and 
 - ``file`` (the default): the file's convention.
   - glTF / GLB: the spec (glTF 2.0, section 3.4) says +Y is up and an asset's front faces +Z: both kept, the front
     trusted (unless the object is rotationally symmetric about its up: then no side is its front).
-  - OBJ, STL, PLY and meshes made in code: no convention. The rule: Y-up, unless the object stands (on legs
-    or a flat base: ``canonical.resting_poses``) with the file's +Z up and not with its +Y up, a Z-up export
-    (CAD, 3D printing, Blender's own axes); the front is then +Z (Y-up) or -Y (Z-up, Blender's front view), not
-    trusted. Only +Y or +Z can come out, so this rule never turns an object upside down.
+  - OBJ, STL, PLY and meshes made in code: no convention. The rule: Y-up, unless the object stands on legs
+    (``canonical.resting_poses``' feet) with the file's +Z up and not with its +Y up: a Z-up export (CAD, 3D
+    printing, Blender's own axes). Legs only: by flat bases a wall with a peg (a hull that topples forward off its
+    edge) would be laid on its back. The front is +Z (Y-up) or -Y (Z-up, Blender's front view), not trusted.
+    Only +Y or +Z can come out, so this rule never turns an object upside down.
 - a signed axis (``+x``, ``-y``, ...): that axis of the file, trusted.
 - ``auto``: the geometric guess: ``canonical.upright_rotation`` for up (its resting-pose, legs and symmetry cues,
   or the judge), ``guessed_front`` for front; neither trusted as a convention is.
@@ -116,19 +117,19 @@ def orient(mesh: trimesh.Trimesh, axes: Axes = FROM_FILE, *, seed: int = 0, judg
 
 
 def _unstated(mesh: trimesh.Trimesh, fmt: str | None) -> canonical.Upright:
-    """The stated rule for a file without an up convention: Y-up, unless it stands (on legs or a flat base) with
-    the file's +Z up and not with its +Y up."""
+    """The stated rule for a file without an up convention: Y-up, unless the object stands on legs with the
+    file's +Z up and not with its +Y up."""
     what = f"{fmt.upper()} states no up" if fmt else "a mesh made in code states no up"
     poses = canonical.resting_poses(canonical.unit_size(mesh))
-    if _stands(poses, _Z) and not _stands(poses, _Y):
-        return _standing(_Z, f"up: +Z ({what}; it stands with the file's +Z up, not its +Y: a Z-up export)")
-    return canonical.identity(f"up: +Y ({what}; Y-up unless it stands with the file's +Z up and not its +Y)")
+    y, z = _pose(poses, _Y), _pose(poses, _Z)
+    if z is not None and z["feet"] >= canonical.LEGS and (y is None or y["feet"] < canonical.LEGS):
+        return _standing(_Z, f"up: +Z ({what}; it stands on legs with the file's +Z up, not its +Y: a Z-up export)")
+    return canonical.identity(f"up: +Y ({what}; Y-up unless it stands on legs with the file's +Z up only)")
 
 
-def _stands(poses: list[dict], up: np.ndarray) -> bool:
-    """Whether a resting pose with ``up`` (file frame) stands on legs or a flat base (``canonical``)."""
-    return any(np.dot(p["up"], up) > _Z_UP_COS and (p["feet"] >= canonical.LEGS or p["fill"] >= canonical.BASE_FILL)
-               for p in poses)
+def _pose(poses: list[dict], up: np.ndarray) -> dict | None:
+    """The best resting pose with ``up`` (file frame), or None."""
+    return next((p for p in poses if np.dot(p["up"], up) > _Z_UP_COS), None)
 
 
 def _standing(up: np.ndarray, reason: str) -> canonical.Upright:
