@@ -100,7 +100,7 @@ def orient(mesh: trimesh.Trimesh, axes: Axes = FROM_FILE, *, seed: int = 0, judg
         front, trusted, why = axis(axes.front), True, f"front: {axes.front} as given"
         if abs(front @ up) > 0.5:
             raise ConfigError(f"front {axes.front} is not at right angles to the up "
-                              f"{np.round(up, 3).tolist()}", field="front")
+                              f"{np.round(up, 3).tolist()}", field=f"{role}_front")
     else:
         # the convention's front, turned as the up was turned away from the convention's up (if it was)
         front = canonical.turn_onto(convention_up, up) @ convention_front
