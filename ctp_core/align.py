@@ -122,7 +122,7 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
     """Priors, the normalised and canonicalised pair, the guide and its goal, the objective and the plan.
 
     A scene target's priors read the object ``on`` (its name is ``target_name``, its size the extent)."""
-    from ctp_core import goals, guidance, objective, scene, schedule
+    from ctp_core import goals, guidance, objective, orientation, scene, schedule
 
     started = time.perf_counter()
     if config.threads:
@@ -142,7 +142,7 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
         base_name, base = (target_name, target) if isinstance(target, trimesh.Trimesh) else scene.objects(target)[0]
         judge = scene.upright_judge(base, guide, base_name, device=config.device)
     pair = scene.prepare_pair(target, source, samples=config.loss.samples, seed=config.seed, device=config.device,
-                              canonicalise=config.upright, judge=judge, on=on, **frame_options(config))
+                              canonicalise=config.upright, judge=judge, on=on, **orientation.configured(config))
     prepared = time.perf_counter()
 
     if goal is None and config.loss.lambda_clip > 0:
@@ -162,16 +162,6 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
     return Run(config, pair, prior, scorer, plan, goal, started,
                {"prepare_s": round(prepared - started, 3), "model_s": round(loaded - prepared, 3)},
                {"target": target_name, "source": source_name, "on": on})
-
-
-def frame_options(config: AlignConfig) -> dict[str, Any]:
-    """``prepare_pair``'s ``target_axes`` and ``source_axes`` from the configuration (``orientation``); the judge
-    chooses among the target's candidate ups as ``auto`` does."""
-    from ctp_core.orientation import Axes
-
-    judged = config.upright_judge and config.target_up in ("file", "auto")
-    return {"target_axes": Axes("auto" if judged else config.target_up, config.target_front),
-            "source_axes": Axes(config.source_up, config.source_front)}
 
 
 def propose(run: Run, init: np.ndarray | None = None) -> Proposals:

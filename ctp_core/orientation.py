@@ -29,7 +29,7 @@ import numpy as np
 import trimesh
 
 from ctp_core import canonical, sampling
-from ctp_core.config import Direction
+from ctp_core.config import AlignConfig, Direction
 from ctp_core.errors import ConfigError
 
 DIRECTIONS: tuple[str, ...] = get_args(Direction)
@@ -56,6 +56,14 @@ class Axes:
 
 
 FROM_FILE = Axes()  # the default: up and front from the file
+
+
+def configured(config: AlignConfig) -> dict[str, Axes]:
+    """``scene.prepare_pair``'s ``target_axes`` and ``source_axes`` from a configuration; ``upright_judge`` lets the
+    guidance model choose among the target's candidate ups as ``auto`` does (unless an axis is given)."""
+    judged = config.upright_judge and config.target_up in ("file", "auto")
+    return {"target_axes": Axes("auto" if judged else config.target_up, config.target_front),
+            "source_axes": Axes(config.source_up, config.source_front)}
 
 
 def axis(name: str) -> np.ndarray:
