@@ -68,7 +68,8 @@ def adjust(target: Target, source: trimesh.Trimesh, source_to_target: np.ndarray
 
     ``config``: the job's (its loss samples, seed and penetration terms); ``upright``: (3, 3) target file ->
     upright rotation the job used (None: from the files first, by the job's up and front options,
-    ``orientation``); ``on``, ``relation``, ``source_is_figure``: the job's, for the verdict. Runs on the CPU: one pose, no model.
+    ``orientation``); ``on``, ``relation``, ``source_is_figure``: the job's, for the verdict. Runs on the CPU:
+    one pose, no model.
     """
     if settle not in SETTLES:
         raise ConfigError(f"settle is one of {', '.join(SETTLES)}, not {settle!r}", field="settle")
