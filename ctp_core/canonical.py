@@ -15,15 +15,16 @@ orientation, so a lying or upside-down target spoils every view. Three cues, all
    base, not a bridge over bumps), ``h`` the height it then stands (authored objects stand up).
 3. **Rotational symmetry**: when the surface has an axis of (near) rotational symmetry, only the
    resting poses on that axis compete (a tree or a glass stands on its axis even with a rough base).
-4. **Legs**: a resting pose whose contact with the floor is three or more separate feet (``feet``: the
-   surface within 2 % of the object's size of the floor falls apart into that many pieces, each 6 %
-   apart) is how furniture and animals stand, and outranks every flat base: a table's top is a better
-   base than four leg tips by the other cues, so without this the table is turned upside down.
+4. **Legs**: a resting pose that stands on three or more legs (``feet``: the surface within 2 % of the
+   object's size of the floor falls apart into that many pieces, 6 % apart, and they stay apart up to a
+   tenth and a quarter of its height: columns, not a lying figure's head, hands and feet) is how furniture
+   and animals stand, and outranks every flat base: a table's top is a better base than four leg tips by
+   the other cues, so without this the table is turned upside down.
 
 An upload is left as authored (identity, ``changed=False``) unless it is clearly lying, tilted or
 upside down: there must be a candidate with a real base (fill >= 0.5), on legs or on the symmetry axis,
-and the file's +Y must not be a resting pose scoring at least 1/20 of the best; where some pose stands on
-legs, the file's +Y stays only if it stands on legs too. The margin is wide on purpose:
+and the file's +Y must not be a resting pose scoring at least 1/20 of the best (on legs, or not a flat base
+where some pose stands on legs: a table upside down in its file has its flat top down). The margin is wide on purpose:
 an authored table on its legs scores ~1/16 of the same table upside down (its top is a perfect
 base), a bottle lying on its side ~1/11 of it standing, so no margin separates the two; keeping an
 authored pose is the safer error (a flipped table ruins "a cup on the table"), and a lying upload is
@@ -65,6 +66,7 @@ _FOOT_BAND = 0.02  # share of the longest side: the surface this close to the fl
 _FOOT_GAP = 0.06  # share of the longest side: touching pieces further apart than this are separate feet
 _FOOT_SAMPLES = 6000  # surface samples the feet are counted from (plus every vertex: a leg may end in a point)
 LEGS = 3  # separate feet that make a pose "on legs"
+_LEG_LEVELS = (0.1, 0.25)  # shares of the height up to which legs stay separate columns
 _Z = np.array([0.0, 0.0, 1.0])
 
 Judge = Callable[[np.ndarray], np.ndarray]
@@ -113,15 +115,17 @@ def upright_rotation(mesh: trimesh.Trimesh, seed: int = 0, judge: Judge | None =
         return Upright(np.eye(3), False, "no flat base to stand on: kept as authored", axes, candidates)
     best = bases[0]
     as_file = [c for c in candidates if np.dot(c["up"], _Y) > _AUTHORED_COS]
-    # where something stands on legs, the file's +Y must stand on legs too: its top down would score as well
-    if as_file and (as_file[0]["feet"] >= LEGS if legged else as_file[0]["score"] >= _KEEP_RATIO * best["score"]):
+    # on legs, the file's +Y with its flat top down (a table upside down) is no authored pose: it would score as well
+    if as_file and (as_file[0]["feet"] >= LEGS or (as_file[0]["score"] >= _KEEP_RATIO * best["score"]
+                                                  and not (legged and as_file[0]["fill"] >= BASE_FILL))):
         return Upright(np.eye(3), False, "already upright: the file's +Y is a resting pose"
-                       + (" on legs" if legged else ""), axes, candidates)
+                       + (" on legs" if as_file[0]["feet"] >= LEGS else ""), axes, candidates)
     up = _snapped(np.asarray(best["up"]), axes)
     rotation = _standing_on(up, axes)
     if legged:
+        flat_top = as_file and as_file[0]["fill"] >= BASE_FILL
         reason = (f"stands on {best['feet']} legs with up {np.round(up, 3).tolist()} in the file frame; the "
-                  "file's +Y does not stand on legs")
+                  "file's +Y does not" + (" (its flat top down)" if flat_top else ""))
     else:
         reason = (f"rests on a base ({best['fill']:.0%} contact, p={best['probability']:.2f}) with up "
                   f"{np.round(up, 3).tolist()} in the file frame; the file's +Y "
@@ -268,15 +272,21 @@ def resting_poses(mesh: trimesh.Trimesh, min_probability: float = 0.005) -> list
 
 
 def _feet(points: np.ndarray, down: np.ndarray, extent: float) -> int:
-    """How many separate pieces of the surface (``points``, file frame) touch the floor below along ``down``:
-    single-linkage clusters of the points within ``_FOOT_BAND`` of it, linked within ``_FOOT_GAP``."""
+    """How many legs ``points`` (surface samples, file frame) stand on along ``down``: separate pieces of the
+    surface near the floor (single-linkage clusters linked within ``_FOOT_GAP``) that stay separate up to
+    ``_LEG_LEVELS`` of the height, the fewest over those levels. A lying figure's head, hands and feet touch the
+    floor apart too, but merge into its body a little above it; legs are columns."""
     depth = points @ down
-    touching = points[depth > depth.max() - _FOOT_BAND * extent]
-    if len(touching) < LEGS:
-        return len(touching)
-    links = cKDTree(touching).query_pairs(_FOOT_GAP * extent, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(links)), (links[:, 0], links[:, 1])), shape=(len(touching),) * 2)
-    return int(connected_components(graph, directed=False)[0])
+    lowest, height = depth.max(), float(np.ptp(depth))
+    counts = []
+    for level in (_FOOT_BAND * extent, *(share * height for share in _LEG_LEVELS)):
+        near = points[depth > lowest - level]
+        if len(near) < LEGS:
+            return len(near)
+        links = cKDTree(near).query_pairs(_FOOT_GAP * extent, output_type="ndarray")
+        graph = coo_matrix((np.ones(len(links)), (links[:, 0], links[:, 1])), shape=(len(near),) * 2)
+        counts.append(int(connected_components(graph, directed=False)[0]))
+    return min(counts)
 
 
 def _solid_angles(triangles: np.ndarray, origin: np.ndarray) -> np.ndarray:
