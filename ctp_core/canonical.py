@@ -278,15 +278,15 @@ def _feet(points: np.ndarray, down: np.ndarray, extent: float) -> int:
     floor apart too, but merge into its body a little above it; legs are columns."""
     depth = points @ down
     lowest, height = depth.max(), float(np.ptp(depth))
-    counts = []
+    fewest = len(points)
     for level in (_FOOT_BAND * extent, *(share * height for share in _LEG_LEVELS)):
         near = points[depth > lowest - level]
-        if len(near) < LEGS:
-            return len(near)
         links = cKDTree(near).query_pairs(_FOOT_GAP * extent, output_type="ndarray")
         graph = coo_matrix((np.ones(len(links)), (links[:, 0], links[:, 1])), shape=(len(near),) * 2)
-        counts.append(int(connected_components(graph, directed=False)[0]))
-    return min(counts)
+        fewest = min(fewest, int(connected_components(graph, directed=False)[0]))
+        if fewest < LEGS:  # no legs at this level: the higher ones cannot add any
+            break
+    return fewest
 
 
 def _solid_angles(triangles: np.ndarray, origin: np.ndarray) -> np.ndarray:
