@@ -18,13 +18,15 @@ orientation, so a lying or upside-down target spoils every view. Three cues, all
 4. **Legs**: a resting pose that stands on three or more legs (``feet``: the surface within 2 % of the
    object's size of the floor falls apart into that many pieces, 6 % apart, and they stay apart up to a
    tenth and a quarter of its height: columns, not a lying figure's head, hands and feet) is how furniture
-   and animals stand, and outranks every flat base: a table's top is a better base than four leg tips by
-   the other cues, so without this the table is turned upside down.
+   and animals stand: where something has a flat base to stand on at all, a pose on legs outranks the flat
+   bases, and a flat base with legs on its other side is a top (a table's, a stool's seat) that no
+   authored upload rests on. A table's top is a better base than four leg tips by the other cues, so
+   without this the table is turned upside down (or kept so).
 
 An upload is left as authored (identity, ``changed=False``) unless it is clearly lying, tilted or
-upside down: there must be a candidate with a real base (fill >= 0.5), on legs or on the symmetry axis,
-and the file's +Y must not be a resting pose scoring at least 1/20 of the best (on legs, or not a flat base
-where some pose stands on legs: a table upside down in its file has its flat top down). The margin is wide on purpose:
+upside down: there must be a candidate with a real base (fill >= 0.5) or on the symmetry axis, and the
+file's +Y must not be a resting pose scoring at least 1/20 of it (nor one on legs; a top with legs on its
+other side does not count: a table upside down in its file). The margin is wide on purpose:
 an authored table on its legs scores ~1/16 of the same table upside down (its top is a perfect
 base), a bottle lying on its side ~1/11 of it standing, so no margin separates the two; keeping an
 authored pose is the safer error (a flipped table ruins "a cup on the table"), and a lying upload is
@@ -66,6 +68,7 @@ _FOOT_BAND = 0.02  # share of the longest side: the surface this close to the fl
 _FOOT_GAP = 0.06  # share of the longest side: touching pieces further apart than this are separate feet
 _FOOT_SAMPLES = 6000  # surface samples the feet are counted from (plus every vertex: a leg may end in a point)
 LEGS = 3  # separate feet that make a pose "on legs"
+_OPPOSITE_COS = np.cos(np.radians(15.0))  # a pose on legs this close to a base's down: that base is a top
 _LEG_LEVELS = (0.1, 0.25)  # shares of the height up to which legs stay separate columns
 _Z = np.array([0.0, 0.0, 1.0])
 
@@ -108,24 +111,23 @@ def upright_rotation(mesh: trimesh.Trimesh, seed: int = 0, judge: Judge | None =
         return _judged(axes, candidates, judge, margin)
     axis = symmetry_axis(mesh, seed)
     on_axis = [] if axis is None else [c for c in candidates if abs(np.dot(c["up"], axis)) > _AXIS_COS]
-    bases = on_axis or [c for c in candidates if c["fill"] >= BASE_FILL or c["feet"] >= LEGS]
-    legged = [c for c in bases if c["feet"] >= LEGS]
-    bases = legged or bases
+    bases = on_axis or [c for c in candidates if c["fill"] >= BASE_FILL]
     if not bases:
         return Upright(np.eye(3), False, "no flat base to stand on: kept as authored", axes, candidates)
-    best = bases[0]
+    legged = [c for c in (on_axis or candidates) if c["feet"] >= LEGS]
+    best = legged[0] if legged else bases[0]
     as_file = [c for c in candidates if np.dot(c["up"], _Y) > _AUTHORED_COS]
-    # on legs, the file's +Y with its flat top down (a table upside down) is no authored pose: it would score as well
-    if as_file and (as_file[0]["feet"] >= LEGS or (as_file[0]["score"] >= _KEEP_RATIO * best["score"]
-                                                  and not (legged and as_file[0]["fill"] >= BASE_FILL))):
+    # kept: on legs as authored, or scoring 1/20 of the best base unless it is a top with legs on its other side
+    if as_file and (as_file[0]["feet"] >= LEGS or (as_file[0]["score"] >= _KEEP_RATIO * bases[0]["score"]
+                                                  and _legs_under(as_file[0], legged) is None)):
         return Upright(np.eye(3), False, "already upright: the file's +Y is a resting pose"
                        + (" on legs" if as_file[0]["feet"] >= LEGS else ""), axes, candidates)
     up = _snapped(np.asarray(best["up"]), axes)
     rotation = _standing_on(up, axes)
     if legged:
-        flat_top = as_file and as_file[0]["fill"] >= BASE_FILL
-        reason = (f"stands on {best['feet']} legs with up {np.round(up, 3).tolist()} in the file frame; the "
-                  "file's +Y does not" + (" (its flat top down)" if flat_top else ""))
+        top = as_file and _legs_under(as_file[0], legged) is not None
+        reason = (f"stands on {best['feet']} legs with up {np.round(up, 3).tolist()} in the file frame; the file's "
+                  + ("+Y rests on its top, the legs on the other side" if top else "+Y does not stand on legs"))
     else:
         reason = (f"rests on a base ({best['fill']:.0%} contact, p={best['probability']:.2f}) with up "
                   f"{np.round(up, 3).tolist()} in the file frame; the file's +Y "
@@ -269,6 +271,12 @@ def resting_poses(mesh: trimesh.Trimesh, min_probability: float = 0.005) -> list
         poses.append({"up": (-down).tolist(), "probability": probability, "fill": fill, "height": height,
                       "score": probability * (0.05 + fill) * height**2, "feet": _feet(surface, down, extent)})
     return sorted(poses, key=lambda p: -p["score"])
+
+
+def _legs_under(pose: dict, legged: list[dict]) -> dict | None:
+    """The pose of ``legged`` opposite ``pose`` (its up within ``_OPPOSITE_COS`` of ``pose``'s down), if any: then
+    ``pose`` rests on a top (a table's, a stool's seat), and the object stands on those legs."""
+    return next((c for c in legged if np.dot(c["up"], pose["up"]) < -_OPPOSITE_COS), None)
 
 
 def _feet(points: np.ndarray, down: np.ndarray, extent: float) -> int:
