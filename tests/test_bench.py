@@ -219,6 +219,7 @@ def test_relations_are_judged_in_the_reference_frame_with_valid_and_placement_at
     data = harness._load(case, harness.BenchOptions(preset="test"), need_guide=False)
     pair = harness._judge(data)[0]
     assert not pair.target_upright.changed and "reference" in pair.target_upright.reason
+    assert pair.front_trusted and np.allclose(pair.target_front, [0, 0, 1])  # glTF's front, for directional relations
     right = harness.evaluate(data, on_top)
     assert right["relation"] == "on" and right["relation_holds"] and right["valid"]
     assert right["placement_success"] and right["placement_at_k"]

@@ -152,14 +152,15 @@ def _judge(data: _CaseData) -> tuple:
     the label's vocabulary ("on_top", "attached", "other") is the benchmark's, it does not say whether the source
     is the figure, and the priors' relation is what a run would use."""
     if data.judge is None:
-        from ctp_core import canonical, scene
+        from ctp_core import orientation, scene
 
         case, target, source = data.case, data.target, data.source
         prior = priors.resolve_priors(priors.get_provider("rules"), case.target_name, case.source_name, case.prompt,
                                       target_extent=float(target.extents.max()),
                                       source_extent=float(source.extents.max()))
-        pair = scene.prepare_pair(target, source, samples=RELATION_SAMPLES, seed=0,
-                                  target_up=canonical.identity("the case's frame (the reference's)"))
+        frame = orientation.orient(target, orientation.Axes("+y"))  # the front: the file's convention (glTF's +Z)
+        frame.reason = "the case's frame (the reference's): the file's +Y up"
+        pair = scene.prepare_pair(target, source, samples=RELATION_SAMPLES, seed=0, target_up=frame)
         data.judge = (pair, prior.relation, prior.source_is_figure, prior.penetration)
     return data.judge
 
