@@ -1,7 +1,7 @@
 """Canonical upright pose (Auto-Align): which way is up for an uploaded mesh.
 
 Renders guide the optimiser, and a vision-language model recognises objects in their usual
-orientation, so a lying or upside-down target spoils every view. Three cues, all from geometry alone:
+orientation, so a lying or upside-down target spoils every view. Four cues, all from geometry alone:
 
 1. **Dominant axes** (method.md): RANSAC over area-weighted face normals for three orthogonal axes
    (200 tries, 5° inliers), refined by an area-weighted median (10 iterations). They make the answer
@@ -31,11 +31,12 @@ an authored table on its legs scores ~1/16 of the same table upside down (its to
 base), a bottle lying on its side ~1/11 of it standing, so no margin separates the two; keeping an
 authored pose is the safer error (a flipped table ruins "a cup on the table"), and a lying upload is
 still placed correctly in its own file frame. Known misses: figures that cannot stand on their own
-(no resting pose has +Y up), cubes and spheres (no single up).
+(no resting pose has +Y up), cubes and spheres (no single up), legged things lying on a side in their file
+(kept: not a top). The ``orientation`` module asks for this guess only with ``up: auto``.
 Measured on ``../shared/bench`` by ``benchmarks/canonical_bench.py`` (figures in docs/engine.md).
 
-5. **A judge** (optional, semantic): geometry cannot tell a table on its legs from one on its top, or
-   where a figure's head is; a vision-language model can. ``judge`` scores candidate rotations (in
+5. **A judge** (optional, semantic): geometry cannot tell where a figure's head is (nor a table without
+   legs from one on its top); a vision-language model can. ``judge`` scores candidate rotations (in
    practice: renders of the object under each, against "a photo of a NAME", ``scene.upright_judge``)
    and picks among the file's +Y, the best resting poses and the six dominant-axis directions. The
    file's +Y stays unless another candidate scores ``margin`` more.
