@@ -76,7 +76,12 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
                              "already do; descent and paper descend it)")
     add_switch(parser, "--no-guidance", "lambda_clip", 0.0, "geometry only (lambda_clip = 0)")
     add_switch(parser, "--keep-up", "upright", False,
-               "keep the target file's +Y as up (no automatic upright turn of the target)")
+               "keep the target file's +Y as up whatever its format or --target-up says")
+    for role in ("target", "source"):
+        add_option(parser, f"{role}_up", "DIR", f"the {role}'s up: file (default: +Y for glTF; OBJ, STL, PLY Y-up "
+                   "unless it stands only with +Z up), auto (geometric guess), or +x, -x, +y, -y, +z, -z")
+        add_option(parser, f"{role}_front", "DIR", f"the {role}'s front: file (default: +Z for glTF), auto, or an "
+                   "axis at right angles to its up")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 

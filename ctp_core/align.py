@@ -65,7 +65,8 @@ class AlignResult:
     runtime: str | None = None  # the guide's runtime ("torch", "onnx"); None without a guide
     clip_images: int = 0  # images the encoder scored
     phase_timings: list[dict[str, float]] = field(default_factory=list)  # per refinement phase
-    target_upright: canonical.Upright | None = None  # the target's canonical pose (file frame -> upright frame)
+    target_upright: canonical.Upright | None = None  # the target's up and front (file frame -> upright frame, why)
+    source_upright: canonical.Upright | None = None  # the source's up and front (its starting orientation, why)
     # the answer's relation verdict (predicates.RelationVerdict.to_dict: name, role figure/ground, score, holds,
     # stable); None when the priors read no relation
     relation: dict[str, Any] | None = None
@@ -126,8 +127,7 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
     """Priors, the normalised and canonicalised pair, the guide and its goal, the objective and the plan.
 
     A scene target's priors read the object ``on`` (its name is ``target_name``, its size the extent)."""
-    from ctp_core import canonical, goals, guidance, objective, scene, schedule
-    from ctp_core.priors.relations import RELATIONS
+    from ctp_core import goals, guidance, objective, orientation, scene, schedule
 
     started = time.perf_counter()
     if config.threads:
@@ -140,18 +140,14 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
         penetration=PENETRATION[config.penetration],
         target_extent=float(scene.attachment(target, on).extents.max()), source_extent=float(source.extents.max()),
     )
-    # what hangs is hung on something fixed in place, whose resting poses as a free object say nothing of its up
-    mounted = prior.source_is_figure and prior.relation in RELATIONS and RELATIONS[prior.relation].mounted
-    kept = canonical.identity(f"kept as authored: the target is what the source is hung on ({prior.relation}), "
-                              "fixed in place") if mounted and config.upright else None
     judge = None
-    if config.upright and config.upright_judge and kept is None:
+    if config.upright and config.upright_judge:
         guide = guide or guidance.guide_for(config)
         # a scene's up is its base's (scene.base), judged under the base's own name
         base_name, base = (target_name, target) if isinstance(target, trimesh.Trimesh) else scene.objects(target)[0]
         judge = scene.upright_judge(base, guide, base_name, device=config.device)
     pair = scene.prepare_pair(target, source, samples=config.loss.samples, seed=config.seed, device=config.device,
-                              canonicalise=config.upright, judge=judge, on=on, target_up=kept)
+                              canonicalise=config.upright, judge=judge, on=on, **orientation.configured(config))
     prepared = time.perf_counter()
 
     if goal is None and config.loss.lambda_clip > 0:
@@ -263,7 +259,7 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
         runtime=getattr(run.scorer.guide, "runtime", None),  # the pixels guide has none
         clip_images=outcome.clip_images,
         phase_timings=[{k: round(v, 3) for k, v in p.items()} for p in outcome.phase_timings],
-        target_upright=pair.target_upright,
+        target_upright=pair.target_upright, source_upright=pair.source_upright,
         warnings=list(run.warnings),
         guide_say=None if run.scorer.gate is None else run.scorer.gate.to_dict(),
     )

@@ -170,11 +170,12 @@ class Client:
             timeout = httpx.Timeout(timeout.connect, read=(timeout.read or 0) + wait)  # the answer comes after it
         return self._json(self.http.post(path, files=files, data=data, headers=headers, timeout=timeout))
 
-    def inspect(self, mesh: MeshInput) -> dict[str, Any]:
+    def inspect(self, mesh: MeshInput, *, up: str = "file", front: str = "file") -> dict[str, Any]:
         """What a job would make of one mesh, before any job (``POST /inspect``): ``faces``, ``vertices``,
-        ``extents`` and ``size`` in the file's units, the ``up`` the service will use (file frame) and whether it
-        is ``turned``; a file a job would refuse raises ``ServiceError`` with the same code."""
-        return self._json(self.http.post("/inspect", files={"mesh": _file(mesh)}))
+        ``extents`` and ``size`` in the file's units, the ``up`` and ``front`` a job with the options ``up`` and
+        ``front`` will use (file frame), whether it is ``turned`` and why; a file a job would refuse raises
+        ``ServiceError`` with the same code."""
+        return self._json(self.http.post("/inspect", files={"mesh": _file(mesh)}, data={"up": up, "front": front}))
 
     def adjust(self, job_id: str, transform, *, settle: str = "none", direction: Sequence[float] | None = None,
                save: bool = False, wait: int = 30, timeout_s: float = 120.0) -> dict[str, Any]:

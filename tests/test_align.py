@@ -126,9 +126,10 @@ def test_cli_align_end_to_end(tmp_path, meshes, capsys):
         placed = trimesh.load(path, force="scene").graph["source"][0]
         np.testing.assert_allclose(placed, alternatives[k]["transform"]["matrix"], atol=1e-6)
     assert list(data["extra"]) == ["best_restart", "on", "guidance", "runtime", "clip_images", "phase_timings",
-                                   "target_upright"]
+                                   "target_upright", "source_upright"]
     assert data["extra"]["clip_images"] > 0 and len(data["extra"]["phase_timings"]) == data["config"]["optim"]["phases"]
-    assert list(data["extra"]["target_upright"]) == ["rotation", "changed", "reason"]
+    frame = ["rotation", "changed", "up", "front", "front_trusted", "reason", "front_reason"]
+    assert list(data["extra"]["target_upright"]) == list(data["extra"]["source_upright"]) == frame
     # runtime auto: torch where the CPU has native bf16, ONNX Runtime fp32 on the others (AVX2-only EPYCs)
     expected = runtime.resolve("auto", device="cpu", bf16=cpu_has_fast_bf16())
     assert (summary["model"], summary["runtime"]) == ("random:tiny", expected)
@@ -169,7 +170,7 @@ def test_align_with_the_upright_judge(meshes):
     cfg = AlignConfig.from_preset("test", model="random:tiny", upright_judge=True)
     result = align(*meshes, "a cup on the table", cfg, target_name="table")
     upright = result.target_upright
-    assert upright.reason.startswith("judged")
+    assert upright.reason.startswith("up: auto (the guidance model's judgement): judged")
     assert np.allclose(upright.rotation @ upright.rotation.T, np.eye(3), atol=1e-9)
 
 

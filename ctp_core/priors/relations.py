@@ -29,9 +29,6 @@ class Relation:
     lock goes into the keyhole), "if_pointed" ("in"/"through": an arrow in a target yes, a spoon in a
     cup no) or "no". ``figure_size``: the figure's size over the ground's when the lexicon does not
     know one of them; what sits on, in or hangs from something is usually the smaller of the two.
-    ``mounted``: the ground is usually fixed in place (a wall, a peg, a hook, a ceiling): how it would rest as a
-    free object says nothing about its up, so the upright step keeps its file frame (a wall with a peg, turned to
-    lie on its back, has no peg to hang from).
     ``kind``: ``contact`` (the figure touches or rests on its ground: the relations above), ``side`` (beside the
     ground on one of its sides, in its own frame: ``front``, ``behind``, ``left``, ``right``), ``vertical``
     (``above``, ``below``: a gap, no contact), ``distance`` (``near``, ``far``) or ``orientation`` (which way the
@@ -43,7 +40,6 @@ class Relation:
     ground_contact: float
     figure_size: float
     penetration: str = "no"
-    mounted: bool = False
     kind: str = "contact"
 
 
@@ -56,7 +52,7 @@ RELATIONS: dict[str, Relation] = {r.name: r for r in (
     Relation("stand", 0.05, 0.02, 0.3),             # feet or a foot only
     Relation("wrap", 0.6, 0.2, 0.3),                # coiled or tied around
     Relation("lean", 0.05, 0.02, 0.8),              # an end or an edge
-    Relation("hang", 0.05, 0.02, 0.2, mounted=True),  # a loop on a hook
+    Relation("hang", 0.05, 0.02, 0.2),              # a loop on a hook
     Relation("attach", 0.3, 0.05, 0.2),             # glued, taped, mounted: a face or a foot
     Relation("under", 0.0, 0.05, 0.5),              # "a ball under the table" does not touch it
     Relation("beside", 0.0, 0.0, 1.0),              # next to, behind, in front of: no contact
