@@ -98,9 +98,11 @@ class PreparedPair:
     source_surface: SurfaceIndex  # source samples + outward normals, source local frame (what is inside the source)
     target_outward: list[trimesh.Trimesh]  # each target object, file frame, outward winding (``outward``)
     attach: SurfaceIndex | None = None  # samples of the object the source relates to; None: all of ``index``
-    target_front: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))  # (3,) unit, normalised frame: the target's front (its file's +Z for glTF, turned as the target is)  # noqa: E501
-    front_trusted: bool = True  # False where no convention gives a front (or a symmetric target): directional relations use the viewer's frame  # noqa: E501
-    source_front: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))  # (3,) unit, source local frame: the source's front  # noqa: E501
+    # the target's front, (3,) unit, normalised frame (its file's +Z for glTF, turned as the target is)
+    target_front: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    # False where no convention gives a front (or a symmetric target): directional relations use the viewer's frame
+    front_trusted: bool = True
+    source_front: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))  # (3,) unit, source local
 
     @property
     def anchor(self) -> SurfaceIndex:
