@@ -143,6 +143,7 @@ def _extra(result: AlignResult) -> dict:
         "runtime": result.runtime, "clip_images": result.clip_images, "phase_timings": result.phase_timings,
         "target_upright": None if upright is None else {"rotation": upright.rotation.tolist(),
                                                         "changed": upright.changed, "reason": upright.reason},
+        "scale": result.scaling,  # scale mode: initial scale and where from, the ladder, the final scale
     }
 
 
