@@ -19,7 +19,7 @@ Where the geometry bounds the scale, it decides over the priors (``Bound``):
   the wall starts there.
 - ``wear`` (the source the figure, the source has a cavity: a hat, a crown, a cap): it fits what wears it: as wide
   inside (its upright frame, horizontally) as the target's top part as deep as that cavity. A fit: the ladder
-  centres there instead of on the priors' ratio.
+  centres there instead of on the priors' ratio and spans the scales that fit within ``FIT_TOLERANCE``.
 Other relations that bound the scale ("hang": a loop wider than the peg; a lid "on" a box covering its rim) are
 not used.
 """
@@ -43,6 +43,8 @@ PRIOR_WEIGHT = 1.0  # the ``scale`` term's prior half where the geometry alone j
 PRIOR_FLOOR = 1e-3  # ... where a guide judges fully: a tie-break, far under what a guide's term moves between sizes
 WALL = 100.0  # the ``scale`` term's weight per squared log-unit beyond the ladder's ends (or a geometric bound)
 FIT_STEPS = 64  # log scales scanned for the ``wear`` fit over twice the ladder's span
+FIT_TOLERANCE = math.log(1.25)  # a ``wear`` fit's band: the scales where the source's inside is within 25 % of the
+# width of what wears it (the ladder and the scale term's sigma come from that band, not the priors' error)
 
 
 @dataclass(frozen=True)
@@ -52,6 +54,7 @@ class Bound:
     kind: str  # "in: fits the cavity" (upper bound) or "wear: fits what wears it" (a fit)
     log_s: float
     upper: bool  # an upper bound (the rungs above go); otherwise the ladder's centre
+    band: tuple[float, float] | None = None  # a fit's: the log scales within ``FIT_TOLERANCE`` of fitting
 
 
 @dataclass(frozen=True)
@@ -68,16 +71,17 @@ class ScalePlan:
     reason: str  # the priors' reason
     names: dict[str, str | None]  # the names the priors read (target, source, on)
     bound: Bound | None = None
+    sigma: float = PRIOR_SIGMA  # the centre's uncertainty (log): the priors' error, or half a fit's band
 
     def term(self, log_s: torch.Tensor, geometric: float = 1.0) -> torch.Tensor:
-        """(B,) the objective's ``scale`` term: w x ((log s - centre) / PRIOR_SIGMA)^2 / 2, plus ``WALL`` x the
+        """(B,) the objective's ``scale`` term: w x ((log s - centre) / sigma)^2 / 2, plus ``WALL`` x the
         squared distance beyond the band (``low``, ``high``). ``geometric``: how far the geometry judges alone (1
         without a guide, 0 with one whose gate overrides fully: ``Scorer.preference_weight``); w runs from
         ``PRIOR_FLOOR`` to ``PRIOR_WEIGHT`` with it: soft-ICP and the relation's terms at contact favour a smaller
         source, and nothing but a guide sees which size is right."""
         weight = PRIOR_FLOOR + (PRIOR_WEIGHT - PRIOR_FLOOR) * geometric
         beyond = log_s - log_s.clamp(self.low, self.high)
-        return weight * 0.5 * ((log_s - self.centre) / PRIOR_SIGMA) ** 2 + WALL * beyond**2
+        return weight * 0.5 * ((log_s - self.centre) / self.sigma) ** 2 + WALL * beyond**2
 
     def to_dict(self) -> dict:
         """The report's ``extra.scale`` (before the final scale is known)."""
@@ -87,6 +91,7 @@ class ScalePlan:
                 "constraint": None if self.bound is None else {"kind": self.bound.kind,
                                                               "scale": math.exp(self.bound.log_s),
                                                               "upper_bound": self.bound.upper},
+                "sigma": self.sigma,
                 "ladder": [math.exp(r) for r in sorted(self.rungs)], "band": [math.exp(self.low), math.exp(self.high)]}
 
 
@@ -113,10 +118,10 @@ def cavity_bound(pair: PreparedPair, seed: int) -> float | None:
     return float(np.min(np.log(opening / np.maximum(sides, 1e-30))))
 
 
-def wear_fit(pair: PreparedPair, seed: int, around: float) -> float | None:
+def wear_fit(pair: PreparedPair, seed: int, around: float) -> Bound | None:
     """``wear``: the log scale (within twice the ladder's span of ``around``) at which the source's cavity, in its
-    upright frame, is as wide as the target's top part as deep as the cavity (normalised frame, +Y up); None
-    when the source has no cavity."""
+    upright frame, is as wide as the target's top part as deep as the cavity (normalised frame, +Y up), and the
+    band of scales within ``FIT_TOLERANCE`` of that; None when the source has no cavity."""
     local = pair.source_vertices.cpu().numpy().astype(np.float64)
     surface = pair.source_surface
     sigma = proposals.CAVITY_SIGMA * float(np.linalg.norm(np.ptp(local, axis=0))) / max(
@@ -135,7 +140,12 @@ def wear_fit(pair: PreparedPair, seed: int, around: float) -> float | None:
         part = points[points[:, 1] >= top - math.exp(log_s) * depth]
         head = float(np.ptp(part[:, [0, 2]], axis=0).max()) if len(part) > 1 else 0.0
         misfit.append(abs(math.log(max(head, 1e-30) / (math.exp(log_s) * width))))
-    return float(scales[int(np.argmin(misfit))])
+    misfit = np.asarray(misfit)
+    best = int(np.argmin(misfit))
+    near = scales[misfit <= misfit[best] + FIT_TOLERANCE]
+    near = near[np.abs(near - scales[best]) <= 2 * FIT_TOLERANCE + 1e-9]  # the best's own stretch, not a far one
+    return Bound("wear: fits what wears it", float(scales[best]), upper=False,
+                 band=(float(near.min()), float(near.max())))
 
 
 def plan(pair: PreparedPair, prior: ScenePrior, names: dict[str, str | None], seed: int) -> ScalePlan:
@@ -146,13 +156,17 @@ def plan(pair: PreparedPair, prior: ScenePrior, names: dict[str, str | None], se
         limit = cavity_bound(pair, seed)
         bound = None if limit is None else Bound("in: fits the cavity", limit, upper=True)
     elif prior.source_is_figure and prior.relation == "wear":
-        fit = wear_fit(pair, seed, ratio)
-        bound = None if fit is None else Bound("wear: fits what wears it", fit, upper=False)
-    centre = bound.log_s if bound is not None and not bound.upper else ratio
+        bound = wear_fit(pair, seed, ratio)
+    if bound is not None and bound.band is not None:  # a fit: its own band, not the priors' error
+        centre, (low, high) = bound.log_s, bound.band
+        rungs = sorted({centre, *np.linspace(low, high, RUNGS).tolist()}, key=lambda r: (abs(r - centre), r))
+        return ScalePlan(ratio, centre, tuple(rungs), low, high, prior.size_ratio, prior.reason, names, bound,
+                         sigma=max((high - low) / 2, 1e-3))
+    centre = ratio
     step = LADDER_WIDTH / (RUNGS // 2)
     rungs = [centre + k * step for k in range(-(RUNGS // 2), RUNGS // 2 + 1)]
     high = centre + LADDER_WIDTH
-    if bound is not None and bound.upper:
+    if bound is not None:  # "in": an upper bound
         high = min(high, bound.log_s)
         centre = min(centre, high)
         rungs = sorted({min(r, high) for r in rungs})
