@@ -19,7 +19,9 @@ Where the geometry bounds the scale, it decides over the priors (``Bound``):
   the wall starts there.
 - ``wear`` (the source the figure, the source has a cavity: a hat, a crown, a cap): it fits what wears it: as wide
   inside (its upright frame, horizontally) as the target's top part as deep as that cavity. A fit: the ladder
-  centres there instead of on the priors' ratio and spans the scales that fit within ``FIT_TOLERANCE``.
+  centres there instead of on the priors' ratio and spans the scales that fit within ``FIT_TOLERANCE``; a fit
+  farther from the priors' ratio than ``LADDER_WIDTH`` is left out (reported): the source is then not a hollow
+  thing worn over the top (a comb, a flower "on its head"), and the priors decide.
 Other relations that bound the scale ("hang": a loop wider than the peg; a lid "on" a box covering its rim) are
 not used.
 """
@@ -27,7 +29,7 @@ not used.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -72,6 +74,8 @@ class ScalePlan:
     names: dict[str, str | None]  # the names the priors read (target, source, on)
     bound: Bound | None = None
     sigma: float = PRIOR_SIGMA  # the centre's uncertainty (log): the priors' error, or half a fit's band
+    relation: str | None = None  # the priors' relation
+    rejected: str | None = None  # a geometric fit left out, and why
 
     def term(self, log_s: torch.Tensor, geometric: float = 1.0) -> torch.Tensor:
         """(B,) the objective's ``scale`` term: w x ((log s - centre) / sigma)^2 / 2, plus ``WALL`` x the
@@ -85,13 +89,13 @@ class ScalePlan:
 
     def to_dict(self) -> dict:
         """The report's ``extra.scale`` (before the final scale is known)."""
-        return {"initial": math.exp(self.centre), "from": "geometry" if self.bound and not self.bound.upper
-                else "priors", "size_ratio": self.size_ratio, "priors_scale": math.exp(self.ratio_log_s),
+        return {"initial": math.exp(self.centre), "from": "priors" if self.centre == self.ratio_log_s else "geometry",
+                "size_ratio": self.size_ratio, "priors_scale": math.exp(self.ratio_log_s),
                 "names": self.names, "priors_reason": self.reason,
                 "constraint": None if self.bound is None else {"kind": self.bound.kind,
                                                               "scale": math.exp(self.bound.log_s),
                                                               "upper_bound": self.bound.upper},
-                "sigma": self.sigma,
+                "sigma": self.sigma, "relation": self.relation, "rejected": self.rejected,
                 "ladder": [math.exp(r) for r in sorted(self.rungs)], "band": [math.exp(self.low), math.exp(self.high)]}
 
 
@@ -119,9 +123,11 @@ def cavity_bound(pair: PreparedPair, seed: int) -> float | None:
 
 
 def wear_fit(pair: PreparedPair, seed: int, around: float) -> Bound | None:
-    """``wear``: the log scale (within twice the ladder's span of ``around``) at which the source's cavity, in its
-    upright frame, is as wide as the target's top part as deep as the cavity (normalised frame, +Y up), and the
-    band of scales within ``FIT_TOLERANCE`` of that; None when the source has no cavity."""
+    """``wear``: the smallest log scale (within twice the ladder's span of ``around``) at which the source's cavity,
+    in its upright frame, is as wide as the target's top part as deep as the cavity (normalised frame, +Y up): a
+    cap on a sphere comes down until its rim meets it, so a larger one sits lower, over a wider part. With the
+    band of scales within ``FIT_TOLERANCE`` of fitting; None when the source has no cavity or the scan finds no
+    such scale."""
     local = pair.source_vertices.cpu().numpy().astype(np.float64)
     surface = pair.source_surface
     sigma = proposals.CAVITY_SIGMA * float(np.linalg.norm(np.ptp(local, axis=0))) / max(
@@ -135,17 +141,21 @@ def wear_fit(pair: PreparedPair, seed: int, around: float) -> Bound | None:
     points = pair.anchor.points.cpu().numpy().astype(np.float64)
     top = float(points[:, 1].max())
     scales = np.linspace(around - 2 * LADDER_WIDTH, around + 2 * LADDER_WIDTH, FIT_STEPS)
-    misfit = []
+    misfit = []  # ln(the covered part's width / the inside's width) at each scale: > 0 while it cannot go on
     for log_s in scales:
         part = points[points[:, 1] >= top - math.exp(log_s) * depth]
         head = float(np.ptp(part[:, [0, 2]], axis=0).max()) if len(part) > 1 else 0.0
-        misfit.append(abs(math.log(max(head, 1e-30) / (math.exp(log_s) * width))))
+        misfit.append(math.log(max(head, 1e-30) / (math.exp(log_s) * width)))
     misfit = np.asarray(misfit)
-    best = int(np.argmin(misfit))
-    near = scales[misfit <= misfit[best] + FIT_TOLERANCE]
+    fits = np.flatnonzero(misfit <= 0)
+    if not len(fits) or fits[0] == 0:  # never wide enough, or wide enough at any scale scanned: no fit
+        return None
+    best = int(fits[0])  # the smallest scale whose inside takes the part it covers: snug
+    near = scales[np.abs(misfit) <= FIT_TOLERANCE]
     near = near[np.abs(near - scales[best]) <= 2 * FIT_TOLERANCE + 1e-9]  # the best's own stretch, not a far one
     return Bound("wear: fits what wears it", float(scales[best]), upper=False,
-                 band=(float(near.min()), float(near.max())))
+                 band=(float(min(near.min(initial=scales[best]), scales[best])),
+                       float(max(near.max(initial=scales[best]), scales[best]))))
 
 
 def plan(pair: PreparedPair, prior: ScenePrior, names: dict[str, str | None], seed: int) -> ScalePlan:
@@ -157,11 +167,18 @@ def plan(pair: PreparedPair, prior: ScenePrior, names: dict[str, str | None], se
         bound = None if limit is None else Bound("in: fits the cavity", limit, upper=True)
     elif prior.source_is_figure and prior.relation == "wear":
         bound = wear_fit(pair, seed, ratio)
+        if bound is not None and abs(bound.log_s - ratio) > LADDER_WIDTH:
+            # two estimates that disagree past the priors' 90th percentile: the source is not a hollow thing worn
+            # over the top (a comb, a flower "on its head"), so the fit's model does not apply
+            low, high = math.exp(ratio - LADDER_WIDTH), math.exp(ratio + LADDER_WIDTH)
+            why = f"{bound.kind} at {math.exp(bound.log_s):.3g}, outside the priors' band ({low:.3g} to {high:.3g})"
+            return replace(plan(pair, replace(prior, relation=None), names, seed), relation=prior.relation,
+                           rejected=why)
     if bound is not None and bound.band is not None:  # a fit: its own band, not the priors' error
         centre, (low, high) = bound.log_s, bound.band
         rungs = sorted({centre, *np.linspace(low, high, RUNGS).tolist()}, key=lambda r: (abs(r - centre), r))
         return ScalePlan(ratio, centre, tuple(rungs), low, high, prior.size_ratio, prior.reason, names, bound,
-                         sigma=max((high - low) / 2, 1e-3))
+                         sigma=max((high - low) / 2, 1e-3), relation=prior.relation)
     centre = ratio
     step = LADDER_WIDTH / (RUNGS // 2)
     rungs = [centre + k * step for k in range(-(RUNGS // 2), RUNGS // 2 + 1)]
@@ -171,4 +188,5 @@ def plan(pair: PreparedPair, prior: ScenePrior, names: dict[str, str | None], se
         centre = min(centre, high)
         rungs = sorted({min(r, high) for r in rungs})
     rungs = sorted(rungs, key=lambda r: (abs(r - centre), r))  # the centre first
-    return ScalePlan(ratio, centre, tuple(rungs), min(rungs), high, prior.size_ratio, prior.reason, names, bound)
+    return ScalePlan(ratio, centre, tuple(rungs), min(rungs), high, prior.size_ratio, prior.reason, names, bound,
+                     relation=prior.relation)
