@@ -126,7 +126,8 @@ def test_cli_align_end_to_end(tmp_path, meshes, capsys):
         placed = trimesh.load(path, force="scene").graph["source"][0]
         np.testing.assert_allclose(placed, alternatives[k]["transform"]["matrix"], atol=1e-6)
     assert list(data["extra"]) == ["best_restart", "on", "guidance", "runtime", "clip_images", "phase_timings",
-                                   "target_upright"]
+                                   "target_upright", "scale"]
+    assert data["extra"]["scale"] is None  # rigid: the scale found only in scale mode (tests/test_scale_mode.py)
     assert data["extra"]["clip_images"] > 0 and len(data["extra"]["phase_timings"]) == data["config"]["optim"]["phases"]
     assert list(data["extra"]["target_upright"]) == ["rotation", "changed", "reason"]
     # runtime auto: torch where the CPU has native bf16, ONNX Runtime fp32 on the others (AVX2-only EPYCs)
