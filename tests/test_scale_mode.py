@@ -127,6 +127,21 @@ def test_the_incoming_scale_is_never_used():
     assert answers[0] == pytest.approx(answers[1], rel=1e-4)
 
 
+def test_an_assembly_step_finds_its_scale():
+    """A scale-mode step of ``assemble``: the priors read the object it relates to (the table, not the scene) and
+    the stage's report says where its scale came from."""
+    from ctp_core.assemble import Step, assemble
+    from ctp_core.export import assembly_report
+
+    table, cup, *_ = _pair("cup on a table")
+    rigid = AlignConfig.from_preset("test", threads=1, loss={"lambda_clip": 0.0})
+    assembly = assemble(table, [Step(_scaled(cup, 100.0), "cup", "a cup on a table", config=_config())], rigid,
+                        base_name="table")
+    stage = json.loads(json.dumps(assembly_report(assembly)))["stages"][0]
+    assert stage["extra"]["scale"]["names"]["target"] == "table" and stage["extra"]["scale"]["from"] == "priors"
+    assert abs(math.log(stage["transform"]["scale"] * 100.0)) <= TOLERANCE
+
+
 def test_the_files_sizes_set_nothing_in_scale_mode():
     """Rigid, plausible real sizes let the mesh extents set the size ratio; in scale mode they do not."""
     target, source, target_name, source_name, prompt = _pair("cup on a table")
@@ -170,7 +185,7 @@ def test_the_scale_term_holds_the_band():
     values = term.detach()
     assert float(values[0]) == 0.0
     assert float(values[2]) > 0.9 and float(values[3]) > 0.9  # the wall: 100 per squared log unit beyond
-    assert float(plan.term(log_s, geometric=0.0)[1]) == pytest.approx(
+    assert float(plan.term(log_s.detach(), geometric=0.0)[1]) == pytest.approx(
         scaling.PRIOR_FLOOR * 0.5 * (scaling.LADDER_WIDTH / scaling.PRIOR_SIGMA) ** 2)
     term.sum().backward()
     assert log_s.grad[2] > 0 and log_s.grad[3] < 0  # back toward the band
