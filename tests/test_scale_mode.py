@@ -189,3 +189,20 @@ def test_the_scale_term_holds_the_band():
         scaling.PRIOR_FLOOR * 0.5 * (scaling.LADDER_WIDTH / scaling.PRIOR_SIGMA) ** 2)
     term.sum().backward()
     assert log_s.grad[2] > 0 and log_s.grad[3] < 0  # back toward the band
+
+
+def test_cli_align_scale_says_where_the_scale_came_from(tmp_path, capsys):
+    from ctp.cli import main
+
+    table, cup, *_ = _pair("cup on a table")
+    table.export(tmp_path / "table.glb")
+    _scaled(cup, 0.01).export(tmp_path / "cup.glb")
+    code = main(["align", str(tmp_path / "table.glb"), str(tmp_path / "cup.glb"), "--prompt", "a cup on a table",
+                 "--scale", "--preset", "test", "--no-guidance", "--candidates", "144", "--quiet",
+                 "--out", str(tmp_path / "scene.glb"), "--report", str(tmp_path / "report.json")])
+    assert code == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["scale_from"] == "priors: size ratio 0.1" and summary["initial_scale"] > 50
+    assert abs(math.log(summary["scale"] * 0.01)) <= TOLERANCE
+    assert json.loads((tmp_path / "report.json").read_text())["extra"]["scale"]["final"] == pytest.approx(
+        summary["scale"], rel=1e-5)
