@@ -358,7 +358,8 @@ def align(
     ``goals`` object) overrides both (the benchmark's oracle). ``guide`` is a preloaded
     vision-language model (``guidance.get_guide``); without one the configured model is loaded (and
     cached per process). ``init`` (4x4, source file -> target file) is one more search candidate (or,
-    search off, replaces the first random start) and fixes the source's scale.
+    search off, replaces the first random start); rigid, it fixes the source's scale, while with ``config.scale``
+    its scale is ignored (``scaling``: the priors' ratio or the geometry set it).
     A ``trimesh.Scene`` target is a scene of placed objects (``scene.objects``): ``on`` names the one
     the source relates to (soft-ICP attaches to it, the search proposes on it; ``target_name`` and its size
     feed the priors), while renders and the penetration term see them all.
