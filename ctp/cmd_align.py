@@ -53,7 +53,8 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--preview", type=Path, metavar="preview.png", help="write a 4-view preview PNG here")
     add_option(parser, "preset", "NAME", "default (search, then a short refinement) | fast (the relation and the "
                "geometry choose, the guide glances) | descent | paper | test", default="default")
-    add_option(parser, "model", "SPEC", "guidance model: hf:REPO_OR_PATH, open_clip:ARCH:TAG, random:ARCH")
+    add_option(parser, "model", "SPEC", "guidance model: auto (default: the default CLIP model where its weights are "
+               "here, else none), hf:REPO_OR_PATH, open_clip:ARCH:TAG, onnx:DIR, random:ARCH (random weights: tests)")
     add_switch(parser, "--scale", "scale", True,
                "find the source's scale: from the priors' size ratio (or the geometry), searched and refined")
     add_option(parser, "restarts", "N")
@@ -181,6 +182,8 @@ def run(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     from ctp_core import export, io  # the engine (torch, trimesh): seconds to import
     from ctp_core.align import align
+    from ctp_core.config import AUTO
+    from ctp_core.guide_choice import NONE, pull_command
     from ctp_core.loader import MeshLoader
 
     with MeshLoader(1) as loader:  # the same bounded loading as the service (ctp_core.loader)
@@ -200,10 +203,13 @@ def run(args: argparse.Namespace) -> int:
         others.append(str(path))
     for warning in result.warnings:  # one line each, whatever --quiet says (the report has them too)
         print(f"warning: {warning['code']}: {warning['message']}", file=sys.stderr)
+    if result.guide == NONE and config.model == AUTO and config.uses_model:  # auto found no model: say so, once
+        print(f"note: no guide: {result.guide_why.removeprefix('auto: ')}; `{pull_command()}` gets the model",
+              file=sys.stderr)
     summary = {"out": str(args.out), "objective": round(result.objective, 6), "scale": round(result.scale, 6),
                "translation": [round(v, 6) for v in result.translation.tolist()],
                "seconds": round(time.perf_counter() - started, 2), "preset": config.preset,
-               "model": result.model, "runtime": result.runtime,
+               "model": result.model, "guide": result.guide, "guide_why": result.guide_why, "runtime": result.runtime,
                "hparams": result.priors.get("provider"), "relation": result.relation,
                "names": {"target": result.priors["target_name"], "source": result.priors["source_name"]}}
     if others:

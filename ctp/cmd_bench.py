@@ -50,7 +50,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--preset", default="default",
                         help="AlignConfig preset for ctp/geometry (default; fast; descent; paper; test)")
-    parser.add_argument("--model", help="encoder of ctp's guide and b2's selection (default: the preset's)")
+    parser.add_argument("--model", help="encoder of ctp's guide and b2's selection (default: the default CLIP "
+                        "model; never auto's per-machine pick)")
     parser.add_argument("--guide", choices=GUIDES, default="text",
                         help="text: the prompt; image: a reference render; oracle: the reference per view; "
                         "pixels: an upper-bound instrument, the oracle compared as images with no encoder")

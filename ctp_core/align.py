@@ -16,7 +16,7 @@ import numpy as np
 import torch
 import trimesh
 
-from ctp_core import frames, priors
+from ctp_core import frames, guide_choice, priors
 from ctp_core.config import MAX_ALTERNATIVES, PENETRATION, AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
@@ -61,6 +61,8 @@ class AlignResult:
     on: str | None = None  # the placed object an assembly step relates to
     guided_by: str | None = None  # what guided the run, in words (the report's "guidance")
     model: str | None = None  # the guidance model; None for a geometry-only run
+    guide: str = "none"  # the guide chosen for the run: a model spec or "none" (guide_choice.GuideChoice)
+    guide_why: str = ""  # why that guide
     runtime: str | None = None  # the guide's runtime ("torch", "onnx"); None without a guide
     clip_images: int = 0  # images the encoder scored
     phase_timings: list[dict[str, float]] = field(default_factory=list)  # per refinement phase
@@ -73,6 +75,9 @@ class AlignResult:
     # (file frames, 4x4), objective, the guide's and geometry's terms, relation verdict
     alternatives: list[dict[str, Any]] = field(default_factory=list)
     thumbnails: np.ndarray | None = None  # (K, H, W, 3) uint8: one view of each alternative
+    # the guide's say over the geometry as the search measured it (``objective.Gate.to_dict``: spread, noise,
+    # override, who chose, a summary line); None without a guide or a search
+    guide_say: dict[str, Any] | None = None
     # scale mode: the initial scale, where it came from (the priors' names and ratio, the geometry's constraint),
     # the ladder the search tried and the final scale (``scaling.ScalePlan.to_dict`` + "final"); None: rigid
     scaling: dict[str, Any] | None = None
@@ -228,7 +233,7 @@ def score(run: Run, proposals: Proposals, *, on_event: ProgressCallback | None =
     if run.scorer.relation is not None:
         run.timings["search_relation_holds"] = ranked.holding  # of the coarse and sweep candidates
     if ranked.gate is not None:  # the guide's spread over the candidates, its noise, how far it may override
-        run.timings.update({f"guide_{k}": v for k, v in ranked.gate.items()})
+        run.timings.update({f"guide_{k}": ranked.gate[k] for k in ("spread", "noise", "override")})
     return ranked.poses
 
 
@@ -271,6 +276,7 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
         phase_timings=[{k: round(v, 3) for k, v in p.items()} for p in outcome.phase_timings],
         target_upright=pair.target_upright,
         warnings=list(run.warnings),
+        guide_say=None if run.scorer.gate is None else run.scorer.gate.to_dict(),
     )
     if run.scale is not None:
         answer.scaling = {**run.scale.to_dict(), "final": answer.scale}
@@ -350,6 +356,7 @@ def align(
     init: np.ndarray | None = None,
     on_event: ProgressCallback | None = None,
     should_cancel: CancelCheck | None = None,
+    choice: guide_choice.GuideChoice | None = None,
 ) -> AlignResult:
     """Place ``source`` relative to ``target`` (both in file frames) so renders agree with the prompt.
 
@@ -363,11 +370,16 @@ def align(
     A ``trimesh.Scene`` target is a scene of placed objects (``scene.objects``): ``on`` names the one
     the source relates to (soft-ICP attaches to it, the search proposes on it; ``target_name`` and its size
     feed the priors), while renders and the penetration term see them all.
+    Model ``auto`` is resolved first (``guide_choice.resolve``; ``choice``: ``auto``'s pick made already for this
+    run, a worker's); the result says which guide ran and why.
     Raises ``errors.Canceled`` when ``should_cancel()`` turns true, other ``CtpError`` on bad input.
     """
+    config, chosen = guide_choice.resolve(config, image=image is not None, choice=choice)
     run = prepare(target, source, prompt, config, on=on, image=image, target_name=target_name,
                   source_name=source_name, guide=guide, goal=goal)
     proposals = propose(run, init)
     starts = score(run, proposals, on_event=on_event, should_cancel=should_cancel)
     outcome = refine(run, starts, on_event=on_event, should_cancel=should_cancel)
-    return result(run, outcome, prompt, on_event=on_event)
+    answer = result(run, outcome, prompt, on_event=on_event)
+    answer.guide, answer.guide_why = chosen.guide, chosen.why
+    return answer

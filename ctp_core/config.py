@@ -26,6 +26,8 @@ from ctp_core.errors import ConfigError
 PENETRATION: dict[str, bool | None] = {"auto": None, "allow": True, "forbid": False}
 Penetration = Literal[tuple(PENETRATION)]
 Runtime = Literal["auto", "torch", "onnx", "onnx-int8"]  # the runtimes, spelled once (runtime.RUNTIMES)
+AUTO = "auto"  # the model spec that picks the guide per run (guide_choice)
+DEFAULT_MODEL = "hf:openai/clip-vit-base-patch32"  # what auto uses where its weights are
 MAX_ALTERNATIVES = 4  # distinct placements a result offers, the answer among them (align.alternatives)
 
 
@@ -158,7 +160,8 @@ class AlignConfig(_Strict):
     preset: str = "default"
     seed: int = Field(0, ge=0, le=2**32 - 1, description="random seed (numpy and torch take any value in range)")
     device: Literal["cpu", "cuda"] = "cpu"
-    model: str = Field("hf:openai/clip-vit-base-patch32", description="guidance model spec (guidance.py)")
+    model: str = Field(AUTO, description="guidance model spec (guidance.py); auto: the default CLIP model where its "
+                       "weights are here, else no guide (the geometry and the prompt's relation; guide_choice.py)")
     autocast: bool = Field(True, description="fp16 on CUDA, bf16 on CPUs with native bf16 (AVX512-BF16/AMX), else fp32")
     runtime: Runtime = Field(
         "auto", description="where forward-only encoding runs (scoring, selection, judge): torch, onnx (ONNX "

@@ -118,11 +118,14 @@ def _run(result: AlignResult, answer: dict | None = None) -> dict:
         "objective": _jsonable(result.objective),
         "prompt": result.prompt,
         "model": result.model,
+        "guide": result.guide,  # the guide chosen for the run (a model spec or "none") and why (guide_choice)
+        "guide_why": result.guide_why,
         "seed": config.seed,
         "preset": config.preset,
         "config": config.model_dump(mode="json"),
         "hparams": _jsonable(priors.to_report(result.priors)),
         "relation": _jsonable(result.relation),  # predicates.RelationVerdict of the answer; None without one
+        "guide_say": _jsonable(result.guide_say),  # objective.Gate: the guide's say and who chose; None: no guide
         "restarts": _jsonable(result.restarts),
         # the best distinct placements, the answer first (an assembly's stages: none, their frames differ)
         "alternatives": [] if answer is not None else [

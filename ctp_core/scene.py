@@ -16,7 +16,7 @@ Frames (see ``frames``):
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 from typing import TYPE_CHECKING, TypeAlias
 
@@ -98,6 +98,9 @@ class PreparedPair:
     source_surface: SurfaceIndex  # source samples + outward normals, source local frame (what is inside the source)
     target_outward: list[trimesh.Trimesh]  # each target object, file frame, outward winding (``outward``)
     attach: SurfaceIndex | None = None  # samples of the object the source relates to; None: all of ``index``
+    target_front: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))  # (3,) unit, normalised frame: the target's front (its file's +Z for glTF, turned as the target is)  # noqa: E501
+    front_trusted: bool = True  # False where no convention gives a front (or a symmetric target): directional relations use the viewer's frame  # noqa: E501
+    source_front: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))  # (3,) unit, source local frame: the source's front  # noqa: E501
 
     @property
     def anchor(self) -> SurfaceIndex:

@@ -110,12 +110,12 @@ def test_cli_align_end_to_end(tmp_path, meshes, capsys):
     assert len(scene.geometry) == 2
     data = json.loads(report.read_text())
     np.testing.assert_allclose(np.array(data["transform"]["matrix"]), summary_matrix(summary, data), atol=1e-9)
-    assert data["prompt"] == "a cup on the table" and data["model"] == "random:tiny"
+    assert data["prompt"] == "a cup on the table" and data["model"] == data["guide"] == "random:tiny"
     assert data["relation"]["name"] == "on" and data["relation"]["role"] == "figure"  # predicates.RelationVerdict
     assert summary["relation"] == data["relation"]
-    assert list(data) == ["transform", "objective", "prompt", "model", "seed", "preset", "config", "hparams",
-                          "relation", "restarts", "alternatives", "timings", "extra", "warnings", "versions",
-                          "created_at"]
+    assert list(data) == ["transform", "objective", "prompt", "model", "guide", "guide_why", "seed", "preset",
+                          "config", "hparams", "relation", "guide_say", "restarts", "alternatives", "timings",
+                          "extra", "warnings", "versions", "created_at"]
     # the best distinct placements, the answer first; --alternatives 3 wrote the next two beside --out
     alternatives = data["alternatives"]
     assert alternatives[0]["restart"] == data["extra"]["best_restart"]

@@ -247,6 +247,8 @@ def test_upload_follow_view_download_and_a_refused_upload(api, worker, browser, 
     assert find(By.ID, "stage").text.lower() == "succeeded"
     quality = find(By.ID, "quality").text  # the readout, not the raw objective
     assert "'on' holds for" in quality and ("touching" in quality or "gap" in quality), quality
+    assert find(By.ID, "guide").text == "guide: random:tiny"  # the job's guide (CTP_MODEL names one: no banner)
+    assert not find(By.ID, "guide-banner").is_displayed()
     wait_for(lambda: find(By.ID, "viewer").get_attribute("data-ready"), 60, "the 3D viewer")
 
     colours = driver.execute_script(CANVAS_COLOURS, BACKGROUND)
@@ -257,6 +259,7 @@ def test_upload_follow_view_download_and_a_refused_upload(api, worker, browser, 
     assert [e.text for e in driver.find_elements(By.CSS_SELECTOR, "#parts label")][:2] == ["target", "source"]
     assert find(By.ID, "result-prompt").text == '"a ball on top of a table"'
     assert "translation" in find(By.ID, "transform").text
+    assert "chose" in find(By.ID, "transform").text  # who ordered the poses: the guide, the geometry or both
     assert driver.execute_script("return document.getElementById('preview').naturalWidth") > 0
     find(By.ID, "result").location_once_scrolled_into_view  # noqa: B018 - scrolls for the screenshot
     shoot(driver, "result-tinted")

@@ -273,3 +273,15 @@ def test_penetrate_proposals_drive_the_source_end_first_into_the_target_never_up
     entry = bottom + axis * (0.3 - bottom[1]) / axis[1]  # where its axis crosses the top's plane
     assert bottom[1] > -1e-3 and top[1] > 0.6 and axis[1] > math.cos(math.radians(30)), ends  # above the floor
     assert np.abs(entry[[0, 2]]).max() < 0.15, entry  # in through the top
+
+
+@pytest.mark.parametrize("seed", [1, 3])
+def test_a_ball_on_a_thin_board_ends_above_it_not_hanging_under_it(seed):
+    """A board thin against the ball bore it from either side: under it, "on" held at these seeds."""
+    board = trimesh.creation.box((3, 0.2, 3))
+    ball = trimesh.creation.icosphere(subdivisions=4, radius=1)
+    config = AlignConfig.from_preset("default", loss={"lambda_clip": 0.0}, seed=seed)
+    result = align(board, ball, "a ball on the board", config, target_name="board", source_name="ball")
+    low = trimesh.transform_points(ball.vertices, result.source_to_target)[:, 1].min()
+    assert result.relation["name"] == "on" and result.relation["holds"], result.relation
+    assert low >= 0.1 - 0.05, low  # the board's top is at y = 0.1

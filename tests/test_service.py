@@ -329,7 +329,8 @@ def test_readyz_lists_the_models_a_worker_can_run(api, worker):
     answer = api.client.get("/readyz")
     assert answer.status_code == 200
     assert answer.json() == {"status": "ready", "redis": True, "workers": 1, "models": ["random:tiny"],
-                             "queues": {"default": ["random:tiny"]}, "since_s": None}
+                             "queues": {"default": ["random:tiny"]}, "since_s": None, "guide": "random:tiny",
+                             "why": "named by CTP_MODEL", "get_model": None}
 
 
 def test_end_to_end_with_progress_events(api, worker):

@@ -32,7 +32,7 @@ from ctp_core import metrics, predicates, priors, sampling
 from ctp_core.bench import baselines, protocol
 from ctp_core.bench.cases import Case
 from ctp_core.bench.guides import GUIDES, GuideInputs, PixelGuide, SelectionScore, guide_inputs
-from ctp_core.config import AlignConfig
+from ctp_core.config import DEFAULT_MODEL, AlignConfig
 from ctp_core.errors import ConfigError
 
 GUIDED = ("ctp", "b2")  # methods that see the guide
@@ -63,7 +63,7 @@ class BenchOptions:
     inits: int = 1
     seed: int = 0
     preset: str = "default"
-    model: str | None = None  # ctp's (and b2's) encoder; None: the preset's
+    model: str | None = None  # ctp's (and b2's) encoder; None: the default model (config.DEFAULT_MODEL)
     guide: str = "text"
     metrics_models: list[str] = field(default_factory=list)
     ablation: str | None = None
@@ -90,8 +90,7 @@ class BenchOptions:
         preset, overrides = ABLATIONS[self.ablation] if self.ablation else (None, {})
         top = {"seed": self.seed, "device": self.device, "threads": self.threads, "runtime": self.runtime,
                "scale": self.protocol == "scale"}
-        if self.model:
-            top["model"] = self.model
+        top["model"] = self.model or DEFAULT_MODEL  # a benchmark names its encoder: never auto's per-machine pick
         config = AlignConfig.from_preset(preset or self.preset, **{k: v for k, v in top.items() if v is not None},
                                          **overrides)
         if method == "geometry":

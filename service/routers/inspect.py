@@ -19,9 +19,9 @@ INSPECT_BODY = {
     "required": True,
     "content": {"multipart/form-data": {"schema": {
         "type": "object",
+        "additionalProperties": False,  # 400 unknown_field
         "required": ["mesh"],
-        "properties": {"mesh": forms.file_field("one mesh, in any format `POST /align` takes; the extension of the "
-                                                "file name gives the format")},
+        "properties": {"mesh": forms.mesh_field("one mesh, in any format `POST /align` takes")},
     }}},
 }
 

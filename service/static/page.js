@@ -323,6 +323,9 @@ function renderProgress(job) {
     if (figure != null && state.figures.at(-1) !== figure) state.figures.push(figure);
     drawSpark();
   }
+  $("guide").textContent = job.guide ? `guide: ${job.guide}${job.guide === "none" ? " (the geometry and the "
+    + "prompt's relation place it)" : ""}` : "";
+  $("guide").title = job.guide_why || "";
   $("message").textContent = p.message + (job.cancel_requested && job.status === "running" ? " - cancel requested" : "");
   $("cancel").disabled = TERMINAL.includes(job.status) || job.cancel_requested;
 }
@@ -542,6 +545,7 @@ function showFacts(report) {
     ["model", report.model || ""],
     ["preset, seed", `${report.preset ?? ""}, ${report.seed ?? ""}`],
   ];
+  if (report.guide_say) rows.push(["who chose", report.guide_say.summary]); // the guide's say (objective.Gate)
   if (report.adjusted) {
     rows.push(["adjusted", `by hand, saved ${new Date(report.adjustment.saved_at).toLocaleString()} `
       + "(the objective is the run's; original.glb keeps its placement)"]);
@@ -745,8 +749,21 @@ async function reopen(job) {
 
 // -- start ------------------------------------------------------------------------------------------
 
+// One line over the page when jobs run without a guide (/readyz: model auto without the default model's weights).
+async function showGuide() {
+  let ready;
+  try { ready = await (await fetch("readyz")).json(); } catch { return; } // the page works without it
+  if (ready.guide !== "none") return;
+  const banner = $("guide-banner");
+  banner.textContent = `No guide: the geometry and the prompt's relation place the source (the default model is `
+    + `not on the workers). ${ready.get_model ? `\`${ready.get_model}\` gets it.` : ""}`;
+  banner.title = ready.why;
+  banner.hidden = false;
+}
+
 async function init() {
   const config = (state.config = await (await fetch("page/config")).json());
+  showGuide();
   $("formats").textContent = config.formats.join(" ");
   for (const role of ROLES) {
     $(`file-${role}`).accept = config.formats.join(",");
