@@ -127,9 +127,10 @@ class ProgressBar:
     LEGEND = ("progress: holds = where the prompt's relation holds; match = cosine between the best restart's "
               "views and the prompt (higher is better); gap = its distance to the target, % of the source's size")
 
-    def __init__(self, stream=sys.stderr, enabled: bool = True):
-        self.stream, self.enabled = stream, enabled
-        self.tty = stream.isatty()
+    def __init__(self, stream=None, enabled: bool = True):
+        # sys.stderr when called, not when first imported (a test's captured stream is closed after it)
+        self.stream, self.enabled = stream or sys.stderr, enabled
+        self.tty = self.stream.isatty()
         self._legend = False
         self._readout = ""
 
