@@ -55,7 +55,8 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
                "geometry choose, the guide glances) | descent | paper | test", default="default")
     add_option(parser, "model", "SPEC", "guidance model: auto (default: the default CLIP model where its weights are "
                "here, else none), hf:REPO_OR_PATH, open_clip:ARCH:TAG, onnx:DIR, random:ARCH (random weights: tests)")
-    add_switch(parser, "--scale", "scale", True, "optimise isotropic scale too")
+    add_switch(parser, "--scale", "scale", True,
+               "find the source's scale: from the priors' size ratio (or the geometry), searched and refined")
     add_option(parser, "restarts", "N")
     add_option(parser, "steps", "N", "total steps per restart over all phases")
     add_option(parser, "candidates", "N", "poses the search scores (default: the preset's)")
@@ -219,5 +220,9 @@ def run(args: argparse.Namespace) -> int:
                "names": {"target": result.priors["target_name"], "source": result.priors["source_name"]}}
     if others:
         summary["alternatives"] = others
+    if result.scaling is not None:  # --scale: where the scale started and why (the report's extra.scale has all)
+        summary["initial_scale"] = round(result.scaling["initial"], 6)
+        summary["scale_from"] = (result.scaling["constraint"]["kind"] if result.scaling["from"] == "geometry"
+                                 else f"priors: size ratio {result.scaling['size_ratio']:.3g}")
     print(json.dumps(summary))
     return 0

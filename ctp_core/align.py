@@ -29,6 +29,7 @@ if TYPE_CHECKING:  # the stages import these lazily: importing align stays light
     from ctp_core.optimise import Outcome
     from ctp_core.pose import Poses
     from ctp_core.proposals import Proposals
+    from ctp_core.scaling import ScalePlan
     from ctp_core.scene import PreparedPair
     from ctp_core.schedule import Phase
 
@@ -78,6 +79,9 @@ class AlignResult:
     # the guide's say over the geometry as the search measured it (``objective.Gate.to_dict``: spread, noise,
     # override, who chose, a summary line); None without a guide or a search
     guide_say: dict[str, Any] | None = None
+    # scale mode: the initial scale, where it came from (the priors' names and ratio, the geometry's constraint),
+    # the ladder the search tried and the final scale (``scaling.ScalePlan.to_dict`` + "final"); None: rigid
+    scaling: dict[str, Any] | None = None
 
     def alternative(self, k: int) -> AlignResult:
         """This result with alternative ``k`` as its answer (0: the answer itself), for its GLB."""
@@ -118,6 +122,7 @@ class Run:
     timings: dict[str, float] = field(default_factory=dict)
     names: dict[str, str | None] = field(default_factory=dict)  # target, source, on: what the priors read
     warnings: list[dict[str, Any]] = field(default_factory=list)  # AlignResult.warnings
+    scale: ScalePlan | None = None  # scale mode: the scales the run starts from and searches (``scaling``)
 
 
 def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, prompt: str | None,
@@ -126,8 +131,9 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
             goal: Goal | None = None) -> Run:
     """Priors, the normalised and canonicalised pair, the guide and its goal, the objective and the plan.
 
-    A scene target's priors read the object ``on`` (its name is ``target_name``, its size the extent)."""
-    from ctp_core import goals, guidance, objective, orientation, scene, schedule
+    A scene target's priors read the object ``on`` (its name is ``target_name``, its size the extent). In scale
+    mode the files' sizes set nothing (``scaling``): the size ratio comes from the names and the prompt."""
+    from ctp_core import goals, guidance, objective, orientation, scaling, scene, schedule
 
     started = time.perf_counter()
     if config.threads:
@@ -138,7 +144,8 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
         priors.get_provider(config.hparams_provider), target_name, source_name, prompt or "",
         size_ratio=config.size_ratio, contact_ratio=config.contact_ratio,
         penetration=PENETRATION[config.penetration],
-        target_extent=float(scene.attachment(target, on).extents.max()), source_extent=float(source.extents.max()),
+        **({} if config.scale else {"target_extent": float(scene.attachment(target, on).extents.max()),
+                                    "source_extent": float(source.extents.max())}),
     )
     judge = None
     if config.upright and config.upright_judge:
@@ -161,25 +168,28 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
     else:
         goal = None
     loaded = time.perf_counter()
+    names = {"target": target_name, "source": source_name, "on": on}
+    scales = scaling.plan(pair, prior, names, config.seed) if config.scale else None
     scorer = objective.Scorer(pair, config, prior.contact_ratio, guide=guide, goal=goal, relation=prior.relation,
-                              source_is_figure=prior.source_is_figure)
+                              source_is_figure=prior.source_is_figure, scale=scales)
     plan = schedule.phases(config, allow_penetration=prior.penetration)
     return Run(config, pair, prior, scorer, plan, goal, started,
-               {"prepare_s": round(prepared - started, 3), "model_s": round(loaded - prepared, 3)},
-               {"target": target_name, "source": source_name, "on": on})
+               {"prepare_s": round(prepared - started, 3), "model_s": round(loaded - prepared, 3)}, names,
+               scale=scales)
 
 
 def propose(run: Run, init: np.ndarray | None = None) -> Proposals:
     """Search on: contact proposals (``proposals.propose``); off: the random starts (``optimise.initial_poses``).
 
-    ``init`` (source file -> target file 4x4) is one candidate (search) or replaces restart 0 (no search), and
-    fixes the source scale either way.
+    ``init`` (source file -> target file 4x4) is one candidate (search) or replaces restart 0 (no search); rigid,
+    it fixes the source scale either way. In scale mode every start takes the plan's scale and the search proposes
+    at each of its rungs (``scaling``): an incoming pose's scale is never used.
     """
     from ctp_core import optimise, proposals, relation_proposals
 
     config, pair = run.config, run.pair
     generator = torch.Generator().manual_seed(config.seed)
-    starts = optimise.initial_poses(pair, config, run.prior.size_ratio, generator, init=init)
+    starts = optimise.initial_poses(pair, config, run.scale.centre if run.scale else 0.0, generator, init=init)
     ratio = math.exp(float(starts.log_s[0])) * pair.source_radius / max(pair.target_radius, 1e-30)
     warning = scale_ratio_warning(ratio)
     if warning is not None and not any(w["code"] == warning["code"] for w in run.warnings):
@@ -189,7 +199,8 @@ def propose(run: Run, init: np.ndarray | None = None) -> Proposals:
     t0 = time.perf_counter()
     weights = proposals.region_weights(run.prior.relation, run.prior.source_is_figure)
     given = starts.select(slice(0, 1)) if init is not None else None
-    proposed = proposals.propose(pair, config, weights, float(starts.log_s[0]), generator, init=given)
+    rungs = run.scale.rungs if run.scale else float(starts.log_s[0])
+    proposed = proposals.propose(pair, config, weights, rungs, generator, init=given)
     proposed = relation_proposals.extend(pair, config, proposed, run.prior.relation, run.prior.source_is_figure,
                                          config.seed)  # poses the regions do not reach ("lean")
     run.timings["propose_s"] = round(time.perf_counter() - t0, 3)
@@ -263,6 +274,8 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
         warnings=list(run.warnings),
         guide_say=None if run.scorer.gate is None else run.scorer.gate.to_dict(),
     )
+    if run.scale is not None:
+        answer.scaling = {**run.scale.to_dict(), "final": answer.scale}
     verdict = predicates.verdict(pair, matrices[best], run.prior.relation, run.prior.source_is_figure)
     answer.relation = verdict.to_dict() if verdict is not None else None
     picks = alternatives(run, outcome)
@@ -348,7 +361,8 @@ def align(
     ``goals`` object) overrides both (the benchmark's oracle). ``guide`` is a preloaded
     vision-language model (``guidance.get_guide``); without one the configured model is loaded (and
     cached per process). ``init`` (4x4, source file -> target file) is one more search candidate (or,
-    search off, replaces the first random start) and fixes the source's scale.
+    search off, replaces the first random start); rigid, it fixes the source's scale, while with ``config.scale``
+    its scale is ignored (``scaling``: the priors' ratio or the geometry set it).
     A ``trimesh.Scene`` target is a scene of placed objects (``scene.objects``): ``on`` names the one
     the source relates to (soft-ICP attaches to it, the search proposes on it; ``target_name`` and its size
     feed the priors), while renders and the penetration term see them all.

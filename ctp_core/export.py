@@ -144,6 +144,7 @@ def _extra(result: AlignResult) -> dict:
         "best_restart": result.best_restart, "on": result.on, "guidance": result.guided_by,
         "runtime": result.runtime, "clip_images": result.clip_images, "phase_timings": result.phase_timings,
         "target_upright": _frame(result.target_upright), "source_upright": _frame(result.source_upright),
+        "scale": result.scaling,  # scale mode: initial scale and where from, the ladder, the final scale
     }
 
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -28,6 +29,9 @@ from ctp_core.pose import Poses, apply_pose, quaternion_to_matrix
 from ctp_core.progress import Clock
 from ctp_core.scene import PreparedPair
 from ctp_core.schedule import Phase
+
+if TYPE_CHECKING:
+    from ctp_core.scaling import ScalePlan
 
 NEAR = 2.0  # source diagonals: a pose whose source is farther than this from the target places it nowhere
 
@@ -220,8 +224,11 @@ def goal_rows(goal_embeddings: torch.Tensor | None, rows: slice | torch.Tensor,
 
 def combine(terms: dict[str, torch.Tensor], weights: Phase) -> torch.Tensor:
     """The weighted sum, one value per pose: the only place the weights meet the terms (``rel`` and ``stable``
-    count where present: the relation's, ``Scorer.relation_terms``)."""
+    count where present: the relation's, ``Scorer.relation_terms``; ``scale`` in scale mode, weighted already:
+    ``scaling.ScalePlan.term``)."""
     out = weights.lambda_clip * terms["clip"] + weights.lambda_icp * terms["icp"] + weights.lambda_pen * terms["pen"]
+    if "scale" in terms:
+        out = out + terms["scale"]
     if weights.lambda_rel and "rel" in terms:
         zeros = torch.zeros_like(out)
         out = out + weights.lambda_rel * (terms["rel"] + terms.get("stable", zeros)
@@ -234,8 +241,9 @@ class Scorer:
 
     def __init__(self, pair: PreparedPair, config: AlignConfig, contact_ratio: float, guide: Guide | None = None,
                  goal: Goal | None = None, clock: Clock | None = None, *, relation: str | None = None,
-                 source_is_figure: bool = True):
+                 source_is_figure: bool = True, scale: ScalePlan | None = None):
         self.pair, self.config, self.contact_ratio = pair, config, contact_ratio
+        self.scale = scale  # scale mode: the ``scale`` term's plan (None: rigid, no term)
         # the prompt's relation where it judges poses (None: unknown, or ``config.relation`` off: zero terms)
         self.relation = relation if config.relation and predicates.known(relation) else None
         self.source_is_figure = source_is_figure
@@ -256,7 +264,8 @@ class Scorer:
 
     def geometry(self, poses: Poses, weights: Phase, points: int | None = None) -> dict[str, torch.Tensor]:
         """Soft-ICP and penetration (zero when the phase switches it off), the penetration in source diagonals
-        (``sunk``: what ``holding`` reads), the relation's terms and the posed centroid. ``points``: on that many
+        (``sunk``: what ``holding`` reads), the relation's terms, the ``scale`` term in scale mode and the posed
+        centroid. ``points``: on that many
         of the source's samples (``PreparedPair.source_subset``) instead of all."""
         cfg = self.config.loss
         samples = self.pair.source_samples if points is None else self.pair.source_subset(points)
@@ -269,7 +278,10 @@ class Scorer:
             else:
                 pen = torch.zeros_like(icp)
             sunk = pen.detach() / source_diagonal(self.pair, poses).to(pen.device)
-        return {"icp": icp, "pen": pen, "sunk": sunk, **self.relation_terms(poses), "centroid": pts.mean(dim=1)}
+        out = {"icp": icp, "pen": pen, "sunk": sunk, **self.relation_terms(poses), "centroid": pts.mean(dim=1)}
+        if self.scale is not None:
+            out["scale"] = self.scale.term(poses.log_s, self.preference_weight)
+        return out
 
     def screen(self, poses: Poses, weights: Phase) -> dict[str, torch.Tensor]:
         """The geometry's terms and objective (``clip`` 0) on ``SCREEN_POINTS`` of the source's samples, forward

@@ -37,14 +37,15 @@ class Outcome:
     steps_run: int = 0
 
 
-def initial_poses(pair: PreparedPair, config: AlignConfig, size_ratio: float, generator: torch.Generator,
+def initial_poses(pair: PreparedPair, config: AlignConfig, log_s: float, generator: torch.Generator,
                   init: np.ndarray | None = None) -> Poses:
-    """Random starts (method.md "Initialise"): direction uniform, distance 2-4 target radii.
+    """Random starts (method.md "Initialise"): direction uniform, distance 2-4 target radii, scale ``log_s``.
 
     Rotations are uniformly random in the ``paper`` spirit when ``optim.init_rotation == "random"``;
     otherwise each start is the source's own upright frame turned about +Y, which keeps the source
-    upright as CLIP expects. ``init`` (source file -> target file 4x4) replaces restart 0 and fixes the
-    scale of all restarts (the benchmark's perturbation protocol).
+    upright as CLIP expects. ``init`` (source file -> target file 4x4) replaces restart 0's position and
+    rotation; rigid, its scale is every restart's (the files' relative size, or the caller's), while in scale
+    mode every start keeps ``log_s`` (the priors' or the geometry's: ``scaling``), never an incoming pose's.
     """
     count = config.optim.restarts
     direction = torch.randn(count, 3, generator=generator)
@@ -59,17 +60,14 @@ def initial_poses(pair: PreparedPair, config: AlignConfig, size_ratio: float, ge
         q_yaw = torch.stack([torch.cos(yaw / 2), 0 * yaw, torch.sin(yaw / 2), 0 * yaw], dim=1)
         q_up = torch.as_tensor(matrix_to_quaternion(pair.source_upright.rotation), dtype=torch.float32)
         q = quaternion_product(q_yaw, q_up.expand(count, 4))
-    if config.scale:
-        extent = float((pair.source_vertices.max(0).values - pair.source_vertices.min(0).values).max())
-        log_s = torch.full((count,), math.log(size_ratio * 2.0 / max(extent, 1e-9)))
-    else:
-        log_s = torch.zeros(count)
+    log_s = torch.full((count,), float(log_s))
     if init is not None:
         m = pair.local_to_normalised(init)
         scale = float(np.cbrt(np.linalg.det(m[:3, :3])))
         t[0] = torch.tensor(np.array(m[:3, 3]), dtype=torch.float32)  # m may be read-only
         q[0] = torch.as_tensor(matrix_to_quaternion(m[:3, :3] / scale), dtype=torch.float32)
-        log_s = torch.full((count,), math.log(scale))
+        if not config.scale:
+            log_s = torch.full((count,), math.log(scale))
     device = pair.source_vertices.device
     return Poses(t.to(device), q.to(device), log_s.to(device))
 

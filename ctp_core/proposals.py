@@ -22,6 +22,7 @@ are in the normalised frame.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -188,19 +189,29 @@ def surface_regions(pair: PreparedPair) -> tuple[np.ndarray, np.ndarray, dict[st
 def cavity_points(pair: PreparedPair, seed: int) -> np.ndarray:
     """Points inside the target's convex hull but outside the target (its cavity, as the penetration term sees
     it: behind no oriented surface), away from the walls; (P, 3), possibly empty."""
-    verts = pair.target_vertices.cpu().numpy().astype(np.float64)
+    return hollow(pair.target_vertices.cpu().numpy().astype(np.float64), pair.index, seed, CAVITY_SIGMA)
+
+
+CAVITY_MARGIN = 0.02  # of the hull's box diagonal: how far a cavity point stays from the walls
+CAVITY_SIGMA = 0.01  # the depth's nearest-sample width in the normalised frame (a target's diagonal is about 3)
+
+
+def hollow(verts: np.ndarray, index: losses.SurfaceIndex, seed: int, sigma: float) -> np.ndarray:
+    """Points inside the convex hull of ``verts`` but outside the surface ``index`` samples (outward normals, the
+    same frame), at least ``CAVITY_MARGIN`` of the box diagonal from the walls; (P, 3), possibly empty.
+    ``sigma``: the signed depth's width, in the frame's units."""
     lo, hi = verts.min(0), verts.max(0)
     probes = lo + (hi - lo) * np.random.default_rng(seed).random((CAVITY_PROBES, 3))
     try:
         hull = Delaunay(trimesh.convex.convex_hull(verts).vertices)
-    except (QhullError, ValueError):  # a flat target has no volume and no cavity
+    except (QhullError, ValueError):  # a flat mesh has no volume and no cavity
         return np.zeros((0, 3))
     probes = probes[hull.find_simplex(probes) >= 0]
     if not len(probes):
         return probes
-    dist, _ = pair.index.tree.query(probes, k=1, workers=1)
-    depth = losses.signed_depth(torch.as_tensor(probes, dtype=torch.float32)[None], pair.index, 0.01, 8)[0]
-    keep = (depth.numpy() < 0) & (dist > 0.02 * float(np.linalg.norm(hi - lo)))
+    dist, _ = index.tree.query(probes, k=1, workers=1)
+    depth = losses.signed_depth(torch.as_tensor(probes, dtype=torch.float32)[None], index, sigma, 8)[0]
+    keep = (depth.numpy() < 0) & (dist > CAVITY_MARGIN * float(np.linalg.norm(hi - lo)))
     return probes[keep]
 
 
@@ -337,15 +348,17 @@ def settle(pair: PreparedPair, index: losses.SurfaceIndex, q: torch.Tensor, anch
     return centre, depth <= inside_tol
 
 
-def propose(pair: PreparedPair, config: AlignConfig, weights: dict[str, float], log_s: float,
+def propose(pair: PreparedPair, config: AlignConfig, weights: dict[str, float], log_s: float | Sequence[float],
             generator: torch.Generator, init: Poses | None = None) -> Proposals:
     """``search.candidates`` poses in contact, drawn per region by ``allocate`` (see module docstring).
 
     Proposals the settling could not free from the target are dropped. ``log_s`` is the source scale of every
-    proposal (rigid: kept from the files or the caller's start);
+    proposal (rigid: kept from the files or the caller's start), or the scales they take in turn (scale mode:
+    ``scaling.ScalePlan.rungs``, the first one sizing the floor's margin, the gaps and the summits' cells);
     ``init`` (one pose) is added as a candidate as given when it is within ``objective.NEAR`` of the target.
     """
     cfg = config.search
+    rungs = [float(log_s)] if isinstance(log_s, int | float) else [float(r) for r in log_s]
     rng = np.random.default_rng(config.seed)
     points, normals, regions, density = surface_regions(pair)
     cavity = cavity_points(pair, config.seed)
@@ -359,7 +372,7 @@ def propose(pair: PreparedPair, config: AlignConfig, weights: dict[str, float], 
     counts = allocate(available, weights, cfg.candidates, cfg.min_share)
     rotations = orientations(pair, config, generator)
     up = np.array([0.0, 1.0, 0.0])
-    diagonal = 2 * pair.source_radius * math.exp(log_s)
+    diagonal = 2 * pair.source_radius * math.exp(rungs[0])
     everywhere = np.arange(len(points))
     parts = []
     for region, n in counts.items():
@@ -387,7 +400,8 @@ def propose(pair: PreparedPair, config: AlignConfig, weights: dict[str, float], 
                  torch.as_tensor(np.concatenate([np.full(len(p[0]), APPROACHES.index(p[4])) for p in parts])))
     q = rotations[torch.as_tensor(rng.integers(len(rotations), size=len(sites.anchor)))]
     index = contact_index(pair, seed=config.seed)
-    poses, free = place(pair, index, q, sites, log_s)
+    scales = torch.tensor(rungs, dtype=torch.float32)[torch.arange(len(q)) % len(rungs)]  # every region, every rung
+    poses, free = place(pair, index, q, sites, scales)
     labels = [label for label, ok in zip(labels, free.tolist(), strict=True) if ok]
     sites = sites.select(free)
     if init is not None and float(clearance(pair, index, init.select(slice(0, 1)))[0]) <= NEAR:
@@ -405,10 +419,11 @@ def propose(pair: PreparedPair, config: AlignConfig, weights: dict[str, float], 
 
 
 def place(pair: PreparedPair, index: losses.SurfaceIndex, q: torch.Tensor, sites: Site,
-          log_s: float) -> tuple[Poses, torch.Tensor]:
-    """Poses with orientations ``q`` settled into contact at ``sites`` (``settle``), then moved out by each site's
-    gap; returns the poses that ended free of the target and the mask of which did."""
-    scale = torch.full((len(q),), float(log_s))
+          log_s: float | torch.Tensor) -> tuple[Poses, torch.Tensor]:
+    """Poses with orientations ``q`` and scales ``log_s`` (one, or one each) settled into contact at ``sites``
+    (``settle``), then moved out by each site's gap; returns the poses that ended free of the target and the mask
+    of which did."""
+    scale = torch.as_tensor(log_s, dtype=torch.float32).cpu().expand(len(q)).clone()
     t = torch.empty(len(q), 3)
     free = torch.ones(len(q), dtype=torch.bool)
     for surface in (True, False):

@@ -256,9 +256,9 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
     cfg = config.search
     began = time.perf_counter()
     started = began if started is None else started
-    log_s = float(proposals.poses.log_s[0])
-    cameras = coarse_cameras(pair, config, log_s)
-    distinct = distinct_of(pair, config, log_s)
+    # views that frame the largest source (scale mode: the ladder's top rung); duplicates at the first one's size
+    cameras = coarse_cameras(pair, config, float(proposals.poses.log_s.max()))
+    distinct = distinct_of(pair, config, float(proposals.poses.log_s[0]))
     screened = 0
     if scorer.use_clip and 0 < cfg.shortlist < len(proposals.poses):  # only what can be the answer reaches the encoder
         screened = len(proposals.poses)
@@ -435,6 +435,6 @@ def sweep(proposals: Proposals, pair: PreparedPair, objectives: torch.Tensor, po
     rotations = proposals.rotations
     sites = proposals.sites.select(candidates[best].repeat_interleave(len(rotations)))
     q = rotations.repeat(len(best), 1)
-    swept, _ = place(pair, proposals.index, q, sites, float(poses.log_s[0]))
+    swept, _ = place(pair, proposals.index, q, sites, poses.log_s[best].cpu().repeat_interleave(len(rotations)))
     device = pair.source_vertices.device
     return Poses(swept.t.to(device), swept.q.to(device), swept.log_s.to(device))

@@ -132,7 +132,7 @@ def lean(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: in
     angle = torch.as_tensor(np.radians(rng.choice(LEAN_TILTS, size=count)), dtype=torch.float32)
     tilt = torch.cat([torch.cos(angle / 2)[:, None], axis * torch.sin(angle / 2)[:, None]], dim=1)
     q = quaternion_product(tilt, _long_axis_up(pair, rng, count))
-    log_s = float(proposals.poses.log_s[0])
+    log_s = _scale(proposals)
     local = pair.source_subset(LEAN_POINTS).cpu()
     rotated = torch.einsum("bij,nj->bni", quaternion_to_matrix(q), local) * math.exp(log_s)
     behind = (-(rotated * n[:, None, :]).sum(-1)).max(dim=1).values  # extent toward the target
@@ -149,7 +149,7 @@ def contained(pair: PreparedPair, config: AlignConfig, proposals: Proposals, see
     top = regions["top"]
     if not len(top):
         return None
-    log_s = float(proposals.poses.log_s[0])
+    log_s = _scale(proposals)
     lift = predicates.FOOT * 2 * pair.source_radius * math.exp(log_s)  # the source's foot, as the predicate's
     ground = torch.as_tensor(points, dtype=torch.float32)
     feet = ground[torch.as_tensor(top)] + torch.tensor([0.0, lift, 0.0])
@@ -180,7 +180,7 @@ def hung(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: in
     plumb = toward / np.maximum(reach, 1e-12)[:, None]  # hung by a point, the centre settles straight below it
     diagonal = float(np.linalg.norm(np.ptp(local, axis=0)))
     hooks = np.flatnonzero(((normals * plumb).sum(1) > HOOK_FACING) & (reach > HOOK_REACH * diagonal))
-    log_s = float(proposals.poses.log_s[0])
+    log_s = _scale(proposals)
     clearance = _clearance(local, plumb, hooks, feat.source_spacing) * math.exp(log_s)
     hooks, clearance = hooks[np.isfinite(clearance)], clearance[np.isfinite(clearance)]
     points, _, regions, density = surface_regions(pair)
@@ -220,7 +220,7 @@ def pierced(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed:
     standing = _long_axis_up(pair, rng, count)  # on its long axis, either end up, turned about it
     q = torch.cat([quaternion_product(_turn(up, d)[None], standing[i:i + 1]) for i, d in enumerate(inward)])
     local = pair.source_subset(LEAN_POINTS).cpu()
-    log_s = float(proposals.poses.log_s[0])
+    log_s = _scale(proposals)
     rotated = torch.einsum("bij,nj->bni", quaternion_to_matrix(q), local) * math.exp(log_s)
     d = torch.as_tensor(inward, dtype=torch.float32)
     along = (rotated * d[:, None, :]).sum(-1)  # extent along the inward normal
@@ -363,3 +363,8 @@ def _long_axis_up(pair: PreparedPair, rng: np.random.Generator, count: int) -> t
              for i in range(count)]
     return torch.cat(turns) if turns else torch.zeros(0, 4)
 
+
+def _scale(proposals: Proposals) -> float:
+    """The log scale the relation's proposals take: the region proposals' middle one (rigid: their one scale;
+    scale mode: the ladder's centre rung)."""
+    return float(proposals.poses.log_s.median())

@@ -49,5 +49,8 @@ def surface_samples(mesh: trimesh.Trimesh, count: int, seed: int) -> tuple[np.nd
     corners = np.asarray(mesh.vertices, dtype=np.float64)[np.asarray(mesh.faces)[face]]  # (count, 3, 3)
     weights = np.stack([1.0 - root, root * (1.0 - v), root * v], axis=1)
     points = np.einsum("nk,nkj->nj", weights, corners)
-    normals = np.asarray(mesh.face_normals, dtype=np.float64)[face]
+    # each sampled face's normal from its own corners: trimesh's ``face_normals`` are zero for faces under its
+    # absolute area tolerance (every face of a 0.2 mm cap), which left such a source with no inside
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), np.finfo(np.float64).tiny)
     return points, normals

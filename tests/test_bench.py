@@ -324,3 +324,20 @@ def test_placement_success_is_rotation_free():
     assert metrics.placement_success(errors["centroid_error"], 0.0)
     assert not metrics.placement_success(errors["centroid_error"], 0.05)
     assert not metrics.placement_success(0.6, 0.0)
+
+
+def test_scale_protocol_finds_the_scale_and_the_baselines_keep_theirs(bench_dir, tmp_path):
+    """Scale protocol: geometry's answer takes its scale from the priors (the start is scaled by U(0.01, 100));
+    b1 keeps the scale it is given; the summary labels the protocol and gives the scale error."""
+    out = tmp_path / "out"
+    assert _bench(str(bench_dir), "--cases", "gen-cap-on-block", "--method", "geometry,b1", "--protocol", "scale",
+                  "--out", str(out)) == 0
+    rows = {r["method"]: r for r in map(json.loads, (out / "results.jsonl").read_text().splitlines())}
+    start = np.asarray(rows["b1"]["initial_pose"])
+    given = float(np.cbrt(np.linalg.det(start[:3, :3])))
+    assert abs(math.log(given)) > 0.5  # the protocol's factor is not near 1 here, so the two tell apart
+    assert rows["b1"]["metrics"]["scale_error"] == pytest.approx(abs(math.log(given)), abs=1e-6)
+    geometry = rows["geometry"]
+    assert geometry["status"] == "ok" and geometry["metrics"]["scale_error"] < abs(math.log(given))
+    summary = (out / "summary.md").read_text()
+    assert "(test, scale protocol) |" in summary and "scale err" in summary

@@ -19,14 +19,18 @@ PLOTS = {"tradeoff": "tradeoff.png", "pose_cdf": "pose_cdf.png", "time": "time_p
 
 
 def variant(row: dict) -> str:
-    """The label a row is grouped and plotted under, e.g. ``ctp[no-icp] oracle/random:ViT-B-32 (default)``."""
+    """The label a row is grouped and plotted under, e.g. ``ctp[no-icp] oracle/random:ViT-B-32 (default)``; rows of
+    the scale protocol say so (``... (default, scale protocol)``)."""
     name = row["method"] + (f"[{row['ablation']}]" if row.get("ablation") else "")
     if row.get("guide") == "pixels":
         name += " pixels (upper bound, no encoder)"
     elif row.get("guide"):
         name += f" {row['guide']}/{row['encoder']}"
-    if row.get("preset"):
-        name += f" ({row['preset']})"
+    notes = [row["preset"]] if row.get("preset") else []
+    if row.get("protocol") == "scale":
+        notes.append("scale protocol")
+    if notes:
+        name += f" ({', '.join(notes)})"
     return name
 
 
@@ -55,6 +59,14 @@ def _mean_median(v: np.ndarray, digits: int = 3) -> str:
     return "–" if v.size == 0 else f"{v.mean():.{digits}f} / {np.median(v):.{digits}f}"
 
 
+def _median_spread(v: np.ndarray, digits: int = 3) -> str:
+    """Median and the interquartile range: the scale error's cell (a few cases far off would swamp a mean)."""
+    if v.size == 0:
+        return "–"
+    low, mid, high = np.quantile(v, [0.25, 0.5, 0.75])
+    return f"{mid:.{digits}f} [{low:.{digits}f}–{high:.{digits}f}]"
+
+
 def _rate(flags: list[bool]) -> str:
     return f"{100 * np.mean(flags):.0f}% ({sum(flags)}/{len(flags)})" if flags else "–"
 
@@ -64,11 +76,12 @@ def _encoders(rows: list[dict]) -> list[str]:
 
 
 def table(rows: list[dict]) -> str:
-    """The Markdown table: per variant, mean / median of every metric over its ok rows."""
+    """The Markdown table: per variant, mean / median of every metric over its ok rows; where a row comes from the
+    scale protocol, the scale error |ln(found / reference)| as median [interquartile range]."""
     specs = _encoders(rows)
+    scaled = any(r.get("protocol") == "scale" for r in rows)
     head = ["variant", "ok/runs", "success", "placement", "placement@k", "relation holds", "stable", "valid",
-            "ADD-S", "rot err °",
-            "trans err", "IoU", "contact",
+            "ADD-S", "rot err °", "trans err", *(["scale err"] if scaled else []), "IoU", "contact",
             *[f"semantic {s}" for s in specs], "time s", "CLIP images"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for name, group in sorted(_groups(rows).items()):
@@ -85,7 +98,9 @@ def table(rows: list[dict]) -> str:
             name, f"{len(ok)}/{len(group)}",
             _rate(success), _rate(placed), _rate(at_k), _rate(related), _rate(steady), _rate(valid),
             _mean_median(_values(group, "adds")), _mean_median(_values(group, "rotation_error_deg"), 1),
-            _mean_median(_values(group, "translation_error")), _mean_median(_values(group, "iou"), 4),
+            _mean_median(_values(group, "translation_error")),
+            *([_median_spread(_values(group, "scale_error"))] if scaled else []),
+            _mean_median(_values(group, "iou"), 4),
             _mean_median(_values(group, "contact"), 4), *[_mean_median(_semantic(group, s), 4) for s in specs],
             _mean_median(_times(group), 1), f"{clip.mean():.0f}" if clip.size else "–",
         ]

@@ -576,6 +576,14 @@ function showParts(parts) {
   box.append(tint);
 }
 
+// Scale mode (report.extra.scale): where the scale started and why, beside the scale found.
+function scaleOrigin(scale) {
+  if (!scale) return "";
+  const why = scale.from === "geometry" ? scale.constraint.kind
+    : `the priors' size ratio ${Number(scale.size_ratio).toPrecision(3)} (${scale.names.source} / ${scale.names.target})`;
+  return ` (found; started at ${Number(scale.initial).toFixed(3)} from ${why})`;
+}
+
 function showFacts(report) {
   state.result.shownFacts = report;
   $("result-prompt").textContent = report.prompt ? `"${report.prompt}"` : "guided by a reference image";
@@ -586,7 +594,7 @@ function showFacts(report) {
   const rows = [
     ["translation", `${fixed(t.translation, 3)} (target file frame)`],
     ["rotation", `${angle.toFixed(1)} deg; quaternion wxyz ${fixed([w, ...xyz], 4)}`],
-    ["scale", t.scale != null ? Number(t.scale).toFixed(3) : ""],
+    ["scale", t.scale != null ? Number(t.scale).toFixed(3) + scaleOrigin((report.extra || {}).scale) : ""],
     ["objective", typeof report.objective === "number" ? report.objective.toFixed(4) : ""],
     ["model", report.model || ""],
     ["preset, seed", `${report.preset ?? ""}, ${report.seed ?? ""}`],
