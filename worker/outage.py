@@ -1,0 +1,100 @@
+"""A worker rides out a Redis outage (a restart, a failover) instead of losing its running job.
+
+Every Redis client of a worker (its job store, rq's connection) retries a command that finds Redis gone, with a
+back-off that doubles from ``BACKOFF_BASE_S`` to ``BACKOFF_CAP_S``, so it reconnects within half a second of Redis
+answering again. Meanwhile the worker's calls wait: the running job pauses at its next progress write or step check
+and keeps everything it computed; its progress and result are written when Redis is back, and its leases are
+refreshed again (a lease outlives an outage shorter than ``CTP_LEASE_S``). One outage is one JSON log line, when it
+ends.
+
+The wait is bounded by ``CTP_REDIS_PATIENCE_S``: past it the worker logs one line and exits with status 1
+(``RedisGone``), so that an outage that is no blip shows as a worker restart (supervisor, orchestrator) rather
+than a silent hang; a job it was running is then reaped when Redis is back and retried once (``service.jobs``).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from typing import Any
+
+from redis import Redis
+from redis.backoff import ExponentialBackoff
+from redis.retry import Retry
+
+log = logging.getLogger("ctp.worker")
+
+BACKOFF_BASE_S = 0.05
+BACKOFF_CAP_S = 0.5
+CONNECT_TIMEOUT_S = 5.0  # a Redis host that vanished (no refusal) costs this per attempt, not the OS's minutes
+
+
+class RedisGone(SystemExit):
+    """Redis did not answer within the patience: the worker exits with status 1. A ``SystemExit``: rq's loop and
+    the job's own error handling let it through, and it ends the process without a traceback."""
+
+    def __init__(self) -> None:
+        super().__init__(1)
+
+
+class Outage:
+    """The process's one view of its Redis outage, shared by every client and thread: since when Redis has not
+    answered, and how long to wait for it."""
+
+    def __init__(self, patience_s: float = 60.0):
+        self.patience_s = patience_s
+        self.worker: str | None = None  # named in the log lines
+        self._lock = threading.Lock()
+        self._since: float | None = None
+        self._gave_up = False
+
+    def failed(self, error: Exception) -> bool:
+        """A command found Redis gone: retry it (True), or raise ``RedisGone`` once the outage outlasted the
+        patience."""
+        with self._lock:
+            now = time.monotonic()
+            if self._since is None:
+                self._since = now
+            down_s, first = now - self._since, not self._gave_up
+            if down_s > self.patience_s:
+                self._gave_up = True
+        if down_s <= self.patience_s:
+            return True
+        if first:
+            log.error("redis unreachable for %.1f s (%s): giving up (CTP_REDIS_PATIENCE_S %.0f s); the worker exits",
+                      down_s, error, self.patience_s, extra={"worker": self.worker})
+        raise RedisGone()
+
+    def answered(self) -> None:
+        """A command got its answer: an outage, if there was one, is over (logged once)."""
+        if self._since is None:  # the common case: no lock taken
+            return
+        with self._lock:
+            since, self._since = self._since, None
+        if since is not None:
+            log.warning("redis was unreachable for %.1f s; reconnected, the running job went on",
+                        time.monotonic() - since, extra={"worker": self.worker})
+
+
+OUTAGE = Outage()
+
+
+def _retryable(error: Exception) -> bool:
+    return OUTAGE.failed(error)
+
+
+class _Patient(Retry):
+    """redis-py's retry, told when a command succeeded (the end of an outage)."""
+
+    def call_with_retry(self, do, fail, is_retryable=None, with_failure_count: bool = False) -> Any:
+        result = super().call_with_retry(do, fail, is_retryable, with_failure_count)
+        OUTAGE.answered()
+        return result
+
+
+def patient_redis(url: str, patience_s: float, **options: Any) -> Redis:
+    """A client of the Redis at ``url`` that waits out an outage of up to ``patience_s`` (see the module)."""
+    OUTAGE.patience_s = patience_s
+    retry = _Patient(ExponentialBackoff(cap=BACKOFF_CAP_S, base=BACKOFF_BASE_S), -1, is_retryable=_retryable)
+    return Redis.from_url(url, retry=retry, socket_connect_timeout=CONNECT_TIMEOUT_S, **options)
