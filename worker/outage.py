@@ -66,15 +66,19 @@ class Outage:
                       down_s, error, self.patience_s, extra={"worker": self.worker})
         raise RedisGone()
 
-    def answered(self) -> None:
-        """A command got its answer: an outage, if there was one, is over (logged once)."""
-        if self._since is None:  # the common case: no lock taken
+    def retried(self) -> None:
+        """A command that failed got its answer on a new connection: the outage, if any, is over (logged once).
+        Only such a one tells: a command that did not fail may have been answered before Redis went away, or may
+        not have needed it (redis-py "connects" a pooled connection whose socket it has not yet found dead)."""
+        if self._since is None:
             return
         with self._lock:
-            since, self._since = self._since, None
-        if since is not None:
-            log.warning("redis was unreachable for %.1f s; reconnected, the running job went on",
-                        time.monotonic() - since, extra={"worker": self.worker})
+            since = self._since
+            if since is None:
+                return
+            self._since = None
+        log.warning("redis was unreachable for %.1f s; reconnected, work in progress kept", time.monotonic() - since,
+                    extra={"worker": self.worker})
 
 
 OUTAGE = Outage()
@@ -85,11 +89,18 @@ def _retryable(error: Exception) -> bool:
 
 
 class _Patient(Retry):
-    """redis-py's retry, told when a command succeeded (the end of an outage)."""
+    """redis-py's retry, which tells ``OUTAGE`` when a command that failed got its answer (the end of an outage)."""
 
     def call_with_retry(self, do, fail, is_retryable=None, with_failure_count: bool = False) -> Any:
-        result = super().call_with_retry(do, fail, is_retryable, with_failure_count)
-        OUTAGE.answered()
+        failures = []
+
+        def failed(*args: Any) -> Any:
+            failures.append(args[0])
+            return fail(*args)
+
+        result = super().call_with_retry(do, failed, is_retryable, with_failure_count)
+        if failures:
+            OUTAGE.retried()
         return result
 
 
