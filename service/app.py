@@ -122,7 +122,8 @@ Failed jobs carry an error too: an engine code (`canceled`, `model_unavailable` 
 after the job was accepted), `invalid_option`, a mesh code, ...), `inputs_expired` (its uploads expired,
 `CTP_JOB_TTL_S`, before a worker picked it up), `job_timeout` (`CTP_JOB_TIMEOUT_S`), `job_too_large` (the
 job needed more memory than `CTP_JOB_MEMORY_MB`; the message names the stage, the worker goes on to the next job),
-`worker_lost` (its worker was killed or lost its machine; not retried), `worker_cannot_serve` (the worker's own
+`worker_lost` (the worker running it missed its lease, on its second attempt: a job whose worker is lost is queued
+again once; `attempts` counts them), `worker_cannot_serve` (the worker's own
 `CTP_DEVICE` / `CTP_RUNTIME` / `CTP_THREADS` cannot run this job, checked when it takes the job, before anything
 loads), `storage_unavailable` (the worker could not read its uploads or store its results) or `internal_error`.
 An assembly's failure names its stage in the message (`stage 2/3 (plate): ...`) and in `field` (`steps.1`).

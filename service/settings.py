@@ -106,7 +106,7 @@ class Settings(BaseSettings):
     runtime: Runtime = Field("auto", description="where workers run forward-only encoding: auto, torch, onnx, "
                              "onnx-int8 (docs/guidance.md)")
     # Liveness: a worker refreshes a lease on itself and on its running job every heartbeat; a job whose
-    # lease lapses (worker killed, machine gone) is failed by the API's reaper with code worker_lost.
+    # lease lapses (worker killed, machine gone) is queued again once by the API's reaper, then failed worker_lost.
     heartbeat_s: float = Field(2.0, gt=0, description="worker heartbeat period")
     lease_s: int = Field(15, ge=2, description="a worker or running job silent this long is considered dead")
     progress_every_s: float = Field(3.0, gt=0, description="a running job republishes progress at least this often")

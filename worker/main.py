@@ -7,8 +7,8 @@ never has to survive a fork. The heartbeat thread keeps this worker visible to `
 queues and the models it can run (checked once at start: the default loaded, the others' weights looked for;
 a "last seen" record keeps them counted for ``CTP_WORKER_GRACE_S`` after the worker dies or exits, so jobs
 are still accepted while it is restarted, ``service.jobs``), holds the lease of the running job (lapsed
-lease: the API's reaper fails the job with ``worker_lost``) and republishes progress when the optimiser has
-been quiet for a while.
+lease: the API's reaper queues the job again, once, then fails it ``worker_lost``) and republishes progress
+when the optimiser has been quiet for a while.
 
 Its Redis clients wait out a Redis outage (``worker.outage``). A stop signal (SIGTERM or SIGINT, the first or any
 later one) is always a warm stop: the running job is handed back at its next step, queued again for another worker
