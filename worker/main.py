@@ -29,6 +29,7 @@ from typing import Any
 from redis.exceptions import RedisError
 from rq import SimpleWorker
 from rq.serializers import JSONSerializer
+from rq.utils import now as utcnow
 
 from ctp_core.loader import MeshLoader
 from service import logs
@@ -127,6 +128,8 @@ def run_worker(settings: Settings, *, burst: bool = False, name: str | None = No
     """Preload the default model, then take jobs until stopped (SIGTERM/SIGINT: after the current job)."""
     global _CONTEXT
     logs.configure(settings.log_level)
+    for stop in (signal.SIGINT, signal.SIGTERM):  # until rq's loop takes over: no job yet, leave at once
+        signal.signal(stop, _leave)
     name = name or f"{socket.gethostname()}.{os.getpid()}"
     OUTAGE.worker = name
     jobs = Jobs.from_settings(settings, patient_redis(settings.redis_url, settings.redis_patience_s,
@@ -155,6 +158,10 @@ def run_worker(settings: Settings, *, burst: bool = False, name: str | None = No
     return 0
 
 
+def _leave(signum: int, _frame) -> None:
+    raise SystemExit(128 + signum)  # not KeyboardInterrupt's traceback
+
+
 class _Worker(SimpleWorker):
     """rq's in-process worker, whose every stop signal is a warm stop that hands the running job back: rq's own
     makes a second signal a cold stop, which would kill the job mid-run and leave it to be reaped."""
@@ -162,10 +169,12 @@ class _Worker(SimpleWorker):
     stopping: threading.Event
 
     def request_stop(self, signum, frame) -> None:
-        if not self.stopping.is_set():
-            log.info("stop requested (%s): the running job, if any, is handed back", signal.Signals(signum).name,
-                     extra={"worker": self.name})
+        if self.stopping.is_set():  # under way: a later signal changes nothing
+            return
+        log.info("stop requested (%s): the running job, if any, is handed back", signal.Signals(signum).name,
+                 extra={"worker": self.name})
         self.stopping.set()
+        self._shutdown_requested_date = utcnow()
         self._shutdown()  # idle: stop now; busy: once the job returns
 
 
