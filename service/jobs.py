@@ -17,15 +17,15 @@ heartbeat. ``reap`` finds running jobs whose lease lapsed (worker SIGKILLed, mac
 longer than the lease): such a job is queued again, once (``MAX_ATTEMPTS``, counted in ``attempts``), and then
 fails ``worker_lost``. Once, because a job that itself kills its worker would otherwise take every worker down
 in turn; a job that outgrows its memory does not kill its worker (the ceiling fails it ``job_too_large``), so a
-lost worker is usually the worker's fault, not the job's. A stopping worker hands its job back (``hand_back``):
-queued again, the attempt not counted. A worker that was only frozen finds its job no longer its own and
-stops (``should_stop``); its late writes are refused.
+lost worker is more often a machine's or an operator's doing than the job's. A stopping worker hands its job
+back (``hand_back``): queued again, the attempt not counted. A worker that was only frozen finds its job no
+longer its own and stops (``should_stop``); its late writes are refused.
 
 Queues: a job goes to one named queue (its ``queue``, default the deployment's), the rq queue
 ``{prefix}:{queue}``; a worker takes jobs from the queues it serves (``CTP_QUEUES``), so GPU and CPU
 workers can share one deployment.
 
-Workers: each heartbeat refreshes the worker's own lease ``{prefix}:worker:{name}`` (``lease_s``) with
+Workers: each heartbeat refreshes the worker's own lease ``{prefix}:worker:{name}`` (``FRESH_BEATS``) with
 its offer ``{prefix}:offer:{name}`` (the queues it serves, the models it can run), and a "last seen"
 record ``{prefix}:seen:{name}`` that outlives the lease by the grace (``worker_grace_s``). A job is judged
 by the live workers that serve its queue; while none does but one was seen within the grace (a worker
