@@ -14,9 +14,9 @@ It reports, and checks: every valid job ends ``succeeded`` and none is lost (``j
 ``worker_lost``; a job whose worker is killed is run again once, a Redis outage is waited out); every extreme job
 ends ``succeeded`` or ``failed`` with a documented code (``job_too_large``); no worker died but those killed (a
 worker process that disappears otherwise is a death); every hostile request is a 4xx; no 5xx but 503s while a
-dependency is down; the API process's peak RSS (the bound is ``--rss-mb``); the p99 latency of
-``GET /jobs/{id}`` (the bound is ``--status-p99-ms``). A measurement, not a test: it prints JSON and exits 1
-when a check fails.
+dependency is down; no raw traceback in serve's log; the API process's peak RSS (the bound is ``--rss-mb``); the
+p99 latency of ``GET /jobs/{id}`` (the bound is ``--status-p99-ms``). A measurement, not a test: it prints JSON
+and exits 1 when a check fails.
 
     python benchmarks/soak.py --minutes 3
     python benchmarks/soak.py --minutes 3 --redis-kill-every 20 40
@@ -306,10 +306,12 @@ def main(argv: list[str] | None = None) -> int:
         stop.set()
         stop_processes([serve], grace_s=60)
         log.close()
+    # Raw tracebacks (not inside a JSON log line): what the service must never print.
+    tracebacks = (Path(tmp.name) / "serve.log").read_text(errors="replace").count("\nTraceback (most recent call")
     hostile_answers = {k: v for k, v in counts.items() if not k.startswith(("valid", "extreme"))}
     figures = {
         "sending_s": round(sending_s, 1), "requests": sent[0], "worker_kills": len(kills),
-        "redis_kills": len(redis_kills),
+        "redis_kills": len(redis_kills), "serve_log_raw_tracebacks": tracebacks,
         "valid_accepted": len(valid), "valid_outcomes": dict(outcomes), "valid_stuck": len(valid) - len(ended),
         "extreme_outcomes": dict(sorted(extreme_outcomes.items())), "worker_deaths": len(deaths),
         "status_latency_ms": {"requests": len(latencies),
@@ -328,7 +330,7 @@ def main(argv: list[str] | None = None) -> int:
         v for k, v in extreme_outcomes.items() if k.endswith("failed worker_lost"))
     figures["jobs_run_again"] = sum(1 for j in ended.values() if j.get("attempts", 1) > 1)
     p99 = figures["status_latency_ms"]["p99"]
-    ok = (figures["jobs_lost"] == 0 and figures["status_500"] == 0 and not figures["hostile_other"]
+    ok = (figures["jobs_lost"] == 0 and figures["status_500"] == 0 and not figures["hostile_other"] and not tracebacks
           and set(outcomes) <= {"succeeded"}
           and all(k.endswith(("succeeded", "failed job_too_large")) for k in extreme_outcomes)
           and not deaths and max(rss, default=0) <= args.rss_mb
