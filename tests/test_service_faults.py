@@ -19,7 +19,7 @@ from service.client import Client, ServiceError
 from service.embedded import EmbeddedRedis
 from tests.conftest import Api, Worker, park_worker, service_env, wait_for, wait_ready
 from tests.test_service import BALL, BOX, FAST, submit
-from worker.outage import RedisGone, patient_redis
+from worker.outage import patient_redis
 
 LONG = {**FAST, "steps": 100000}
 MID = {**FAST, "steps": 40}  # some seconds of optimisation: a fault can hit it mid-run, and it still ends
@@ -190,10 +190,10 @@ def test_a_worker_client_gives_up_after_its_patience(tmp_path, outage):
         client.ping()
         server.stop(release=False)
         started = time.monotonic()
-        with pytest.raises(RedisGone) as gone:
+        with pytest.raises(SystemExit) as gone:
             client.ping()
         assert gone.value.code == 1 and 1.0 <= time.monotonic() - started < 10
-        with pytest.raises(RedisGone):  # every later call too, logged no more
+        with pytest.raises(SystemExit):  # every later call too, logged no more
             client.ping()
         lines = [r.getMessage() for r in outage.records]
         assert len(lines) == 1 and "giving up (CTP_REDIS_PATIENCE_S 1 s)" in lines[0], lines
@@ -272,3 +272,23 @@ def test_a_burst_while_a_worker_dies_loses_no_job(private_redis, tmp_path):
         for w in workers:
             w.stop()
         api.stop()
+
+
+def test_a_worker_whose_redis_stays_gone_exits_1_without_a_traceback(tmp_path):
+    """Past CTP_REDIS_PATIENCE_S the worker leaves (status 1, for its supervisor to see), saying so in one line."""
+    server = EmbeddedRedis(tmp_path / "redis")
+    server.start()
+    env = service_env(server.url, "redis-gone", redis_patience_s=2)
+    api = Api(env)
+    worker = Worker(env, tmp_path / "worker.log")
+    try:
+        wait_ready(api)
+        server.process.kill()
+        server.process.wait()
+        assert worker.process.wait(timeout=60) == 1
+    finally:
+        worker.stop()
+        api.stop()
+        server.stop()
+    ours = [e["msg"] for e in json_lines_only(tmp_path / "worker.log") if e["logger"] == "ctp.worker"]
+    assert len(ours) == 1 and "giving up (CTP_REDIS_PATIENCE_S 2 s); the worker exits" in ours[0], ours

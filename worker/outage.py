@@ -7,9 +7,11 @@ and keeps everything it computed; its progress and result are written when Redis
 refreshed again (a lease outlives an outage shorter than ``CTP_LEASE_S``). One outage is one JSON log line, when it
 ends.
 
-The wait is bounded by ``CTP_REDIS_PATIENCE_S``: past it the worker logs one line and exits with status 1
-(``RedisGone``), so that an outage that is no blip shows as a worker restart (supervisor, orchestrator) rather
-than a silent hang; a job it was running is then reaped when Redis is back and retried once (``service.jobs``).
+The wait is bounded by ``CTP_REDIS_PATIENCE_S``: past it the worker logs one line and exits with status 1, so that
+an outage that is no blip shows as a worker restart (supervisor, orchestrator) rather than a silent hang; a job it
+was running is then reaped when Redis is back and run again once (``service.jobs``). The exit is a ``SystemExit``
+raised from every call that finds Redis still gone: rq's loop and the job's own error handling let it through, it
+ends the process without a traceback, and a thread it ends, silently.
 """
 
 from __future__ import annotations
@@ -30,14 +32,6 @@ BACKOFF_CAP_S = 0.5
 CONNECT_TIMEOUT_S = 5.0  # a Redis host that vanished (no refusal) costs this per attempt, not the OS's minutes
 
 
-class RedisGone(SystemExit):
-    """Redis did not answer within the patience: the worker exits with status 1. A ``SystemExit``: rq's loop and
-    the job's own error handling let it through, and it ends the process without a traceback."""
-
-    def __init__(self) -> None:
-        super().__init__(1)
-
-
 class Outage:
     """The process's one view of its Redis outage, shared by every client and thread: since when Redis has not
     answered, and how long to wait for it."""
@@ -50,8 +44,8 @@ class Outage:
         self._gave_up = False
 
     def failed(self, error: Exception) -> bool:
-        """A command found Redis gone: retry it (True), or raise ``RedisGone`` once the outage outlasted the
-        patience."""
+        """A command found Redis gone: retry it (True), or raise ``SystemExit(1)`` once the outage outlasted the
+        patience (exactly ``SystemExit``: Python's thread hook reports a subclass with its traceback)."""
         with self._lock:
             now = time.monotonic()
             if self._since is None:
@@ -64,7 +58,7 @@ class Outage:
         if first:
             log.error("redis unreachable for %.1f s (%s): giving up (CTP_REDIS_PATIENCE_S %.0f s); the worker exits",
                       down_s, error, self.patience_s, extra={"worker": self.worker})
-        raise RedisGone()
+        raise SystemExit(1)
 
     def retried(self) -> None:
         """A command that failed got its answer on a new connection: the outage, if any, is over (logged once).
