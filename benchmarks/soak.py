@@ -11,7 +11,8 @@ SIGKILLs one worker at random, and (``--redis-kill-every``) the embedded redis-s
 either back.
 
 It reports, and checks: every valid job ends ``succeeded`` and none is lost (``jobs_lost``: stuck, or failed
-``worker_lost``; a job whose worker is killed is run again once, a Redis outage is waited out); every extreme job
+``worker_lost``; a job whose worker is killed is run again once, a Redis outage is waited out; the check allows only
+a job whose worker was killed on both its attempts, the retry bound, and reports it); every extreme job
 ends ``succeeded`` or ``failed`` with a documented code (``job_too_large``); no worker died but those killed (a
 worker process that disappears otherwise is a death); every hostile request is a 4xx; no 5xx but 503s while a
 dependency is down; no raw traceback in serve's log; the API process's peak RSS (the bound is ``--rss-mb``); the
@@ -329,9 +330,15 @@ def main(argv: list[str] | None = None) -> int:
     figures["jobs_lost"] = figures["valid_stuck"] + outcomes.get("failed worker_lost", 0) + sum(
         v for k, v in extreme_outcomes.items() if k.endswith("failed worker_lost"))
     figures["jobs_run_again"] = sum(1 for j in ended.values() if j.get("attempts", 1) > 1)
+    lost_jobs = [j for j in ended.values() if j["status"] == "failed" and j["error"]["code"] == "worker_lost"]
+    figures["lost_jobs"] = [{"attempts": j["attempts"], "message": j["error"]["message"]} for j in lost_jobs]
+    # A job whose worker is killed on both its attempts is lost by design (the bound that keeps a job that kills
+    # workers from taking them all down); any other loss is the service's failure.
+    figures["jobs_lost_unbounded"] = figures["jobs_lost"] - sum(1 for j in lost_jobs if j["attempts"] >= 2)
     p99 = figures["status_latency_ms"]["p99"]
-    ok = (figures["jobs_lost"] == 0 and figures["status_500"] == 0 and not figures["hostile_other"] and not tracebacks
-          and set(outcomes) <= {"succeeded"}
+    ok = (figures["jobs_lost_unbounded"] == 0 and figures["status_500"] == 0 and not figures["hostile_other"]
+          and not tracebacks
+          and set(outcomes) <= {"succeeded", "failed worker_lost"}
           and all(k.endswith(("succeeded", "failed job_too_large")) for k in extreme_outcomes)
           and not deaths and max(rss, default=0) <= args.rss_mb
           and (p99 is None or p99 <= args.status_p99_ms))
