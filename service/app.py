@@ -191,14 +191,25 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
 
 async def _reap_forever(jobs: Jobs, period_s: float) -> None:
-    """Fail jobs of dead workers every heartbeat period; expire stored files about once a minute."""
-    last_sweep = 0.0
+    """Reap jobs of dead workers every heartbeat period (``Jobs.reap``); expire stored files about once a minute.
+
+    After a Redis outage, reaping waits one lease: a lease that lapsed while Redis was away is the outage's doing,
+    not the worker's, and the workers, which wait outages out (``worker.outage``), renew it within a heartbeat.
+    One log line per outage."""
+    last_sweep = resume_at = 0.0
+    down = False
     while True:
         try:
-            await run_in_threadpool(jobs.reap)
+            if time.monotonic() >= resume_at:
+                await run_in_threadpool(jobs.reap)
             if time.monotonic() - last_sweep > SWEEP_EVERY_S:
                 await run_in_threadpool(jobs.storage.sweep)
                 last_sweep = time.monotonic()
-        except (redis.exceptions.RedisError, StorageUnavailable) as exc:
+            down = False
+        except redis.exceptions.RedisError as exc:
+            if not down:
+                log.warning("reaper: %s; reaping resumes one lease after Redis answers again", exc)
+            down, resume_at = True, time.monotonic() + jobs.lease_s
+        except StorageUnavailable as exc:
             log.warning("reaper: %s", exc)
         await asyncio.sleep(period_s)

@@ -107,6 +107,15 @@ class SavedAdjustment(BaseModel):
 TASK = "worker.tasks.run_job"  # by name: the API never imports the engine
 MAX_ATTEMPTS = 2  # a job whose worker was lost is run once more (``Jobs.reap``)
 FRESH_BEATS = 3  # a worker counts as live while it beat within this many heartbeat periods (``Jobs.heartbeat``)
+# A running job's lease, renewed while the job is still running (in the running set): also after it lapsed during a
+# Redis outage longer than the lease (Redis keeps expiry times across a restart), never for a job that ended or
+# was reaped.
+_RENEW_LEASE = """
+if redis.call('sismember', KEYS[2], ARGV[1]) == 1 then
+    redis.call('set', KEYS[1], ARGV[2], 'EX', ARGV[3])
+end
+return 0
+"""
 
 
 class TooManyJobs(Exception):
@@ -617,7 +626,7 @@ class Jobs:
             pipe.sadd(f"{self.prefix}:workers", worker)
             pipe.set(self._offer_key(worker), offer.model_dump_json(), ex=self.lease_s)
             if job_id is not None:
-                pipe.set(self._lease_key(job_id), worker, ex=self.lease_s, xx=True)
+                pipe.eval(_RENEW_LEASE, 2, self._lease_key(job_id), self._running_key, job_id, worker, self.lease_s)
             grace_ms = int(self.worker_grace_s * 1000)
             if grace_ms > 0:
                 # The grace travels in the record: "seen s ago" is the grace less the key's time to live, which

@@ -130,6 +130,17 @@ def test_reaper_queues_a_lost_job_again_once_then_fails_it_and_spares_live_ones(
     assert jobs.storage.get(dead.id, "target") is None  # inputs dropped once it ended
 
 
+def test_a_lease_that_lapsed_in_a_redis_outage_is_renewed_by_the_next_heartbeat(jobs):
+    record = queued(jobs)
+    jobs.start(record.id, "w1")
+    jobs.redis.delete(f"{jobs.prefix}:lease:{record.id}")  # as when Redis was away for longer than the lease
+    jobs.heartbeat("w1", record.id)
+    assert jobs.redis.exists(f"{jobs.prefix}:lease:{record.id}") and jobs.reap() == []
+    jobs.finish(record.id, "succeeded")
+    jobs.heartbeat("w1", record.id)  # a beat that raced the job's end does not bring its lease back
+    assert not jobs.redis.exists(f"{jobs.prefix}:lease:{record.id}")
+
+
 def test_a_lost_job_being_canceled_is_not_run_again(jobs):
     record = queued(jobs)
     jobs.start(record.id, "gone")
