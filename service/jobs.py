@@ -13,8 +13,9 @@ A change that is an event the job's webhook subscribes to (start, progress at mo
 also queues a delivery in the webhook outbox, in the same transaction (``service.webhooks``).
 
 Liveness: a running job holds a lease key ``{prefix}:lease:{id}`` that its worker refreshes every
-heartbeat. ``reap`` finds running jobs whose lease lapsed (worker SIGKILLed, machine gone, Redis unreachable for
-longer than the lease): such a job is queued again, once (``MAX_ATTEMPTS``, counted in ``attempts``), and then
+heartbeat. ``reap`` finds running jobs whose lease lapsed (worker SIGKILLed, machine gone, frozen; a lease that
+lapsed in a Redis outage is renewed by the worker's next heartbeat, and the API's reaper waits one lease after an
+outage, ``service.app``): such a job is queued again, once (``MAX_ATTEMPTS``, counted in ``attempts``), and then
 fails ``worker_lost``. Once, because a job that itself kills its worker would otherwise take every worker down
 in turn; a job that outgrows its memory does not kill its worker (the ceiling fails it ``job_too_large``), so a
 lost worker is more often a machine's or an operator's doing than the job's. A stopping worker hands its job

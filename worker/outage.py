@@ -4,8 +4,8 @@ Every Redis client of a worker (its job store, rq's connection) retries a comman
 back-off that doubles from ``BACKOFF_BASE_S`` to ``BACKOFF_CAP_S``, so it reconnects within half a second of Redis
 answering again. Meanwhile the worker's calls wait: the running job pauses at its next progress write or step check
 and keeps everything it computed; its progress and result are written when Redis is back, and its leases are
-refreshed again (a lease outlives an outage shorter than ``CTP_LEASE_S``). One outage is one JSON log line, when it
-ends.
+renewed, also one that lapsed meanwhile (``Jobs.heartbeat``; the API's reaper waits one lease after an outage).
+One outage is one JSON log line, when it ends.
 
 The wait is bounded by ``CTP_REDIS_PATIENCE_S``: past it the worker logs one line and exits with status 1, so that
 an outage that is no blip shows as a worker restart (supervisor, orchestrator) rather than a silent hang; a job it
