@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "assemble": ("ctp.cmd_assemble", "build a scene one object at a time: BASE --add SOURCE PROMPT ... or --plan"),
     "priors": ("ctp.cmd_priors", "print the scene priors (size ratio, penetration, contact ratio)"),
     "bench": ("ctp.cmd_bench", "run the evaluation harness over benchmark cases"),
+    "models": ("ctp.cmd_models", "list, pull (resumable, verified) and remove guidance models in the local cache"),
     "serve": ("ctp.cmd_serve", "start the HTTP API (embedded Redis + worker when REDIS_URL is unset)"),
     "worker": ("ctp.cmd_serve", "run a queue worker against REDIS_URL"),
 }

@@ -53,7 +53,8 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--preview", type=Path, metavar="preview.png", help="write a 4-view preview PNG here")
     add_option(parser, "preset", "NAME", "default (search, then a short refinement) | fast (the relation and the "
                "geometry choose, the guide glances) | descent | paper | test", default="default")
-    add_option(parser, "model", "SPEC", "guidance model: hf:REPO_OR_PATH, open_clip:ARCH:TAG, random:ARCH")
+    add_option(parser, "model", "SPEC", "guidance model: auto (default: the default CLIP model where its weights are "
+               "here, else none), hf:REPO_OR_PATH, open_clip:ARCH:TAG, onnx:DIR, random:ARCH (random weights: tests)")
     add_switch(parser, "--scale", "scale", True, "optimise isotropic scale too")
     add_option(parser, "restarts", "N")
     add_option(parser, "steps", "N", "total steps per restart over all phases")
@@ -75,7 +76,12 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
                              "already do; descent and paper descend it)")
     add_switch(parser, "--no-guidance", "lambda_clip", 0.0, "geometry only (lambda_clip = 0)")
     add_switch(parser, "--keep-up", "upright", False,
-               "keep the target file's +Y as up (no automatic upright turn of the target)")
+               "keep the target file's +Y as up whatever its format or --target-up says")
+    for role in ("target", "source"):
+        add_option(parser, f"{role}_up", "DIR", f"the {role}'s up: file (default: +Y for glTF; OBJ, STL, PLY Y-up "
+                   "unless it stands only with +Z up), auto (geometric guess), or +x, -x, +y, -y, +z, -z")
+        add_option(parser, f"{role}_front", "DIR", f"the {role}'s front: file (default: +Z for glTF), auto, or an "
+                   "axis at right angles to its up")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -125,9 +131,10 @@ class ProgressBar:
     LEGEND = ("progress: holds = where the prompt's relation holds; match = cosine between the best restart's "
               "views and the prompt (higher is better); gap = its distance to the target, % of the source's size")
 
-    def __init__(self, stream=sys.stderr, enabled: bool = True):
-        self.stream, self.enabled = stream, enabled
-        self.tty = stream.isatty()
+    def __init__(self, stream=None, enabled: bool = True):
+        # sys.stderr as it is when a run starts, not when this module was imported (a test's capture may be gone)
+        self.stream, self.enabled = stream if stream is not None else sys.stderr, enabled
+        self.tty = self.stream.isatty()
         self._legend = False
         self._readout = ""
 
@@ -180,6 +187,8 @@ def run(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     from ctp_core import export, io  # the engine (torch, trimesh): seconds to import
     from ctp_core.align import align
+    from ctp_core.config import AUTO
+    from ctp_core.guide_choice import NONE, pull_command
     from ctp_core.loader import MeshLoader
 
     with MeshLoader(1) as loader:  # the same bounded loading as the service (ctp_core.loader)
@@ -199,10 +208,13 @@ def run(args: argparse.Namespace) -> int:
         others.append(str(path))
     for warning in result.warnings:  # one line each, whatever --quiet says (the report has them too)
         print(f"warning: {warning['code']}: {warning['message']}", file=sys.stderr)
+    if result.guide == NONE and config.model == AUTO and config.uses_model:  # auto found no model: say so, once
+        print(f"note: no guide: {result.guide_why.removeprefix('auto: ')}; `{pull_command()}` gets the model",
+              file=sys.stderr)
     summary = {"out": str(args.out), "objective": round(result.objective, 6), "scale": round(result.scale, 6),
                "translation": [round(v, 6) for v in result.translation.tolist()],
                "seconds": round(time.perf_counter() - started, 2), "preset": config.preset,
-               "model": result.model, "runtime": result.runtime,
+               "model": result.model, "guide": result.guide, "guide_why": result.guide_why, "runtime": result.runtime,
                "hparams": result.priors.get("provider"), "relation": result.relation,
                "names": {"target": result.priors["target_name"], "source": result.priors["source_name"]}}
     if others:

@@ -81,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
     assembly = assemble(base, steps, config, base_name=base_name, on_event=bar, on_step=on_step)
     export.write_outputs(assembly, glb=args.out, report_path=args.report, preview=args.preview)
     summary = {"out": str(args.out), "seconds": round(time.perf_counter() - started, 2), "preset": config.preset,
-               "model": config.model if config.loss.lambda_clip > 0 else None,
+               "model": assembly.results[0].result.model, "guide": assembly.results[0].result.guide,
                "objects": [{"name": p.name, "scale": round(p.to_scene.scale, 6),
                             "translation": [round(v, 6) for v in p.to_scene.translation.tolist()]}
                            for p in assembly.objects],

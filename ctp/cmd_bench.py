@@ -50,7 +50,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--preset", default="default",
                         help="AlignConfig preset for ctp/geometry (default; fast; descent; paper; test)")
-    parser.add_argument("--model", help="encoder of ctp's guide and b2's selection (default: the preset's)")
+    parser.add_argument("--model", help="encoder of ctp's guide and b2's selection (default: the default CLIP "
+                        "model; never auto's per-machine pick)")
     parser.add_argument("--guide", choices=GUIDES, default="text",
                         help="text: the prompt; image: a reference render; oracle: the reference per view; "
                         "pixels: an upper-bound instrument, the oracle compared as images with no encoder")
@@ -71,7 +72,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 class CaseBar:
     """Progress over cases on stderr: a redrawn line on a terminal, one line per case otherwise."""
 
-    def __init__(self, stream=sys.stderr, enabled: bool = True):
+    def __init__(self, stream=None, enabled: bool = True):
+        stream = stream if stream is not None else sys.stderr  # as it is now, not at import (a test's capture)
         self.stream, self.enabled, self.tty = stream, enabled, stream.isatty()
         self.started = time.perf_counter()
 

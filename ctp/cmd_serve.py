@@ -95,14 +95,24 @@ def _serve(settings, args: argparse.Namespace) -> int:
 
 
 def _say_if_default_model_missing(spec: str) -> None:
-    """One line at start when the local workers will not have the default model (``ctp_core.weights``)."""
-    from ctp_core.weights import missing
+    """One line at start when the local workers will not have the default model (``ctp_core.weights``); under
+    auto, that jobs run without a guide and the command that gets the model (``ctp_core.guide_choice``)."""
+    from ctp_core.config import AUTO
+    from ctp_core.guide_choice import NONE, choose, pull_command
+    from ctp_core.weights import looks_local, missing
 
+    if spec == AUTO:
+        choice = choose()
+        if choice.guide == NONE:
+            print(f"ctp: jobs run without a guide: {choice.why.removeprefix('auto: ')}; `{choice.get_model}` gets "
+                  "the model (each next job uses it)", file=sys.stderr)
+        return
     reason = missing(spec)
     if reason:
+        hub = spec.startswith("hf:") and not looks_local(spec.removeprefix("hf:"))
+        get = f"`{pull_command(spec)}` gets it (or CTP_ALLOW_DOWNLOAD=1)" if hub else "provide its weights"
         print(f"ctp: the default model {spec} cannot run here ({reason.split('. ')[0]}), so jobs that need it are "
-              "refused (503 model_unavailable); start with CTP_ALLOW_DOWNLOAD=1 to download it, or with "
-              "CTP_MODEL=random:tiny to try the service (random weights: placements follow geometry only)",
+              f"refused (503 model_unavailable); {get}, or start with CTP_MODEL=auto to run jobs without a guide",
               file=sys.stderr)
 
 

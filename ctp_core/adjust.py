@@ -25,7 +25,7 @@ import numpy as np
 import torch
 import trimesh
 
-from ctp_core import canonical, frames, objective, predicates, proposals, schedule
+from ctp_core import canonical, frames, objective, orientation, predicates, proposals, schedule
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.pose import Poses, apply_pose
@@ -67,8 +67,9 @@ def adjust(target: Target, source: trimesh.Trimesh, source_to_target: np.ndarray
     """Measure (and with ``settle``, first settle) the source at ``source_to_target`` against ``target``.
 
     ``config``: the job's (its loss samples, seed and penetration terms); ``upright``: (3, 3) target file ->
-    upright rotation the job used (None: found from the geometry, as a run without a judge finds it); ``on``,
-    ``relation``, ``source_is_figure``: the job's, for the verdict. Runs on the CPU: one pose, no model.
+    upright rotation the job used (None: from the files first, by the job's up and front options,
+    ``orientation``); ``on``, ``relation``, ``source_is_figure``: the job's, for the verdict. Runs on the CPU:
+    one pose, no model.
     """
     if settle not in SETTLES:
         raise ConfigError(f"settle is one of {', '.join(SETTLES)}, not {settle!r}", field="settle")
@@ -81,7 +82,7 @@ def adjust(target: Target, source: trimesh.Trimesh, source_to_target: np.ndarray
         rotation = np.asarray(upright, dtype=np.float64)
         target_up = canonical.Upright(rotation, not np.allclose(rotation, np.eye(3)), "as the job turned it")
     pair = prepare_pair(target, source, samples=config.loss.samples, seed=config.seed, device="cpu",
-                        canonicalise=config.upright, on=on, target_up=target_up)
+                        canonicalise=config.upright, on=on, target_up=target_up, **orientation.configured(config))
     pose = predicates.poses_of(pair.local_to_normalised(start.matrix))
     settled, on_floor, moved, gap = None, False, 0.0, None
     if settle != "none":

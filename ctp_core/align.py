@@ -16,7 +16,7 @@ import numpy as np
 import torch
 import trimesh
 
-from ctp_core import frames, priors
+from ctp_core import frames, guide_choice, priors
 from ctp_core.config import MAX_ALTERNATIVES, PENETRATION, AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
@@ -60,10 +60,13 @@ class AlignResult:
     on: str | None = None  # the placed object an assembly step relates to
     guided_by: str | None = None  # what guided the run, in words (the report's "guidance")
     model: str | None = None  # the guidance model; None for a geometry-only run
+    guide: str = "none"  # the guide chosen for the run: a model spec or "none" (guide_choice.GuideChoice)
+    guide_why: str = ""  # why that guide
     runtime: str | None = None  # the guide's runtime ("torch", "onnx"); None without a guide
     clip_images: int = 0  # images the encoder scored
     phase_timings: list[dict[str, float]] = field(default_factory=list)  # per refinement phase
-    target_upright: canonical.Upright | None = None  # the target's canonical pose (file frame -> upright frame)
+    target_upright: canonical.Upright | None = None  # the target's up and front (file frame -> upright frame, why)
+    source_upright: canonical.Upright | None = None  # the source's up and front (its starting orientation, why)
     # the answer's relation verdict (predicates.RelationVerdict.to_dict: name, role figure/ground, score, holds,
     # stable); None when the priors read no relation
     relation: dict[str, Any] | None = None
@@ -72,6 +75,9 @@ class AlignResult:
     # (file frames, 4x4), objective, the guide's and geometry's terms, relation verdict
     alternatives: list[dict[str, Any]] = field(default_factory=list)
     thumbnails: np.ndarray | None = None  # (K, H, W, 3) uint8: one view of each alternative
+    # the guide's say over the geometry as the search measured it (``objective.Gate.to_dict``: spread, noise,
+    # override, who chose, a summary line); None without a guide or a search
+    guide_say: dict[str, Any] | None = None
 
     def alternative(self, k: int) -> AlignResult:
         """This result with alternative ``k`` as its answer (0: the answer itself), for its GLB."""
@@ -121,8 +127,7 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
     """Priors, the normalised and canonicalised pair, the guide and its goal, the objective and the plan.
 
     A scene target's priors read the object ``on`` (its name is ``target_name``, its size the extent)."""
-    from ctp_core import canonical, goals, guidance, objective, scene, schedule
-    from ctp_core.priors.relations import RELATIONS
+    from ctp_core import goals, guidance, objective, orientation, scene, schedule
 
     started = time.perf_counter()
     if config.threads:
@@ -135,18 +140,14 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
         penetration=PENETRATION[config.penetration],
         target_extent=float(scene.attachment(target, on).extents.max()), source_extent=float(source.extents.max()),
     )
-    # what hangs is hung on something fixed in place, whose resting poses as a free object say nothing of its up
-    mounted = prior.source_is_figure and prior.relation in RELATIONS and RELATIONS[prior.relation].mounted
-    kept = canonical.identity(f"kept as authored: the target is what the source is hung on ({prior.relation}), "
-                              "fixed in place") if mounted and config.upright else None
     judge = None
-    if config.upright and config.upright_judge and kept is None:
+    if config.upright and config.upright_judge:
         guide = guide or guidance.guide_for(config)
         # a scene's up is its base's (scene.base), judged under the base's own name
         base_name, base = (target_name, target) if isinstance(target, trimesh.Trimesh) else scene.objects(target)[0]
         judge = scene.upright_judge(base, guide, base_name, device=config.device)
     pair = scene.prepare_pair(target, source, samples=config.loss.samples, seed=config.seed, device=config.device,
-                              canonicalise=config.upright, judge=judge, on=on, target_up=kept)
+                              canonicalise=config.upright, judge=judge, on=on, **orientation.configured(config))
     prepared = time.perf_counter()
 
     if goal is None and config.loss.lambda_clip > 0:
@@ -217,7 +218,7 @@ def score(run: Run, proposals: Proposals, *, on_event: ProgressCallback | None =
     if run.scorer.relation is not None:
         run.timings["search_relation_holds"] = ranked.holding  # of the coarse and sweep candidates
     if ranked.gate is not None:  # the guide's spread over the candidates, its noise, how far it may override
-        run.timings.update({f"guide_{k}": v for k, v in ranked.gate.items()})
+        run.timings.update({f"guide_{k}": ranked.gate[k] for k in ("spread", "noise", "override")})
     return ranked.poses
 
 
@@ -258,8 +259,9 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
         runtime=getattr(run.scorer.guide, "runtime", None),  # the pixels guide has none
         clip_images=outcome.clip_images,
         phase_timings=[{k: round(v, 3) for k, v in p.items()} for p in outcome.phase_timings],
-        target_upright=pair.target_upright,
+        target_upright=pair.target_upright, source_upright=pair.source_upright,
         warnings=list(run.warnings),
+        guide_say=None if run.scorer.gate is None else run.scorer.gate.to_dict(),
     )
     verdict = predicates.verdict(pair, matrices[best], run.prior.relation, run.prior.source_is_figure)
     answer.relation = verdict.to_dict() if verdict is not None else None
@@ -337,6 +339,7 @@ def align(
     init: np.ndarray | None = None,
     on_event: ProgressCallback | None = None,
     should_cancel: CancelCheck | None = None,
+    choice: guide_choice.GuideChoice | None = None,
 ) -> AlignResult:
     """Place ``source`` relative to ``target`` (both in file frames) so renders agree with the prompt.
 
@@ -349,11 +352,16 @@ def align(
     A ``trimesh.Scene`` target is a scene of placed objects (``scene.objects``): ``on`` names the one
     the source relates to (soft-ICP attaches to it, the search proposes on it; ``target_name`` and its size
     feed the priors), while renders and the penetration term see them all.
+    Model ``auto`` is resolved first (``guide_choice.resolve``; ``choice``: ``auto``'s pick made already for this
+    run, a worker's); the result says which guide ran and why.
     Raises ``errors.Canceled`` when ``should_cancel()`` turns true, other ``CtpError`` on bad input.
     """
+    config, chosen = guide_choice.resolve(config, image=image is not None, choice=choice)
     run = prepare(target, source, prompt, config, on=on, image=image, target_name=target_name,
                   source_name=source_name, guide=guide, goal=goal)
     proposals = propose(run, init)
     starts = score(run, proposals, on_event=on_event, should_cancel=should_cancel)
     outcome = refine(run, starts, on_event=on_event, should_cancel=should_cancel)
-    return result(run, outcome, prompt, on_event=on_event)
+    answer = result(run, outcome, prompt, on_event=on_event)
+    answer.guide, answer.guide_why = chosen.guide, chosen.why
+    return answer

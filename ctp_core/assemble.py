@@ -22,8 +22,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import trimesh
 
-from ctp_core import frames
-from ctp_core.config import AlignConfig
+from ctp_core import frames, guide_choice
+from ctp_core.config import AUTO, AlignConfig
 from ctp_core.errors import Canceled, ConfigError, CtpError
 from ctp_core.plan import check_plan
 from ctp_core.progress import CancelCheck, ProgressCallback
@@ -98,14 +98,15 @@ StepCallback = Callable[[int, int, Step], None]
 
 def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, *, base_name: str = "base",
              guide=None, on_event: ProgressCallback | None = None, on_step: StepCallback | None = None,
-             should_cancel: CancelCheck | None = None) -> Assembly:
+             should_cancel: CancelCheck | None = None, choice: guide_choice.GuideChoice | None = None) -> Assembly:
     """Place ``steps`` one after another around ``base`` (its file frame is the scene frame).
 
     ``on_step(index, count, step)`` is called as each step starts; ``on_event`` gets every step's
     optimiser events. The guidance model is loaded once for all steps (every step uses
     ``config.model``). A step's ``CtpError`` is re-raised with the step named in its message (as "stage k/n",
     the word the report and the API use) and
-    ``field`` ``steps.<i>[.<its field>]``; ``Canceled`` passes through.
+    ``field`` ``steps.<i>[.<its field>]``; ``Canceled`` passes through. Model ``auto`` is chosen once for all
+    steps (``choice``: already chosen, a worker's), so every step has the same guide.
     """
     from ctp_core.align import align
 
@@ -115,10 +116,15 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
                            for s, c in zip(steps, configs, strict=True)])
     if any(c.model != config.model for c in configs):
         raise ConfigError("every stage must use the assembly's model (it is loaded once)", field="model")
-    if guide is None and any(c.loss.lambda_clip > 0 for c in configs):
+    if choice is None and config.model == AUTO:
+        choice = guide_choice.choose()
+    resolved = [guide_choice.resolve(c, image=s.image is not None, choice=choice)[0]
+                for s, c in zip(steps, configs, strict=True)]
+    guided = [c for c in resolved if c.loss.lambda_clip > 0]
+    if guide is None and guided:
         from ctp_core.guidance import guide_for
 
-        guide = guide_for(config)
+        guide = guide_for(guided[0])
     placed = [Placed(base_name, base, frames.Similarity(np.eye(4), frames.SCENE, frames.SCENE))]
     results: list[StepResult] = []
     for index, (step, step_config) in enumerate(zip(steps, configs, strict=True), start=1):
@@ -128,7 +134,7 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
         try:
             result = align(scene_of(placed), step.source, step.prompt, step_config, on=on, image=step.image,
                            target_name=on, source_name=step.name, guide=guide, on_event=on_event,
-                           should_cancel=should_cancel)
+                           should_cancel=should_cancel, choice=choice)
         except Canceled:
             raise
         except CtpError as exc:

@@ -131,6 +131,9 @@ def evaluation_views(look_at: Tensor, cfg: CameraConfig) -> Cameras:
                  full(cfg.eval_fov_deg), cfg.image_size)
 
 
+FIRST_AZIMUTH = 30.0  # degrees: the first framing view's (a preview's first image; the viewer's frame, ``predicates``)
+
+
 def framing_cameras(vertices: torch.Tensor, views: int, image_size: int, elevation_deg: float = 30.0,
                     fov_deg: float = 40.0) -> Cameras:
     """Fixed orbit views that frame all of ``vertices`` (previews and metrics, not training).
@@ -141,7 +144,7 @@ def framing_cameras(vertices: torch.Tensor, views: int, image_size: int, elevati
     lo, hi = batched.min(1).values, batched.max(1).values
     centre, radius = (lo + hi) / 2, (hi - lo).norm(dim=1) / 2
     distance = (radius / np.sin(np.radians(fov_deg) / 2) * 1.05)[:, None].expand(-1, views)
-    azimuth = torch.arange(views, dtype=torch.float32, device=vertices.device) * (360.0 / views) + 30.0
+    azimuth = torch.arange(views, dtype=torch.float32, device=vertices.device) * (360.0 / views) + FIRST_AZIMUTH
     full = lambda v: torch.full((len(batched), views), float(v), device=vertices.device)  # noqa: E731
     return orbit(centre, azimuth.expand(len(batched), -1), full(elevation_deg), distance, full(fov_deg), image_size)
 

@@ -1,7 +1,7 @@
 """Canonical upright pose (Auto-Align): which way is up for an uploaded mesh.
 
 Renders guide the optimiser, and a vision-language model recognises objects in their usual
-orientation, so a lying or upside-down target spoils every view. Three cues, all from geometry alone:
+orientation, so a lying or upside-down target spoils every view. Four cues, all from geometry alone:
 
 1. **Dominant axes** (method.md): RANSAC over area-weighted face normals for three orthogonal axes
    (200 tries, 5° inliers), refined by an area-weighted median (10 iterations). They make the answer
@@ -15,19 +15,28 @@ orientation, so a lying or upside-down target spoils every view. Three cues, all
    base, not a bridge over bumps), ``h`` the height it then stands (authored objects stand up).
 3. **Rotational symmetry**: when the surface has an axis of (near) rotational symmetry, only the
    resting poses on that axis compete (a tree or a glass stands on its axis even with a rough base).
+4. **Legs**: a resting pose that stands on three or more legs (``feet``: the surface within 2 % of the
+   object's size of the floor falls apart into that many pieces, 6 % apart, and they stay apart up to a
+   tenth and a quarter of its height: columns, not a lying figure's head, hands and feet) is how furniture
+   and animals stand: where something has a flat base to stand on at all, a pose on legs outranks the flat
+   bases, and a flat base with legs on its other side is a top (a table's, a stool's seat) that no
+   authored upload rests on. A table's top is a better base than four leg tips by the other cues, so
+   without this the table is turned upside down (or kept so).
 
 An upload is left as authored (identity, ``changed=False``) unless it is clearly lying, tilted or
-upside down: there must be a candidate with a real base (fill >= 0.5) or on the symmetry axis, and
-the file's +Y must not be a resting pose scoring at least 1/20 of it. The margin is wide on purpose:
+upside down: there must be a candidate with a real base (fill >= 0.5) or on the symmetry axis, and the
+file's +Y must not be a resting pose scoring at least 1/20 of it (nor one on legs; a top with legs on its
+other side does not count: a table upside down in its file). The margin is wide on purpose:
 an authored table on its legs scores ~1/16 of the same table upside down (its top is a perfect
 base), a bottle lying on its side ~1/11 of it standing, so no margin separates the two; keeping an
 authored pose is the safer error (a flipped table ruins "a cup on the table"), and a lying upload is
 still placed correctly in its own file frame. Known misses: figures that cannot stand on their own
-(no resting pose has +Y up), tables (upside down rests better), cubes and spheres (no single up).
+(no resting pose has +Y up), cubes and spheres (no single up), legged things lying on a side in their file
+(kept: not a top). The ``orientation`` module asks for this guess only with ``up: auto``.
 Measured on ``../shared/bench`` by ``benchmarks/canonical_bench.py`` (figures in docs/engine.md).
 
-4. **A judge** (optional, semantic): geometry cannot tell a table on its legs from one on its top, or
-   where a figure's head is; a vision-language model can. ``judge`` scores candidate rotations (in
+5. **A judge** (optional, semantic): geometry cannot tell where a figure's head is (nor a table without
+   legs from one on its top); a vision-language model can. ``judge`` scores candidate rotations (in
    practice: renders of the object under each, against "a photo of a NAME", ``scene.upright_judge``)
    and picks among the file's +Y, the best resting poses and the six dominant-axis directions. The
    file's +Y stays unless another candidate scores ``margin`` more.
@@ -40,6 +49,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import trimesh
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import QhullError, cKDTree
 
 from ctp_core import sampling
@@ -48,12 +59,19 @@ _INLIER_COS = np.cos(np.radians(5.0))
 _SNAP_COS = np.cos(np.radians(5.0))
 _AUTHORED_COS = np.cos(np.radians(8.0))  # a resting pose this close to the file's +Y is the authored one
 _AXIS_COS = np.cos(np.radians(10.0))  # a resting pose this close to the symmetry axis stands on it
-_BASE_FILL = 0.5  # share of a facet the mesh must touch to count as a real base
+BASE_FILL = 0.5  # share of a facet the mesh must touch to count as a real base
 _KEEP_RATIO = 0.05  # the file's +Y stays unless the best pose scores 20x more: rotate only when clear
 _MAX_FACES = 20_000  # normals sampled for RANSAC: plenty for three axes, bounded time
 _Y = np.array([0.0, 1.0, 0.0])
 _JUDGED_POSES = 4  # best resting poses offered to a judge, besides the file's +Y and the dominant axes
 _DISTINCT_COS = np.cos(np.radians(10.0))  # candidate ups closer than this are one candidate
+_FOOT_BAND = 0.02  # share of the longest side: the surface this close to the floor is what touches it
+_FOOT_GAP = 0.06  # share of the longest side: touching pieces further apart than this are separate feet
+_FOOT_SAMPLES = 6000  # surface samples the feet are counted from (plus every vertex: a leg may end in a point)
+LEGS = 3  # separate feet that make a pose "on legs"
+_OPPOSITE_COS = np.cos(np.radians(15.0))  # a pose on legs this close to a base's down: that base is a top
+_LEG_LEVELS = (0.1, 0.25)  # shares of the height up to which legs stay separate columns
+_Z = np.array([0.0, 0.0, 1.0])
 
 Judge = Callable[[np.ndarray], np.ndarray]
 """Scores (K,) for candidate rotations (K, 3, 3), file frame -> upright frame; higher is more upright."""
@@ -68,6 +86,11 @@ class Upright:
     reason: str
     axes: np.ndarray = field(default_factory=lambda: np.eye(3))  # (3, 3) dominant axes (rows), file frame
     candidates: list[dict] = field(default_factory=list)  # resting or judged poses, best first, file frame
+    # the object's front, a unit vector in the file frame at right angles to ``up`` (``orientation``), whether a
+    # convention or the user gave it (False: a guess, or no front at all), and why
+    front: np.ndarray = field(default_factory=lambda: _Z.copy())
+    front_trusted: bool = False
+    front_reason: str = "no front given: the file's +Z, not trusted"
 
     @property
     def up(self) -> np.ndarray:
@@ -89,18 +112,28 @@ def upright_rotation(mesh: trimesh.Trimesh, seed: int = 0, judge: Judge | None =
         return _judged(axes, candidates, judge, margin)
     axis = symmetry_axis(mesh, seed)
     on_axis = [] if axis is None else [c for c in candidates if abs(np.dot(c["up"], axis)) > _AXIS_COS]
-    bases = on_axis or [c for c in candidates if c["fill"] >= _BASE_FILL]
+    bases = on_axis or [c for c in candidates if c["fill"] >= BASE_FILL]
     if not bases:
         return Upright(np.eye(3), False, "no flat base to stand on: kept as authored", axes, candidates)
-    best = bases[0]
+    legged = [c for c in (on_axis or candidates) if c["feet"] >= LEGS]
+    best = legged[0] if legged else bases[0]
     as_file = [c for c in candidates if np.dot(c["up"], _Y) > _AUTHORED_COS]
-    if as_file and as_file[0]["score"] >= _KEEP_RATIO * best["score"]:
-        return Upright(np.eye(3), False, "already upright: the file's +Y is a resting pose", axes, candidates)
+    # kept: on legs as authored, or scoring 1/20 of the best base unless it is a top with legs on its other side
+    if as_file and (as_file[0]["feet"] >= LEGS or (as_file[0]["score"] >= _KEEP_RATIO * bases[0]["score"]
+                                                  and _legs_under(as_file[0], legged) is None)):
+        return Upright(np.eye(3), False, "already upright: the file's +Y is a resting pose"
+                       + (" on legs" if as_file[0]["feet"] >= LEGS else ""), axes, candidates)
     up = _snapped(np.asarray(best["up"]), axes)
     rotation = _standing_on(up, axes)
-    reason = (f"rests on a base ({best['fill']:.0%} contact, p={best['probability']:.2f}) with up "
-              f"{np.round(up, 3).tolist()} in the file frame; the file's +Y "
-              + (f"scores {as_file[0]['score'] / best['score']:.0%} of it" if as_file else "is not a resting pose"))
+    if legged:
+        top = as_file and _legs_under(as_file[0], legged) is not None
+        reason = (f"stands on {best['feet']} legs with up {np.round(up, 3).tolist()} in the file frame; the file's "
+                  + ("+Y rests on its top, the legs on the other side" if top else "+Y does not stand on legs"))
+    else:
+        reason = (f"rests on a base ({best['fill']:.0%} contact, p={best['probability']:.2f}) with up "
+                  f"{np.round(up, 3).tolist()} in the file frame; the file's +Y "
+                  + (f"scores {as_file[0]['score'] / best['score']:.0%} of it" if as_file
+                     else "is not a resting pose"))
     return Upright(rotation, True, reason, axes, candidates)
 
 
@@ -199,8 +232,8 @@ def resting_poses(mesh: trimesh.Trimesh, min_probability: float = 0.005) -> list
     """Hull facets the object can stand on, scored (see module docstring), best first; file frame.
 
     Each: ``up`` (unit, file frame), ``probability``, ``fill``, ``height`` (share of the longest
-    extent), ``score``. The hull's centroid stands in for the centre of mass: uploads are rarely
-    watertight, so the mesh's own volume is not to be trusted.
+    extent), ``score``, ``feet`` (separate pieces touching the floor, ``_feet``). The hull's centroid stands in
+    for the centre of mass: uploads are rarely watertight, so the mesh's own volume is not to be trusted.
     """
     with np.errstate(invalid="ignore", divide="ignore"):  # a flat hull has no centre of mass
         try:
@@ -214,6 +247,7 @@ def resting_poses(mesh: trimesh.Trimesh, min_probability: float = 0.005) -> list
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     face_normals = np.asarray(mesh.face_normals)
     face_areas = np.asarray(mesh.area_faces)
+    surface = np.concatenate([sampling.surface_samples(mesh, _FOOT_SAMPLES, 0)[0], vertices])
 
     normals, areas, triangles = hull.face_normals, hull.area_faces, hull.triangles
     angles = _solid_angles(triangles, centre) / (4 * np.pi)
@@ -236,8 +270,32 @@ def resting_poses(mesh: trimesh.Trimesh, min_probability: float = 0.005) -> list
         fill = min(float(face_areas[touching].sum() / areas[group].sum()), 1.0)
         height = float(np.ptp(depth) / extent)
         poses.append({"up": (-down).tolist(), "probability": probability, "fill": fill, "height": height,
-                      "score": probability * (0.05 + fill) * height**2})
+                      "score": probability * (0.05 + fill) * height**2, "feet": _feet(surface, down, extent)})
     return sorted(poses, key=lambda p: -p["score"])
+
+
+def _legs_under(pose: dict, legged: list[dict]) -> dict | None:
+    """The pose of ``legged`` opposite ``pose`` (its up within ``_OPPOSITE_COS`` of ``pose``'s down), if any: then
+    ``pose`` rests on a top (a table's, a stool's seat), and the object stands on those legs."""
+    return next((c for c in legged if np.dot(c["up"], pose["up"]) < -_OPPOSITE_COS), None)
+
+
+def _feet(points: np.ndarray, down: np.ndarray, extent: float) -> int:
+    """How many legs ``points`` (surface samples, file frame) stand on along ``down``: separate pieces of the
+    surface near the floor (single-linkage clusters linked within ``_FOOT_GAP``) that stay separate up to
+    ``_LEG_LEVELS`` of the height, the fewest over those levels. A lying figure's head, hands and feet touch the
+    floor apart too, but merge into its body a little above it; legs are columns."""
+    depth = points @ down
+    lowest, height = depth.max(), float(np.ptp(depth))
+    fewest = len(points)
+    for level in (_FOOT_BAND * extent, *(share * height for share in _LEG_LEVELS)):
+        near = points[depth > lowest - level]
+        links = cKDTree(near).query_pairs(_FOOT_GAP * extent, output_type="ndarray")
+        graph = coo_matrix((np.ones(len(links)), (links[:, 0], links[:, 1])), shape=(len(near),) * 2)
+        fewest = min(fewest, int(connected_components(graph, directed=False)[0]))
+        if fewest < LEGS:  # no legs at this level: the higher ones cannot add any
+            break
+    return fewest
 
 
 def _solid_angles(triangles: np.ndarray, origin: np.ndarray) -> np.ndarray:
@@ -266,10 +324,10 @@ def _snapped(up: np.ndarray, axes: np.ndarray) -> np.ndarray:
 
 def _standing_on(up: np.ndarray, axes: np.ndarray) -> np.ndarray:
     """The rotation (file -> upright) that turns ``up`` onto +Y, squared to the dominant axes."""
-    return _yaw_to_axes(_turn_onto(up, _Y), axes)
+    return _yaw_to_axes(turn_onto(up, _Y), axes)
 
 
-def _turn_onto(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def turn_onto(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The smallest rotation taking unit vector ``a`` onto unit vector ``b`` (3, 3)."""
     axis = np.cross(a, b)
     sin, cos = np.linalg.norm(axis), float(a @ b)

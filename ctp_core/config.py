@@ -25,7 +25,11 @@ from ctp_core.errors import ConfigError
 # The penetration words -> what the priors get: auto lets the prior decide; allow and forbid override it.
 PENETRATION: dict[str, bool | None] = {"auto": None, "allow": True, "forbid": False}
 Penetration = Literal[tuple(PENETRATION)]
+# where an object's up or front comes from (orientation.py): its file's convention, a geometric guess, or an axis
+Direction = Literal["file", "auto", "+x", "-x", "+y", "-y", "+z", "-z"]
 Runtime = Literal["auto", "torch", "onnx", "onnx-int8"]  # the runtimes, spelled once (runtime.RUNTIMES)
+AUTO = "auto"  # the model spec that picks the guide per run (guide_choice)
+DEFAULT_MODEL = "hf:openai/clip-vit-base-patch32"  # what auto uses where its weights are
 MAX_ALTERNATIVES = 4  # distinct placements a result offers, the answer among them (align.alternatives)
 
 
@@ -158,7 +162,8 @@ class AlignConfig(_Strict):
     preset: str = "default"
     seed: int = Field(0, ge=0, le=2**32 - 1, description="random seed (numpy and torch take any value in range)")
     device: Literal["cpu", "cuda"] = "cpu"
-    model: str = Field("hf:openai/clip-vit-base-patch32", description="guidance model spec (guidance.py)")
+    model: str = Field(AUTO, description="guidance model spec (guidance.py); auto: the default CLIP model where its "
+                       "weights are here, else no guide (the geometry and the prompt's relation; guide_choice.py)")
     autocast: bool = Field(True, description="fp16 on CUDA, bf16 on CPUs with native bf16 (AVX512-BF16/AMX), else fp32")
     runtime: Runtime = Field(
         "auto", description="where forward-only encoding runs (scoring, selection, judge): torch, onnx (ONNX "
@@ -170,11 +175,23 @@ class AlignConfig(_Strict):
     contact_ratio: float | None = Field(None, ge=0.0, le=1.0, description="soft-ICP ratio r; None: prior")
     penetration: Penetration = Field("auto", description="auto: the prior decides; allow: lambda_pen = 0")
     upright: bool = Field(
-        True, description="turn a clearly lying or upside-down target upright first (canonical.py); "
-        "off keeps the target file's +Y as up"
+        True, description="let the target's up follow target_up (orientation.py); off keeps the target file's +Y "
+        "as up whatever the format or target_up"
     )
+    target_up: Direction = Field(
+        "file", description="the target's up: file (the format's convention: +Y for glTF; for OBJ, STL, PLY Y-up "
+        "unless the geometric guess finds +Z up), auto (the geometric guess: resting poses, legs, symmetry), or an "
+        "axis of the file (+x, -x, +y, -y, +z, -z)"
+    )
+    target_front: Direction = Field(
+        "file", description="the target's front: file (+Z for glTF, trusted; a guess for other formats), auto (away "
+        "from where its surface gathers: a backrest), or an axis of the file at right angles to its up"
+    )
+    source_up: Direction = Field("file", description="the source's up, as target_up: its starting orientation")
+    source_front: Direction = Field("file", description="the source's front, as target_front")
     upright_judge: bool = Field(
-        False, description="let the guidance model choose the target's up (renders under candidate ups against "
+        False, description="let the guidance model choose the target's up as target_up auto does (renders under "
+        "candidate ups against "
         "'a photo of a TARGET_NAME'); needs real weights and a target name; its accuracy is unmeasured (docs/engine.md)"
     )
     hparams_provider: str = Field("rules", description="scene-prior provider (priors.py)")
@@ -193,6 +210,10 @@ class AlignConfig(_Strict):
     def _phases_fit(self) -> AlignConfig:
         if self.optim.steps < self.optim.phases:
             raise ValueError("steps must be at least the number of phases")
+        for role in ("target", "source"):
+            up, front = getattr(self, f"{role}_up"), getattr(self, f"{role}_front")
+            if up[0] in "+-" and front[0] in "+-" and up[1] == front[1]:
+                raise ValueError(f"{role}_front {front} is not at right angles to {role}_up {up}")
         return self
 
     @property

@@ -24,7 +24,7 @@ import trimesh
 from PIL import Image
 
 import ctp_core
-from ctp_core import priors
+from ctp_core import canonical, orientation, priors
 from ctp_core.assemble import Assembly
 from ctp_core.frames import SCENE, Similarity
 from ctp_core.pose import matrix_to_quaternion
@@ -118,11 +118,14 @@ def _run(result: AlignResult, answer: dict | None = None) -> dict:
         "objective": _jsonable(result.objective),
         "prompt": result.prompt,
         "model": result.model,
+        "guide": result.guide,  # the guide chosen for the run (a model spec or "none") and why (guide_choice)
+        "guide_why": result.guide_why,
         "seed": config.seed,
         "preset": config.preset,
         "config": config.model_dump(mode="json"),
         "hparams": _jsonable(priors.to_report(result.priors)),
         "relation": _jsonable(result.relation),  # predicates.RelationVerdict of the answer; None without one
+        "guide_say": _jsonable(result.guide_say),  # objective.Gate: the guide's say and who chose; None: no guide
         "restarts": _jsonable(result.restarts),
         # the best distinct placements, the answer first (an assembly's stages: none, their frames differ)
         "alternatives": [] if answer is not None else [
@@ -137,13 +140,18 @@ def _run(result: AlignResult, answer: dict | None = None) -> dict:
 
 def _extra(result: AlignResult) -> dict:
     """The run's provenance fields under the report's ``extra`` key, in the order the report has always had."""
-    upright = result.target_upright
     return {
         "best_restart": result.best_restart, "on": result.on, "guidance": result.guided_by,
         "runtime": result.runtime, "clip_images": result.clip_images, "phase_timings": result.phase_timings,
-        "target_upright": None if upright is None else {"rotation": upright.rotation.tolist(),
-                                                        "changed": upright.changed, "reason": upright.reason},
+        "target_upright": _frame(result.target_upright), "source_upright": _frame(result.source_upright),
     }
+
+
+def _frame(upright: canonical.Upright | None) -> dict | None:
+    """One object's up and front as the run used them (file frame) and why (``orientation``)."""
+    if upright is None:
+        return None
+    return {"rotation": upright.rotation.tolist(), "changed": upright.changed, **orientation.to_dict(upright)}
 
 
 def _provenance() -> dict:

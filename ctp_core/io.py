@@ -467,6 +467,7 @@ def _load_scene(payload: bytes, ext: str, assets: _Assets, limits: MeshLimits, l
         raise MeshError(f"{label}: the file is empty", code="mesh_empty")
     # process=False: keep the file's vertices as they are so NaN/inf are refused, not silently dropped.
     scene = trimesh.load(io.BytesIO(payload), file_type=ext[1:], resolver=assets, force="scene", process=False)
+    scene.metadata["file_format"] = ext[1:]  # what says which way is up (``orientation``)
     if tree is not None:
         scene.metadata["node_order"] = [n.get("name") for n in tree.get("nodes", []) if isinstance(n, dict)]
     return scene
@@ -499,7 +500,9 @@ def _flatten(scene: trimesh.Scene, limits: MeshLimits, label: str) -> trimesh.Tr
     """Apply node transforms and concatenate every triangle mesh instance (points and lines dropped)."""
     instances = _instances(scene, limits, label)
     mesh = trimesh.util.concatenate([geometry.copy().apply_transform(matrix) for _, matrix, geometry in instances])
-    return _checked(mesh, label)
+    mesh = _checked(mesh, label)
+    mesh.metadata["file_format"] = scene.metadata.get("file_format")
+    return mesh
 
 
 def _separate(scene: trimesh.Scene, limits: MeshLimits, label: str) -> trimesh.Scene:
@@ -510,6 +513,7 @@ def _separate(scene: trimesh.Scene, limits: MeshLimits, label: str) -> trimesh.S
     for node, matrix, geometry in instances:
         mesh = geometry.copy()
         mesh.apply_transform(matrix)
+        mesh.metadata["file_format"] = scene.metadata.get("file_format")
         out.add_geometry(_checked(mesh, f"{label}: {node}"), node_name=node, geom_name=node)
     return out
 

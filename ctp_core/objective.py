@@ -116,8 +116,6 @@ def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: to
 PREFER = 0.1  # ``combine``: weight of ``predicates.preference`` (the usual arrangement) relative to the relation's
 TIER = 1e6  # ``rank_key``: added to the key of a pose outside the relation's pool (keys are float64)
 GATE_FULL = 4.0  # ``Gate``: a guide whose spread is this many times its noise may override the relation fully
-
-
 @dataclass(frozen=True)
 class Gate:
     """How far a guide may override the relation: its scores' spread over the search's candidates (standard
@@ -142,8 +140,24 @@ class Gate:
         difference of the guide's term the gate would trust fully (``GATE_FULL`` x its noise)."""
         return GATE_FULL * self.noise
 
-    def to_dict(self) -> dict[str, float]:
-        return {"spread": self.spread, "noise": self.noise, "override": round(self.override, 3)}
+    @property
+    def chooser(self) -> str:
+        """Who orders the poses where the relation holds: ``geometry`` (override 0: the usual arrangement),
+        ``guide`` (override 1: the usual arrangement only breaks its ties) or ``both`` (between: the usual
+        arrangement weighs 1 - override, ``Scorer.preference_weight``)."""
+        return "geometry" if self.override <= 0 else "guide" if self.override >= 1 else "both"
+
+    def summary(self) -> str:
+        """The gate in one line, for the progress readout, the report and the page."""
+        spread = f"the guide's scores spread {self.ratio:.1f}x their noise" if self.noise > 0 else (
+            "the guide's scores have no measurable noise")
+        return spread + {"geometry": ": the geometry chose", "guide": ": the guide chose",
+                         "both": f": the guide chose, the usual arrangement weighing {1 - self.override:.2f}"
+                         }[self.chooser]
+
+    def to_dict(self) -> dict[str, float | str]:
+        return {"spread": self.spread, "noise": self.noise, "override": round(self.override, 3),
+                "chose": self.chooser, "summary": self.summary()}
 
 
 SUNK = 0.01  # source diagonals of penetration (``sunk``) past which a pose intersects: a sphere pressed into a

@@ -32,6 +32,10 @@ OPTION_PATHS: dict[str, tuple[str, ...]] = {
     "hparams_provider": ("hparams_provider",),
     "upright": ("upright",),
     "upright_judge": ("upright_judge",),
+    "target_up": ("target_up",),
+    "target_front": ("target_front",),
+    "source_up": ("source_up",),
+    "source_front": ("source_front",),
     "lambda_clip": ("loss", "lambda_clip"),
 }
 _EXTRA_DOC = {

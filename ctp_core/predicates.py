@@ -14,6 +14,10 @@ Roles: with the source as the figure ("a cup on a table") the figure is the pose
 the target (the related object of a scene, ``PreparedPair.anchor``); with the source as the ground ("a table
 under a vase") the same definitions are read the other way round: the target is the figure and the posed
 source its ground. The definitions, in words, are in ``docs/relations.md`` and in each ``_score_*`` docstring.
+
+Directions (sides, orientations) are the ground's own (``axes``: its front from ``PreparedPair.target_front`` or the
+posed source's ``source_front``), or the viewer's where the pair's fronts cannot be trusted; a reading of two
+relations (``front+facing``) scores their sum.
 """
 
 from __future__ import annotations
@@ -22,14 +26,16 @@ import math
 import weakref
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
+from functools import partial
 
 import numpy as np
 import torch
 from scipy.spatial import ConvexHull, QhullError
 
 from ctp_core import losses, sampling
+from ctp_core.cameras import FIRST_AZIMUTH
 from ctp_core.pose import Poses, apply_pose, quaternion_to_matrix
-from ctp_core.priors.relations import RELATIONS
+from ctp_core.priors.relations import RELATIONS, parts, side_of
 from ctp_core.scene import PreparedPair
 
 # --- constants (figure diagonals unless said otherwise) ------------------------------------------------------
@@ -53,6 +59,11 @@ WRAP_SHARE = 0.3  # "wrap": at least this share of the figure touching (the rela
 FIXED = 0.5  # ``preference`` "hang": hung under a down-facing surface (fixed to a ceiling) rather than resting on
 # an up-facing one (a peg's top), in figure diagonals
 FAR = 1.0  # a condition that has nothing to measure against (no overhead surface at all): a whole diagonal
+NEAR_GAP = 1.0  # "near": the gap at most this many *mean* diagonals of figure and ground (twice ``BESIDE_GAP``)
+FAR_GAP = 2.0  # "far": the gap at least this many mean diagonals
+CLEAR = 2 * CONTACT  # "above", "below": the gap's bound in the score; what holds is a gap of at least ``CONTACT``
+# (the score's tolerance, ``HOLDS`` + ``SMOOTH`` / 2, takes the rest): not touching
+FACING = math.cos(math.radians(45.0))  # orientations: the figure's front within 45 degrees of the wanted direction
 # ``preference``: among poses where the relation holds, which is the usual arrangement (see its docstring)
 OFF_CENTRE = 0.5  # weight of the figure's distance from the ground's middle (in the ground's half-widths)
 ENCLOSING_RAYS = 16  # ``_enclosure``: horizontal directions looked along from the figure's foot
@@ -61,7 +72,11 @@ FOOT = 0.05  # ``_enclosure``: the figure's foot, this far above its lowest poin
 RESTING = ("on", "stand", "sit", "lie")
 # where ``preference`` says more than holding
 PREFERRED = (*RESTING, "in", "under", "lean", "wear", "hang", "penetrate")
-STABLE_RELATIONS = (*RESTING, "in", "under", "beside", "lean", "wear")  # where ``stable`` applies
+SIDES = tuple(name for name, r in RELATIONS.items() if r.kind == "side")  # front, behind, left, right
+# where ``stable`` applies: what rests on something; beside, near or far from the ground, or turned somewhere, on the
+# floor or something else (not above or below it: hung or fixed)
+STABLE_RELATIONS = (*RESTING, "in", "under", "beside", "lean", "wear", *SIDES, "near", "far",
+                    *(name for name, r in RELATIONS.items() if r.kind == "orientation"))
 RELATION_NAMES: tuple[str, ...] = tuple(RELATIONS)
 
 
@@ -74,14 +89,46 @@ class RelationVerdict:
     score: float  # figure diagonals; 0 when it holds
     holds: bool
     stable: bool | None = None  # centre of mass over its support; None where the relation is not a resting one
+    side: str | None = None  # the side of the ground the figure is on, where the reading names one
+    frame: str | None = None  # whose front sides and orientations are judged in: "target" (its own) or "viewer"
+    parts: list[dict] | None = None  # each relation of a reading that says two ("front+facing"): name, score, holds
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        """The verdict as reports write it: ``side``, ``frame`` and ``parts`` only where they say something."""
+        out = asdict(self)
+        return {k: v for k, v in out.items() if v is not None or k not in ("side", "frame", "parts")}
 
 
 def known(relation: str | None) -> bool:
-    """Whether ``relation`` is one of the vocabulary's (``priors.relations.RELATIONS``); None is not."""
-    return relation in RELATIONS
+    """Whether ``relation`` is one of the vocabulary's (``priors.relations.RELATIONS``), or a reading of several
+    (``front+facing``: each is); None is not."""
+    named = parts(relation)
+    return bool(named) and all(p in RELATIONS for p in named)
+
+
+def frame(pair: PreparedPair) -> str:
+    """Whose front the sides and orientations are judged in: the target's own where it can be trusted
+    (``PreparedPair.front_trusted``), else the viewer's (the preview's first camera)."""
+    return "target" if pair.front_trusted else "viewer"
+
+
+def axes(front: torch.Tensor, trusted: bool) -> tuple[torch.Tensor, torch.Tensor]:
+    """(front, left) horizontal unit vectors (B, 3), normalised frame, of a ground whose front is ``front`` (B, 3):
+    its own where ``trusted`` (left = up x front: glTF's front +Z with +Y up has its own left at +X), else the
+    viewer's (the preview's first camera, ``cameras.FIRST_AZIMUTH``): front toward the viewer, left the viewer's
+    left (an object facing the viewer has its own left on the viewer's right)."""
+    if trusted:
+        f = _horizontal(front)
+        return f, torch.stack([f[..., 2], torch.zeros_like(f[..., 0]), -f[..., 0]], -1)
+    a = math.radians(FIRST_AZIMUTH)
+    as_t = lambda v: torch.tensor(v, dtype=front.dtype, device=front.device).expand_as(front)  # noqa: E731
+    return as_t([math.sin(a), 0.0, math.cos(a)]), as_t([-math.cos(a), 0.0, math.sin(a)])
+
+
+def _horizontal(v: torch.Tensor) -> torch.Tensor:
+    """``v`` (..., 3) with no vertical part, unit length (0 where it is vertical)."""
+    flat = v * torch.tensor([1.0, 0.0, 1.0], dtype=v.dtype, device=v.device)
+    return flat / flat.norm(dim=-1, keepdim=True).clamp_min(1e-9)
 
 
 def holds(scores: torch.Tensor | float) -> torch.Tensor | bool:
@@ -170,6 +217,14 @@ def _gap(points: torch.Tensor, ground: _Ground, which: str = "all") -> tuple[tor
     """(B, N) distance from each point to the ground surface (the sampled surface as discs of the samples'
     spacing; 0 behind it), and the signed height along the normal (positive outside)."""
     return _gap_to(points, ground, *ground.nearest(points, which))
+
+
+def _bearing_gap(points: torch.Tensor, ground: _Ground, which: str, reach: torch.Tensor) -> torch.Tensor:
+    """(B, N) ``_gap`` from the side the ground surface faces: a point further behind it than ``reach`` (B,) is as
+    far as it is deep. ``_gap`` is 0 anywhere behind, which makes a thin ground (a plate, a board) bear a figure
+    from either side: a ball hanging under a board is not resting on it."""
+    gap, along = _gap(points, ground, which)
+    return torch.maximum(gap, -along - reach[:, None])
 
 
 def _gap_to(points: torch.Tensor, ground: _Ground, u: torch.Tensor, n: torch.Tensor, found: torch.Tensor
@@ -341,6 +396,20 @@ def _roles(pair: PreparedPair, poses: Poses, source_is_figure: bool) -> tuple[Si
     return figure, _Ground(source, {}), floor
 
 
+def _context(pair: PreparedPair, poses: Poses, source_is_figure: bool) -> _Ctx:
+    """The figure, the ground, the floor and the fronts for either role: the target's front
+    (``PreparedPair.target_front``, normalised frame) and the posed source's (``source_front``, turned by the pose);
+    the ground's axes in its own frame or the viewer's (``axes``)."""
+    figure, ground, floor = _roles(pair, poses, source_is_figure)
+    as_t = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=poses.t.device)  # noqa: E731
+    own = torch.einsum("bij,j->bi", quaternion_to_matrix(poses.q), as_t(pair.source_front))
+    target = as_t(pair.target_front).expand(len(poses), 3)
+    ground_front, figure_front = (target, own) if source_is_figure else (own, target)
+    front, left = axes(ground_front, pair.front_trusted)
+    flat = figure_front * torch.tensor([1.0, 0.0, 1.0], device=figure_front.device)
+    return _Ctx(figure, ground, floor, front=front, left=left, heading=flat)
+
+
 # --- the relations ------------------------------------------------------------------------------------------------
 
 @dataclass
@@ -349,6 +418,10 @@ class _Ctx:
     ground: _Ground
     floor: torch.Tensor  # (B,)
     depth: torch.Tensor | None = None  # ``_support_depth``, once computed (a convex hull per pose)
+    front: torch.Tensor | None = None  # (B, 3) the ground's front, horizontal (``axes``): sides are named from it
+    left: torch.Tensor | None = None  # (B, 3) the ground's left, horizontal
+    heading: torch.Tensor | None = None  # (B, 3) the figure's own front (unit), its vertical part dropped: as long
+    # as the cosine of its elevation, so a front pointing up faces nothing (a chair lying on its back)
 
     @property
     def unit(self) -> torch.Tensor:  # (B,) figure diagonal
@@ -390,17 +463,18 @@ class _Ctx:
 
 
 def _score_resting(c: _Ctx) -> torch.Tensor:
-    """Resting on (``on``, ``stand``, ``sit``, ``lie``): supported from below by ground surface that faces up;
-    its centre of mass over that support; and on top of it: no part of the ground higher than the figure's top
+    """Resting on (``on``, ``stand``, ``sit``, ``lie``): supported from below by ground surface that faces up,
+    on the side it faces (so the centre of mass is above the contact: never from under a thin ground); its
+    centre of mass over that support; and on top of it: no part of the ground higher than the figure's top
     over the figure's footprint (a cup on a table's lower shelf, or under the table, is not on it).
 
     Sum of: the figure's lowest part within contact of up-facing ground surface (the bottom band: samples
-    within ``CONTACT`` of the figure's lowest point, their smooth minimum gap to up-facing samples);
+    within ``CONTACT`` of the figure's lowest point, their smooth minimum ``_bearing_gap`` to up-facing samples);
     ``stable`` (the centre's horizontal distance outside the footprint of the support patch); the height
     of the ground above the figure's top, over its footprint, past ``ON_TOP``.
     """
     fig = c.figure
-    gap, _ = _gap(fig.points, c.ground, "up")
+    gap = _bearing_gap(fig.points, c.ground, "up", c.reach())
     band = fig.points[..., 1] <= (c.bottom() + c.tol())[:, None]
     support = c.h(c.finite(soft_min(gap, c.tau(), mask=band)) - c.reach())
     return torch.minimum(support, _apex(c)) + _stability(c) + _overhead(c)
@@ -498,10 +572,81 @@ def _score_beside(c: _Ctx) -> torch.Tensor:
     fig, ground = c.figure, c.ground.side
     floor = c.h((c.bottom() - c.floor).abs() - c.tol())
     outside = c.h(-_hull_distance_2d(fig.centre[:, [0, 2]], ground.points[..., [0, 2]]))
-    gap, _ = _gap(fig.points, c.ground)
-    mean_diag = (c.unit + ground.diagonal.expand_as(c.unit)) / 2
-    near = c.h(c.finite(soft_min(gap, c.tau())) - BESIDE_GAP * mean_diag)
-    return floor + outside + near
+    gap, mean_diag = _apart(c)
+    return floor + outside + c.h(gap - BESIDE_GAP * mean_diag)
+
+
+def _apart(c: _Ctx) -> tuple[torch.Tensor, torch.Tensor]:
+    """(B,) the gap between the figure and the ground's surface (a smooth minimum over the figure's samples), and
+    the mean of their diagonals, normalised units."""
+    gap, _ = _gap(c.figure.points, c.ground)
+    return c.finite(soft_min(gap, c.tau())), (c.unit + c.ground.side.diagonal.expand_as(c.unit)) / 2
+
+
+def _score_side(c: _Ctx, side: str) -> torch.Tensor:
+    """``front``, ``behind``, ``left``, ``right``: ``beside`` the ground on that side of it, in its own frame
+    (``axes``: the viewer's where its front cannot be trusted): the figure's centre beyond the ground's extent
+    that way (its farthest sample along the side's direction) by more than it is beyond the ground's extent either
+    way across (a wedge from the ground's corners: a box level with a sofa's left end and a little in front is on
+    its left; one well in front of that end is in front)."""
+    toward = {"front": c.front, "behind": -c.front, "left": c.left, "right": -c.left}[side]
+    across = c.left if side in ("front", "behind") else c.front
+    aside = torch.maximum(_beyond(c, across), _beyond(c, -across)).clamp_min(0.0)
+    return _score_beside(c) + c.h(aside - _beyond(c, toward))
+
+
+def _beyond(c: _Ctx, direction: torch.Tensor) -> torch.Tensor:
+    """(B,) how far the figure's centre lies beyond the ground's farthest sample along ``direction`` (B, 3)."""
+    extent = (c.ground.side.points * direction[:, None, :]).sum(-1).max(-1).values
+    return (c.figure.centre * direction).sum(-1) - extent
+
+
+def _score_above(c: _Ctx) -> torch.Tensor:
+    """``above`` (no contact: a painting above a sofa, a lamp over a table; Sr3D's): the figure's bottom higher than
+    the ground's top by more than contact (``CLEAR``), their footprints overlapping (``_overlap``)."""
+    top = c.ground.side.points[..., 1].max(-1).values.expand_as(c.unit)
+    return c.h(top + CLEAR * c.unit - c.bottom()) + _overlap(c)
+
+
+def _score_below(c: _Ctx) -> torch.Tensor:
+    """``below`` (Sr3D's): the figure's top lower than the ground's bottom by more than contact, their footprints
+    overlapping (``_overlap``); ``under`` is what stands on the floor beneath a table's top."""
+    bottom = c.ground.side.points[..., 1].min(-1).values.expand_as(c.unit)
+    return c.h(c.top() + CLEAR * c.unit - bottom) + _overlap(c)
+
+
+def _overlap(c: _Ctx) -> torch.Tensor:
+    """How far the footprints (seen from above) are from overlapping: the figure's centre farther than its own
+    half-width from the ground's footprint (its convex hull), figure diagonals, hinged."""
+    hull = _hull_distance_2d(c.figure.centre[:, [0, 2]], c.ground.side.points[..., [0, 2]])
+    return c.h(hull - _half_width(c.figure))
+
+
+def _score_near(c: _Ctx) -> torch.Tensor:
+    """``near``: the gap to the ground at most ``NEAR_GAP`` mean diagonals of the two (a scale-free band: a cup
+    near a plate is a few centimetres away, a car near a house a few metres)."""
+    gap, mean_diag = _apart(c)
+    return c.h(gap - NEAR_GAP * mean_diag)
+
+
+def _score_far(c: _Ctx) -> torch.Tensor:
+    """``far``: the gap to the ground at least ``FAR_GAP`` mean diagonals of the two."""
+    gap, mean_diag = _apart(c)
+    return c.h(FAR_GAP * mean_diag - gap)
+
+
+def _score_facing(c: _Ctx, sign: float) -> torch.Tensor:
+    """``facing`` (sign 1; Holodeck's "face to") and ``facing_away`` (-1): the figure's own front within 45 degrees
+    (``FACING``) of the horizontal direction to the ground's centre, or of the direction away from it (a chair lying
+    on its back, its front up, faces nothing). In cosine units (scale-free by nature)."""
+    toward = _horizontal(c.ground.side.centre - c.figure.centre)
+    return hinge(FACING - sign * (c.heading * toward).sum(-1))
+
+
+def _score_aligned(c: _Ctx) -> torch.Tensor:
+    """``aligned`` (with): the figure's front within 45 degrees of the ground's horizontal front (``axes``; the
+    viewer's frame makes it face the viewer). In cosine units."""
+    return hinge(FACING - (c.heading * c.front).sum(-1))
 
 
 def _score_lean(c: _Ctx) -> torch.Tensor:
@@ -588,9 +733,16 @@ SCORES: dict[str, Callable[[_Ctx], torch.Tensor]] = {
     "on": _score_resting, "stand": _score_resting, "sit": _score_resting, "lie": _score_resting,
     "in": _score_in, "under": _score_under, "beside": _score_beside, "lean": _score_lean, "hang": _score_hang,
     "wear": _score_wear, "penetrate": _score_penetrate, "attach": _score_attach, "hold": _score_hold,
-    "wrap": _score_wrap,
+    "wrap": _score_wrap, **{side: partial(_score_side, side=side) for side in SIDES}, "above": _score_above,
+    "below": _score_below, "near": _score_near, "far": _score_far, "facing": partial(_score_facing, sign=1.0),
+    "facing_away": partial(_score_facing, sign=-1.0), "aligned": _score_aligned,
 }
 assert set(SCORES) == set(RELATIONS), "every relation of the vocabulary has a score"
+
+
+def _score(c: _Ctx, relation: str) -> torch.Tensor:
+    """The sum of the scores of the relations a reading names (each 0 when it holds)."""
+    return sum(SCORES[p](c) for p in parts(relation))
 
 
 def relation_score(pair: PreparedPair, poses: Poses, relation: str | None, source_is_figure: bool = True
@@ -602,7 +754,7 @@ def relation_score(pair: PreparedPair, poses: Poses, relation: str | None, sourc
     """
     if not known(relation):
         return torch.zeros(len(poses), device=poses.t.device)
-    return SCORES[relation](_Ctx(*_roles(pair, poses, source_is_figure)))
+    return _score(_context(pair, poses, source_is_figure), relation)
 
 
 def terms(pair: PreparedPair, poses: Poses, relation: str | None, source_is_figure: bool = True
@@ -613,16 +765,17 @@ def terms(pair: PreparedPair, poses: Poses, relation: str | None, source_is_figu
     zeros = torch.zeros(len(poses), device=poses.t.device)
     if not known(relation):
         return {"rel": zeros, "stable": zeros, "prefer": zeros}
-    c = _Ctx(*_roles(pair, poses, source_is_figure))
-    steady = _stability(c) if relation in STABLE_RELATIONS and relation not in RESTING else zeros
-    return {"rel": SCORES[relation](c), "stable": steady, "prefer": _preference(c, relation)}
+    c = _context(pair, poses, source_is_figure)
+    named = parts(relation)
+    steady = _stability(c) if set(named) & set(STABLE_RELATIONS) and not set(named) & set(RESTING) else zeros
+    return {"rel": _score(c, relation), "stable": steady, "prefer": sum(_preference(c, p) for p in named)}
 
 
 def stable(pair: PreparedPair, poses: Poses, source_is_figure: bool = True) -> torch.Tensor:
     """(B,) how far the figure's centre of mass is from being over its support (figure diagonals, hinged; 0 when
     stable): its horizontal projection against the convex footprint of the samples touching ground surface that
     does not face down, or the floor. Differentiable in ``poses``; ``holds`` gives the verdict."""
-    return _stability(_Ctx(*_roles(pair, poses, source_is_figure)))
+    return _stability(_context(pair, poses, source_is_figure))
 
 
 def preference(pair: PreparedPair, poses: Poses, relation: str | None, source_is_figure: bool = True
@@ -656,9 +809,11 @@ def preference(pair: PreparedPair, poses: Poses, relation: str | None, source_is
     Differentiable in ``poses`` but for the counts (a refinement term: ``objective.PREFER`` x ``lambda_rel``,
     and with a guide only as far as it cannot tell poses apart, ``Scorer.relation_terms``).
     """
-    if relation not in PREFERRED:
+    named = parts(relation)
+    if not set(named) & set(PREFERRED):
         return torch.zeros(len(poses), device=poses.t.device)
-    return _preference(_Ctx(*_roles(pair, poses, source_is_figure)), relation)
+    c = _context(pair, poses, source_is_figure)
+    return sum(_preference(c, p) for p in named)
 
 
 def _preference(c: _Ctx, relation: str) -> torch.Tensor:
@@ -755,11 +910,17 @@ def verdict(pair: PreparedPair, pose: Poses | np.ndarray, relation: str | None, 
         return None
     if not isinstance(pose, Poses):
         pose = poses_of(pose, pair.source_samples.device)
+    named = parts(relation)
     with torch.no_grad():
-        score = float(relation_score(pair, pose, relation, source_is_figure)[0])
-        steady = bool(holds(float(stable(pair, pose, source_is_figure)[0]))) if relation in STABLE_RELATIONS else None
-    return RelationVerdict(relation, "figure" if source_is_figure else "ground", round(score, 4), bool(holds(score)),
-                           steady)
+        c = _context(pair, pose, source_is_figure)
+        each = [float(SCORES[p](c)[0]) for p in named]
+        steady = bool(holds(float(_stability(c)[0]))) if set(named) & set(STABLE_RELATIONS) else None
+    directional = any(RELATIONS[p].kind in ("side", "orientation") for p in named)
+    return RelationVerdict(
+        relation, "figure" if source_is_figure else "ground", round(sum(each), 4), bool(holds(sum(each))),
+        steady, side_of(relation), frame(pair) if directional else None,
+        [{"name": p, "score": round(e, 4), "holds": bool(holds(e))} for p, e in zip(named, each, strict=True)]
+        if len(named) > 1 else None)
 
 
 def poses_of(matrix: np.ndarray, device: str | torch.device = "cpu") -> Poses:

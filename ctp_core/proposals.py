@@ -33,6 +33,7 @@ from ctp_core import canonical, losses, sampling
 from ctp_core.config import AlignConfig
 from ctp_core.objective import NEAR, clearance, sample_spacing
 from ctp_core.pose import Poses, matrix_to_quaternion, quaternion_product, quaternion_to_matrix, random_quaternions
+from ctp_core.priors.relations import RELATIONS, parts
 from ctp_core.scene import PreparedPair
 
 REGIONS: tuple[str, ...] = ("top", "side", "bottom", "inside", "gap", "drop", "floor")
@@ -98,7 +99,10 @@ class Proposals:
 def region_weights(relation: str | None, source_is_figure: bool = True) -> dict[str, float]:
     """Weight of every region for a relation read from the prompt; at least 1 each (1: no preference)."""
     table = FIGURE_WEIGHTS if source_is_figure else GROUND_WEIGHTS
-    chosen = table.get(relation or "", {})
+    position = next(iter(parts(relation)), "")  # a reading of two: its position ("front+facing": front)
+    if position in RELATIONS and RELATIONS[position].kind in ("side", "distance", "orientation"):
+        position = "beside"  # where the floor around the target is
+    chosen = table.get(position, {})
     return {r: max(1.0, float(chosen.get(r, 1.0))) for r in REGIONS}
 
 

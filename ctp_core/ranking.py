@@ -288,6 +288,8 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
             if relation is not None and held[1]:
                 message += f"; {held[0]} of {held[1]} hold '{relation}'"
             message += f"; {k} restarts" + (f" + {tiled} from the tile stage" if tiled else "")
+            if scorer.gate is not None:
+                message += f"; {scorer.gate.summary()}"
             counted = relation is not None and held[1]
             on_event(ProgressEvent(kind="step", phase=0, phases=phases, step=done, steps=total,
                                    restarts=restarts if restarts is not None else k + tiled, elapsed_s=elapsed,

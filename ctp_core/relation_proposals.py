@@ -34,16 +34,29 @@ pass below the floor; not settled (it is meant to intersect). The regions settle
 target, so what held "penetrate" lay half sunk along a surface (cur-s08: every restart a stick lying across the
 block's top or along its base, none standing in it).
 
-Each kind is made only where it is the prompt's relation with the source as the figure and ``config.relation``
-is on, in place of as many region proposals (``extend``); otherwise the proposals are unchanged.
+The directional relations (``apart``): beside the target on the named side of it (``front``, ``behind``, ``left``,
+``right``, in its own frame or the viewer's, ``predicates.axes``), ``near`` or ``far`` from it, or turned to it
+alone (``facing``, ...): the source in its resting frames on the floor the target stands on, out from the
+target's extent along the side's direction (any direction for near, far and orientations) by a gap in the
+relation's band, level with the target across that direction (sides; its centre elsewhere); turned about +Y at
+random, or so that its own front (``PreparedPair.source_front``) points as the reading's orientation says
+(toward the target, away from it, along the target's front). ``above``: the source over a point of the target's
+top surface, its bottom clear above the target's top. Kept where they are put (free of the target by
+construction: the approach "none"): the regions settle every proposal into contact.
+
+Each kind is made only where it is the prompt's relation (its position, the first of a reading of two) with the
+source as the figure and ``config.relation`` is on, in place of as many region proposals (``extend``); otherwise
+the proposals are unchanged.
 
 Not done (docs/relations.md lists them): "under" (the floor under a down-facing part), "beside" (the floor
-just outside the footprint): the regions already give some poses where those hold on the dev cases.
+just outside the footprint): the regions already give some poses where those hold on the dev cases; "below"
+(under what the target hangs from: the floor the target stands on is under it).
 """
 
 from __future__ import annotations
 
 import math
+from functools import partial
 
 import numpy as np
 import torch
@@ -53,6 +66,7 @@ from ctp_core import predicates
 from ctp_core.config import AlignConfig
 from ctp_core.objective import sample_spacing
 from ctp_core.pose import Poses, quaternion_product, quaternion_to_matrix
+from ctp_core.priors.relations import RELATIONS, parts
 from ctp_core.proposals import APPROACHES, Proposals, Site, place, surface_regions
 from ctp_core.scene import PreparedPair
 
@@ -63,6 +77,10 @@ ENCLOSURE_BATCH = 64  # up-facing points whose enclosure is measured at once (me
 PIERCE_DEPTH = (0.1, 0.5)  # "penetrate": how much of its length the source is driven in, uniform in this range
 HOOK_FACING = 0.5  # a hook point's normal: at least this cosine toward the source's centre
 HOOK_REACH = 0.1  # a hook point: at least this many source diagonals from the source's centre
+# ``apart``: the gap to the target, in mean diagonals of the two, drawn uniformly in the band of the relation's kind
+APART_GAPS = {"side": (0.05, predicates.BESIDE_GAP / 2), "near": (0.05, predicates.NEAR_GAP / 2),
+              "far": (1.1 * predicates.FAR_GAP, 1.5 * predicates.FAR_GAP)}
+ABOVE_CLEAR = (0.1, 0.5)  # ``apart``, "above": the source's bottom this many of its diagonals over the target's top
 
 
 def extend(pair: PreparedPair, config: AlignConfig, proposals: Proposals, relation: str | None,
@@ -71,7 +89,10 @@ def extend(pair: PreparedPair, config: AlignConfig, proposals: Proposals, relati
     as many of theirs, spread evenly over them (the caller's start kept): the relation's proposals take their
     share of ``search.candidates`` rather than adding to it, so the search costs what it does without them
     (added, they made a run a fifth longer where they exist)."""
-    build = {"lean": lean, "in": contained, "hang": hung, "penetrate": pierced}.get(relation or "")
+    position = next(iter(parts(relation)), "")
+    build = {"lean": lean, "in": contained, "hang": hung, "penetrate": pierced}.get(position)
+    if build is None and predicates.known(relation) and position != "below" and RELATIONS[position].kind != "contact":
+        build = partial(apart, relation=relation)
     if not config.relation or not source_is_figure or build is None or proposals.rotations is None:
         return proposals
     extra = build(pair, config, proposals, seed)
@@ -210,6 +231,55 @@ def pierced(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed:
     t[:, 1] += (float(pair.target_vertices[:, 1].min()) - (t[:, 1] + rotated[..., 1].min(1).values)).clamp_min(0.0)
     sites = _sites(torch.as_tensor(points[pick], dtype=torch.float32), -d, True)
     return _labelled(pair, proposals, Poses(t, q, torch.full((count,), log_s)), sites, "pierce")
+
+
+def apart(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int, relation: str) -> Proposals:
+    """Sources where a reading without contact puts them (``extend``; the module docstring says where)."""
+    named = parts(relation)
+    position, turn = named[0], next((p for p in named if RELATIONS[p].kind == "orientation"), None)
+    kind = RELATIONS[position].kind
+    rng = np.random.default_rng(seed + 41)
+    count = max(1, math.ceil(SHARE * config.search.candidates))
+    log_s = float(proposals.poses.log_s[0])
+    scale = math.exp(log_s)
+    target = pair.anchor.points.cpu()
+    front, left = predicates.axes(torch.as_tensor(pair.target_front, dtype=torch.float32)[None], pair.front_trusted)
+    if kind == "side":
+        u = {"front": front, "behind": -front, "left": left, "right": -left}[position].expand(count, 3)
+    else:
+        angle = torch.as_tensor(rng.uniform(0, 2 * math.pi, count), dtype=torch.float32)
+        u = torch.stack([angle.sin(), torch.zeros_like(angle), angle.cos()], -1)
+    resting = proposals.rotations[torch.as_tensor(rng.integers(len(proposals.rotations), size=count))].cpu()
+    if turn is None or kind == "vertical":
+        heading = rng.uniform(0, 2 * math.pi, count)
+    else:  # the source's front (azimuth about +Y, from +Z) to the wanted direction
+        want = {"facing": -u, "facing_away": u, "aligned": front.expand(count, 3)}[turn]
+        own = quaternion_to_matrix(resting) @ torch.as_tensor(pair.source_front, dtype=torch.float32)
+        heading = (torch.atan2(want[:, 0], want[:, 2]) - torch.atan2(own[:, 0], own[:, 2])).numpy()
+    q = torch.cat([quaternion_product(_yaw(float(a)), resting[i:i + 1]) for i, a in enumerate(heading)])
+    rotated = torch.einsum("bij,nj->bni", quaternion_to_matrix(q), pair.source_subset(LEAN_POINTS).cpu()) * scale
+    source_diagonal = 2 * pair.source_radius * scale
+    up = torch.tensor([0.0, 1.0, 0.0]).expand(count, 3)
+    if position == "above":  # over a point of the target's top, clear of it
+        top = torch.as_tensor(surface_regions(pair)[2]["top"], dtype=torch.long)
+        over = target[top if len(top) else torch.arange(len(target))]
+        anchor = over[torch.as_tensor(rng.integers(len(over), size=count))].clone()
+        anchor[:, 1] = target[:, 1].max() + torch.as_tensor(rng.uniform(*ABOVE_CLEAR, count)) * source_diagonal
+    else:  # on the floor, out from the target's extent along u, by a gap in the band
+        across = torch.stack([u[:, 2], torch.zeros(count), -u[:, 0]], -1)
+        reach = (target @ u.T).max(0).values + (-(rotated * u[:, None, :]).sum(-1)).max(1).values
+        gap = torch.as_tensor(rng.uniform(*APART_GAPS["side" if kind == "side" else position if kind == "distance"
+                                                      else "near"], count), dtype=torch.float32)
+        beside = target @ across.T  # (M, B): the target's extent across u
+        lo, high = beside.min(0).values, beside.max(0).values
+        level = lo + (high - lo) * torch.as_tensor(rng.uniform(0.25, 0.75, count) if kind == "side"
+                                                   else np.full(count, 0.5), dtype=torch.float32)
+        anchor = u * (reach + gap * (source_diagonal + 2 * pair.target_radius) / 2)[:, None] + across * level[:, None]
+        anchor[:, 1] = float(pair.target_vertices[:, 1].min())
+    sites = Site(anchor, up, torch.zeros(count), torch.ones(count, dtype=torch.bool),
+                 torch.full((count,), APPROACHES.index("none"), dtype=torch.long))
+    placed, free = place(pair, proposals.index, q, sites, log_s)
+    return _labelled(pair, proposals, placed, sites.select(free), position)
 
 
 def _clearance(local: np.ndarray, plumb: np.ndarray, hooks: np.ndarray, spacing: float) -> np.ndarray:

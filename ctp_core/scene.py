@@ -16,7 +16,7 @@ Frames (see ``frames``):
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 from typing import TYPE_CHECKING, TypeAlias
 
@@ -24,7 +24,7 @@ import numpy as np
 import torch
 import trimesh
 
-from ctp_core import canonical, frames, render, sampling
+from ctp_core import canonical, frames, orientation, render, sampling
 from ctp_core.cameras import framing_cameras
 from ctp_core.errors import ConfigError
 from ctp_core.losses import SurfaceIndex
@@ -98,6 +98,11 @@ class PreparedPair:
     source_surface: SurfaceIndex  # source samples + outward normals, source local frame (what is inside the source)
     target_outward: list[trimesh.Trimesh]  # each target object, file frame, outward winding (``outward``)
     attach: SurfaceIndex | None = None  # samples of the object the source relates to; None: all of ``index``
+    # the target's front, (3,) unit, normalised frame (its file's +Z for glTF, turned as the target is)
+    target_front: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    # False where no convention gives a front (or a symmetric target): directional relations use the viewer's frame
+    front_trusted: bool = True
+    source_front: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))  # (3,) unit, source local
 
     @property
     def anchor(self) -> SurfaceIndex:
@@ -152,21 +157,27 @@ class PreparedPair:
 
 def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed: int,
                  device: str = "cpu", canonicalise: bool = True, judge: canonical.Judge | None = None,
-                 on: str | None = None, target_up: canonical.Upright | None = None) -> PreparedPair:
-    """Normalise, canonicalise and sample a pair once per run (everything later reuses it).
+                 on: str | None = None, target_up: canonical.Upright | None = None,
+                 target_axes: orientation.Axes = orientation.FROM_FILE,
+                 source_axes: orientation.Axes = orientation.FROM_FILE) -> PreparedPair:
+    """Normalise, orient and sample a pair once per run (everything later reuses it).
 
-    ``canonicalise`` turns a clearly lying or upside-down target upright (renders then show it as
-    CLIP expects), by ``judge`` when given (``upright_judge``); the source's upright frame is always
-    computed from geometry, as the starting orientation. A scene target's up is its base's (``base``);
-    it gets ``samples`` samples per object; ``on`` names the object the soft-ICP term attaches to.
-    ``target_up``: the target's upright turn when it is known already (a stored result's, ``adjust``): a later
-    look at the same scene must have the same up as the run, which a judge may have chosen.
+    Each object's up and front come from its file first (``orientation.orient`` by ``target_axes`` and
+    ``source_axes``: the format's convention, an axis given, or ``auto``'s geometric guess, by ``judge`` when
+    given); ``canonicalise`` False keeps the target file's +Y as up whatever they say. The target's up turns the
+    normalised frame (renders show it as CLIP expects); the source's is its starting orientation. A scene
+    target's up is its base's (``base``); it gets ``samples`` samples per object; ``on`` names the object the
+    soft-ICP term attaches to. ``target_up``: the target's upright turn when it is known already (a stored
+    result's, ``adjust``): a later look at the same scene must have the same up as the run, which a judge may
+    have chosen.
     """
     whole, up_from = geometry(target), base(target)
     if target_up is None:
-        target_up = (canonical.upright_rotation(up_from, seed=seed, judge=judge) if canonicalise
-                     else canonical.identity())
-    source_up = canonical.upright_rotation(source, seed=seed)
+        axes = target_axes if canonicalise else orientation.Axes("+y", target_axes.front)
+        target_up = orientation.orient(up_from, axes, seed=seed, judge=judge)
+        if not canonicalise:
+            target_up.reason = "up: the file's +Y (the upright step is off)"
+    source_up = orientation.orient(source, source_axes, seed=seed, role="source")
     target_to_norm = frames.target_to_normalised(whole.vertices, target_up.rotation)
     source_to_local = frames.source_local(source.bounds, target_to_norm)
 
@@ -202,7 +213,14 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
                                     as_tensor(source_to_local.apply_directions(s_nrm))),
         target_outward=oriented,
         attach=attach,
+        target_front=_unit(target_to_norm.apply_directions(target_up.front[None])[0]),
+        front_trusted=target_up.front_trusted,
+        source_front=_unit(np.asarray(source_up.front, dtype=np.float64)),
     )
+
+
+def _unit(vector: np.ndarray) -> np.ndarray:
+    return vector / np.linalg.norm(vector)
 
 
 def outward(mesh: trimesh.Trimesh) -> trimesh.Trimesh:

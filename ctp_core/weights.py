@@ -60,8 +60,8 @@ def looks_local(name: str) -> bool:
 def absent_message(name: str, cache_dir: str | None = None) -> str:
     """The one message for an ``hf:`` repository whose weights are not cached while downloads are off."""
     return (f"weights for {name!r} are not in the Hugging Face cache ({_hub_cache(cache_dir)}) and downloads "
-            f"are off. Provide them by one of: `hf download {name}` (or `huggingface-cli download {name}`) on a "
-            "machine with network, then copy that cache here or point HF_HOME at it; save the model with "
+            f"are off. Provide them by one of: `ctp models pull {name}` where the network allows it; `hf download "
+            f"{name}` on a machine with network, then copy that cache here or point HF_HOME at it; save the model with "
             "save_pretrained and pass hf:/path/to/dir; or set CTP_ALLOW_DOWNLOAD=1 to let ctp download it")
 
 

@@ -90,7 +90,8 @@ Jobs run on queue workers; records and results expire after the configured TTL
   `queue_not_served` (the job's `queue` option names a queue no worker serves, live or seen within the grace;
   the message lists those served), `invalid_transform` (an adjustment's transform that is not a rotation, one
   scale and a translation), `invalid_direction` (a push without a direction)
-- 429: `too_many_jobs` (queued plus running jobs per key, `CTP_MAX_ACTIVE_JOBS`)
+- 429: `too_many_jobs` (queued plus running jobs per key, `CTP_MAX_ACTIVE_JOBS`; admitted atomically, so never over
+  the limit however many submits race)
 - 503: `redis_unavailable`; `storage_unavailable` (the object store, `CTP_STORAGE=s3`, did not answer or
   refused); `no_worker` (no worker is alive, and none was seen within the grace,
   `CTP_WORKER_GRACE_S`); `model_unavailable` (no live worker can run
@@ -100,6 +101,11 @@ Jobs run on queue workers; records and results expire after the configured TTL
   `lambda_clip` 0 (geometry only) needs no model. `GET /readyz` gives the same codes for the default model.
   While a worker is being restarted (none of its queue live, one seen within the grace) jobs are judged by what it
   could run, accepted and queued, and `GET /readyz` answers 200 `restarting`.
+
+Every 429 and 503 carries `Retry-After` (seconds): for 429 the soonest estimate of the key's running jobs (1 to
+60), for 503 by code: `redis_unavailable` 2, `storage_unavailable` 5, `loader_unavailable` 10, `no_worker` 30,
+`model_unavailable` 60. A query value out of its bounds is 400 `invalid_request`; a 405's `Allow` lists every
+method of the path.
 
 **Queues.** Workers serve named queues (`CTP_QUEUES`, e.g. GPU and CPU workers); a job goes to the one its
 `queue` option names, default the deployment's (`CTP_DEFAULT_QUEUE`), and is judged by that queue's workers.
@@ -183,6 +189,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             for model in (AlignOptions, JobOptions):
                 schema["components"]["schemas"][model.__name__] = model.model_json_schema(
                     ref_template="#/components/schemas/{model}")
+            # FastAPI documents a 422 of its own on every operation with parameters; this API answers a malformed
+            # request 400 invalid_request (service.errors), documented where it can happen (and a webhook receiver
+            # answers what it likes: any 2xx delivers).
+            for operation in (op for part in ("paths", "webhooks") for path in schema.get(part, {}).values()
+                              for op in path.values()):
+                if operation["responses"].get("422", {}).get("description") == "Validation Error":
+                    del operation["responses"]["422"]
+            for unused in ("HTTPValidationError", "ValidationError"):
+                schema["components"]["schemas"].pop(unused, None)
             app.openapi_schema = schema
         return app.openapi_schema
 

@@ -25,6 +25,8 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable, Iterator, Sequence
+from datetime import UTC, datetime
+from email.utils import parsedate_to_datetime
 from pathlib import Path
 from typing import Any
 
@@ -37,18 +39,60 @@ TERMINAL = ("succeeded", "failed", "canceled")
 
 
 class ServiceError(Exception):
-    """An error answer of the API: HTTP status plus its stable ``code``, ``message`` and ``field``."""
+    """An error answer of the API: HTTP status plus its stable ``code``, ``message`` and ``field``;
+    ``retry_after_s``: the answer's ``Retry-After`` (429, 503), None without one."""
 
-    def __init__(self, status: int, code: str, message: str, field: str | None = None):
+    def __init__(self, status: int, code: str, message: str, field: str | None = None,
+                 retry_after_s: float | None = None):
         super().__init__(f"{status} {code}: {message}" + (f" (field {field})" if field else ""))
         self.status, self.code, self.message, self.field = status, code, message, field
+        self.retry_after_s = retry_after_s
+
+
+class _Http(httpx.Client):
+    """An ``httpx.Client`` that honours ``Retry-After``: a 429 or 503 that carries one is sent again after that many
+    seconds, at most ``retries`` times and only while the wait is at most ``max_wait_s`` (a longer one is the
+    caller's to decide: the ``ServiceError`` carries it). The service answers both before it has done anything (no
+    job is queued), so resending is safe."""
+
+    def __init__(self, *, retries: int, max_wait_s: float, **kwargs):
+        super().__init__(**kwargs)
+        self.retries, self.max_wait_s = retries, max_wait_s
+
+    def send(self, request: httpx.Request, **kwargs) -> httpx.Response:
+        for _ in range(self.retries):
+            response = super().send(request, **kwargs)
+            wait_s = retry_after(response)
+            if wait_s is None or wait_s > self.max_wait_s:
+                return response
+            response.close()
+            time.sleep(wait_s)
+        return super().send(request, **kwargs)
+
+
+def retry_after(response: httpx.Response) -> float | None:
+    """The seconds a 429 or 503 asks the client to wait (``Retry-After``: seconds or an HTTP date); None for
+    another status, or without the header."""
+    value = response.headers.get("retry-after") if response.status_code in (429, 503) else None
+    if value is None:
+        return None
+    if value.strip().isdigit():
+        return float(value)
+    try:
+        return max(0.0, (parsedate_to_datetime(value) - datetime.now(UTC)).total_seconds())
+    except (TypeError, ValueError):
+        return None
 
 
 class Client:
+    """``retries`` / ``max_wait_s``: how often and how long a request refused with a ``Retry-After`` (429
+    ``too_many_jobs``, a 503 while part of the service restarts) is sent again before ``ServiceError`` is raised."""
+
     def __init__(self, url: str, api_key: str | None = None, *, timeout_s: float = 60.0,
-                 transport: httpx.BaseTransport | None = None):
+                 transport: httpx.BaseTransport | None = None, retries: int = 3, max_wait_s: float = 30.0):
         headers = {"Authorization": f"Bearer {api_key}"} if api_key else {}
-        self.http = httpx.Client(base_url=url, headers=headers, timeout=timeout_s, transport=transport)
+        self.http = _Http(base_url=url, headers=headers, timeout=timeout_s, transport=transport, retries=retries,
+                          max_wait_s=max_wait_s)
 
     def close(self) -> None:
         self.http.close()
@@ -126,11 +170,12 @@ class Client:
             timeout = httpx.Timeout(timeout.connect, read=(timeout.read or 0) + wait)  # the answer comes after it
         return self._json(self.http.post(path, files=files, data=data, headers=headers, timeout=timeout))
 
-    def inspect(self, mesh: MeshInput) -> dict[str, Any]:
+    def inspect(self, mesh: MeshInput, *, up: str = "file", front: str = "file") -> dict[str, Any]:
         """What a job would make of one mesh, before any job (``POST /inspect``): ``faces``, ``vertices``,
-        ``extents`` and ``size`` in the file's units, the ``up`` the service will use (file frame) and whether it
-        is ``turned``; a file a job would refuse raises ``ServiceError`` with the same code."""
-        return self._json(self.http.post("/inspect", files={"mesh": _file(mesh)}))
+        ``extents`` and ``size`` in the file's units, the ``up`` and ``front`` a job with the options ``up`` and
+        ``front`` will use (file frame), whether it is ``turned`` and why; a file a job would refuse raises
+        ``ServiceError`` with the same code."""
+        return self._json(self.http.post("/inspect", files={"mesh": _file(mesh)}, data={"up": up, "front": front}))
 
     def adjust(self, job_id: str, transform, *, settle: str = "none", direction: Sequence[float] | None = None,
                save: bool = False, wait: int = 30, timeout_s: float = 120.0) -> dict[str, Any]:
@@ -213,7 +258,7 @@ class Client:
         if answer.status_code >= 400:
             error = body.get("error") or {"code": "http_error", "message": answer.text[:200]}
             raise ServiceError(answer.status_code, error.get("code", "http_error"), error.get("message", ""),
-                               error.get("field"))
+                               error.get("field"), retry_after(answer))
         return body
 
 

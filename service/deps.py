@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from fastapi import Request
 from fastapi.concurrency import run_in_threadpool
 
-from ctp_core.config import AlignConfig
+from ctp_core.config import AUTO, DEFAULT_MODEL, AlignConfig
 from service.errors import ApiError
 from service.jobs import JobError, JobRecord, Jobs, TooManyJobs, serving
 
@@ -62,7 +62,7 @@ async def enqueue(request: Request, record: JobRecord, blobs: dict[str, bytes],
     try:
         await run_in_threadpool(jobs.submit, record, blobs, settings.max_active_jobs)
     except TooManyJobs as exc:
-        raise ApiError(429, "too_many_jobs", str(exc)) from None
+        raise ApiError(429, "too_many_jobs", str(exc), headers={"Retry-After": str(exc.retry_after_s)}) from None
 
 
 async def check_workers(request: Request, models: set[str], queue: str) -> None:
@@ -71,7 +71,12 @@ async def check_workers(request: Request, models: set[str], queue: str) -> None:
     unavailable = await run_in_threadpool(_unavailable, request.app.state.jobs, models, queue)
     if unavailable is not None:
         status = 422 if unavailable.code == "queue_not_served" else 503  # the request's to change, not a wait
-        raise ApiError(status, unavailable.code, unavailable.message, unavailable.field)
+        message, auto = unavailable.message, request.app.state.settings.model == AUTO
+        if unavailable.code == "model_unavailable" and auto and DEFAULT_MODEL in models:
+            message = (f"this job asks for guidance itself (a reference image, lambda_clip or upright_judge), which "
+                       f"needs the default model under CTP_MODEL auto (jobs with default options run without a "
+                       f"guide): {message}")
+        raise ApiError(status, unavailable.code, message, unavailable.field)
 
 
 def _unavailable(jobs: Jobs, models: set[str], queue: str) -> JobError | None:

@@ -11,6 +11,7 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match
 
 from ctp_core.errors import CtpError
 from service.jobs import JobError
@@ -19,13 +20,29 @@ from service.storage import StorageUnavailable
 
 log = logging.getLogger("ctp.service")
 
-_ERRORS = {status: {"model": ErrorBody, "description": text} for status, text in {
+HTTP_METHODS = ("GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS")  # what a 405's Allow can list
+
+# Retry-After (s) of a 503, by code: about how long that outage lasts, so that a client neither hammers a service that
+# is restarting a part nor waits much past its return (docs/service.md, "Retry-After"). redis_unavailable: the
+# supervisor restarts a dead embedded Redis after 1 s and the API answers again within about 2; storage_unavailable:
+# the SDK has already retried within the request, so this is more than a blip; loader_unavailable: the request has
+# already waited a whole load's time limit for a loading process; no_worker: a worker is restarted within the
+# supervisor's longest back-off (30 s); model_unavailable, queue_not_served (/readyz): the deployment has to change.
+RETRY_AFTER_S = {"redis_unavailable": 2, "storage_unavailable": 5, "loader_unavailable": 10, "no_worker": 30,
+                 "model_unavailable": 60, "queue_not_served": 60}
+RETRY_AFTER_OTHER_S = 30  # a 503 of a code not listed above
+RETRY_AFTER = {"Retry-After": {"required": True, "description": "seconds to wait before retrying (429: when one of "
+                               "the key's jobs is likely to end; 503: by code, docs/service.md)",
+                               "schema": {"type": "integer", "minimum": 1}}}
+
+_ERRORS = {status: {"model": ErrorBody, "description": text,
+                     **({"headers": RETRY_AFTER} if status in (429, 503) else {})} for status, text in {
     400: "malformed request", 401: "missing or unknown API key", 404: "unknown job (or another key's)",
     409: "the job is not in a state that allows this, or an Idempotency-Key conflicts",
     413: "an upload is over a limit",
     415: "unsupported mesh format", 422: "invalid input", 429: "too many active jobs for this key",
-    503: "Redis, the object store, the workers or the model are unavailable (redis_unavailable, "
-         "storage_unavailable, no_worker, model_unavailable)",
+    503: "Redis, the object store, the workers, the model or the mesh loaders are unavailable (redis_unavailable, "
+         "storage_unavailable, no_worker, model_unavailable, loader_unavailable)",
 }.items()}
 
 
@@ -38,6 +55,9 @@ class ApiError(Exception):
 
 
 def error_response(status: int, error: JobError, headers=None) -> JSONResponse:
+    """The stable error body; a 503 carries its ``Retry-After`` (a 429's comes with the error: ``Jobs.retry_after``)."""
+    if status == 503:
+        headers = {"Retry-After": str(RETRY_AFTER_S.get(error.code, RETRY_AFTER_OTHER_S)), **(headers or {})}
     return JSONResponse(ErrorBody(error=error).model_dump(mode="json"), status_code=status, headers=headers)
 
 
@@ -46,10 +66,10 @@ def documented(*statuses: int) -> dict[int | str, dict[str, Any]]:
     return {s: _ERRORS[s] for s in statuses}
 
 
-def binary(media_type: str, description: str) -> dict[int | str, dict[str, Any]]:
-    """The schema's 200 response for a file download."""
-    return {200: {"description": description,
-                  "content": {media_type: {"schema": {"type": "string", "format": "binary"}}}}}
+def download_response(media_type: str, description: str) -> dict[int | str, dict[str, Any]]:
+    """The schema's 200 response for a file download: bytes, or a JSON object for a JSON file."""
+    schema = {"type": "object"} if media_type == "application/json" else {"type": "string", "format": "binary"}
+    return {200: {"description": description, "content": {media_type: {"schema": schema}}}}
 
 
 def install_handlers(app: FastAPI) -> None:
@@ -76,15 +96,25 @@ def install_handlers(app: FastAPI) -> None:
                                             "uploads and results is unreachable or refused the request"))
 
     @app.exception_handler(StarletteHTTPException)
-    async def _http_error(_request: Request, exc: StarletteHTTPException):
+    async def _http_error(request: Request, exc: StarletteHTTPException):
         code = "not_found" if exc.status_code == 404 else "invalid_request"
-        return error_response(exc.status_code, JobError(code=code, message=str(exc.detail)), exc.headers)
+        headers = exc.headers
+        if exc.status_code == 405:  # Starlette's Allow names only the first route of the path
+            headers = {**(headers or {}), "Allow": ", ".join(_allowed(request))}
+        return error_response(exc.status_code, JobError(code=code, message=str(exc.detail)), headers)
 
     @app.exception_handler(RequestValidationError)
     async def _invalid(_request: Request, exc: RequestValidationError):
         err = exc.errors()[0]
         return error_response(400, JobError(code="invalid_request", message=str(err.get("msg")),
                                             field=".".join(str(p) for p in err.get("loc", ())[1:]) or None))
+
+
+def _allowed(request: Request) -> list[str]:
+    """The methods the app routes at the request's path, asked of its router one method at a time (a path's
+    methods can be spread over routes, and FastAPI nests included routers)."""
+    return [method for method in HTTP_METHODS if any(
+        route.matches({**request.scope, "method": method})[0] == Match.FULL for route in request.app.router.routes)]
 
 
 class BodyLimit:

@@ -21,7 +21,7 @@ from fastapi import Request
 from starlette.datastructures import UploadFile
 
 from ctp_core.errors import CtpError, ImageError, MeshError
-from ctp_core.io import MeshLimits, load_image
+from ctp_core.io import SUPPORTED_EXTENSIONS, MeshLimits, load_image
 from ctp_core.loader import LoaderUnavailable, MeshLoader
 from ctp_core.names import NAME_MAX, default_name
 from service.errors import ApiError
@@ -51,6 +51,22 @@ def file_field(description: str) -> dict[str, Any]:
     return {"type": "string", "format": "binary", "description": description}
 
 
+def mesh_field(description: str) -> dict[str, Any]:
+    """A mesh file part: its format is its file name's extension, one of ``x-extensions`` (415
+    ``mesh_unknown_format`` for another)."""
+    return {**file_field(f"{description}; the file name's extension gives the format: "
+                         f"{', '.join(SUPPORTED_EXTENSIONS)} (415 `mesh_unknown_format` otherwise)"),
+            "x-extensions": list(SUPPORTED_EXTENSIONS)}
+
+
+def image_field(description: str) -> dict[str, Any]:
+    """A picture file part, read by its content (``IMAGE_ENCODING``; 422 ``invalid_image`` otherwise)."""
+    return file_field(f"{description}; PNG or JPEG, told by its content (422 `invalid_image` otherwise)")
+
+
+IMAGE_ENCODING = {"contentType": "image/png, image/jpeg"}  # a multipart body's ``encoding`` of its picture parts
+
+
 WEBHOOK_PROPERTIES = {
     "webhook": {"type": "string", "format": "uri", "maxLength": URL_MAX, "description": "http(s) URL to POST "
                 "the job's events to, signed as Standard Webhooks does (docs/service.md, Webhooks); its host must "
@@ -65,20 +81,25 @@ ALIGN_BODY = {
     "required": True,
     "content": {"multipart/form-data": {"schema": {
         "type": "object",
+        "additionalProperties": False,  # 400 unknown_field
         "required": ["source"],
+        # a prompt or a picture guides it (400 missing_field without both); the target is a file or an earlier
+        # job's scene (400 missing_field / invalid_field without one or with both)
+        "allOf": [{"anyOf": [{"required": ["prompt"]}, {"required": ["image"]}]},
+                  {"oneOf": [{"required": ["target"]}, {"required": ["target_job"]}]}],
+        "dependentRequired": {"on": ["target_job"], "webhook_events": ["webhook"]},
         "properties": {
-            "target": file_field("the mesh that stays put (GLB, glTF with embedded buffers, OBJ, OBJ+MTL in a "
-                                  ".zip, PLY, STL); the extension of the file name gives the format; required "
-                                  "unless `target_job` is given"),
-            "target_job": {"type": "string", "description": "instead of `target`: the id of one of your succeeded "
-                           "jobs, whose result scene becomes the target, read back as its separate objects "
-                           "(404 for an unknown job or another key's, 409 if it has not succeeded)"},
+            "target": mesh_field("the mesh that stays put (GLB, glTF with embedded buffers, OBJ, OBJ+MTL in a "
+                                  ".zip, PLY, STL); required unless `target_job` is given"),
+            "target_job": {"type": "string", "description": "instead of `target` (not with it): the id of one of "
+                           "your succeeded jobs, whose result scene becomes the target, read back as its separate "
+                           "objects (404 for an unknown job or another key's, 409 if it has not succeeded)"},
             "on": {"type": "string", "maxLength": NAME_MAX, "description": "with `target_job`: the object of that "
                    "scene the source relates to (soft-ICP attaches to it); default the last placed one"},
-            "source": file_field("the mesh to place, same formats"),
+            "source": mesh_field("the mesh to place, same formats"),
             "prompt": {"type": "string", "minLength": 1, "maxLength": PROMPT_MAX,
                        "description": "what the arrangement should look like; required unless `image` is given"},
-            "image": file_field("reference picture (PNG or JPEG) for image-guided alignment instead of the text"),
+            "image": image_field("reference picture for image-guided alignment instead of the text"),
             "options": {"type": "string", "contentMediaType": "application/json",
                         "contentSchema": {"$ref": "#/components/schemas/JobOptions"},
                         "description": "JSON object of run options (JobOptions: AlignOptions and queue)"},
@@ -89,7 +110,7 @@ ALIGN_BODY = {
                             "description": "what the source is (\"cherry\"); default: its file name"},
             **WEBHOOK_PROPERTIES,
         },
-    }}},
+    }, "encoding": {"image": IMAGE_ENCODING}}},
 }
 
 

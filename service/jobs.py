@@ -42,6 +42,7 @@ import contextlib
 import hashlib
 import json
 import logging
+import math
 import time
 import uuid
 from collections.abc import Callable
@@ -120,7 +121,38 @@ return 0
 
 
 class TooManyJobs(Exception):
-    """The key already has its limit of queued plus running jobs."""
+    """The key already has its limit of queued plus running jobs; ``retry_after_s``: when to ask again."""
+
+    def __init__(self, message: str, retry_after_s: int):
+        super().__init__(message)
+        self.retry_after_s = retry_after_s
+
+
+# 429's Retry-After bounds (s): an estimate under a second is rounded up to one; the upper bound is what a client
+# waits when none of the key's jobs has an estimate yet (all queued, or loading): about the first minute of a job.
+SLOT_RETRY_S = (1, 60)
+
+# Admission of one job under its key's limit, atomic (``Jobs.submit``). KEYS: the key's active set, the job's record,
+# the key's owned index; ARGV: job id, limit, record JSON, TTL (s), created (Unix s), the record key prefix, then
+# the terminal statuses. A slot whose record expired or ended (released already in the transaction that ended it,
+# kept here so that no path can leak a slot) is forgotten; a slot is taken only with its record, so no submit's
+# slot is ever without one. The record keys are built in the script (one Redis, not a cluster).
+_ADMIT = """
+local ended = {}
+for i = 7, #ARGV do ended[ARGV[i]] = true end
+local live = 0
+for _, id in ipairs(redis.call('SMEMBERS', KEYS[1])) do
+  local raw = redis.call('GET', ARGV[6] .. id)
+  if raw and not ended[cjson.decode(raw)['status']] then live = live + 1 else redis.call('SREM', KEYS[1], id) end
+end
+if live >= tonumber(ARGV[2]) then return 0 end
+redis.call('SADD', KEYS[1], ARGV[1])
+redis.call('EXPIRE', KEYS[1], ARGV[4])
+redis.call('SET', KEYS[2], ARGV[3], 'EX', ARGV[4])
+redis.call('ZADD', KEYS[3], ARGV[5], ARGV[1])
+redis.call('EXPIRE', KEYS[3], ARGV[4])
+return 1
+"""
 
 
 class Stage(BaseModel):
@@ -231,6 +263,8 @@ class JobRecord(BaseModel):
     downloads: Literal["stream", "redirect"] = Field("stream", description="how its result downloads answer, "
                                                      "as the API that accepted it was set (Links.downloads)")
     adjusted: SavedAdjustment | None = Field(None, description="a succeeded alignment's saved adjustment, the latest")
+    guide: str | None = Field(None, description="the guide its worker chose (a model spec or none) when it took it")
+    guide_why: str | None = Field(None, description="why that guide (ctp_core.guide_choice)")
 
     @property
     def stage_count(self) -> int:
@@ -298,6 +332,7 @@ class Jobs:
         self.worker_grace_s = worker_grace_s  # how long a heartbeat's "last seen" record lives; 0: none written
         self.outbox = Outbox(redis, prefix, ttl_s)
         self.default_queue = default_queue
+        self._admit = redis.register_script(_ADMIT)
 
     @classmethod
     def from_settings(cls, settings: Settings, client: Redis | None = None) -> Jobs:
@@ -387,27 +422,28 @@ class Jobs:
 
     # -- writing ------------------------------------------------------------------------------------
     def submit(self, record: JobRecord, blobs: dict[str, bytes], max_active: int) -> JobRecord:
-        """Store the inputs and the record, then enqueue; raises TooManyJobs over the per-key limit.
+        """Store the inputs, admit the record under the per-key limit, then enqueue; raises TooManyJobs over
+        the limit (``retry_after_s``: when a slot is likely free).
 
+        Admission is one Lua script (``_ADMIT``): it forgets the key's stale slots, counts the live ones and,
+        under the limit, takes a slot and writes the record together, so concurrent submits (any number of API
+        processes) never admit more than the limit, and every slot has its record from the moment it is taken.
         The job's time limit is the configured one per stage (an assembly of n objects gets n times it)."""
-        active = self._active_key(record.owner)
-        self._prune_active(record.owner)
-        # Reserve first, then count: concurrent submits can only under-admit, never exceed the limit.
-        self.redis.sadd(active, record.id)
-        self.redis.expire(active, self.ttl_s)
-        if self.redis.scard(active) > max_active:
-            self.redis.srem(active, record.id)
-            raise TooManyJobs(f"this key already has {max_active} queued or running jobs; wait for one to end")
+        owned = self._owned_key(record.owner)
         try:
             for name, data in blobs.items():
                 self.storage.put(record.id, name, data)
-            self.redis.set(self.record_key(record.id), record.model_dump_json(), ex=self.ttl_s)
-            self.redis.zadd(self._owned_key(record.owner), {record.id: record.created_at.timestamp()})
-            self.redis.expire(self._owned_key(record.owner), self.ttl_s)
+            admitted = self._admit(
+                keys=[self._active_key(record.owner), self.record_key(record.id), owned],
+                args=[record.id, max_active, record.model_dump_json(), self.ttl_s, record.created_at.timestamp(),
+                      self.record_key(""), *TERMINAL])
+            if not admitted:
+                raise TooManyJobs(f"this key already has {max_active} queued or running jobs; wait for one to end",
+                                  retry_after_s=self.retry_after(record.owner))
             self._enqueue(record, record.id)
-        except Exception:
-            self.redis.srem(active, record.id)
-            self.redis.zrem(self._owned_key(record.owner), record.id)
+        except Exception:  # TooManyJobs too: then only the inputs were stored
+            self.redis.srem(self._active_key(record.owner), record.id)
+            self.redis.zrem(owned, record.id)
             self.redis.delete(self.record_key(record.id))
             self.storage.delete(record.id, list(blobs))
             raise
@@ -420,6 +456,16 @@ class Jobs:
         self.rq_queue(record.queue).enqueue(TASK, record.id, job_id=rq_id,
                                             job_timeout=self.job_timeout_s * record.stage_count, result_ttl=0,
                                             failure_ttl=self.ttl_s, description=f"{record.kind} {record.id}")
+
+    def retry_after(self, owner: str) -> int:
+        """Seconds until one of ``owner``'s jobs is likely to end and free a slot: the soonest estimate of its
+        running jobs (``progress.eta_s``), within ``SLOT_RETRY_S``; the upper bound when none has one yet."""
+        ids = [raw.decode() for raw in self.redis.smembers(self._active_key(owner))]
+        records = [parse_record(raw) for raw in self.redis.mget([self.record_key(i) for i in ids])] if ids else []
+        etas = [r.progress.eta_s for r in records if r is not None and r.status == "running"
+                and r.progress.eta_s is not None]
+        low, high = SLOT_RETRY_S
+        return high if not etas else min(high, max(low, math.ceil(min(etas))))
 
     def start(self, job_id: str, worker: str) -> JobRecord | None:
         """queued -> running, taking the lease and counting the attempt; None when the job is gone or no longer
@@ -439,6 +485,11 @@ class Jobs:
 
         record = self._update(job_id, change, also)
         return record if record is not None and record.status == "running" and record.worker == worker else None
+
+    def set_guide(self, job_id: str, guide: str, why: str) -> JobRecord | None:
+        """The guide the worker chose for its running job (``ctp_core.guide_choice``), and why."""
+        return self._update(job_id, lambda r: r.model_copy(update={"guide": guide, "guide_why": why})
+                            if r.status == "running" else None)
 
     def set_progress(self, job_id: str, progress: Progress, worker: str | None = None) -> JobRecord | None:
         """A running job's progress; from ``worker`` only while the job is its own."""
@@ -540,15 +591,6 @@ class Jobs:
         pipe.delete(self._lease_key(r.id))
         pipe.srem(self._running_key, r.id)
         pipe.srem(self._active_key(r.owner), r.id)
-
-    def _prune_active(self, owner: str) -> None:
-        """Forget slots of jobs that ended without releasing them (records expired)."""
-        key = self._active_key(owner)
-        for raw in self.redis.smembers(key):
-            job_id = raw.decode()
-            record = self.get(job_id)
-            if record is None or record.status in TERMINAL:
-                self.redis.srem(key, job_id)
 
     def _update(self, job_id: str, change: Callable[[JobRecord], JobRecord | None],
                 also: Callable[[Any, JobRecord], None] | None = None) -> JobRecord | None:

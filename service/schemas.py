@@ -10,19 +10,25 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field, create_model
 
-from ctp_core.config import AlignConfig
+from ctp_core.config import AUTO, DEFAULT_MODEL, AlignConfig
 from ctp_core.errors import ConfigError
+from ctp_core.guide_choice import asks_for_guide
 from ctp_core.options import AlignOptions, option_of, option_overrides
 from service.jobs import Alternative, JobError, JobRecord, Progress, SavedAdjustment, Status
 from service.settings import QUEUE_NAME
 from service.webhooks import Event, Webhook
 
 
-def build_config(options: dict[str, Any], *, default_model: str, allowed_models: list[str]) -> AlignConfig:
+def build_config(options: dict[str, Any], *, default_model: str, allowed_models: list[str],
+                 image: bool = False) -> AlignConfig:
     """Validate a client's options and merge them into their preset; raises ConfigError whose
-    ``field`` is ``options.<name>``, code ``unknown_option`` or ``invalid_option``."""
+    ``field`` is ``options.<name>``, code ``unknown_option`` or ``invalid_option``. A job under ``auto`` that
+    asks for guidance itself (``image``: a reference picture; ``guide_choice.asks_for_guide``) gets the default
+    model, so that it is refused up front (503 ``model_unavailable``) where no worker has it."""
     overrides = option_overrides(options)
     model = overrides.get("model", default_model)
+    if model == AUTO and asks_for_guide(options, image):
+        model = DEFAULT_MODEL
     if model not in allowed_models:
         raise ConfigError(f"model {model!r} is not served here; choose one of {', '.join(allowed_models)}",
                           field="options.model")
@@ -107,6 +113,10 @@ class JobOut(BaseModel):
     adjusted: SavedAdjustment | None = Field(None, description="a saved adjustment (POST /jobs/{id}/adjust with save), "
                                       "the latest: result.glb and report.json are the adjusted scene, original.glb "
                                       "the run's own; null until one is saved")
+    guide: str | None = Field(None, description="what guides the placement, chosen by the worker when it took the "
+                              "job: a model spec, or none (the geometry and the prompt's relation: options.model "
+                              "auto without the default model's weights, or lambda_clip 0); null while queued")
+    guide_why: str | None = Field(None, description="why that guide; null while queued")
     links: Links
 
     @classmethod
@@ -115,7 +125,8 @@ class JobOut(BaseModel):
                    started_at=r.started_at, finished_at=r.finished_at, error=r.error,
                    cancel_requested=r.cancel_requested, attempts=r.attempts, prompt=r.prompt, image_guided=r.has_image,
                    webhook=r.webhook, queue=r.queue, target_job=r.target_job, stages=r.stage_count,
-                   alternatives=r.alternatives, adjusted=r.adjusted, links=links(r.id, r.downloads))
+                   alternatives=r.alternatives, adjusted=r.adjusted, guide=r.guide, guide_why=r.guide_why,
+                   links=links(r.id, r.downloads))
 
 
 class WebhookPayload(BaseModel):
@@ -158,3 +169,9 @@ class Ready(BaseModel):
         "within the grace could run")
     since_s: float | None = Field(None, description="restarting: seconds since a worker was last seen (the "
                                   "answer turns 503 no_worker once this passes the grace); null when ready")
+    guide: str = Field(description="what guides jobs with default options: CTP_MODEL when it names a model; with auto "
+                       "the default CLIP model where a worker of the default queue has its weights, else none (the "
+                       "geometry and the prompt's relation place the source)")
+    why: str = Field(description="why that guide")
+    get_model: str | None = Field(None, description="guide none under auto: the command that puts the default "
+                                  "model's weights on the workers (then each next job uses it)")

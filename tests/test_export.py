@@ -76,8 +76,10 @@ def test_report_is_json_and_recomposes_the_transform():
     assert data["prompt"] == "a ball on a box" and data["model"] == "random:tiny"
     assert data["seed"] == 3 and data["preset"] == "test" and data["config"]["seed"] == 3
     assert data["extra"]["clip_images"] == 12 and data["extra"]["phase_timings"] == [{"phase_s": 0.5}]
-    assert data["extra"]["target_upright"] == {"rotation": np.eye(3).tolist(), "changed": False,
-                                               "reason": "not canonicalised"}
+    assert data["extra"]["target_upright"] == {"rotation": np.eye(3).tolist(), "changed": False, "up": [0, 1, 0],
+                                               "front": [0, 0, 1], "front_trusted": False,
+                                               "reason": "not canonicalised",
+                                               "front_reason": "no front given: the file's +Z, not trusted"}
     assert data["hparams"]["size_ratio"] == pytest.approx(0.2)
     assert {"ctp", "torch", "trimesh", "python"} <= set(data["versions"])
     assert dt.datetime.fromisoformat(data["created_at"]).tzinfo is not None

@@ -227,8 +227,14 @@ def test_upload_follow_view_download_and_a_refused_upload(api, worker, browser, 
     faces = len(trimesh.load(io.BytesIO(target), file_type="glb", force="mesh").faces)
     info = find(By.ID, "inspect-target").text
     assert f"{faces:,} faces" in info and "file's units" in info and "up: the file's" in info, info
+    assert "glTF convention" in info and "front: the file's +z" in info, info
     colours = driver.execute_script(CANVAS_COLOURS.replace("#viewer canvas", "#preview-source canvas"), BACKGROUND)
     assert colours["differ"] > 0.02 * colours["total"], colours  # the ball is drawn
+    find(By.ID, "flip-up-target").click()  # the user flips the up: asked again with up -y, the arrows redrawn
+    wait_for(lambda: "up: -y as given" in find(By.ID, "inspect-target").text, 20, "the flipped up")
+    assert find(By.ID, "up-target").get_attribute("value") == "-y"
+    Select(find(By.ID, "up-target")).select_by_value("file")  # and back: the job runs in the file's frame
+    wait_for(lambda: "glTF convention" in find(By.ID, "inspect-target").text, 20, "the file's up again")
     find(By.ID, "drop-target").location_once_scrolled_into_view  # noqa: B018
     shoot(driver, "previews")
     find(By.ID, "prompt").send_keys("a ball on top of a table")
@@ -247,6 +253,8 @@ def test_upload_follow_view_download_and_a_refused_upload(api, worker, browser, 
     assert find(By.ID, "stage").text.lower() == "succeeded"
     quality = find(By.ID, "quality").text  # the readout, not the raw objective
     assert "'on' holds for" in quality and ("touching" in quality or "gap" in quality), quality
+    assert find(By.ID, "guide").text == "guide: random:tiny"  # the job's guide (CTP_MODEL names one: no banner)
+    assert not find(By.ID, "guide-banner").is_displayed()
     wait_for(lambda: find(By.ID, "viewer").get_attribute("data-ready"), 60, "the 3D viewer")
 
     colours = driver.execute_script(CANVAS_COLOURS, BACKGROUND)
@@ -257,6 +265,7 @@ def test_upload_follow_view_download_and_a_refused_upload(api, worker, browser, 
     assert [e.text for e in driver.find_elements(By.CSS_SELECTOR, "#parts label")][:2] == ["target", "source"]
     assert find(By.ID, "result-prompt").text == '"a ball on top of a table"'
     assert "translation" in find(By.ID, "transform").text
+    assert "chose" in find(By.ID, "transform").text  # who ordered the poses: the guide, the geometry or both
     assert driver.execute_script("return document.getElementById('preview').naturalWidth") > 0
     find(By.ID, "result").location_once_scrolled_into_view  # noqa: B018 - scrolls for the screenshot
     shoot(driver, "result-tinted")

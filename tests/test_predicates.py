@@ -317,3 +317,21 @@ def test_a_stick_stuck_into_a_block_prefers_standing_in_its_top_to_lying_sunk_al
     prefer, score = _preference(block, stick, [into_top, lying, through_base], "penetrate")
     assert predicates.holds(score).tolist() == [True, True, True], score
     assert prefer[0] < 0.1 and prefer[0] + 0.5 < prefer[1] and prefer[0] + 0.5 < prefer[2], prefer
+
+
+# "on" must mean above: a ground thin against the figure (a plate, a board, a sheet) is support from one side only,
+# the side its up-facing surface faces. (thickness, figure radius): a plate, a board, a sheet.
+THIN_GROUNDS = [(0.05, 0.3), (0.2, 1.0), (0.01, 0.5)]
+
+
+@pytest.mark.parametrize(("thickness", "radius"), THIN_GROUNDS)
+@pytest.mark.parametrize("relation", ["on", "stand", "sit", "lie"])
+def test_resting_on_a_thin_ground_needs_the_figure_above_it(thickness, radius, relation):
+    ground = box([3, thickness, 3], [0, 0, 0])
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=radius)
+    top, bottom = thickness / 2 + radius, -(thickness / 2 + radius)
+    pair = prepared(ground, ball)
+    s = predicates.relation_score(pair, poses(pair, [pose([0, top, 0]), pose([0, bottom, 0])]), relation)
+    assert predicates.holds(s).tolist() == [True, False], s
+    verdicts = [predicates.verdict(pair, pair.local_to_normalised(pose([0, y, 0])), relation) for y in (top, bottom)]
+    assert [v.holds for v in verdicts] == [True, False], verdicts

@@ -10,9 +10,10 @@ or found in two places, fails with the pages named.
 
 Two things are supplied around the text, because a test cannot do them itself: ``make install`` (these
 tests already run in the venv it built; the line is checked to be that call and nothing else) and the
-service the README starts in another terminal with ``CTP_MODEL=random:tiny make serve``, which here is
-``ctp serve`` with that setting on a free port (the only change to the commands: ``127.0.0.1:8000`` becomes
-that port, so parallel runs cannot collide).
+service the README starts in another terminal with ``make serve``, which here is ``ctp serve`` with default
+settings on a free port (the only change to the commands: ``127.0.0.1:8000`` becomes that port, so parallel
+runs cannot collide). Both run as on a fresh machine: no network, no weights (the session's Hugging Face cache
+is empty, ``tests/conftest.py``), so model ``auto`` runs them without a guide, and they say so.
 """
 
 from __future__ import annotations
@@ -78,6 +79,7 @@ def test_quick_start_align_runs_as_written(tmp_path):
     assert set(scene.geometry) == {"target", "source"}
     report = json.loads((tmp_path / "try" / "report.json").read_text())
     assert (report["hparams"]["target_name"], report["hparams"]["source_name"]) == ("table", "cup")
+    assert report["guide"] == "none" and "not in the Hugging Face cache" in report["guide_why"]  # no weights
     assert (tmp_path / "try" / "preview.png").read_bytes()[:4] == b"\x89PNG"
 
 
@@ -86,8 +88,7 @@ def test_service_walk_through_and_client_run_as_written(tmp_path):
     get_example("cup-on-table").write(tmp_path / "try")  # what the Quick start's `ctp example --dir try` wrote
     port = free_port()
     env = {**service_env("unused", "ctp"), "XDG_CACHE_HOME": str(tmp_path / "cache")}
-    del env["REDIS_URL"]
-    assert env["CTP_MODEL"] == "random:tiny"  # as in `CTP_MODEL=random:tiny make serve`
+    del env["REDIS_URL"], env["CTP_MODEL"], env["CTP_RUNTIME"]  # as in `make serve`: the default settings
     log = open(tmp_path / "serve.log", "wb")  # noqa: SIM115 - closed below
     serve = subprocess.Popen([sys.executable, "-m", "ctp", "serve", "--port", str(port)], env=env, cwd=REPO,
                              stdout=log, stderr=subprocess.STDOUT)
@@ -103,6 +104,10 @@ def test_service_walk_through_and_client_run_as_written(tmp_path):
         run = bash(block("service").replace("127.0.0.1:8000", f"127.0.0.1:{port}"), tmp_path, here)
         job = json.loads((tmp_path / "job.json").read_text())
         assert job["status"] == "queued"
+        ready = json.JSONDecoder().raw_decode(run.stdout)[0]  # the first answer: /readyz
+        assert (ready["status"], ready["guide"], ready["get_model"]) == (
+            "ready", "none", "ctp models pull openai/clip-vit-base-patch32")
+        assert '"guide":"none"' in run.stdout  # the job says it ran without a guide
         assert "event: end" in run.stdout and '"status":"succeeded"' in run.stdout
         assert '"code":"job_finished"' in run.stdout  # the last line: cancel of the ended job
         served = trimesh.load(tmp_path / "try" / "served.glb", force="scene")

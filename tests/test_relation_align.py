@@ -215,15 +215,16 @@ def test_a_ball_under_the_table_ends_under_its_middle_and_a_cup_on_it_on_its_top
 
 
 def test_a_ring_hung_on_a_peg_is_threaded_on_it_and_the_wall_keeps_its_file_up():
-    """The upright step would lay the wall on its back (a thin slab topples); what things hang on is fixed in
-    place, so it keeps its file frame, and the hang proposals (``relation_proposals.hung``) thread the ring on
+    """The geometric guess would lay the wall on its back (a thin slab topples); what things hang on is fixed in
+    place, and every object keeps its file's up unless asked (the general rule), and the hang proposals
+    (``relation_proposals.hung``) thread the ring on
     the peg, which the preference (hanging freely, plumb) then chooses over the ring flat against the wall."""
     wall, ring_ = wall_with_peg(), ring()
     config = AlignConfig.from_preset("default", loss={"lambda_clip": 0.0})  # the test preset's 3 hang proposals
     # seldom leave its few refinement steps a plumb one
     run = stages.prepare(wall, ring_, "a ring hanging on the peg", config, target_name="peg", source_name="ring")
     assert run.prior.relation == "hang" and not run.pair.target_upright.changed
-    assert "kept as authored" in run.pair.target_upright.reason
+    assert "states no up" in run.pair.target_upright.reason
     props = stages.propose(run)
     assert "hang" in props.region
     result = align(wall, ring_, "a ring hanging on the peg", config, target_name="peg", source_name="ring")
@@ -232,7 +233,10 @@ def test_a_ring_hung_on_a_peg_is_threaded_on_it_and_the_wall_keeps_its_file_up()
     # threaded: the peg (y = 1, x = 0, z from 0 to 0.4) passes through the ring's hole, its centre below the peg
     assert abs(centre[0]) < 0.05 and 0.85 < centre[1] < 0.95 and 0.0 < centre[2] < 0.4, centre
     on = stages.prepare(wall, ring_, "a ring on the peg", config, target_name="peg", source_name="ring")
-    assert on.prior.relation == "on" and on.pair.target_upright.changed  # read "on": turned to lie on its back
+    assert on.prior.relation == "on" and not on.pair.target_upright.changed  # "on" as well: the file's up
+    lying = stages.prepare(wall, ring_, "a ring on the peg", config.model_copy(update={"target_up": "auto"}),
+                           target_name="peg", source_name="ring")
+    assert lying.pair.target_upright.changed  # asked for the geometric guess: laid on its back
 
 
 @pytest.mark.parametrize(("target", "source", "expected"), [
@@ -273,3 +277,15 @@ def test_penetrate_proposals_drive_the_source_end_first_into_the_target_never_up
     entry = bottom + axis * (0.3 - bottom[1]) / axis[1]  # where its axis crosses the top's plane
     assert bottom[1] > -1e-3 and top[1] > 0.6 and axis[1] > math.cos(math.radians(30)), ends  # above the floor
     assert np.abs(entry[[0, 2]]).max() < 0.15, entry  # in through the top
+
+
+@pytest.mark.parametrize("seed", [1, 3])
+def test_a_ball_on_a_thin_board_ends_above_it_not_hanging_under_it(seed):
+    """A board thin against the ball bore it from either side: under it, "on" held at these seeds."""
+    board = trimesh.creation.box((3, 0.2, 3))
+    ball = trimesh.creation.icosphere(subdivisions=4, radius=1)
+    config = AlignConfig.from_preset("default", loss={"lambda_clip": 0.0}, seed=seed)
+    result = align(board, ball, "a ball on the board", config, target_name="board", source_name="ball")
+    low = trimesh.transform_points(ball.vertices, result.source_to_target)[:, 1].min()
+    assert result.relation["name"] == "on" and result.relation["holds"], result.relation
+    assert low >= 0.1 - 0.05, low  # the board's top is at y = 0.1

@@ -8,7 +8,7 @@ import pytest
 import torch
 import trimesh
 
-from ctp_core import goals, metrics, objective, pose, proposals, ranking, scene, schedule
+from ctp_core import export, goals, metrics, objective, pose, proposals, ranking, scene, schedule
 from ctp_core.align import align, prepare, propose, refine
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
@@ -550,3 +550,25 @@ def test_progress_reads_the_relation_the_guide_and_the_gap(pairs, monkeypatch):
     steps = [e for e in refined if e.kind in ("step", "phase_end")]
     assert steps and all(e.relation == "on" and e.relation_checked == len(ranked.poses) for e in steps)
     assert all(-1 <= e.guide_match <= 1 and 0 <= e.contact_gap < 0.2 for e in steps)
+
+
+@pytest.mark.parametrize(("gate", "chose"), [(objective.Gate(0.0, 1.0), "geometry"), (objective.Gate(2.5, 1.0), "both"),
+                                             (objective.Gate(1.0, 0.0), "guide")])
+def test_the_report_and_the_progress_say_who_chose_among_the_poses_that_hold(pairs, monkeypatch, gate, chose):
+    """The guide's say as the search measured it (``objective.Gate``) reaches the search's progress message and
+    the report: who ordered the poses where the relation holds, and why, in one line."""
+    monkeypatch.setattr(ranking, "guide_noise", lambda *args: gate)
+    events = []
+    result = align(*pairs["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box",
+                   on_event=events.append)
+    said = export.report(result)["guide_say"]
+    assert said["chose"] == chose and said["override"] == round(gate.override, 3)
+    assert said["summary"].endswith({"geometry": "the geometry chose", "guide": "the guide chose",
+                                     "both": "the usual arrangement weighing 0.50"}[chose])
+    assert said["summary"] in [e.message for e in events if e.stage == "search"][-1]
+
+
+def test_a_run_without_a_guide_reports_no_say(pairs):
+    config = CONFIG.model_copy(update={"loss": CONFIG.loss.model_copy(update={"lambda_clip": 0.0})})
+    result = align(*pairs["box on table"], "a box on the table", config, target_name="table", source_name="box")
+    assert export.report(result)["guide_say"] is None

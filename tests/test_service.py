@@ -193,8 +193,9 @@ BAD_INPUTS = {
 
 
 def test_inspect_reads_one_mesh_as_a_job_would(api):
-    """``POST /inspect``: the size in the file's units, the faces, and the up the service will use (a cone
-    standing on its tip, upside down in the file, is turned over; a box is kept as authored); nothing is queued."""
+    """``POST /inspect``: the size in the file's units, the faces, and the up and front a job will use (a PLY
+    states no up: a cone standing on its tip, upside down in the file, keeps the file's +Y by the stated rule, and
+    ``up: auto`` turns it over, as ``-y`` does; a GLB box keeps glTF's +Y up and +Z front); nothing is queued."""
     cone = trimesh.creation.cone(radius=0.05, height=0.3, sections=24)  # its tip up the file's z
     cone.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))  # tip down the file's -y
     answer = api.client.post("/inspect", files={"mesh": ("cone.ply", cone.export(file_type="ply"))})
@@ -202,10 +203,19 @@ def test_inspect_reads_one_mesh_as_a_job_would(api):
     seen = answer.json()
     assert (seen["file"], seen["faces"], seen["vertices"]) == ("cone.ply", len(cone.faces), len(cone.vertices))
     np.testing.assert_allclose(seen["extents"], cone.extents, rtol=1e-5)
-    assert seen["size"] == pytest.approx(0.3, rel=1e-5) and seen["turned"], seen
-    assert seen["up"] == pytest.approx([0, -1, 0], abs=1e-3) and seen["reason"]
+    assert seen["size"] == pytest.approx(0.3, rel=1e-5) and not seen["turned"], seen
+    assert seen["up"] == pytest.approx([0, 1, 0]) and "PLY states no up" in seen["reason"]
+    assert not seen["front_trusted"] and seen["front_reason"]
+    for up in ("auto", "-y"):
+        turned = api.client.post("/inspect", files={"mesh": ("cone.ply", cone.export(file_type="ply"))},
+                                 data={"up": up}).json()
+        assert turned["turned"] and turned["up"] == pytest.approx([0, -1, 0], abs=1e-3), turned
     box = api.client.post("/inspect", files={"mesh": ("box.glb", BOX)}).json()
     assert not box["turned"] and box["up"] == pytest.approx([0, 1, 0]) and box["faces"] == 12
+    assert box["front"] == pytest.approx([0, 0, 1]) and "glTF" in box["reason"]
+    for bad in ({"up": "upward"}, {"up": "+y", "front": "-y"}):
+        refused = api.client.post("/inspect", files={"mesh": ("box.glb", BOX)}, data=bad)
+        assert (refused.status_code, refused.json()["error"]["code"]) == (422, "invalid_field"), refused.text
 
     from service.client import Client, ServiceError
 
@@ -329,7 +339,8 @@ def test_readyz_lists_the_models_a_worker_can_run(api, worker):
     answer = api.client.get("/readyz")
     assert answer.status_code == 200
     assert answer.json() == {"status": "ready", "redis": True, "workers": 1, "models": ["random:tiny"],
-                             "queues": {"default": ["random:tiny"]}, "since_s": None}
+                             "queues": {"default": ["random:tiny"]}, "since_s": None, "guide": "random:tiny",
+                             "why": "named by CTP_MODEL", "get_model": None}
 
 
 def test_end_to_end_with_progress_events(api, worker):

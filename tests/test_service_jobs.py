@@ -4,8 +4,10 @@ the service relies on (cancel vs pickup, reaper vs a live worker) and the TTL bo
 from __future__ import annotations
 
 import os
+import threading
 import time
 import uuid
+from concurrent.futures import ThreadPoolExecutor
 from types import SimpleNamespace
 
 import pytest
@@ -253,7 +255,8 @@ def test_settings_read_comma_lists_and_redis_url(monkeypatch):
     settings = Settings()
     assert settings.redis_url == "redis://h:1/2"
     assert settings.api_keys == ["a", "b", "c"]
-    assert settings.allowed_models == [settings.model, "random:tiny"]
+    # auto, the default, allows the default CLIP model too: what jobs that ask for guidance get
+    assert settings.allowed_models == ["auto", "hf:openai/clip-vit-base-patch32", "random:tiny"]
     assert (settings.key_prefix, settings.served_queues, settings.storage_backend) == ("ctp", ["default"], "redis")
 
 
@@ -353,3 +356,39 @@ def test_a_job_stops_once_its_record_is_gone_or_it_is_not_running(jobs):
     assert jobs.should_stop(record.id)  # queued: not started by this worker
     jobs.redis.delete(jobs.record_key(record.id))
     assert jobs.should_stop(record.id)  # expired
+
+
+def test_concurrent_submits_admit_exactly_the_limit(jobs):
+    """Many threads submitting at once for one key, several times over: the limit is never exceeded (nor
+    under-filled), since admission is one atomic step in Redis."""
+    limit, racers = 4, 16
+
+    def race(owner: str, start: threading.Barrier) -> JobRecord | TooManyJobs:
+        start.wait()
+        try:
+            return queued(jobs, owner=owner, max_active=limit)
+        except TooManyJobs as exc:
+            return exc
+
+    for trial in range(5):
+        with ThreadPoolExecutor(racers) as pool:
+            results = list(pool.map(race, [f"racer-{trial}"] * racers, [threading.Barrier(racers)] * racers))
+        admitted = [r for r in results if isinstance(r, JobRecord)]
+        assert len(admitted) == limit
+        assert jobs.redis.scard(f"{jobs.prefix}:active:racer-{trial}") == limit
+        assert all(r.retry_after_s == 60 for r in results if isinstance(r, TooManyJobs))  # none has an ETA yet
+
+
+def test_a_refused_submit_says_when_a_slot_is_likely_free(jobs):
+    """Retry-After of a 429: the soonest estimate of the key's running jobs, rounded up, within 1 to 60 s."""
+    first, _ = queued(jobs, max_active=2), queued(jobs, max_active=2)
+    with pytest.raises(TooManyJobs) as none_running:
+        queued(jobs, max_active=2)
+    assert none_running.value.retry_after_s == 60  # nothing has an estimate yet
+    jobs.start(first.id, "w1")
+    jobs.set_progress(first.id, Progress(kind="step", eta_s=7.2))
+    with pytest.raises(TooManyJobs) as soon:
+        queued(jobs, max_active=2)
+    assert soon.value.retry_after_s == 8
+    jobs.set_progress(first.id, Progress(kind="step", eta_s=0.1))
+    assert jobs.retry_after("me") == 1

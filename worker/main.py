@@ -188,11 +188,13 @@ def where(settings: Settings) -> dict[str, Any]:
 def _preload(settings: Settings) -> dict[str, str | None]:
     """Load the default model once for the life of the process and look for the weights of the other
     models the service allows; returns ``{spec: None when this worker can run it, else why not}``, which
-    the heartbeat publishes so that the API refuses jobs no worker can run (``Jobs.unavailable``)."""
+    the heartbeat publishes so that the API refuses jobs no worker can run (``Jobs.unavailable``). Under
+    ``auto`` every worker runs the default jobs (with or without a guide), and what it loads is what auto picks
+    now (``guide_choice.choose``; each job chooses again as it is taken)."""
     import torch
 
-    from ctp_core import weights
-    from ctp_core.config import AlignConfig
+    from ctp_core import guide_choice, weights
+    from ctp_core.config import AUTO, AlignConfig
     from ctp_core.errors import ModelError
     from ctp_core.guidance import guide_for
 
@@ -200,17 +202,23 @@ def _preload(settings: Settings) -> dict[str, str | None]:
         torch.set_num_threads(settings.threads)
     started = time.perf_counter()
     models = {spec: weights.missing(spec) for spec in settings.allowed_models}
+    # auto runs every job (without a guide where the default model is missing): preload what it picks now
+    choice = guide_choice.choose() if settings.model == AUTO else None
+    preload = choice.guide if choice else settings.model
+    if choice and preload == guide_choice.NONE:
+        log.warning("no guide: %s (%s)", choice.why, choice.get_model)
+        return models
     # The guide of a job with default options on this worker (the same cache entry its jobs get). Built
     # unvalidated: the guide depends only on these fields, and a forward-only default model refuses the
     # configuration's class defaults (which descend the guide), options it would never be asked to run.
-    default_job = AlignConfig.model_construct(model=settings.model, **where(settings))
+    default_job = AlignConfig.model_construct(model=preload, **where(settings))
     try:
         guide = guide_for(default_job)
     except ModelError as exc:
         log.error("default model unavailable: %s", exc.message)
-        models[settings.model] = exc.message
+        models[preload] = exc.message
     else:
-        log.info("model %s loaded in %.1f s (forward-only runtime %s)", settings.model, time.perf_counter() - started,
+        log.info("model %s loaded in %.1f s (forward-only runtime %s)", preload, time.perf_counter() - started,
                  guide.runtime)
-        models[settings.model] = None
+        models[preload] = None
     return models

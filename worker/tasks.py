@@ -21,10 +21,11 @@ import numpy as np
 import trimesh
 from rq.timeouts import JobTimeoutException
 
+from ctp_core import guide_choice
 from ctp_core.adjust import adjust, read_back
 from ctp_core.align import align
 from ctp_core.assemble import Step, assemble
-from ctp_core.config import AlignConfig
+from ctp_core.config import AUTO, AlignConfig
 from ctp_core.errors import Canceled, ConfigError, CtpError, JobTooLarge, forget, out_of_memory
 from ctp_core.export import (
     adjusted_report,
@@ -37,6 +38,7 @@ from ctp_core.export import (
     strip_png,
 )
 from ctp_core.guidance import guide_for
+from ctp_core.guide_choice import GuideChoice
 from ctp_core.io import MeshLimits, load_image, load_objects
 from ctp_core.loader import MeshLoader
 from ctp_core.progress import ProgressEvent
@@ -67,21 +69,35 @@ _MILESTONES = {"phase_start", "phase_end", "done"}
 @dataclass(frozen=True)
 class JobContext:
     """What a job runs with on this worker besides its record: the bounded loader under the service limits,
-    and the callbacks to the job's record (progress, cancel)."""
+    the callbacks to the job's record (progress, cancel) and the guide chosen for it."""
 
     loader: MeshLoader
     limits: MeshLimits
     on_progress: Callable[[Progress, bool], None]
     should_cancel: Callable[[], bool]
+    choice: GuideChoice | None = None  # model auto's pick for this job (``job_guide``); None: chosen by the engine
 
     def load(self, data: bytes | None, filename: str) -> trimesh.Trimesh:
         """An upload, loaded in a loading process exactly as the API checked it."""
         return self.loader.load(data, filename=filename, limits=self.limits)
 
-    def guide(self, config: AlignConfig, stage: Stage):
-        """The job's guidance model (process-cached: the one the worker preloaded is not loaded again)."""
+    def guide(self, config: AlignConfig, stage: Stage, image: bool = False):
+        """The job's guidance model (process-cached: the one the worker preloaded is not loaded again), None when
+        the run uses none (``guide_choice.resolve``)."""
+        config = guide_choice.resolve(config, image=image, choice=self.choice)[0]
+        if not config.uses_model:
+            return None
         self.on_progress(Progress(stage=stage, kind="model", message=f"loading model {config.model}"), True)
         return guide_for(config)
+
+
+def job_guide(record: JobRecord) -> tuple[GuideChoice | None, GuideChoice]:
+    """Model auto's pick for a job, made once as a worker takes it (None: the job names its model), and the guide
+    the job states (its record's): an assembly's is its first guided stage's."""
+    auto = guide_choice.choose() if record.config.model == AUTO else None
+    runs = [(s.config, s.has_image) for s in record.steps] or [(record.config, record.has_image)]
+    stated = [guide_choice.resolve(config, image=image, choice=auto)[1] for config, image in runs]
+    return auto, next((c for c in stated if c.guide != guide_choice.NONE), stated[0])
 
 
 def served(record: JobRecord, settings: Settings) -> JobRecord:
@@ -131,11 +147,14 @@ def run_job(job_id: str) -> str:
     try:
         with job_memory(ctx.settings.job_memory_mb) as budget_mb:
             record = served(record, ctx.settings)
+            auto, stated = job_guide(record)
+            ctx.jobs.set_guide(job_id, stated.guide, stated.why)
             inputs = {name: ctx.jobs.storage.get(job_id, name) for name in record.inputs()}
             if inputs["target"] is None or inputs.get("source", inputs.get("source-0")) is None:
                 raise CtpError("the job's uploads expired before a worker picked it up", code="inputs_expired")
             job = JobContext(loader=ctx.loader, limits=ctx.settings.mesh_limits, on_progress=on_progress,
-                             should_cancel=lambda: ctx.stopping.is_set() or ctx.jobs.should_stop(job_id, ctx.name))
+                             should_cancel=lambda: ctx.stopping.is_set() or ctx.jobs.should_stop(job_id, ctx.name),
+                             choice=auto)
             files, alternatives = (assemble_job if record.kind == "assemble" else align_job)(record, inputs, job)
             for name, data in files.items():
                 ctx.jobs.storage.put(job_id, name, data)
@@ -340,13 +359,14 @@ def align_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobContex
         target = job.load(inputs["target"], record.target_file)
     source = job.load(inputs["source"], record.source_file)
     image = load_image(inputs["image"]) if inputs.get("image") is not None else None
-    guide = job.guide(config, Stage(name="model")) if config.uses_model else None
+    guide = job.guide(config, Stage(name="model"), image is not None)
 
     def on_event(event: ProgressEvent) -> None:
         job.on_progress(progress_of(event), event.kind in _MILESTONES)
 
     result = align(target, source, record.prompt, config, on=record.on, image=image, target_name=record.target_name,
-                   source_name=record.source_name, guide=guide, on_event=on_event, should_cancel=job.should_cancel)
+                   source_name=record.source_name, guide=guide, on_event=on_event, should_cancel=job.should_cancel,
+                   choice=job.choice)
     job.on_progress(_exporting(config, objective=result.objective, restarts=len(result.restarts)), True)
     files = _results(scene_glb(result, source_name=record.source_name), report(result), result.preview)
     for k in range(1, len(result.alternatives)):  # the answer's is result.glb
@@ -375,7 +395,8 @@ def assemble_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobCon
                   config=s.config,
                   image=load_image(inputs[f"image-{i}"]) if inputs.get(f"image-{i}") is not None else None)
              for i, s in enumerate(record.steps)]
-    guide = job.guide(config, Stage(name="model", count=count)) if any(s.config.uses_model for s in steps) else None
+    model = Stage(name="model", count=count)
+    guide = next((g for s in steps if (g := job.guide(s.config, model, s.image is not None)) is not None), None)
     current = Stage(name="search", count=count)
 
     def on_step(index: int, total: int, step: Step) -> None:
@@ -387,7 +408,7 @@ def assemble_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobCon
 
     try:
         assembly = assemble(base, steps, config, base_name=record.target_name, guide=guide, on_event=on_event,
-                            on_step=on_step, should_cancel=job.should_cancel)
+                            on_step=on_step, should_cancel=job.should_cancel, choice=job.choice)
     except (CtpError, JobTimeoutException):
         raise  # the library names the stage of its own errors
     except Exception as exc:

@@ -32,7 +32,7 @@ from ctp_core import metrics, predicates, priors, sampling
 from ctp_core.bench import baselines, protocol
 from ctp_core.bench.cases import Case
 from ctp_core.bench.guides import GUIDES, GuideInputs, PixelGuide, SelectionScore, guide_inputs
-from ctp_core.config import AlignConfig
+from ctp_core.config import DEFAULT_MODEL, AlignConfig
 from ctp_core.errors import ConfigError
 
 GUIDED = ("ctp", "b2")  # methods that see the guide
@@ -63,7 +63,7 @@ class BenchOptions:
     inits: int = 1
     seed: int = 0
     preset: str = "default"
-    model: str | None = None  # ctp's (and b2's) encoder; None: the preset's
+    model: str | None = None  # ctp's (and b2's) encoder; None: the default model (config.DEFAULT_MODEL)
     guide: str = "text"
     metrics_models: list[str] = field(default_factory=list)
     ablation: str | None = None
@@ -90,8 +90,7 @@ class BenchOptions:
         preset, overrides = ABLATIONS[self.ablation] if self.ablation else (None, {})
         top = {"seed": self.seed, "device": self.device, "threads": self.threads, "runtime": self.runtime,
                "scale": self.protocol == "scale"}
-        if self.model:
-            top["model"] = self.model
+        top["model"] = self.model or DEFAULT_MODEL  # a benchmark names its encoder: never auto's per-machine pick
         config = AlignConfig.from_preset(preset or self.preset, **{k: v for k, v in top.items() if v is not None},
                                          **overrides)
         if method == "geometry":
@@ -145,31 +144,38 @@ class _CaseData:
 
 
 def _judge(data: _CaseData) -> tuple:
-    """What the relation metrics judge every method's answer by: the pair prepared as ``align`` prepares it (the
-    geometric upright turn) and the relation the priors read from the case's prompt (the rules provider), not the
-    case's coarse ``relation`` label: the label's vocabulary ("on_top", "attached", "other") is the benchmark's,
-    it does not say whether the source is the figure, and the priors' relation is what a run would use."""
+    """What the relation metrics judge every method's answer by: the pair in the *reference's* frame (the case's
+    files as they are, +Y up: glTF's convention, in which the case's reference is authored), never turned as a run
+    may turn it, so a run that took the wrong up fails here instead of holding on its own turned pair; and the
+    relation the priors read from the case's prompt (the rules provider), not the case's coarse ``relation`` label:
+    the label's vocabulary ("on_top", "attached", "other") is the benchmark's, it does not say whether the source
+    is the figure, and the priors' relation is what a run would use."""
     if data.judge is None:
-        from ctp_core import scene
+        from ctp_core import orientation, scene
 
         case, target, source = data.case, data.target, data.source
         prior = priors.resolve_priors(priors.get_provider("rules"), case.target_name, case.source_name, case.prompt,
                                       target_extent=float(target.extents.max()),
                                       source_extent=float(source.extents.max()))
-        pair = scene.prepare_pair(target, source, samples=RELATION_SAMPLES, seed=0)
-        data.judge = (pair, prior.relation, prior.source_is_figure)
+        frame = orientation.orient(target, orientation.Axes("+y"))  # the front: the file's convention (glTF's +Z)
+        frame.reason = "the case's frame (the reference's): the file's +Y up"
+        pair = scene.prepare_pair(target, source, samples=RELATION_SAMPLES, seed=0, target_up=frame)
+        data.judge = (pair, prior.relation, prior.source_is_figure, prior.penetration)
     return data.judge
 
 
-def relation_metrics(data: _CaseData, pose: np.ndarray) -> dict:
-    """``relation`` (the priors' relation or None), ``relation_score``, ``relation_holds`` and ``stable`` (None
-    where the relation is unknown, or for ``stable`` not a resting one: ``predicates.STABLE_RELATIONS``)."""
-    pair, relation, figure = _judge(data)
+def relation_metrics(data: _CaseData, pose: np.ndarray, iou: float) -> dict:
+    """``relation`` (the priors' relation or None), ``relation_score``, ``relation_holds``, ``stable`` (None
+    where the relation is unknown, or for ``stable`` not a resting one: ``predicates.STABLE_RELATIONS``) and
+    ``valid``: the relation holds, stable where that applies, and (unless the relation goes into the target)
+    the intersection ratio ``iou`` at most ``metrics.PLACEMENT_IOU``; None without a relation."""
+    pair, relation, figure, penetrates = _judge(data)
     verdict = predicates.verdict(pair, pair.local_to_normalised(pose), relation, figure)
     if verdict is None:
-        return {"relation": None, "relation_score": None, "relation_holds": None, "stable": None}
+        return {"relation": None, "relation_score": None, "relation_holds": None, "stable": None, "valid": None}
+    valid = verdict.holds and verdict.stable is not False and (penetrates or iou <= metrics.PLACEMENT_IOU)
     return {"relation": verdict.name, "relation_score": verdict.score, "relation_holds": verdict.holds,
-            "stable": verdict.stable}
+            "stable": verdict.stable, "valid": bool(valid)}
 
 
 def _metric_encoders(specs: Iterable[str], prompt: str, config: AlignConfig) -> tuple[list, dict[str, str]]:
@@ -188,24 +194,35 @@ def _metric_encoders(specs: Iterable[str], prompt: str, config: AlignConfig) -> 
     return loaded, notes
 
 
-def evaluate(data: _CaseData, pose: np.ndarray) -> dict:
-    """Every metric of one final pose (source file -> target file)."""
+def evaluate(data: _CaseData, pose: np.ndarray, alternatives: list[np.ndarray] = ()) -> dict:
+    """Every metric of one final pose (source file -> target file); ``alternatives``: the run's other distinct
+    placements (``AlignResult.alternatives``, the answer first) for ``placement_at_k`` (any of them places)."""
     from ctp_core import scene
 
     placed = data.source.copy()
     placed.apply_transform(pose)
     out = metrics.intersection_over_union(data.target, placed).to_dict()
     out["contact"] = metrics.contact_distance(data.target, placed)
-    out.update(relation_metrics(data, pose))
+    out.update(relation_metrics(data, pose, out["iou"]))
     if data.case.reference is not None:
         out.update(metrics.pose_errors(data.points, pose, data.case.reference))
         out["placement_success"] = metrics.placement_success(out["centroid_error"], out["iou"])
+        out["placement_at_k"] = out["placement_success"] or any(_places(data, other) for other in alternatives[1:])
+        out["alternatives"] = max(len(alternatives), 1)
     semantic = {}
     if data.semantic:
         images = scene.render_arrangement(data.target, data.source, pose, views=EVAL_VIEWS, image_size=224)
         semantic = {spec: metrics.semantic_score(images, text, guide) for spec, guide, text in data.semantic}
     out["semantic"] = semantic
     return out
+
+
+def _places(data: _CaseData, pose: np.ndarray) -> bool:
+    """Whether ``pose`` is a placement success against the case's reference (``metrics.placement_success``)."""
+    placed = data.source.copy()
+    placed.apply_transform(pose)
+    errors = metrics.pose_errors(data.points, pose, data.case.reference)
+    return metrics.placement_success(errors["centroid_error"], metrics.intersection_over_union(data.target, placed).iou)
 
 
 def _run_align(method: str, init: np.ndarray, index: int, data: _CaseData, options: BenchOptions) -> dict:
@@ -221,6 +238,7 @@ def _run_align(method: str, init: np.ndarray, index: int, data: _CaseData, optio
                    target_name=data.case.target_name, source_name=data.case.source_name)
     return {"source_to_target": result.source_to_target, "time_s": time.perf_counter() - started,
             "clip_images": int(result.clip_images), "timings": result.timings,
+            "alternatives": [np.asarray(a["source_to_target"]) for a in result.alternatives],
             "extra": {"best_restart": result.best_restart, "guidance": result.guided_by,
                       "hparams": priors.to_report(result.priors)}}
 
@@ -285,7 +303,8 @@ def case_rows(case: Case, options: BenchOptions, skip: frozenset = frozenset()) 
             row["guide_description"] = data.guide.description
         try:
             info = RUNNERS[method](method, data.inits[i], i, data, options)
-            row.update(status="ok", **info, metrics=evaluate(data, info["source_to_target"]))
+            alternatives = info.pop("alternatives", [])
+            row.update(status="ok", **info, metrics=evaluate(data, info["source_to_target"], alternatives))
         except Exception as exc:  # one failing case must not end a long benchmark; the row records it
             traceback.print_exc(file=sys.stderr)
             row.update(status="error", error=f"{type(exc).__name__}: {exc}")

@@ -66,7 +66,8 @@ def _encoders(rows: list[dict]) -> list[str]:
 def table(rows: list[dict]) -> str:
     """The Markdown table: per variant, mean / median of every metric over its ok rows."""
     specs = _encoders(rows)
-    head = ["variant", "ok/runs", "success", "placement", "relation holds", "stable", "ADD-S", "rot err °",
+    head = ["variant", "ok/runs", "success", "placement", "placement@k", "relation holds", "stable", "valid",
+            "ADD-S", "rot err °",
             "trans err", "IoU", "contact",
             *[f"semantic {s}" for s in specs], "time s", "CLIP images"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -77,10 +78,12 @@ def table(rows: list[dict]) -> str:
         # None: no relation read from the prompt (or, for stable, not a resting one); rows before them lack the keys
         related = [r["metrics"]["relation_holds"] for r in ok if r["metrics"].get("relation_holds") is not None]
         steady = [r["metrics"]["stable"] for r in ok if r["metrics"].get("stable") is not None]
+        at_k = [r["metrics"]["placement_at_k"] for r in ok if "placement_at_k" in r["metrics"]]
+        valid = [r["metrics"]["valid"] for r in ok if r["metrics"].get("valid") is not None]
         clip = np.array([r.get("clip_images", 0) for r in ok], dtype=float)
         cells = [
             name, f"{len(ok)}/{len(group)}",
-            _rate(success), _rate(placed), _rate(related), _rate(steady),
+            _rate(success), _rate(placed), _rate(at_k), _rate(related), _rate(steady), _rate(valid),
             _mean_median(_values(group, "adds")), _mean_median(_values(group, "rotation_error_deg"), 1),
             _mean_median(_values(group, "translation_error")), _mean_median(_values(group, "iou"), 4),
             _mean_median(_values(group, "contact"), 4), *[_mean_median(_semantic(group, s), 4) for s in specs],
@@ -189,7 +192,9 @@ def _save(fig, path: Path) -> None:
 
 def _notes(rows: list[dict]) -> list[str]:
     notes = []
-    guides = sorted({(r["guide"], r["encoder"], r.get("guide_description")) for r in rows if r.get("guide")})
+    # a skipped case has no guide description (None): sort as text so that it never costs the run its summary
+    guides = sorted({(r["guide"], r["encoder"], r.get("guide_description")) for r in rows if r.get("guide")},
+                    key=lambda g: tuple(str(v) for v in g))
     for guide, encoder, description in guides:
         notes.append(f"guide `{guide}` with encoder `{encoder}` ({description})")
     if any(r["method"] == "geometry" or (r["method"] == "ctp" and not r.get("guide")) for r in rows):
@@ -227,9 +232,12 @@ def write_summary(rows: list[dict], out: Path, commands: list[str] = ()) -> Path
     parts += [f"{len(cases)} cases, {len(rows)} runs. Cells are mean / median over runs; success is "
               f"ADD-S ≤ {SUCCESS_ADDS} (cases with a reference only); placement is the centroid "
               f"within {PLACEMENT_RADIUS} source diagonals of the reference and IoU ≤ {PLACEMENT_IOU}; "
+              "placement@k is any of the run's alternatives (the answer first) placed so; "
               "relation holds is the answer judged by the relation the priors read from the prompt "
-              "(ctp_core/predicates.py, docs/relations.md), stable its centre of mass over its support (resting "
-              "relations only), each over the runs where it applies; "
+              "(ctp_core/predicates.py, docs/relations.md) in the reference's frame (the case's files as they are, "
+              "never turned as a run may turn them), stable its centre of mass over its support (resting "
+              "relations only), valid the relation holding, stable where that applies and IoU ≤ "
+              f"{PLACEMENT_IOU} (unless the relation goes into the target), each over the runs where it applies; "
               "pose errors are relative to the source "
               "diagonal; contact is the closest surface distance over the target's longest side.", "",
               table(rows), "", "## Per case: ADD-S (IoU)", "", per_case(rows), "", "## Notes", ""]

@@ -311,6 +311,19 @@ def names_next(prompt: str, cue_end: int, mention_at: list[int]) -> bool:
     return bool({start for start, _ in _object_of(prompt, cue_end, most=99)} & set(mention_at))
 
 
+def about_another(prompt: str, cue_end: int, mention_at: list[int]) -> bool:
+    """Whether the cue's object is a third thing: a noun phrase that mentions neither object, where the prompt
+    mentions them elsewhere ("a cup on the table to the left of the plate": left of the plate, on the table); a
+    pronoun ("behind it") is about them."""
+    if not mention_at or _PRONOUN.match(prompt.lower(), cue_end):
+        return False
+    phrase = _object_of(prompt, cue_end)
+    return bool(phrase) and not {start for start, _ in phrase} & set(mention_at)
+
+
+_PRONOUN = re.compile(r"\s+(?:it|them|him|her|each other|one another)(?![a-z])")
+
+
 def other_container(prompt: str, cue_end: int, mention_at: list[int]) -> bool:
     """Whether the cue leads into a third object, a container neither name mentions and no container "of" what
     fills it ("a candle in a bucket on the table": the candle is in the bucket, the bucket on the table)."""

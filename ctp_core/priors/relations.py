@@ -9,6 +9,10 @@ which role it plays ("Pinocchio wearing a hat" and "a hat on Pinocchio" both mak
 Cues are matched as whole words (``in`` never matches inside "pinocchio" or "dining"), the most
 specific cue wins (``CUES`` is in priority order: "holding a carrot in his hand" is holding, not in),
 and ties go to the earliest cue.
+
+A reading may say two things ("in front of the sofa, facing it"): a position and an orientation, named together
+as ``front+facing`` (``JOIN``; ``parts`` splits them) and judged both. ``side_of`` gives the side of the ground
+a reading puts the figure on (the target's own frame: ``predicates``).
 """
 
 from __future__ import annotations
@@ -25,9 +29,10 @@ class Relation:
     lock goes into the keyhole), "if_pointed" ("in"/"through": an arrow in a target yes, a spoon in a
     cup no) or "no". ``figure_size``: the figure's size over the ground's when the lexicon does not
     know one of them; what sits on, in or hangs from something is usually the smaller of the two.
-    ``mounted``: the ground is usually fixed in place (a wall, a peg, a hook, a ceiling): how it would rest as a
-    free object says nothing about its up, so the upright step keeps its file frame (a wall with a peg, turned to
-    lie on its back, has no peg to hang from).
+    ``kind``: ``contact`` (the figure touches or rests on its ground: the relations above), ``side`` (beside the
+    ground on one of its sides, in its own frame: ``front``, ``behind``, ``left``, ``right``), ``vertical``
+    (``above``, ``below``: a gap, no contact), ``distance`` (``near``, ``far``) or ``orientation`` (which way the
+    figure's front points: ``facing``, ``facing_away``, ``aligned``; said alone or after a position).
     """
 
     name: str
@@ -35,7 +40,7 @@ class Relation:
     ground_contact: float
     figure_size: float
     penetration: str = "no"
-    mounted: bool = False
+    kind: str = "contact"
 
 
 RELATIONS: dict[str, Relation] = {r.name: r for r in (
@@ -47,13 +52,33 @@ RELATIONS: dict[str, Relation] = {r.name: r for r in (
     Relation("stand", 0.05, 0.02, 0.3),             # feet or a foot only
     Relation("wrap", 0.6, 0.2, 0.3),                # coiled or tied around
     Relation("lean", 0.05, 0.02, 0.8),              # an end or an edge
-    Relation("hang", 0.05, 0.02, 0.2, mounted=True),  # a loop on a hook
+    Relation("hang", 0.05, 0.02, 0.2),              # a loop on a hook
     Relation("attach", 0.3, 0.05, 0.2),             # glued, taped, mounted: a face or a foot
     Relation("under", 0.0, 0.05, 0.5),              # "a ball under the table" does not touch it
     Relation("beside", 0.0, 0.0, 1.0),              # next to, behind, in front of: no contact
     Relation("in", 0.25, 0.15, 0.5, "if_pointed"),  # contained: the bottom and some of the walls
     Relation("on", 0.15, 0.05, 0.3),                # resting on: its base
+    # where, without contact: beside the ground on one of its sides, above or below it, near or far from it
+    *(Relation(side, 0.0, 0.0, 1.0, kind="side") for side in ("front", "behind", "left", "right")),
+    Relation("above", 0.0, 0.0, 0.5, kind="vertical"),   # a painting above a sofa, a lamp over a table
+    Relation("below", 0.0, 0.0, 0.5, kind="vertical"),
+    Relation("near", 0.0, 0.0, 1.0, kind="distance"),
+    Relation("far", 0.0, 0.0, 1.0, kind="distance"),
+    # which way the figure's front points, relative to the ground
+    *(Relation(name, 0.0, 0.0, 1.0, kind="orientation") for name in ("facing", "facing_away", "aligned")),
 )}
+PLACING = {"contact", "side", "vertical", "distance"}  # the kinds that say where the figure is
+JOIN = "+"  # a reading of a position and an orientation: "front+facing"
+
+
+def parts(name: str | None) -> tuple[str, ...]:
+    """The relations a reading names (``front+facing``: both); () for None."""
+    return tuple(name.split(JOIN)) if name else ()
+
+
+def side_of(name: str | None) -> str | None:
+    """The side of the ground the reading puts the figure on (``front``, ``behind``, ``left``, ``right``), if any."""
+    return next((p for p in parts(name) if p in RELATIONS and RELATIONS[p].kind == "side"), None)
 
 
 @dataclass(frozen=True)
@@ -66,6 +91,21 @@ class Cue:
 _HEAD = r"(?:the |his |her |its |their |a |an )?(?:[a-z]+\s+){0,2}heads?"
 _BODY = r"(?:hands?|paws?|mouths?|arms?|grip|beak|claws?|fingers?|teeth)"
 _POSS = r"(?:his|her|its|their|the|a|one)"
+
+
+def _side(words: str, before: str = "to|on|at|by", bare: str = "[ _]", of: str = "(?: of)?") -> str:
+    """A side's wordings: "to the left of", "on its left", "at the left-hand end of", "left of", "left_of" (``bare``:
+    what joins the side and "of" with no preposition before; ``of``: after a preposition). Not after a verb of
+    fastening: "attached to the front of a bicycle", "strapped to the back of a scooter" are on it."""
+    return (_FASTENED + r"(?:(?:" + before + r") (?:the |its |his |her |their )?" + words
+            + r"(?:[- ]hand)?(?: side| end)?" + of + "|" + words + r"(?:[- ]hand)?(?: side)?" + bare + "of)")
+
+
+_FASTENED = "".join(f"(?<!{verb} )" for verb in ("attached", "strapped", "hitched", "fixed", "mounted", "clipped",
+                                                 "tied", "bolted", "fastened", "glued", "taped", "pinned", "stuck",
+                                                 "chained", "secured", "nailed", "screwed"))
+
+
 # How far or how firmly, between a verb and its preposition: "stuck halfway through", "pushed deep into".
 _ADV = r"(?:(?:halfway|half way|partway|part way|deep|deeply|firmly|straight|right|upright|securely|all the way) )?"
 
@@ -93,6 +133,26 @@ CUES: list[Cue] = [
     Cue(r"hold(?:s|ing)?|carr(?:y|ies|ying)|grasp(?:s|ing)?|grip(?:s|ping)?|clutch(?:es|ing)?|wield(?:s|ing)?"
         r"|brandish(?:es|ing)?|play(?:s|ing)|hug(?:s|ging)?|eat(?:s|ing)|bit(?:e|es|ing)|sting(?:s|ing)?",
         "hold", True),
+    # where, in the ground's own frame, before the contact words they contain ("on the left side of" is left, not
+    # on; "sitting in front of" is front); the wordings of SpatialSense, Sr3D, Holodeck and LayoutVLM
+    Cue(_side("left"), "left"),
+    Cue(_side("right"), "right"),
+    # "on the front of", "on the back of a horse": on it
+    # "by the front door", "at the front of the desk" (its front edge), "strapped to his back": no side
+    Cue(r"in front(?: of)?|opposite|across from|" + _side("front", "to|by", "_", " of"), "front"),
+    Cue(r"behind|in back of|" + _side("(?:back|rear)", "to|at|by", "_", " of"), "behind"),
+    Cue(r"fac(?:e|es|ing) away(?: from)?|turned away from|look(?:s|ing)? away from|point(?:s|ing)? away from"
+        r"|with (?:its|his|her|their) backs? (?:to|toward|towards)", "facing_away"),
+    Cue(r"facing(?:[ _](?:to|toward|towards))?|fac(?:e|es)[ _](?:to|toward|towards)"  # "a rock face": no facing
+        r"|faces(?= (?:the|a|an|its|his|her|their) )|turned (?:to|toward|towards)"
+        r"|look(?:s|ing)? (?:at|toward|towards)|point(?:s|ing)?[ _](?:at|to|toward|towards)"
+        r"|oriented (?:to|toward|towards)", "facing"),
+    Cue(r"align(?:s|ed)?[ _](?:with|to)|parallel (?:to|with)|in line with|lined up with|(?:in|with) the same"
+        r" direction as", "aligned"),
+    Cue(r"not far from|near(?:by)?|close (?:to|by)|closest to|in the vicinity of|a short distance from|within reach of",
+        "near"),
+    Cue(r"far(?: away| off)? from|farthest from|furthest from|a long way from|distant from|at a distance from"
+        r"|(?<!facing )(?<!faces )(?<!face )(?<!turned )(?<!looking )(?<!pointing )(?:away|apart) from", "far"),
     # supported postures
     Cue(r"rid(?:e|es|ing)|astride|straddl[a-z]+|driv(?:e|es|ing)|(?:sit|sits|sitting|seated|sat)"
         r" (?:on|in|at|astride|inside)", "sit"),
@@ -101,23 +161,28 @@ CUES: list[Cue] = [
     Cue(r"(?:standing|stands|stood|perched|perching|balanced|balancing|landed|hopping) (?:on|upon|atop)",
         "stand"),
     Cue(r"(?:wrapped|coiled|wound|tied|looped|wrapping|coiling) (?:around|round)|around", "wrap"),
-    Cue(r"lean(?:s|ing|ed)? (?:against|on|in)|propped (?:against|up|on)|rest(?:s|ing)? against", "lean"),
+    Cue(r"lean(?:s|ing|ed)? (?:against|on|in)|propped (?:against|up|on)|rest(?:s|ing)? against|against", "lean"),
     # moving over a support: feet, wheels or a belly on it
     Cue(r"(?:walk|run|crawl|stroll|march|hik|climb|roll|skat|ski|slid|trott|gallop|wander)(?:s|ing|ed|e|es)?"
         r" (?:over|across|along|up|down|on)", "stand"),
+    # hung or fixed above something, not on it: "a lamp hanging above the table", "a shelf mounted above the desk"
+    Cue(r"(?:hang(?:s|ing)?|hung|dangl(?:e|es|ing)|suspended|mounted|fixed|attached|placed|set|put|installed)"
+        r" (?:high |right |just |directly |up )?above", "above"),
     Cue(r"hang(?:s|ing)?|hung|dangl(?:e|es|ing)|suspended", "hang"),
     Cue(r"attached|glued|taped|stuck (?:on|to)|fixed (?:on|to)|fasten(?:s|ed|ing)?|mounted|stapled|clipped"
         r"|pinned (?:to|on)",
         "attach"),
-    Cue(r"under(?:neath)?|beneath|below", "under"),
+    Cue(r"under(?:neath)?|beneath", "under"),
+    Cue(r"below", "below"),
     # in water when the ground holds some (rules), else free in air or water
     Cue(r"(?:float(?:s|ing)?|swim(?:s|ming)?|bob(?:s|bing)?|paddl(?:e|es|ing)) (?:in|inside|within)", "in"),
     Cue(r"(?:float(?:s|ing)?|swim(?:s|ming)?|bob(?:s|bing)?|paddl(?:e|es|ing)) (?:on|upon|atop)", "on"),
     Cue(r"(?:leap|jump|hop|spring|climb|fly|flie|get|com)(?:s|ing|ed)? out of|emerg(?:e|es|ing) from", "beside"),
-    Cue(r"swim(?:s|ming)?|float(?:s|ing)?|hover(?:s|ing)?|fl(?:y|ies|ying) (?:over|above|around|past|near)"
-        r"|above|over", "beside"),  # free in the air or water: no contact
-    Cue(r"beside|next to|near|nearby|alongside|in front of|behind|left of|right of|opposite|facing|close to"
-        r"|by the side of|side by side", "beside"),
+    Cue(r"above|over(?:head of)?", "above"),  # "over" said of a cloth drapes (rules)
+    Cue(r"swim(?:s|ming)?|float(?:s|ing)?|hover(?:s|ing)?|fl(?:y|ies|ying) (?:around|past)", "beside"),  # free in
+    # the air or water: no contact
+    Cue(r"beside|next[ _]to|alongside|(?:at|by|to) (?:the|its|his|her|their) side(?: of)?|side[ _]of|side by side",
+        "beside"),
     Cue(r"(?:at|on) the (?:edge|rim|brink|lip) of", "on"),  # "a pigeon drinking at the edge of a fountain"
     Cue(r"through", "in"),  # penetrates only when a pointed thing goes through a solid
     Cue(r"filled with|full of|contain(?:s|ing)?|holding inside", "in", True),
@@ -125,7 +190,8 @@ CUES: list[Cue] = [
     # "a horse drinking from a trough": an animal's muzzle in the water (rules; someone drinking holds the cup)
     Cue(r"(?:drink|sip|lapp?)(?:s|ing|ped|ping)?(?: (?:up )?water)? (?:from|out of)", "in"),
     Cue(r"inside|into|within|in", "in"),
-    Cue(r"on top of|on top|atop|onto|upon|on", "on"),
+    Cue(r"supporting", "on", True),  # "a table supporting a lamp"
+    Cue(r"on[ _]top[ _]of|on top|atop|onto|upon|supported[ _]by|on", "on"),
 ]
 _COMPILED = [(re.compile(r"(?<![a-z])(?:" + c.pattern + r")(?![a-z])"), c) for c in CUES]
 
@@ -147,17 +213,26 @@ def clean(prompt: str) -> str:
     return re.sub(r"['\u2019]s(?![a-z])", "  ", prompt.lower())
 
 
-def find_cue(prompt: str, aside=None) -> CueMatch | None:
+def find_cue(prompt: str, aside=None, kinds: set[str] | None = None) -> CueMatch | None:
     """The relation cue of a prompt: the first-priority cue found, the earliest if it occurs twice; a cue that
     ``aside(cue)`` says is about something else ("with only its eyes above the water") yields to the next one
-    found, and is the answer only when there is no other."""
+    found, and is the answer only when there is no other; so do the cues within it (the "in" of "in front of the
+    fireplace"). ``kinds``: only cues of relations of these kinds."""
     text = clean(prompt)
     first = None
+    set_aside: list[tuple[int, int]] = []
     for regex, cue in _COMPILED:
+        if kinds is not None and RELATIONS[cue.relation].kind not in kinds:
+            continue
         for m in regex.finditer(text):
             found = CueMatch(cue, m.start(), m.end(), m.group(0))
-            if not _adjective(text, found) and (aside is None or not aside(found)):
+            if any(start <= found.start and found.end <= end for start, end in set_aside):
+                continue
+            about_other = aside is not None and aside(found)
+            if not _adjective(text, found) and not about_other:
                 return found
+            if about_other:
+                set_aside.append((found.start, found.end))
             first = first or found
     return first
 

@@ -86,11 +86,16 @@ class RulesProvider:
     def estimate(self, target_name: str, source_name: str, prompt: str) -> ScenePrior:
         target, source = lexicon.lookup(target_name), lexicon.lookup(source_name)
         target_at, source_at = _mentions(prompt, target_name, target), _mentions(prompt, source_name, source)
-        cue = relations.find_cue(prompt, lambda c: (  # "... with only its eyes above the water": about a part
-            c.cue.relation not in {"in", "penetrate"} and context.substance_object(prompt, c.end)
-            and not context.names_next(prompt, c.end, target_at + source_at)
-            or c.text in {"in", "inside"}  # "a candle in a bucket on the table": on the table
-            and context.other_container(prompt, c.end, target_at + source_at)))
+        def aside(c: relations.CueMatch) -> bool:  # "... with only its eyes above the water": about a part
+            return (c.cue.relation not in {"in", "penetrate"} and context.substance_object(prompt, c.end)
+                    and not context.names_next(prompt, c.end, target_at + source_at)
+                    or c.text in {"in", "inside"}  # "a candle in a bucket on the table": on the table
+                    and context.other_container(prompt, c.end, target_at + source_at)
+                    or relations.RELATIONS[c.cue.relation].kind != "contact"  # "... to the left of the plate"
+                    and context.about_another(prompt, c.end, target_at + source_at))
+
+        # a position first ("in front of the sofa, facing it": front), an orientation alone ("facing the sofa")
+        cue = relations.find_cue(prompt, aside, relations.PLACING) or relations.find_cue(prompt, aside)
         figure = None
         if cue is not None:
             figure = relations.source_is_figure(cue, source_at, target_at)
@@ -179,7 +184,7 @@ class RulesProvider:
             relation, why = relations.RELATIONS["beside"], f"'{cue.text}' in air or open water: no contact"
         floating = afloat and filled is not None
         fig_match = source if figure else target
-        if (relation.name == "beside" and cue is not None and cue.text == "over" and fig_match is not None
+        if (relation.name == "above" and cue is not None and cue.text == "over" and fig_match is not None
                 and (fig_match.has("soft") or fig_match.has("wrap"))):
             relation, why = relations.RELATIONS["lie"], "'over' said of a cloth or a cover: draped over"
         opening = context.opening_after(prompt, cue.end) if cue is not None else None
@@ -208,9 +213,17 @@ class RulesProvider:
                                                                     size, in_place, encased)
         if drinks and penetration or bites:
             contact = DRINKING_CONTACT  # its muzzle, its proboscis or sting
+        name = relation.name
+        turn = _orientation(prompt, cue, relation, aside, ground_at)
+        if turn is not None:  # "in front of the sofa, facing it": both judged
+            name += relations.JOIN + turn.cue.relation
+            notes.insert(1, f"'{turn.text}' -> {turn.cue.relation} too")
+        side = relations.side_of(name)
+        if side is not None:
+            notes.insert(1, f"on the {ground_name}'s {side} side (its own front, else the viewer's)")
         return ScenePrior(size_ratio=clamp_size(size), penetration=penetration, contact_ratio=clamp_contact(contact),
                           provider=self.name, reason="; ".join(n for n in notes if n),
-                          relation=relation.name, source_is_figure=figure)
+                          relation=name, source_is_figure=figure)
 
 
 def _mentions(prompt: str, name: str, match: lexicon.Match | None) -> list[int]:
@@ -232,6 +245,18 @@ def _mentions(prompt: str, name: str, match: lexicon.Match | None) -> list[int]:
         return sorted(set(heads))
     forms = lexicon.forms(name_words)
     return [offsets[i] for i, t in enumerate(tokens) if forms & set(lexicon.singulars(t))]
+
+
+def _orientation(prompt: str, cue: relations.CueMatch | None, relation: relations.Relation, aside,
+                 ground_at: list[int]) -> relations.CueMatch | None:
+    """An orientation said after a position about the same ground ("in front of the desk, facing it", "next to the
+    sofa, facing the sofa"); None where there is none, or it is about something else ("facing the window")."""
+    if cue is None or relation.kind == "orientation":
+        return None
+    turn = relations.find_cue(prompt, aside, {"orientation"})
+    if turn is None or turn.start < cue.end and cue.start < turn.end:
+        return None
+    return turn if not context.about_another(prompt, turn.end, ground_at) else None
 
 
 def _relation(cue, target, source, figure) -> tuple[relations.Relation, str]:

@@ -25,7 +25,7 @@ router = APIRouter()
 
 @router.post("/jobs/{job_id}/adjust", status_code=202, response_model=Adjustment, summary="Adjust a result by hand",
              responses={200: {"model": Adjustment, "description": "it ended within `Prefer: wait`"},
-                        **documented(400, 401, 404, 409, 422, 503)},
+                        **documented(400, 401, 404, 409, 413, 422, 503)},
              description="Measure a placement of the source (a person moved it: the page's handles) against the "
              "target as the search measures its poses, first settling it into contact with `settle` drop (along "
              "the target's up) or push (along `direction`), and with `save` store it as the job's result "
@@ -60,7 +60,7 @@ async def adjust(job_id: str, body: AdjustRequest, request: Request, who: str = 
                         headers=headers)
 
 
-@router.get("/jobs/{job_id}/adjust/{adjustment_id}", response_model=Adjustment, responses=documented(401, 404),
+@router.get("/jobs/{job_id}/adjust/{adjustment_id}", response_model=Adjustment, responses=documented(401, 404, 503),
             summary="An adjustment's state and outcome")
 async def get_adjustment(job_id: str, adjustment_id: str, request: Request, who: str = Depends(owner)) -> Adjustment:
     await own_job(request, job_id, who)

@@ -7,6 +7,7 @@ from fastapi.concurrency import run_in_threadpool
 
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
+from ctp_core.guide_choice import asks_for_guide
 from ctp_core.names import NAME_MAX, default_name
 from ctp_core.plan import PlanError, PlanStep, check_plan, plan_step
 from service import forms, submit
@@ -23,18 +24,20 @@ ASSEMBLE_BODY = {
     "required": True,
     "content": {"multipart/form-data": {"schema": {
         "type": "object",
+        "additionalProperties": False,  # 400 unknown_field
         "required": ["base", "source", "plan"],
+        "dependentRequired": {"webhook_events": ["webhook"]},
         "properties": {
-            "base": forms.file_field("the object that stays put (formats as POST /align's target); its file "
+            "base": forms.mesh_field("the object that stays put (formats as POST /align's target); its file "
                                       "frame is the scene frame"),
             "base_name": {"type": "string", "maxLength": NAME_MAX,
                           "description": "what the base is (\"table\"); default: its file name"},
-            "source": {"type": "array", "items": forms.file_field("a mesh to place"),
+            "source": {"type": "array", "items": forms.mesh_field("a mesh to place"),
                        "description": "one part per source file, each with a distinct file name; the plan's "
                        "steps name them by `file`"},
-            "image": {"type": "array", "items": forms.file_field("a reference picture (PNG or JPEG)"),
+            "image": {"type": "array", "items": forms.image_field("a reference picture"),
                       "description": "reference pictures of image-guided steps, named by a step's `image`"},
-            "plan": {"type": "string", "contentMediaType": "application/json",
+            "plan": {"type": "string", "minLength": 1, "contentMediaType": "application/json",
                      "description": "JSON list, one object per stage in placing order: `file` (a source part's "
                      "file name, required), `prompt` or `image` (an image part's file name), `name` (unique; "
                      "default the file stem), `on` (the placed object it relates to; default the last placed "
@@ -45,7 +48,7 @@ ASSEMBLE_BODY = {
                         "the job's queue)"},
             **forms.WEBHOOK_PROPERTIES,
         },
-    }}},
+    }, "encoding": {"image": forms.IMAGE_ENCODING}}},
 }
 
 
@@ -74,7 +77,10 @@ async def _assembly_job(request: Request, form, who: str, job_id: str) -> submit
     settings = request.app.state.settings
     plan = _plan(forms.text(form, "plan"), settings.max_stages)
     options, queue = forms.job_options(form, settings.default_queue)
-    config = build_config(options, default_model=settings.model, allowed_models=settings.allowed_models)
+    # one guide for all stages (it is loaded once): a stage that asks for guidance asks it for the assembly
+    guided = any(asks_for_guide({**options, **e.options}, e.image is not None) for e in plan)
+    config = build_config(options, default_model=settings.model, allowed_models=settings.allowed_models,
+                          image=guided)
     sources = _parts(form, "source")
     images = _parts(form, "image")
     base = forms.file(form, "base")
@@ -112,7 +118,7 @@ async def _assembly_job(request: Request, form, who: str, job_id: str) -> submit
             blobs[f"image-{i}"] = pictures[entry.image]
         try:
             step_config = build_config({**options, **entry.options}, default_model=settings.model,
-                                       allowed_models=settings.allowed_models)
+                                       allowed_models=settings.allowed_models, image=guided)
         except ConfigError as exc:
             raise ApiError(422, exc.code, f"{where}: {exc.message}", field=f"{where}.{exc.field}") from None
         configs.append(step_config)

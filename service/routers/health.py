@@ -5,6 +5,8 @@ from __future__ import annotations
 import redis
 from fastapi import APIRouter, Request
 
+from ctp_core.config import AUTO, DEFAULT_MODEL
+from ctp_core.guide_choice import GuideChoice, unguided
 from service.errors import documented, error_response
 from service.jobs import JobError, served_queues, serving
 from service.schemas import Health, Ready
@@ -19,7 +21,9 @@ def healthz() -> Health:
 
 @router.get("/readyz", response_model=Ready, responses=documented(503),
             summary="A job submitted now can succeed: Redis answers and a worker can run the default model",
-            description="200 `ready` when a live worker of the default queue can run the default model; 200 "
+            description="Every 200 says what guides jobs with default options (`guide`, `why`; with CTP_MODEL "
+            "`auto` and no worker with the default model's weights, `none` and the command that gets them, "
+            "`get_model`). 200 `ready` when a live worker of the default queue can run the default model; 200 "
             "`restarting` (with `since_s`) when no worker of the default queue is live but one that could was seen "
             "within the grace (`CTP_WORKER_GRACE_S`, e.g. a worker being restarted): jobs are accepted then and "
             "wait in the queue until a worker is back. 503 with `redis_unavailable`, `no_worker` (no worker has "
@@ -42,10 +46,23 @@ def readyz(request: Request):
     names = served_queues(live, seen)
     queues = {name: _runnable((serving(live, name) or serving(seen, name)).values()) for name in names}
     models = queues[settings.default_queue]
+    guide = _guide(settings.model, serving(live, settings.default_queue) or serving(seen, settings.default_queue))
     if serving(live, settings.default_queue):
-        return Ready(status="ready", redis=True, workers=len(live), models=models, queues=queues)
+        return Ready(status="ready", redis=True, workers=len(live), models=models, queues=queues, **guide)
     since_s = min(s.since_s for s in seen.values() if settings.default_queue in s.queues)
-    return Ready(status="restarting", redis=True, workers=len(live), models=models, queues=queues, since_s=since_s)
+    return Ready(status="restarting", redis=True, workers=len(live), models=models, queues=queues, since_s=since_s,
+                 **guide)
+
+
+def _guide(model: str, offers: dict[str, dict[str, str | None]]) -> dict[str, str | None]:
+    """What guides jobs with default options (``Ready.guide``): CTP_MODEL when it names a model; under auto the
+    default model where a worker can run it, else none, with the workers' reason and the command that fixes it."""
+    if model != AUTO:
+        return GuideChoice(model, "named by CTP_MODEL").to_dict()
+    reasons = {served.get(DEFAULT_MODEL, "no worker offers it") for served in offers.values()}
+    if None in reasons:
+        return GuideChoice(DEFAULT_MODEL, "auto: a worker has the weights of the default model").to_dict()
+    return unguided("; ".join(sorted(reasons))).to_dict()
 
 
 def _runnable(offers) -> list[str]:

@@ -15,7 +15,7 @@ from service import forms
 from service import submit as submit_
 from service.chained import chained_target
 from service.deps import own_job, owner
-from service.errors import ApiError, binary, documented
+from service.errors import ApiError, documented, download_response
 from service.jobs import ORIGINAL, OUTPUTS, TERMINAL, JobRecord, Jobs, alternative_blob, now, parse_record
 from service.schemas import Accepted, JobList, JobOut, build_config
 
@@ -23,9 +23,15 @@ log = logging.getLogger("ctp.service")
 
 SSE_KEEPALIVE_S = 10.0
 JOBS_PAGE_MAX = 100
+OFFSET_MAX = 2**53 - 1  # what every JSON client holds exactly; Redis ranges take 64-bit integers
 REDIRECT = {307: {"description": "the job's `links.downloads` is `redirect`: the file is at the `Location`, a "
                   "presigned URL of the object store valid `CTP_S3_PRESIGN_S` seconds (it needs no "
                   "Authorization header)"}}
+# One event of GET /jobs/{id}/events (``_sse``): its name, and the job as JSON.
+SSE_EVENT = {"type": "object", "required": ["event", "data"], "properties": {
+    "event": {"type": "string", "enum": ["progress", "end"]},
+    "data": {"type": "string", "contentMediaType": "application/json",
+             "contentSchema": {"$ref": "#/components/schemas/JobOut"}}}}
 
 router = APIRouter()
 
@@ -52,12 +58,15 @@ async def _align_job(request: Request, form, who: str, job_id: str) -> submit_.B
     settings = request.app.state.settings
     prompt, image = forms.prompt_and_image(form)
     options, queue = forms.job_options(form, settings.default_queue)
-    config = build_config(options, default_model=settings.model, allowed_models=settings.allowed_models)
+    config = build_config(options, default_model=settings.model, allowed_models=settings.allowed_models,
+                          image=image is not None)
     blobs: dict[str, bytes] = {}
     files: dict[str, str] = {}
     target_job, on = forms.text(form, "target_job"), forms.text(form, "on")
     if on is not None and target_job is None:
         raise ApiError(400, "invalid_field", "on names an object of a target_job's scene; give target_job", field="on")
+    if target_job is not None and "target" in form:
+        raise ApiError(400, "invalid_field", "give a target file or a target_job, not both", field="target")
     chained = await chained_target(request, form, who, target_job, on) if target_job is not None else None
     faces = chained.faces if chained else 0
     for role in ("source",) if chained else ("target", "source"):
@@ -82,11 +91,12 @@ async def _align_job(request: Request, form, who: str, job_id: str) -> submit_.B
     return record, blobs, [config]
 
 
-@router.get("/jobs", response_model=JobList, responses=documented(400, 401), summary="The caller's jobs, newest first",
+@router.get("/jobs", response_model=JobList, responses=documented(400, 401, 503),
+            summary="The caller's jobs, newest first",
             description="Jobs submitted with the caller's key (all jobs when the service has no keys) that have "
             "not expired (`CTP_JOB_TTL_S`), a page at a time.")
 async def list_jobs(request: Request, who: str = Depends(owner),
-                    offset: int = Query(0, ge=0, description="jobs to skip"),
+                    offset: int = Query(0, ge=0, le=OFFSET_MAX, description="jobs to skip"),
                     limit: int = Query(20, ge=1, le=JOBS_PAGE_MAX, description="page size")) -> JobList:
     records, total = await run_in_threadpool(request.app.state.jobs.owned, who, offset, limit)
     after = offset + limit
@@ -94,7 +104,7 @@ async def list_jobs(request: Request, who: str = Depends(owner),
                    next=f"/jobs?offset={after}&limit={limit}" if after < total else None)
 
 
-@router.get("/jobs/{job_id}", response_model=JobOut, responses=documented(401, 404), summary="A job's state")
+@router.get("/jobs/{job_id}", response_model=JobOut, responses=documented(401, 404, 503), summary="A job's state")
 async def get_job(job_id: str, request: Request, who: str = Depends(owner)) -> JobOut:
     return JobOut.of(await own_job(request, job_id, who))
 
@@ -103,7 +113,7 @@ async def get_job(job_id: str, request: Request, who: str = Depends(owner)) -> J
                description="A queued job is canceled at once (200, status canceled); a running one is "
                "flagged and stops at its next optimisation step (202, cancel_requested true).",
                responses={202: {"model": JobOut, "description": "cancel requested; the job is still running"},
-                          **documented(401, 404, 409)})
+                          **documented(401, 404, 409, 503)})
 async def cancel_job(job_id: str, request: Request, response: Response, who: str = Depends(owner)) -> JobOut:
     record = await own_job(request, job_id, who)
     if record.status in TERMINAL:
@@ -115,11 +125,12 @@ async def cancel_job(job_id: str, request: Request, response: Response, who: str
 
 
 @router.get("/jobs/{job_id}/events", responses={
-    **documented(401, 404),
+    **documented(401, 404, 503),
     200: {"description": "`text/event-stream`: an `event: progress` whose data is the job (as GET "
                          "/jobs/{id}) whenever it changes, comment lines as keep-alives, and a last "
-                         "`event: end` with the final job, after which the stream closes.",
-          "content": {"text/event-stream": {"schema": {"type": "string"}}}}},
+                         "`event: end` with the final job, after which the stream closes. The schema is one "
+                         "event's (its `event` and `data` fields, as OpenAPI 3.2's `itemSchema` has it).",
+          "content": {"text/event-stream": {"schema": SSE_EVENT}}}},
     response_class=StreamingResponse, summary="Server-sent progress events until the job ends")
 async def job_events(job_id: str, request: Request, who: str = Depends(owner)):
     await own_job(request, job_id, who)
@@ -134,39 +145,50 @@ ALTERNATIVE = Query(None, ge=0, lt=MAX_ALTERNATIVES, description="result.glb onl
 
 
 def _add_output_route(name: str, media_type: str) -> None:
+    """``GET /jobs/{id}/<name>``: only result.glb takes ``?alternative`` (in its schema; 400 on the others)."""
+
     async def download(job_id: str, request: Request, who: str = Depends(owner),
                        alternative: int | None = ALTERNATIVE) -> Response:
-        record = await own_job(request, job_id, who)
-        if record.status != "succeeded":
-            raise ApiError(409, "job_not_ready", f"job {job_id} is {record.status}; results exist once it succeeded")
-        if name == ORIGINAL and record.adjusted is None:
-            raise ApiError(404, "not_adjusted", f"job {job_id} has no saved adjustment: its result.glb is the "
-                           "original")
-        stored = name
-        if alternative is not None and name == "result.glb":
-            if alternative >= max(1, len(record.alternatives)):
-                raise ApiError(404, "alternative_not_found", f"job {job_id} has {len(record.alternatives)} "
-                               f"alternatives; asked for {alternative}", field="alternative")
-            stored = alternative_blob(alternative)
-        elif alternative is not None:
+        return await _download(request, job_id, who, name, media_type, alternative)
+
+    async def download_file(job_id: str, request: Request, who: str = Depends(owner)) -> Response:
+        if "alternative" in request.query_params:
             raise ApiError(400, "invalid_request", f"only result.glb takes ?alternative, not {name}",
                            field="alternative")
-        storage, presign_s = request.app.state.jobs.storage, request.app.state.settings.s3_presign_s
-        filename = f"{job_id}-{stored}"
-        if record.downloads == "redirect" and presign_s:  # what the job's links promised, while still configured
-            url = await run_in_threadpool(storage.url, job_id, stored, presign_s, media_type=media_type,
-                                          filename=filename)
-            if url is not None:
-                return RedirectResponse(url, status_code=307)
-        data = await run_in_threadpool(storage.get, job_id, stored)
-        if data is None:
-            raise ApiError(404, "job_not_found", f"the results of job {job_id} have expired")
-        return Response(data, media_type=media_type,
-                        headers={"Content-Disposition": f'attachment; filename="{filename}"'})
+        return await _download(request, job_id, who, name, media_type, None)
 
-    router.add_api_route(f"/jobs/{{job_id}}/{name}", download, methods=["GET"], response_class=Response,
-                         responses={**binary(media_type, name), **REDIRECT, **documented(401, 404, 409)},
+    router.add_api_route(f"/jobs/{{job_id}}/{name}", download if name == "result.glb" else download_file,
+                         methods=["GET"], response_class=Response,
+                         responses={**download_response(media_type, name), **REDIRECT,
+                                    **documented(400, 401, 404, 409, 503)},
                          operation_id=f"download_{name.replace('.', '_')}", summary=f"Download {name}")
+
+
+async def _download(request: Request, job_id: str, who: str, name: str, media_type: str,
+                    alternative: int | None) -> Response:
+    """A succeeded job's file ``name`` (``alternative``: result.glb's k-th placement), streamed or redirected."""
+    record = await own_job(request, job_id, who)
+    if record.status != "succeeded":
+        raise ApiError(409, "job_not_ready", f"job {job_id} is {record.status}; results exist once it succeeded")
+    if name == ORIGINAL and record.adjusted is None:
+        raise ApiError(404, "not_adjusted", f"job {job_id} has no saved adjustment: its result.glb is the original")
+    stored = name
+    if alternative is not None:
+        if alternative >= max(1, len(record.alternatives)):
+            raise ApiError(404, "alternative_not_found", f"job {job_id} has {len(record.alternatives)} "
+                           f"alternatives; asked for {alternative}", field="alternative")
+        stored = alternative_blob(alternative)
+    storage, presign_s = request.app.state.jobs.storage, request.app.state.settings.s3_presign_s
+    filename = f"{job_id}-{stored}"
+    if record.downloads == "redirect" and presign_s:  # what the job's links promised, while still configured
+        url = await run_in_threadpool(storage.url, job_id, stored, presign_s, media_type=media_type,
+                                      filename=filename)
+        if url is not None:
+            return RedirectResponse(url, status_code=307)
+    data = await run_in_threadpool(storage.get, job_id, stored)
+    if data is None:
+        raise ApiError(404, "job_not_found", f"the results of job {job_id} have expired")
+    return Response(data, media_type=media_type, headers={"Content-Disposition": f'attachment; filename="{filename}"'})
 
 
 # original.glb: the run's own scene, once an adjustment replaced result.glb (POST /jobs/{id}/adjust with save)

@@ -14,6 +14,7 @@ const state = {
   viewer: null,
   previews: { target: null, source: null }, // input previews (Viewer), made on the first file of each slot
   previewed: { target: null, source: null }, // the file each slot's preview is for (a newer one wins)
+  seen: { target: null, source: null }, // what POST /inspect said of each slot's file (its up and front)
   chained: null, // {id, file}: the target slot holds that job's result scene, sent as target_job
   result: null, // {id, blobs: {file name: Blob}}
   urls: [], // blob URLs to revoke when the next result replaces this one
@@ -91,20 +92,24 @@ const size = (n) => (n < 1024 * 1024 ? `${(n / 1024).toFixed(1)} kB` : `${(n / 1
 /** Put a file in the target or source slot (a pick, a drop, an example; chaining a result will too). */
 export function setFile(role, file) {
   state.files[role] = file;
+  for (const name of ["up", "front"]) $(`${name}-${role}`).value = "file"; // a new file: its own frame first
   $(`chosen-${role}`).textContent = file ? `${file.name} (${size(file.size)})` : "or drop a mesh here";
   $(`drop-${role}`).classList.toggle("has-file", Boolean(file));
   previewInput(role, file);
 }
 
 /** The input preview: the file in a small 3D view as the browser reads it, and what the service makes of it
- * (POST /inspect: size in the file's units, faces, the up it will use, drawn as an arrow), so a wrong file, a
- * model on its side or in the wrong units shows before the job; a file a job would refuse is refused here. */
+ * (POST /inspect: size in the file's units, faces, the up and front a job will use, drawn as arrows, and why),
+ * so a wrong file, a model on its side or in the wrong units shows before the job; a file a job would refuse is
+ * refused here. The up and front selects (and their flip buttons) are the job's options for this object. */
 async function previewInput(role, file) {
   const box = $(`preview-${role}`);
   const info = $(`inspect-${role}`);
   state.previewed[role] = file;
+  state.seen[role] = null;
   const current = () => state.previewed[role] === file;
   box.hidden = !file;
+  $(`axes-${role}`).hidden = !file;
   delete box.dataset.ready;
   delete info.dataset.state;
   info.classList.remove("bad");
@@ -117,15 +122,26 @@ async function previewInput(role, file) {
     console.info(`preview of ${file.name}: ${err.message}`);
     return false;
   });
+  await inspectAxes(role, file, drawn);
+}
+
+/** Ask POST /inspect what a job makes of ``file`` with this slot's up and front options, and draw them. */
+async function inspectAxes(role, file, drawn) {
+  const box = $(`preview-${role}`);
+  const info = $(`inspect-${role}`);
+  const current = () => state.previewed[role] === file;
   const body = new FormData();
   body.append("mesh", file, file.name);
+  for (const name of ["up", "front"]) body.append(name, $(`${name}-${role}`).value);
   try {
     const seen = await api.json("inspect", { method: "POST", body });
     if (!current()) return;
+    state.seen[role] = seen;
     info.textContent = describeInput(seen);
     info.dataset.state = "ok";
+    info.classList.remove("bad");
     if (await drawn && current()) {
-      viewer.showUp(seen.up);
+      state.previews[role].showAxes(seen.up, seen.front, seen.front_trusted);
       box.dataset.ready = "1";
     }
   } catch (err) {
@@ -136,13 +152,45 @@ async function previewInput(role, file) {
   }
 }
 
+const AXES = ["+x", "-x", "+y", "-y", "+z", "-z"];
+
+/** ``+y`` for a vector along an axis, else null. */
+function axisName(vector) {
+  const i = vector.findIndex((v) => Math.abs(v) > 0.999);
+  return i < 0 ? null : `${vector[i] > 0 ? "+" : "-"}${"xyz"[i]}`;
+}
+
+/** Flip the slot's up or front: the option becomes the other way along the axis the service used. */
+function flip(role, name) {
+  const seen = state.seen[role];
+  const used = seen && axisName(seen[name]);
+  if (!used) return;
+  const other = `${used[0] === "+" ? "-" : "+"}${used[1]}`;
+  $(`${name}-${role}`).value = other;
+  if (name === "up" && $(`front-${role}`).value[1] === other[1]) $(`front-${role}`).value = "file";
+  axesChanged(role);
+}
+
+function axesChanged(role) {
+  const file = state.previewed[role];
+  if (file) inspectAxes(role, file, Promise.resolve(Boolean(state.previews[role]?.model)));
+}
+
+function wireAxes(role) {
+  for (const name of ["up", "front"]) {
+    const select = $(`${name}-${role}`);
+    for (const value of ["file", "auto", ...AXES]) select.append(new Option(value, value, false, value === "file"));
+    select.addEventListener("change", () => axesChanged(role));
+    $(`flip-${name}-${role}`).addEventListener("click", () => flip(role, name));
+  }
+}
+
 function describeInput(seen) {
   const number = (v) => (v >= 100 || v < 0.01 ? v.toPrecision(3) : v.toFixed(v < 1 ? 3 : 2));
-  const axis = ["X", "Y", "Z"].find((_, i) => Math.abs(seen.up[i]) > 0.99);
-  const i = ["X", "Y", "Z"].indexOf(axis);
-  const up = axis ? `${seen.up[i] > 0 ? "+" : "-"}${axis}` : `(${seen.up.map((v) => v.toFixed(2)).join(", ")})`;
+  const named = (v) => axisName(v) || `(${v.map((x) => x.toFixed(2)).join(", ")})`;
   return `${seen.extents.map(number).join(" × ")} in the file's units, ${seen.faces.toLocaleString("en")} faces; `
-    + (seen.turned ? `up: the file's ${up} (turned upright)` : "up: the file's +Y, as authored");
+    + `up: the file's ${named(seen.up)}${seen.turned ? " (turned upright)" : ""}, front: the file's `
+    + `${named(seen.front)}${seen.front_trusted ? "" : " (a guess)"}. ${seen.reason}; ${seen.front_reason}`;
 }
 
 function wireDrop(role) {
@@ -193,6 +241,12 @@ function options() {
   for (const name of ["seed", "restarts"]) {
     const value = $(`opt-${name}`).value.trim();
     if (value !== "") out[name] = Number(value);
+  }
+  for (const role of ROLES) {
+    for (const name of ["up", "front"]) {
+      const value = $(`${name}-${role}`).value;
+      if (value && value !== "file") out[`${role}_${name}`] = value;
+    }
   }
   return out;
 }
@@ -323,6 +377,9 @@ function renderProgress(job) {
     if (figure != null && state.figures.at(-1) !== figure) state.figures.push(figure);
     drawSpark();
   }
+  $("guide").textContent = job.guide ? `guide: ${job.guide}${job.guide === "none" ? " (the geometry and the "
+    + "prompt's relation place it)" : ""}` : "";
+  $("guide").title = job.guide_why || "";
   $("message").textContent = p.message + (job.cancel_requested && job.status === "running" ? " - cancel requested" : "");
   $("cancel").disabled = TERMINAL.includes(job.status) || job.cancel_requested;
 }
@@ -534,6 +591,7 @@ function showFacts(report) {
     ["model", report.model || ""],
     ["preset, seed", `${report.preset ?? ""}, ${report.seed ?? ""}`],
   ];
+  if (report.guide_say) rows.push(["who chose", report.guide_say.summary]); // the guide's say (objective.Gate)
   if (report.adjusted) {
     rows.push(["adjusted", `by hand, saved ${new Date(report.adjustment.saved_at).toLocaleString()} `
       + "(the objective is the run's; original.glb keeps its placement)"]);
@@ -737,13 +795,27 @@ async function reopen(job) {
 
 // -- start ------------------------------------------------------------------------------------------
 
+// One line over the page when jobs run without a guide (/readyz: model auto without the default model's weights).
+async function showGuide() {
+  let ready;
+  try { ready = await (await fetch("readyz")).json(); } catch { return; } // the page works without it
+  if (ready.guide !== "none") return;
+  const banner = $("guide-banner");
+  banner.textContent = `No guide: the geometry and the prompt's relation place the source (the default model is `
+    + `not on the workers). ${ready.get_model ? `\`${ready.get_model}\` gets it.` : ""}`;
+  banner.title = ready.why;
+  banner.hidden = false;
+}
+
 async function init() {
   const config = (state.config = await (await fetch("page/config")).json());
+  showGuide();
   $("formats").textContent = config.formats.join(" ");
   for (const role of ROLES) {
     $(`file-${role}`).accept = config.formats.join(",");
     $(`name-${role}`).maxLength = config.name_max;
     wireDrop(role);
+    wireAxes(role);
   }
   const samples = $("samples");
   for (const sample of config.samples) {

@@ -87,16 +87,21 @@ export class Viewer {
     throw new Error(`no 3D preview for .${ext} files in the browser`);
   }
 
-  /** Draw the up the service will use (a unit vector in the file frame) as an arrow through the model. */
-  showUp(up) {
-    if (this.arrow) this.scene.remove(this.arrow);
+  /** Draw the up (green) and the front (orange; dashed where it is a guess) a job will use, unit vectors in the
+   * file frame, as arrows from the model's centre. */
+  showAxes(up, front, trusted) {
+    for (const arrow of this.arrows || []) this.scene.remove(arrow);
+    this.arrows = [];
     if (!this.model) return;
     const box = new THREE.Box3().setFromObject(this.model);
-    const length = box.getSize(new THREE.Vector3()).length() * 0.75;
-    const direction = new THREE.Vector3(...up).normalize();
-    const start = box.getCenter(new THREE.Vector3()).addScaledVector(direction, -length / 2);
-    this.arrow = new THREE.ArrowHelper(direction, start, length, 0x16a34a, length * 0.2, length * 0.1);
-    this.scene.add(this.arrow);
+    const length = box.getSize(new THREE.Vector3()).length() * 0.6;
+    const centre = box.getCenter(new THREE.Vector3());
+    for (const [vector, colour] of [[up, 0x16a34a], [front, trusted ? 0xea580c : 0xfdba74]]) {
+      const arrow = new THREE.ArrowHelper(new THREE.Vector3(...vector).normalize(), centre, length, colour,
+        length * 0.2, length * 0.1);
+      this.arrows.push(arrow);
+      this.scene.add(arrow);
+    }
     this.render();
   }
 
@@ -104,7 +109,8 @@ export class Viewer {
     this.handles?.detach();
     this.pivot = null;
     if (this.model) this.scene.remove(this.model);
-    if (this.arrow) this.scene.remove(this.arrow);
+    for (const arrow of this.arrows || []) this.scene.remove(arrow);
+    this.arrows = [];
     this.model = model;
     this.scene.add(this.model);
     this.parts = this.model.children.map((object, i) => {

@@ -1,0 +1,259 @@
+"""The directional relations (``predicates``: sides, above/below, near/far, orientations) on generated pairs whose
+answer is known.
+
+Scenes are built in their file frame with +Y up and the glTF front (+Z), prepared without the upright turn; the
+fronts come through ``PreparedPair.target_front`` / ``front_trusted`` / ``source_front``: stated here for the
+predicates (``prepared``), from the file's convention for whole runs (the meshes are marked as read from GLB).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+from test_predicates import box, pose, poses, rot, table
+from test_predicates import prepared as prepared_plain
+
+from ctp_core import align as stages
+from ctp_core import predicates
+from ctp_core.align import align
+from ctp_core.config import AlignConfig
+
+
+def gltf(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """``mesh`` as if read from a GLB (``io`` records the format): glTF's convention gives +Y up and front +Z."""
+    mesh.metadata["file_format"] = "glb"
+    return mesh
+
+
+def prepared(target, source, scale: float = 1.0):
+    """A pair with the glTF fronts stated: the target's front +Z, trusted; the source's front +Z."""
+    pair = prepared_plain(target, source, scale)
+    pair.target_front, pair.front_trusted = np.array([0.0, 0.0, 1.0]), True
+    pair.source_front = np.array([0.0, 0.0, 1.0])
+    return pair
+
+
+def sofa() -> trimesh.Trimesh:
+    """A sofa-like block facing +Z: a seat 2 wide (x), 0.9 deep (z), 0.45 high, its backrest along -Z up to 0.9."""
+    return gltf(trimesh.util.concatenate([box([2, 0.45, 0.9], [0, 0.225, 0]),
+                                          box([2, 0.45, 0.2], [0, 0.675, -0.35])]))
+
+
+def chair() -> trimesh.Trimesh:
+    """A chair-like block facing +Z (its back along -Z), 0.5 wide, standing on y = 0 in its file, centred."""
+    return gltf(trimesh.util.concatenate([box([0.5, 0.45, 0.5], [0, -0.2, 0]),
+                                          box([0.5, 0.5, 0.08], [0, 0.27, -0.21])]))
+
+
+def desk() -> trimesh.Trimesh:
+    """A desk-like block facing +Z: 1.4 wide, 0.7 deep, 0.75 high, a shelf along its back edge (not symmetric)."""
+    return gltf(trimesh.util.concatenate([box([1.4, 0.75, 0.7], [0, 0.375, 0]),
+                                          box([1.4, 0.3, 0.15], [0, 0.9, -0.275])]))
+
+
+BOX = box([0.5, 0.5, 0.5], [0, 0, 0])  # centred: on the floor at y = 0.25
+ON_FLOOR = 0.25
+SIDE_POSES = {"left": pose([1.6, ON_FLOOR, 0]), "right": pose([-1.6, ON_FLOOR, 0]),
+              "front": pose([0, ON_FLOOR, 1.1]), "behind": pose([0, ON_FLOOR, -1.1])}
+
+
+def _holding(pair, matrices, relation) -> list[bool]:
+    return predicates.holds(predicates.relation_score(pair, poses(pair, matrices), relation)).tolist()
+
+
+@pytest.mark.parametrize("side", list(SIDE_POSES))
+def test_each_side_of_a_sofa_holds_where_the_box_is_in_the_sofas_own_frame(side):
+    """glTF: front +Z, up +Y, so the object's own left is +X (up x front): a box at +X is on the sofa's left."""
+    pair = prepared(sofa(), BOX)
+    held = dict(zip(SIDE_POSES, _holding(pair, list(SIDE_POSES.values()), side), strict=True))
+    assert held == {s: s == side for s in SIDE_POSES}, held
+
+
+def test_a_box_level_with_the_sofas_end_but_well_in_front_of_it_is_in_front_not_left():
+    pair = prepared(sofa(), BOX)
+    corner = [pose([1.2, ON_FLOOR, 0.9])]  # beyond the left end by 0.2, beyond the front by 0.45
+    assert _holding(pair, corner, "front") == [True] and _holding(pair, corner, "left") == [False]
+
+
+def test_the_sides_turn_with_the_targets_front():
+    """The same sofa turned to face +X (its front in the normalised frame): its left is then -Z."""
+    pair = prepared(sofa(), BOX)
+    pair.target_front = np.array([1.0, 0.0, 0.0])
+    assert _holding(pair, [pose([0, ON_FLOOR, -1.1]), pose([0, ON_FLOOR, 1.1])], "left") == [True, False]
+
+
+def test_an_untrusted_front_judges_the_sides_in_the_viewers_frame():
+    """No front to trust: the preview's first camera (azimuth 30 degrees, on the +Z side) is the viewer; the sofa
+    faces it, so the sofa's own right (-X) is the viewer's left, and the report says so."""
+    pair = prepared(sofa(), BOX)
+    matrices = [SIDE_POSES["right"], SIDE_POSES["left"]]
+    assert _holding(pair, matrices, "left") == [False, True]
+    pair.front_trusted = False
+    assert _holding(pair, matrices, "left") == [True, False]
+    verdict = predicates.verdict(pair, poses(pair, matrices[:1]).matrices()[0], "left")
+    assert verdict.to_dict()["frame"] == "viewer" and verdict.side == "left" and verdict.holds
+
+
+def test_beside_on_a_side_must_stand_near_it():
+    pair = prepared(sofa(), BOX)
+    assert _holding(pair, [pose([5.0, ON_FLOOR, 0]), pose([1.6, 1.5, 0])], "left") == [False, False]  # far; in the air
+
+
+PICTURE = box([0.8, 0.6, 0.05], [0, 0, 0])
+
+
+def test_a_picture_above_a_table_without_touching_it_and_not_beside_it():
+    pair = prepared(table(), PICTURE)
+    above = pose([0, 1.6, -0.95])  # over the table's back edge, 0.25 clear of its top (1.05)
+    resting = pose([0, 1.05 + 0.3, 0])  # standing on the top: contact, "on"
+    aside = pose([2.0, 1.6, 0])  # as high, but beside the table
+    assert _holding(pair, [above, resting, aside], "above") == [True, False, False]
+
+
+def test_a_ball_below_a_hanging_lamp_and_not_above_it():
+    lamp = box([0.6, 0.2, 0.6], [0, 2.0, 0])
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.2)
+    pair = prepared(lamp, ball)
+    below, over = pose([0, 1.0, 0.1]), pose([0, 2.5, 0])
+    assert _holding(pair, [below, over], "below") == [True, False]
+    assert _holding(pair, [below, over], "above") == [False, True]
+
+
+def test_near_and_far_are_bands_in_the_objects_mean_diagonal():
+    """Sofa diagonal 2.39, box 0.87: mean 1.63; near within 1 (1.63), far beyond 2 (3.26) of that."""
+    pair = prepared(sofa(), BOX)
+    matrices = [pose([1.6, ON_FLOOR, 0]), pose([1.0 + 0.25 + 2.5, ON_FLOOR, 0]), pose([1.0 + 0.25 + 4.0, ON_FLOOR, 0])]
+    assert _holding(pair, matrices, "near") == [True, False, False]
+    assert _holding(pair, matrices, "far") == [False, False, True]
+
+
+DESK = desk()
+CHAIR_AT = [0, 0.425, 1.0]  # in front of the desk, on the floor (the chair's file origin 0.425 above its feet)
+
+
+def test_a_chair_facing_the_desk_facing_away_or_turned_aside():
+    pair = prepared(DESK, chair())
+    turned = {"toward": rot([0, 1, 0], 180), "away": np.eye(3), "aside": rot([0, 1, 0], 90)}
+    matrices = [pose(CHAIR_AT, r) for r in turned.values()]
+    assert _holding(pair, matrices, "facing") == [True, False, False]
+    assert _holding(pair, matrices, "facing_away") == [False, True, False]
+    assert _holding(pair, matrices, "aligned") == [False, True, False]  # its front the desk's way: +Z
+
+
+def test_a_reading_of_two_relations_holds_when_both_do_and_the_verdict_says_each():
+    pair = prepared(DESK, chair())
+    facing, away = pose(CHAIR_AT, rot([0, 1, 0], 180)), pose(CHAIR_AT)
+    assert _holding(pair, [facing, away], "front+facing") == [True, False]
+    verdict = predicates.verdict(pair, poses(pair, [away]).matrices()[0], "front+facing").to_dict()
+    assert verdict["side"] == "front" and verdict["frame"] == "target" and not verdict["holds"]
+    assert [(p["name"], p["holds"]) for p in verdict["parts"]] == [("front", True), ("facing", False)]
+    assert verdict["stable"]
+
+
+def test_the_source_front_turns_with_the_pose():
+    """A chair whose file front is +X (``source_front``) faces the desk (-Z from it) turned by +90 degrees about +Y,
+    not by 180 (its front then -X) nor by -90 (+Z: away)."""
+    pair = prepared(DESK, chair())
+    pair.source_front = np.array([1.0, 0.0, 0.0])
+    matrices = [pose(CHAIR_AT, rot([0, 1, 0], angle)) for angle in (90, 180, -90)]
+    assert _holding(pair, matrices, "facing") == [True, False, False]
+
+
+@pytest.mark.parametrize("relation", ["left", "above", "near", "far", "facing", "front+facing"])
+def test_directional_scores_are_scale_free(relation):
+    matrices = [pose([1.6, ON_FLOOR, 0]), pose([0.5, 1.6, 0.4], rot([0, 1, 0], 90)), pose([0, ON_FLOOR, 2.0])]
+    plain = predicates.relation_score(prepared(sofa(), BOX), poses(prepared(sofa(), BOX), matrices), relation)
+    for scale in (1e-3, 1e3):
+        pair = prepared(sofa(), BOX, scale)
+        scaled = [m.copy() for m in matrices]
+        for m in scaled:
+            m[:3, 3] *= scale
+        score = predicates.relation_score(pair, poses(pair, scaled), relation)
+        assert torch.allclose(plain, score, rtol=1e-2, atol=1e-3), (plain, score)
+
+
+def test_a_contact_relations_verdict_keeps_its_shape():
+    pair = prepared(table(), BOX)
+    verdict = predicates.verdict(pair, poses(pair, [pose([0, 1.3, 0])]).matrices()[0], "on").to_dict()
+    assert set(verdict) == {"name", "role", "score", "holds", "stable"}
+
+
+# --- whole runs: geometry only (``lambda_clip`` 0, the ``test`` preset, as ``--no-guidance``) -------------------
+
+def _wall_and_table() -> trimesh.Scene:
+    """A 2 x 2 table (top at 1.05) against a wall along its back (-Z) edge: the picture's ground is the table."""
+    scene = trimesh.Scene()
+    scene.add_geometry(table(), node_name="table", geom_name="table")
+    scene.add_geometry(box([3, 2.5, 0.1], [0, 1.25, -1.05]), node_name="wall", geom_name="wall")
+    return scene
+
+
+def _run(target, source, prompt, target_name, source_name, **kwargs):
+    config = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0}, upright=False)
+    return align(target, source, prompt, config, target_name=target_name, source_name=source_name, **kwargs)
+
+
+def _posed(result, mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    return mesh.copy().apply_transform(result.source_to_target)
+
+
+def test_a_box_to_the_left_of_a_sofa_ends_on_its_own_left():
+    result = _run(sofa(), BOX, "a box to the left of the sofa", "sofa", "box")
+    verdict = result.relation
+    assert verdict["name"] == "left" and verdict["side"] == "left" and verdict["frame"] == "target", verdict
+    assert verdict["holds"] and verdict["stable"], verdict
+    placed = _posed(result, BOX)
+    assert placed.bounds[0, 0] > 1.0 - 1e-3 and abs(placed.bounds[0, 1]) < 0.02  # beyond its +X end, on the floor
+
+
+def test_a_picture_above_a_table_against_a_wall_ends_clear_over_the_table():
+    result = _run(_wall_and_table(), PICTURE, "a picture above the table", "table", "picture", on="table")
+    verdict = result.relation
+    assert verdict["name"] == "above" and verdict["holds"], verdict
+    placed = _posed(result, PICTURE)
+    centre = placed.bounds.mean(0)
+    assert placed.bounds[0, 1] > 1.05 and abs(centre[0]) < 1.0 and -1.0 < centre[2] < 1.0, placed.bounds
+
+
+def test_a_chair_in_front_of_a_desk_facing_it_ends_there_turned_to_it():
+    result = _run(DESK, chair(), "a chair in front of the desk, facing it", "desk", "chair")
+    verdict = result.relation
+    assert verdict["name"] == "front+facing" and verdict["side"] == "front" and verdict["holds"], verdict
+    assert [p["holds"] for p in verdict["parts"]] == [True, True], verdict
+    placed = _posed(result, chair())
+    front = result.source_to_target[:3, :3] @ np.array([0.0, 0.0, 1.0])  # the chair's file front, turned
+    assert placed.bounds.mean(0)[2] > 0.35 and front[2] < -np.cos(np.radians(45)), (placed.bounds, front)
+
+
+def test_a_box_far_from_the_sofa_and_one_near_it():
+    far = _posed(_run(sofa(), BOX, "a box far from the sofa", "sofa", "box"), BOX)
+    near = _run(sofa(), BOX, "a box near the sofa", "sofa", "box")
+    assert near.relation["holds"] and near.relation["name"] == "near", near.relation
+    gap = lambda placed: trimesh.proximity.closest_point(sofa(), placed.vertices)[1].min()  # noqa: E731
+    assert gap(far) > 2 * 1.62 > 1.62 > gap(_posed(near, BOX)), (gap(far), gap(_posed(near, BOX)))
+
+
+def test_directional_proposals_hold_their_relation_and_replace_as_many_region_proposals():
+    counts = {}
+    for relation in (True, False):
+        config = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0}, upright=False, relation=relation)
+        run = stages.prepare(sofa(), BOX, "a box behind the sofa", config, target_name="sofa", source_name="box")
+        props = stages.propose(run)
+        made = torch.tensor([r == "behind" for r in props.region])
+        assert bool(made.any()) == relation
+        if relation:
+            with torch.inference_mode():
+                held = predicates.holds(predicates.relation_score(run.pair, props.poses, "behind"))
+            assert held[made].float().mean() > 0.9 and held[made].sum() > held[~made].sum(), held
+        counts[relation] = len(props.region)
+    assert counts[True] == counts[False], counts
+
+
+def test_a_chair_lying_on_its_back_faces_nothing():
+    """Its front (+Z in its file) turned to point up, a hair toward the desk: no orientation holds."""
+    pair = prepared(DESK, chair())
+    on_its_back = pose([0, 0.3, 1.0], rot([0, 1, 0], 180) @ rot([1, 0, 0], -85))
+    for relation in ("facing", "facing_away", "aligned"):
+        assert _holding(pair, [on_its_back], relation) == [False], relation

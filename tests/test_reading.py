@@ -1,0 +1,39 @@
+"""The rules provider reads the directional vocabulary: every phrase of ``reading_phrases.csv`` (wordings of
+SpatialSense, Sr3D, Holodeck and LayoutVLM, the issue's examples and paraphrases) gets its expected relation,
+figure and side (``benchmarks/reading.py`` prints the same as an accuracy table)."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+
+from ctp_core.priors import get_provider, relations
+
+ROWS = list(csv.DictReader((Path(__file__).parent / "reading_phrases.csv").open()))
+
+
+def test_the_phrase_list_covers_every_new_relation_from_each_vocabulary():
+    named = {p for row in ROWS for p in relations.parts(row["relation"])}
+    new = {name for name, r in relations.RELATIONS.items() if r.kind != "contact"}
+    assert new <= named and len(ROWS) >= 80
+    assert {"spatialsense", "sr3d", "holodeck", "layoutvlm", "issue", "paraphrase"} == {r["origin"] for r in ROWS}
+
+
+@pytest.mark.parametrize("row", ROWS, ids=[row["prompt"] for row in ROWS])
+def test_the_reader_reads_the_relation_its_figure_and_its_side(row):
+    prior = get_provider("rules").estimate(row["target"], row["source"], row["prompt"])
+    got = (prior.relation, "source" if prior.source_is_figure else "target", relations.side_of(prior.relation) or "")
+    assert got == (row["relation"], row["figure"], row["side"]), prior.reason
+
+
+def test_ctp_priors_shows_the_reading_and_its_side(capsys):
+    from ctp.cli import main as ctp_main
+
+    argv = ["priors", "--target", "desk", "--source", "chair", "--prompt", "a chair in front of the desk, facing it"]
+    assert ctp_main(argv) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["relation"] == "front+facing" and out["source_is_figure"] is True
+    assert "desk's front side" in out["reason"] and "'facing' -> facing too" in out["reason"]
