@@ -15,6 +15,7 @@ import subprocess
 import sys
 
 STOP_GRACE_S = 10.0
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
 def add_arguments(parser: argparse.ArgumentParser, name: str) -> None:
@@ -58,7 +59,7 @@ def _serve(settings, args: argparse.Namespace) -> int:
 
     embedded = None
     if not settings.redis_url:
-        embedded = EmbeddedRedis(settings.redis_dir)
+        embedded = EmbeddedRedis(settings.redis_dir, detached=True)
         try:
             settings = settings.model_copy(update={"redis_url": embedded.start()})
         except RuntimeError as exc:  # a second `make serve`, or redis-server failed: one line, no traceback
@@ -73,14 +74,20 @@ def _serve(settings, args: argparse.Namespace) -> int:
                             embedded)
     where = f"embedded Redis in {embedded.data_dir}" if embedded else "REDIS_URL"
     print(f"ctp: serving on http://{args.host}:{args.port} ({where}, {n_workers} local worker(s))", file=sys.stderr)
-    # uvicorn re-raises the SIGTERM it shut down on; make that an exception so the children are stopped.
-    signal.signal(signal.SIGTERM, _exit_on_signal)
+    # uvicorn re-raises the SIGINT or SIGTERM it shut down on; make that an exception (exit status 128 + signal, no
+    # traceback) so the children are stopped. Stopping drains: the API stops taking requests, the workers hand back
+    # or finish their jobs, the embedded Redis stops last (it is detached from the terminal's Ctrl-C,
+    # service.embedded). A closed terminal (SIGHUP) stops the same way.
+    for stop in STOP_SIGNALS:
+        signal.signal(stop, _exit_on_signal)
     try:
         app = create_app(settings)
         supervisor.start()
         uvicorn.run(app, host=args.host, port=args.port, log_level=settings.log_level.lower(),
                     timeout_graceful_shutdown=STOP_GRACE_S)
     finally:
+        for stop in STOP_SIGNALS:  # a second Ctrl-C must not cut the drain short: it is bounded by the graces
+            signal.signal(stop, signal.SIG_IGN)
         stop_processes(supervisor.stop())
         if embedded:
             embedded.stop()
@@ -114,8 +121,8 @@ def _exit_on_signal(signum, _frame) -> None:
 
 
 def stop_processes(processes: list[subprocess.Popen], grace_s: float = STOP_GRACE_S) -> None:
-    """SIGTERM (rq warm shutdown: finish the current job; ``ctp serve``: stop its children), then SIGKILL after
-    ``grace_s``; a job killed that way is failed with worker_lost by the next API reaper."""
+    """SIGTERM (a worker hands its job back, ``worker.main``; ``ctp serve``: stop its children), then SIGKILL after
+    ``grace_s``; a job killed that way is reaped by the next API reaper (queued again once)."""
     for p in processes:
         p.terminate()
     for p in processes:

@@ -128,7 +128,8 @@ Failed jobs carry an error too: an engine code (`canceled`, `model_unavailable` 
 after the job was accepted), `invalid_option`, a mesh code, ...), `inputs_expired` (its uploads expired,
 `CTP_JOB_TTL_S`, before a worker picked it up), `job_timeout` (`CTP_JOB_TIMEOUT_S`), `job_too_large` (the
 job needed more memory than `CTP_JOB_MEMORY_MB`; the message names the stage, the worker goes on to the next job),
-`worker_lost` (its worker was killed or lost its machine; not retried), `worker_cannot_serve` (the worker's own
+`worker_lost` (the worker running it missed its lease, on its second attempt: a job whose worker is lost is queued
+again once; `attempts` counts them), `worker_cannot_serve` (the worker's own
 `CTP_DEVICE` / `CTP_RUNTIME` / `CTP_THREADS` cannot run this job, checked when it takes the job, before anything
 loads), `storage_unavailable` (the worker could not read its uploads or store its results) or `internal_error`.
 An assembly's failure names its stage in the message (`stage 2/3 (plate): ...`) and in `field` (`steps.1`).
@@ -205,14 +206,25 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
 
 async def _reap_forever(jobs: Jobs, period_s: float) -> None:
-    """Fail jobs of dead workers every heartbeat period; expire stored files about once a minute."""
-    last_sweep = 0.0
+    """Reap jobs of dead workers every heartbeat period (``Jobs.reap``); expire stored files about once a minute.
+
+    After a Redis outage, reaping waits one lease: a lease that lapsed while Redis was away is the outage's doing,
+    not the worker's, and the workers, which wait outages out (``worker.outage``), renew it within a heartbeat.
+    One log line per outage."""
+    last_sweep = resume_at = 0.0
+    down = False
     while True:
         try:
-            await run_in_threadpool(jobs.reap)
+            if time.monotonic() >= resume_at:
+                await run_in_threadpool(jobs.reap)
             if time.monotonic() - last_sweep > SWEEP_EVERY_S:
                 await run_in_threadpool(jobs.storage.sweep)
                 last_sweep = time.monotonic()
-        except (redis.exceptions.RedisError, StorageUnavailable) as exc:
+            down = False
+        except redis.exceptions.RedisError as exc:
+            if not down:
+                log.warning("reaper: %s; reaping resumes one lease after Redis answers again", exc)
+            down, resume_at = True, time.monotonic() + jobs.lease_s
+        except StorageUnavailable as exc:
             log.warning("reaper: %s", exc)
         await asyncio.sleep(period_s)

@@ -13,15 +13,20 @@ A change that is an event the job's webhook subscribes to (start, progress at mo
 also queues a delivery in the webhook outbox, in the same transaction (``service.webhooks``).
 
 Liveness: a running job holds a lease key ``{prefix}:lease:{id}`` that its worker refreshes every
-heartbeat. ``reap`` fails running jobs whose lease lapsed (worker SIGKILLed, machine gone) with code
-``worker_lost``; they are not retried, because a job that kills its worker (memory) would otherwise
-take every worker down in turn. Clients may resubmit.
+heartbeat. ``reap`` finds running jobs whose lease lapsed (worker SIGKILLed, machine gone, frozen; a lease that
+lapsed in a Redis outage is renewed by the worker's next heartbeat, and the API's reaper waits one lease after an
+outage, ``service.app``): such a job is queued again, once (``MAX_ATTEMPTS``, counted in ``attempts``), and then
+fails ``worker_lost``. Once, because a job that itself kills its worker would otherwise take every worker down
+in turn; a job that outgrows its memory does not kill its worker (the ceiling fails it ``job_too_large``), so a
+lost worker is more often a machine's or an operator's doing than the job's. A stopping worker hands its job
+back (``hand_back``): queued again, the attempt not counted. A worker that was only frozen finds its job no
+longer its own and stops (``should_stop``); its late writes are refused.
 
 Queues: a job goes to one named queue (its ``queue``, default the deployment's), the rq queue
 ``{prefix}:{queue}``; a worker takes jobs from the queues it serves (``CTP_QUEUES``), so GPU and CPU
 workers can share one deployment.
 
-Workers: each heartbeat refreshes the worker's own lease ``{prefix}:worker:{name}`` (``lease_s``) with
+Workers: each heartbeat refreshes the worker's own lease ``{prefix}:worker:{name}`` (``FRESH_BEATS``) with
 its offer ``{prefix}:offer:{name}`` (the queues it serves, the models it can run), and a "last seen"
 record ``{prefix}:seen:{name}`` that outlives the lease by the grace (``worker_grace_s``). A job is judged
 by the live workers that serve its queue; while none does but one was seen within the grace (a worker
@@ -102,6 +107,17 @@ class SavedAdjustment(BaseModel):
 
 
 TASK = "worker.tasks.run_job"  # by name: the API never imports the engine
+MAX_ATTEMPTS = 2  # a job whose worker was lost is run once more (``Jobs.reap``)
+FRESH_BEATS = 3  # a worker counts as live while it beat within this many heartbeat periods (``Jobs.heartbeat``)
+# A running job's lease, renewed while the job is still running (in the running set): also after it lapsed during a
+# Redis outage longer than the lease (Redis keeps expiry times across a restart), never for a job that ended or
+# was reaped.
+_RENEW_LEASE = """
+if redis.call('sismember', KEYS[2], ARGV[1]) == 1 then
+    redis.call('set', KEYS[1], ARGV[2], 'EX', ARGV[3])
+end
+return 0
+"""
 
 
 class TooManyJobs(Exception):
@@ -242,6 +258,8 @@ class JobRecord(BaseModel):
     webhook_progress_at: float | None = Field(None, description="when its last progress event was queued (Unix "
                                               "seconds): the throttle")
     queue: str = Field(DEFAULT_QUEUE, description="the named queue it was sent to")
+    attempts: int = Field(0, description="runs of it that workers started and did not hand back; a job whose worker "
+                          "was lost (missed its lease) is queued again once, then fails worker_lost")
     downloads: Literal["stream", "redirect"] = Field("stream", description="how its result downloads answer, "
                                                      "as the API that accepted it was set (Links.downloads)")
     adjusted: SavedAdjustment | None = Field(None, description="a succeeded alignment's saved adjustment, the latest")
@@ -286,6 +304,7 @@ class _StopFlags(BaseModel):
 
     status: Status
     cancel_requested: bool = False
+    worker: str | None = None
 
 
 def serving(workers: dict[str, Offer], queue: str) -> dict[str, dict[str, str | None]]:
@@ -316,9 +335,10 @@ class Jobs:
         self._admit = redis.register_script(_ADMIT)
 
     @classmethod
-    def from_settings(cls, settings: Settings) -> Jobs:
-        """The job store of a deployment, as the API and every worker reach it (``settings.redis_url``)."""
-        client = Redis.from_url(settings.redis_url, health_check_interval=30)
+    def from_settings(cls, settings: Settings, client: Redis | None = None) -> Jobs:
+        """The job store of a deployment, as the API and every worker reach it (``settings.redis_url``; a worker
+        passes its own ``client``, one that waits out an outage)."""
+        client = client or Redis.from_url(settings.redis_url, health_check_interval=30)
         return cls(client, open_storage(client, settings), prefix=settings.key_prefix, ttl_s=settings.job_ttl_s,
                    job_timeout_s=settings.job_timeout_s, lease_s=settings.lease_s,
                    worker_grace_s=settings.worker_grace_s, default_queue=settings.default_queue)
@@ -391,12 +411,14 @@ class Jobs:
             self.redis.zrem(key, *gone)
         return [JobRecord.model_validate_json(raw) for raw in raws if raw is not None], self.redis.zcard(key)
 
-    def should_stop(self, job_id: str) -> bool:
-        """What a running job polls between steps: cancel requested, or no longer its worker's (reaped).
-        Every optimiser step asks, so only the two fields it needs are parsed from the record."""
+    def should_stop(self, job_id: str, worker: str | None = None) -> bool:
+        """What a running job polls between steps: cancel requested, or no longer running (reaped), or no longer
+        ``worker``'s (reaped, queued again and taken by another). Every optimiser step asks, so only the fields it
+        needs are parsed from the record."""
         raw = self.redis.get(self.record_key(job_id))
         flags = None if raw is None else _StopFlags.model_validate_json(raw)
-        return flags is None or flags.cancel_requested or flags.status != "running"
+        return (flags is None or flags.cancel_requested or flags.status != "running"
+                or (worker is not None and flags.worker != worker))
 
     # -- writing ------------------------------------------------------------------------------------
     def submit(self, record: JobRecord, blobs: dict[str, bytes], max_active: int) -> JobRecord:
@@ -418,9 +440,7 @@ class Jobs:
             if not admitted:
                 raise TooManyJobs(f"this key already has {max_active} queued or running jobs; wait for one to end",
                                   retry_after_s=self.retry_after(record.owner))
-            self.rq_queue(record.queue).enqueue(TASK, record.id, job_id=record.id,
-                               job_timeout=self.job_timeout_s * record.stage_count, result_ttl=0,
-                               failure_ttl=self.ttl_s, description=f"{record.kind} {record.id}")
+            self._enqueue(record, record.id)
         except Exception:  # TooManyJobs too: then only the inputs were stored
             self.redis.srem(self._active_key(record.owner), record.id)
             self.redis.zrem(owned, record.id)
@@ -429,6 +449,13 @@ class Jobs:
             raise
         log.info("job queued", extra={"job_id": record.id, "owner": record.owner, "queue": record.queue})
         return record
+
+    def _enqueue(self, record: JobRecord, rq_id: str) -> None:
+        """Put the job on its rq queue as rq job ``rq_id`` (a job queued again gets a new one: the rq job of its
+        earlier run may still be finalised by the worker that ran it)."""
+        self.rq_queue(record.queue).enqueue(TASK, record.id, job_id=rq_id,
+                                            job_timeout=self.job_timeout_s * record.stage_count, result_ttl=0,
+                                            failure_ttl=self.ttl_s, description=f"{record.kind} {record.id}")
 
     def retry_after(self, owner: str) -> int:
         """Seconds until one of ``owner``'s jobs is likely to end and free a slot: the soonest estimate of its
@@ -441,12 +468,14 @@ class Jobs:
         return high if not etas else min(high, max(low, math.ceil(min(etas))))
 
     def start(self, job_id: str, worker: str) -> JobRecord | None:
-        """queued -> running, taking the lease; None when the job is gone or no longer queued."""
+        """queued -> running, taking the lease and counting the attempt; None when the job is gone or no longer
+        queued."""
 
         def change(r: JobRecord) -> JobRecord | None:
             if r.status != "queued":
                 return None
             return r.model_copy(update={"status": "running", "started_at": now(), "worker": worker,
+                                        "attempts": r.attempts + 1,
                                         "progress": Progress(stage=Stage(name="loading"), kind="loading",
                                                                 message="loading meshes")})
 
@@ -462,18 +491,19 @@ class Jobs:
         return self._update(job_id, lambda r: r.model_copy(update={"guide": guide, "guide_why": why})
                             if r.status == "running" else None)
 
-    def set_progress(self, job_id: str, progress: Progress) -> JobRecord | None:
+    def set_progress(self, job_id: str, progress: Progress, worker: str | None = None) -> JobRecord | None:
+        """A running job's progress; from ``worker`` only while the job is its own."""
         return self._update(job_id, lambda r: r.model_copy(update={"progress": progress})
-                            if r.status == "running" else None)
+                            if r.status == "running" and worker in (None, r.worker) else None)
 
     def finish(self, job_id: str, status: Status, error: JobError | None = None,
-               alternatives: list[Alternative] | None = None) -> JobRecord | None:
+               alternatives: list[Alternative] | None = None, worker: str | None = None) -> JobRecord | None:
         """running -> a terminal status; frees the key's slot and drops the inputs; a succeeded job keeps its
-        ``alternatives``."""
+        ``alternatives``. From ``worker``: only while the job is its own."""
         assert status in TERMINAL
 
         def change(r: JobRecord) -> JobRecord | None:
-            if r.status != "running":
+            if r.status != "running" or worker not in (None, r.worker):
                 return None
             progress = r.progress
             if status == "succeeded":
@@ -491,6 +521,39 @@ class Jobs:
             self.storage.delete(job_id, record.inputs())
             log.info("job %s", status, extra={"job_id": job_id, "status": status,
                                               "code": error.code if error else None})
+        return record
+
+    def hand_back(self, job_id: str, worker: str) -> JobRecord | None:
+        """A stopping ``worker`` gives its running job back: queued again, the attempt not counted. None when the
+        job is no longer its own (reaped, canceled); then nothing changes."""
+        return self._requeue(job_id, lambda r: r.worker == worker and not r.cancel_requested, counted=False,
+                             message=f"handed back by worker {worker}, which was stopping; waiting for a worker")
+
+    def _requeue(self, job_id: str, when: Callable[[JobRecord], bool], *, counted: bool,
+                 message: str) -> JobRecord | None:
+        """running -> queued (when ``when`` holds), its lease and running slot dropped, put on its rq queue again;
+        ``counted``: the run stays counted in ``attempts``. Returns the queued record, or None."""
+
+        applied = False  # the last ``change`` decides: compare-and-set calls it again after a conflict
+
+        def change(r: JobRecord) -> JobRecord | None:
+            nonlocal applied
+            applied = r.status == "running" and when(r)
+            if not applied:
+                return None
+            return r.model_copy(update={"status": "queued", "started_at": None, "worker": None,
+                                        "attempts": r.attempts if counted else r.attempts - 1,
+                                        "progress": Progress(message=message)})
+
+        def also(pipe, _r: JobRecord) -> None:
+            pipe.delete(self._lease_key(job_id))
+            pipe.srem(self._running_key, job_id)
+
+        record = self._update(job_id, change, also)
+        if record is None or not applied:
+            return None
+        self._enqueue(record, new_id())
+        log.warning("job queued again", extra={"job_id": job_id, "status": "queued"})
         return record
 
     def mark_adjusted(self, job_id: str, adjusted: SavedAdjustment) -> JobRecord | None:
@@ -588,18 +651,25 @@ class Jobs:
         return f"{self.prefix}:seen"
 
     def heartbeat(self, worker: str, job_id: str | None, models: dict[str, str | None] | None = None,
-                  queues: list[str] | None = None) -> None:
+                  queues: list[str] | None = None, period_s: float | None = None) -> None:
         """A worker is alive (and so is its running job): refresh both leases. Its offer, the ``queues`` it
         serves (default: the default queue) and the ``models`` it can run (``{spec: None when it can, else why
         not}``), lives as long as the worker's lease. With a grace, the worker's "last seen" record (its offer)
-        is refreshed too and lives ``worker_grace_s``."""
+        is refreshed too and lives ``worker_grace_s``.
+
+        ``period_s``: the worker's heartbeat period; its own lease then lapses after ``FRESH_BEATS`` missed beats
+        (at least 2 s) instead of the whole ``lease_s``, so that a worker killed a moment ago no longer counts as
+        live (``/readyz``, the submits) while its job's lease still runs. A worker beats only once its default
+        model is loaded (``worker.main.run_worker``)."""
         offer = Offer(queues=queues or [self.default_queue], models=models or {})
+        fresh_ms = int(1000 * (self.lease_s if period_s is None else min(self.lease_s, max(FRESH_BEATS * period_s,
+                                                                                            2.0))))
         with self.redis.pipeline(transaction=False) as pipe:
-            pipe.set(self._worker_key(worker), job_id or "", ex=self.lease_s)
+            pipe.set(self._worker_key(worker), job_id or "", px=fresh_ms)
             pipe.sadd(f"{self.prefix}:workers", worker)
             pipe.set(self._offer_key(worker), offer.model_dump_json(), ex=self.lease_s)
             if job_id is not None:
-                pipe.set(self._lease_key(job_id), worker, ex=self.lease_s, xx=True)
+                pipe.eval(_RENEW_LEASE, 2, self._lease_key(job_id), self._running_key, job_id, worker, self.lease_s)
             grace_ms = int(self.worker_grace_s * 1000)
             if grace_ms > 0:
                 # The grace travels in the record: "seen s ago" is the grace less the key's time to live, which
@@ -697,20 +767,31 @@ class Jobs:
                         field=field)
 
     def reap(self) -> list[str]:
-        """Fail running jobs whose worker stopped heart-beating; returns their ids."""
+        """Running jobs whose worker missed its lease: queued again while under ``MAX_ATTEMPTS`` (and not being
+        canceled), else failed ``worker_lost``; returns their ids."""
         reaped = []
         for raw in self.redis.smembers(self._running_key):
             job_id = raw.decode()
             if self.redis.exists(self._lease_key(job_id)):
                 continue
-            record = self.finish(job_id, "failed", JobError(
-                code="worker_lost", message=f"the worker running this job stopped responding for {self.lease_s} s "
-                "(killed or its machine went away); the job was not retried, submit it again"))
-            if record is not None and record.status == "failed" and record.error and record.error.code == "worker_lost":
-                reaped.append(job_id)
-                log.warning("job reaped", extra={"job_id": job_id, "worker": record.worker})
-            elif record is None or record.status in TERMINAL:
+            record = self.get(job_id)
+            if record is None or record.status in TERMINAL:
                 self.redis.srem(self._running_key, job_id)
+                continue
+            missed = (f"the worker running this job ({record.worker}) missed its lease: no heartbeat for "
+                      f"{self.lease_s} s")
+            again = self._requeue(job_id, lambda r: r.attempts < MAX_ATTEMPTS and not r.cancel_requested,
+                                  counted=True, message=f"{missed}; queued again (attempt {record.attempts + 1} of "
+                                  f"{MAX_ATTEMPTS})")
+            why = ("it was being canceled" if record.cancel_requested else
+                   f"it was not run again (attempt {record.attempts} of {MAX_ATTEMPTS}): submit it again")
+            if again is None:
+                failed = self.finish(job_id, "failed", JobError(code="worker_lost", message=f"{missed}; {why}"))
+                if failed is None or failed.error is None or failed.error.code != "worker_lost":
+                    continue  # it ended, or expired, meanwhile
+            reaped.append(job_id)
+            log.warning("job reaped", extra={"job_id": job_id, "worker": record.worker,
+                                             "status": "queued" if again else "failed"})
         return reaped
 
 

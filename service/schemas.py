@@ -95,6 +95,8 @@ class JobOut(BaseModel):
     finished_at: datetime | None = Field(None, description="when it ended (UTC)")
     error: JobError | None = Field(None, description="why it failed or was canceled")
     cancel_requested: bool = Field(description="a DELETE was received; a running job stops at its next step")
+    attempts: int = Field(0, description="runs of it that workers started (a run handed back by a stopping worker is "
+                          "not counted): a job whose worker was lost is queued again once, so at most 2")
     prompt: str | None = Field(None, description="the text prompt (null for image-guided jobs without one)")
     image_guided: bool = Field(description="guided by a reference image instead of the text")
     webhook: Webhook | None = Field(None, description="the job's webhook and how its deliveries went; null "
@@ -121,7 +123,7 @@ class JobOut(BaseModel):
     def of(cls, r: JobRecord) -> JobOut:
         return cls(id=r.id, status=r.status, progress=r.progress, created_at=r.created_at,
                    started_at=r.started_at, finished_at=r.finished_at, error=r.error,
-                   cancel_requested=r.cancel_requested, prompt=r.prompt, image_guided=r.has_image,
+                   cancel_requested=r.cancel_requested, attempts=r.attempts, prompt=r.prompt, image_guided=r.has_image,
                    webhook=r.webhook, queue=r.queue, target_job=r.target_job, stages=r.stage_count,
                    alternatives=r.alternatives, adjusted=r.adjusted, guide=r.guide, guide_why=r.guide_why,
                    links=links(r.id, r.downloads))

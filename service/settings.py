@@ -107,10 +107,15 @@ class Settings(BaseSettings):
     runtime: Runtime = Field("auto", description="where workers run forward-only encoding: auto, torch, onnx, "
                              "onnx-int8 (docs/guidance.md)")
     # Liveness: a worker refreshes a lease on itself and on its running job every heartbeat; a job whose
-    # lease lapses (worker killed, machine gone) is failed by the API's reaper with code worker_lost.
+    # lease lapses (worker killed, machine gone) is queued again once by the API's reaper, then failed worker_lost.
     heartbeat_s: float = Field(2.0, gt=0, description="worker heartbeat period")
     lease_s: int = Field(15, ge=2, description="a worker or running job silent this long is considered dead")
     progress_every_s: float = Field(3.0, gt=0, description="a running job republishes progress at least this often")
+    # A worker waits out a Redis outage (worker.outage): the supervisor's restarts of a redis-server that keeps dying
+    # (1 + 2 + 4 + 8 + 16 s apart) or a managed Redis's failover (tens of seconds) fit; past it the outage is no
+    # blip, and a worker that exits is seen (restart counts) where one that waits is not.
+    redis_patience_s: float = Field(60.0, gt=0, description="how long a worker waits for Redis to answer again "
+                                    "before it exits (its supervisor starts another); its running job waits with it")
     # A worker seen this recently still counts while none is live (its restart: supervisor back-off up to 30 s,
     # start-up and model load about 15 to 25 s, from its last heartbeat): jobs are accepted and wait in the queue.
     worker_grace_s: float = Field(90.0, ge=0, description="after the last worker's lease lapsed, jobs are still "

@@ -2,8 +2,8 @@
 
 A thread polls them every ``POLL_S``. A worker that exited (killed, crashed, lost its Redis) is
 started again after a back-off that doubles from ``BACKOFF_S`` to ``BACKOFF_MAX_S`` while it keeps
-dying and resets once one has lived ``STABLE_S``; the job it was running is failed ``worker_lost`` by
-the API's reaper as before, and jobs submitted meanwhile are accepted and queued (the "last seen" grace,
+dying and resets once one has lived ``STABLE_S``; the job it was running is queued again (once) by
+the API's reaper, and jobs submitted meanwhile are accepted and queued (the "last seen" grace,
 ``service.jobs``). A redis-server that exited is started again on the same port with the
 same data directory, so the append-only file brings back every queued job (``appendfsync
 everysec``: a hard kill may lose the last second of writes). Each restart is logged. In the compose

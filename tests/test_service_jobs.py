@@ -91,22 +91,80 @@ def test_progress_is_published_to_the_job_channel(jobs):
     assert seen[-1].progress.step == 3
 
 
-def test_reaper_fails_jobs_whose_lease_lapsed_and_spares_live_ones(jobs):
+def lapse(jobs: Jobs, job_id: str, live: str | None = None, live_job: str | None = None) -> None:
+    """Until the job's lease (1 s) lapsed, ``live`` beating meanwhile."""
+    deadline = time.monotonic() + 3
+    while time.monotonic() < deadline and jobs.redis.exists(f"{jobs.prefix}:lease:{job_id}"):
+        if live:
+            jobs.heartbeat(live, live_job)
+        time.sleep(0.2)
+    if live:
+        jobs.heartbeat(live, live_job)
+
+
+def test_reaper_queues_a_lost_job_again_once_then_fails_it_and_spares_live_ones(jobs):
     dead, live = queued(jobs), queued(jobs)
     jobs.start(dead.id, "gone")
     jobs.start(live.id, "alive")
-    deadline = time.monotonic() + 3
-    while time.monotonic() < deadline and jobs.redis.exists(f"{jobs.prefix}:lease:{dead.id}"):
-        jobs.heartbeat("alive", live.id)
-        time.sleep(0.2)
-    jobs.heartbeat("alive", live.id)
+    lapse(jobs, dead.id, "alive", live.id)
     assert jobs.reap() == [dead.id]
-    assert jobs.get(dead.id).error.code == "worker_lost"
+    again = jobs.get(dead.id)
+    assert (again.status, again.attempts, again.worker, again.error) == ("queued", 1, None, None)
+    assert again.progress.message.startswith("the worker running this job (gone) missed its lease")
+    assert "attempt 2 of 2" in again.progress.message
+    assert len(jobs.rq_queue().get_job_ids()) == 3  # on its queue again, as a new rq job
     assert jobs.get(live.id).status == "running"
-    assert jobs.should_stop(dead.id)  # a worker that was only frozen stops once it wakes
+    assert jobs.should_stop(dead.id, "gone")  # a worker that was only frozen stops once it wakes
     jobs.heartbeat("gone", dead.id)  # ... and cannot revive the lease
     assert not jobs.redis.exists(f"{jobs.prefix}:lease:{dead.id}")
     assert jobs.reap() == []
+
+    assert jobs.start(dead.id, "second").attempts == 2
+    assert jobs.should_stop(dead.id, "gone") and not jobs.should_stop(dead.id, "second")
+    assert jobs.finish(dead.id, "succeeded", worker="gone").status == "running"  # the frozen one's late writes
+    assert jobs.set_progress(dead.id, Progress(message="late"), "gone").progress.message != "late"
+    lapse(jobs, dead.id, "alive", live.id)
+    assert jobs.reap() == [dead.id]
+    failed = jobs.get(dead.id)
+    assert (failed.status, failed.error.code, failed.attempts) == ("failed", "worker_lost", 2)
+    assert failed.error.message == ("the worker running this job (second) missed its lease: no heartbeat for 1 s; it "
+                                    "was not run again (attempt 2 of 2): submit it again")
+    assert jobs.storage.get(dead.id, "target") is None  # inputs dropped once it ended
+
+
+def test_a_lease_that_lapsed_in_a_redis_outage_is_renewed_by_the_next_heartbeat(jobs):
+    record = queued(jobs)
+    jobs.start(record.id, "w1")
+    jobs.redis.delete(f"{jobs.prefix}:lease:{record.id}")  # as when Redis was away for longer than the lease
+    jobs.heartbeat("w1", record.id)
+    assert jobs.redis.exists(f"{jobs.prefix}:lease:{record.id}") and jobs.reap() == []
+    jobs.finish(record.id, "succeeded")
+    jobs.heartbeat("w1", record.id)  # a beat that raced the job's end does not bring its lease back
+    assert not jobs.redis.exists(f"{jobs.prefix}:lease:{record.id}")
+
+
+def test_a_lost_job_being_canceled_is_not_run_again(jobs):
+    record = queued(jobs)
+    jobs.start(record.id, "gone")
+    jobs.cancel(record.id)
+    lapse(jobs, record.id)
+    assert jobs.reap() == [record.id]
+    assert jobs.get(record.id).error.message.endswith("; it was being canceled")
+
+
+def test_a_stopping_worker_hands_its_job_back_uncounted(jobs):
+    record = queued(jobs)
+    jobs.start(record.id, "w1")
+    assert jobs.hand_back(record.id, "w2") is None  # not its job
+    back = jobs.hand_back(record.id, "w1")
+    assert (back.status, back.attempts, back.worker, back.started_at) == ("queued", 0, None, None)
+    assert back.progress.message.startswith("handed back by worker w1")
+    assert not jobs.redis.exists(f"{jobs.prefix}:lease:{record.id}")
+    assert jobs.hand_back(record.id, "w1") is None  # queued already: not put on the queue twice
+    assert len(jobs.rq_queue().get_job_ids()) == 2
+    assert jobs.start(record.id, "w2").attempts == 1
+    jobs.cancel(record.id)
+    assert jobs.hand_back(record.id, "w2") is None  # being canceled: it ends canceled instead
 
 
 def test_live_workers_are_those_with_current_leases_only(jobs):

@@ -183,3 +183,66 @@ def test_embedded_service_heals_a_killed_worker_and_redis(tmp_path):
         log.close()
     text = (tmp_path / "serve.log").read_text(errors="replace")
     assert "supervisor: worker 1 restarted" in text and "supervisor: redis-server restarted" in text
+
+
+def _serve(env: dict[str, str], port: int, log, **popen) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "ctp", "serve", "--port", str(port)], env=env, cwd=REPO,
+                            stdout=log, stderr=subprocess.STDOUT, **popen)
+
+
+def _readyz(client: Client) -> dict | None:
+    try:
+        answer = client.http.get("/readyz")
+    except httpx.TransportError:  # uvicorn still starting
+        return None
+    return answer.json() if answer.status_code == 200 else None
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs Linux /proc to find the child processes")
+def test_ctrl_c_drains_and_loses_no_job(tmp_path):
+    """Ctrl-C in a terminal (SIGINT to the whole process group) while a job runs and another waits: the worker
+    hands its job back (queued, attempt not counted), Redis stops last and keeps both; a restarted service runs
+    both to success. /readyz counts no worker until the new one beats; SIGTERM to serve alone stops it too."""
+    env = service_env("unused", "ctp")
+    del env["REDIS_URL"]
+    env["XDG_CACHE_HOME"] = str(tmp_path / "cache")
+    port = free_port()
+    log = open(tmp_path / "serve.log", "wb")  # noqa: SIM115 - closed below
+    serve = _serve(env, port, log, start_new_session=True)  # its own process group, as a terminal's foreground job
+    started: list[int] = []
+    try:
+        with Client(f"http://127.0.0.1:{port}") as client:
+            wait_for(lambda: (r := _readyz(client)) and r["status"] == "ready", 120, "ctp serve to be ready", 0.5)
+            started = children(serve.pid)
+            running = client.submit(("box.glb", BOX), ("ball.glb", BALL), "a ball on a box",
+                                    options={**FAST, "steps": 40})
+            waiting = client.submit(("box.glb", BOX), ("ball.glb", BALL), "a ball on top of a box", options=FAST)
+            wait_for(lambda: client.status(running["id"])["progress"]["step"] > 0, 90, "the job to take a step")
+        os.killpg(serve.pid, signal.SIGINT)
+        assert serve.wait(timeout=60) == 128 + signal.SIGINT
+        wait_for(lambda: not any(alive(p) for p in started), 20, "serve's children to exit")
+
+        serve = _serve(env, port, log)
+        with Client(f"http://127.0.0.1:{port}") as client:
+            first = wait_for(lambda: _readyz(client), 60, "the API to answer")
+            assert (first["status"], first["workers"]) == ("restarting", 0)  # the stopped worker does not count
+            back = client.status(running["id"])
+            assert (back["status"], back["attempts"], back["error"]) == ("queued", 0, None), back
+            assert back["progress"]["message"].startswith("handed back by worker ")
+            assert client.status(waiting["id"])["status"] == "queued"
+            for job in (running, waiting):
+                final = client.wait(job["id"], timeout_s=240)
+                assert (final["status"], final["attempts"]) == ("succeeded", 1), final
+            started = children(serve.pid)
+        serve.send_signal(signal.SIGTERM)
+        assert serve.wait(timeout=40) == 128 + signal.SIGTERM
+        wait_for(lambda: not any(alive(p) for p in started), 20, "serve's children to exit")
+    finally:
+        if serve.poll() is None:
+            serve.kill()
+        for pid in started:
+            if alive(pid):
+                os.kill(pid, signal.SIGKILL)
+        log.close()
+    text = (tmp_path / "serve.log").read_text(errors="replace")
+    assert "Traceback" not in text, text

@@ -7,29 +7,35 @@ never has to survive a fork. The heartbeat thread keeps this worker visible to `
 queues and the models it can run (checked once at start: the default loaded, the others' weights looked for;
 a "last seen" record keeps them counted for ``CTP_WORKER_GRACE_S`` after the worker dies or exits, so jobs
 are still accepted while it is restarted, ``service.jobs``), holds the lease of the running job (lapsed
-lease: the API's reaper fails the job with ``worker_lost``) and republishes progress when the optimiser has
-been quiet for a while.
+lease: the API's reaper queues the job again, once, then fails it ``worker_lost``) and republishes progress
+when the optimiser has been quiet for a while.
+
+Its Redis clients wait out a Redis outage (``worker.outage``). A stop signal (SIGTERM or SIGINT, the first or any
+later one) is always a warm stop: the running job is handed back at its next step, queued again for another worker
+(``Jobs.hand_back``), or finishes first if it gets there sooner; the worker then leaves.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+import signal
 import socket
 import threading
 import time
 from dataclasses import dataclass
 from typing import Any
 
-from redis import Redis
 from redis.exceptions import RedisError
 from rq import SimpleWorker
 from rq.serializers import JSONSerializer
+from rq.utils import now as utcnow
 
 from ctp_core.loader import MeshLoader
 from service import logs
 from service.jobs import Jobs, Progress
 from service.settings import Settings
+from worker.outage import OUTAGE, patient_redis
 
 log = logging.getLogger("ctp.worker")
 
@@ -51,9 +57,9 @@ class Heartbeat(threading.Thread):
     def run(self) -> None:
         while not self._stop_event.is_set():
             try:
-                self.jobs.heartbeat(self.worker, self.job_id, self.models, self.queues)
+                self.jobs.heartbeat(self.worker, self.job_id, self.models, self.queues, self.period_s)
                 self._refresh_progress()
-            except RedisError as exc:  # Redis restarting: keep beating, the next one may land
+            except RedisError as exc:  # not an outage (those are waited out, worker.outage): beat again
                 log.warning("heartbeat failed: %s", exc, extra={"worker": self.worker})
             except Exception:  # never let the thread die: a silent worker has its jobs reaped
                 log.exception("heartbeat error", extra={"worker": self.worker, "job_id": self.job_id})
@@ -94,7 +100,7 @@ class Heartbeat(threading.Thread):
         # Under the lock: writes from the job thread and this thread never reorder.
         eta = None if progress.eta_s is None else max(0.0, round(progress.eta_s - (now - self._event_at), 1))
         self.jobs.set_progress(job_id, progress.model_copy(update={"elapsed_s": round(now - self._job_started, 3),
-                                                                   "eta_s": eta}))
+                                                                   "eta_s": eta}), self.worker)
         self._published = now
 
 
@@ -105,6 +111,7 @@ class WorkerContext:
     name: str
     beat: Heartbeat
     loader: MeshLoader
+    stopping: threading.Event  # set by a stop signal: the running job is handed back at its next step
 
 
 _CONTEXT: WorkerContext | None = None
@@ -121,19 +128,25 @@ def run_worker(settings: Settings, *, burst: bool = False, name: str | None = No
     """Preload the default model, then take jobs until stopped (SIGTERM/SIGINT: after the current job)."""
     global _CONTEXT
     logs.configure(settings.log_level)
+    for stop in (signal.SIGINT, signal.SIGTERM):  # until rq's loop takes over: no job yet, leave at once
+        signal.signal(stop, _leave)
     name = name or f"{socket.gethostname()}.{os.getpid()}"
-    jobs = Jobs.from_settings(settings)
+    OUTAGE.worker = name
+    jobs = Jobs.from_settings(settings, patient_redis(settings.redis_url, settings.redis_patience_s,
+                                                      health_check_interval=30))
     models = _preload(settings)
     queues = settings.served_queues
     beat = Heartbeat(jobs, name, settings.heartbeat_s, settings.progress_every_s, models, queues)
     loader = settings.mesh_loader(processes=1)
-    _CONTEXT = WorkerContext(settings, jobs, name, beat, loader)
+    _CONTEXT = WorkerContext(settings, jobs, name, beat, loader, threading.Event())
     beat.start()
     # rq gets a connection of its own: it raises the socket timeout above its blocking dequeue, which the
     # heartbeat thread's connections (redis-py's default timeout) must not share.
     # Listed first, taken first: a worker serving "gpu,cpu" empties its gpu queue before taking a cpu job.
-    worker = SimpleWorker([jobs.rq_queue(q).name for q in queues], connection=Redis.from_url(settings.redis_url),
-                          serializer=JSONSerializer, name=name)
+    worker = _Worker([jobs.rq_queue(q).name for q in queues],
+                     connection=patient_redis(settings.redis_url, settings.redis_patience_s),
+                     serializer=JSONSerializer, name=name)
+    worker.stopping = _CONTEXT.stopping
     log.info("worker ready", extra={"worker": name, "queues": queues})
     try:
         worker.work(burst=burst, logging_level=settings.log_level.upper())
@@ -143,6 +156,26 @@ def run_worker(settings: Settings, *, burst: bool = False, name: str | None = No
         jobs.worker_gone(name)
         _CONTEXT = None
     return 0
+
+
+def _leave(signum: int, _frame) -> None:
+    raise SystemExit(128 + signum)  # not KeyboardInterrupt's traceback
+
+
+class _Worker(SimpleWorker):
+    """rq's in-process worker, whose every stop signal is a warm stop that hands the running job back: rq's own
+    makes a second signal a cold stop, which would kill the job mid-run and leave it to be reaped."""
+
+    stopping: threading.Event
+
+    def request_stop(self, signum, frame) -> None:
+        if self.stopping.is_set():  # under way: a later signal changes nothing
+            return
+        log.info("stop requested (%s): the running job, if any, is handed back", signal.Signals(signum).name,
+                 extra={"worker": self.name})
+        self.stopping.set()
+        self._shutdown_requested_date = utcnow()
+        self._shutdown()  # idle: stop now; busy: once the job returns
 
 
 def where(settings: Settings) -> dict[str, Any]:

@@ -153,12 +153,16 @@ def run_job(job_id: str) -> str:
             if inputs["target"] is None or inputs.get("source", inputs.get("source-0")) is None:
                 raise CtpError("the job's uploads expired before a worker picked it up", code="inputs_expired")
             job = JobContext(loader=ctx.loader, limits=ctx.settings.mesh_limits, on_progress=on_progress,
-                             should_cancel=lambda: ctx.jobs.should_stop(job_id), choice=auto)
+                             should_cancel=lambda: ctx.stopping.is_set() or ctx.jobs.should_stop(job_id, ctx.name),
+                             choice=auto)
             files, alternatives = (assemble_job if record.kind == "assemble" else align_job)(record, inputs, job)
             for name, data in files.items():
                 ctx.jobs.storage.put(job_id, name, data)
             status = "succeeded"
     except Canceled as exc:
+        if ctx.stopping.is_set() and ctx.jobs.hand_back(job_id, ctx.name) is not None:
+            log.info("job handed back", extra={"job_id": job_id, "worker": ctx.name})
+            return "handed back"
         status, error = "canceled", JobError(code=exc.code, message="canceled while running")
     except Exception as exc:
         error = failure(exc, stage, budget_mb, "job", ctx.settings.job_timeout_s * record.stage_count,
@@ -167,7 +171,7 @@ def run_job(job_id: str) -> str:
         ctx.beat.end()
     if error is not None and error.code == JobTooLarge.code:
         gc.collect()  # frames in reference cycles: give their memory back before the next job
-    ctx.jobs.finish(job_id, status, error, alternatives)
+    ctx.jobs.finish(job_id, status, error, alternatives, ctx.name)
     return status
 
 
