@@ -45,6 +45,23 @@ def alive(pid: int) -> bool:
 
 
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs Linux /proc to find the child processes")
+def _stop(serve: subprocess.Popen, started: list[int]) -> None:
+    """SIGTERM to serve alone: it exits by the signal after cleaning up, and its children are gone."""
+    serve.send_signal(signal.SIGTERM)
+    assert serve.wait(timeout=40) == 128 + signal.SIGTERM
+    wait_for(lambda: not any(alive(p) for p in started), 20, "serve's children to exit")
+
+
+def _kill_left(serve: subprocess.Popen, started: list[int], log) -> None:
+    """What a test left running (it failed before ``_stop``): serve and its children, killed."""
+    if serve.poll() is None:
+        serve.kill()
+    for pid in started:
+        if alive(pid):
+            os.kill(pid, signal.SIGKILL)
+    log.close()
+
+
 def test_one_command_service_and_clean_stop(tmp_path):
     env = service_env("unused", "ctp")
     del env["REDIS_URL"]  # the point: no Redis given
@@ -68,16 +85,9 @@ def test_one_command_service_and_clean_stop(tmp_path):
             assert (tmp_path / "cache" / "ctp" / "redis" / "appendonly.aof").exists()
             job = client.submit(("box.glb", BOX), ("ball.glb", BALL), "a ball on top of a box", options=FAST)
             assert client.wait(job["id"], timeout_s=120)["status"] == "succeeded"
-        serve.send_signal(signal.SIGTERM)
-        assert serve.wait(timeout=40) == 128 + signal.SIGTERM  # stopped by the signal, after cleaning up
-        wait_for(lambda: not any(alive(p) for p in started), 20, "serve's children to exit")
+        _stop(serve, started)
     finally:
-        if serve.poll() is None:
-            serve.kill()
-        for pid in started:
-            if alive(pid):
-                os.kill(pid, signal.SIGKILL)
-        log.close()
+        _kill_left(serve, started, log)
 
 
 def test_worker_needs_redis_url(monkeypatch, capsys):
@@ -234,15 +244,8 @@ def test_ctrl_c_drains_and_loses_no_job(tmp_path):
                 final = client.wait(job["id"], timeout_s=240)
                 assert (final["status"], final["attempts"]) == ("succeeded", 1), final
             started = children(serve.pid)
-        serve.send_signal(signal.SIGTERM)
-        assert serve.wait(timeout=40) == 128 + signal.SIGTERM
-        wait_for(lambda: not any(alive(p) for p in started), 20, "serve's children to exit")
+        _stop(serve, started)
     finally:
-        if serve.poll() is None:
-            serve.kill()
-        for pid in started:
-            if alive(pid):
-                os.kill(pid, signal.SIGKILL)
-        log.close()
+        _kill_left(serve, started, log)
     text = (tmp_path / "serve.log").read_text(errors="replace")
     assert "Traceback" not in text, text
