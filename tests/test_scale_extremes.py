@@ -26,7 +26,7 @@ from ctp_core import canonical, io, proposals
 from ctp_core.align import SIZE_RATIO_RANGE, align, scale_ratio_warning
 from ctp_core.config import AlignConfig
 from ctp_core.export import report
-from ctp_core.guidance import get_guide
+from ctp_core.guide_loaders import get_guide
 from ctp_core.scene import prepare_pair
 
 REPO = Path(__file__).resolve().parents[1]

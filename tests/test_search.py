@@ -12,7 +12,7 @@ from ctp_core import export, goals, metrics, objective, pose, proposals, ranking
 from ctp_core.align import align, prepare, propose, refine
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
-from ctp_core.guidance import get_guide
+from ctp_core.guide_loaders import get_guide
 from ctp_core.priors.relations import RELATIONS
 
 CONFIG = AlignConfig.from_preset("test", model="random:tiny", search={"candidates": 40}, loss={"samples": 1500})

@@ -37,8 +37,8 @@ from ctp_core.export import (
     scene_glb,
     strip_png,
 )
-from ctp_core.guidance import guide_for
 from ctp_core.guide_choice import GuideChoice
+from ctp_core.guide_loaders import guide_for
 from ctp_core.io import MeshLimits, load_image, load_objects
 from ctp_core.loader import MeshLoader
 from ctp_core.progress import ProgressEvent
