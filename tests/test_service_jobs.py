@@ -170,13 +170,13 @@ def test_a_stopping_worker_hands_its_job_back_uncounted(jobs):
 def test_live_workers_are_those_with_current_leases_only(jobs):
     jobs.heartbeat("a", None)
     jobs.heartbeat("b", None, {"random:tiny": None})
-    live = jobs.live_workers()
+    live = jobs.workers.live()
     assert {name: offer.models for name, offer in live.items()} == {"a": {}, "b": {"random:tiny": None}}
     assert [offer.queues for offer in live.values()] == [["default"], ["default"]]  # a heartbeat's default
-    jobs.worker_gone("a")
-    assert list(jobs.live_workers()) == ["b"]
+    jobs.workers.gone("a")
+    assert list(jobs.workers.live()) == ["b"]
     time.sleep(1.2)  # lease_s = 1
-    assert jobs.live_workers() == {}
+    assert jobs.workers.live() == {}
 
 
 def test_unavailable_says_no_worker_then_which_model_is_missing(jobs):
@@ -189,8 +189,8 @@ def test_unavailable_says_no_worker_then_which_model_is_missing(jobs):
     assert (missing.code, missing.field) == ("model_unavailable", "options.model")
     assert missing.message == "no live worker can run model 'hf:big': weights for 'big' are not in the cache"
     assert "no live worker offers it" in jobs.unavailable("random:ViT-B-32").message
-    assert sorted(jobs.live_workers()) == ["a", "b"]
-    jobs.worker_gone("a")
+    assert sorted(jobs.workers.live()) == ["a", "b"]
+    jobs.workers.gone("a")
     assert jobs.unavailable("random:tiny").code == "model_unavailable"  # the one worker that had it left
     assert not jobs.redis.exists(f"{jobs.prefix}:offer:a")
 

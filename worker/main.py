@@ -153,7 +153,7 @@ def run_worker(settings: Settings, *, burst: bool = False, name: str | None = No
     finally:
         beat.stop()
         loader.close()
-        jobs.worker_gone(name)
+        jobs.workers.gone(name)
         _CONTEXT = None
     return 0
 
