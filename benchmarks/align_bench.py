@@ -103,7 +103,7 @@ def _timed(case, preset: str, model: str, stop_after: int) -> dict:
 
 
 def ratio(args) -> None:
-    from ctp_core.guidance import get_guide
+    from ctp_core.guide_loaders import get_guide
 
     get_guide(args.model)  # loaded once for both presets, outside the timings (a worker keeps it loaded)
     for folder in args.cases:

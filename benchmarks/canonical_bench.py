@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ctp_core import canonical, guidance, io, sampling, scene
+from ctp_core import canonical, guidance, guide_loaders, io, sampling, scene
 
 _TOLERANCE_DEG = 10.0
 
@@ -48,7 +48,7 @@ def main() -> None:
     parser.add_argument("--model", help="guidance model spec for the semantic judge (default: geometry only)")
     parser.add_argument("--views", type=int, default=4, help="judge renders per candidate up")
     args = parser.parse_args()
-    guide = guidance.get_guide(args.model) if args.model else None
+    guide = guide_loaders.get_guide(args.model) if args.model else None
 
     rng = np.random.default_rng(args.seed)
     cases, started = [], time.perf_counter()

@@ -120,7 +120,8 @@ def main() -> None:
     import transformers  # noqa: F401  (timed: a worker pays this once per process)
 
     import_s = time.perf_counter() - start
-    from ctp_core.guidance import cpu_has_fast_bf16, load_guide
+    from ctp_core.guidance import cpu_has_fast_bf16
+    from ctp_core.guide_loaders import load_guide
 
     start = time.perf_counter()
     guide = load_guide(args.spec, autocast=False)

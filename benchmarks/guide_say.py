@@ -35,7 +35,7 @@ from ctp_core import align, metrics, objective, ranking, sampling
 from ctp_core.bench import protocol
 from ctp_core.bench.guides import guide_inputs
 from ctp_core.config import AlignConfig
-from ctp_core.guidance import guide_for
+from ctp_core.guide_loaders import guide_for
 
 
 def agreement(terms: dict[str, torch.Tensor]) -> tuple[float, int, int] | None:

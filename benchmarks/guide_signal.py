@@ -28,7 +28,7 @@ from ctp_core import align, metrics, ranking, render, sampling
 from ctp_core.bench import protocol
 from ctp_core.bench.guides import guide_inputs
 from ctp_core.config import AlignConfig
-from ctp_core.guidance import guide_for
+from ctp_core.guide_loaders import guide_for
 from ctp_core.pose import Poses, apply_pose
 
 

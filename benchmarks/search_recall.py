@@ -64,7 +64,7 @@ def run_case(case, args) -> dict:
     config = AlignConfig.from_preset(args.preset, seed=args.seed, model=args.model, **overrides)
     guide = inputs.guide
     if guide is None:
-        from ctp_core.guidance import guide_for
+        from ctp_core.guide_loaders import guide_for
         guide = guide_for(config)
     started = time.perf_counter()
     run = align.prepare(target, source, case.prompt, config, guide=guide, goal=inputs.goal,

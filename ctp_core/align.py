@@ -133,7 +133,7 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
 
     A scene target's priors read the object ``on`` (its name is ``target_name``, its size the extent). In scale
     mode the files' sizes set nothing (``scaling``): the size ratio comes from the names and the prompt."""
-    from ctp_core import goals, guidance, objective, orientation, scaling, scene, schedule
+    from ctp_core import goals, guide_loaders, objective, orientation, scaling, scene, schedule
 
     started = time.perf_counter()
     if config.threads:
@@ -149,7 +149,7 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
     )
     judge = None
     if config.upright and config.upright_judge:
-        guide = guide or guidance.guide_for(config)
+        guide = guide or guide_loaders.guide_for(config)
         # a scene's up is its base's (scene.base), judged under the base's own name
         base_name, base = (target_name, target) if isinstance(target, trimesh.Trimesh) else scene.objects(target)[0]
         judge = scene.upright_judge(base, guide, base_name, device=config.device)
@@ -163,7 +163,7 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
         elif prompt:
             goal = goals.TextGoal(prompt)
     if goal is not None and config.loss.lambda_clip > 0:
-        guide = guide or guidance.guide_for(config)
+        guide = guide or guide_loaders.guide_for(config)
         goal.prepare(pair, guide)
     else:
         goal = None
@@ -359,7 +359,7 @@ def align(
     The stages: ``prepare`` -> ``propose`` -> ``score`` -> ``refine`` -> ``result``.
     ``image`` (H, W, 3 uint8) guides by a reference picture instead of the text; ``goal`` (a
     ``goals`` object) overrides both (the benchmark's oracle). ``guide`` is a preloaded
-    vision-language model (``guidance.get_guide``); without one the configured model is loaded (and
+    vision-language model (``guide_loaders.get_guide``); without one the configured model is loaded (and
     cached per process). ``init`` (4x4, source file -> target file) is one more search candidate (or,
     search off, replaces the first random start); rigid, it fixes the source's scale, while with ``config.scale``
     its scale is ignored (``scaling``: the priors' ratio or the geometry set it).

@@ -122,7 +122,7 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
                 for s, c in zip(steps, configs, strict=True)]
     guided = [c for c in resolved if c.loss.lambda_clip > 0]
     if guide is None and guided:
-        from ctp_core.guidance import guide_for
+        from ctp_core.guide_loaders import guide_for
 
         guide = guide_for(guided[0])
     placed = [Placed(base_name, base, frames.Similarity(np.eye(4), frames.SCENE, frames.SCENE))]

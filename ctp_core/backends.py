@@ -1,14 +1,12 @@
-"""The guidance model backends: a spec's prefix -> its loader, and whether it gives gradients.
+"""The guidance model backends: the spec prefixes, what a spec of each looks like, whether it gives gradients.
 
 Kept free of torch and transformers so configuration validation (the API process imports no torch)
-can refuse a run a backend cannot serve before any model loads. A backend's loader (in ``guide_loaders``,
-which needs torch) is imported on first use; it takes ``(spec, rest_of_spec, guidance.LoadRequest)`` and
-returns a ``guidance.Guide``.
+can refuse a run a backend cannot serve before any model loads. Each backend's loader (which needs torch)
+is ``guide_loaders.LOADERS[prefix]``; this module does not import it.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 from ctp_core.errors import ModelSpecError
@@ -19,13 +17,6 @@ class Backend:
     prefix: str
     usage: str  # what a spec of this backend looks like, for messages
     differentiable: bool = True  # False: forward only (no image gradients, so no CLIP term to descend)
-
-    def load_function(self) -> Callable:
-        """This backend's loader, ``guide_loaders.load_<prefix>``; imported here, on first use, as it needs torch."""
-        from ctp_core import guide_loaders
-
-        return {"hf": guide_loaders.load_hf, "open_clip": guide_loaders.load_open_clip,
-                "random": guide_loaders.load_random, "onnx": guide_loaders.load_onnx}[self.prefix]
 
 
 BACKENDS: dict[str, Backend] = {b.prefix: b for b in (

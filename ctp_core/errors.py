@@ -86,7 +86,7 @@ class JobTooLarge(CtpError):
 def out_of_memory(exc: BaseException) -> bool:
     """Whether ``exc`` is an allocation failure: Python's or numpy's ``MemoryError``, torch's CPU allocator
     (``RuntimeError: ... DefaultCPUAllocator: can't allocate memory``), ONNX Runtime's arena (``Failed to
-    allocate memory``). Under a per-job ``RLIMIT_DATA`` (``worker.tasks.job_memory``) all of them raise
+    allocate memory``). Under a per-job ``RLIMIT_DATA`` (``worker.memory.job_memory``) all of them raise
     inside the job, so the job fails alone and the process keeps serving."""
     if isinstance(exc, MemoryError):
         return True

@@ -22,8 +22,8 @@ Model specs (the strings of ``ctp align --model``):
   ONNX Runtime without torch weights. Forward only: ``Guide.differentiable`` is False, and a run that
   needs image gradients is refused when it is configured (``config``).
 
-The backends are a registry (``backends.BACKENDS``: spec prefix -> loader, differentiable or not); the
-loaders that build a ``Guide`` for each are in ``guide_loaders``.
+The backends are a registry (``backends.BACKENDS``: spec prefixes, differentiable or not); the loaders that
+build a ``Guide`` for each, ``load_guide`` and its process cache ``get_guide`` are in ``guide_loaders``.
 
 Runtime of the forward-only calls (``runtime``: ``auto``, ``torch``, ``onnx``, ``onnx-int8``): with
 ``onnx``/``onnx-int8`` the guide exports its towers once (cached) and runs ``encode_images``,
@@ -55,7 +55,6 @@ is too small to gain from bf16 (autocast overhead makes it ~1.5x slower); it exi
 from __future__ import annotations
 
 import logging
-import threading
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -65,10 +64,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from ctp_core import backends
 from ctp_core import runtime as runtime_mod
 from ctp_core.errors import ModelError
-from ctp_core.weights import downloads_allowed
 
 log = logging.getLogger(__name__)
 
@@ -153,7 +150,7 @@ Tokens = dict[str, Tensor]
 
 @dataclass(frozen=True)
 class LoadRequest:
-    """What every backend loader gets besides the spec (see ``load_guide``)."""
+    """What every backend loader gets besides the spec (see ``guide_loaders.load_guide``)."""
 
     device: torch.device
     autocast: bool
@@ -164,7 +161,7 @@ class LoadRequest:
 
 
 class Guide:
-    """A loaded vision-language model; load once per process (``get_guide``) and reuse across jobs.
+    """A loaded vision-language model; load once per process (``guide_loaders.get_guide``) and reuse across jobs.
 
     Embeddings are (N, D) fp32 and L2-normalised, so a dot product is the cosine similarity.
     ``model`` is None for a forward-only backend (``onnx:``), whose calls all go to ``encoders``.
@@ -338,62 +335,6 @@ class Guide:
         log.warning("ONNX Runtime (%s) unavailable for %s, using torch: %s: %s", runtime, self.spec,
                     type(exc).__name__, first[:300])
         self.encoders, self.runtime = None, "torch"
-
-
-def load_guide(
-    spec: str,
-    *,
-    device: str = "cpu",
-    autocast: bool = True,
-    offline: bool | None = None,
-    cache_dir: str | None = None,
-    runtime: str = "torch",
-    threads: int | None = None,
-) -> Guide:
-    """Build the guide named by ``spec`` (see module docstring); raises ``ModelError`` if it cannot.
-
-    ``offline=None`` follows the environment (see ``downloads_allowed``); ``cache_dir`` overrides the
-    Hugging Face cache directory. ``runtime`` chooses where forward-only calls run (``use_runtime``);
-    ``threads`` is ONNX Runtime's intra-op threads (None: torch's current thread count).
-    """
-    backend, rest = backends.parse(spec)
-    if runtime not in runtime_mod.RUNTIMES:
-        raise ModelError(f"unknown runtime {runtime!r}; choose one of {', '.join(runtime_mod.RUNTIMES)}",
-                         field="runtime")
-    dev = torch.device(device)
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise ModelError(f"device {device!r} requested but this torch build sees no CUDA device", field="device")
-    if offline is None:
-        offline = not downloads_allowed()
-    request = LoadRequest(dev, autocast, offline, cache_dir, runtime, threads or torch.get_num_threads())
-    guide = backend.load_function()(spec, rest, request)
-    guide.use_runtime(runtime, request.threads)
-    return guide
-
-
-_CACHE: dict[tuple, Guide] = {}
-_CACHE_LOCK = threading.Lock()
-
-
-def get_guide(spec: str, *, device: str = "cpu", autocast: bool = True, runtime: str = "torch",
-              threads: int | None = None) -> Guide:
-    """Process-wide cache over ``load_guide``: a worker loads each model once, then reuses it.
-
-    The lock makes concurrent first calls load once; failures are not cached, so a fixed
-    environment (weights copied in) takes effect on the next call.
-    """
-    threads = threads or torch.get_num_threads()
-    key = (spec, str(torch.device(device)), bool(autocast), runtime, threads)
-    with _CACHE_LOCK:
-        if key not in _CACHE:
-            _CACHE[key] = load_guide(spec, device=device, autocast=autocast, runtime=runtime, threads=threads)
-        return _CACHE[key]
-
-
-def guide_for(config) -> Guide:
-    """The guide an ``AlignConfig`` asks for (model, device, precision, runtime, threads), process-cached."""
-    return get_guide(config.model, device=config.device, autocast=config.autocast, runtime=config.runtime,
-                     threads=config.threads)
 
 
 def byte_tokenize(texts: list[str], vocab_size: int, context: int = TEXT_CONTEXT) -> dict[str, Tensor]:

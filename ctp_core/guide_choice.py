@@ -4,7 +4,7 @@ judge). A machine without weights then still runs the main job, labelled as such
 
 Chosen per run (``resolve``), where it runs: a service's worker chooses for each job it takes, so weights pulled
 while it runs (``ctp models pull``) serve the next job. An explicit spec (``hf:``, ``open_clip:``, ``onnx:``,
-``random:``) is never replaced: it loads or the run is refused (``guidance.load_guide``). A run that asks for
+``random:``) is never replaced: it loads or the run is refused (``guide_loaders.load_guide``). A run that asks for
 guidance itself (a reference image, the upright judge; over HTTP also a positive ``lambda_clip``,
 ``asks_for_guide``) is refused when ``auto`` finds no model, rather than silently run without one.
 

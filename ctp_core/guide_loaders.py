@@ -1,19 +1,22 @@
-"""The guidance backends' loaders: a spec's rest -> a loaded ``guidance.Guide``.
+"""Loading a guide: a model spec -> a loaded ``guidance.Guide`` (``load_guide``, process-cached by ``get_guide``).
 
-``backends.BACKENDS`` names one loader per spec prefix (``load_hf``, ``load_open_clip``, ``load_random``,
-``load_onnx``); each takes ``(spec, rest_of_spec, guidance.LoadRequest)``. Kept apart from ``guidance``
-so the Guide's own module says what a guide does, and this one how each backend builds one.
+``LOADERS`` names one loader per ``backends.BACKENDS`` prefix (``load_hf``, ``load_open_clip``, ``load_random``,
+``load_onnx``); each takes ``(spec, rest_of_spec, guidance.LoadRequest)``. Kept apart from ``guidance`` so the
+Guide's own module says what a guide does, and this one how each backend builds one; ``guidance`` sits below this
+module and never imports it (no import cycle).
 """
 
 from __future__ import annotations
 
 import json
+import threading
 from collections.abc import Callable
 from pathlib import Path
 
 import torch
 from torch import Tensor
 
+from ctp_core import backends
 from ctp_core import runtime as runtime_mod
 from ctp_core.errors import ModelError, ModelSpecError
 from ctp_core.guidance import (
@@ -26,7 +29,7 @@ from ctp_core.guidance import (
     Tokens,
     byte_tokenize,
 )
-from ctp_core.weights import looks_local, missing
+from ctp_core.weights import downloads_allowed, looks_local, missing
 
 
 def _clip_shape(width: int, layers: int, heads: int, patch: int, text_width: int, text_heads: int, *,
@@ -243,3 +246,65 @@ def load_open_clip(spec: str, rest: str, request: LoadRequest) -> Guide:
                  text_features=lambda batch: model.encode_text(batch["text"].to(device)),
                  transform=ImageTransform.clip(size, mean, std), embed_dim=embed_dim, device=device,
                  autocast=request.autocast)
+
+
+# One loader per ``backends.BACKENDS`` prefix: ``backends`` stays free of torch (the API validates specs with it),
+# so the prefix -> loader map lives here, beside the loaders it names.
+LOADERS: dict[str, Callable[[str, str, LoadRequest], Guide]] = {
+    "hf": load_hf, "open_clip": load_open_clip, "random": load_random, "onnx": load_onnx}
+
+
+def load_guide(
+    spec: str,
+    *,
+    device: str = "cpu",
+    autocast: bool = True,
+    offline: bool | None = None,
+    cache_dir: str | None = None,
+    runtime: str = "torch",
+    threads: int | None = None,
+) -> Guide:
+    """Build the guide named by ``spec`` (see ``guidance``'s docstring); raises ``ModelError`` if it cannot.
+
+    ``offline=None`` follows the environment (see ``downloads_allowed``); ``cache_dir`` overrides the
+    Hugging Face cache directory. ``runtime`` chooses where forward-only calls run (``use_runtime``);
+    ``threads`` is ONNX Runtime's intra-op threads (None: torch's current thread count).
+    """
+    backend, rest = backends.parse(spec)
+    if runtime not in runtime_mod.RUNTIMES:
+        raise ModelError(f"unknown runtime {runtime!r}; choose one of {', '.join(runtime_mod.RUNTIMES)}",
+                         field="runtime")
+    dev = torch.device(device)
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ModelError(f"device {device!r} requested but this torch build sees no CUDA device", field="device")
+    if offline is None:
+        offline = not downloads_allowed()
+    request = LoadRequest(dev, autocast, offline, cache_dir, runtime, threads or torch.get_num_threads())
+    guide = LOADERS[backend.prefix](spec, rest, request)
+    guide.use_runtime(runtime, request.threads)
+    return guide
+
+
+_CACHE: dict[tuple, Guide] = {}
+_CACHE_LOCK = threading.Lock()
+
+
+def get_guide(spec: str, *, device: str = "cpu", autocast: bool = True, runtime: str = "torch",
+              threads: int | None = None) -> Guide:
+    """Process-wide cache over ``load_guide``: a worker loads each model once, then reuses it.
+
+    The lock makes concurrent first calls load once; failures are not cached, so a fixed
+    environment (weights copied in) takes effect on the next call.
+    """
+    threads = threads or torch.get_num_threads()
+    key = (spec, str(torch.device(device)), bool(autocast), runtime, threads)
+    with _CACHE_LOCK:
+        if key not in _CACHE:
+            _CACHE[key] = load_guide(spec, device=device, autocast=autocast, runtime=runtime, threads=threads)
+        return _CACHE[key]
+
+
+def guide_for(config) -> Guide:
+    """The guide an ``AlignConfig`` asks for (model, device, precision, runtime, threads), process-cached."""
+    return get_guide(config.model, device=config.device, autocast=config.autocast, runtime=config.runtime,
+                     threads=config.threads)

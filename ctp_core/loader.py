@@ -228,7 +228,7 @@ def _serve(memory_bytes: int) -> None:
     replies = os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)  # anything a library prints goes to stderr, never into the replies
     requests = os.fdopen(0, "rb")
-    # Started mid-job by a worker, this process inherits the job's data ceiling (worker.tasks.job_memory),
+    # Started mid-job by a worker, this process inherits the job's data ceiling (worker.memory.job_memory),
     # sized to the worker's memory, not ours: our own limit is the address space below.
     _, data_hard = resource.getrlimit(resource.RLIMIT_DATA)
     resource.setrlimit(resource.RLIMIT_DATA, (data_hard, data_hard))

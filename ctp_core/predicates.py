@@ -673,7 +673,7 @@ def _score_hang(c: _Ctx) -> torch.Tensor:
 
 
 def _score_wear(c: _Ctx) -> torch.Tensor:
-    """``wear``: on a summit of the ground (a peak of its top surface: a head's top, ``proposals.summits`` with
+    """``wear``: on a summit of the ground (a peak of its top surface: a head's top, ``sampling.summits`` with
     the figure's width as the neighbourhood; the one nearest the figure), covering it: that summit within
     ``WEAR_CENTRE`` figure half-widths of the figure's centre column, the figure's bottom below it, in contact."""
     fig, ground = c.figure, c.ground.side
@@ -687,15 +687,13 @@ def _score_wear(c: _Ctx) -> torch.Tensor:
 
 
 def _summits(ground: Side, radius: float) -> torch.Tensor:
-    """(B or 1, P, 3) the ground's summit samples (``proposals.summits``: highest in their column and its
+    """(B or 1, P, 3) the ground's summit samples (``sampling.summits``: highest in their column and its
     neighbours, ``radius`` cells); a posed ground (one per pose) keeps its highest sample only."""
-    from ctp_core.proposals import summits
-
     if not ground.static:
         idx = ground.points[..., 1].argmax(-1)
         return torch.gather(ground.points, 1, idx[:, None, None].expand(-1, 1, 3))
     pts = ground.points[0]
-    peaks = summits(pts.detach().cpu().double().numpy(), radius)
+    peaks = sampling.summits(pts.detach().cpu().double().numpy(), radius)
     return pts[torch.as_tensor(peaks, dtype=torch.long, device=pts.device)][None]
 
 

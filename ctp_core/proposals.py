@@ -7,8 +7,8 @@ lets the guide rank them in batches, with no gradient (``ranking``).
 ``propose``: points on the target surface (area-weighted, denser where the surface faces up and along rims),
 split into regions (``REGIONS``): surfaces facing up, sideways and down, the target's cavity (inside its convex
 hull, outside the target as the penetration term defines it), lateral gaps, drops (the source lowered from
-above onto a point's column, every ``summits`` peak first: a spire's tip or a head's top has too little area to
-be drawn) and the floor (standing where the target stands, under or around it). Each point gets a source
+above onto a point's column, every ``sampling.summits`` peak first: a spire's tip or a head's top has too little
+area to be drawn) and the floor (standing where the target stands, under or around it). Each point gets a source
 orientation from the source's own frames (its upright frame and its flip turned about +Y, its stable resting
 poses; uniform rotations in the ``random`` init mode), and ``settle`` moves the source until it touches without
 interpenetrating. The prompt's relation (``ScenePrior``) only *weights* how many proposals each region gets
@@ -215,41 +215,6 @@ def hollow(verts: np.ndarray, index: losses.SurfaceIndex, seed: int, sigma: floa
     return probes[keep]
 
 
-def summits(points: np.ndarray, radius: float) -> np.ndarray:
-    """Indices of the samples highest in their column and its neighbours (+Y up; a grid of ``radius`` cells over
-    x, z), highest first: a spire's tip, the top of a head, a knob, each bump's peak (small areas that
-    area-weighted sampling rarely draws).
-
-    Only the occupied cells are kept (sorted integer keys; the 8 neighbours found by binary search): time
-    O(N log N) and memory O(N) for N samples, whatever ``radius`` (a dense grid of ``radius`` cells grew with the
-    target's extent over the source's size squared: 21,000² cells for a 0.3 m source beside a 5 km target).
-    The cell is at least a millionth of the samples' x/z extent (keys stay far within int64).
-    """
-    if not len(points):
-        return np.zeros(0, dtype=np.int64)
-    xz = points[:, [0, 2]]
-    cell = max(radius, float(np.ptp(xz, axis=0).max()) * 1e-6, 1e-9)
-    cells = np.floor(xz / cell).astype(np.int64)
-    cells -= cells.min(0) - 1  # a border of one empty cell, so no neighbour key wraps into another row
-    width = int(cells[:, 1].max()) + 2
-    key = cells[:, 0] * width + cells[:, 1]
-    occupied, inverse = np.unique(key, return_inverse=True)
-    inverse = inverse.reshape(-1)
-    top = np.full(len(occupied), -np.inf)
-    np.maximum.at(top, inverse, points[:, 1])
-    around = top.copy()
-    for i in (-1, 0, 1):
-        for j in (-1, 0, 1):
-            if i or j:
-                near = occupied + (i * width + j)
-                at = np.minimum(np.searchsorted(occupied, near), len(occupied) - 1)
-                hit = occupied[at] == near
-                around[hit] = np.maximum(around[hit], top[at[hit]])
-    mine = top[inverse]
-    peaks = np.flatnonzero((points[:, 1] >= mine) & (mine >= around[inverse]))
-    return peaks[np.argsort(-points[peaks, 1], kind="stable")]
-
-
 def floor_points(pair: PreparedPair, count: int, margin: float, rng: np.random.Generator) -> np.ndarray:
     """(count, 3) points on the plane the target stands on (its lowest point's height, normalised frame, +Y up),
     uniform over the related object's footprint widened by ``margin`` on every side: things under or beside
@@ -388,7 +353,7 @@ def propose(pair: PreparedPair, config: AlignConfig, weights: dict[str, float], 
             w = density[pool] / density[pool].sum()
             pick = pool[rng.choice(len(pool), size=n, p=w)]
             if region == "drop":  # lowered from above onto a point's column: every summit first, then by density
-                peaks = summits(points, diagonal)[: n // 2]
+                peaks = sampling.summits(points, diagonal)[: n // 2]
                 pick[: len(peaks)] = peaks
                 parts.append((points[pick], above, zero, ones, "straight"))
                 continue

@@ -1,9 +1,12 @@
-"""Surface samples for the geometric losses.
+"""Surface samples for the geometric losses, and the summits read from them.
 
 The losses (soft-ICP, penetration) work on points, and mesh vertices are a poor stand-in: low-poly
 uploads have a handful (the benchmark's star has 20 faces, its arrow 11) and dense scans cluster them
 where the detail is. So the losses take area-weighted surface samples instead, a fixed count per
 object whatever the tessellation.
+
+``summits`` (the samples highest in their neighbourhood) is here, below both of its users: the search's
+drop proposals (``proposals``) and the ``wear`` relation's score (``predicates``).
 """
 
 from __future__ import annotations
@@ -54,3 +57,38 @@ def surface_samples(mesh: trimesh.Trimesh, count: int, seed: int) -> tuple[np.nd
     normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), np.finfo(np.float64).tiny)
     return points, normals
+
+
+def summits(points: np.ndarray, radius: float) -> np.ndarray:
+    """Indices of the samples highest in their column and its neighbours (+Y up; a grid of ``radius`` cells over
+    x, z), highest first: a spire's tip, the top of a head, a knob, each bump's peak (small areas that
+    area-weighted sampling rarely draws).
+
+    Only the occupied cells are kept (sorted integer keys; the 8 neighbours found by binary search): time
+    O(N log N) and memory O(N) for N samples, whatever ``radius`` (a dense grid of ``radius`` cells grew with the
+    target's extent over the source's size squared: 21,000² cells for a 0.3 m source beside a 5 km target).
+    The cell is at least a millionth of the samples' x/z extent (keys stay far within int64).
+    """
+    if not len(points):
+        return np.zeros(0, dtype=np.int64)
+    xz = points[:, [0, 2]]
+    cell = max(radius, float(np.ptp(xz, axis=0).max()) * 1e-6, 1e-9)
+    cells = np.floor(xz / cell).astype(np.int64)
+    cells -= cells.min(0) - 1  # a border of one empty cell, so no neighbour key wraps into another row
+    width = int(cells[:, 1].max()) + 2
+    key = cells[:, 0] * width + cells[:, 1]
+    occupied, inverse = np.unique(key, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    top = np.full(len(occupied), -np.inf)
+    np.maximum.at(top, inverse, points[:, 1])
+    around = top.copy()
+    for i in (-1, 0, 1):
+        for j in (-1, 0, 1):
+            if i or j:
+                near = occupied + (i * width + j)
+                at = np.minimum(np.searchsorted(occupied, near), len(occupied) - 1)
+                hit = occupied[at] == near
+                around[hit] = np.maximum(around[hit], top[at[hit]])
+    mine = top[inverse]
+    peaks = np.flatnonzero((points[:, 1] >= mine) & (mine >= around[inverse]))
+    return peaks[np.argsort(-points[peaks, 1], kind="stable")]

@@ -3,7 +3,7 @@
 Readiness needs this answer cheaply and in processes that never run a model: ``ctp serve`` prints one line
 at start when the default model's weights are absent, and a worker publishes which of the models it may
 serve it can actually load (``worker.main``), so the API refuses a job up front instead of failing it later.
-``guidance.load_guide`` gives the same message when it meets the same absence.
+``guide_loaders.load_guide`` gives the same message when it meets the same absence.
 
 Weights are present when an ``hf:`` spec names a ``save_pretrained`` folder, or its repository's config and
 weights are in the Hugging Face cache; an ``open_clip:`` spec needs a checkpoint file as its tag. With

@@ -141,7 +141,7 @@ class Adjustments:
         """The record; one left running by a worker that is gone is failed ``worker_lost`` here."""
         raw = self.jobs.redis.get(self.key(adjustment_id))
         record = None if raw is None else AdjustmentRecord.model_validate_json(raw)
-        if record is not None and record.status == "running" and not self.jobs.worker_live(record.worker or ""):
+        if record is not None and record.status == "running" and not self.jobs.workers.is_live(record.worker or ""):
             record = self.finish(record.id, "failed", error=JobError(
                 code="worker_lost", message="the worker running this adjustment stopped; send it again")) or record
         return record

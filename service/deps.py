@@ -16,7 +16,8 @@ from fastapi.concurrency import run_in_threadpool
 
 from ctp_core.config import AUTO, DEFAULT_MODEL, AlignConfig
 from service.errors import ApiError
-from service.jobs import JobError, JobRecord, Jobs, TooManyJobs, serving
+from service.jobs import JobError, JobRecord, Jobs, TooManyJobs
+from service.workers import serving
 
 _JOB_ID = re.compile(r"[0-9a-f]{32}")
 
@@ -81,8 +82,8 @@ async def check_workers(request: Request, models: set[str], queue: str) -> None:
 
 def _unavailable(jobs: Jobs, models: set[str], queue: str) -> JobError | None:
     """The first reason a job on ``queue`` needing ``models`` cannot run (the workers read once, not per model)."""
-    live = jobs.live_workers()
-    seen = None if serving(live, queue) else jobs.seen_workers()  # needed only when no live worker serves it
+    live = jobs.workers.live()
+    seen = None if serving(live, queue) else jobs.workers.seen()  # needed only when no live worker serves it
     for model in sorted(models) or [None]:  # None: a worker at all
         unavailable = jobs.unavailable(model, queue=queue, live=live, seen=seen)
         if unavailable is not None:

@@ -26,13 +26,8 @@ Queues: a job goes to one named queue (its ``queue``, default the deployment's),
 ``{prefix}:{queue}``; a worker takes jobs from the queues it serves (``CTP_QUEUES``), so GPU and CPU
 workers can share one deployment.
 
-Workers: each heartbeat refreshes the worker's own lease ``{prefix}:worker:{name}`` (``FRESH_BEATS``) with
-its offer ``{prefix}:offer:{name}`` (the queues it serves, the models it can run), and a "last seen"
-record ``{prefix}:seen:{name}`` that outlives the lease by the grace (``worker_grace_s``). A job is judged
-by the live workers that serve its queue; while none does but one was seen within the grace (a worker
-being restarted: killed, back-off, start-up, model load), by what the last-seen ones offered, and it is
-accepted and waits in its queue until a worker is back. A clean exit drops the lease but not the record,
-so it does not end the grace early.
+Workers: which are alive, which were seen within the grace and what each offers is ``service.workers``
+(``Jobs.workers``); a job's readiness is judged on it (``unavailable``).
 """
 
 from __future__ import annotations
@@ -40,7 +35,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import hashlib
-import json
 import logging
 import math
 import time
@@ -60,6 +54,7 @@ from ctp_core.config import AlignConfig
 from service.settings import DEFAULT_QUEUE
 from service.storage import Storage, open_storage
 from service.webhooks import PROGRESS_EVERY_S, Outbox, Webhook
+from service.workers import Offer, SeenWorker, Workers, served_queues, serving
 
 if TYPE_CHECKING:
     from redis.asyncio import Redis as AsyncRedis
@@ -108,7 +103,6 @@ class SavedAdjustment(BaseModel):
 
 TASK = "worker.tasks.run_job"  # by name: the API never imports the engine
 MAX_ATTEMPTS = 2  # a job whose worker was lost is run once more (``Jobs.reap``)
-FRESH_BEATS = 3  # a worker counts as live while it beat within this many heartbeat periods (``Jobs.heartbeat``)
 # A running job's lease, renewed while the job is still running (in the running set): also after it lapsed during a
 # Redis outage longer than the lease (Redis keeps expiry times across a restart), never for a job that ended or
 # was reaped.
@@ -285,20 +279,6 @@ def new_id() -> str:
     return uuid.uuid4().hex
 
 
-class Offer(BaseModel):
-    """What a worker serves, as its heartbeat publishes it: the named queues it takes jobs from and the models
-    it can run (``{spec: None when it can, else why not}``)."""
-
-    queues: list[str] = Field(default_factory=lambda: [DEFAULT_QUEUE])
-    models: dict[str, str | None] = Field(default_factory=dict)
-
-
-class SeenWorker(Offer):
-    """A worker seen within the grace (``Jobs.seen_workers``): how long ago, and what it offered then."""
-
-    since_s: float
-
-
 class _StopFlags(BaseModel):
     """The fields of a stored record that ``Jobs.should_stop`` reads (the others are skipped)."""
 
@@ -307,31 +287,23 @@ class _StopFlags(BaseModel):
     worker: str | None = None
 
 
-def serving(workers: dict[str, Offer], queue: str) -> dict[str, dict[str, str | None]]:
-    """The workers (live or seen) that serve ``queue`` -> the models each can run."""
-    return {name: offer.models for name, offer in workers.items() if queue in offer.queues}
-
-
-def served_queues(*workers: dict[str, Offer]) -> list[str]:
-    """Every queue the given workers (live, seen) serve, sorted."""
-    return sorted({queue for group in workers for offer in group.values() for queue in offer.queues})
-
-
 def parse_record(raw: bytes | str | None) -> JobRecord | None:
     """A stored record, as read from its key or its events channel (None: unknown or expired)."""
     return None if raw is None else JobRecord.model_validate_json(raw)
 
 
 class Jobs:
-    """Job records, the rq queues and the liveness keys of one deployment (one key prefix)."""
+    """Job records, the rq queues and the job leases of one deployment (one key prefix); its workers' presence is
+    ``workers``."""
 
     def __init__(self, redis: Redis, storage: Storage, *, prefix: str, ttl_s: int, job_timeout_s: int,
                  lease_s: int, worker_grace_s: float = 0.0, default_queue: str = DEFAULT_QUEUE):
         self.redis, self.storage, self.prefix = redis, storage, prefix
         self.ttl_s, self.job_timeout_s, self.lease_s = ttl_s, job_timeout_s, lease_s
-        self.worker_grace_s = worker_grace_s  # how long a heartbeat's "last seen" record lives; 0: none written
         self.outbox = Outbox(redis, prefix, ttl_s)
         self.default_queue = default_queue
+        self.workers = Workers(redis, prefix=prefix, lease_s=lease_s, worker_grace_s=worker_grace_s,
+                               default_queue=default_queue)
         self._admit = redis.register_script(_ADMIT)
 
     @classmethod
@@ -637,97 +609,16 @@ class Jobs:
         return self._update(job_id, change)
 
     # -- liveness -----------------------------------------------------------------------------------
-    def _worker_key(self, worker: str) -> str:
-        return f"{self.prefix}:worker:{worker}"
-
-    def _offer_key(self, worker: str) -> str:
-        return f"{self.prefix}:offer:{worker}"
-
-    def _seen_key(self, worker: str) -> str:
-        return f"{self.prefix}:seen:{worker}"
-
-    @property
-    def _seen_set(self) -> str:
-        return f"{self.prefix}:seen"
-
     def heartbeat(self, worker: str, job_id: str | None, models: dict[str, str | None] | None = None,
                   queues: list[str] | None = None, period_s: float | None = None) -> None:
-        """A worker is alive (and so is its running job): refresh both leases. Its offer, the ``queues`` it
-        serves (default: the default queue) and the ``models`` it can run (``{spec: None when it can, else why
-        not}``), lives as long as the worker's lease. With a grace, the worker's "last seen" record (its offer)
-        is refreshed too and lives ``worker_grace_s``.
-
-        ``period_s``: the worker's heartbeat period; its own lease then lapses after ``FRESH_BEATS`` missed beats
-        (at least 2 s) instead of the whole ``lease_s``, so that a worker killed a moment ago no longer counts as
-        live (``/readyz``, the submits) while its job's lease still runs. A worker beats only once its default
-        model is loaded (``worker.main.run_worker``)."""
-        offer = Offer(queues=queues or [self.default_queue], models=models or {})
-        fresh_ms = int(1000 * (self.lease_s if period_s is None else min(self.lease_s, max(FRESH_BEATS * period_s,
-                                                                                            2.0))))
+        """A worker is alive (and so is its running job): refresh both leases in one round trip, the worker's
+        presence (``Workers.beat``: its offer, its "last seen" record) and its job's lease. A worker beats only
+        once its default model is loaded (``worker.main.run_worker``)."""
         with self.redis.pipeline(transaction=False) as pipe:
-            pipe.set(self._worker_key(worker), job_id or "", px=fresh_ms)
-            pipe.sadd(f"{self.prefix}:workers", worker)
-            pipe.set(self._offer_key(worker), offer.model_dump_json(), ex=self.lease_s)
+            self.workers.beat(pipe, worker, job_id, models, queues, period_s)
             if job_id is not None:
                 pipe.eval(_RENEW_LEASE, 2, self._lease_key(job_id), self._running_key, job_id, worker, self.lease_s)
-            grace_ms = int(self.worker_grace_s * 1000)
-            if grace_ms > 0:
-                # The grace travels in the record: "seen s ago" is the grace less the key's time to live, which
-                # Redis keeps, so no two machines' clocks are compared.
-                pipe.set(self._seen_key(worker), json.dumps({**offer.model_dump(), "grace_s": self.worker_grace_s}),
-                         px=grace_ms)
-                pipe.sadd(self._seen_set, worker)
-                pipe.pexpire(self._seen_set, grace_ms)
             pipe.execute()
-
-    def worker_live(self, worker: str) -> bool:
-        """Whether ``worker``'s lease is current (it is alive)."""
-        return bool(self.redis.exists(self._worker_key(worker)))
-
-    def worker_gone(self, worker: str) -> None:
-        """A worker's clean exit: it is no longer live. Its "last seen" record stays for the rest of the grace
-        (a supervised or orchestrated worker that exits is usually started again)."""
-        self.redis.delete(self._worker_key(worker), self._offer_key(worker))
-        self.redis.srem(f"{self.prefix}:workers", worker)
-
-    def live_workers(self) -> dict[str, Offer]:
-        """Workers whose lease is current -> the offer each published; forgets the others (O(workers), not a
-        key-space scan)."""
-        names = [raw.decode() for raw in self.redis.smembers(f"{self.prefix}:workers")]
-        with self.redis.pipeline(transaction=False) as pipe:
-            for name in names:
-                pipe.exists(self._worker_key(name))
-                pipe.get(self._offer_key(name))
-            replies = pipe.execute()
-        live = {name: Offer.model_validate_json(raw) if raw else Offer()
-                for name, ok, raw in zip(names, replies[0::2], replies[1::2], strict=True) if ok}
-        dead = [name for name in names if name not in live]
-        if dead:
-            self.redis.srem(f"{self.prefix}:workers", *dead)
-        return live
-
-    def seen_workers(self) -> dict[str, SeenWorker]:
-        """Workers seen within the grace (live ones included) -> when and with which models; forgets the
-        others. Empty without a grace."""
-        names = [raw.decode() for raw in self.redis.smembers(self._seen_set)]
-        if not names:
-            return {}
-        with self.redis.pipeline(transaction=False) as pipe:
-            for name in names:
-                pipe.get(self._seen_key(name))
-                pipe.pttl(self._seen_key(name))
-            replies = pipe.execute()
-        seen = {}
-        for name, raw, ttl_ms in zip(names, replies[0::2], replies[1::2], strict=True):
-            if raw is None:
-                continue
-            record = json.loads(raw)
-            left_s = ttl_ms / 1000 if ttl_ms >= 0 else 0.0
-            seen[name] = SeenWorker(since_s=round(max(0.0, float(record.pop("grace_s")) - left_s), 1), **record)
-        gone = [name for name in names if name not in seen]
-        if gone:
-            self.redis.srem(self._seen_set, *gone)
-        return seen
 
     def unavailable(self, model: str | None, *, queue: str | None = None, what: str = "model",
                     field: str | None = "options.model", live: dict[str, Offer] | None = None,
@@ -739,16 +630,16 @@ class Jobs:
         The live workers that serve the queue decide. When none does, the workers seen within the grace that
         served it decide (their last offer): a worker that is restarting keeps its queue accepting jobs, which
         wait in it. No worker at all, live or seen: ``no_worker``; workers, but none for this queue:
-        ``queue_not_served``. ``live`` / ``seen``: ``live_workers()`` / ``seen_workers()`` when the caller has
+        ``queue_not_served``. ``live`` / ``seen``: ``workers.live()`` / ``workers.seen()`` when the caller has
         just read them (one read for several models); ``seen`` is read only when no live worker serves the
         queue. ``field``: the request field blamed for a missing model (None: none, as for ``/readyz``)."""
         queue = queue or self.default_queue
-        live = self.live_workers() if live is None else live
+        live = self.workers.live() if live is None else live
         judged = serving(live, queue)
         where = "" if queue == self.default_queue else f" of queue {queue!r}"
         who, note = f"live worker{where}", ""
         if not judged:
-            seen = self.seen_workers() if seen is None else seen
+            seen = self.workers.seen() if seen is None else seen
             if not live and not seen:
                 return JobError(code="no_worker", message="no worker is alive: start one with `ctp worker` "
                                 "(`ctp serve` without REDIS_URL starts one) or wait until it is back")

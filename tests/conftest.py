@@ -188,7 +188,7 @@ def park_worker(env: dict[str, str], models: dict[str, str | None] | None = None
     jobs.heartbeat(name, None, {env["CTP_MODEL"]: None} if models is None else models, queues)
 
     def leave() -> None:
-        jobs.worker_gone(name)
+        jobs.workers.gone(name)
         client.close()
 
     return leave

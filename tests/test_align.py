@@ -13,7 +13,8 @@ from ctp_core.align import align
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
 from ctp_core.goals import TextGoal
-from ctp_core.guidance import cpu_has_fast_bf16, get_guide
+from ctp_core.guidance import cpu_has_fast_bf16
+from ctp_core.guide_loaders import get_guide
 from ctp_core.scene import prepare_pair
 
 

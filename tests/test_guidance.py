@@ -9,9 +9,11 @@ import numpy as np
 import pytest
 import torch
 
-from ctp_core import guidance, guide_loaders
+from ctp_core import backends, guidance, guide_loaders
 from ctp_core.errors import ModelError
-from ctp_core.guidance import ImageTransform, byte_tokenize, downloads_allowed, get_guide, load_guide
+from ctp_core.guidance import ImageTransform, byte_tokenize
+from ctp_core.guide_loaders import get_guide, load_guide
+from ctp_core.weights import downloads_allowed
 
 
 @pytest.fixture(scope="module")
@@ -230,6 +232,11 @@ def test_missing_offline_weights_fail_fast_with_instructions(tmp_path):
 def test_bad_specs_raise_model_error(spec, fragment):
     with pytest.raises(ModelError, match=fragment):
         load_guide(spec)
+
+
+def test_every_backend_has_one_loader():
+    """``backends`` (torch-free, for validation) and ``guide_loaders.LOADERS`` name the same prefixes."""
+    assert set(guide_loaders.LOADERS) == set(backends.BACKENDS)
 
 
 def test_cuda_without_a_gpu_is_a_model_error():

@@ -1,4 +1,4 @@
-"""The per-job memory ceiling (``CTP_JOB_MEMORY_MB``, ``worker.tasks.job_memory``): real allocation failures
+"""The per-job memory ceiling (``CTP_JOB_MEMORY_MB``, ``worker.memory.job_memory``): real allocation failures
 of numpy, torch and ONNX Runtime under a temporary ``RLIMIT_DATA`` are recognised as ``job_too_large``; a real
 worker fails a job over its ceiling with the stage named and takes the next job; the CLI prints one line."""
 
@@ -24,7 +24,7 @@ PROBE = r'''
 import json, resource
 import numpy as np, torch
 from ctp_core.errors import JobTooLarge, forget, out_of_memory
-from worker.tasks import job_memory
+from worker.memory import job_memory
 
 def ort_alloc(n):
     import onnxruntime as ort

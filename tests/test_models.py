@@ -136,7 +136,7 @@ def test_pull_from_a_loopback_hub_then_list_load_and_remove(hub, tmp_path, tiny_
     assert (snapshot / "model.safetensors").is_symlink()
     assert weights.missing(f"hf:{REPO_ID}", cache_dir=str(cache), offline=True) is None
 
-    from ctp_core.guidance import load_guide
+    from ctp_core.guide_loaders import load_guide
 
     assert load_guide(f"hf:{REPO_ID}", offline=True, cache_dir=str(cache)).embed_dim == 16  # what the loader reads
 

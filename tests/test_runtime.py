@@ -11,7 +11,7 @@ import torch
 from ctp_core import runtime
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError, ModelError
-from ctp_core.guidance import load_guide
+from ctp_core.guide_loaders import load_guide
 from tests.test_guidance import _images, _save_tiny_hf_clip
 
 PROMPTS = ["a cherry on top of a sundae", "a hat on a dog", "x"]

@@ -22,11 +22,11 @@ import trimesh
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from ctp_core import canonical, io, proposals
+from ctp_core import canonical, io, proposals, sampling
 from ctp_core.align import SIZE_RATIO_RANGE, align, scale_ratio_warning
 from ctp_core.config import AlignConfig
 from ctp_core.export import report
-from ctp_core.guidance import get_guide
+from ctp_core.guide_loaders import get_guide
 from ctp_core.scene import prepare_pair
 
 REPO = Path(__file__).resolve().parents[1]
@@ -59,8 +59,8 @@ def test_sparse_summits_equal_the_dense_grid_on_random_inputs():
         radius *= float(np.ptp(points[:, [0, 2]], axis=0).max()) if trial % 2 else 1.0
         if np.ptp(points[:, [0, 2]], axis=0).max() / radius > 3000:  # the dense grid would be too large here
             radius = float(np.ptp(points[:, [0, 2]], axis=0).max()) / 3000
-        np.testing.assert_array_equal(proposals.summits(points, radius), _dense_summits(points, radius))
-    assert len(proposals.summits(np.zeros((0, 3)), 0.1)) == 0
+        np.testing.assert_array_equal(sampling.summits(points, radius), _dense_summits(points, radius))
+    assert len(sampling.summits(np.zeros((0, 3)), 0.1)) == 0
 
 
 def test_summits_stay_small_for_any_radius():
@@ -68,7 +68,7 @@ def test_summits_stay_small_for_any_radius():
     points = np.random.default_rng(0).random((5000, 3))
     tracemalloc.start()
     began = time.perf_counter()
-    peaks = proposals.summits(points, 1e-7)
+    peaks = sampling.summits(points, 1e-7)
     seconds = time.perf_counter() - began
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()

@@ -8,11 +8,11 @@ import pytest
 import torch
 import trimesh
 
-from ctp_core import export, goals, metrics, objective, pose, proposals, ranking, scene, schedule
+from ctp_core import export, goals, metrics, objective, pose, proposals, ranking, sampling, scene, schedule
 from ctp_core.align import align, prepare, propose, refine
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
-from ctp_core.guidance import get_guide
+from ctp_core.guide_loaders import get_guide
 from ctp_core.priors.relations import RELATIONS
 
 CONFIG = AlignConfig.from_preset("test", model="random:tiny", search={"candidates": 40}, loss={"samples": 1500})
@@ -105,7 +105,7 @@ def test_drops_reach_a_summit_that_area_sampling_misses():
     source.apply_translation((5.0, 5.0, 5.0))
     pair, props = _proposals(target, source)
     tip = pair.target_to_normalised.apply(np.array([[0.4, 1.5, -0.3]]))[0]
-    peaks = proposals.summits(pair.anchor.points.numpy().astype(np.float64), 0.3)
+    peaks = sampling.summits(pair.anchor.points.numpy().astype(np.float64), 0.3)
     assert np.linalg.norm(pair.anchor.points[peaks[0]].numpy() - tip) < 0.2  # the highest summit: the cone's top
     lowest = []
     for matrix, region in zip(props.poses.matrices(), props.region, strict=True):

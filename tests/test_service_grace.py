@@ -43,19 +43,19 @@ def test_without_a_grace_a_worker_that_left_is_gone_at_once(private_redis):
     jobs = jobs_with_grace(private_redis.url, f"grace-{uuid.uuid4().hex[:8]}", lease_s=5, grace_s=0)
     jobs.heartbeat("a", None, {"random:tiny": None})
     assert jobs.unavailable("random:tiny") is None
-    jobs.worker_gone("a")
-    assert jobs.seen_workers() == {}
+    jobs.workers.gone("a")
+    assert jobs.workers.seen() == {}
     assert jobs.unavailable("random:tiny").code == "no_worker"
     assert not jobs.redis.keys(f"{jobs.prefix}:seen*")  # nothing written without a grace
 
 
 def test_a_worker_seen_within_the_grace_still_counts_when_none_is_live(jobs):
     assert jobs.unavailable("random:tiny").code == "no_worker"  # never seen: no grace to give
-    assert jobs.seen_workers() == {}
+    assert jobs.workers.seen() == {}
     jobs.heartbeat("a", None, {"random:tiny": None, "hf:big": "weights for 'big' are not in the cache"})
-    jobs.worker_gone("a")  # a clean exit does not end the grace
-    assert jobs.live_workers() == {}
-    seen = jobs.seen_workers()
+    jobs.workers.gone("a")  # a clean exit does not end the grace
+    assert jobs.workers.live() == {}
+    seen = jobs.workers.seen()
     assert list(seen) == ["a"] and 0.0 <= seen["a"].since_s < 5
     assert seen["a"].models == {"random:tiny": None, "hf:big": "weights for 'big' are not in the cache"}
     assert jobs.unavailable("random:tiny") is None and jobs.unavailable(None) is None
@@ -66,24 +66,24 @@ def test_a_worker_seen_within_the_grace_still_counts_when_none_is_live(jobs):
                            "weights for 'big' are not in the cache")
     assert "no recently seen worker offers it" in jobs.unavailable("random:ViT-B-32").message
     time.sleep(0.6)
-    assert jobs.seen_workers()["a"].since_s > seen["a"].since_s  # time since it was last seen grows
+    assert jobs.workers.seen()["a"].since_s > seen["a"].since_s  # time since it was last seen grows
 
 
 def test_a_live_worker_decides_over_the_last_seen_ones(jobs):
     jobs.heartbeat("a", None, {"random:tiny": None})
-    jobs.worker_gone("a")
+    jobs.workers.gone("a")
     jobs.heartbeat("b", None, {"random:tiny": "weights missing"})  # live, but cannot run it
     assert jobs.unavailable("random:tiny").message == "no live worker can run model 'random:tiny': weights missing"
-    wait_for(lambda: not jobs.live_workers(), 10, "b's lease (1 s) to lapse")
+    wait_for(lambda: not jobs.workers.live(), 10, "b's lease (1 s) to lapse")
     assert jobs.unavailable("random:tiny") is None  # none live: a seen worker could run it
-    assert sorted(jobs.seen_workers()) == ["a", "b"]
+    assert sorted(jobs.workers.seen()) == ["a", "b"]
 
 
 def test_a_queue_whose_workers_restart_keeps_accepting_while_other_queues_are_live(jobs):
     jobs.heartbeat("g", None, {"random:tiny": None}, ["gpu"])
     jobs.heartbeat("c", None, {"random:tiny": None})
-    jobs.worker_gone("g")  # the only gpu worker restarts; the default queue's is live
-    assert list(jobs.live_workers()) == ["c"]
+    jobs.workers.gone("g")  # the only gpu worker restarts; the default queue's is live
+    assert list(jobs.workers.live()) == ["c"]
     assert jobs.unavailable("random:tiny", queue="gpu") is None  # judged by the gpu worker seen within the grace
     assert jobs.unavailable("hf:big", queue="gpu").message == (
         "no recently seen worker of queue 'gpu' (none is live now) can run model 'hf:big': no recently seen worker "
@@ -94,9 +94,9 @@ def test_a_queue_whose_workers_restart_keeps_accepting_while_other_queues_are_li
 def test_past_the_grace_no_worker_again_and_records_are_forgotten(private_redis):
     jobs = jobs_with_grace(private_redis.url, f"grace-{uuid.uuid4().hex[:8]}", lease_s=1, grace_s=3)
     jobs.heartbeat("a", None, {"random:tiny": None})
-    wait_for(lambda: not jobs.live_workers(), 10, "the lease (1 s) to lapse", interval_s=0.05)
+    wait_for(lambda: not jobs.workers.live(), 10, "the lease (1 s) to lapse", interval_s=0.05)
     assert jobs.unavailable("random:tiny") is None  # lease lapsed, still within the grace
-    wait_for(lambda: not jobs.seen_workers(), 10, "the grace (3 s) to pass")
+    wait_for(lambda: not jobs.workers.seen(), 10, "the grace (3 s) to pass")
     assert jobs.unavailable("random:tiny").code == "no_worker"
     assert not jobs.redis.exists(f"{jobs.prefix}:seen")  # the name list expires with the last record
 
@@ -104,7 +104,7 @@ def test_past_the_grace_no_worker_again_and_records_are_forgotten(private_redis)
 def test_the_grace_is_a_setting_read_by_the_workers_jobs(private_redis):
     assert Settings().worker_grace_s == 90
     store = Jobs.from_settings(Settings(redis_url=private_redis.url, worker_grace_s=7))
-    assert store.worker_grace_s == 7
+    assert store.workers.worker_grace_s == 7
     store.redis.close()
 
 
@@ -125,7 +125,7 @@ def test_readyz_restarting_then_no_worker_after_the_grace(private_redis):
         jobs.heartbeat("w", None, {"random:tiny": None})  # what a worker's heartbeat writes
         code, body = readyz(api)
         assert (code, body["status"], body["since_s"]) == (200, "ready", None)
-        jobs.worker_gone("w")
+        jobs.workers.gone("w")
         left = time.monotonic()
         code, body = readyz(api)
         assert (code, body["status"], body["workers"], body["models"]) == (200, "restarting", 0, ["random:tiny"])

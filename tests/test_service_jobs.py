@@ -170,13 +170,13 @@ def test_a_stopping_worker_hands_its_job_back_uncounted(jobs):
 def test_live_workers_are_those_with_current_leases_only(jobs):
     jobs.heartbeat("a", None)
     jobs.heartbeat("b", None, {"random:tiny": None})
-    live = jobs.live_workers()
+    live = jobs.workers.live()
     assert {name: offer.models for name, offer in live.items()} == {"a": {}, "b": {"random:tiny": None}}
     assert [offer.queues for offer in live.values()] == [["default"], ["default"]]  # a heartbeat's default
-    jobs.worker_gone("a")
-    assert list(jobs.live_workers()) == ["b"]
+    jobs.workers.gone("a")
+    assert list(jobs.workers.live()) == ["b"]
     time.sleep(1.2)  # lease_s = 1
-    assert jobs.live_workers() == {}
+    assert jobs.workers.live() == {}
 
 
 def test_unavailable_says_no_worker_then_which_model_is_missing(jobs):
@@ -189,8 +189,8 @@ def test_unavailable_says_no_worker_then_which_model_is_missing(jobs):
     assert (missing.code, missing.field) == ("model_unavailable", "options.model")
     assert missing.message == "no live worker can run model 'hf:big': weights for 'big' are not in the cache"
     assert "no live worker offers it" in jobs.unavailable("random:ViT-B-32").message
-    assert sorted(jobs.live_workers()) == ["a", "b"]
-    jobs.worker_gone("a")
+    assert sorted(jobs.workers.live()) == ["a", "b"]
+    jobs.workers.gone("a")
     assert jobs.unavailable("random:tiny").code == "model_unavailable"  # the one worker that had it left
     assert not jobs.redis.exists(f"{jobs.prefix}:offer:a")
 
@@ -273,18 +273,18 @@ def test_queue_settings_and_the_old_queue_variable(monkeypatch):
 
 
 def test_the_worker_preloads_the_guide_its_jobs_get(monkeypatch):
-    """The preload asks ``guidance.guide_for`` (one rule for which guide a config needs) for a default job's
+    """The preload asks ``guide_loaders.guide_for`` (one rule for which guide a config needs) for a default job's
     config on this worker, so a job's own ``guide_for`` is a cache hit, not a second load."""
-    from ctp_core import guidance
+    from ctp_core import guide_loaders
     from service.schemas import build_config
     from worker.main import _preload
     from worker.tasks import served
 
     loads, asked = [], []
-    real_guide_for = guidance.guide_for
-    monkeypatch.setattr(guidance, "_CACHE", {})
-    monkeypatch.setattr(guidance, "load_guide", lambda s, **_: loads.append(s) or SimpleNamespace(runtime="torch"))
-    monkeypatch.setattr(guidance, "guide_for", lambda config: asked.append(config) or real_guide_for(config))
+    real_guide_for = guide_loaders.guide_for
+    monkeypatch.setattr(guide_loaders, "_CACHE", {})
+    monkeypatch.setattr(guide_loaders, "load_guide", lambda s, **_: loads.append(s) or SimpleNamespace(runtime="torch"))
+    monkeypatch.setattr(guide_loaders, "guide_for", lambda config: asked.append(config) or real_guide_for(config))
     settings = Settings(model="random:tiny", models="", runtime="torch", device="cpu", threads=None)
     assert _preload(settings) == {"random:tiny": None}
     assert [(c.model, c.device, c.runtime, c.threads) for c in asked] == [("random:tiny", "cpu", "torch", None)]

@@ -2,7 +2,7 @@
 thread. It needs only the Redis URL and the storage settings: nothing on its disk is shared with the API.
 
 ``SimpleWorker`` runs jobs in this process instead of forking a child per job, so the vision-language
-model loaded at start-up (``guidance.get_guide`` caches it per process) serves every job, and torch
+model loaded at start-up (``guide_loaders.get_guide`` caches it per process) serves every job, and torch
 never has to survive a fork. The heartbeat thread keeps this worker visible to ``/readyz`` with its
 queues and the models it can run (checked once at start: the default loaded, the others' weights looked for;
 a "last seen" record keeps them counted for ``CTP_WORKER_GRACE_S`` after the worker dies or exits, so jobs
@@ -153,7 +153,7 @@ def run_worker(settings: Settings, *, burst: bool = False, name: str | None = No
     finally:
         beat.stop()
         loader.close()
-        jobs.worker_gone(name)
+        jobs.workers.gone(name)
         _CONTEXT = None
     return 0
 
@@ -196,7 +196,7 @@ def _preload(settings: Settings) -> dict[str, str | None]:
     from ctp_core import guide_choice, weights
     from ctp_core.config import AUTO, AlignConfig
     from ctp_core.errors import ModelError
-    from ctp_core.guidance import guide_for
+    from ctp_core.guide_loaders import guide_for
 
     if settings.threads:
         torch.set_num_threads(settings.threads)

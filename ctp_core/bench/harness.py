@@ -104,11 +104,11 @@ class BenchOptions:
 
     def load_encoder(self):
         """The guided methods' encoder: a cached ``guidance.Guide``, or the pixels guide's stand-in."""
-        from ctp_core import guidance
+        from ctp_core import guide_loaders
 
         if self.guide == "pixels":
             return PixelGuide(device=self.device)
-        return guidance.guide_for(self.config("ctp"))  # the one ctp's runs use (same cache entry)
+        return guide_loaders.guide_for(self.config("ctp"))  # the one ctp's runs use (same cache entry)
 
 
 def identity(case: Case, init: int, method: str, options: BenchOptions) -> dict:
@@ -180,13 +180,13 @@ def relation_metrics(data: _CaseData, pose: np.ndarray, iou: float) -> dict:
 
 def _metric_encoders(specs: Iterable[str], prompt: str, config: AlignConfig) -> tuple[list, dict[str, str]]:
     """The metrics encoders, on the run's device and forward-only runtime (they only score)."""
-    from ctp_core import guidance
+    from ctp_core import guide_loaders
     from ctp_core.errors import ModelError
 
     loaded, notes = [], {}
     for spec in specs:
         try:
-            guide = guidance.get_guide(spec, device=config.device, runtime=config.runtime, threads=config.threads)
+            guide = guide_loaders.get_guide(spec, device=config.device, runtime=config.runtime, threads=config.threads)
         except ModelError as exc:
             notes[spec] = f"semantic score skipped: {exc.message}"
             continue

@@ -8,8 +8,9 @@ from fastapi import APIRouter, Request
 from ctp_core.config import AUTO, DEFAULT_MODEL
 from ctp_core.guide_choice import GuideChoice, unguided
 from service.errors import documented, error_response
-from service.jobs import JobError, served_queues, serving
+from service.jobs import JobError
 from service.schemas import Health, Ready
+from service.workers import served_queues, serving
 
 router = APIRouter()
 
@@ -34,8 +35,8 @@ def healthz() -> Health:
 def readyz(request: Request):
     jobs, settings = request.app.state.jobs, request.app.state.settings
     try:
-        live = jobs.live_workers()  # a Redis round trip: it raises when Redis does not answer
-        seen = jobs.seen_workers()
+        live = jobs.workers.live()  # a Redis round trip: it raises when Redis does not answer
+        seen = jobs.workers.seen()
         problem = jobs.unavailable(settings.model, what="the default model (CTP_MODEL)", field=None, live=live,
                                    seen=seen)
     except redis.exceptions.RedisError:
