@@ -90,17 +90,16 @@ def run_case(case, args) -> dict:
                         target_name=case.target_name, source_name=case.source_name)
     poses = align.propose(run, init).poses
     scorer, weights = run.scorer, run.plan[0]
-    cameras = ranking.coarse_cameras(run.pair, config, float(poses.log_s[0]))
+    cameras = ranking.coarse_cameras(run.pair, config, float(poses.log_s.max()))  # as ranking.search frames them
     terms = ranking.terms_of(scorer, poses, weights, cameras, batch=config.search.batch)
     held = objective.holding(terms)
     seen = ranking.encoder_shortlist(poses, terms, weights, config.search.shortlist,
                                      ranking.distinct_of(run.pair, config, float(poses.log_s[0])),
                                      config.search.min_share)
-    every = agreement(terms)
-    shown = agreement({k: v[seen] for k, v in terms.items()})
-    gate = ranking.guide_noise(scorer, poses.select(seen), {k: v[seen] for k, v in terms.items()}, weights, cameras,
+    shown_poses, shown_terms = poses.select(seen), {k: v[seen] for k, v in terms.items()}
+    every, shown = agreement(terms), agreement(shown_terms)
+    gate = ranking.guide_noise(scorer, shown_poses, shown_terms, weights, cameras,
                                ranking.embed_shared_goal(scorer, cameras))
-    shown_poses = poses.select(seen)
     first, second = (view_term(scorer, shown_poses, cameras, v, config.search.batch) for v in (0, 1))
     mask = held[seen]
     points = sampling.surface_samples(source, 500, args.seed)[0]

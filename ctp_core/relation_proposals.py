@@ -240,7 +240,7 @@ def apart(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: i
     kind = RELATIONS[position].kind
     rng = np.random.default_rng(seed + 41)
     count = max(1, math.ceil(SHARE * config.search.candidates))
-    log_s = float(proposals.poses.log_s[0])
+    log_s = _scale(proposals)
     scale = math.exp(log_s)
     target = pair.anchor.points.cpu()
     front, left = predicates.axes(torch.as_tensor(pair.target_front, dtype=torch.float32)[None], pair.front_trusted)
