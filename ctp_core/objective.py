@@ -120,6 +120,8 @@ def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: to
 PREFER = 0.1  # ``combine``: weight of ``predicates.preference`` (the usual arrangement) relative to the relation's
 TIER = 1e6  # ``rank_key``: added to the key of a pose outside the relation's pool (keys are float64)
 GATE_FULL = 4.0  # ``Gate``: a guide whose spread is this many times its noise may override the relation fully
+
+
 @dataclass(frozen=True)
 class Gate:
     """How far a guide may override the relation: its scores' spread over the search's candidates (standard

@@ -130,13 +130,14 @@ def wear_fit(pair: PreparedPair, seed: int, around: float) -> Bound | None:
     such scale."""
     local = pair.source_vertices.cpu().numpy().astype(np.float64)
     surface = pair.source_surface
-    sigma = proposals.CAVITY_SIGMA * float(np.linalg.norm(np.ptp(local, axis=0))) / max(
+    diagonal = float(np.linalg.norm(np.ptp(local, axis=0)))  # the source's, local frame
+    sigma = proposals.CAVITY_SIGMA * diagonal / max(
         float(np.linalg.norm(np.ptp(pair.target_vertices.cpu().numpy(), axis=0))), 1e-30)
     inside = proposals.hollow(local, surface, seed, sigma)
     if len(inside) < 8:
         return None
     upright = inside @ pair.source_upright.rotation.T
-    margin = 2 * proposals.CAVITY_MARGIN * float(np.linalg.norm(np.ptp(local, axis=0)))
+    margin = 2 * proposals.CAVITY_MARGIN * diagonal
     width, depth = float(np.ptp(upright[:, [0, 2]], axis=0).max()) + margin, float(np.ptp(upright[:, 1])) + margin
     points = pair.anchor.points.cpu().numpy().astype(np.float64)
     top = float(points[:, 1].max())
