@@ -394,7 +394,7 @@ class Jobs:
 
     # -- writing ------------------------------------------------------------------------------------
     def submit(self, record: JobRecord, blobs: dict[str, bytes], max_active: int) -> JobRecord:
-        """Store the inputs, admit the record under the per-key limit, then enqueue; raises TooManyJobs over
+        """Admit the record under the per-key limit, store the inputs, then enqueue; raises TooManyJobs over
         the limit (``retry_after_s``: when a slot is likely free).
 
         Admission is one Lua script (``_ADMIT``): it forgets the key's stale slots, counts the live ones and,
@@ -403,8 +403,6 @@ class Jobs:
         The job's time limit is the configured one per stage (an assembly of n objects gets n times it)."""
         owned = self._owned_key(record.owner)
         try:
-            for name, data in blobs.items():
-                self.storage.put(record.id, name, data)
             admitted = self._admit(
                 keys=[self._active_key(record.owner), self.record_key(record.id), owned],
                 args=[record.id, max_active, record.model_dump_json(), self.ttl_s, record.created_at.timestamp(),
@@ -412,8 +410,10 @@ class Jobs:
             if not admitted:
                 raise TooManyJobs(f"this key already has {max_active} queued or running jobs; wait for one to end",
                                   retry_after_s=self.retry_after(record.owner))
+            for name, data in blobs.items():  # a refused submit stores nothing; no worker sees the job before _enqueue
+                self.storage.put(record.id, name, data)
             self._enqueue(record, record.id)
-        except Exception:  # TooManyJobs too: then only the inputs were stored
+        except Exception:  # TooManyJobs too: then nothing was stored (deleting absent blobs is a no-op)
             self.redis.srem(self._active_key(record.owner), record.id)
             self.redis.zrem(owned, record.id)
             self.redis.delete(self.record_key(record.id))
