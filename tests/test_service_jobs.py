@@ -220,13 +220,15 @@ def test_active_job_cap_is_per_owner_and_self_heals(jobs):
     queued(jobs, max_active=2)
 
 
-def test_a_refused_submit_stores_nothing(jobs):
+def test_a_refused_submit_writes_nothing_to_storage(jobs, monkeypatch):
+    """Admission comes first: a refused submit costs the storage nothing (an S3 put per input, otherwise)."""
     queued(jobs, max_active=1)
+    puts = []
+    monkeypatch.setattr(jobs.storage, "put", lambda job_id, name, data: puts.append((job_id, name)))
     refused = JobRecord(id=new_id(), owner="me", created_at=now(), prompt="p", config=AlignConfig())
     with pytest.raises(TooManyJobs):
         jobs.submit(refused, {"target": b"t", "source": b"s"}, 1)
-    assert jobs.storage.get(refused.id, "target") is None and jobs.storage.get(refused.id, "source") is None
-    assert jobs.get(refused.id) is None
+    assert puts == [] and jobs.get(refused.id) is None
 
 
 def test_owned_lists_an_owners_jobs_newest_first_and_forgets_expired_ones(jobs):
