@@ -226,6 +226,8 @@ _FASTENED = "".join(f"(?<!{verb} )" for verb in ("attached", "strapped", "hitche
 # How far or how firmly, between a verb and its preposition: "stuck halfway through", "pushed deep into".
 _ADV = r"(?:(?:halfway|half way|partway|part way|deep|deeply|firmly|straight|right|upright|securely|all the way) )?"
 
+# One list for every relation, in priority order (the most specific wording first): priority is a property of the
+# whole list, how wordings of different relations overlap, not of one relation's record.
 CUES: list[Cue] = [
     # penetration: the penetrating object is the figure
     Cue(r"(?:pierced|cut|stabbed|skewered|impaled|speared) (?:by|with)", "penetrate", True),
