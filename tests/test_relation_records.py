@@ -21,7 +21,8 @@ from ctp_core.priors.prior import ScenePrior
 from ctp_core.priors.relations import RELATIONS, Relation, RelationReading
 
 CONFIG = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0}, search={"candidates": 48})
-SHARE = math.ceil(relation_proposals.SHARE * CONFIG.search.candidates)  # each builder's count
+# each builder's count: what it makes, less those that settling leaves wedged in the target
+SHARE = math.ceil(relation_proposals.SHARE * CONFIG.search.candidates)
 
 
 # --- one record, one judge -----------------------------------------------------------------------------------------
@@ -126,11 +127,11 @@ def test_lean_proposals_lean_a_stick_against_a_box():
     assert held.float().mean() >= 0.75, held
 
 
-def test_in_proposals_stand_a_pencil_in_a_cup():
-    pair = prepared(cup(), trimesh.creation.cylinder(radius=0.03, height=0.5))
+def test_in_proposals_stand_a_candle_in_a_cup():
+    pair = prepared(cup(), trimesh.creation.cylinder(radius=0.05, height=0.3))
     made, held = _built(pair, "in")
-    assert set(made.region) == {"contained"} and SHARE // 2 <= len(made.poses) <= SHARE
-    assert held.float().mean() >= 0.5, held
+    assert set(made.region) == {"contained"} and len(made.poses) <= SHARE  # those left wedged are dropped
+    assert held.float().mean() >= 0.75, held
 
 
 def test_hang_proposals_thread_a_ring_on_a_peg():
