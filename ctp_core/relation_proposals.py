@@ -111,7 +111,7 @@ def _thinned(region: list[str], drop: int) -> list[int]:
 
 
 def lean(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int,
-             reading: RelationReading | None = None) -> Proposals | None:
+         reading: RelationReading | None = None) -> Proposals | None:
     """Tilted sources standing on the floor against the target's sides (``extend``); None without side samples."""
     points, normals, regions, _ = surface_regions(pair)
     side = regions["side"]
@@ -140,7 +140,7 @@ def lean(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: in
 
 
 def contained(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int,
-                  reading: RelationReading | None = None) -> Proposals | None:
+              reading: RelationReading | None = None) -> Proposals | None:
     """Sources standing in the target's most enclosed up-facing places (``extend``); None where no up-facing
     point is enclosed at all."""
     points, _, regions, density = surface_regions(pair)
@@ -169,7 +169,7 @@ def contained(pair: PreparedPair, config: AlignConfig, proposals: Proposals, see
 
 
 def hung(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int,
-             reading: RelationReading | None = None) -> Proposals | None:
+         reading: RelationReading | None = None) -> Proposals | None:
     """Sources hung by a hook point on a thin up-facing part of the target (``extend``); None where the source has
     no hook point or no up-facing part of the target is thin enough to pass into one."""
     feat = predicates.features(pair)
@@ -284,7 +284,8 @@ def apart(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: i
 
 Builder = Callable[[PreparedPair, AlignConfig, Proposals, int, RelationReading], Proposals | None]
 # each relation's own proposals (``extend``), by name as in ``priors.relations.RELATIONS``; a relation not named has
-# none ("below", and the contact relations the regions reach)
+# none ("below", and the contact relations the regions reach). Every builder takes the reading; only ``apart``
+# reads more of it than its position (the side, the orientation)
 BUILDERS: dict[str, Builder] = {
     "lean": lean, "in": contained, "hang": hung, "penetrate": pierced,
     **dict.fromkeys(("front", "behind", "left", "right", "above", "near", "far", "facing", "facing_away", "aligned"),

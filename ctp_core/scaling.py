@@ -163,11 +163,12 @@ def plan(pair: PreparedPair, prior: ScenePrior, names: dict[str, str | None], se
     """The run's ``ScalePlan``: the priors' ratio, the geometry's bound for its relation, the ladder."""
     ratio = ratio_scale(pair, prior.size_ratio)
     bound = None
-    placed = prior.reading if prior.reading is not None and prior.reading.source_is_figure else None
-    if placed is not None and placed.name == "in":
+    reading = prior.reading
+    placed = reading.name if reading is not None and reading.source_is_figure else None  # what the source goes into
+    if placed == "in":
         limit = cavity_bound(pair, seed)
         bound = None if limit is None else Bound("in: fits the cavity", limit, upper=True)
-    elif placed is not None and placed.name == "wear":
+    elif placed == "wear":
         bound = wear_fit(pair, seed, ratio)
         if bound is not None and abs(bound.log_s - ratio) > LADDER_WIDTH:
             # two estimates that disagree past the priors' 90th percentile: the source is not a hollow thing worn
