@@ -84,11 +84,20 @@ class RelationVerdict:
     side: str | None = None  # the side of the ground the figure is on, where the reading names one
     frame: str | None = None  # whose front sides and orientations are judged in: "target" (its own) or "viewer"
     parts: list[dict] | None = None  # each relation of a reading that says two ("front+facing"): name, score, holds
+    note: str | None = None  # what the verdict cannot judge here (``UNHELD``: nothing in the pair holds the figure up)
 
     def to_dict(self) -> dict:
-        """The verdict as reports write it: ``side``, ``frame`` and ``parts`` only where they say something."""
+        """The verdict as reports write it: ``side``, ``frame``, ``parts`` and ``note`` only where they say
+        something."""
         out = asdict(self)
-        return {k: v for k, v in out.items() if v is not None or k not in ("side", "frame", "parts")}
+        return {k: v for k, v in out.items() if v is not None or k not in ("side", "frame", "parts", "note")}
+
+
+# the verdict's ``note`` where a relation that asks no support (not ``steady``: above, below, hang, ...) leaves its
+# figure touching neither its ground nor the floor: what holds it (a cord, a bracket, the wall behind) is not in the
+# pair, so ``stable`` is None rather than a claim either way
+UNHELD = ("nothing in the pair holds it up (it touches neither its ground nor the floor): a cord, bracket or wall "
+          "that would is not modelled, and stability is not judged")
 
 
 def frame(pair: PreparedPair) -> str:
@@ -108,6 +117,12 @@ def axes(front: torch.Tensor, trusted: bool) -> tuple[torch.Tensor, torch.Tensor
     a = math.radians(FIRST_AZIMUTH)
     as_t = lambda v: torch.tensor(v, dtype=front.dtype, device=front.device).expand_as(front)  # noqa: E731
     return as_t([math.sin(a), 0.0, math.cos(a)]), as_t([-math.cos(a), 0.0, math.sin(a)])
+
+
+def toward(side: str, front: torch.Tensor, left: torch.Tensor) -> torch.Tensor:
+    """The horizontal direction (B, 3) of a ground's ``side`` (``front``, ``behind``, ``left``, ``right``), from its
+    ``axes``."""
+    return {"front": front, "behind": -front, "left": left, "right": -left}[side]
 
 
 def _horizontal(v: torch.Tensor) -> torch.Tensor:
@@ -572,10 +587,10 @@ def _score_side(c: _Ctx, side: str) -> torch.Tensor:
     that way (its farthest sample along the side's direction) by more than it is beyond the ground's extent either
     way across (a wedge from the ground's corners: a box level with a sofa's left end and a little in front is on
     its left; one well in front of that end is in front)."""
-    toward = {"front": c.front, "behind": -c.front, "left": c.left, "right": -c.left}[side]
+    way = toward(side, c.front, c.left)
     across = c.left if side in ("front", "behind") else c.front
     aside = torch.maximum(_beyond(c, across), _beyond(c, -across)).clamp_min(0.0)
-    return _score_beside(c) + c.h(aside - _beyond(c, toward))
+    return _score_beside(c) + c.h(aside - _beyond(c, way))
 
 
 def _beyond(c: _Ctx, direction: torch.Tensor) -> torch.Tensor:
@@ -592,10 +607,19 @@ def _score_above(c: _Ctx) -> torch.Tensor:
 
 
 def _score_below(c: _Ctx) -> torch.Tensor:
-    """``below`` (Sr3D's): the figure's top lower than the ground's bottom by more than contact, their footprints
-    overlapping (``_overlap``); ``under`` is what stands on the floor beneath a table's top."""
-    bottom = c.ground.side.points[..., 1].min(-1).values.expand_as(c.unit)
-    return c.h(c.top() + CLEAR * c.unit - bottom) + _overlap(c)
+    """``below``: the figure's top lower than the ground's *underside over it* (the lowest ground surface over the
+    figure's footprint: within its half-width of its centre's column) by more than contact, their footprints
+    overlapping (``_overlap``). Sr3D's "below" (under the ground's bottom) where the ground is compact (a lamp hung
+    over a box); under a lifted part of a ground that stands on the floor (a shelf board between its uprights, a
+    desk's top) too, where Sr3D's can never hold. A ground with nothing lifted over the figure (a block on the
+    floor) leaves no room: the score is then least tucked low against it, and never holds. ``under`` is the
+    same place standing on the floor; ``below`` asks no contact with anything."""
+    fig = c.figure
+    gp = c.ground.side.points.expand(fig.points.shape[0], -1, -1)
+    over = (gp[..., [0, 2]] - fig.centre[:, None, [0, 2]]).norm(dim=-1) <= _half_width(fig)[:, None]
+    clearance = soft_min(gp[..., 1], c.tau(), mask=over) - c.top()
+    clearance = torch.where(torch.isfinite(clearance), clearance, -FAR * c.unit)  # nothing over it
+    return c.h(CLEAR * c.unit - clearance) + _overlap(c)
 
 
 def _overlap(c: _Ctx) -> torch.Tensor:
@@ -942,11 +966,20 @@ def verdict(pair: PreparedPair, pose: Poses | np.ndarray, reading: RelationReadi
         c = _context(pair, pose, reading)
         each = [float(JUDGES[p].score(c)[0]) for p in named]
         steady = bool(holds(float(_stability(c)[0]))) if reading.steady else None
+        unheld = not reading.steady and not bool(_held(c)[0])
     return RelationVerdict(
         reading.name, reading.role, round(sum(each), 4), bool(holds(sum(each))),
         steady, reading.side, frame(pair) if reading.directional else None,
         [{"name": p, "score": round(e, 4), "holds": bool(holds(e))} for p, e in zip(named, each, strict=True)]
-        if len(named) > 1 else None)
+        if len(named) > 1 else None, UNHELD if unheld else None)
+
+
+def _held(c: _Ctx) -> torch.Tensor:
+    """(B,) whether anything in the pair can hold the figure up: it touches its ground (any surface: it rests on
+    it, hangs from it or is fixed to it) or stands on the floor."""
+    gap, _ = _gap(c.figure.points, c.ground)
+    on_floor = c.figure.points[..., 1] - c.floor[:, None] <= c.tol()[:, None]
+    return ((gap <= c.reach()[:, None]) | on_floor).any(-1)
 
 
 def poses_of(matrix: np.ndarray, device: str | torch.device = "cpu") -> Poses:

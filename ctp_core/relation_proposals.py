@@ -9,7 +9,8 @@ proposals exist", has the measures).
 ``LEAN_TILTS`` about the horizontal axis along a side of the target, so its top tips toward the target; its
 lowest point on the floor the target stands on, just outside a side sample (the "side" region's samples,
 their outward normal made horizontal), then moved straight toward the target until it touches
-(``proposals.settle``'s "straight" approach).
+(``proposals.settle``'s "straight" approach). A reading that names the side leant on ("against the back of the
+sofa": ``lean+behind``) draws only the side samples facing that way (``predicates.toward``; within 45 degrees).
 
 ``in``: the source standing in the target's most enclosed up-facing places (the floors of its cavities: the
 share of horizontal directions around a point that meet the target, ``predicates.enclosure``, weighting the
@@ -39,16 +40,18 @@ target's extent along the side's direction (any direction for near, far and orie
 relation's band, level with the target across that direction (sides; its centre elsewhere); turned about +Y at
 random, or so that its own front (``PreparedPair.source_front``) points as the reading's orientation says
 (toward the target, away from it, along the target's front). ``above``: the source over a point of the target's
-top surface, its bottom clear above the target's top. Kept where they are put (free of the target by
-construction: the approach "none"): the regions settle every proposal into contact.
+top surface, its bottom clear above the target's top. ``below`` (``beneath``): the source standing on the floor
+under a down-facing point of the target lifted off it (a hung lamp's underside, a shelf board's, a desk top's), its
+top clear of that point by ``BELOW_CLEAR``; where nothing the target has is lifted high enough for the source (a
+block standing on the floor), none are made. Kept where they are put (free of the target by construction: the
+approach "none"; those that meet another part of it are dropped): the regions settle every proposal into contact.
 
 Each kind is made only where it is the prompt's relation (its position, the first of a reading of two) with the
 source as the figure and ``config.relation`` is on, in place of as many region proposals (``extend``); otherwise
 the proposals are unchanged. ``BUILDERS`` names each relation's builder (a relation without one has none).
 
 Not done (docs/relations.md lists them): "under" (the floor under a down-facing part), "beside" (the floor
-just outside the footprint): the regions already give some poses where those hold on the dev cases; "below"
-(under what the target hangs from: the floor the target stands on is under it).
+just outside the footprint): the regions already give some poses where those hold on the dev cases.
 """
 
 from __future__ import annotations
@@ -78,6 +81,8 @@ HOOK_REACH = 0.1  # a hook point: at least this many source diagonals from the s
 APART_GAPS = {"side": (0.05, predicates.BESIDE_GAP / 2), "near": (0.05, predicates.NEAR_GAP / 2),
               "far": (1.1 * predicates.FAR_GAP, 1.5 * predicates.FAR_GAP)}
 ABOVE_CLEAR = (0.1, 0.5)  # ``apart``, "above": the source's bottom this many of its diagonals over the target's top
+BELOW_CLEAR = 0.1  # ``beneath``: the source's top at least this many of its diagonals under the point it stands below
+# (twice ``predicates.CLEAR``: clear of it past the contact tolerance)
 
 
 def extend(pair: PreparedPair, config: AlignConfig, proposals: Proposals, reading: RelationReading | None,
@@ -118,6 +123,12 @@ def lean(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: in
     horizontal = normals[side] * np.array([1.0, 0.0, 1.0])
     length = np.linalg.norm(horizontal, axis=1)
     side, horizontal = side[length > 0.5], horizontal[length > 0.5] / length[length > 0.5, None]
+    if reading is not None and reading.side is not None:  # only the named side's faces
+        front, left = predicates.axes(torch.as_tensor(pair.target_front, dtype=torch.float32)[None],
+                                      pair.front_trusted)
+        way = predicates.toward(reading.side, front, left)[0].numpy().astype(np.float64)
+        facing = horizontal @ way >= predicates.FACING
+        side, horizontal = side[facing], horizontal[facing]
     if not len(side):
         return None
     rng = np.random.default_rng(seed + 23)
@@ -245,7 +256,7 @@ def apart(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: i
     target = pair.anchor.points.cpu()
     front, left = predicates.axes(torch.as_tensor(pair.target_front, dtype=torch.float32)[None], pair.front_trusted)
     if kind == "side":
-        u = {"front": front, "behind": -front, "left": left, "right": -left}[position].expand(count, 3)
+        u = predicates.toward(position, front, left).expand(count, 3)
     else:
         angle = torch.as_tensor(rng.uniform(0, 2 * math.pi, count), dtype=torch.float32)
         u = torch.stack([angle.sin(), torch.zeros_like(angle), angle.cos()], -1)
@@ -259,7 +270,6 @@ def apart(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: i
     q = torch.cat([quaternion_product(_yaw(float(a)), resting[i:i + 1]) for i, a in enumerate(heading)])
     rotated = torch.einsum("bij,nj->bni", quaternion_to_matrix(q), pair.source_subset(LEAN_POINTS).cpu()) * scale
     source_diagonal = 2 * pair.source_radius * scale
-    up = torch.tensor([0.0, 1.0, 0.0]).expand(count, 3)
     if position == "above":  # over a point of the target's top, clear of it
         top = torch.as_tensor(surface_regions(pair)[2]["top"], dtype=torch.long)
         over = target[top if len(top) else torch.arange(len(target))]
@@ -276,18 +286,55 @@ def apart(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: i
                                                    else np.full(count, 0.5), dtype=torch.float32)
         anchor = u * (reach + gap * (source_diagonal + 2 * pair.target_radius) / 2)[:, None] + across * level[:, None]
         anchor[:, 1] = pair.floor
+    return _kept(pair, proposals, q, anchor, log_s, position)
+
+
+def beneath(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int,
+            reading: RelationReading | None = None) -> Proposals | None:
+    """Sources standing on the floor under a down-facing point of the target lifted high enough for them
+    (``extend``; the module docstring says where); None where no point is."""
+    points, _, regions, density = surface_regions(pair)
+    under = regions["bottom"]
+    rng = np.random.default_rng(seed + 43)
+    count = max(1, math.ceil(SHARE * config.search.candidates))
+    log_s = _scale(proposals)
+    scale = math.exp(log_s)
+    resting = proposals.rotations[torch.as_tensor(rng.integers(len(proposals.rotations), size=count))].cpu()
+    q = torch.cat([quaternion_product(_yaw(float(a)), resting[i:i + 1])
+                   for i, a in enumerate(rng.uniform(0, 2 * math.pi, count))])
+    rising = torch.einsum("bij,nj->bni", quaternion_to_matrix(q), pair.source_subset(LEAN_POINTS).cpu())[..., 1]
+    heights = (rising.amax(1) - rising.amin(1)) * scale
+    room = points[under, 1] - pair.floor  # (U,) how high each down-facing point is over the floor
+    need = heights.numpy().astype(np.float64) + BELOW_CLEAR * 2 * pair.source_radius * scale  # (B,)
+    fits = room[None, :] >= need[:, None]  # (B, U)
+    keep = np.flatnonzero(fits.any(1))
+    if not len(keep):
+        return None
+    weights = density[under][None, :] * fits[keep]
+    pick = [under[rng.choice(len(under), p=w / w.sum())] for w in weights]
+    anchor = torch.as_tensor(points[pick], dtype=torch.float32)
+    anchor[:, 1] = pair.floor
+    return _kept(pair, proposals, q[torch.as_tensor(keep)], anchor, log_s, "below")
+
+
+def _kept(pair: PreparedPair, proposals: Proposals, q: torch.Tensor, anchor: torch.Tensor, log_s: float,
+          label: str) -> Proposals:
+    """Sources turned by ``q`` standing with their bottom's centre at ``anchor``, kept where they are put (the
+    approach "none": those that meet the target are dropped), labelled ``label``."""
+    count = len(anchor)
+    up = torch.tensor([0.0, 1.0, 0.0]).expand(count, 3)
     sites = Site(anchor, up, torch.zeros(count), torch.ones(count, dtype=torch.bool),
                  torch.full((count,), APPROACHES.index("none"), dtype=torch.long))
     placed, free = place(pair, proposals.index, q, sites, log_s)
-    return _labelled(pair, proposals, placed, sites.select(free), position)
+    return _labelled(pair, proposals, placed, sites.select(free), label)
 
 
 Builder = Callable[[PreparedPair, AlignConfig, Proposals, int, RelationReading], Proposals | None]
 # each relation's own proposals (``extend``), by name as in ``priors.relations.RELATIONS``; a relation not named has
-# none ("below", and the contact relations the regions reach). Every builder takes the reading; only ``apart``
-# reads more of it than its position (the side, the orientation)
+# none (the contact relations the regions reach). Every builder takes the reading; ``apart`` and ``lean`` read more
+# of it than its position (the side, the orientation)
 BUILDERS: dict[str, Builder] = {
-    "lean": lean, "in": contained, "hang": hung, "penetrate": pierced,
+    "lean": lean, "in": contained, "hang": hung, "penetrate": pierced, "below": beneath,
     **dict.fromkeys(("front", "behind", "left", "right", "above", "near", "far", "facing", "facing_away", "aligned"),
                     apart),
 }

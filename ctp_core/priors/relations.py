@@ -108,11 +108,24 @@ RELATIONS: dict[str, Relation] = {r.name: r for r in (
 )}
 PLACING = {"contact", "side", "vertical", "distance"}  # the kinds that say where the figure is
 JOIN = "+"  # a reading of a position and an orientation: "front+facing"
+# where an orientation said alone puts the figure: "a chair facing the desk" stands near the desk, not across the room
+ORIENTED_NEAR = "near"
 
 
 def parts(name: str | None) -> tuple[str, ...]:
     """The relations a reading names (``front+facing``: both); () for None."""
     return tuple(name.split(JOIN)) if name else ()
+
+
+def implied(name: str) -> str:
+    """The reading a name stands for: an orientation said alone ("a chair facing the desk", "a statue facing away
+    from the house", "a bench aligned with the wall") places its figure ``ORIENTED_NEAR`` its ground too
+    (``near+facing``): which way a front points says nothing of where, and a user who names the ground by it means
+    the figure to stand by it. Every other name is itself."""
+    named = parts(name)
+    if named and all(p in RELATIONS and RELATIONS[p].kind == "orientation" for p in named):
+        return JOIN.join((ORIENTED_NEAR, *named))
+    return name
 
 
 def side_of(name: str | None) -> str | None:
@@ -125,10 +138,13 @@ class RelationReading:
     """The relation a run uses: the reading's name (one relation, or a position and an orientation joined:
     ``front+facing``) and whether the source is its figure (the thing placed) or its ground. Built once from the
     priors (``ScenePrior.reading``) or from a report's verdict (``from_verdict``) and passed as one value; a run
-    without a relation has None."""
+    without a relation has None. An orientation said alone reads with the distance it implies (``implied``)."""
 
     name: str
     source_is_figure: bool = True
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "name", implied(self.name))  # what a name means is judged: "facing" is near+facing
 
     @classmethod
     def from_verdict(cls, verdict: dict | None) -> RelationReading | None:

@@ -96,6 +96,8 @@ class RulesProvider:
 
         # a position first ("in front of the sofa, facing it": front), an orientation alone ("facing the sofa")
         cue = relations.find_cue(prompt, aside, relations.PLACING) or relations.find_cue(prompt, aside)
+        # "against the back of the sofa", "behind the sofa, against it": a lean, on that side
+        cue, leant = _leaning(prompt, cue, aside, target_at + source_at)
         figure = None
         if cue is not None:
             figure = relations.source_is_figure(cue, source_at, target_at)
@@ -109,6 +111,8 @@ class RulesProvider:
             context.resolve(source_name, prompt, source_at, target, agent_role == ("figure" if figure else "ground"),
                             target_name))
         relation, why = _relation(cue, target, source, source if figure else target)
+        if leant is not None and relation.name != "lean":  # "behind the sofa, against it"
+            relation, why = relations.RELATIONS["lean"], f"'{cue.text}', leaning -> lean"
         drinks = cue is not None and relation.name == "in" and _DRINKS.match(cue.text) is not None
         drinker = source if figure else target
         if drinks and not (drinker is not None and drinker.entry.domain == "animals"):
@@ -213,7 +217,7 @@ class RulesProvider:
                                                                     size, in_place, encased)
         if drinks and penetration or bites:
             contact = DRINKING_CONTACT  # its muzzle, its proboscis or sting
-        name = relation.name
+        name = relation.name if leant is None else relations.JOIN.join((relation.name, leant))
         turn = _orientation(prompt, cue, relation, aside, ground_at)
         if turn is not None:  # "in front of the sofa, facing it": both judged
             name += relations.JOIN + turn.cue.relation
@@ -257,6 +261,36 @@ def _orientation(prompt: str, cue: relations.CueMatch | None, relation: relation
     if turn is None or turn.start < cue.end and cue.start < turn.end:
         return None
     return turn if not context.about_another(prompt, turn.end, ground_at) else None
+
+
+# the side a lean's ground is touched on, named after the lean: "against the back of", "on the left-hand end of"
+_LEANT_ON = re.compile(r"\s+(?:the |its |his |her |their )?(front|back|rear|left|right)(?:[- ]hand)?(?: side| end)?"
+                       r" of(?![a-z])")
+_SIDE_WORD = {"front": "front", "back": "behind", "rear": "behind", "left": "left", "right": "right"}
+
+
+def _leaning(prompt: str, cue: relations.CueMatch | None, aside, mention_at: list[int]
+             ) -> tuple[relations.CueMatch | None, str | None]:
+    """The cue to read and the side of the ground a lean touches, where the prompt names one: after the lean
+    ("against the back of the sofa", "leaning on the front of the car": ``front``, ``behind``, ``left``, ``right``;
+    "the side of" names none), or as a side with a lean about the same ground ("behind the sofa, against it",
+    "leaning against the left side of the amp"; the earlier of the two cues says who the figure is). ``(cue,
+    None)`` otherwise."""
+    if cue is None or cue.cue.relation == "lean":
+        said = cue and _LEANT_ON.match(relations.clean(prompt), cue.end)
+        return cue, _SIDE_WORD[said.group(1)] if said else None
+    if cue.relation.kind != "side":
+        return cue, None
+    lean = relations.find_cue(prompt, aside, {"contact"})
+    if lean is None or lean.cue.relation != "lean" or lean.start < cue.end and cue.start < lean.end:
+        return cue, None
+    said_of_side = lean.end <= cue.start and _BEFORE_SIDE.fullmatch(relations.clean(prompt)[lean.end:cue.start])
+    if not said_of_side and context.about_another(prompt, lean.end, mention_at):  # "... leaning on the wall"
+        return cue, None
+    return min(cue, lean, key=lambda c: c.start), cue.cue.relation
+
+
+_BEFORE_SIDE = re.compile(r"\s*(?:the |its |his |her |their )?")  # "against the [left side of]": one phrase
 
 
 def _relation(cue, target, source, figure) -> tuple[relations.Relation, str]:
