@@ -42,8 +42,9 @@ random, or so that its own front (``PreparedPair.source_front``) points as the r
 (toward the target, away from it, along the target's front). ``above``: the source over a point of the target's
 top surface, its bottom clear above the target's top. ``below`` (``beneath``): the source standing on the floor
 under a down-facing point of the target lifted off it (a hung lamp's underside, a shelf board's, a desk top's), its
-top clear of that point by ``BELOW_CLEAR``; where nothing the target has is lifted high enough for the source (a
-block standing on the floor), none are made. Kept where they are put (free of the target by construction: the
+top clear by ``BELOW_CLEAR`` of the lowest target surface in that column (as wide as the source, as the score's
+footprint); where nothing the target has is lifted high enough for the source (a block standing on the floor),
+none are made. Kept where they are put (free of the target by construction: the
 approach "none"; those that meet another part of it are dropped): the regions settle every proposal into contact.
 
 Each kind is made only where it is the prompt's relation (its position, the first of a reading of two) with the
@@ -304,7 +305,11 @@ def beneath(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed:
                    for i, a in enumerate(rng.uniform(0, 2 * math.pi, count))])
     rising = torch.einsum("bij,nj->bni", quaternion_to_matrix(q), pair.source_subset(LEAN_POINTS).cpu())[..., 1]
     heights = (rising.amax(1) - rising.amin(1)) * scale
-    room = points[under, 1] - pair.floor  # (U,) how high each down-facing point is over the floor
+    reach = pair.source_radius * scale  # the source's widest half-width, any way it is turned
+    column = cKDTree(points[:, [0, 2]]).query_ball_point(points[under][:, [0, 2]], r=reach, workers=1)
+    # (U,) the room under each down-facing point: its column's lowest target surface (as wide as the source: the
+    # score's footprint) over the floor
+    room = np.array([points[near, 1].min() for near in column]) - pair.floor
     need = heights.numpy().astype(np.float64) + BELOW_CLEAR * 2 * pair.source_radius * scale  # (B,)
     fits = room[None, :] >= need[:, None]  # (B, U)
     keep = np.flatnonzero(fits.any(1))

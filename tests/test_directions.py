@@ -16,9 +16,11 @@ from test_predicates import box, pose, poses, reading, rot, table
 from test_predicates import prepared as prepared_plain
 
 from ctp_core import align as stages
-from ctp_core import predicates
+from ctp_core import predicates, proposals, relation_proposals
 from ctp_core.align import align
 from ctp_core.config import AlignConfig
+from ctp_core.pose import Poses, apply_pose
+from ctp_core.scene import prepare_pair
 
 
 def gltf(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
@@ -257,3 +259,152 @@ def test_a_chair_lying_on_its_back_faces_nothing():
     on_its_back = pose([0, 0.3, 1.0], rot([0, 1, 0], 180) @ rot([1, 0, 0], -85))
     for relation in ("facing", "facing_away", "aligned"):
         assert _holding(pair, [on_its_back], relation) == [False], relation
+
+
+# --- the gaps: below with its proposals, an orientation alone, a lean on a named side, what holds an "above" up ----
+
+def shelf_unit() -> trimesh.Trimesh:
+    """Two uprights 1.6 high standing on y = 0, 1.2 apart, and a shelf board between them at mid-height (y 0.8)."""
+    return gltf(trimesh.util.concatenate([box([0.05, 1.6, 0.4], [x, 0.8, 0]) for x in (-0.6, 0.6)]
+                                         + [box([1.15, 0.04, 0.4], [0, 0.8, 0])]))
+
+
+def hung_lamp() -> trimesh.Scene:
+    """A wall standing on the floor (y = 0) and a lamp block hung by a cord from a ceiling plate on it, the lamp's
+    underside at 2.0: the lamp is the ground (``on``), the floor the scene's lowest level (the wall's foot)."""
+    scene = trimesh.Scene()
+    scene.add_geometry(box([4, 3.2, 0.1], [0, 1.6, -1.5]), node_name="wall", geom_name="wall")
+    lamp = trimesh.util.concatenate([box([0.6, 0.3, 0.6], [0, 2.15, 0]), box([0.02, 0.7, 0.02], [0, 2.65, 0]),
+                                     box([1, 0.05, 3], [0, 3.025, 0])])
+    scene.add_geometry(lamp, node_name="lamp", geom_name="lamp")
+    return scene
+
+
+SMALL_BOX = box([0.3, 0.3, 0.3], [0, 0, 0])  # centred: on the floor at y = 0.15
+
+
+def test_below_holds_under_a_lifted_shelf_board_and_not_on_it_beside_it_or_under_a_block_on_the_floor():
+    """Under the board between the uprights the ground over the box is the board alone: below it, though the unit
+    stands on the floor (Sr3D's "under the ground's bottom" could never hold there)."""
+    pair = prepared(shelf_unit(), SMALL_BOX)
+    under, on_board, beside = pose([0, 0.15, 0]), pose([0, 0.97, 0]), pose([1.2, 0.15, 0])
+    assert _holding(pair, [under, on_board, beside], "below") == [True, False, False]
+    block = prepared(box([1, 1, 1], [0, 0.5, 0]), SMALL_BOX)  # nothing lifted over the floor: no room below it
+    assert _holding(block, [pose([0.66, 0.15, 0]), pose([0, 0.15, 0])], "below") == [False, False]
+
+
+def _below_proposals(pair) -> tuple[list[str], torch.Tensor, trimesh.Trimesh]:
+    config = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0}, search={"candidates": 48})
+    rotations = proposals.orientations(pair, config, torch.Generator().manual_seed(0))
+    one = proposals.Proposals(Poses(torch.zeros(1, 3), torch.tensor([[1.0, 0.0, 0.0, 0.0]]), torch.zeros(1)),
+                                     ["top"], None, rotations, proposals.contact_index(pair, seed=0))
+    made = relation_proposals.BUILDERS["below"](pair, config, one, 0, reading("below"))
+    with torch.inference_mode():
+        held = predicates.holds(predicates.relation_score(pair, made.poses, reading("below")))
+    return made.region, held, made
+
+
+@pytest.mark.parametrize("where", ["shelf", "lamp"])
+def test_below_proposals_stand_the_box_on_the_floor_under_a_lifted_part(where):
+    pair = (prepared(shelf_unit(), SMALL_BOX) if where == "shelf"
+            else prepare_pair(hung_lamp(), SMALL_BOX, samples=1500, seed=0, canonicalise=False, on="lamp"))
+    region, held, made = _below_proposals(pair)
+    assert set(region) == {"below"} and len(region) >= 6 and held.float().mean() >= 0.75, held
+    bottoms = apply_pose(predicates.features(pair).source_points, made.poses.t, made.poses.q,
+                         made.poses.log_s)[..., 1].min(1).values
+    assert torch.allclose(bottoms, torch.full_like(bottoms, pair.floor), atol=0.02 * pair.target_radius), bottoms
+
+
+def test_no_below_proposals_where_nothing_is_lifted_off_the_floor():
+    pair = prepared(box([1, 1, 1], [0, 0.5, 0]), SMALL_BOX)
+    config = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0})
+    base = proposals.propose(pair, config, proposals.region_weights(None), 0.0,
+                                    torch.Generator().manual_seed(0))
+    assert relation_proposals.beneath(pair, config, base, 0, reading("below")) is None
+    assert relation_proposals.extend(pair, config, base, reading("below"), 0) is base
+
+
+def test_an_orientation_said_alone_stands_near_its_ground():
+    """ "a chair facing the desk": near+facing. Facing it from across the room does not hold; its verdict says
+    both parts."""
+    assert reading("facing").name == "near+facing" and reading("facing_away").position == "near"
+    assert reading("front+facing").name == "front+facing" and reading("far+facing").name == "far+facing"
+    pair = prepared(DESK, chair())
+    toward = rot([0, 1, 0], 180)
+    close, across_the_room = pose(CHAIR_AT, toward), pose([0, 0.425, 6.0], toward)
+    assert _holding(pair, [close, across_the_room], "facing") == [True, False]
+    verdict = predicates.verdict(pair, poses(pair, [across_the_room]).matrices()[0], reading("facing")).to_dict()
+    assert [(p["name"], p["holds"]) for p in verdict["parts"]] == [("near", False), ("facing", True)], verdict
+
+
+def test_a_chair_facing_the_desk_ends_near_it_turned_to_it():
+    result = _run(DESK, chair(), "a chair facing the desk", "desk", "chair")
+    assert result.relation["name"] == "near+facing" and result.relation["holds"], result.relation
+    placed = _posed(result, chair())
+    gap = trimesh.proximity.closest_point(DESK, placed.vertices)[1].min()
+    front = result.source_to_target[:3, :3] @ np.array([0.0, 0.0, 1.0])
+    toward = (DESK.bounds.mean(0) - placed.bounds.mean(0)) * [1, 0, 1]
+    assert gap < 1.3 and front @ toward / np.linalg.norm(toward) > np.cos(np.radians(45)), (gap, front, toward)
+
+
+BOARD = box([0.6, 0.4, 0.04], [0, 0, 0])  # a board standing on its 0.6 edge, 0.4 high: lower than the seat
+
+
+def _leaning(z: float, side: float) -> np.ndarray:
+    """The board tilted 20 degrees toward the sofa, its foot on the floor ``side`` of it (+1 front, -1 back), its
+    edge nearest the sofa at ``z``."""
+    tilt = rot([1, 0, 0], -side * 20)
+    bounds = BOARD.copy().apply_transform(pose([0, 0, 0], tilt)).bounds
+    return pose([0, -bounds[0, 1], z - (bounds[1, 2] if side < 0 else bounds[0, 2])], tilt)
+
+
+def _settled(side: float) -> np.ndarray:
+    """The tilted board (``_leaning``) moved toward the sofa until its top edge touches it (the back's face at
+    z -0.45, the seat's front at z 0.45)."""
+    face, target = -0.45 if side < 0 else 0.45, sofa()
+    for step in np.linspace(0.8, 0.0, 321):
+        m = _leaning(face + side * step, side)
+        placed = BOARD.copy().apply_transform(m)
+        gap = min(trimesh.proximity.closest_point(target, placed.vertices)[1].min(),
+                  trimesh.proximity.closest_point(placed, target.vertices)[1].min())
+        if gap < 0.006:
+            return m
+    raise AssertionError("no contact")
+
+
+def test_a_lean_on_a_named_side_holds_only_there():
+    """Leaning on the backrest's back is lean+behind, not lean+front; leaning on the seat's front is lean+front."""
+    pair = prepared(sofa(), BOARD)
+    on_back, on_front = _settled(-1), _settled(1)
+    assert _holding(pair, [on_back, on_front], "lean") == [True, True]
+    assert _holding(pair, [on_back, on_front], "lean+behind") == [True, False]
+    assert _holding(pair, [on_back, on_front], "lean+front") == [False, True]
+    verdict = predicates.verdict(pair, poses(pair, [on_back]).matrices()[0], reading("lean+behind")).to_dict()
+    assert verdict["side"] == "behind" and verdict["frame"] == "target" and verdict["stable"], verdict
+
+
+def test_lean_proposals_on_a_named_side_lean_on_that_side():
+    pair = prepared(sofa(), BOARD)
+    config = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0}, search={"candidates": 48})
+    base = proposals.propose(pair, config, proposals.region_weights(None), 0.0,
+                                    torch.Generator().manual_seed(0))
+    made = relation_proposals.lean(pair, config, base, 0, reading("lean+behind"))
+    centres = apply_pose(predicates.features(pair).source_centre[None], made.poses.t, made.poses.q,
+                         made.poses.log_s)[:, 0]
+    assert bool((centres[:, 2] < -0.45).all()), centres  # all behind the backrest (the sofa faces +Z)
+    with torch.inference_mode():
+        held = predicates.holds(predicates.relation_score(pair, made.poses, reading("lean+behind")))
+    assert held.float().mean() >= 0.5, held
+
+
+def test_above_asks_no_support_and_the_verdict_says_nothing_holds_it_up():
+    """A picture clear above a table touches nothing of the pair: its verdict has no ``stable`` and a note saying
+    what is not modelled; a box standing under a shelf board, or a cup on a table, has no note."""
+    pair = prepared(table(), PICTURE)
+    above = predicates.verdict(pair, poses(pair, [pose([0, 1.6, -0.95])]).matrices()[0], reading("above")).to_dict()
+    assert above["holds"] and above["stable"] is None and above["note"] == predicates.UNHELD, above
+    shelf = prepared(shelf_unit(), SMALL_BOX)
+    below = predicates.verdict(shelf, poses(shelf, [pose([0, 0.15, 0])]).matrices()[0], reading("below")).to_dict()
+    assert below["holds"] and "note" not in below, below
+    on = predicates.verdict(pair, poses(pair, [pose([0, 1.35, 0])]).matrices()[0], reading("on")).to_dict()
+    assert "note" not in on, on
