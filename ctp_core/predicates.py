@@ -792,8 +792,9 @@ def preference(pair: PreparedPair, poses: Poses, reading: RelationReading | None
     - ``penetrate``: near the middle, *end first* (``_end_first``: a stick stuck into a block stands in its top
       rather than lying sunk along it) and *from above the floor* (the figure's depth below the floor the ground
       stands on, in figure diagonals: driven up through a block's base it would pass through the floor);
-    - the others (``beside``: which side is the guide's to say; ``attach``, ``hold``, ``wrap``, the directional
-      ones): zeros (their ``Judge`` has no preference).
+    - ``below``: on the floor (a box below a hung lamp stands under it), near the middle;
+    - the others (``beside``: which side is the guide's to say; ``attach``, ``hold``, ``wrap``, the other
+      directional ones): zeros (their ``Judge`` has no preference).
     Differentiable in ``poses`` but for the counts (a refinement term: ``objective.PREFER`` x ``lambda_rel``,
     and with a guide only as far as it cannot tell poses apart, ``Scorer.relation_terms``).
     """
@@ -844,6 +845,12 @@ def _prefer_in(c: _Ctx) -> torch.Tensor:
 def _off_centred(c: _Ctx) -> torch.Tensor:
     """``under``, ``lean``: near the middle."""
     return torch.zeros_like(c.unit) + _off_centre(c)
+
+
+def _prefer_below(c: _Ctx) -> torch.Tensor:
+    """``below``: standing on the floor (its bottom's height from the floor, either way, past contact, in figure
+    diagonals: a box below a hung lamp stands under it rather than floats or sinks), near the middle."""
+    return torch.zeros_like(c.unit) + c.h((c.bottom() - c.floor).abs() - c.tol()) + _off_centre(c)
 
 
 def _prefer_hang(c: _Ctx) -> torch.Tensor:
@@ -937,7 +944,7 @@ JUDGES: dict[str, Judge] = {
     "penetrate": Judge(_score_penetrate, _prefer_penetrate), "attach": Judge(_score_attach),
     "hold": Judge(_score_hold), "wrap": Judge(_score_wrap),
     **{side: Judge(partial(_score_side, side=side)) for side in ("front", "behind", "left", "right")},
-    "above": Judge(_score_above), "below": Judge(_score_below), "near": Judge(_score_near),
+    "above": Judge(_score_above), "below": Judge(_score_below, _prefer_below), "near": Judge(_score_near),
     "far": Judge(_score_far), "facing": Judge(partial(_score_facing, sign=1.0)),
     "facing_away": Judge(partial(_score_facing, sign=-1.0)), "aligned": Judge(_score_aligned),
 }

@@ -270,12 +270,12 @@ def shelf_unit() -> trimesh.Trimesh:
 
 
 def hung_lamp() -> trimesh.Scene:
-    """A wall standing on the floor (y = 0) and a lamp block hung by a cord from a ceiling plate on it, the lamp's
-    underside at 2.0: the lamp is the ground (``on``), the floor the scene's lowest level (the wall's foot)."""
+    """A wall standing on the floor (y = 0), a ceiling plate on it, and a lamp block hung by a cord from the plate,
+    its underside at 2.0: the lamp is the ground (``on``), the floor the scene's lowest level (the wall's foot)."""
     scene = trimesh.Scene()
     scene.add_geometry(box([4, 3.2, 0.1], [0, 1.6, -1.5]), node_name="wall", geom_name="wall")
-    lamp = trimesh.util.concatenate([box([0.6, 0.3, 0.6], [0, 2.15, 0]), box([0.02, 0.7, 0.02], [0, 2.65, 0]),
-                                     box([1, 0.05, 3], [0, 3.025, 0])])
+    scene.add_geometry(box([1, 0.05, 3], [0, 3.025, 0]), node_name="ceiling", geom_name="ceiling")
+    lamp = trimesh.util.concatenate([box([0.6, 0.3, 0.6], [0, 2.15, 0]), box([0.02, 0.7, 0.02], [0, 2.65, 0])])
     scene.add_geometry(lamp, node_name="lamp", geom_name="lamp")
     return scene
 
@@ -350,32 +350,19 @@ def test_a_chair_facing_the_desk_ends_near_it_turned_to_it():
 BOARD = box([0.6, 0.4, 0.04], [0, 0, 0])  # a board standing on its 0.6 edge, 0.4 high: lower than the seat
 
 
-def _leaning(z: float, side: float) -> np.ndarray:
+def _leaning(side: float) -> np.ndarray:
     """The board tilted 20 degrees toward the sofa, its foot on the floor ``side`` of it (+1 front, -1 back), its
-    edge nearest the sofa at ``z``."""
+    top edge (the part nearest the sofa: the board is lower than the seat) on the sofa's face that way (the back at
+    z -0.45, the seat's front at z 0.45)."""
     tilt = rot([1, 0, 0], -side * 20)
     bounds = BOARD.copy().apply_transform(pose([0, 0, 0], tilt)).bounds
-    return pose([0, -bounds[0, 1], z - (bounds[1, 2] if side < 0 else bounds[0, 2])], tilt)
-
-
-def _settled(side: float) -> np.ndarray:
-    """The tilted board (``_leaning``) moved toward the sofa until its top edge touches it (the back's face at
-    z -0.45, the seat's front at z 0.45)."""
-    face, target = -0.45 if side < 0 else 0.45, sofa()
-    for step in np.linspace(0.8, 0.0, 321):
-        m = _leaning(face + side * step, side)
-        placed = BOARD.copy().apply_transform(m)
-        gap = min(trimesh.proximity.closest_point(target, placed.vertices)[1].min(),
-                  trimesh.proximity.closest_point(placed, target.vertices)[1].min())
-        if gap < 0.006:
-            return m
-    raise AssertionError("no contact")
+    return pose([0, -bounds[0, 1], side * 0.45 - (bounds[1, 2] if side < 0 else bounds[0, 2])], tilt)
 
 
 def test_a_lean_on_a_named_side_holds_only_there():
     """Leaning on the backrest's back is lean+behind, not lean+front; leaning on the seat's front is lean+front."""
     pair = prepared(sofa(), BOARD)
-    on_back, on_front = _settled(-1), _settled(1)
+    on_back, on_front = _leaning(-1), _leaning(1)
     assert _holding(pair, [on_back, on_front], "lean") == [True, True]
     assert _holding(pair, [on_back, on_front], "lean+behind") == [True, False]
     assert _holding(pair, [on_back, on_front], "lean+front") == [False, True]
@@ -408,3 +395,19 @@ def test_above_asks_no_support_and_the_verdict_says_nothing_holds_it_up():
     assert below["holds"] and "note" not in below, below
     on = predicates.verdict(pair, poses(pair, [pose([0, 1.35, 0])]).matrices()[0], reading("on")).to_dict()
     assert "note" not in on, on
+
+
+def test_a_box_below_a_hung_lamp_ends_on_the_floor_under_it():
+    result = _run(hung_lamp(), SMALL_BOX, "a box below the lamp", "lamp", "box", on="lamp")
+    assert result.relation["name"] == "below" and result.relation["holds"], result.relation
+    placed = _posed(result, SMALL_BOX)
+    centre = placed.bounds.mean(0)
+    assert abs(placed.bounds[0, 1]) < 0.02 and np.hypot(centre[0], centre[2]) < 0.3 + 0.22, placed.bounds
+
+
+def test_a_board_against_the_back_of_the_sofa_leans_on_its_back():
+    result = _run(sofa(), BOARD, "a board against the back of the sofa", "sofa", "board")
+    verdict = result.relation
+    assert verdict["name"] == "lean+behind" and verdict["side"] == "behind" and verdict["holds"], verdict
+    placed = _posed(result, BOARD)
+    assert placed.bounds.mean(0)[2] < -0.45 and placed.bounds[0, 1] > -0.02, placed.bounds  # behind the back
