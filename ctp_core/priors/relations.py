@@ -10,9 +10,10 @@ Cues are matched as whole words (``in`` never matches inside "pinocchio" or "din
 specific cue wins (``CUES`` is in priority order: "holding a carrot in his hand" is holding, not in),
 and ties go to the earliest cue.
 
-A reading may say two things ("in front of the sofa, facing it"): a position and an orientation, named together
-as ``front+facing`` (``JOIN``; ``parts`` splits them) and judged both. ``side_of`` gives the side of the ground
-a reading puts the figure on (the target's own frame: ``predicates``).
+A reading may say two things ("in front of the sofa, facing it"; "against the back of the sofa"): a position and an
+orientation, or a lean and the side it leans on, named together as ``front+facing``, ``lean+behind`` (``JOIN``;
+``parts`` splits them) and judged both. ``side_of`` gives the side of the ground a reading puts the figure on (the
+target's own frame: ``predicates``); ``implied`` what a reading of an orientation alone means.
 """
 
 from __future__ import annotations
@@ -107,7 +108,7 @@ RELATIONS: dict[str, Relation] = {r.name: r for r in (
     *(_apart(name, "orientation") for name in ("facing", "facing_away", "aligned")),
 )}
 PLACING = {"contact", "side", "vertical", "distance"}  # the kinds that say where the figure is
-JOIN = "+"  # a reading of a position and an orientation: "front+facing"
+JOIN = "+"  # a reading of two: a position and an orientation ("front+facing"), a lean and its side ("lean+behind")
 # where an orientation said alone puts the figure: "a chair facing the desk" stands near the desk, not across the room
 ORIENTED_NEAR = "near"
 
