@@ -206,9 +206,9 @@ def guide_noise(scorer: Scorer, poses: Poses, terms: dict[str, torch.Tensor], we
     against its noise: the largest change of its term when ``GATE_PROBES`` of them (spread over its order) are
     moved by ``GATE_SHIFT`` of the source's diagonal and turned ``GATE_TURN_DEG`` about +Y (a change the
     geometry and any placement metric cannot tell; renders then differ a little at the source's edges and the
-    encoder's rounding (bf16 under autocast) differs with them). Costs ``GATE_PROBES`` candidates' encodes,
-    about 3 % of the coarse stage; ``benchmarks/guide_signal.py`` compares the same spread to the bf16
-    rounding offline."""
+    encoder's rounding (bf16 under autocast) differs with them). Costs ``GATE_PROBES`` candidates' encodes
+    (a few per cent of the coarse stage's); ``benchmarks/guide_signal.py`` compares the same spread to the
+    bf16 rounding offline."""
     clip = terms["clip"]
     order = torch.argsort(clip)
     picks = order[torch.linspace(0, len(order) - 1, min(GATE_PROBES, len(order))).round().long()].unique()
@@ -378,8 +378,7 @@ def encoder_shortlist(poses: Poses, terms: dict[str, torch.Tensor], weights: Pha
     places first (``shortlist_of``: the guide is what tells places apart, so they must reach it), then
     ``share_of(k, share)`` where it fails, best by the geometry (a misread prompt must not make the right answer
     unreachable: ``search.min_share``, the principle of the region weights); slots one side cannot fill go to
-    the other. A candidate the relation rules out costs no encoder image (issue 24: most of a search's images
-    scored poses the geometry could rule out)."""
+    the other. A candidate the relation rules out costs no encoder image."""
     key = rank_key(terms, weights, share=share)
     held = holding(terms)
     others = int((~held).sum())
