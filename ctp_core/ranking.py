@@ -278,7 +278,7 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
     tiled_count = len(poses) if tiles is not None else 0
     total = len(poses) + sweep_count + tiled_count + fine_count
 
-    relation = scorer.relation
+    relation = scorer.reading.name if scorer.reading is not None else None
     gate: Gate | None = None  # the guide's, once the coarse stage has measured it
     held = [0, 0]  # candidates where the relation holds, of those scored (coarse and sweep)
 
