@@ -7,7 +7,7 @@ instead of threading keyword arguments through the layers.
 Presets:
 - ``paper``: the paper's budget (2000 steps, 8 views per step, 3 phases, 5 restarts).
 - ``default``: search, then a short refinement: the guide sees only what the relation and the geometry leave
-  possible; about 15 s a pair on a 2-core CPU (docs/presets-and-search.md, "Presets").
+  possible; its time per pair is measured in docs/presets-and-search.md, "Presets".
 - ``fast``: the relation and the geometry choose, the guide glances at a few candidates: interactive use.
 - ``descent``: the earlier default, local descent only from random starts (about ten minutes a pair).
 - ``test``: seconds; for CI and smoke tests (search included, tiny).
@@ -15,6 +15,7 @@ Presets:
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -31,6 +32,13 @@ Runtime = Literal["auto", "torch", "onnx", "onnx-int8"]  # the runtimes, spelled
 AUTO = "auto"  # the model spec that picks the guide per run (guide_choice)
 DEFAULT_MODEL = "hf:openai/clip-vit-base-patch32"  # what auto uses where its weights are
 MAX_ALTERNATIVES = 4  # distinct placements a result offers, the answer among them (align.alternatives)
+
+
+def share_of(count: float, share: float) -> int:
+    """How many of ``count`` a ``share`` keeps (``SearchConfig.min_share`` and its uses: the regions' proposals,
+    the encoder's shortlist, the poses a guide may admit past the relation): rounded up, so any share > 0 of a
+    non-empty count keeps at least one."""
+    return math.ceil(share * count)
 
 
 class _Strict(BaseModel):
@@ -147,7 +155,9 @@ class SearchConfig(_Strict):
     )
     min_share: float = Field(
         0.08, gt=0.0, le=1.0, description="every proposal region keeps at least this share of its "
-        "unweighted count, whatever the relation read from the prompt"
+        "unweighted count, whatever the relation read from the prompt; also what of the poses where the relation "
+        "fails reach the guide (``ranking.encoder_shortlist``) and may be ranked with those where it holds "
+        "(``ordering.rank_key``); counted by ``share_of``"
     )
     distinct_translation: float = Field(
         0.25, ge=0.0, description="top-k: poses closer than this (source diagonals) and distinct_rotation_deg "
@@ -305,12 +315,11 @@ PRESETS: dict[str, dict] = {
         "optim": {"steps": 2000, "phases": 3, "restarts": 5, "eval_every": 50, "init_rotation": "random"},
         "search": {"enabled": False},
     },
-    # Search, then a short refinement: about 15 s a pair on a 2-core AVX2 CPU (fp32; docs/presets-and-search.md,
-    # measured with the oracle through random:ViT-B-32). The guide sees only what can be the answer: the 48
-    # proposals the relation and the geometry shortlist, 8 turns at each of the 2 best sites, the best 12 again
-    # at the fine views; then the geometry refines its 4 best poses (+1 from the tile stage) in 8 small steps and
-    # the guide chooses among them (selection only: in the pixels runs its gradient placed no more cases, and on
-    # an AVX2 CPU a gradient image costs ~2.6 forward ones, docs/guidance.md).
+    # Search, then a short refinement (its time: docs/presets-and-search.md, "Presets"). The guide sees only what
+    # can be the answer: the 48 proposals the relation and the geometry shortlist, 8 turns at each of the 2 best
+    # sites, the best 12 again at the fine views; then the geometry refines its 4 best poses (+1 from the tile
+    # stage) in 8 small steps and the guide chooses among them (selection only: its gradient placed no more cases
+    # and costs more than a forward image on a CPU, docs/guidance.md).
     "default": {
         "camera": {"views": 1, "image_size": 128, "zoom_last": 0.7},
         "loss": {"samples": 2000, "selection_only": True},

@@ -599,7 +599,7 @@ function showFacts(report) {
     ["model", report.model || ""],
     ["preset, seed", `${report.preset ?? ""}, ${report.seed ?? ""}`],
   ];
-  if (report.guide_say) rows.push(["who chose", report.guide_say.summary]); // the guide's say (objective.Gate)
+  if (report.guide_say) rows.push(["who chose", report.guide_say.summary]); // the guide's say (ordering.Gate)
   if (report.adjusted) {
     rows.push(["adjusted", `by hand, saved ${new Date(report.adjustment.saved_at).toLocaleString()} `
       + "(the objective is the run's; original.glb keeps its placement)"]);
