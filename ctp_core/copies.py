@@ -118,13 +118,14 @@ def check_count(count: int) -> int:
     return count
 
 
-def choose(prompt: str | None, count: int | None = None, arrangement: str = AUTO) -> tuple[int, str, CountReading]:
-    """(count, arrangement, the prompt's reading): the options win over the prompt; ``auto`` is the prompt's cue
-    or ``scatter``; a named arrangement without a number is ``SEVERAL`` copies."""
+def choose(prompt: str | None, count: int | None = None, arrangement: str = AUTO, source_name: str | None = None
+           ) -> tuple[int, str, CountReading]:
+    """(count, arrangement, the prompt's reading, ``priors.counts.read``): the options win over the prompt; ``auto``
+    is the prompt's cue or ``scatter``; a named arrangement without a number is ``SEVERAL`` copies."""
     if arrangement not in CHOICES:
         raise ConfigError(f"arrangement is one of {', '.join(CHOICES)}, not {arrangement!r}",
                           code="invalid_arrangement", field="arrangement")
-    reading = read(prompt)
+    reading = read(prompt, source_name)
     if count is None:
         count = reading.count or (SEVERAL if reading.arrangement else 1)
     kind = arrangement if arrangement != AUTO else reading.arrangement or "scatter"
@@ -142,7 +143,7 @@ def place_copies(target: trimesh.Trimesh, source: trimesh.Trimesh, prompt: str |
     from ctp_core.align import align
 
     started = time.perf_counter()
-    n, kind, reading = choose(prompt, count, arrangement)
+    n, kind, reading = choose(prompt, count, arrangement, source_name)
     one = one_copy(prompt, kind)
     if choice is None and config.model == AUTO:
         choice = guide_choice.choose()

@@ -47,11 +47,14 @@ class CountReading:
         return {"count": self.count, "arrangement": self.arrangement, "why": self.why}
 
 
-def read(prompt: str | None) -> CountReading:
-    """The number of copies and the arrangement a prompt names; the first number said counts."""
+def read(prompt: str | None, source_name: str | None = None) -> CountReading:
+    """The number of copies and the arrangement a prompt names; the first number said of the source counts (one of
+    the three words after it is the source's name, its last word: "two swords" does not count men holding them),
+    any number where the source has no name ("source")."""
     text = prompt or ""
     count, said = None, []
-    found = _COUNT.search(text)
+    head = re.split(r"[\s_]+", (source_name or "").strip().lower())[-1]
+    found = next((m for m in _COUNT.finditer(text) if _names(text[m.end():], head)), None)
     if found is not None:
         if found.group("phrase"):
             count = _PHRASES[found.group("phrase").lower()]
@@ -67,6 +70,14 @@ def read(prompt: str | None) -> CountReading:
             said.append(f"'{hit.group(0)}' -> {name}")
             break
     return CountReading(count, arrangement, "; ".join(said) or "no number or arrangement said")
+
+
+def _names(after: str, head: str) -> bool:
+    """Whether one of the three words of ``after`` is ``head`` (singular or plural); any word for no name."""
+    if head in ("", "source"):
+        return True
+    return any(w == head or w.rstrip("s") == head or w.removesuffix("es") == head
+               for w in re.findall(r"[a-z]+", after.lower())[:3])
 
 
 def one_copy(prompt: str | None, arrangement: str) -> str | None:
