@@ -13,7 +13,8 @@ Arrangements (``priors.counts.ARRANGEMENTS``; ``auto``: the prompt's cue, else `
   is taken.
 - ``around``: evenly spaced azimuths about the target's centre (normalised frame: +Y up), the first at the
   target's front; each copy stands on the floor the target stands on, ``GAP`` outside the target's extent that
-  way (farther where neighbours would touch), its front turned to the target: read as ``beside+facing``.
+  way (farther where neighbours would touch), its front turned to the target; judged ``beside+facing`` whatever
+  the prompt's words.
 - ``row``: side by side along the target's longest horizontal side, ``GAP`` apart, centred on it; dropped onto
   its top (``adjust``'s ``drop``) when the relation rests on or goes in it, else on the floor along its front.
 - ``stack``: each copy dropped onto the one before, the first onto the target's top centre; copy k > 1 is judged
@@ -55,6 +56,7 @@ SEVERAL = 3  # copies where the prompt names an arrangement but no number ("a st
 GAP = 0.1  # source diagonals between neighbours in a row and between a copy and the target (around)
 SPACING = 0.05  # scatter: the gap kept between copies where a placement allows it, source diagonals
 RESTING = {"on", "stand", "sit", "lie", "in"}  # a row on the target's top (else on the floor along its front)
+AROUND = "beside+facing"  # what each copy around the target is judged by (``priors.relations``)
 
 CopyCallback = Callable[[int, int], None]
 
@@ -155,10 +157,12 @@ def place_copies(target: trimesh.Trimesh, source: trimesh.Trimesh, prompt: str |
     prior = priors.resolve_priors(priors.get_provider(config.hparams_provider), target_name, source_name, one or "")
     base = scene.prepare_pair(target, source, samples=config.loss.samples, seed=config.seed, device="cpu",
                               canonicalise=config.upright, **orientation.configured(config))
-    out = Copies(target, source, target_name, source_name, prompt, one, config, kind, reading, prior.relation,
-                 prior.source_is_figure, guide=chosen.guide, guide_why=chosen.why)
+    # around is the arrangement's own relation whatever the prompt's words ("chairs by the table", --arrangement)
+    judged, figured = (AROUND, True) if kind == "around" else (prior.relation, prior.source_is_figure)
+    out = Copies(target, source, target_name, source_name, prompt, one, config, kind, reading, judged, figured,
+                 guide=chosen.guide, guide_why=chosen.why)
     names = _names(source_name, target_name, n)
-    slots = None if kind in ("scatter", "stack") else _slots(base, kind, n, prior.relation)
+    slots = None if kind in ("scatter", "stack") else _slots(base, kind, n, judged)
     for k in range(n):
         if on_copy is not None:
             on_copy(k + 1, n)
@@ -174,9 +178,9 @@ def place_copies(target: trimesh.Trimesh, source: trimesh.Trimesh, prompt: str |
             copy = Copy(names[k], result.source_to_target, target_name, result.relation, 0.0, "search", result=result)
         else:
             on = names[k - 1] if kind == "stack" and k > 0 else target_name
-            relation, figure = ("on", True) if on != target_name else (prior.relation, prior.source_is_figure)
+            relation, figure = ("on", True) if on != target_name else (judged, figured)
             slot = _stack_slot(base) if kind == "stack" else slots[k]
-            settle = "drop" if kind == "stack" or (kind == "row" and prior.relation in RESTING) else "none"
+            settle = "drop" if kind == "stack" or (kind == "row" and judged in RESTING) else "none"
             if should_cancel is not None and should_cancel():
                 raise Canceled("the run was cancelled")
             # a stack's copy settles on the copy under it alone: sampled with the whole scene, a thin copy's top
