@@ -246,6 +246,8 @@ class JobRecord(BaseModel):
     target_job: str | None = Field(None, description="the job whose result scene is the target (POST /align)")
     on: str | None = Field(None, description="with target_job: the object of its scene the source relates to")
     steps: list[AssemblyStep] = Field(default_factory=list, description="an assembly's stages")
+    count: int = Field(1, description="copies of the source an alignment places (ctp_core.copies)")
+    arrangement: str | None = Field(None, description="how several copies stand together; None for one")
     alternatives: list[Alternative] = Field(default_factory=list, description="the best distinct placements, the "
                                             "answer first, once the job succeeded")
     webhook: Webhook | None = Field(None, description="where events of this job are delivered, and how that went")

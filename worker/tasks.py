@@ -25,12 +25,15 @@ from ctp_core.adjust import adjust, read_back
 from ctp_core.align import align
 from ctp_core.assemble import Step, assemble
 from ctp_core.config import AUTO, AlignConfig
+from ctp_core.copies import place_copies
 from ctp_core.errors import Canceled, ConfigError, CtpError, JobTooLarge, forget, out_of_memory
 from ctp_core.export import (
     adjusted_report,
     arrangement_glb,
     assembly_glb,
     assembly_report,
+    copies_glb,
+    copies_report,
     preview_png,
     report,
     scene_glb,
@@ -273,6 +276,8 @@ def align_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobContex
     ``record`` is as ``served`` returns it: its config is the one this worker runs.
     """
     config = record.config
+    if record.count > 1:
+        return copies_job(record, inputs, job)
     job.on_progress(Progress(stage=Stage(name="loading"), kind="loading", message="loading meshes"), True)
     # A chained job's target is an earlier result scene (this service's own output), read back as its objects.
     if record.target_job:
@@ -296,6 +301,31 @@ def align_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobContex
     if result.thumbnails is not None:
         files["alternatives.png"] = strip_png(result.thumbnails)
     return files, alternatives_of(result.alternatives)
+
+
+def copies_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobContext) -> JobOutput:
+    """Run ``ctp_core.copies`` on a job of several copies: progress per copy (as an assembly's stages), the GLB with
+    one node per copy, the report of every copy and the set, the preview; no alternatives."""
+    config, count = record.config, record.count
+    job.on_progress(Progress(stage=Stage(name="loading", count=count), kind="loading", message="loading meshes"), True)
+    target = job.load(inputs["target"], record.target_file)
+    source = job.load(inputs["source"], record.source_file)
+    guide = job.guide(config, Stage(name="model", count=count))
+    current = Stage(name="search", count=count)
+
+    def on_copy(index: int, total: int) -> None:
+        nonlocal current
+        current = Stage(name="search", index=index, count=total, label=f"{record.source_name}_{index}")
+        job.on_progress(Progress(stage=current, kind="phase", message=f"copy {index} of {total}"), True)
+
+    def on_event(event: ProgressEvent) -> None:
+        job.on_progress(progress_of(event, current), event.kind in _MILESTONES)
+
+    copies = place_copies(target, source, record.prompt, config, count=count, arrangement=record.arrangement or AUTO,
+                          target_name=record.target_name, source_name=record.source_name, guide=guide,
+                          on_event=on_event, on_copy=on_copy, should_cancel=job.should_cancel, choice=job.choice)
+    job.on_progress(_exporting(config, current.model_copy(update={"name": "exporting"})), True)
+    return _results(copies_glb(copies), copies_report(copies), copies.preview), []
 
 
 def alternatives_of(alternatives: list[dict[str, Any]]) -> list[Alternative]:
