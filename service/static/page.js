@@ -238,10 +238,11 @@ function options() {
   const out = {};
   if ($("opt-preset").value) out.preset = $("opt-preset").value;
   if ($("opt-scale").value) out.scale = $("opt-scale").value === "true";
-  for (const name of ["seed", "restarts"]) {
+  for (const name of ["seed", "restarts", "count"]) {
     const value = $(`opt-${name}`).value.trim();
     if (value !== "") out[name] = Number(value);
   }
+  if ($("opt-arrangement").value) out.arrangement = $("opt-arrangement").value;
   for (const role of ROLES) {
     for (const name of ["up", "front"]) {
       const value = $(`${name}-${role}`).value;
@@ -599,6 +600,7 @@ function showFacts(report) {
     ["model", report.model || ""],
     ["preset, seed", `${report.preset ?? ""}, ${report.seed ?? ""}`],
   ];
+  if (report.copies) rows.splice(0, 3, ...copyRows(report, fixed)); // several copies: no one transform
   if (report.guide_say) rows.push(["who chose", report.guide_say.summary]); // the guide's say (objective.Gate)
   if (report.adjusted) {
     rows.push(["adjusted", `by hand, saved ${new Date(report.adjustment.saved_at).toLocaleString()} `
@@ -611,6 +613,22 @@ function showFacts(report) {
     tr.insertCell().textContent = name;
     tr.insertCell().textContent = value;
   }
+}
+
+/** A run of several copies (``copies_report``): the set's measures, then each copy's place and verdict. */
+function copyRows(report, fixed) {
+  const m = report.metrics || {};
+  const spacing = m.min_spacing == null ? "" : `, closest two ${Number(m.min_spacing).toFixed(3)} source diagonals apart`;
+  const rows = [
+    ["copies", `${report.count} (${report.arrangement}), each judged "${report.relation ?? "no relation"}"`],
+    ["the set", `${m.relation_holds ?? 0} of ${m.judged ?? 0} hold; ${m.none_intersect ? "none intersect" : "some intersect"}`
+      + spacing],
+  ];
+  for (const c of report.copies) {
+    const verdict = c.relation ? (c.relation.holds ? "holds" : "fails") + ` on ${c.on}` : "";
+    rows.push([c.name, `${fixed(c.transform.translation, 3)} (target file frame); ${verdict}; ${c.seconds} s`]);
+  }
+  return rows;
 }
 
 async function download(file) {
