@@ -47,7 +47,8 @@ if TYPE_CHECKING:
     from ctp_core.align import AlignResult
     from ctp_core.scene import PreparedPair
 
-__all__ = ["ARRANGEMENTS", "MAX_COPIES", "Copies", "Copy", "check_count", "choose", "place_copies"]
+__all__ = ["ARRANGEMENTS", "MAX_COPIES", "Copies", "Copy", "check_count", "choose", "place_copies", "placed_copies",
+           "set_metrics"]
 
 Arrangement = Literal["auto", "scatter", "around", "row", "stack"]
 CHOICES: tuple[str, ...] = ("auto", *ARRANGEMENTS)
@@ -103,13 +104,21 @@ class Copies:
 
     def placed(self) -> list[Placed]:
         """The target (identity) and every copy, in placing order."""
-        base = Placed(self.target_name, self.target, frames.Similarity(np.eye(4), frames.SCENE, frames.SCENE))
-        return [base, *(Placed(c.name, self.source, frames.Similarity(c.source_to_target, frames.SOURCE_FILE,
-                                                                      frames.SCENE)) for c in self.copies)]
+        return placed_copies(self.target, self.target_name, self.source,
+                             [(c.name, c.source_to_target) for c in self.copies])
 
     def scene(self) -> trimesh.Scene:
         """The target and one named node per copy (``<source>_1`` ...), target file frame."""
         return scene_of(self.placed())
+
+
+def placed_copies(target: trimesh.Trimesh, target_name: str, source: trimesh.Trimesh,
+                  copies: list[tuple[str, np.ndarray]]) -> list[Placed]:
+    """The target (identity) and each (name, source file -> target file) copy of ``source``: a scene's objects
+    (``assemble.scene_of``; the target file frame is the scene frame)."""
+    base = Placed(target_name, target, frames.Similarity(np.eye(4), frames.SCENE, frames.SCENE))
+    return [base, *(Placed(name, source, frames.Similarity(np.asarray(m, dtype=np.float64), frames.SOURCE_FILE,
+                                                           frames.SCENE)) for name, m in copies)]
 
 
 def check_count(count: int) -> int:
@@ -193,7 +202,7 @@ def place_copies(target: trimesh.Trimesh, source: trimesh.Trimesh, prompt: str |
         copy.seconds = round(time.perf_counter() - t0, 3)
         out.copies.append(copy)
     placing = time.perf_counter()
-    out.metrics = set_metrics(out)
+    out.metrics = set_metrics(source, [c.source_to_target for c in out.copies], [c.relation for c in out.copies])
     views = scene.render_arrangement(scene_of(out.placed()[:-1]), source, out.copies[-1].source_to_target, views=4)
     out.preview = (views.permute(0, 2, 3, 1).clamp(0, 1).numpy() * 255).round().astype(np.uint8)
     seconds = [c.seconds for c in out.copies]
@@ -336,22 +345,23 @@ def _stack_slot(base: PreparedPair) -> np.ndarray:
     return _pose(base, rotation, centre[[0, 2]], height)
 
 
-def set_metrics(out: Copies) -> dict[str, Any]:
-    """The set's measures: how many copies' relations hold, whether any two intersect (IoU over
-    ``metrics.PLACEMENT_IOU``), the largest IoU and the smallest gap between two copies (source diagonals)."""
+def set_metrics(source: trimesh.Trimesh, matrices: list[np.ndarray], verdicts: list[dict[str, Any] | None]
+                ) -> dict[str, Any]:
+    """The set's measures, from each copy's source file -> target file matrix and verdict: how many copies'
+    relations hold, whether any two intersect (IoU over ``metrics.PLACEMENT_IOU``), the largest IoU and the smallest
+    gap between two copies (source diagonals)."""
     from ctp_core import metrics
 
-    posed = [_posed(out.source, c.source_to_target) for c in out.copies]
-    points = [trimesh.transform_points(_surface(out.source), c.source_to_target) for c in out.copies]
-    diagonal = _diagonal(out.source) * frames.Similarity(out.copies[0].source_to_target, frames.SOURCE_FILE,
-                                                         frames.TARGET_FILE).scale
+    posed = [_posed(source, m) for m in matrices]
+    points = [trimesh.transform_points(_surface(source), m) for m in matrices]
+    diagonal = _diagonal(source) * frames.Similarity(matrices[0], frames.SOURCE_FILE, frames.TARGET_FILE).scale
     worst_iou, spacing = 0.0, math.inf
     for i in range(len(posed)):
         for j in range(i + 1, len(posed)):
             worst_iou = max(worst_iou, metrics.intersection_over_union(posed[i], posed[j]).iou)
             spacing = min(spacing, _gap(posed[j], points[i]), _gap(posed[i], points[j]))
-    judged = [c.relation for c in out.copies if c.relation is not None]
-    return {"count": len(out.copies), "relation_holds": sum(bool(r["holds"]) for r in judged), "judged": len(judged),
+    judged = [v for v in verdicts if v is not None]
+    return {"count": len(matrices), "relation_holds": sum(bool(r["holds"]) for r in judged), "judged": len(judged),
             "all_hold": all(r["holds"] for r in judged) if judged else None,
             "none_intersect": worst_iou <= metrics.PLACEMENT_IOU, "max_iou": round(worst_iou, 5),
             "min_spacing": None if math.isinf(spacing) else round(spacing / diagonal, 5)}

@@ -99,6 +99,20 @@ def copies_report(copies: Copies) -> dict:
     }
 
 
+def adjusted_copies_report(original: dict, copy: int, adjusted: Adjusted, metrics: dict, *, at: str) -> dict:
+    """A copies report once a person saved copy ``copy`` (1-based) adjusted (``adjust``): that copy's transform,
+    verdict and penetration are the adjusted ones (``adjusted`` true, ``original_transform`` the run's own, kept
+    through later saves), ``metrics`` the set's again; ``adjusted`` true and ``adjustment`` the measures, the copy
+    and when (``at``, ISO 8601)."""
+    copies = list(original["copies"])
+    entry = copies[copy - 1]
+    copies[copy - 1] = {**entry, "transform": transform(adjusted.transform), "relation": _jsonable(adjusted.relation),
+                        "penetration": adjusted.penetration, "adjusted": True,
+                        "original_transform": entry.get("original_transform", entry["transform"])}
+    return {**original, "copies": copies, "metrics": _jsonable(metrics), "adjusted": True,
+            "adjustment": {**_jsonable(adjusted.to_dict()), "copy": copy, "saved_at": at}}
+
+
 def transform(similarity: Similarity) -> dict:
     """A named similarity as the report writes it: frames, 4x4, translation, rotation (wxyz), scale."""
     return {

@@ -49,5 +49,22 @@ def test_four_copies_around_end_to_end(api, worker):
         np.testing.assert_allclose(scene.graph[c["name"]][0], c["transform"]["matrix"], atol=1e-5)
         assert c["relation"]["holds"] is True
     assert report["metrics"]["all_hold"] is True and report["metrics"]["none_intersect"] is True
-    adjust = api.client.post(f"{links['self']}/adjust", json={"transform": report["copies"][0]["transform"]["matrix"]})
-    assert (adjust.status_code, adjust.json()["error"]["code"]) == (409, "not_adjustable")
+    # adjust one copy at a time: copy 2 lifted, dropped back to the floor, saved; the others stay where they are
+    lifted = np.array(report["copies"][1]["transform"]["matrix"])
+    lifted[1, 3] += 0.5
+    for body in ({"transform": lifted.tolist()}, {"transform": lifted.tolist(), "copy_index": 5}):
+        refused = api.client.post(f"{links['self']}/adjust", json=body)
+        assert (refused.status_code, refused.json()["error"]["code"]) == (422, "invalid_copy"), refused.text
+    body = {"transform": lifted.tolist(), "copy_index": 2, "settle": "drop", "save": True}
+    saved = api.client.post(f"{links['self']}/adjust", json=body, headers={"Prefer": "wait=60"})
+    assert saved.status_code == 200 and saved.json()["status"] == "succeeded", saved.text
+    assert abs(saved.json()["result"]["transform"][1][3] - report["copies"][1]["transform"]["matrix"][1][3]) < 0.01
+    after = api.client.get(links["report"]).json()
+    assert after["adjusted"] is True and after["adjustment"]["copy"] == 2 and after["copies"][1]["adjusted"] is True
+    assert after["copies"][1]["original_transform"] == report["copies"][1]["transform"]
+    assert [c["transform"] for i, c in enumerate(after["copies"]) if i != 1] == [
+        c["transform"] for i, c in enumerate(report["copies"]) if i != 1]
+    assert after["metrics"]["count"] == 4 and after["copies"][1]["relation"]["name"] == "beside+facing"
+    again = trimesh.load(io.BytesIO(api.client.get(links["result"]).content), file_type="glb")
+    for c in after["copies"]:
+        np.testing.assert_allclose(again.graph[c["name"]][0], c["transform"]["matrix"], atol=1e-5)

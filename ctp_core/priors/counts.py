@@ -49,12 +49,12 @@ class CountReading:
 
 def read(prompt: str | None, source_name: str | None = None) -> CountReading:
     """The number of copies and the arrangement a prompt names; the first number said of the source counts (one of
-    the three words after it is the source's name, its last word: "two swords" does not count men holding them),
-    any number where the source has no name ("source")."""
+    the three words after it is a word of the source's name: "two swords" does not count men holding them), any
+    number where the source has no name ("source")."""
     text = prompt or ""
     count, said = None, []
-    head = re.split(r"[\s_]+", (source_name or "").strip().lower())[-1]
-    found = next((m for m in _COUNT.finditer(text) if _names(text[m.end():], head)), None)
+    words = {w for w in re.split(r"[^a-z]+", (source_name or "").lower()) if len(w) >= 3} - {"source"}
+    found = next((m for m in _COUNT.finditer(text) if _names(text[m.end():], words)), None)
     if found is not None:
         if found.group("phrase"):
             count = _PHRASES[found.group("phrase").lower()]
@@ -72,12 +72,11 @@ def read(prompt: str | None, source_name: str | None = None) -> CountReading:
     return CountReading(count, arrangement, "; ".join(said) or "no number or arrangement said")
 
 
-def _names(after: str, head: str) -> bool:
-    """Whether one of the three words of ``after`` is ``head`` (singular or plural); any word for no name."""
-    if head in ("", "source"):
-        return True
-    return any(w == head or w.rstrip("s") == head or w.removesuffix("es") == head
-               for w in re.findall(r"[a-z]+", after.lower())[:3])
+def _names(after: str, words: set[str]) -> bool:
+    """Whether one of the first three words of ``after`` is one of ``words`` (singular or plural); True for no
+    words (a source without a name)."""
+    return not words or any({w, w.removesuffix("s"), w.removesuffix("es")} & words
+                            for w in re.findall(r"[a-z]+", after.lower())[:3])
 
 
 def one_copy(prompt: str | None, arrangement: str) -> str | None:
