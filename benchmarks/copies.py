@@ -6,6 +6,7 @@ gap, time per copy, and one placement of the same source (``align``, count 1) fo
 against it. Geometry only (no guide): the machine has no model weights.
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/copies.py --preset test
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/copies.py --preset default --only "three cups,gen: bowl"
 """
 
 from __future__ import annotations
@@ -63,12 +64,16 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--preset", default="test")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--only", default="", help="comma-separated parts of case names to run (default: all)")
     args = parser.parse_args()
+    only = [part for part in args.only.split(",") if part]
     config = AlignConfig.from_preset(args.preset, seed=args.seed, loss={"lambda_clip": 0.0})
     print("| case | arrangement | copies | relation holds | none intersect | min spacing | s per copy "
           "| one placement s |")
     print("|---|---|---|---|---|---|---|---|")
     for name, target, source, target_name, source_name, prompt in cases():
+        if only and not any(part in name for part in only):
+            continue
         t0 = time.perf_counter()
         align(target, source, prompt, config, target_name=target_name, source_name=source_name)
         single = time.perf_counter() - t0
