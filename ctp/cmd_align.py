@@ -195,9 +195,9 @@ def run(args: argparse.Namespace) -> int:
     from ctp_core import export, io  # the engine (torch, trimesh): seconds to import
     from ctp_core.align import align
     from ctp_core.config import AUTO
-    from ctp_core.copies import choose
     from ctp_core.guide_choice import NONE, pull_command
     from ctp_core.loader import MeshLoader
+    from ctp_core.priors.counts import choose
 
     target_name = args.target_name or names.default_name(args.target.name, "target")
     source_name = args.source_name or names.default_name(args.source.name, "source")

@@ -31,7 +31,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import trimesh
@@ -39,21 +39,16 @@ import trimesh
 from ctp_core import frames, guide_choice, priors
 from ctp_core.assemble import Placed, scene_of
 from ctp_core.config import AUTO, AlignConfig
-from ctp_core.errors import Canceled, ConfigError
-from ctp_core.priors.counts import ARRANGEMENTS, CountReading, one_copy, read
+from ctp_core.errors import Canceled
+from ctp_core.priors.counts import MAX_COPIES, CountReading, choose, one_copy
 from ctp_core.progress import CancelCheck, ProgressCallback
 
 if TYPE_CHECKING:
     from ctp_core.align import AlignResult
     from ctp_core.scene import PreparedPair
 
-__all__ = ["ARRANGEMENTS", "MAX_COPIES", "Copies", "Copy", "check_count", "choose", "place_copies", "placed_copies",
-           "set_metrics"]
+__all__ = ["Copies", "Copy", "place_copies", "placed_copies", "set_metrics"]
 
-Arrangement = Literal["auto", "scatter", "around", "row", "stack"]
-CHOICES: tuple[str, ...] = ("auto", *ARRANGEMENTS)
-MAX_COPIES = 12  # a run's copies at most: each is a placement of its own, and the set's checks are pairwise
-SEVERAL = 3  # copies where the prompt names an arrangement but no number ("a stack of plates")
 GAP = 0.1  # source diagonals between neighbours in a row and between a copy and the target (around)
 SPACING = 0.05  # scatter: the gap kept between copies where a placement allows it, source diagonals
 RESTING = {"on", "stand", "sit", "lie", "in"}  # a row on the target's top (else on the floor along its front)
@@ -119,28 +114,6 @@ def placed_copies(target: trimesh.Trimesh, target_name: str, source: trimesh.Tri
     base = Placed(target_name, target, frames.Similarity(np.eye(4), frames.SCENE, frames.SCENE))
     return [base, *(Placed(name, source, frames.Similarity(np.asarray(m, dtype=np.float64), frames.SOURCE_FILE,
                                                            frames.SCENE)) for name, m in copies)]
-
-
-def check_count(count: int) -> int:
-    """``count`` if it is 1 to ``MAX_COPIES``; ``ConfigError`` ``count_out_of_range`` otherwise."""
-    if isinstance(count, bool) or not isinstance(count, int) or not 1 <= count <= MAX_COPIES:
-        raise ConfigError(f"count must be 1 to {MAX_COPIES} copies, got {count!r}", code="count_out_of_range",
-                          field="count")
-    return count
-
-
-def choose(prompt: str | None, count: int | None = None, arrangement: str = AUTO, source_name: str | None = None
-           ) -> tuple[int, str, CountReading]:
-    """(count, arrangement, the prompt's reading, ``priors.counts.read``): the options win over the prompt; ``auto``
-    is the prompt's cue or ``scatter``; a named arrangement without a number is ``SEVERAL`` copies."""
-    if arrangement not in CHOICES:
-        raise ConfigError(f"arrangement is one of {', '.join(CHOICES)}, not {arrangement!r}",
-                          code="invalid_arrangement", field="arrangement")
-    reading = read(prompt, source_name)
-    if count is None:
-        count = reading.count or (SEVERAL if reading.arrangement else 1)
-    kind = arrangement if arrangement != AUTO else reading.arrangement or "scatter"
-    return check_count(count), kind, reading
 
 
 def place_copies(target: trimesh.Trimesh, source: trimesh.Trimesh, prompt: str | None, config: AlignConfig, *,

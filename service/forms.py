@@ -194,7 +194,7 @@ def job_options(form, default_queue: str) -> tuple[dict[str, Any], str]:
 
 def copies_options(options: dict[str, Any]) -> tuple[int | None, str]:
     """Takes the alignment's ``count`` and ``arrangement`` (the service's own options, ``ctp_core.copies``) out of
-    ``options``; the values are checked by ``copies.choose``."""
+    ``options``; the values are checked by ``priors.counts.choose``."""
     return options.pop("count", None), options.pop("arrangement", None) or "auto"
 
 

@@ -11,10 +11,10 @@ from typing import Any, Literal
 from pydantic import BaseModel, Field, create_model
 
 from ctp_core.config import AUTO, DEFAULT_MODEL, AlignConfig
-from ctp_core.copies import CHOICES, MAX_COPIES
 from ctp_core.errors import ConfigError
 from ctp_core.guide_choice import asks_for_guide
 from ctp_core.options import AlignOptions, option_of, option_overrides
+from ctp_core.priors.counts import CHOICES, MAX_COPIES
 from service.jobs import Alternative, JobError, JobRecord, Progress, SavedAdjustment, Status
 from service.settings import QUEUE_NAME
 from service.webhooks import Event, Webhook

@@ -12,9 +12,10 @@ import trimesh
 
 from ctp_core import examples, metrics
 from ctp_core.config import AlignConfig
-from ctp_core.copies import MAX_COPIES, choose, place_copies
+from ctp_core.copies import place_copies
 from ctp_core.errors import ConfigError
 from ctp_core.priors import counts, get_provider
+from ctp_core.priors.counts import MAX_COPIES, choose
 
 CONFIG = AlignConfig.from_preset("test", model="random:tiny", seed=0, loss={"lambda_clip": 0.0})
 

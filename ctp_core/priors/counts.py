@@ -1,12 +1,13 @@
-"""Several of a kind: how many copies of the source a prompt asks for and how they stand together.
+"""Several of a kind: how many copies of the source a run places and how they stand together.
 
 "three apples in the bowl", "a pair of vases on the shelf", "four chairs around the table", "5 books in a row on
 the shelf", "a dozen eggs", "a stack of plates". ``read`` finds the number (a numeral, a number word up to twenty,
-"a pair/couple of", "a dozen", "half a dozen") and an arrangement cue; ``one_copy`` is the prompt each copy is
+"a pair/couple of", "a dozen", "half a dozen") and an arrangement cue; ``choose`` settles a run's count and
+arrangement (the options over the prompt, bounded by ``MAX_COPIES``); ``one_copy`` is the prompt each copy is
 read and guided by: the number and the arrangement's words taken out, so the relation reader sees "apples in the
 bowl", "books on the shelf" (not "in" from "in a row"), and "around" becomes "beside ..., facing it" (chairs stand
-beside a table and face it; the reader's "around" is ``wrap``, a scarf around a neck). Torch-free: the API reads
-it while checking a submission.
+beside a table and face it; the reader's "around" is ``wrap``, a scarf around a neck). Torch-free: the API and
+the CLI check a submission with it before the engine loads.
 """
 
 from __future__ import annotations
@@ -14,7 +15,12 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
+from ctp_core.errors import ConfigError
+
 ARRANGEMENTS = ("scatter", "around", "row", "stack")  # how copies stand together (``ctp_core.copies``)
+CHOICES = ("auto", *ARRANGEMENTS)  # the option's values: auto is the prompt's cue, else scatter
+MAX_COPIES = 12  # a run's copies at most: each is a placement of its own, and the set's checks are pairwise
+SEVERAL = 3  # copies where the prompt names an arrangement but no number ("a stack of plates")
 
 _WORDS = {"one": 1, "two": 2, "three": 3, "four": 4, "five": 5, "six": 6, "seven": 7, "eight": 8, "nine": 9,
           "ten": 10, "eleven": 11, "twelve": 12, "thirteen": 13, "fourteen": 14, "fifteen": 15, "sixteen": 16,
@@ -92,3 +98,25 @@ def one_copy(prompt: str | None, arrangement: str) -> str | None:
     elif arrangement == "stack":
         text = _STACK.sub("", text)
     return re.sub(r"\s+", " ", text).strip(" ,")
+
+
+def check_count(count: int) -> int:
+    """``count`` if it is 1 to ``MAX_COPIES``; ``ConfigError`` ``count_out_of_range`` otherwise."""
+    if isinstance(count, bool) or not isinstance(count, int) or not 1 <= count <= MAX_COPIES:
+        raise ConfigError(f"count must be 1 to {MAX_COPIES} copies, got {count!r}", code="count_out_of_range",
+                          field="count")
+    return count
+
+
+def choose(prompt: str | None, count: int | None = None, arrangement: str = "auto", source_name: str | None = None
+           ) -> tuple[int, str, CountReading]:
+    """(count, arrangement, the prompt's reading, ``priors.counts.read``): the options win over the prompt; ``auto``
+    is the prompt's cue or ``scatter``; a named arrangement without a number is ``SEVERAL`` copies."""
+    if arrangement not in CHOICES:
+        raise ConfigError(f"arrangement is one of {', '.join(CHOICES)}, not {arrangement!r}",
+                          code="invalid_arrangement", field="arrangement")
+    reading = read(prompt, source_name)
+    if count is None:
+        count = reading.count or (SEVERAL if reading.arrangement else 1)
+    kind = arrangement if arrangement != "auto" else reading.arrangement or "scatter"
+    return check_count(count), kind, reading

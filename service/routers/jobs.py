@@ -11,8 +11,8 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import RedirectResponse, StreamingResponse
 
 from ctp_core.config import MAX_ALTERNATIVES
-from ctp_core.copies import choose
 from ctp_core.errors import ConfigError
+from ctp_core.priors.counts import choose
 from service import forms
 from service import submit as submit_
 from service.chained import chained_target
@@ -98,7 +98,7 @@ async def _align_job(request: Request, form, who: str, job_id: str) -> submit_.B
 
 def _copies(prompt: str | None, count: int | None, arrangement: str, source_name: str, image: bool,
             chained: bool) -> tuple[int, str | None]:
-    """The job's copies and their arrangement (``copies.choose``: 422 ``count_out_of_range``,
+    """The job's copies and their arrangement (``priors.counts.choose``: 422 ``count_out_of_range``,
     ``invalid_arrangement``); several copies are prompt-guided onto an uploaded target (422 ``invalid_option``)."""
     try:
         n, kind, _ = choose(prompt, count, arrangement, source_name)
