@@ -154,9 +154,11 @@ class Stage(BaseModel):
 
     name: str = Field("queued", description="pipeline stage: queued, loading, model, search (step/steps count "
                       "candidate poses scored), refine (step/steps count optimisation steps), exporting, done")
-    index: int = Field(1, ge=1, description="1-based alignment of this job (an assembly places one object each)")
-    count: int = Field(1, ge=1, description="alignments in this job (1 for POST /align)")
-    label: str = Field("", description="what the current alignment places (an assembly step's prompt)")
+    index: int = Field(1, ge=1, description="1-based alignment of this job (an assembly places one object each, a "
+                       "job of several copies one copy each)")
+    count: int = Field(1, ge=1, description="alignments in this job (1 for POST /align of one source)")
+    label: str = Field("", description="what the current alignment places (an assembly step's prompt, a copy's "
+                       "name)")
 
 
 class Progress(BaseModel):

@@ -347,7 +347,8 @@ def copies_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobConte
     def on_copy(index: int, total: int) -> None:
         nonlocal current
         current = Stage(name="search", index=index, count=total, label=f"{record.source_name}_{index}")
-        job.on_progress(Progress(stage=current, kind="phase", message=f"copy {index} of {total}"), True)
+        job.on_progress(Progress(stage=current, kind="phase_start", fraction=round((index - 1) / total, 4),
+                                 message=f"copy {index}/{total}"), True)
 
     def on_event(event: ProgressEvent) -> None:
         job.on_progress(progress_of(event, current), event.kind in _MILESTONES)
