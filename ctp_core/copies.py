@@ -41,6 +41,7 @@ from ctp_core.assemble import Placed, scene_of
 from ctp_core.config import AUTO, AlignConfig
 from ctp_core.errors import Canceled
 from ctp_core.priors.counts import MAX_COPIES, CountReading, choose, one_copy
+from ctp_core.priors.relations import RelationReading
 from ctp_core.progress import CancelCheck, ProgressCallback
 
 if TYPE_CHECKING:
@@ -51,8 +52,8 @@ __all__ = ["Copies", "Copy", "place_copies", "placed_copies", "set_metrics"]
 
 GAP = 0.1  # source diagonals between neighbours in a row and between a copy and the target (around)
 SPACING = 0.05  # scatter: the gap kept between copies where a placement allows it, source diagonals
-RESTING = {"on", "stand", "sit", "lie", "in"}  # a row on the target's top (else on the floor along its front)
-AROUND = "beside+facing"  # what each copy around the target is judged by (``priors.relations``)
+AROUND = RelationReading("beside+facing")  # what each copy around the target is judged by
+ON = RelationReading("on")  # a stack's copy on the copy under it
 
 CopyCallback = Callable[[int, int], None]
 
@@ -83,9 +84,8 @@ class Copies:
     one_prompt: str | None  # what each copy is read and guided by (``priors.counts.one_copy``)
     config: AlignConfig
     arrangement: str
-    reading: CountReading
-    relation: str | None  # the relation each copy is judged by (a stack's later copies: ``on``)
-    source_is_figure: bool
+    counted: CountReading  # what the prompt said of the number and the arrangement
+    reading: RelationReading | None  # the relation each copy is judged by (a stack's later copies: ``on``)
     copies: list[Copy] = field(default_factory=list)
     metrics: dict[str, Any] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
@@ -127,7 +127,7 @@ def place_copies(target: trimesh.Trimesh, source: trimesh.Trimesh, prompt: str |
     from ctp_core.align import align
 
     started = time.perf_counter()
-    n, kind, reading = choose(prompt, count, arrangement, source_name)
+    n, kind, counted = choose(prompt, count, arrangement, source_name)
     one = one_copy(prompt, kind)
     if choice is None and config.model == AUTO:
         choice = guide_choice.choose()
@@ -140,8 +140,8 @@ def place_copies(target: trimesh.Trimesh, source: trimesh.Trimesh, prompt: str |
     base = scene.prepare_pair(target, source, samples=config.loss.samples, seed=config.seed, device="cpu",
                               canonicalise=config.upright, **orientation.configured(config))
     # around is the arrangement's own relation whatever the prompt's words ("chairs by the table", --arrangement)
-    judged, figured = (AROUND, True) if kind == "around" else (prior.relation, prior.source_is_figure)
-    out = Copies(target, source, target_name, source_name, prompt, one, config, kind, reading, judged, figured,
+    judged = AROUND if kind == "around" else prior.reading
+    out = Copies(target, source, target_name, source_name, prompt, one, config, kind, counted, judged,
                  guide=chosen.guide, guide_why=chosen.why)
     names = _names(source_name, target_name, n)
     slots = None if kind in ("scatter", "stack") else _slots(base, kind, n, judged)
@@ -160,16 +160,15 @@ def place_copies(target: trimesh.Trimesh, source: trimesh.Trimesh, prompt: str |
             copy = Copy(names[k], result.source_to_target, target_name, result.relation, 0.0, "search", result=result)
         else:
             on = names[k - 1] if kind == "stack" and k > 0 else target_name
-            relation, figure = ("on", True) if on != target_name else (judged, figured)
             slot = _stack_slot(base) if kind == "stack" else slots[k]
-            settle = "drop" if kind == "stack" or (kind == "row" and judged in RESTING) else "none"
+            settle = "drop" if kind == "stack" or (kind == "row" and _on_top(judged)) else "none"
             if should_cancel is not None and should_cancel():
                 raise Canceled("the run was cancelled")
             # a stack's copy settles on the copy under it alone: sampled with the whole scene, a thin copy's top
             # is too coarse to rest on (the copy ends hovering); the scene's up stays the target's
             ground = scene_of(placed if on == target_name else [placed[-1]])
-            done = adjust.adjust(ground, source, slot, config, settle=settle, on=on, relation=relation,
-                                 source_is_figure=figure, upright=base.target_upright.rotation)
+            done = adjust.adjust(ground, source, slot, config, settle=settle, on=on,
+                                 reading=judged if on == target_name else ON, upright=base.target_upright.rotation)
             copy = Copy(names[k], done.source_to_target, on, done.relation, 0.0, "slot",
                         penetration=done.penetration)
         copy.seconds = round(time.perf_counter() - t0, 3)
@@ -261,7 +260,12 @@ def _pose(base: PreparedPair, rotation: np.ndarray, centre_xz: np.ndarray, botto
     return base.source_to_target(m)
 
 
-def _slots(base: PreparedPair, kind: str, n: int, relation: str | None) -> list[np.ndarray]:
+def _on_top(reading: RelationReading | None) -> bool:
+    """Whether a row stands on the target's top: its relation rests on it or goes in it (else on the floor)."""
+    return reading is not None and (reading.rests or "in" in reading.parts)
+
+
+def _slots(base: PreparedPair, kind: str, n: int, reading: RelationReading | None) -> list[np.ndarray]:
     """``around`` and ``row``: each copy's place, source file -> target file (see the module)."""
     target = base.target_vertices.double().cpu().numpy()
     floor, top = float(target[:, 1].min()), float(target[:, 1].max())
@@ -287,7 +291,7 @@ def _slots(base: PreparedPair, kind: str, n: int, relation: str | None) -> list[
     axis = np.array([1.0, 0.0, 0.0]) if extent[0] >= extent[2] else np.array([0.0, 0.0, 1.0])
     out_of = np.cross(axis, [0.0, 1.0, 0.0])
     out_of = out_of if out_of @ front >= 0 else -out_of
-    on_top = relation in RESTING
+    on_top = _on_top(reading)
     rotation = _turned_to(base, out_of if on_top else -out_of)
     turned = local @ rotation.T
     width = float(np.ptp(turned @ axis))

@@ -82,7 +82,7 @@ def copies_report(copies: Copies) -> dict:
     config = copies.config
     return {
         "count": copies.count, "arrangement": copies.arrangement, "prompt": copies.prompt,
-        "copy_prompt": copies.one_prompt, "reading": copies.reading.to_dict(),
+        "copy_prompt": copies.one_prompt, "reading": copies.counted.to_dict(),
         "relation": copies.relation, "source_is_figure": copies.source_is_figure,
         "target_name": copies.target_name, "source_name": copies.source_name,
         "copies": [_jsonable({"name": c.name, "transform": transform(Similarity(c.source_to_target, SOURCE_FILE,

@@ -163,10 +163,12 @@ def plan(pair: PreparedPair, prior: ScenePrior, names: dict[str, str | None], se
     """The run's ``ScalePlan``: the priors' ratio, the geometry's bound for its relation, the ladder."""
     ratio = ratio_scale(pair, prior.size_ratio)
     bound = None
-    if prior.source_is_figure and prior.relation == "in":
+    reading = prior.reading
+    placed = reading.name if reading is not None and reading.source_is_figure else None  # what the source goes into
+    if placed == "in":
         limit = cavity_bound(pair, seed)
         bound = None if limit is None else Bound("in: fits the cavity", limit, upper=True)
-    elif prior.source_is_figure and prior.relation == "wear":
+    elif placed == "wear":
         bound = wear_fit(pair, seed, ratio)
         if bound is not None and abs(bound.log_s - ratio) > LADDER_WIDTH:
             # two estimates that disagree past the priors' 90th percentile: the source is not a hollow thing worn

@@ -41,7 +41,7 @@ def test_spheres_in_a_bowl_are_all_inside_and_apart():
     bowl, ball = examples._bowl(), trimesh.creation.icosphere(subdivisions=2, radius=0.025)
     config = CONFIG.merged({"optim": {"restarts": 4}})  # as the default preset: distinct placements to pick from
     out = place_copies(bowl, ball, "three balls in the bowl", config, target_name="bowl", source_name="ball")
-    assert (out.count, out.arrangement, out.relation) == (3, "scatter", "in")
+    assert (out.count, out.arrangement, out.reading.name) == (3, "scatter", "in")
     assert all(c.how == "search" and c.relation["holds"] for c in out.copies)
     lo, hi = bowl.bounds
     for c in out.copies:  # each centre within the bowl's footprint and below its rim
@@ -55,7 +55,7 @@ def test_spheres_in_a_bowl_are_all_inside_and_apart():
 def test_four_boxes_around_a_table_stand_at_its_four_sides_facing_it():
     table, chair = _box((1.2, 0.75, 0.8)), _box((0.3, 0.5, 0.3))
     out = place_copies(table, chair, "four chairs around the table", CONFIG, target_name="table", source_name="chair")
-    assert (out.count, out.arrangement, out.relation) == (4, "around", "beside+facing")
+    assert (out.count, out.arrangement, out.reading.name) == (4, "around", "beside+facing")
     sides = set()
     for c in out.copies:
         centre = c.source_to_target[:3, 3]
@@ -75,7 +75,7 @@ def test_five_books_stand_in_a_row_on_a_shelf():
     shelf, book = _box((1.0, 0.05, 0.3)), _box((0.04, 0.25, 0.18))
     out = place_copies(shelf, book, "five books in a row on the shelf", CONFIG, target_name="shelf",
                        source_name="book")
-    assert (out.count, out.arrangement, out.relation) == (5, "row", "on")
+    assert (out.count, out.arrangement, out.reading.name) == (5, "row", "on")
     centres = np.array([c.source_to_target[:3, 3] for c in out.copies])
     assert np.allclose(centres[:, 2], 0.0, atol=1e-6)  # along the shelf's long side (x)
     steps = np.diff(centres[:, 0])

@@ -44,6 +44,7 @@ from ctp_core.guide_choice import GuideChoice
 from ctp_core.guide_loaders import guide_for
 from ctp_core.io import MeshLimits, load_image, load_objects
 from ctp_core.loader import MeshLoader
+from ctp_core.priors.relations import RelationReading
 from ctp_core.progress import ProgressEvent
 from service.adjustments import AdjustmentRecord, Adjustments, AdjustOutcome
 from service.jobs import (
@@ -243,11 +244,10 @@ def adjust_job(adjustment: AdjustmentRecord, jobs: Jobs, limits: MeshLimits) -> 
     scene = load_objects(stored["result.glb"], filename="result.glb", limits=limits)
     target, source, name = read_back(scene, at, entry.get("name") if record.count > 1 else None)
     upright = (facts.get("extra") or {}).get("target_upright")
-    relation = entry.get("relation") or {}
     done = adjust(target, source, np.asarray(request.transform), record.config, settle=request.settle,
                   direction=request.direction, upright=None if upright is None else upright["rotation"],
-                  on=entry["on"] if record.count > 1 else record.on, relation=relation.get("name"),
-                  source_is_figure=relation.get("role") != "ground")
+                  on=entry["on"] if record.count > 1 else record.on,
+                  reading=RelationReading.from_verdict(entry.get("relation")))
     matrix = done.source_to_target.tolist()
     if request.save and record.count > 1:
         _save_copy(adjustment, jobs, stored, facts, scene, source, done)
