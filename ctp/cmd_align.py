@@ -258,7 +258,8 @@ def _run_copies(args: argparse.Namespace, target, source, config, count: int, ar
                           target_name=target_name, source_name=source_name, on_event=bar, on_copy=on_copy)
     export.write_outputs(copies, glb=args.out, report_path=args.report, preview=args.preview)
     summary = {"out": str(args.out), "count": copies.count, "arrangement": copies.arrangement,
-               "relation": copies.relation, "seconds": round(time.perf_counter() - started, 2), "preset": config.preset,
+               "relation": None if copies.reading is None else copies.reading.name,
+               "seconds": round(time.perf_counter() - started, 2), "preset": config.preset,
                "guide": copies.guide, "guide_why": copies.guide_why, "metrics": copies.metrics,
                "copies": [{"name": c.name, "holds": None if c.relation is None else c.relation["holds"],
                            "seconds": c.seconds} for c in copies.copies],

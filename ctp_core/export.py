@@ -83,7 +83,8 @@ def copies_report(copies: Copies) -> dict:
     return {
         "count": copies.count, "arrangement": copies.arrangement, "prompt": copies.prompt,
         "copy_prompt": copies.one_prompt, "reading": copies.counted.to_dict(),
-        "relation": copies.relation, "source_is_figure": copies.source_is_figure,
+        "relation": None if copies.reading is None else copies.reading.name,
+        "source_is_figure": True if copies.reading is None else copies.reading.source_is_figure,
         "target_name": copies.target_name, "source_name": copies.source_name,
         "copies": [_jsonable({"name": c.name, "transform": transform(Similarity(c.source_to_target, SOURCE_FILE,
                                                                                 TARGET_FILE)),
