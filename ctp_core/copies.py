@@ -40,6 +40,7 @@ from ctp_core import frames, guide_choice, priors
 from ctp_core.assemble import Placed, scene_of
 from ctp_core.config import AUTO, AlignConfig
 from ctp_core.errors import Canceled
+from ctp_core.priors import counts
 from ctp_core.priors.counts import MAX_COPIES, CountReading, choose, one_copy
 from ctp_core.priors.relations import RelationReading
 from ctp_core.progress import CancelCheck, ProgressCallback
@@ -52,7 +53,7 @@ __all__ = ["Copies", "Copy", "place_copies", "placed_copies", "set_metrics"]
 
 GAP = 0.1  # source diagonals between neighbours in a row and between a copy and the target (around)
 SPACING = 0.05  # scatter: the gap kept between copies where a placement allows it, source diagonals
-AROUND = RelationReading("beside+facing")  # what each copy around the target is judged by
+AROUND = RelationReading(counts.AROUND)  # what each copy around the target is judged by
 ON = RelationReading("on")  # a stack's copy on the copy under it
 
 CopyCallback = Callable[[int, int], None]

@@ -171,3 +171,14 @@ def test_cli_refuses_a_count_over_the_limit_with_exit_2(tmp_path, capsys):
     code = main(["align", str(tmp_path / "t.glb"), str(tmp_path / "s.glb"), "--prompt", "boxes on the box",
                  "--count", str(MAX_COPIES + 1), "--preset", "test", "--quiet"])
     assert code == 2 and "count_out_of_range" in capsys.readouterr().err
+
+
+def test_ctp_priors_shows_what_each_copy_is_read_as(capsys):
+    from ctp.cli import main
+
+    assert main(["priors", "--target", "shelf", "--source", "book", "--prompt", "5 books in a row on the shelf"]) == 0
+    copies = json.loads(capsys.readouterr().out)["copies"]
+    assert (copies["count"], copies["arrangement"], copies["copy_relation"]) == (5, "row", "on")
+    assert copies["copy_prompt"] == "books on the shelf"
+    assert main(["priors", "--target", "table", "--source", "cup", "--prompt", "a cup on the table"]) == 0
+    assert "copies" not in json.loads(capsys.readouterr().out)  # one cup: nothing more said

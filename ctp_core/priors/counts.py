@@ -21,6 +21,7 @@ ARRANGEMENTS = ("scatter", "around", "row", "stack")  # how copies stand togethe
 CHOICES = ("auto", *ARRANGEMENTS)  # the option's values: auto is the prompt's cue, else scatter
 MAX_COPIES = 12  # a run's copies at most: each is a placement of its own, and the set's checks are pairwise
 SEVERAL = 3  # copies where the prompt names an arrangement but no number ("a stack of plates")
+AROUND = "beside+facing"  # what each copy around the target is judged by, whatever the prompt's words
 
 _WORDS = {"one": 1, "two": 2, "three": 3, "four": 4, "five": 5, "six": 6, "seven": 7, "eight": 8, "nine": 9,
           "ten": 10, "eleven": 11, "twelve": 12, "thirteen": 13, "fourteen": 14, "fifteen": 15, "sixteen": 16,
