@@ -1,9 +1,9 @@
-"""Does a guide know what the geometry knows? The measurements behind the guide's say (``objective.Gate``).
+"""Does a guide know what the geometry knows? The measurements behind the guide's say (``ordering.Gate``).
 
 For each case with a reference (rigid protocol start, one init, as ``ctp bench``): the search's proposals, all of
 them, scored at the coarse views by the guide and the geometry; printed per case as one JSON line:
 
-- ``held`` / ``failed``: proposals where the prompt's relation holds without intersecting (``objective.holding``)
+- ``held`` / ``failed``: proposals where the prompt's relation holds without intersecting (``ordering.holding``)
   and the others;
 - ``agreement``: how often the guide ranks a holding proposal before a failing one (the Mann-Whitney AUC, 0.5 by
   chance), over all proposals, and ``agreement_seen`` over the ones the search lets the guide see
@@ -31,7 +31,7 @@ import numpy as np
 import torch
 from search_recall import case_parser, each_case, errors  # a sibling script (benchmarks/ is on sys.path)
 
-from ctp_core import align, metrics, objective, ranking, sampling
+from ctp_core import align, metrics, ordering, ranking, sampling
 from ctp_core.bench import protocol
 from ctp_core.bench.guides import guide_inputs
 from ctp_core.config import AlignConfig
@@ -41,7 +41,7 @@ from ctp_core.guide_loaders import guide_for
 def agreement(terms: dict[str, torch.Tensor]) -> tuple[float, int, int] | None:
     """(share, held, failed): the share of (holding, failing) pose pairs whose holding pose the guide's term ranks
     first (the Mann-Whitney AUC), with the count on each side; None with fewer than 3 on either."""
-    held = objective.holding(terms)
+    held = ordering.holding(terms)
     good, bad = terms["clip"].double()[held], terms["clip"].double()[~held]
     if len(good) < 3 or len(bad) < 3:
         return None
@@ -92,7 +92,7 @@ def run_case(case, args) -> dict:
     scorer, weights = run.scorer, run.plan[0]
     cameras = ranking.coarse_cameras(run.pair, config, float(poses.log_s.max()))  # as ranking.search frames them
     terms = ranking.terms_of(scorer, poses, weights, cameras, batch=config.search.batch)
-    held = objective.holding(terms)
+    held = ordering.holding(terms)
     seen = ranking.encoder_shortlist(poses, terms, weights, config.search.shortlist,
                                      ranking.distinct_of(run.pair, config, float(poses.log_s[0])),
                                      config.search.min_share)
@@ -103,7 +103,7 @@ def run_case(case, args) -> dict:
     first, second = (view_term(scorer, shown_poses, cameras, v, config.search.batch) for v in (0, 1))
     mask = held[seen]
     points = sampling.surface_samples(source, 500, args.seed)[0]
-    geometric = objective.rank_key(terms, weights)
+    geometric = ordering.rank_key(terms, weights, share=config.search.min_share)
     relation = scorer.reading.name if scorer.reading is not None else None
     return {"case": case.id, "guide": args.guide, "model": args.model, "relation": relation,
             "held": int(held.sum()), "failed": int((~held).sum()),
@@ -114,7 +114,7 @@ def run_case(case, args) -> dict:
             "views_agree": spearman(first[mask], second[mask]), "views_agree_seen": spearman(first, second),
             "gate": {k: (round(v, 4) if isinstance(v, float) else v) for k, v in gate.to_dict().items()},
             "guide_places": places(run.pair, poses, terms["clip"], held, case.reference, points),
-            "geometry_places": places(run.pair, poses, geometric, held, case.reference, points)}
+            "geometry_places": places(run.pair, poses, geometric.value, held, case.reference, points)}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -21,9 +21,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
 
-from ctp_core import align, metrics, ranking, sampling
+from ctp_core import align, metrics, ordering, ranking, sampling
 from ctp_core.bench import protocol
 from ctp_core.bench.cases import discover
 from ctp_core.bench.guides import guide_inputs
@@ -38,10 +37,10 @@ def errors(pair, poses, reference: np.ndarray, points: np.ndarray) -> np.ndarray
     return np.array([[e["centroid_error"], e["adds"]] for e in out]).reshape(-1, 2)
 
 
-def best_rank(errors: np.ndarray, key: torch.Tensor | None) -> dict:
+def best_rank(errors: np.ndarray, key: ordering.Key | None) -> dict:
     """The best (0-based) rank by ``key`` (ascending; None: as given) of a pose that places and of one within
     ADD-S ``CLOSE``, and the nearest centroid error."""
-    order = np.arange(len(errors)) if key is None else torch.argsort(key).numpy()
+    order = np.arange(len(errors)) if key is None else key.argsort().numpy()
     placed = np.flatnonzero(errors[order, 0] <= metrics.PLACEMENT_RADIUS)
     close = np.flatnonzero(errors[order, 1] <= CLOSE)
     return {"place": int(placed[0]) if len(placed) else None, "close": int(close[0]) if len(close) else None,
@@ -71,7 +70,7 @@ def run_case(case, args) -> dict:
                         target_name=case.target_name, source_name=case.source_name)
     proposals = align.propose(run, init)
     ranked = ranking.search(run.scorer, proposals, run.plan[0], k=config.optim.restarts)
-    outcome = align.refine(run, ranked.poses)
+    outcome = align.refine(run, ranked.poses, ranked.gate)
     answer = align.result(run, outcome, case.prompt)
     row = {"case": case.id, "relation": case.relation, "seconds": round(time.perf_counter() - started, 1)}
     points = sampling.surface_samples(source, 500, args.seed)[0]
@@ -84,7 +83,7 @@ def run_case(case, args) -> dict:
         row[stage] = best_rank(errors(run.pair, poses, case.reference, points), key)
     coarse_key = ranked.stages["coarse"][1]
     labels = proposals.region + ["sweep"] * (len(coarse_key) - len(proposals.region))
-    row["coarse_best"] = [labels[i] for i in torch.argsort(coarse_key)[:6].tolist()]
+    row["coarse_best"] = [labels[i] for i in coarse_key.argsort()[:6].tolist()]
     row["kept"] = best_rank(errors(run.pair, ranked.poses, case.reference, points), None)
     final = metrics.pose_errors(points, answer.source_to_target, case.reference)
     refined = errors(run.pair, outcome.poses, case.reference, points)

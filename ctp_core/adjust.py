@@ -48,7 +48,7 @@ class Adjusted:
     settled: bool | None  # drop / push: whether it came to rest touching (False: nothing met, left as given)
     moved: float  # how far settling moved it (0 for ``none``)
     on_floor: bool  # drop: it rests on the plane the target stands on, not on the target
-    penetration: float  # the search's ``sunk``: penetration over the posed source's diagonal (``objective.SUNK``)
+    penetration: float  # the search's ``sunk``: penetration over the posed source's diagonal (``ordering.SUNK``)
     contact_gap: float  # ``objective.contact_gap``: 0 when touching, within the target's sample spacing
     touching: bool  # ``contact_gap`` within ``objective.TOUCH``: what the answer's selection counts as touching
     relation: dict[str, Any] | None  # ``predicates.RelationVerdict`` of the report's relation here; None without

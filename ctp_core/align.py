@@ -27,6 +27,7 @@ if TYPE_CHECKING:  # the stages import these lazily: importing align stays light
     from ctp_core.guidance import Guide
     from ctp_core.objective import Scorer
     from ctp_core.optimise import Outcome
+    from ctp_core.ordering import Gate
     from ctp_core.pose import Poses
     from ctp_core.priors.relations import RelationReading
     from ctp_core.proposals import Proposals
@@ -77,7 +78,7 @@ class AlignResult:
     # (file frames, 4x4), objective, the guide's and geometry's terms, relation verdict
     alternatives: list[dict[str, Any]] = field(default_factory=list)
     thumbnails: np.ndarray | None = None  # (K, H, W, 3) uint8: one view of each alternative
-    # the guide's say over the geometry as the search measured it (``objective.Gate.to_dict``: spread, noise,
+    # the guide's say over the geometry as the search measured it (``ordering.Gate.to_dict``: spread, noise,
     # override, who chose, a summary line); None without a guide or a search
     guide_say: dict[str, Any] | None = None
     # scale mode: the initial scale, where it came from (the priors' names and ratio, the geometry's constraint),
@@ -211,18 +212,18 @@ def propose(run: Run, init: np.ndarray | None = None) -> Proposals:
 
 
 def score(run: Run, proposals: Proposals, *, on_event: ProgressCallback | None = None,
-          should_cancel: CancelCheck | None = None) -> Poses:
+          should_cancel: CancelCheck | None = None) -> tuple[Poses, Gate | None]:
     """The optimiser's starts: the search's diverse best ``optim.restarts`` (forward-only scoring), or the
-    proposals as they are when the search is off.
+    proposals as they are when the search is off; and the guide's gate the search measured (None: none measured).
 
     The search ranks by the prompt's relation first, then by the guide where there is one and it tells the
-    candidates apart (``ranking.ranking_key``, ``objective.Gate``), otherwise by the first phase's objective:
+    candidates apart (``ordering.search_key``, ``ordering.Gate``), otherwise by the first phase's objective:
     its proposals already touch without interpenetrating.
     """
     from ctp_core import ranking
 
     if not run.config.search.enabled:
-        return proposals.poses
+        return proposals.poses, None
     ranked = ranking.search(run.scorer, proposals, run.plan[0], k=run.config.optim.restarts, on_event=on_event,
                             should_cancel=should_cancel, phases=len(run.plan), started=run.started)
     run.timings["search_s"] = round(ranked.seconds, 3)
@@ -232,16 +233,18 @@ def score(run: Run, proposals: Proposals, *, on_event: ProgressCallback | None =
     if run.scorer.reading is not None:
         run.timings["search_relation_holds"] = ranked.holding  # of the coarse and sweep candidates
     if ranked.gate is not None:  # the guide's spread over the candidates, its noise, how far it may override
-        run.timings.update({f"guide_{k}": ranked.gate[k] for k in ("spread", "noise", "override")})
-    return ranked.poses
+        said = ranked.gate.to_dict()
+        run.timings.update({f"guide_{k}": said[k] for k in ("spread", "noise", "override")})
+    return ranked.poses, ranked.gate
 
 
-def refine(run: Run, starts: Poses, *, on_event: ProgressCallback | None = None,
+def refine(run: Run, starts: Poses, gate: Gate | None = None, *, on_event: ProgressCallback | None = None,
            should_cancel: CancelCheck | None = None) -> Outcome:
-    """The phased optimiser from ``starts`` (one restart each); returns its ``Outcome``."""
+    """The phased optimiser from ``starts`` (one restart each) under the search's ``gate`` (``score``; None: not
+    measured); returns its ``Outcome``."""
     from ctp_core import optimise
 
-    runner = optimise.Optimiser(run.scorer, run.plan, on_event=on_event, should_cancel=should_cancel)
+    runner = optimise.Optimiser(run.scorer, run.plan, on_event=on_event, should_cancel=should_cancel, gate=gate)
     return runner.run(starts)
 
 
@@ -275,7 +278,7 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
         phase_timings=[{k: round(v, 3) for k, v in p.items()} for p in outcome.phase_timings],
         target_upright=pair.target_upright, source_upright=pair.source_upright,
         warnings=list(run.warnings),
-        guide_say=None if run.scorer.gate is None else run.scorer.gate.to_dict(),
+        guide_say=None if outcome.gate is None else outcome.gate.to_dict(),
     )
     if run.scale is not None:
         answer.scaling = {**run.scale.to_dict(), "final": answer.scale}
@@ -309,22 +312,20 @@ def _uint8(images: torch.Tensor) -> np.ndarray:
 
 def alternatives(run: Run, outcome: Outcome) -> list[int]:
     """Restart indices of the best distinct placements the run refined, the answer first, at most
-    ``MAX_ALTERNATIVES``: the others where the relation holds and nothing intersects first (``holding``), then by
-    the objective on the evaluation views (not the selection's own key, which leaves soft-ICP out among touching
-    poses with a guide: ``select_answer``), near ones (``search.distinct_translation``
+    ``MAX_ALTERNATIVES``, in ``ordering.alternatives_key``'s order (the relation first, then the objective on
+    the evaluation views), near ones (``search.distinct_translation``
     source diagonals *and* ``distinct_rotation_deg``, as the search counts duplicates) and those that ended far
     from the target (over ``objective.NEAR`` source diagonals) left out. A prompt like "a cup on the table" has
     many right answers; a person picks among these."""
-    from ctp_core import objective, ranking
+    from ctp_core import objective, ordering, ranking
 
-    poses, terms = outcome.poses, {**outcome.terms, "objective": outcome.objectives}
-    key = outcome.objectives.double().cpu() + objective.TIER * (~objective.holding(terms)).double().cpu()
+    poses = outcome.poses
     far = objective.clearance(run.pair, run.pair.index, poses) > objective.NEAR
-    key[far] = torch.inf
-    key[outcome.best] = -torch.inf
+    key = ordering.alternatives_key(outcome.terms, outcome.objectives, far, outcome.best)
     distance, angle = ranking.distinct_of(run.pair, run.config, float(poses.log_s[0]))
     kept = ranking.diverse_top(poses, key, MAX_ALTERNATIVES, distance, angle, fill=False)
-    return [i for i in kept if torch.isfinite(key[i]) or i == outcome.best]
+    finite = key.finite()
+    return [i for i in kept if finite[i] or i == outcome.best]
 
 
 def scale_ratio_warning(ratio: float) -> dict[str, Any] | None:
@@ -377,8 +378,8 @@ def align(
     run = prepare(target, source, prompt, config, on=on, image=image, target_name=target_name,
                   source_name=source_name, guide=guide, goal=goal)
     proposals = propose(run, init)
-    starts = score(run, proposals, on_event=on_event, should_cancel=should_cancel)
-    outcome = refine(run, starts, on_event=on_event, should_cancel=should_cancel)
+    starts, gate = score(run, proposals, on_event=on_event, should_cancel=should_cancel)
+    outcome = refine(run, starts, gate, on_event=on_event, should_cancel=should_cancel)
     answer = result(run, outcome, prompt, on_event=on_event)
     answer.guide, answer.guide_why = chosen.guide, chosen.why
     return answer

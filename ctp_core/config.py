@@ -15,6 +15,7 @@ Presets:
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -31,6 +32,13 @@ Runtime = Literal["auto", "torch", "onnx", "onnx-int8"]  # the runtimes, spelled
 AUTO = "auto"  # the model spec that picks the guide per run (guide_choice)
 DEFAULT_MODEL = "hf:openai/clip-vit-base-patch32"  # what auto uses where its weights are
 MAX_ALTERNATIVES = 4  # distinct placements a result offers, the answer among them (align.alternatives)
+
+
+def share_of(count: float, share: float) -> int:
+    """How many of ``count`` a ``share`` keeps (``SearchConfig.min_share`` and its uses: the regions' proposals,
+    the encoder's shortlist, the poses a guide may admit past the relation): rounded up, so any share > 0 of a
+    non-empty count keeps at least one."""
+    return math.ceil(share * count)
 
 
 class _Strict(BaseModel):
@@ -147,7 +155,9 @@ class SearchConfig(_Strict):
     )
     min_share: float = Field(
         0.08, gt=0.0, le=1.0, description="every proposal region keeps at least this share of its "
-        "unweighted count, whatever the relation read from the prompt"
+        "unweighted count, whatever the relation read from the prompt; also what of the poses where the relation "
+        "fails reach the guide (``ranking.encoder_shortlist``) and may be ranked with those where it holds "
+        "(``ordering.rank_key``); counted by ``share_of``"
     )
     distinct_translation: float = Field(
         0.25, ge=0.0, description="top-k: poses closer than this (source diagonals) and distinct_rotation_deg "

@@ -6,14 +6,13 @@ candidates with it (forward only), the optimiser its restarts (with the CLIP gra
 only on the fixed evaluation views). The weights are a ``schedule.Phase``'s, so the CLIP weight has one source
 (``config.loss.lambda_clip`` through the phase plan); ``combine`` is the one place the terms are summed.
 
-The prompt's relation also *orders* poses before any weighted sum (``rank_key``): the poses where it holds
-(``predicates.holds``) come first, then the others; a guide orders the poses where it holds plus a share of the
-others it likes best, as far as ``Gate`` (its spread over the candidates against its noise) lets it.
+The prompt's relation also *orders* poses before any weighted sum: that order, and how far a guide may override
+it (``Gate``), is ``ordering``'s.
 """
 
 from __future__ import annotations
 
-import math
+import copy
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -32,6 +31,7 @@ from ctp_core.scene import PreparedPair
 from ctp_core.schedule import Phase
 
 if TYPE_CHECKING:
+    from ctp_core.ordering import Gate
     from ctp_core.scaling import ScalePlan
 
 NEAR = 2.0  # source diagonals: a pose whose source is farther than this from the target places it nowhere
@@ -46,8 +46,9 @@ def clearance(pair: PreparedPair, index: losses.SurfaceIndex, poses: Poses, poin
 
 
 def source_diagonal(pair: PreparedPair, poses: Poses) -> torch.Tensor:
-    """(B,) each posed source's diagonal, normalised units (CPU): the unit of ``clearance`` and ``touch_limit``."""
-    return 2 * pair.source_radius * poses.log_s.detach().cpu().exp()
+    """(B,) each posed source's diagonal (``PreparedPair.source_diagonal`` x its scale), normalised units (CPU):
+    the unit of ``clearance`` and ``touch_limit``."""
+    return pair.source_diagonal * poses.log_s.detach().cpu().exp()
 
 
 SCREEN_POINTS = 256  # ``Scorer.screen``: source samples of the geometric screen before the guide
@@ -67,146 +68,7 @@ def touch_limit(pair: PreparedPair, poses: Poses) -> torch.Tensor:
     return TOUCH + pair.sample_spacing(len(pair.index.points)) / source_diagonal(pair, poses)
 
 
-def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: torch.Tensor, weights: Phase, *,
-                  guided: bool, touches: bool, override: float = 1.0, share: float = 0.08, tie: float = 0.0) -> int:
-    """The answer among refined poses: those within ``NEAR`` of the target (any when none is: an image guide can
-    prefer a source gone out of view, an absent source differing less from the goal than a misplaced one); with
-    a guide, among them those that touch (``touches``: the relation's contact ratio is > 0), the lowest
-    objective without its soft-ICP term (the guide's and the penetration's); otherwise, or when none touches,
-    the lowest objective. The relation orders first, as in the search (``rank_key``): the restarts where it
-    holds, plus, with a guide, a share of the others (``override`` x ``share``, at least one when the
-    override is > 0: ``Gate``); ``override`` 0 (a guide with no signal) selects as without a guide. An admitted
-    restart that fails the relation still pays its weighted relation term in the objective (``lambda_rel`` x its
-    score): the guide overrides the relation at the selection only by more than that.
-
-    Why not soft-ICP: at contact it measures how the samples fall, not contact (on cur-s01 with the pixels guide
-    the restart refined onto the reference, guide term -0.999, lost to one a diagonal away, -0.996, by 0.004 of
-    weighted soft-ICP); the search ranks its candidates by the guide the same way (``ranking.ranking_key``).
-    Penetration likewise counts only past ``SUNK``: at contact the two halves see a few samples a hair inside
-    (on cur-s01 with pixels, 3e-5, times lambda_pen 1000, outweighed the guide's 0.005 for the reference).
-    The usual arrangement (``prefer``, already x (1 - override): ``Scorer.preference_weight``) breaks what the
-    guide cannot tell: it counts ``tie`` per unit (``Gate.tie``: a difference the gate would trust fully), not
-    its objective weight, which would outweigh any guide (pixels on cur-s01: a restart a
-    third of a diagonal from the reference, the guide's best by 0.004, lost by its cup's sampled support patch
-    to one 0.6 away).
-    ``clear`` and ``limit``: per pose, in source diagonals (``clearance``, ``touch_limit``).
-    """
-    key = terms["objective"]
-    if guided and override <= 0:  # a guide without signal: the geometry alone
-        guided, key = False, combine({**terms, "clip": torch.zeros_like(key)}, weights)
-    clear, limit = clear.to(key.device), limit.to(key.device)
-    near = clear <= NEAR
-    pool = near if near.any() else torch.ones_like(near)
-    if guided:
-        fit = pool & ((clear <= limit) | (not touches))
-        if fit.any():
-            pen = terms["pen"]
-            if "sunk" in terms:  # penetration counts where the pose intersects, not at contact
-                pen = torch.where(intersecting(terms).to(pen.device), pen, torch.zeros_like(pen))
-            zeros = torch.zeros_like(key)
-            key = combine({**terms, "icp": zeros, "pen": pen, "prefer": zeros}, weights)
-            pool, key = fit, key + tie * terms.get("prefer", zeros)
-    key = torch.where(pool, key.double(), torch.full_like(key, torch.inf, dtype=torch.float64))
-    ranked = rank_key({**terms, "objective": key}, weights, guide_key=key if guided else None,
-                      override=override, share=share, geometric=key)
-    return int(ranked.argmin())
-
-
 PREFER = 0.1  # ``combine``: weight of ``predicates.preference`` (the usual arrangement) relative to the relation's
-TIER = 1e6  # ``rank_key``: added to the key of a pose outside the relation's pool (keys are float64)
-GATE_FULL = 4.0  # ``Gate``: a guide whose spread is this many times its noise may override the relation fully
-
-
-@dataclass(frozen=True)
-class Gate:
-    """How far a guide may override the relation: its scores' spread over the search's candidates (standard
-    deviation) against its noise (the largest change of the score of a few candidates moved by a negligible
-    amount: ``ranking.guide_noise``). ``override`` grows from 0 (spread at most the noise: the guide does not
-    tell the candidates apart, so it must not undo the geometry) to 1 at ``GATE_FULL`` times the noise."""
-
-    spread: float
-    noise: float
-
-    @property
-    def ratio(self) -> float:
-        return self.spread / self.noise if self.noise > 0 else math.inf
-
-    @property
-    def override(self) -> float:
-        return float(min(1.0, max(0.0, (self.ratio - 1.0) / (GATE_FULL - 1.0))))
-
-    @property
-    def tie(self) -> float:
-        """What one unit of ``prefer`` is worth where the guide orders (``rank_key``, ``select_answer``): a
-        difference of the guide's term the gate would trust fully (``GATE_FULL`` x its noise)."""
-        return GATE_FULL * self.noise
-
-    @property
-    def chooser(self) -> str:
-        """Who orders the poses where the relation holds: ``geometry`` (override 0: the usual arrangement),
-        ``guide`` (override 1: the usual arrangement only breaks its ties) or ``both`` (between: the usual
-        arrangement weighs 1 - override, ``Scorer.preference_weight``)."""
-        return "geometry" if self.override <= 0 else "guide" if self.override >= 1 else "both"
-
-    def summary(self) -> str:
-        """The gate in one line, for the progress readout, the report and the page."""
-        spread = f"the guide's scores spread {self.ratio:.1f}x their noise" if self.noise > 0 else (
-            "the guide's scores have no measurable noise")
-        return spread + {"geometry": ": the geometry chose", "guide": ": the guide chose",
-                         "both": f": the guide chose, the usual arrangement weighing {1 - self.override:.2f}"
-                         }[self.chooser]
-
-    def to_dict(self) -> dict[str, float | str]:
-        return {"spread": self.spread, "noise": self.noise, "override": round(self.override, 3),
-                "chose": self.chooser, "summary": self.summary()}
-
-
-SUNK = 0.01  # source diagonals of penetration (``sunk``) past which a pose intersects: a sphere pressed into a
-# plane by a tenth of its diagonal (forward and enclosed halves ~ depth^2 / radius / 2 each side summed)
-
-
-def holding(terms: dict[str, torch.Tensor]) -> torch.Tensor:
-    """(B,) bool: where the relation holds (``predicates.holds`` of the ``rel`` term; everywhere without one) and
-    the pose does not intersect the target (``sunk`` at most ``SUNK``; 0 where penetration is allowed). Without
-    the second rule a ball pulled into a mug's wall by "in" (its foot inside the hull, below the rim) outranked
-    every clean pose beside the mug: intersecting is worse than the relation failing."""
-    held = predicates.holds(terms["rel"]) if "rel" in terms else torch.ones_like(terms["objective"], dtype=torch.bool)
-    return held & ~intersecting(terms).to(held.device)
-
-
-def intersecting(terms: dict[str, torch.Tensor]) -> torch.Tensor:
-    """(B,) bool: where the pose is sunk into the target past ``SUNK`` (nowhere without a ``sunk`` term)."""
-    sunk = terms.get("sunk")
-    if sunk is None:
-        return torch.zeros_like(terms["objective"], dtype=torch.bool)
-    return sunk > SUNK
-
-
-def rank_key(terms: dict[str, torch.Tensor], weights: Phase, *, guide_key: torch.Tensor | None = None,
-             override: float = 1.0, share: float = 0.08, geometric: torch.Tensor | None = None,
-             tie: float = 0.0) -> torch.Tensor:
-    """(B,) float64 ranking key (lower is better), the relation first.
-
-    Without a guide (``guide_key`` None) or with ``override`` 0: the geometric objective (``geometric``, else
-    ``combine`` without the guide's term) plus ``TIER`` where the relation does not hold. With a guide: its key
-    over the *pool*, the poses where the relation holds plus the ``ceil(override x share x others)`` others
-    that the guide ranks best (a misread prompt must not make the right answer unreachable: ``share`` is the
-    search's ``min_share``, the principle of the region weights); ``TIER`` added outside the pool; plus ``tie``
-    (``Gate.tie``) per unit of ``prefer``: the usual arrangement breaks what the guide
-    cannot tell.
-    """
-    holds = holding(terms).to(terms["objective"].device)
-    if guide_key is None or override <= 0:
-        if geometric is None:
-            geometric = combine({**terms, "clip": torch.zeros_like(terms["objective"])}, weights)
-        return geometric.double() + TIER * (~holds).double()
-    key = guide_key.double() + tie * terms.get("prefer", torch.zeros_like(guide_key)).double()
-    pool = holds.clone()
-    others = torch.nonzero(~holds)[:, 0]
-    admit = math.ceil(override * share * len(others)) if len(others) else 0
-    if admit:
-        pool[others[torch.argsort(key[others])[:admit]]] = True
-    return key + TIER * (~pool).double()
 
 
 def goal_rows(goal_embeddings: torch.Tensor | None, rows: slice | torch.Tensor,
@@ -233,36 +95,57 @@ def combine(terms: dict[str, torch.Tensor], weights: Phase) -> torch.Tensor:
     return out
 
 
+@dataclass
+class _Tally:
+    count: int = 0  # images the guide encoded
+
+
 class Scorer:
     """The objective's terms for any batch of poses; counts every image the guide encodes in ``clip_images``."""
 
     def __init__(self, pair: PreparedPair, config: AlignConfig, contact_ratio: float, guide: Guide | None = None,
                  goal: Goal | None = None, clock: Clock | None = None, *, reading: RelationReading | None = None,
-                 scale: ScalePlan | None = None):
+                 scale: ScalePlan | None = None, gate: Gate | None = None):
         self.pair, self.config, self.contact_ratio = pair, config, contact_ratio
         self.scale = scale  # scale mode: the ``scale`` term's plan (None: rigid, no term)
         # the prompt's relation where it judges poses (None: unknown, or ``config.relation`` off: zero terms)
         self.reading = reading if config.relation and reading is not None and reading.known else None
-        self.gate: Gate | None = None  # the guide's gate, measured by the search (None: not measured, trusted)
+        self.gate = gate  # the guide's gate as the search measured it (None: not measured, trusted): ``gated``
         self.guide, self.goal = guide, goal
         self.use_clip = goal is not None and guide is not None and config.loss.lambda_clip > 0
         self.clock = clock or Clock()
-        self.clip_images = 0
+        self._images = _Tally()
         self._eval: tuple[Cameras, torch.Tensor] | None = None
+
+    def gated(self, gate: Gate | None) -> Scorer:
+        """This scorer under the search's ``gate`` (what it encodes, how much the usual arrangement weighs:
+        ``guided``, ``preference_weight``); it shares the clock and the count of encoded images."""
+        twin = copy.copy(self)
+        twin.gate, twin._eval = gate, None
+        return twin
+
+    @property
+    def clip_images(self) -> int:
+        """Images the guide encoded, by this scorer and every ``gated`` twin of it."""
+        return self._images.count
+
+    @clip_images.setter
+    def clip_images(self, count: int) -> None:
+        self._images.count = count
 
     @property
     def guided(self) -> bool:
         """Whether scoring encodes images: a guide, and one the search has not found without signal (``Gate``
-        override 0: its scores spread no more than its noise). Once it has, the guide ranks nothing (the geometry
-        does, ``rank_key``), so its images are not encoded: the rest of the search, the refinement's gradient and
-        the selection's views run on the geometry alone."""
+        override 0: its scores spread no more than its noise). Once it has, the guide ranks nothing (the
+        geometry does, ``ordering.rank_key``), so its images are not encoded: the rest of the search, the
+        refinement's gradient and the selection's views run on the geometry alone."""
         return self.use_clip and (self.gate is None or self.gate.override > 0)
 
     def geometry(self, poses: Poses, weights: Phase, points: int | None = None) -> dict[str, torch.Tensor]:
         """Soft-ICP and penetration (zero when the phase switches it off), the penetration in source diagonals
-        (``sunk``: what ``holding`` reads), the relation's terms, the ``scale`` term in scale mode and the posed
-        centroid. ``points``: on that many
-        of the source's samples (``PreparedPair.source_subset``) instead of all."""
+        (``sunk``: what ``ordering.holding`` reads), the relation's terms, the ``scale`` term in scale mode and
+        the posed centroid. ``points``: on that many of the source's samples (``PreparedPair.source_subset``)
+        instead of all."""
         cfg = self.config.loss
         samples = self.pair.source_samples if points is None else self.pair.source_subset(points)
         with self.clock.time("geometry"):

@@ -18,7 +18,8 @@ import torch
 from ctp_core.cameras import sample_training_views
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
-from ctp_core.objective import Scorer, clearance, combine, contact_gap, holding, select_answer, touch_limit
+from ctp_core.objective import Scorer, clearance, combine, contact_gap, touch_limit
+from ctp_core.ordering import Gate, holding, improves, select_answer
 from ctp_core.pose import Poses, matrix_to_quaternion, quaternion_product, random_quaternions
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.scene import PreparedPair
@@ -35,6 +36,7 @@ class Outcome:
     phase_timings: list[dict[str, float]]
     clip_images: int
     steps_run: int = 0
+    gate: Gate | None = None  # the search's gate the refinement and the selection ran under; None: not measured
 
 
 def initial_poses(pair: PreparedPair, config: AlignConfig, log_s: float, generator: torch.Generator,
@@ -72,28 +74,22 @@ def initial_poses(pair: PreparedPair, config: AlignConfig, log_s: float, generat
     return Poses(t.to(device), q.to(device), log_s.to(device))
 
 
-def improves(now: dict[str, torch.Tensor], best: dict[str, torch.Tensor]) -> torch.Tensor:
-    """(B,) whether each restart's new pose replaces its best: the relation first (a pose where the prompt's
-    relation holds beats one where it does not, ``objective.holding``), then the lower objective. Without the
-    first rule a pose that holds (a ball on the floor beside a table, touching a leg) is traded for a lifted one
-    with a little less penetration, weighted more than the relation's violation."""
-    held, was = holding(now), holding(best)
-    return (held & ~was) | ((held == was) & (now["objective"] < best["objective"]))
-
-
 class Optimiser:
-    """Runs the phase plan over a batch of restarts; one instance per run."""
+    """Runs the phase plan over a batch of restarts; one instance per run. ``gate``: the search's
+    (``ranking.Ranked.gate``; None: not measured), which sets what the scorer encodes and how the answer is
+    selected."""
 
     def __init__(self, scorer: Scorer, plan: list[Phase], on_event: ProgressCallback | None = None,
-                 should_cancel: CancelCheck | None = None):
-        self.scorer = scorer
+                 should_cancel: CancelCheck | None = None, gate: Gate | None = None):
+        self.scorer = scorer.gated(gate)
+        self.gate = gate
         self.plan = plan
         self.on_event = on_event or (lambda event: None)
         self.should_cancel = should_cancel or (lambda: False)
-        cfg = scorer.config
+        cfg = self.scorer.config
         self.generator = torch.Generator().manual_seed(cfg.seed)
-        self.clip_gradient = scorer.guided and not cfg.loss.selection_only
-        self.clock = scorer.clock
+        self.clip_gradient = self.scorer.guided and not cfg.loss.selection_only
+        self.clock = self.scorer.clock
         self.total_steps = sum(p.steps for p in plan)
         self.done = 0
         self.restarts = 0  # set by run(): the batch it is given (the search may keep fewer or add some)
@@ -118,13 +114,11 @@ class Optimiser:
         return Outcome(
             best=select_answer(scores, clearance(scorer.pair, scorer.pair.index, best),
                                touch_limit(scorer.pair, best), last, guided=scorer.use_clip,
-                               touches=scorer.contact_ratio > 0,
-                               override=scorer.gate.override if scorer.gate is not None else 1.0,
-                               share=scorer.config.search.min_share,
-                               tie=scorer.gate.tie if scorer.gate is not None else 0.0),
+                               touches=scorer.contact_ratio > 0, share=scorer.config.search.min_share,
+                               gate=self.gate),
             poses=best, objectives=objectives,
             terms={k: scores[k] for k in ("clip", "icp", "pen", "rel", "sunk")}, timings=totals,
-            phase_timings=phase_timings, clip_images=self.scorer.clip_images, steps_run=self.done,
+            phase_timings=phase_timings, clip_images=self.scorer.clip_images, steps_run=self.done, gate=self.gate,
         )
 
     def _phase(self, phase: Phase, start: Poses, clip: torch.Tensor | None) -> tuple[Poses, dict[str, torch.Tensor]]:

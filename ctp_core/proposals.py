@@ -31,7 +31,7 @@ import trimesh
 from scipy.spatial import Delaunay, QhullError
 
 from ctp_core import canonical, losses, sampling
-from ctp_core.config import AlignConfig
+from ctp_core.config import AlignConfig, share_of
 from ctp_core.objective import NEAR, clearance
 from ctp_core.pose import Poses, matrix_to_quaternion, quaternion_product, quaternion_to_matrix, random_quaternions
 from ctp_core.priors.relations import RelationReading
@@ -97,7 +97,7 @@ def allocate(available: dict[str, int], weights: dict[str, float], total: int, m
     plain = {r: total * n / size for r, n in present.items()}
     mass = {r: weights[r] * n for r, n in present.items()}
     norm = sum(mass.values())
-    counts = {r: max(1, math.ceil(min_share * plain[r]), int(round(total * mass[r] / norm))) for r in present}
+    counts = {r: max(1, share_of(plain[r], min_share), int(round(total * mass[r] / norm))) for r in present}
     return {r: counts.get(r, 0) for r in available}
 
 
@@ -317,7 +317,7 @@ def propose(pair: PreparedPair, config: AlignConfig, weights: dict[str, float], 
     counts = allocate(available, weights, cfg.candidates, cfg.min_share)
     rotations = orientations(pair, config, generator)
     up = np.array([0.0, 1.0, 0.0])
-    diagonal = 2 * pair.source_radius * math.exp(rungs[0])
+    diagonal = pair.source_diagonal * math.exp(rungs[0])
     everywhere = np.arange(len(points))
     parts = []
     for region, n in counts.items():

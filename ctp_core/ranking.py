@@ -3,10 +3,10 @@
 First the geometry screens every proposal (``Scorer.screen``: the relation's verdict, penetration, contact; no
 render) and only ``search.shortlist`` of them reach the guide (``encoder_shortlist``: distinct places where the
 relation holds, and a share of the others), so the encoder's images go to what can be the answer; a guide whose
-spread is within its noise (``Gate`` override 0) encodes nothing after the coarse stage (``Scorer.guided``).
-``score``: the objective's terms (``objective.Scorer``) of every candidate, ranked by the prompt's relation first,
-then by the guide's term where there is a guide with signal (``ranking_key``, ``guide_noise``: the proposals
-satisfy the geometry already), forward only under inference
+spread is within its noise (``ordering.Gate`` override 0) encodes nothing after the coarse stage
+(``Scorer.gated``, ``Scorer.guided``). ``score``: the objective's terms (``objective.Scorer``) of every candidate,
+ranked by the prompt's relation first, then by the guide's term where there is a guide with signal
+(``ordering.search_key``, ``guide_noise``: the proposals satisfy the geometry already), forward only under inference
 mode, ``search.batch`` candidates x views per render and encoder call: first all candidates at a few fixed views
 framing the target's region (the same cameras for all, so a per-view goal is encoded once), then
 ``search.fine`` of them (``shortlist_of``: the best at distinct places, then the best distinct poses) at more
@@ -34,9 +34,10 @@ from dataclasses import dataclass, field
 import torch
 
 from ctp_core.cameras import Cameras, orbit
-from ctp_core.config import AlignConfig
+from ctp_core.config import AlignConfig, share_of
 from ctp_core.errors import Canceled
-from ctp_core.objective import TIER, Gate, Scorer, goal_rows, holding, rank_key
+from ctp_core.objective import Scorer, goal_rows
+from ctp_core.ordering import Gate, Key, holding, rank_key, search_key
 from ctp_core.pose import Poses, quaternion_product
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.proposals import Proposals, place
@@ -52,13 +53,13 @@ GATE_TURN_DEG = 1.0  # ... and turned this much about +Y
 @dataclass
 class Ranked:
     poses: Poses  # the kept poses, best first
-    objectives: torch.Tensor  # (K,) their ranking key at the stage that kept them (fine; tile: the tile stage's)
+    objectives: Key  # (K,) their ranking key at the stage that kept them (fine; tile: the tile stage's)
     scored: int  # candidate evaluations (coarse + sweep + tile + fine)
     swept: int  # candidates of the orientation sweep
     seconds: float
-    stages: dict[str, tuple[Poses, torch.Tensor]] = field(default_factory=dict)  # per stage: poses, ranking key
+    stages: dict[str, tuple[Poses, Key]] = field(default_factory=dict)  # per stage: poses, ranking key
     holding: int = 0  # coarse and sweep candidates where the prompt's relation holds (all without one)
-    gate: dict[str, float] | None = None  # the guide's ``Gate`` (spread, noise, override); None without a guide
+    gate: Gate | None = None  # the guide's gate, for the refinement and the selection; None: not measured
     screened: int = 0  # poses the geometry screened before the guide saw the shortlist (proposals, sweep turns)
 
 
@@ -108,7 +109,8 @@ def tiles_of(pair: PreparedPair, config: AlignConfig, poses: Poses) -> tuple[tor
 
 
 def tile_score(scorer: Scorer, poses: Poses, weights: Phase, tiles: tuple[torch.Tensor, torch.Tensor, float], *,
-               batch: int, progress=lambda scored: None, should_cancel: CancelCheck | None = None) -> torch.Tensor:
+               batch: int, gate: Gate | None = None, progress=lambda scored: None,
+               should_cancel: CancelCheck | None = None) -> Key:
     """(N,) each pose's ranking key (``ranking_key``: the relation first) by the guide's term in the coarse views
     of its tile (``tiles``: ``tiles_of`` of ``poses``) minus that of the same views without the source (lower:
     the source moves the view toward the guide).
@@ -131,7 +133,7 @@ def tile_score(scorer: Scorer, poses: Poses, weights: Phase, tiles: tuple[torch.
                      goal_embeddings=goal_rows(goal_embeddings, tile), progress=progress, should_cancel=should_cancel)
     moved = terms["clip"] - base[tile]
     change = torch.where(moved.abs() > HIDDEN, moved, torch.full_like(moved, torch.inf))
-    return ranking_key(scorer, terms, weights, guide_key=change)
+    return ranking_key(scorer, terms, weights, gate, guide_key=change)
 
 
 def fine_cameras(pair: PreparedPair, config: AlignConfig, poses: Poses) -> Cameras:
@@ -189,13 +191,13 @@ def terms_of(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, 
     return {k: torch.cat([part[k] for part in out]) for k in out[0]}
 
 
-def score(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, batch: int,
+def score(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, batch: int, gate: Gate | None = None,
           goal_embeddings: torch.Tensor | None = None, progress=lambda scored: None,
-          should_cancel: CancelCheck | None = None) -> torch.Tensor:
+          should_cancel: CancelCheck | None = None) -> Key:
     """(N,) ranking keys (``ranking_key``) of ``poses`` on ``cameras``: ``terms_of``, then ranked together."""
     terms = terms_of(scorer, poses, weights, cameras, batch=batch, goal_embeddings=goal_embeddings,
                      progress=progress, should_cancel=should_cancel)
-    return ranking_key(scorer, terms, weights)
+    return ranking_key(scorer, terms, weights, gate)
 
 
 def guide_noise(scorer: Scorer, poses: Poses, terms: dict[str, torch.Tensor], weights: Phase, cameras: Cameras,
@@ -204,16 +206,16 @@ def guide_noise(scorer: Scorer, poses: Poses, terms: dict[str, torch.Tensor], we
     against its noise: the largest change of its term when ``GATE_PROBES`` of them (spread over its order) are
     moved by ``GATE_SHIFT`` of the source's diagonal and turned ``GATE_TURN_DEG`` about +Y (a change the
     geometry and any placement metric cannot tell; renders then differ a little at the source's edges and the
-    encoder's rounding (bf16 under autocast) differs with them). Costs ``GATE_PROBES`` candidates' encodes,
-    about 3 % of the coarse stage; ``benchmarks/guide_signal.py`` compares the same spread to the bf16
-    rounding offline."""
+    encoder's rounding (bf16 under autocast) differs with them). Costs ``GATE_PROBES`` candidates' encodes
+    (a few per cent of the coarse stage's); ``benchmarks/guide_signal.py`` compares the same spread to the
+    bf16 rounding offline."""
     clip = terms["clip"]
     order = torch.argsort(clip)
     picks = order[torch.linspace(0, len(order) - 1, min(GATE_PROBES, len(order))).round().long()].unique()
     probe = poses.select(picks)
     generator = torch.Generator().manual_seed(scorer.config.seed)
     direction = torch.nn.functional.normalize(torch.randn(len(picks), 3, generator=generator), dim=-1)
-    diagonal = 2 * scorer.pair.source_radius * probe.log_s.exp()
+    diagonal = scorer.pair.source_diagonal * probe.log_s.exp()
     half = math.radians(GATE_TURN_DEG) / 2
     turn = torch.tensor([math.cos(half), 0.0, math.sin(half), 0.0]).expand(len(picks), 4)
     moved = Poses(probe.t + (GATE_SHIFT * diagonal)[:, None] * direction.to(probe.t),
@@ -223,11 +225,12 @@ def guide_noise(scorer: Scorer, poses: Poses, terms: dict[str, torch.Tensor], we
     return Gate(float(clip.std()) if len(clip) > 1 else 0.0, noise)
 
 
-def diverse_top(poses: Poses, objectives: torch.Tensor, k: int, distance: float, angle_deg: float, *,
+def diverse_top(poses: Poses, objectives: Key, k: int, distance: float, angle_deg: float, *,
                 fill: bool = True) -> list[int]:
-    """Indices of the ``k`` best poses (lowest objective), skipping any within ``distance`` (normalised units) and
-    ``angle_deg`` of one already kept; duplicates fill in only when too few distinct poses exist (``fill``)."""
-    order = torch.argsort(objectives).tolist()
+    """Indices of the ``k`` best poses (first by ``objectives``), skipping any within ``distance`` (normalised
+    units) and ``angle_deg`` of one already kept; duplicates fill in only when too few distinct poses exist
+    (``fill``)."""
+    order = objectives.argsort().tolist()
     q = torch.nn.functional.normalize(poses.q, dim=-1)
     kept: list[int] = []
     for i in order:
@@ -276,6 +279,7 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
     total = len(poses) + sweep_count + tiled_count + fine_count
 
     relation = scorer.reading.name if scorer.reading is not None else None
+    gate: Gate | None = None  # the guide's, once the coarse stage has measured it
     held = [0, 0]  # candidates where the relation holds, of those scored (coarse and sweep)
 
     def emit(done: int, best: float | None = None, restarts: int | None = None) -> None:
@@ -288,8 +292,8 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
             if relation is not None and held[1]:
                 message += f"; {held[0]} of {held[1]} hold '{relation}'"
             message += f"; {k} restarts" + (f" + {tiled} from the tile stage" if tiled else "")
-            if scorer.gate is not None:
-                message += f"; {scorer.gate.summary()}"
+            if gate is not None:
+                message += f"; {gate.summary()}"
             counted = relation is not None and held[1]
             on_event(ProgressEvent(kind="step", phase=0, phases=phases, step=done, steps=total,
                                    restarts=restarts if restarts is not None else k + tiled, elapsed_s=elapsed,
@@ -303,12 +307,13 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
         terms = terms_of(scorer, poses, weights, cameras, batch=cfg.batch, goal_embeddings=goal_embeddings,
                          progress=emit, should_cancel=should_cancel)
         if scorer.use_clip and len(poses) > 1:  # how far the guide may override the relation (``Gate``)
-            scorer.gate = guide_noise(scorer, poses, terms, weights, cameras, goal_embeddings)
-            if scorer.gate.override == 0:
+            gate = guide_noise(scorer, poses, terms, weights, cameras, goal_embeddings)
+            scorer = scorer.gated(gate)  # the later stages score under it
+            if gate.override == 0:
                 tiles = None  # a guide with no signal cannot tell tiles apart either
                 total -= tiled_count
                 tiled_count = 0
-        coarse = ranking_key(scorer, terms, weights)
+        coarse = ranking_key(scorer, terms, weights, gate)
         swept = sweep(proposals, pair, coarse, cfg.sweep, distinct[0]) if sweep_count else None
         if swept is not None and cfg.sweep_keep and len(swept) > sweep_count:  # the turns the geometry allows
             screened += len(swept)
@@ -318,53 +323,46 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
             extra = terms_of(scorer, swept, weights, cameras, batch=cfg.batch, goal_embeddings=goal_embeddings,
                              should_cancel=should_cancel, progress=lambda n: emit(len(poses) + n))
             poses = Poses.cat([poses, swept])
-            terms = {k: torch.cat([terms[k], extra[k]]) for k in terms}
-            coarse = ranking_key(scorer, terms, weights)
+            terms = {key: torch.cat([terms[key], extra[key]]) for key in terms}
+            coarse = ranking_key(scorer, terms, weights, gate)
         held[:] = [int(holding(terms).sum()), len(poses)]
         proposed = proposals.poses
         tiled = None if tiles is None else tile_score(
-            scorer, proposed, weights, tiles, batch=cfg.batch, should_cancel=should_cancel,
+            scorer, proposed, weights, tiles, batch=cfg.batch, gate=gate, should_cancel=should_cancel,
             progress=lambda n: emit(total - fine_count - tiled_count + n))
         emit(total - fine_count)
         shortlist = shortlist_of(poses, coarse, fine_count, *distinct)
         fine_poses = poses.select(shortlist)
-        fine = score(scorer, fine_poses, weights, fine_cameras(pair, config, fine_poses), batch=cfg.batch,
+        fine = score(scorer, fine_poses, weights, fine_cameras(pair, config, fine_poses), batch=cfg.batch, gate=gate,
                      progress=lambda n: emit(total - fine_count + n), should_cancel=should_cancel)
         # the fine views see each candidate closer; the coarse ones see all in the same frame: rank by both
-        ranked = 0.5 * (fine + coarse[shortlist])
+        ranked = fine.average(coarse.select(shortlist))
         best = diverse_top(fine_poses, ranked, k, *distinct)
-        kept, objectives = fine_poses.select(best), ranked[best]
+        kept, objectives = fine_poses.select(best), ranked.select(best)
         stages = {"coarse": (poses, coarse), "fine": (fine_poses, ranked)}
         if tiled is not None:
             picks = diverse_top(proposed, tiled, k, *distinct)
-            kept, objectives = merge(kept, objectives, proposed.select(picks), tiled[picks], cfg.tile_restarts,
+            kept, objectives = merge(kept, objectives, proposed.select(picks), tiled.select(picks), cfg.tile_restarts,
                                      distinct)
             stages["tiles"] = (proposed, tiled)
-    emit(total, _untiered(float(objectives[0])) if len(objectives) else None, restarts=len(kept))
+    emit(total, float(objectives.value[0]) if len(objectives) else None, restarts=len(kept))
     return Ranked(kept, objectives, len(poses) + len(fine_poses) + (0 if tiled is None else len(tiled)),
-                  0 if swept is None else len(swept), time.perf_counter() - began, stages, held[0],
-                  None if scorer.gate is None else scorer.gate.to_dict(), screened)
+                  0 if swept is None else len(swept), time.perf_counter() - began, stages, held[0], gate, screened)
 
 
-def _untiered(key: float) -> float:
-    """A ranking key without its relation tier (``objective.TIER``): the objective or guide term it ranks by."""
-    return key - TIER * round(key / TIER)
-
-
-def merge(first: Poses, first_keys: torch.Tensor, second: Poses, second_keys: torch.Tensor, m: int,
-          distinct: tuple[float, float]) -> tuple[Poses, torch.Tensor]:
+def merge(first: Poses, first_keys: Key, second: Poses, second_keys: Key, m: int,
+          distinct: tuple[float, float]) -> tuple[Poses, Key]:
     """All of ``first``, then up to ``m`` of ``second`` (best first) that are no near-duplicate of a kept pose
     (``diverse_top``'s test); each with its own stage's key."""
     both = Poses.cat([first, second])
-    keys = torch.cat([first_keys.cpu(), second_keys.cpu()])
-    order = torch.arange(len(both), dtype=torch.float32)
-    finite = torch.cat([torch.ones(len(first), dtype=torch.bool), torch.isfinite(second_keys.cpu())])
-    order[~finite] = torch.inf  # a tile key of inf: not judged there
+    keys = Key.cat([first_keys, second_keys])
+    finite = torch.cat([torch.ones(len(first), dtype=torch.bool), second_keys.finite().cpu()])
+    order = Key.plain(torch.arange(len(both), dtype=torch.float32)).excluding(~finite)  # a tile key of inf: not judged
     keep = [i for i in diverse_top(both, order, len(first) + m, *distinct) if finite[i]]
-    return both.select(keep[: len(first) + m]), keys[keep[: len(first) + m]]
+    return both.select(keep[: len(first) + m]), keys.select(keep[: len(first) + m])
 
 
-def shortlist_of(poses: Poses, objectives: torch.Tensor, k: int, distance: float, angle_deg: float) -> list[int]:
+def shortlist_of(poses: Poses, objectives: Key, k: int, distance: float, angle_deg: float) -> list[int]:
     """The fine stage's ``k`` candidates: the best at each of the ``k // 2`` best distinct places (any turn), then
     the best distinct poses. The sweep puts every orientation at its sites, and those rank together: without
     the first half they would fill the shortlist with two places."""
@@ -378,51 +376,33 @@ def encoder_shortlist(poses: Poses, terms: dict[str, torch.Tensor], weights: Pha
     """Indices of the ``k`` candidates whose images the guide will see, chosen without it from their geometric
     ``terms`` (``Scorer.screen``): where the prompt's relation holds, the best at distinct
     places first (``shortlist_of``: the guide is what tells places apart, so they must reach it), then
-    ``ceil(share x k)`` where it fails, best by the geometry (a misread prompt must not make the right answer
+    ``share_of(k, share)`` where it fails, best by the geometry (a misread prompt must not make the right answer
     unreachable: ``search.min_share``, the principle of the region weights); slots one side cannot fill go to
-    the other. A candidate the relation rules out costs no encoder image (issue 24: most of a search's images
-    scored poses the geometry could rule out)."""
-    key = rank_key(terms, weights)
+    the other. A candidate the relation rules out costs no encoder image."""
+    key = rank_key(terms, weights, share=share)
     held = holding(terms)
     others = int((~held).sum())
-    reserve = min(others, math.ceil(share * k)) if held.any() else others
-    inside = [i for i in shortlist_of(poses, torch.where(held, key, torch.inf), k - reserve, *distinct) if held[i]]
-    outside = torch.where(held, torch.inf, key)
-    rest = [i for i in shortlist_of(poses, outside, k - len(inside), *distinct) if not held[i]]
+    reserve = min(others, share_of(k, share)) if held.any() else others
+    inside = [i for i in shortlist_of(poses, key.excluding(~held), k - reserve, *distinct) if held[i]]
+    rest = [i for i in shortlist_of(poses, key.excluding(held), k - len(inside), *distinct) if not held[i]]
     return inside + rest
 
 
-def ranking_key(scorer: Scorer, terms: dict[str, torch.Tensor], weights: Phase,
-                guide_key: torch.Tensor | None = None) -> torch.Tensor:
-    """What the search ranks a stage's candidates by (lower is better; ``objective.rank_key``): the prompt's
-    relation first (where it holds, then the rest), then, with a guide, the guide's term (``guide_key``: the
-    tile stage's change) over the candidates where it holds plus a share of the others the guide likes best
-    (``search.min_share`` x the ``Gate``'s override); without a guide, or one whose spread is within its noise
-    (``scorer.gate``), the geometric objective.
-
-    Why the guide's term alone and not a weighted sum: the proposals touch without interpenetrating by
-    construction, so among them the geometric terms measure how the target's samples happen to fall (soft-ICP
-    at contact is about sigma² and varies with sample density), not contact: on pb3d-blender with the oracle
-    and random:ViT-B-32, the soft-ICP's spread over touching candidates was ~0.01 against the guide's ~1e-4, so
-    any weighted sum ranked as geometry alone did. The refinement and the final selection use the whole
-    objective.
-    """
-    gate = scorer.gate
-    override = gate.override if gate is not None else 1.0
-    guided = scorer.use_clip and override > 0
-    key = (terms["clip"] if guide_key is None else guide_key) if guided else None
-    return rank_key(terms, weights, guide_key=key, override=override, share=scorer.config.search.min_share,
-                    tie=gate.tie if gate is not None else 0.0)
+def ranking_key(scorer: Scorer, terms: dict[str, torch.Tensor], weights: Phase, gate: Gate | None,
+                guide_key: torch.Tensor | None = None) -> Key:
+    """What the search ranks a stage's candidates by (``ordering.search_key``): with ``scorer``'s guide as far as
+    ``gate`` lets it (None: not measured yet), the search's ``min_share``; ``guide_key``: the tile stage's change."""
+    return search_key(terms, weights, gate, guided=scorer.use_clip, share=scorer.config.search.min_share,
+                      guide_key=guide_key)
 
 
 def distinct_of(pair: PreparedPair, config: AlignConfig, log_s: float) -> tuple[float, float]:
     """When two poses count as one (``diverse_top``): closer than this (normalised units) and this angle (deg)."""
-    src = pair.source_samples
-    diagonal = float((src.max(0).values - src.min(0).values).norm()) * math.exp(log_s)
+    diagonal = pair.source_diagonal * math.exp(log_s)
     return config.search.distinct_translation * diagonal, config.search.distinct_rotation_deg
 
 
-def sweep(proposals: Proposals, pair: PreparedPair, objectives: torch.Tensor, positions: int,
+def sweep(proposals: Proposals, pair: PreparedPair, objectives: Key, positions: int,
           distance: float) -> Poses:
     """Every source orientation at the best ``positions`` distinct sites (by ``objectives``): a coarse
     candidate's orientation is one draw of many, and a good site with the wrong turn can still rank high."""
@@ -431,7 +411,7 @@ def sweep(proposals: Proposals, pair: PreparedPair, objectives: torch.Tensor, po
         return Poses(torch.zeros(0, 3), torch.zeros(0, 4), torch.zeros(0))
     candidates = torch.nonzero(placed)[:, 0]
     poses = proposals.poses.select(candidates)
-    best = diverse_top(poses, objectives[candidates], positions, distance, 180.0)  # distinct places, any turn
+    best = diverse_top(poses, objectives.select(candidates), positions, distance, 180.0)  # distinct places, any turn
     rotations = proposals.rotations
     sites = proposals.sites.select(candidates[best].repeat_interleave(len(rotations)))
     q = rotations.repeat(len(best), 1)

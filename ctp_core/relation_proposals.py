@@ -61,7 +61,7 @@ import torch
 from scipy.spatial import cKDTree
 
 from ctp_core import predicates
-from ctp_core.config import AlignConfig
+from ctp_core.config import AlignConfig, share_of
 from ctp_core.pose import Poses, quaternion_product, quaternion_to_matrix
 from ctp_core.priors.relations import RelationReading
 from ctp_core.proposals import APPROACHES, Proposals, Site, place, surface_regions
@@ -78,6 +78,11 @@ HOOK_REACH = 0.1  # a hook point: at least this many source diagonals from the s
 APART_GAPS = {"side": (0.05, predicates.BESIDE_GAP / 2), "near": (0.05, predicates.NEAR_GAP / 2),
               "far": (1.1 * predicates.FAR_GAP, 1.5 * predicates.FAR_GAP)}
 ABOVE_CLEAR = (0.1, 0.5)  # ``apart``, "above": the source's bottom this many of its diagonals over the target's top
+
+
+def own_count(config: AlignConfig) -> int:
+    """How many poses a relation's builder proposes: ``SHARE`` of ``search.candidates`` (``config.share_of``)."""
+    return share_of(config.search.candidates, SHARE)
 
 
 def extend(pair: PreparedPair, config: AlignConfig, proposals: Proposals, reading: RelationReading | None,
@@ -121,7 +126,7 @@ def lean(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: in
     if not len(side):
         return None
     rng = np.random.default_rng(seed + 23)
-    count = max(1, math.ceil(SHARE * config.search.candidates))
+    count = own_count(config)
     pick = rng.integers(len(side), size=count)
     n = torch.as_tensor(horizontal[pick], dtype=torch.float32)
     up = torch.tensor([0.0, 1.0, 0.0]).expand(count, 3)
@@ -148,7 +153,7 @@ def contained(pair: PreparedPair, config: AlignConfig, proposals: Proposals, see
     if not len(top):
         return None
     log_s = _scale(proposals)
-    lift = predicates.FOOT * 2 * pair.source_radius * math.exp(log_s)  # the source's foot, as the predicate's
+    lift = predicates.FOOT * pair.source_diagonal * math.exp(log_s)  # the source's foot, as the predicate's
     ground = torch.as_tensor(points, dtype=torch.float32)
     feet = ground[torch.as_tensor(top)] + torch.tensor([0.0, lift, 0.0])
     spacing = pair.sample_spacing(len(points))
@@ -158,7 +163,7 @@ def contained(pair: PreparedPair, config: AlignConfig, proposals: Proposals, see
     if weights.sum() <= 0:
         return None
     rng = np.random.default_rng(seed + 29)
-    count = max(1, math.ceil(SHARE * config.search.candidates))
+    count = own_count(config)
     pick = top[rng.choice(len(top), size=count, p=weights / weights.sum())]
     upright = _long_axis_up(pair, rng, count // 2)
     resting = proposals.rotations[torch.as_tensor(rng.integers(len(proposals.rotations), size=count - len(upright)))]
@@ -190,7 +195,7 @@ def hung(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: in
     if not fits.any():
         return None
     rng = np.random.default_rng(seed + 31)
-    count = max(1, math.ceil(SHARE * config.search.candidates))
+    count = own_count(config)
     weights = density[top] * fits
     pick = rng.choice(len(top), size=count, p=weights / weights.sum())
     hook = np.array([rng.choice(hooks[clearance > thickness[i]]) for i in pick])
@@ -211,7 +216,7 @@ def pierced(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed:
     Not settled: they are meant to intersect."""
     points, normals, regions, density = surface_regions(pair)
     rng = np.random.default_rng(seed + 37)
-    count = max(1, math.ceil(SHARE * config.search.candidates))
+    count = own_count(config)
     weights = density.copy()
     weights[regions["bottom"]] = 0.0  # from below, it would pass through the floor the target stands on
     pick = rng.choice(len(points), size=count, p=weights / weights.sum())
@@ -239,7 +244,7 @@ def apart(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: i
     position, turn = reading.position, reading.orientation
     kind = reading.records[0].kind
     rng = np.random.default_rng(seed + 41)
-    count = max(1, math.ceil(SHARE * config.search.candidates))
+    count = own_count(config)
     log_s = _scale(proposals)
     scale = math.exp(log_s)
     target = pair.anchor.points.cpu()
@@ -258,7 +263,7 @@ def apart(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: i
         heading = (torch.atan2(want[:, 0], want[:, 2]) - torch.atan2(own[:, 0], own[:, 2])).numpy()
     q = torch.cat([quaternion_product(_yaw(float(a)), resting[i:i + 1]) for i, a in enumerate(heading)])
     rotated = torch.einsum("bij,nj->bni", quaternion_to_matrix(q), pair.source_subset(LEAN_POINTS).cpu()) * scale
-    source_diagonal = 2 * pair.source_radius * scale
+    source_diagonal = pair.source_diagonal * scale
     up = torch.tensor([0.0, 1.0, 0.0]).expand(count, 3)
     if position == "above":  # over a point of the target's top, clear of it
         top = torch.as_tensor(surface_regions(pair)[2]["top"], dtype=torch.long)

@@ -142,6 +142,12 @@ class PreparedPair:
         return float((hi - lo).norm() / 2)
 
     @cached_property
+    def source_diagonal(self) -> float:
+        """The AABB diagonal of the source samples in the source local frame (unscaled): the unit of the search's
+        and the objective's distances ("source diagonals"); times a pose's scale, its posed source's."""
+        return 2 * self.source_radius
+
+    @cached_property
     def source_area(self) -> float:
         """The source's surface area in the source local frame (unscaled)."""
         return float(self.source.area) * self.source_to_local.scale**2

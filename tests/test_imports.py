@@ -204,7 +204,7 @@ LAYERS: tuple[tuple[str, frozenset[str]], ...] = (
     ("render", _engine("cameras render")),
     ("prepare", _engine("scene")),
     ("guide", _engine("guidance guide_loaders goals")),
-    ("judge", _engine("predicates objective metrics")),
+    ("judge", _engine("predicates objective ordering metrics")),
     ("search", _engine("proposals relation_proposals ranking scaling")),
     ("optimise", _engine("optimise")),
     ("pipeline", _engine("align adjust assemble copies export")),

@@ -143,9 +143,9 @@ def test_the_enclosed_half_pushes_a_ball_out_of_a_wall():
 
 
 def test_holding_excludes_a_pose_that_intersects():
-    """The relation's tier (``objective.holding``): a pose where the relation holds but that is sunk into the
+    """The relation's tier (``ordering.holding``): a pose where the relation holds but that is sunk into the
     target past ``SUNK`` ranks with the poses where it fails."""
-    from ctp_core.objective import SUNK, holding
+    from ctp_core.ordering import SUNK, holding
 
     terms = {"objective": torch.zeros(3), "rel": torch.tensor([0.0, 0.0, 0.5]),
              "sunk": torch.tensor([0.0, 2 * SUNK, 0.0])}

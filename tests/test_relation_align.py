@@ -1,5 +1,5 @@
 """The prompt's relation where poses are judged: the search's ranking, the guide's gate, the refinement and the
-selection (``objective.rank_key``, ``objective.Gate``, ``ranking.ranking_key``, ``align``).
+selection (``ordering.rank_key``, ``ordering.Gate``, ``ordering.search_key``, ``align``).
 
 Generated pairs whose answer is known (``test_predicates``' scenes, +Y up, prepared without the upright turn);
 geometry only (``lambda_clip`` 0), the ``test`` preset: a second or two per run.
@@ -8,7 +8,6 @@ geometry only (``lambda_clip`` 0), the ``test`` preset: a second or two per run.
 from __future__ import annotations
 
 import math
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -17,7 +16,7 @@ import trimesh
 from test_predicates import box, cup, reading, ring, rot, table, wall_with_peg
 
 from ctp_core import align as stages
-from ctp_core import objective, predicates, ranking, schedule
+from ctp_core import objective, ordering, predicates, schedule
 from ctp_core.align import align
 from ctp_core.config import AlignConfig
 
@@ -86,12 +85,16 @@ def _terms(rel, icp, clip=None):
 def test_ranking_puts_the_candidates_that_hold_the_relation_first():
     """Without a guide: the relation, then the geometric objective (the best objective fails the relation)."""
     terms = _terms([0.5, 0.0, 0.01, 0.3], [0.0, 0.02, 0.03, 0.001])
-    key = objective.rank_key(terms, WEIGHTS)
-    assert torch.argsort(key).tolist() == [1, 2, 3, 0]
+    key = ordering.rank_key(terms, WEIGHTS, share=SHARE)
+    assert key.argsort().tolist() == [1, 2, 3, 0]
 
 
-def _scorer(gate):
-    return SimpleNamespace(gate=gate, use_clip=True, config=AlignConfig.from_preset("test"))
+SHARE = AlignConfig.from_preset("test").search.min_share
+
+
+def _guided(gate, terms):
+    """The search's key of ``terms`` with a guide under ``gate``."""
+    return ordering.search_key(terms, WEIGHTS, gate, guided=True, share=SHARE)
 
 
 def test_a_guide_ranks_among_the_holding_candidates_plus_a_share_of_the_others():
@@ -100,26 +103,27 @@ def test_a_guide_ranks_among_the_holding_candidates_plus_a_share_of_the_others()
     rel = [0.0] * 4 + [1.0] * 20
     clip = [-0.5, -0.6, -0.55, -0.4] + [-0.9] + [-0.1] * 19  # the guide's best fails the relation
     terms = _terms(rel, [0.0] * 24, clip)
-    key = ranking.ranking_key(_scorer(objective.Gate(spread=1.0, noise=0.01)), terms, WEIGHTS)
-    admitted = math.ceil(AlignConfig.from_preset("test").search.min_share * 20)
-    assert admitted == 2 and torch.argsort(key).tolist()[:5] == [4, 1, 2, 0, 3]
-    assert int((key > objective.TIER / 2).sum()) == 20 - admitted  # the rest: after every pooled candidate
+    key = _guided(ordering.Gate(spread=1.0, noise=0.01), terms)
+    admitted = math.ceil(SHARE * 20)
+    assert admitted == 2 and key.argsort().tolist()[:5] == [4, 1, 2, 0, 3]
+    assert int((key.tier > 0).sum()) == 20 - admitted  # the rest: after every pooled candidate
 
 
 def test_a_guide_whose_spread_is_within_its_noise_does_not_override_the_relation():
     """The gate: spread over the candidates at most the guide's noise -> override 0 -> rank by relation and
     geometry; the guide's favourite (failing the relation, worse geometry) stays last."""
-    gate = objective.Gate(spread=1e-4, noise=2e-4)
-    assert gate.override == 0.0 and objective.Gate(1.0, 0.1).override == 1.0
-    assert 0 < objective.Gate(2e-4, 1e-4).override < 1
+    gate = ordering.Gate(spread=1e-4, noise=2e-4)
+    assert gate.override == 0.0 and ordering.Gate(1.0, 0.1).override == 1.0
+    assert 0 < ordering.Gate(2e-4, 1e-4).override < 1
     terms = _terms([1.0, 0.0, 0.0], [0.0, 0.02, 0.01], clip=[-0.9, -0.3, -0.2])
-    key = ranking.ranking_key(_scorer(gate), terms, WEIGHTS)
-    assert torch.argsort(key).tolist() == [2, 1, 0]
+    key = _guided(gate, terms)
+    assert key.argsort().tolist() == [2, 1, 0]
     # the selection of the refined answer follows the same gate: geometry without signal, the guide with it
     # (the restart failing the relation pays its weighted relation term there: lambda_rel x its score)
     clear, limit = torch.zeros(3), torch.full((3,), objective.TOUCH)
-    assert objective.select_answer(terms, clear, limit, WEIGHTS, guided=True, touches=True, override=0.0) == 2
-    assert objective.select_answer(terms, clear, limit, WEIGHTS, guided=True, touches=True, override=1.0) == 1
+    rule = {"guided": True, "touches": True, "share": SHARE}
+    assert ordering.select_answer(terms, clear, limit, WEIGHTS, **rule, gate=gate) == 2
+    assert ordering.select_answer(terms, clear, limit, WEIGHTS, **rule, gate=ordering.Gate(1.0, 0.1)) == 1
 
 
 def test_lean_proposals_stand_tilted_against_a_side_where_the_regions_have_none():
@@ -162,11 +166,10 @@ def test_a_guided_selection_charges_penetration_only_where_a_pose_intersects():
     terms = _terms([0.0, 0.0], [0.0, 0.0], clip=[-0.997, -0.992])
     clear, limit = torch.zeros(2), torch.full((2,), objective.TOUCH)
     pen = 0.05 / WEIGHTS.lambda_pen  # weighted, ten times the guide's difference
-    for sunk, chosen in ((0.1 * objective.SUNK, 0), (2 * objective.SUNK, 1)):
+    for sunk, chosen in ((0.1 * ordering.SUNK, 0), (2 * ordering.SUNK, 1)):
         terms.update(pen=torch.tensor([pen, 0.0]), sunk=torch.tensor([sunk, 0.0]))
         terms["objective"] = objective.combine(terms, WEIGHTS)
-        assert objective.select_answer(terms, clear, limit, WEIGHTS, guided=True, touches=True,
-                                       override=1.0) == chosen
+        assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=True, touches=True, share=SHARE) == chosen
 
 
 def test_the_usual_arrangement_ranks_without_a_guide_and_breaks_only_the_guides_ties():
@@ -177,27 +180,25 @@ def test_the_usual_arrangement_ranks_without_a_guide_and_breaks_only_the_guides_
     terms["prefer"] = torch.tensor([0.9, 0.2])  # the guide's favourite is the less usual arrangement
     terms["objective"] = objective.combine(terms, WEIGHTS)
     clear, limit = torch.zeros(2), torch.full((2,), objective.TOUCH)
-    assert objective.select_answer(terms, clear, limit, WEIGHTS, guided=False, touches=True) == 1
-    assert objective.select_answer(terms, clear, limit, WEIGHTS, guided=True, touches=True, override=1.0,
-                                   tie=objective.GATE_FULL * 5e-4) == 0  # the guide's 0.004 is 8 noises
-    assert objective.select_answer(terms, clear, limit, WEIGHTS, guided=True, touches=True, override=0.2,
-                                   tie=objective.GATE_FULL * 0.01) == 1  # within its noise: the preference decides
-    key = ranking.ranking_key(_scorer(objective.Gate(spread=0.02, noise=5e-4)), terms, WEIGHTS)
-    assert torch.argsort(key).tolist() == [0, 1]
-    key = ranking.ranking_key(_scorer(objective.Gate(spread=0.02, noise=0.01)), terms, WEIGHTS)
-    assert torch.argsort(key).tolist() == [1, 0]
+    rule = {"touches": True, "share": SHARE}
+    assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=False, **rule) == 1
+    signal, noisy = ordering.Gate(spread=0.02, noise=5e-4), ordering.Gate(spread=0.02, noise=0.01)
+    assert signal.override == 1.0 and 0 < noisy.override < 1
+    assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=True, gate=signal, **rule) == 0  # 8 noises
+    assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=True, gate=noisy, **rule) == 1  # within
+    assert _guided(signal, terms).argsort().tolist() == [0, 1]
+    assert _guided(noisy, terms).argsort().tolist() == [1, 0]
 
 
 def test_the_preference_counts_as_far_as_the_guide_cannot_tell_poses_apart():
-    scorer = objective.Scorer.__new__(objective.Scorer)
-    scorer.use_clip, scorer.gate = False, None
-    assert scorer.preference_weight == 1.0
-    scorer.use_clip = True
-    assert scorer.preference_weight == 1.0  # not measured yet: the geometry's screen ranks with it
-    scorer.gate = objective.Gate(spread=1.0, noise=0.01)
-    assert scorer.preference_weight == 0.0
-    scorer.gate = objective.Gate(spread=2.5e-4, noise=1e-4)
-    assert scorer.preference_weight == pytest.approx(0.5)
+    bare = objective.Scorer.__new__(objective.Scorer)
+    bare.use_clip, bare.gate, bare._eval = False, None, None
+    assert bare.preference_weight == 1.0
+    bare.use_clip = True
+    assert bare.preference_weight == 1.0  # not measured yet: the geometry's screen ranks with it
+    assert bare.gated(ordering.Gate(spread=1.0, noise=0.01)).preference_weight == 0.0
+    assert bare.gated(ordering.Gate(spread=2.5e-4, noise=1e-4)).preference_weight == pytest.approx(0.5)
+    assert bare.preference_weight == 1.0  # the twin's gate is its own
 
 
 def test_a_ball_under_the_table_ends_under_its_middle_and_a_cup_on_it_on_its_top_middle():

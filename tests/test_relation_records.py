@@ -5,7 +5,6 @@ make satisfies the relation's score, as many as their share of the search."""
 
 from __future__ import annotations
 
-import math
 from dataclasses import replace
 
 import numpy as np
@@ -22,7 +21,7 @@ from ctp_core.priors.relations import RELATIONS, Relation, RelationReading
 
 CONFIG = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0}, search={"candidates": 48})
 # each builder's count: what it makes, less those that settling leaves wedged in the target
-SHARE = math.ceil(relation_proposals.SHARE * CONFIG.search.candidates)
+SHARE = relation_proposals.own_count(CONFIG)
 
 
 # --- one record, one judge -----------------------------------------------------------------------------------------

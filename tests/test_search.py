@@ -8,7 +8,7 @@ import pytest
 import torch
 import trimesh
 
-from ctp_core import export, goals, metrics, objective, pose, proposals, ranking, sampling, scene, schedule
+from ctp_core import export, goals, metrics, objective, ordering, pose, proposals, ranking, sampling, scene, schedule
 from ctp_core.align import align, prepare, propose, refine
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
@@ -179,7 +179,7 @@ def test_search_counts_every_encoder_image_including_the_oracles(pairs, zoom):
     refs = cfg.fine_views if cfg.fine_zoom == 0 else fine * cfg.fine_views  # shared fine views without zoom
     assert scorer.clip_images == coarse + cfg.coarse_views + fine * cfg.fine_views + refs
     assert ranked.scored == n + ranked.swept + fine
-    assert len(ranked.poses) == 2 and ranked.objectives[0] <= ranked.objectives[1]
+    assert len(ranked.poses) == 2 and ranked.objectives.argsort().tolist() == [0, 1]  # best first
     planned = n + cfg.sweep * len(props.rotations) + fine
     assert all(e.stage == "search" for e in events) and events[-1].step == events[-1].steps == planned
     assert [e.step for e in events] == sorted(e.step for e in events)
@@ -227,7 +227,7 @@ def test_tile_scores_rank_the_change_a_source_makes_in_its_tiles_views():
     poses = pose.Poses.cat([poses, pose.Poses(t[:1] + torch.tensor([[0.0, -0.15, 0.0]]), q[:1],
                                                         poses.log_s[:1])])  # inside the table top: hidden
     keys = ranking.tile_score(scorer, poses, weights, ranking.tiles_of(pair, CONFIG, poses), batch=8)
-    assert keys[0] < 0 < keys[1] and torch.isinf(keys[2])
+    assert keys.value[0] < 0 < keys.value[1] and torch.isinf(keys.value[2])
 
 
 def _small_ball_oracle():
@@ -242,7 +242,7 @@ def _small_ball_oracle():
 
 def test_the_tile_stage_counts_its_images_and_adds_its_restarts(monkeypatch):
     # a guide the gate trusts (random:tiny's spread is within its noise here: no tile stage then)
-    monkeypatch.setattr(ranking, "guide_noise", lambda *args: objective.Gate(1.0, 0.0))
+    monkeypatch.setattr(ranking, "guide_noise", lambda *args: ordering.Gate(1.0, 0.0))
     pair, props, guide, scorer, weights = _small_ball_oracle()
     events = []
     ranked = ranking.search(scorer, props, weights, k=2, on_event=events.append)
@@ -262,7 +262,7 @@ def test_the_tile_stage_counts_its_images_and_adds_its_restarts(monkeypatch):
 def test_the_sweep_tries_every_orientation_at_the_best_site(pairs):
     target, source = pairs["box on table"]
     pair, props = _proposals(target, source)
-    objectives = torch.arange(len(props.poses), dtype=torch.float32)  # the first proposal is the best
+    objectives = ordering.Key.plain(torch.arange(len(props.poses), dtype=torch.float32))  # the first is the best
     swept = ranking.sweep(props, pair, objectives, 1, 0.1)
     assert 0 < len(swept) <= len(props.rotations)
     turns = torch.nn.functional.normalize(swept.q, dim=-1) @ torch.nn.functional.normalize(props.rotations, dim=-1).T
@@ -274,8 +274,9 @@ def test_diverse_top_skips_near_duplicates():
     t = torch.tensor([[0.0, 0, 0], [0.01, 0, 0], [1.0, 0, 0]])
     q = torch.tensor([[1.0, 0, 0, 0]] * 3)
     poses = pose.Poses(t, q, torch.zeros(3))
-    assert ranking.diverse_top(poses, torch.tensor([0.0, 0.1, 0.2]), 2, 0.1, 30.0) == [0, 2]
-    assert ranking.diverse_top(poses, torch.tensor([0.0, 0.1, 0.2]), 3, 0.1, 30.0) == [0, 2, 1]
+    objectives = ordering.Key.plain(torch.tensor([0.0, 0.1, 0.2]))
+    assert ranking.diverse_top(poses, objectives, 2, 0.1, 30.0) == [0, 2]
+    assert ranking.diverse_top(poses, objectives, 3, 0.1, 30.0) == [0, 2, 1]
 
 
 def test_the_fine_shortlist_keeps_distinct_places_before_turns():
@@ -285,7 +286,7 @@ def test_the_fine_shortlist_keeps_distinct_places_before_turns():
     t = torch.cat([torch.zeros(10, 3), torch.tensor([[float(i), 0.0, 0.0] for i in range(1, 6)])])
     q = torch.cat([q_turns, torch.tensor([[1.0, 0, 0, 0]]).repeat(5, 1)])
     poses = pose.Poses(t, q, torch.zeros(15))
-    objectives = torch.arange(15, dtype=torch.float32)  # the ten turns first
+    objectives = ordering.Key.plain(torch.arange(15, dtype=torch.float32))  # the ten turns first
     picked = ranking.shortlist_of(poses, objectives, 6, 0.1, 30.0)
     assert len(picked) == len(set(picked)) == 6
     assert len({tuple(poses.t[i].tolist()) for i in picked}) >= 3  # best turn at the first place + 2 others
@@ -305,10 +306,10 @@ def test_the_answer_is_the_best_restart_that_stays_near_the_target(pairs):
              "pen": torch.zeros(2)}
     weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
     for guided in (False, True):
-        rule = {"guided": guided, "touches": False}
+        rule = {"guided": guided, "touches": False, "share": CONFIG.search.min_share}
         limit = objective.touch_limit(pair, poses)
-        assert objective.select_answer(terms, clear, limit, weights, **rule) == 1
-        assert objective.select_answer(terms, torch.tensor([9.0, 9.0]), limit, weights, **rule) == 0
+        assert ordering.select_answer(terms, clear, limit, weights, **rule) == 1
+        assert ordering.select_answer(terms, torch.tensor([9.0, 9.0]), limit, weights, **rule) == 0
 
 
 def test_with_a_guide_the_answer_leaves_out_soft_icp_among_restarts_that_touch():
@@ -322,13 +323,14 @@ def test_with_a_guide_the_answer_leaves_out_soft_icp_among_restarts_that_touch()
     terms["objective"] = objective.combine(terms, weights)
     clear = torch.tensor([0.01, 0.0, 0.5, 0.0])  # the third floats half a diagonal off
     limit = torch.full((4,), objective.TOUCH)
-    plain = {"guided": False, "touches": True}
-    assert objective.select_answer(terms, clear, limit, weights, **plain) == 2
-    assert objective.select_answer(terms, clear, limit, weights, guided=True, touches=True) == 0
-    assert objective.select_answer(terms, clear, limit, weights, guided=True, touches=False) == 2
-    assert objective.select_answer(terms, clear, limit + 0.5, weights, guided=True, touches=True) == 2  # in reach
+    plain = {"guided": False, "touches": True, "share": CONFIG.search.min_share}
+    guided = {"guided": True, "share": CONFIG.search.min_share}
+    assert ordering.select_answer(terms, clear, limit, weights, **plain) == 2
+    assert ordering.select_answer(terms, clear, limit, weights, **guided, touches=True) == 0
+    assert ordering.select_answer(terms, clear, limit, weights, **guided, touches=False) == 2
+    assert ordering.select_answer(terms, clear, limit + 0.5, weights, **guided, touches=True) == 2  # in reach
     apart = torch.tensor([0.5, 0.5, 0.5, 0.5])  # none touches: the objective decides
-    assert objective.select_answer(terms, apart, limit, weights, guided=True, touches=True) == 2
+    assert ordering.select_answer(terms, apart, limit, weights, **guided, touches=True) == 2
 
 
 def test_the_touch_limit_grows_with_the_target_sample_spacing(pairs):
@@ -445,7 +447,7 @@ def _text_scorer(pair, config, relation=None):
 def test_the_guide_sees_only_the_shortlist_and_the_turns_the_geometry_allows(pairs, monkeypatch):
     """``search.shortlist`` of the proposals reach the encoder (screened by the geometry, ``Scorer.screen``),
     ``sweep_keep`` turns per site: the images are counted exactly (a text goal encodes no images)."""
-    monkeypatch.setattr(ranking, "guide_noise", lambda *args: objective.Gate(1.0, 0.0))  # a guide with signal
+    monkeypatch.setattr(ranking, "guide_noise", lambda *args: ordering.Gate(1.0, 0.0))  # a guide with signal
     config = CONFIG.model_copy(update={"search": CONFIG.search.model_copy(update={"shortlist": 10,
                                                                                   "sweep_keep": 5})})
     pair, props = _proposals(*pairs["box on table"], config)
@@ -460,21 +462,21 @@ def test_the_guide_sees_only_the_shortlist_and_the_turns_the_geometry_allows(pai
     assert ranked.scored == 10 + ranked.swept + fine
     assert ranked.screened == len(props.poses) + cfg.sweep * len(props.rotations)  # every proposal and turn
     # the shortlisted are those the relation admits, but for the share kept for the others
-    held = int(objective.holding(scorer.screen(props.poses, weights)).sum())
+    held = int(ordering.holding(scorer.screen(props.poses, weights)).sum())
     shortlisted = ranked.stages["coarse"][0].select(slice(0, 10))  # the coarse stage's first 10, then the sweep
-    assert held >= 10 > int(objective.holding(scorer.screen(shortlisted, weights)).sum()) >= 9
+    assert held >= 10 > int(ordering.holding(scorer.screen(shortlisted, weights)).sum()) >= 9
 
 
 def test_a_guide_without_signal_encodes_nothing_after_the_coarse_stage(pairs, monkeypatch):
     """Gate override 0 (its spread within its noise): the geometry ranks, so the sweep, the fine stage, the
     refinement's gradient and the selection's views encode no image."""
-    monkeypatch.setattr(ranking, "guide_noise", lambda *args: objective.Gate(0.0, 1.0))
+    monkeypatch.setattr(ranking, "guide_noise", lambda *args: ordering.Gate(0.0, 1.0))
     run = prepare(*pairs["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box")
     props = propose(run)
     ranked = ranking.search(run.scorer, props, run.plan[0], k=2)
     coarse = len(props.poses) * CONFIG.search.coarse_views
-    assert not run.scorer.guided and run.scorer.clip_images == coarse and ranked.swept > 0
-    outcome = refine(run, ranked.poses)
+    assert not run.scorer.gated(ranked.gate).guided and run.scorer.clip_images == coarse and ranked.swept > 0
+    outcome = refine(run, ranked.poses, ranked.gate)
     assert outcome.clip_images == coarse and len(outcome.objectives) == 2
 
 
@@ -512,7 +514,7 @@ def test_the_tile_stage_encodes_across_tiles_in_full_batches():
         guide.encode_images = encode
     views = CONFIG.search.coarse_views
     assert len(calls) == 1 + math.ceil(count / batch) + math.ceil(n / batch)
-    assert sum(calls) == (2 * count + n) * views and keys.shape == (n,)
+    assert sum(calls) == (2 * count + n) * views and len(keys) == n
 
 
 def test_the_fast_preset_places_in_contact_within_its_encoder_budget(pairs):
@@ -539,7 +541,7 @@ def test_progress_reads_the_relation_the_guide_and_the_gap(pairs, monkeypatch):
     """What the page and the CLI show instead of the objective: the search says where the relation holds among the
     candidates scored and one restart count (planned, then kept); the refinement, in how many restarts it holds,
     the best restart's guide match (a cosine) and its gap to the target."""
-    monkeypatch.setattr(ranking, "guide_noise", lambda *args: objective.Gate(1.0, 0.0))  # a guide with signal
+    monkeypatch.setattr(ranking, "guide_noise", lambda *args: ordering.Gate(1.0, 0.0))  # a guide with signal
     run = prepare(*pairs["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box")
     events = []
     ranked = ranking.search(run.scorer, propose(run), run.plan[0], k=2, on_event=events.append)
@@ -547,16 +549,16 @@ def test_progress_reads_the_relation_the_guide_and_the_gap(pairs, monkeypatch):
     counted = [e for e in events if e.relation_holds is not None]
     assert counted and all(e.relation == "on" and 0 <= e.relation_holds <= e.relation_checked for e in counted)
     refined = []
-    refine(run, ranked.poses, on_event=refined.append)
+    refine(run, ranked.poses, ranked.gate, on_event=refined.append)
     steps = [e for e in refined if e.kind in ("step", "phase_end")]
     assert steps and all(e.relation == "on" and e.relation_checked == len(ranked.poses) for e in steps)
     assert all(-1 <= e.guide_match <= 1 and 0 <= e.contact_gap < 0.2 for e in steps)
 
 
-@pytest.mark.parametrize(("gate", "chose"), [(objective.Gate(0.0, 1.0), "geometry"), (objective.Gate(2.5, 1.0), "both"),
-                                             (objective.Gate(1.0, 0.0), "guide")])
+@pytest.mark.parametrize(("gate", "chose"), [(ordering.Gate(0.0, 1.0), "geometry"), (ordering.Gate(2.5, 1.0), "both"),
+                                             (ordering.Gate(1.0, 0.0), "guide")])
 def test_the_report_and_the_progress_say_who_chose_among_the_poses_that_hold(pairs, monkeypatch, gate, chose):
-    """The guide's say as the search measured it (``objective.Gate``) reaches the search's progress message and
+    """The guide's say as the search measured it (``ordering.Gate``) reaches the search's progress message and
     the report: who ordered the poses where the relation holds, and why, in one line."""
     monkeypatch.setattr(ranking, "guide_noise", lambda *args: gate)
     events = []

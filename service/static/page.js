@@ -601,7 +601,7 @@ function showFacts(report) {
     ["preset, seed", `${report.preset ?? ""}, ${report.seed ?? ""}`],
   ];
   if (report.copies) rows.splice(0, 3, ...copyRows(report, fixed)); // several copies: no one transform
-  if (report.guide_say) rows.push(["who chose", report.guide_say.summary]); // the guide's say (objective.Gate)
+  if (report.guide_say) rows.push(["who chose", report.guide_say.summary]); // the guide's say (ordering.Gate)
   if (report.adjusted) {
     rows.push(["adjusted", `by hand, saved ${new Date(report.adjustment.saved_at).toLocaleString()} `
       + "(the objective is the run's; original.glb keeps its placement)"]);

@@ -1,0 +1,173 @@
+"""The one place that orders poses (``ordering``): holding and intersecting, the lexicographic key, the gate, the
+share of failing poses a guide may admit, the refinement's ``improves``, the answer's selection and the
+alternatives' order. Small hand-made terms; the weights are all 1 so every objective is easy to add up."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from ctp_core import ordering
+from ctp_core.config import AlignConfig, share_of
+from ctp_core.objective import NEAR, TOUCH, combine
+from ctp_core.ordering import GATE_FULL, SUNK, Gate, Key
+from ctp_core.schedule import Phase
+
+WEIGHTS = Phase(index=1, steps=1, lambda_clip=1.0, lambda_icp=1.0, lambda_pen=1.0, sigma_icp=0.1, look_at_beta=0.0,
+                zoom=1.0, lambda_rel=1.0)
+SHARE = AlignConfig.from_preset("test").search.min_share
+HELD, FAILED = 0.0, 0.5  # ``rel`` scores: the relation holds (at most ``predicates.HOLDS``), fails
+
+
+def _terms(rel, icp, clip=None, sunk=None) -> dict[str, torch.Tensor]:
+    n = len(rel)
+    terms = {"rel": torch.tensor(rel), "icp": torch.tensor(icp), "pen": torch.zeros(n), "stable": torch.zeros(n),
+             "clip": torch.zeros(n) if clip is None else torch.tensor(clip),
+             "sunk": torch.zeros(n) if sunk is None else torch.tensor(sunk)}
+    terms["objective"] = combine(terms, WEIGHTS)
+    return terms
+
+
+def test_holding_needs_the_relation_and_no_intersection():
+    terms = _terms([HELD, HELD, FAILED, FAILED], [0.0] * 4, sunk=[0.0, 2 * SUNK, 0.0, 2 * SUNK])
+    assert ordering.intersecting(terms).tolist() == [False, True, False, True]
+    assert ordering.holding(terms).tolist() == [True, False, False, False]
+    at_the_limit = {**terms, "sunk": torch.full((4,), SUNK)}  # "past SUNK" intersects, SUNK itself does not
+    assert not ordering.intersecting(at_the_limit).any()
+    bare = {"objective": torch.zeros(2)}  # no relation, no penetration measured: every pose holds
+    assert ordering.holding(bare).tolist() == [True, True] and not ordering.intersecting(bare).any()
+
+
+def test_the_key_orders_by_tier_then_value_and_inf_excludes():
+    key = Key(torch.tensor([1, 0, 0, 1]), torch.tensor([-5.0, 3.0, 1.0, 0.0], dtype=torch.float64))
+    assert key.argsort().tolist() == [2, 1, 0, 3]  # a tier-0 pose with a worse value beats a tier-1 one
+    assert key.argmin() == 2
+    excluded = key.excluding(torch.tensor([False, False, True, False]))
+    assert excluded.argsort().tolist() == [1, 0, 3, 2] and excluded.finite().tolist() == [True, True, False, True]
+    assert key.first(3).argsort().tolist()[0] == 3  # -inf ahead of every tier
+    assert key.select([3, 0]).value.tolist() == [0.0, -5.0]
+    both = Key.cat([key.select([0]), Key.plain(torch.tensor([7.0]))])
+    assert both.tier.tolist() == [1, 0] and both.argsort().tolist() == [1, 0]
+
+
+def test_the_key_orders_as_the_packed_float_keys_did():
+    """The old keys were ``value + 1e6 x tier`` in float64; for values far below 1e6 the order is the same."""
+    generator = torch.Generator().manual_seed(0)
+    value = (torch.rand(500, generator=generator, dtype=torch.float64) - 0.5) * 100
+    tier = torch.randint(0, 3, (500,), generator=generator)
+    value[::37] = torch.inf  # excluded poses tie after every finite one, whatever their tier
+    packed = value + 1e6 * tier.double()
+    assert Key(tier, value).argsort().tolist() == torch.argsort(packed, stable=True).tolist()
+
+
+def test_averaged_stages_add_their_tiers():
+    fine = Key(torch.tensor([0, 1, 0]), torch.tensor([1.0, -9.0, 2.0], dtype=torch.float64))
+    coarse = Key(torch.tensor([0, 1, 1]), torch.tensor([3.0, -9.0, -9.0], dtype=torch.float64))
+    both = fine.average(coarse)
+    assert both.tier.tolist() == [0, 2, 1] and both.value.tolist() == [2.0, -9.0, -3.5]
+    assert both.argsort().tolist() == [0, 2, 1]  # outside the pool in one stage: after those in it in both
+
+
+def test_without_a_guide_a_holding_pose_beats_a_failing_one_with_a_better_objective():
+    terms = _terms([FAILED, HELD, HELD], [-10.0, 2.0, 1.0])  # the failing pose's objective is the best by far
+    key = ordering.rank_key(terms, WEIGHTS, share=SHARE)
+    assert key.tier.tolist() == [1, 0, 0] and key.argsort().tolist() == [2, 1, 0]
+    # a guided key with a gate of override 0 ranks as the geometry does
+    silent = ordering.search_key(terms, WEIGHTS, Gate(spread=1e-4, noise=1e-4), guided=True, share=SHARE)
+    assert silent.argsort().tolist() == [2, 1, 0]
+
+
+@pytest.mark.parametrize(("ratio", "override", "chooser"), [
+    (0.5, 0.0, "geometry"), (1.0, 0.0, "geometry"), (1.0 + 1e-9, 0.0, "both"), (2.5, 0.5, "both"),
+    (GATE_FULL, 1.0, "guide"), (10.0, 1.0, "guide")])
+def test_the_gate_grows_from_the_noise_to_gate_full_times_it(ratio, override, chooser):
+    gate = Gate(spread=ratio * 0.01, noise=0.01)
+    assert gate.override == pytest.approx(override, abs=1e-6) and gate.chooser == chooser
+    assert gate.tie == pytest.approx(GATE_FULL * 0.01)
+    assert gate.to_dict()["chose"] == chooser
+
+
+def test_a_gate_without_measurable_noise_trusts_the_guide():
+    gate = Gate(spread=0.1, noise=0.0)
+    assert gate.ratio == math.inf and gate.override == 1.0 and gate.chooser == "guide"
+    assert "no measurable noise" in gate.summary()
+
+
+@pytest.mark.parametrize("spread", [4.0, 2.5, 1.3])  # override 1, 0.5, 0.1
+def test_a_guide_admits_a_share_of_the_failing_poses_it_likes_best(spread):
+    """``ceil(override x share x others)`` of the poses where the relation fails join the pool, the guide's best
+    among them; the rest rank after every pooled pose."""
+    failing = 25
+    clip = [-0.5, -0.4] + [-0.9 + 0.01 * i for i in range(failing)]  # the guide prefers the failing ones
+    terms = _terms([HELD] * 2 + [FAILED] * failing, [0.0] * (2 + failing), clip)
+    gate = Gate(spread=spread, noise=1.0)
+    key = ordering.search_key(terms, WEIGHTS, gate, guided=True, share=SHARE)
+    admitted = share_of(failing, gate.override * SHARE)
+    assert admitted == math.ceil(gate.override * SHARE * failing) >= 1
+    assert int((key.tier == 0).sum()) == 2 + admitted
+    pooled = key.argsort().tolist()[: 2 + admitted]
+    assert sorted(pooled) == [0, 1, *range(2, 2 + admitted)]  # the guide's best failing ones, by index here
+    assert pooled[:admitted] == list(range(2, 2 + admitted))  # and they rank by the guide among the pool
+
+
+def test_the_share_keeps_at_least_one_of_a_non_empty_count():
+    assert share_of(0, 0.08) == 0 and share_of(1, 0.08) == 1 and share_of(25, 0.08) == 2 and share_of(5, 1.0) == 5
+
+
+def test_the_tie_lets_the_usual_arrangement_break_only_what_the_guide_cannot_tell():
+    terms = _terms([HELD, HELD], [0.0, 0.0], clip=[-0.997, -0.993])
+    terms["prefer"] = torch.tensor([0.9, 0.2])  # the guide's favourite is the less usual arrangement
+    sure, unsure = Gate(spread=0.02, noise=5e-4), Gate(spread=0.02, noise=0.01)
+    assert ordering.search_key(terms, WEIGHTS, sure, guided=True, share=SHARE).argsort().tolist() == [0, 1]
+    assert ordering.search_key(terms, WEIGHTS, unsure, guided=True, share=SHARE).argsort().tolist() == [1, 0]
+
+
+def test_improves_puts_the_relation_before_the_objective():
+    best = _terms([FAILED, HELD, HELD, FAILED], [0.0, 0.0, 0.0, 0.0])
+    now = _terms([HELD, FAILED, HELD, FAILED], [5.0, -5.0, -1.0, -1.0])
+    # holds now, failed before (worse objective): yes; fails now, held before (better objective): no;
+    # both hold: the lower objective; both fail: the lower objective
+    assert ordering.improves(now, best).tolist() == [True, False, True, True]
+    sunk = {**now, "sunk": torch.tensor([2 * SUNK, 0.0, 0.0, 0.0])}  # intersecting: not holding
+    assert ordering.improves(sunk, best).tolist() == [False, False, True, True]
+
+
+def test_the_selection_without_a_guide_takes_the_best_holding_near_pose():
+    terms = _terms([FAILED, HELD, HELD], [-10.0, 1.0, 2.0])
+    clear, limit = torch.tensor([0.0, 0.0, 0.0]), torch.full((3,), TOUCH)
+    assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=False, touches=True, share=SHARE) == 1
+    away = torch.tensor([0.0, NEAR + 1.0, 0.0])  # the best holding pose drifted off: the next one
+    assert ordering.select_answer(terms, away, limit, WEIGHTS, guided=False, touches=True, share=SHARE) == 2
+
+
+def test_the_guided_selection_leaves_soft_icp_out_unless_the_gate_says_the_guide_has_no_signal():
+    terms = _terms([HELD, HELD], [0.5, 0.0], clip=[-0.9, -0.8])  # the guide's favourite has worse soft-ICP
+    clear, limit = torch.zeros(2), torch.full((2,), TOUCH)
+    rule = {"touches": True, "share": SHARE}
+    assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=True, **rule) == 0  # gate None: trusted
+    assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=True, gate=Gate(1.0, 0.01), **rule) == 0
+    silent = Gate(spread=1e-4, noise=2e-4)  # override 0: the geometry alone, as without a guide
+    assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=True, gate=silent, **rule) == 1
+    assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=False, **rule) == 1
+
+
+def test_the_guided_selection_admits_a_failing_restart_only_by_the_share():
+    """One failing restart the guide likes best, two holding ones: admitted (the share keeps at least one) where
+    the guide is trusted, and then it still pays its weighted relation term in the objective."""
+    terms = _terms([FAILED, HELD, HELD], [0.0, 0.0, 0.0], clip=[-2.0, -0.9, -0.8])
+    clear, limit = torch.zeros(3), torch.full((3,), TOUCH)
+    rule = {"guided": True, "touches": True, "share": SHARE}
+    assert ordering.select_answer(terms, clear, limit, WEIGHTS, **rule) == 0  # -2 + 0.5 beats -0.9
+    terms = _terms([FAILED, HELD, HELD], [0.0, 0.0, 0.0], clip=[-1.2, -0.9, -0.8])
+    assert ordering.select_answer(terms, clear, limit, WEIGHTS, **rule) == 1  # -1.2 + 0.5 does not
+
+
+def test_the_alternatives_put_the_answer_first_then_the_holding_ones_and_leave_out_the_far():
+    terms = _terms([FAILED, HELD, HELD, FAILED, HELD], [0.0] * 5)
+    objectives = torch.tensor([-3.0, 2.0, 1.0, -1.0, -9.0])
+    far = torch.tensor([False, False, False, False, True])
+    key = ordering.alternatives_key(terms, objectives, far, best=3)
+    assert key.argsort().tolist() == [3, 2, 1, 0, 4]
+    assert key.finite().tolist() == [True, True, True, False, False]  # the answer's -inf, the far pose's inf
