@@ -135,6 +135,9 @@ def test_the_prompt_s_number_and_arrangement_are_read(prompt, source, count, arr
 def test_the_count_option_wins_and_an_arrangement_alone_means_several():
     assert choose("three apples in the bowl", 2, source_name="apple")[:2] == (2, "scatter")
     assert choose("a stack of plates", None, source_name="plate")[:2] == (3, "stack")
+    assert choose("a row of books on the shelf", None, source_name="book")[:2] == (3, "row")
+    assert choose("a necklace around her neck", None, source_name="necklace")[:2] == (1, "around")  # one necklace
+    assert choose("a book stacked on the box", None, source_name="book")[:2] == (1, "stack")
     assert choose("a cup on the table", None, source_name="cup")[:2] == (1, "scatter")
     assert choose("four chairs around the table", None, "row", "chair")[:2] == (4, "row")
 

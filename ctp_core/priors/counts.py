@@ -20,7 +20,7 @@ from ctp_core.errors import ConfigError
 ARRANGEMENTS = ("scatter", "around", "row", "stack")  # how copies stand together (``ctp_core.copies``)
 CHOICES = ("auto", *ARRANGEMENTS)  # the option's values: auto is the prompt's cue, else scatter
 MAX_COPIES = 12  # a run's copies at most: each is a placement of its own, and the set's checks are pairwise
-SEVERAL = 3  # copies where the prompt names an arrangement but no number ("a stack of plates")
+SEVERAL = 3  # copies where a collective noun says several but no number ("a stack of plates", "a row of books")
 AROUND = "beside+facing"  # what each copy around the target is judged by, whatever the prompt's words
 
 _WORDS = {"one": 1, "two": 2, "three": 3, "four": 4, "five": 5, "six": 6, "seven": 7, "eight": 8, "nine": 9,
@@ -39,19 +39,22 @@ _ROW = re.compile(r"\bin (?:a |one )?(?:row|line)\b|\b(?:a )?(?:row|line) of\b|\
 _STACK = re.compile(r"\b(?:a )?(?:stack|pile|tower) of\b|\bstacked(?: up)?\b|\bpiled(?: up)?\b"
                     r"|\bon top of (?:each|one) other\b", re.IGNORECASE)
 _CUES = (("stack", _STACK), ("row", _ROW), ("around", _AROUND))
+# what says several without a number: "a stack of", "a row of" (not "around": "a necklace around her neck" is one)
+_COLLECTIVE = re.compile(r"\b(?:stack|pile|tower|row|line)s? of\b", re.IGNORECASE)
 
 
 @dataclass(frozen=True)
 class CountReading:
     """What a prompt says about several of a kind: the number (None: not said), the arrangement (None: not said),
-    the words each came from."""
+    the words each came from, and whether a collective noun says several ("a stack of plates")."""
 
     count: int | None
     arrangement: str | None
     why: str
+    several: bool = False
 
     def to_dict(self) -> dict:
-        return {"count": self.count, "arrangement": self.arrangement, "why": self.why}
+        return {"count": self.count, "arrangement": self.arrangement, "why": self.why, "several": self.several}
 
 
 def read(prompt: str | None, source_name: str | None = None) -> CountReading:
@@ -76,7 +79,8 @@ def read(prompt: str | None, source_name: str | None = None) -> CountReading:
             arrangement = name
             said.append(f"'{hit.group(0)}' -> {name}")
             break
-    return CountReading(count, arrangement, "; ".join(said) or "no number or arrangement said")
+    return CountReading(count, arrangement, "; ".join(said) or "no number or arrangement said",
+                        _COLLECTIVE.search(text) is not None)
 
 
 def _names(after: str, words: set[str]) -> bool:
@@ -112,12 +116,12 @@ def check_count(count: int) -> int:
 def choose(prompt: str | None, count: int | None = None, arrangement: str = "auto", source_name: str | None = None
            ) -> tuple[int, str, CountReading]:
     """(count, arrangement, the prompt's reading, ``priors.counts.read``): the options win over the prompt; ``auto``
-    is the prompt's cue or ``scatter``; a named arrangement without a number is ``SEVERAL`` copies."""
+    is the prompt's cue or ``scatter``; a collective noun without a number ("a stack of") is ``SEVERAL`` copies."""
     if arrangement not in CHOICES:
         raise ConfigError(f"arrangement is one of {', '.join(CHOICES)}, not {arrangement!r}",
                           code="invalid_arrangement", field="arrangement")
     reading = read(prompt, source_name)
     if count is None:
-        count = reading.count or (SEVERAL if reading.arrangement else 1)
+        count = reading.count or (SEVERAL if reading.several else 1)
     kind = arrangement if arrangement != "auto" else reading.arrangement or "scatter"
     return check_count(count), kind, reading
