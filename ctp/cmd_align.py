@@ -36,6 +36,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="object name for the priors (default: from the file name)")
     add_switch(parser, "--judge-up", "upright_judge", True,
                "let the guidance model pick the target's up from renders named --target-name (needs real weights)")
+    parser.add_argument("--count", type=int, metavar="N",
+                        help="place N copies of the source (1 to 12; default: the prompt's number, "
+                             "\"three apples\", else 1); the GLB has one node per copy, SOURCE-NAME_1 ...")
+    parser.add_argument("--arrangement", choices=("auto", "scatter", "around", "row", "stack"), default="auto",
+                        help="how copies stand together: auto (the prompt's \"around\", \"in a row\", \"stack "
+                             "of\", else scatter), scatter, around (facing the target), row, stack")
     parser.add_argument("--alternatives", type=int, default=1, metavar="N",
                         help="also write the next best distinct placements, up to N in all with the answer "
                              "(--out's name with -2, -3, ... before .glb; at most 4, as many as the run refined)")
@@ -191,16 +197,23 @@ def run(args: argparse.Namespace) -> int:
     from ctp_core.config import AUTO
     from ctp_core.guide_choice import NONE, pull_command
     from ctp_core.loader import MeshLoader
+    from ctp_core.priors.counts import choose
 
+    target_name = args.target_name or names.default_name(args.target.name, "target")
+    source_name = args.source_name or names.default_name(args.source.name, "source")
+    count, arrangement, _ = choose(args.prompt, args.count, args.arrangement, source_name)
+    if count > 1 and (args.image is not None or args.alternatives > 1):
+        raise ConfigError("several copies are guided by a prompt, with one placement each: no --image or "
+                          "--alternatives", field="count")
     with MeshLoader(1) as loader:  # the same bounded loading as the service (ctp_core.loader)
         target = loader.load(args.target, name="target")
         source = loader.load(args.source, name="source")
+    if count > 1:
+        return _run_copies(args, target, source, config, count, arrangement, target_name, source_name)
     image = io.load_image(args.image) if args.image else None
     started = time.perf_counter()
-    result = align(target, source, args.prompt, config, image=image,
-                   target_name=args.target_name or names.default_name(args.target.name, "target"),
-                   source_name=args.source_name or names.default_name(args.source.name, "source"),
-                   on_event=ProgressBar(enabled=not args.quiet))
+    result = align(target, source, args.prompt, config, image=image, target_name=target_name,
+                   source_name=source_name, on_event=ProgressBar(enabled=not args.quiet))
     export.write_outputs(result, glb=args.out, report_path=args.report, preview=args.preview)
     others = []
     for k in range(1, min(args.alternatives, len(result.alternatives))):
@@ -224,5 +237,32 @@ def run(args: argparse.Namespace) -> int:
         summary["initial_scale"] = round(result.scaling["initial"], 6)
         summary["scale_from"] = (result.scaling["constraint"]["kind"] if result.scaling["from"] == "geometry"
                                  else f"priors: size ratio {result.scaling['size_ratio']:.3g}")
+    print(json.dumps(summary))
+    return 0
+
+
+def _run_copies(args: argparse.Namespace, target, source, config, count: int, arrangement: str, target_name: str,
+                source_name: str) -> int:
+    """``--count`` over 1 (or a prompt's number): the copies' GLB, report and preview; one line per copy on stderr."""
+    from ctp_core import export
+    from ctp_core.copies import place_copies
+
+    bar = ProgressBar(enabled=not args.quiet)
+
+    def on_copy(index: int, total: int) -> None:
+        if not args.quiet:
+            print(f"copy {index}/{total}", file=sys.stderr)
+
+    started = time.perf_counter()
+    copies = place_copies(target, source, args.prompt, config, count=count, arrangement=arrangement,
+                          target_name=target_name, source_name=source_name, on_event=bar, on_copy=on_copy)
+    export.write_outputs(copies, glb=args.out, report_path=args.report, preview=args.preview)
+    summary = {"out": str(args.out), "count": copies.count, "arrangement": copies.arrangement,
+               "relation": None if copies.reading is None else copies.reading.name,
+               "seconds": round(time.perf_counter() - started, 2), "preset": config.preset,
+               "guide": copies.guide, "guide_why": copies.guide_why, "metrics": copies.metrics,
+               "copies": [{"name": c.name, "holds": None if c.relation is None else c.relation["holds"],
+                           "seconds": c.seconds} for c in copies.copies],
+               "names": {"target": target_name, "source": source_name}}
     print(json.dumps(summary))
     return 0

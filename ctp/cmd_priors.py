@@ -2,7 +2,8 @@
 prompt) triple as JSON (the report's ``hparams`` entry, without the names).
 
 What ``ctp align`` would use, without loading a mesh or a model: handy to check a prompt's reading
-before a long run, or to test an LLM endpoint (``--provider openai`` with CTP_LLM_* set).
+before a long run, or to test an LLM endpoint (``--provider openai`` with CTP_LLM_* set). A prompt that says
+several of the source ("three apples") adds ``copies``: the number, the arrangement, and what each copy is read as.
 Exit codes: 0 printed; 2 bad input (one line on stderr: ``error: CODE: message``).
 """
 
@@ -15,6 +16,7 @@ import math
 from ctp_core import priors
 from ctp_core.config import PENETRATION
 from ctp_core.errors import ConfigError
+from ctp_core.priors import counts
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -48,7 +50,14 @@ def run(args: argparse.Namespace) -> int:
         target_extent=_number(args.target_extent, "target-extent"),
         source_extent=_number(args.source_extent, "source-extent"),
     )
-    print(json.dumps(priors.to_report(prior.to_dict()), indent=2))
+    out = priors.to_report(prior.to_dict())
+    said = counts.read(args.prompt, args.source)
+    if said.count is not None or said.arrangement is not None:  # several of a kind: what each copy is read as
+        one = counts.one_copy(args.prompt, said.arrangement or "scatter")
+        copy = priors.get_provider(args.provider).estimate(args.target, args.source, one)
+        out["copies"] = {**said.to_dict(), "copy_prompt": one,
+                         "copy_relation": counts.AROUND if said.arrangement == "around" else copy.relation}
+    print(json.dumps(out, indent=2))
     return 0
 
 

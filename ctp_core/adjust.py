@@ -105,16 +105,20 @@ def adjust(target: Target, source: trimesh.Trimesh, source_to_target: np.ndarray
                     touching=gap <= objective.TOUCH, relation=None if verdict is None else verdict.to_dict())
 
 
-def read_back(scene: trimesh.Scene, source_to_target: np.ndarray) -> tuple[Target, trimesh.Trimesh, str]:
-    """A result scene (``export.arrangement_glb``) as ``io.load_objects`` reads it back, every node moved into the
-    target file frame, split into the target (its one mesh, or the objects placed before), the source in its
-    own file frame (the last node, moved back by ``source_to_target``, the report's transform) and the source's
-    node name."""
+def read_back(scene: trimesh.Scene, source_to_target: np.ndarray, node: str | None = None
+              ) -> tuple[Target, trimesh.Trimesh, str]:
+    """A result scene (``export.arrangement_glb``, ``export.copies_glb``) as ``io.load_objects`` reads it back,
+    every node moved into the target file frame, split into the target (its one mesh, or the other objects in their
+    order), the source in its own file frame (the node ``node``, default the last, moved back by
+    ``source_to_target``, the report's transform) and the source's node name."""
     names = list(scene.geometry)  # load_objects: one geometry per node, named as it, in the file's order
     if len(names) < 2:
         raise ConfigError(f"a result scene holds a target and a source; this one holds {len(names)} object(s)",
                           field="result.glb")
-    *before, name = names
+    name = names[-1] if node is None else node
+    if name not in names:
+        raise ConfigError(f"the result scene has no object {name!r}", field="result.glb")
+    before = [n for n in names if n != name]
     back = frames.Similarity(source_to_target, frames.SOURCE_FILE, frames.TARGET_FILE).inverse()
     source = scene.geometry[name].copy().apply_transform(back.matrix)
     if len(before) == 1:

@@ -4,7 +4,8 @@ All transforms here are in *file frames*: the target is written untouched and th
 own vertices under a node whose matrix is ``result.source_to_target`` (source file -> target file),
 so a viewer or a DCC tool shows the arrangement and the transform stays editable. An assembly
 (``assemble``) writes every object as its own named node under its source file -> scene matrix, and
-its report lists every stage.
+its report lists every stage; several copies (``copies``) write one node per copy (``<source>_1`` ...), and
+their report lists each copy's transform and verdict and the set's measures.
 """
 
 from __future__ import annotations
@@ -26,7 +27,8 @@ from PIL import Image
 import ctp_core
 from ctp_core import canonical, orientation, priors
 from ctp_core.assemble import Assembly
-from ctp_core.frames import SCENE, Similarity
+from ctp_core.copies import Copies
+from ctp_core.frames import SCENE, SOURCE_FILE, TARGET_FILE, Similarity
 from ctp_core.pose import matrix_to_quaternion
 from ctp_core.scene import objects
 
@@ -67,6 +69,49 @@ def arrangement_glb(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Tri
 def assembly_glb(assembly: Assembly) -> bytes:
     """One GLB, every object its own named node with its materials, under its file -> scene matrix."""
     return trimesh.exchange.gltf.export_glb(assembly.scene())
+
+
+def copies_glb(copies: Copies) -> bytes:
+    """One GLB: the target (node named as the target) and one named node per copy, target file frame."""
+    return trimesh.exchange.gltf.export_glb(copies.scene())
+
+
+def copies_report(copies: Copies) -> dict:
+    """The record of a run of several copies: each copy's source file -> target file transform, what it is judged
+    against and its verdict, the set's measures (``copies.set_metrics``), what the prompt was read as."""
+    config = copies.config
+    return {
+        "count": copies.count, "arrangement": copies.arrangement, "prompt": copies.prompt,
+        "copy_prompt": copies.one_prompt, "reading": copies.counted.to_dict(),
+        "relation": None if copies.reading is None else copies.reading.name,
+        "source_is_figure": True if copies.reading is None else copies.reading.source_is_figure,
+        "target_name": copies.target_name, "source_name": copies.source_name,
+        "copies": [_jsonable({"name": c.name, "transform": transform(Similarity(c.source_to_target, SOURCE_FILE,
+                                                                                TARGET_FILE)),
+                              "on": c.on, "relation": c.relation, "how": c.how, "seconds": c.seconds,
+                              "penetration": c.penetration,
+                              "objective": None if c.result is None else c.result.objective})
+                   for c in copies.copies],
+        "metrics": _jsonable(copies.metrics),
+        "guide": copies.guide, "guide_why": copies.guide_why, "seed": config.seed, "preset": config.preset,
+        "config": config.model_dump(mode="json"),
+        "timings": _jsonable(copies.timings),
+        **_provenance(),
+    }
+
+
+def adjusted_copies_report(original: dict, copy: int, adjusted: Adjusted, metrics: dict, *, at: str) -> dict:
+    """A copies report once a person saved copy ``copy`` (1-based) adjusted (``adjust``): that copy's transform,
+    verdict and penetration are the adjusted ones (``adjusted`` true, ``original_transform`` the run's own, kept
+    through later saves), ``metrics`` the set's again; ``adjusted`` true and ``adjustment`` the measures, the copy
+    and when (``at``, ISO 8601)."""
+    copies = list(original["copies"])
+    entry = copies[copy - 1]
+    copies[copy - 1] = {**entry, "transform": transform(adjusted.transform), "relation": _jsonable(adjusted.relation),
+                        "penetration": adjusted.penetration, "adjusted": True,
+                        "original_transform": entry.get("original_transform", entry["transform"])}
+    return {**original, "copies": copies, "metrics": _jsonable(metrics), "adjusted": True,
+            "adjustment": {**_jsonable(adjusted.to_dict()), "copy": copy, "saved_at": at}}
 
 
 def transform(similarity: Similarity) -> dict:
@@ -192,12 +237,15 @@ def preview_png(images: np.ndarray) -> bytes:
     return buffer.getvalue()
 
 
-def write_outputs(result: AlignResult | Assembly, *, glb: Path | None, report_path: Path | None,
+def write_outputs(result: AlignResult | Assembly | Copies, *, glb: Path | None, report_path: Path | None,
                   preview: Path | None) -> None:
-    """Write whichever outputs have a path (of one run or a whole assembly); a preview needs ``result.preview``."""
+    """Write whichever outputs have a path (of one run, a whole assembly or several copies); a preview needs
+    ``result.preview``."""
     if preview is not None and result.preview is None:
         raise ValueError("a preview was requested but the result holds no preview images")
-    make_glb, make_report = (assembly_glb, assembly_report) if isinstance(result, Assembly) else (scene_glb, report)
+    make_glb, make_report = (
+        (assembly_glb, assembly_report) if isinstance(result, Assembly) else
+        (copies_glb, copies_report) if isinstance(result, Copies) else (scene_glb, report))
     outputs = [
         (glb, lambda: make_glb(result)),
         (report_path, lambda: (json.dumps(make_report(result), indent=2) + "\n").encode()),

@@ -49,6 +49,9 @@ class AdjustRequest(BaseModel):
         "direction, eye into the scene); 422 `invalid_direction` when push has none")
     save: bool = Field(False, description="store the outcome as the job's result: result.glb and report.json "
                        "(`adjusted` true) replaced, the run's own GLB kept as original.glb")
+    copy_index: int | None = Field(None, ge=1, description="a job of several copies (options.count): which copy, "
+                             "1-based as the report's `copies`, the transform is for (422 `invalid_copy` when "
+                             "missing or past the count; the others stay where they are); none for one source")
 
 
 class AdjustOutcome(BaseModel):

@@ -192,6 +192,12 @@ def job_options(form, default_queue: str) -> tuple[dict[str, Any], str]:
     return engine, queue
 
 
+def copies_options(options: dict[str, Any]) -> tuple[int | None, str]:
+    """Takes the alignment's ``count`` and ``arrangement`` (the service's own options, ``ctp_core.copies``) out of
+    ``options``; the values are checked by ``priors.counts.choose``."""
+    return options.pop("count", None), options.pop("arrangement", None) or "auto"
+
+
 def strict_json(raw: str, field: str, code: str, max_chars: int = OPTIONS_MAX) -> Any:
     """JSON a client sent, bounded before parsing (size, nesting: no parser recursion is deep) and strict in
     what it holds (integers in 64 bits, finite numbers); 400 ``code`` otherwise."""

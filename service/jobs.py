@@ -154,9 +154,11 @@ class Stage(BaseModel):
 
     name: str = Field("queued", description="pipeline stage: queued, loading, model, search (step/steps count "
                       "candidate poses scored), refine (step/steps count optimisation steps), exporting, done")
-    index: int = Field(1, ge=1, description="1-based alignment of this job (an assembly places one object each)")
-    count: int = Field(1, ge=1, description="alignments in this job (1 for POST /align)")
-    label: str = Field("", description="what the current alignment places (an assembly step's prompt)")
+    index: int = Field(1, ge=1, description="1-based alignment of this job (an assembly places one object each, a "
+                       "job of several copies one copy each)")
+    count: int = Field(1, ge=1, description="alignments in this job (1 for POST /align of one source)")
+    label: str = Field("", description="what the current alignment places (an assembly step's prompt, a copy's "
+                       "name)")
 
 
 class Progress(BaseModel):
@@ -246,6 +248,8 @@ class JobRecord(BaseModel):
     target_job: str | None = Field(None, description="the job whose result scene is the target (POST /align)")
     on: str | None = Field(None, description="with target_job: the object of its scene the source relates to")
     steps: list[AssemblyStep] = Field(default_factory=list, description="an assembly's stages")
+    count: int = Field(1, description="copies of the source an alignment places (ctp_core.copies)")
+    arrangement: str | None = Field(None, description="how several copies stand together; None for one")
     alternatives: list[Alternative] = Field(default_factory=list, description="the best distinct placements, the "
                                             "answer first, once the job succeeded")
     webhook: Webhook | None = Field(None, description="where events of this job are delivered, and how that went")

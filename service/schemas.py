@@ -14,6 +14,7 @@ from ctp_core.config import AUTO, DEFAULT_MODEL, AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.guide_choice import asks_for_guide
 from ctp_core.options import AlignOptions, option_of, option_overrides
+from ctp_core.priors.counts import CHOICES, MAX_COPIES
 from service.jobs import Alternative, JobError, JobRecord, Progress, SavedAdjustment, Status
 from service.settings import QUEUE_NAME
 from service.webhooks import Event, Webhook
@@ -46,6 +47,12 @@ JobOptions: type[BaseModel] = create_model(
     "JobOptions", __base__=AlignOptions,
     queue=(str | None, Field(None, pattern=QUEUE_NAME, description="the named queue the job goes to (default: "
                              "the deployment's, CTP_DEFAULT_QUEUE); 422 queue_not_served when no worker serves it")),
+    count=(int | None, Field(None, description=f"POST /align: copies of the source to place, 1 to {MAX_COPIES} (422 "
+                             "count_out_of_range beyond); default: the prompt's number (\"three apples\"), else 1; "
+                             "over 1, result.glb has one node per copy (SOURCE_NAME_1 ...) and the report lists each")),
+    arrangement=(Literal[CHOICES] | None, Field(None, description="POST /align with several copies: scatter, around "
+                                                "(facing the target), row, stack, or auto (default: the prompt's "
+                                                "\"around\", \"in a row\", \"stack of\", else scatter)")),
 )
 
 
@@ -106,6 +113,10 @@ class JobOut(BaseModel):
                                    "with target_job: an object added to that scene); null otherwise")
     stages: int = Field(1, description="objects this job places: 1 for POST /align, the plan's steps for POST "
                         "/assemble")
+    count: int = Field(1, description="copies of the source this alignment places (options.count, or the prompt's "
+                       "number)")
+    arrangement: str | None = Field(None, description="how the copies stand together (scatter, around, row, "
+                                    "stack); null for one copy")
     alternatives: list[Alternative] = Field(default_factory=list, description="a succeeded alignment's best "
                                             "distinct placements, the answer first: each one's GLB at "
                                             "result.glb?alternative=k and a view in alternatives.png (image k "
@@ -125,6 +136,7 @@ class JobOut(BaseModel):
                    started_at=r.started_at, finished_at=r.finished_at, error=r.error,
                    cancel_requested=r.cancel_requested, attempts=r.attempts, prompt=r.prompt, image_guided=r.has_image,
                    webhook=r.webhook, queue=r.queue, target_job=r.target_job, stages=r.stage_count,
+                   count=r.count, arrangement=r.arrangement,
                    alternatives=r.alternatives, adjusted=r.adjusted, guide=r.guide, guide_why=r.guide_why,
                    links=links(r.id, r.downloads))
 

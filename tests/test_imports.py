@@ -197,18 +197,19 @@ def _engine(members: str) -> frozenset[str]:
 
 LAYERS: tuple[tuple[str, frozenset[str]], ...] = (
     ("base", _engine(". errors progress names weights pose frames structures sampling losses proximity")),
-    ("words", _engine("priors priors.lexicon priors.relations priors.context priors.prior priors.rules priors.openai")),
+    ("words", _engine("priors priors.lexicon priors.relations priors.context priors.prior priors.rules priors.openai"
+                       " priors.counts")),
     ("config", _engine("config backends runtime schedule options plan guide_choice model_store")),
     ("load", _engine("io loader canonical orientation examples")),
     ("render", _engine("cameras render")),
     ("prepare", _engine("scene")),
     ("guide", _engine("guidance guide_loaders goals")),
-    ("judge", _engine("predicates objective ordering")),
+    ("judge", _engine("predicates objective ordering metrics")),
     ("search", _engine("proposals relation_proposals ranking scaling")),
     ("optimise", _engine("optimise")),
-    ("pipeline", _engine("align adjust assemble export")),
+    ("pipeline", _engine("align adjust assemble copies export")),
     ("bench", _engine("bench bench.protocol bench.cases bench.baselines bench.guides bench.harness bench.sanity"
-                      " bench.summary metrics")),
+                      " bench.summary")),
     ("adapters", frozenset(m for m in modules() if m.partition(".")[0] in ("service", "worker"))),
     ("cli", frozenset(m for m in modules() if m.partition(".")[0] == "ctp")),
 )

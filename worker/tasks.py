@@ -21,16 +21,20 @@ import trimesh
 from rq.timeouts import JobTimeoutException
 
 from ctp_core import guide_choice
-from ctp_core.adjust import adjust, read_back
+from ctp_core.adjust import Adjusted, adjust, read_back
 from ctp_core.align import align
-from ctp_core.assemble import Step, assemble
+from ctp_core.assemble import Step, assemble, scene_of
 from ctp_core.config import AUTO, AlignConfig
+from ctp_core.copies import place_copies, placed_copies, set_metrics
 from ctp_core.errors import Canceled, ConfigError, CtpError, JobTooLarge, forget, out_of_memory
 from ctp_core.export import (
+    adjusted_copies_report,
     adjusted_report,
     arrangement_glb,
     assembly_glb,
     assembly_report,
+    copies_glb,
+    copies_report,
     preview_png,
     report,
     scene_glb,
@@ -233,15 +237,21 @@ def adjust_job(adjustment: AdjustmentRecord, jobs: Jobs, limits: MeshLimits) -> 
     if None in stored.values():
         raise gone
     facts = json.loads(stored["report.json"])
-    at = np.asarray(facts["transform"]["matrix"], dtype=np.float64)  # the stored result.glb's source node
-    target, source, name = read_back(load_objects(stored["result.glb"], filename="result.glb", limits=limits), at)
-    upright = (facts.get("extra") or {}).get("target_upright")
     request = adjustment.request
+    # the adjusted object: the source (the last node), or one of several copies (its node, judged as it was)
+    entry = facts["copies"][request.copy_index - 1] if record.count > 1 else facts
+    at = np.asarray(entry["transform"]["matrix"], dtype=np.float64)  # the stored result.glb's node
+    scene = load_objects(stored["result.glb"], filename="result.glb", limits=limits)
+    target, source, name = read_back(scene, at, entry.get("name") if record.count > 1 else None)
+    upright = (facts.get("extra") or {}).get("target_upright")
     done = adjust(target, source, np.asarray(request.transform), record.config, settle=request.settle,
                   direction=request.direction, upright=None if upright is None else upright["rotation"],
-                  on=record.on, reading=RelationReading.from_verdict(facts.get("relation")))
+                  on=entry["on"] if record.count > 1 else record.on,
+                  reading=RelationReading.from_verdict(entry.get("relation")))
     matrix = done.source_to_target.tolist()
-    if request.save:
+    if request.save and record.count > 1:
+        _save_copy(adjustment, jobs, stored, facts, scene, source, done)
+    elif request.save:
         saved_at = now()
         if jobs.storage.get(adjustment.job, ORIGINAL) is None:  # the run's own, kept through later saves
             jobs.storage.put(adjustment.job, ORIGINAL, stored["result.glb"])
@@ -252,6 +262,30 @@ def adjust_job(adjustment: AdjustmentRecord, jobs: Jobs, limits: MeshLimits) -> 
             saved_at=saved_at, adjustment=adjustment.id, transform=matrix, penetration=done.penetration,
             contact_gap=done.contact_gap))
     return AdjustOutcome(transform=matrix, saved=request.save, **done.to_dict())
+
+
+def _save_copy(adjustment: AdjustmentRecord, jobs: Jobs, stored: dict[str, bytes], facts: dict[str, Any],
+               scene: trimesh.Scene, source: trimesh.Trimesh, done: Adjusted) -> None:
+    """Store a copies job's result with copy ``adjustment.request.copy_index`` where ``done`` put it: the GLB again (the
+    target and every copy under its matrix, ``copies.placed_copies``), the report's copy and the set's measures."""
+    k, saved_at = adjustment.request.copy_index, now()
+    entries = facts["copies"]
+    matrices = [np.asarray(c["transform"]["matrix"], dtype=np.float64) for c in entries]
+    matrices[k - 1] = done.source_to_target
+    verdicts = [c.get("relation") for c in entries]
+    verdicts[k - 1] = done.relation
+    if jobs.storage.get(adjustment.job, ORIGINAL) is None:  # the run's own, kept through later saves
+        jobs.storage.put(adjustment.job, ORIGINAL, stored["result.glb"])
+    target_name = facts["target_name"]
+    placed = placed_copies(scene.geometry[target_name], target_name, source,
+                           [(c["name"], m) for c, m in zip(entries, matrices, strict=True)])
+    jobs.storage.put(adjustment.job, "result.glb", trimesh.exchange.gltf.export_glb(scene_of(placed)))
+    jobs.storage.put(adjustment.job, "report.json", json.dumps(adjusted_copies_report(
+        facts, k, done, set_metrics(source, matrices, verdicts), at=saved_at.isoformat(timespec="seconds")),
+        indent=2).encode())
+    jobs.mark_adjusted(adjustment.job, SavedAdjustment(
+        saved_at=saved_at, adjustment=adjustment.id, transform=done.source_to_target.tolist(),
+        penetration=done.penetration, contact_gap=done.contact_gap))
 
 
 def too_large(exc: BaseException, stage: Stage, budget_mb: int | None) -> JobError:
@@ -273,6 +307,8 @@ def align_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobContex
     ``record`` is as ``served`` returns it: its config is the one this worker runs.
     """
     config = record.config
+    if record.count > 1:
+        return copies_job(record, inputs, job)
     job.on_progress(Progress(stage=Stage(name="loading"), kind="loading", message="loading meshes"), True)
     # A chained job's target is an earlier result scene (this service's own output), read back as its objects.
     if record.target_job:
@@ -296,6 +332,32 @@ def align_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobContex
     if result.thumbnails is not None:
         files["alternatives.png"] = strip_png(result.thumbnails)
     return files, alternatives_of(result.alternatives)
+
+
+def copies_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobContext) -> JobOutput:
+    """Run ``ctp_core.copies`` on a job of several copies: progress per copy (as an assembly's stages), the GLB with
+    one node per copy, the report of every copy and the set, the preview; no alternatives."""
+    config, count = record.config, record.count
+    job.on_progress(Progress(stage=Stage(name="loading", count=count), kind="loading", message="loading meshes"), True)
+    target = job.load(inputs["target"], record.target_file)
+    source = job.load(inputs["source"], record.source_file)
+    guide = job.guide(config, Stage(name="model", count=count))
+    current = Stage(name="search", count=count)
+
+    def on_copy(index: int, total: int) -> None:
+        nonlocal current
+        current = Stage(name="search", index=index, count=total, label=f"{record.source_name}_{index}")
+        job.on_progress(Progress(stage=current, kind="phase_start", fraction=round((index - 1) / total, 4),
+                                 message=f"copy {index}/{total}"), True)
+
+    def on_event(event: ProgressEvent) -> None:
+        job.on_progress(progress_of(event, current), event.kind in _MILESTONES)
+
+    copies = place_copies(target, source, record.prompt, config, count=count, arrangement=record.arrangement or AUTO,
+                          target_name=record.target_name, source_name=record.source_name, guide=guide,
+                          on_event=on_event, on_copy=on_copy, should_cancel=job.should_cancel, choice=job.choice)
+    job.on_progress(_exporting(config, current.model_copy(update={"name": "exporting"})), True)
+    return _results(copies_glb(copies), copies_report(copies), copies.preview), []
 
 
 def alternatives_of(alternatives: list[dict[str, Any]]) -> list[Alternative]:

@@ -33,6 +33,7 @@ router = APIRouter()
              "`target_job` chaining use the adjusted scene). A short job on the job's queue, at its front: 202 "
              "with the adjustment to GET until it ends, or 200 once ended within `Prefer: wait=N`. 404 "
              "`job_not_found`, 409 `job_not_ready` (the job has not succeeded) or `not_adjustable` (an assembly), "
+             "422 `invalid_copy` (a job of several copies adjusts one at a time: `copy_index`), "
              "422 `invalid_transform` (not a rotation, one scale and a translation) or `invalid_direction`, 503 "
              "`no_worker`.")
 async def adjust(job_id: str, body: AdjustRequest, request: Request, who: str = Depends(owner),
@@ -43,6 +44,9 @@ async def adjust(job_id: str, body: AdjustRequest, request: Request, who: str = 
     if record.kind != "align":
         raise ApiError(409, "not_adjustable", f"job {job_id} is an assembly; adjust one of its objects by adding it "
                        "with POST /align and target_job instead")
+    if (body.copy_index is None) != (record.count == 1) or (body.copy_index or 1) > record.count:
+        wanted = f"copy_index is 1 to {record.count}" if record.count > 1 else "it places one source: no copy_index"
+        raise ApiError(422, "invalid_copy", f"job {job_id}: {wanted}", field="copy_index")
     try:
         frames.checked_similarity(body.transform, frames.SOURCE_FILE, frames.TARGET_FILE)
     except ValueError as exc:

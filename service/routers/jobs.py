@@ -11,6 +11,8 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import RedirectResponse, StreamingResponse
 
 from ctp_core.config import MAX_ALTERNATIVES
+from ctp_core.errors import ConfigError
+from ctp_core.priors.counts import choose
 from service import forms
 from service import submit as submit_
 from service.chained import chained_target
@@ -58,6 +60,7 @@ async def _align_job(request: Request, form, who: str, job_id: str) -> submit_.B
     settings = request.app.state.settings
     prompt, image = forms.prompt_and_image(form)
     options, queue = forms.job_options(form, settings.default_queue)
+    count, arrangement = forms.copies_options(options)
     config = build_config(options, default_model=settings.model, allowed_models=settings.allowed_models,
                           image=image is not None)
     blobs: dict[str, bytes] = {}
@@ -81,14 +84,30 @@ async def _align_job(request: Request, form, who: str, job_id: str) -> submit_.B
     if image is not None:
         blobs["image"] = await forms.read_limited(image, settings.max_image_bytes, "image", "image_too_large")
         await run_in_threadpool(forms.check_image, blobs["image"], settings.max_image_pixels)
+    source_name = forms.object_name(form, "source", files["source"])
+    copies, arrangement = _copies(prompt, count, arrangement, source_name, image is not None, chained is not None)
     record = JobRecord(
         id=job_id, owner=who, created_at=now(), prompt=prompt, has_image=image is not None,
-        target_name=forms.object_name(form, "target", on or files["target"]),
-        source_name=forms.object_name(form, "source", files["source"]),
+        target_name=forms.object_name(form, "target", on or files["target"]), source_name=source_name,
         target_file=files["target"], source_file=files["source"], config=config,
-        target_job=target_job, on=on, queue=queue, downloads=settings.downloads,
+        target_job=target_job, on=on, queue=queue, downloads=settings.downloads, count=copies,
+        arrangement=arrangement,
     )
     return record, blobs, [config]
+
+
+def _copies(prompt: str | None, count: int | None, arrangement: str, source_name: str, image: bool,
+            chained: bool) -> tuple[int, str | None]:
+    """The job's copies and their arrangement (``priors.counts.choose``: 422 ``count_out_of_range``,
+    ``invalid_arrangement``); several copies are prompt-guided onto an uploaded target (422 ``invalid_option``)."""
+    try:
+        n, kind, _ = choose(prompt, count, arrangement, source_name)
+    except ConfigError as exc:
+        raise ApiError(422, exc.code, exc.message, field=f"options.{exc.field}") from None
+    if n > 1 and (image or chained):
+        raise ApiError(422, "invalid_option", "several copies are placed by a prompt on an uploaded target: not with "
+                       "an image or a target_job", field="options.count")
+    return n, kind if n > 1 else None
 
 
 @router.get("/jobs", response_model=JobList, responses=documented(400, 401, 503),

@@ -238,10 +238,11 @@ function options() {
   const out = {};
   if ($("opt-preset").value) out.preset = $("opt-preset").value;
   if ($("opt-scale").value) out.scale = $("opt-scale").value === "true";
-  for (const name of ["seed", "restarts"]) {
+  for (const name of ["seed", "restarts", "count"]) {
     const value = $(`opt-${name}`).value.trim();
     if (value !== "") out[name] = Number(value);
   }
+  if ($("opt-arrangement").value) out.arrangement = $("opt-arrangement").value;
   for (const role of ROLES) {
     for (const name of ["up", "front"]) {
       const value = $(`${name}-${role}`).value;
@@ -599,6 +600,7 @@ function showFacts(report) {
     ["model", report.model || ""],
     ["preset, seed", `${report.preset ?? ""}, ${report.seed ?? ""}`],
   ];
+  if (report.copies) rows.splice(0, 3, ...copyRows(report, fixed)); // several copies: no one transform
   if (report.guide_say) rows.push(["who chose", report.guide_say.summary]); // the guide's say (ordering.Gate)
   if (report.adjusted) {
     rows.push(["adjusted", `by hand, saved ${new Date(report.adjustment.saved_at).toLocaleString()} `
@@ -611,6 +613,22 @@ function showFacts(report) {
     tr.insertCell().textContent = name;
     tr.insertCell().textContent = value;
   }
+}
+
+/** A run of several copies (``copies_report``): the set's measures, then each copy's place and verdict. */
+function copyRows(report, fixed) {
+  const m = report.metrics || {};
+  const spacing = m.min_spacing == null ? "" : `, closest two ${Number(m.min_spacing).toFixed(3)} source diagonals apart`;
+  const rows = [
+    ["copies", `${report.count} (${report.arrangement}), each judged "${report.relation ?? "no relation"}"`],
+    ["the set", `${m.relation_holds ?? 0} of ${m.judged ?? 0} hold; ${m.none_intersect ? "none intersect" : "some intersect"}`
+      + spacing],
+  ];
+  for (const c of report.copies) {
+    const verdict = c.relation ? (c.relation.holds ? "holds" : "fails") + ` on ${c.on}` : "";
+    rows.push([c.name, `${fixed(c.transform.translation, 3)} (target file frame); ${verdict}; ${c.seconds} s`]);
+  }
+  return rows;
 }
 
 async function download(file) {
@@ -638,14 +656,29 @@ async function download(file) {
 
 // -- adjusting the result by hand -------------------------------------------------------------------
 
-/** Handles on the result's source (an alignment's last node; an assembly has no one source) and the buttons that
- * settle, reset and save it (POST /jobs/{id}/adjust, run by a worker: the settling is the search's own). */
+/** Handles on the result's source (an alignment's last node; one of several copies, chosen in the copy select; an
+ * assembly has no one source) and the buttons that settle, reset and save it (POST /jobs/{id}/adjust, run by a
+ * worker: the settling is the search's own). */
 function makeAdjustable(parts) {
   const facts = state.result.facts;
   const box = $("adjust");
-  box.hidden = !facts.transform || Boolean(facts.objects) || parts.length < 2;
+  box.hidden = !(facts.transform || facts.copies) || Boolean(facts.objects) || parts.length < 2;
+  $("adjust-copy-label").hidden = !facts.copies;
   if (box.hidden) return;
-  state.viewer.adjustable(parts.at(-1));
+  if (facts.copies) {
+    const select = $("adjust-copy");
+    select.replaceChildren(...facts.copies.map((c, i) => new Option(c.name, String(i + 1))));
+    select.value = String(state.result.copy || 1);
+    select.onchange = () => {
+      resetAdjusted(); // an unsaved move of the copy left is dropped
+      state.result.copy = Number(select.value);
+      makeAdjustable(parts);
+    };
+    state.result.copy = Number(select.value);
+    state.viewer.adjustable(parts.find((p) => p.name === facts.copies[state.result.copy - 1].name));
+  } else {
+    state.viewer.adjustable(parts.at(-1));
+  }
   state.viewer.onAdjust = (rows) => {
     state.result.dirty = true;
     showTransform(rows);
@@ -667,13 +700,21 @@ function setAdjustState(name, text, bad = false) {
   $("adjust-save").disabled = name === "busy" || !state.result.dirty;
 }
 
-/** The facts table follows the source as it is moved (the report's other numbers stay the run's). */
+/** The facts table follows the source (or the copy adjusted) as it is moved (the report's other numbers stay the
+ * run's). */
 function showTransform(rows) {
-  showFacts({ ...state.result.shownFacts, transform: similarityParts(rows) });
+  const facts = state.result.shownFacts;
+  if (!facts.copies) {
+    showFacts({ ...facts, transform: similarityParts(rows) });
+    return;
+  }
+  const k = state.result.copy - 1;
+  showFacts({ ...facts, copies: facts.copies.map((c, i) => (i === k ? { ...c, transform: similarityParts(rows) } : c)) });
 }
 
 /** Send an adjustment and wait for it (Prefer: wait, then reading it until it ends); a failed one throws. */
 async function adjustment(body) {
+  if (state.result.facts.copies) body.copy_index = state.result.copy;
   let adjusted = await api.json(`jobs/${state.result.id}/adjust`, {
     method: "POST", body: JSON.stringify(body), headers: { "Content-Type": "application/json", Prefer: "wait=30" } });
   while (!["succeeded", "failed"].includes(adjusted.status)) {

@@ -128,6 +128,10 @@ export class Viewer {
   /** The handles' object on ``part`` (a result's source): a pivot at its box centre with the source under it,
    * its world placement kept. The handles stay hidden until ``setHandles`` picks a mode. */
   adjustable(part) {
+    if (this.pivot) { // another part had the handles (one of several copies): it stays where it is
+      this.model.attach(this.source);
+      this.model.remove(this.pivot);
+    }
     if (!this.handles) {
       this.handles = new TransformControls(this.camera, this.renderer.domElement);
       this.handles.addEventListener("change", () => this.render());
