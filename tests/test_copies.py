@@ -123,6 +123,8 @@ def test_the_count_is_bounded_with_a_coded_error():
     ("a man holding two swords", "man", None, None, "hold"),  # the number counts the swords, not the source
     ("a 2 m pole beside the house", "pole", None, None, "beside"),  # a size, not a count
     ("a scarf wrapped around the neck", "scarf", None, None, None),  # "around" here wraps
+    ("a pair of glasses on the statue's head", "glasses", None, None, "wear"),  # one object called a pair
+    ("a pair of shoes by the door", "shoe", 2, None, None),
 ])
 def test_the_prompt_s_number_and_arrangement_are_read(prompt, source, count, arrangement, relation):
     reading = counts.read(prompt, source)

@@ -27,6 +27,10 @@ _WORDS = {"one": 1, "two": 2, "three": 3, "four": 4, "five": 5, "six": 6, "seven
           "ten": 10, "eleven": 11, "twelve": 12, "thirteen": 13, "fourteen": 14, "fifteen": 15, "sixteen": 16,
           "seventeen": 17, "eighteen": 18, "nineteen": 19, "twenty": 20}
 _PHRASES = {"half a dozen": 6, "a dozen": 12, "one dozen": 12, "a pair of": 2, "a couple of": 2, "a trio of": 3}
+# one object named as a pair: "a pair of glasses" is one pair of glasses, not two
+_ONE_PAIR = {"glasses", "sunglasses", "spectacles", "goggles", "binoculars", "scissors", "shears", "pliers", "tongs",
+             "tweezers", "trousers", "pants", "jeans", "shorts", "leggings", "tights", "pajamas", "pyjamas",
+             "headphones", "earphones", "handcuffs", "overalls", "dungarees"}
 # a number before a word (an object), not before a unit ("2 m", "3 cm tall") or a time
 _UNITS = r"(?:mm|cm|m|km|in|inch(?:es)?|ft|feet|foot|meters?|metres?|centimet(?:er|re)s?|times|o'clock|percent|%)\b"
 _COUNT = re.compile(
@@ -64,7 +68,8 @@ def read(prompt: str | None, source_name: str | None = None) -> CountReading:
     text = prompt or ""
     count, said = None, []
     words = {w for w in re.split(r"[^a-z]+", (source_name or "").lower()) if len(w) >= 3} - {"source"}
-    found = next((m for m in _COUNT.finditer(text) if _names(text[m.end():], words)), None)
+    found = next((m for m in _COUNT.finditer(text) if _names(text[m.end():], words) and not _one_pair(m, text)),
+                 None)
     if found is not None:
         if found.group("phrase"):
             count = _PHRASES[found.group("phrase").lower()]
@@ -81,6 +86,12 @@ def read(prompt: str | None, source_name: str | None = None) -> CountReading:
             break
     return CountReading(count, arrangement, "; ".join(said) or "no number or arrangement said",
                         _COLLECTIVE.search(text) is not None)
+
+
+def _one_pair(found: re.Match, text: str) -> bool:
+    """Whether ``found`` is "a pair of" before a thing that is one object called a pair (``_ONE_PAIR``)."""
+    after = re.findall(r"[a-z]+", text[found.end():].lower())[:1]
+    return (found.group("phrase") or "").lower() == "a pair of" and bool(after) and after[0] in _ONE_PAIR
 
 
 def _names(after: str, words: set[str]) -> bool:
