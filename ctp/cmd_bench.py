@@ -58,6 +58,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--metrics-model", action=_Extend, dest="metrics_models", default=[],
                         help="encoder(s) for the semantic metric, repeatable or comma list")
     parser.add_argument("--ablation", choices=sorted(ABLATIONS), help="change ctp/geometry's configuration")
+    parser.add_argument("--count", type=int, default=1,
+                        help="copies of the source per run (ctp and geometry, text guide; the first is judged "
+                        "against the reference, the set by its own measures)")
+    parser.add_argument("--arrangement", default="auto", help="how the copies stand: auto (the prompt's cue), "
+                        "scatter, around, row, stack")
     parser.add_argument("--jobs", type=int, default=1, help="cases run in parallel processes")
     parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
     parser.add_argument("--threads", type=int, help="torch CPU threads per run")
@@ -94,7 +99,8 @@ def run(args: argparse.Namespace) -> int:
     options = harness.BenchOptions(
         methods=args.methods or ["ctp"], protocol=args.protocol, inits=args.inits, seed=args.seed,
         preset=args.preset, model=args.model, guide=args.guide, metrics_models=args.metrics_models,
-        ablation=args.ablation, device=args.device, threads=args.threads, runtime=args.runtime)
+        ablation=args.ablation, device=args.device, threads=args.threads, runtime=args.runtime, count=args.count,
+        arrangement=args.arrangement)
     options.config("ctp")  # a bad preset or model spec fails here, before any case runs
     if args.summary_only:
         rows = harness.read_results(args.out / harness.RESULTS)

@@ -341,3 +341,24 @@ def test_scale_protocol_finds_the_scale_and_the_baselines_keep_theirs(bench_dir,
     assert geometry["status"] == "ok" and geometry["metrics"]["scale_error"] < abs(math.log(given))
     summary = (out / "summary.md").read_text()
     assert "(test, scale protocol) |" in summary and "scale err" in summary
+
+
+def test_ctp_bench_places_several_copies_and_reports_each_and_the_set(bench_dir, tmp_path):
+    """``--count 2``: two caps on the block, the first judged against the reference as one placement, each copy's
+    verdict and the set's measures in the row and the summary; what the harness cannot place is refused (exit 2)."""
+    out = tmp_path / "copies"
+    assert _bench(str(bench_dir), "--cases", "gen-cap-on-block", "--method", "geometry", "--count", "2",
+                  "--out", str(out)) == 0
+    (row,) = [json.loads(line) for line in (out / "results.jsonl").read_text().splitlines()]
+    assert row["status"] == "ok", row.get("error")
+    assert row["copies"] == "2 auto" and row["copy_set"]["arrangement"] == "scatter"
+    per_copy = row["copy_set"]["per_copy"]
+    assert [c["name"] for c in per_copy] == ["cap_1", "cap_2"] and all(c["holds"] for c in per_copy), per_copy
+    assert row["copy_set"]["set"]["count"] == 2 and row["copy_set"]["set"]["none_intersect"]
+    assert "placement_success" in row["metrics"]  # the first copy, against the reference
+    summary = (out / "summary.md").read_text()
+    assert "| copies hold | sets apart |" in summary and "geometry (test, 2 auto copies)" in summary
+    assert "100% (2/2) | 100% (1/1)" in summary
+    for bad in (["--count", "13"], ["--count", "2", "--method", "b1"], ["--count", "2", "--method", "ctp", "--guide",
+                                                                        "oracle"]):
+        assert _bench(str(bench_dir), "--method", "geometry", *bad, "--out", str(tmp_path / "bad")) == 2

@@ -34,6 +34,7 @@ from ctp_core.bench.cases import Case
 from ctp_core.bench.guides import GUIDES, GuideInputs, PixelGuide, SelectionScore, guide_inputs
 from ctp_core.config import DEFAULT_MODEL, AlignConfig
 from ctp_core.errors import ConfigError
+from ctp_core.priors import counts
 
 GUIDED = ("ctp", "b2")  # methods that see the guide
 OPTIMISED = ("ctp", "geometry")  # methods that run align() and take a preset and ablations
@@ -70,6 +71,8 @@ class BenchOptions:
     device: str = "cpu"
     threads: int | None = None
     runtime: str | None = None  # forward-only runtime of every guide (AlignConfig.runtime); None: the preset's
+    count: int = 1  # copies of the source per run (``ctp_core.copies``): ctp and geometry, the text guide
+    arrangement: str = "auto"  # how the copies stand together (``priors.counts.CHOICES``)
 
     def __post_init__(self) -> None:
         unknown = [m for m in self.methods if m not in METHODS]
@@ -84,6 +87,10 @@ class BenchOptions:
             raise ConfigError(f"protocol must be one of {', '.join(protocol.PROTOCOLS)}", field="protocol")
         if self.inits < 1:
             raise ConfigError("inits must be at least 1", field="inits")
+        counts.choose(None, self.count, self.arrangement)  # count_out_of_range, invalid_arrangement
+        if self.count > 1 and (set(self.methods) - set(OPTIMISED) or ("ctp" in self.methods and self.guide != "text")):
+            raise ConfigError("several copies (count > 1) are placed by ctp and geometry with the text guide only: "
+                              "the baselines and the reference-image guides place one source", field="count")
 
     def config(self, method: str) -> AlignConfig:
         """The AlignConfig of an optimised method: preset, ablation, then the bench's own settings."""
@@ -121,12 +128,13 @@ def identity(case: Case, init: int, method: str, options: BenchOptions) -> dict:
         "preset": options.config(method).preset if optimised else None,
         "guide": options.guide if guided else None,
         "encoder": options.encoder if guided else None,
+        "copies": f"{options.count} {options.arrangement}" if options.count > 1 else None,
     }
 
 
 def row_key(row: dict) -> tuple:
     return tuple(row.get(k) for k in ("case", "init", "method", "protocol", "seed", "ablation", "preset", "guide",
-                                      "encoder"))
+                                      "encoder", "copies"))
 
 
 @dataclass
@@ -232,6 +240,8 @@ def _run_align(method: str, init: np.ndarray, index: int, data: _CaseData, optio
     started = time.perf_counter()
     config = options.config(method)
     inputs = data.guide if method == "ctp" and config.loss.lambda_clip > 0 else None
+    if options.count > 1:
+        return _run_copies(config, inputs, data, options, started)
     result = align(data.target, data.source, data.case.prompt, config, init=init,
                    guide=inputs.guide if inputs else None, image=inputs.image if inputs else None,
                    goal=inputs.goal if inputs else None,
@@ -241,6 +251,25 @@ def _run_align(method: str, init: np.ndarray, index: int, data: _CaseData, optio
             "alternatives": [np.asarray(a["source_to_target"]) for a in result.alternatives],
             "extra": {"best_restart": result.best_restart, "guidance": result.guided_by,
                       "hparams": priors.to_report(result.priors)}}
+
+
+def _run_copies(config: AlignConfig, inputs: GuideInputs | None, data: _CaseData, options: BenchOptions,
+                started: float) -> dict:
+    """``count`` copies (``copies.place_copies``): the first is judged against the case's reference as one
+    placement (``evaluate``); every copy's verdict and the set's measures (all hold, none intersect, spacing) go
+    in the row's ``copy_set`` (its ``copies`` names the count and the arrangement asked for)."""
+    from ctp_core.copies import place_copies
+
+    placed = place_copies(data.target, data.source, data.case.prompt, config, count=options.count,
+                          arrangement=options.arrangement, target_name=data.case.target_name,
+                          source_name=data.case.source_name, guide=inputs.guide if inputs else None)
+    per_copy = [{"name": c.name, "on": c.on, "holds": None if c.relation is None else bool(c.relation["holds"]),
+                 "score": None if c.relation is None else c.relation["score"], "seconds": c.seconds}
+                for c in placed.copies]
+    return {"source_to_target": placed.copies[0].source_to_target, "time_s": time.perf_counter() - started,
+            "clip_images": sum(int(c.result.clip_images) for c in placed.copies if c.result is not None),
+            "timings": placed.timings,
+            "copy_set": {"arrangement": placed.arrangement, "per_copy": per_copy, "set": placed.metrics}}
 
 
 def _run_b1(method: str, init: np.ndarray, index: int, data: _CaseData, options: BenchOptions) -> dict:

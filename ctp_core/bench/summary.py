@@ -29,6 +29,8 @@ def variant(row: dict) -> str:
     notes = [row["preset"]] if row.get("preset") else []
     if row.get("protocol") == "scale":
         notes.append("scale protocol")
+    if row.get("copies"):
+        notes.append(f"{row['copies']} copies")
     if notes:
         name += f" ({', '.join(notes)})"
     return name
@@ -80,7 +82,9 @@ def table(rows: list[dict]) -> str:
     scale protocol, the scale error |ln(found / reference)| as median [interquartile range]."""
     specs = _encoders(rows)
     scaled = any(r.get("protocol") == "scale" for r in rows)
+    copied = any(r.get("copies") for r in rows)
     head = ["variant", "ok/runs", "success", "placement", "placement@k", "relation holds", "stable", "valid",
+            *(["copies hold", "sets apart"] if copied else []),
             "ADD-S", "rot err °", "trans err", *(["scale err"] if scaled else []), "IoU", "contact",
             *[f"semantic {s}" for s in specs], "time s", "CLIP images"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -97,6 +101,7 @@ def table(rows: list[dict]) -> str:
         cells = [
             name, f"{len(ok)}/{len(group)}",
             _rate(success), _rate(placed), _rate(at_k), _rate(related), _rate(steady), _rate(valid),
+            *(_copies(ok) if copied else []),
             _mean_median(_values(group, "adds")), _mean_median(_values(group, "rotation_error_deg"), 1),
             _mean_median(_values(group, "translation_error")),
             *([_median_spread(_values(group, "scale_error"))] if scaled else []),
@@ -106,6 +111,14 @@ def table(rows: list[dict]) -> str:
         ]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def _copies(ok: list[dict]) -> list[str]:
+    """Several of a kind: the copies whose relation holds, over every copy judged; the sets with no two copies
+    intersecting. "–" for rows of one copy."""
+    copies = [c["holds"] for r in ok if r.get("copy_set") for c in r["copy_set"]["per_copy"] if c["holds"] is not None]
+    apart = [r["copy_set"]["set"]["none_intersect"] for r in ok if r.get("copy_set")]
+    return [_rate(copies), _rate(apart)]
 
 
 def per_case(rows: list[dict]) -> str:
