@@ -169,7 +169,7 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
         goal = None
     loaded = time.perf_counter()
     names = {"target": target_name, "source": source_name, "on": on}
-    scales = scaling.plan(pair, prior, names, config.seed) if config.scale else None
+    scales = scaling.plan(pair, prior, names, config.seed, guided=goal is not None) if config.scale else None
     scorer = objective.Scorer(pair, config, prior.contact_ratio, guide=guide, goal=goal, relation=prior.relation,
                               source_is_figure=prior.source_is_figure, scale=scales)
     plan = schedule.phases(config, allow_penetration=prior.penetration)
