@@ -183,7 +183,7 @@ def propose(run: Run, init: np.ndarray | None = None) -> Proposals:
 
     ``init`` (source file -> target file 4x4) is one candidate (search) or replaces restart 0 (no search); rigid,
     it fixes the source scale either way. In scale mode every start takes the plan's scale and the search proposes
-    at each of its rungs (``scaling``): an incoming pose's scale is never used.
+    at its rungs (``scaling``: the ladder with a guide, its centre without): an incoming pose's scale is never used.
     """
     from ctp_core import optimise, proposals, relation_proposals
 

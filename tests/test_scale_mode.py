@@ -235,7 +235,9 @@ def test_a_ring_and_a_lid_find_a_scale_that_passes_and_covers(name, factor):
     data = result.scaling
     assert data["from"] == "geometry" and data["constraint"]["side"] == "lower"
     assert data["priors_scale"] * factor < 0.8  # the priors alone: too small to pass or to cover
-    assert found >= data["constraint"]["scale"] * factor * 0.97
+    # at or above the bound, less the wall's give (the contact terms pull a source smaller against its 100 per
+    # squared log unit: a few per cent)
+    assert found >= data["constraint"]["scale"] * factor * 0.9
     assert abs(math.log(found)) <= TOLERANCE, (found, data)
 
 
