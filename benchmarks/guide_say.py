@@ -104,7 +104,8 @@ def run_case(case, args) -> dict:
     mask = held[seen]
     points = sampling.surface_samples(source, 500, args.seed)[0]
     geometric = objective.rank_key(terms, weights)
-    return {"case": case.id, "guide": args.guide, "model": args.model, "relation": scorer.relation,
+    relation = scorer.reading.name if scorer.reading is not None else None
+    return {"case": case.id, "guide": args.guide, "model": args.model, "relation": relation,
             "held": int(held.sum()), "failed": int((~held).sum()),
             "agreement": None if every is None else round(every[0], 3),
             "z": None if every is None else round(agreement_z(*every), 2),

@@ -29,6 +29,7 @@ from ctp_core import canonical, frames, objective, orientation, predicates, prop
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.pose import Poses, apply_pose
+from ctp_core.priors.relations import RelationReading
 from ctp_core.scene import PreparedPair, Target, prepare_pair
 
 Settle = Literal["none", "drop", "push"]
@@ -63,13 +64,13 @@ class Adjusted:
 
 def adjust(target: Target, source: trimesh.Trimesh, source_to_target: np.ndarray, config: AlignConfig, *,
            settle: Settle = "none", direction: np.ndarray | None = None, upright: np.ndarray | None = None,
-           on: str | None = None, relation: str | None = None, source_is_figure: bool = True) -> Adjusted:
+           on: str | None = None, reading: RelationReading | None = None) -> Adjusted:
     """Measure (and with ``settle``, first settle) the source at ``source_to_target`` against ``target``.
 
     ``config``: the job's (its loss samples, seed and penetration terms); ``upright``: (3, 3) target file ->
     upright rotation the job used (None: from the files first, by the job's up and front options,
-    ``orientation``); ``on``, ``relation``, ``source_is_figure``: the job's, for the verdict. Runs on the CPU:
-    one pose, no model.
+    ``orientation``); ``on``, ``reading``: the job's (``RelationReading.from_verdict`` of its report), for the
+    verdict. Runs on the CPU: one pose, no model.
     """
     if settle not in SETTLES:
         raise ConfigError(f"settle is one of {', '.join(SETTLES)}, not {settle!r}", field="settle")
@@ -98,7 +99,7 @@ def adjust(target: Target, source: trimesh.Trimesh, source_to_target: np.ndarray
         sunk = float(scorer.geometry(pose, schedule.phases(config, allow_penetration=False)[-1])["sunk"][0])
         if gap is None:  # the pose as given (none, or a settling that met nothing)
             gap = float(objective.contact_gap(pair, pose)[0])
-    verdict = predicates.verdict(pair, pose, relation, source_is_figure)
+    verdict = predicates.verdict(pair, pose, reading)
     return Adjusted(source_to_target=pair.source_to_target(pose.matrices()[0]), settle=settle, settled=settled,
                     moved=round(moved, 5), on_floor=on_floor, penetration=round(sunk, 6), contact_gap=round(gap, 5),
                     touching=gap <= objective.TOUCH, relation=None if verdict is None else verdict.to_dict())
@@ -146,7 +147,7 @@ def _settle(pair: PreparedPair, pose: Poses, normal: torch.Tensor, seed: int, *,
     the pose and whether the floor stopped it."""
     index = proposals.contact_index(pair, seed=seed)
     diagonal = float(objective.source_diagonal(pair, pose)[0])
-    level = float(pair.target_vertices[:, 1].min())
+    level = pair.floor
     samples = pair.source_subset(FLOOR_POINTS) if floor else None
     t = pose.t.detach().clone()
     far = float(t.norm()) + 2 * (pair.target_radius + diagonal)  # past this it is only moving away from the target

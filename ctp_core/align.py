@@ -28,6 +28,7 @@ if TYPE_CHECKING:  # the stages import these lazily: importing align stays light
     from ctp_core.objective import Scorer
     from ctp_core.optimise import Outcome
     from ctp_core.pose import Poses
+    from ctp_core.priors.relations import RelationReading
     from ctp_core.proposals import Proposals
     from ctp_core.scaling import ScalePlan
     from ctp_core.scene import PreparedPair
@@ -123,6 +124,7 @@ class Run:
     names: dict[str, str | None] = field(default_factory=dict)  # target, source, on: what the priors read
     warnings: list[dict[str, Any]] = field(default_factory=list)  # AlignResult.warnings
     scale: ScalePlan | None = None  # scale mode: the scales the run starts from and searches (``scaling``)
+    reading: RelationReading | None = None  # the prompt's relation as the run uses it (``ScenePrior.reading``)
 
 
 def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, prompt: str | None,
@@ -170,12 +172,13 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
     loaded = time.perf_counter()
     names = {"target": target_name, "source": source_name, "on": on}
     scales = scaling.plan(pair, prior, names, config.seed, guided=goal is not None) if config.scale else None
-    scorer = objective.Scorer(pair, config, prior.contact_ratio, guide=guide, goal=goal, relation=prior.relation,
-                              source_is_figure=prior.source_is_figure, scale=scales)
+    reading = prior.reading  # the relation, decided once: every stage reads this value
+    scorer = objective.Scorer(pair, config, prior.contact_ratio, guide=guide, goal=goal, reading=reading,
+                              scale=scales)
     plan = schedule.phases(config, allow_penetration=prior.penetration)
     return Run(config, pair, prior, scorer, plan, goal, started,
                {"prepare_s": round(prepared - started, 3), "model_s": round(loaded - prepared, 3)}, names,
-               scale=scales)
+               scale=scales, reading=reading)
 
 
 def propose(run: Run, init: np.ndarray | None = None) -> Proposals:
@@ -197,12 +200,12 @@ def propose(run: Run, init: np.ndarray | None = None) -> Proposals:
     if not config.search.enabled:
         return proposals.Proposals(starts, ["random"] * len(starts))
     t0 = time.perf_counter()
-    weights = proposals.region_weights(run.prior.relation, run.prior.source_is_figure)
+    weights = proposals.region_weights(run.reading)
     given = starts.select(slice(0, 1)) if init is not None else None
     rungs = run.scale.rungs if run.scale else float(starts.log_s[0])
     proposed = proposals.propose(pair, config, weights, rungs, generator, init=given)
-    proposed = relation_proposals.extend(pair, config, proposed, run.prior.relation, run.prior.source_is_figure,
-                                         config.seed)  # poses the regions do not reach ("lean")
+    # the relation's own poses, where the regions do not reach them ("lean")
+    proposed = relation_proposals.extend(pair, config, proposed, run.reading, config.seed)
     run.timings["propose_s"] = round(time.perf_counter() - t0, 3)
     return proposed
 
@@ -226,7 +229,7 @@ def score(run: Run, proposals: Proposals, *, on_event: ProgressCallback | None =
     run.timings["search_candidates"] = ranked.scored
     if ranked.screened:  # the geometry's screen before the guide saw its shortlist
         run.timings["search_screened"] = ranked.screened
-    if run.scorer.relation is not None:
+    if run.scorer.reading is not None:
         run.timings["search_relation_holds"] = ranked.holding  # of the coarse and sweep candidates
     if ranked.gate is not None:  # the guide's spread over the candidates, its noise, how far it may override
         run.timings.update({f"guide_{k}": ranked.gate[k] for k in ("spread", "noise", "override")})
@@ -276,11 +279,11 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
     )
     if run.scale is not None:
         answer.scaling = {**run.scale.to_dict(), "final": answer.scale}
-    verdict = predicates.verdict(pair, matrices[best], run.prior.relation, run.prior.source_is_figure)
+    verdict = predicates.verdict(pair, matrices[best], run.reading)
     answer.relation = verdict.to_dict() if verdict is not None else None
     picks = alternatives(run, outcome)
     for i in picks:
-        judged = predicates.verdict(pair, matrices[i], run.prior.relation, run.prior.source_is_figure)
+        judged = predicates.verdict(pair, matrices[i], run.reading)
         answer.alternatives.append({
             "restart": i, "source_to_target": answers[i], "objective": float(outcome.objectives[i]),
             **{k: float(outcome.terms[k][i]) for k in ("clip", "icp", "pen", "rel")},

@@ -7,7 +7,7 @@ instead of threading keyword arguments through the layers.
 Presets:
 - ``paper``: the paper's budget (2000 steps, 8 views per step, 3 phases, 5 restarts).
 - ``default``: search, then a short refinement: the guide sees only what the relation and the geometry leave
-  possible; about 15 s a pair on a 2-core CPU (docs/presets-and-search.md, "Presets").
+  possible; its time per pair is measured in docs/presets-and-search.md, "Presets".
 - ``fast``: the relation and the geometry choose, the guide glances at a few candidates: interactive use.
 - ``descent``: the earlier default, local descent only from random starts (about ten minutes a pair).
 - ``test``: seconds; for CI and smoke tests (search included, tiny).
@@ -305,12 +305,11 @@ PRESETS: dict[str, dict] = {
         "optim": {"steps": 2000, "phases": 3, "restarts": 5, "eval_every": 50, "init_rotation": "random"},
         "search": {"enabled": False},
     },
-    # Search, then a short refinement: about 15 s a pair on a 2-core AVX2 CPU (fp32; docs/presets-and-search.md,
-    # measured with the oracle through random:ViT-B-32). The guide sees only what can be the answer: the 48
-    # proposals the relation and the geometry shortlist, 8 turns at each of the 2 best sites, the best 12 again
-    # at the fine views; then the geometry refines its 4 best poses (+1 from the tile stage) in 8 small steps and
-    # the guide chooses among them (selection only: in the pixels runs its gradient placed no more cases, and on
-    # an AVX2 CPU a gradient image costs ~2.6 forward ones, docs/guidance.md).
+    # Search, then a short refinement (its time: docs/presets-and-search.md, "Presets"). The guide sees only what
+    # can be the answer: the 48 proposals the relation and the geometry shortlist, 8 turns at each of the 2 best
+    # sites, the best 12 again at the fine views; then the geometry refines its 4 best poses (+1 from the tile
+    # stage) in 8 small steps and the guide chooses among them (selection only: its gradient placed no more cases
+    # and costs more than a forward image on a CPU, docs/guidance.md).
     "default": {
         "camera": {"views": 1, "image_size": 128, "zoom_last": 0.7},
         "loss": {"samples": 2000, "selection_only": True},

@@ -38,18 +38,12 @@ weights raise ``ModelError`` at once, naming them and how to provide them; nothi
 
 Precision: images go through the model under bf16 autocast on CPU and fp16 autocast on CUDA when
 ``autocast`` is on; text and reference images are always encoded in fp32 (once per run, so precision
-costs nothing there). Decision measured with ``benchmarks/guidance_bench.py --spec random:ViT-B-32``
-on the shared 2-core AVX512-BF16 CPU (two runs, load 1 and 3-7, so ratios within a run are what
-counts): max |cos_bf16 - cos_fp32| = 5.3e-4 over 512 image-text pairs (bound 1e-2), gradient w.r.t.
-the pixels has cosine 0.99997 with fp32's; forward+backward of 8 views at 224 px 1.15 -> 0.83 s
-(1.4x; 1.6x in the loaded run), forward-only 94 -> 54 ms per image (1.75x; 2.4x loaded). On a CPU
-without native bf16 (an AMD EPYC worker with AVX2 only, no AVX512-BF16/AMX) the same benchmark gave
-fp32 2.35 s vs bf16 86 s (bf16 emulated, 37x slower). So bf16 is on by default on CPU only where the CPU
-has AVX512-BF16 or AMX (``cpu_has_fast_bf16``); elsewhere the CPU path is fp32. The model's weights
-are frozen (``requires_grad_(False)``) so the backward pass computes pixel gradients only: fp32
-forward+backward 1.6x faster than with trainable weights
-(interleaved in one run), likely why 1.15 s here beats the 2.0 s measured earlier. ``random:tiny``
-is too small to gain from bf16 (autocast overhead makes it ~1.5x slower); it exists for CI.
+costs nothing there). bf16 is on by default on CPU only where the CPU has AVX512-BF16 or AMX
+(``cpu_has_fast_bf16``): there it is faster at an error far below what ranking needs, while on a CPU without
+native bf16 it is emulated and many times slower than fp32, so the CPU path is fp32 there. The model's weights
+are frozen (``requires_grad_(False)``) so the backward pass computes pixel gradients only. ``random:tiny`` is too
+small to gain from bf16 (autocast's overhead dominates); it exists for CI. The measurements behind these rules
+(``benchmarks/guidance_bench.py``) are in docs/benchmarks.md, "Precision of the guide".
 """
 
 from __future__ import annotations

@@ -26,6 +26,7 @@ from ctp_core.config import AlignConfig
 from ctp_core.goals import Goal
 from ctp_core.guidance import Guide
 from ctp_core.pose import Poses, apply_pose, quaternion_to_matrix
+from ctp_core.priors.relations import RelationReading
 from ctp_core.progress import Clock
 from ctp_core.scene import PreparedPair
 from ctp_core.schedule import Phase
@@ -54,12 +55,6 @@ ENCLOSED_SAMPLES = 512  # target samples a pose's enclosed penetration looks at 
 TOUCH = 0.1  # source diagonals: a refined pose this close to the target touches it (plus the samples' spacing)
 
 
-def sample_spacing(pair: PreparedPair, count: int) -> float:
-    """The spacing of ``count`` samples on the target's surface, normalised units: how far a point on the surface
-    can be from its nearest sample."""
-    return math.sqrt(float(pair.target.area) / count) * pair.target_to_normalised.scale
-
-
 def contact_gap(pair: PreparedPair, poses: Poses) -> torch.Tensor:
     """(B,) each pose's gap to the target in source diagonals: its ``clearance`` less the target samples' spacing
     (a small source on a big target is farther from the nearest sample than from the surface), at least 0."""
@@ -69,7 +64,7 @@ def contact_gap(pair: PreparedPair, poses: Poses) -> torch.Tensor:
 def touch_limit(pair: PreparedPair, poses: Poses) -> torch.Tensor:
     """(B,) the ``clearance`` (source diagonals) under which a pose touches: ``TOUCH`` plus the spacing of the
     target samples (a small source on a big target is farther from the nearest sample than from the surface)."""
-    return TOUCH + sample_spacing(pair, len(pair.index.points)) / source_diagonal(pair, poses)
+    return TOUCH + pair.sample_spacing(len(pair.index.points)) / source_diagonal(pair, poses)
 
 
 def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: torch.Tensor, weights: Phase, *,
@@ -242,13 +237,12 @@ class Scorer:
     """The objective's terms for any batch of poses; counts every image the guide encodes in ``clip_images``."""
 
     def __init__(self, pair: PreparedPair, config: AlignConfig, contact_ratio: float, guide: Guide | None = None,
-                 goal: Goal | None = None, clock: Clock | None = None, *, relation: str | None = None,
-                 source_is_figure: bool = True, scale: ScalePlan | None = None):
+                 goal: Goal | None = None, clock: Clock | None = None, *, reading: RelationReading | None = None,
+                 scale: ScalePlan | None = None):
         self.pair, self.config, self.contact_ratio = pair, config, contact_ratio
         self.scale = scale  # scale mode: the ``scale`` term's plan (None: rigid, no term)
         # the prompt's relation where it judges poses (None: unknown, or ``config.relation`` off: zero terms)
-        self.relation = relation if config.relation and predicates.known(relation) else None
-        self.source_is_figure = source_is_figure
+        self.reading = reading if config.relation and reading is not None and reading.known else None
         self.gate: Gate | None = None  # the guide's gate, measured by the search (None: not measured, trusted)
         self.guide, self.goal = guide, goal
         self.use_clip = goal is not None and guide is not None and config.loss.lambda_clip > 0
@@ -309,7 +303,7 @@ class Scorer:
             return torch.zeros(len(poses), device=poses.t.device)
         near = pair.index.points[torch.as_tensor(idx, device=poses.t.device)] - poses.t[:, None]
         local = torch.einsum("bji,bkj->bki", quaternion_to_matrix(poses.q), near) / scale[:, None, None]
-        area_ratio = sample_spacing(pair, len(pair.index.points)) ** 2 / (pair.source_area * scale**2)
+        area_ratio = pair.sample_spacing(len(pair.index.points)) ** 2 / (pair.source_area * scale**2)
         return losses.enclosed_penetration(local, inside, pair.source_surface, scale, area_ratio, cfg.sigma_pen,
                                            cfg.c_pen, cfg.icp_neighbours)
 
@@ -320,7 +314,7 @@ class Scorer:
         their score already); ``prefer``: ``predicates.preference`` x ``preference_weight``; zeros without a
         relation. Differentiable (a refinement term)."""
         with self.clock.time("relation"):
-            out = predicates.terms(self.pair, poses, self.relation, self.source_is_figure)
+            out = predicates.terms(self.pair, poses, self.reading)
         out["prefer"] = out["prefer"] * self.preference_weight
         return out
 

@@ -184,11 +184,12 @@ class Optimiser:
         scorer = self.scorer
         i = int(scores["objective"].argmin())
         gap = contact_gap(scorer.pair, best.select(slice(i, i + 1)))
-        relation = scorer.relation
+        reading = scorer.reading
         return {"best_objective": float(scores["objective"][i]), "contact_gap": float(gap[0]),
-                "guide_match": -float(scores["clip"][i]) if scorer.guided else None, "relation": relation,
-                "relation_holds": int(holding(scores).sum()) if relation is not None else None,
-                "relation_checked": len(best) if relation is not None else None}
+                "guide_match": -float(scores["clip"][i]) if scorer.guided else None,
+                "relation": reading.name if reading is not None else None,
+                "relation_holds": int(holding(scores).sum()) if reading is not None else None,
+                "relation_checked": len(best) if reading is not None else None}
 
     def _perturb(self, opt: torch.optim.Optimizer) -> None:
         """Zero-mean Gaussian pose noise after each step, sigma = noise * current lr (method.md)."""

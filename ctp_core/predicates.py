@@ -1,8 +1,8 @@
 """The prompt's relation judged by the geometry: how far a posed source is from satisfying it.
 
-``relation_score(pair, poses, relation, source_is_figure)`` gives one value per pose, shape (B,), in the
-objective's batched layout: 0 when the relation holds, growing with the violation, in diagonals of the
-relation's *figure* (the thing placed; the source unless ``source_is_figure`` is false), so the same
+``relation_score(pair, poses, reading)`` gives one value per pose, shape (B,), in the objective's batched layout:
+0 when the relation holds, growing with the violation, in diagonals of the relation's *figure* (the thing placed;
+the source unless the reading makes it the ground, ``RelationReading.source_is_figure``), so the same
 arrangement scores the same at any file scale. Each score is a sum of smooth hinges (``hinge``) on distances
 and heights measured in the normalised frame (+Y up, the target upright; ``scene``), from surface samples and
 their outward normals; it is differentiable in the pose (nearest-sample *selection* carries no gradient, as in
@@ -14,6 +14,9 @@ Roles: with the source as the figure ("a cup on a table") the figure is the pose
 the target (the related object of a scene, ``PreparedPair.anchor``); with the source as the ground ("a table
 under a vase") the same definitions are read the other way round: the target is the figure and the posed
 source its ground. The definitions, in words, are in ``docs/relations.md`` and in each ``_score_*`` docstring.
+
+``JUDGES`` is the engine's one table of the relations: each relation's score and preference, under the name of its
+record in ``priors.relations.RELATIONS`` (which says the rest: resting, stability, region weights).
 
 Directions (sides, orientations) are the ground's own (``axes``: its front from ``PreparedPair.target_front`` or the
 posed source's ``source_front``), or the viewer's where the pair's fronts cannot be trusted; a reading of two
@@ -35,13 +38,12 @@ from scipy.spatial import ConvexHull, QhullError
 from ctp_core import losses, sampling
 from ctp_core.cameras import FIRST_AZIMUTH
 from ctp_core.pose import Poses, apply_pose, quaternion_to_matrix
-from ctp_core.priors.relations import RELATIONS, parts, side_of
-from ctp_core.scene import PreparedPair
+from ctp_core.priors.relations import RELATIONS, RelationReading
+from ctp_core.scene import UP_FACING, PreparedPair
 
 # --- constants (figure diagonals unless said otherwise) ------------------------------------------------------
 FIGURE_POINTS = 192  # figure samples a score looks at: enough to find a contact patch, cheap for hundreds of poses
 GROUND_POINTS = 256  # samples of a *posed* ground (the source in the ground role), compared by brute force
-UP_FACING = 0.5  # a ground normal with n_y above this faces up (the search's "top" region, ``proposals``)
 CONTACT = 0.03  # touching: within this of the ground surface (``_gap``: along the nearest normal): a cup's base
 # on a table is within a few hundredths of its diagonal of the sampled top once settled by the search
 SMOOTH = 0.02  # width of the quadratic start of every hinge: gradients stay continuous at the threshold
@@ -69,16 +71,6 @@ OFF_CENTRE = 0.5  # weight of the figure's distance from the ground's middle (in
 ENCLOSING_RAYS = 16  # ``_enclosure``: horizontal directions looked along from the figure's foot
 FOOT = 0.05  # ``_enclosure``: the figure's foot, this far above its lowest point
 
-RESTING = ("on", "stand", "sit", "lie")
-# where ``preference`` says more than holding
-PREFERRED = (*RESTING, "in", "under", "lean", "wear", "hang", "penetrate")
-SIDES = tuple(name for name, r in RELATIONS.items() if r.kind == "side")  # front, behind, left, right
-# where ``stable`` applies: what rests on something; beside, near or far from the ground, or turned somewhere, on the
-# floor or something else (not above or below it: hung or fixed)
-STABLE_RELATIONS = (*RESTING, "in", "under", "beside", "lean", "wear", *SIDES, "near", "far",
-                    *(name for name, r in RELATIONS.items() if r.kind == "orientation"))
-RELATION_NAMES: tuple[str, ...] = tuple(RELATIONS)
-
 
 @dataclass(frozen=True)
 class RelationVerdict:
@@ -97,13 +89,6 @@ class RelationVerdict:
         """The verdict as reports write it: ``side``, ``frame`` and ``parts`` only where they say something."""
         out = asdict(self)
         return {k: v for k, v in out.items() if v is not None or k not in ("side", "frame", "parts")}
-
-
-def known(relation: str | None) -> bool:
-    """Whether ``relation`` is one of the vocabulary's (``priors.relations.RELATIONS``), or a reading of several
-    (``front+facing``: each is); None is not."""
-    named = parts(relation)
-    return bool(named) and all(p in RELATIONS for p in named)
 
 
 def frame(pair: PreparedPair) -> str:
@@ -321,7 +306,6 @@ class Features:
     target: Side  # the related object (``PreparedPair.anchor``), static
     target_trees: dict[str, losses.SurfaceIndex | None]  # per normal subset ("up", "down", "side", ...)
     target_figure: Side  # a subset of the target as a figure (the ground role), static
-    floor: float  # the height the target stands on: its lowest point (every object of a scene)
 
 
 _FEATURES: dict[int, tuple[weakref.ref, Features]] = {}
@@ -352,8 +336,7 @@ def _build(pair: PreparedPair) -> Features:
     t_points, t_normals = anchor.points, torch.nn.functional.normalize(anchor.normals, dim=-1)
     lo, hi = t_points.min(0).values, t_points.max(0).values
     diag = (hi - lo).norm()
-    t_area = float(sum(m.area for m in pair.target_outward)) * pair.target_to_normalised.scale**2
-    t_spacing = math.sqrt(t_area / len(pair.index.points))
+    t_spacing = pair.sample_spacing(len(pair.index.points))
     target = Side(t_points[None], t_normals[None], t_points.mean(0)[None], diag[None],
                   torch.tensor([t_spacing], device=device), anchor)
     ny = t_normals[:, 1]
@@ -365,8 +348,7 @@ def _build(pair: PreparedPair) -> Features:
     figure = Side(t_points[pick][None], t_normals[pick][None], t_points.mean(0)[None], diag[None],
                   torch.tensor([t_spacing], device=device), anchor)
     centre = as_t(local.apply(pts.mean(0)[None])[0])
-    return Features(s_points, s_normals, centre, math.sqrt(s_area / FIGURE_POINTS), target, trees, figure,
-                    float(pair.target_vertices[:, 1].min()))
+    return Features(s_points, s_normals, centre, math.sqrt(s_area / FIGURE_POINTS), target, trees, figure)
 
 
 def posed_source(feat: Features, poses: Poses) -> Side:
@@ -381,13 +363,13 @@ def posed_source(feat: Features, poses: Poses) -> Side:
     return Side(pts, nrm, centre, diag, feat.source_spacing * scale)
 
 
-def _roles(pair: PreparedPair, poses: Poses, source_is_figure: bool) -> tuple[Side, _Ground, torch.Tensor]:
-    """(figure, ground, floor height (B,)) for either role."""
+def _roles(pair: PreparedPair, poses: Poses, placed: bool) -> tuple[Side, _Ground, torch.Tensor]:
+    """(figure, ground, floor height (B,)) for either role: ``placed``, the source is the figure."""
     feat = features(pair)
     source = posed_source(feat, poses)
     b = len(poses)
-    if source_is_figure:
-        floor = torch.full((b,), feat.floor, device=source.points.device)
+    if placed:
+        floor = torch.full((b,), pair.floor, device=source.points.device)
         return source, _Ground(feat.target, feat.target_trees), floor
     fig = feat.target_figure
     figure = Side(fig.points.expand(b, -1, -1), fig.normals.expand(b, -1, -1), fig.centre.expand(b, -1),
@@ -396,15 +378,16 @@ def _roles(pair: PreparedPair, poses: Poses, source_is_figure: bool) -> tuple[Si
     return figure, _Ground(source, {}), floor
 
 
-def _context(pair: PreparedPair, poses: Poses, source_is_figure: bool) -> _Ctx:
+def _context(pair: PreparedPair, poses: Poses, reading: RelationReading | None) -> _Ctx:
     """The figure, the ground, the floor and the fronts for either role: the target's front
     (``PreparedPair.target_front``, normalised frame) and the posed source's (``source_front``, turned by the pose);
     the ground's axes in its own frame or the viewer's (``axes``)."""
-    figure, ground, floor = _roles(pair, poses, source_is_figure)
+    placed = reading is None or reading.source_is_figure  # no relation: the source is what is placed
+    figure, ground, floor = _roles(pair, poses, placed)
     as_t = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=poses.t.device)  # noqa: E731
     own = torch.einsum("bij,j->bi", quaternion_to_matrix(poses.q), as_t(pair.source_front))
     target = as_t(pair.target_front).expand(len(poses), 3)
-    ground_front, figure_front = (target, own) if source_is_figure else (own, target)
+    ground_front, figure_front = (target, own) if placed else (own, target)
     front, left = axes(ground_front, pair.front_trusted)
     flat = figure_front * torch.tensor([1.0, 0.0, 1.0], device=figure_front.device)
     return _Ctx(figure, ground, floor, front=front, left=left, heading=flat)
@@ -727,57 +710,39 @@ def _score_wrap(c: _Ctx) -> torch.Tensor:
     return c.touching() + hinge(WRAP_SHARE - share)
 
 
-SCORES: dict[str, Callable[[_Ctx], torch.Tensor]] = {
-    "on": _score_resting, "stand": _score_resting, "sit": _score_resting, "lie": _score_resting,
-    "in": _score_in, "under": _score_under, "beside": _score_beside, "lean": _score_lean, "hang": _score_hang,
-    "wear": _score_wear, "penetrate": _score_penetrate, "attach": _score_attach, "hold": _score_hold,
-    "wrap": _score_wrap, **{side: partial(_score_side, side=side) for side in SIDES}, "above": _score_above,
-    "below": _score_below, "near": _score_near, "far": _score_far, "facing": partial(_score_facing, sign=1.0),
-    "facing_away": partial(_score_facing, sign=-1.0), "aligned": _score_aligned,
-}
-assert set(SCORES) == set(RELATIONS), "every relation of the vocabulary has a score"
+def relation_score(pair: PreparedPair, poses: Poses, reading: RelationReading | None) -> torch.Tensor:
+    """(B,) how far each pose is from satisfying the ``reading`` (figure diagonals; 0 when it holds).
 
-
-def _score(c: _Ctx, relation: str) -> torch.Tensor:
-    """The sum of the scores of the relations a reading names (each 0 when it holds)."""
-    return sum(SCORES[p](c) for p in parts(relation))
-
-
-def relation_score(pair: PreparedPair, poses: Poses, relation: str | None, source_is_figure: bool = True
-                   ) -> torch.Tensor:
-    """(B,) how far each pose is from satisfying ``relation`` (figure diagonals; 0 when it holds).
-
-    ``source_is_figure`` false reads it the other way round (the target placed relative to the posed source).
-    An unknown relation or None has no term: zeros (``known`` says which). Differentiable in ``poses``.
+    A reading that makes the source the ground reads it the other way round (the target placed relative to the
+    posed source). An unknown relation or None has no term: zeros. Differentiable in ``poses``.
     """
-    if not known(relation):
+    if reading is None or not reading.known:
         return torch.zeros(len(poses), device=poses.t.device)
-    return _score(_context(pair, poses, source_is_figure), relation)
+    return _score(_context(pair, poses, reading), reading)
 
 
-def terms(pair: PreparedPair, poses: Poses, relation: str | None, source_is_figure: bool = True
-          ) -> dict[str, torch.Tensor]:
-    """``rel`` (``relation_score``), ``stable`` (``stable`` for the ``STABLE_RELATIONS`` that do not rest on
-    their ground: the resting ones include it in their score; zeros otherwise) and ``prefer`` (``preference``),
-    from one posing of the samples and one support footprint per pose (the objective's relation terms)."""
+def terms(pair: PreparedPair, poses: Poses, reading: RelationReading | None) -> dict[str, torch.Tensor]:
+    """``rel`` (``relation_score``), ``stable`` (``stable`` for the readings it applies to that do not rest on
+    their ground, ``Relation.steady`` but not ``rests``: the resting ones include it in their score; zeros
+    otherwise) and ``prefer`` (``preference``), from one posing of the samples and one support footprint per pose
+    (the objective's relation terms)."""
     zeros = torch.zeros(len(poses), device=poses.t.device)
-    if not known(relation):
+    if reading is None or not reading.known:
         return {"rel": zeros, "stable": zeros, "prefer": zeros}
-    c = _context(pair, poses, source_is_figure)
-    named = parts(relation)
-    steady = _stability(c) if set(named) & set(STABLE_RELATIONS) and not set(named) & set(RESTING) else zeros
-    return {"rel": _score(c, relation), "stable": steady, "prefer": sum(_preference(c, p) for p in named)}
+    c = _context(pair, poses, reading)
+    steady = _stability(c) if reading.steady and not reading.rests else zeros
+    return {"rel": _score(c, reading), "stable": steady, "prefer": sum(_prefer(c, p) for p in reading.parts)}
 
 
-def stable(pair: PreparedPair, poses: Poses, source_is_figure: bool = True) -> torch.Tensor:
+def stable(pair: PreparedPair, poses: Poses, reading: RelationReading | None = None) -> torch.Tensor:
     """(B,) how far the figure's centre of mass is from being over its support (figure diagonals, hinged; 0 when
     stable): its horizontal projection against the convex footprint of the samples touching ground surface that
-    does not face down, or the floor. Differentiable in ``poses``; ``holds`` gives the verdict."""
-    return _stability(_context(pair, poses, source_is_figure))
+    does not face down, or the floor. The figure is the reading's (the source without one). Differentiable in
+    ``poses``; ``holds`` gives the verdict."""
+    return _stability(_context(pair, poses, reading))
 
 
-def preference(pair: PreparedPair, poses: Poses, relation: str | None, source_is_figure: bool = True
-               ) -> torch.Tensor:
+def preference(pair: PreparedPair, poses: Poses, reading: RelationReading | None) -> torch.Tensor:
     """(B,) how far each pose is from the *usual* arrangement of a relation that holds in many places (lower is
     better, about 0 to 2; zeros where the relation says nothing more): "a cup on the table" holds on the whole
     top, the corner included, and geometry at contact (soft-ICP) favours corners and edges, where more target
@@ -803,40 +768,69 @@ def preference(pair: PreparedPair, poses: Poses, relation: str | None, source_is
     - ``penetrate``: near the middle, *end first* (``_end_first``: a stick stuck into a block stands in its top
       rather than lying sunk along it) and *from above the floor* (the figure's depth below the floor the ground
       stands on, in figure diagonals: driven up through a block's base it would pass through the floor);
-    - the others (``beside``: which side is the guide's to say; ``attach``, ``hold``, ``wrap``): zeros.
+    - the others (``beside``: which side is the guide's to say; ``attach``, ``hold``, ``wrap``, the directional
+      ones): zeros (their ``Judge`` has no preference).
     Differentiable in ``poses`` but for the counts (a refinement term: ``objective.PREFER`` x ``lambda_rel``,
     and with a guide only as far as it cannot tell poses apart, ``Scorer.relation_terms``).
     """
-    named = parts(relation)
-    if not set(named) & set(PREFERRED):
+    if reading is None or not reading.known or all(JUDGES[p].preference is None for p in reading.parts):
         return torch.zeros(len(poses), device=poses.t.device)
-    c = _context(pair, poses, source_is_figure)
-    return sum(_preference(c, p) for p in named)
+    c = _context(pair, poses, reading)
+    return sum(_prefer(c, p) for p in reading.parts)
 
 
-def _preference(c: _Ctx, relation: str) -> torch.Tensor:
-    figure, ground = c.figure, c.ground
-    out = torch.zeros_like(c.unit)
-    if relation not in PREFERRED:
-        return out
-    if relation in (*RESTING, "wear"):  # hard extremes: the smooth ones sit a few tau out, and would lift a plate
-        top = ground.side.points[..., 1].max(-1).values.expand_as(c.unit)
-        out = out + (top - figure.points[..., 1].min(-1).values).abs() / c.unit
-    if relation in RESTING:
-        depth = -_support_depth(c)
-        out = out + (1.0 - depth / _half_width(figure).clamp_min(1e-9)).clamp(0.0, 1.0)
-    if relation == "in":
-        out = out + 1.0 - _enclosure(c)
-    if relation == "hang":
-        return out + _borne(c)
-    if relation == "penetrate":
-        out = out + _end_first(c) + c.h(c.floor - c.figure.points[..., 1].min(-1).values)
-    if relation != "wear":
-        gp = ground.side.points[..., [0, 2]]
-        low, high = gp.min(1).values, gp.max(1).values
-        half = ((high - low).norm(dim=-1) / 2).clamp_min(1e-9)
-        out = out + OFF_CENTRE * (figure.centre[:, [0, 2]] - (low + high) / 2).norm(dim=-1) / half
-    return out
+def _drop(c: _Ctx) -> torch.Tensor:
+    """(B,) the height between the ground's highest point and the figure's bottom, either way, in figure diagonals:
+    hard extremes (the smooth ones sit a few tau out, and would lift a plate)."""
+    top = c.ground.side.points[..., 1].max(-1).values.expand_as(c.unit)
+    return (top - c.figure.points[..., 1].min(-1).values).abs() / c.unit
+
+
+def _unsteady(c: _Ctx) -> torch.Tensor:
+    """(B,) 1 less the depth of the centre's projection inside its support's footprint, in its half-widths, in
+    [0, 1]."""
+    depth = -_support_depth(c)
+    return (1.0 - depth / _half_width(c.figure).clamp_min(1e-9)).clamp(0.0, 1.0)
+
+
+def _off_centre(c: _Ctx) -> torch.Tensor:
+    """(B,) ``OFF_CENTRE`` x the horizontal distance of the figure's centre from the middle of the ground's
+    footprint, in the ground's half-widths."""
+    gp = c.ground.side.points[..., [0, 2]]
+    low, high = gp.min(1).values, gp.max(1).values
+    half = ((high - low).norm(dim=-1) / 2).clamp_min(1e-9)
+    return OFF_CENTRE * (c.figure.centre[:, [0, 2]] - (low + high) / 2).norm(dim=-1) / half
+
+
+def _prefer_resting(c: _Ctx) -> torch.Tensor:
+    """Resting: on the top, steadily, near the middle."""
+    return torch.zeros_like(c.unit) + _drop(c) + _unsteady(c) + _off_centre(c)
+
+
+def _prefer_wear(c: _Ctx) -> torch.Tensor:
+    """``wear``: on the top (the highest summit)."""
+    return torch.zeros_like(c.unit) + _drop(c)
+
+
+def _prefer_in(c: _Ctx) -> torch.Tensor:
+    """``in``: held by its sides, near the middle."""
+    return torch.zeros_like(c.unit) + 1.0 - _enclosure(c) + _off_centre(c)
+
+
+def _off_centred(c: _Ctx) -> torch.Tensor:
+    """``under``, ``lean``: near the middle."""
+    return torch.zeros_like(c.unit) + _off_centre(c)
+
+
+def _prefer_hang(c: _Ctx) -> torch.Tensor:
+    """``hang``: hung freely from something that bears it."""
+    return torch.zeros_like(c.unit) + _borne(c)
+
+
+def _prefer_penetrate(c: _Ctx) -> torch.Tensor:
+    """``penetrate``: end first, from above the floor, near the middle."""
+    below_floor = c.h(c.floor - c.figure.points[..., 1].min(-1).values)
+    return torch.zeros_like(c.unit) + _end_first(c) + below_floor + _off_centre(c)
 
 
 def _borne(c: _Ctx) -> torch.Tensor:
@@ -901,22 +895,56 @@ def enclosure(foot: torch.Tensor, ground: torch.Tensor, spacing: torch.Tensor | 
         return ((along > 0) & (perp <= radius**2) & around).any(1).float().mean(-1)
 
 
-def verdict(pair: PreparedPair, pose: Poses | np.ndarray, relation: str | None, source_is_figure: bool = True
-            ) -> RelationVerdict | None:
-    """One pose's verdict (a 1-pose ``Poses`` or a 4x4 source local -> normalised); None without a relation."""
-    if not known(relation):
+@dataclass(frozen=True)
+class Judge:
+    """How the geometry judges one relation: its ``score`` (0 when it holds, ``relation_score``) and, where it holds
+    in many places, its ``preference`` for the usual one (``preference``; None: it says nothing more)."""
+
+    score: Callable[[_Ctx], torch.Tensor]
+    preference: Callable[[_Ctx], torch.Tensor] | None = None
+
+
+_RESTING = Judge(_score_resting, _prefer_resting)
+JUDGES: dict[str, Judge] = {
+    "on": _RESTING, "stand": _RESTING, "sit": _RESTING, "lie": _RESTING,
+    "in": Judge(_score_in, _prefer_in), "under": Judge(_score_under, _off_centred),
+    "beside": Judge(_score_beside), "lean": Judge(_score_lean, _off_centred),
+    "hang": Judge(_score_hang, _prefer_hang), "wear": Judge(_score_wear, _prefer_wear),
+    "penetrate": Judge(_score_penetrate, _prefer_penetrate), "attach": Judge(_score_attach),
+    "hold": Judge(_score_hold), "wrap": Judge(_score_wrap),
+    **{side: Judge(partial(_score_side, side=side)) for side in ("front", "behind", "left", "right")},
+    "above": Judge(_score_above), "below": Judge(_score_below), "near": Judge(_score_near),
+    "far": Judge(_score_far), "facing": Judge(partial(_score_facing, sign=1.0)),
+    "facing_away": Judge(partial(_score_facing, sign=-1.0)), "aligned": Judge(_score_aligned),
+}
+assert set(JUDGES) == set(RELATIONS), "every relation of the vocabulary has one judge, and only those"
+
+
+def _score(c: _Ctx, reading: RelationReading) -> torch.Tensor:
+    """The sum of the scores of the relations a reading names (each 0 when it holds)."""
+    return sum(JUDGES[p].score(c) for p in reading.parts)
+
+
+def _prefer(c: _Ctx, relation: str) -> torch.Tensor:
+    """One relation's ``preference`` (zeros where it says nothing more)."""
+    prefer = JUDGES[relation].preference
+    return torch.zeros_like(c.unit) if prefer is None else prefer(c)
+
+
+def verdict(pair: PreparedPair, pose: Poses | np.ndarray, reading: RelationReading | None) -> RelationVerdict | None:
+    """One pose's verdict (a 1-pose ``Poses`` or a 4x4 source local -> normalised); None without a known relation."""
+    if reading is None or not reading.known:
         return None
     if not isinstance(pose, Poses):
         pose = poses_of(pose, pair.source_samples.device)
-    named = parts(relation)
+    named = reading.parts
     with torch.no_grad():
-        c = _context(pair, pose, source_is_figure)
-        each = [float(SCORES[p](c)[0]) for p in named]
-        steady = bool(holds(float(_stability(c)[0]))) if set(named) & set(STABLE_RELATIONS) else None
-    directional = any(RELATIONS[p].kind in ("side", "orientation") for p in named)
+        c = _context(pair, pose, reading)
+        each = [float(JUDGES[p].score(c)[0]) for p in named]
+        steady = bool(holds(float(_stability(c)[0]))) if reading.steady else None
     return RelationVerdict(
-        relation, "figure" if source_is_figure else "ground", round(sum(each), 4), bool(holds(sum(each))),
-        steady, side_of(relation), frame(pair) if directional else None,
+        reading.name, reading.role, round(sum(each), 4), bool(holds(sum(each))),
+        steady, reading.side, frame(pair) if reading.directional else None,
         [{"name": p, "score": round(e, 4), "holds": bool(holds(e))} for p, e in zip(named, each, strict=True)]
         if len(named) > 1 else None)
 

@@ -11,7 +11,7 @@ above onto a point's column, every ``sampling.summits`` peak first: a spire's ti
 area to be drawn) and the floor (standing where the target stands, under or around it). Each point gets a source
 orientation from the source's own frames (its upright frame and its flip turned about +Y, its stable resting
 poses; uniform rotations in the ``random`` init mode), and ``settle`` moves the source until it touches without
-interpenetrating. The prompt's relation (``ScenePrior``) only *weights* how many proposals each region gets
+interpenetrating. The prompt's relation (``RelationReading``) only *weights* how many proposals each region gets
 (``region_weights``); every region keeps a share. The caller's start is one more candidate where it is near the
 target.
 
@@ -32,17 +32,16 @@ from scipy.spatial import Delaunay, QhullError
 
 from ctp_core import canonical, losses, sampling
 from ctp_core.config import AlignConfig
-from ctp_core.objective import NEAR, clearance, sample_spacing
+from ctp_core.objective import NEAR, clearance
 from ctp_core.pose import Poses, matrix_to_quaternion, quaternion_product, quaternion_to_matrix, random_quaternions
-from ctp_core.priors.relations import RELATIONS, parts
-from ctp_core.scene import PreparedPair
+from ctp_core.priors.relations import RelationReading
+from ctp_core.scene import UP_FACING, PreparedPair
 
 REGIONS: tuple[str, ...] = ("top", "side", "bottom", "inside", "gap", "drop", "floor")
 # How a proposal comes into contact (``settle``): toward the closest target sample (a surface's outward normal
 # is where it starts from), straight down its site's -normal (lowered from above), or not at all (it rests on
 # the floor where it was put and only leaves the target if it starts inside it).
 APPROACHES: tuple[str, ...] = ("closest", "straight", "none")
-UP_FACING = 0.5  # n_y above: "top"; below minus this: "bottom"; else "side"
 SETTLE_POINTS = 256  # source samples checked for penetration when settling proposals
 APPROACH_POINTS = 64  # source samples used while sliding proposals into contact
 CONTACT_SAMPLES = 6000  # target samples for settling proposals (the losses use ``loss.samples``)
@@ -50,23 +49,6 @@ SETTLE_ITERATIONS = 12
 PUSH_ITERATIONS = 3
 HULL_POINTS = 96  # source convex hull vertices kept for the stable poses
 CAVITY_PROBES = 4096  # quasi-random points in the target AABB tried as cavity proposals
-
-# Region weights per relation when the source is the relation's figure (the thing placed), and when it is the
-# ground (the target sits on, in or against the source). Unlisted regions weigh 1: weights shift proposals
-# toward where the prompt says, never away from everywhere else (``min_share`` keeps every region).
-FIGURE_WEIGHTS: dict[str, dict[str, float]] = {
-    "on": {"top": 4.0, "drop": 4.0}, "stand": {"top": 4.0, "drop": 3.0}, "sit": {"top": 3.0, "drop": 3.0},
-    "lie": {"top": 3.0, "drop": 3.0}, "wear": {"top": 4.0, "drop": 4.0},
-    "in": {"inside": 4.0, "top": 1.5, "drop": 2.0}, "beside": {"gap": 4.0, "side": 2.0, "floor": 3.0},
-    "under": {"bottom": 3.0, "gap": 2.0, "floor": 4.0},
-    "hang": {"side": 2.0, "bottom": 2.0}, "lean": {"side": 3.0, "floor": 2.0}, "attach": {"side": 2.0, "drop": 2.0},
-    "hold": {"side": 2.0}, "wrap": {"side": 2.0}, "penetrate": {"top": 1.5, "side": 1.5, "drop": 1.5},
-}
-GROUND_WEIGHTS: dict[str, dict[str, float]] = {
-    "on": {"bottom": 4.0}, "stand": {"bottom": 4.0}, "sit": {"bottom": 3.0}, "lie": {"bottom": 3.0},
-    "wear": {"bottom": 3.0}, "under": {"top": 4.0, "drop": 3.0}, "beside": {"gap": 4.0, "side": 2.0, "floor": 3.0},
-}
-
 
 @dataclass
 class Site:
@@ -97,13 +79,11 @@ class Proposals:
         return Proposals(self.poses.select(index), [self.region[i] for i in index], sites, self.rotations, self.index)
 
 
-def region_weights(relation: str | None, source_is_figure: bool = True) -> dict[str, float]:
-    """Weight of every region for a relation read from the prompt; at least 1 each (1: no preference)."""
-    table = FIGURE_WEIGHTS if source_is_figure else GROUND_WEIGHTS
-    position = next(iter(parts(relation)), "")  # a reading of two: its position ("front+facing": front)
-    if position in RELATIONS and RELATIONS[position].kind in ("side", "distance", "orientation"):
-        position = "beside"  # where the floor around the target is
-    chosen = table.get(position, {})
+def region_weights(reading: RelationReading | None) -> dict[str, float]:
+    """Weight of every region for the reading's position in the source's role (``Relation.figure_regions``,
+    ``ground_regions``; a reading of two: its position, "front+facing": front); at least 1 each (1: no preference,
+    and every region for no relation)."""
+    chosen = {} if reading is None else reading.regions
     return {r: max(1.0, float(chosen.get(r, 1.0))) for r in REGIONS}
 
 
@@ -221,7 +201,7 @@ def floor_points(pair: PreparedPair, count: int, margin: float, rng: np.random.G
     an object rest where it does."""
     lo, hi = pair.anchor.points.min(0).values.numpy(), pair.anchor.points.max(0).values.numpy()
     out = lo - margin + (hi - lo + 2 * margin) * rng.random((count, 3))
-    out[:, 1] = float(pair.target_vertices[:, 1].min())
+    out[:, 1] = pair.floor
     return out
 
 
@@ -259,7 +239,7 @@ def settle(pair: PreparedPair, index: losses.SurfaceIndex, q: torch.Tensor, anch
     tol = 2e-3 * pair.target_radius
     # the sampled depth is only as good as the sample spacing (an edge's neighbour plane votes near corners):
     # count a sample inside only past a third of that spacing
-    spacing = sample_spacing(pair, len(index.points))
+    spacing = pair.sample_spacing(len(index.points))
     inside_tol = max(tol, spacing / 3)
     low, high = index.points.min(0).values - spacing - tol, index.points.max(0).values + spacing + tol
     centre = anchor.clone()

@@ -275,7 +275,7 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
     tiled_count = len(poses) if tiles is not None else 0
     total = len(poses) + sweep_count + tiled_count + fine_count
 
-    relation = scorer.relation
+    relation = scorer.reading.name if scorer.reading is not None else None
     held = [0, 0]  # candidates where the relation holds, of those scored (coarse and sweep)
 
     def emit(done: int, best: float | None = None, restarts: int | None = None) -> None:

@@ -1,9 +1,9 @@
 """Proposals that satisfy the prompt's relation by construction where the search's regions do not reach it.
 
 ``proposals.propose`` draws from regions (top, side, bottom, cavity, gaps, drops, floor) with the source in its
-own resting frames; some relations need a pose none of them makes. Measured on the dev cases (the proposals
-where ``predicates.relation_score`` holds, docs/benchmarks.md "Relation predicates"): "lean" had none of 142
-(cur-s04: a stick leaning against a box): every proposal either stands upright beside the box or lies on it.
+own resting frames; some relations need a pose none of them makes: a stick leaning against a box is neither
+standing upright beside the box nor lying on it, and no region tilts it (docs/benchmarks.md, "Why each relation's
+proposals exist", has the measures).
 
 ``lean``: the source standing on its longest principal axis (either end up, any turn about +Y), tilted by
 ``LEAN_TILTS`` about the horizontal axis along a side of the target, so its top tips toward the target; its
@@ -16,7 +16,7 @@ share of horizontal directions around a point that meet the target, ``predicates
 draw), half on its longest principal axis (a candle in a holder's cup, a pencil in a mug), half in its own
 resting frames (a hot dog in its bun), lowered onto the point. The regions' cavity proposals centre the source
 on a point inside the target's hull: a candle standing in a shallow cup on top of a tall holder has its centre
-above the rim (pb3d-candle_stick: 1 of the 111 proposals held "in" where the reference stands).
+above the rim, where no cavity point is.
 
 ``hang``: the source hung by a *hook point* on an up-facing point of a *thin* part of the target (a peg, a
 branch, a rail), turned as it would hang: its centre straight below the hook point (any turn about +Y), the
@@ -24,15 +24,13 @@ hook point just above the target's point, then lowered into contact. A hook poin
 faces along its plumb line (toward the source's centre: the inside of a ring's loop, a hook's bend, a hanger's
 crook) and whose plumb line meets the source again beyond it (the loop closes under it); the part fits when
 the target's vertical thickness under its point (down to its next down-facing surface) is less than that
-clearance. The regions approach the target from outside, so a ring never comes to be threaded on a peg
-(cur-s07, its wall kept upright: the search's four starts were rings against the wall's side or hooked over
-its top edge, none on the peg).
+clearance. The regions approach the target from outside, so a ring never comes to be threaded on a peg: it
+ends against the wall's side or hooked over its top edge.
 
 ``penetrate``: the source driven end first into the target: on its longest principal axis along the inward
 normal of a surface sample that does not face down, ``PIERCE_DEPTH`` of its length in, raised where it would
 pass below the floor; not settled (it is meant to intersect). The regions settle every proposal free of the
-target, so what held "penetrate" lay half sunk along a surface (cur-s08: every restart a stick lying across the
-block's top or along its base, none standing in it).
+target, so what holds "penetrate" among them lies half sunk along a surface rather than standing in it.
 
 The directional relations (``apart``): beside the target on the named side of it (``front``, ``behind``, ``left``,
 ``right``, in its own frame or the viewer's, ``predicates.axes``), ``near`` or ``far`` from it, or turned to it
@@ -46,7 +44,7 @@ construction: the approach "none"): the regions settle every proposal into conta
 
 Each kind is made only where it is the prompt's relation (its position, the first of a reading of two) with the
 source as the figure and ``config.relation`` is on, in place of as many region proposals (``extend``); otherwise
-the proposals are unchanged.
+the proposals are unchanged. ``BUILDERS`` names each relation's builder (a relation without one has none).
 
 Not done (docs/relations.md lists them): "under" (the floor under a down-facing part), "beside" (the floor
 just outside the footprint): the regions already give some poses where those hold on the dev cases; "below"
@@ -56,7 +54,7 @@ just outside the footprint): the regions already give some poses where those hol
 from __future__ import annotations
 
 import math
-from functools import partial
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -64,9 +62,8 @@ from scipy.spatial import cKDTree
 
 from ctp_core import predicates
 from ctp_core.config import AlignConfig
-from ctp_core.objective import sample_spacing
 from ctp_core.pose import Poses, quaternion_product, quaternion_to_matrix
-from ctp_core.priors.relations import RELATIONS, parts
+from ctp_core.priors.relations import RelationReading
 from ctp_core.proposals import APPROACHES, Proposals, Site, place, surface_regions
 from ctp_core.scene import PreparedPair
 
@@ -83,19 +80,18 @@ APART_GAPS = {"side": (0.05, predicates.BESIDE_GAP / 2), "near": (0.05, predicat
 ABOVE_CLEAR = (0.1, 0.5)  # ``apart``, "above": the source's bottom this many of its diagonals over the target's top
 
 
-def extend(pair: PreparedPair, config: AlignConfig, proposals: Proposals, relation: str | None,
-           source_is_figure: bool, seed: int) -> Proposals:
-    """``proposals`` with those that satisfy ``relation`` by construction (see the module docstring) in place of
-    as many of theirs, spread evenly over them (the caller's start kept): the relation's proposals take their
-    share of ``search.candidates`` rather than adding to it, so the search costs what it does without them
-    (added, they made a run a fifth longer where they exist)."""
-    position = next(iter(parts(relation)), "")
-    build = {"lean": lean, "in": contained, "hang": hung, "penetrate": pierced}.get(position)
-    if build is None and predicates.known(relation) and position != "below" and RELATIONS[position].kind != "contact":
-        build = partial(apart, relation=relation)
-    if not config.relation or not source_is_figure or build is None or proposals.rotations is None:
+def extend(pair: PreparedPair, config: AlignConfig, proposals: Proposals, reading: RelationReading | None,
+           seed: int) -> Proposals:
+    """``proposals`` with those that satisfy the ``reading`` by construction (its position's ``BUILDERS`` entry; see
+    the module docstring) in place of as many of theirs, spread evenly over them (the caller's start kept): the
+    relation's proposals take their share of ``search.candidates`` rather than adding to it, so the search costs
+    what it does without them."""
+    if reading is None or not reading.known or not reading.source_is_figure or not config.relation:
         return proposals
-    extra = build(pair, config, proposals, seed)
+    build = BUILDERS.get(reading.position)
+    if build is None or proposals.rotations is None:
+        return proposals
+    extra = build(pair, config, proposals, seed, reading)
     if extra is None or not len(extra.poses):
         return proposals
     proposals = proposals.select(_thinned(proposals.region, len(extra.poses)))
@@ -114,7 +110,8 @@ def _thinned(region: list[str], drop: int) -> list[int]:
     return sorted(chosen | {i for i, r in enumerate(region) if r == "init"})
 
 
-def lean(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int) -> Proposals | None:
+def lean(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int,
+         reading: RelationReading | None = None) -> Proposals | None:
     """Tilted sources standing on the floor against the target's sides (``extend``); None without side samples."""
     points, normals, regions, _ = surface_regions(pair)
     side = regions["side"]
@@ -136,13 +133,14 @@ def lean(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: in
     local = pair.source_subset(LEAN_POINTS).cpu()
     rotated = torch.einsum("bij,nj->bni", quaternion_to_matrix(q), local) * math.exp(log_s)
     behind = (-(rotated * n[:, None, :]).sum(-1)).max(dim=1).values  # extent toward the target
-    floor = float(pair.target_vertices[:, 1].min())
+    floor = pair.floor
     start = torch.as_tensor(points[side[pick]], dtype=torch.float32) + n * (behind + 1e-3 * pair.target_radius)[:, None]
     start[:, 1] = floor - rotated[..., 1].min(dim=1).values + 1e-3 * pair.target_radius
     return _lowered(pair, proposals, q, start, n, False, log_s, "lean")
 
 
-def contained(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int) -> Proposals | None:
+def contained(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int,
+              reading: RelationReading | None = None) -> Proposals | None:
     """Sources standing in the target's most enclosed up-facing places (``extend``); None where no up-facing
     point is enclosed at all."""
     points, _, regions, density = surface_regions(pair)
@@ -153,7 +151,7 @@ def contained(pair: PreparedPair, config: AlignConfig, proposals: Proposals, see
     lift = predicates.FOOT * 2 * pair.source_radius * math.exp(log_s)  # the source's foot, as the predicate's
     ground = torch.as_tensor(points, dtype=torch.float32)
     feet = ground[torch.as_tensor(top)] + torch.tensor([0.0, lift, 0.0])
-    spacing = sample_spacing(pair, len(points))
+    spacing = pair.sample_spacing(len(points))
     held = torch.cat([predicates.enclosure(chunk, ground[None], spacing, lift)
                       for chunk in feet.split(ENCLOSURE_BATCH)]).numpy().astype(np.float64)
     weights = density[top] * held**4
@@ -170,7 +168,8 @@ def contained(pair: PreparedPair, config: AlignConfig, proposals: Proposals, see
                     "contained")
 
 
-def hung(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int) -> Proposals | None:
+def hung(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int,
+         reading: RelationReading | None = None) -> Proposals | None:
     """Sources hung by a hook point on a thin up-facing part of the target (``extend``); None where the source has
     no hook point or no up-facing part of the target is thin enough to pass into one."""
     local, plumb, hooks, clearance = hook_points(pair)
@@ -194,7 +193,8 @@ def hung(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: in
     return _lowered(pair, proposals, q, start, up, False, log_s, "hang")
 
 
-def pierced(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int) -> Proposals:
+def pierced(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int,
+            reading: RelationReading | None = None) -> Proposals:
     """Sources driven end first into the target (``extend``): on the longest principal axis along the inward
     normal of a surface sample that does not face down (either end first, any turn about that axis),
     ``PIERCE_DEPTH`` of their length in, raised where that would pass below the floor the target stands on.
@@ -218,16 +218,16 @@ def pierced(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed:
     depth = torch.as_tensor(rng.uniform(*PIERCE_DEPTH, size=count), dtype=torch.float32) * length
     t = torch.as_tensor(points[pick], dtype=torch.float32) - d * (lead - depth)[:, None]
     # not through the floor the target stands on: raised to it where it would pass below (less deep from above)
-    t[:, 1] += (float(pair.target_vertices[:, 1].min()) - (t[:, 1] + rotated[..., 1].min(1).values)).clamp_min(0.0)
+    t[:, 1] += (pair.floor - (t[:, 1] + rotated[..., 1].min(1).values)).clamp_min(0.0)
     sites = _sites(torch.as_tensor(points[pick], dtype=torch.float32), -d, True)
     return _labelled(pair, proposals, Poses(t, q, torch.full((count,), log_s)), sites, "pierce")
 
 
-def apart(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int, relation: str) -> Proposals:
+def apart(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int,
+          reading: RelationReading) -> Proposals:
     """Sources where a reading without contact puts them (``extend``; the module docstring says where)."""
-    named = parts(relation)
-    position, turn = named[0], next((p for p in named if RELATIONS[p].kind == "orientation"), None)
-    kind = RELATIONS[position].kind
+    position, turn = reading.position, reading.orientation
+    kind = reading.records[0].kind
     rng = np.random.default_rng(seed + 41)
     count = max(1, math.ceil(SHARE * config.search.candidates))
     log_s = _scale(proposals)
@@ -265,11 +265,22 @@ def apart(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: i
         level = lo + (high - lo) * torch.as_tensor(rng.uniform(0.25, 0.75, count) if kind == "side"
                                                    else np.full(count, 0.5), dtype=torch.float32)
         anchor = u * (reach + gap * (source_diagonal + 2 * pair.target_radius) / 2)[:, None] + across * level[:, None]
-        anchor[:, 1] = float(pair.target_vertices[:, 1].min())
+        anchor[:, 1] = pair.floor
     sites = Site(anchor, up, torch.zeros(count), torch.ones(count, dtype=torch.bool),
                  torch.full((count,), APPROACHES.index("none"), dtype=torch.long))
     placed, free = place(pair, proposals.index, q, sites, log_s)
     return _labelled(pair, proposals, placed, sites.select(free), position)
+
+
+Builder = Callable[[PreparedPair, AlignConfig, Proposals, int, RelationReading], Proposals | None]
+# each relation's own proposals (``extend``), by name as in ``priors.relations.RELATIONS``; a relation not named has
+# none ("below", and the contact relations the regions reach). Every builder takes the reading; only ``apart``
+# reads more of it than its position (the side, the orientation)
+BUILDERS: dict[str, Builder] = {
+    "lean": lean, "in": contained, "hang": hung, "penetrate": pierced,
+    **dict.fromkeys(("front", "behind", "left", "right", "above", "near", "far", "facing", "facing_away", "aligned"),
+                    apart),
+}
 
 
 def hook_points(pair: PreparedPair) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -293,7 +304,7 @@ def peg_thickness(pair: PreparedPair) -> tuple[np.ndarray, np.ndarray, np.ndarra
     ones' indices, the target's vertical thickness under each (``_thickness``), the samples' density weights and
     spacing."""
     points, normals, regions, density = surface_regions(pair)
-    spacing = sample_spacing(pair, len(points))
+    spacing = pair.sample_spacing(len(points))
     top = regions["top"]
     return points, normals, top, _thickness(points, top, regions["bottom"], spacing), density, spacing
 

@@ -205,17 +205,17 @@ def lid_bound(pair: PreparedPair, seed: int) -> float | None:
 
 def geometric_bound(pair: PreparedPair, prior: ScenePrior, seed: int, ratio: float) -> Bound | None:
     """The geometry's bound on the scale for the priors' relation (the source the figure), or None."""
-    if not prior.source_is_figure:
-        return None
-    if prior.relation == "in":
+    reading = prior.reading
+    placed = reading.name if reading is not None and reading.source_is_figure else None
+    if placed == "in":
         limit = cavity_bound(pair, seed)
         return None if limit is None else Bound("in: fits the cavity", limit, "upper")
-    if prior.relation == "wear":
+    if placed == "wear":
         return wear_fit(pair, seed, ratio)
-    if prior.relation == "hang":
+    if placed == "hang":
         limit = hang_bound(pair)
         return None if limit is None else Bound("hang: its loop takes the peg", limit, "lower")
-    if prior.relation == "on":
+    if placed == "on":
         limit = lid_bound(pair, seed)
         return None if limit is None else Bound("on: a lid covers the opening", limit, "lower")
     return None

@@ -16,6 +16,7 @@ Frames (see ``frames``):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import TYPE_CHECKING, TypeAlias
@@ -34,6 +35,9 @@ if TYPE_CHECKING:
     from ctp_core.guidance import Guide
 
 Target: TypeAlias = "trimesh.Trimesh | trimesh.Scene"  # one mesh, or placed objects (target file frame)
+# a surface whose normal has n_y above this faces up (the search's "top" region, the relations' supports), below
+# minus this faces down, else sideways
+UP_FACING = 0.5
 
 
 def objects(target: Target) -> list[tuple[str, trimesh.Trimesh]]:
@@ -114,6 +118,22 @@ class PreparedPair:
         """Half the target AABB diagonal in the normalised frame."""
         lo, hi = self.target_vertices.min(0).values, self.target_vertices.max(0).values
         return float((hi - lo).norm() / 2)
+
+    @cached_property
+    def floor(self) -> float:
+        """The height the target stands on (normalised frame, +Y up): its lowest point, every object of a scene.
+        What stands beside, under or leans on the target stands there too."""
+        return float(self.target_vertices[:, 1].min())
+
+    @cached_property
+    def target_area(self) -> float:
+        """The target's surface area, every object, in its file's units."""
+        return float(sum(m.area for m in self.target_outward))
+
+    def sample_spacing(self, count: int) -> float:
+        """The spacing of ``count`` samples on the target's surface, normalised units: how far a point on the
+        surface can be from its nearest sample."""
+        return math.sqrt(self.target_area / count) * self.target_to_normalised.scale
 
     @cached_property
     def source_radius(self) -> float:

@@ -305,6 +305,7 @@ class Jobs:
         self.workers = Workers(redis, prefix=prefix, lease_s=lease_s, worker_grace_s=worker_grace_s,
                                default_queue=default_queue)
         self._admit = redis.register_script(_ADMIT)
+        self._renew_lease = redis.register_script(_RENEW_LEASE)
 
     @classmethod
     def from_settings(cls, settings: Settings, client: Redis | None = None) -> Jobs:
@@ -394,7 +395,7 @@ class Jobs:
 
     # -- writing ------------------------------------------------------------------------------------
     def submit(self, record: JobRecord, blobs: dict[str, bytes], max_active: int) -> JobRecord:
-        """Store the inputs, admit the record under the per-key limit, then enqueue; raises TooManyJobs over
+        """Admit the record under the per-key limit, store the inputs, then enqueue; raises TooManyJobs over
         the limit (``retry_after_s``: when a slot is likely free).
 
         Admission is one Lua script (``_ADMIT``): it forgets the key's stale slots, counts the live ones and,
@@ -403,8 +404,6 @@ class Jobs:
         The job's time limit is the configured one per stage (an assembly of n objects gets n times it)."""
         owned = self._owned_key(record.owner)
         try:
-            for name, data in blobs.items():
-                self.storage.put(record.id, name, data)
             admitted = self._admit(
                 keys=[self._active_key(record.owner), self.record_key(record.id), owned],
                 args=[record.id, max_active, record.model_dump_json(), self.ttl_s, record.created_at.timestamp(),
@@ -412,8 +411,10 @@ class Jobs:
             if not admitted:
                 raise TooManyJobs(f"this key already has {max_active} queued or running jobs; wait for one to end",
                                   retry_after_s=self.retry_after(record.owner))
+            for name, data in blobs.items():  # a refused submit stores nothing; no worker sees the job before _enqueue
+                self.storage.put(record.id, name, data)
             self._enqueue(record, record.id)
-        except Exception:  # TooManyJobs too: then only the inputs were stored
+        except Exception:  # TooManyJobs too: then nothing was stored (deleting absent blobs is a no-op)
             self.redis.srem(self._active_key(record.owner), record.id)
             self.redis.zrem(owned, record.id)
             self.redis.delete(self.record_key(record.id))
@@ -422,12 +423,13 @@ class Jobs:
         log.info("job queued", extra={"job_id": record.id, "owner": record.owner, "queue": record.queue})
         return record
 
-    def _enqueue(self, record: JobRecord, rq_id: str) -> None:
+    def _enqueue(self, record: JobRecord, rq_id: str, pipe: Any = None) -> None:
         """Put the job on its rq queue as rq job ``rq_id`` (a job queued again gets a new one: the rq job of its
-        earlier run may still be finalised by the worker that ran it)."""
+        earlier run may still be finalised by the worker that ran it); on ``pipe``, in its transaction."""
         self.rq_queue(record.queue).enqueue(TASK, record.id, job_id=rq_id,
                                             job_timeout=self.job_timeout_s * record.stage_count, result_ttl=0,
-                                            failure_ttl=self.ttl_s, description=f"{record.kind} {record.id}")
+                                            failure_ttl=self.ttl_s, description=f"{record.kind} {record.id}",
+                                            pipeline=pipe)
 
     def retry_after(self, owner: str) -> int:
         """Seconds until one of ``owner``'s jobs is likely to end and free a slot: the soonest estimate of its
@@ -517,14 +519,15 @@ class Jobs:
                                         "attempts": r.attempts if counted else r.attempts - 1,
                                         "progress": Progress(message=message)})
 
-        def also(pipe, _r: JobRecord) -> None:
+        def also(pipe, r: JobRecord) -> None:  # in the record's transaction: never "queued" without its rq job
             pipe.delete(self._lease_key(job_id))
             pipe.srem(self._running_key, job_id)
+            if applied:
+                self._enqueue(r, new_id(), pipe)
 
         record = self._update(job_id, change, also)
         if record is None or not applied:
             return None
-        self._enqueue(record, new_id())
         log.warning("job queued again", extra={"job_id": job_id, "status": "queued"})
         return record
 
@@ -617,7 +620,8 @@ class Jobs:
         with self.redis.pipeline(transaction=False) as pipe:
             self.workers.beat(pipe, worker, job_id, models, queues, period_s)
             if job_id is not None:
-                pipe.eval(_RENEW_LEASE, 2, self._lease_key(job_id), self._running_key, job_id, worker, self.lease_s)
+                self._renew_lease(keys=[self._lease_key(job_id), self._running_key],
+                                  args=[job_id, worker, self.lease_s], client=pipe)
             pipe.execute()
 
     def unavailable(self, model: str | None, *, queue: str | None = None, what: str = "model",

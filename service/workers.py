@@ -66,6 +66,10 @@ class Workers:
         return f"{self.prefix}:seen:{worker}"
 
     @property
+    def _live_set(self) -> str:
+        return f"{self.prefix}:workers"
+
+    @property
     def _seen_set(self) -> str:
         return f"{self.prefix}:seen"
 
@@ -84,7 +88,7 @@ class Workers:
         fresh_ms = int(1000 * (self.lease_s if period_s is None else min(self.lease_s, max(FRESH_BEATS * period_s,
                                                                                             2.0))))
         pipe.set(self._worker_key(worker), job_id or "", px=fresh_ms)
-        pipe.sadd(f"{self.prefix}:workers", worker)
+        pipe.sadd(self._live_set, worker)
         pipe.set(self._offer_key(worker), offer.model_dump_json(), ex=self.lease_s)
         grace_ms = int(self.worker_grace_s * 1000)
         if grace_ms > 0:
@@ -103,12 +107,12 @@ class Workers:
         """A worker's clean exit: it is no longer live. Its "last seen" record stays for the rest of the grace
         (a supervised or orchestrated worker that exits is usually started again)."""
         self.redis.delete(self._worker_key(worker), self._offer_key(worker))
-        self.redis.srem(f"{self.prefix}:workers", worker)
+        self.redis.srem(self._live_set, worker)
 
     def live(self) -> dict[str, Offer]:
         """Workers whose lease is current -> the offer each published; forgets the others (O(workers), not a
         key-space scan)."""
-        names = [raw.decode() for raw in self.redis.smembers(f"{self.prefix}:workers")]
+        names = [raw.decode() for raw in self.redis.smembers(self._live_set)]
         with self.redis.pipeline(transaction=False) as pipe:
             for name in names:
                 pipe.exists(self._worker_key(name))
@@ -118,7 +122,7 @@ class Workers:
                 for name, ok, raw in zip(names, replies[0::2], replies[1::2], strict=True) if ok}
         dead = [name for name in names if name not in live]
         if dead:
-            self.redis.srem(f"{self.prefix}:workers", *dead)
+            self.redis.srem(self._live_set, *dead)
         return live
 
     def seen(self) -> dict[str, SeenWorker]:

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from test_predicates import box, pose, poses, rot, table
+from test_predicates import box, pose, poses, reading, rot, table
 from test_predicates import prepared as prepared_plain
 
 from ctp_core import align as stages
@@ -60,7 +60,7 @@ SIDE_POSES = {"left": pose([1.6, ON_FLOOR, 0]), "right": pose([-1.6, ON_FLOOR, 0
 
 
 def _holding(pair, matrices, relation) -> list[bool]:
-    return predicates.holds(predicates.relation_score(pair, poses(pair, matrices), relation)).tolist()
+    return predicates.holds(predicates.relation_score(pair, poses(pair, matrices), reading(relation))).tolist()
 
 
 @pytest.mark.parametrize("side", list(SIDE_POSES))
@@ -92,7 +92,7 @@ def test_an_untrusted_front_judges_the_sides_in_the_viewers_frame():
     assert _holding(pair, matrices, "left") == [False, True]
     pair.front_trusted = False
     assert _holding(pair, matrices, "left") == [True, False]
-    verdict = predicates.verdict(pair, poses(pair, matrices[:1]).matrices()[0], "left")
+    verdict = predicates.verdict(pair, poses(pair, matrices[:1]).matrices()[0], reading("left"))
     assert verdict.to_dict()["frame"] == "viewer" and verdict.side == "left" and verdict.holds
 
 
@@ -146,7 +146,7 @@ def test_a_reading_of_two_relations_holds_when_both_do_and_the_verdict_says_each
     pair = prepared(DESK, chair())
     facing, away = pose(CHAIR_AT, rot([0, 1, 0], 180)), pose(CHAIR_AT)
     assert _holding(pair, [facing, away], "front+facing") == [True, False]
-    verdict = predicates.verdict(pair, poses(pair, [away]).matrices()[0], "front+facing").to_dict()
+    verdict = predicates.verdict(pair, poses(pair, [away]).matrices()[0], reading("front+facing")).to_dict()
     assert verdict["side"] == "front" and verdict["frame"] == "target" and not verdict["holds"]
     assert [(p["name"], p["holds"]) for p in verdict["parts"]] == [("front", True), ("facing", False)]
     assert verdict["stable"]
@@ -164,19 +164,19 @@ def test_the_source_front_turns_with_the_pose():
 @pytest.mark.parametrize("relation", ["left", "above", "near", "far", "facing", "front+facing"])
 def test_directional_scores_are_scale_free(relation):
     matrices = [pose([1.6, ON_FLOOR, 0]), pose([0.5, 1.6, 0.4], rot([0, 1, 0], 90)), pose([0, ON_FLOOR, 2.0])]
-    plain = predicates.relation_score(prepared(sofa(), BOX), poses(prepared(sofa(), BOX), matrices), relation)
+    plain = predicates.relation_score(prepared(sofa(), BOX), poses(prepared(sofa(), BOX), matrices), reading(relation))
     for scale in (1e-3, 1e3):
         pair = prepared(sofa(), BOX, scale)
         scaled = [m.copy() for m in matrices]
         for m in scaled:
             m[:3, 3] *= scale
-        score = predicates.relation_score(pair, poses(pair, scaled), relation)
+        score = predicates.relation_score(pair, poses(pair, scaled), reading(relation))
         assert torch.allclose(plain, score, rtol=1e-2, atol=1e-3), (plain, score)
 
 
 def test_a_contact_relations_verdict_keeps_its_shape():
     pair = prepared(table(), BOX)
-    verdict = predicates.verdict(pair, poses(pair, [pose([0, 1.3, 0])]).matrices()[0], "on").to_dict()
+    verdict = predicates.verdict(pair, poses(pair, [pose([0, 1.3, 0])]).matrices()[0], reading("on")).to_dict()
     assert set(verdict) == {"name", "role", "score", "holds", "stable"}
 
 
@@ -245,7 +245,7 @@ def test_directional_proposals_hold_their_relation_and_replace_as_many_region_pr
         assert bool(made.any()) == relation
         if relation:
             with torch.inference_mode():
-                held = predicates.holds(predicates.relation_score(run.pair, props.poses, "behind"))
+                held = predicates.holds(predicates.relation_score(run.pair, props.poses, reading("behind")))
             assert held[made].float().mean() > 0.9 and held[made].sum() > held[~made].sum(), held
         counts[relation] = len(props.region)
     assert counts[True] == counts[False], counts

@@ -184,3 +184,63 @@ def test_the_graph_sees_function_level_imports_and_reports_a_cycle():
     edges = {"a": {"b": [Import("b", 3, False)]}, "b": {"c": [Import("c", 4, False)]},
              "c": {"a": [Import("a", 9, True)]}}
     assert cycles(edges) == ["cycle: a -> b (line 3); b -> c (line 4); c -> a (line 9, in a function)"]
+
+
+# -- layers ---------------------------------------------------------------------------------------------------
+# The engine's stages, lowest first (docs/engine.md, "Layers"): a module may import its own layer and the layers
+# below, never one above. ``ctp_core`` is one flat package of concept modules (trimesh's model); the layers are what
+# a package cut would show, kept true by this test. A new module must be given its layer here.
+def _engine(members: str) -> frozenset[str]:
+    """``ctp_core``'s modules named without the package (``.`` for the package itself)."""
+    return frozenset("ctp_core" if m == "." else f"ctp_core.{m}" for m in members.split())
+
+
+LAYERS: tuple[tuple[str, frozenset[str]], ...] = (
+    ("base", _engine(". errors progress names weights pose frames structures sampling losses proximity")),
+    ("words", _engine("priors priors.lexicon priors.relations priors.context priors.prior priors.rules priors.openai")),
+    ("config", _engine("config backends runtime schedule options plan guide_choice model_store")),
+    ("load", _engine("io loader canonical orientation examples")),
+    ("render", _engine("cameras render")),
+    ("prepare", _engine("scene")),
+    ("guide", _engine("guidance guide_loaders goals")),
+    ("judge", _engine("predicates objective")),
+    ("search", _engine("proposals relation_proposals ranking scaling")),
+    ("optimise", _engine("optimise")),
+    ("pipeline", _engine("align adjust assemble export")),
+    ("bench", _engine("bench bench.protocol bench.cases bench.baselines bench.guides bench.harness bench.sanity"
+                      " bench.summary metrics")),
+    ("adapters", frozenset(m for m in modules() if m.partition(".")[0] in ("service", "worker"))),
+    ("cli", frozenset(m for m in modules() if m.partition(".")[0] == "ctp")),
+)
+
+
+def layer_of(name: str) -> int | None:
+    return next((i for i, (_, members) in enumerate(LAYERS) if name in members), None)
+
+
+def test_every_module_has_one_layer():
+    unplaced = [name for name in modules() if layer_of(name) is None]
+    twice = [name for name in modules() if sum(name in members for _, members in LAYERS) > 1]
+    assert not unplaced, f"give these modules a layer in LAYERS (tests/test_imports.py): {unplaced}"
+    assert not twice, f"in two layers: {twice}"
+
+
+def upward(edges: dict[str, dict[str, list[Import]]]) -> list[str]:
+    """Each import of a module from a higher layer, written with its statements."""
+    return [f"{name} ({LAYERS[layer_of(name)][0]}) imports {target} ({LAYERS[layer_of(target)][0]}, "
+            f"{', '.join(i.where() for i in items)})"
+            for name, targets in edges.items() for target, items in targets.items()
+            if layer_of(target) is not None and layer_of(name) is not None and layer_of(target) > layer_of(name)]
+
+
+def test_imports_go_down_the_layers():
+    """The pipeline reads bottom-up: load -> prepare -> judge -> search -> optimise -> align/export; the service
+    and the worker are adapters on top of the engine, the CLI on top of all."""
+    found = upward(graph())
+    assert not found, "\n".join(found)
+
+
+def test_the_layer_check_reports_an_upward_import():
+    edges = {"ctp_core.predicates": {"ctp_core.align": [Import("ctp_core.align", 7, True)]},
+             "ctp_core.scene": {"ctp_core.render": [Import("ctp_core.render", 3, False)]}}
+    assert upward(edges) == ["ctp_core.predicates (judge) imports ctp_core.align (pipeline, line 7, in a function)"]

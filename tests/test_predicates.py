@@ -16,6 +16,7 @@ import trimesh
 
 from ctp_core import predicates
 from ctp_core.pose import Poses
+from ctp_core.priors.relations import RELATIONS, RelationReading
 from ctp_core.scene import prepare_pair
 
 
@@ -62,12 +63,17 @@ def prepared(target, source, scale: float = 1.0):
     return prepare_pair(target, source, samples=1500, seed=0, canonicalise=False)
 
 
+def reading(name: str | None, figure: bool = True) -> RelationReading | None:
+    """The relation as a run passes it (None: no relation)."""
+    return None if name is None else RelationReading(name, figure)
+
+
 def scores(target, source, matrices, relation, figure=True, scale=1.0) -> torch.Tensor:
     pair = prepared(target, source, scale)
     scaled = [np.diag([1, 1, 1, 1.0]) @ m for m in matrices]
     for m in scaled:
         m[:3, 3] *= scale
-    return predicates.relation_score(pair, poses(pair, scaled), relation, figure)
+    return predicates.relation_score(pair, poses(pair, scaled), reading(relation, figure))
 
 
 BALL = trimesh.creation.icosphere(subdivisions=3, radius=0.2)
@@ -158,7 +164,7 @@ def test_cup_upright_is_stable_and_tipped_on_its_edge_is_not():
     pair = prepared(table(), mug)
     p = poses(pair, [upright, tipped])
     assert predicates.holds(predicates.stable(pair, p)).tolist() == [True, False]
-    on = predicates.relation_score(pair, p, "on")
+    on = predicates.relation_score(pair, p, reading("on"))
     assert predicates.holds(on).tolist() == [True, False]
 
 
@@ -181,16 +187,16 @@ def test_scores_are_scale_free(scale):
     assert torch.allclose(plain, scaled, rtol=1e-2, atol=1e-3)
 
 
-@pytest.mark.parametrize("relation", list(predicates.SCORES))
+@pytest.mark.parametrize("relation", list(predicates.JUDGES))
 def test_batched_equals_one_by_one_and_gradients_are_finite(relation):
     pair = prepared(table(), BALL)
     p = poses(pair, list(BALL_POSES.values()))
-    batched = predicates.relation_score(pair, p, relation)
-    single = torch.cat([predicates.relation_score(pair, p.select([i]), relation) for i in range(len(p))])
+    batched = predicates.relation_score(pair, p, reading(relation))
+    single = torch.cat([predicates.relation_score(pair, p.select([i]), reading(relation)) for i in range(len(p))])
     assert torch.allclose(batched, single, atol=1e-5)
     leaf = Poses(p.t.clone().requires_grad_(True), p.q.clone().requires_grad_(True),
                  p.log_s.clone().requires_grad_(True))
-    total = predicates.relation_score(pair, leaf, relation).sum() + predicates.stable(pair, leaf).sum()
+    total = predicates.relation_score(pair, leaf, reading(relation)).sum() + predicates.stable(pair, leaf).sum()
     total.backward()
     for g in (leaf.t.grad, leaf.q.grad, leaf.log_s.grad):
         assert g is None or torch.isfinite(g).all()
@@ -200,9 +206,9 @@ def test_unknown_relation_has_no_term_and_verdict_reports():
     pair = prepared(table(), BALL)
     p = poses(pair, list(BALL_POSES.values()))
     assert predicates.relation_score(pair, p, None).tolist() == [0.0] * 4
-    assert predicates.relation_score(pair, p, "levitate").tolist() == [0.0] * 4
+    assert predicates.relation_score(pair, p, reading("levitate")).tolist() == [0.0] * 4
     assert predicates.verdict(pair, p.matrices()[0], None) is None
-    v = predicates.verdict(pair, p.matrices()[0], "on")
+    v = predicates.verdict(pair, p.matrices()[0], reading("on"))
     assert v.to_dict() == {"name": "on", "role": "figure", "score": 0.0, "holds": True, "stable": True}
 
 
@@ -211,7 +217,7 @@ def test_unknown_relation_has_no_term_and_verdict_reports():
 def _preference(target, source, matrices, relation) -> tuple[torch.Tensor, torch.Tensor]:
     pair = prepared(target, source)
     p = poses(pair, matrices)
-    return predicates.preference(pair, p, relation), predicates.relation_score(pair, p, relation)
+    return predicates.preference(pair, p, reading(relation)), predicates.relation_score(pair, p, reading(relation))
 
 
 def test_a_cup_on_a_table_prefers_the_middle_of_the_top_to_its_corner():
@@ -289,22 +295,22 @@ def test_preference_is_zero_where_the_relation_says_nothing_more_and_batched_equ
     pair = prepared(table(), BALL)
     p = poses(pair, list(BALL_POSES.values()))
     for relation in ("beside", "attach", None):
-        assert predicates.preference(pair, p, relation).tolist() == [0.0] * 4
+        assert predicates.preference(pair, p, reading(relation)).tolist() == [0.0] * 4
     for relation in ("on", "in", "under", "lean", "wear", "hang", "penetrate"):
-        batched = predicates.preference(pair, p, relation)
-        single = torch.cat([predicates.preference(pair, p.select([i]), relation) for i in range(len(p))])
+        batched = predicates.preference(pair, p, reading(relation))
+        single = torch.cat([predicates.preference(pair, p.select([i]), reading(relation)) for i in range(len(p))])
         assert torch.allclose(batched, single, atol=1e-5), relation
 
 
-@pytest.mark.parametrize("relation", [*predicates.SCORES, None])
+@pytest.mark.parametrize("relation", [*predicates.JUDGES, None])
 def test_terms_equal_the_predicates_one_by_one(relation):
     """``terms`` (what the objective reads, one support footprint per pose) equals the public predicates."""
     pair = prepared(table(), BALL)
     p = poses(pair, list(BALL_POSES.values()))
-    got = predicates.terms(pair, p, relation)
-    assert torch.allclose(got["rel"], predicates.relation_score(pair, p, relation))
-    assert torch.allclose(got["prefer"], predicates.preference(pair, p, relation))
-    own = relation in predicates.STABLE_RELATIONS and relation not in predicates.RESTING
+    got = predicates.terms(pair, p, reading(relation))
+    assert torch.allclose(got["rel"], predicates.relation_score(pair, p, reading(relation)))
+    assert torch.allclose(got["prefer"], predicates.preference(pair, p, reading(relation)))
+    own = relation is not None and RELATIONS[relation].steady and not RELATIONS[relation].rests
     assert torch.allclose(got["stable"], predicates.stable(pair, p) if own else torch.zeros(len(p)))
 
 
@@ -331,7 +337,8 @@ def test_resting_on_a_thin_ground_needs_the_figure_above_it(thickness, radius, r
     ball = trimesh.creation.icosphere(subdivisions=3, radius=radius)
     top, bottom = thickness / 2 + radius, -(thickness / 2 + radius)
     pair = prepared(ground, ball)
-    s = predicates.relation_score(pair, poses(pair, [pose([0, top, 0]), pose([0, bottom, 0])]), relation)
+    s = predicates.relation_score(pair, poses(pair, [pose([0, top, 0]), pose([0, bottom, 0])]), reading(relation))
     assert predicates.holds(s).tolist() == [True, False], s
-    verdicts = [predicates.verdict(pair, pair.local_to_normalised(pose([0, y, 0])), relation) for y in (top, bottom)]
+    verdicts = [predicates.verdict(pair, pair.local_to_normalised(pose([0, y, 0])), reading(relation))
+                for y in (top, bottom)]
     assert [v.holds for v in verdicts] == [True, False], verdicts

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from test_predicates import box, cup, ring, rot, table, wall_with_peg
+from test_predicates import box, cup, reading, ring, rot, table, wall_with_peg
 
 from ctp_core import align as stages
 from ctp_core import objective, predicates, ranking, schedule
@@ -135,7 +135,7 @@ def test_lean_proposals_stand_tilted_against_a_side_where_the_regions_have_none(
         lean = torch.tensor([r == "lean" for r in props.region])
         assert bool(lean.any()) == relation
         with torch.inference_mode():
-            held = predicates.holds(predicates.relation_score(run.pair, props.poses, "lean"))
+            held = predicates.holds(predicates.relation_score(run.pair, props.poses, reading("lean")))
         assert not held[~lean].any() and (held[lean].all() if relation else True)
         counts[relation] = (len(props.region), props.region.count("init"))
     # in place of as many region proposals (the search costs the same), the caller's start kept
@@ -264,7 +264,7 @@ def test_penetrate_proposals_drive_the_source_end_first_into_the_target_never_up
     assert pierce
     with torch.inference_mode():
         poses = props.poses.select(pierce)
-        held = predicates.holds(predicates.relation_score(run.pair, poses, "penetrate"))
+        held = predicates.holds(predicates.relation_score(run.pair, poses, reading("penetrate")))
         floor = float(run.pair.target_vertices[:, 1].min())
         lowest = predicates.posed_source(predicates.features(run.pair), poses).points[..., 1].min(-1).values
     assert held.float().mean() > 0.9, held

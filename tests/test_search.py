@@ -13,7 +13,7 @@ from ctp_core.align import align, prepare, propose, refine
 from ctp_core.config import AlignConfig
 from ctp_core.errors import Canceled
 from ctp_core.guide_loaders import get_guide
-from ctp_core.priors.relations import RELATIONS
+from ctp_core.priors.relations import RELATIONS, RelationReading
 
 CONFIG = AlignConfig.from_preset("test", model="random:tiny", search={"candidates": 40}, loss={"samples": 1500})
 
@@ -70,7 +70,7 @@ def test_proposals_touch_and_do_not_penetrate(pairs, name):
 @pytest.mark.parametrize("figure", [True, False])
 @pytest.mark.parametrize("relation", [None, "other", *RELATIONS])
 def test_a_relation_weight_never_zeroes_a_region(relation, figure):
-    weights = proposals.region_weights(relation, figure)
+    weights = proposals.region_weights(None if relation is None else RelationReading(relation, figure))
     assert set(weights) == set(proposals.REGIONS) and min(weights.values()) >= 1.0
     available = {"top": 300, "side": 900, "bottom": 300, "inside": 40, "gap": 450, "drop": 375, "floor": 190}
     counts = proposals.allocate(available, weights, 64, CONFIG.search.min_share)
@@ -84,7 +84,7 @@ def test_the_prompt_relation_shifts_proposals_without_removing_any(pairs):
     pair = scene.prepare_pair(target, source, samples=CONFIG.loss.samples, seed=0)
     gen = lambda: torch.Generator().manual_seed(0)  # noqa: E731
     plain = proposals.propose(pair, CONFIG, proposals.region_weights(None), 0.0, gen())
-    inside = proposals.propose(pair, CONFIG, proposals.region_weights("in"), 0.0, gen())
+    inside = proposals.propose(pair, CONFIG, proposals.region_weights(RelationReading("in")), 0.0, gen())
     assert inside.region.count("inside") > plain.region.count("inside")
     assert set(inside.region) == set(plain.region)
 
@@ -339,7 +339,7 @@ def test_the_touch_limit_grows_with_the_target_sample_spacing(pairs):
     for samples in (200, 5000):
         pair = scene.prepare_pair(target, source, samples=samples, seed=0)
         limits.append(float(objective.touch_limit(pair, pose.Poses(t, q, torch.zeros(1)))[0]))
-        spacing = objective.sample_spacing(pair, samples) / (2 * pair.source_radius)
+        spacing = pair.sample_spacing(samples) / (2 * pair.source_radius)
         assert limits[-1] == pytest.approx(objective.TOUCH + spacing, rel=1e-5)
     assert limits[0] > limits[1] > objective.TOUCH
 
@@ -438,7 +438,8 @@ def test_the_encoder_shortlist_takes_distinct_places_where_the_relation_holds_an
 def _text_scorer(pair, config, relation=None):
     guide, text = get_guide("random:tiny"), goals.TextGoal("a box on the table")
     text.prepare(pair, guide)
-    return objective.Scorer(pair, config, 0.2, guide=guide, goal=text, relation=relation)
+    return objective.Scorer(pair, config, 0.2, guide=guide, goal=text,
+                            reading=None if relation is None else RelationReading(relation))
 
 
 def test_the_guide_sees_only_the_shortlist_and_the_turns_the_geometry_allows(pairs, monkeypatch):

@@ -220,6 +220,17 @@ def test_active_job_cap_is_per_owner_and_self_heals(jobs):
     queued(jobs, max_active=2)
 
 
+def test_a_refused_submit_writes_nothing_to_storage(jobs, monkeypatch):
+    """Admission comes first: a refused submit costs the storage nothing (an S3 put per input, otherwise)."""
+    queued(jobs, max_active=1)
+    puts = []
+    monkeypatch.setattr(jobs.storage, "put", lambda job_id, name, data: puts.append((job_id, name)))
+    refused = JobRecord(id=new_id(), owner="me", created_at=now(), prompt="p", config=AlignConfig())
+    with pytest.raises(TooManyJobs):
+        jobs.submit(refused, {"target": b"t", "source": b"s"}, 1)
+    assert puts == [] and jobs.get(refused.id) is None
+
+
 def test_owned_lists_an_owners_jobs_newest_first_and_forgets_expired_ones(jobs):
     mine = [queued(jobs) for _ in range(3)]
     queued(jobs, owner="someone else")

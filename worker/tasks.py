@@ -40,6 +40,7 @@ from ctp_core.guide_choice import GuideChoice
 from ctp_core.guide_loaders import guide_for
 from ctp_core.io import MeshLimits, load_image, load_objects
 from ctp_core.loader import MeshLoader
+from ctp_core.priors.relations import RelationReading
 from ctp_core.progress import ProgressEvent
 from service.adjustments import AdjustmentRecord, Adjustments, AdjustOutcome
 from service.jobs import (
@@ -235,11 +236,10 @@ def adjust_job(adjustment: AdjustmentRecord, jobs: Jobs, limits: MeshLimits) -> 
     at = np.asarray(facts["transform"]["matrix"], dtype=np.float64)  # the stored result.glb's source node
     target, source, name = read_back(load_objects(stored["result.glb"], filename="result.glb", limits=limits), at)
     upright = (facts.get("extra") or {}).get("target_upright")
-    relation = facts.get("relation") or {}
     request = adjustment.request
     done = adjust(target, source, np.asarray(request.transform), record.config, settle=request.settle,
                   direction=request.direction, upright=None if upright is None else upright["rotation"],
-                  on=record.on, relation=relation.get("name"), source_is_figure=relation.get("role") != "ground")
+                  on=record.on, reading=RelationReading.from_verdict(facts.get("relation")))
     matrix = done.source_to_target.tolist()
     if request.save:
         saved_at = now()

@@ -140,7 +140,7 @@ class _CaseData:
     notes: dict[str, str]
     guide: GuideInputs | None = None
     guide_error: str | None = None
-    judge: tuple | None = None  # (prepared pair, relation, source is figure): the relation metrics (``_judge``)
+    judge: tuple | None = None  # (prepared pair, relation reading, penetrates): the relation metrics (``_judge``)
 
 
 def _judge(data: _CaseData) -> tuple:
@@ -160,17 +160,17 @@ def _judge(data: _CaseData) -> tuple:
         frame = orientation.orient(target, orientation.Axes("+y"))  # the front: the file's convention (glTF's +Z)
         frame.reason = "the case's frame (the reference's): the file's +Y up"
         pair = scene.prepare_pair(target, source, samples=RELATION_SAMPLES, seed=0, target_up=frame)
-        data.judge = (pair, prior.relation, prior.source_is_figure, prior.penetration)
+        data.judge = (pair, prior.reading, prior.penetration)
     return data.judge
 
 
 def relation_metrics(data: _CaseData, pose: np.ndarray, iou: float) -> dict:
     """``relation`` (the priors' relation or None), ``relation_score``, ``relation_holds``, ``stable`` (None
-    where the relation is unknown, or for ``stable`` not a resting one: ``predicates.STABLE_RELATIONS``) and
+    where the relation is unknown, or for ``stable`` one it does not apply to: ``Relation.steady``) and
     ``valid``: the relation holds, stable where that applies, and (unless the relation goes into the target)
     the intersection ratio ``iou`` at most ``metrics.PLACEMENT_IOU``; None without a relation."""
-    pair, relation, figure, penetrates = _judge(data)
-    verdict = predicates.verdict(pair, pair.local_to_normalised(pose), relation, figure)
+    pair, reading, penetrates = _judge(data)
+    verdict = predicates.verdict(pair, pair.local_to_normalised(pose), reading)
     if verdict is None:
         return {"relation": None, "relation_score": None, "relation_holds": None, "stable": None, "valid": None}
     valid = verdict.holds and verdict.stable is not False and (penetrates or iou <= metrics.PLACEMENT_IOU)

@@ -11,6 +11,8 @@ import math
 from dataclasses import asdict, dataclass
 from typing import Protocol
 
+from ctp_core.priors.relations import RelationReading
+
 SIZE_RANGE = (0.1, 10.0)  # the paper clamps guessed size ratios here: beyond it a guess is noise
 
 
@@ -26,6 +28,11 @@ class ScenePrior:
     # say. The search weights where it proposes poses by it (never excluding a region).
     relation: str | None = None
     source_is_figure: bool = True
+
+    @property
+    def reading(self) -> RelationReading | None:
+        """The relation as a run uses it (one value: the name and the source's role); None without one."""
+        return None if self.relation is None else RelationReading(self.relation, self.source_is_figure)
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -18,13 +18,16 @@ a reading puts the figure on (the target's own frame: ``predicates``).
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 
 @dataclass(frozen=True)
 class Relation:
-    """Contact of the figure's and of the ground's surface, whether solids interpenetrate, and a size.
+    """One relation of the vocabulary, all that is known of it without the geometry: its reading priors and the
+    declarative facts the engine reads (its score, preference and proposals are ``predicates.JUDGES`` and
+    ``relation_proposals.BUILDERS``, under the same name).
 
+    ``figure_contact``, ``ground_contact``: the share of the figure's and of the ground's surface in contact.
     ``penetration``: "yes" (cut, pierce, embed ... unless the ground is a container: a key stuck in a
     lock goes into the keyhole), "if_pointed" ("in"/"through": an arrow in a target yes, a spoon in a
     cup no) or "no". ``figure_size``: the figure's size over the ground's when the lexicon does not
@@ -33,6 +36,12 @@ class Relation:
     ground on one of its sides, in its own frame: ``front``, ``behind``, ``left``, ``right``), ``vertical``
     (``above``, ``below``: a gap, no contact), ``distance`` (``near``, ``far``) or ``orientation`` (which way the
     figure's front points: ``facing``, ``facing_away``, ``aligned``; said alone or after a position).
+    ``rests``: the figure rests on its ground from above (the resting family: its score includes stability).
+    ``steady``: stability applies (``predicates.stable``): what stands on something, the ground or the floor, rather
+    than hangs, is fixed or goes into it.
+    ``figure_regions``, ``ground_regions``: the search's region weights (``proposals.REGIONS``) when the source is
+    the figure and when it is the ground; regions not named weigh 1 (weights shift proposals toward where the
+    relation puts the figure, never away from everywhere else).
     """
 
     name: str
@@ -41,31 +50,61 @@ class Relation:
     figure_size: float
     penetration: str = "no"
     kind: str = "contact"
+    rests: bool = False
+    steady: bool = False
+    figure_regions: dict[str, float] = field(default_factory=dict)
+    ground_regions: dict[str, float] = field(default_factory=dict)
+
+
+_AROUND = {"gap": 4.0, "side": 2.0, "floor": 3.0}  # the floor around the ground: beside it, on a side, near, far
+
+
+def _apart(name: str, kind: str, size: float = 1.0, steady: bool = True) -> Relation:
+    """A relation without contact; every one but ``above`` and ``below`` stands on the floor around the ground."""
+    around = _AROUND if kind in ("side", "distance", "orientation") else {}
+    return Relation(name, 0.0, 0.0, size, kind=kind, steady=steady, figure_regions=around, ground_regions=around)
 
 
 RELATIONS: dict[str, Relation] = {r.name: r for r in (
-    Relation("penetrate", 0.25, 0.1, 0.8, "yes"),   # the buried part of a blade, arrow or nail
-    Relation("wear", 0.35, 0.1, 0.2),               # a hat's inner band; garments that wrap get more (rules)
-    Relation("hold", 0.1, 0.05, 0.3),               # a hand closes around a handle
-    Relation("sit", 0.2, 0.2, 0.6),                 # a rider or sitter: seat, legs, hands
-    Relation("lie", 0.35, 0.05, 0.3),               # lying or draped: one side
-    Relation("stand", 0.05, 0.02, 0.3),             # feet or a foot only
-    Relation("wrap", 0.6, 0.2, 0.3),                # coiled or tied around
-    Relation("lean", 0.05, 0.02, 0.8),              # an end or an edge
-    Relation("hang", 0.05, 0.02, 0.2),              # a loop on a hook
-    Relation("attach", 0.3, 0.05, 0.2),             # glued, taped, mounted: a face or a foot
-    Relation("under", 0.0, 0.05, 0.5),              # "a ball under the table" does not touch it
-    Relation("beside", 0.0, 0.0, 1.0),              # next to, behind, in front of: no contact
-    Relation("in", 0.25, 0.15, 0.5, "if_pointed"),  # contained: the bottom and some of the walls
-    Relation("on", 0.15, 0.05, 0.3),                # resting on: its base
+    # the buried part of a blade, arrow or nail
+    Relation("penetrate", 0.25, 0.1, 0.8, "yes", figure_regions={"top": 1.5, "side": 1.5, "drop": 1.5}),
+    # a hat's inner band; garments that wrap get more (rules)
+    Relation("wear", 0.35, 0.1, 0.2, steady=True, figure_regions={"top": 4.0, "drop": 4.0},
+             ground_regions={"bottom": 3.0}),
+    Relation("hold", 0.1, 0.05, 0.3, figure_regions={"side": 2.0}),  # a hand closes around a handle
+    # a rider or sitter: seat, legs, hands
+    Relation("sit", 0.2, 0.2, 0.6, rests=True, steady=True, figure_regions={"top": 3.0, "drop": 3.0},
+             ground_regions={"bottom": 3.0}),
+    # lying or draped: one side
+    Relation("lie", 0.35, 0.05, 0.3, rests=True, steady=True, figure_regions={"top": 3.0, "drop": 3.0},
+             ground_regions={"bottom": 3.0}),
+    # feet or a foot only
+    Relation("stand", 0.05, 0.02, 0.3, rests=True, steady=True, figure_regions={"top": 4.0, "drop": 3.0},
+             ground_regions={"bottom": 4.0}),
+    Relation("wrap", 0.6, 0.2, 0.3, figure_regions={"side": 2.0}),  # coiled or tied around
+    # an end or an edge
+    Relation("lean", 0.05, 0.02, 0.8, steady=True, figure_regions={"side": 3.0, "floor": 2.0}),
+    Relation("hang", 0.05, 0.02, 0.2, figure_regions={"side": 2.0, "bottom": 2.0}),  # a loop on a hook
+    # glued, taped, mounted: a face or a foot
+    Relation("attach", 0.3, 0.05, 0.2, figure_regions={"side": 2.0, "drop": 2.0}),
+    # "a ball under the table" does not touch it
+    Relation("under", 0.0, 0.05, 0.5, steady=True, figure_regions={"bottom": 3.0, "gap": 2.0, "floor": 4.0},
+             ground_regions={"top": 4.0, "drop": 3.0}),
+    # next to, behind, in front of: no contact
+    Relation("beside", 0.0, 0.0, 1.0, steady=True, figure_regions=_AROUND, ground_regions=_AROUND),
+    # contained: the bottom and some of the walls
+    Relation("in", 0.25, 0.15, 0.5, "if_pointed", steady=True, figure_regions={"inside": 4.0, "top": 1.5, "drop": 2.0}),
+    # resting on: its base
+    Relation("on", 0.15, 0.05, 0.3, rests=True, steady=True, figure_regions={"top": 4.0, "drop": 4.0},
+             ground_regions={"bottom": 4.0}),
     # where, without contact: beside the ground on one of its sides, above or below it, near or far from it
-    *(Relation(side, 0.0, 0.0, 1.0, kind="side") for side in ("front", "behind", "left", "right")),
-    Relation("above", 0.0, 0.0, 0.5, kind="vertical"),   # a painting above a sofa, a lamp over a table
-    Relation("below", 0.0, 0.0, 0.5, kind="vertical"),
-    Relation("near", 0.0, 0.0, 1.0, kind="distance"),
-    Relation("far", 0.0, 0.0, 1.0, kind="distance"),
+    *(_apart(side, "side") for side in ("front", "behind", "left", "right")),
+    _apart("above", "vertical", 0.5, steady=False),  # a painting above a sofa, a lamp over a table: hung or fixed
+    _apart("below", "vertical", 0.5, steady=False),
+    _apart("near", "distance"),
+    _apart("far", "distance"),
     # which way the figure's front points, relative to the ground
-    *(Relation(name, 0.0, 0.0, 1.0, kind="orientation") for name in ("facing", "facing_away", "aligned")),
+    *(_apart(name, "orientation") for name in ("facing", "facing_away", "aligned")),
 )}
 PLACING = {"contact", "side", "vertical", "distance"}  # the kinds that say where the figure is
 JOIN = "+"  # a reading of a position and an orientation: "front+facing"
@@ -79,6 +118,84 @@ def parts(name: str | None) -> tuple[str, ...]:
 def side_of(name: str | None) -> str | None:
     """The side of the ground the reading puts the figure on (``front``, ``behind``, ``left``, ``right``), if any."""
     return next((p for p in parts(name) if p in RELATIONS and RELATIONS[p].kind == "side"), None)
+
+
+@dataclass(frozen=True)
+class RelationReading:
+    """The relation a run uses: the reading's name (one relation, or a position and an orientation joined:
+    ``front+facing``) and whether the source is its figure (the thing placed) or its ground. Built once from the
+    priors (``ScenePrior.reading``) or from a report's verdict (``from_verdict``) and passed as one value; a run
+    without a relation has None."""
+
+    name: str
+    source_is_figure: bool = True
+
+    @classmethod
+    def from_verdict(cls, verdict: dict | None) -> RelationReading | None:
+        """The reading a report's ``relation`` (``predicates.RelationVerdict.to_dict``) was judged with; None
+        without one."""
+        if not verdict or verdict.get("name") is None:
+            return None
+        return cls(verdict["name"], verdict.get("role") != "ground")
+
+    @property
+    def parts(self) -> tuple[str, ...]:
+        """The relations it names, the position first (``front+facing``: front, facing)."""
+        return parts(self.name)
+
+    @property
+    def known(self) -> bool:
+        """Whether every relation it names is one of the vocabulary's (``RELATIONS``)."""
+        return bool(self.parts) and all(p in RELATIONS for p in self.parts)
+
+    @property
+    def records(self) -> tuple[Relation, ...]:
+        """The vocabulary's record of each relation it names (only the known ones)."""
+        return tuple(RELATIONS[p] for p in self.parts if p in RELATIONS)
+
+    @property
+    def position(self) -> str:
+        """The first relation it names: where the figure is (``front+facing``: front), or an orientation said
+        alone."""
+        return self.parts[0]
+
+    @property
+    def side(self) -> str | None:
+        """The side of the ground it puts the figure on, if it names one (``side_of``)."""
+        return side_of(self.name)
+
+    @property
+    def orientation(self) -> str | None:
+        """The orientation it names (``facing``, ``facing_away``, ``aligned``), if any."""
+        return next((r.name for r in self.records if r.kind == "orientation"), None)
+
+    @property
+    def role(self) -> str:
+        """The source's role, as reports write it: "figure" or "ground"."""
+        return "figure" if self.source_is_figure else "ground"
+
+    @property
+    def rests(self) -> bool:
+        """Whether a relation it names rests on the ground (its score includes stability)."""
+        return any(r.rests for r in self.records)
+
+    @property
+    def steady(self) -> bool:
+        """Whether stability applies to a relation it names."""
+        return any(r.steady for r in self.records)
+
+    @property
+    def directional(self) -> bool:
+        """Whether a relation it names is judged in a frame (a side or an orientation): the verdict says whose."""
+        return any(r.kind in ("side", "orientation") for r in self.records)
+
+    @property
+    def regions(self) -> dict[str, float]:
+        """The search's region weights of its position, for the source's role (unnamed regions weigh 1)."""
+        record = RELATIONS.get(self.position)
+        if record is None:
+            return {}
+        return record.figure_regions if self.source_is_figure else record.ground_regions
 
 
 @dataclass(frozen=True)
@@ -109,6 +226,8 @@ _FASTENED = "".join(f"(?<!{verb} )" for verb in ("attached", "strapped", "hitche
 # How far or how firmly, between a verb and its preposition: "stuck halfway through", "pushed deep into".
 _ADV = r"(?:(?:halfway|half way|partway|part way|deep|deeply|firmly|straight|right|upright|securely|all the way) )?"
 
+# One list for every relation, in priority order (the most specific wording first): priority is a property of the
+# whole list, how wordings of different relations overlap, not of one relation's record.
 CUES: list[Cue] = [
     # penetration: the penetrating object is the figure
     Cue(r"(?:pierced|cut|stabbed|skewered|impaled|speared) (?:by|with)", "penetrate", True),

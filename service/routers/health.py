@@ -46,9 +46,9 @@ def readyz(request: Request):
     # Each queue as the submits judge it: by its live workers, else by those seen within the grace.
     names = served_queues(live, seen)
     queues = {name: _runnable((serving(live, name) or serving(seen, name)).values()) for name in names}
-    models = queues[settings.default_queue]
-    guide = _guide(settings.model, serving(live, settings.default_queue) or serving(seen, settings.default_queue))
-    if serving(live, settings.default_queue):
+    models, live_default = queues[settings.default_queue], serving(live, settings.default_queue)
+    guide = _guide(settings.model, live_default or serving(seen, settings.default_queue))
+    if live_default:
         return Ready(status="ready", redis=True, workers=len(live), models=models, queues=queues, **guide)
     since_s = min(s.since_s for s in seen.values() if settings.default_queue in s.queues)
     return Ready(status="restarting", redis=True, workers=len(live), models=models, queues=queues, since_s=since_s,

@@ -1,0 +1,168 @@
+"""A relation is one record (``priors.relations.RELATIONS``) and one judge (``predicates.JUDGES``), with a builder of
+its own proposals where the regions do not reach it (``relation_proposals.BUILDERS``); the relation a run uses is
+one value (``RelationReading``). The relation proposals are tested one by one on small generated meshes: what they
+make satisfies the relation's score, as many as their share of the search."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+from test_predicates import BALL, BALL_POSES, box, cup, poses, prepared, ring, table, wall_with_peg
+
+from ctp_core import predicates, proposals, relation_proposals
+from ctp_core.config import AlignConfig
+from ctp_core.pose import Poses
+from ctp_core.priors.prior import ScenePrior
+from ctp_core.priors.relations import RELATIONS, Relation, RelationReading
+
+CONFIG = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0}, search={"candidates": 48})
+# each builder's count: what it makes, less those that settling leaves wedged in the target
+SHARE = math.ceil(relation_proposals.SHARE * CONFIG.search.candidates)
+
+
+# --- one record, one judge -----------------------------------------------------------------------------------------
+
+def test_every_relation_has_one_record_and_one_judge_and_builders_are_for_relations_only():
+    assert set(predicates.JUDGES) == set(RELATIONS)
+    assert all(record.name == name for name, record in RELATIONS.items())
+    assert set(relation_proposals.BUILDERS) <= set(RELATIONS)
+    assert all(set(r.figure_regions) | set(r.ground_regions) <= set(proposals.REGIONS) for r in RELATIONS.values())
+    # the resting family shares one judge, and only it includes stability in its score
+    resting = {name for name, r in RELATIONS.items() if r.rests}
+    assert resting == {"on", "stand", "sit", "lie"}
+    assert {name for name, j in predicates.JUDGES.items() if j.score is predicates._score_resting} == resting
+    assert all(RELATIONS[name].steady for name in resting)
+
+
+def test_the_directional_kinds_weigh_the_regions_as_beside_does_in_either_role():
+    for name, record in RELATIONS.items():
+        for figure in (True, False):
+            weights = proposals.region_weights(RelationReading(name, figure))
+            if record.kind in ("side", "distance", "orientation"):
+                assert weights == proposals.region_weights(RelationReading("beside", figure)), name
+    plain = proposals.region_weights(None)
+    assert set(plain.values()) == {1.0}
+    assert proposals.region_weights(RelationReading("levitate")) == plain
+    assert proposals.region_weights(RelationReading("on", False))["bottom"] == 4.0
+    assert proposals.region_weights(RelationReading("front+facing")) == proposals.region_weights(
+        RelationReading("front"))  # a reading of two: its position's
+
+
+def test_adding_a_relation_is_its_record_and_its_judge(monkeypatch):
+    """A throwaway relation registered in the two tables is read, weighted, scored, judged and reported by every
+    derived function with nothing else changed."""
+    record = Relation("hover", 0.0, 0.0, 0.5, kind="vertical", figure_regions={"drop": 5.0})
+    monkeypatch.setitem(RELATIONS, "hover", record)
+    monkeypatch.setitem(predicates.JUDGES, "hover", predicates.Judge(predicates._score_above))
+    reading = RelationReading("hover")
+    assert reading.known and not reading.steady and not reading.rests and reading.side is None
+    assert proposals.region_weights(reading)["drop"] == 5.0
+    pair = prepared(table(), BALL)
+    p = poses(pair, list(BALL_POSES.values()))
+    assert torch.equal(predicates.relation_score(pair, p, reading),
+                       predicates.relation_score(pair, p, RelationReading("above")))
+    assert predicates.terms(pair, p, reading)["stable"].tolist() == [0.0] * len(p)
+    verdict = predicates.verdict(pair, p.matrices()[0], reading).to_dict()
+    assert verdict["name"] == "hover" and verdict["stable"] is None
+    # a steady one: stability joins its terms (not resting: its score does not include it)
+    monkeypatch.setitem(RELATIONS, "hover", replace(record, steady=True))
+    assert torch.allclose(predicates.terms(pair, p, reading)["stable"], predicates.stable(pair, p))
+
+
+# --- the reading ---------------------------------------------------------------------------------------------------
+
+def test_a_reading_of_two_names_its_position_side_and_orientation():
+    r = RelationReading("front+facing")
+    assert (r.parts, r.position, r.side, r.orientation, r.role) == (("front", "facing"), "front", "front", "facing",
+                                                                      "figure")
+    assert r.known and r.steady and not r.rests and r.directional
+    assert [x.name for x in r.records] == ["front", "facing"]
+    on = RelationReading("on", False)
+    assert on.rests and on.steady and on.role == "ground" and on.side is None and on.orientation is None
+    assert not on.directional
+    hang = RelationReading("hang")
+    assert not hang.rests and not hang.steady
+    assert not RelationReading("levitate").known and not RelationReading("on+levitate").known
+    assert RelationReading("levitate").records == ()
+
+
+def test_a_reading_comes_from_the_priors_and_back_from_a_report_verdict():
+    prior = ScenePrior(0.3, False, 0.15, "rules", "test", relation="wear", source_is_figure=False)
+    assert prior.reading == RelationReading("wear", False)
+    assert replace(prior, relation=None).reading is None
+    pair = prepared(table(), BALL)
+    for reading in (RelationReading("on"), RelationReading("on", False), RelationReading("left+facing")):
+        verdict = predicates.verdict(pair, poses(pair, [BALL_POSES["on"]]).matrices()[0], reading)
+        assert RelationReading.from_verdict(verdict.to_dict()) == reading
+    assert RelationReading.from_verdict(None) is None and RelationReading.from_verdict({}) is None
+
+
+# --- each relation's own proposals ----------------------------------------------------------------------------------
+
+def _base(pair) -> proposals.Proposals:
+    """What a builder extends: the search's orientations and contact samples, one proposal at the files' scale."""
+    rotations = proposals.orientations(pair, CONFIG, torch.Generator().manual_seed(0))
+    one = Poses(torch.zeros(1, 3), torch.tensor([[1.0, 0.0, 0.0, 0.0]]), torch.zeros(1))
+    return proposals.Proposals(one, ["top"], None, rotations, proposals.contact_index(pair, seed=0))
+
+
+def _built(pair, name: str, seed: int = 0) -> tuple[proposals.Proposals, torch.Tensor]:
+    reading = RelationReading(name)
+    made = relation_proposals.BUILDERS[reading.position](pair, CONFIG, _base(pair), seed, reading)
+    assert made is not None and len(made.poses), name
+    with torch.inference_mode():
+        held = predicates.holds(predicates.relation_score(pair, made.poses, reading))
+    return made, held
+
+
+def test_lean_proposals_lean_a_stick_against_a_box():
+    pair = prepared(box([1, 1, 1], [0, 0.5, 0]), trimesh.creation.cylinder(radius=0.03, height=1.4))
+    made, held = _built(pair, "lean")
+    assert set(made.region) == {"lean"} and SHARE // 2 <= len(made.poses) <= SHARE
+    assert held.float().mean() >= 0.75, held
+
+
+def test_in_proposals_stand_a_candle_in_a_cup():
+    pair = prepared(cup(), trimesh.creation.cylinder(radius=0.05, height=0.3))
+    made, held = _built(pair, "in")
+    assert set(made.region) == {"contained"} and len(made.poses) <= SHARE  # those left wedged are dropped
+    assert held.float().mean() >= 0.75, held
+
+
+def test_hang_proposals_thread_a_ring_on_a_peg():
+    pair = prepared(wall_with_peg(), ring())
+    made, held = _built(pair, "hang")
+    assert set(made.region) == {"hang"} and SHARE // 2 <= len(made.poses) <= SHARE
+    assert held.float().mean() >= 0.5, held
+
+
+def test_penetrate_proposals_drive_a_stick_into_a_block_all_of_the_share():
+    pair = prepared(box([0.3, 0.3, 0.3], [0, 0.15, 0]), trimesh.creation.cylinder(radius=0.015, height=0.8))
+    made, held = _built(pair, "penetrate")
+    assert made.region == ["pierce"] * SHARE  # not settled: none dropped
+    assert held.float().mean() >= 0.75, held
+
+
+@pytest.mark.parametrize("name", ["front", "left", "behind", "near", "far", "above", "front+facing"])
+def test_apart_proposals_stand_where_a_reading_without_contact_says(name):
+    pair = prepared(box([1, 1, 1], [0, 0.5, 0]), box([0.3, 0.3, 0.3], [0, 0, 0]))
+    pair.target_front, pair.front_trusted = np.array([0.0, 0.0, 1.0]), True
+    made, held = _built(pair, name)
+    assert set(made.region) == {RelationReading(name).position} and SHARE // 2 <= len(made.poses) <= SHARE
+    assert held.float().mean() >= 0.75, (name, held)
+
+
+def test_extend_replaces_as_many_region_proposals_only_for_a_placed_figure():
+    pair = prepared(box([1, 1, 1], [0, 0.5, 0]), box([0.3, 0.3, 0.3], [0, 0, 0]))
+    base = proposals.propose(pair, CONFIG, proposals.region_weights(None), 0.0, torch.Generator().manual_seed(0))
+    extended = relation_proposals.extend(pair, CONFIG, base, RelationReading("near"), 0)
+    assert len(extended.poses) == len(base.poses) and "near" in extended.region
+    for reading in (None, RelationReading("near", False), RelationReading("on"), RelationReading("levitate")):
+        assert relation_proposals.extend(pair, CONFIG, base, reading, 0) is base
+    off = CONFIG.model_copy(update={"relation": False})
+    assert relation_proposals.extend(pair, off, base, RelationReading("near"), 0) is base
