@@ -172,7 +172,7 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
         goal = None
     loaded = time.perf_counter()
     names = {"target": target_name, "source": source_name, "on": on}
-    scales = scaling.plan(pair, prior, names, config.seed) if config.scale else None
+    scales = scaling.plan(pair, prior, names, config.seed, guided=goal is not None) if config.scale else None
     reading = prior.reading  # the relation, decided once: every stage reads this value
     scorer = objective.Scorer(pair, config, prior.contact_ratio, guide=guide, goal=goal, reading=reading,
                               scale=scales)
@@ -187,7 +187,7 @@ def propose(run: Run, init: np.ndarray | None = None) -> Proposals:
 
     ``init`` (source file -> target file 4x4) is one candidate (search) or replaces restart 0 (no search); rigid,
     it fixes the source scale either way. In scale mode every start takes the plan's scale and the search proposes
-    at each of its rungs (``scaling``): an incoming pose's scale is never used.
+    at its rungs (``scaling``: the ladder with a guide, its centre without): an incoming pose's scale is never used.
     """
     from ctp_core import optimise, proposals, relation_proposals
 

@@ -189,20 +189,10 @@ def hung(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: in
          reading: RelationReading | None = None) -> Proposals | None:
     """Sources hung by a hook point on a thin up-facing part of the target (``extend``); None where the source has
     no hook point or no up-facing part of the target is thin enough to pass into one."""
-    feat = predicates.features(pair)
-    local, normals = feat.source_points.cpu().double().numpy(), feat.source_normals.cpu().double().numpy()
-    toward = feat.source_centre.cpu().double().numpy() - local
-    reach = np.linalg.norm(toward, axis=1)
-    plumb = toward / np.maximum(reach, 1e-12)[:, None]  # hung by a point, the centre settles straight below it
-    diagonal = float(np.linalg.norm(np.ptp(local, axis=0)))
-    hooks = np.flatnonzero(((normals * plumb).sum(1) > HOOK_FACING) & (reach > HOOK_REACH * diagonal))
+    local, plumb, hooks, clearance = hook_points(pair)
     log_s = _scale(proposals)
-    clearance = _clearance(local, plumb, hooks, feat.source_spacing) * math.exp(log_s)
-    hooks, clearance = hooks[np.isfinite(clearance)], clearance[np.isfinite(clearance)]
-    points, _, regions, density = surface_regions(pair)
-    spacing = pair.sample_spacing(len(points))
-    top = regions["top"]
-    thickness = _thickness(points, top, regions["bottom"], spacing)
+    clearance = clearance * math.exp(log_s)
+    points, _, top, thickness, density, spacing = peg_thickness(pair)
     fits = thickness < (clearance.max() if len(hooks) else 0.0)
     if not fits.any():
         return None
@@ -348,6 +338,32 @@ BUILDERS: dict[str, Builder] = {
     **dict.fromkeys(("front", "behind", "left", "right", "above", "near", "far", "facing", "facing_away", "aligned"),
                     apart),
 }
+
+
+def hook_points(pair: PreparedPair) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The source's hook points (see the module docstring): its feature samples (source local frame), their plumb
+    lines, the hook points' indices and their clearance (``_clearance``, source local units; only the finite
+    ones: a loop or bend closes under them)."""
+    feat = predicates.features(pair)
+    local, normals = feat.source_points.cpu().double().numpy(), feat.source_normals.cpu().double().numpy()
+    toward = feat.source_centre.cpu().double().numpy() - local
+    reach = np.linalg.norm(toward, axis=1)
+    plumb = toward / np.maximum(reach, 1e-12)[:, None]  # hung by a point, the centre settles straight below it
+    diagonal = float(np.linalg.norm(np.ptp(local, axis=0)))
+    hooks = np.flatnonzero(((normals * plumb).sum(1) > HOOK_FACING) & (reach > HOOK_REACH * diagonal))
+    clearance = _clearance(local, plumb, hooks, feat.source_spacing)
+    finite = np.isfinite(clearance)
+    return local, plumb, hooks[finite], clearance[finite]
+
+
+def peg_thickness(pair: PreparedPair) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+    """Where a hook point can take the target: its samples and their normals (normalised frame), the up-facing
+    ones' indices, the target's vertical thickness under each (``_thickness``), the samples' density weights and
+    spacing."""
+    points, normals, regions, density = surface_regions(pair)
+    spacing = pair.sample_spacing(len(points))
+    top = regions["top"]
+    return points, normals, top, _thickness(points, top, regions["bottom"], spacing), density, spacing
 
 
 def _clearance(local: np.ndarray, plumb: np.ndarray, hooks: np.ndarray, spacing: float) -> np.ndarray:

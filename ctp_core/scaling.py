@@ -6,24 +6,30 @@ method.md does), never from an incoming pose or the files' sizes: in scale mode 
 is unknown (the benchmark's scale protocol scales it by U(0.01, 100)), so ``align.prepare`` does not let the
 mesh extents set the ratio either. The ratio is an estimate: on the labelled triples
 (``benchmarks/priors_labels.jsonl``) the rules provider's |ln(estimate / label)| is ``PRIOR_SIGMA`` at its 68th
-percentile and ``LADDER_WIDTH`` at its 90th (docs/benchmarks.md). The search therefore proposes at ``RUNGS``
-scales evenly spread over ``LADDER_WIDTH`` either side of the ratio's scale (``plan``), the guide or the geometry
-picks among them, and the refinement optimises log-scale from there; the objective's ``scale`` term (``ScalePlan.term``)
-is the estimate's own uncertainty, ((log s - centre) / PRIOR_SIGMA)^2 / 2, which decides where the geometry
-alone judges (soft-ICP at contact favours a smaller source; nothing but a guide sees which size is right) and is
-a tie-break where a guide does, plus a steep wall beyond the ladder.
+percentile and ``LADDER_WIDTH`` at its 90th (docs/benchmarks.md). With a guide, the search proposes at ``RUNGS``
+scales evenly spread over ``LADDER_WIDTH`` either side of the ratio's scale (``plan``) and the guide picks among
+them; without one, at the centre alone: the geometry cannot tell which size is right, and across rungs it picked
+the rung where the relation holds most easily (a smaller source "in", a larger one "on"), not the right one, while
+the ladder left the centre a fifth of the proposals (docs/benchmarks.md, "Scale protocol"). The refinement
+optimises log-scale from there; the objective's ``scale`` term (``ScalePlan.term``) is the estimate's own
+uncertainty, ((log s - centre) / PRIOR_SIGMA)^2 / 2, which decides where the geometry alone judges (soft-ICP at
+contact favours a smaller source) and is a tie-break where a guide does, plus a steep wall beyond the band.
 
-Where the geometry bounds the scale, it decides over the priors (``Bound``):
-- ``in`` (the source the figure, the target has a cavity): the source fits the cavity: its two shortest sides at
-  most the cavity's two horizontal sides. An upper bound: the rungs above it are dropped (the bound kept as one),
-  the wall starts there.
-- ``wear`` (the source the figure, the source has a cavity: a hat, a crown, a cap): it fits what wears it: as wide
-  inside (its upright frame, horizontally) as the target's top part as deep as that cavity. A fit: the ladder
-  centres there instead of on the priors' ratio and spans the scales that fit within ``FIT_TOLERANCE``; a fit
-  farther from the priors' ratio than ``LADDER_WIDTH`` is left out (reported): the source is then not a hollow
-  thing worn over the top (a comb, a flower "on its head"), and the priors decide.
-Other relations that bound the scale ("hang": a loop wider than the peg; a lid "on" a box covering its rim) are
-not used.
+Where the geometry bounds the scale, it decides over the priors (``Bound``, ``geometric_bound``):
+- ``in`` (the target has a cavity): the source fits the cavity: its two shortest sides at most the cavity's two
+  horizontal sides. An upper bound: the rungs above it are dropped (the bound kept as one), the wall starts there.
+- ``hang`` (the source has a hook point, ``relation_proposals.hook_points``): its loop takes the part it hangs on:
+  the widest hook clearance at least the target's thinnest up-facing part (``relation_proposals.peg_thickness``).
+  A lower bound: the rungs below it are raised to it, the wall starts there.
+- ``on``, a lid (the source flat, the target open at its top): the source's footprint (its two horizontal sides,
+  upright) covers the opening's two horizontal sides, as a lid covers a jar's rim. A lower bound, as ``hang``.
+- ``wear`` (the source has a cavity: a hat, a crown, a cap): it fits what wears it: as wide inside (its upright
+  frame, horizontally) as the target's top part as deep as that cavity. A fit: the ladder centres there instead of
+  on the priors' ratio and spans the scales that fit within ``FIT_TOLERANCE``.
+A lower bound or a fit farther above (a fit: either side of) the priors' ratio than ``LADDER_WIDTH`` is left out
+(reported): two estimates that disagree past the priors' 90th percentile mean the bound's model does not apply (a
+comb "on its head" is no hollow thing worn over the top; a coin on a cup is no lid), and the priors decide. The
+bounds are for the source the figure (``ScenePrior.source_is_figure``).
 """
 
 from __future__ import annotations
@@ -34,7 +40,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from ctp_core import proposals
+from ctp_core import proposals, relation_proposals
 from ctp_core.priors import ScenePrior
 from ctp_core.scene import PreparedPair
 
@@ -44,6 +50,9 @@ RUNGS = 5  # scales the search tries (an odd count: the centre is one)
 PRIOR_WEIGHT = 1.0  # the ``scale`` term's prior half where the geometry alone judges: it decides the size
 PRIOR_FLOOR = 1e-3  # ... where a guide judges fully: a tie-break, far under what a guide's term moves between sizes
 WALL = 100.0  # the ``scale`` term's weight per squared log-unit beyond the ladder's ends (or a geometric bound)
+CREST = math.radians(20.0)  # ``hang``: a sample's normal within this of straight up sees the part's whole thickness
+FLAT = 0.5  # a lid: its upright height at most this share of its smaller horizontal side
+OPENING_DEPTH = 0.1  # a top opening: cavity points within this share of the target's height from its top
 FIT_STEPS = 64  # log scales scanned for the ``wear`` fit over twice the ladder's span
 FIT_TOLERANCE = math.log(1.25)  # a ``wear`` fit's band: the scales where the source's inside is within 25 % of the
 # width of what wears it (the ladder and the scale term's sigma come from that band, not the priors' error)
@@ -53,9 +62,9 @@ FIT_TOLERANCE = math.log(1.25)  # a ``wear`` fit's band: the scales where the so
 class Bound:
     """What the geometry says of the scale (log pose scale, source local -> normalised)."""
 
-    kind: str  # "in: fits the cavity" (upper bound) or "wear: fits what wears it" (a fit)
+    kind: str  # what bounds it: "in: fits the cavity", "hang: ...", "on: ...", "wear: ..."
     log_s: float
-    upper: bool  # an upper bound (the rungs above go); otherwise the ladder's centre
+    side: str  # "upper": the rungs above go; "lower": the rungs below go; "fit": the ladder's centre
     band: tuple[float, float] | None = None  # a fit's: the log scales within ``FIT_TOLERANCE`` of fitting
 
 
@@ -94,7 +103,7 @@ class ScalePlan:
                 "names": self.names, "priors_reason": self.reason,
                 "constraint": None if self.bound is None else {"kind": self.bound.kind,
                                                               "scale": math.exp(self.bound.log_s),
-                                                              "upper_bound": self.bound.upper},
+                                                              "side": self.bound.side},
                 "sigma": self.sigma, "relation": self.relation, "rejected": self.rejected,
                 "ladder": [math.exp(r) for r in sorted(self.rungs)], "band": [math.exp(self.low), math.exp(self.high)]}
 
@@ -154,42 +163,94 @@ def wear_fit(pair: PreparedPair, seed: int, around: float) -> Bound | None:
     best = int(fits[0])  # the smallest scale whose inside takes the part it covers: snug
     near = scales[np.abs(misfit) <= FIT_TOLERANCE]
     near = near[np.abs(near - scales[best]) <= 2 * FIT_TOLERANCE + 1e-9]  # the best's own stretch, not a far one
-    return Bound("wear: fits what wears it", float(scales[best]), upper=False,
+    return Bound("wear: fits what wears it", float(scales[best]), "fit",
                  band=(float(min(near.min(initial=scales[best]), scales[best])),
                        float(max(near.max(initial=scales[best]), scales[best]))))
 
 
-def plan(pair: PreparedPair, prior: ScenePrior, names: dict[str, str | None], seed: int) -> ScalePlan:
-    """The run's ``ScalePlan``: the priors' ratio, the geometry's bound for its relation, the ladder."""
-    ratio = ratio_scale(pair, prior.size_ratio)
-    bound = None
+def hang_bound(pair: PreparedPair) -> float | None:
+    """``hang``: the smallest log scale at which some hook point's loop (``relation_proposals.hook_points``: its
+    clearance, source local units) takes the thinnest part of the target, so that a loop can pass over a peg at
+    all: the vertical thickness (``peg_thickness``, normalised frame) under the samples facing within ``CREST`` of
+    straight up (a round peg's crest, a rail's flat: the part's whole thickness; on a peg's slopes the column under
+    a sample is thinner than the part); None without a hook point or such a sample with an underside."""
+    _, _, hooks, clearance = relation_proposals.hook_points(pair)
+    _, normals, top, thickness, _, _ = relation_proposals.peg_thickness(pair)
+    thickness = thickness[np.isfinite(thickness) & (normals[top, 1] >= math.cos(CREST))]
+    if not len(hooks) or not len(thickness):
+        return None
+    return math.log(float(thickness.min()) / max(float(clearance.max()), 1e-30))
+
+
+def lid_bound(pair: PreparedPair, seed: int) -> float | None:
+    """``on``, a flat source (its upright height at most ``FLAT`` of its smaller horizontal side) on a target open
+    at the top (cavity points, ``proposals.cavity_points``, within ``OPENING_DEPTH`` of its height from its top):
+    the smallest log scale at which the source's footprint (its two horizontal sides, upright frame) covers that
+    opening's two horizontal sides, as a lid covers a jar's or a box's rim; None otherwise."""
+    upright = pair.source_vertices.cpu().numpy().astype(np.float64) @ pair.source_upright.rotation.T
+    sides = np.ptp(upright, axis=0)
+    footprint = np.sort(sides[[0, 2]])
+    if sides[1] > FLAT * footprint[0]:
+        return None
+    cavity = proposals.cavity_points(pair, seed)
+    verts = pair.target_vertices.cpu().numpy().astype(np.float64)
+    top, height = float(verts[:, 1].max()), float(np.ptp(verts[:, 1]))
+    mouth = cavity[cavity[:, 1] >= top - OPENING_DEPTH * height]
+    if len(mouth) < 8:
+        return None
+    margin = 2 * proposals.CAVITY_MARGIN * float(np.linalg.norm(np.ptp(verts, axis=0)))  # the probes' wall gap
+    opening = np.sort(np.ptp(mouth[:, [0, 2]], axis=0) + margin)
+    return float(np.max(np.log(opening / np.maximum(footprint, 1e-30))))
+
+
+def geometric_bound(pair: PreparedPair, prior: ScenePrior, seed: int, ratio: float) -> Bound | None:
+    """The geometry's bound on the scale for the priors' relation (the source the figure), or None."""
     reading = prior.reading
-    placed = reading.name if reading is not None and reading.source_is_figure else None  # what the source goes into
+    placed = reading.name if reading is not None and reading.source_is_figure else None
     if placed == "in":
         limit = cavity_bound(pair, seed)
-        bound = None if limit is None else Bound("in: fits the cavity", limit, upper=True)
-    elif placed == "wear":
-        bound = wear_fit(pair, seed, ratio)
-        if bound is not None and abs(bound.log_s - ratio) > LADDER_WIDTH:
-            # two estimates that disagree past the priors' 90th percentile: the source is not a hollow thing worn
-            # over the top (a comb, a flower "on its head"), so the fit's model does not apply
-            low, high = math.exp(ratio - LADDER_WIDTH), math.exp(ratio + LADDER_WIDTH)
-            why = f"{bound.kind} at {math.exp(bound.log_s):.3g}, outside the priors' band ({low:.3g} to {high:.3g})"
-            return replace(plan(pair, replace(prior, relation=None), names, seed), relation=prior.relation,
-                           rejected=why)
+        return None if limit is None else Bound("in: fits the cavity", limit, "upper")
+    if placed == "wear":
+        return wear_fit(pair, seed, ratio)
+    if placed == "hang":
+        limit = hang_bound(pair)
+        return None if limit is None else Bound("hang: its loop takes the peg", limit, "lower")
+    if placed == "on":
+        limit = lid_bound(pair, seed)
+        return None if limit is None else Bound("on: a lid covers the opening", limit, "lower")
+    return None
+
+
+def plan(pair: PreparedPair, prior: ScenePrior, names: dict[str, str | None], seed: int,
+         guided: bool = True) -> ScalePlan:
+    """The run's ``ScalePlan``: the priors' ratio, the geometry's bound for its relation, the ladder. ``guided``:
+    a guide will judge the candidates; without one the search proposes at the centre alone (``searched``)."""
+    ratio = ratio_scale(pair, prior.size_ratio)
+    bound = geometric_bound(pair, prior, seed, ratio)
+    if bound is not None and bound.side != "upper" and (
+            abs(bound.log_s - ratio) if bound.side == "fit" else bound.log_s - ratio) > LADDER_WIDTH:
+        # two estimates that disagree past the priors' 90th percentile: the bound's model does not apply (a comb or
+        # a flower "on its head" is no hollow thing worn over the top; a coin on a cup is no lid), the priors decide
+        low, high = math.exp(ratio - LADDER_WIDTH), math.exp(ratio + LADDER_WIDTH)
+        why = f"{bound.kind} at {math.exp(bound.log_s):.3g}, outside the priors' band ({low:.3g} to {high:.3g})"
+        return replace(plan(pair, replace(prior, relation=None), names, seed, guided), relation=prior.relation,
+                       rejected=why)
+    sigma = PRIOR_SIGMA
     if bound is not None and bound.band is not None:  # a fit: its own band, not the priors' error
         centre, (low, high) = bound.log_s, bound.band
-        rungs = sorted({centre, *np.linspace(low, high, RUNGS).tolist()}, key=lambda r: (abs(r - centre), r))
-        return ScalePlan(ratio, centre, tuple(rungs), low, high, prior.size_ratio, prior.reason, names, bound,
-                         sigma=max((high - low) / 2, 1e-3), relation=prior.relation)
-    centre = ratio
-    step = LADDER_WIDTH / (RUNGS // 2)
-    rungs = [centre + k * step for k in range(-(RUNGS // 2), RUNGS // 2 + 1)]
-    high = centre + LADDER_WIDTH
-    if bound is not None:  # "in": an upper bound
-        high = min(high, bound.log_s)
-        centre = min(centre, high)
-        rungs = sorted({min(r, high) for r in rungs})
-    rungs = sorted(rungs, key=lambda r: (abs(r - centre), r))  # the centre first
-    return ScalePlan(ratio, centre, tuple(rungs), min(rungs), high, prior.size_ratio, prior.reason, names, bound,
-                     relation=prior.relation)
+        rungs = sorted({centre, *np.linspace(low, high, RUNGS).tolist()})
+        sigma = max((high - low) / 2, 1e-3)
+    else:
+        centre, low, high = ratio, ratio - LADDER_WIDTH, ratio + LADDER_WIDTH
+        rungs = np.linspace(low, high, RUNGS).tolist()
+        if bound is not None and bound.side == "upper":  # "in": the rungs above go, the wall starts there
+            high = min(high, bound.log_s)
+            low = min(low, high)
+        elif bound is not None:  # "hang", "on": the rungs below go, the wall starts there
+            low = max(low, bound.log_s)
+            high = max(high, low)
+        centre = min(max(centre, low), high)
+        rungs = sorted({min(max(r, low), high) for r in rungs})
+    searched = sorted(rungs, key=lambda r: (abs(r - centre), r)) if guided else [centre]  # the centre first
+    return ScalePlan(ratio, centre, tuple(searched), low, high, prior.size_ratio, prior.reason, names, bound,
+                     sigma=sigma, relation=prior.relation)

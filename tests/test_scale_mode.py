@@ -4,7 +4,8 @@ the report's ``extra.scale``.
 
 End to end: generated pairs at real sizes (a cup on a table, a ball in a bowl, a cap on a sphere "head"), the
 source file scaled by 0.01 or 100 and the whole pair at either absolute unit extreme (x 1e-4, x 1e4), aligned
-geometry-only with preset ``test``; the answer's scale must undo the source's factor within ``TOLERANCE``.
+geometry-only with preset ``test``; the answer's scale must undo the source's factor within ``TOLERANCE``. The
+geometry's lower bounds (a ring hung on a peg, a lid on a jar) with the source file scaled by 0.01 or 100.
 """
 
 from __future__ import annotations
@@ -63,6 +64,15 @@ def _pair(name: str) -> tuple[trimesh.Trimesh, trimesh.Trimesh, str, str, str]:
         cap = _cup(0.09, 0.06, 0.006)
         cap.apply_transform(trimesh.transformations.rotation_matrix(math.pi, [1, 0, 0]))  # the opening down
         return trimesh.creation.icosphere(subdivisions=3, radius=0.1), cap, "head", "cap", "a cap on a head"
+    if name == "ring on a peg":  # the ring's hole 0.08 across, the peg 0.075 thick: it just passes over
+        peg = trimesh.creation.cylinder(radius=0.0375, height=0.15, sections=48)
+        peg.apply_transform(trimesh.transformations.rotation_matrix(math.pi / 2, [0, 1, 0]))  # lying along x
+        ring = trimesh.creation.torus(major_radius=0.05, minor_radius=0.01)  # in the x-y plane: it hangs
+        return peg, ring, "peg", "ring", "a ring hanging on the peg"
+    if name == "lid on a jar":  # the lid 0.104 across, the jar's opening 0.092
+        lid = trimesh.creation.cylinder(radius=0.052, height=0.005, sections=48)
+        lid.apply_transform(trimesh.transformations.rotation_matrix(-math.pi / 2, [1, 0, 0]))  # z up -> y up
+        return _cup(0.05, 0.1, 0.004), lid, "jar", "lid", "a lid on the jar"
     raise ValueError(name)
 
 
@@ -152,11 +162,12 @@ def test_the_files_sizes_set_nothing_in_scale_mode():
     assert scaled.prior.size_ratio == pytest.approx(0.1)
 
 
-def _plan(relation: str | None, size_ratio: float = 0.5) -> scaling.ScalePlan:
-    target, source, *_ = _pair("ball in a bowl")
+def _plan(relation: str | None, size_ratio: float = 0.5, name: str = "ball in a bowl",
+          guided: bool = True) -> scaling.ScalePlan:
+    target, source, *_ = _pair(name)
     pair = prepare_pair(target, source, samples=1000, seed=0)
     prior = ScenePrior(size_ratio, False, 0.2, "rules", "test", relation=relation)
-    return scaling.plan(pair, prior, {"target": "bowl", "source": "ball", "on": None}, seed=0)
+    return scaling.plan(pair, prior, {"target": "bowl", "source": "ball", "on": None}, seed=0, guided=guided)
 
 
 def test_the_ladder_spans_the_priors_error_around_the_ratio():
@@ -171,11 +182,63 @@ def test_the_ladder_spans_the_priors_error_around_the_ratio():
 
 def test_in_drops_the_rungs_the_cavity_cannot_hold():
     plan = _plan("in", size_ratio=2.0)  # a ball twice the bowl cannot be in it
-    assert plan.bound is not None and plan.bound.upper
+    assert plan.bound is not None and plan.bound.side == "upper"
     assert max(plan.rungs) == pytest.approx(plan.bound.log_s) == pytest.approx(plan.high)
     assert plan.centre == pytest.approx(plan.high)
     # the bowl's inside, 0.188 across, over the ball's 0.1 (probes keep off the walls: within 5 %)
     assert math.exp(plan.bound.log_s) == pytest.approx(1.88, rel=0.05)
+
+
+def test_without_a_guide_the_search_proposes_at_the_centre_alone():
+    """The geometry cannot tell sizes apart: the search's proposals all take the centre, the band stays the ladder's
+    (the refinement may still move within it)."""
+    guided, alone = _plan(None), _plan(None, guided=False)
+    assert alone.rungs == (alone.centre,) == (guided.centre,)
+    assert (alone.low, alone.high) == (guided.low, guided.high)
+
+
+@pytest.mark.parametrize("name", ["ring on a peg", "lid on a jar"])
+def test_hang_and_lid_bounds_raise_a_too_small_ratio(name):
+    """The priors' ratio puts the ring too small for its loop to pass over the peg (the hook's widest plumb line
+    runs obliquely through the loop: the bound is a little under the snug 0.075 / 0.08) and the lid too small to
+    cover the jar's opening: the ladder's floor and its centre rise to the bound."""
+    relation, snug = ("hang", 0.075 / 0.08) if name == "ring on a peg" else ("on", 0.092 / 0.104)
+    plan = _plan(relation, size_ratio=0.4, name=name, guided=False)
+    assert plan.bound is not None and plan.bound.side == "lower" and plan.bound.kind.startswith(relation)
+    assert 0.85 * snug <= math.exp(plan.bound.log_s) <= 1.05 * snug
+    assert plan.centre == plan.low == pytest.approx(plan.bound.log_s)
+    assert plan.bound.log_s > plan.ratio_log_s
+    assert plan.to_dict()["from"] == "geometry"
+
+
+def test_a_flat_thing_far_smaller_than_the_opening_is_no_lid():
+    """A coin "on" a cup: the opening is far wider than the priors' coin (past their 90th percentile): the bound is
+    left out and reported, the priors decide."""
+    target, _, *_ = _pair("lid on a jar")
+    coin = trimesh.creation.cylinder(radius=0.0125, height=0.002, sections=32)
+    coin.apply_transform(trimesh.transformations.rotation_matrix(-math.pi / 2, [1, 0, 0]))
+    pair = prepare_pair(target, coin, samples=1000, seed=0)
+    plan = scaling.plan(pair, ScenePrior(0.25, False, 0.2, "rules", "test", relation="on"), {}, seed=0)
+    assert plan.bound is None and plan.rejected.startswith("on: a lid") and plan.centre == plan.ratio_log_s
+
+
+@pytest.mark.parametrize("name", ["ring on a peg", "lid on a jar"])
+@pytest.mark.parametrize("factor", [0.01, 100.0])
+def test_a_ring_and_a_lid_find_a_scale_that_passes_and_covers(name, factor):
+    """End to end from the files' names (the rules provider: a ring a third of a peg, a lid 0.6 of a jar, both too
+    small here): the answer's ring passes over the peg's crest, its lid covers the opening, within ``TOLERANCE``
+    of the size they were made at."""
+    target, source, target_name, source_name, prompt = _pair(name)
+    result = align(target, _scaled(source, factor), prompt, _config(), target_name=target_name,
+                   source_name=source_name, init=np.eye(4))
+    found = result.scale * factor
+    data = result.scaling
+    assert data["from"] == "geometry" and data["constraint"]["side"] == "lower"
+    assert data["priors_scale"] * factor < 0.8  # the priors alone: too small to pass or to cover
+    # at or above the bound, less the wall's give (the contact terms pull a source smaller against its 100 per
+    # squared log unit: a few per cent)
+    assert found >= data["constraint"]["scale"] * factor * 0.9
+    assert abs(math.log(found)) <= TOLERANCE, (found, data)
 
 
 def test_the_scale_term_holds_the_band():
