@@ -61,12 +61,10 @@ def resolve(config: AlignConfig, *, image: bool = False,
     judge off; refused with ``model_unavailable`` when the run asks for guidance itself: ``image``, the judge);
     ``choice``: ``auto``'s pick made already for this run (a worker's, an assembly's), else ``choose()``.
     Any other spec: the config unchanged, its guide that model, or none when the run uses no model."""
-    if config.model != AUTO:
-        if not config.uses_model:
-            return config, GuideChoice(NONE, "the run asks for no guide (lambda_clip 0, no upright judge)")
-        return config, GuideChoice(config.model, f"named by the run's options ({config.model})")
-    if not config.uses_model and not image:
+    if not config.uses_model and (config.model != AUTO or not image):
         return config, GuideChoice(NONE, "the run asks for no guide (lambda_clip 0, no upright judge)")
+    if config.model != AUTO:
+        return config, GuideChoice(config.model, f"named by the run's options ({config.model})")
     choice = choice or choose()
     if choice.guide != NONE:
         return config.merged({"model": choice.guide}), choice

@@ -23,7 +23,7 @@ from typing import Any
 
 from ctp_core.config import DEFAULT_MODEL
 from ctp_core.errors import ConfigError, ModelError
-from ctp_core.weights import WEIGHT_FILES, missing
+from ctp_core.weights import WEIGHT_FILES, env_true, missing
 
 HUB = "https://huggingface.co"
 CHUNK = 1 << 20
@@ -136,7 +136,7 @@ def pull(name: str, *, cache_dir: str | Path | None = None, endpoint: str | None
 
     repo = repo_id(name)
     endpoint = (endpoint or os.environ.get("HF_ENDPOINT") or HUB).rstrip("/")
-    if os.environ.get("HF_HUB_OFFLINE", "").strip().lower() in ("1", "true", "yes", "on"):
+    if env_true("HF_HUB_OFFLINE"):
         raise ModelError(f"cannot pull {repo}: HF_HUB_OFFLINE is set", code="model_unreachable", field="name")
     token = os.environ.get("HF_TOKEN")
     headers = {"Authorization": f"Bearer {token}"} if token else {}

@@ -21,6 +21,14 @@ WEIGHT_FILES = ("model.safetensors", "model.safetensors.index.json", "pytorch_mo
                 "pytorch_model.bin.index.json")
 
 
+TRUE = ("1", "true", "yes", "on")  # how an environment switch says yes (HF_HUB_OFFLINE, CTP_ALLOW_DOWNLOAD)
+
+
+def env_true(name: str) -> bool:
+    """Whether the environment variable ``name`` is set to a yes (``TRUE``)."""
+    return os.environ.get(name, "").strip().lower() in TRUE
+
+
 def downloads_allowed() -> bool:
     """Whether weights may be fetched: ``CTP_ALLOW_DOWNLOAD`` wins, then ``HF_HUB_OFFLINE``; default no.
 
@@ -29,7 +37,7 @@ def downloads_allowed() -> bool:
     for name, allow_when_true in (("CTP_ALLOW_DOWNLOAD", True), ("HF_HUB_OFFLINE", False)):
         value = os.environ.get(name, "").strip().lower()
         if value:
-            return (value in ("1", "true", "yes", "on")) == allow_when_true
+            return (value in TRUE) == allow_when_true
     return False
 
 
