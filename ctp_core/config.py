@@ -28,6 +28,12 @@ PENETRATION: dict[str, bool | None] = {"auto": None, "allow": True, "forbid": Fa
 Penetration = Literal[tuple(PENETRATION)]
 # where an object's up or front comes from (orientation.py): its file's convention, a geometric guess, or an axis
 Direction = Literal["file", "auto", "+x", "-x", "+y", "-y", "+z", "-z"]
+
+
+def crossing(up: str, front: str) -> bool:
+    """Whether an up and a front given as file axes (``+y``, ``-z``) lie on one axis: a front must be at right
+    angles to its up (``file`` and ``auto`` are checked once the object's up is known: ``orientation.orient``)."""
+    return up[0] in "+-" and front[0] in "+-" and up[1] == front[1]
 Runtime = Literal["auto", "torch", "onnx", "onnx-int8"]  # the runtimes, spelled once (runtime.RUNTIMES)
 AUTO = "auto"  # the model spec that picks the guide per run (guide_choice)
 DEFAULT_MODEL = "hf:openai/clip-vit-base-patch32"  # what auto uses where its weights are
@@ -222,7 +228,7 @@ class AlignConfig(_Strict):
             raise ValueError("steps must be at least the number of phases")
         for role in ("target", "source"):
             up, front = getattr(self, f"{role}_up"), getattr(self, f"{role}_front")
-            if up[0] in "+-" and front[0] in "+-" and up[1] == front[1]:
+            if crossing(up, front):
                 raise ValueError(f"{role}_front {front} is not at right angles to {role}_up {up}")
         return self
 

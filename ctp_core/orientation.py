@@ -29,7 +29,7 @@ import numpy as np
 import trimesh
 
 from ctp_core import canonical, sampling
-from ctp_core.config import AlignConfig, Direction
+from ctp_core.config import AlignConfig, Direction, crossing
 from ctp_core.errors import ConfigError
 
 DIRECTIONS: tuple[str, ...] = get_args(Direction)
@@ -53,6 +53,8 @@ class Axes:
             if getattr(self, name) not in DIRECTIONS:
                 raise ConfigError(f"{name} must be one of {', '.join(DIRECTIONS)}, not {getattr(self, name)!r}",
                                   field=name)
+        if crossing(self.up, self.front):
+            raise ConfigError(f"front {self.front} is not at right angles to up {self.up}", field="front")
 
 
 FROM_FILE = Axes()  # the default: up and front from the file

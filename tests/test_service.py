@@ -237,6 +237,14 @@ def test_inspect_refuses_what_a_job_would_with_the_same_code(api, case):
     assert (stray.status_code, stray.json()["error"]["code"]) == (400, "unknown_field")
 
 
+@pytest.mark.parametrize(("fields", "field"), [({"up": "up"}, "up"), ({"front": "+q"}, "front"),
+                                             ({"up": "+y", "front": "-y"}, "front")])
+def test_inspect_refuses_an_up_or_front_a_job_would_refuse(api, fields, field):
+    answer = api.client.post("/inspect", files={"mesh": ("box.glb", BOX)}, data=fields)
+    assert (answer.status_code, answer.json()["error"]["code"], answer.json()["error"]["field"]) == (
+        422, "invalid_field", field), answer.text
+
+
 @pytest.mark.parametrize("case", list(BAD_INPUTS))
 def test_bad_input_is_refused_with_its_code(api, case):
     kwargs, status, code, field = BAD_INPUTS[case]

@@ -9,6 +9,7 @@ from fastapi.concurrency import run_in_threadpool
 from pydantic import BaseModel, Field
 
 from ctp_core import orientation
+from ctp_core.errors import ConfigError
 from service import forms
 from service.deps import owner
 from service.errors import ApiError, documented
@@ -64,20 +65,16 @@ class Inspection(BaseModel):
 async def inspect(request: Request, _who: str = Depends(owner)) -> Inspection:
     settings = request.app.state.settings
     form = await forms.read_form(request, {"mesh", "up", "front"}, max_files=1)
-    chosen = {name: forms.text(form, name) or "file" for name in ("up", "front")}
-    for name, value in chosen.items():
-        if value not in orientation.DIRECTIONS:
-            raise ApiError(422, "invalid_field", f"{name} must be one of {', '.join(orientation.DIRECTIONS)}",
-                           field=name)
-    if chosen["up"][0] in "+-" and chosen["front"][0] in "+-" and chosen["up"][1] == chosen["front"][1]:
-        raise ApiError(422, "invalid_field", f"front {chosen['front']} is not at right angles to up {chosen['up']}",
-                       field="front")
+    try:
+        axes = orientation.Axes(*(forms.text(form, name) or "file" for name in ("up", "front")))
+    except ConfigError as exc:
+        raise ApiError(422, "invalid_field", str(exc), field=exc.field) from None
     upload = forms.file(form, "mesh")
     name = forms.file_name(upload, "mesh")
     data = await forms.read_limited(upload, settings.max_upload_bytes, "mesh", "mesh_file_too_large")
     mesh = await run_in_threadpool(forms.load_mesh, request.app.state.loader, data, name, settings.mesh_limits,
                                    "mesh")
-    upright = await run_in_threadpool(orientation.orient, mesh, orientation.Axes(chosen["up"], chosen["front"]))
+    upright = await run_in_threadpool(orientation.orient, mesh, axes)
     extents = [float(v) for v in mesh.extents]
     frame = orientation.to_dict(upright)
     return Inspection(file=name, faces=len(mesh.faces), vertices=len(mesh.vertices), extents=extents,
