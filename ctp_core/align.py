@@ -125,7 +125,11 @@ class Run:
     names: dict[str, str | None] = field(default_factory=dict)  # target, source, on: what the priors read
     warnings: list[dict[str, Any]] = field(default_factory=list)  # AlignResult.warnings
     scale: ScalePlan | None = None  # scale mode: the scales the run starts from and searches (``scaling``)
-    reading: RelationReading | None = None  # the prompt's relation as the run uses it (``ScenePrior.reading``)
+
+    @property
+    def reading(self) -> RelationReading | None:
+        """The prompt's relation as the run uses it (``ScenePrior.reading``), read from the priors."""
+        return self.prior.reading
 
 
 def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, prompt: str | None,
@@ -173,13 +177,12 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
     loaded = time.perf_counter()
     names = {"target": target_name, "source": source_name, "on": on}
     scales = scaling.plan(pair, prior, names, config.seed, guided=goal is not None) if config.scale else None
-    reading = prior.reading  # the relation, decided once: every stage reads this value
-    scorer = objective.Scorer(pair, config, prior.contact_ratio, guide=guide, goal=goal, reading=reading,
+    scorer = objective.Scorer(pair, config, prior.contact_ratio, guide=guide, goal=goal, reading=prior.reading,
                               scale=scales)
     plan = schedule.phases(config, allow_penetration=prior.penetration)
     return Run(config, pair, prior, scorer, plan, goal, started,
                {"prepare_s": round(prepared - started, 3), "model_s": round(loaded - prepared, 3)}, names,
-               scale=scales, reading=reading)
+               scale=scales)
 
 
 def propose(run: Run, init: np.ndarray | None = None) -> Proposals:

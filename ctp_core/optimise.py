@@ -81,8 +81,7 @@ class Optimiser:
 
     def __init__(self, scorer: Scorer, plan: list[Phase], on_event: ProgressCallback | None = None,
                  should_cancel: CancelCheck | None = None, gate: Gate | None = None):
-        self.scorer = scorer.gated(gate)
-        self.gate = gate
+        self.scorer = scorer.gated(gate)  # its ``gate`` is the one the selection and the outcome read
         self.plan = plan
         self.on_event = on_event or (lambda event: None)
         self.should_cancel = should_cancel or (lambda: False)
@@ -115,10 +114,11 @@ class Optimiser:
             best=select_answer(scores, clearance(scorer.pair, scorer.pair.index, best),
                                touch_limit(scorer.pair, best), last, guided=scorer.use_clip,
                                touches=scorer.contact_ratio > 0, share=scorer.config.search.min_share,
-                               gate=self.gate),
+                               gate=self.scorer.gate),
             poses=best, objectives=objectives,
             terms={k: scores[k] for k in ("clip", "icp", "pen", "rel", "sunk")}, timings=totals,
-            phase_timings=phase_timings, clip_images=self.scorer.clip_images, steps_run=self.done, gate=self.gate,
+            phase_timings=phase_timings, clip_images=self.scorer.clip_images, steps_run=self.done,
+            gate=self.scorer.gate,
         )
 
     def _phase(self, phase: Phase, start: Poses, clip: torch.Tensor | None) -> tuple[Poses, dict[str, torch.Tensor]]:

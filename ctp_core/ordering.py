@@ -133,6 +133,9 @@ class Gate:
                 "chose": self.chooser, "summary": self.summary()}
 
 
+TRUSTED = Gate(spread=1.0, noise=0.0)  # a gate not measured (yet): the guide trusted fully (override 1, tie 0)
+
+
 def holding(terms: dict[str, torch.Tensor]) -> torch.Tensor:
     """(B,) bool: where the relation holds (``predicates.holds`` of the ``rel`` term; everywhere without one) and
     the pose does not intersect the target (``sunk`` at most ``SUNK``; 0 where penetration is allowed).
@@ -187,10 +190,9 @@ def search_key(terms: dict[str, torch.Tensor], weights: Phase, gate: Gate | None
     candidates can exceed the guide's by orders of magnitude, and any weighted sum would rank as geometry alone.
     The refinement and the final selection use the whole objective.
     """
-    override = gate.override if gate is not None else 1.0
-    key = (terms["clip"] if guide_key is None else guide_key) if guided and override > 0 else None
-    return rank_key(terms, weights, guide_key=key, override=override, share=share,
-                    tie=gate.tie if gate is not None else 0.0)
+    gate = gate or TRUSTED
+    key = (terms["clip"] if guide_key is None else guide_key) if guided and gate.override > 0 else None
+    return rank_key(terms, weights, guide_key=key, override=gate.override, share=share, tie=gate.tie)
 
 
 def improves(now: dict[str, torch.Tensor], best: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -223,8 +225,8 @@ def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: to
     would outweigh any guide.
     ``clear`` and ``limit``: per pose, in source diagonals (``objective.clearance``, ``objective.touch_limit``).
     """
-    override = gate.override if gate is not None else 1.0
-    tie = gate.tie if gate is not None else 0.0
+    gate = gate or TRUSTED
+    override, tie = gate.override, gate.tie
     key = terms["objective"]
     if guided and override <= 0:  # a guide without signal: the geometry alone
         guided, key = False, combine({**terms, "clip": torch.zeros_like(key)}, weights)

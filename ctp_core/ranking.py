@@ -109,7 +109,7 @@ def tiles_of(pair: PreparedPair, config: AlignConfig, poses: Poses) -> tuple[tor
 
 
 def tile_score(scorer: Scorer, poses: Poses, weights: Phase, tiles: tuple[torch.Tensor, torch.Tensor, float], *,
-               batch: int, gate: Gate | None = None, progress=lambda scored: None,
+               batch: int, progress=lambda scored: None,
                should_cancel: CancelCheck | None = None) -> Key:
     """(N,) each pose's ranking key (``ranking_key``: the relation first) by the guide's term in the coarse views
     of its tile (``tiles``: ``tiles_of`` of ``poses``) minus that of the same views without the source (lower:
@@ -133,7 +133,7 @@ def tile_score(scorer: Scorer, poses: Poses, weights: Phase, tiles: tuple[torch.
                      goal_embeddings=goal_rows(goal_embeddings, tile), progress=progress, should_cancel=should_cancel)
     moved = terms["clip"] - base[tile]
     change = torch.where(moved.abs() > HIDDEN, moved, torch.full_like(moved, torch.inf))
-    return ranking_key(scorer, terms, weights, gate, guide_key=change)
+    return ranking_key(scorer, terms, weights, guide_key=change)
 
 
 def fine_cameras(pair: PreparedPair, config: AlignConfig, poses: Poses) -> Cameras:
@@ -191,13 +191,13 @@ def terms_of(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, 
     return {k: torch.cat([part[k] for part in out]) for k in out[0]}
 
 
-def score(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, batch: int, gate: Gate | None = None,
+def score(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, batch: int,
           goal_embeddings: torch.Tensor | None = None, progress=lambda scored: None,
           should_cancel: CancelCheck | None = None) -> Key:
     """(N,) ranking keys (``ranking_key``) of ``poses`` on ``cameras``: ``terms_of``, then ranked together."""
     terms = terms_of(scorer, poses, weights, cameras, batch=batch, goal_embeddings=goal_embeddings,
                      progress=progress, should_cancel=should_cancel)
-    return ranking_key(scorer, terms, weights, gate)
+    return ranking_key(scorer, terms, weights)
 
 
 def guide_noise(scorer: Scorer, poses: Poses, terms: dict[str, torch.Tensor], weights: Phase, cameras: Cameras,
@@ -313,7 +313,7 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
                 tiles = None  # a guide with no signal cannot tell tiles apart either
                 total -= tiled_count
                 tiled_count = 0
-        coarse = ranking_key(scorer, terms, weights, gate)
+        coarse = ranking_key(scorer, terms, weights)
         swept = sweep(proposals, pair, coarse, cfg.sweep, distinct[0]) if sweep_count else None
         if swept is not None and cfg.sweep_keep and len(swept) > sweep_count:  # the turns the geometry allows
             screened += len(swept)
@@ -324,16 +324,16 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
                              should_cancel=should_cancel, progress=lambda n: emit(len(poses) + n))
             poses = Poses.cat([poses, swept])
             terms = {key: torch.cat([terms[key], extra[key]]) for key in terms}
-            coarse = ranking_key(scorer, terms, weights, gate)
+            coarse = ranking_key(scorer, terms, weights)
         held[:] = [int(holding(terms).sum()), len(poses)]
         proposed = proposals.poses
         tiled = None if tiles is None else tile_score(
-            scorer, proposed, weights, tiles, batch=cfg.batch, gate=gate, should_cancel=should_cancel,
+            scorer, proposed, weights, tiles, batch=cfg.batch, should_cancel=should_cancel,
             progress=lambda n: emit(total - fine_count - tiled_count + n))
         emit(total - fine_count)
         shortlist = shortlist_of(poses, coarse, fine_count, *distinct)
         fine_poses = poses.select(shortlist)
-        fine = score(scorer, fine_poses, weights, fine_cameras(pair, config, fine_poses), batch=cfg.batch, gate=gate,
+        fine = score(scorer, fine_poses, weights, fine_cameras(pair, config, fine_poses), batch=cfg.batch,
                      progress=lambda n: emit(total - fine_count + n), should_cancel=should_cancel)
         # the fine views see each candidate closer; the coarse ones see all in the same frame: rank by both
         ranked = fine.average(coarse.select(shortlist))
@@ -388,11 +388,12 @@ def encoder_shortlist(poses: Poses, terms: dict[str, torch.Tensor], weights: Pha
     return inside + rest
 
 
-def ranking_key(scorer: Scorer, terms: dict[str, torch.Tensor], weights: Phase, gate: Gate | None,
+def ranking_key(scorer: Scorer, terms: dict[str, torch.Tensor], weights: Phase,
                 guide_key: torch.Tensor | None = None) -> Key:
     """What the search ranks a stage's candidates by (``ordering.search_key``): with ``scorer``'s guide as far as
-    ``gate`` lets it (None: not measured yet), the search's ``min_share``; ``guide_key``: the tile stage's change."""
-    return search_key(terms, weights, gate, guided=scorer.use_clip, share=scorer.config.search.min_share,
+    the gate it scores under lets it (``Scorer.gated``; None: not measured yet), the search's ``min_share``;
+    ``guide_key``: the tile stage's change."""
+    return search_key(terms, weights, scorer.gate, guided=scorer.use_clip, share=scorer.config.search.min_share,
                       guide_key=guide_key)
 
 
