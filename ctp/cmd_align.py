@@ -20,6 +20,7 @@ from ctp_core import names
 from ctp_core.config import MAX_ALTERNATIVES, Runtime
 from ctp_core.errors import ConfigError, ImageError, MeshError
 from ctp_core.priors import PROVIDERS
+from ctp_core.priors.counts import CHOICES, MAX_COPIES
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -37,9 +38,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_switch(parser, "--judge-up", "upright_judge", True,
                "let the guidance model pick the target's up from renders named --target-name (needs real weights)")
     parser.add_argument("--count", type=int, metavar="N",
-                        help="place N copies of the source (1 to 12; default: the prompt's number, "
+                        help=f"place N copies of the source (1 to {MAX_COPIES}; default: the prompt's number, "
                              "\"three apples\", else 1); the GLB has one node per copy, SOURCE-NAME_1 ...")
-    parser.add_argument("--arrangement", choices=("auto", "scatter", "around", "row", "stack"), default="auto",
+    parser.add_argument("--arrangement", choices=CHOICES, default="auto",
                         help="how copies stand together: auto (the prompt's \"around\", \"in a row\", \"stack "
                              "of\", else scatter), scatter, around (facing the target), row, stack")
     parser.add_argument("--alternatives", type=int, default=1, metavar="N",

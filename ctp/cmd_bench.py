@@ -36,6 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from ctp_core.bench.guides import GUIDES
     from ctp_core.bench.harness import ABLATIONS, METHODS
     from ctp_core.bench.protocol import PROTOCOLS
+    from ctp_core.priors.counts import CHOICES
 
     parser.add_argument("cases_dir", type=Path, help="folder searched recursively for <case>/case.json")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
@@ -61,8 +62,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--count", type=int, default=1,
                         help="copies of the source per run (ctp and geometry, text guide; the first is judged "
                         "against the reference, the set by its own measures)")
-    parser.add_argument("--arrangement", default="auto", help="how the copies stand: auto (the prompt's cue), "
-                        "scatter, around, row, stack")
+    parser.add_argument("--arrangement", choices=CHOICES, default="auto",
+                        help="how the copies stand: auto (the prompt's cue), scatter, around, row, stack")
     parser.add_argument("--jobs", type=int, default=1, help="cases run in parallel processes")
     parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
     parser.add_argument("--threads", type=int, help="torch CPU threads per run")

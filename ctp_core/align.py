@@ -86,9 +86,12 @@ class AlignResult:
     scaling: dict[str, Any] | None = None
 
     def alternative(self, k: int) -> AlignResult:
-        """This result with alternative ``k`` as its answer (0: the answer itself), for its GLB."""
-        return replace(self, source_to_target=np.asarray(self.alternatives[k]["source_to_target"], dtype=np.float64),
-                       objective=self.alternatives[k]["objective"], best_restart=self.alternatives[k]["restart"])
+        """This result with alternative ``k`` as its answer (0: the answer itself): its pose, objective, restart and
+        relation verdict."""
+        chosen = self.alternatives[k]
+        return replace(self, source_to_target=np.asarray(chosen["source_to_target"], dtype=np.float64),
+                       objective=chosen["objective"], best_restart=chosen["restart"],
+                       relation=chosen.get("relation", self.relation))
 
     @property
     def transform(self) -> frames.Similarity:

@@ -157,7 +157,6 @@ def place_copies(target: trimesh.Trimesh, source: trimesh.Trimesh, prompt: str |
                            choice=choice)
             pick = _spaced(result, out)
             result = result.alternative(pick)
-            result.relation = result.alternatives[pick]["relation"]
             copy = Copy(names[k], result.source_to_target, target_name, result.relation, 0.0, "search", result=result)
         else:
             on = names[k - 1] if kind == "stack" and k > 0 else target_name
@@ -199,10 +198,11 @@ def _spaced(result: AlignResult, out: Copies) -> int:
         return 0
     points = _surface(out.source)
     diagonal = _diagonal(out.source)
+    earlier = [_posed(out.source, c.source_to_target) for c in out.copies]  # one mesh each: its queries cached
     gaps, holds = [], []
     for alt in result.alternatives:
         posed = trimesh.transform_points(points, np.asarray(alt["source_to_target"]))
-        gaps.append(min(_gap(_posed(out.source, c.source_to_target), posed) for c in out.copies) / diagonal)
+        gaps.append(min(_gap(mesh, posed) for mesh in earlier) / diagonal)
         holds.append(alt["relation"] is None or alt["relation"]["holds"])
     for k, (gap, held) in enumerate(zip(gaps, holds, strict=True)):
         if held and gap >= SPACING:
@@ -269,7 +269,7 @@ def _on_top(reading: RelationReading | None) -> bool:
 def _slots(base: PreparedPair, kind: str, n: int, reading: RelationReading | None) -> list[np.ndarray]:
     """``around`` and ``row``: each copy's place, source file -> target file (see the module)."""
     target = base.target_vertices.double().cpu().numpy()
-    floor, top = float(target[:, 1].min()), float(target[:, 1].max())
+    floor, top = base.floor, float(target[:, 1].max())
     front = np.asarray(base.target_front, dtype=np.float64) * [1.0, 0.0, 1.0]
     front = front / np.linalg.norm(front) if np.linalg.norm(front) > 1e-6 else np.array([0.0, 0.0, 1.0])
     local = base.source_vertices.double().cpu().numpy()
@@ -331,7 +331,8 @@ def set_metrics(source: trimesh.Trimesh, matrices: list[np.ndarray], verdicts: l
     from ctp_core import metrics
 
     posed = [_posed(source, m) for m in matrices]
-    points = [trimesh.transform_points(_surface(source), m) for m in matrices]
+    surface = _surface(source)
+    points = [trimesh.transform_points(surface, m) for m in matrices]
     diagonal = _diagonal(source) * frames.Similarity(matrices[0], frames.SOURCE_FILE, frames.TARGET_FILE).scale
     worst_iou, spacing = 0.0, math.inf
     for i in range(len(posed)):

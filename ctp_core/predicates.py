@@ -829,39 +829,24 @@ def _off_centre(c: _Ctx) -> torch.Tensor:
 
 def _prefer_resting(c: _Ctx) -> torch.Tensor:
     """Resting: on the top, steadily, near the middle."""
-    return torch.zeros_like(c.unit) + _drop(c) + _unsteady(c) + _off_centre(c)
-
-
-def _prefer_wear(c: _Ctx) -> torch.Tensor:
-    """``wear``: on the top (the highest summit)."""
-    return torch.zeros_like(c.unit) + _drop(c)
+    return _drop(c) + _unsteady(c) + _off_centre(c)
 
 
 def _prefer_in(c: _Ctx) -> torch.Tensor:
     """``in``: held by its sides, near the middle."""
-    return torch.zeros_like(c.unit) + 1.0 - _enclosure(c) + _off_centre(c)
-
-
-def _off_centred(c: _Ctx) -> torch.Tensor:
-    """``under``, ``lean``: near the middle."""
-    return torch.zeros_like(c.unit) + _off_centre(c)
+    return 1.0 - _enclosure(c) + _off_centre(c)
 
 
 def _prefer_below(c: _Ctx) -> torch.Tensor:
     """``below``: standing on the floor (its bottom's height from the floor, either way, past contact, in figure
     diagonals: a box below a hung lamp stands under it rather than floats or sinks), near the middle."""
-    return torch.zeros_like(c.unit) + c.h((c.bottom() - c.floor).abs() - c.tol()) + _off_centre(c)
-
-
-def _prefer_hang(c: _Ctx) -> torch.Tensor:
-    """``hang``: hung freely from something that bears it."""
-    return torch.zeros_like(c.unit) + _borne(c)
+    return c.h((c.bottom() - c.floor).abs() - c.tol()) + _off_centre(c)
 
 
 def _prefer_penetrate(c: _Ctx) -> torch.Tensor:
     """``penetrate``: end first, from above the floor, near the middle."""
     below_floor = c.h(c.floor - c.figure.points[..., 1].min(-1).values)
-    return torch.zeros_like(c.unit) + _end_first(c) + below_floor + _off_centre(c)
+    return _end_first(c) + below_floor + _off_centre(c)
 
 
 def _borne(c: _Ctx) -> torch.Tensor:
@@ -938,9 +923,9 @@ class Judge:
 _RESTING = Judge(_score_resting, _prefer_resting)
 JUDGES: dict[str, Judge] = {
     "on": _RESTING, "stand": _RESTING, "sit": _RESTING, "lie": _RESTING,
-    "in": Judge(_score_in, _prefer_in), "under": Judge(_score_under, _off_centred),
-    "beside": Judge(_score_beside), "lean": Judge(_score_lean, _off_centred),
-    "hang": Judge(_score_hang, _prefer_hang), "wear": Judge(_score_wear, _prefer_wear),
+    "in": Judge(_score_in, _prefer_in), "under": Judge(_score_under, _off_centre),
+    "beside": Judge(_score_beside), "lean": Judge(_score_lean, _off_centre),
+    "hang": Judge(_score_hang, _borne), "wear": Judge(_score_wear, _drop),
     "penetrate": Judge(_score_penetrate, _prefer_penetrate), "attach": Judge(_score_attach),
     "hold": Judge(_score_hold), "wrap": Judge(_score_wrap),
     **{side: Judge(partial(_score_side, side=side)) for side in ("front", "behind", "left", "right")},
@@ -949,6 +934,7 @@ JUDGES: dict[str, Judge] = {
     "facing_away": Judge(partial(_score_facing, sign=-1.0)), "aligned": Judge(_score_aligned),
 }
 assert set(JUDGES) == set(RELATIONS), "every relation of the vocabulary has one judge, and only those"
+assert all((JUDGES[name] is _RESTING) == r.rests for name, r in RELATIONS.items()), "the resting family, said twice"
 
 
 def _score(c: _Ctx, reading: RelationReading) -> torch.Tensor:

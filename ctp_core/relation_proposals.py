@@ -122,7 +122,7 @@ def _thinned(region: list[str], drop: int) -> list[int]:
 
 
 def lean(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int,
-         reading: RelationReading | None = None) -> Proposals | None:
+         reading: RelationReading | None) -> Proposals | None:
     """Tilted sources standing on the floor against the target's sides (``extend``); None without side samples."""
     points, normals, regions, _ = surface_regions(pair)
     side = regions["side"]
@@ -130,8 +130,7 @@ def lean(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: in
     length = np.linalg.norm(horizontal, axis=1)
     side, horizontal = side[length > 0.5], horizontal[length > 0.5] / length[length > 0.5, None]
     if reading is not None and reading.side is not None:  # only the named side's faces
-        front, left = predicates.axes(torch.as_tensor(pair.target_front, dtype=torch.float32)[None],
-                                      pair.front_trusted)
+        front, left = _target_axes(pair)
         way = predicates.toward(reading.side, front, left)[0].numpy().astype(np.float64)
         facing = horizontal @ way >= predicates.FACING
         side, horizontal = side[facing], horizontal[facing]
@@ -157,7 +156,7 @@ def lean(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: in
 
 
 def contained(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int,
-              reading: RelationReading | None = None) -> Proposals | None:
+              reading: RelationReading | None) -> Proposals | None:
     """Sources standing in the target's most enclosed up-facing places (``extend``); None where no up-facing
     point is enclosed at all."""
     points, _, regions, density = surface_regions(pair)
@@ -186,7 +185,7 @@ def contained(pair: PreparedPair, config: AlignConfig, proposals: Proposals, see
 
 
 def hung(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int,
-         reading: RelationReading | None = None) -> Proposals | None:
+         reading: RelationReading | None) -> Proposals | None:
     """Sources hung by a hook point on a thin up-facing part of the target (``extend``); None where the source has
     no hook point or no up-facing part of the target is thin enough to pass into one."""
     local, plumb, hooks, clearance = hook_points(pair)
@@ -211,7 +210,7 @@ def hung(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: in
 
 
 def pierced(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int,
-            reading: RelationReading | None = None) -> Proposals:
+            reading: RelationReading | None) -> Proposals:
     """Sources driven end first into the target (``extend``): on the longest principal axis along the inward
     normal of a surface sample that does not face down (either end first, any turn about that axis),
     ``PIERCE_DEPTH`` of their length in, raised where that would pass below the floor the target stands on.
@@ -250,7 +249,7 @@ def apart(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: i
     log_s = _scale(proposals)
     scale = math.exp(log_s)
     target = pair.anchor.points.cpu()
-    front, left = predicates.axes(torch.as_tensor(pair.target_front, dtype=torch.float32)[None], pair.front_trusted)
+    front, left = _target_axes(pair)
     if kind == "side":
         u = predicates.toward(position, front, left).expand(count, 3)
     else:
@@ -286,7 +285,7 @@ def apart(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: i
 
 
 def beneath(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int,
-            reading: RelationReading | None = None) -> Proposals | None:
+            reading: RelationReading | None) -> Proposals | None:
     """Sources standing on the floor under a down-facing point of the target lifted high enough for them
     (``extend``; the module docstring says where); None where no point is."""
     points, _, regions, density = surface_regions(pair)
@@ -390,6 +389,11 @@ def _thickness(points: np.ndarray, top: np.ndarray, bottom: np.ndarray, spacing:
         if len(below):
             out[k] = points[top[k], 1] - below.max()
     return out
+
+
+def _target_axes(pair: PreparedPair) -> tuple[torch.Tensor, torch.Tensor]:
+    """(front, left), each (1, 3): the target's own horizontal axes, or the viewer's (``predicates.axes``)."""
+    return predicates.axes(torch.as_tensor(pair.target_front, dtype=torch.float32)[None], pair.front_trusted)
 
 
 def _turn(a: np.ndarray, b: np.ndarray) -> torch.Tensor:

@@ -124,9 +124,7 @@ def cavity_bound(pair: PreparedPair, seed: int) -> float | None:
     cavity = proposals.cavity_points(pair, seed)
     if len(cavity) < 8:
         return None
-    verts = pair.target_vertices.cpu().numpy().astype(np.float64)
-    margin = 2 * proposals.CAVITY_MARGIN * float(np.linalg.norm(np.ptp(verts, axis=0)))  # the probes' wall gap
-    opening = np.sort(np.ptp(cavity[:, [0, 2]], axis=0) + margin)
+    opening = _opening(pair, cavity)
     sides = np.sort(np.ptp(pair.source_vertices.cpu().numpy(), axis=0))[:2]
     return float(np.min(np.log(opening / np.maximum(sides, 1e-30))))
 
@@ -198,9 +196,15 @@ def lid_bound(pair: PreparedPair, seed: int) -> float | None:
     mouth = cavity[cavity[:, 1] >= top - OPENING_DEPTH * height]
     if len(mouth) < 8:
         return None
-    margin = 2 * proposals.CAVITY_MARGIN * float(np.linalg.norm(np.ptp(verts, axis=0)))  # the probes' wall gap
-    opening = np.sort(np.ptp(mouth[:, [0, 2]], axis=0) + margin)
-    return float(np.max(np.log(opening / np.maximum(footprint, 1e-30))))
+    return float(np.max(np.log(_opening(pair, mouth) / np.maximum(footprint, 1e-30))))
+
+
+def _opening(pair: PreparedPair, points: np.ndarray) -> np.ndarray:
+    """The two horizontal sides of the opening that cavity ``points`` span, shortest first, with the probes' wall
+    gap (``proposals.CAVITY_MARGIN`` of the target's diagonal) added back: the cavity's width, wall to wall."""
+    verts = pair.target_vertices.cpu().numpy().astype(np.float64)
+    margin = 2 * proposals.CAVITY_MARGIN * float(np.linalg.norm(np.ptp(verts, axis=0)))
+    return np.sort(np.ptp(points[:, [0, 2]], axis=0) + margin)
 
 
 def geometric_bound(pair: PreparedPair, prior: ScenePrior, seed: int, ratio: float) -> Bound | None:
