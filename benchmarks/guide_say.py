@@ -12,6 +12,9 @@ them, scored at the coarse views by the guide and the geometry; printed per case
 - ``views_agree``: the rank correlation (Spearman) between the guide's term seen by the first coarse view alone
   and by the second alone, over the holding proposals it sees (what it orders), and ``views_agree_seen`` over all
   it sees: a guide that sees where the source is agrees with itself from another side;
+- ``knows``: per twin shift (source diagonals), ``knows`` on what the guide sees: [right, tested] comparisons of
+  twins of its favourite holding proposals, moved as far, where the relation holds against where it fails;
+- ``top_agree``: where each coarse view's favourite holding proposal ranks in the other view (``top_agreement``);
 - ``guide_places`` / ``geometry_places``: whether the guide's best holding proposal places, and the geometry's
   (``rank_key`` without a guide; the usual arrangement included).
 
@@ -36,6 +39,7 @@ from ctp_core.bench import protocol
 from ctp_core.bench.guides import guide_inputs
 from ctp_core.config import AlignConfig
 from ctp_core.guide_loaders import guide_for
+from ctp_core.pose import Poses
 
 
 def agreement(terms: dict[str, torch.Tensor]) -> tuple[float, int, int] | None:
@@ -79,6 +83,43 @@ def places(pair, poses, key: torch.Tensor, held: torch.Tensor, reference, points
     return bool(errors(pair, poses.select([best]), reference, points)[0, 0] <= metrics.PLACEMENT_RADIUS)
 
 
+def knows(scorer, poses, terms, weights, cameras, goal, shift: float, favourites: int = 4) -> list[int]:
+    """[right, tested]: the guide's ``favourites`` best holding poses, each moved ``shift`` source diagonals both
+    ways along each axis; the twins split by the geometry into those where the relation still holds and those
+    where it fails or they intersect; ``right`` counts the (holding, wrong) twin pairs of one favourite whose
+    holding twin the guide ranks first. Both kinds are moved as far from a favourite the guide picked, so the
+    regression of that pick to the mean (any consistent function, noise included, likes its favourite's twins
+    less) is the same on both sides: only a guide that sees the relation tells them apart."""
+    clip, held = terms["clip"], ordering.holding(terms)
+    picked = torch.nonzero(held)[:, 0]
+    picked = picked[torch.argsort(clip[picked])[:favourites]]
+    if not len(picked):
+        return [0, 0]
+    axes = torch.cat([torch.eye(3), -torch.eye(3)])
+    base = poses.select(picked)
+    moves = (shift * scorer.pair.source_diagonal * base.log_s.exp())[:, None, None] * axes.to(base.t)[None]
+    twins = Poses((base.t[:, None] + moves).reshape(-1, 3), base.q.repeat_interleave(len(axes), 0),
+                  base.log_s.repeat_interleave(len(axes)))
+    twin_terms = ranking.terms_of(scorer, twins, weights, cameras, batch=len(twins), goal_embeddings=goal)
+    kept = ordering.holding(twin_terms).reshape(len(picked), len(axes))
+    score = twin_terms["clip"].reshape(len(picked), len(axes))
+    right = tested = 0
+    for row in range(len(picked)):
+        good, bad = score[row][kept[row]], score[row][~kept[row]]
+        right += int((good[:, None] < bad[None, :]).sum())
+        tested += len(good) * len(bad)
+    return [right, tested]
+
+
+def top_agreement(first: torch.Tensor, second: torch.Tensor) -> float | None:
+    """Where each view's favourite ranks in the other view (0: its best, 1: its worst), the mean of both: a guide
+    that sees where the source is agrees with itself at the top from another side; chance is about 0.5."""
+    if len(first) < 3:
+        return None
+    where = lambda a, b: float((b < b[int(torch.argmin(a))]).double().mean())  # noqa: E731
+    return 0.5 * (where(first, second) + where(second, first))
+
+
 def run_case(case, args) -> dict:
     target, source = case.load()
     init = protocol.initial_poses(case.reference, source.bounds, protocol="rigid", count=1, seed=args.seed,
@@ -102,6 +143,8 @@ def run_case(case, args) -> dict:
                                ranking.embed_shared_goal(scorer, cameras))
     first, second = (view_term(scorer, shown_poses, cameras, v, config.search.batch) for v in (0, 1))
     mask = held[seen]
+    goal = ranking.embed_shared_goal(scorer, cameras)
+    twins = {shift: knows(scorer, shown_poses, shown_terms, weights, cameras, goal, shift) for shift in args.shifts}
     points = sampling.surface_samples(source, 500, args.seed)[0]
     geometric = ordering.rank_key(terms, weights, share=config.search.min_share)
     relation = scorer.reading.name if scorer.reading is not None else None
@@ -113,6 +156,7 @@ def run_case(case, args) -> dict:
             "seen_failed": int((~held[seen]).sum()),
             "views_agree": spearman(first[mask], second[mask]), "views_agree_seen": spearman(first, second),
             "gate": {k: (round(v, 4) if isinstance(v, float) else v) for k, v in gate.to_dict().items()},
+            "knows": twins, "top_agree": top_agreement(first[mask], second[mask]),
             "guide_places": places(run.pair, poses, terms["clip"], held, case.reference, points),
             "geometry_places": places(run.pair, poses, geometric.value, held, case.reference, points)}
 
@@ -120,6 +164,8 @@ def run_case(case, args) -> dict:
 def main(argv: list[str] | None = None) -> int:
     parser = case_parser(__doc__.split("\n\n")[0])
     parser.add_argument("--guide", default="oracle", choices=["text", "oracle", "pixels"])
+    parser.add_argument("--shifts", default="0.1,0.25,0.5", type=lambda s: [float(x) for x in s.split(",")],
+                        help="the twins' shifts, source diagonals (comma-separated)")
     np.set_printoptions(precision=3)
     return each_case(parser.parse_args(argv), run_case)
 

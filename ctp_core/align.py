@@ -231,7 +231,8 @@ def score(run: Run, proposals: Proposals, *, on_event: ProgressCallback | None =
     if not run.config.search.enabled:
         return proposals.poses, None
     ranked = ranking.search(run.scorer, proposals, run.plan[0], k=run.config.optim.restarts, on_event=on_event,
-                            should_cancel=should_cancel, phases=len(run.plan), started=run.started)
+                            should_cancel=should_cancel, phases=len(run.plan), started=run.started,
+                            centre=run.scale.rungs[0] if run.scale else None)
     run.timings["search_s"] = round(ranked.seconds, 3)
     run.timings["search_candidates"] = ranked.scored
     if ranked.screened:  # the geometry's screen before the guide saw its shortlist

@@ -11,8 +11,9 @@ import torch
 from scipy.spatial import cKDTree
 
 
-def clip_loss(image_embeddings: torch.Tensor, goal_embeddings: torch.Tensor) -> torch.Tensor:
-    """L_clip = -mean over views of cos(e_img, e_goal).
+def clip_view_loss(image_embeddings: torch.Tensor, goal_embeddings: torch.Tensor) -> torch.Tensor:
+    """(B, C) -cos(e_img, e_goal) per view; L_clip is its mean over the views (``Scorer.clip_term``), each view
+    alone what ``ranking.view_agreement`` compares.
 
     image_embeddings (B, C, D); goal_embeddings (D,) for a text or image prompt, or (B, C, D) for a
     per-view goal (the oracle guide). Both are expected L2-normalised; we normalise again so a
@@ -20,8 +21,7 @@ def clip_loss(image_embeddings: torch.Tensor, goal_embeddings: torch.Tensor) -> 
     """
     img = torch.nn.functional.normalize(image_embeddings.float(), dim=-1)
     goal = torch.nn.functional.normalize(goal_embeddings.float(), dim=-1)
-    cos = (img * goal).sum(-1) if goal.dim() == 3 else img @ goal
-    return -cos.mean(dim=-1)
+    return -((img * goal).sum(-1) if goal.dim() == 3 else img @ goal)
 
 
 class SurfaceIndex:

@@ -220,9 +220,9 @@ class Scorer:
         return embeddings
 
     def clip_term(self, poses: Poses, cameras: Cameras, goal_embeddings: torch.Tensor | None = None,
-                  weight: float = 0.0) -> torch.Tensor:
-        """L_clip per pose. With ``weight`` > 0 (and grad enabled), ``weight * L_clip`` is back-propagated
-        through the renderer to the poses; otherwise forward only."""
+                  weight: float = 0.0, *, views: bool = False) -> torch.Tensor:
+        """L_clip per pose ((B,); ``views``: (B, C), each view's alone). With ``weight`` > 0 (and grad enabled),
+        ``weight * L_clip`` is back-propagated through the renderer to the poses; otherwise forward only."""
         pair, guide = self.pair, self.guide
         grad = weight > 0 and torch.is_grad_enabled()
         with self.clock.time("render"):
@@ -234,30 +234,33 @@ class Scorer:
         with self.clock.time("clip"):
             leaf = images.detach().requires_grad_(grad) if grad else images
             emb = guide.encode_images(leaf.reshape(batch * views, *images.shape[2:])).reshape(batch, views, -1)
-            value = losses.clip_loss(emb, goal_embeddings)
+            each = losses.clip_view_loss(emb, goal_embeddings)
+            value = each.mean(dim=-1)
             if grad:
                 (image_grad,) = torch.autograd.grad(value.sum() * weight, leaf)
         self.clip_images += batch * views
         if grad:
             with self.clock.time("render"):
                 images.backward(image_grad)
-        return value.detach()
+        return (each if views else value).detach()
 
     def score(self, poses: Poses, weights: Phase, cameras: Cameras, goal_embeddings: torch.Tensor | None = None,
-              batch: int | None = None, *, encode: bool = True) -> dict[str, torch.Tensor]:
+              batch: int | None = None, *, encode: bool = True, views: bool = False) -> dict[str, torch.Tensor]:
         """Every term and the objective of ``poses`` on ``cameras``, forward only, ``batch`` poses per call.
 
         ``cameras`` are (1, C) shared by every pose (a per-view goal is then encoded once for all) or
         (len(poses), C) per pose; ``goal_embeddings`` are the goal's, precomputed: for shared cameras, or
         (len(poses), C, D) per pose (poses that share cameras share their goal's images: the tile stage).
         ``encode`` False (or a run not ``guided``): the geometry's terms only, ``clip`` 0, nothing rendered.
+        ``views``: where it encodes, also ``clip_views`` (B, C), the guide's term seen by each view alone.
         """
         with torch.inference_mode():
-            out = self._score(poses, weights, cameras, goal_embeddings, batch, encode and self.guided)
+            out = self._score(poses, weights, cameras, goal_embeddings, batch, encode and self.guided, views=views)
         return {k: v.clone() for k, v in out.items()}  # normal tensors, usable outside inference mode
 
     def _score(self, poses: Poses, weights: Phase, cameras: Cameras | None, goal_embeddings: torch.Tensor | None,
-               batch: int | None, encode: bool, points: int | None = None) -> dict[str, torch.Tensor]:
+               batch: int | None, encode: bool, points: int | None = None,
+               views: bool = False) -> dict[str, torch.Tensor]:
         """``score``'s work, without inference mode or copies; ``cameras`` may be None where nothing is encoded,
         ``points``: the geometry on that many source samples (``geometry``)."""
         shared = cameras is not None and cameras.fov_deg.shape[0] == 1
@@ -271,7 +274,10 @@ class Scorer:
             del terms["centroid"]
             if encode:
                 cams = cameras.expand(len(chunk)) if shared else cameras.rows(lo, lo + step)
-                terms["clip"] = self.clip_term(chunk, cams, goal_rows(goal_embeddings, slice(lo, lo + step), shared))
+                each = self.clip_term(chunk, cams, goal_rows(goal_embeddings, slice(lo, lo + step), shared), views=True)
+                terms["clip"] = each.mean(dim=-1)
+                if views:
+                    terms["clip_views"] = each
             else:
                 terms["clip"] = torch.zeros_like(terms["icp"])
             parts.append(terms)

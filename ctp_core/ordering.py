@@ -28,6 +28,8 @@ from ctp_core.objective import NEAR, combine
 from ctp_core.schedule import Phase
 
 GATE_FULL = 4.0  # ``Gate``: a guide whose spread is this many times its noise may override the relation fully
+AGREE_CHANCE = 0.5  # ``Gate.agree`` of a guide whose views pick their favourites independently: no say
+AGREE_FULL = 0.1  # ... of one whose favourite from each side is among the other sides' best tenth: the full say
 SUNK = 0.01  # source diagonals of penetration (``sunk``) past which a pose intersects: a sphere pressed into a
 # plane by a tenth of its diagonal (forward and enclosed halves ~ depth^2 / radius / 2 each side summed)
 
@@ -91,13 +93,22 @@ class Key:
 
 @dataclass(frozen=True)
 class Gate:
-    """How far a guide may override the relation: its scores' spread over the search's candidates (standard
-    deviation) against its noise (the largest change of the score of a few candidates moved by a negligible
-    amount: ``ranking.guide_noise``). ``override`` grows from 0 (spread at most the noise: the guide does not
-    tell the candidates apart, so it must not undo the geometry) to 1 at ``GATE_FULL`` times the noise."""
+    """How far a guide may override the relation, earned in each run by two tests (``ranking.guide_noise``), the
+    lower one deciding (``override``):
+
+    - signal: its scores' spread over the search's candidates (standard deviation) against its noise (the
+      largest change of the score of a few candidates moved by a negligible amount); from 0 (spread at most the
+      noise: it does not tell the candidates apart) to 1 at ``GATE_FULL`` times the noise;
+    - agreement (``agree``: ``ranking.view_agreement``, where each coarse view's favourite among the holding
+      candidates ranks in the other views, 0 the best, 0.5 chance; None: not measured, no limit): from 0 at
+      ``AGREE_CHANCE`` to 1 at ``AGREE_FULL``. A consistent function of the image passes the first test, noise
+      included (a random encoder is one); only a guide that sees where the source is agrees with itself from
+      another side.
+    """
 
     spread: float
     noise: float
+    agree: float | None = None
 
     @property
     def ratio(self) -> float:
@@ -105,7 +116,19 @@ class Gate:
 
     @property
     def override(self) -> float:
+        return min(self.signal, self.agreement)
+
+    @property
+    def signal(self) -> float:
+        """The say the spread earns: 0 within the noise, 1 at ``GATE_FULL`` times it."""
         return float(min(1.0, max(0.0, (self.ratio - 1.0) / (GATE_FULL - 1.0))))
+
+    @property
+    def agreement(self) -> float:
+        """The say the views' agreement earns: 0 at chance, 1 at ``AGREE_FULL``; 1 where not measured."""
+        if self.agree is None:
+            return 1.0
+        return float(min(1.0, max(0.0, (AGREE_CHANCE - self.agree) / (AGREE_CHANCE - AGREE_FULL))))
 
     @property
     def tie(self) -> float:
@@ -124,12 +147,15 @@ class Gate:
         """The gate in one line, for the progress readout, the report and the page."""
         spread = f"the guide's scores spread {self.ratio:.1f}x their noise" if self.noise > 0 else (
             "the guide's scores have no measurable noise")
+        if self.agree is not None:
+            spread += (f", each view's favourite ranks {self.agree:.0%} down the other's order "
+                       f"({AGREE_CHANCE:.0%} by chance)")
         return spread + {"geometry": ": the geometry chose", "guide": ": the guide chose",
                          "both": f": the guide chose, the usual arrangement weighing {1 - self.override:.2f}"
                          }[self.chooser]
 
     def to_dict(self) -> dict[str, float | str]:
-        return {"spread": self.spread, "noise": self.noise, "override": round(self.override, 3),
+        return {"spread": self.spread, "noise": self.noise, "agree": self.agree, "override": round(self.override, 3),
                 "chose": self.chooser, "summary": self.summary()}
 
 

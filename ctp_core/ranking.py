@@ -48,6 +48,7 @@ HIDDEN = 1e-6  # tile stage: a smaller change of the guide's term than this is a
 GATE_PROBES = 4  # ``guide_noise``: candidates scored again, moved by a negligible amount
 GATE_SHIFT = 0.01  # ... by this many source diagonals
 GATE_TURN_DEG = 1.0  # ... and turned this much about +Y
+AGREE_MIN = 3  # ``view_agreement``: fewer holding candidates than this tell nothing
 
 
 @dataclass
@@ -169,11 +170,12 @@ def embed_shared_goal(scorer: Scorer, cameras: Cameras) -> torch.Tensor | None:
 
 def terms_of(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, batch: int,
              goal_embeddings: torch.Tensor | None = None, progress=lambda scored: None,
-             should_cancel: CancelCheck | None = None) -> dict[str, torch.Tensor]:
+             should_cancel: CancelCheck | None = None, views: bool = False) -> dict[str, torch.Tensor]:
     """The objective's terms (``Scorer.score``: clip, icp, pen, rel, stable, objective) of ``poses`` on ``cameras``
     ((1, C) shared or (N, C)), ``batch`` poses per call, forward only, on the CPU; ``progress(scored)`` after
     each batch, cancel checked before each. ``goal_embeddings``: ``embed_shared_goal`` of shared cameras, when
-    already computed, or (N, C, D) per pose for per-pose cameras."""
+    already computed, or (N, C, D) per pose for per-pose cameras. ``views``: also ``clip_views`` where it
+    encodes (``Scorer.score``)."""
     shared = cameras.fov_deg.shape[0] == 1
     if shared and goal_embeddings is None and scorer.guided:
         goal_embeddings = embed_shared_goal(scorer, cameras)
@@ -184,7 +186,7 @@ def terms_of(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, 
         chunk = poses.select(slice(lo, lo + batch))
         cams = cameras if shared else cameras.rows(lo, lo + batch)
         goal = goal_rows(goal_embeddings, slice(lo, lo + batch), shared)
-        out.append({k: v.cpu() for k, v in scorer.score(chunk, weights, cams, goal).items()})
+        out.append({k: v.cpu() for k, v in scorer.score(chunk, weights, cams, goal, views=views).items()})
         progress(lo + len(chunk))
     if not out:
         return {k: torch.zeros(0) for k in ("clip", "icp", "pen", "sunk", "rel", "stable", "prefer", "objective")}
@@ -201,9 +203,11 @@ def score(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, bat
 
 
 def guide_noise(scorer: Scorer, poses: Poses, terms: dict[str, torch.Tensor], weights: Phase, cameras: Cameras,
-                goal_embeddings: torch.Tensor | None) -> Gate:
+                goal_embeddings: torch.Tensor | None, views: torch.Tensor | None = None) -> Gate:
     """The guide's ``Gate`` from a stage's candidates: the spread (standard deviation) of its term over them,
-    against its noise: the largest change of its term when ``GATE_PROBES`` of them (spread over its order) are
+    and how far its views agree on its favourite where the relation holds (``view_agreement`` of ``views``, the
+    candidates' (N, C) ``clip_views``; None: not measured), against its noise: the largest change of its term
+    when ``GATE_PROBES`` of them (spread over its order) are
     moved by ``GATE_SHIFT`` of the source's diagonal and turned ``GATE_TURN_DEG`` about +Y (a change the
     geometry and any placement metric cannot tell; renders then differ a little at the source's edges and the
     encoder's rounding (bf16 under autocast) differs with them). Costs ``GATE_PROBES`` candidates' encodes
@@ -222,7 +226,25 @@ def guide_noise(scorer: Scorer, poses: Poses, terms: dict[str, torch.Tensor], we
                   quaternion_product(turn.to(probe.q), probe.q), probe.log_s)
     again = terms_of(scorer, moved, weights, cameras, batch=len(picks), goal_embeddings=goal_embeddings)["clip"]
     noise = float((again - clip[picks]).abs().max())
-    return Gate(float(clip.std()) if len(clip) > 1 else 0.0, noise)
+    agree = None if views is None else view_agreement(views[holding(terms)])
+    return Gate(float(clip.std()) if len(clip) > 1 else 0.0, noise, agree)
+
+
+def view_agreement(views: torch.Tensor) -> float | None:
+    """Where each view's favourite ranks in each other view's order, as the share of the candidates that view
+    ranks before it (0: its best too; 0.5 by chance), averaged over the ordered pairs of views; None with fewer
+    than ``AGREE_MIN`` candidates or one view. ``views``: (N, C) the guide's term per candidate and view (lower
+    is better), over the candidates where the relation holds (what the guide orders).
+
+    Why this is the guide's say: a guide that sees where the source belongs prefers the same pose from every
+    side, while a consistent function of the image that does not (a random encoder with any prompt, the issue's
+    "weak guide") prefers, in each view, what that view's pixels happen to favour."""
+    count, sides = views.shape if views.dim() == 2 else (0, 0)
+    if count < AGREE_MIN or sides < 2:
+        return None
+    shares = [float((views[:, b] < views[int(torch.argmin(views[:, a])), b]).double().sum()) / (count - 1)
+              for a in range(sides) for b in range(sides) if a != b]
+    return sum(shares) / len(shares)
 
 
 def diverse_top(poses: Poses, objectives: Key, k: int, distance: float, angle_deg: float, *,
@@ -250,8 +272,9 @@ def diverse_top(poses: Poses, objectives: Key, k: int, distance: float, angle_de
 
 def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
            on_event: ProgressCallback | None = None, should_cancel: CancelCheck | None = None,
-           phases: int = 1, started: float | None = None) -> Ranked:
-    """Coarse then fine scoring of ``proposals`` and the diverse best ``k`` (see module docstring).
+           phases: int = 1, started: float | None = None, centre: float | None = None) -> Ranked:
+    """Coarse then fine scoring of ``proposals`` and the diverse best ``k`` (see module docstring). ``centre``:
+    scale mode's first rung (``scaling.ScalePlan.rungs``), the one the search keeps when the guide has no say.
 
     Events: kind ``step`` with stage ``search``, step/steps = candidate evaluations done / planned.
     """
@@ -305,15 +328,16 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
     with scorer.clock.time("search"):
         goal_embeddings = embed_shared_goal(scorer, cameras)
         terms = terms_of(scorer, poses, weights, cameras, batch=cfg.batch, goal_embeddings=goal_embeddings,
-                         progress=emit, should_cancel=should_cancel)
+                         progress=emit, should_cancel=should_cancel, views=True)
+        views = terms.pop("clip_views", None)
         if scorer.use_clip and len(poses) > 1:  # how far the guide may override the relation (``Gate``)
-            gate = guide_noise(scorer, poses, terms, weights, cameras, goal_embeddings)
+            gate = guide_noise(scorer, poses, terms, weights, cameras, goal_embeddings, views)
             scorer = scorer.gated(gate)  # the later stages score under it
             if gate.override == 0:
                 tiles = None  # a guide with no signal cannot tell tiles apart either
                 total -= tiled_count
                 tiled_count = 0
-        coarse = ranking_key(scorer, terms, weights)
+        coarse = coarse_key(scorer, poses, terms, weights, centre)
         swept = sweep(proposals, pair, coarse, cfg.sweep, distinct[0]) if sweep_count else None
         if swept is not None and cfg.sweep_keep and len(swept) > sweep_count:  # the turns the geometry allows
             screened += len(swept)
@@ -324,7 +348,7 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
                              should_cancel=should_cancel, progress=lambda n: emit(len(poses) + n))
             poses = Poses.cat([poses, swept])
             terms = {key: torch.cat([terms[key], extra[key]]) for key in terms}
-            coarse = ranking_key(scorer, terms, weights)
+            coarse = coarse_key(scorer, poses, terms, weights, centre)
         held[:] = [int(holding(terms).sum()), len(poses)]
         proposed = proposals.poses
         tiled = None if tiles is None else tile_score(
@@ -395,6 +419,17 @@ def ranking_key(scorer: Scorer, terms: dict[str, torch.Tensor], weights: Phase,
     ``guide_key``: the tile stage's change."""
     return search_key(terms, weights, scorer.gate, guided=scorer.use_clip, share=scorer.config.search.min_share,
                       guide_key=guide_key)
+
+
+def coarse_key(scorer: Scorer, poses: Poses, terms: dict[str, torch.Tensor], weights: Phase,
+               centre: float | None) -> Key:
+    """The coarse stage's ``ranking_key``; in scale mode (``centre``: the ladder's first rung), when the gate gives
+    the guide no say, only the poses at that rung: the rungs are there for a guide to choose among, and the
+    geometry alone would pick the rung where the relation holds most easily (``scaling``), as without a guide."""
+    key = ranking_key(scorer, terms, weights)
+    if centre is not None and scorer.gate is not None and scorer.gate.override <= 0:
+        key = key.excluding(poses.log_s.cpu() != centre)
+    return key
 
 
 def distinct_of(pair: PreparedPair, config: AlignConfig, log_s: float) -> tuple[float, float]:

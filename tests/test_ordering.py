@@ -171,3 +171,30 @@ def test_the_alternatives_put_the_answer_first_then_the_holding_ones_and_leave_o
     key = ordering.alternatives_key(terms, objectives, far, best=3)
     assert key.argsort().tolist() == [3, 2, 1, 0, 4]
     assert key.finite().tolist() == [True, True, True, False, False]  # the answer's -inf, the far pose's inf
+
+
+def test_a_guide_earns_its_say_by_both_tests_the_lower_deciding():
+    """Signal (spread against noise) and agreement (``ranking.view_agreement``): a consistent function of the
+    image passes the first, so the second limits it; not measured, the second sets no limit."""
+    loud = Gate(spread=1.0, noise=0.01)
+    assert loud.override == 1.0 and Gate(1.0, 0.01, agree=0.05).override == 1.0
+    assert Gate(1.0, 0.01, agree=ordering.AGREE_CHANCE).override == 0.0  # views that pick by chance: no say
+    assert Gate(1.0, 0.01, agree=0.3).override == pytest.approx(0.5)  # half-way to AGREE_FULL
+    assert Gate(1e-4, 1e-4, agree=0.0).override == 0.0  # agreeing views do not lift a guide within its noise
+    silenced = Gate(1.0, 0.01, agree=0.6)
+    assert silenced.chooser == "geometry" and "60% down the other's order" in silenced.summary()
+    assert silenced.to_dict()["agree"] == 0.6
+
+
+def test_view_agreement_is_zero_where_the_views_share_a_favourite_and_one_half_by_chance():
+    """Where each view's favourite ranks in the other views' order (0: first; the share ranked before it)."""
+    from ctp_core.ranking import view_agreement
+
+    same = torch.tensor([[0.0, 0.1], [1.0, 0.5], [2.0, 0.7], [3.0, 0.2]])
+    assert view_agreement(same) == 0.0
+    opposed = torch.tensor([[0.0, 3.0], [1.0, 2.0], [2.0, 1.0], [3.0, 0.0]])
+    assert view_agreement(opposed) == 1.0
+    generator = torch.Generator().manual_seed(0)
+    chance = [view_agreement(torch.rand(40, 3, generator=generator)) for _ in range(300)]
+    assert sum(chance) / len(chance) == pytest.approx(0.5, abs=0.03)
+    assert view_agreement(same[:2]) is None and view_agreement(same[:, :1]) is None

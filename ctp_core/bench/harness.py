@@ -250,7 +250,8 @@ def _run_align(method: str, init: np.ndarray, index: int, data: _CaseData, optio
             "clip_images": int(result.clip_images), "timings": result.timings,
             "alternatives": [np.asarray(a["source_to_target"]) for a in result.alternatives],
             "extra": {"best_restart": result.best_restart, "guidance": result.guided_by,
-                      "hparams": priors.to_report(result.priors), "scale": result.scaling}}
+                      "hparams": priors.to_report(result.priors), "scale": result.scaling,
+                      "guide_say": result.guide_say}}
 
 
 def _run_copies(config: AlignConfig, inputs: GuideInputs | None, data: _CaseData, options: BenchOptions,
