@@ -102,14 +102,25 @@ def extend(pair: PreparedPair, config: AlignConfig, proposals: Proposals, readin
     build = BUILDERS.get(reading.position)
     if build is None or proposals.rotations is None:
         return proposals
-    extra = build(pair, config, proposals, seed, reading)
-    if extra is None or not len(extra.poses):
+    # one build per scale the regions' proposals take (scale mode with a guide: every rung of the ladder, so the
+    # guide judges the relation's own poses at each size, not at the centre alone), sharing the relation's count
+    scales = list(dict.fromkeys(proposals.poses.log_s.tolist()))
+    share = config if len(scales) == 1 else config.model_copy(update={"search": config.search.model_copy(
+        update={"candidates": max(1, config.search.candidates // len(scales))})})
+    built = [build(pair, share, _at_scale(proposals, log_s), seed + i, reading) for i, log_s in enumerate(scales)]
+    built = [extra for extra in built if extra is not None and len(extra.poses)]
+    if not built:
         return proposals
-    proposals = proposals.select(_thinned(proposals.region, len(extra.poses)))
-    sites = Site(*(torch.cat([a, b]) for a, b in zip(vars(proposals.sites).values(), vars(extra.sites).values(),
-                                                     strict=True)))
-    return Proposals(Poses.cat([proposals.poses, extra.poses]), proposals.region + extra.region, sites,
+    proposals = proposals.select(_thinned(proposals.region, sum(len(extra.poses) for extra in built)))
+    parts = [proposals, *built]
+    sites = Site(*(torch.cat(columns) for columns in zip(*(vars(part.sites).values() for part in parts), strict=True)))
+    return Proposals(Poses.cat([part.poses for part in parts]), [r for part in parts for r in part.region], sites,
                      proposals.rotations, proposals.index)
+
+
+def _at_scale(proposals: Proposals, log_s: float) -> Proposals:
+    """The proposals at one scale (all of them in a rigid run): what a builder reads its scale from (``_scale``)."""
+    return proposals.select([i for i, s in enumerate(proposals.poses.log_s.tolist()) if s == log_s])
 
 
 def _thinned(region: list[str], drop: int) -> list[int]:
@@ -453,6 +464,6 @@ def _long_axis_up(pair: PreparedPair, rng: np.random.Generator, count: int) -> t
 
 
 def _scale(proposals: Proposals) -> float:
-    """The log scale the relation's proposals take: the region proposals' middle one (rigid: their one scale;
-    scale mode: the ladder's centre rung)."""
+    """The log scale the relation's proposals take: the region proposals' middle one (``extend`` hands each
+    build the proposals at one scale: rigid, their one scale; scale mode, one rung of the ladder)."""
     return float(proposals.poses.log_s.median())

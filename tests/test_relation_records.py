@@ -156,6 +156,19 @@ def test_apart_proposals_stand_where_a_reading_without_contact_says(name):
     assert held.float().mean() >= 0.75, (name, held)
 
 
+def test_extend_builds_the_relations_poses_at_every_scale_of_the_ladder():
+    """Scale mode with a guide: the regions' proposals take the ladder's rungs in turn, and so do the relation's own,
+    one build per rung sharing the relation's count (before, the middle rung alone)."""
+    pair = prepared(box([1, 1, 1], [0, 0.5, 0]), box([0.3, 0.3, 0.3], [0, 0, 0]))
+    rungs = [0.0, -0.5, 0.5]
+    base = proposals.propose(pair, CONFIG, proposals.region_weights(None), rungs, torch.Generator().manual_seed(0))
+    extended = relation_proposals.extend(pair, CONFIG, base, RelationReading("near"), 0)
+    own = torch.tensor([r == "near" for r in extended.region])
+    assert len(extended.poses) == len(base.poses)
+    assert sorted(set(extended.poses.log_s[own].tolist())) == sorted(rungs)
+    assert int(own.sum()) <= relation_proposals.own_count(CONFIG)  # the share split, not multiplied
+
+
 def test_extend_replaces_as_many_region_proposals_only_for_a_placed_figure():
     pair = prepared(box([1, 1, 1], [0, 0.5, 0]), box([0.3, 0.3, 0.3], [0, 0, 0]))
     base = proposals.propose(pair, CONFIG, proposals.region_weights(None), 0.0, torch.Generator().manual_seed(0))
