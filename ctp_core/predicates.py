@@ -26,7 +26,6 @@ relations (``front+facing``) scores their sum.
 from __future__ import annotations
 
 import math
-import weakref
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from functools import partial
@@ -39,7 +38,7 @@ from ctp_core import losses, sampling
 from ctp_core.cameras import FIRST_AZIMUTH
 from ctp_core.pose import Poses, apply_pose, quaternion_to_matrix
 from ctp_core.priors.relations import RELATIONS, RelationReading
-from ctp_core.scene import UP_FACING, PreparedPair
+from ctp_core.scene import UP_FACING, PreparedPair, per_pair
 
 # --- constants (figure diagonals unless said otherwise) ------------------------------------------------------
 FIGURE_POINTS = 192  # figure samples a score looks at: enough to find a contact patch, cheap for hundreds of poses
@@ -323,20 +322,11 @@ class Features:
     target_figure: Side  # a subset of the target as a figure (the ground role), static
 
 
-_FEATURES: dict[int, tuple[weakref.ref, Features]] = {}
-
-
+@per_pair
 def features(pair: PreparedPair) -> Features:
     """The pair's ``Features``, built on first use and kept while the pair lives."""
-    key = id(pair)
-    cached = _FEATURES.get(key)
-    if cached is not None and cached[0]() is pair:
-        return cached[1]
     with torch.inference_mode(False), torch.no_grad():  # normal tensors: the refinement's gradient reuses them
-        built = _build(pair)
-    _FEATURES[key] = (weakref.ref(pair), built)
-    weakref.finalize(pair, _FEATURES.pop, key, None)
-    return built
+        return _build(pair)
 
 
 def _build(pair: PreparedPair) -> Features:

@@ -69,7 +69,7 @@ from ctp_core.config import AlignConfig, share_of
 from ctp_core.pose import Poses, quaternion_product, quaternion_to_matrix
 from ctp_core.priors.relations import RelationReading
 from ctp_core.proposals import APPROACHES, Proposals, Site, place, surface_regions
-from ctp_core.scene import PreparedPair
+from ctp_core.scene import PreparedPair, per_pair
 
 LEAN_TILTS = (15.0, 30.0, 45.0)  # degrees from the source's frame toward the target
 SHARE = 0.25  # a relation's own proposals, as a share of ``search.candidates`` (in place of the regions')
@@ -350,6 +350,7 @@ BUILDERS: dict[str, Builder] = {
 }
 
 
+@per_pair
 def hook_points(pair: PreparedPair) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The source's hook points (see the module docstring): its feature samples (source local frame), their plumb
     lines, the hook points' indices and their clearance (``_clearance``, source local units; only the finite
@@ -366,6 +367,7 @@ def hook_points(pair: PreparedPair) -> tuple[np.ndarray, np.ndarray, np.ndarray,
     return local, plumb, hooks[finite], clearance[finite]
 
 
+@per_pair
 def peg_thickness(pair: PreparedPair) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
     """Where a hook point can take the target: its samples and their normals (normalised frame), the up-facing
     ones' indices, the target's vertical thickness under each (``_thickness``), the samples' density weights and

@@ -16,10 +16,13 @@ Frames (see ``frames``):
 
 from __future__ import annotations
 
+import functools
 import math
+import weakref
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import TYPE_CHECKING, TypeAlias
+from typing import TYPE_CHECKING, TypeAlias, TypeVar
 
 import numpy as np
 import torch
@@ -300,3 +303,26 @@ def render_pair(pair: PreparedPair, local_to_normalised: np.ndarray, *, views: i
     verts = pair.scene_at(local_to_normalised)
     cams = framing_cameras(verts[0], views, image_size)
     return render.render(pair.mesh, verts, cams)[0]
+
+
+Built = TypeVar("Built")
+
+
+def per_pair(build: Callable[[PreparedPair], Built]) -> Callable[[PreparedPair], Built]:
+    """``build(pair)`` computed on first use and kept while the pair lives (keyed by identity: a pair is not
+    hashable), for what several stages read from one pair's fixed geometry. Callers must not change what it
+    returns."""
+    cache: dict[int, tuple[weakref.ref, Built]] = {}
+
+    @functools.wraps(build)
+    def cached(pair: PreparedPair) -> Built:
+        key = id(pair)
+        hit = cache.get(key)
+        if hit is not None and hit[0]() is pair:
+            return hit[1]
+        value = build(pair)
+        cache[key] = (weakref.ref(pair), value)
+        weakref.finalize(pair, cache.pop, key, None)
+        return value
+
+    return cached

@@ -178,3 +178,23 @@ def test_extend_replaces_as_many_region_proposals_only_for_a_placed_figure():
         assert relation_proposals.extend(pair, CONFIG, base, reading, 0) is base
     off = CONFIG.model_copy(update={"relation": False})
     assert relation_proposals.extend(pair, off, base, RelationReading("near"), 0) is base
+
+
+def test_a_pairs_fixed_geometry_is_built_once_while_the_pair_lives():
+    """``scene.per_pair``: what several stages read from one pair (its features, hook points, peg thickness) is
+    built on first use and kept for that pair, not for another."""
+    from ctp_core.scene import per_pair
+
+    calls = []
+
+    @per_pair
+    def build(pair):
+        calls.append(pair)
+        return object()
+
+    pair = prepared(box([1, 1, 1], [0, 0.5, 0]), box([0.3, 0.3, 0.3], [0, 0, 0]))
+    assert build(pair) is build(pair) and len(calls) == 1
+    assert relation_proposals.hook_points(pair) is relation_proposals.hook_points(pair)
+    other = prepared(box([1, 1, 1], [0, 0.5, 0]), box([0.2, 0.2, 0.2], [0, 0, 0]))
+    build(other)
+    assert len(calls) == 2
