@@ -239,53 +239,48 @@ def adjust_job(adjustment: AdjustmentRecord, jobs: Jobs, limits: MeshLimits) -> 
     facts = json.loads(stored["report.json"])
     request = adjustment.request
     # the adjusted object: the source (the last node), or one of several copies (its node, judged as it was)
-    entry = facts["copies"][request.copy_index - 1] if record.count > 1 else facts
+    copies = record.count > 1
+    entry = facts["copies"][request.copy_index - 1] if copies else facts
     at = np.asarray(entry["transform"]["matrix"], dtype=np.float64)  # the stored result.glb's node
     scene = load_objects(stored["result.glb"], filename="result.glb", limits=limits)
-    target, source, name = read_back(scene, at, entry.get("name") if record.count > 1 else None)
+    target, source, name = read_back(scene, at, entry.get("name") if copies else None)
     upright = (facts.get("extra") or {}).get("target_upright")
     done = adjust(target, source, np.asarray(request.transform), record.config, settle=request.settle,
                   direction=request.direction, upright=None if upright is None else upright["rotation"],
-                  on=entry["on"] if record.count > 1 else record.on,
+                  on=entry["on"] if copies else record.on,
                   reading=RelationReading.from_verdict(entry.get("relation")))
-    matrix = done.source_to_target.tolist()
-    if request.save and record.count > 1:
-        _save_copy(adjustment, jobs, stored, facts, scene, source, done)
-    elif request.save:
+    if request.save:
         saved_at = now()
+        at_text = saved_at.isoformat(timespec="seconds")
+        if copies:
+            glb, report_ = _copies_saved(request.copy_index, facts, scene, source, done, at_text)
+        else:
+            glb, report_ = arrangement_glb(target, source, done.source_to_target, name), adjusted_report(
+                facts, done, at=at_text)
         if jobs.storage.get(adjustment.job, ORIGINAL) is None:  # the run's own, kept through later saves
             jobs.storage.put(adjustment.job, ORIGINAL, stored["result.glb"])
-        jobs.storage.put(adjustment.job, "result.glb", arrangement_glb(target, source, done.source_to_target, name))
-        jobs.storage.put(adjustment.job, "report.json", json.dumps(adjusted_report(
-            facts, done, at=saved_at.isoformat(timespec="seconds")), indent=2).encode())
+        jobs.storage.put(adjustment.job, "result.glb", glb)
+        jobs.storage.put(adjustment.job, "report.json", json.dumps(report_, indent=2).encode())
         jobs.mark_adjusted(adjustment.job, SavedAdjustment(
-            saved_at=saved_at, adjustment=adjustment.id, transform=matrix, penetration=done.penetration,
-            contact_gap=done.contact_gap))
-    return AdjustOutcome(transform=matrix, saved=request.save, **done.to_dict())
+            saved_at=saved_at, adjustment=adjustment.id, transform=done.source_to_target.tolist(),
+            penetration=done.penetration, contact_gap=done.contact_gap))
+    return AdjustOutcome(transform=done.source_to_target.tolist(), saved=request.save, **done.to_dict())
 
 
-def _save_copy(adjustment: AdjustmentRecord, jobs: Jobs, stored: dict[str, bytes], facts: dict[str, Any],
-               scene: trimesh.Scene, source: trimesh.Trimesh, done: Adjusted) -> None:
-    """Store a copies job's result with copy ``adjustment.request.copy_index`` where ``done`` put it: the GLB again (the
-    target and every copy under its matrix, ``copies.placed_copies``), the report's copy and the set's measures."""
-    k, saved_at = adjustment.request.copy_index, now()
+def _copies_saved(k: int, facts: dict[str, Any], scene: trimesh.Scene, source: trimesh.Trimesh, done: Adjusted,
+                  at: str) -> tuple[bytes, dict[str, Any]]:
+    """A copies job's result with copy ``k`` where ``done`` put it: the GLB again (the target and every copy under
+    its matrix, ``copies.placed_copies``), and the report with that copy and the set's measures."""
     entries = facts["copies"]
     matrices = [np.asarray(c["transform"]["matrix"], dtype=np.float64) for c in entries]
     matrices[k - 1] = done.source_to_target
     verdicts = [c.get("relation") for c in entries]
     verdicts[k - 1] = done.relation
-    if jobs.storage.get(adjustment.job, ORIGINAL) is None:  # the run's own, kept through later saves
-        jobs.storage.put(adjustment.job, ORIGINAL, stored["result.glb"])
     target_name = facts["target_name"]
     placed = placed_copies(scene.geometry[target_name], target_name, source,
                            [(c["name"], m) for c, m in zip(entries, matrices, strict=True)])
-    jobs.storage.put(adjustment.job, "result.glb", trimesh.exchange.gltf.export_glb(scene_of(placed)))
-    jobs.storage.put(adjustment.job, "report.json", json.dumps(adjusted_copies_report(
-        facts, k, done, set_metrics(source, matrices, verdicts), at=saved_at.isoformat(timespec="seconds")),
-        indent=2).encode())
-    jobs.mark_adjusted(adjustment.job, SavedAdjustment(
-        saved_at=saved_at, adjustment=adjustment.id, transform=done.source_to_target.tolist(),
-        penetration=done.penetration, contact_gap=done.contact_gap))
+    report_ = adjusted_copies_report(facts, k, done, set_metrics(source, matrices, verdicts), at=at)
+    return trimesh.exchange.gltf.export_glb(scene_of(placed)), report_
 
 
 def too_large(exc: BaseException, stage: Stage, budget_mb: int | None) -> JobError:
