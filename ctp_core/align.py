@@ -217,10 +217,11 @@ def propose(run: Run, init: np.ndarray | None = None) -> Proposals:
     return proposed
 
 
-def score(run: Run, proposals: Proposals, *, on_event: ProgressCallback | None = None,
+def score(run: Run, proposals: Proposals, *, gate: Gate | None = None, on_event: ProgressCallback | None = None,
           should_cancel: CancelCheck | None = None) -> tuple[Poses, Gate | None]:
     """The optimiser's starts: the search's diverse best ``optim.restarts`` (forward-only scoring), or the
-    proposals as they are when the search is off; and the guide's gate the search measured (None: none measured).
+    proposals as they are when the search is off; and the guide's gate the search measured (None: none measured),
+    or ``gate`` as given (measured by an earlier search of the run: not measured again).
 
     The search ranks by the prompt's relation first, then by the guide where there is one and it tells the
     candidates apart (``ordering.search_key``, ``ordering.Gate``), otherwise by the first phase's objective:
@@ -230,9 +231,9 @@ def score(run: Run, proposals: Proposals, *, on_event: ProgressCallback | None =
 
     if not run.config.search.enabled:
         return proposals.poses, None
-    ranked = ranking.search(run.scorer, proposals, run.plan[0], k=run.config.optim.restarts, on_event=on_event,
-                            should_cancel=should_cancel, phases=len(run.plan), started=run.started,
-                            centre=run.scale.rungs[0] if run.scale else None)
+    scorer = run.scorer if gate is None else run.scorer.gated(gate)
+    ranked = ranking.search(scorer, proposals, run.plan[0], k=run.config.optim.restarts, on_event=on_event,
+                            should_cancel=should_cancel, phases=len(run.plan), started=run.started)
     run.timings["search_s"] = round(ranked.seconds, 3)
     run.timings["search_candidates"] = ranked.scored
     if ranked.screened:  # the geometry's screen before the guide saw its shortlist
@@ -386,6 +387,11 @@ def align(
                   source_name=source_name, guide=guide, goal=goal)
     proposals = propose(run, init)
     starts, gate = score(run, proposals, on_event=on_event, should_cancel=should_cancel)
+    if gate is not None and gate.override <= 0 and run.scale is not None and len(run.scale.rungs) > 1:
+        # a guide the gate silences chooses no rung, and across rungs the geometry would pick where the relation
+        # holds most easily (``scaling``): search again as without a guide, every proposal at the centre
+        run.scale = replace(run.scale, rungs=(run.scale.centre,))
+        starts, gate = score(run, propose(run, init), gate=gate, on_event=on_event, should_cancel=should_cancel)
     outcome = refine(run, starts, gate, on_event=on_event, should_cancel=should_cancel)
     answer = result(run, outcome, prompt, on_event=on_event)
     answer.guide, answer.guide_why = chosen.guide, chosen.why

@@ -272,9 +272,9 @@ def diverse_top(poses: Poses, objectives: Key, k: int, distance: float, angle_de
 
 def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
            on_event: ProgressCallback | None = None, should_cancel: CancelCheck | None = None,
-           phases: int = 1, started: float | None = None, centre: float | None = None) -> Ranked:
-    """Coarse then fine scoring of ``proposals`` and the diverse best ``k`` (see module docstring). ``centre``:
-    scale mode's first rung (``scaling.ScalePlan.rungs``), the one the search keeps when the guide has no say.
+           phases: int = 1, started: float | None = None) -> Ranked:
+    """Coarse then fine scoring of ``proposals`` and the diverse best ``k`` (see module docstring). A ``scorer``
+    gated already (``Scorer.gated``) keeps its gate: one that silences the guide searches as without a guide.
 
     Events: kind ``step`` with stage ``search``, step/steps = candidate evaluations done / planned.
     """
@@ -286,7 +286,7 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
     cameras = coarse_cameras(pair, config, float(proposals.poses.log_s.max()))
     distinct = distinct_of(pair, config, float(proposals.poses.log_s[0]))
     screened = 0
-    if scorer.use_clip and 0 < cfg.shortlist < len(proposals.poses):  # only what can be the answer reaches the encoder
+    if scorer.guided and 0 < cfg.shortlist < len(proposals.poses):  # only what can be the answer reaches the encoder
         screened = len(proposals.poses)
         with scorer.clock.time("search"):
             geometric = scorer.screen(proposals.poses, weights)
@@ -297,12 +297,12 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
     sweep_count = cfg.sweep * (len(proposals.rotations) if proposals.rotations is not None else 0)
     if cfg.sweep_keep:
         sweep_count = min(sweep_count, cfg.sweep * cfg.sweep_keep)
-    tiles = tiles_of(pair, config, poses) if scorer.use_clip else None  # no guide: nothing to tell tiles apart
+    tiles = tiles_of(pair, config, poses) if scorer.guided else None  # no guide: nothing to tell tiles apart
     tiled_count = len(poses) if tiles is not None else 0
     total = len(poses) + sweep_count + tiled_count + fine_count
 
     relation = scorer.reading.name if scorer.reading is not None else None
-    gate: Gate | None = None  # the guide's, once the coarse stage has measured it
+    gate = scorer.gate  # the guide's, once the coarse stage has measured it (or as the scorer was gated)
     held = [0, 0]  # candidates where the relation holds, of those scored (coarse and sweep)
 
     def emit(done: int, best: float | None = None, restarts: int | None = None) -> None:
@@ -330,14 +330,14 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
         terms = terms_of(scorer, poses, weights, cameras, batch=cfg.batch, goal_embeddings=goal_embeddings,
                          progress=emit, should_cancel=should_cancel, views=True)
         views = terms.pop("clip_views", None)
-        if scorer.use_clip and len(poses) > 1:  # how far the guide may override the relation (``Gate``)
+        if scorer.guided and gate is None and len(poses) > 1:  # how far the guide may override the relation
             gate = guide_noise(scorer, poses, terms, weights, cameras, goal_embeddings, views)
             scorer = scorer.gated(gate)  # the later stages score under it
             if gate.override == 0:
                 tiles = None  # a guide with no signal cannot tell tiles apart either
                 total -= tiled_count
                 tiled_count = 0
-        coarse = coarse_key(scorer, poses, terms, weights, centre)
+        coarse = ranking_key(scorer, terms, weights)
         swept = sweep(proposals, pair, coarse, cfg.sweep, distinct[0]) if sweep_count else None
         if swept is not None and cfg.sweep_keep and len(swept) > sweep_count:  # the turns the geometry allows
             screened += len(swept)
@@ -348,7 +348,7 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
                              should_cancel=should_cancel, progress=lambda n: emit(len(poses) + n))
             poses = Poses.cat([poses, swept])
             terms = {key: torch.cat([terms[key], extra[key]]) for key in terms}
-            coarse = coarse_key(scorer, poses, terms, weights, centre)
+            coarse = ranking_key(scorer, terms, weights)
         held[:] = [int(holding(terms).sum()), len(poses)]
         proposed = proposals.poses
         tiled = None if tiles is None else tile_score(
@@ -419,17 +419,6 @@ def ranking_key(scorer: Scorer, terms: dict[str, torch.Tensor], weights: Phase,
     ``guide_key``: the tile stage's change."""
     return search_key(terms, weights, scorer.gate, guided=scorer.use_clip, share=scorer.config.search.min_share,
                       guide_key=guide_key)
-
-
-def coarse_key(scorer: Scorer, poses: Poses, terms: dict[str, torch.Tensor], weights: Phase,
-               centre: float | None) -> Key:
-    """The coarse stage's ``ranking_key``; in scale mode (``centre``: the ladder's first rung), when the gate gives
-    the guide no say, only the poses at that rung: the rungs are there for a guide to choose among, and the
-    geometry alone would pick the rung where the relation holds most easily (``scaling``), as without a guide."""
-    key = ranking_key(scorer, terms, weights)
-    if centre is not None and scorer.gate is not None and scorer.gate.override <= 0:
-        key = key.excluding(poses.log_s.cpu() != centre)
-    return key
 
 
 def distinct_of(pair: PreparedPair, config: AlignConfig, log_s: float) -> tuple[float, float]:

@@ -197,21 +197,19 @@ def test_without_a_guide_the_search_proposes_at_the_centre_alone():
     assert (alone.low, alone.high) == (guided.low, guided.high)
 
 
-def test_a_guide_the_gate_silences_keeps_the_search_at_the_centre_rung(monkeypatch):
-    """A guide with no say (``Gate`` override 0) cannot choose among the rungs, and the geometry would pick the one
-    where the relation holds most easily: the search keeps the centre rung's poses alone, as without a guide."""
-    target, source, target_name, source_name, prompt = _pair("cap on a head")
-    config = AlignConfig.from_preset("test", scale=True, threads=1, model="random:tiny", search={"candidates": 60},
-                                     loss={"samples": 800})
-    run = prepare(target, _scaled(source, 100.0), prompt, config, target_name=target_name, source_name=source_name)
-    proposed = propose(run)
-    assert len(set(proposed.poses.log_s.tolist())) == len(run.scale.rungs) > 1  # the guide's ladder was proposed
-    monkeypatch.setattr(ranking, "guide_noise", lambda *args: ordering.Gate(1.0, 0.01))
-    trusted = ranking.search(run.scorer, proposed, run.plan[0], k=3, centre=run.scale.rungs[0])
-    assert len(set(trusted.poses.log_s.tolist())) > 1  # a guide with a say chooses among the rungs
+def test_a_guide_the_gate_silences_places_as_the_geometry_does(monkeypatch):
+    """A guide with no say (``Gate`` override 0) cannot choose among the ladder's rungs, and across them the
+    geometry would pick the one where the relation holds most easily: the run searches again as without a guide,
+    every proposal at the centre, and its answer is the geometry's."""
+    target, source, target_name, source_name, prompt = _pair("ball in a bowl")
+    source = _scaled(source, 100.0)
+    geometry = align(target, source, prompt, _config(), target_name=target_name, source_name=source_name)
     monkeypatch.setattr(ranking, "guide_noise", lambda *args: ordering.Gate(0.0, 1.0))
-    silenced = ranking.search(run.scorer, proposed, run.plan[0], k=3, centre=run.scale.rungs[0])
-    assert silenced.poses.log_s.tolist() == pytest.approx([run.scale.rungs[0]] * 3)
+    guided = AlignConfig.from_preset("test", scale=True, threads=1, model="random:tiny", search={"candidates": 144})
+    silenced = align(target, source, prompt, guided, target_name=target_name, source_name=source_name)
+    assert silenced.guide_say["chose"] == "geometry"
+    assert silenced.scaling["ladder"] == geometry.scaling["ladder"] == [pytest.approx(geometry.scaling["initial"])]
+    np.testing.assert_allclose(silenced.source_to_target, geometry.source_to_target, atol=1e-6)
 
 
 @pytest.mark.parametrize("name", ["ring on a peg", "lid on a jar"])
