@@ -7,7 +7,8 @@ Every order is lexicographic (``Key``): first the *tier*, then the *value* (lowe
   With a guide, the guide's favourites among the others (``ceil(override x share x others)``: ``rank_key``)
   join them, so a misread prompt cannot make the right answer unreachable.
 - The value is the guide's term where the guide tells poses apart (``Gate``: its spread over the search's
-  candidates against its noise), otherwise the geometric objective.
+  candidates against its noise, and whether its views agree), plus the usual arrangement as far as the guide's
+  say leaves it (``Gate.weigh``); otherwise the geometric objective.
 
 The gate is measured once, by the search (``ranking.search`` returns it in ``Ranked.gate``), and handed to every
 later order as an argument: the refinement's scorer (``objective.Scorer.gated``), the selection
@@ -136,6 +137,17 @@ class Gate:
         difference of the guide's term the gate would trust fully (``GATE_FULL`` x its noise)."""
         return GATE_FULL * self.noise
 
+    def weigh(self, guide: torch.Tensor, prefer: torch.Tensor) -> float:
+        """What one unit of ``prefer`` (the usual arrangement, already x (1 - override): ``Scorer.preference_weight``)
+        is worth against the ``guide``'s term where the guide orders these poses: between the say's ends the two
+        count in units of their own spread over them, weighted override : 1 - override (a guide with a say of
+        0.25 must beat the usual arrangement by three of its spreads per spread of the arrangement); never less
+        than ``tie``, which breaks what the guide cannot tell (at override 1 ``prefer`` is 0 and counts nothing)."""
+        spreads = [float(x.double().std()) if len(x) > 1 else 0.0 for x in (guide, prefer)]
+        if not 0 < self.override < 1 or min(spreads) <= 0:
+            return self.tie
+        return max(self.tie, spreads[0] * (1 - self.override) / (self.override * spreads[1]))
+
     @property
     def chooser(self) -> str:
         """Who orders the poses where the relation holds: ``geometry`` (override 0: the usual arrangement),
@@ -187,8 +199,8 @@ def rank_key(terms: dict[str, torch.Tensor], weights: Phase, *, share: float, gu
     1 elsewhere; value the geometric objective (``geometric``, else ``combine`` without the guide's term). With a
     guide: tier 0 over the *pool*, the poses where the relation holds plus the ``ceil(override x share x
     others)`` others that the guide ranks best (``share``: the search's ``min_share``, the principle of the
-    region weights); value the guide's key plus ``tie`` (``Gate.tie``) per unit of ``prefer``: the usual
-    arrangement breaks what the guide cannot tell.
+    region weights); value the guide's key plus ``tie`` per unit of ``prefer`` (``Gate.weigh``: the usual
+    arrangement weighs as much as the guide's say leaves it, and breaks what the guide cannot tell).
     """
     holds = holding(terms).to(terms["objective"].device)
     if guide_key is None or override <= 0:
@@ -218,7 +230,11 @@ def search_key(terms: dict[str, torch.Tensor], weights: Phase, gate: Gate | None
     """
     gate = gate or TRUSTED
     key = (terms["clip"] if guide_key is None else guide_key) if guided and gate.override > 0 else None
-    return rank_key(terms, weights, guide_key=key, override=gate.override, share=share, tie=gate.tie)
+    tie = 0.0
+    if key is not None:
+        held = holding(terms).to(key.device)
+        tie = gate.weigh(key[held], terms.get("prefer", torch.zeros_like(key))[held])
+    return rank_key(terms, weights, guide_key=key, override=gate.override, share=share, tie=tie)
 
 
 def improves(now: dict[str, torch.Tensor], best: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -246,13 +262,13 @@ def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: to
     touching restarts can outweigh the guide's; the search ranks its candidates by the guide the same way
     (``search_key``). Penetration likewise counts only past ``SUNK``: at contact the two halves see a few
     samples a hair inside, which times ``lambda_pen`` can outweigh the guide. The usual arrangement
-    (``prefer``, already x (1 - override): ``Scorer.preference_weight``) breaks what the guide cannot tell: it
-    counts ``Gate.tie`` per unit (a difference the gate would trust fully), not its objective weight, which
-    would outweigh any guide.
+    (``prefer``, already x (1 - override): ``Scorer.preference_weight``) counts ``Gate.weigh`` per unit over the
+    restarts that hold (as much as the guide's say leaves it, at least a difference the gate would trust fully),
+    not its objective weight, which would outweigh any guide.
     ``clear`` and ``limit``: per pose, in source diagonals (``objective.clearance``, ``objective.touch_limit``).
     """
     gate = gate or TRUSTED
-    override, tie = gate.override, gate.tie
+    override = gate.override
     key = terms["objective"]
     if guided and override <= 0:  # a guide without signal: the geometry alone
         guided, key = False, combine({**terms, "clip": torch.zeros_like(key)}, weights)
@@ -267,7 +283,8 @@ def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: to
                 pen = torch.where(intersecting(terms).to(pen.device), pen, torch.zeros_like(pen))
             zeros = torch.zeros_like(key)
             key = combine({**terms, "icp": zeros, "pen": pen, "prefer": zeros}, weights)
-            pool, key = fit, key + tie * terms.get("prefer", zeros)
+            prefer, judged = terms.get("prefer", zeros), fit & holding(terms).to(fit.device)
+            pool, key = fit, key + gate.weigh(key[judged], prefer[judged]) * prefer
     key = torch.where(pool, key.double(), torch.full_like(key, torch.inf, dtype=torch.float64))
     ranked = rank_key({**terms, "objective": key}, weights, guide_key=key if guided else None,
                       override=override, share=share, geometric=key)

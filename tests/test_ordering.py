@@ -198,3 +198,22 @@ def test_view_agreement_is_zero_where_the_views_share_a_favourite_and_one_half_b
     chance = [view_agreement(torch.rand(40, 3, generator=generator)) for _ in range(300)]
     assert sum(chance) / len(chance) == pytest.approx(0.5, abs=0.03)
     assert view_agreement(same[:2]) is None and view_agreement(same[:, :1]) is None
+
+
+def test_between_the_says_ends_the_guide_and_the_usual_arrangement_count_in_their_spreads():
+    """``Gate.weigh``: with a say of 0.25 the guide must beat the usual arrangement by three of its spreads per
+    spread of the arrangement (weights override : 1 - override); at the ends, and where either does not vary,
+    ``tie``; never less than ``tie``."""
+    guide = torch.tensor([0.0, 1.0, 2.0, 3.0]) * 0.01  # the guide prefers pose 0
+    prefer = torch.tensor([3.0, 2.0, 1.0, 0.0]) * 0.75  # the usual arrangement pose 3 (already x (1 - 0.25))
+    quarter = Gate(spread=7e-4, noise=4e-4)  # spread 1.75 x noise: override 0.25, tie 0.0016
+    assert quarter.override == pytest.approx(0.25)
+    weight = quarter.weigh(guide, prefer)
+    assert weight > quarter.tie and int(torch.argmin(guide + weight * prefer)) == 3  # the arrangement's pick
+    assert float((weight * prefer).std()) / float(guide.std()) == pytest.approx(3.0)
+    assert int(torch.argmin(guide + quarter.tie * prefer)) == 0  # the tie alone would leave the guide's
+    three_quarters = Gate(spread=1.3e-3, noise=4e-4)  # override 0.75: a third of a spread per spread
+    assert float((three_quarters.weigh(guide, prefer / 3) * prefer / 3).std()) / float(guide.std()) == \
+        pytest.approx(1 / 3)
+    full = Gate(spread=1.0, noise=0.01)
+    assert full.weigh(guide, prefer) == full.tie and quarter.weigh(guide, torch.zeros(4)) == quarter.tie
