@@ -105,9 +105,8 @@ def extend(pair: PreparedPair, config: AlignConfig, proposals: Proposals, readin
     # one build per scale the regions' proposals take (scale mode with a guide: every rung of the ladder, so the
     # guide judges the relation's own poses at each size, not at the centre alone), sharing the relation's count
     scales = list(dict.fromkeys(proposals.poses.log_s.tolist()))
-    share = config if len(scales) == 1 else config.model_copy(update={"search": config.search.model_copy(
-        update={"candidates": max(1, config.search.candidates // len(scales))})})
-    built = [build(pair, share, _at_scale(proposals, log_s), seed + i, reading) for i, log_s in enumerate(scales)]
+    count = share_of(max(1, config.search.candidates // len(scales)), SHARE)  # ``own_count`` of each rung's share
+    built = [build(pair, proposals, seed + i, reading, log_s, count) for i, log_s in enumerate(scales)]
     built = [extra for extra in built if extra is not None and len(extra.poses)]
     if not built:
         return proposals
@@ -116,11 +115,6 @@ def extend(pair: PreparedPair, config: AlignConfig, proposals: Proposals, readin
     sites = Site(*(torch.cat(columns) for columns in zip(*(vars(part.sites).values() for part in parts), strict=True)))
     return Proposals(Poses.cat([part.poses for part in parts]), [r for part in parts for r in part.region], sites,
                      proposals.rotations, proposals.index)
-
-
-def _at_scale(proposals: Proposals, log_s: float) -> Proposals:
-    """The proposals at one scale (all of them in a rigid run): what a builder reads its scale from (``_scale``)."""
-    return proposals.select([i for i, s in enumerate(proposals.poses.log_s.tolist()) if s == log_s])
 
 
 def _thinned(region: list[str], drop: int) -> list[int]:
@@ -132,8 +126,8 @@ def _thinned(region: list[str], drop: int) -> list[int]:
     return sorted(chosen | {i for i, r in enumerate(region) if r == "init"})
 
 
-def lean(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int,
-         reading: RelationReading | None) -> Proposals | None:
+def lean(pair: PreparedPair, proposals: Proposals, seed: int, reading: RelationReading | None,
+         log_s: float, count: int) -> Proposals | None:
     """Tilted sources standing on the floor against the target's sides (``extend``); None without side samples."""
     points, normals, regions, _ = surface_regions(pair)
     side = regions["side"]
@@ -148,7 +142,6 @@ def lean(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: in
     if not len(side):
         return None
     rng = np.random.default_rng(seed + 23)
-    count = own_count(config)
     pick = rng.integers(len(side), size=count)
     n = torch.as_tensor(horizontal[pick], dtype=torch.float32)
     up = torch.tensor([0.0, 1.0, 0.0]).expand(count, 3)
@@ -156,7 +149,6 @@ def lean(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: in
     angle = torch.as_tensor(np.radians(rng.choice(LEAN_TILTS, size=count)), dtype=torch.float32)
     tilt = torch.cat([torch.cos(angle / 2)[:, None], axis * torch.sin(angle / 2)[:, None]], dim=1)
     q = quaternion_product(tilt, _long_axis_up(pair, rng, count))
-    log_s = _scale(proposals)
     local = pair.source_subset(LEAN_POINTS).cpu()
     rotated = torch.einsum("bij,nj->bni", quaternion_to_matrix(q), local) * math.exp(log_s)
     behind = (-(rotated * n[:, None, :]).sum(-1)).max(dim=1).values  # extent toward the target
@@ -166,15 +158,14 @@ def lean(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: in
     return _lowered(pair, proposals, q, start, n, False, log_s, "lean")
 
 
-def contained(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int,
-              reading: RelationReading | None) -> Proposals | None:
+def contained(pair: PreparedPair, proposals: Proposals, seed: int, reading: RelationReading | None,
+              log_s: float, count: int) -> Proposals | None:
     """Sources standing in the target's most enclosed up-facing places (``extend``); None where no up-facing
     point is enclosed at all."""
     points, _, regions, density = surface_regions(pair)
     top = regions["top"]
     if not len(top):
         return None
-    log_s = _scale(proposals)
     lift = predicates.FOOT * pair.source_diagonal * math.exp(log_s)  # the source's foot, as the predicate's
     ground = torch.as_tensor(points, dtype=torch.float32)
     feet = ground[torch.as_tensor(top)] + torch.tensor([0.0, lift, 0.0])
@@ -185,7 +176,6 @@ def contained(pair: PreparedPair, config: AlignConfig, proposals: Proposals, see
     if weights.sum() <= 0:
         return None
     rng = np.random.default_rng(seed + 29)
-    count = own_count(config)
     pick = top[rng.choice(len(top), size=count, p=weights / weights.sum())]
     upright = _long_axis_up(pair, rng, count // 2)
     resting = proposals.rotations[torch.as_tensor(rng.integers(len(proposals.rotations), size=count - len(upright)))]
@@ -195,19 +185,17 @@ def contained(pair: PreparedPair, config: AlignConfig, proposals: Proposals, see
                     "contained")
 
 
-def hung(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int,
-         reading: RelationReading | None) -> Proposals | None:
+def hung(pair: PreparedPair, proposals: Proposals, seed: int, reading: RelationReading | None,
+         log_s: float, count: int) -> Proposals | None:
     """Sources hung by a hook point on a thin up-facing part of the target (``extend``); None where the source has
     no hook point or no up-facing part of the target is thin enough to pass into one."""
     local, plumb, hooks, clearance = hook_points(pair)
-    log_s = _scale(proposals)
     clearance = clearance * math.exp(log_s)
     points, _, top, thickness, density, spacing = peg_thickness(pair)
     fits = thickness < (clearance.max() if len(hooks) else 0.0)
     if not fits.any():
         return None
     rng = np.random.default_rng(seed + 31)
-    count = own_count(config)
     weights = density[top] * fits
     pick = rng.choice(len(top), size=count, p=weights / weights.sum())
     hook = np.array([rng.choice(hooks[clearance > thickness[i]]) for i in pick])
@@ -220,15 +208,14 @@ def hung(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: in
     return _lowered(pair, proposals, q, start, up, False, log_s, "hang")
 
 
-def pierced(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int,
-            reading: RelationReading | None) -> Proposals:
+def pierced(pair: PreparedPair, proposals: Proposals, seed: int, reading: RelationReading | None,
+            log_s: float, count: int) -> Proposals:
     """Sources driven end first into the target (``extend``): on the longest principal axis along the inward
     normal of a surface sample that does not face down (either end first, any turn about that axis),
     ``PIERCE_DEPTH`` of their length in, raised where that would pass below the floor the target stands on.
     Not settled: they are meant to intersect."""
     points, normals, regions, density = surface_regions(pair)
     rng = np.random.default_rng(seed + 37)
-    count = own_count(config)
     weights = density.copy()
     weights[regions["bottom"]] = 0.0  # from below, it would pass through the floor the target stands on
     pick = rng.choice(len(points), size=count, p=weights / weights.sum())
@@ -237,7 +224,6 @@ def pierced(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed:
     standing = _long_axis_up(pair, rng, count)  # on its long axis, either end up, turned about it
     q = torch.cat([quaternion_product(_turn(up, d)[None], standing[i:i + 1]) for i, d in enumerate(inward)])
     local = pair.source_subset(LEAN_POINTS).cpu()
-    log_s = _scale(proposals)
     rotated = torch.einsum("bij,nj->bni", quaternion_to_matrix(q), local) * math.exp(log_s)
     d = torch.as_tensor(inward, dtype=torch.float32)
     along = (rotated * d[:, None, :]).sum(-1)  # extent along the inward normal
@@ -250,14 +236,12 @@ def pierced(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed:
     return _labelled(pair, proposals, Poses(t, q, torch.full((count,), log_s)), sites, "pierce")
 
 
-def apart(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int,
-          reading: RelationReading) -> Proposals:
+def apart(pair: PreparedPair, proposals: Proposals, seed: int, reading: RelationReading,
+          log_s: float, count: int) -> Proposals:
     """Sources where a reading without contact puts them (``extend``; the module docstring says where)."""
     position, turn = reading.position, reading.orientation
     kind = reading.records[0].kind
     rng = np.random.default_rng(seed + 41)
-    count = own_count(config)
-    log_s = _scale(proposals)
     scale = math.exp(log_s)
     target = pair.anchor.points.cpu()
     front, left = _target_axes(pair)
@@ -295,15 +279,13 @@ def apart(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: i
     return _kept(pair, proposals, q, anchor, log_s, position)
 
 
-def beneath(pair: PreparedPair, config: AlignConfig, proposals: Proposals, seed: int,
-            reading: RelationReading | None) -> Proposals | None:
+def beneath(pair: PreparedPair, proposals: Proposals, seed: int, reading: RelationReading | None,
+            log_s: float, count: int) -> Proposals | None:
     """Sources standing on the floor under a down-facing point of the target lifted high enough for them
     (``extend``; the module docstring says where); None where no point is."""
     points, _, regions, density = surface_regions(pair)
     under = regions["bottom"]
     rng = np.random.default_rng(seed + 43)
-    count = own_count(config)
-    log_s = _scale(proposals)
     scale = math.exp(log_s)
     resting = proposals.rotations[torch.as_tensor(rng.integers(len(proposals.rotations), size=count))].cpu()
     q = torch.cat([quaternion_product(_yaw(float(a)), resting[i:i + 1])
@@ -339,7 +321,7 @@ def _kept(pair: PreparedPair, proposals: Proposals, q: torch.Tensor, anchor: tor
     return _labelled(pair, proposals, placed, sites.select(free), label)
 
 
-Builder = Callable[[PreparedPair, AlignConfig, Proposals, int, RelationReading], Proposals | None]
+Builder = Callable[[PreparedPair, Proposals, int, RelationReading, float, int], Proposals | None]
 # each relation's own proposals (``extend``), by name as in ``priors.relations.RELATIONS``; a relation not named has
 # none (the contact relations the regions reach). Every builder takes the reading; ``apart`` and ``lean`` read more
 # of it than its position (the side, the orientation)
@@ -463,9 +445,3 @@ def _long_axis_up(pair: PreparedPair, rng: np.random.Generator, count: int) -> t
     turns = [quaternion_product(_yaw(rng.uniform(0, 2 * math.pi)), _turn(axis if i % 2 == 0 else -axis, up)[None])
              for i in range(count)]
     return torch.cat(turns) if turns else torch.zeros(0, 4)
-
-
-def _scale(proposals: Proposals) -> float:
-    """The log scale the relation's proposals take: the region proposals' middle one (``extend`` hands each
-    build the proposals at one scale: rigid, their one scale; scale mode, one rung of the ladder)."""
-    return float(proposals.poses.log_s.median())

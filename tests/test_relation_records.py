@@ -112,7 +112,7 @@ def _base(pair) -> proposals.Proposals:
 
 def _built(pair, name: str, seed: int = 0) -> tuple[proposals.Proposals, torch.Tensor]:
     reading = RelationReading(name)
-    made = relation_proposals.BUILDERS[reading.position](pair, CONFIG, _base(pair), seed, reading)
+    made = relation_proposals.BUILDERS[reading.position](pair, _base(pair), seed, reading, 0.0, SHARE)
     assert made is not None and len(made.poses), name
     with torch.inference_mode():
         held = predicates.holds(predicates.relation_score(pair, made.poses, reading))
