@@ -239,7 +239,7 @@ def view_agreement(views: torch.Tensor) -> float | None:
     Why this is the guide's say: a guide that sees where the source belongs prefers the same pose from every
     side, while a consistent function of the image that does not (a random encoder with any prompt, the issue's
     "weak guide") prefers, in each view, what that view's pixels happen to favour."""
-    count, sides = views.shape if views.dim() == 2 else (0, 0)
+    count, sides = views.shape
     if count < AGREE_MIN or sides < 2:
         return None
     shares = [float((views[:, b] < views[int(torch.argmin(views[:, a])), b]).double().sum()) / (count - 1)
