@@ -390,7 +390,7 @@ def align(
     if gate is not None and gate.override <= 0 and run.scale is not None and len(run.scale.rungs) > 1:
         # a guide the gate silences chooses no rung, and across rungs the geometry would pick where the relation
         # holds most easily (``scaling``): search again as without a guide, every proposal at the centre
-        run.scale = replace(run.scale, rungs=(run.scale.centre,))
+        run.scale = run.scale.at_centre()
         starts, gate = score(run, propose(run, init), gate=gate, on_event=on_event, should_cancel=should_cancel)
     outcome = refine(run, starts, gate, on_event=on_event, should_cancel=should_cancel)
     answer = result(run, outcome, prompt, on_event=on_event)

@@ -96,6 +96,11 @@ class ScalePlan:
         beyond = log_s - log_s.clamp(self.low, self.high)
         return weight * 0.5 * ((log_s - self.centre) / self.sigma) ** 2 + WALL * beyond**2
 
+    def at_centre(self) -> ScalePlan:
+        """This plan as without a guide: the search at the centre alone (the geometry cannot tell which size is
+        right; across rungs it would pick where the relation holds most easily), the band kept."""
+        return replace(self, rungs=(self.centre,))
+
     def to_dict(self) -> dict:
         """The report's ``extra.scale`` (before the final scale is known)."""
         return {"initial": math.exp(self.centre), "from": "priors" if self.centre == self.ratio_log_s else "geometry",
@@ -255,6 +260,7 @@ def plan(pair: PreparedPair, prior: ScenePrior, names: dict[str, str | None], se
             high = max(high, low)
         centre = min(max(centre, low), high)
         rungs = sorted({min(max(r, low), high) for r in rungs})
-    searched = sorted(rungs, key=lambda r: (abs(r - centre), r)) if guided else [centre]  # the centre first
-    return ScalePlan(ratio, centre, tuple(searched), low, high, prior.size_ratio, prior.reason, names, bound,
-                     sigma=sigma, relation=prior.relation)
+    searched = sorted(rungs, key=lambda r: (abs(r - centre), r))  # the centre first
+    laddered = ScalePlan(ratio, centre, tuple(searched), low, high, prior.size_ratio, prior.reason, names, bound,
+                         sigma=sigma, relation=prior.relation)
+    return laddered if guided else laddered.at_centre()
