@@ -71,9 +71,9 @@ def case(args) -> None:
 
 def _timed(case, preset: str, model: str, stop_after: int) -> dict:
     """One oracle-guided run from the case's rigid protocol start; cancelled after ``stop_after`` steps if > 0."""
-    from ctp_core import goals
     from ctp_core.bench import protocol
     from ctp_core.errors import Canceled
+    from ctp_core.guide import goals
 
     target, source = case.load()
     init = protocol.initial_poses(case.reference, source.bounds, protocol="rigid", count=1, seed=0,
@@ -103,7 +103,7 @@ def _timed(case, preset: str, model: str, stop_after: int) -> dict:
 
 
 def ratio(args) -> None:
-    from ctp_core.guide_loaders import get_guide
+    from ctp_core.guide.loaders import get_guide
 
     get_guide(args.model)  # loaded once for both presets, outside the timings (a worker keeps it loaded)
     for folder in args.cases:

@@ -6,7 +6,7 @@ be within 10° of the file's +Y. A second, symmetry-aware figure also counts an 
 profile along it matches the one along +Y (a cube or a sphere has no single up to find). Prints one
 JSON object: per case and totals.
 
-``--model SPEC`` adds the semantic judge (``scene.upright_judge``: renders under candidate ups scored
+``--model SPEC`` adds the semantic judge (``pairs.upright_judge``: renders under candidate ups scored
 against "a photo of a NAME", NAME from case.json); it needs real weights to mean anything, ``random:ARCH``
 only exercises the path.
 
@@ -23,7 +23,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ctp_core import canonical, guidance, guide_loaders, io, sampling, scene
+from ctp_core import io, pairs
+from ctp_core.geometry import sampling
+from ctp_core.guide import guidance, loaders
+from ctp_core.orientation import canonical
 
 _TOLERANCE_DEG = 10.0
 
@@ -36,7 +39,7 @@ def height_profile(points: np.ndarray, up: np.ndarray) -> np.ndarray:
 
 def upright(mesh, guide: guidance.Guide | None, name: str, args: argparse.Namespace) -> canonical.Upright:
     """Auto-Align by geometry, or with the semantic judge when a guide is given."""
-    judge = scene.upright_judge(mesh, guide, name, views=args.views) if guide else None
+    judge = pairs.upright_judge(mesh, guide, name, views=args.views) if guide else None
     return canonical.upright_rotation(mesh, seed=args.seed, judge=judge)
 
 
@@ -48,7 +51,7 @@ def main() -> None:
     parser.add_argument("--model", help="guidance model spec for the semantic judge (default: geometry only)")
     parser.add_argument("--views", type=int, default=4, help="judge renders per candidate up")
     args = parser.parse_args()
-    guide = guide_loaders.get_guide(args.model) if args.model else None
+    guide = loaders.get_guide(args.model) if args.model else None
 
     rng = np.random.default_rng(args.seed)
     cases, started = [], time.perf_counter()

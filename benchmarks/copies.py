@@ -19,10 +19,11 @@ from pathlib import Path
 
 import trimesh
 
-from ctp_core import examples, io
+from ctp_core import io
 from ctp_core.align import align
+from ctp_core.assembly.copies import place_copies
 from ctp_core.config import AlignConfig
-from ctp_core.copies import place_copies
+from ctp_core.io import examples
 
 BENCH = Path(__file__).resolve().parents[1] / ".." / "shared" / "bench"
 

@@ -69,8 +69,9 @@ def candidate_renders(case: Path | None, count: int, size: int, seed: int) -> tu
     import numpy as np
     import trimesh
 
-    from ctp_core import render, scene
+    from ctp_core import pairs, render
     from ctp_core.bench import protocol
+    from ctp_core.render import cameras
 
     if case is not None:
         from ctp_core.bench.cases import read_case
@@ -80,7 +81,7 @@ def candidate_renders(case: Path | None, count: int, size: int, seed: int) -> tu
     else:
         target, source = trimesh.creation.box((2.0, 0.2, 1.0)), trimesh.creation.icosphere(2, 0.3)
         prompt = "a ball on a table"
-    pair = scene.prepare_pair(target, source, samples=100, seed=0, canonicalise=False)
+    pair = pairs.prepare_pair(target, source, samples=100, seed=0, canonicalise=False)
     rng = np.random.default_rng(seed)
     starts = protocol.random_starts(target.bounds, source.bounds, 1.0, count, rng, distance=(0.3, 1.2))
     out = []
@@ -90,7 +91,7 @@ def candidate_renders(case: Path | None, count: int, size: int, seed: int) -> tu
                              dtype=torch.float32)
             posed = pair.source_vertices @ m[:, :3, :3].transpose(1, 2) + m[:, None, :3, 3]
             verts = pair.scene_vertices(posed)
-            out.append(render.render(pair.mesh, verts, scene.framing_cameras(verts, 1, size))[:, 0])
+            out.append(render.render(pair.mesh, verts, cameras.framing_cameras(verts, 1, size))[:, 0])
     return torch.cat(out), prompt
 
 
@@ -120,8 +121,8 @@ def main() -> None:
     import transformers  # noqa: F401  (timed: a worker pays this once per process)
 
     import_s = time.perf_counter() - start
-    from ctp_core.guidance import cpu_has_fast_bf16
-    from ctp_core.guide_loaders import load_guide
+    from ctp_core.guide.guidance import cpu_has_fast_bf16
+    from ctp_core.guide.loaders import load_guide
 
     start = time.perf_counter()
     guide = load_guide(args.spec, autocast=False)

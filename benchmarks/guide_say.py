@@ -34,12 +34,14 @@ import numpy as np
 import torch
 from search_recall import case_parser, each_case, errors  # a sibling script (benchmarks/ is on sys.path)
 
-from ctp_core import align, metrics, ordering, ranking, sampling
+from ctp_core import align, metrics
 from ctp_core.bench import protocol
 from ctp_core.bench.guides import guide_inputs
 from ctp_core.config import AlignConfig
-from ctp_core.guide_loaders import guide_for
-from ctp_core.pose import Poses
+from ctp_core.geometry import sampling
+from ctp_core.geometry.pose import Poses
+from ctp_core.guide.loaders import guide_for
+from ctp_core.search import ordering, ranking
 
 
 def agreement(terms: dict[str, torch.Tensor]) -> tuple[float, int, int] | None:

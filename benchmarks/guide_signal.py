@@ -24,12 +24,14 @@ import numpy as np
 import torch
 from search_recall import case_parser, each_case, errors  # a sibling script (benchmarks/ is on sys.path)
 
-from ctp_core import align, metrics, ranking, render, sampling
+from ctp_core import align, metrics, render
 from ctp_core.bench import protocol
 from ctp_core.bench.guides import guide_inputs
 from ctp_core.config import AlignConfig
-from ctp_core.guide_loaders import guide_for
-from ctp_core.pose import Poses, apply_pose
+from ctp_core.geometry import sampling
+from ctp_core.geometry.pose import Poses, apply_pose
+from ctp_core.guide.loaders import guide_for
+from ctp_core.search import ranking
 
 
 @contextmanager

@@ -17,7 +17,8 @@ import csv
 from collections import defaultdict
 from pathlib import Path
 
-from ctp_core.priors import get_provider, relations
+from ctp_core.priors import get_provider
+from ctp_core.relations import vocabulary
 
 PHRASES = Path(__file__).resolve().parent.parent / "tests" / "reading_phrases.csv"
 COLUMNS = ("relation", "figure", "side")
@@ -26,7 +27,7 @@ COLUMNS = ("relation", "figure", "side")
 def read(row: dict) -> dict:
     """The provider's reading of one row, in the file's columns."""
     prior = get_provider("rules").estimate(row["target"], row["source"], row["prompt"])
-    side_of = getattr(relations, "side_of", lambda name: None)
+    side_of = getattr(vocabulary, "side_of", lambda name: None)
     return {"relation": prior.relation, "figure": "source" if prior.source_is_figure else "target",
             "side": side_of(prior.relation) or ""}
 

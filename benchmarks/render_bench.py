@@ -4,7 +4,7 @@ Scene (as in docs/renderer-study.md): a fixed torus (10 000 faces) and a posed e
 both with per-vertex colour gradients, seen by 8 ring cameras (45 degree azimuth steps, elevation 20/40,
 distance 2.6, fov 45) at 224 x 224. The ellipsoid sits in the top of the upright ring, passing through
 its tube, so silhouettes, occlusions and intersection lines all carry the gradient. The pose is
-x = s R(q) x_local + t (ctp_core.pose), all 8 parameters requiring grad in the timed steps.
+x = s R(q) x_local + t (ctp_core.geometry.pose), all 8 parameters requiring grad in the timed steps.
 
 - forward_ms: render under no_grad; forward_backward_ms: render -> MSE -> backward. Medians of
   ``--repeats`` runs after one warm-up.
@@ -32,8 +32,8 @@ import torch
 import trimesh
 
 from ctp_core import render
-from ctp_core.cameras import orbit
-from ctp_core.pose import apply_pose, quaternion_to_matrix
+from ctp_core.geometry.pose import apply_pose, quaternion_to_matrix
+from ctp_core.render.cameras import orbit
 
 
 def scene(views: int, size: int, dtype: torch.dtype):

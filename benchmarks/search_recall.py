@@ -22,11 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ctp_core import align, metrics, ordering, ranking, sampling
+from ctp_core import align, metrics
 from ctp_core.bench import protocol
 from ctp_core.bench.cases import discover
 from ctp_core.bench.guides import guide_inputs
 from ctp_core.config import AlignConfig
+from ctp_core.geometry import sampling
+from ctp_core.search import ordering, ranking
 
 CLOSE = 0.2  # ADD-S of a pose counted as close to the reference (success is 0.1)
 
@@ -63,7 +65,7 @@ def run_case(case, args) -> dict:
     config = AlignConfig.from_preset(args.preset, seed=args.seed, model=args.model, **overrides)
     guide = inputs.guide
     if guide is None:
-        from ctp_core.guide_loaders import guide_for
+        from ctp_core.guide.loaders import guide_for
         guide = guide_for(config)
     started = time.perf_counter()
     run = align.prepare(target, source, case.prompt, config, guide=guide, goal=inputs.goal,

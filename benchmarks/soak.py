@@ -143,7 +143,7 @@ def _cmdline(pid: int) -> str:
 
 
 def _children_running(pid: int, needle: str) -> list[int]:
-    """Live children of ``pid`` whose command line holds ``needle`` (" worker", "ctp_core.loader")."""
+    """Live children of ``pid`` whose command line holds ``needle`` (" worker", "ctp_core.io.loader")."""
     return [p for p in _children(pid) if needle in _cmdline(p)]
 
 
@@ -260,7 +260,7 @@ def main(argv: list[str] | None = None) -> int:
         def watch_rss() -> None:
             while not stop.wait(0.5):
                 rss.append(_rss_mb(serve.pid))
-                loader_rss.extend(_rss_mb(p) for p in _children_running(serve.pid, "ctp_core.loader"))
+                loader_rss.extend(_rss_mb(p) for p in _children_running(serve.pid, "ctp_core.io.loader"))
 
         started = time.monotonic()
         threads = [threading.Thread(target=send, args=(args.seed + i,)) for i in range(args.clients)]

@@ -16,11 +16,11 @@ from pathlib import Path
 from types import UnionType
 from typing import Any, Literal, Union, get_args, get_origin
 
-from ctp_core import names
 from ctp_core.config import MAX_ALTERNATIVES, Runtime
 from ctp_core.errors import ConfigError, ImageError, MeshError
 from ctp_core.priors import PROVIDERS
-from ctp_core.priors.counts import CHOICES, MAX_COPIES
+from ctp_core.reading import names
+from ctp_core.reading.counts import CHOICES, MAX_COPIES
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -96,7 +96,7 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
 def add_option(parser: argparse.ArgumentParser, name: str, metavar: str | None = None, help: str | None = None,
                default: Any = None) -> None:
     """``--<name>`` for the run option ``name``: an int, a float, a string, or one of a Literal's choices."""
-    from ctp_core.options import config_field
+    from ctp_core.config.options import config_field
 
     kind = config_field(name).annotation
     if get_origin(kind) in (Union, UnionType):  # optional: X | None
@@ -114,7 +114,7 @@ def add_switch(parser: argparse.ArgumentParser, flag: str, name: str, value: Any
 def config_from_args(args: argparse.Namespace):
     """Preset + the flags the user gave (unset flags leave the preset's values)."""
     from ctp_core.config import AlignConfig
-    from ctp_core.options import OPTION_PATHS, nest
+    from ctp_core.config.options import OPTION_PATHS, nest
 
     given = {name: getattr(args, name) for name in OPTION_PATHS if getattr(args, name, None) is not None}
     overrides = nest({name: value for name, value in given.items() if name != "preset"})
@@ -196,9 +196,9 @@ def run(args: argparse.Namespace) -> int:
     from ctp_core import export, io  # the engine (torch, trimesh): seconds to import
     from ctp_core.align import align
     from ctp_core.config import AUTO
-    from ctp_core.guide_choice import NONE, pull_command
-    from ctp_core.loader import MeshLoader
-    from ctp_core.priors.counts import choose
+    from ctp_core.guide.choice import NONE, pull_command
+    from ctp_core.io.loader import MeshLoader
+    from ctp_core.reading.counts import choose
 
     target_name = args.target_name or names.default_name(args.target.name, "target")
     source_name = args.source_name or names.default_name(args.source.name, "source")
@@ -206,7 +206,7 @@ def run(args: argparse.Namespace) -> int:
     if count > 1 and (args.image is not None or args.alternatives > 1):
         raise ConfigError("several copies are guided by a prompt, with one placement each: no --image or "
                           "--alternatives", field="count")
-    with MeshLoader(1) as loader:  # the same bounded loading as the service (ctp_core.loader)
+    with MeshLoader(1) as loader:  # the same bounded loading as the service (ctp_core.io.loader)
         target = loader.load(args.target, name="target")
         source = loader.load(args.source, name="source")
     if count > 1:
@@ -246,7 +246,7 @@ def _run_copies(args: argparse.Namespace, target, source, config, count: int, ar
                 source_name: str) -> int:
     """``--count`` over 1 (or a prompt's number): the copies' GLB, report and preview; one line per copy on stderr."""
     from ctp_core import export
-    from ctp_core.copies import place_copies
+    from ctp_core.assembly.copies import place_copies
 
     bar = ProgressBar(enabled=not args.quiet)
 

@@ -1,4 +1,4 @@
-"""``ctp assemble``: build a scene one object at a time, in-process (``ctp_core.assemble``).
+"""``ctp assemble``: build a scene one object at a time, in-process (``ctp_core.assembly.assemble``).
 
     ctp assemble BASE --add SOURCE "PROMPT" [--add SOURCE "PROMPT" ...]
     ctp assemble --plan plan.yaml
@@ -34,8 +34,8 @@ from pathlib import Path
 from typing import Any
 
 from ctp.cmd_align import ProgressBar, add_run_arguments, config_from_args
-from ctp_core import names
 from ctp_core.errors import ConfigError
+from ctp_core.reading import names
 
 _PLAN_KEYS = {"base", "name", "options", "steps"}
 _ASSEMBLY_FLAGS = "--preset, --model"  # where preset and model are set (not in a plan's options)
@@ -54,8 +54,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ctp_core import export
-    from ctp_core.assemble import assemble
-    from ctp_core.loader import MeshLoader
+    from ctp_core.assembly.assemble import assemble
+    from ctp_core.io.loader import MeshLoader
 
     config = config_from_args(args)
     if args.plan is not None:
@@ -95,8 +95,8 @@ def read_plan(path: Path, config):
     ConfigError naming the key."""
     import yaml
 
-    from ctp_core.loader import MeshLoader
-    from ctp_core.plan import step_options
+    from ctp_core.assembly.plan import step_options
+    from ctp_core.io.loader import MeshLoader
 
     try:
         plan = yaml.safe_load(path.read_text())
@@ -119,8 +119,8 @@ def read_plan(path: Path, config):
 
 def _step(entry: Any, folder: Path, config, i: int, loader):
     from ctp_core import io
-    from ctp_core.assemble import Step
-    from ctp_core.plan import plan_step
+    from ctp_core.assembly.assemble import Step
+    from ctp_core.assembly.plan import plan_step
 
     where = f"steps.{i}"
     step = plan_step(_from_yaml(entry), where, assembly_options=_ASSEMBLY_FLAGS)
@@ -142,7 +142,7 @@ def _from_yaml(entry: Any) -> Any:
 
 
 def _with_options(config, options: dict[str, Any], where: str):
-    from ctp_core.options import option_overrides
+    from ctp_core.config.options import option_overrides
 
     return config.merged(option_overrides(options, where))
 

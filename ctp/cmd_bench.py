@@ -36,7 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from ctp_core.bench.guides import GUIDES
     from ctp_core.bench.harness import ABLATIONS, METHODS
     from ctp_core.bench.protocol import PROTOCOLS
-    from ctp_core.priors.counts import CHOICES
+    from ctp_core.reading.counts import CHOICES
 
     parser.add_argument("cases_dir", type=Path, help="folder searched recursively for <case>/case.json")
     parser.add_argument("--out", type=Path, required=True, help="output folder")

@@ -1,4 +1,4 @@
-"""``ctp example``: write a generated example pair (``ctp_core.examples``) to try ``ctp align`` and the service on.
+"""``ctp example``: write a generated example pair (``ctp_core.io.examples``) to try ``ctp align`` and the service on.
 
 Prints the paths written (target first) on stdout, and on stderr the ``ctp align`` line that places the
 example's source by its prompt. Exit codes: 0 written; 2 bad usage (an unknown example).
@@ -11,7 +11,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from ctp_core.examples import EXAMPLES, get_example
+from ctp_core.io.examples import EXAMPLES, get_example
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

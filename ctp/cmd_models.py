@@ -1,4 +1,4 @@
-"""``ctp models``: the guidance models in the local cache the loader reads (``ctp_core.model_store``).
+"""``ctp models``: the guidance models in the local cache the loader reads (``ctp_core.guide.store``).
 
 ``list`` prints one line per cached model (spec, size, the weights' sha256, ready or incomplete, the default
 marked); ``pull [NAME]`` (default: the default CLIP model, the one ``auto`` uses) downloads what it needs, with a
@@ -29,10 +29,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ctp_core import model_store
+    from ctp_core.guide import store
 
     if args.action == "list":
-        models = model_store.cached()
+        models = store.cached()
         for m in models:
             state = "ready" if m.ready else "incomplete"
             print(f"{m.spec}  {_size(m.size)}  sha256 {m.sha256 or '-'}  {state}{'  (default)' if m.default else ''}")
@@ -41,13 +41,13 @@ def run(args: argparse.Namespace) -> int:
                   "auto runs without a guide)")
         return 0
     if args.action == "rm":
-        freed = model_store.remove(args.name)
-        print(f"removed {model_store.repo_id(args.name)} ({_size(freed)})")
+        freed = store.remove(args.name)
+        print(f"removed {store.repo_id(args.name)} ({_size(freed)})")
         return 0
-    bar = _Bar(sys.stderr, model_store.repo_id(args.name))
-    model = model_store.pull(args.name, revision=args.revision, on_progress=bar)
+    bar = _Bar(sys.stderr, store.repo_id(args.name))
+    model = store.pull(args.name, revision=args.revision, on_progress=bar)
     bar.close()
-    print(f"pulled {model.spec} ({_size(model.size)}, sha256 {model.sha256}) into {model_store.cache_root()}")
+    print(f"pulled {model.spec} ({_size(model.size)}, sha256 {model.sha256}) into {store.cache_root()}")
     return 0
 
 

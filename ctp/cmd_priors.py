@@ -16,7 +16,7 @@ import math
 from ctp_core import priors
 from ctp_core.config import PENETRATION
 from ctp_core.errors import ConfigError
-from ctp_core.priors import counts
+from ctp_core.reading import counts
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -3,7 +3,7 @@ its poses, and, when asked, brought into contact first with the search's own ``p
 
 Frames: the transform in and out maps the *source file* frame to the *target file* frame (a report's
 ``transform.matrix``, a result GLB's source node matrix); a ``direction`` is in the target file frame too (the
-page's 3D view shows the GLB in it). Settling happens in the *normalised* frame (``scene``), whose +Y is the
+page's 3D view shows the GLB in it). Settling happens in the *normalised* frame (``pairs``), whose +Y is the
 target's up: its upright turn as the job made it (``upright``, the report's ``extra.target_upright``), so "drop"
 falls the way the run's views looked down.
 
@@ -25,12 +25,16 @@ import numpy as np
 import torch
 import trimesh
 
-from ctp_core import canonical, frames, objective, orientation, predicates, proposals, schedule
-from ctp_core.config import AlignConfig
+from ctp_core import objective, orientation
+from ctp_core.config import AlignConfig, schedule
 from ctp_core.errors import ConfigError
-from ctp_core.pose import Poses, apply_pose
-from ctp_core.priors.relations import RelationReading
-from ctp_core.scene import PreparedPair, Target, prepare_pair
+from ctp_core.geometry import frames
+from ctp_core.geometry.pose import Poses, apply_pose
+from ctp_core.orientation import canonical
+from ctp_core.pairs import PreparedPair, Target, prepare_pair
+from ctp_core.relations import predicates
+from ctp_core.relations.vocabulary import RelationReading
+from ctp_core.search import proposals
 
 Settle = Literal["none", "drop", "push"]
 SETTLES: tuple[str, ...] = get_args(Settle)

@@ -16,24 +16,26 @@ import numpy as np
 import torch
 import trimesh
 
-from ctp_core import frames, guide_choice, priors
+from ctp_core import priors
 from ctp_core.config import MAX_ALTERNATIVES, PENETRATION, AlignConfig
 from ctp_core.errors import ConfigError
+from ctp_core.geometry import frames
+from ctp_core.guide import choice
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 
 if TYPE_CHECKING:  # the stages import these lazily: importing align stays light
-    from ctp_core import canonical
-    from ctp_core.goals import Goal
-    from ctp_core.guidance import Guide
+    from ctp_core.config.schedule import Phase
+    from ctp_core.geometry.pose import Poses
+    from ctp_core.guide.goals import Goal
+    from ctp_core.guide.guidance import Guide
     from ctp_core.objective import Scorer
     from ctp_core.optimise import Outcome
-    from ctp_core.ordering import Gate
-    from ctp_core.pose import Poses
-    from ctp_core.priors.relations import RelationReading
-    from ctp_core.proposals import Proposals
-    from ctp_core.scaling import ScalePlan
-    from ctp_core.scene import PreparedPair
-    from ctp_core.schedule import Phase
+    from ctp_core.orientation import canonical
+    from ctp_core.pairs import PreparedPair
+    from ctp_core.relations.vocabulary import RelationReading
+    from ctp_core.search.ordering import Gate
+    from ctp_core.search.proposals import Proposals
+    from ctp_core.search.scaling import ScalePlan
 
 __all__ = ["AlignResult", "ProgressEvent", "align", "scale_ratio_warning"]
 
@@ -63,7 +65,7 @@ class AlignResult:
     on: str | None = None  # the placed object an assembly step relates to
     guided_by: str | None = None  # what guided the run, in words (the report's "guidance")
     model: str | None = None  # the guidance model; None for a geometry-only run
-    guide: str = "none"  # the guide chosen for the run: a model spec or "none" (guide_choice.GuideChoice)
+    guide: str = "none"  # the guide chosen for the run: a model spec or "none" (choice.GuideChoice)
     guide_why: str = ""  # why that guide
     runtime: str | None = None  # the guide's runtime ("torch", "onnx"); None without a guide
     clip_images: int = 0  # images the encoder scored
@@ -143,7 +145,10 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
 
     A scene target's priors read the object ``on`` (its name is ``target_name``, its size the extent). In scale
     mode the files' sizes set nothing (``scaling``): the size ratio comes from the names and the prompt."""
-    from ctp_core import goals, guide_loaders, objective, orientation, scaling, scene, schedule
+    from ctp_core import objective, orientation, pairs
+    from ctp_core.config import schedule
+    from ctp_core.guide import goals, loaders
+    from ctp_core.search import scaling
 
     started = time.perf_counter()
     if config.threads:
@@ -154,16 +159,16 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
         priors.get_provider(config.hparams_provider), target_name, source_name, prompt or "",
         size_ratio=config.size_ratio, contact_ratio=config.contact_ratio,
         penetration=PENETRATION[config.penetration],
-        **({} if config.scale else {"target_extent": float(scene.attachment(target, on).extents.max()),
+        **({} if config.scale else {"target_extent": float(pairs.attachment(target, on).extents.max()),
                                     "source_extent": float(source.extents.max())}),
     )
     judge = None
     if config.upright and config.upright_judge:
-        guide = guide or guide_loaders.guide_for(config)
-        # a scene's up is its base's (scene.base), judged under the base's own name
-        base_name, base = (target_name, target) if isinstance(target, trimesh.Trimesh) else scene.objects(target)[0]
-        judge = scene.upright_judge(base, guide, base_name, device=config.device)
-    pair = scene.prepare_pair(target, source, samples=config.loss.samples, seed=config.seed, device=config.device,
+        guide = guide or loaders.guide_for(config)
+        # a scene's up is its base's (pairs.base), judged under the base's own name
+        base_name, base = (target_name, target) if isinstance(target, trimesh.Trimesh) else pairs.objects(target)[0]
+        judge = pairs.upright_judge(base, guide, base_name, device=config.device)
+    pair = pairs.prepare_pair(target, source, samples=config.loss.samples, seed=config.seed, device=config.device,
                               canonicalise=config.upright, judge=judge, on=on, **orientation.configured(config))
     prepared = time.perf_counter()
 
@@ -173,7 +178,7 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
         elif prompt:
             goal = goals.TextGoal(prompt)
     if goal is not None and config.loss.lambda_clip > 0:
-        guide = guide or guide_loaders.guide_for(config)
+        guide = guide or loaders.guide_for(config)
         goal.prepare(pair, guide)
     else:
         goal = None
@@ -195,7 +200,9 @@ def propose(run: Run, init: np.ndarray | None = None) -> Proposals:
     it fixes the source scale either way. In scale mode every start takes the plan's scale and the search proposes
     at its rungs (``scaling``: the ladder with a guide, its centre without): an incoming pose's scale is never used.
     """
-    from ctp_core import optimise, proposals, relation_proposals
+    from ctp_core import optimise
+    from ctp_core.relations import builders
+    from ctp_core.search import proposals
 
     config, pair = run.config, run.pair
     generator = torch.Generator().manual_seed(config.seed)
@@ -212,7 +219,7 @@ def propose(run: Run, init: np.ndarray | None = None) -> Proposals:
     rungs = run.scale.rungs if run.scale else float(starts.log_s[0])
     proposed = proposals.propose(pair, config, weights, rungs, generator, init=given)
     # the relation's own poses, where the regions do not reach them ("lean")
-    proposed = relation_proposals.extend(pair, config, proposed, run.reading, config.seed)
+    proposed = builders.extend(pair, config, proposed, run.reading, config.seed)
     run.timings["propose_s"] = round(time.perf_counter() - t0, 3)
     return proposed
 
@@ -227,7 +234,7 @@ def score(run: Run, proposals: Proposals, *, gate: Gate | None = None, on_event:
     candidates apart (``ordering.search_key``, ``ordering.Gate``), otherwise by the first phase's objective:
     its proposals already touch without interpenetrating.
     """
-    from ctp_core import ranking
+    from ctp_core.search import ranking
 
     if not run.config.search.enabled:
         return proposals.poses, None
@@ -259,12 +266,13 @@ def refine(run: Run, starts: Poses, gate: Gate | None = None, *, on_event: Progr
 def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: ProgressCallback | None = None) -> AlignResult:
     """The answer in file frames with its report fields and a preview, from the restart whose best pose has
     the lowest objective on the fixed evaluation views (``Outcome.best``)."""
-    from ctp_core import predicates, scene
+    from ctp_core import pairs
+    from ctp_core.relations import predicates
 
     config, pair, best = run.config, run.pair, outcome.best
     matrices = outcome.poses.matrices()
     answers = [pair.source_to_target(m) for m in matrices]
-    preview = _uint8(scene.render_pair(pair, matrices[best], views=4, image_size=224))
+    preview = _uint8(pairs.render_pair(pair, matrices[best], views=4, image_size=224))
     timings = {f"optimise_{k}_s": round(v, 3) for k, v in outcome.timings.items()}
     timings.update(run.timings, total_s=round(time.perf_counter() - run.started, 3))
     restarts = [
@@ -299,7 +307,7 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
             "restart": i, "source_to_target": answers[i], "objective": float(outcome.objectives[i]),
             **{k: float(outcome.terms[k][i]) for k in ("clip", "icp", "pen", "rel")},
             "relation": judged.to_dict() if judged is not None else None})
-    answer.thumbnails = _uint8(torch.stack([scene.render_pair(pair, matrices[i], views=1, image_size=THUMBNAIL)[0]
+    answer.thumbnails = _uint8(torch.stack([pairs.render_pair(pair, matrices[i], views=1, image_size=THUMBNAIL)[0]
                                             for i in picks]))
     if on_event:
         steps = sum(p.steps for p in run.plan)
@@ -325,7 +333,8 @@ def alternatives(run: Run, outcome: Outcome) -> list[int]:
     source diagonals *and* ``distinct_rotation_deg``, as the search counts duplicates) and those that ended far
     from the target (over ``objective.NEAR`` source diagonals) left out. A prompt like "a cup on the table" has
     many right answers; a person picks among these."""
-    from ctp_core import objective, ordering, ranking
+    from ctp_core import objective
+    from ctp_core.search import ordering, ranking
 
     poses = outcome.poses
     far = objective.clearance(run.pair, run.pair.index, poses) > objective.NEAR
@@ -364,25 +373,25 @@ def align(
     init: np.ndarray | None = None,
     on_event: ProgressCallback | None = None,
     should_cancel: CancelCheck | None = None,
-    choice: guide_choice.GuideChoice | None = None,
+    choice: choice.GuideChoice | None = None,
 ) -> AlignResult:
     """Place ``source`` relative to ``target`` (both in file frames) so renders agree with the prompt.
 
     The stages: ``prepare`` -> ``propose`` -> ``score`` -> ``refine`` -> ``result``.
     ``image`` (H, W, 3 uint8) guides by a reference picture instead of the text; ``goal`` (a
     ``goals`` object) overrides both (the benchmark's oracle). ``guide`` is a preloaded
-    vision-language model (``guide_loaders.get_guide``); without one the configured model is loaded (and
+    vision-language model (``loaders.get_guide``); without one the configured model is loaded (and
     cached per process). ``init`` (4x4, source file -> target file) is one more search candidate (or,
     search off, replaces the first random start); rigid, it fixes the source's scale, while with ``config.scale``
     its scale is ignored (``scaling``: the priors' ratio or the geometry set it).
-    A ``trimesh.Scene`` target is a scene of placed objects (``scene.objects``): ``on`` names the one
+    A ``trimesh.Scene`` target is a scene of placed objects (``pairs.objects``): ``on`` names the one
     the source relates to (soft-ICP attaches to it, the search proposes on it; ``target_name`` and its size
     feed the priors), while renders and the penetration term see them all.
-    Model ``auto`` is resolved first (``guide_choice.resolve``; ``choice``: ``auto``'s pick made already for this
+    Model ``auto`` is resolved first (``choice.resolve``; ``choice``: ``auto``'s pick made already for this
     run, a worker's); the result says which guide ran and why.
     Raises ``errors.Canceled`` when ``should_cancel()`` turns true, other ``CtpError`` on bad input.
     """
-    config, chosen = guide_choice.resolve(config, image=image is not None, choice=choice)
+    config, chosen = choice.resolve(config, image=image is not None, choice=choice)
     run = prepare(target, source, prompt, config, on=on, image=image, target_name=target_name,
                   source_name=source_name, guide=guide, goal=goal)
     proposals = propose(run, init)

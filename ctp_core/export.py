@@ -25,12 +25,13 @@ import trimesh
 from PIL import Image
 
 import ctp_core
-from ctp_core import canonical, orientation, priors
-from ctp_core.assemble import Assembly
-from ctp_core.copies import Copies
-from ctp_core.frames import SCENE, SOURCE_FILE, TARGET_FILE, Similarity
-from ctp_core.pose import matrix_to_quaternion
-from ctp_core.scene import objects
+from ctp_core import orientation, priors
+from ctp_core.assembly.assemble import Assembly
+from ctp_core.assembly.copies import Copies
+from ctp_core.geometry.frames import SCENE, SOURCE_FILE, TARGET_FILE, Similarity
+from ctp_core.geometry.pose import matrix_to_quaternion
+from ctp_core.orientation import canonical
+from ctp_core.pairs import objects
 
 if TYPE_CHECKING:  # align imports the whole engine; exporting a result needs none of it
     from ctp_core.adjust import Adjusted

@@ -71,7 +71,7 @@ def signed_depth(source: torch.Tensor, index: SurfaceIndex, sigma: float | torch
     """(B, N) signed depth of each source point below the target surface (positive inside).
 
     The distance along the target's outward normal at a softmax-weighted nearest target point (width
-    ``sigma``). Inside/outside comes from the target normals: ``scene`` orients them outward (trimesh winding
+    ``sigma``). Inside/outside comes from the target normals: ``pairs`` orients them outward (trimesh winding
     fix); for an open surface "inside" means behind the surface's oriented side. ``idx`` (B, N, k): the
     neighbours when the caller has them already. ``sigma``: a float, or (B, 1, 1) for one width per pose.
     """

@@ -22,7 +22,7 @@ import torch
 import trimesh
 from scipy.spatial import cKDTree
 
-from ctp_core import proximity
+from ctp_core.geometry import proximity
 
 SUCCESS_ADDS = 0.1  # ADD-S (relative to the source diagonal) at or below which a pose counts as found
 # placement success, rotation-free: the source's centroid within this many source diagonals of its reference

@@ -19,20 +19,21 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from ctp_core import losses, predicates, render
-from ctp_core.cameras import Cameras, evaluation_views
+from ctp_core import losses, render
 from ctp_core.config import AlignConfig
-from ctp_core.goals import Goal
-from ctp_core.guidance import Guide
-from ctp_core.pose import Poses, apply_pose, quaternion_to_matrix
-from ctp_core.priors.relations import RelationReading
+from ctp_core.config.schedule import Phase
+from ctp_core.geometry.pose import Poses, apply_pose, quaternion_to_matrix
+from ctp_core.guide.goals import Goal
+from ctp_core.guide.guidance import Guide
+from ctp_core.pairs import PreparedPair
 from ctp_core.progress import Clock
-from ctp_core.scene import PreparedPair
-from ctp_core.schedule import Phase
+from ctp_core.relations import predicates
+from ctp_core.relations.vocabulary import RelationReading
+from ctp_core.render.cameras import Cameras, evaluation_views
 
 if TYPE_CHECKING:
-    from ctp_core.ordering import Gate
-    from ctp_core.scaling import ScalePlan
+    from ctp_core.search.ordering import Gate
+    from ctp_core.search.scaling import ScalePlan
 
 NEAR = 2.0  # source diagonals: a pose whose source is farther than this from the target places it nowhere
 

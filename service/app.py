@@ -21,10 +21,10 @@ from fastapi import FastAPI
 from fastapi.concurrency import run_in_threadpool
 from fastapi.middleware.cors import CORSMiddleware
 
+from ctp_core.config.options import AlignOptions
 from ctp_core.errors import ConfigError
 from ctp_core.io import MeshLimits
-from ctp_core.names import NAME_MAX
-from ctp_core.options import AlignOptions
+from ctp_core.reading.names import NAME_MAX
 from service import logs
 from service.delivery import Deliverer
 from service.deps import digest

@@ -32,7 +32,7 @@ from typing import Any
 
 import httpx
 
-from ctp_core.names import default_name
+from ctp_core.reading.names import default_name
 
 MeshInput = str | Path | tuple[str, bytes]  # a path, or (file name with extension, bytes)
 TERMINAL = ("succeeded", "failed", "canceled")

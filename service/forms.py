@@ -2,7 +2,7 @@
 is queued (``POST /assemble`` reads its form with them too).
 
 Everything a worker would refuse is refused here first: meshes are parsed by the bounded loader
-(``ctp_core.loader.MeshLoader``) under the service limits, the image is decoded with
+(``ctp_core.io.loader.MeshLoader``) under the service limits, the image is decoded with
 ``ctp_core.io.load_image``, text fields are bounded.
 """
 
@@ -22,8 +22,8 @@ from starlette.datastructures import UploadFile
 
 from ctp_core.errors import CtpError, ImageError, MeshError
 from ctp_core.io import SUPPORTED_EXTENSIONS, MeshLimits, load_image
-from ctp_core.loader import LoaderUnavailable, MeshLoader
-from ctp_core.names import NAME_MAX, default_name
+from ctp_core.io.loader import LoaderUnavailable, MeshLoader
+from ctp_core.reading.names import NAME_MAX, default_name
 from service.errors import ApiError
 from service.settings import QUEUE_NAME, QUEUE_RULE
 from service.webhooks import DEFAULT_EVENTS, EVENTS, URL_MAX
@@ -193,7 +193,8 @@ def job_options(form, default_queue: str) -> tuple[dict[str, Any], str]:
 
 
 def copies_options(options: dict[str, Any]) -> tuple[int | None, str]:
-    """Takes the alignment's ``count`` and ``arrangement`` (the service's own options, ``ctp_core.copies``) out of
+    """Takes the alignment's ``count`` and ``arrangement`` (the service's own options,
+    ``ctp_core.assembly.copies``) out of
     ``options``; the values are checked by ``priors.counts.choose``."""
     return options.pop("count", None), options.pop("arrangement", None) or "auto"
 

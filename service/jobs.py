@@ -206,9 +206,9 @@ class JobError(BaseModel):
 class AssemblyStep(BaseModel):
     """One stage of an assembly job as stored: its source (blob ``source-<i>``), guide, name, relation and config.
 
-    The plan's step as the client wrote it is ``ctp_core.plan.PlanStep`` (file names, options); this is that
+    The plan's step as the client wrote it is ``ctp_core.assembly.plan.PlanStep`` (file names, options); this is that
     step once checked (the uploads stored as blobs, the options merged into a config), and the worker turns
-    it into the engine's ``ctp_core.assemble.Step`` (meshes loaded, the reference picture decoded)."""
+    it into the engine's ``ctp_core.assembly.assemble.Step`` (meshes loaded, the reference picture decoded)."""
 
     name: str
     file: str = Field(description="the source's file name (its extension gives the format)")
@@ -248,7 +248,7 @@ class JobRecord(BaseModel):
     target_job: str | None = Field(None, description="the job whose result scene is the target (POST /align)")
     on: str | None = Field(None, description="with target_job: the object of its scene the source relates to")
     steps: list[AssemblyStep] = Field(default_factory=list, description="an assembly's stages")
-    count: int = Field(1, description="copies of the source an alignment places (ctp_core.copies)")
+    count: int = Field(1, description="copies of the source an alignment places (ctp_core.assembly.copies)")
     arrangement: str | None = Field(None, description="how several copies stand together; None for one")
     alternatives: list[Alternative] = Field(default_factory=list, description="the best distinct placements, the "
                                             "answer first, once the job succeeded")
@@ -262,7 +262,7 @@ class JobRecord(BaseModel):
                                                      "as the API that accepted it was set (Links.downloads)")
     adjusted: SavedAdjustment | None = Field(None, description="a succeeded alignment's saved adjustment, the latest")
     guide: str | None = Field(None, description="the guide its worker chose (a model spec or none) when it took it")
-    guide_why: str | None = Field(None, description="why that guide (ctp_core.guide_choice)")
+    guide_why: str | None = Field(None, description="why that guide (ctp_core.guide.choice)")
 
     @property
     def stage_count(self) -> int:
@@ -465,7 +465,7 @@ class Jobs:
         return record if record is not None and record.status == "running" and record.worker == worker else None
 
     def set_guide(self, job_id: str, guide: str, why: str) -> JobRecord | None:
-        """The guide the worker chose for its running job (``ctp_core.guide_choice``), and why."""
+        """The guide the worker chose for its running job (``ctp_core.guide.choice``), and why."""
         return self._update(job_id, lambda r: r.model_copy(update={"guide": guide, "guide_why": why})
                             if r.status == "running" else None)
 

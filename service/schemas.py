@@ -1,5 +1,5 @@
 """The HTTP contract's bodies (they generate ``openapi.yaml``) and ``build_config``: a job's options
-(``ctp_core.options``, the vocabulary the CLI's plans share) merged into their preset, with the models this
+(``ctp_core.config.options``, the vocabulary the CLI's plans share) merged into their preset, with the models this
 service allows; an option left out takes the preset's value.
 """
 
@@ -11,10 +11,10 @@ from typing import Any, Literal
 from pydantic import BaseModel, Field, create_model
 
 from ctp_core.config import AUTO, DEFAULT_MODEL, AlignConfig
+from ctp_core.config.options import AlignOptions, option_of, option_overrides
 from ctp_core.errors import ConfigError
-from ctp_core.guide_choice import asks_for_guide
-from ctp_core.options import AlignOptions, option_of, option_overrides
-from ctp_core.priors.counts import CHOICES, MAX_COPIES
+from ctp_core.guide.choice import asks_for_guide
+from ctp_core.reading.counts import CHOICES, MAX_COPIES
 from service.jobs import Alternative, JobError, JobRecord, Progress, SavedAdjustment, Status
 from service.settings import QUEUE_NAME
 from service.webhooks import Event, Webhook
@@ -24,7 +24,7 @@ def build_config(options: dict[str, Any], *, default_model: str, allowed_models:
                  image: bool = False) -> AlignConfig:
     """Validate a client's options and merge them into their preset; raises ConfigError whose
     ``field`` is ``options.<name>``, code ``unknown_option`` or ``invalid_option``. A job under ``auto`` that
-    asks for guidance itself (``image``: a reference picture; ``guide_choice.asks_for_guide``) gets the default
+    asks for guidance itself (``image``: a reference picture; ``choice.asks_for_guide``) gets the default
     model, so that it is refused up front (503 ``model_unavailable``) where no worker has it."""
     overrides = option_overrides(options)
     model = overrides.get("model", default_model)

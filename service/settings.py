@@ -16,7 +16,7 @@ from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 from ctp_core.config import AUTO, DEFAULT_MODEL, Runtime
 from ctp_core.io import MeshLimits
-from ctp_core.loader import MeshLoader
+from ctp_core.io.loader import MeshLoader
 from service.webhooks import secret_bytes
 
 MiB = 1024 * 1024
@@ -198,7 +198,7 @@ class Settings(BaseSettings):
                           max_depth=self.max_depth)
 
     def mesh_loader(self, processes: int | None = None) -> MeshLoader:
-        """The bounded loader (``ctp_core.loader``) under these limits; the caller closes it."""
+        """The bounded loader (``ctp_core.io.loader``) under these limits; the caller closes it."""
         return MeshLoader(processes or self.load_processes, timeout_s=self.load_timeout_s,
                           memory_bytes=self.load_memory_mb * MiB)
 

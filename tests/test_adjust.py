@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from ctp_core import frames
 from ctp_core.adjust import adjust, read_back
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.export import adjusted_report, arrangement_glb, transform
+from ctp_core.geometry import frames
 from ctp_core.io import load_objects
 
 CONFIG = AlignConfig.from_preset("test", model="random:tiny", seed=3)

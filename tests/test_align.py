@@ -8,14 +8,16 @@ import torch
 import trimesh
 
 from ctp.cli import main
-from ctp_core import objective, pose, runtime, schedule
+from ctp_core import objective
 from ctp_core.align import align
-from ctp_core.config import AlignConfig
+from ctp_core.config import AlignConfig, schedule
 from ctp_core.errors import Canceled
-from ctp_core.goals import TextGoal
-from ctp_core.guidance import cpu_has_fast_bf16
-from ctp_core.guide_loaders import get_guide
-from ctp_core.scene import prepare_pair
+from ctp_core.geometry import pose
+from ctp_core.guide import runtime
+from ctp_core.guide.goals import TextGoal
+from ctp_core.guide.guidance import cpu_has_fast_bf16
+from ctp_core.guide.loaders import get_guide
+from ctp_core.pairs import prepare_pair
 
 
 def _coloured(mesh: trimesh.Trimesh, rgb) -> trimesh.Trimesh:
@@ -42,7 +44,7 @@ def test_clip_gradient_reaches_translation_rotation_and_scale(meshes):
     t = torch.tensor([[0.2, 0.4, 0.1]], requires_grad=True)
     q = torch.tensor([[0.9, 0.1, 0.3, 0.0]], requires_grad=True)
     log_s = torch.tensor([0.1], requires_grad=True)
-    from ctp_core.cameras import sample_training_views
+    from ctp_core.render.cameras import sample_training_views
 
     cams = sample_training_views(torch.zeros(1, 3), cfg.camera, 1.0, torch.Generator().manual_seed(0))
     scorer.clip_term(pose.Poses(t, q, log_s), cams, weight=phase.lambda_clip)

@@ -1,4 +1,4 @@
-"""Iterative assembly (``ctp_core.assemble``, ``ctp assemble``) on a generated three-object scene: a table,
+"""Iterative assembly (``ctp_core.assembly.assemble``, ``ctp assemble``) on a generated three-object scene: a table,
 a plate on the table, a cup on the plate. With the guidance term off the geometry alone must leave every
 object touching the one it was placed on without interpenetrating any earlier one, measured on the GLB
 as written (its nodes loaded back), not on the transforms the run reports."""
@@ -14,14 +14,14 @@ import trimesh
 from scipy.spatial.distance import pdist
 
 from ctp.cli import main
-from ctp_core import frames
-from ctp_core.assemble import Step, assemble
+from ctp_core.assembly.assemble import Step, assemble
+from ctp_core.assembly.plan import PlanError, PlanStep, plan_step
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.export import assembly_glb, assembly_report
+from ctp_core.geometry import frames
 from ctp_core.io import load_objects
-from ctp_core.plan import PlanError, PlanStep, plan_step
-from ctp_core.scene import objects
+from ctp_core.pairs import objects
 
 TOUCH_M = 0.01  # a gap under 1 cm (the scene is 1.2 m wide) is contact for these soft terms
 DEPTH_M = 0.005  # deepest point of one object inside another: under a quarter of the plate's thickness
@@ -196,7 +196,7 @@ def test_cli_refuses_a_bad_plan_with_exit_2(tmp_path, meshes, capsys, plan, mess
 
 def test_table_setting_sample_is_a_valid_plan(tmp_path):
     from ctp.cmd_assemble import read_plan
-    from ctp_core.examples import write_table_setting
+    from ctp_core.io.examples import write_table_setting
 
     config = AlignConfig.from_preset("test", model="random:tiny")
     base, base_name, steps, _ = read_plan(write_table_setting(tmp_path), config)
@@ -220,9 +220,10 @@ def test_a_yaml_plan_means_on_and_bare_numbers_as_written(tmp_path, meshes):
 def test_a_scene_keeps_its_base_s_up():
     """A plate hung at a leg's foot changes how table + plate rest (by flat bases alone, best upside down); asked
     for the geometric guess, the scene's up is still the table's own."""
-    from ctp_core import examples, orientation
-    from ctp_core.assemble import Placed, scene_of
-    from ctp_core.scene import geometry, prepare_pair
+    from ctp_core import orientation
+    from ctp_core.assembly.assemble import Placed, scene_of
+    from ctp_core.io import examples
+    from ctp_core.pairs import geometry, prepare_pair
 
     table, plate = examples._table(), examples._plate()
     plate.apply_scale(0.96)

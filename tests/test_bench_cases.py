@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from ctp_core import export, scene
+from ctp_core import export, pairs
 from ctp_core.align import AlignResult
 from ctp_core.config import AlignConfig
 from ctp_core.io import load_mesh
-from ctp_core.structures import MeshArrays
+from ctp_core.render.structures import MeshArrays
 
 BENCH = Path(__file__).resolve().parents[2] / "shared" / "bench"
 CASES = sorted(p.parent for p in BENCH.glob("*/*/case.json"))
@@ -56,7 +56,7 @@ def test_all_cases_render_and_export(tmp_path):
         case = json.loads((folder / "case.json").read_text())
         target, source = (load_mesh(folder / case[r]["file"], name=r) for r in ("target", "source"))
         placement = _placement(case, target, source)
-        views = scene.render_arrangement(target, source, placement, views=4, image_size=64)
+        views = pairs.render_arrangement(target, source, placement, views=4, image_size=64)
         assert views.shape == (4, 3, 64, 64) and bool(views.isfinite().all())
         assert (views < 0.98).any(dim=1).float().mean() > 0.005, f"{case['id']}: nothing drawn"
         preview = (views.permute(0, 2, 3, 1).numpy() * 255).round().astype(np.uint8)

@@ -3,8 +3,8 @@ import math
 import pytest
 import torch
 
-from ctp_core.cameras import Cameras, evaluation_views, orbit, sample_training_views, view_to_pixels
 from ctp_core.config import CameraConfig
+from ctp_core.render.cameras import Cameras, evaluation_views, orbit, sample_training_views, view_to_pixels
 
 
 def _orbit(az, el, dist=3.0, fov=45.0, size=64, at=(0.0, 0.0, 0.0)):

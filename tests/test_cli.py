@@ -13,7 +13,7 @@ import pytest
 from ctp.cli import main
 from ctp.cmd_align import ProgressBar
 from ctp.cmd_serve import _say_if_default_model_missing
-from ctp_core.examples import get_example
+from ctp_core.io.examples import get_example
 from ctp_core.progress import ProgressEvent
 from service.embedded import EmbeddedRedis
 from tests.conftest import REPO

@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 import torch
 
-from ctp_core import pose
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
+from ctp_core.geometry import pose
 
 
 def test_presets_differ_in_budget_and_overrides_merge():

@@ -10,12 +10,14 @@ import numpy as np
 import pytest
 import trimesh
 
-from ctp_core import examples, metrics
+from ctp_core import metrics
+from ctp_core.assembly.copies import place_copies
 from ctp_core.config import AlignConfig
-from ctp_core.copies import place_copies
 from ctp_core.errors import ConfigError
-from ctp_core.priors import counts, get_provider
-from ctp_core.priors.counts import MAX_COPIES, choose
+from ctp_core.io import examples
+from ctp_core.priors import get_provider
+from ctp_core.reading import counts
+from ctp_core.reading.counts import MAX_COPIES, choose
 
 CONFIG = AlignConfig.from_preset("test", model="random:tiny", seed=0, loss={"lambda_clip": 0.0})
 

@@ -16,11 +16,12 @@ from test_predicates import box, pose, poses, reading, rot, table
 from test_predicates import prepared as prepared_plain
 
 from ctp_core import align as stages
-from ctp_core import predicates, proposals, relation_proposals
 from ctp_core.align import align
 from ctp_core.config import AlignConfig
-from ctp_core.pose import Poses, apply_pose
-from ctp_core.scene import prepare_pair
+from ctp_core.geometry.pose import Poses, apply_pose
+from ctp_core.pairs import prepare_pair
+from ctp_core.relations import builders, predicates
+from ctp_core.search import proposals
 
 
 def gltf(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
@@ -298,8 +299,8 @@ def _below_proposals(pair) -> tuple[list[str], torch.Tensor, trimesh.Trimesh]:
     rotations = proposals.orientations(pair, config, torch.Generator().manual_seed(0))
     one = proposals.Proposals(Poses(torch.zeros(1, 3), torch.tensor([[1.0, 0.0, 0.0, 0.0]]), torch.zeros(1)),
                                      ["top"], None, rotations, proposals.contact_index(pair, seed=0))
-    made = relation_proposals.BUILDERS["below"](pair, one, 0, reading("below"), 0.0,
-                                                relation_proposals.own_count(config))
+    made = builders.BUILDERS["below"](pair, one, 0, reading("below"), 0.0,
+                                                builders.own_count(config))
     with torch.inference_mode():
         held = predicates.holds(predicates.relation_score(pair, made.poses, reading("below")))
     return made.region, held, made
@@ -321,9 +322,9 @@ def test_no_below_proposals_where_nothing_is_lifted_off_the_floor():
     config = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0})
     base = proposals.propose(pair, config, proposals.region_weights(None), 0.0,
                                     torch.Generator().manual_seed(0))
-    count = relation_proposals.own_count(config)
-    assert relation_proposals.beneath(pair, base, 0, reading("below"), 0.0, count) is None
-    assert relation_proposals.extend(pair, config, base, reading("below"), 0) is base
+    count = builders.own_count(config)
+    assert builders.beneath(pair, base, 0, reading("below"), 0.0, count) is None
+    assert builders.extend(pair, config, base, reading("below"), 0) is base
 
 
 def test_an_orientation_said_alone_stands_near_its_ground():
@@ -377,7 +378,7 @@ def test_lean_proposals_on_a_named_side_lean_on_that_side():
     config = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0}, search={"candidates": 48})
     base = proposals.propose(pair, config, proposals.region_weights(None), 0.0,
                                     torch.Generator().manual_seed(0))
-    made = relation_proposals.lean(pair, base, 0, reading("lean+behind"), 0.0, relation_proposals.own_count(config))
+    made = builders.lean(pair, base, 0, reading("lean+behind"), 0.0, builders.own_count(config))
     centres = apply_pose(predicates.features(pair).source_centre[None], made.poses.t, made.poses.q,
                          made.poses.log_s)[:, 0]
     assert bool((centres[:, 2] < -0.45).all()), centres  # all behind the backrest (the sofa faces +Z)

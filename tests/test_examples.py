@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from ctp_core.examples import EXAMPLES, get_example
 from ctp_core.io import load_mesh
+from ctp_core.io.examples import EXAMPLES, get_example
 
 
 @pytest.mark.parametrize("name", sorted(EXAMPLES))

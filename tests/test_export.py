@@ -12,10 +12,10 @@ import trimesh
 from PIL import Image
 from scipy.spatial.transform import Rotation
 
-from ctp_core import canonical
 from ctp_core.align import AlignResult
 from ctp_core.config import AlignConfig
 from ctp_core.export import preview_png, report, scene_glb, write_outputs
+from ctp_core.orientation import canonical
 
 
 def _textured(mesh: trimesh.Trimesh) -> trimesh.Trimesh:

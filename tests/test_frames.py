@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ctp_core import frames
-from ctp_core.frames import Similarity
+from ctp_core.geometry import frames
+from ctp_core.geometry.frames import Similarity
 
 
 def _random_similarity(rng: np.random.Generator, from_frame: str, to_frame: str) -> Similarity:

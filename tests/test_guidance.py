@@ -1,4 +1,4 @@
-"""Tests for ctp_core.guidance: random and local hf backends, numerics, and the refusals."""
+"""Tests for ctp_core.guide.guidance: random and local hf backends, numerics, and the refusals."""
 
 from __future__ import annotations
 
@@ -9,11 +9,12 @@ import numpy as np
 import pytest
 import torch
 
-from ctp_core import backends, guidance, guide_loaders
+from ctp_core.config import backends
 from ctp_core.errors import ModelError
-from ctp_core.guidance import ImageTransform, byte_tokenize
-from ctp_core.guide_loaders import get_guide, load_guide
-from ctp_core.weights import downloads_allowed
+from ctp_core.guide import guidance, loaders
+from ctp_core.guide.checkpoints import downloads_allowed
+from ctp_core.guide.guidance import ImageTransform, byte_tokenize
+from ctp_core.guide.loaders import get_guide, load_guide
 
 
 @pytest.fixture(scope="module")
@@ -184,10 +185,10 @@ def test_hf_local_directory_loads_offline_and_matches_the_model(tmp_path, monkey
     prompts = ["a cat", "a hat on a dog"]
     batch = tokenizer(prompts, padding=True, return_tensors="pt")
     with torch.no_grad():
-        expected_text = guide_loaders._pooled(model.get_text_features(**batch))
+        expected_text = loaders._pooled(model.get_text_features(**batch))
         pixels = (_images(2, size=32) - torch.tensor([0.5, 0.4, 0.3]).view(1, 3, 1, 1)) / torch.tensor(
             [0.2, 0.25, 0.3]).view(1, 3, 1, 1)
-        expected_img = guide_loaders._pooled(model.get_image_features(pixel_values=pixels))
+        expected_img = loaders._pooled(model.get_image_features(pixel_values=pixels))
     torch.testing.assert_close(guide.encode_text(prompts), torch.nn.functional.normalize(expected_text, dim=-1))
     torch.testing.assert_close(guide.encode_images(_images(2, size=32)),
                                torch.nn.functional.normalize(expected_img, dim=-1))
@@ -235,8 +236,8 @@ def test_bad_specs_raise_model_error(spec, fragment):
 
 
 def test_every_backend_has_one_loader():
-    """``backends`` (torch-free, for validation) and ``guide_loaders.LOADERS`` name the same prefixes."""
-    assert set(guide_loaders.LOADERS) == set(backends.BACKENDS)
+    """``backends`` (torch-free, for validation) and ``loaders.LOADERS`` name the same prefixes."""
+    assert set(loaders.LOADERS) == set(backends.BACKENDS)
 
 
 def test_cuda_without_a_gpu_is_a_model_error():

@@ -242,6 +242,6 @@ def test_imports_go_down_the_layers():
 
 
 def test_the_layer_check_reports_an_upward_import():
-    edges = {"ctp_core.predicates": {"ctp_core.align": [Import("ctp_core.align", 7, True)]},
-             "ctp_core.scene": {"ctp_core.render": [Import("ctp_core.render", 3, False)]}}
-    assert upward(edges) == ["ctp_core.predicates (judge) imports ctp_core.align (pipeline, line 7, in a function)"]
+    edges = {"ctp_core.relations.predicates": {"ctp_core.align": [Import("ctp_core.align", 7, True)]},
+             "ctp_core.pairs": {"ctp_core.render": [Import("ctp_core.render", 3, False)]}}
+    assert upward(edges) == ["ctp_core.relations.predicates (judge) imports ctp_core.align (pipeline, line 7, in a function)"]

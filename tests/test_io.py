@@ -13,7 +13,7 @@ from PIL import Image
 
 from ctp_core.errors import ImageError, MeshError
 from ctp_core.io import MeshLimits, load_image, load_mesh
-from ctp_core.structures import MeshArrays
+from ctp_core.render.structures import MeshArrays
 
 
 def _code(data, filename, **kwargs) -> str:

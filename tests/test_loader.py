@@ -1,4 +1,4 @@
-"""Bounded loading (``ctp_core.loader``): a load past its wall time or memory ends ``mesh_too_complex``
+"""Bounded loading (``ctp_core.io.loader``): a load past its wall time or memory ends ``mesh_too_complex``
 and its process is replaced; closing the loader ends a load in flight at once."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import pytest
 
 from ctp_core.errors import MeshError
 from ctp_core.io import MeshLimits
-from ctp_core.loader import LoaderUnavailable, MeshLoader
+from ctp_core.io.loader import LoaderUnavailable, MeshLoader
 from tests.test_service import BOX, deep_chain_glb, grid_mesh, ply
 
 WIDE = MeshLimits(max_nodes=10**6)

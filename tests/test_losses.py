@@ -92,9 +92,9 @@ def _wall_pair():
     import trimesh
 
     from ctp_core.config import AlignConfig
+    from ctp_core.config.schedule import phases
     from ctp_core.objective import Scorer
-    from ctp_core.scene import prepare_pair
-    from ctp_core.schedule import phases
+    from ctp_core.pairs import prepare_pair
 
     wall = trimesh.creation.box(extents=(2.0, 2.0, 0.02))
     ball = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
@@ -104,7 +104,7 @@ def _wall_pair():
 
 
 def _ball_at(pair, z: float):
-    from ctp_core.pose import Poses
+    from ctp_core.geometry.pose import Poses
 
     radius = 0.3 * pair.target_to_normalised.scale  # the ball's radius in the normalised frame
     return Poses(torch.tensor([[0.0, 0.0, z * radius]]), torch.tensor([[1.0, 0.0, 0.0, 0.0]]), torch.zeros(1))
@@ -116,7 +116,7 @@ def test_a_ball_through_a_thin_wall_is_charged_by_the_wall_samples_inside_it():
     pair, scorer, phase = _wall_pair()
     cfg = scorer.config.loss
     through, resting = _ball_at(pair, 0.0), _ball_at(pair, 1.0 + 0.01 / 0.3)
-    from ctp_core.pose import apply_pose
+    from ctp_core.geometry.pose import apply_pose
 
     def source_half(poses):
         pts = apply_pose(pair.source_samples, poses.t, poses.q, poses.log_s)
@@ -135,7 +135,7 @@ def test_the_enclosed_half_pushes_a_ball_out_of_a_wall():
     pair, scorer, _ = _wall_pair()
     poses = _ball_at(pair, 0.7)
     t = poses.t.clone().requires_grad_(True)
-    from ctp_core.pose import Poses
+    from ctp_core.geometry.pose import Poses
 
     scorer.enclosed(Poses(t, poses.q, poses.log_s)).sum().backward()
     assert t.grad[0, 2] < 0 and abs(float(t.grad[0, 2])) > 10 * float(t.grad[0, :2].abs().max())
@@ -144,7 +144,7 @@ def test_the_enclosed_half_pushes_a_ball_out_of_a_wall():
 def test_holding_excludes_a_pose_that_intersects():
     """The relation's tier (``ordering.holding``): a pose where the relation holds but that is sunk into the
     target past ``SUNK`` ranks with the poses where it fails."""
-    from ctp_core.ordering import SUNK, holding
+    from ctp_core.search.ordering import SUNK, holding
 
     terms = {"objective": torch.zeros(3), "rel": torch.tensor([0.0, 0.0, 0.5]),
              "sunk": torch.tensor([0.0, 2 * SUNK, 0.0])}

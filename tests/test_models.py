@@ -17,11 +17,11 @@ from pathlib import Path
 import pytest
 
 from ctp.cmd_models import _Bar
-from ctp_core import model_store, weights
 from ctp_core.config import DEFAULT_MODEL, AlignConfig
 from ctp_core.errors import ModelError
-from ctp_core.examples import get_example
-from ctp_core.guide_choice import NONE, resolve, unguided
+from ctp_core.guide import checkpoints, store
+from ctp_core.guide.choice import NONE, resolve, unguided
+from ctp_core.io.examples import get_example
 from tests.conftest import REPO
 from tests.test_guidance import _save_tiny_hf_clip
 
@@ -30,7 +30,7 @@ COMMIT = "c" * 40
 
 
 class FakeHub:
-    """The two routes of the Hub that ``model_store.pull`` uses, over a folder of files, on 127.0.0.1; the
+    """The two routes of the Hub that ``store.pull`` uses, over a folder of files, on 127.0.0.1; the
     ``.safetensors`` files are LFS files (sha256), the others plain git files (blob id). ``cut``: the first answer
     for that file stops after this many bytes; ``corrupt``: that file is served altered; ``ranges``: the Range
     headers received."""
@@ -134,9 +134,9 @@ def test_pull_from_a_loopback_hub_then_list_load_and_remove(hub, tmp_path, tiny_
     snapshot = cache / f"models--{REPO_ID.replace('/', '--')}" / "snapshots" / COMMIT
     assert sorted(p.name for p in snapshot.iterdir()) == sorted(n for n in tiny_files if n != "flax_model.msgpack")
     assert (snapshot / "model.safetensors").is_symlink()
-    assert weights.missing(f"hf:{REPO_ID}", cache_dir=str(cache), offline=True) is None
+    assert checkpoints.missing(f"hf:{REPO_ID}", cache_dir=str(cache), offline=True) is None
 
-    from ctp_core.guide_loaders import load_guide
+    from ctp_core.guide.loaders import load_guide
 
     assert load_guide(f"hf:{REPO_ID}", offline=True, cache_dir=str(cache)).embed_dim == 16  # what the loader reads
 
@@ -155,10 +155,10 @@ def test_pull_from_a_loopback_hub_then_list_load_and_remove(hub, tmp_path, tiny_
 def test_a_broken_download_resumes_where_it_stopped(hub, tmp_path, tiny_files):
     hub.cut["model.safetensors"] = 1000
     with pytest.raises(ModelError, match="run it again to resume") as broken:
-        model_store.pull(REPO_ID, cache_dir=tmp_path, endpoint=hub.url)
+        store.pull(REPO_ID, cache_dir=tmp_path, endpoint=hub.url)
     assert broken.value.code == "model_unreachable"
     seen: list[tuple[int, int]] = []
-    model = model_store.pull(REPO_ID, cache_dir=tmp_path, endpoint=hub.url,
+    model = store.pull(REPO_ID, cache_dir=tmp_path, endpoint=hub.url,
                              on_progress=lambda done, total: seen.append((done, total)))
     assert hub.ranges == ["bytes=1000-"]
     assert model.ready and model.sha256 == hashlib.sha256(tiny_files["model.safetensors"]).hexdigest()
@@ -168,9 +168,9 @@ def test_a_broken_download_resumes_where_it_stopped(hub, tmp_path, tiny_files):
 def test_a_corrupt_download_is_refused_and_not_kept(hub, tmp_path):
     hub.corrupt.add("model.safetensors")
     with pytest.raises(ModelError, match="does not match the Hub's checksum") as refused:
-        model_store.pull(REPO_ID, cache_dir=tmp_path, endpoint=hub.url)
+        store.pull(REPO_ID, cache_dir=tmp_path, endpoint=hub.url)
     assert refused.value.code == "model_corrupt"
-    assert weights.missing(f"hf:{REPO_ID}", cache_dir=str(tmp_path), offline=True) is not None
+    assert checkpoints.missing(f"hf:{REPO_ID}", cache_dir=str(tmp_path), offline=True) is not None
     assert not list(tmp_path.rglob("*.incomplete"))
 
 

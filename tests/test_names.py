@@ -6,7 +6,7 @@ import json
 
 import httpx
 
-from ctp_core.names import NAME_MAX, default_name
+from ctp_core.reading.names import NAME_MAX, default_name
 from service.client import Client
 
 

@@ -9,11 +9,11 @@ import math
 import pytest
 import torch
 
-from ctp_core import ordering
 from ctp_core.config import AlignConfig, share_of
+from ctp_core.config.schedule import Phase
 from ctp_core.objective import NEAR, TOUCH, combine
-from ctp_core.ordering import GATE_FULL, SUNK, Gate, Key
-from ctp_core.schedule import Phase
+from ctp_core.search import ordering
+from ctp_core.search.ordering import GATE_FULL, SUNK, Gate, Key
 
 WEIGHTS = Phase(index=1, steps=1, lambda_clip=1.0, lambda_icp=1.0, lambda_pen=1.0, sigma_icp=0.1, look_at_beta=0.0,
                 zoom=1.0, lambda_rel=1.0)
@@ -188,7 +188,7 @@ def test_a_guide_earns_its_say_by_both_tests_the_lower_deciding():
 
 def test_view_agreement_is_zero_where_the_views_share_a_favourite_and_one_half_by_chance():
     """Where each view's favourite ranks in the other views' order (0: first; the share ranked before it)."""
-    from ctp_core.ranking import view_agreement
+    from ctp_core.search.ranking import view_agreement
 
     same = torch.tensor([[0.0, 0.1], [1.0, 0.5], [2.0, 0.7], [3.0, 0.2]])
     assert view_agreement(same) == 0.0

@@ -8,9 +8,10 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from ctp_core import align as stages
-from ctp_core import canonical, io, orientation
+from ctp_core import io, orientation
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
+from ctp_core.orientation import canonical
 
 
 def _box(extents, at) -> trimesh.Trimesh:

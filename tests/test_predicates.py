@@ -1,4 +1,4 @@
-"""Relation predicates (``ctp_core.predicates``) on generated pairs whose answer is known.
+"""Relation predicates (``ctp_core.relations.predicates``) on generated pairs whose answer is known.
 
 Every scene is built in its file frame with +Y up and prepared without the upright turn, so "up" is known;
 each test places the source at a few touching (or near) alternatives and checks that the relation's score
@@ -14,10 +14,10 @@ import pytest
 import torch
 import trimesh
 
-from ctp_core import predicates
-from ctp_core.pose import Poses
-from ctp_core.priors.relations import RELATIONS, RelationReading
-from ctp_core.scene import prepare_pair
+from ctp_core.geometry.pose import Poses
+from ctp_core.pairs import prepare_pair
+from ctp_core.relations import predicates
+from ctp_core.relations.vocabulary import RELATIONS, RelationReading
 
 
 def box(extents, centre) -> trimesh.Trimesh:

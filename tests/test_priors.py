@@ -12,19 +12,11 @@ import pytest
 
 from ctp.cli import main as ctp_main
 from ctp_core.errors import ConfigError
-from ctp_core.priors import (
-    PriorSettings,
-    RulesProvider,
-    ScenePrior,
-    context,
-    get_provider,
-    lexicon,
-    mesh_size_ratio,
-    relations,
-    resolve_priors,
-)
+from ctp_core.priors import PriorSettings, RulesProvider, ScenePrior, get_provider, mesh_size_ratio, resolve_priors
 from ctp_core.priors.openai import AnswerError, parse_answer
 from ctp_core.priors.prior import clamp_contact, clamp_size
+from ctp_core.reading import context, lexicon
+from ctp_core.relations import vocabulary
 
 
 def rules(target: str, source: str, prompt: str) -> ScenePrior:
@@ -220,11 +212,11 @@ def test_parts_and_size_words():
 
 def test_unknown_objects_fall_back_and_say_so():
     prior = rules("zorblax", "quux", "a quux on the zorblax")
-    assert prior.size_ratio == relations.RELATIONS["on"].figure_size  # what rests on a thing is smaller
+    assert prior.size_ratio == vocabulary.RELATIONS["on"].figure_size  # what rests on a thing is smaller
     assert "fallback" in prior.reason and "zorblax" in prior.reason
     # the same relation with the unknown source as the ground: the inverse ratio
     assert rules("zorblax", "quux", "a zorblax on the quux").size_ratio == pytest.approx(
-        1 / relations.RELATIONS["on"].figure_size)
+        1 / vocabulary.RELATIONS["on"].figure_size)
     assert rules("zorblax", "quux", "a quux beside the zorblax").size_ratio == 1.0
     holder = rules("grimbly", "sword", "grimbly holding a sword")
     assert holder.size_ratio == pytest.approx(lexicon.lookup("sword").size_m / 1.75)
@@ -235,7 +227,7 @@ def test_lexicon_is_a_few_hundred_objects():
     assert len({id(e) for e in lexicon.LEXICON.values()}) >= 300
 
 
-# --- names in the prompt's context (ctp_core.priors.context) -------------------------------------------
+# --- names in the prompt's context (ctp_core.reading.context) -------------------------------------------
 
 @pytest.mark.parametrize("target,source,prompt,low,high", [
     # the prompt's modifiers pick a longer lexicon phrase: a rubber duck, not a 50 cm duck
@@ -680,7 +672,7 @@ def test_half_submerged_is_partly_under_and_a_body_of_water_is_any_spring_or_wat
 def test_a_cue_about_a_substance_yields_to_the_one_that_relates_the_objects():
     prior = rules("lake", "hippo", "a hippo wallowing in the lake with its nostrils above the water")
     assert prior.relation == "in" and prior.penetration
-    alone = relations.find_cue("a kite flying above the water")  # no other cue: it stands
+    alone = vocabulary.find_cue("a kite flying above the water")  # no other cue: it stands
     assert alone is not None and alone.relation.name == "above"
 
 
@@ -762,7 +754,7 @@ def test_a_short_pointed_fastener_goes_through_the_solid_it_holds_or_fastens():
 def test_food_shaped_things_on_a_stick_are_skewered_and_adverbs_do_not_hide_a_cue():
     assert rules("stick", "corn_dog", "a corn dog on a stick").penetration
     assert rules("plank", "saw", "a saw stuck halfway through a plank").penetration
-    assert relations.find_cue("a spade pushed deep into the soil").relation.name == "penetrate"
+    assert vocabulary.find_cue("a spade pushed deep into the soil").relation.name == "penetrate"
 
 
 def test_plastic_or_tin_creatures_are_toys_and_fish_are_wholly_under_water():
@@ -783,7 +775,7 @@ def test_a_holder_of_a_long_thin_thing_is_shorter_than_it():
 
 def test_pressed_staked_or_chopped_open_are_cues_that_go_in():
     for prompt in ("a thumb pressed into the dough", "a marker staked in the field", "an axe splitting open a log"):
-        assert relations.find_cue(prompt).relation.name == "penetrate", prompt
+        assert vocabulary.find_cue(prompt).relation.name == "penetrate", prompt
 
 
 def test_a_building_made_of_a_sweet_is_that_sweet_an_ice_cream_van_is_a_van():

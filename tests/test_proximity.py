@@ -7,7 +7,7 @@ import gc
 import numpy as np
 import trimesh
 
-from ctp_core import proximity
+from ctp_core.geometry import proximity
 
 
 def _points(seed: int = 0) -> np.ndarray:

@@ -10,14 +10,15 @@ from pathlib import Path
 
 import pytest
 
-from ctp_core.priors import get_provider, relations
+from ctp_core.priors import get_provider
+from ctp_core.relations import vocabulary
 
 ROWS = list(csv.DictReader((Path(__file__).parent / "reading_phrases.csv").open()))
 
 
 def test_the_phrase_list_covers_every_new_relation_from_each_vocabulary():
-    named = {p for row in ROWS for p in relations.parts(row["relation"])}
-    new = {name for name, r in relations.RELATIONS.items() if r.kind != "contact"}
+    named = {p for row in ROWS for p in vocabulary.parts(row["relation"])}
+    new = {name for name, r in vocabulary.RELATIONS.items() if r.kind != "contact"}
     assert new <= named and len(ROWS) >= 80
     assert {"spatialsense", "sr3d", "holodeck", "layoutvlm", "issue", "paraphrase"} == {r["origin"] for r in ROWS}
 
@@ -25,7 +26,7 @@ def test_the_phrase_list_covers_every_new_relation_from_each_vocabulary():
 @pytest.mark.parametrize("row", ROWS, ids=[row["prompt"] for row in ROWS])
 def test_the_reader_reads_the_relation_its_figure_and_its_side(row):
     prior = get_provider("rules").estimate(row["target"], row["source"], row["prompt"])
-    got = (prior.relation, "source" if prior.source_is_figure else "target", relations.side_of(prior.relation) or "")
+    got = (prior.relation, "source" if prior.source_is_figure else "target", vocabulary.side_of(prior.relation) or "")
     assert got == (row["relation"], row["figure"], row["side"]), prior.reason
 
 

@@ -31,7 +31,7 @@ import trimesh
 
 from ctp.cli import main, synopsis
 from ctp.cmd_serve import stop_processes
-from ctp_core.examples import get_example
+from ctp_core.io.examples import get_example
 from service.embedded import free_port
 from tests.conftest import REPO, service_env, wait_for
 

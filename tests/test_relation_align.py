@@ -16,9 +16,11 @@ import trimesh
 from test_predicates import box, cup, reading, ring, rot, table, wall_with_peg
 
 from ctp_core import align as stages
-from ctp_core import objective, ordering, predicates, schedule
+from ctp_core import objective
 from ctp_core.align import align
-from ctp_core.config import AlignConfig
+from ctp_core.config import AlignConfig, schedule
+from ctp_core.relations import predicates
+from ctp_core.search import ordering
 
 
 def _cap() -> trimesh.Trimesh:
@@ -128,7 +130,7 @@ def test_a_guide_whose_spread_is_within_its_noise_does_not_override_the_relation
 
 def test_lean_proposals_stand_tilted_against_a_side_where_the_regions_have_none():
     """A stick leaning against a box: no region proposal leans (upright beside it or lying); the lean
-    proposals (``relation_proposals``) do, and only where the relation is on."""
+    proposals (``builders``) do, and only where the relation is on."""
     target, stick = box([1, 1, 1], [0, 0.5, 0]), trimesh.creation.cylinder(radius=0.03, height=1.4)
     counts = {}
     for relation in (True, False):
@@ -149,7 +151,7 @@ def test_lean_proposals_stand_tilted_against_a_side_where_the_regions_have_none(
 def test_an_assembly_judges_each_step_by_its_own_relation_on_its_own_object():
     """Step by step (``assemble``): each step's prompt gives its relation, its ``on`` object is the ground: a
     ball under the table, then a cone cap on the ball."""
-    from ctp_core.assemble import Step, assemble
+    from ctp_core.assembly.assemble import Step, assemble
 
     config = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0}, upright=False)
     steps = [Step(BALL, "ball", "a ball under the table", on="table"),
@@ -218,7 +220,7 @@ def test_a_ball_under_the_table_ends_under_its_middle_and_a_cup_on_it_on_its_top
 def test_a_ring_hung_on_a_peg_is_threaded_on_it_and_the_wall_keeps_its_file_up():
     """The geometric guess would lay the wall on its back (a thin slab topples); what things hang on is fixed in
     place, and every object keeps its file's up unless asked (the general rule), and the hang proposals
-    (``relation_proposals.hung``) thread the ring on
+    (``builders.hung``) thread the ring on
     the peg, which the preference (hanging freely, plumb) then chooses over the ring flat against the wall."""
     wall, ring_ = wall_with_peg(), ring()
     config = AlignConfig.from_preset("default", loss={"lambda_clip": 0.0})  # the test preset's 3 hang proposals

@@ -1,5 +1,5 @@
 """A relation is one record (``priors.relations.RELATIONS``) and one judge (``predicates.JUDGES``), with a builder of
-its own proposals where the regions do not reach it (``relation_proposals.BUILDERS``); the relation a run uses is
+its own proposals where the regions do not reach it (``builders.BUILDERS``); the relation a run uses is
 one value (``RelationReading``). The relation proposals are tested one by one on small generated meshes: what they
 make satisfies the relation's score, as many as their share of the search."""
 
@@ -13,15 +13,16 @@ import torch
 import trimesh
 from test_predicates import BALL, BALL_POSES, box, cup, poses, prepared, ring, table, wall_with_peg
 
-from ctp_core import predicates, proposals, relation_proposals
 from ctp_core.config import AlignConfig
-from ctp_core.pose import Poses
+from ctp_core.geometry.pose import Poses
 from ctp_core.priors.prior import ScenePrior
-from ctp_core.priors.relations import RELATIONS, Relation, RelationReading
+from ctp_core.relations import builders, predicates
+from ctp_core.relations.vocabulary import RELATIONS, Relation, RelationReading
+from ctp_core.search import proposals
 
 CONFIG = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0}, search={"candidates": 48})
 # each builder's count: what it makes, less those that settling leaves wedged in the target
-SHARE = relation_proposals.own_count(CONFIG)
+SHARE = builders.own_count(CONFIG)
 
 
 # --- one record, one judge -----------------------------------------------------------------------------------------
@@ -29,7 +30,7 @@ SHARE = relation_proposals.own_count(CONFIG)
 def test_every_relation_has_one_record_and_one_judge_and_builders_are_for_relations_only():
     assert set(predicates.JUDGES) == set(RELATIONS)
     assert all(record.name == name for name, record in RELATIONS.items())
-    assert set(relation_proposals.BUILDERS) <= set(RELATIONS)
+    assert set(builders.BUILDERS) <= set(RELATIONS)
     assert all(set(r.figure_regions) | set(r.ground_regions) <= set(proposals.REGIONS) for r in RELATIONS.values())
     # the resting family shares one judge, and only it includes stability in its score
     resting = {name for name, r in RELATIONS.items() if r.rests}
@@ -112,7 +113,7 @@ def _base(pair) -> proposals.Proposals:
 
 def _built(pair, name: str, seed: int = 0) -> tuple[proposals.Proposals, torch.Tensor]:
     reading = RelationReading(name)
-    made = relation_proposals.BUILDERS[reading.position](pair, _base(pair), seed, reading, 0.0, SHARE)
+    made = builders.BUILDERS[reading.position](pair, _base(pair), seed, reading, 0.0, SHARE)
     assert made is not None and len(made.poses), name
     with torch.inference_mode():
         held = predicates.holds(predicates.relation_score(pair, made.poses, reading))
@@ -162,28 +163,28 @@ def test_extend_builds_the_relations_poses_at_every_scale_of_the_ladder():
     pair = prepared(box([1, 1, 1], [0, 0.5, 0]), box([0.3, 0.3, 0.3], [0, 0, 0]))
     rungs = [0.0, -0.5, 0.5]
     base = proposals.propose(pair, CONFIG, proposals.region_weights(None), rungs, torch.Generator().manual_seed(0))
-    extended = relation_proposals.extend(pair, CONFIG, base, RelationReading("near"), 0)
+    extended = builders.extend(pair, CONFIG, base, RelationReading("near"), 0)
     own = torch.tensor([r == "near" for r in extended.region])
     assert len(extended.poses) == len(base.poses)
     assert sorted(set(extended.poses.log_s[own].tolist())) == sorted(rungs)
-    assert int(own.sum()) <= relation_proposals.own_count(CONFIG)  # the share split, not multiplied
+    assert int(own.sum()) <= builders.own_count(CONFIG)  # the share split, not multiplied
 
 
 def test_extend_replaces_as_many_region_proposals_only_for_a_placed_figure():
     pair = prepared(box([1, 1, 1], [0, 0.5, 0]), box([0.3, 0.3, 0.3], [0, 0, 0]))
     base = proposals.propose(pair, CONFIG, proposals.region_weights(None), 0.0, torch.Generator().manual_seed(0))
-    extended = relation_proposals.extend(pair, CONFIG, base, RelationReading("near"), 0)
+    extended = builders.extend(pair, CONFIG, base, RelationReading("near"), 0)
     assert len(extended.poses) == len(base.poses) and "near" in extended.region
     for reading in (None, RelationReading("near", False), RelationReading("on"), RelationReading("levitate")):
-        assert relation_proposals.extend(pair, CONFIG, base, reading, 0) is base
+        assert builders.extend(pair, CONFIG, base, reading, 0) is base
     off = CONFIG.model_copy(update={"relation": False})
-    assert relation_proposals.extend(pair, off, base, RelationReading("near"), 0) is base
+    assert builders.extend(pair, off, base, RelationReading("near"), 0) is base
 
 
 def test_a_pairs_fixed_geometry_is_built_once_while_the_pair_lives():
-    """``scene.per_pair``: what several stages read from one pair (its features, hook points, peg thickness) is
+    """``pairs.per_pair``: what several stages read from one pair (its features, hook points, peg thickness) is
     built on first use and kept for that pair, not for another."""
-    from ctp_core.scene import per_pair
+    from ctp_core.pairs import per_pair
 
     calls = []
 
@@ -194,7 +195,7 @@ def test_a_pairs_fixed_geometry_is_built_once_while_the_pair_lives():
 
     pair = prepared(box([1, 1, 1], [0, 0.5, 0]), box([0.3, 0.3, 0.3], [0, 0, 0]))
     assert build(pair) is build(pair) and len(calls) == 1
-    assert relation_proposals.hook_points(pair) is relation_proposals.hook_points(pair)
+    assert builders.hook_points(pair) is builders.hook_points(pair)
     other = prepared(box([1, 1, 1], [0, 0.5, 0]), box([0.2, 0.2, 0.2], [0, 0, 0]))
     build(other)
     assert len(calls) == 2

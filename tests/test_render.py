@@ -6,9 +6,9 @@ import torch
 import trimesh
 
 from ctp_core import render
-from ctp_core.cameras import Cameras, orbit
-from ctp_core.pose import apply_pose, quaternion_to_matrix
-from ctp_core.structures import MeshArrays
+from ctp_core.geometry.pose import apply_pose, quaternion_to_matrix
+from ctp_core.render.cameras import Cameras, orbit
+from ctp_core.render.structures import MeshArrays
 
 
 def _cameras(az, el, dist=2.6, fov=45.0, size=96, at=(0.0, 0.0, 0.0)):

@@ -1,4 +1,4 @@
-"""Tests for the ONNX Runtime path of the guide (ctp_core.runtime): export, cache, routing, fallback, int8,
+"""Tests for the ONNX Runtime path of the guide (ctp_core.guide.runtime): export, cache, routing, fallback, int8,
 the forward-only ``onnx:`` backend and the configuration's refusals. All on random:tiny (one export)."""
 
 from __future__ import annotations
@@ -8,10 +8,10 @@ import logging
 import pytest
 import torch
 
-from ctp_core import runtime
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError, ModelError
-from ctp_core.guide_loaders import load_guide
+from ctp_core.guide import runtime
+from ctp_core.guide.loaders import load_guide
 from tests.test_guidance import _images, _save_tiny_hf_clip
 
 PROMPTS = ["a cherry on top of a sundae", "a hat on a dog", "x"]

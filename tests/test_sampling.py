@@ -7,7 +7,7 @@ import pytest
 import trimesh
 from scipy.spatial import cKDTree
 
-from ctp_core.sampling import surface_samples
+from ctp_core.geometry.sampling import surface_samples
 
 
 def _star(points: int = 5) -> trimesh.Trimesh:

@@ -22,13 +22,16 @@ import trimesh
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from ctp_core import canonical, io, proposals, sampling
+from ctp_core import io
 from ctp_core.align import SIZE_RATIO_RANGE, align, scale_ratio_warning
 from ctp_core.config import AlignConfig
 from ctp_core.export import report
-from ctp_core.guide_loaders import get_guide
-from ctp_core.pose import quaternion_to_matrix
-from ctp_core.scene import prepare_pair
+from ctp_core.geometry import sampling
+from ctp_core.geometry.pose import quaternion_to_matrix
+from ctp_core.guide.loaders import get_guide
+from ctp_core.orientation import canonical
+from ctp_core.pairs import prepare_pair
+from ctp_core.search import proposals
 
 REPO = Path(__file__).resolve().parents[1]
 PROPERTY = settings(max_examples=8, deadline=None, derandomize=True, database=None,

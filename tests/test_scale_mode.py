@@ -1,4 +1,4 @@
-"""Scale mode finds the scale (issue 40, ``ctp_core.scaling``): every start's scale from the priors' size ratio or
+"""Scale mode finds the scale (``ctp_core.search.scaling``): every start's scale from the priors' size ratio or
 the geometry, never from the incoming pose or the files' sizes; the search's ladder; the objective's scale term;
 the report's ``extra.scale``.
 
@@ -18,12 +18,12 @@ import pytest
 import torch
 import trimesh
 
-from ctp_core import ordering, ranking, scaling
 from ctp_core.align import align, prepare, propose
 from ctp_core.config import AlignConfig
 from ctp_core.export import report
+from ctp_core.pairs import prepare_pair
 from ctp_core.priors import ScenePrior
-from ctp_core.scene import prepare_pair
+from ctp_core.search import ordering, ranking, scaling
 
 # |ln(found / true)| allowed: ln 1.5, about the rules provider's size-ratio error at its 68th percentile
 # (scaling.PRIOR_SIGMA): where the priors set the scale, no better can be asked of them
@@ -140,7 +140,7 @@ def test_the_incoming_scale_is_never_used():
 def test_an_assembly_step_finds_its_scale():
     """A scale-mode step of ``assemble``: the priors read the object it relates to (the table, not the scene) and
     the stage's report says where its scale came from."""
-    from ctp_core.assemble import Step, assemble
+    from ctp_core.assembly.assemble import Step, assemble
     from ctp_core.export import assembly_report
 
     table, cup, *_ = _pair("cup on a table")

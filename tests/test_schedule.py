@@ -1,5 +1,4 @@
-from ctp_core import schedule
-from ctp_core.config import AlignConfig
+from ctp_core.config import AlignConfig, schedule
 
 
 def test_weights_grow_log_spaced_and_steps_add_up():

@@ -8,12 +8,15 @@ import pytest
 import torch
 import trimesh
 
-from ctp_core import export, goals, metrics, objective, ordering, pose, proposals, ranking, sampling, scene, schedule
+from ctp_core import export, metrics, objective, pairs
 from ctp_core.align import align, prepare, propose, refine
-from ctp_core.config import AlignConfig
+from ctp_core.config import AlignConfig, schedule
 from ctp_core.errors import Canceled
-from ctp_core.guide_loaders import get_guide
-from ctp_core.priors.relations import RELATIONS, RelationReading
+from ctp_core.geometry import pose, sampling
+from ctp_core.guide import goals
+from ctp_core.guide.loaders import get_guide
+from ctp_core.relations.vocabulary import RELATIONS, RelationReading
+from ctp_core.search import ordering, proposals, ranking
 
 CONFIG = AlignConfig.from_preset("test", model="random:tiny", search={"candidates": 40}, loss={"samples": 1500})
 
@@ -29,7 +32,7 @@ def _cup() -> trimesh.Trimesh:
 
 
 @pytest.fixture(scope="module")
-def pairs():
+def meshes():
     table = trimesh.creation.box(extents=(2.0, 0.2, 1.2))
     block = trimesh.creation.box(extents=(0.3, 0.2, 0.4))
     block.apply_translation((4.0, 2.0, -3.0))
@@ -39,16 +42,16 @@ def pairs():
 
 
 def _proposals(target, source, config=CONFIG):
-    pair = scene.prepare_pair(target, source, samples=config.loss.samples, seed=0)
+    pair = pairs.prepare_pair(target, source, samples=config.loss.samples, seed=0)
     props = proposals.propose(pair, config, proposals.region_weights(None), 0.0, torch.Generator().manual_seed(0))
     return pair, props
 
 
 @pytest.mark.parametrize("name", ["box on table", "ball and cup"])
-def test_proposals_touch_and_do_not_penetrate(pairs, name):
+def test_proposals_touch_and_do_not_penetrate(meshes, name):
     """Exact signed distances (both targets are closed): no source sample deeper than 1 % of the target's
     size, and nearly all proposals but the lateral gaps and those on the floor within 1 % of touching."""
-    target, source = pairs[name]
+    target, source = meshes[name]
     assert target.is_volume
     pair, props = _proposals(target, source)
     points = trimesh.sample.sample_surface(source, 300, seed=0)[0]
@@ -79,9 +82,9 @@ def test_a_relation_weight_never_zeroes_a_region(relation, figure):
     assert all(counts[r] >= min(plain[r], max(1, int(CONFIG.search.min_share * plain[r]))) for r in available)
 
 
-def test_the_prompt_relation_shifts_proposals_without_removing_any(pairs):
-    target, source = pairs["ball and cup"]
-    pair = scene.prepare_pair(target, source, samples=CONFIG.loss.samples, seed=0)
+def test_the_prompt_relation_shifts_proposals_without_removing_any(meshes):
+    target, source = meshes["ball and cup"]
+    pair = pairs.prepare_pair(target, source, samples=CONFIG.loss.samples, seed=0)
     gen = lambda: torch.Generator().manual_seed(0)  # noqa: E731
     plain = proposals.propose(pair, CONFIG, proposals.region_weights(None), 0.0, gen())
     inside = proposals.propose(pair, CONFIG, proposals.region_weights(RelationReading("in")), 0.0, gen())
@@ -116,8 +119,8 @@ def test_drops_reach_a_summit_that_area_sampling_misses():
     assert near_tip.any()
 
 
-def test_floor_proposals_stand_on_the_targets_floor_beside_or_under_it(pairs):
-    target, source = pairs["box on table"]
+def test_floor_proposals_stand_on_the_targets_floor_beside_or_under_it(meshes):
+    target, source = meshes["box on table"]
     pair, props = _proposals(target, source)
     floor = float(pair.target_vertices[:, 1].min())
     tol = 0.01 * 2 * pair.target_radius
@@ -126,9 +129,9 @@ def test_floor_proposals_stand_on_the_targets_floor_beside_or_under_it(pairs):
     assert heights and all(abs(h - floor) < tol for h in heights)  # none pushed onto the table: free as put
 
 
-def test_the_callers_start_is_a_candidate_only_near_the_target(pairs):
-    target, source = pairs["box on table"]
-    pair = scene.prepare_pair(target, source, samples=CONFIG.loss.samples, seed=0)
+def test_the_callers_start_is_a_candidate_only_near_the_target(meshes):
+    target, source = meshes["box on table"]
+    pair = pairs.prepare_pair(target, source, samples=CONFIG.loss.samples, seed=0)
     weights = proposals.region_weights(None)
     q = torch.tensor([[1.0, 0.0, 0.0, 0.0]])
     near = pose.Poses(torch.tensor([[0.0, 0.4, 0.0]]), q, torch.zeros(1))
@@ -139,8 +142,8 @@ def test_the_callers_start_is_a_candidate_only_near_the_target(pairs):
     assert len(with_near.poses) == len(with_far.poses) + 1
 
 
-def test_the_scorer_scores_n_candidates_then_m_restarts(pairs):
-    target, source = pairs["box on table"]
+def test_the_scorer_scores_n_candidates_then_m_restarts(meshes):
+    target, source = meshes["box on table"]
     pair, props = _proposals(target, source)
     guide = get_guide("random:tiny")
     text = goals.TextGoal("a box on the table")
@@ -157,9 +160,9 @@ def test_the_scorer_scores_n_candidates_then_m_restarts(pairs):
 
 
 @pytest.mark.parametrize("zoom", [0.0, 0.5])
-def test_search_counts_every_encoder_image_including_the_oracles(pairs, zoom):
+def test_search_counts_every_encoder_image_including_the_oracles(meshes, zoom):
     config = CONFIG.model_copy(update={"search": CONFIG.search.model_copy(update={"fine_zoom": zoom})})
-    target, source = pairs["box on table"]
+    target, source = meshes["box on table"]
     pair, props = _proposals(target, source, config)
     reference = np.eye(4)
     reference[:3, 3] = -source.bounds.mean(0) + (0, 0.2, 0)
@@ -195,8 +198,8 @@ def _small_ball_on_table():
     return table, ball, reference
 
 
-def test_tiles_only_where_the_source_is_small_and_each_frames_its_sources(pairs):
-    pair, props = _proposals(*pairs["box on table"])
+def test_tiles_only_where_the_source_is_small_and_each_frames_its_sources(meshes):
+    pair, props = _proposals(*meshes["box on table"])
     assert ranking.tiles_of(pair, CONFIG, props.poses) is None  # the block is a fifth of the table: no tiles
     table, ball, _ = _small_ball_on_table()
     pair, props = _proposals(table, ball)
@@ -212,7 +215,7 @@ def test_tile_scores_rank_the_change_a_source_makes_in_its_tiles_views():
     from ctp_core.bench.guides import PixelGuide
 
     table, ball, reference = _small_ball_on_table()
-    pair = scene.prepare_pair(table, ball, samples=CONFIG.loss.samples, seed=0)
+    pair = pairs.prepare_pair(table, ball, samples=CONFIG.loss.samples, seed=0)
     guide, oracle = PixelGuide(size=32), goals.ReferenceGoal(reference)
     oracle.prepare(pair, guide)
     scorer = objective.Scorer(pair, CONFIG, 0.2, guide=guide, goal=oracle)
@@ -259,8 +262,8 @@ def test_the_tile_stage_counts_its_images_and_adds_its_restarts(monkeypatch):
     assert [e.step for e in events] == sorted(e.step for e in events)
 
 
-def test_the_sweep_tries_every_orientation_at_the_best_site(pairs):
-    target, source = pairs["box on table"]
+def test_the_sweep_tries_every_orientation_at_the_best_site(meshes):
+    target, source = meshes["box on table"]
     pair, props = _proposals(target, source)
     objectives = ordering.Key.plain(torch.arange(len(props.poses), dtype=torch.float32))  # the first is the best
     swept = ranking.sweep(props, pair, objectives, 1, 0.1)
@@ -293,11 +296,11 @@ def test_the_fine_shortlist_keeps_distinct_places_before_turns():
     assert ranking.diverse_top(poses, objectives, 6, 0.1, 30.0) == [0, 1, 2, 3, 4, 5]  # without: one place
 
 
-def test_the_answer_is_the_best_restart_that_stays_near_the_target(pairs):
+def test_the_answer_is_the_best_restart_that_stays_near_the_target(meshes):
     """A restart whose source drifted out of reach (a guide can prefer an absent source) is not chosen over one
     near the target, whatever their objectives; when none is near, the lowest objective still wins."""
-    target, source = pairs["box on table"]
-    pair = scene.prepare_pair(target, source, samples=CONFIG.loss.samples, seed=0)
+    target, source = meshes["box on table"]
+    pair = pairs.prepare_pair(target, source, samples=CONFIG.loss.samples, seed=0)
     q = torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(2, 1)
     poses = pose.Poses(torch.tensor([[0.0, 30.0, 0.0], [0.0, 0.3, 0.0]]), q, torch.zeros(2))
     clear = objective.clearance(pair, pair.index, poses)
@@ -333,20 +336,20 @@ def test_with_a_guide_the_answer_leaves_out_soft_icp_among_restarts_that_touch()
     assert ordering.select_answer(terms, apart, limit, weights, **guided, touches=True) == 2
 
 
-def test_the_touch_limit_grows_with_the_target_sample_spacing(pairs):
+def test_the_touch_limit_grows_with_the_target_sample_spacing(meshes):
     """A small source on a big target can touch it farther from the nearest target sample than TOUCH diagonals."""
-    target, source = pairs["box on table"]
+    target, source = meshes["box on table"]
     q, t = torch.tensor([[1.0, 0.0, 0.0, 0.0]]), torch.zeros(1, 3)
     limits = []
     for samples in (200, 5000):
-        pair = scene.prepare_pair(target, source, samples=samples, seed=0)
+        pair = pairs.prepare_pair(target, source, samples=samples, seed=0)
         limits.append(float(objective.touch_limit(pair, pose.Poses(t, q, torch.zeros(1)))[0]))
         spacing = pair.sample_spacing(samples) / (2 * pair.source_radius)
         assert limits[-1] == pytest.approx(objective.TOUCH + spacing, rel=1e-5)
     assert limits[0] > limits[1] > objective.TOUCH
 
 
-def test_cancel_during_search(pairs):
+def test_cancel_during_search(meshes):
     calls = {"n": 0}
 
     def cancel():
@@ -355,23 +358,23 @@ def test_cancel_during_search(pairs):
 
     events = []
     with pytest.raises(Canceled):
-        align(*pairs["box on table"], "a box on the table", CONFIG, on_event=events.append, should_cancel=cancel)
+        align(*meshes["box on table"], "a box on the table", CONFIG, on_event=events.append, should_cancel=cancel)
     assert events and all(e.stage == "search" for e in events)
     assert 0 < max(e.step for e in events) < events[0].steps
 
 
-def test_stages_are_callable_alone(pairs):
-    run = prepare(*pairs["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box")
+def test_stages_are_callable_alone(meshes):
+    run = prepare(*meshes["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box")
     props = propose(run)
     assert run.prior.relation == "on" and len(props.poses) >= CONFIG.search.candidates // 2  # wedged ones dropped
     off = CONFIG.model_copy(update={"search": CONFIG.search.model_copy(update={"enabled": False})})
-    assert propose(prepare(*pairs["box on table"], None, off)).region == ["random"] * off.optim.restarts
+    assert propose(prepare(*meshes["box on table"], None, off)).region == ["random"] * off.optim.restarts
 
 
-def test_refinement_progress_counts_the_restarts_it_was_given(pairs):
+def test_refinement_progress_counts_the_restarts_it_was_given(meshes):
     """The search may keep fewer starts than ``optim.restarts`` (or add the tile stage's): progress says how many
     are refined, not how many were configured."""
-    run = prepare(*pairs["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box")
+    run = prepare(*meshes["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box")
     starts = propose(run).poses.select(slice(0, 3))
     events = []
     outcome = refine(run, starts, on_event=events.append)
@@ -379,14 +382,14 @@ def test_refinement_progress_counts_the_restarts_it_was_given(pairs):
     assert events and {e.restarts for e in events} == {3}
 
 
-def test_align_end_to_end_with_the_default_preset(pairs):
+def test_align_end_to_end_with_the_default_preset(meshes):
     """The real default (search, then refinement), shrunk only in counts and image sizes for CI."""
     cfg = AlignConfig.from_preset(
         "default", model="random:tiny", camera={"image_size": 64}, loss={"samples": 600},
         search={"candidates": 32, "coarse_image_size": 64, "fine": 6, "fine_image_size": 64, "batch": 16},
     )
     events = []
-    result = align(*pairs["box on table"], "a box on the table", cfg, target_name="table", source_name="box",
+    result = align(*meshes["box on table"], "a box on the table", cfg, target_name="table", source_name="box",
                    on_event=events.append)
     search_events = [e for e in events if e.stage == "search"]
     assert search_events and search_events[-1].step == search_events[-1].steps
@@ -394,15 +397,15 @@ def test_align_end_to_end_with_the_default_preset(pairs):
     assert result.timings["search_candidates"] >= 32 and len(result.restarts) == cfg.optim.restarts
     placed = result.source.copy()
     placed.apply_transform(result.source_to_target)
-    table = pairs["box on table"][0]
+    table = meshes["box on table"][0]
     assert metrics.contact_distance(table, placed) <= 0.02
     assert metrics.intersection_over_union(table, placed).iou <= 0.02
     assert result.clip_images > cfg.search.candidates * cfg.search.coarse_views
 
 
-def test_random_init_mode_draws_uniform_orientations_without_resting_poses(pairs, monkeypatch):
-    target, source = pairs["box on table"]
-    pair = scene.prepare_pair(target, source, samples=CONFIG.loss.samples, seed=0)
+def test_random_init_mode_draws_uniform_orientations_without_resting_poses(meshes, monkeypatch):
+    target, source = meshes["box on table"]
+    pair = pairs.prepare_pair(target, source, samples=CONFIG.loss.samples, seed=0)
     config = CONFIG.model_copy(update={"optim": CONFIG.optim.model_copy(update={"init_rotation": "random"})})
     monkeypatch.setattr(proposals, "_stable_poses", lambda *a: pytest.fail("resting poses computed in random mode"))
     q = proposals.orientations(pair, config, torch.Generator().manual_seed(0))
@@ -444,13 +447,13 @@ def _text_scorer(pair, config, relation=None):
                             reading=None if relation is None else RelationReading(relation))
 
 
-def test_the_guide_sees_only_the_shortlist_and_the_turns_the_geometry_allows(pairs, monkeypatch):
+def test_the_guide_sees_only_the_shortlist_and_the_turns_the_geometry_allows(meshes, monkeypatch):
     """``search.shortlist`` of the proposals reach the encoder (screened by the geometry, ``Scorer.screen``),
     ``sweep_keep`` turns per site: the images are counted exactly (a text goal encodes no images)."""
     monkeypatch.setattr(ranking, "guide_noise", lambda *args: ordering.Gate(1.0, 0.0))  # a guide with signal
     config = CONFIG.model_copy(update={"search": CONFIG.search.model_copy(update={"shortlist": 10,
                                                                                   "sweep_keep": 5})})
-    pair, props = _proposals(*pairs["box on table"], config)
+    pair, props = _proposals(*meshes["box on table"], config)
     assert len(props.poses) > 10
     scorer = _text_scorer(pair, config, relation="on")
     weights = schedule.phases(config, allow_penetration=False)[0]
@@ -467,11 +470,11 @@ def test_the_guide_sees_only_the_shortlist_and_the_turns_the_geometry_allows(pai
     assert held >= 10 > int(ordering.holding(scorer.screen(shortlisted, weights)).sum()) >= 9
 
 
-def test_a_guide_without_signal_encodes_nothing_after_the_coarse_stage(pairs, monkeypatch):
+def test_a_guide_without_signal_encodes_nothing_after_the_coarse_stage(meshes, monkeypatch):
     """Gate override 0 (its spread within its noise): the geometry ranks, so the sweep, the fine stage, the
     refinement's gradient and the selection's views encode no image."""
     monkeypatch.setattr(ranking, "guide_noise", lambda *args: ordering.Gate(0.0, 1.0))
-    run = prepare(*pairs["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box")
+    run = prepare(*meshes["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box")
     props = propose(run)
     ranked = ranking.search(run.scorer, props, run.plan[0], k=2)
     coarse = len(props.poses) * CONFIG.search.coarse_views
@@ -480,11 +483,11 @@ def test_a_guide_without_signal_encodes_nothing_after_the_coarse_stage(pairs, mo
     assert outcome.clip_images == coarse and len(outcome.objectives) == 2
 
 
-def test_a_phase_starts_from_the_guide_terms_the_last_one_measured(pairs):
+def test_a_phase_starts_from_the_guide_terms_the_last_one_measured(meshes):
     """The evaluation views are fixed, so a phase's start (the last phase's best poses) is not encoded again:
     eval images = restarts x views x (1 + the evaluations in each phase), and the terms are the same."""
     config = CONFIG.model_copy(update={"search": CONFIG.search.model_copy(update={"enabled": False})})
-    run = prepare(*pairs["box on table"], "a box on the table", config, target_name="table", source_name="box")
+    run = prepare(*meshes["box on table"], "a box on the table", config, target_name="table", source_name="box")
     starts = propose(run).poses
     outcome = refine(run, starts)
     opt, views = config.optim, config.camera
@@ -517,7 +520,7 @@ def test_the_tile_stage_encodes_across_tiles_in_full_batches():
     assert sum(calls) == (2 * count + n) * views and len(keys) == n
 
 
-def test_the_fast_preset_places_in_contact_within_its_encoder_budget(pairs):
+def test_the_fast_preset_places_in_contact_within_its_encoder_budget(meshes):
     """``fast``: the relation and the geometry choose, the guide glances: no gradient images, and at most the
     shortlist (and the gate's probes) at the coarse views, the fine few, and each restart's start and end on the
     evaluation views. ``default`` takes no gradient either; ``descent`` and ``paper`` descend the guide."""
@@ -525,24 +528,24 @@ def test_the_fast_preset_places_in_contact_within_its_encoder_budget(pairs):
     assert all(AlignConfig.from_preset(name).needs_image_gradient for name in ("descent", "paper"))
     cfg = AlignConfig.from_preset("fast", model="random:tiny", loss={"samples": 600},
                                   search={"coarse_image_size": 64, "fine_image_size": 64})
-    result = align(*pairs["box on table"], "a box on the table", cfg, target_name="table", source_name="box")
+    result = align(*meshes["box on table"], "a box on the table", cfg, target_name="table", source_name="box")
     s, cam, opt = cfg.search, cfg.camera, cfg.optim
     budget = ((s.shortlist + ranking.GATE_PROBES) * s.coarse_views + s.fine * s.fine_views
               + opt.restarts * cam.eval_views * (1 + opt.phases))
     assert 0 < result.clip_images <= budget
     placed = result.source.copy()
     placed.apply_transform(result.source_to_target)
-    table = pairs["box on table"][0]
+    table = meshes["box on table"][0]
     assert metrics.contact_distance(table, placed) <= 0.02
     assert metrics.intersection_over_union(table, placed).iou <= 0.02
 
 
-def test_progress_reads_the_relation_the_guide_and_the_gap(pairs, monkeypatch):
+def test_progress_reads_the_relation_the_guide_and_the_gap(meshes, monkeypatch):
     """What the page and the CLI show instead of the objective: the search says where the relation holds among the
     candidates scored and one restart count (planned, then kept); the refinement, in how many restarts it holds,
     the best restart's guide match (a cosine) and its gap to the target."""
     monkeypatch.setattr(ranking, "guide_noise", lambda *args: ordering.Gate(1.0, 0.0))  # a guide with signal
-    run = prepare(*pairs["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box")
+    run = prepare(*meshes["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box")
     events = []
     ranked = ranking.search(run.scorer, propose(run), run.plan[0], k=2, on_event=events.append)
     assert {e.restarts for e in events[:-1]} == {2} and events[-1].restarts == len(ranked.poses)
@@ -557,12 +560,12 @@ def test_progress_reads_the_relation_the_guide_and_the_gap(pairs, monkeypatch):
 
 @pytest.mark.parametrize(("gate", "chose"), [(ordering.Gate(0.0, 1.0), "geometry"), (ordering.Gate(2.5, 1.0), "both"),
                                              (ordering.Gate(1.0, 0.0), "guide")])
-def test_the_report_and_the_progress_say_who_chose_among_the_poses_that_hold(pairs, monkeypatch, gate, chose):
+def test_the_report_and_the_progress_say_who_chose_among_the_poses_that_hold(meshes, monkeypatch, gate, chose):
     """The guide's say as the search measured it (``ordering.Gate``) reaches the search's progress message and
     the report: who ordered the poses where the relation holds, and why, in one line."""
     monkeypatch.setattr(ranking, "guide_noise", lambda *args: gate)
     events = []
-    result = align(*pairs["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box",
+    result = align(*meshes["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box",
                    on_event=events.append)
     said = export.report(result)["guide_say"]
     assert said["chose"] == chose and said["override"] == round(gate.override, 3)
@@ -571,7 +574,7 @@ def test_the_report_and_the_progress_say_who_chose_among_the_poses_that_hold(pai
     assert said["summary"] in [e.message for e in events if e.stage == "search"][-1]
 
 
-def test_a_run_without_a_guide_reports_no_say(pairs):
+def test_a_run_without_a_guide_reports_no_say(meshes):
     config = CONFIG.model_copy(update={"loss": CONFIG.loss.model_copy(update={"lambda_clip": 0.0})})
-    result = align(*pairs["box on table"], "a box on the table", config, target_name="table", source_name="box")
+    result = align(*meshes["box on table"], "a box on the table", config, target_name="table", source_name="box")
     assert export.report(result)["guide_say"] is None

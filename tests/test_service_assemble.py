@@ -17,7 +17,7 @@ import trimesh
 from PIL import Image
 
 from ctp_core.io import load_objects
-from ctp_core.scene import objects
+from ctp_core.pairs import objects
 from tests.conftest import REPO, service_env, wait_for
 from tests.test_assemble import GEOMETRY_ONLY, check_contacts, table_plate_cup
 
@@ -162,7 +162,7 @@ def test_a_plain_align_over_the_scene_limit_is_refused(api, files):
 
 
 def test_a_step_s_shape_is_refused_as_the_engine_words_it(api, files):
-    """The rule is the engine's (``ctp_core.plan.plan_step``, as ``ctp assemble --plan``); the API names
+    """The rule is the engine's (``ctp_core.assembly.plan.plan_step``, as ``ctp assemble --plan``); the API names
     the step ``plan.<i>`` and says where preset and model go."""
     answer = post_assembly(api, files, [PLAN[0], {**PLAN[1], "options": {"preset": "paper"}}])
     assert answer.status_code == 400, answer.text
@@ -188,7 +188,7 @@ def test_a_failing_stage_is_named(files):
     (an unknown prior provider is 422 at submit), so the record is built here as if that check had missed one."""
     from ctp_core.errors import CtpError
     from ctp_core.io import MeshLimits
-    from ctp_core.loader import MeshLoader
+    from ctp_core.io.loader import MeshLoader
     from service.jobs import AssemblyStep, JobRecord, new_id, now
     from service.schemas import build_config
     from worker.tasks import JobContext, assemble_job

@@ -13,7 +13,7 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from ctp_core.config import AlignConfig
-from ctp_core.options import OPTION_PATHS
+from ctp_core.config.options import OPTION_PATHS
 from tests.conftest import Api, park_worker, service_env, wait_for
 from tests.test_loader import wide_glb
 from tests.test_service import BALL, BOX, FAST, deep_chain_glb, glb

@@ -284,18 +284,18 @@ def test_queue_settings_and_the_old_queue_variable(monkeypatch):
 
 
 def test_the_worker_preloads_the_guide_its_jobs_get(monkeypatch):
-    """The preload asks ``guide_loaders.guide_for`` (one rule for which guide a config needs) for a default job's
+    """The preload asks ``loaders.guide_for`` (one rule for which guide a config needs) for a default job's
     config on this worker, so a job's own ``guide_for`` is a cache hit, not a second load."""
-    from ctp_core import guide_loaders
+    from ctp_core.guide import loaders
     from service.schemas import build_config
     from worker.main import _preload
     from worker.tasks import served
 
     loads, asked = [], []
-    real_guide_for = guide_loaders.guide_for
-    monkeypatch.setattr(guide_loaders, "_CACHE", {})
-    monkeypatch.setattr(guide_loaders, "load_guide", lambda s, **_: loads.append(s) or SimpleNamespace(runtime="torch"))
-    monkeypatch.setattr(guide_loaders, "guide_for", lambda config: asked.append(config) or real_guide_for(config))
+    real_guide_for = loaders.guide_for
+    monkeypatch.setattr(loaders, "_CACHE", {})
+    monkeypatch.setattr(loaders, "load_guide", lambda s, **_: loads.append(s) or SimpleNamespace(runtime="torch"))
+    monkeypatch.setattr(loaders, "guide_for", lambda config: asked.append(config) or real_guide_for(config))
     settings = Settings(model="random:tiny", models="", runtime="torch", device="cpu", threads=None)
     assert _preload(settings) == {"random:tiny": None}
     assert [(c.model, c.device, c.runtime, c.threads) for c in asked] == [("random:tiny", "cpu", "torch", None)]

@@ -178,7 +178,7 @@ def test_embedded_service_heals_a_killed_worker_and_redis(tmp_path):
                         "target": ("box.glb", BOX), "source": ("wide.glb", wide_glb(300_000))})
 
             threading.Thread(target=post_slow, daemon=True).start()
-            wait_for(lambda: _child(serve.pid, "ctp_core.loader") and _busy(_child(serve.pid, "ctp_core.loader")),
+            wait_for(lambda: _child(serve.pid, "ctp_core.io.loader") and _busy(_child(serve.pid, "ctp_core.io.loader")),
                      60, "the slow upload to be loading")
         stopping = time.monotonic()
         serve.send_signal(signal.SIGTERM)

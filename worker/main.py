@@ -2,7 +2,7 @@
 thread. It needs only the Redis URL and the storage settings: nothing on its disk is shared with the API.
 
 ``SimpleWorker`` runs jobs in this process instead of forking a child per job, so the vision-language
-model loaded at start-up (``guide_loaders.get_guide`` caches it per process) serves every job, and torch
+model loaded at start-up (``loaders.get_guide`` caches it per process) serves every job, and torch
 never has to survive a fork. The heartbeat thread keeps this worker visible to ``/readyz`` with its
 queues and the models it can run (checked once at start: the default loaded, the others' weights looked for;
 a "last seen" record keeps them counted for ``CTP_WORKER_GRACE_S`` after the worker dies or exits, so jobs
@@ -31,7 +31,7 @@ from rq import SimpleWorker
 from rq.serializers import JSONSerializer
 from rq.utils import now as utcnow
 
-from ctp_core.loader import MeshLoader
+from ctp_core.io.loader import MeshLoader
 from service import logs
 from service.jobs import Jobs, Progress
 from service.settings import Settings
@@ -190,22 +190,22 @@ def _preload(settings: Settings) -> dict[str, str | None]:
     models the service allows; returns ``{spec: None when this worker can run it, else why not}``, which
     the heartbeat publishes so that the API refuses jobs no worker can run (``Jobs.unavailable``). Under
     ``auto`` every worker runs the default jobs (with or without a guide), and what it loads is what auto picks
-    now (``guide_choice.choose``; each job chooses again as it is taken)."""
+    now (``choice.choose``; each job chooses again as it is taken)."""
     import torch
 
-    from ctp_core import guide_choice, weights
     from ctp_core.config import AUTO, AlignConfig
     from ctp_core.errors import ModelError
-    from ctp_core.guide_loaders import guide_for
+    from ctp_core.guide import checkpoints, choice
+    from ctp_core.guide.loaders import guide_for
 
     if settings.threads:
         torch.set_num_threads(settings.threads)
     started = time.perf_counter()
-    models = {spec: weights.missing(spec) for spec in settings.allowed_models}
+    models = {spec: checkpoints.missing(spec) for spec in settings.allowed_models}
     # auto runs every job (without a guide where the default model is missing): preload what it picks now
-    choice = guide_choice.choose() if settings.model == AUTO else None
+    choice = choice.choose() if settings.model == AUTO else None
     preload = choice.guide if choice else settings.model
-    if choice and preload == guide_choice.NONE:
+    if choice and preload == choice.NONE:
         log.warning("no guide: %s (%s)", choice.why, choice.get_model)
         return models
     # The guide of a job with default options on this worker (the same cache entry its jobs get). Built

@@ -20,12 +20,11 @@ import numpy as np
 import trimesh
 from rq.timeouts import JobTimeoutException
 
-from ctp_core import guide_choice
 from ctp_core.adjust import Adjusted, adjust, read_back
 from ctp_core.align import align
-from ctp_core.assemble import Step, assemble, scene_of
+from ctp_core.assembly.assemble import Step, assemble, scene_of
+from ctp_core.assembly.copies import place_copies, placed_copies, set_metrics
 from ctp_core.config import AUTO, AlignConfig
-from ctp_core.copies import place_copies, placed_copies, set_metrics
 from ctp_core.errors import Canceled, ConfigError, CtpError, JobTooLarge, forget, out_of_memory
 from ctp_core.export import (
     adjusted_copies_report,
@@ -40,12 +39,13 @@ from ctp_core.export import (
     scene_glb,
     strip_png,
 )
-from ctp_core.guide_choice import GuideChoice
-from ctp_core.guide_loaders import guide_for
+from ctp_core.guide import choice
+from ctp_core.guide.choice import GuideChoice
+from ctp_core.guide.loaders import guide_for
 from ctp_core.io import MeshLimits, load_image, load_objects
-from ctp_core.loader import MeshLoader
-from ctp_core.priors.relations import RelationReading
+from ctp_core.io.loader import MeshLoader
 from ctp_core.progress import ProgressEvent
+from ctp_core.relations.vocabulary import RelationReading
 from service.adjustments import AdjustmentRecord, Adjustments, AdjustOutcome
 from service.jobs import (
     ORIGINAL,
@@ -88,8 +88,8 @@ class JobContext:
 
     def guide(self, config: AlignConfig, stage: Stage, image: bool = False):
         """The job's guidance model (process-cached: the one the worker preloaded is not loaded again), None when
-        the run uses none (``guide_choice.resolve``)."""
-        config = guide_choice.resolve(config, image=image, choice=self.choice)[0]
+        the run uses none (``choice.resolve``)."""
+        config = choice.resolve(config, image=image, choice=self.choice)[0]
         if not config.uses_model:
             return None
         self.on_progress(Progress(stage=stage, kind="model", message=f"loading model {config.model}"), True)
@@ -99,10 +99,10 @@ class JobContext:
 def job_guide(record: JobRecord) -> tuple[GuideChoice | None, GuideChoice]:
     """Model auto's pick for a job, made once as a worker takes it (None: the job names its model), and the guide
     the job states (its record's): an assembly's is its first guided stage's."""
-    auto = guide_choice.choose() if record.config.model == AUTO else None
+    auto = choice.choose() if record.config.model == AUTO else None
     runs = [(s.config, s.has_image) for s in record.steps] or [(record.config, record.has_image)]
-    stated = [guide_choice.resolve(config, image=image, choice=auto)[1] for config, image in runs]
-    return auto, next((c for c in stated if c.guide != guide_choice.NONE), stated[0])
+    stated = [choice.resolve(config, image=image, choice=auto)[1] for config, image in runs]
+    return auto, next((c for c in stated if c.guide != choice.NONE), stated[0])
 
 
 def served(record: JobRecord, settings: Settings) -> JobRecord:
@@ -330,8 +330,9 @@ def align_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobContex
 
 
 def copies_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobContext) -> JobOutput:
-    """Run ``ctp_core.copies`` on a job of several copies: progress per copy (as an assembly's stages), the GLB with
-    one node per copy, the report of every copy and the set, the preview; no alternatives."""
+    """Run ``ctp_core.assembly.copies`` on a job of several copies: progress per copy (as an assembly's
+    stages), the GLB with one node per copy, the report of every copy and the set, the preview; no
+    alternatives."""
     config, count = record.config, record.count
     job.on_progress(Progress(stage=Stage(name="loading", count=count), kind="loading", message="loading meshes"), True)
     target = job.load(inputs["target"], record.target_file)
@@ -363,7 +364,7 @@ def alternatives_of(alternatives: list[dict[str, Any]]) -> list[Alternative]:
 
 
 def assemble_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobContext) -> JobOutput:
-    """Run ``ctp_core.assemble`` on an assembly job (``record`` as ``served`` returns it): the model loaded
+    """Run ``ctp_core.assembly.assemble`` on an assembly job (``record`` as ``served`` returns it): the model loaded
     once, progress per stage, the whole scene's GLB, report and preview out. A failure names its stage
     (message and field ``steps.<i>``)."""
     config = record.config

@@ -16,7 +16,8 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import trimesh
 
-from ctp_core import metrics, proximity, sampling, scene
+from ctp_core import metrics, pairs
+from ctp_core.geometry import proximity, sampling
 
 PUSH_STEPS = 20  # each push clears the deepest sample; a non-convex contact may need a few
 PUSH_MARGIN = 1e-3  # extra clearance per push, relative to the target's longest side
@@ -35,7 +36,7 @@ def shrinkwrap(target: trimesh.Trimesh, source: trimesh.Trimesh, starts: Sequenc
     "Inside" is the target's winding number above 1/2 (``metrics.winding_numbers``) at ``samples``
     source surface points, so open, multi-part targets work; the target is re-wound outward first.
     """
-    outward = scene.outward(target)
+    outward = pairs.outward(target)
     points = sampling.surface_samples(source, samples, seed)[0]
     centre = source.bounds.mean(axis=0)
     margin = PUSH_MARGIN * float(target.extents.max())

@@ -9,7 +9,7 @@
   rendered by the same camera. An upper-bound instrument, never a product number: with it a miss is the
   search's or the optimiser's, not the random encoder's weak signal.
 
-Renders here use ``scene.prepare_pair(canonicalise=False)``: the normalised frame of the *file-frame*
+Renders here use ``pairs.prepare_pair(canonicalise=False)``: the normalised frame of the *file-frame*
 target (AABB centred, longest side 2), so a view depends on the arrangement only.
 """
 
@@ -21,11 +21,12 @@ import numpy as np
 import torch
 import trimesh
 
-from ctp_core import goals, render, scene
+from ctp_core import pairs, render
 from ctp_core.bench.cases import Case
-from ctp_core.cameras import framing_cameras
 from ctp_core.errors import ConfigError
-from ctp_core.guidance import Guide
+from ctp_core.guide import goals
+from ctp_core.guide.guidance import Guide
+from ctp_core.render.cameras import framing_cameras
 
 GUIDES: tuple[str, ...] = ("text", "image", "oracle", "pixels")
 PER_VIEW = ("oracle", "pixels")  # guides that compare each view with the reference seen by the same camera
@@ -82,9 +83,9 @@ class PixelGuide:
 
 
 def _pair_and_pose(target: trimesh.Trimesh, source: trimesh.Trimesh,
-                   source_to_target: np.ndarray) -> tuple[scene.PreparedPair, torch.Tensor]:
+                   source_to_target: np.ndarray) -> tuple[pairs.PreparedPair, torch.Tensor]:
     """The pair in the file-frame normalised frame and its scene vertices (1, V, 3) at one pose."""
-    pair = scene.prepare_pair(target, source, samples=100, seed=0, canonicalise=False)
+    pair = pairs.prepare_pair(target, source, samples=100, seed=0, canonicalise=False)
     return pair, pair.scene_at(pair.local_to_normalised(source_to_target))
 
 
@@ -130,7 +131,7 @@ class SelectionScore:
 
     def __init__(self, inputs: GuideInputs, target: trimesh.Trimesh, source: trimesh.Trimesh, guide: Guide,
                  reference: np.ndarray | None, views: int = 8, image_size: int = 224):
-        self.pair = scene.prepare_pair(target, source, samples=100, seed=0, canonicalise=False)
+        self.pair = pairs.prepare_pair(target, source, samples=100, seed=0, canonicalise=False)
         self.guide, self.views, self.image_size = guide, views, image_size
         self.cameras = None
         if inputs.kind in PER_VIEW:
@@ -145,7 +146,7 @@ class SelectionScore:
 
     def __call__(self, source_to_target: np.ndarray) -> float:
         if self.cameras is None:
-            images = scene.render_pair(self.pair, self.pair.local_to_normalised(source_to_target),
+            images = pairs.render_pair(self.pair, self.pair.local_to_normalised(source_to_target),
                                        views=self.views, image_size=self.image_size)
             return float(self.guide.score(images, self.embedding).mean())
         with torch.no_grad():

@@ -28,13 +28,15 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from ctp_core import metrics, predicates, priors, sampling
+from ctp_core import metrics, priors
 from ctp_core.bench import baselines, protocol
 from ctp_core.bench.cases import Case
 from ctp_core.bench.guides import GUIDES, GuideInputs, PixelGuide, SelectionScore, guide_inputs
 from ctp_core.config import DEFAULT_MODEL, AlignConfig
 from ctp_core.errors import ConfigError
-from ctp_core.priors import counts
+from ctp_core.geometry import sampling
+from ctp_core.reading import counts
+from ctp_core.relations import predicates
 
 GUIDED = ("ctp", "b2")  # methods that see the guide
 OPTIMISED = ("ctp", "geometry")  # methods that run align() and take a preset and ablations
@@ -71,7 +73,7 @@ class BenchOptions:
     device: str = "cpu"
     threads: int | None = None
     runtime: str | None = None  # forward-only runtime of every guide (AlignConfig.runtime); None: the preset's
-    count: int = 1  # copies of the source per run (``ctp_core.copies``): ctp and geometry, the text guide
+    count: int = 1  # copies of the source per run (``ctp_core.assembly.copies``): ctp and geometry, the text guide
     arrangement: str = "auto"  # how the copies stand together (``priors.counts.CHOICES``)
 
     def __post_init__(self) -> None:
@@ -111,11 +113,11 @@ class BenchOptions:
 
     def load_encoder(self):
         """The guided methods' encoder: a cached ``guidance.Guide``, or the pixels guide's stand-in."""
-        from ctp_core import guide_loaders
+        from ctp_core.guide import loaders
 
         if self.guide == "pixels":
             return PixelGuide(device=self.device)
-        return guide_loaders.guide_for(self.config("ctp"))  # the one ctp's runs use (same cache entry)
+        return loaders.guide_for(self.config("ctp"))  # the one ctp's runs use (same cache entry)
 
 
 def identity(case: Case, init: int, method: str, options: BenchOptions) -> dict:
@@ -159,7 +161,7 @@ def _judge(data: _CaseData) -> tuple:
     the label's vocabulary ("on_top", "attached", "other") is the benchmark's, it does not say whether the source
     is the figure, and the priors' relation is what a run would use."""
     if data.judge is None:
-        from ctp_core import orientation, scene
+        from ctp_core import orientation, pairs
 
         case, target, source = data.case, data.target, data.source
         prior = priors.resolve_priors(priors.get_provider("rules"), case.target_name, case.source_name, case.prompt,
@@ -167,7 +169,7 @@ def _judge(data: _CaseData) -> tuple:
                                       source_extent=float(source.extents.max()))
         frame = orientation.orient(target, orientation.Axes("+y"))  # the front: the file's convention (glTF's +Z)
         frame.reason = "the case's frame (the reference's): the file's +Y up"
-        pair = scene.prepare_pair(target, source, samples=RELATION_SAMPLES, seed=0, target_up=frame)
+        pair = pairs.prepare_pair(target, source, samples=RELATION_SAMPLES, seed=0, target_up=frame)
         data.judge = (pair, prior.reading, prior.penetration)
     return data.judge
 
@@ -188,13 +190,13 @@ def relation_metrics(data: _CaseData, pose: np.ndarray, iou: float) -> dict:
 
 def _metric_encoders(specs: Iterable[str], prompt: str, config: AlignConfig) -> tuple[list, dict[str, str]]:
     """The metrics encoders, on the run's device and forward-only runtime (they only score)."""
-    from ctp_core import guide_loaders
     from ctp_core.errors import ModelError
+    from ctp_core.guide import loaders
 
     loaded, notes = [], {}
     for spec in specs:
         try:
-            guide = guide_loaders.get_guide(spec, device=config.device, runtime=config.runtime, threads=config.threads)
+            guide = loaders.get_guide(spec, device=config.device, runtime=config.runtime, threads=config.threads)
         except ModelError as exc:
             notes[spec] = f"semantic score skipped: {exc.message}"
             continue
@@ -205,7 +207,7 @@ def _metric_encoders(specs: Iterable[str], prompt: str, config: AlignConfig) -> 
 def evaluate(data: _CaseData, pose: np.ndarray, alternatives: list[np.ndarray] = ()) -> dict:
     """Every metric of one final pose (source file -> target file); ``alternatives``: the run's other distinct
     placements (``AlignResult.alternatives``, the answer first) for ``placement_at_k`` (any of them places)."""
-    from ctp_core import scene
+    from ctp_core import pairs
 
     placed = data.source.copy()
     placed.apply_transform(pose)
@@ -219,7 +221,7 @@ def evaluate(data: _CaseData, pose: np.ndarray, alternatives: list[np.ndarray] =
         out["alternatives"] = max(len(alternatives), 1)
     semantic = {}
     if data.semantic:
-        images = scene.render_arrangement(data.target, data.source, pose, views=EVAL_VIEWS, image_size=224)
+        images = pairs.render_arrangement(data.target, data.source, pose, views=EVAL_VIEWS, image_size=224)
         semantic = {spec: metrics.semantic_score(images, text, guide) for spec, guide, text in data.semantic}
     out["semantic"] = semantic
     return out
@@ -259,7 +261,7 @@ def _run_copies(config: AlignConfig, inputs: GuideInputs | None, data: _CaseData
     """``count`` copies (``copies.place_copies``): the first is judged against the case's reference as one
     placement (``evaluate``); every copy's verdict and the set's measures (all hold, none intersect, spacing) go
     in the row's ``copy_set`` (its ``copies`` names the count and the arrangement asked for)."""
-    from ctp_core.copies import place_copies
+    from ctp_core.assembly.copies import place_copies
 
     placed = place_copies(data.target, data.source, data.case.prompt, config, count=options.count,
                           arrangement=options.arrangement, target_name=data.case.target_name,

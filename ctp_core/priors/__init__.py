@@ -11,10 +11,10 @@ from __future__ import annotations
 import math
 
 from ctp_core.errors import ConfigError
-from ctp_core.priors import lexicon
 from ctp_core.priors.openai import OpenAIProvider, PriorSettings
 from ctp_core.priors.prior import PriorProvider, ScenePrior, clamp_size, to_report
 from ctp_core.priors.rules import RulesProvider
+from ctp_core.reading import lexicon
 
 __all__ = ["PROVIDERS", "OpenAIProvider", "PriorProvider", "PriorSettings", "RulesProvider", "ScenePrior",
            "get_provider", "mesh_size_ratio", "resolve_priors", "to_report"]

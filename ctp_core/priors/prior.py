@@ -11,7 +11,7 @@ import math
 from dataclasses import asdict, dataclass
 from typing import Protocol
 
-from ctp_core.priors.relations import RelationReading
+from ctp_core.relations.vocabulary import RelationReading
 
 SIZE_RANGE = (0.1, 10.0)  # the paper clamps guessed size ratios here: beyond it a guess is noise
 

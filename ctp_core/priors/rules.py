@@ -10,9 +10,10 @@ from __future__ import annotations
 import re
 from dataclasses import replace
 
-from ctp_core.priors import context, lexicon, relations
-from ctp_core.priors.context import PERSON_M  # an unknown name that holds, wears or rides is someone this tall
 from ctp_core.priors.prior import ScenePrior, clamp_contact, clamp_size
+from ctp_core.reading import context, lexicon
+from ctp_core.reading.context import PERSON_M  # an unknown name that holds, wears or rides is someone this tall
+from ctp_core.relations import vocabulary
 
 STICKS_OUT = 2.5  # ... and a long thing or a plant that sticks out of it is at most this size of it
 # An unknown figure on or in a known ground is an object someone handles: its size is the relation's typical share
@@ -86,21 +87,21 @@ class RulesProvider:
     def estimate(self, target_name: str, source_name: str, prompt: str) -> ScenePrior:
         target, source = lexicon.lookup(target_name), lexicon.lookup(source_name)
         target_at, source_at = _mentions(prompt, target_name, target), _mentions(prompt, source_name, source)
-        def aside(c: relations.CueMatch) -> bool:  # "... with only its eyes above the water": about a part
+        def aside(c: vocabulary.CueMatch) -> bool:  # "... with only its eyes above the water": about a part
             return (c.cue.relation not in {"in", "penetrate"} and context.substance_object(prompt, c.end)
                     and not context.names_next(prompt, c.end, target_at + source_at)
                     or c.text in {"in", "inside"}  # "a candle in a bucket on the table": on the table
                     and context.other_container(prompt, c.end, target_at + source_at)
-                    or relations.RELATIONS[c.cue.relation].kind != "contact"  # "... to the left of the plate"
+                    or vocabulary.RELATIONS[c.cue.relation].kind != "contact"  # "... to the left of the plate"
                     and context.about_another(prompt, c.end, target_at + source_at))
 
         # a position first ("in front of the sofa, facing it": front), an orientation alone ("facing the sofa")
-        cue = relations.find_cue(prompt, aside, relations.PLACING) or relations.find_cue(prompt, aside)
+        cue = vocabulary.find_cue(prompt, aside, vocabulary.PLACING) or vocabulary.find_cue(prompt, aside)
         # "against the back of the sofa", "behind the sofa, against it": a lean, on that side
         cue, leant = _leaning(prompt, cue, aside, target_at + source_at)
         figure = None
         if cue is not None:
-            figure = relations.source_is_figure(cue, source_at, target_at)
+            figure = vocabulary.source_is_figure(cue, source_at, target_at)
         notes: list[str] = []
         if figure is None:
             figure = True  # the source is what gets placed: by default it is the figure
@@ -112,32 +113,32 @@ class RulesProvider:
                             target_name))
         relation, why = _relation(cue, target, source, source if figure else target)
         if leant is not None and relation.name != "lean":  # "behind the sofa, against it"
-            relation, why = relations.RELATIONS["lean"], f"'{cue.text}', leaning -> lean"
+            relation, why = vocabulary.RELATIONS["lean"], f"'{cue.text}', leaning -> lean"
         drinks = cue is not None and relation.name == "in" and _DRINKS.match(cue.text) is not None
         drinker = source if figure else target
         if drinks and not (drinker is not None and drinker.entry.domain == "animals"):
             figure, drinks = not figure, False  # "a man drinking from a cup": he holds it
-            relation, why = relations.RELATIONS["hold"], f"'{cue.text}' said of someone: holding it"
+            relation, why = vocabulary.RELATIONS["hold"], f"'{cue.text}' said of someone: holding it"
         holder, held = (target, source) if figure else (source, target)
         if (relation.name == "hold" and holder is not None and holder.has("pointed") and not holder.has("agent")
                 and (holder.size_m <= FASTENER_MAX_M or holder.has("staked")) and _pierceable(held)):
             # "pins holding a pattern on the fabric", "a skewer holding a burger together"
             figure = not figure
-            relation = relations.RELATIONS["penetrate"]
+            relation = vocabulary.RELATIONS["penetrate"]
             why = f"'{cue.text}' said of a pointed {holder.phrase}: a fastener in the {held.phrase}"
         bites = (relation.name == "hold" and cue is not None and _BITES.match(cue.text) is not None
                  and holder is not None and holder.has("bites") and (held is None or held.has("agent")
                                                                      or _pierceable(held)))
         if bites:  # "a mosquito biting a man's arm": its proboscis in the skin
             figure = not figure
-            relation = relations.RELATIONS["penetrate"]
+            relation = vocabulary.RELATIONS["penetrate"]
             why = f"'{cue.text}' said of a {holder.phrase}: its bite or sting pierces the skin"
         if not figure:
             notes.append("the source is the ground of the relation")
         ground_name, ground, ground_at = (target_name, target, target_at) if figure else (
             source_name, source, source_at)
         figure_name = source_name if figure else target_name
-        text = relations.clean(prompt)
+        text = vocabulary.clean(prompt)
         if (relation.name == "in" and ground is not None and ground.entry.domain == "food and drink"
                 and not ground.has("container") and _TUCKED.search(text)):
             ground = replace(ground, tags=ground.tags | {"container"})  # "a fortune tucked inside a fortune cookie"
@@ -154,14 +155,14 @@ class RulesProvider:
             filled = context.contents_in_name(ground_name, figure_name)  # "stuck in the compost bin", "a snowbank"
         if (filled is not None and relation.name in _SUPPORT | {"under"} and ground is not None
                 and (_ON_BOTTOM.search(text) or relation.name == "under" and _WATER_SAID.search(text))):
-            relation, why = relations.RELATIONS["in"], why + f"; under the {filled} it holds"
+            relation, why = vocabulary.RELATIONS["in"], why + f"; under the {filled} it holds"
         if drinks and filled is None and ground is not None and not ground.has("agent"):
             filled = context.contents_in_name(ground_name, figure_name) or "water"  # a trough, a bowl: its water
         afloat = cue is not None and _AFLOAT.match(cue.text) is not None
         if filled is None and ground is not None and ground.has("container") and _WATER_SAID.search(text):
             filled = "water"  # "a toy submarine underwater in the bathtub"
             if relation.name == "under":  # "a submarine beneath the waves of the sea"
-                relation, why = relations.RELATIONS["in"], why + "; under the water it holds"
+                relation, why = vocabulary.RELATIONS["in"], why + "; under the water it holds"
         if (filled is None and ground is not None and ground.has("container") and relation.name == "penetrate"
                 and _BURIED.search(text)):
             filled = "its contents"  # "a plastic dinosaur half buried in the sandpit": in its sand
@@ -185,12 +186,12 @@ class RulesProvider:
             filled = "water"  # "a bath thermometer floating in the baby bath": nothing floats in an empty one
             why += "; afloat in a container: in the water it holds"
         if afloat and filled is None:
-            relation, why = relations.RELATIONS["beside"], f"'{cue.text}' in air or open water: no contact"
+            relation, why = vocabulary.RELATIONS["beside"], f"'{cue.text}' in air or open water: no contact"
         floating = afloat and filled is not None
         fig_match = source if figure else target
         if (relation.name == "above" and cue is not None and cue.text == "over" and fig_match is not None
                 and (fig_match.has("soft") or fig_match.has("wrap"))):
-            relation, why = relations.RELATIONS["lie"], "'over' said of a cloth or a cover: draped over"
+            relation, why = vocabulary.RELATIONS["lie"], "'over' said of a cloth or a cover: draped over"
         opening = context.opening_after(prompt, cue.end) if cue is not None else None
         if opening is not None and ground is not None and not ground.has("container"):
             ground = replace(ground, tags=ground.tags | {"container"})  # "in the slot of a toaster"
@@ -198,11 +199,11 @@ class RulesProvider:
             notes.append(f"into the {opening} of the {ground_name}")
         notes.insert(0, why)
         if relation.name == "under" and not figure:  # "a table under a cup": the cup is on the table
-            relation, figure = relations.RELATIONS["on"], True
+            relation, figure = vocabulary.RELATIONS["on"], True
             notes.append("read as the target resting on the source")
         upright = cue is not None and _UPRIGHT.search(text[:cue.start]) is not None
         size, size_why = _size_ratio(target_name, source_name, target, source,  # a drinker is at the rim, not in
-                                     relations.RELATIONS["on"] if drinks else relation, figure, upright)
+                                     vocabulary.RELATIONS["on"] if drinks else relation, figure, upright)
         notes.insert(0, size_why)
         penetration, pen_why = _penetration(relation, figure, target, source, filled, floating,
                                             cue.text if cue is not None else "", text, ground_name)
@@ -217,12 +218,12 @@ class RulesProvider:
                                                                     size, in_place, encased)
         if drinks and penetration or bites:
             contact = DRINKING_CONTACT  # its muzzle, its proboscis or sting
-        name = relation.name if leant is None else relations.JOIN.join((relation.name, leant))
+        name = relation.name if leant is None else vocabulary.JOIN.join((relation.name, leant))
         turn = _orientation(prompt, cue, relation, aside, ground_at)
         if turn is not None:  # "in front of the sofa, facing it": both judged
-            name += relations.JOIN + turn.cue.relation
+            name += vocabulary.JOIN + turn.cue.relation
             notes.insert(1, f"'{turn.text}' -> {turn.cue.relation} too")
-        side = relations.side_of(name)
+        side = vocabulary.side_of(name)
         if side is not None:
             notes.insert(1, f"on the {ground_name}'s {side} side (its own front, else the viewer's)")
         return ScenePrior(size_ratio=clamp_size(size), penetration=penetration, contact_ratio=clamp_contact(contact),
@@ -251,13 +252,13 @@ def _mentions(prompt: str, name: str, match: lexicon.Match | None) -> list[int]:
     return [offsets[i] for i, t in enumerate(tokens) if forms & set(lexicon.singulars(t))]
 
 
-def _orientation(prompt: str, cue: relations.CueMatch | None, relation: relations.Relation, aside,
-                 ground_at: list[int]) -> relations.CueMatch | None:
+def _orientation(prompt: str, cue: vocabulary.CueMatch | None, relation: vocabulary.Relation, aside,
+                 ground_at: list[int]) -> vocabulary.CueMatch | None:
     """An orientation said after a position about the same ground ("in front of the desk, facing it", "next to the
     sofa, facing the sofa"); None where there is none, or it is about something else ("facing the window")."""
     if cue is None or relation.kind == "orientation":
         return None
-    turn = relations.find_cue(prompt, aside, {"orientation"})
+    turn = vocabulary.find_cue(prompt, aside, {"orientation"})
     if turn is None or turn.start < cue.end and cue.start < turn.end:
         return None
     return turn if not context.about_another(prompt, turn.end, ground_at) else None
@@ -269,22 +270,22 @@ _LEANT_ON = re.compile(r"\s+(?:the |its |his |her |their )?(front|back|rear|left
 _SIDE_WORD = {"front": "front", "back": "behind", "rear": "behind", "left": "left", "right": "right"}
 
 
-def _leaning(prompt: str, cue: relations.CueMatch | None, aside, mention_at: list[int]
-             ) -> tuple[relations.CueMatch | None, str | None]:
+def _leaning(prompt: str, cue: vocabulary.CueMatch | None, aside, mention_at: list[int]
+             ) -> tuple[vocabulary.CueMatch | None, str | None]:
     """The cue to read and the side of the ground a lean touches, where the prompt names one: after the lean
     ("against the back of the sofa", "leaning on the front of the car": ``front``, ``behind``, ``left``, ``right``;
     "the side of" names none), or as a side with a lean about the same ground ("behind the sofa, against it",
     "leaning against the left side of the amp"; the earlier of the two cues says who the figure is). ``(cue,
     None)`` otherwise."""
     if cue is None or cue.cue.relation == "lean":
-        said = cue and _LEANT_ON.match(relations.clean(prompt), cue.end)
+        said = cue and _LEANT_ON.match(vocabulary.clean(prompt), cue.end)
         return cue, _SIDE_WORD[said.group(1)] if said else None
     if cue.relation.kind != "side":
         return cue, None
-    lean = relations.find_cue(prompt, aside, {"contact"})
+    lean = vocabulary.find_cue(prompt, aside, {"contact"})
     if lean is None or lean.cue.relation != "lean" or lean.start < cue.end and cue.start < lean.end:
         return cue, None
-    said_of_side = lean.end <= cue.start and _BEFORE_SIDE.fullmatch(relations.clean(prompt)[lean.end:cue.start])
+    said_of_side = lean.end <= cue.start and _BEFORE_SIDE.fullmatch(vocabulary.clean(prompt)[lean.end:cue.start])
     if not said_of_side and context.about_another(prompt, lean.end, mention_at):  # "... leaning on the wall"
         return cue, None
     return min(cue, lean, key=lambda c: c.start), cue.cue.relation
@@ -293,25 +294,25 @@ def _leaning(prompt: str, cue: relations.CueMatch | None, aside, mention_at: lis
 _BEFORE_SIDE = re.compile(r"\s*(?:the |its |his |her |their )?")  # "against the [left side of]": one phrase
 
 
-def _relation(cue, target, source, figure) -> tuple[relations.Relation, str]:
+def _relation(cue, target, source, figure) -> tuple[vocabulary.Relation, str]:
     """The cue's relation; only agents ride or sit ("a ball riding down a slide" rests on it), and
     agents cut with tools, not themselves ("a chef cutting a cake" handles it; "a worm poking out of an apple"
     is in it)."""
     if cue is not None:
-        rel = relations.RELATIONS[cue.cue.relation]
+        rel = vocabulary.RELATIONS[cue.cue.relation]
         if rel.name == "sit" and figure is not None and not figure.has("agent"):
-            return relations.RELATIONS["on"], f"'{cue.text}' said of an object: resting on"
+            return vocabulary.RELATIONS["on"], f"'{cue.text}' said of an object: resting on"
         if (rel.name == "penetrate" and figure is not None and figure.has("agent")
                 and _AGENT_CUTS.match(cue.text)):  # "a chef cutting a cake"
-            return relations.RELATIONS["hold"], f"'{cue.text}' said of someone: handling it, with a tool"
+            return vocabulary.RELATIONS["hold"], f"'{cue.text}' said of someone: handling it, with a tool"
         if rel.name == "wear" and figure is not None and figure.has("agent"):  # "a bird on a giraffe's head"
-            return relations.RELATIONS["stand"], f"'{cue.text}' said of a creature: standing on it"
+            return vocabulary.RELATIONS["stand"], f"'{cue.text}' said of a creature: standing on it"
         return rel, f"'{cue.text}' -> {rel.name}"
     if source is not None and lexicon.bare_part(source.phrase) is not None:
-        return relations.RELATIONS["on"], "no relation cue; a detachable part: assumed seated on its owner"
+        return vocabulary.RELATIONS["on"], "no relation cue; a detachable part: assumed seated on its owner"
     if target is not None and target.has("container") and (source is None or source.size_m <= target.size_m):
-        return relations.RELATIONS["in"], "no relation cue; the target holds things: assumed inside"
-    return relations.RELATIONS["on"], "no relation cue: assumed resting on"
+        return vocabulary.RELATIONS["in"], "no relation cue; the target holds things: assumed inside"
+    return vocabulary.RELATIONS["on"], "no relation cue: assumed resting on"
 
 
 def _size_ratio(target_name, source_name, target, source, relation, figure: bool,

@@ -12,7 +12,7 @@ from fastapi import APIRouter, Depends, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
-from ctp_core import frames
+from ctp_core.geometry import frames
 from service import submit as submit_
 from service.adjustments import ENDED, Adjustment, AdjustmentRecord, Adjustments, AdjustRequest
 from service.deps import check_workers, own_job, owner

@@ -12,7 +12,7 @@ from fastapi.responses import RedirectResponse, StreamingResponse
 
 from ctp_core.config import MAX_ALTERNATIVES
 from ctp_core.errors import ConfigError
-from ctp_core.priors.counts import choose
+from ctp_core.reading.counts import choose
 from service import forms
 from service import submit as submit_
 from service.chained import chained_target

@@ -3,7 +3,7 @@
 ``/`` is the page (``service/static/index.html``; its script reads the JSON API like any client),
 ``/static`` its files and the vendored libraries (``service/static/vendor``, each with its licence),
 ``/page/config`` what the page needs to know of this deployment, ``/samples/...`` the built-in example
-pairs (``ctp_core.examples``), ``/docs`` and ``/redoc`` the API docs on the vendored Swagger UI and ReDoc.
+pairs (``ctp_core.io.examples``), ``/docs`` and ``/redoc`` the API docs on the vendored Swagger UI and ReDoc.
 None of these routes is part of the API contract: they stay out of ``openapi.yaml``.
 """
 
@@ -19,10 +19,10 @@ from fastapi.responses import FileResponse, HTMLResponse
 from fastapi.staticfiles import StaticFiles
 
 from ctp_core.config import AlignConfig
-from ctp_core.examples import EXAMPLES
+from ctp_core.config.options import AlignOptions
 from ctp_core.io import SUPPORTED_EXTENSIONS
-from ctp_core.names import NAME_MAX
-from ctp_core.options import AlignOptions
+from ctp_core.io.examples import EXAMPLES
+from ctp_core.reading.names import NAME_MAX
 from service.errors import ApiError
 from service.forms import PROMPT_MAX
 

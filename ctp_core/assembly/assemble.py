@@ -1,0 +1,149 @@
+"""Iterative assembly (method.md "Other applications"): build a scene one object at a time.
+
+``assemble(base, steps, config)`` places each step's source in turn (the plan a user writes, and its
+checks, are ``plan``'s). Step k runs the one ``align`` pipeline with the scene of the objects placed in
+steps 0..k-1 as its target: the soft-ICP term
+attaches the source to the object the step relates to (``on``, default the last placed one), the
+penetration term and the renders see every placed object with its own materials, and the priors get
+the source's name and the related object's name and size. Placed objects never move.
+
+Frames (``frames``): the *scene* frame is the base's file frame. Every object keeps its own file
+frame; ``Placed.to_scene`` maps it into the scene (the identity for the base). A step's target is
+already in the scene frame, so its answer (source file -> target file) is the source's ``to_scene``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+import trimesh
+
+from ctp_core.assembly.plan import check_plan
+from ctp_core.config import AUTO, AlignConfig
+from ctp_core.errors import Canceled, ConfigError, CtpError
+from ctp_core.geometry import frames
+from ctp_core.guide import choice
+from ctp_core.progress import CancelCheck, ProgressCallback
+
+if TYPE_CHECKING:  # the engine (torch) loads only when a step runs: the API checks plans with plan.check_plan
+    from ctp_core.align import AlignResult
+
+__all__ = ["Assembly", "Placed", "Step", "StepResult", "assemble", "scene_of"]
+
+
+@dataclass(frozen=True)
+class Step:
+    """One object to add: its mesh (own file frame), its name, what guides it and what it relates to."""
+
+    source: trimesh.Trimesh
+    name: str
+    prompt: str | None = None
+    image: np.ndarray | None = None  # (H, W, 3) uint8 reference picture instead of the prompt
+    on: str | None = None  # the placed object it relates to; None: the last placed one
+    config: AlignConfig | None = None  # this step's options; None: the assembly's config
+
+
+@dataclass
+class Placed:
+    """An object of the scene: its mesh in its own file frame and where it sits."""
+
+    name: str
+    mesh: trimesh.Trimesh
+    to_scene: frames.Similarity  # the object's file frame -> scene
+
+
+@dataclass
+class StepResult:
+    """What step ``index`` (1-based) of ``count`` did: the step, the object it related to, the run."""
+
+    index: int
+    count: int
+    step: Step
+    on: str
+    result: AlignResult
+
+
+@dataclass
+class Assembly:
+    """The placed objects (base first) and the record of every step."""
+
+    objects: list[Placed]
+    results: list[StepResult]
+    timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def preview(self) -> np.ndarray | None:
+        """(V, H, W, 3) uint8 views of the whole scene: the last step renders every object."""
+        return self.results[-1].result.preview if self.results else None
+
+    def scene(self) -> trimesh.Scene:
+        """Every object as its own named node: its mesh (own file frame, own materials) under ``to_scene``."""
+        return scene_of(self.objects)
+
+
+def scene_of(objects: Sequence[Placed]) -> trimesh.Scene:
+    """A ``trimesh.Scene`` (scene frame) of placed objects, one named node each, in placing order."""
+    out = trimesh.Scene()
+    for placed in objects:
+        out.add_geometry(placed.mesh, node_name=placed.name, geom_name=placed.name,
+                         transform=np.array(placed.to_scene.matrix))
+    return out
+
+
+StepCallback = Callable[[int, int, Step], None]
+
+
+def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, *, base_name: str = "base",
+             guide=None, on_event: ProgressCallback | None = None, on_step: StepCallback | None = None,
+             should_cancel: CancelCheck | None = None, choice: choice.GuideChoice | None = None) -> Assembly:
+    """Place ``steps`` one after another around ``base`` (its file frame is the scene frame).
+
+    ``on_step(index, count, step)`` is called as each step starts; ``on_event`` gets every step's
+    optimiser events. The guidance model is loaded once for all steps (every step uses
+    ``config.model``). A step's ``CtpError`` is re-raised with the step named in its message (as "stage k/n",
+    the word the report and the API use) and
+    ``field`` ``steps.<i>[.<its field>]``; ``Canceled`` passes through. Model ``auto`` is chosen once for all
+    steps (``choice``: already chosen, a worker's), so every step has the same guide.
+    """
+    from ctp_core.align import align
+
+    started = time.perf_counter()
+    configs = [step.config or config for step in steps]
+    check_plan(base_name, [(s.name, s.on, s.prompt is not None or s.image is not None or c.loss.lambda_clip == 0)
+                           for s, c in zip(steps, configs, strict=True)])
+    if any(c.model != config.model for c in configs):
+        raise ConfigError("every stage must use the assembly's model (it is loaded once)", field="model")
+    if choice is None and config.model == AUTO:
+        choice = choice.choose()
+    resolved = [choice.resolve(c, image=s.image is not None, choice=choice)[0]
+                for s, c in zip(steps, configs, strict=True)]
+    guided = [c for c in resolved if c.loss.lambda_clip > 0]
+    if guide is None and guided:
+        from ctp_core.guide.loaders import guide_for
+
+        guide = guide_for(guided[0])
+    placed = [Placed(base_name, base, frames.Similarity(np.eye(4), frames.SCENE, frames.SCENE))]
+    results: list[StepResult] = []
+    for index, (step, step_config) in enumerate(zip(steps, configs, strict=True), start=1):
+        on = step.on or placed[-1].name
+        if on_step is not None:
+            on_step(index, len(steps), step)
+        try:
+            result = align(scene_of(placed), step.source, step.prompt, step_config, on=on, image=step.image,
+                           target_name=on, source_name=step.name, guide=guide, on_event=on_event,
+                           should_cancel=should_cancel, choice=choice)
+        except Canceled:
+            raise
+        except CtpError as exc:
+            where = f"steps.{index - 1}" + (f".{exc.field}" if exc.field else "")
+            raise type(exc)(f"stage {index}/{len(steps)} ({step.name}): {exc.message}", code=exc.code,
+                            field=where) from exc
+        # The step's target file frame is the scene frame (every placed object is in it).
+        placed.append(Placed(step.name, step.source,
+                             frames.Similarity(result.source_to_target, frames.SOURCE_FILE, frames.SCENE)))
+        results.append(StepResult(index, len(steps), step, on, result))
+    return Assembly(placed, results, {"total_s": round(time.perf_counter() - started, 3)})

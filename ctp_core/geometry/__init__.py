@@ -1,0 +1,1 @@
+"""Geometry in plain arrays and tensors: poses, frames, surface samples, distances."""

@@ -1,0 +1,330 @@
+"""A target and a source prepared for optimisation: frames, render meshes and loss samples.
+
+The target is one mesh, or a *scene of placed objects* (a ``trimesh.Scene``, an assembly's stages so
+far): each object in the target file frame (for an assembly, the *scene* frame), rendered with its own
+materials, all of them seen by the penetration term, and the soft-ICP term attached to the one object
+the source relates to (``on``) when one is named.
+
+Frames (see ``frames``):
+- target *file* frame -> *normalised* frame: the target's upright rotation (``canonical``), then its
+  AABB centred with longest side 2. The normalised frame is where cameras, renders and losses live.
+- source *file* frame -> *source local* frame: centred at the source AABB centre, scaled by the same
+  factor as the target (so the files' relative size is kept).
+- a pose (``pose``) maps source local -> normalised; ``source_to_target`` turns it into the answer,
+  source file -> target file.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import weakref
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import TYPE_CHECKING, TypeAlias, TypeVar
+
+import numpy as np
+import torch
+import trimesh
+
+from ctp_core import orientation, render
+from ctp_core.errors import ConfigError
+from ctp_core.geometry import frames, sampling
+from ctp_core.losses import SurfaceIndex
+from ctp_core.orientation import canonical
+from ctp_core.render.cameras import framing_cameras
+from ctp_core.render.structures import MeshArrays
+
+if TYPE_CHECKING:
+    from ctp_core.guide.guidance import Guide
+
+Target: TypeAlias = "trimesh.Trimesh | trimesh.Scene"  # one mesh, or placed objects (target file frame)
+# a surface whose normal has n_y above this faces up (the search's "top" region, the relations' supports), below
+# minus this faces down, else sideways
+UP_FACING = 0.5
+
+
+def objects(target: Target) -> list[tuple[str, trimesh.Trimesh]]:
+    """(name, mesh in the target file frame) of every object of ``target``, in the scene's order."""
+    if isinstance(target, trimesh.Trimesh):
+        return [(target.metadata.get("name") or "target", target)]
+    placed = []
+    for node in target.graph.nodes_geometry:
+        matrix, key = target.graph[node]
+        mesh = target.geometry.get(key)
+        if isinstance(mesh, trimesh.Trimesh):
+            placed.append((node, mesh if np.allclose(matrix, np.eye(4)) else mesh.copy().apply_transform(matrix)))
+    if not placed:
+        raise ValueError("the target scene holds no triangle mesh")
+    return placed
+
+
+def attachment(target: Target, on: str | None) -> trimesh.Trimesh:
+    """The object of ``target`` named ``on`` (the one the source relates to); the whole target for None."""
+    if on is None:
+        return geometry(target)
+    parts = objects(target)
+    return parts[_position([name for name, _ in parts], on)][1]
+
+
+def _position(names: list[str], on: str) -> int:
+    if on not in names:
+        raise ConfigError(f"no placed object named {on!r}; placed: {', '.join(names)}", field="on")
+    return names.index(on)
+
+
+def base(target: Target) -> trimesh.Trimesh:
+    """The object that decides which way is up: the first of a scene (an assembly's base), or the mesh.
+
+    Not the whole scene: objects placed on it change its resting poses (a plate hung at a table leg's
+    foot made the table rest best upside down), and the scene's up must not turn from stage to stage.
+    """
+    return objects(target)[0][1]
+
+
+def geometry(target: Target) -> trimesh.Trimesh:
+    """All triangles of ``target`` as one mesh (no visuals): what framing and the upright turn look at."""
+    if isinstance(target, trimesh.Trimesh):
+        return target
+    parts = [trimesh.Trimesh(m.vertices, m.faces, process=False) for _, m in objects(target)]
+    return parts[0] if len(parts) == 1 else trimesh.util.concatenate(parts)
+
+
+@dataclass
+class PreparedPair:
+    target: Target  # target file frame, untouched
+    source: trimesh.Trimesh  # source file frame, untouched
+    target_to_normalised: frames.Similarity  # target file -> normalised
+    source_to_local: frames.Similarity  # source file -> source local
+    target_upright: canonical.Upright
+    source_upright: canonical.Upright  # rotation source file -> its own upright frame
+    mesh: render.RenderMesh  # target object(s) then source, joined (faces index target verts first)
+    target_vertices: torch.Tensor  # (Vt, 3) normalised frame, every target object
+    source_vertices: torch.Tensor  # (Vs, 3) source local frame
+    index: SurfaceIndex  # target samples + outward normals, normalised frame, every target object
+    source_samples: torch.Tensor  # (N, 3) source local frame
+    source_surface: SurfaceIndex  # source samples + outward normals, source local frame (what is inside the source)
+    target_outward: list[trimesh.Trimesh]  # each target object, file frame, outward winding (``outward``)
+    attach: SurfaceIndex | None = None  # samples of the object the source relates to; None: all of ``index``
+    # the target's front, (3,) unit, normalised frame (its file's +Z for glTF, turned as the target is)
+    target_front: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    # False where no convention gives a front (or a symmetric target): directional relations use the viewer's frame
+    front_trusted: bool = True
+    source_front: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))  # (3,) unit, source local
+
+    @property
+    def anchor(self) -> SurfaceIndex:
+        """What the soft-ICP term pulls toward: the related object's samples, or the whole target's."""
+        return self.index if self.attach is None else self.attach
+
+    @cached_property
+    def target_radius(self) -> float:
+        """Half the target AABB diagonal in the normalised frame."""
+        lo, hi = self.target_vertices.min(0).values, self.target_vertices.max(0).values
+        return float((hi - lo).norm() / 2)
+
+    @cached_property
+    def floor(self) -> float:
+        """The height the target stands on (normalised frame, +Y up): its lowest point, every object of a scene.
+        What stands beside, under or leans on the target stands there too."""
+        return float(self.target_vertices[:, 1].min())
+
+    @cached_property
+    def target_area(self) -> float:
+        """The target's surface area, every object, in its file's units."""
+        return float(sum(m.area for m in self.target_outward))
+
+    def sample_spacing(self, count: int) -> float:
+        """The spacing of ``count`` samples on the target's surface, normalised units: how far a point on the
+        surface can be from its nearest sample."""
+        return math.sqrt(self.target_area / count) * self.target_to_normalised.scale
+
+    @cached_property
+    def source_radius(self) -> float:
+        """Half the AABB diagonal of the source samples in the source local frame (unscaled)."""
+        lo, hi = self.source_samples.min(0).values, self.source_samples.max(0).values
+        return float((hi - lo).norm() / 2)
+
+    @cached_property
+    def source_diagonal(self) -> float:
+        """The AABB diagonal of the source samples in the source local frame (unscaled): the unit of the search's
+        and the objective's distances ("source diagonals"); times a pose's scale, its posed source's."""
+        return 2 * self.source_radius
+
+    @cached_property
+    def source_area(self) -> float:
+        """The source's surface area in the source local frame (unscaled)."""
+        return float(self.source.area) * self.source_to_local.scale**2
+
+    def source_subset(self, count: int) -> torch.Tensor:
+        """(min(count, N), 3) evenly spaced source samples (source local frame): a cheap stand-in for all of them."""
+        n = len(self.source_samples)
+        return self.source_samples[torch.linspace(0, n - 1, min(count, n)).long()]
+
+    def scene_vertices(self, posed_source: torch.Tensor) -> torch.Tensor:
+        """(B, Vs, 3) posed source -> (B, Vt + Vs, 3) vertices of the joined render mesh."""
+        target = self.target_vertices.expand(posed_source.shape[0], -1, -1)
+        return torch.cat([target, posed_source], dim=1)
+
+    def scene_at(self, local_to_normalised: np.ndarray | torch.Tensor) -> torch.Tensor:
+        """The joined render mesh's vertices with the source posed at a (4, 4) or (B, 4, 4) similarity.
+
+        The pose maps the source local frame to the normalised frame; returns (B, Vt + Vs, 3), B = 1 for one pose.
+        """
+        m = torch.as_tensor(np.array(local_to_normalised), dtype=torch.float32, device=self.source_vertices.device)
+        m = m.reshape(-1, 4, 4)
+        return self.scene_vertices(self.source_vertices @ m[:, :3, :3].transpose(1, 2) + m[:, None, :3, 3])
+
+    def local_to_normalised(self, source_to_target: np.ndarray) -> np.ndarray:
+        """A source file -> target file 4x4 as a source local -> normalised 4x4."""
+        file_to_file = frames.Similarity(source_to_target, frames.SOURCE_FILE, frames.TARGET_FILE)
+        return (self.target_to_normalised @ file_to_file @ self.source_to_local.inverse()).matrix
+
+    def source_to_target(self, local_to_normalised: np.ndarray) -> np.ndarray:
+        """A pose (source local -> normalised 4x4) as the answer: source file -> target file."""
+        return frames.source_to_target(local_to_normalised, self.target_to_normalised, self.source_to_local).matrix
+
+
+def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed: int,
+                 device: str = "cpu", canonicalise: bool = True, judge: canonical.Judge | None = None,
+                 on: str | None = None, target_up: canonical.Upright | None = None,
+                 target_axes: orientation.Axes = orientation.FROM_FILE,
+                 source_axes: orientation.Axes = orientation.FROM_FILE) -> PreparedPair:
+    """Normalise, orient and sample a pair once per run (everything later reuses it).
+
+    Each object's up and front come from its file first (``orientation.orient`` by ``target_axes`` and
+    ``source_axes``: the format's convention, an axis given, or ``auto``'s geometric guess, by ``judge`` when
+    given); ``canonicalise`` False keeps the target file's +Y as up whatever they say. The target's up turns the
+    normalised frame (renders show it as CLIP expects); the source's is its starting orientation. A scene
+    target's up is its base's (``base``); it gets ``samples`` samples per object; ``on`` names the object the
+    soft-ICP term attaches to. ``target_up``: the target's upright turn when it is known already (a stored
+    result's, ``adjust``): a later look at the same scene must have the same up as the run, which a judge may
+    have chosen.
+    """
+    whole, up_from = geometry(target), base(target)
+    if target_up is None:
+        axes = target_axes if canonicalise else orientation.Axes("+y", target_axes.front)
+        target_up = orientation.orient(up_from, axes, seed=seed, judge=judge)
+        if not canonicalise:
+            target_up.reason = "up: the file's +Y (the upright step is off)"
+    source_up = orientation.orient(source, source_axes, seed=seed, role="source")
+    target_to_norm = frames.target_to_normalised(whole.vertices, target_up.rotation)
+    source_to_local = frames.source_local(source.bounds, target_to_norm)
+
+    parts = objects(target)
+    target_arrays = [MeshArrays.from_trimesh(m) for _, m in parts]
+    source_arrays = MeshArrays.from_trimesh(source)
+    renders = [render.RenderMesh.from_arrays(a, device=device) for a in [*target_arrays, source_arrays]]
+    mesh = render.join(renders, [len(a.vertices) for a in [*target_arrays, source_arrays]])
+
+    oriented = [outward(m) for _, m in parts]
+    sampled = [sampling.surface_samples(m, samples, seed + 2 * i) for i, m in enumerate(oriented)]
+    t_pts, t_nrm = (np.concatenate(parts_of) for parts_of in zip(*sampled, strict=True))
+    s_pts, _ = sampling.surface_samples(source, samples, seed + 1)
+    s_out, s_nrm = sampling.surface_samples(outward(source), samples, seed + 1)
+    as_tensor = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=device)  # noqa: E731
+    index = lambda p, n: SurfaceIndex(as_tensor(target_to_norm.apply(p)),  # noqa: E731
+                                     as_tensor(target_to_norm.apply_directions(n)))
+    position = None if on is None else _position([name for name, _ in parts], on)
+    attach = index(*sampled[position]) if position is not None and len(parts) > 1 else None
+    return PreparedPair(
+        target=target,
+        source=source,
+        target_to_normalised=target_to_norm,
+        source_to_local=source_to_local,
+        target_upright=target_up,
+        source_upright=source_up,
+        mesh=mesh,
+        target_vertices=as_tensor(target_to_norm.apply(np.concatenate([a.vertices for a in target_arrays]))),
+        source_vertices=as_tensor(source_to_local.apply(source_arrays.vertices)),
+        index=index(t_pts, t_nrm),
+        source_samples=as_tensor(source_to_local.apply(s_pts)),
+        source_surface=SurfaceIndex(as_tensor(source_to_local.apply(s_out)),
+                                    as_tensor(source_to_local.apply_directions(s_nrm))),
+        target_outward=oriented,
+        attach=attach,
+        target_front=_unit(target_to_norm.apply_directions(target_up.front[None])[0]),
+        front_trusted=target_up.front_trusted,
+        source_front=_unit(np.asarray(source_up.front, dtype=np.float64)),
+    )
+
+
+def _unit(vector: np.ndarray) -> np.ndarray:
+    return vector / np.linalg.norm(vector)
+
+
+def outward(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """A copy with consistent, outward winding where trimesh can decide it (penetration needs "inside").
+
+    Watertight meshes get outward normals; open ones get consistent winding, oriented by trimesh's
+    heuristic, and "inside" then means behind the oriented side (documented limit).
+    """
+    fixed = mesh.copy()
+    with np.errstate(divide="ignore", invalid="ignore"):  # trimesh divides by the volume of flat parts
+        trimesh.repair.fix_normals(fixed, multibody=True)
+    return fixed
+
+
+def upright_judge(mesh: trimesh.Trimesh, guide: Guide, name: str, *, views: int = 4, image_size: int = 224,
+                  device: str = "cpu") -> canonical.Judge:
+    """A ``canonical.Judge`` that asks ``guide`` which way up ``mesh`` (file frame) looks like a NAME.
+
+    Each candidate rotation (file -> upright) is rendered from ``views`` framing views at 30° elevation,
+    all candidates in one batch; its score is the mean cosine of its views with "a photo of a NAME"
+    (forward only).
+    """
+    arrays = MeshArrays.from_trimesh(mesh)
+    shape = render.RenderMesh.from_arrays(arrays, device=device)
+    centred = torch.as_tensor(arrays.vertices - mesh.bounds.mean(0), dtype=torch.float32, device=device)
+    text = guide.encode_text([f"a photo of a {name}"])[0]
+
+    @torch.no_grad()
+    def judge(rotations: np.ndarray) -> np.ndarray:
+        turned = centred @ torch.as_tensor(np.asarray(rotations), dtype=torch.float32, device=device).transpose(1, 2)
+        images = render.render(shape, turned, framing_cameras(turned, views, image_size))
+        scores = guide.score(images.flatten(0, 1), text).view(len(rotations), views).mean(1)
+        return scores.double().cpu().numpy()
+
+    return judge
+
+
+def render_arrangement(target: trimesh.Trimesh, source: trimesh.Trimesh, source_to_target: np.ndarray, *,
+                       views: int = 8, image_size: int = 224, device: str = "cpu") -> torch.Tensor:
+    """Render target + placed source from fixed views framing the scene: (V, 3, H, W) in [0, 1].
+
+    Used for previews and the semantic metric; the views are a function of the arrangement only.
+    """
+    pair = prepare_pair(target, source, samples=100, seed=0, device=device, canonicalise=False)
+    return render_pair(pair, pair.local_to_normalised(source_to_target), views=views, image_size=image_size)
+
+
+@torch.no_grad()
+def render_pair(pair: PreparedPair, local_to_normalised: np.ndarray, *, views: int, image_size: int) -> torch.Tensor:
+    """Render a prepared pair at one pose (source local -> normalised 4x4) from framing views."""
+    verts = pair.scene_at(local_to_normalised)
+    cams = framing_cameras(verts[0], views, image_size)
+    return render.render(pair.mesh, verts, cams)[0]
+
+
+Built = TypeVar("Built")
+
+
+def per_pair(build: Callable[[PreparedPair], Built]) -> Callable[[PreparedPair], Built]:
+    """``build(pair)`` computed on first use and kept while the pair lives (keyed by identity: a pair is not
+    hashable), for what several stages read from one pair's fixed geometry. Callers must not change what it
+    returns."""
+    cache: dict[int, tuple[weakref.ref, Built]] = {}
+
+    @functools.wraps(build)
+    def cached(pair: PreparedPair) -> Built:
+        key = id(pair)
+        hit = cache.get(key)
+        if hit is not None and hit[0]() is pair:
+            return hit[1]
+        value = build(pair)
+        cache[key] = (weakref.ref(pair), value)
+        weakref.finalize(pair, cache.pop, key, None)
+        return value
+
+    return cached

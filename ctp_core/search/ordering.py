@@ -1,0 +1,301 @@
+"""The one place that orders poses: which pose beats which, in the search, the refinement, the selection and the
+alternatives.
+
+Every order is lexicographic (``Key``): first the *tier*, then the *value* (lower is better in both).
+
+- The tier is the prompt's relation: the poses where it holds and nothing intersects (``holding``) come first.
+  With a guide, the guide's favourites among the others (``ceil(override x share x others)``: ``rank_key``)
+  join them, so a misread prompt cannot make the right answer unreachable.
+- The value is the guide's term where the guide tells poses apart (``Gate``: its spread over the search's
+  candidates against its noise, and whether its views agree), plus the usual arrangement as far as the guide's
+  say leaves it (``Gate.weigh``); otherwise the geometric objective.
+
+The gate is measured once, by the search (``ranking.search`` returns it in ``Ranked.gate``), and handed to every
+later order as an argument: the refinement's scorer (``objective.Scorer.gated``), the selection
+(``select_answer``) and the report. ``improves`` is the refinement's order between a restart's new pose and its
+best so far; ``alternatives_key`` the order of the placements a person picks among.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from ctp_core.config import share_of
+from ctp_core.config.schedule import Phase
+from ctp_core.objective import NEAR, combine
+from ctp_core.relations import predicates
+
+GATE_FULL = 4.0  # ``Gate``: a guide whose spread is this many times its noise may override the relation fully
+AGREE_CHANCE = 0.5  # ``Gate.agree`` of a guide whose views pick their favourites independently: no say
+AGREE_FULL = 0.1  # ... of one whose favourite from each side is among the other sides' best tenth: the full say
+SUNK = 0.01  # source diagonals of penetration (``sunk``) past which a pose intersects: a sphere pressed into a
+# plane by a tenth of its diagonal (forward and enclosed halves ~ depth^2 / radius / 2 each side summed)
+
+
+@dataclass(frozen=True)
+class Key:
+    """(B,) lexicographic sort keys: ``tier`` (int64) first, then ``value`` (float64); lower is better.
+
+    A value of +inf excludes a pose whatever its tier (after every finite key); -inf puts it first whatever its
+    tier (the alternatives' answer). Sorting is stable: equal keys keep their index order."""
+
+    tier: torch.Tensor
+    value: torch.Tensor
+
+    @staticmethod
+    def plain(value: torch.Tensor) -> Key:
+        """One tier: ``value`` alone orders (a stage without a relation, a list in a given order)."""
+        return Key(torch.zeros(value.shape, dtype=torch.int64, device=value.device), value.double())
+
+    @staticmethod
+    def cat(keys: list[Key]) -> Key:
+        return Key(torch.cat([k.tier.cpu() for k in keys]), torch.cat([k.value.cpu() for k in keys]))
+
+    def __len__(self) -> int:
+        return len(self.value)
+
+    def select(self, index: torch.Tensor | list[int] | slice) -> Key:
+        return Key(self.tier[index], self.value[index])
+
+    def excluding(self, mask: torch.Tensor) -> Key:
+        """These keys with ``mask``'s poses excluded (value +inf)."""
+        mask = mask.to(self.value.device)
+        return Key(self.tier, torch.where(mask, torch.full_like(self.value, torch.inf), self.value))
+
+    def first(self, index: int) -> Key:
+        """These keys with pose ``index`` ahead of every other (value -inf)."""
+        value = self.value.clone()
+        value[index] = -torch.inf
+        return Key(self.tier, value)
+
+    def average(self, other: Key) -> Key:
+        """Two stages' keys of the same poses ranked together: the values' mean, the tiers' sum (a pose outside
+        the pool in one stage ranks after those in neither and before those outside it in both)."""
+        return Key(self.tier.cpu() + other.tier.cpu(), 0.5 * (self.value.cpu() + other.value.cpu()))
+
+    def finite(self) -> torch.Tensor:
+        """(B,) bool: the poses not excluded."""
+        return torch.isfinite(self.value)
+
+    def argsort(self) -> torch.Tensor:
+        """(B,) indices, best first."""
+        infinite = torch.isinf(self.value)
+        # +-inf values rank outside every tier (as they are: excluded or first), finite ones by their tier
+        rank = torch.where(infinite, torch.where(self.value > 0, 1, -1) * (1 << 62), self.tier.to(torch.int64))
+        by_value = torch.argsort(self.value, stable=True)
+        return by_value[torch.argsort(rank[by_value], stable=True)]
+
+    def argmin(self) -> int:
+        return int(self.argsort()[0])
+
+
+@dataclass(frozen=True)
+class Gate:
+    """How far a guide may override the relation, earned in each run by two tests (``ranking.guide_noise``), the
+    lower one deciding (``override``):
+
+    - signal: its scores' spread over the search's candidates (standard deviation) against its noise (the
+      largest change of the score of a few candidates moved by a negligible amount); from 0 (spread at most the
+      noise: it does not tell the candidates apart) to 1 at ``GATE_FULL`` times the noise;
+    - agreement (``agree``: ``ranking.view_agreement``, where each coarse view's favourite among the holding
+      candidates ranks in the other views, 0 the best, 0.5 chance; None: not measured, no limit): from 0 at
+      ``AGREE_CHANCE`` to 1 at ``AGREE_FULL``. A consistent function of the image passes the first test, noise
+      included (a random encoder is one); only a guide that sees where the source is agrees with itself from
+      another side.
+    """
+
+    spread: float
+    noise: float
+    agree: float | None = None
+
+    @property
+    def ratio(self) -> float:
+        return self.spread / self.noise if self.noise > 0 else math.inf
+
+    @property
+    def override(self) -> float:
+        return min(self.signal, self.agreement)
+
+    @property
+    def signal(self) -> float:
+        """The say the spread earns: 0 within the noise, 1 at ``GATE_FULL`` times it."""
+        return float(min(1.0, max(0.0, (self.ratio - 1.0) / (GATE_FULL - 1.0))))
+
+    @property
+    def agreement(self) -> float:
+        """The say the views' agreement earns: 0 at chance, 1 at ``AGREE_FULL``; 1 where not measured."""
+        if self.agree is None:
+            return 1.0
+        return float(min(1.0, max(0.0, (AGREE_CHANCE - self.agree) / (AGREE_CHANCE - AGREE_FULL))))
+
+    @property
+    def tie(self) -> float:
+        """What one unit of ``prefer`` is worth where the guide orders (``rank_key``, ``select_answer``): a
+        difference of the guide's term the gate would trust fully (``GATE_FULL`` x its noise)."""
+        return GATE_FULL * self.noise
+
+    def weigh(self, guide: torch.Tensor, prefer: torch.Tensor) -> float:
+        """What one unit of ``prefer`` (the usual arrangement, already x (1 - override): ``Scorer.preference_weight``)
+        is worth against the ``guide``'s term where the guide orders these poses: between the say's ends the two
+        count in units of their own spread over them, weighted override : 1 - override (a guide with a say of
+        0.25 must beat the usual arrangement by three of its spreads per spread of the arrangement); never less
+        than ``tie``, which breaks what the guide cannot tell (at override 1 ``prefer`` is 0 and counts nothing)."""
+        spreads = [float(x.double().std()) if len(x) > 1 else 0.0 for x in (guide, prefer)]
+        if not 0 < self.override < 1 or min(spreads) <= 0:
+            return self.tie
+        return max(self.tie, spreads[0] * (1 - self.override) / (self.override * spreads[1]))
+
+    @property
+    def chooser(self) -> str:
+        """Who orders the poses where the relation holds: ``geometry`` (override 0: the usual arrangement),
+        ``guide`` (override 1: the usual arrangement only breaks its ties) or ``both`` (between: the usual
+        arrangement weighs 1 - override, ``Scorer.preference_weight``)."""
+        return "geometry" if self.override <= 0 else "guide" if self.override >= 1 else "both"
+
+    def summary(self) -> str:
+        """The gate in one line, for the progress readout, the report and the page."""
+        spread = f"the guide's scores spread {self.ratio:.1f}x their noise" if self.noise > 0 else (
+            "the guide's scores have no measurable noise")
+        if self.agree is not None:
+            spread += (f", each view's favourite ranks {self.agree:.0%} down the other's order "
+                       f"({AGREE_CHANCE:.0%} by chance)")
+        return spread + {"geometry": ": the geometry chose", "guide": ": the guide chose",
+                         "both": f": the guide chose, the usual arrangement weighing {1 - self.override:.2f}"
+                         }[self.chooser]
+
+    def to_dict(self) -> dict[str, float | str]:
+        return {"spread": self.spread, "noise": self.noise, "agree": self.agree, "override": round(self.override, 3),
+                "chose": self.chooser, "summary": self.summary()}
+
+
+TRUSTED = Gate(spread=1.0, noise=0.0)  # a gate not measured (yet): the guide trusted fully (override 1, tie 0)
+
+
+def holding(terms: dict[str, torch.Tensor]) -> torch.Tensor:
+    """(B,) bool: where the relation holds (``predicates.holds`` of the ``rel`` term; everywhere without one) and
+    the pose does not intersect the target (``sunk`` at most ``SUNK``; 0 where penetration is allowed).
+    Intersecting is worse than the relation failing: without the second rule a pose pulled into the target's wall
+    by a containment relation would outrank every clean pose beside it."""
+    held = predicates.holds(terms["rel"]) if "rel" in terms else torch.ones_like(terms["objective"], dtype=torch.bool)
+    return held & ~intersecting(terms).to(held.device)
+
+
+def intersecting(terms: dict[str, torch.Tensor]) -> torch.Tensor:
+    """(B,) bool: where the pose is sunk into the target past ``SUNK`` (nowhere without a ``sunk`` term)."""
+    sunk = terms.get("sunk")
+    if sunk is None:
+        return torch.zeros_like(terms["objective"], dtype=torch.bool)
+    return sunk > SUNK
+
+
+def rank_key(terms: dict[str, torch.Tensor], weights: Phase, *, share: float, guide_key: torch.Tensor | None = None,
+             override: float = 1.0, geometric: torch.Tensor | None = None, tie: float = 0.0) -> Key:
+    """The relation first, then a value.
+
+    Without a guide (``guide_key`` None) or with ``override`` 0: tier 0 where the relation holds (``holding``),
+    1 elsewhere; value the geometric objective (``geometric``, else ``combine`` without the guide's term). With a
+    guide: tier 0 over the *pool*, the poses where the relation holds plus the ``ceil(override x share x
+    others)`` others that the guide ranks best (``share``: the search's ``min_share``, the principle of the
+    region weights); value the guide's key plus ``tie`` per unit of ``prefer`` (``Gate.weigh``: the usual
+    arrangement weighs as much as the guide's say leaves it, and breaks what the guide cannot tell).
+    """
+    holds = holding(terms).to(terms["objective"].device)
+    if guide_key is None or override <= 0:
+        if geometric is None:
+            geometric = combine({**terms, "clip": torch.zeros_like(terms["objective"])}, weights)
+        return Key((~holds).long(), geometric.double())
+    key = guide_key.double() + tie * terms.get("prefer", torch.zeros_like(guide_key)).double()
+    pool = holds.clone()
+    others = torch.nonzero(~holds)[:, 0]
+    admit = share_of(len(others), override * share)
+    if admit:
+        pool[others[torch.argsort(key[others])[:admit]]] = True
+    return Key((~pool).long(), key)
+
+
+def search_key(terms: dict[str, torch.Tensor], weights: Phase, gate: Gate | None, *, guided: bool, share: float,
+               guide_key: torch.Tensor | None = None) -> Key:
+    """What the search ranks a stage's candidates by (``rank_key``): with a guide (``guided``) that ``gate`` lets
+    override (None: not measured yet, trusted), its term (``guide_key``: the tile stage's change); otherwise the
+    geometric objective.
+
+    Why the guide's term alone and not a weighted sum: the proposals touch without interpenetrating by
+    construction, so among them the geometric terms measure how the target's samples happen to fall (soft-ICP
+    at contact is about sigma² and varies with sample density), not contact; its spread over touching
+    candidates can exceed the guide's by orders of magnitude, and any weighted sum would rank as geometry alone.
+    The refinement and the final selection use the whole objective.
+    """
+    gate = gate or TRUSTED
+    key = (terms["clip"] if guide_key is None else guide_key) if guided and gate.override > 0 else None
+    tie = 0.0
+    if key is not None:
+        held = holding(terms).to(key.device)
+        tie = gate.weigh(key[held], terms.get("prefer", torch.zeros_like(key))[held])
+    return rank_key(terms, weights, guide_key=key, override=gate.override, share=share, tie=tie)
+
+
+def improves(now: dict[str, torch.Tensor], best: dict[str, torch.Tensor]) -> torch.Tensor:
+    """(B,) whether each restart's new pose replaces its best: the relation first (``holding``), then the lower
+    objective. Without the first rule a pose that holds is traded for one where the relation fails that has a
+    little less penetration, weighted more than the relation's violation."""
+    held, was = holding(now), holding(best)
+    return (held & ~was) | ((held == was) & (now["objective"] < best["objective"]))
+
+
+def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: torch.Tensor, weights: Phase, *,
+                  guided: bool, touches: bool, share: float, gate: Gate | None = None) -> int:
+    """The answer among refined poses: those within ``NEAR`` of the target (any when none is: an image guide can
+    prefer a source gone out of view, an absent source differing less from the goal than a misplaced one); with
+    a guide, among them those that touch (``touches``: the relation's contact ratio is > 0), the lowest
+    objective without its soft-ICP term (the guide's and the penetration's); otherwise, or when none touches,
+    the lowest objective. The relation orders first, as in the search (``rank_key``): the restarts where it
+    holds, plus, with a guide, a share of the others (``gate``'s override x ``share``, at least one when the
+    override is > 0); a ``gate`` with override 0 (a guide with no signal) selects as without a guide; None (not
+    measured) trusts the guide fully. An admitted restart that fails the relation still pays its weighted
+    relation term in the objective (``lambda_rel`` x its score): the guide overrides the relation at the
+    selection only by more than that.
+
+    Why not soft-ICP: at contact it measures how the samples fall, not contact, and its differences between
+    touching restarts can outweigh the guide's; the search ranks its candidates by the guide the same way
+    (``search_key``). Penetration likewise counts only past ``SUNK``: at contact the two halves see a few
+    samples a hair inside, which times ``lambda_pen`` can outweigh the guide. The usual arrangement
+    (``prefer``, already x (1 - override): ``Scorer.preference_weight``) counts ``Gate.weigh`` per unit over the
+    restarts that hold (as much as the guide's say leaves it, at least a difference the gate would trust fully),
+    not its objective weight, which would outweigh any guide.
+    ``clear`` and ``limit``: per pose, in source diagonals (``objective.clearance``, ``objective.touch_limit``).
+    """
+    gate = gate or TRUSTED
+    override = gate.override
+    key = terms["objective"]
+    if guided and override <= 0:  # a guide without signal: the geometry alone
+        guided, key = False, combine({**terms, "clip": torch.zeros_like(key)}, weights)
+    clear, limit = clear.to(key.device), limit.to(key.device)
+    near = clear <= NEAR
+    pool = near if near.any() else torch.ones_like(near)
+    if guided:
+        fit = pool & ((clear <= limit) | (not touches))
+        if fit.any():
+            pen = terms["pen"]
+            if "sunk" in terms:  # penetration counts where the pose intersects, not at contact
+                pen = torch.where(intersecting(terms).to(pen.device), pen, torch.zeros_like(pen))
+            zeros = torch.zeros_like(key)
+            key = combine({**terms, "icp": zeros, "pen": pen, "prefer": zeros}, weights)
+            prefer, judged = terms.get("prefer", zeros), fit & holding(terms).to(fit.device)
+            pool, key = fit, key + gate.weigh(key[judged], prefer[judged]) * prefer
+    key = torch.where(pool, key.double(), torch.full_like(key, torch.inf, dtype=torch.float64))
+    ranked = rank_key({**terms, "objective": key}, weights, guide_key=key if guided else None,
+                      override=override, share=share, geometric=key)
+    return ranked.argmin()
+
+
+def alternatives_key(terms: dict[str, torch.Tensor], objectives: torch.Tensor, far: torch.Tensor, best: int) -> Key:
+    """The order of the refined placements a person picks among (``align.alternatives``): the answer ``best``
+    first, then those where the relation holds and nothing intersects (``holding``), then by the objective on
+    the evaluation views (not the selection's own key, which leaves soft-ICP out among touching poses with a
+    guide); those ``far`` from the target excluded."""
+    holds = holding({**terms, "objective": objectives})
+    key = Key((~holds).long().cpu(), objectives.double().cpu()).excluding(far.cpu())
+    return key.first(best)

@@ -1,0 +1,445 @@
+"""How the search ranks its candidates (``proposals``): score them forward only, keep a diverse best few.
+
+First the geometry screens every proposal (``Scorer.screen``: the relation's verdict, penetration, contact; no
+render) and only ``search.shortlist`` of them reach the guide (``encoder_shortlist``: distinct places where the
+relation holds, and a share of the others), so the encoder's images go to what can be the answer; a guide whose
+spread is within its noise (``ordering.Gate`` override 0) encodes nothing after the coarse stage
+(``Scorer.gated``, ``Scorer.guided``). ``score``: the objective's terms (``objective.Scorer``) of every candidate,
+ranked by the prompt's relation first, then by the guide's term where there is a guide with signal
+(``ordering.search_key``, ``guide_noise``: the proposals satisfy the geometry already), forward only under inference
+mode, ``search.batch`` candidates x views per render and encoder call: first all candidates at a few fixed views
+framing the target's region (the same cameras for all, so a per-view goal is encoded once), then
+``search.fine`` of them (``shortlist_of``: the best at distinct places, then the best distinct poses) at more
+views zoomed toward each candidate's source.
+Between the two, ``sweep`` tries every source orientation at the best few distinct sites of the coarse stage
+(a candidate's orientation is one draw of many; a right place with the wrong turn still ranks well).
+Where the source is small in those views (a cup on a big table), a *tile* stage also scores every proposal in
+views framed on its tile (a cell of the space around the target, a few source radii wide) by how much it
+changes the tile's view toward the guide: the guide's term minus that of the same view without the source
+(views framed on different tiles differ in what they show of the target, so only the change compares).
+
+``diverse_top``: the best ``optim.restarts`` poses, near-duplicates suppressed (``search.tile_restarts`` of
+them the tile stage's best); they start the optimiser. ``search`` runs it all.
+
+Frames: every pose maps the source local frame to the normalised frame (``pose``); points and directions here
+are in the normalised frame.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import torch
+
+from ctp_core.config import AlignConfig, share_of
+from ctp_core.config.schedule import Phase
+from ctp_core.errors import Canceled
+from ctp_core.geometry.pose import Poses, quaternion_product
+from ctp_core.objective import Scorer, goal_rows
+from ctp_core.pairs import PreparedPair
+from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
+from ctp_core.render.cameras import Cameras, orbit
+from ctp_core.search.ordering import Gate, Key, holding, rank_key, search_key
+from ctp_core.search.proposals import Proposals, place
+
+HIDDEN = 1e-6  # tile stage: a smaller change of the guide's term than this is a source its views do not see
+GATE_PROBES = 4  # ``guide_noise``: candidates scored again, moved by a negligible amount
+GATE_SHIFT = 0.01  # ... by this many source diagonals
+GATE_TURN_DEG = 1.0  # ... and turned this much about +Y
+AGREE_MIN = 3  # ``view_agreement``: fewer holding candidates than this tell nothing
+
+
+@dataclass
+class Ranked:
+    poses: Poses  # the kept poses, best first
+    objectives: Key  # (K,) their ranking key at the stage that kept them (fine; tile: the tile stage's)
+    scored: int  # candidate evaluations (coarse + sweep + tile + fine)
+    swept: int  # candidates of the orientation sweep
+    seconds: float
+    stages: dict[str, tuple[Poses, Key]] = field(default_factory=dict)  # per stage: poses, ranking key
+    holding: int = 0  # coarse and sweep candidates where the prompt's relation holds (all without one)
+    gate: Gate | None = None  # the guide's gate, for the refinement and the selection; None: not measured
+    screened: int = 0  # poses the geometry screened before the guide saw the shortlist (proposals, sweep turns)
+
+
+def _scene_radius(pair: PreparedPair, log_s: float) -> float:
+    return pair.target_radius + pair.source_radius * math.exp(log_s)
+
+
+def coarse_cameras(pair: PreparedPair, config: AlignConfig, log_s: float, look_at: torch.Tensor | None = None,
+                   radius: float | None = None) -> Cameras:
+    """(K, C) fixed views (K = 1: around the target centre) that frame the target and any source touching it,
+    or, given ``look_at`` (K, 3) and ``radius``, that frame that much around each point (the tile stage).
+
+    They depend on the target and the source's size only (never on a candidate or a reference pose).
+    """
+    cfg, cam = config.search, config.camera
+    views = cfg.coarse_views
+    fov = cam.eval_fov_deg
+    look_at = torch.zeros(1, 3) if look_at is None else look_at.cpu()
+    radius = _scene_radius(pair, log_s) if radius is None else radius
+    distance = radius / math.sin(math.radians(fov) / 2) * 1.05
+    azimuth = torch.arange(views, dtype=torch.float32)[None].expand(len(look_at), -1) * (360.0 / views) + 45.0
+    full = lambda v: torch.full((len(look_at), views), float(v))  # noqa: E731
+    device = pair.source_vertices.device
+    return orbit(look_at, azimuth, full(cam.eval_elevation_deg), full(distance), full(fov),
+                 cfg.coarse_image_size).to(device)
+
+
+def tiles_of(pair: PreparedPair, config: AlignConfig, poses: Poses) -> tuple[torch.Tensor, torch.Tensor, float] | None:
+    """Each pose's tile (N,), the tiles' centres (K, 3) and the radius a tile's views frame, or None where the
+    source is not small in the coarse views (a tile would frame more than half the scene's radius).
+
+    Tiles are the occupied cells of a grid of ``search.tile_radius`` source radii (at least a third of the
+    scene's radius) over the normalised frame; a tile's centre is the mean of its poses' source centres.
+    """
+    cfg = config.search
+    log_s = float(poses.log_s[0])
+    scene = _scene_radius(pair, log_s)
+    cell = max(cfg.tile_radius * pair.source_radius * math.exp(log_s), scene / 3)
+    if cfg.tile_restarts == 0 or cell > scene / 2 or not len(poses):
+        return None
+    keys = torch.floor(poses.t.cpu() / cell).to(torch.long)
+    _, tile = torch.unique(keys, dim=0, return_inverse=True)
+    count = int(tile.max()) + 1
+    centres = torch.zeros(count, 3).index_add_(0, tile, poses.t.cpu()) / torch.bincount(tile)[:, None]
+    # a source centred anywhere in its cell lies within the cell's half-diagonal plus its own radius of the centre
+    return tile, centres, cell * (math.sqrt(3) / 2) + pair.source_radius * math.exp(log_s)
+
+
+def tile_score(scorer: Scorer, poses: Poses, weights: Phase, tiles: tuple[torch.Tensor, torch.Tensor, float], *,
+               batch: int, progress=lambda scored: None,
+               should_cancel: CancelCheck | None = None) -> Key:
+    """(N,) each pose's ranking key (``ranking_key``: the relation first) by the guide's term in the coarse views
+    of its tile (``tiles``: ``tiles_of`` of ``poses``) minus that of the same views without the source (lower:
+    the source moves the view toward the guide).
+
+    Views framed on different tiles show different parts of the target, so only the change a source makes to
+    its own tile's views compares across tiles. The empty view is the scene with a point-sized source. A pose
+    that changes nothing (its source hidden from the tile's views, e.g. under a table top) cannot be judged there:
+    its key is inf (the coarse stage still ranks it), not the 0 that would rank it above every visible source.
+    Every pose is scored with its own tile's cameras and goal images in batches across tiles (``batch`` per
+    call): the goal's views of all tiles in one call, the empty views in one, not a few small calls per tile.
+    """
+    tile, centres, radius = tiles
+    cameras = coarse_cameras(scorer.pair, scorer.config, float(poses.log_s[0]), centres, radius)  # (K, C)
+    goal_embeddings = embed_shared_goal(scorer, cameras)  # (K, C, D) for a per-view goal, (D,) otherwise
+    count = len(centres)
+    empty = Poses(centres.to(poses.t), poses.q[:1].expand(count, 4), torch.full((count,), -30.0).to(poses.log_s))
+    base = terms_of(scorer, empty, weights, cameras, batch=batch, goal_embeddings=goal_embeddings,
+                    should_cancel=should_cancel)["clip"]
+    terms = terms_of(scorer, poses, weights, cameras.take(tile.to(cameras.eye.device)), batch=batch,
+                     goal_embeddings=goal_rows(goal_embeddings, tile), progress=progress, should_cancel=should_cancel)
+    moved = terms["clip"] - base[tile]
+    change = torch.where(moved.abs() > HIDDEN, moved, torch.full_like(moved, torch.inf))
+    return ranking_key(scorer, terms, weights, guide_key=change)
+
+
+def fine_cameras(pair: PreparedPair, config: AlignConfig, poses: Poses) -> Cameras:
+    """(B, C) views per candidate: the look-at moves ``fine_zoom`` of the way to its source's centre and the
+    framed radius shrinks toward the source's (but frames at least twice the source). With no zoom, (1, C)
+    views shared by every candidate (the same scales: a per-view goal is encoded once)."""
+    cfg, cam = config.search, config.camera
+    views, beta = cfg.fine_views, cfg.fine_zoom
+    if beta == 0 and bool((poses.log_s == poses.log_s[0]).all()):
+        poses = poses.select(slice(0, 1))
+    source_radius = pair.source_radius * poses.log_s.exp()
+    scene_radius = pair.target_radius + source_radius
+    radius = torch.maximum(scene_radius * (1 - beta), 2 * source_radius)
+    fov = cam.eval_fov_deg
+    distance = (radius / math.sin(math.radians(fov) / 2) * 1.05)[:, None].expand(-1, views)
+    look_at = beta * poses.t
+    azimuth = (torch.arange(views, dtype=torch.float32) * (360.0 / views) + 15.0).expand(len(poses), -1)
+    elevation = torch.tensor([cam.eval_elevation_deg + (10.0 if i % 2 else -10.0) for i in range(views)])
+    full = lambda v: torch.full((len(poses), views), float(v))  # noqa: E731
+    return orbit(look_at.cpu(), azimuth, elevation.expand(len(poses), -1), distance.cpu(), full(fov),
+                 cfg.fine_image_size).to(pair.source_vertices.device)
+
+
+def embed_shared_goal(scorer: Scorer, cameras: Cameras) -> torch.Tensor | None:
+    """The goal's embeddings for fixed cameras, (1, C) shared by every candidate or (K, C) shared by each of K
+    groups (the tile stage): a per-view goal encodes each view once, not once per candidate."""
+    if not scorer.guided:
+        return None
+    with torch.inference_mode():
+        embeddings = scorer.embed_goal(cameras)
+    return embeddings.clone()
+
+
+def terms_of(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, batch: int,
+             goal_embeddings: torch.Tensor | None = None, progress=lambda scored: None,
+             should_cancel: CancelCheck | None = None, views: bool = False) -> dict[str, torch.Tensor]:
+    """The objective's terms (``Scorer.score``: clip, icp, pen, rel, stable, objective) of ``poses`` on ``cameras``
+    ((1, C) shared or (N, C)), ``batch`` poses per call, forward only, on the CPU; ``progress(scored)`` after
+    each batch, cancel checked before each. ``goal_embeddings``: ``embed_shared_goal`` of shared cameras, when
+    already computed, or (N, C, D) per pose for per-pose cameras. ``views``: also ``clip_views`` where it
+    encodes (``Scorer.score``)."""
+    shared = cameras.fov_deg.shape[0] == 1
+    if shared and goal_embeddings is None and scorer.guided:
+        goal_embeddings = embed_shared_goal(scorer, cameras)
+    out: list[dict[str, torch.Tensor]] = []
+    for lo in range(0, len(poses), batch):
+        if should_cancel is not None and should_cancel():
+            raise Canceled("the run was cancelled")
+        chunk = poses.select(slice(lo, lo + batch))
+        cams = cameras if shared else cameras.rows(lo, lo + batch)
+        goal = goal_rows(goal_embeddings, slice(lo, lo + batch), shared)
+        out.append({k: v.cpu() for k, v in scorer.score(chunk, weights, cams, goal, views=views).items()})
+        progress(lo + len(chunk))
+    if not out:
+        return {k: torch.zeros(0) for k in ("clip", "icp", "pen", "sunk", "rel", "stable", "prefer", "objective")}
+    return {k: torch.cat([part[k] for part in out]) for k in out[0]}
+
+
+def score(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, batch: int,
+          goal_embeddings: torch.Tensor | None = None, progress=lambda scored: None,
+          should_cancel: CancelCheck | None = None) -> Key:
+    """(N,) ranking keys (``ranking_key``) of ``poses`` on ``cameras``: ``terms_of``, then ranked together."""
+    terms = terms_of(scorer, poses, weights, cameras, batch=batch, goal_embeddings=goal_embeddings,
+                     progress=progress, should_cancel=should_cancel)
+    return ranking_key(scorer, terms, weights)
+
+
+def guide_noise(scorer: Scorer, poses: Poses, terms: dict[str, torch.Tensor], weights: Phase, cameras: Cameras,
+                goal_embeddings: torch.Tensor | None, views: torch.Tensor | None = None) -> Gate:
+    """The guide's ``Gate`` from a stage's candidates: the spread (standard deviation) of its term over them,
+    and how far its views agree on its favourite where the relation holds (``view_agreement`` of ``views``, the
+    candidates' (N, C) ``clip_views``; None: not measured), against its noise: the largest change of its term
+    when ``GATE_PROBES`` of them (spread over its order) are
+    moved by ``GATE_SHIFT`` of the source's diagonal and turned ``GATE_TURN_DEG`` about +Y (a change the
+    geometry and any placement metric cannot tell; renders then differ a little at the source's edges and the
+    encoder's rounding (bf16 under autocast) differs with them). Costs ``GATE_PROBES`` candidates' encodes
+    (a few per cent of the coarse stage's); ``benchmarks/guide_signal.py`` compares the same spread to the
+    bf16 rounding offline."""
+    clip = terms["clip"]
+    order = torch.argsort(clip)
+    picks = order[torch.linspace(0, len(order) - 1, min(GATE_PROBES, len(order))).round().long()].unique()
+    probe = poses.select(picks)
+    generator = torch.Generator().manual_seed(scorer.config.seed)
+    direction = torch.nn.functional.normalize(torch.randn(len(picks), 3, generator=generator), dim=-1)
+    diagonal = scorer.pair.source_diagonal * probe.log_s.exp()
+    half = math.radians(GATE_TURN_DEG) / 2
+    turn = torch.tensor([math.cos(half), 0.0, math.sin(half), 0.0]).expand(len(picks), 4)
+    moved = Poses(probe.t + (GATE_SHIFT * diagonal)[:, None] * direction.to(probe.t),
+                  quaternion_product(turn.to(probe.q), probe.q), probe.log_s)
+    again = terms_of(scorer, moved, weights, cameras, batch=len(picks), goal_embeddings=goal_embeddings)["clip"]
+    noise = float((again - clip[picks]).abs().max())
+    agree = None if views is None else view_agreement(views[holding(terms)])
+    return Gate(float(clip.std()) if len(clip) > 1 else 0.0, noise, agree)
+
+
+def view_agreement(views: torch.Tensor) -> float | None:
+    """Where each view's favourite ranks in each other view's order, as the share of the candidates that view
+    ranks before it (0: its best too; 0.5 by chance), averaged over the ordered pairs of views; None with fewer
+    than ``AGREE_MIN`` candidates or one view. ``views``: (N, C) the guide's term per candidate and view (lower
+    is better), over the candidates where the relation holds (what the guide orders).
+
+    Why this is the guide's say: a guide that sees where the source belongs prefers the same pose from every
+    side, while a consistent function of the image that does not (a random encoder with any prompt, the issue's
+    "weak guide") prefers, in each view, what that view's pixels happen to favour."""
+    count, sides = views.shape
+    if count < AGREE_MIN or sides < 2:
+        return None
+    shares = [float((views[:, b] < views[int(torch.argmin(views[:, a])), b]).double().sum()) / (count - 1)
+              for a in range(sides) for b in range(sides) if a != b]
+    return sum(shares) / len(shares)
+
+
+def diverse_top(poses: Poses, objectives: Key, k: int, distance: float, angle_deg: float, *,
+                fill: bool = True) -> list[int]:
+    """Indices of the ``k`` best poses (first by ``objectives``), skipping any within ``distance`` (normalised
+    units) and ``angle_deg`` of one already kept; duplicates fill in only when too few distinct poses exist
+    (``fill``)."""
+    order = objectives.argsort().tolist()
+    q = torch.nn.functional.normalize(poses.q, dim=-1)
+    kept: list[int] = []
+    for i in order:
+        if len(kept) == k:
+            break
+        if kept:
+            near = (poses.t[kept] - poses.t[i]).norm(dim=-1) < distance
+            dot = (q[kept] @ q[i]).abs().clamp(max=1.0)
+            close = torch.rad2deg(2 * torch.acos(dot)) < angle_deg
+            if bool((near & close).any()):
+                continue
+        kept.append(i)
+    if fill:
+        kept += [i for i in order if i not in kept][: k - len(kept)]
+    return kept
+
+
+def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
+           on_event: ProgressCallback | None = None, should_cancel: CancelCheck | None = None,
+           phases: int = 1, started: float | None = None) -> Ranked:
+    """Coarse then fine scoring of ``proposals`` and the diverse best ``k`` (see module docstring). A ``scorer``
+    gated already (``Scorer.gated``) keeps its gate: one that silences the guide searches as without a guide.
+
+    Events: kind ``step`` with stage ``search``, step/steps = candidate evaluations done / planned.
+    """
+    config, pair = scorer.config, scorer.pair
+    cfg = config.search
+    began = time.perf_counter()
+    started = began if started is None else started
+    # views that frame the largest source (scale mode: the ladder's top rung); duplicates at the first one's size
+    cameras = coarse_cameras(pair, config, float(proposals.poses.log_s.max()))
+    distinct = distinct_of(pair, config, float(proposals.poses.log_s[0]))
+    screened = 0
+    if scorer.guided and 0 < cfg.shortlist < len(proposals.poses):  # only what can be the answer reaches the encoder
+        screened = len(proposals.poses)
+        with scorer.clock.time("search"):
+            geometric = scorer.screen(proposals.poses, weights)
+        proposals = proposals.select(encoder_shortlist(proposals.poses, geometric, weights, cfg.shortlist,
+                                                       distinct, cfg.min_share))
+    poses = proposals.poses
+    fine_count = min(cfg.fine, len(poses))
+    sweep_count = cfg.sweep * (len(proposals.rotations) if proposals.rotations is not None else 0)
+    if cfg.sweep_keep:
+        sweep_count = min(sweep_count, cfg.sweep * cfg.sweep_keep)
+    tiles = tiles_of(pair, config, poses) if scorer.guided else None  # no guide: nothing to tell tiles apart
+    tiled_count = len(poses) if tiles is not None else 0
+    total = len(poses) + sweep_count + tiled_count + fine_count
+
+    relation = scorer.reading.name if scorer.reading is not None else None
+    gate = scorer.gate  # the guide's, once the coarse stage has measured it (or as the scorer was gated)
+    held = [0, 0]  # candidates where the relation holds, of those scored (coarse and sweep)
+
+    def emit(done: int, best: float | None = None, restarts: int | None = None) -> None:
+        """A search event; ``restarts``: the refinement's count once known (the kept poses), before that the
+        planned one (``k``, plus the tile stage's where it runs: the message says what it adds)."""
+        if on_event:
+            elapsed = time.perf_counter() - started
+            tiled = cfg.tile_restarts if tiles is not None else 0
+            message = f"search: {done}/{total} candidates scored"
+            if relation is not None and held[1]:
+                message += f"; {held[0]} of {held[1]} hold '{relation}'"
+            message += f"; {k} restarts" + (f" + {tiled} from the tile stage" if tiled else "")
+            if gate is not None:
+                message += f"; {gate.summary()}"
+            counted = relation is not None and held[1]
+            on_event(ProgressEvent(kind="step", phase=0, phases=phases, step=done, steps=total,
+                                   restarts=restarts if restarts is not None else k + tiled, elapsed_s=elapsed,
+                                   eta_s=None, best_objective=best, stage="search", message=message,
+                                   relation=relation, relation_holds=held[0] if counted else None,
+                                   relation_checked=held[1] if counted else None))
+
+    emit(0)
+    with scorer.clock.time("search"):
+        goal_embeddings = embed_shared_goal(scorer, cameras)
+        terms = terms_of(scorer, poses, weights, cameras, batch=cfg.batch, goal_embeddings=goal_embeddings,
+                         progress=emit, should_cancel=should_cancel, views=True)
+        views = terms.pop("clip_views", None)
+        if scorer.guided and gate is None and len(poses) > 1:  # how far the guide may override the relation
+            gate = guide_noise(scorer, poses, terms, weights, cameras, goal_embeddings, views)
+            scorer = scorer.gated(gate)  # the later stages score under it
+            if gate.override == 0:
+                tiles = None  # a guide with no signal cannot tell tiles apart either
+                total -= tiled_count
+                tiled_count = 0
+        coarse = ranking_key(scorer, terms, weights)
+        swept = sweep(proposals, pair, coarse, cfg.sweep, distinct[0]) if sweep_count else None
+        if swept is not None and cfg.sweep_keep and len(swept) > sweep_count:  # the turns the geometry allows
+            screened += len(swept)
+            swept = swept.select(encoder_shortlist(swept, scorer.screen(swept, weights), weights, sweep_count,
+                                                   distinct, cfg.min_share))
+        if swept is not None and len(swept):
+            extra = terms_of(scorer, swept, weights, cameras, batch=cfg.batch, goal_embeddings=goal_embeddings,
+                             should_cancel=should_cancel, progress=lambda n: emit(len(poses) + n))
+            poses = Poses.cat([poses, swept])
+            terms = {key: torch.cat([terms[key], extra[key]]) for key in terms}
+            coarse = ranking_key(scorer, terms, weights)
+        held[:] = [int(holding(terms).sum()), len(poses)]
+        proposed = proposals.poses
+        tiled = None if tiles is None else tile_score(
+            scorer, proposed, weights, tiles, batch=cfg.batch, should_cancel=should_cancel,
+            progress=lambda n: emit(total - fine_count - tiled_count + n))
+        emit(total - fine_count)
+        shortlist = shortlist_of(poses, coarse, fine_count, *distinct)
+        fine_poses = poses.select(shortlist)
+        fine = score(scorer, fine_poses, weights, fine_cameras(pair, config, fine_poses), batch=cfg.batch,
+                     progress=lambda n: emit(total - fine_count + n), should_cancel=should_cancel)
+        # the fine views see each candidate closer; the coarse ones see all in the same frame: rank by both
+        ranked = fine.average(coarse.select(shortlist))
+        best = diverse_top(fine_poses, ranked, k, *distinct)
+        kept, objectives = fine_poses.select(best), ranked.select(best)
+        stages = {"coarse": (poses, coarse), "fine": (fine_poses, ranked)}
+        if tiled is not None:
+            picks = diverse_top(proposed, tiled, k, *distinct)
+            kept, objectives = merge(kept, objectives, proposed.select(picks), tiled.select(picks), cfg.tile_restarts,
+                                     distinct)
+            stages["tiles"] = (proposed, tiled)
+    emit(total, float(objectives.value[0]) if len(objectives) else None, restarts=len(kept))
+    return Ranked(kept, objectives, len(poses) + len(fine_poses) + (0 if tiled is None else len(tiled)),
+                  0 if swept is None else len(swept), time.perf_counter() - began, stages, held[0], gate, screened)
+
+
+def merge(first: Poses, first_keys: Key, second: Poses, second_keys: Key, m: int,
+          distinct: tuple[float, float]) -> tuple[Poses, Key]:
+    """All of ``first``, then up to ``m`` of ``second`` (best first) that are no near-duplicate of a kept pose
+    (``diverse_top``'s test); each with its own stage's key."""
+    both = Poses.cat([first, second])
+    keys = Key.cat([first_keys, second_keys])
+    finite = torch.cat([torch.ones(len(first), dtype=torch.bool), second_keys.finite().cpu()])
+    order = Key.plain(torch.arange(len(both), dtype=torch.float32)).excluding(~finite)  # a tile key of inf: not judged
+    keep = [i for i in diverse_top(both, order, len(first) + m, *distinct) if finite[i]]
+    return both.select(keep[: len(first) + m]), keys.select(keep[: len(first) + m])
+
+
+def shortlist_of(poses: Poses, objectives: Key, k: int, distance: float, angle_deg: float) -> list[int]:
+    """The fine stage's ``k`` candidates: the best at each of the ``k // 2`` best distinct places (any turn), then
+    the best distinct poses. The sweep puts every orientation at its sites, and those rank together: without
+    the first half they would fill the shortlist with two places."""
+    places = diverse_top(poses, objectives, k // 2, distance, 180.0)
+    rest = [i for i in diverse_top(poses, objectives, k, distance, angle_deg) if i not in places]
+    return places + rest[: k - len(places)]
+
+
+def encoder_shortlist(poses: Poses, terms: dict[str, torch.Tensor], weights: Phase, k: int,
+                      distinct: tuple[float, float], share: float) -> list[int]:
+    """Indices of the ``k`` candidates whose images the guide will see, chosen without it from their geometric
+    ``terms`` (``Scorer.screen``): where the prompt's relation holds, the best at distinct
+    places first (``shortlist_of``: the guide is what tells places apart, so they must reach it), then
+    ``share_of(k, share)`` where it fails, best by the geometry (a misread prompt must not make the right answer
+    unreachable: ``search.min_share``, the principle of the region weights); slots one side cannot fill go to
+    the other. A candidate the relation rules out costs no encoder image."""
+    key = rank_key(terms, weights, share=share)
+    held = holding(terms)
+    others = int((~held).sum())
+    reserve = min(others, share_of(k, share)) if held.any() else others
+    inside = [i for i in shortlist_of(poses, key.excluding(~held), k - reserve, *distinct) if held[i]]
+    rest = [i for i in shortlist_of(poses, key.excluding(held), k - len(inside), *distinct) if not held[i]]
+    return inside + rest
+
+
+def ranking_key(scorer: Scorer, terms: dict[str, torch.Tensor], weights: Phase,
+                guide_key: torch.Tensor | None = None) -> Key:
+    """What the search ranks a stage's candidates by (``ordering.search_key``): with ``scorer``'s guide as far as
+    the gate it scores under lets it (``Scorer.gated``; None: not measured yet), the search's ``min_share``;
+    ``guide_key``: the tile stage's change."""
+    return search_key(terms, weights, scorer.gate, guided=scorer.use_clip, share=scorer.config.search.min_share,
+                      guide_key=guide_key)
+
+
+def distinct_of(pair: PreparedPair, config: AlignConfig, log_s: float) -> tuple[float, float]:
+    """When two poses count as one (``diverse_top``): closer than this (normalised units) and this angle (deg)."""
+    diagonal = pair.source_diagonal * math.exp(log_s)
+    return config.search.distinct_translation * diagonal, config.search.distinct_rotation_deg
+
+
+def sweep(proposals: Proposals, pair: PreparedPair, objectives: Key, positions: int,
+          distance: float) -> Poses:
+    """Every source orientation at the best ``positions`` distinct sites (by ``objectives``): a coarse
+    candidate's orientation is one draw of many, and a good site with the wrong turn can still rank high."""
+    placed = torch.tensor([region != "init" for region in proposals.region])
+    if positions == 0 or not placed.any():
+        return Poses(torch.zeros(0, 3), torch.zeros(0, 4), torch.zeros(0))
+    candidates = torch.nonzero(placed)[:, 0]
+    poses = proposals.poses.select(candidates)
+    best = diverse_top(poses, objectives.select(candidates), positions, distance, 180.0)  # distinct places, any turn
+    rotations = proposals.rotations
+    sites = proposals.sites.select(candidates[best].repeat_interleave(len(rotations)))
+    q = rotations.repeat(len(best), 1)
+    swept, _ = place(pair, proposals.index, q, sites, poses.log_s[best].cpu().repeat_interleave(len(rotations)))
+    device = pair.source_vertices.device
+    return Poses(swept.t.to(device), swept.q.to(device), swept.log_s.to(device))
