@@ -6,7 +6,7 @@ be within 10° of the file's +Y. A second, symmetry-aware figure also counts an 
 profile along it matches the one along +Y (a cube or a sphere has no single up to find). Prints one
 JSON object: per case and totals.
 
-``--model SPEC`` adds the semantic judge (``pairs.upright_judge``: renders under candidate ups scored
+``--model SPEC`` adds the semantic judge (``upright.upright_judge``: renders under candidate ups scored
 against "a photo of a NAME", NAME from case.json); it needs real weights to mean anything, ``random:ARCH``
 only exercises the path.
 
@@ -23,9 +23,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ctp_core import io, pairs
+from ctp_core import io
 from ctp_core.geometry import sampling
 from ctp_core.guide import guidance, loaders
+from ctp_core.guide.upright import upright_judge
 from ctp_core.orientation import canonical
 
 _TOLERANCE_DEG = 10.0
@@ -39,7 +40,7 @@ def height_profile(points: np.ndarray, up: np.ndarray) -> np.ndarray:
 
 def upright(mesh, guide: guidance.Guide | None, name: str, args: argparse.Namespace) -> canonical.Upright:
     """Auto-Align by geometry, or with the semantic judge when a guide is given."""
-    judge = pairs.upright_judge(mesh, guide, name, views=args.views) if guide else None
+    judge = upright_judge(mesh, guide, name, views=args.views) if guide else None
     return canonical.upright_rotation(mesh, seed=args.seed, judge=judge)
 
 

@@ -1,5 +1,5 @@
 """Adjust a result by hand: a placement a person moved (the page's handles), measured as the search measures
-its poses, and, when asked, brought into contact first with the search's own ``proposals.settle``.
+its poses, and, when asked, brought into contact first with the search's own ``contact.settle``.
 
 Frames: the transform in and out maps the *source file* frame to the *target file* frame (a report's
 ``transform.matrix``, a result GLB's source node matrix); a ``direction`` is in the target file frame too (the
@@ -25,7 +25,7 @@ import numpy as np
 import torch
 import trimesh
 
-from ctp_core import objective, orientation
+from ctp_core import contact, objective, orientation
 from ctp_core.config import AlignConfig, schedule
 from ctp_core.errors import ConfigError
 from ctp_core.geometry import frames
@@ -34,11 +34,10 @@ from ctp_core.orientation import canonical
 from ctp_core.pairs import PreparedPair, Target, prepare_pair
 from ctp_core.relations import predicates
 from ctp_core.relations.vocabulary import RelationReading
-from ctp_core.search import proposals
 
 Settle = Literal["none", "drop", "push"]
 SETTLES: tuple[str, ...] = get_args(Settle)
-ROUNDS = 8  # ``proposals.settle`` calls at most: each runs its own few sphere-tracing steps
+ROUNDS = 8  # ``contact.settle`` calls at most: each runs its own few sphere-tracing steps
 STILL = 1e-3  # source diagonals: a round that moved the source less than this ends the settling
 FLOOR_POINTS = 256  # source samples whose lowest is kept on the floor plane
 
@@ -53,8 +52,8 @@ class Adjusted:
     moved: float  # how far settling moved it (0 for ``none``)
     on_floor: bool  # drop: it rests on the plane the target stands on, not on the target
     penetration: float  # the search's ``sunk``: penetration over the posed source's diagonal (``ordering.SUNK``)
-    contact_gap: float  # ``objective.contact_gap``: 0 when touching, within the target's sample spacing
-    touching: bool  # ``contact_gap`` within ``objective.TOUCH``: what the answer's selection counts as touching
+    contact_gap: float  # ``contact.contact_gap``: 0 when touching, within the target's sample spacing
+    touching: bool  # ``contact_gap`` within ``contact.TOUCH``: what the answer's selection counts as touching
     relation: dict[str, Any] | None  # ``predicates.RelationVerdict`` of the report's relation here; None without
 
     @property
@@ -93,20 +92,20 @@ def adjust(target: Target, source: trimesh.Trimesh, source_to_target: np.ndarray
     if settle != "none":
         normal = _approach_normal(pair, settle, direction)
         placed, on_floor = _settle(pair, pose, normal, config.seed, floor=settle == "drop")
-        placed_gap = float(objective.contact_gap(pair, placed)[0])
-        settled = placed_gap <= objective.TOUCH or on_floor
+        placed_gap = float(contact.contact_gap(pair, placed)[0])
+        settled = placed_gap <= contact.TOUCH or on_floor
         if settled:
-            moved = float((placed.t - pose.t).norm() / objective.source_diagonal(pair, pose)[0])
+            moved = float((placed.t - pose.t).norm() / contact.source_diagonal(pair, pose)[0])
             pose, gap = placed, placed_gap
     with torch.no_grad():
         scorer = objective.Scorer(pair, config, contact_ratio=1.0)  # soft-ICP's ratio: not read here
         sunk = float(scorer.geometry(pose, schedule.phases(config, allow_penetration=False)[-1])["sunk"][0])
         if gap is None:  # the pose as given (none, or a settling that met nothing)
-            gap = float(objective.contact_gap(pair, pose)[0])
+            gap = float(contact.contact_gap(pair, pose)[0])
     verdict = predicates.verdict(pair, pose, reading)
     return Adjusted(source_to_target=pair.source_to_target(pose.matrices()[0]), settle=settle, settled=settled,
                     moved=round(moved, 5), on_floor=on_floor, penetration=round(sunk, 6), contact_gap=round(gap, 5),
-                    touching=gap <= objective.TOUCH, relation=None if verdict is None else verdict.to_dict())
+                    touching=gap <= contact.TOUCH, relation=None if verdict is None else verdict.to_dict())
 
 
 def read_back(scene: trimesh.Scene, source_to_target: np.ndarray, node: str | None = None
@@ -135,7 +134,7 @@ def read_back(scene: trimesh.Scene, source_to_target: np.ndarray, node: str | No
 
 
 def _approach_normal(pair: PreparedPair, settle: str, direction: np.ndarray | None) -> torch.Tensor:
-    """(3,) the normal ``proposals.settle`` approaches against (it moves along -normal), normalised frame: +Y (up)
+    """(3,) the normal ``contact.settle`` approaches against (it moves along -normal), normalised frame: +Y (up)
     for a drop, the opposite of ``direction`` (target file frame) for a push."""
     if settle == "drop":
         return torch.tensor([0.0, 1.0, 0.0])
@@ -150,17 +149,17 @@ def _approach_normal(pair: PreparedPair, settle: str, direction: np.ndarray | No
 
 def _settle(pair: PreparedPair, pose: Poses, normal: torch.Tensor, seed: int, *,
             floor: bool) -> tuple[Poses, bool]:
-    """``pose`` moved along -``normal`` by ``proposals.settle`` (straight approach, the search's contact samples)
+    """``pose`` moved along -``normal`` by ``contact.settle`` (straight approach, the search's contact samples)
     until it stops moving; with ``floor``, never below the plane the target stands on (normalised +Y up). Returns
     the pose and whether the floor stopped it."""
-    index = proposals.contact_index(pair, seed=seed)
-    diagonal = float(objective.source_diagonal(pair, pose)[0])
+    index = contact.contact_index(pair, seed=seed)
+    diagonal = float(contact.source_diagonal(pair, pose)[0])
     level = pair.floor
     samples = pair.source_subset(FLOOR_POINTS) if floor else None
     t = pose.t.detach().clone()
     far = float(t.norm()) + 2 * (pair.target_radius + diagonal)  # past this it is only moving away from the target
     for _ in range(ROUNDS):
-        centre, _ = proposals.settle(pair, index, pose.q, t, normal[None], pose.log_s, on_surface=False,
+        centre, _ = contact.settle(pair, index, pose.q, t, normal[None], pose.log_s, on_surface=False,
                                      approach="straight")
         if floor:
             lowest = float(apply_pose(samples, centre, pose.q, pose.log_s)[0, :, 1].min())

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 import trimesh
 
-from ctp_core import priors
+from ctp_core import contact, priors
 from ctp_core.config import MAX_ALTERNATIVES, PENETRATION, AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.geometry import frames
@@ -148,6 +148,7 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
     from ctp_core import objective, orientation, pairs
     from ctp_core.config import schedule
     from ctp_core.guide import goals, loaders
+    from ctp_core.guide.upright import upright_judge
     from ctp_core.search import scaling
 
     started = time.perf_counter()
@@ -167,7 +168,7 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
         guide = guide or loaders.guide_for(config)
         # a scene's up is its base's (pairs.base), judged under the base's own name
         base_name, base = (target_name, target) if isinstance(target, trimesh.Trimesh) else pairs.objects(target)[0]
-        judge = pairs.upright_judge(base, guide, base_name, device=config.device)
+        judge = upright_judge(base, guide, base_name, device=config.device)
     pair = pairs.prepare_pair(target, source, samples=config.loss.samples, seed=config.seed, device=config.device,
                               canonicalise=config.upright, judge=judge, on=on, **orientation.configured(config))
     prepared = time.perf_counter()
@@ -212,7 +213,7 @@ def propose(run: Run, init: np.ndarray | None = None) -> Proposals:
     if warning is not None and not any(w["code"] == warning["code"] for w in run.warnings):
         run.warnings.append(warning)
     if not config.search.enabled:
-        return proposals.Proposals(starts, ["random"] * len(starts))
+        return contact.Proposals(starts, ["random"] * len(starts))
     t0 = time.perf_counter()
     weights = proposals.region_weights(run.reading)
     given = starts.select(slice(0, 1)) if init is not None else None
@@ -331,13 +332,12 @@ def alternatives(run: Run, outcome: Outcome) -> list[int]:
     ``MAX_ALTERNATIVES``, in ``ordering.alternatives_key``'s order (the relation first, then the objective on
     the evaluation views), near ones (``search.distinct_translation``
     source diagonals *and* ``distinct_rotation_deg``, as the search counts duplicates) and those that ended far
-    from the target (over ``objective.NEAR`` source diagonals) left out. A prompt like "a cup on the table" has
+    from the target (over ``contact.NEAR`` source diagonals) left out. A prompt like "a cup on the table" has
     many right answers; a person picks among these."""
-    from ctp_core import objective
     from ctp_core.search import ordering, ranking
 
     poses = outcome.poses
-    far = objective.clearance(run.pair, run.pair.index, poses) > objective.NEAR
+    far = contact.clearance(run.pair, run.pair.index, poses) > contact.NEAR
     key = ordering.alternatives_key(outcome.terms, outcome.objectives, far, outcome.best)
     distance, angle = ranking.distinct_of(run.pair, run.config, float(poses.log_s[0]))
     kept = ranking.diverse_top(poses, key, MAX_ALTERNATIVES, distance, angle, fill=False)

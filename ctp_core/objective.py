@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 import torch
@@ -22,6 +22,7 @@ import torch
 from ctp_core import losses, render
 from ctp_core.config import AlignConfig
 from ctp_core.config.schedule import Phase
+from ctp_core.contact import source_diagonal
 from ctp_core.geometry.pose import Poses, apply_pose, quaternion_to_matrix
 from ctp_core.guide.goals import Goal
 from ctp_core.guide.guidance import Guide
@@ -31,42 +32,23 @@ from ctp_core.relations import predicates
 from ctp_core.relations.vocabulary import RelationReading
 from ctp_core.render.cameras import Cameras, evaluation_views
 
-if TYPE_CHECKING:
-    from ctp_core.search.ordering import Gate
-    from ctp_core.search.scaling import ScalePlan
 
-NEAR = 2.0  # source diagonals: a pose whose source is farther than this from the target places it nowhere
+class ScaleTerm(Protocol):
+    """What a scorer needs of scale mode's plan (``search.scaling.ScalePlan``, a layer above): its term."""
 
-
-def clearance(pair: PreparedPair, index: losses.SurfaceIndex, poses: Poses, points: int = 64) -> torch.Tensor:
-    """(B,) the smallest distance between each posed source (``points`` of its samples) and the target samples,
-    in source diagonals (normalised frame)."""
-    posed = apply_pose(pair.source_subset(points), poses.t, poses.q, poses.log_s).detach().cpu()
-    dist, _ = index.tree.query(posed.reshape(-1, 3).numpy().astype(np.float64), k=1, workers=1)
-    return torch.as_tensor(dist.reshape(len(poses), -1).min(axis=1), dtype=torch.float32) / source_diagonal(pair, poses)
+    def term(self, log_s: torch.Tensor, geometric: float = 1.0) -> torch.Tensor: ...
 
 
-def source_diagonal(pair: PreparedPair, poses: Poses) -> torch.Tensor:
-    """(B,) each posed source's diagonal (``PreparedPair.source_diagonal`` x its scale), normalised units (CPU):
-    the unit of ``clearance`` and ``touch_limit``."""
-    return pair.source_diagonal * poses.log_s.detach().cpu().exp()
+class Say(Protocol):
+    """What a scorer needs of the guide's gate (``search.ordering.Gate``, a layer above): how far the guide may
+    override the usual arrangement, 0 to 1."""
+
+    @property
+    def override(self) -> float: ...
 
 
 SCREEN_POINTS = 256  # ``Scorer.screen``: source samples of the geometric screen before the guide
 ENCLOSED_SAMPLES = 512  # target samples a pose's enclosed penetration looks at (its bounding sphere's nearest)
-TOUCH = 0.1  # source diagonals: a refined pose this close to the target touches it (plus the samples' spacing)
-
-
-def contact_gap(pair: PreparedPair, poses: Poses) -> torch.Tensor:
-    """(B,) each pose's gap to the target in source diagonals: its ``clearance`` less the target samples' spacing
-    (a small source on a big target is farther from the nearest sample than from the surface), at least 0."""
-    return (clearance(pair, pair.index, poses) - (touch_limit(pair, poses) - TOUCH)).clamp(min=0)
-
-
-def touch_limit(pair: PreparedPair, poses: Poses) -> torch.Tensor:
-    """(B,) the ``clearance`` (source diagonals) under which a pose touches: ``TOUCH`` plus the spacing of the
-    target samples (a small source on a big target is farther from the nearest sample than from the surface)."""
-    return TOUCH + pair.sample_spacing(len(pair.index.points)) / source_diagonal(pair, poses)
 
 
 PREFER = 0.1  # ``combine``: weight of ``predicates.preference`` (the usual arrangement) relative to the relation's
@@ -106,7 +88,7 @@ class Scorer:
 
     def __init__(self, pair: PreparedPair, config: AlignConfig, contact_ratio: float, guide: Guide | None = None,
                  goal: Goal | None = None, clock: Clock | None = None, *, reading: RelationReading | None = None,
-                 scale: ScalePlan | None = None, gate: Gate | None = None):
+                 scale: ScaleTerm | None = None, gate: Say | None = None):
         self.pair, self.config, self.contact_ratio = pair, config, contact_ratio
         self.scale = scale  # scale mode: the ``scale`` term's plan (None: rigid, no term)
         # the prompt's relation where it judges poses (None: unknown, or ``config.relation`` off: zero terms)
@@ -118,7 +100,7 @@ class Scorer:
         self._images = _Tally()
         self._eval: tuple[Cameras, torch.Tensor] | None = None
 
-    def gated(self, gate: Gate | None) -> Scorer:
+    def gated(self, gate: Say | None) -> Scorer:
         """This scorer under the search's ``gate`` (what it encodes, how much the usual arrangement weighs:
         ``guided``, ``preference_weight``); it shares the clock and the count of encoded images."""
         twin = copy.copy(self)

@@ -17,9 +17,10 @@ import torch
 
 from ctp_core.config import AlignConfig
 from ctp_core.config.schedule import Phase
+from ctp_core.contact import clearance, contact_gap, touch_limit
 from ctp_core.errors import Canceled
 from ctp_core.geometry.pose import Poses, matrix_to_quaternion, quaternion_product, random_quaternions
-from ctp_core.objective import Scorer, clearance, combine, contact_gap, touch_limit
+from ctp_core.objective import Scorer, combine
 from ctp_core.pairs import PreparedPair
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.render.cameras import sample_training_views

@@ -22,7 +22,7 @@ import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import TYPE_CHECKING, TypeAlias, TypeVar
+from typing import TypeAlias, TypeVar
 
 import numpy as np
 import torch
@@ -35,9 +35,6 @@ from ctp_core.losses import SurfaceIndex
 from ctp_core.orientation import canonical
 from ctp_core.render.cameras import framing_cameras
 from ctp_core.render.structures import MeshArrays
-
-if TYPE_CHECKING:
-    from ctp_core.guide.guidance import Guide
 
 Target: TypeAlias = "trimesh.Trimesh | trimesh.Scene"  # one mesh, or placed objects (target file frame)
 # a surface whose normal has n_y above this faces up (the search's "top" region, the relations' supports), below
@@ -264,29 +261,6 @@ def outward(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     with np.errstate(divide="ignore", invalid="ignore"):  # trimesh divides by the volume of flat parts
         trimesh.repair.fix_normals(fixed, multibody=True)
     return fixed
-
-
-def upright_judge(mesh: trimesh.Trimesh, guide: Guide, name: str, *, views: int = 4, image_size: int = 224,
-                  device: str = "cpu") -> canonical.Judge:
-    """A ``canonical.Judge`` that asks ``guide`` which way up ``mesh`` (file frame) looks like a NAME.
-
-    Each candidate rotation (file -> upright) is rendered from ``views`` framing views at 30° elevation,
-    all candidates in one batch; its score is the mean cosine of its views with "a photo of a NAME"
-    (forward only).
-    """
-    arrays = MeshArrays.from_trimesh(mesh)
-    shape = render.RenderMesh.from_arrays(arrays, device=device)
-    centred = torch.as_tensor(arrays.vertices - mesh.bounds.mean(0), dtype=torch.float32, device=device)
-    text = guide.encode_text([f"a photo of a {name}"])[0]
-
-    @torch.no_grad()
-    def judge(rotations: np.ndarray) -> np.ndarray:
-        turned = centred @ torch.as_tensor(np.asarray(rotations), dtype=torch.float32, device=device).transpose(1, 2)
-        images = render.render(shape, turned, framing_cameras(turned, views, image_size))
-        scores = guide.score(images.flatten(0, 1), text).view(len(rotations), views).mean(1)
-        return scores.double().cpu().numpy()
-
-    return judge
 
 
 def render_arrangement(target: trimesh.Trimesh, source: trimesh.Trimesh, source_to_target: np.ndarray, *,

@@ -18,6 +18,9 @@ from ctp_core.render.structures import MeshArrays
 
 BENCH = Path(__file__).resolve().parents[2] / "shared" / "bench"
 CASES = sorted(p.parent for p in BENCH.glob("*/*/case.json"))
+# cases per set, as ../shared/bench/README.md lists them: a set whose folder is present must hold all of its
+# cases (a lost or half-copied case fails here, not as a silently smaller benchmark)
+SET_SIZES = {"pairbench3d": 25, "synthetic": 8, "real": 32}
 
 
 def _bench() -> list[Path]:
@@ -38,7 +41,8 @@ def _placement(case: dict, target: trimesh.Trimesh, source: trimesh.Trimesh) -> 
 
 def test_all_cases_load():
     cases = _bench()
-    assert len(cases) == 33
+    counted = {name: sum(folder.parent.name == name for folder in cases) for name in {c.parent.name for c in cases}}
+    assert counted == {name: SET_SIZES.get(name) for name in counted}, f"cases per set: {counted}, expected {SET_SIZES}"
     for folder in cases:
         case = json.loads((folder / "case.json").read_text())
         for role in ("target", "source"):

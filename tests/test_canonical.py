@@ -8,7 +8,7 @@ import torch
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from ctp_core import pairs
+from ctp_core.guide.upright import upright_judge
 from ctp_core.orientation import canonical
 
 
@@ -97,7 +97,7 @@ def test_deterministic_and_no_base_means_no_change():
 class _TopRedGuide:
     """A stand-in guide that likes renders whose upper half is red and lower half is not.
 
-    Through ``pairs.upright_judge`` it proves that each candidate is rendered the right way up: a
+    Through ``upright.upright_judge`` it proves that each candidate is rendered the right way up: a
     candidate turned the wrong way (R instead of R.T, or a camera upside down) would win otherwise.
     """
 
@@ -122,7 +122,7 @@ def _red_topped_cube() -> trimesh.Trimesh:
 
 def test_judge_finds_the_up_geometry_cannot():
     cube = _red_topped_cube()
-    judge = lambda mesh: pairs.upright_judge(mesh, _TopRedGuide(), "cube", image_size=64)  # noqa: E731
+    judge = lambda mesh: upright_judge(mesh, _TopRedGuide(), "cube", image_size=64)  # noqa: E731
     kept = canonical.upright_rotation(cube, judge=judge(cube))
     assert not kept.changed and np.array_equal(kept.rotation, np.eye(3))
     assert kept.reason.startswith("judged")

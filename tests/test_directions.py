@@ -16,6 +16,7 @@ from test_predicates import box, pose, poses, reading, rot, table
 from test_predicates import prepared as prepared_plain
 
 from ctp_core import align as stages
+from ctp_core import contact
 from ctp_core.align import align
 from ctp_core.config import AlignConfig
 from ctp_core.geometry.pose import Poses, apply_pose
@@ -297,8 +298,8 @@ def test_below_holds_under_a_lifted_shelf_board_and_not_on_it_beside_it_or_under
 def _below_proposals(pair) -> tuple[list[str], torch.Tensor, trimesh.Trimesh]:
     config = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0}, search={"candidates": 48})
     rotations = proposals.orientations(pair, config, torch.Generator().manual_seed(0))
-    one = proposals.Proposals(Poses(torch.zeros(1, 3), torch.tensor([[1.0, 0.0, 0.0, 0.0]]), torch.zeros(1)),
-                                     ["top"], None, rotations, proposals.contact_index(pair, seed=0))
+    one = contact.Proposals(Poses(torch.zeros(1, 3), torch.tensor([[1.0, 0.0, 0.0, 0.0]]), torch.zeros(1)),
+                                     ["top"], None, rotations, contact.contact_index(pair, seed=0))
     made = builders.BUILDERS["below"](pair, one, 0, reading("below"), 0.0,
                                                 builders.own_count(config))
     with torch.inference_mode():

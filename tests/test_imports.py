@@ -3,16 +3,16 @@
 
 The rules:
 
-- An edge is an import statement that can run: at module level, or inside a function (a function-level import
-  counts as an edge: importing lazily does not make a cycle harmless, it only hides it until the function runs).
-  Imports under ``if TYPE_CHECKING:`` never run and are not edges. ``from a import b`` is an edge to ``a.b`` where
-  that is a module, else to ``a``; relative imports are resolved the same way.
+- An edge is any import statement: at module level, inside a function (importing lazily does not make a cycle
+  harmless, it only hides it until the function runs) or under ``if TYPE_CHECKING:`` (a type named from a
+  higher floor is a dependency on it all the same). ``from a import b`` is an edge to ``a.b`` where that is a
+  module, else to ``a``; relative imports are resolved the same way.
 - No cycle among these modules, whatever kind its edges are.
 - A function-level import that is no part of a cycle may stay: it keeps ``import ctp_core.align`` and the CLI's
   start light (the engine's torch modules load when a stage runs).
-- ``service`` imports no torch: nothing reachable from a ``service`` module through any edge (and the packages
-  whose ``__init__`` runs on the way) imports ``torch`` or a model library built on it. The API process validates
-  configurations and plans with ``ctp_core`` and leaves the engine to the worker.
+- ``service`` imports no torch: nothing reachable from a ``service`` module through an edge that runs (and the
+  packages whose ``__init__`` runs on the way) imports ``torch`` or a model library built on it. The API process
+  validates configurations and plans with ``ctp_core`` and leaves the engine to the worker.
 """
 
 from __future__ import annotations
@@ -36,9 +36,10 @@ class Import:
     target: str
     line: int
     lazy: bool  # inside a function
+    typing: bool = False  # under ``if TYPE_CHECKING:``: never runs, still a dependency
 
     def where(self) -> str:
-        return f"line {self.line}{', in a function' if self.lazy else ''}"
+        return f"line {self.line}{', in a function' if self.lazy else ''}{', for typing' if self.typing else ''}"
 
 
 @cache
@@ -80,28 +81,30 @@ def _type_checking(node: ast.AST) -> bool:
 
 
 def imports_of(name: str) -> list[Import]:
-    """Every import statement of module ``name`` that can run (see the module docstring)."""
+    """Every import statement of module ``name`` (see the module docstring)."""
     path = modules()[name]
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     found: list[Import] = []
 
-    def visit(node: ast.AST, lazy: bool) -> None:
+    def visit(node: ast.AST, lazy: bool, typing: bool) -> None:
         for child in ast.iter_child_nodes(node):
             if _type_checking(child):
+                for branch in child.body:
+                    visit_one(branch, lazy, True)
                 for branch in child.orelse:
-                    visit_one(branch, lazy)
+                    visit_one(branch, lazy, typing)
             else:
-                visit_one(child, lazy)
+                visit_one(child, lazy, typing)
 
-    def visit_one(node: ast.AST, lazy: bool) -> None:
+    def visit_one(node: ast.AST, lazy: bool, typing: bool) -> None:
         if isinstance(node, ast.Import | ast.ImportFrom):
             for target in _targets(node, package):
                 ours = _module_of(target)
-                found.append(Import(ours or target.partition(".")[0], node.lineno, lazy))
+                found.append(Import(ours or target.partition(".")[0], node.lineno, lazy, typing))
         else:
-            visit(node, lazy or isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.Lambda))
+            visit(node, lazy or isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.Lambda), typing)
 
-    visit(ast.parse(path.read_text(), str(path)), False)
+    visit(ast.parse(path.read_text(), str(path)), False, False)
     return list(dict.fromkeys(found))  # once per statement and target (``from a import b, c``: one edge to ``a``)
 
 
@@ -160,9 +163,10 @@ def test_service_imports_no_torch():
     offenders = []
     while queue:
         name = queue.popleft()
-        offenders += [(name, item) for item in imports_of(name) if item.target in TORCH_PACKAGES]
+        offenders += [(name, item) for item in imports_of(name) if item.target in TORCH_PACKAGES and not item.typing]
         parent = name.rpartition(".")[0]
-        for nxt in [*graph()[name], *([parent] if parent else [])]:
+        running = [target for target, items in graph()[name].items() if any(not i.typing for i in items)]
+        for nxt in [*running, *([parent] if parent else [])]:
             if nxt not in previous:
                 previous[nxt] = name
                 queue.append(nxt)
@@ -176,54 +180,70 @@ def test_service_imports_no_torch():
     assert not offenders, "\n".join(f"{chain(name)} imports {item.target} ({item.where()})" for name, item in offenders)
 
 
-def test_the_graph_sees_function_level_imports_and_reports_a_cycle():
-    """The checks above are not vacuous: ``align``'s stages are imported in functions and are edges, and a
-    cycle closed by a function-level import is reported with that import."""
+def test_the_graph_sees_function_level_and_typing_imports_and_reports_a_cycle():
+    """The checks above are not vacuous: ``align``'s stages are imported in functions and are edges, so are the
+    types it names for checking only, and a cycle closed by a function-level import is reported with that
+    import."""
     assert any(item.lazy for item in graph()["ctp_core.align"]["ctp_core.optimise"])
     assert not any(item.lazy for item in graph()["ctp_core.align"]["ctp_core.config"])
+    assert any(item.typing for item in graph()["ctp_core.align"]["ctp_core.objective"])
     edges = {"a": {"b": [Import("b", 3, False)]}, "b": {"c": [Import("c", 4, False)]},
              "c": {"a": [Import("a", 9, True)]}}
     assert cycles(edges) == ["cycle: a -> b (line 3); b -> c (line 4); c -> a (line 9, in a function)"]
 
 
 # -- layers ---------------------------------------------------------------------------------------------------
-# The engine's stages, lowest first (docs/engine.md, "Layers"): a module may import its own layer and the layers
-# below, never one above. ``ctp_core`` is one flat package of concept modules (trimesh's model); the layers are what
-# a package cut would show, kept true by this test. A new module must be given its layer here.
-def _engine(members: str) -> frozenset[str]:
-    """``ctp_core``'s modules named without the package (``.`` for the package itself)."""
-    return frozenset("ctp_core" if m == "." else f"ctp_core.{m}" for m in members.split())
-
-
-LAYERS: tuple[tuple[str, frozenset[str]], ...] = (
-    ("base", _engine(". errors progress names weights pose frames structures sampling losses proximity")),
-    ("words", _engine("priors priors.lexicon priors.relations priors.context priors.prior priors.rules priors.openai"
-                       " priors.counts")),
-    ("config", _engine("config backends runtime schedule options plan guide_choice model_store")),
-    ("load", _engine("io loader canonical orientation examples")),
-    ("render", _engine("cameras render")),
-    ("prepare", _engine("scene")),
-    ("guide", _engine("guidance guide_loaders goals")),
-    ("judge", _engine("predicates objective ordering metrics")),
-    ("search", _engine("proposals relation_proposals ranking scaling")),
-    ("optimise", _engine("optimise")),
-    ("pipeline", _engine("align adjust assemble copies export")),
-    ("bench", _engine("bench bench.protocol bench.cases bench.baselines bench.guides bench.harness bench.sanity"
-                      " bench.summary")),
-    ("adapters", frozenset(m for m in modules() if m.partition(".")[0] in ("service", "worker"))),
-    ("cli", frozenset(m for m in modules() if m.partition(".")[0] == "ctp")),
+# The engine's families, lowest first (docs/engine.md, "Layers"): a module may import its own layer and the
+# layers below, never one above. A family is a package or a concept module of ``ctp_core``; a module's layer is
+# its family's, the longest family name that contains it. One family is split on purpose: the relations'
+# records (``relations.vocabulary``, torch-free) are words the reader and the service read, below the
+# relations' geometry (judges, builders). A new package or top-level module must be given its layer here.
+LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("base", ("ctp_core", "errors", "progress", "geometry", "losses")),
+    ("words", ("relations.vocabulary", "reading", "priors")),
+    ("config", ("config",)),
+    ("load", ("io", "orientation")),
+    ("render", ("render",)),
+    ("prepare", ("pairs",)),
+    ("guide", ("guide",)),
+    ("relations", ("contact", "relations")),
+    ("judge", ("objective", "metrics")),
+    ("search", ("search",)),
+    ("optimise", ("optimise",)),
+    ("pipeline", ("align", "adjust", "assembly", "export")),
+    ("bench", ("bench",)),
+    ("adapters", ("service", "worker")),
+    ("cli", ("ctp",)),
 )
+TOP_LEVEL_MAX = 25  # entries of ctp_core (modules and packages): the tree shows the pipeline
+
+
+def _family_name(family: str) -> str:
+    return family if family in ("ctp_core", "service", "worker", "ctp") else f"ctp_core.{family}"
 
 
 def layer_of(name: str) -> int | None:
-    return next((i for i, (_, members) in enumerate(LAYERS) if name in members), None)
+    """The layer of the longest family containing module ``name``; None if no family does."""
+    best, found = -1, None
+    for index, (_, families) in enumerate(LAYERS):
+        for family in map(_family_name, families):
+            inside = name == family or (family != "ctp_core" and name.startswith(family + "."))
+            if inside and len(family) > best:
+                best, found = len(family), index
+    return found
 
 
-def test_every_module_has_one_layer():
+def test_every_module_has_a_layer_and_every_family_exists():
     unplaced = [name for name in modules() if layer_of(name) is None]
-    twice = [name for name in modules() if sum(name in members for _, members in LAYERS) > 1]
-    assert not unplaced, f"give these modules a layer in LAYERS (tests/test_imports.py): {unplaced}"
-    assert not twice, f"in two layers: {twice}"
+    missing = [f for _, families in LAYERS for f in families if _family_name(f) not in modules()]
+    assert not unplaced, f"give these modules' family a layer in LAYERS (tests/test_imports.py): {unplaced}"
+    assert not missing, f"families in LAYERS that are no module or package: {missing}"
+
+
+def test_ctp_core_top_level_stays_small():
+    entries = sorted(p.name for p in (REPO / "ctp_core").iterdir()
+                     if p.name != "__pycache__" and (p.suffix == ".py" or (p / "__init__.py").exists()))
+    assert len(entries) <= TOP_LEVEL_MAX, f"{len(entries)} entries in ctp_core: {entries}"
 
 
 def upward(edges: dict[str, dict[str, list[Import]]]) -> list[str]:
@@ -243,5 +263,8 @@ def test_imports_go_down_the_layers():
 
 def test_the_layer_check_reports_an_upward_import():
     edges = {"ctp_core.relations.predicates": {"ctp_core.align": [Import("ctp_core.align", 7, True)]},
-             "ctp_core.pairs": {"ctp_core.render": [Import("ctp_core.render", 3, False)]}}
-    assert upward(edges) == ["ctp_core.relations.predicates (judge) imports ctp_core.align (pipeline, line 7, in a function)"]
+             "ctp_core.pairs": {"ctp_core.render": [Import("ctp_core.render", 3, False)]},
+             "ctp_core.relations.vocabulary": {"ctp_core.relations.builders": [Import("x", 5, False, True)]}}
+    assert upward(edges) == [
+        "ctp_core.relations.predicates (relations) imports ctp_core.align (pipeline, line 7, in a function)",
+        "ctp_core.relations.vocabulary (words) imports ctp_core.relations.builders (relations, line 5, for typing)"]

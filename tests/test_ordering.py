@@ -11,7 +11,8 @@ import torch
 
 from ctp_core.config import AlignConfig, share_of
 from ctp_core.config.schedule import Phase
-from ctp_core.objective import NEAR, TOUCH, combine
+from ctp_core.contact import NEAR, TOUCH
+from ctp_core.objective import combine
 from ctp_core.search import ordering
 from ctp_core.search.ordering import GATE_FULL, SUNK, Gate, Key
 

@@ -16,7 +16,7 @@ import trimesh
 from test_predicates import box, cup, reading, ring, rot, table, wall_with_peg
 
 from ctp_core import align as stages
-from ctp_core import objective
+from ctp_core import contact, objective
 from ctp_core.align import align
 from ctp_core.config import AlignConfig, schedule
 from ctp_core.relations import predicates
@@ -122,7 +122,7 @@ def test_a_guide_whose_spread_is_within_its_noise_does_not_override_the_relation
     assert key.argsort().tolist() == [2, 1, 0]
     # the selection of the refined answer follows the same gate: geometry without signal, the guide with it
     # (the restart failing the relation pays its weighted relation term there: lambda_rel x its score)
-    clear, limit = torch.zeros(3), torch.full((3,), objective.TOUCH)
+    clear, limit = torch.zeros(3), torch.full((3,), contact.TOUCH)
     rule = {"guided": True, "touches": True, "share": SHARE}
     assert ordering.select_answer(terms, clear, limit, WEIGHTS, **rule, gate=gate) == 2
     assert ordering.select_answer(terms, clear, limit, WEIGHTS, **rule, gate=ordering.Gate(1.0, 0.1)) == 1
@@ -166,7 +166,7 @@ def test_a_guided_selection_charges_penetration_only_where_a_pose_intersects():
     """At contact the penetration halves see a few samples a hair inside (``sunk`` far under ``SUNK``): the guide
     decides between two touching restarts there; past ``SUNK`` the penetration's weight counts again."""
     terms = _terms([0.0, 0.0], [0.0, 0.0], clip=[-0.997, -0.992])
-    clear, limit = torch.zeros(2), torch.full((2,), objective.TOUCH)
+    clear, limit = torch.zeros(2), torch.full((2,), contact.TOUCH)
     pen = 0.05 / WEIGHTS.lambda_pen  # weighted, ten times the guide's difference
     for sunk, chosen in ((0.1 * ordering.SUNK, 0), (2 * ordering.SUNK, 1)):
         terms.update(pen=torch.tensor([pen, 0.0]), sunk=torch.tensor([sunk, 0.0]))
@@ -181,7 +181,7 @@ def test_the_usual_arrangement_ranks_without_a_guide_and_breaks_only_the_guides_
     terms = _terms([0.0, 0.0], [0.0, 0.0], clip=[-0.997, -0.993])
     terms["prefer"] = torch.tensor([0.9, 0.2])  # the guide's favourite is the less usual arrangement
     terms["objective"] = objective.combine(terms, WEIGHTS)
-    clear, limit = torch.zeros(2), torch.full((2,), objective.TOUCH)
+    clear, limit = torch.zeros(2), torch.full((2,), contact.TOUCH)
     rule = {"touches": True, "share": SHARE}
     assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=False, **rule) == 1
     signal, noisy = ordering.Gate(spread=0.02, noise=5e-4), ordering.Gate(spread=0.02, noise=0.01)

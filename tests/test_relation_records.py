@@ -13,6 +13,7 @@ import torch
 import trimesh
 from test_predicates import BALL, BALL_POSES, box, cup, poses, prepared, ring, table, wall_with_peg
 
+from ctp_core import contact
 from ctp_core.config import AlignConfig
 from ctp_core.geometry.pose import Poses
 from ctp_core.priors.prior import ScenePrior
@@ -104,14 +105,14 @@ def test_a_reading_comes_from_the_priors_and_back_from_a_report_verdict():
 
 # --- each relation's own proposals ----------------------------------------------------------------------------------
 
-def _base(pair) -> proposals.Proposals:
+def _base(pair) -> contact.Proposals:
     """What a builder extends: the search's orientations and contact samples, one proposal at the files' scale."""
     rotations = proposals.orientations(pair, CONFIG, torch.Generator().manual_seed(0))
     one = Poses(torch.zeros(1, 3), torch.tensor([[1.0, 0.0, 0.0, 0.0]]), torch.zeros(1))
-    return proposals.Proposals(one, ["top"], None, rotations, proposals.contact_index(pair, seed=0))
+    return contact.Proposals(one, ["top"], None, rotations, contact.contact_index(pair, seed=0))
 
 
-def _built(pair, name: str, seed: int = 0) -> tuple[proposals.Proposals, torch.Tensor]:
+def _built(pair, name: str, seed: int = 0) -> tuple[contact.Proposals, torch.Tensor]:
     reading = RelationReading(name)
     made = builders.BUILDERS[reading.position](pair, _base(pair), seed, reading, 0.0, SHARE)
     assert made is not None and len(made.poses), name

@@ -8,7 +8,7 @@ import pytest
 import torch
 import trimesh
 
-from ctp_core import export, metrics, objective, pairs
+from ctp_core import contact, export, metrics, objective, pairs
 from ctp_core.align import align, prepare, propose, refine
 from ctp_core.config import AlignConfig, schedule
 from ctp_core.errors import Canceled
@@ -303,14 +303,14 @@ def test_the_answer_is_the_best_restart_that_stays_near_the_target(meshes):
     pair = pairs.prepare_pair(target, source, samples=CONFIG.loss.samples, seed=0)
     q = torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(2, 1)
     poses = pose.Poses(torch.tensor([[0.0, 30.0, 0.0], [0.0, 0.3, 0.0]]), q, torch.zeros(2))
-    clear = objective.clearance(pair, pair.index, poses)
-    assert clear[0] > objective.NEAR >= clear[1]
+    clear = contact.clearance(pair, pair.index, poses)
+    assert clear[0] > contact.NEAR >= clear[1]
     terms = {"objective": torch.tensor([-1.0, 0.0]), "clip": torch.tensor([-1.0, 0.0]), "icp": torch.zeros(2),
              "pen": torch.zeros(2)}
     weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
     for guided in (False, True):
         rule = {"guided": guided, "touches": False, "share": CONFIG.search.min_share}
-        limit = objective.touch_limit(pair, poses)
+        limit = contact.touch_limit(pair, poses)
         assert ordering.select_answer(terms, clear, limit, weights, **rule) == 1
         assert ordering.select_answer(terms, torch.tensor([9.0, 9.0]), limit, weights, **rule) == 0
 
@@ -325,7 +325,7 @@ def test_with_a_guide_the_answer_leaves_out_soft_icp_among_restarts_that_touch()
     terms["icp"] = torch.tensor([1.0, 0.0, 0.0, 0.0]) * 0.05 / weights.lambda_icp  # noise that outweighs the guide
     terms["objective"] = objective.combine(terms, weights)
     clear = torch.tensor([0.01, 0.0, 0.5, 0.0])  # the third floats half a diagonal off
-    limit = torch.full((4,), objective.TOUCH)
+    limit = torch.full((4,), contact.TOUCH)
     plain = {"guided": False, "touches": True, "share": CONFIG.search.min_share}
     guided = {"guided": True, "share": CONFIG.search.min_share}
     assert ordering.select_answer(terms, clear, limit, weights, **plain) == 2
@@ -343,10 +343,10 @@ def test_the_touch_limit_grows_with_the_target_sample_spacing(meshes):
     limits = []
     for samples in (200, 5000):
         pair = pairs.prepare_pair(target, source, samples=samples, seed=0)
-        limits.append(float(objective.touch_limit(pair, pose.Poses(t, q, torch.zeros(1)))[0]))
+        limits.append(float(contact.touch_limit(pair, pose.Poses(t, q, torch.zeros(1)))[0]))
         spacing = pair.sample_spacing(samples) / (2 * pair.source_radius)
-        assert limits[-1] == pytest.approx(objective.TOUCH + spacing, rel=1e-5)
-    assert limits[0] > limits[1] > objective.TOUCH
+        assert limits[-1] == pytest.approx(contact.TOUCH + spacing, rel=1e-5)
+    assert limits[0] > limits[1] > contact.TOUCH
 
 
 def test_cancel_during_search(meshes):

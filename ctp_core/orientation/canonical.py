@@ -37,7 +37,7 @@ Measured on ``../shared/bench`` by ``benchmarks/canonical_bench.py`` (figures in
 
 5. **A judge** (optional, semantic): geometry cannot tell where a figure's head is (nor a table without
    legs from one on its top); a vision-language model can. ``judge`` scores candidate rotations (in
-   practice: renders of the object under each, against "a photo of a NAME", ``pairs.upright_judge``)
+   practice: renders of the object under each, against "a photo of a NAME", ``upright.upright_judge``)
    and picks among the file's +Y, the best resting poses and the six dominant-axis directions. The
    file's +Y stays unless another candidate scores ``margin`` more.
 """

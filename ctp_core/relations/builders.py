@@ -9,7 +9,7 @@ proposals exist", has the measures).
 ``LEAN_TILTS`` about the horizontal axis along a side of the target, so its top tips toward the target; its
 lowest point on the floor the target stands on, just outside a side sample (the "side" region's samples,
 their outward normal made horizontal), then moved straight toward the target until it touches
-(``proposals.settle``'s "straight" approach). A reading that names the side leant on ("against the back of the
+(``contact.settle``'s "straight" approach). A reading that names the side leant on ("against the back of the
 sofa": ``lean+behind``) draws only the side samples facing that way (``predicates.toward``; within 45 degrees).
 
 ``in``: the source standing in the target's most enclosed up-facing places (the floors of its cavities: the
@@ -65,11 +65,11 @@ import torch
 from scipy.spatial import cKDTree
 
 from ctp_core.config import AlignConfig, share_of
+from ctp_core.contact import APPROACHES, Proposals, Site, place, surface_regions
 from ctp_core.geometry.pose import Poses, quaternion_product, quaternion_to_matrix
 from ctp_core.pairs import PreparedPair, per_pair
 from ctp_core.relations import predicates
 from ctp_core.relations.vocabulary import RelationReading
-from ctp_core.search.proposals import APPROACHES, Proposals, Site, place, surface_regions
 
 LEAN_TILTS = (15.0, 30.0, 45.0)  # degrees from the source's frame toward the target
 SHARE = 0.25  # a relation's own proposals, as a share of ``search.candidates`` (in place of the regions')
@@ -413,7 +413,7 @@ def _yaw(angle: float) -> torch.Tensor:
 
 def _lowered(pair: PreparedPair, proposals: Proposals, q: torch.Tensor, anchor: torch.Tensor, normal: torch.Tensor,
              on_surface: bool, log_s: float, label: str) -> Proposals:
-    """Sources turned by ``q`` moved straight along -``normal`` from ``anchor`` into contact (``proposals.place``),
+    """Sources turned by ``q`` moved straight along -``normal`` from ``anchor`` into contact (``contact.place``),
     those that end free of the target, labelled ``label``."""
     sites = _sites(anchor, normal, on_surface)
     placed, free = place(pair, proposals.index, q, sites, log_s)

@@ -422,7 +422,7 @@ class _Ctx:
 
     def reach(self) -> torch.Tensor:
         """(B,) contact tolerance of a gap to the ground's surface: ``tol``, and at least a third of the ground's
-        sample spacing, the sampled surface's resolution as ``proposals.settle`` allows it (a sample counts inside
+        sample spacing, the sampled surface's resolution as ``contact.settle`` allows it (a sample counts inside
         only past a third of the spacing); the spacing is in ``_gap`` tangentially, but along the normal a
         coarsely sampled tip rises between its samples: a small cross settled on a church's spire stood 1.15 x
         ``tol`` above its nearest up-facing sample."""

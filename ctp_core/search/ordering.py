@@ -25,7 +25,8 @@ import torch
 
 from ctp_core.config import share_of
 from ctp_core.config.schedule import Phase
-from ctp_core.objective import NEAR, combine
+from ctp_core.contact import NEAR
+from ctp_core.objective import combine
 from ctp_core.relations import predicates
 
 GATE_FULL = 4.0  # ``Gate``: a guide whose spread is this many times its noise may override the relation fully
@@ -265,7 +266,7 @@ def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: to
     (``prefer``, already x (1 - override): ``Scorer.preference_weight``) counts ``Gate.weigh`` per unit over the
     restarts that hold (as much as the guide's say leaves it, at least a difference the gate would trust fully),
     not its objective weight, which would outweigh any guide.
-    ``clear`` and ``limit``: per pose, in source diagonals (``objective.clearance``, ``objective.touch_limit``).
+    ``clear`` and ``limit``: per pose, in source diagonals (``contact.clearance``, ``contact.touch_limit``).
     """
     gate = gate or TRUSTED
     override = gate.override

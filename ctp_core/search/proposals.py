@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -32,59 +31,21 @@ from scipy.spatial import Delaunay, QhullError
 
 from ctp_core import losses
 from ctp_core.config import AlignConfig, share_of
+from ctp_core.contact import APPROACHES, NEAR, Proposals, Site, clearance, contact_index, place, surface_regions
 from ctp_core.geometry import sampling
 from ctp_core.geometry.pose import (
     Poses,
     matrix_to_quaternion,
     quaternion_product,
-    quaternion_to_matrix,
     random_quaternions,
 )
-from ctp_core.objective import NEAR, clearance
 from ctp_core.orientation import canonical
-from ctp_core.pairs import UP_FACING, PreparedPair
+from ctp_core.pairs import PreparedPair
 from ctp_core.relations.vocabulary import RelationReading
 
 REGIONS: tuple[str, ...] = ("top", "side", "bottom", "inside", "gap", "drop", "floor")
-# How a proposal comes into contact (``settle``): toward the closest target sample (a surface's outward normal
-# is where it starts from), straight down its site's -normal (lowered from above), or not at all (it rests on
-# the floor where it was put and only leaves the target if it starts inside it).
-APPROACHES: tuple[str, ...] = ("closest", "straight", "none")
-SETTLE_POINTS = 256  # source samples checked for penetration when settling proposals
-APPROACH_POINTS = 64  # source samples used while sliding proposals into contact
-CONTACT_SAMPLES = 6000  # target samples for settling proposals (the losses use ``loss.samples``)
-SETTLE_ITERATIONS = 12
-PUSH_ITERATIONS = 3
 HULL_POINTS = 96  # source convex hull vertices kept for the stable poses
 CAVITY_PROBES = 4096  # quasi-random points in the target AABB tried as cavity proposals
-
-@dataclass
-class Site:
-    """Where proposals touch the target: an anchor and approach direction per proposal (normalised frame)."""
-
-    anchor: torch.Tensor  # (N, 3) a target surface point, a cavity point or a floor point
-    normal: torch.Tensor  # (N, 3) approach along -normal (outward normal; +Y for cavity, drop and floor points)
-    gap: torch.Tensor  # (N,) distance kept from the target after contact (lateral proposals)
-    on_surface: torch.Tensor  # (N,) bool: the source starts with its extreme point along -normal at the anchor
-    # (a surface, drop or floor point; else it starts centred there: a cavity point)
-    approach: torch.Tensor  # (N,) index into APPROACHES
-
-    def select(self, index) -> Site:
-        return Site(*(value[index] for value in vars(self).values()))
-
-
-@dataclass
-class Proposals:
-    poses: Poses  # (N,) source local -> normalised
-    region: list[str]  # (N,) which region each was drawn from ("init" for the caller's start)
-    sites: Site | None = None  # (N,) where each touches (None: not placed by the search, e.g. random starts)
-    rotations: torch.Tensor | None = None  # (R, 4) the source orientations the proposals were drawn from
-    index: losses.SurfaceIndex | None = None  # the contact samples they were placed with
-
-    def select(self, index: list[int]) -> Proposals:
-        """These proposals at ``index`` (the orientations and contact samples are shared)."""
-        sites = None if self.sites is None else self.sites.select(torch.as_tensor(index, dtype=torch.long))
-        return Proposals(self.poses.select(index), [self.region[i] for i in index], sites, self.rotations, self.index)
 
 
 def region_weights(reading: RelationReading | None) -> dict[str, float]:
@@ -153,27 +114,6 @@ def _stable_poses(source: trimesh.Trimesh, seed: int) -> list[np.ndarray]:
     return list(rests)
 
 
-def surface_regions(pair: PreparedPair) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray], np.ndarray]:
-    """Target samples, normals, indices per surface region and a density weight per sample (of the object the
-    source relates to, ``PreparedPair.anchor``, when the target is a scene of placed objects).
-
-    Samples are area-weighted already; the density adds weight where the surface faces up, on rims (where
-    the normals of neighbouring samples disagree) and toward the top of the target (small tops, a spire's or a
-    head's, have little area but are where things are put).
-    """
-    anchor = pair.anchor  # in a scene of placed objects, the one the source relates to
-    points = anchor.points.cpu().numpy().astype(np.float64)
-    normals = anchor.normals.cpu().numpy().astype(np.float64)
-    ny = normals[:, 1]
-    _, near = anchor.tree.query(points, k=min(8, len(points)), workers=1)
-    spread = 1.0 - np.linalg.norm(normals[near].mean(axis=1), axis=1)
-    height = (points[:, 1] - points[:, 1].min()) / max(float(np.ptp(points[:, 1])), 1e-9)
-    density = 1.0 + np.clip(ny, 0.0, None) + (spread > 0.3) + 2.0 * height**4
-    regions = {"top": np.flatnonzero(ny > UP_FACING), "bottom": np.flatnonzero(ny < -UP_FACING),
-               "side": np.flatnonzero(np.abs(ny) <= UP_FACING)}
-    return points, normals, regions, density
-
-
 def cavity_points(pair: PreparedPair, seed: int) -> np.ndarray:
     """Points inside the target's convex hull but outside the target (its cavity, as the penetration term sees
     it: behind no oriented surface), away from the walls; (P, 3), possibly empty."""
@@ -213,94 +153,6 @@ def floor_points(pair: PreparedPair, count: int, margin: float, rng: np.random.G
     return out
 
 
-def contact_index(pair: PreparedPair, count: int = CONTACT_SAMPLES, seed: int = 0) -> losses.SurfaceIndex:
-    """Denser target samples than the losses' (normalised frame, outward normals) for placing proposals: the
-    sampled depth and distance are only as good as the spacing."""
-    parts = pair.target_outward  # a scene of placed objects: all of them, oriented once by prepare_pair
-    oriented = parts[0] if len(parts) == 1 else trimesh.util.concatenate(
-        [trimesh.Trimesh(m.vertices, m.faces, process=False) for m in parts])
-    points, normals = sampling.surface_samples(oriented, count, seed)
-    frame = pair.target_to_normalised
-    as_t = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
-    return losses.SurfaceIndex(as_t(frame.apply(points)), as_t(frame.apply_directions(normals)))
-
-
-def settle(pair: PreparedPair, index: losses.SurfaceIndex, q: torch.Tensor, anchor: torch.Tensor,
-           normal: torch.Tensor, log_s: torch.Tensor, on_surface: bool,
-           approach: str = "closest") -> tuple[torch.Tensor, torch.Tensor]:
-    """Source centres (B, 3) that bring each rotated source into contact from outside, approaching along -normal,
-    and whether each ended outside (a source wedged where pushing along the normal cannot free it did not).
-
-    ``index``: target samples (``contact_index``). ``on_surface``: ``anchor`` is a target surface point with
-    outward ``normal``; the source starts with its extreme point along -normal in the tangent plane there.
-    Otherwise it starts centred at ``anchor``. Then, a few times (a sparse subset of the source samples): if a
-    sample is inside the target (``losses.signed_depth``), push out along the normal by the deepest; else move
-    toward the target by the smallest distance between source and target samples (sphere tracing: a step that
-    short cannot pass through a sample), so it ends touching: along that closest pair (``approach`` "closest"),
-    along -normal ("straight": lowered from above). Last, a denser subset is checked and only pushed out.
-    ``approach`` "none": neither moved nor pushed, only checked (free where it was put, or dropped).
-    """
-    def subset(count: int) -> torch.Tensor:
-        rot = quaternion_to_matrix(q) * log_s.exp()[:, None, None]
-        return torch.einsum("bij,nj->bni", rot, pair.source_subset(count))
-
-    tol = 2e-3 * pair.target_radius
-    # the sampled depth is only as good as the sample spacing (an edge's neighbour plane votes near corners):
-    # count a sample inside only past a third of that spacing
-    spacing = pair.sample_spacing(len(index.points))
-    inside_tol = max(tol, spacing / 3)
-    low, high = index.points.min(0).values - spacing - tol, index.points.max(0).values + spacing + tol
-    centre = anchor.clone()
-    if on_surface:
-        rotated = subset(SETTLE_POINTS)
-        support = (-(rotated * normal[:, None, :]).sum(-1)).max(dim=1).values  # extent along -normal
-        centre = anchor + normal * (support + tol)[:, None]
-
-    def step(rotated: torch.Tensor, active: torch.Tensor, closing: bool) -> tuple[torch.Tensor, torch.Tensor]:
-        """Move the active candidates once; returns the ones that still move and every active one's depth."""
-        posed = rotated[active] + centre[active, None, :]
-        dist, idx = index.tree.query(posed.reshape(-1, 3).numpy().astype(np.float64), k=2, workers=1)
-        idx = torch.as_tensor(idx.reshape(*posed.shape[:2], 2), dtype=torch.long)
-        dist = torch.as_tensor(dist[:, 0].reshape(posed.shape[:2]), dtype=centre.dtype)
-        # behind the sampled surface and mostly along its normal: above a feature thinner than the sample
-        # spacing (a spire's tip) a point is behind the planes of the samples on either side, though outside
-        depth = losses.signed_depth(posed, index, 0.01, 2, idx=idx)
-        # a sample outside the target's box (by more than a sample spacing) is outside the target: far from a
-        # surface thinner than the spacing (a plate under a source 100 times its size) the nearest sample's side
-        # is a coin toss, and a wrong "inside" pushed such a source hundreds of radii away
-        within = ((posed >= low) & (posed <= high)).all(dim=-1)
-        depth = torch.where(within, depth, torch.zeros_like(depth))
-        deepest = torch.where(depth >= 0.5 * dist, depth, torch.zeros_like(depth)).max(dim=1).values
-        gap, nearest = dist.min(dim=1)
-        rows = torch.arange(len(active))
-        toward = index.points[idx[rows, nearest, 0]] - posed[rows, nearest]  # closest source sample -> its target's
-        toward = toward / toward.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-        inside = deepest > inside_tol
-        if approach == "straight":
-            toward = -normal[active]
-        reach = (gap - tol).clamp_min(0.0) if closing else torch.zeros_like(gap)
-        push = normal[active] * (deepest + tol)[:, None] if approach != "none" else torch.zeros_like(toward)
-        move = torch.where(inside[:, None], push, toward * reach[:, None])
-        centre[active] = centre[active] + move
-        return active[move.norm(dim=-1) >= tol], deepest
-
-    # approach with a sparse subset of the source (cheap), then check with a denser one and only push out
-    sparse, dense = subset(APPROACH_POINTS), subset(SETTLE_POINTS)
-    active = torch.arange(len(centre))
-    for _ in range(SETTLE_ITERATIONS if approach != "none" else 0):
-        active, _ = step(sparse, active, closing=True)
-        if not len(active):
-            break
-    active = torch.arange(len(centre))
-    depth = torch.zeros(len(centre))
-    for _ in range(PUSH_ITERATIONS if approach != "none" else 1):  # "none": kept only if free where put
-        moving, depth[active] = step(dense, active, closing=False)
-        active = moving
-        if not len(active):
-            break
-    return centre, depth <= inside_tol
-
-
 def propose(pair: PreparedPair, config: AlignConfig, weights: dict[str, float], log_s: float | Sequence[float],
             generator: torch.Generator, init: Poses | None = None) -> Proposals:
     """``search.candidates`` poses in contact, drawn per region by ``allocate`` (see module docstring).
@@ -308,7 +160,7 @@ def propose(pair: PreparedPair, config: AlignConfig, weights: dict[str, float], 
     Proposals the settling could not free from the target are dropped. ``log_s`` is the source scale of every
     proposal (rigid: kept from the files or the caller's start), or the scales they take in turn (scale mode:
     ``scaling.ScalePlan.rungs``, the first one sizing the floor's margin, the gaps and the summits' cells);
-    ``init`` (one pose) is added as a candidate as given when it is within ``objective.NEAR`` of the target.
+    ``init`` (one pose) is added as a candidate as given when it is within ``contact.NEAR`` of the target.
     """
     cfg = config.search
     rungs = [float(log_s)] if isinstance(log_s, int | float) else [float(r) for r in log_s]
@@ -371,19 +223,3 @@ def propose(pair: PreparedPair, config: AlignConfig, weights: dict[str, float], 
                      rotations, index)
 
 
-def place(pair: PreparedPair, index: losses.SurfaceIndex, q: torch.Tensor, sites: Site,
-          log_s: float | torch.Tensor) -> tuple[Poses, torch.Tensor]:
-    """Poses with orientations ``q`` and scales ``log_s`` (one, or one each) settled into contact at ``sites``
-    (``settle``), then moved out by each site's gap; returns the poses that ended free of the target and the mask
-    of which did."""
-    scale = torch.as_tensor(log_s, dtype=torch.float32).cpu().expand(len(q)).clone()
-    t = torch.empty(len(q), 3)
-    free = torch.ones(len(q), dtype=torch.bool)
-    for surface in (True, False):
-        for mode, approach in enumerate(APPROACHES):
-            sel = (sites.on_surface == surface) & (sites.approach == mode)
-            if sel.any():
-                t[sel], free[sel] = settle(pair, index, q[sel], sites.anchor[sel], sites.normal[sel], scale[sel],
-                                           on_surface=surface, approach=approach)
-    t = t + sites.normal * sites.gap[:, None]
-    return Poses(t, q, scale).select(free), free

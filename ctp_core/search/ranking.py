@@ -35,6 +35,7 @@ import torch
 
 from ctp_core.config import AlignConfig, share_of
 from ctp_core.config.schedule import Phase
+from ctp_core.contact import Proposals, place
 from ctp_core.errors import Canceled
 from ctp_core.geometry.pose import Poses, quaternion_product
 from ctp_core.objective import Scorer, goal_rows
@@ -42,7 +43,6 @@ from ctp_core.pairs import PreparedPair
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.render.cameras import Cameras, orbit
 from ctp_core.search.ordering import Gate, Key, holding, rank_key, search_key
-from ctp_core.search.proposals import Proposals, place
 
 HIDDEN = 1e-6  # tile stage: a smaller change of the guide's term than this is a source its views do not see
 GATE_PROBES = 4  # ``guide_noise``: candidates scored again, moved by a negligible amount
