@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 export OMP_WAIT_POLICY ?= PASSIVE
 
-.PHONY: install serve test lint bench-render
+.PHONY: install serve test lint bench-render docs-bench
 install: $(VENV)/.installed
 
 # One line per step. pip's own output (this machine's pip configuration warns a lot) goes to the log, whose
@@ -34,3 +34,8 @@ test: install
 
 lint: install
 	$(BIN)/ruff check .
+
+# The result tables of docs/benchmarks.md, regenerated from the stored runs under benchmarks/results/
+# (each: results.jsonl and commands.txt as `ctp bench` writes them, run.json with the machine kind and date).
+docs-bench: install
+	$(BIN)/python benchmarks/docs_tables.py
