@@ -196,7 +196,7 @@ def run(args: argparse.Namespace) -> int:
     from ctp_core import export, io  # the engine (torch, trimesh): seconds to import
     from ctp_core.align import align
     from ctp_core.config import AUTO
-    from ctp_core.guide.choice import NONE, pull_command
+    from ctp_core.guide.selection import NONE, pull_command
     from ctp_core.io.loader import MeshLoader
     from ctp_core.reading.counts import choose
 

@@ -96,10 +96,10 @@ def _serve(settings, args: argparse.Namespace) -> int:
 
 def _say_if_default_model_missing(spec: str) -> None:
     """One line at start when the local workers will not have the default model (``ctp_core.guide.checkpoints``); under
-    auto, that jobs run without a guide and the command that gets the model (``ctp_core.guide.choice``)."""
+    auto, that jobs run without a guide and the command that gets the model (``ctp_core.guide.selection``)."""
     from ctp_core.config import AUTO
     from ctp_core.guide.checkpoints import looks_local, missing
-    from ctp_core.guide.choice import NONE, choose, pull_command
+    from ctp_core.guide.selection import NONE, choose, pull_command
 
     if spec == AUTO:
         choice = choose()

@@ -20,7 +20,7 @@ from ctp_core import contact, priors
 from ctp_core.config import MAX_ALTERNATIVES, PENETRATION, AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.geometry import frames
-from ctp_core.guide import choice
+from ctp_core.guide import selection
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 
 if TYPE_CHECKING:  # the stages import these lazily: importing align stays light
@@ -65,7 +65,7 @@ class AlignResult:
     on: str | None = None  # the placed object an assembly step relates to
     guided_by: str | None = None  # what guided the run, in words (the report's "guidance")
     model: str | None = None  # the guidance model; None for a geometry-only run
-    guide: str = "none"  # the guide chosen for the run: a model spec or "none" (choice.GuideChoice)
+    guide: str = "none"  # the guide chosen for the run: a model spec or "none" (selection.GuideChoice)
     guide_why: str = ""  # why that guide
     runtime: str | None = None  # the guide's runtime ("torch", "onnx"); None without a guide
     clip_images: int = 0  # images the encoder scored
@@ -373,7 +373,7 @@ def align(
     init: np.ndarray | None = None,
     on_event: ProgressCallback | None = None,
     should_cancel: CancelCheck | None = None,
-    choice: choice.GuideChoice | None = None,
+    choice: selection.GuideChoice | None = None,
 ) -> AlignResult:
     """Place ``source`` relative to ``target`` (both in file frames) so renders agree with the prompt.
 
@@ -387,11 +387,11 @@ def align(
     A ``trimesh.Scene`` target is a scene of placed objects (``pairs.objects``): ``on`` names the one
     the source relates to (soft-ICP attaches to it, the search proposes on it; ``target_name`` and its size
     feed the priors), while renders and the penetration term see them all.
-    Model ``auto`` is resolved first (``choice.resolve``; ``choice``: ``auto``'s pick made already for this
+    Model ``auto`` is resolved first (``selection.resolve``; ``choice``: ``auto``'s pick made already for this
     run, a worker's); the result says which guide ran and why.
     Raises ``errors.Canceled`` when ``should_cancel()`` turns true, other ``CtpError`` on bad input.
     """
-    config, chosen = choice.resolve(config, image=image is not None, choice=choice)
+    config, chosen = selection.resolve(config, image=image is not None, choice=choice)
     run = prepare(target, source, prompt, config, on=on, image=image, target_name=target_name,
                   source_name=source_name, guide=guide, goal=goal)
     proposals = propose(run, init)

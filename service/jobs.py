@@ -262,7 +262,7 @@ class JobRecord(BaseModel):
                                                      "as the API that accepted it was set (Links.downloads)")
     adjusted: SavedAdjustment | None = Field(None, description="a succeeded alignment's saved adjustment, the latest")
     guide: str | None = Field(None, description="the guide its worker chose (a model spec or none) when it took it")
-    guide_why: str | None = Field(None, description="why that guide (ctp_core.guide.choice)")
+    guide_why: str | None = Field(None, description="why that guide (ctp_core.guide.selection)")
 
     @property
     def stage_count(self) -> int:
@@ -465,7 +465,7 @@ class Jobs:
         return record if record is not None and record.status == "running" and record.worker == worker else None
 
     def set_guide(self, job_id: str, guide: str, why: str) -> JobRecord | None:
-        """The guide the worker chose for its running job (``ctp_core.guide.choice``), and why."""
+        """The guide the worker chose for its running job (``ctp_core.guide.selection``), and why."""
         return self._update(job_id, lambda r: r.model_copy(update={"guide": guide, "guide_why": why})
                             if r.status == "running" else None)
 

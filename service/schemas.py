@@ -13,7 +13,7 @@ from pydantic import BaseModel, Field, create_model
 from ctp_core.config import AUTO, DEFAULT_MODEL, AlignConfig
 from ctp_core.config.options import AlignOptions, option_of, option_overrides
 from ctp_core.errors import ConfigError
-from ctp_core.guide.choice import asks_for_guide
+from ctp_core.guide.selection import asks_for_guide
 from ctp_core.reading.counts import CHOICES, MAX_COPIES
 from service.jobs import Alternative, JobError, JobRecord, Progress, SavedAdjustment, Status
 from service.settings import QUEUE_NAME
@@ -24,7 +24,7 @@ def build_config(options: dict[str, Any], *, default_model: str, allowed_models:
                  image: bool = False) -> AlignConfig:
     """Validate a client's options and merge them into their preset; raises ConfigError whose
     ``field`` is ``options.<name>``, code ``unknown_option`` or ``invalid_option``. A job under ``auto`` that
-    asks for guidance itself (``image``: a reference picture; ``choice.asks_for_guide``) gets the default
+    asks for guidance itself (``image``: a reference picture; ``selection.asks_for_guide``) gets the default
     model, so that it is refused up front (503 ``model_unavailable``) where no worker has it."""
     overrides = option_overrides(options)
     model = overrides.get("model", default_model)

@@ -20,7 +20,7 @@ from ctp.cmd_models import _Bar
 from ctp_core.config import DEFAULT_MODEL, AlignConfig
 from ctp_core.errors import ModelError
 from ctp_core.guide import checkpoints, store
-from ctp_core.guide.choice import NONE, resolve, unguided
+from ctp_core.guide.selection import NONE, resolve, unguided
 from ctp_core.io.examples import get_example
 from tests.conftest import REPO
 from tests.test_guidance import _save_tiny_hf_clip

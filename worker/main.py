@@ -190,12 +190,12 @@ def _preload(settings: Settings) -> dict[str, str | None]:
     models the service allows; returns ``{spec: None when this worker can run it, else why not}``, which
     the heartbeat publishes so that the API refuses jobs no worker can run (``Jobs.unavailable``). Under
     ``auto`` every worker runs the default jobs (with or without a guide), and what it loads is what auto picks
-    now (``choice.choose``; each job chooses again as it is taken)."""
+    now (``selection.choose``; each job chooses again as it is taken)."""
     import torch
 
     from ctp_core.config import AUTO, AlignConfig
     from ctp_core.errors import ModelError
-    from ctp_core.guide import checkpoints, choice
+    from ctp_core.guide import checkpoints, selection
     from ctp_core.guide.loaders import guide_for
 
     if settings.threads:
@@ -203,9 +203,9 @@ def _preload(settings: Settings) -> dict[str, str | None]:
     started = time.perf_counter()
     models = {spec: checkpoints.missing(spec) for spec in settings.allowed_models}
     # auto runs every job (without a guide where the default model is missing): preload what it picks now
-    choice = choice.choose() if settings.model == AUTO else None
+    choice = selection.choose() if settings.model == AUTO else None
     preload = choice.guide if choice else settings.model
-    if choice and preload == choice.NONE:
+    if choice and preload == selection.NONE:
         log.warning("no guide: %s (%s)", choice.why, choice.get_model)
         return models
     # The guide of a job with default options on this worker (the same cache entry its jobs get). Built

@@ -39,9 +39,9 @@ from ctp_core.export import (
     scene_glb,
     strip_png,
 )
-from ctp_core.guide import choice
-from ctp_core.guide.choice import GuideChoice
+from ctp_core.guide import selection
 from ctp_core.guide.loaders import guide_for
+from ctp_core.guide.selection import GuideChoice
 from ctp_core.io import MeshLimits, load_image, load_objects
 from ctp_core.io.loader import MeshLoader
 from ctp_core.progress import ProgressEvent
@@ -88,8 +88,8 @@ class JobContext:
 
     def guide(self, config: AlignConfig, stage: Stage, image: bool = False):
         """The job's guidance model (process-cached: the one the worker preloaded is not loaded again), None when
-        the run uses none (``choice.resolve``)."""
-        config = choice.resolve(config, image=image, choice=self.choice)[0]
+        the run uses none (``selection.resolve``)."""
+        config = selection.resolve(config, image=image, choice=self.choice)[0]
         if not config.uses_model:
             return None
         self.on_progress(Progress(stage=stage, kind="model", message=f"loading model {config.model}"), True)
@@ -99,10 +99,10 @@ class JobContext:
 def job_guide(record: JobRecord) -> tuple[GuideChoice | None, GuideChoice]:
     """Model auto's pick for a job, made once as a worker takes it (None: the job names its model), and the guide
     the job states (its record's): an assembly's is its first guided stage's."""
-    auto = choice.choose() if record.config.model == AUTO else None
+    auto = selection.choose() if record.config.model == AUTO else None
     runs = [(s.config, s.has_image) for s in record.steps] or [(record.config, record.has_image)]
-    stated = [choice.resolve(config, image=image, choice=auto)[1] for config, image in runs]
-    return auto, next((c for c in stated if c.guide != choice.NONE), stated[0])
+    stated = [selection.resolve(config, image=image, choice=auto)[1] for config, image in runs]
+    return auto, next((c for c in stated if c.guide != selection.NONE), stated[0])
 
 
 def served(record: JobRecord, settings: Settings) -> JobRecord:

@@ -26,7 +26,7 @@ from ctp_core.assembly.plan import check_plan
 from ctp_core.config import AUTO, AlignConfig
 from ctp_core.errors import Canceled, ConfigError, CtpError
 from ctp_core.geometry import frames
-from ctp_core.guide import choice
+from ctp_core.guide import selection
 from ctp_core.progress import CancelCheck, ProgressCallback
 
 if TYPE_CHECKING:  # the engine (torch) loads only when a step runs: the API checks plans with plan.check_plan
@@ -99,7 +99,7 @@ StepCallback = Callable[[int, int, Step], None]
 
 def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, *, base_name: str = "base",
              guide=None, on_event: ProgressCallback | None = None, on_step: StepCallback | None = None,
-             should_cancel: CancelCheck | None = None, choice: choice.GuideChoice | None = None) -> Assembly:
+             should_cancel: CancelCheck | None = None, choice: selection.GuideChoice | None = None) -> Assembly:
     """Place ``steps`` one after another around ``base`` (its file frame is the scene frame).
 
     ``on_step(index, count, step)`` is called as each step starts; ``on_event`` gets every step's
@@ -118,8 +118,8 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
     if any(c.model != config.model for c in configs):
         raise ConfigError("every stage must use the assembly's model (it is loaded once)", field="model")
     if choice is None and config.model == AUTO:
-        choice = choice.choose()
-    resolved = [choice.resolve(c, image=s.image is not None, choice=choice)[0]
+        choice = selection.choose()
+    resolved = [selection.resolve(c, image=s.image is not None, choice=choice)[0]
                 for s, c in zip(steps, configs, strict=True)]
     guided = [c for c in resolved if c.loss.lambda_clip > 0]
     if guide is None and guided:

@@ -41,7 +41,7 @@ from ctp_core.assembly.assemble import Placed, scene_of
 from ctp_core.config import AUTO, AlignConfig
 from ctp_core.errors import Canceled
 from ctp_core.geometry import frames
-from ctp_core.guide import choice
+from ctp_core.guide import selection
 from ctp_core.progress import CancelCheck, ProgressCallback
 from ctp_core.reading import counts
 from ctp_core.reading.counts import MAX_COPIES, CountReading, choose, one_copy
@@ -123,7 +123,7 @@ def place_copies(target: trimesh.Trimesh, source: trimesh.Trimesh, prompt: str |
                  count: int | None = None, arrangement: str = AUTO, target_name: str = "target",
                  source_name: str = "source", guide=None, on_event: ProgressCallback | None = None,
                  on_copy: CopyCallback | None = None, should_cancel: CancelCheck | None = None,
-                 choice: choice.GuideChoice | None = None) -> Copies:
+                 choice: selection.GuideChoice | None = None) -> Copies:
     """Place ``count`` copies of ``source`` (file frames) by ``arrangement`` (see the module); ``on_copy(k, n)`` is
     called as copy k of n starts. The guide is chosen and loaded once for all copies."""
     from ctp_core import adjust, orientation, pairs
@@ -133,8 +133,8 @@ def place_copies(target: trimesh.Trimesh, source: trimesh.Trimesh, prompt: str |
     n, kind, counted = choose(prompt, count, arrangement, source_name)
     one = one_copy(prompt, kind)
     if choice is None and config.model == AUTO:
-        choice = choice.choose()
-    resolved, chosen = choice.resolve(config, image=False, choice=choice)
+        choice = selection.choose()
+    resolved, chosen = selection.resolve(config, image=False, choice=choice)
     if guide is None and resolved.loss.lambda_clip > 0:
         from ctp_core.guide.loaders import guide_for
 

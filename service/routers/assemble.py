@@ -8,7 +8,7 @@ from fastapi.concurrency import run_in_threadpool
 from ctp_core.assembly.plan import PlanError, PlanStep, check_plan, plan_step
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
-from ctp_core.guide.choice import asks_for_guide
+from ctp_core.guide.selection import asks_for_guide
 from ctp_core.reading.names import NAME_MAX, default_name
 from service import forms, submit
 from service.deps import owner

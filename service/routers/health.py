@@ -6,7 +6,7 @@ import redis
 from fastapi import APIRouter, Request
 
 from ctp_core.config import AUTO, DEFAULT_MODEL
-from ctp_core.guide.choice import GuideChoice, unguided
+from ctp_core.guide.selection import GuideChoice, unguided
 from service.errors import documented, error_response
 from service.jobs import JobError
 from service.schemas import Health, Ready
