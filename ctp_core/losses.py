@@ -1,4 +1,4 @@
-"""The three terms of the objective (method.md "Objective"), batched over restarts.
+"""The three terms of the objective (../shared/docs/method.md, "Objective"), batched over restarts.
 
 All points are in the normalised frame. Each function returns one value per restart, shape (B,), so the
 optimiser can sum for the backward pass and still rank restarts.

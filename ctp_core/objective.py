@@ -1,5 +1,6 @@
 """The objective L = l_clip*L_clip + l_icp*L_icp(r) + l_pen*L_pen + l_rel*(L_rel + L_stable) of a batch of poses
-(method.md "Objective"; the relation terms: ``predicates``, docs/relations.md).
+(../shared/docs/method.md, "Objective", in brief in docs/engine.md; the relation terms: ``predicates``,
+docs/relations.md).
 
 One ``Scorer`` per run computes the terms for any batch of poses on any cameras: the search scores hundreds of
 candidates with it (forward only), the optimiser its restarts (with the CLIP gradient during steps, forward

@@ -1,4 +1,4 @@
-"""The phased, multi-restart pose optimiser (method.md "Optimise" and "Select").
+"""The phased, multi-restart pose optimiser (../shared/docs/method.md, "Optimise" and "Select").
 
 All restarts are one batch: one render call renders restarts x views, one guide call embeds them, and
 the losses return one value per restart. Each phase starts from every restart's best pose so far with
@@ -42,7 +42,7 @@ class Outcome:
 
 def initial_poses(pair: PreparedPair, config: AlignConfig, log_s: float, generator: torch.Generator,
                   init: np.ndarray | None = None) -> Poses:
-    """Random starts (method.md "Initialise"): direction uniform, distance 2-4 target radii, scale ``log_s``.
+    """Random starts (the method's "Initialise"): direction uniform, distance 2-4 target radii, scale ``log_s``.
 
     Rotations are uniformly random in the ``paper`` spirit when ``optim.init_rotation == "random"``;
     otherwise each start is the source's own upright frame turned about +Y, which keeps the source
@@ -187,7 +187,7 @@ class Optimiser:
                 "relation_checked": len(best) if reading is not None else None}
 
     def _perturb(self, opt: torch.optim.Optimizer) -> None:
-        """Zero-mean Gaussian pose noise after each step, sigma = noise * current lr (method.md)."""
+        """Zero-mean Gaussian pose noise after each step, sigma = noise * current lr (the method's)."""
         scale = self.scorer.config.optim.noise
         if scale <= 0:
             return

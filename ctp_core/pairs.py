@@ -74,8 +74,8 @@ def _position(names: list[str], on: str) -> int:
 def base(target: Target) -> trimesh.Trimesh:
     """The object that decides which way is up: the first of a scene (an assembly's base), or the mesh.
 
-    Not the whole scene: objects placed on it change its resting poses (a plate hung at a table leg's
-    foot made the table rest best upside down), and the scene's up must not turn from stage to stage.
+    Not the whole scene: objects placed on it change its resting poses (a plate resting against a table
+    leg's foot can make the table rest best upside down), and the scene's up must not turn from stage to stage.
     """
     return objects(target)[0][1]
 

@@ -1,4 +1,4 @@
-"""Iterative assembly (method.md "Other applications"): build a scene one object at a time.
+"""Iterative assembly (../shared/docs/method.md, "Other applications"): build a scene one object at a time.
 
 ``assemble(base, steps, config)`` places each step's source in turn (the plan a user writes, and its
 checks, are ``plan``'s). Step k runs the one ``align`` pipeline with the scene of the objects placed in

@@ -1,4 +1,4 @@
-"""Several of a kind in one run: ``count`` copies of the source, arranged (issue 41).
+"""Several of a kind in one run: ``count`` copies of the source, arranged.
 
 ``place_copies(target, source, prompt, config, count=..., arrangement=...)`` places the copies one after another
 (greedy): copy k sees the target and copies 1..k-1 as one scene (``assemble.scene_of``), so the penetration term

@@ -1,4 +1,4 @@
-"""The paper's baselines, from the same protocol starts as ctp (method.md, "Baselines").
+"""The paper's baselines, from the same protocol starts as ctp (../shared/docs/method.md, "Baselines").
 
 - ``b1``, shrinkwrap: Blender's shrinkwrap constraint on the source as a rigid body, i.e. move the
   source's centre to the nearest target surface point, then push it out along that point's outward

@@ -4,7 +4,7 @@
 - ``image``: one picture of the reference arrangement from a random view (image-guided alignment).
 - ``oracle``: per view, the reference arrangement rendered with the same camera
   (``goals.ReferenceGoal``). The problem then has a known optimum, so pose error measures the
-  optimiser with whatever encoder is at hand, random ones included (issue 6).
+  optimiser with whatever encoder is at hand, random ones included.
 - ``pixels``: the oracle without an encoder (``PixelGuide``): per view, the image distance to the reference
   rendered by the same camera. An upper-bound instrument, never a product number: with it a miss is the
   search's or the optimiser's, not the random encoder's weak signal.

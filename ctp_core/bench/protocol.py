@@ -1,4 +1,4 @@
-"""The perturbation protocol (method.md, "Benchmark protocol"): where each run starts.
+"""The perturbation protocol (../shared/docs/method.md, "Benchmark protocol"): where each run starts.
 
 Every pose here is a 4x4 *source file frame -> target file frame* similarity, the same convention as
 ``case.json``'s reference and ``AlignResult.source_to_target``. Draws are seeded by (seed, case id)
@@ -68,7 +68,7 @@ def initial_poses(base: np.ndarray | None, source_bounds: np.ndarray, *, protoco
 
 def random_starts(target_bounds: np.ndarray, source_bounds: np.ndarray, scale: float, count: int,
                   rng: np.random.Generator, distance: tuple[float, float] = (2.0, 4.0)) -> list[np.ndarray]:
-    """Starts with no knowledge of the answer (method.md, "Initialise"): the source centre at a random
+    """Starts with no knowledge of the answer (the method's "Initialise"): the source centre at a random
     direction and 2-4 target radii from the target centre, uniformly random rotation, given scale.
 
     Bounds are AABBs in each object's file frame; the target radius is half its AABB diagonal.

@@ -1,7 +1,7 @@
 """Geometry-only sanity of the optimiser, measurable without vision-language weights.
 
 With lambda_clip = 0 and the source started two target radii away, the geometric terms alone must bring
-the source into contact without interpenetration (issue 3, item 7), where the prompt's relation asks for
+the source into contact without interpenetration, where the prompt's relation asks for
 contact (its contact ratio above 0); where it does not ("a ball under the table", "a cup beside the box":
 soft-ICP attaches nothing), they must bring it to where that relation holds, without interpenetration. Used
 by a test over ``shared/bench/synthetic`` and by ``benchmarks/align_bench.py``.

@@ -1,6 +1,6 @@
 """One typed configuration object for an alignment run, with named presets.
 
-Every knob of the method (method.md) lives here with its default and a line on why; callers build an
+Every knob of the method (../shared/docs/method.md) lives here with its default and a line on why; callers build an
 ``AlignConfig`` (usually ``AlignConfig.preset("default")`` plus overrides) and pass it down whole
 instead of threading keyword arguments through the layers.
 
@@ -121,7 +121,7 @@ class SearchConfig(_Strict):
     """The global search before the optimiser (``search``): geometry-only proposals in contact, scored
     forward only, coarse to fine; its diverse best ``optim.restarts`` poses start the optimiser."""
 
-    enabled: bool = Field(True, description="off: the optimiser starts from random poses (method.md Initialise)")
+    enabled: bool = Field(True, description="off: the optimiser starts from random poses (the method's Initialise)")
     candidates: int = Field(144, ge=1, le=20000, description="contact proposals made (and scored by the geometry)")
     shortlist: int = Field(
         0, ge=0, le=20000, description="with a guide, the proposals whose images it sees at the coarse stage, "

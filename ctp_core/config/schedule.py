@@ -1,4 +1,4 @@
-"""Per-phase settings (method.md "Optimise" and "Camera scheduling").
+"""Per-phase settings (../shared/docs/method.md, "Optimise" and "Camera scheduling").
 
 Phases let the geometric terms grow (log-spaced weights) while the cameras move from the target's
 centre toward the posed source and come closer, so a small source fills more pixels late in the run.

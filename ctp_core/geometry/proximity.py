@@ -2,7 +2,8 @@
 
 ``trimesh.proximity.closest_point`` gathers, for every query point at once, each triangle whose box
 meets a sphere as wide as the distance to the nearest vertex; far from a dense mesh that is most of
-it, for every point (72 M triangles, 21 GB, for 2000 points against a 69k-face scan). Here each
+it, for every point (memory grows as points x triangles: a few thousand points against a large scan run out
+of memory). Here each
 point's search radius is the distance to the nearest of a dense set of surface samples (an upper
 bound on the answer), the candidate (point, triangle) pairs are evaluated in batches of at most
 ``batch`` pairs, and ``min_distance`` shrinks every radius to the best distance found so far. Results

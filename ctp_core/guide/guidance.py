@@ -12,8 +12,8 @@ Model specs (the strings of ``ctp align --model``):
   tokenizer, from a local directory (``save_pretrained`` output) or the Hugging Face cache. This is the
   real-weights backend: transformers needs no torchvision, and has SigLIP and ALIGN, which the
   paper's metrics use.
-- ``open_clip:ARCH:TAG``: only when ``open_clip`` is importable. It is not installed here: it imports
-  torchvision, whose PyPI build does not import beside the CPU torch on disk. ``TAG`` may be a
+- ``open_clip:ARCH:TAG``: only when ``open_clip`` is importable. It is no dependency: it imports
+  torchvision, whose PyPI build does not import beside the CPU torch build. ``TAG`` may be a
   checkpoint path.
 - ``random:ARCH``: the same architecture with deterministic random weights (seeded, built from a
   config in code, nothing read or downloaded) for tests and benchmarks on machines without weights.
@@ -43,7 +43,7 @@ costs nothing there). bf16 is on by default on CPU only where the CPU has AVX512
 native bf16 it is emulated and many times slower than fp32, so the CPU path is fp32 there. The model's weights
 are frozen (``requires_grad_(False)``) so the backward pass computes pixel gradients only. ``random:tiny`` is too
 small to gain from bf16 (autocast's overhead dominates); it exists for CI. The measurements behind these rules
-(``benchmarks/guidance_bench.py``) are in docs/benchmarks.md, "Precision of the guide".
+(``benchmarks/guidance_bench.py``) are in docs/guidance.md, "Precision and speed".
 """
 
 from __future__ import annotations

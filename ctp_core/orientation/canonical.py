@@ -3,7 +3,7 @@
 Renders guide the optimiser, and a vision-language model recognises objects in their usual
 orientation, so a lying or upside-down target spoils every view. Four cues, all from geometry alone:
 
-1. **Dominant axes** (method.md): RANSAC over area-weighted face normals for three orthogonal axes
+1. **Dominant axes** (../shared/docs/method.md): RANSAC over area-weighted face normals for three orthogonal axes
    (200 tries, 5° inliers), refined by an area-weighted median (10 iterations). They make the answer
    exact (a chosen up within 5° of an axis snaps to it) and fix the turn about the up axis.
 2. **Resting pose**, the cue the reference lacks (it takes the frame nearest the input, so it cannot

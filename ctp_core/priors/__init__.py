@@ -1,6 +1,6 @@
 """Scene priors: size ratio, penetration and contact ratio for a (target, source, prompt) triple.
 
-The hyperparameter step of the method (method.md) behind one interface: ``get_provider("rules")``
+The hyperparameter step of the method (../shared/docs/method.md) behind one interface: ``get_provider("rules")``
 (default: lexicon + prompt cues, deterministic, offline) or ``get_provider("openai")`` (any
 OpenAI-compatible chat endpoint, falling back to the rules on any failure). ``resolve_priors`` is what
 ``align`` calls: the provider's estimate, overridden by whatever the caller set explicitly.

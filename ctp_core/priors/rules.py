@@ -420,14 +420,13 @@ def _penetration(relation, figure: bool, target, source, filled: str | None, flo
     encased in (ice, amber); what rests on the bottom of filled contents or is beneath their surface is under them; a
     short or staked pointed thing that fastens or holds a pierceable solid (a safety pin, a skewer through a burger)
     goes through it. Something screwed into what no point goes into (an engine, a lamp) is in a threaded hole, and an
-    accessory pinned to a person goes through their clothes. Since batch20: what is threaded, impaled or hooked onto a
-    pointed thing (bait on a fishing hook) is pierced by it, and hooks made to pierce (fishing, meat hooks) are pointed.
-    Since batch23, defaults for what the rules do not know: a pointed thing "in" any solid that is no container, and
-    no holder named for it, is stuck in it (a dart in a door, not a knife in a knife block); any verb "into" a
-    pierceable mass that is no sheet goes in (a pebble sinking into mud); what is on the spines, thorns or prongs of
-    something is impaled on them. Since batch24 (found in ``estimate``): what is planted in a container is in its
-    soil, an animal drinking from something has its muzzle in the water it holds, and a biting or stinging insect
-    (``bites``) pierces the skin.
+    accessory pinned to a person goes through their clothes. What is threaded, impaled or hooked onto a pointed
+    thing (bait on a fishing hook) is pierced by it, and hooks made to pierce (fishing, meat hooks) are pointed.
+    Defaults for what the rules do not know: a pointed thing "in" any solid that is no container, and no holder
+    named for it, is stuck in it (a dart in a door, not a knife in a knife block); any verb "into" a pierceable mass
+    that is no sheet goes in (a pebble sinking into mud); what is on the spines, thorns or prongs of something is
+    impaled on them. Found in ``estimate``: what is planted in a container is in its soil, an animal drinking from
+    something has its muzzle in the water it holds, and a biting or stinging insect (``bites``) pierces the skin.
     """
     ground, fig = (target, source) if figure else (source, target)
     fig_name = fig.phrase if fig is not None else "source" if figure else "target"

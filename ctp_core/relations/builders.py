@@ -2,8 +2,8 @@
 
 ``proposals.propose`` draws from regions (top, side, bottom, cavity, gaps, drops, floor) with the source in its
 own resting frames; some relations need a pose none of them makes: a stick leaning against a box is neither
-standing upright beside the box nor lying on it, and no region tilts it (docs/benchmarks.md, "Why each relation's
-proposals exist", has the measures).
+standing upright beside the box nor lying on it, and no region tilts it (docs/relations.md, "Where poses are judged
+by it").
 
 ``lean``: the source standing on its longest principal axis (either end up, any turn about +Y), tilted by
 ``LEAN_TILTS`` about the horizontal axis along a side of the target, so its top tips toward the target; its
@@ -52,7 +52,7 @@ source as the figure and ``config.relation`` is on, in place of as many region p
 the proposals are unchanged. ``BUILDERS`` names each relation's builder (a relation without one has none).
 
 Not done (docs/relations.md lists them): "under" (the floor under a down-facing part), "beside" (the floor
-just outside the footprint): the regions already give some poses where those hold on the dev cases.
+just outside the footprint): the floor region already gives poses where those hold.
 """
 
 from __future__ import annotations

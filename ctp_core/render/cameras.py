@@ -104,7 +104,7 @@ def orbit(look_at: Tensor, azimuth_deg: Tensor, elevation_deg: Tensor, distance:
 
 
 def sample_training_views(look_at: Tensor, cfg: CameraConfig, zoom: float, generator: torch.Generator) -> Cameras:
-    """cfg.views random views per row of ``look_at`` (B, 3), as in method.md "Cameras".
+    """cfg.views random views per row of ``look_at`` (B, 3), as in ../shared/docs/method.md, "Cameras".
 
     Azimuth U[0, 360), elevation lo + (hi - lo) * Beta(a, b), distance U(cfg.distance) * zoom, fov
     U(cfg.fov_deg). The draws come only from ``generator`` (torch.distributions cannot take one), so a

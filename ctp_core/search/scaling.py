@@ -2,15 +2,15 @@
 refinement may move it.
 
 Every start's scale comes from the priors' size ratio (source/target longest side, clamped to [0.1, 10] as
-method.md does), never from an incoming pose or the files' sizes: in scale mode the source's given size is what
-is unknown (the benchmark's scale protocol scales it by U(0.01, 100)), so ``align.prepare`` does not let the
-mesh extents set the ratio either. The ratio is an estimate: on the labelled triples
+the method does, ../shared/docs/method.md), never from an incoming pose or the files' sizes: in scale mode the
+source's given size is what is unknown (the benchmark's scale protocol scales it by U(0.01, 100)), so
+``align.prepare`` does not let the mesh extents set the ratio either. The ratio is an estimate: on the labelled triples
 (``benchmarks/priors_labels.jsonl``) the rules provider's |ln(estimate / label)| is ``PRIOR_SIGMA`` at its 68th
-percentile and ``LADDER_WIDTH`` at its 90th (docs/benchmarks.md). With a guide, the search proposes at ``RUNGS``
+percentile and ``LADDER_WIDTH`` at its 90th (docs/priors.md). With a guide, the search proposes at ``RUNGS``
 scales evenly spread over ``LADDER_WIDTH`` either side of the ratio's scale (``plan``) and the guide picks among
 them; without one, at the centre alone: the geometry cannot tell which size is right, and across rungs it picked
 the rung where the relation holds most easily (a smaller source "in", a larger one "on"), not the right one, while
-the ladder left the centre a fifth of the proposals (docs/benchmarks.md, "Scale protocol"). The refinement
+the ladder left the centre a fifth of the proposals (docs/engine.md, "Scale mode"). The refinement
 optimises log-scale from there; the objective's ``scale`` term (``ScalePlan.term``) is the estimate's own
 uncertainty, ((log s - centre) / PRIOR_SIGMA)^2 / 2, which decides where the geometry alone judges (soft-ICP at
 contact favours a smaller source) and is a tie-break where a guide does, plus a steep wall beyond the band.
