@@ -1,7 +1,8 @@
 """A small differentiable rasterizer in pure PyTorch (nvdiffrast-style), batched over restarts and views.
 
 Why our own: nvdiffrast and kaolin are CUDA-only and PyTorch3D's CPU path is ~70x slower (see
-docs/renderer-study.md); this runs wherever torch runs, CPU or CUDA, with the same code.
+../shared/docs/renderer-study.md, outside the repository); this runs wherever torch runs, CPU or CUDA, with
+the same code.
 
 Stages, as in PyTorch3D (rasterizer -> ``Fragments`` -> shader), for verts (B, V, 3) in the *normalised*
 frame and B x C cameras (N = B * C images); ``render`` is their composition:
