@@ -8,7 +8,8 @@ of knowledge says "fallback".
 from __future__ import annotations
 
 import re
-from dataclasses import replace
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
 
 from ctp_core.priors.prior import ScenePrior, clamp_contact, clamp_size
 from ctp_core.reading import context, lexicon
@@ -85,150 +86,349 @@ class RulesProvider:
     name = "rules"
 
     def estimate(self, target_name: str, source_name: str, prompt: str) -> ScenePrior:
-        target, source = lexicon.lookup(target_name), lexicon.lookup(source_name)
-        target_at, source_at = _mentions(prompt, target_name, target), _mentions(prompt, source_name, source)
-        def aside(c: vocabulary.CueMatch) -> bool:  # "... with only its eyes above the water": about a part
-            return (c.cue.relation not in {"in", "penetrate"} and context.substance_object(prompt, c.end)
-                    and not context.names_next(prompt, c.end, target_at + source_at)
-                    or c.text in {"in", "inside"}  # "a candle in a bucket on the table": on the table
-                    and context.other_container(prompt, c.end, target_at + source_at)
-                    or vocabulary.RELATIONS[c.cue.relation].kind != "contact"  # "... to the left of the plate"
-                    and context.about_another(prompt, c.end, target_at + source_at))
+        """The prior of a prompt: the reading of ``_Reading.start``, rewritten by each of ``_PASSES`` in order."""
+        reading = _Reading.start(target_name, source_name, prompt)
+        for rewrite in _PASSES:
+            rewrite(reading)
+        return ScenePrior(size_ratio=clamp_size(reading.size), penetration=reading.penetration,
+                          contact_ratio=clamp_contact(reading.contact), provider=self.name,
+                          reason="; ".join(n for n in reading.notes if n), relation=reading.name,
+                          source_is_figure=reading.figure)
 
-        # a position first ("in front of the sofa, facing it": front), an orientation alone ("facing the sofa")
-        cue = vocabulary.find_cue(prompt, aside, vocabulary.PLACING) or vocabulary.find_cue(prompt, aside)
-        # "against the back of the sofa", "behind the sofa, against it": a lean, on that side
-        cue, leant = _leaning(prompt, cue, aside, target_at + source_at)
-        figure = None
-        if cue is not None:
-            figure = vocabulary.source_is_figure(cue, source_at, target_at)
-        notes: list[str] = []
-        if figure is None:
-            figure = True  # the source is what gets placed: by default it is the figure
-        agent_role = {"wear": "ground", "hold": "ground", "sit": "figure"}.get(cue.cue.relation if cue else "")
-        target, source = (
-            context.resolve(target_name, prompt, target_at, source, agent_role == ("ground" if figure else "figure"),
-                            source_name),
-            context.resolve(source_name, prompt, source_at, target, agent_role == ("figure" if figure else "ground"),
-                            target_name))
-        relation, why = _relation(cue, target, source, source if figure else target)
-        if leant is not None and relation.name != "lean":  # "behind the sofa, against it"
-            relation, why = vocabulary.RELATIONS["lean"], f"'{cue.text}', leaning -> lean"
-        drinks = cue is not None and relation.name == "in" and _DRINKS.match(cue.text) is not None
-        drinker = source if figure else target
-        if drinks and not (drinker is not None and drinker.entry.domain == "animals"):
-            figure, drinks = not figure, False  # "a man drinking from a cup": he holds it
-            relation, why = vocabulary.RELATIONS["hold"], f"'{cue.text}' said of someone: holding it"
-        holder, held = (target, source) if figure else (source, target)
-        if (relation.name == "hold" and holder is not None and holder.has("pointed") and not holder.has("agent")
-                and (holder.size_m <= FASTENER_MAX_M or holder.has("staked")) and _pierceable(held)):
-            # "pins holding a pattern on the fabric", "a skewer holding a burger together"
-            figure = not figure
-            relation = vocabulary.RELATIONS["penetrate"]
-            why = f"'{cue.text}' said of a pointed {holder.phrase}: a fastener in the {held.phrase}"
-        bites = (relation.name == "hold" and cue is not None and _BITES.match(cue.text) is not None
-                 and holder is not None and holder.has("bites") and (held is None or held.has("agent")
-                                                                     or _pierceable(held)))
-        if bites:  # "a mosquito biting a man's arm": its proboscis in the skin
-            figure = not figure
-            relation = vocabulary.RELATIONS["penetrate"]
-            why = f"'{cue.text}' said of a {holder.phrase}: its bite or sting pierces the skin"
-        if not figure:
-            notes.append("the source is the ground of the relation")
-        ground_name, ground, ground_at = (target_name, target, target_at) if figure else (
-            source_name, source, source_at)
-        figure_name = source_name if figure else target_name
-        text = vocabulary.clean(prompt)
-        if (relation.name == "in" and ground is not None and ground.entry.domain == "food and drink"
-                and not ground.has("container") and _TUCKED.search(text)):
-            ground = replace(ground, tags=ground.tags | {"container"})  # "a fortune tucked inside a fortune cookie"
-            target, source = (ground, source) if figure else (target, ground)
-            notes.append(f"tucked into the {ground_name}: into a fold of it")
-        filled = context.contents(prompt, ground_at, ground, figure_name)
-        if filled is None and cue is not None and relation.name in {"in", "penetrate"}:
-            filled = context.contents_after(prompt, cue.end, figure_name,
-                                            ground is not None and ground.has("container"))
-        if filled is None and relation.name == "in" and ground is not None and ground.has("container"):
-            filled = context.contents_named(prompt, target_at + source_at, figure_name)  # "scooping salsa from"
-        if filled is None and (relation.name == "penetrate" and ground is not None and ground.has("container")
-                               or relation.name in {"in", "penetrate"} and ground is None):
-            filled = context.contents_in_name(ground_name, figure_name)  # "stuck in the compost bin", "a snowbank"
-        if (filled is not None and relation.name in _SUPPORT | {"under"} and ground is not None
-                and (_ON_BOTTOM.search(text) or relation.name == "under" and _WATER_SAID.search(text))):
-            relation, why = vocabulary.RELATIONS["in"], why + f"; under the {filled} it holds"
-        if drinks and filled is None and ground is not None and not ground.has("agent"):
-            filled = context.contents_in_name(ground_name, figure_name) or "water"  # a trough, a bowl: its water
-        afloat = cue is not None and _AFLOAT.match(cue.text) is not None
-        if filled is None and ground is not None and ground.has("container") and _WATER_SAID.search(text):
-            filled = "water"  # "a toy submarine underwater in the bathtub"
-            if relation.name == "under":  # "a submarine beneath the waves of the sea"
-                relation, why = vocabulary.RELATIONS["in"], why + "; under the water it holds"
-        if (filled is None and ground is not None and ground.has("container") and relation.name == "penetrate"
-                and _BURIED.search(text)):
-            filled = "its contents"  # "a plastic dinosaur half buried in the sandpit": in its sand
-        if (filled is None and ground is not None and relation.name == "in" and not ground.has("container")
-                and _HIDDEN.search(text)):
-            filled = f"the {ground.phrase}"  # "a bird nest hidden in a hedge": inside its mass
-        encased = (filled is None and relation.name == "in" and _ENCASED.search(text) is not None
-                   and _solid(ground))
-        if encased:
-            filled = f"the {ground.phrase}"  # "a fish frozen inside a block of ice": wholly in the solid
-        if filled is None and ground is not None and _GROWS.search(text) and (
-                relation.name == "in" or relation.name == "penetrate" and ground.has("container")):
-            filled = "soil"  # "daffodils growing in a flower pot", "a cactus planted in a pot": rooted in its soil
-        if (not afloat and filled is not None and relation.name in _SUPPORT and ground is not None
-                and ground.entry.domain == "buildings and places"  # "a swan gliding on the lake", not "a frog
-                and cue is not None and context.names_next(prompt, cue.end, ground_at)  # on a lily pad in a pond"
-                and not _AT_EDGE.search(cue.text)):  # at the edge of a fountain: on its rim
-            afloat = True
-            why += "; on a body of water: afloat in it"
-        if afloat and filled is None and relation.name == "in" and ground is not None and ground.has("container"):
-            filled = "water"  # "a bath thermometer floating in the baby bath": nothing floats in an empty one
-            why += "; afloat in a container: in the water it holds"
-        if afloat and filled is None:
-            relation, why = vocabulary.RELATIONS["beside"], f"'{cue.text}' in air or open water: no contact"
-        floating = afloat and filled is not None
-        fig_match = source if figure else target
-        if (relation.name == "above" and cue is not None and cue.text == "over" and fig_match is not None
-                and (fig_match.has("soft") or fig_match.has("wrap"))):
-            relation, why = vocabulary.RELATIONS["lie"], "'over' said of a cloth or a cover: draped over"
-        opening = context.opening_after(prompt, cue.end) if cue is not None else None
-        if opening is not None and ground is not None and not ground.has("container"):
-            ground = replace(ground, tags=ground.tags | {"container"})  # "in the slot of a toaster"
-            target, source = (ground, source) if figure else (target, ground)
-            notes.append(f"into the {opening} of the {ground_name}")
-        notes.insert(0, why)
-        if relation.name == "under" and not figure:  # "a table under a cup": the cup is on the table
-            relation, figure = vocabulary.RELATIONS["on"], True
-            notes.append("read as the target resting on the source")
-        upright = cue is not None and _UPRIGHT.search(text[:cue.start]) is not None
-        size, size_why = _size_ratio(target_name, source_name, target, source,  # a drinker is at the rim, not in
-                                     vocabulary.RELATIONS["on"] if drinks else relation, figure, upright)
-        notes.insert(0, size_why)
-        penetration, pen_why = _penetration(relation, figure, target, source, filled, floating,
-                                            cue.text if cue is not None else "", text, ground_name)
-        notes.append(pen_why)
-        immersed = ground.phrase if filled == "its contents" and ground is not None else filled
-        immersed = immersed if penetration else None
-        driven = (penetration and relation.name == "penetrate" and cue is not None and _DRIVEN.match(cue.text)
-                  and source is not None and source.has("pointed") and source.size_m <= DRIVEN_MAX_M)
-        in_place = ground is not None and size <= SUNK_MAX and (
-            ground.entry.domain == "buildings and places" or _ON_FEET.search(text) is not None)
-        contact = DRIVEN_CONTACT if driven and figure else _contact(relation, figure, source, immersed, afloat, text,
-                                                                    size, in_place, encased)
-        if drinks and penetration or bites:
-            contact = DRINKING_CONTACT  # its muzzle, its proboscis or sting
-        name = relation.name if leant is None else vocabulary.JOIN.join((relation.name, leant))
-        turn = _orientation(prompt, cue, relation, aside, ground_at)
-        if turn is not None:  # "in front of the sofa, facing it": both judged
-            name += vocabulary.JOIN + turn.cue.relation
-            notes.insert(1, f"'{turn.text}' -> {turn.cue.relation} too")
-        side = vocabulary.side_of(name)
-        if side is not None:
-            notes.insert(1, f"on the {ground_name}'s {side} side (its own front, else the viewer's)")
-        return ScenePrior(size_ratio=clamp_size(size), penetration=penetration, contact_ratio=clamp_contact(contact),
-                          provider=self.name, reason="; ".join(n for n in notes if n),
-                          relation=name, source_is_figure=figure)
+
+@dataclass
+class _Reading:
+    """What the rules have read of one prompt so far; each of ``_PASSES`` rewrites a part of it, in order.
+
+    ``figure``: the source is the relation's figure (else the target is). ``ground``, ``ground_name`` and
+    ``ground_at`` are the ground as ``_ground_named`` names it once the figure is settled (a later swap of the
+    roles, ``_ground_under_figure``, leaves them). ``filled``: the contents the figure goes into, if any.
+    ``notes``: the reasons the prior reports, in their order.
+    """
+
+    prompt: str
+    text: str  # ``vocabulary.clean(prompt)``: lower case, offsets those of the prompt
+    target_name: str
+    source_name: str
+    target: lexicon.Match | None
+    source: lexicon.Match | None
+    target_at: list[int]  # where the prompt mentions each (``_mentions``)
+    source_at: list[int]
+    cue: vocabulary.CueMatch | None = None
+    leant: str | None = None  # the side of the ground a lean touches
+    figure: bool = True
+    relation: vocabulary.Relation | None = None
+    why: str = ""  # the reason for ``relation``
+    notes: list[str] = field(default_factory=list)
+    drinks: bool = False  # an animal drinking from the ground
+    bites: bool = False  # a biting or stinging creature's mouthparts in the ground
+    ground_name: str = ""
+    ground: lexicon.Match | None = None
+    ground_at: list[int] = field(default_factory=list)
+    figure_name: str = ""
+    filled: str | None = None
+    afloat: bool = False
+    encased: bool = False
+    size: float = 1.0
+    penetration: bool = False
+    contact: float = 0.0
+    name: str = ""  # the reading's relation name (with a lean's side, an orientation)
+
+    @classmethod
+    def start(cls, target_name: str, source_name: str, prompt: str) -> _Reading:
+        """The lexicon's entries for both names and where the prompt mentions each."""
+        target, source = lexicon.lookup(target_name), lexicon.lookup(source_name)
+        return cls(prompt, vocabulary.clean(prompt), target_name, source_name, target, source,
+                   _mentions(prompt, target_name, target), _mentions(prompt, source_name, source))
+
+    def aside(self, c: vocabulary.CueMatch) -> bool:
+        """A cue about something other than the two objects."""
+        prompt, mentions = self.prompt, self.target_at + self.source_at
+        # "... with only its eyes above the water": about a part
+        return (c.cue.relation not in {"in", "penetrate"} and context.substance_object(prompt, c.end)
+                and not context.names_next(prompt, c.end, mentions)
+                or c.text in {"in", "inside"}  # "a candle in a bucket on the table": on the table
+                and context.other_container(prompt, c.end, mentions)
+                or vocabulary.RELATIONS[c.cue.relation].kind != "contact"  # "... to the left of the plate"
+                and context.about_another(prompt, c.end, mentions))
+
+    def reground(self, ground: lexicon.Match) -> None:
+        """The ground replaced (by itself with more tags), in its role's object too."""
+        self.ground = ground
+        self.target, self.source = (ground, self.source) if self.figure else (self.target, ground)
+
+
+def _find_cue(r: _Reading) -> None:
+    """The relation cue, a lean's side, and who the figure is from where each object is mentioned around the cue
+    (the source, where the mentions do not say)."""
+    # a position first ("in front of the sofa, facing it": front), an orientation alone ("facing the sofa")
+    cue = vocabulary.find_cue(r.prompt, r.aside, vocabulary.PLACING) or vocabulary.find_cue(r.prompt, r.aside)
+    # "against the back of the sofa", "behind the sofa, against it": a lean, on that side
+    r.cue, r.leant = _leaning(r.prompt, cue, r.aside, r.target_at + r.source_at)
+    figure = None
+    if r.cue is not None:
+        figure = vocabulary.source_is_figure(r.cue, r.source_at, r.target_at)
+    if figure is None:
+        figure = True  # the source is what gets placed: by default it is the figure
+    r.figure = figure
+
+
+def _resolve_objects(r: _Reading) -> None:
+    """Each name resolved in the prompt's context (``context.resolve``); an unknown wearer, holder or sitter is an
+    agent."""
+    agent_role = {"wear": "ground", "hold": "ground", "sit": "figure"}.get(r.cue.cue.relation if r.cue else "")
+    r.target, r.source = (
+        context.resolve(r.target_name, r.prompt, r.target_at, r.source,
+                        agent_role == ("ground" if r.figure else "figure"), r.source_name),
+        context.resolve(r.source_name, r.prompt, r.source_at, r.target,
+                        agent_role == ("figure" if r.figure else "ground"), r.target_name))
+
+
+def _relation_of_cue(r: _Reading) -> None:
+    """The cue's relation (``_relation``); a side said with a lean ("behind the sofa, against it") is a lean."""
+    r.relation, r.why = _relation(r.cue, r.target, r.source, r.source if r.figure else r.target)
+    if r.leant is not None and r.relation.name != "lean":  # "behind the sofa, against it"
+        r.relation, r.why = vocabulary.RELATIONS["lean"], f"'{r.cue.text}', leaning -> lean"
+
+
+def _drinker_holds(r: _Reading) -> None:
+    """Drinking from something: an animal's muzzle goes in it; someone drinking from it holds it."""
+    r.drinks = r.cue is not None and r.relation.name == "in" and _DRINKS.match(r.cue.text) is not None
+    drinker = r.source if r.figure else r.target
+    if r.drinks and not (drinker is not None and drinker.entry.domain == "animals"):
+        r.figure, r.drinks = not r.figure, False  # "a man drinking from a cup": he holds it
+        r.relation, r.why = vocabulary.RELATIONS["hold"], f"'{r.cue.text}' said of someone: holding it"
+
+
+def _fastener_pierces(r: _Reading) -> None:
+    """A short or staked pointed thing that holds a pierceable solid goes through it ("pins holding a pattern on
+    the fabric", "a skewer holding a burger together")."""
+    holder, held = (r.target, r.source) if r.figure else (r.source, r.target)
+    if (r.relation.name == "hold" and holder is not None and holder.has("pointed") and not holder.has("agent")
+            and (holder.size_m <= FASTENER_MAX_M or holder.has("staked")) and _pierceable(held)):
+        r.figure = not r.figure
+        r.relation = vocabulary.RELATIONS["penetrate"]
+        r.why = f"'{r.cue.text}' said of a pointed {holder.phrase}: a fastener in the {held.phrase}"
+
+
+def _bite_pierces(r: _Reading) -> None:
+    """A biting or stinging creature holding someone or something pierceable: its proboscis or sting in the skin
+    ("a mosquito biting a man's arm")."""
+    holder, held = (r.target, r.source) if r.figure else (r.source, r.target)
+    r.bites = (r.relation.name == "hold" and r.cue is not None and _BITES.match(r.cue.text) is not None
+               and holder is not None and holder.has("bites") and (held is None or held.has("agent")
+                                                                  or _pierceable(held)))
+    if r.bites:
+        r.figure = not r.figure
+        r.relation = vocabulary.RELATIONS["penetrate"]
+        r.why = f"'{r.cue.text}' said of a {holder.phrase}: its bite or sting pierces the skin"
+
+
+def _ground_named(r: _Reading) -> None:
+    """The figure settled: which object is the ground, by name, match and mentions."""
+    if not r.figure:
+        r.notes.append("the source is the ground of the relation")
+    r.ground_name, r.ground, r.ground_at = (r.target_name, r.target, r.target_at) if r.figure else (
+        r.source_name, r.source, r.source_at)
+    r.figure_name = r.source_name if r.figure else r.target_name
+
+
+def _tucked_into_fold(r: _Reading) -> None:
+    """Tucked or slipped into a food: into a fold of it, as into a container ("a fortune tucked inside a fortune
+    cookie")."""
+    ground = r.ground
+    if (r.relation.name == "in" and ground is not None and ground.entry.domain == "food and drink"
+            and not ground.has("container") and _TUCKED.search(r.text)):
+        r.reground(replace(ground, tags=ground.tags | {"container"}))
+        r.notes.append(f"tucked into the {r.ground_name}: into a fold of it")
+
+
+def _contents_held(r: _Reading) -> None:
+    """The contents the ground holds, where the prompt or a name says: by the ground's mention
+    (``context.contents``), after an "in" cue, named elsewhere in the prompt ("scooping salsa from"), or in the
+    ground's name ("stuck in the compost bin", "a snowbank")."""
+    ground, relation = r.ground, r.relation
+    filled = context.contents(r.prompt, r.ground_at, ground, r.figure_name)
+    if filled is None and r.cue is not None and relation.name in {"in", "penetrate"}:
+        filled = context.contents_after(r.prompt, r.cue.end, r.figure_name,
+                                        ground is not None and ground.has("container"))
+    if filled is None and relation.name == "in" and ground is not None and ground.has("container"):
+        filled = context.contents_named(r.prompt, r.target_at + r.source_at, r.figure_name)  # "scooping salsa from"
+    if filled is None and (relation.name == "penetrate" and ground is not None and ground.has("container")
+                           or relation.name in {"in", "penetrate"} and ground is None):
+        filled = context.contents_in_name(r.ground_name, r.figure_name)  # "stuck in the compost bin", "a snowbank"
+    r.filled = filled
+
+
+def _under_contents(r: _Reading) -> None:
+    """On the bottom of a ground full of contents, or under the water it holds: in them ("an ornament on the gravel
+    of an aquarium of water")."""
+    if (r.filled is not None and r.relation.name in _SUPPORT | {"under"} and r.ground is not None
+            and (_ON_BOTTOM.search(r.text) or r.relation.name == "under" and _WATER_SAID.search(r.text))):
+        r.relation, r.why = vocabulary.RELATIONS["in"], r.why + f"; under the {r.filled} it holds"
+
+
+def _drinking_water(r: _Reading) -> None:
+    """An animal drinking from something that is no creature: from the water it holds (a trough, a bowl)."""
+    if r.drinks and r.filled is None and r.ground is not None and not r.ground.has("agent"):
+        r.filled = context.contents_in_name(r.ground_name, r.figure_name) or "water"  # a trough, a bowl: its water
+
+
+def _water_said(r: _Reading) -> None:
+    """Underwater in a container: in the water it holds ("a toy submarine underwater in the bathtub"); beneath the
+    water is in it ("a submarine beneath the waves of the sea")."""
+    if r.filled is None and r.ground is not None and r.ground.has("container") and _WATER_SAID.search(r.text):
+        r.filled = "water"  # "a toy submarine underwater in the bathtub"
+        if r.relation.name == "under":  # "a submarine beneath the waves of the sea"
+            r.relation, r.why = vocabulary.RELATIONS["in"], r.why + "; under the water it holds"
+
+
+def _buried_in_contents(r: _Reading) -> None:
+    """Buried in a container: in its contents ("a plastic dinosaur half buried in the sandpit": in its sand)."""
+    if (r.filled is None and r.ground is not None and r.ground.has("container") and r.relation.name == "penetrate"
+            and _BURIED.search(r.text)):
+        r.filled = "its contents"  # "a plastic dinosaur half buried in the sandpit": in its sand
+
+
+def _hidden_in_mass(r: _Reading) -> None:
+    """Hidden in something that is no container: inside its mass ("a bird nest hidden in a hedge")."""
+    if (r.filled is None and r.ground is not None and r.relation.name == "in" and not r.ground.has("container")
+            and _HIDDEN.search(r.text)):
+        r.filled = f"the {r.ground.phrase}"  # "a bird nest hidden in a hedge": inside its mass
+
+
+def _encased_in_solid(r: _Reading) -> None:
+    """Frozen, trapped or encased in a solid: wholly in it ("a fish frozen inside a block of ice")."""
+    r.encased = (r.filled is None and r.relation.name == "in" and _ENCASED.search(r.text) is not None
+                 and _solid(r.ground))
+    if r.encased:
+        r.filled = f"the {r.ground.phrase}"  # "a fish frozen inside a block of ice": wholly in the solid
+
+
+def _rooted_in_soil(r: _Reading) -> None:
+    """Growing or planted in something: rooted in its soil ("daffodils growing in a flower pot", "a cactus planted
+    in a pot")."""
+    if r.filled is None and r.ground is not None and _GROWS.search(r.text) and (
+            r.relation.name == "in" or r.relation.name == "penetrate" and r.ground.has("container")):
+        r.filled = "soil"  # "daffodils growing in a flower pot", "a cactus planted in a pot": rooted in its soil
+
+
+def _afloat_on_water(r: _Reading) -> None:
+    """Afloat: a cue of floating ("floating in", "a duck paddling on"), or resting on a body of water the cue names
+    next ("a swan gliding on the lake"; not "a frog on a lily pad in a pond", nor at the edge of a fountain: on its
+    rim)."""
+    r.afloat = r.cue is not None and _AFLOAT.match(r.cue.text) is not None
+    if (not r.afloat and r.filled is not None and r.relation.name in _SUPPORT and r.ground is not None
+            and r.ground.entry.domain == "buildings and places"  # "a swan gliding on the lake", not "a frog
+            and r.cue is not None and context.names_next(r.prompt, r.cue.end, r.ground_at)  # on a lily pad in a pond"
+            and not _AT_EDGE.search(r.cue.text)):  # at the edge of a fountain: on its rim
+        r.afloat = True
+        r.why += "; on a body of water: afloat in it"
+
+
+def _afloat_in_container(r: _Reading) -> None:
+    """Afloat in a container: in the water it holds ("a bath thermometer floating in the baby bath": nothing floats
+    in an empty one)."""
+    if r.afloat and r.filled is None and r.relation.name == "in" and r.ground is not None and r.ground.has("container"):
+        r.filled = "water"  # "a bath thermometer floating in the baby bath": nothing floats in an empty one
+        r.why += "; afloat in a container: in the water it holds"
+
+
+def _afloat_in_air(r: _Reading) -> None:
+    """Afloat in nothing that holds water (in air, in open water): beside it, no contact."""
+    if r.afloat and r.filled is None:
+        r.relation, r.why = vocabulary.RELATIONS["beside"], f"'{r.cue.text}' in air or open water: no contact"
+
+
+def _draped_over(r: _Reading) -> None:
+    """A cloth or a cover "over" the ground: draped over it, lying on it."""
+    fig_match = r.source if r.figure else r.target
+    if (r.relation.name == "above" and r.cue is not None and r.cue.text == "over" and fig_match is not None
+            and (fig_match.has("soft") or fig_match.has("wrap"))):
+        r.relation, r.why = vocabulary.RELATIONS["lie"], "'over' said of a cloth or a cover: draped over"
+
+
+def _into_opening(r: _Reading) -> None:
+    """Into an opening the prompt names after the cue ("in the slot of a toaster"): the ground holds things."""
+    opening = context.opening_after(r.prompt, r.cue.end) if r.cue is not None else None
+    if opening is not None and r.ground is not None and not r.ground.has("container"):
+        r.reground(replace(r.ground, tags=r.ground.tags | {"container"}))  # "in the slot of a toaster"
+        r.notes.append(f"into the {opening} of the {r.ground_name}")
+
+
+def _relation_noted(r: _Reading) -> None:
+    """The relation read, and why, leads the notes."""
+    r.notes.insert(0, r.why)
+
+
+def _ground_under_figure(r: _Reading) -> None:
+    """The target under the source: the target rests on the source ("a table under a cup": the cup is on the
+    table)."""
+    if r.relation.name == "under" and not r.figure:  # "a table under a cup": the cup is on the table
+        r.relation, r.figure = vocabulary.RELATIONS["on"], True
+        r.notes.append("read as the target resting on the source")
+
+
+def _sized(r: _Reading) -> None:
+    """The size ratio (``_size_ratio``); a drinker is sized at the rim, as on it, not in it; what stands upright in
+    a container may stick out of it."""
+    upright = r.cue is not None and _UPRIGHT.search(r.text[:r.cue.start]) is not None
+    r.size, size_why = _size_ratio(r.target_name, r.source_name, r.target, r.source,  # a drinker is at the rim
+                                   vocabulary.RELATIONS["on"] if r.drinks else r.relation, r.figure, upright)
+    r.notes.insert(0, size_why)
+
+
+def _penetrates(r: _Reading) -> None:
+    """Whether the figure goes into the ground (``_penetration``)."""
+    floating = r.afloat and r.filled is not None
+    r.penetration, pen_why = _penetration(r.relation, r.figure, r.target, r.source, r.filled, floating,
+                                          r.cue.text if r.cue is not None else "", r.text, r.ground_name)
+    r.notes.append(pen_why)
+
+
+def _touches(r: _Reading) -> None:
+    """The contact ratio (``_contact``): a short fastener driven in is mostly inside what holds it; a drinking
+    animal's muzzle or a biting insect's mouthparts touch little; a creature or a vehicle standing in a place
+    touches its floor with feet or tyres."""
+    ground, source = r.ground, r.source
+    immersed = ground.phrase if r.filled == "its contents" and ground is not None else r.filled
+    immersed = immersed if r.penetration else None
+    driven = (r.penetration and r.relation.name == "penetrate" and r.cue is not None and _DRIVEN.match(r.cue.text)
+              and source is not None and source.has("pointed") and source.size_m <= DRIVEN_MAX_M)
+    in_place = ground is not None and r.size <= SUNK_MAX and (
+        ground.entry.domain == "buildings and places" or _ON_FEET.search(r.text) is not None)
+    r.contact = DRIVEN_CONTACT if driven and r.figure else _contact(r.relation, r.figure, source, immersed, r.afloat,
+                                                                    r.text, r.size, in_place, r.encased)
+    if r.drinks and r.penetration or r.bites:
+        r.contact = DRINKING_CONTACT  # its muzzle, its proboscis or sting
+
+
+def _named(r: _Reading) -> None:
+    """The reading's name: the relation, joined with a lean's side and with an orientation said about the same
+    ground ("in front of the sofa, facing it": both judged)."""
+    r.name = r.relation.name if r.leant is None else vocabulary.JOIN.join((r.relation.name, r.leant))
+    turn = _orientation(r.prompt, r.cue, r.relation, r.aside, r.ground_at)
+    if turn is not None:  # "in front of the sofa, facing it": both judged
+        r.name += vocabulary.JOIN + turn.cue.relation
+        r.notes.insert(1, f"'{turn.text}' -> {turn.cue.relation} too")
+
+
+def _side_noted(r: _Reading) -> None:
+    """The side of the ground the name puts the figure on, in the notes."""
+    side = vocabulary.side_of(r.name)
+    if side is not None:
+        r.notes.insert(1, f"on the {r.ground_name}'s {side} side (its own front, else the viewer's)")
+
+
+# The rewrites of a reading, in the order ``RulesProvider.estimate`` applies them: each reads what those before it
+# settled (the cue, then the relation and who the figure is, then the ground and its contents, then the numbers).
+_PASSES: tuple[Callable[[_Reading], None], ...] = (
+    _find_cue, _resolve_objects, _relation_of_cue, _drinker_holds, _fastener_pierces, _bite_pierces, _ground_named,
+    _tucked_into_fold, _contents_held, _under_contents, _drinking_water, _water_said, _buried_in_contents,
+    _hidden_in_mass, _encased_in_solid, _rooted_in_soil, _afloat_on_water, _afloat_in_container, _afloat_in_air,
+    _draped_over, _into_opening, _relation_noted, _ground_under_figure, _sized, _penetrates, _touches, _named,
+    _side_noted,
+)
 
 
 def _mentions(prompt: str, name: str, match: lexicon.Match | None) -> list[int]:
@@ -440,6 +640,13 @@ def _penetration(relation, figure: bool, target, source, filled: str | None, flo
         if ground is not None and _SCREWED.match(cue_text) and not _pierceable(ground):
             return False, f"screwed into a threaded hole of the {ground.phrase}: no penetration"
         return True, "the relation cuts or pierces: penetration"
+    return _pierces(relation, fig, ground, fig_name, cue_text, text, ground_name)
+
+
+def _pierces(relation, fig, ground, fig_name: str, cue_text: str, text: str, ground_name: str) -> tuple[bool, str]:
+    """``_penetration`` where no contents and no relation that cuts decide: by the shapes of the figure ``fig`` and
+    of the ``ground`` (pointed, pierceable, flat, a food) and by the words said (pinned, stuck on, threaded, on the
+    spines of, into)."""
     if relation.penetration == "if_pointed" and fig is not None and fig.has("pointed") and _pierceable(ground):
         return True, f"a pointed {fig.phrase} into a solid {ground.phrase}: penetration"
     if (cue_text.startswith("pinned") and fig is not None and ground is not None
