@@ -314,78 +314,128 @@ def _gltf_budget(tree: dict, binary: int | None, assets: _Assets, limits: MeshLi
     (a ``data:`` URI must decode to exactly its ``byteLength``). Malformed JSON (wrong types) is
     ``mesh_unreadable``, a graph over budget ``mesh_too_complex``, too many faces ``mesh_too_large``.
     """
-
-    def bad(what: str) -> MeshError:
-        return MeshError(f"{label}: invalid glTF: {what}", code="mesh_unreadable")
-
-    def items(key: str) -> list[dict]:
-        value = tree.get(key, [])
-        if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
-            raise bad(f"{key} is not a list of objects")
-        return value
-
-    def index(value, size: int, what: str) -> int:
-        if type(value) is not int or not 0 <= value < size:
-            raise bad(f"{what} {value!r} is out of range")
-        return value
-
-    def natural(item: dict, key: str, what: str, default: int | None = None) -> int:
-        value = item.get(key, default)
-        if type(value) is not int or value < 0:
-            raise bad(f"{what}.{key} must be a non-negative integer")
-        return value
-
-    buffers, views, accessors = items("buffers"), items("bufferViews"), items("accessors")
-    nodes, meshes, scenes = items("nodes"), items("meshes"), items("scenes")
-    sizes = []
-    for i, buffer in enumerate(buffers):
-        declared = natural(buffer, "byteLength", f"buffers[{i}]")
-        uri = buffer.get("uri")
-        if uri is None:
-            if i != 0 or binary is None or declared > binary:
-                raise bad(f"buffers[{i}] declares {declared} bytes that the file does not hold")
-        elif isinstance(uri, str) and uri.startswith("data:"):
-            decoded = _data_uri_size(uri, label)
-            if decoded != declared:
-                raise bad(f"buffers[{i}] declares byteLength {declared} but its data: URI holds {decoded} bytes")
-        elif isinstance(uri, str) and len(assets[uri]) < declared:  # a member of the same zip
-            raise bad(f"buffers[{i}] declares {declared} bytes, {uri!r} holds {len(assets[uri])}")
-        sizes.append(declared)
-    for i, view in enumerate(views):
-        buffer = index(view.get("buffer"), len(buffers), f"bufferViews[{i}].buffer")
-        end = natural(view, "byteOffset", f"bufferViews[{i}]", 0) + natural(view, "byteLength", f"bufferViews[{i}]")
-        if end > sizes[buffer]:
-            raise bad(f"bufferViews[{i}] ends at byte {end}, past its buffer ({sizes[buffer]} bytes)")
-    for i, accessor in enumerate(accessors):
-        count = natural(accessor, "count", f"accessors[{i}]")
-        width = _COMPONENT_BYTES.get(accessor.get("componentType"), 0) * _TYPE_COMPONENTS.get(accessor.get("type"), 0)
-        if not width:
-            raise bad(f"accessors[{i}] has an unknown componentType or type")
-        if "bufferView" not in accessor:
-            if count > 3 * limits.max_faces:
-                raise bad(f"accessors[{i}] has {count} elements and no data")
-            continue
-        view = views[index(accessor["bufferView"], len(views), f"accessors[{i}].bufferView")]
-        stride = natural(view, "byteStride", f"bufferViews[{accessor['bufferView']}]", width) or width
-        end = natural(accessor, "byteOffset", f"accessors[{i}]", 0) + (stride * (count - 1) + width if count else 0)
-        if end > view["byteLength"]:
-            raise bad(f"accessors[{i}] needs {end} bytes, its buffer view has {view['byteLength']}")
-
+    vet = _GltfVet(tree, label)
+    buffers, views, accessors = vet.items("buffers"), vet.items("bufferViews"), vet.items("accessors")
+    nodes, meshes, scenes = vet.items("nodes"), vet.items("meshes"), vet.items("scenes")
+    sizes = _gltf_buffer_sizes(vet, buffers, binary, assets)
+    _gltf_views_fit(vet, views, sizes)
+    _gltf_accessors_fit(vet, accessors, views, limits)
     if len(nodes) > limits.max_nodes:
         raise MeshError(f"{label}: {len(nodes):,} scene nodes, over the limit of {limits.max_nodes:,}",
                         code="mesh_too_complex")
+    parent = _gltf_parents(vet, nodes)
+    _gltf_depths_fit(len(nodes), parent, limits, label)
+    for s, scene in enumerate(scenes):
+        roots = scene.get("nodes", [])
+        if not isinstance(roots, list) or any(vet.index(r, len(nodes), f"scenes[{s}].nodes") in parent for r in roots):
+            raise vet.bad(f"scenes[{s}].nodes must list nodes without a parent")
+    faces = [_mesh_faces(mesh, accessors, vet.bad) for mesh in meshes]
+    # a forest: every node is at most one instance of its mesh
+    instanced = sum(faces[vet.index(n["mesh"], len(meshes), "node mesh")] for n in nodes if "mesh" in n) or sum(faces)
+    if instanced > limits.max_faces:
+        raise MeshError(f"{label}: {instanced:,} faces with instances counted, over the limit of "
+                        f"{limits.max_faces:,}; decimate it first", code="mesh_too_large")
+
+
+class _GltfVet:
+    """The type and range checks of one glTF's JSON (``tree``); each refusal is ``mesh_unreadable``, naming what
+    is wrong."""
+
+    def __init__(self, tree: dict, label: str):
+        self.tree, self.label = tree, label
+
+    def bad(self, what: str) -> MeshError:
+        return MeshError(f"{self.label}: invalid glTF: {what}", code="mesh_unreadable")
+
+    def items(self, key: str) -> list[dict]:
+        """The top-level list ``key`` (empty when absent), which must hold objects."""
+        value = self.tree.get(key, [])
+        if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
+            raise self.bad(f"{key} is not a list of objects")
+        return value
+
+    def index(self, value, size: int, what: str) -> int:
+        """``value`` as an index into a list of ``size``."""
+        if type(value) is not int or not 0 <= value < size:
+            raise self.bad(f"{what} {value!r} is out of range")
+        return value
+
+    def natural(self, item: dict, key: str, what: str, default: int | None = None) -> int:
+        """``item[key]`` (else ``default``) as a non-negative integer."""
+        value = item.get(key, default)
+        if type(value) is not int or value < 0:
+            raise self.bad(f"{what}.{key} must be a non-negative integer")
+        return value
+
+
+def _gltf_buffer_sizes(vet: _GltfVet, buffers: list[dict], binary: int | None, assets: _Assets) -> list[int]:
+    """The declared byte length of each buffer, checked against the bytes it has: the GLB's binary chunk (the first
+    buffer only), a ``data:`` URI's decoded bytes (exactly), or a member of the same zip."""
+    sizes = []
+    for i, buffer in enumerate(buffers):
+        declared = vet.natural(buffer, "byteLength", f"buffers[{i}]")
+        uri = buffer.get("uri")
+        if uri is None:
+            if i != 0 or binary is None or declared > binary:
+                raise vet.bad(f"buffers[{i}] declares {declared} bytes that the file does not hold")
+        elif isinstance(uri, str) and uri.startswith("data:"):
+            decoded = _data_uri_size(uri, vet.label)
+            if decoded != declared:
+                raise vet.bad(f"buffers[{i}] declares byteLength {declared} but its data: URI holds {decoded} bytes")
+        elif isinstance(uri, str) and len(assets[uri]) < declared:  # a member of the same zip
+            raise vet.bad(f"buffers[{i}] declares {declared} bytes, {uri!r} holds {len(assets[uri])}")
+        sizes.append(declared)
+    return sizes
+
+
+def _gltf_views_fit(vet: _GltfVet, views: list[dict], sizes: list[int]) -> None:
+    """Each buffer view ends within its buffer (``sizes``: the buffers' byte lengths)."""
+    for i, view in enumerate(views):
+        buffer = vet.index(view.get("buffer"), len(sizes), f"bufferViews[{i}].buffer")
+        end = (vet.natural(view, "byteOffset", f"bufferViews[{i}]", 0)
+               + vet.natural(view, "byteLength", f"bufferViews[{i}]"))
+        if end > sizes[buffer]:
+            raise vet.bad(f"bufferViews[{i}] ends at byte {end}, past its buffer ({sizes[buffer]} bytes)")
+
+
+def _gltf_accessors_fit(vet: _GltfVet, accessors: list[dict], views: list[dict], limits: MeshLimits) -> None:
+    """Each accessor has a known element type and its elements (with the view's stride) end within its buffer view;
+    one without a view (zeros) has no more elements than the face budget allows."""
+    for i, accessor in enumerate(accessors):
+        count = vet.natural(accessor, "count", f"accessors[{i}]")
+        width = _COMPONENT_BYTES.get(accessor.get("componentType"), 0) * _TYPE_COMPONENTS.get(accessor.get("type"), 0)
+        if not width:
+            raise vet.bad(f"accessors[{i}] has an unknown componentType or type")
+        if "bufferView" not in accessor:
+            if count > 3 * limits.max_faces:
+                raise vet.bad(f"accessors[{i}] has {count} elements and no data")
+            continue
+        view = views[vet.index(accessor["bufferView"], len(views), f"accessors[{i}].bufferView")]
+        stride = vet.natural(view, "byteStride", f"bufferViews[{accessor['bufferView']}]", width) or width
+        end = vet.natural(accessor, "byteOffset", f"accessors[{i}]", 0) + (stride * (count - 1) + width if count else 0)
+        if end > view["byteLength"]:
+            raise vet.bad(f"accessors[{i}] needs {end} bytes, its buffer view has {view['byteLength']}")
+
+
+def _gltf_parents(vet: _GltfVet, nodes: list[dict]) -> dict[int, int]:
+    """The parent of each node that has one; a node listed as the child of two, or of itself, is refused."""
     parent: dict[int, int] = {}
     for i, node in enumerate(nodes):
         children = node.get("children", [])
         if not isinstance(children, list):
-            raise bad(f"nodes[{i}].children is not a list")
+            raise vet.bad(f"nodes[{i}].children is not a list")
         for child in children:
-            if index(child, len(nodes), f"nodes[{i}].children") in parent or child == i:
-                raise bad(f"node {child} has several parents (the scene graph must be a tree)")
+            if vet.index(child, len(nodes), f"nodes[{i}].children") in parent or child == i:
+                raise vet.bad(f"node {child} has several parents (the scene graph must be a tree)")
             parent[child] = i
-    depths = [0] * len(nodes)  # 1 for a root; found by walking up, each node once
+    return parent
+
+
+def _gltf_depths_fit(count: int, parent: dict[int, int], limits: MeshLimits, label: str) -> None:
+    """No node of ``count`` is deeper than ``max_depth`` below its root, and no chain of parents is a cycle."""
+    depths = [0] * count  # 1 for a root; found by walking up, each node once
     too_deep = MeshError(f"{label}: the scene graph is over {limits.max_depth} nodes deep", code="mesh_too_complex")
-    for start in range(len(nodes)):
+    for start in range(count):
         chain, at = [], start
         while not depths[at]:
             chain.append(at)
@@ -400,16 +450,6 @@ def _gltf_budget(tree: dict, binary: int | None, assets: _Assets, limits: MeshLi
             if depth > limits.max_depth:
                 raise too_deep
             depths[node] = depth
-    for s, scene in enumerate(scenes):
-        roots = scene.get("nodes", [])
-        if not isinstance(roots, list) or any(index(r, len(nodes), f"scenes[{s}].nodes") in parent for r in roots):
-            raise bad(f"scenes[{s}].nodes must list nodes without a parent")
-    faces = [_mesh_faces(mesh, accessors, bad) for mesh in meshes]
-    # a forest: every node is at most one instance of its mesh
-    instanced = sum(faces[index(n["mesh"], len(meshes), "node mesh")] for n in nodes if "mesh" in n) or sum(faces)
-    if instanced > limits.max_faces:
-        raise MeshError(f"{label}: {instanced:,} faces with instances counted, over the limit of "
-                        f"{limits.max_faces:,}; decimate it first", code="mesh_too_large")
 
 
 def _mesh_faces(mesh: dict, accessors: list[dict], bad) -> int:
