@@ -11,8 +11,8 @@ size uniformly in [0.1, 10], contact uniformly in [0, 1] and penetration by a fa
 Origins: ``bench`` (every prompt of ../shared/bench), ``hand`` (labelled before the rules were written),
 ``holdout`` (labelled after they were first frozen), ``batch1`` ... ``batch24`` (scenes the first sets lacked:
 kitchen, bathroom, office, garden, toys, clothing, tools, vehicles, animals; each labelled, with a reason,
-and committed while the rules were frozen, before they were run on it; docs/priors.md gives each batch's
-figure at its freeze and says what changed since).
+and committed while the rules were frozen, before they were run on it; docs/priors.md, "How well the rules
+read", gives the held-out figure).
 Labels: ``size_ratio`` is source/target longest side (measured on the bench's split models where both
 parts come from one model, estimated from typical real sizes otherwise), ``contact_ratio`` the fraction
 of the source's surface touching the target, ``penetration`` whether one solid passes into the other.

@@ -9,7 +9,7 @@ Presets:
 - ``default``: search, then a short refinement: the guide sees only what the relation and the geometry leave
   possible; its time per pair is measured in docs/presets-and-search.md, "Presets".
 - ``fast``: the relation and the geometry choose, the guide glances at a few candidates: interactive use.
-- ``descent``: the earlier default, local descent only from random starts (about ten minutes a pair).
+- ``descent``: local descent only from random starts, as the paper's method (about ten minutes a pair).
 - ``test``: seconds; for CI and smoke tests (search included, tiny).
 """
 
@@ -345,7 +345,7 @@ PRESETS: dict[str, dict] = {
         "search": {"shortlist": 12, "sweep": 0, "fine": 4, "fine_views": 2, "tile_restarts": 0},
         "progress_every": 1,
     },
-    # The earlier default: local descent from random starts (~10 min for a typical pair on 2 cores).
+    # Local descent from random starts (~10 min for a typical pair on 2 cores).
     "descent": {
         "camera": {"views": 4},
         "optim": {"steps": 120, "phases": 3, "restarts": 4, "eval_every": 10},
