@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
@@ -22,6 +23,7 @@ from ctp_core.errors import ConfigError
 from ctp_core.geometry import frames
 from ctp_core.guide import selection
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
+from ctp_core.relations import vocabulary
 
 if TYPE_CHECKING:  # the stages import these lazily: importing align stays light
     from ctp_core.config.schedule import Phase
@@ -61,8 +63,9 @@ class AlignResult:
     restarts: list[dict[str, Any]]
     timings: dict[str, float]
     preview: np.ndarray | None = None  # (V, H, W, 3) uint8 views of the final scene
-    best_restart: int | None = None  # the restart the answer comes from
-    on: str | None = None  # the placed object an assembly step relates to
+    best_restart: int | None = None  # the restart the answer comes from (``ordering.select_answer``'s pick)
+    on: str | None = None  # the placed object an assembly step relates to (the first, where there are several)
+    grounds: list[str] = field(default_factory=list)  # every placed object it relates to ("between": two)
     guided_by: str | None = None  # what guided the run, in words (the report's "guidance")
     model: str | None = None  # the guidance model; None for a geometry-only run
     guide: str = "none"  # the guide chosen for the run: a model spec or "none" (selection.GuideChoice)
@@ -127,7 +130,7 @@ class Run:
     goal: Goal | None  # None: geometry only
     started: float
     timings: dict[str, float] = field(default_factory=dict)
-    names: dict[str, str | None] = field(default_factory=dict)  # target, source, on: what the priors read
+    names: dict[str, Any] = field(default_factory=dict)  # target, source, on, grounds: what the priors read
     warnings: list[dict[str, Any]] = field(default_factory=list)  # AlignResult.warnings
     scale: ScalePlan | None = None  # scale mode: the scales the run starts from and searches (``scaling``)
 
@@ -137,14 +140,28 @@ class Run:
         return self.prior.reading
 
 
+def grounds(target: trimesh.Trimesh | trimesh.Scene, prompt: str | None, on: str | Sequence[str] | None
+            ) -> str | Sequence[str] | None:
+    """The placed objects the source relates to: ``on`` as given, or, where a scene target's prompt names two of its
+    objects as grounds ("between the sofa and the armchair") and ``on`` names fewer, those two."""
+    from ctp_core import pairs
+
+    if isinstance(target, trimesh.Trimesh) or not prompt or len(pairs.grounds_of(on)) >= 2:
+        return on
+    named = vocabulary.named_grounds(prompt, [name for name, _ in pairs.objects(target)])
+    return named if len(named) >= 2 else on
+
+
 def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, prompt: str | None,
-            config: AlignConfig, *, on: str | None = None, image: np.ndarray | None = None,
+            config: AlignConfig, *, on: str | Sequence[str] | None = None, image: np.ndarray | None = None,
             target_name: str = "target", source_name: str = "source", guide: Guide | None = None,
             goal: Goal | None = None) -> Run:
     """Priors, the normalised and canonicalised pair, the guide and its goal, the objective and the plan.
 
-    A scene target's priors read the object ``on`` (its name is ``target_name``, its size the extent). In scale
-    mode the files' sizes set nothing (``scaling``): the size ratio comes from the names and the prompt."""
+    A scene target's priors read the object ``on`` (its name is ``target_name``, its size the extent). A prompt
+    that places the source between two placed objects ("between the sofa and the armchair") relates it to both
+    where ``on`` names fewer (``grounds``). In scale mode the files' sizes set nothing (``scaling``): the size ratio
+    comes from the names and the prompt."""
     from ctp_core import objective, orientation, pairs
     from ctp_core.config import schedule
     from ctp_core.guide import goals, loaders
@@ -156,6 +173,7 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
         torch.set_num_threads(config.threads)
     if config.device == "cuda" and not torch.cuda.is_available():
         raise ConfigError("device 'cuda' was requested but no CUDA device is available", field="device")
+    on = grounds(target, prompt, on)
     prior = priors.resolve_priors(
         priors.get_provider(config.hparams_provider), target_name, source_name, prompt or "",
         size_ratio=config.size_ratio, contact_ratio=config.contact_ratio,
@@ -184,7 +202,8 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
     else:
         goal = None
     loaded = time.perf_counter()
-    names = {"target": target_name, "source": source_name, "on": on}
+    names = {"target": target_name, "source": source_name, "on": pairs.grounds_of(on)[0] if on else None,
+             "grounds": list(pairs.grounds_of(on))}
     scales = scaling.plan(pair, prior, names, config.seed, guided=goal is not None) if config.scale else None
     scorer = objective.Scorer(pair, config, prior.contact_ratio, guide=guide, goal=goal, reading=prior.reading,
                               scale=scales)
@@ -265,8 +284,10 @@ def refine(run: Run, starts: Poses, gate: Gate | None = None, *, on_event: Progr
 
 
 def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: ProgressCallback | None = None) -> AlignResult:
-    """The answer in file frames with its report fields and a preview, from the restart whose best pose has
-    the lowest objective on the fixed evaluation views (``Outcome.best``)."""
+    """The answer in file frames with its report fields and a preview, from the restart the optimiser selected
+    (``Outcome.best``: ``ordering.select_answer``, the relation first, near the target, then the objective on the
+    fixed evaluation views; not always the lowest objective). The report's ``best_restart``, the first
+    alternative and the last progress readout are that restart."""
     from ctp_core import pairs
     from ctp_core.relations import predicates
 
@@ -288,6 +309,7 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
         priors={**run.prior.to_dict(), "target_name": run.names.get("target"),  # the names the priors read
                  "source_name": run.names.get("source")},
         restarts=restarts, timings=timings, preview=preview, best_restart=best, on=run.names.get("on"),
+        grounds=run.names.get("grounds", []),
         guided_by=goal.description if goal is not None else "none (geometry only)",
         model=config.model if goal is not None else None,
         runtime=getattr(run.scorer.guide, "runtime", None),  # the pixels guide has none
@@ -315,7 +337,7 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
         on_event(ProgressEvent(kind="done", phase=len(run.plan), phases=len(run.plan), step=outcome.steps_run,
                                steps=steps, restarts=len(answers),
                                elapsed_s=time.perf_counter() - run.started, eta_s=0.0,
-                               best_objective=answer.objective, message="done"))
+                               best_objective=answer.objective, restart=best, message="done"))
     return answer
 
 
@@ -364,7 +386,7 @@ def align(
     prompt: str | None,
     config: AlignConfig,
     *,
-    on: str | None = None,
+    on: str | Sequence[str] | None = None,
     image: np.ndarray | None = None,
     target_name: str = "target",
     source_name: str = "source",
@@ -385,8 +407,8 @@ def align(
     search off, replaces the first random start); rigid, it fixes the source's scale, while with ``config.scale``
     its scale is ignored (``scaling``: the priors' ratio or the geometry set it).
     A ``trimesh.Scene`` target is a scene of placed objects (``pairs.objects``): ``on`` names the one
-    the source relates to (soft-ICP attaches to it, the search proposes on it; ``target_name`` and its size
-    feed the priors), while renders and the penetration term see them all.
+    the source relates to, or the two of "between" (``grounds``; soft-ICP attaches to them, the search proposes
+    on them; ``target_name`` and their size feed the priors), while renders and the penetration term see them all.
     Model ``auto`` is resolved first (``selection.resolve``; ``choice``: ``auto``'s pick made already for this
     run, a worker's); the result says which guide ran and why.
     Raises ``errors.Canceled`` when ``should_cancel()`` turns true, other ``CtpError`` on bad input.

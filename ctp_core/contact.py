@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 import trimesh
+from scipy.spatial import Delaunay, QhullError
 
 from ctp_core import losses
 from ctp_core.geometry import sampling
@@ -213,3 +214,43 @@ def place(pair: PreparedPair, index: losses.SurfaceIndex, q: torch.Tensor, sites
                                            on_surface=surface, approach=approach)
     t = t + sites.normal * sites.gap[:, None]
     return Poses(t, q, scale).select(free), free
+
+
+CAVITY_PROBES = 4096  # quasi-random points in the target AABB tried as cavity proposals
+CAVITY_MARGIN = 0.02  # of the hull's box diagonal: how far a cavity point stays from the walls
+CAVITY_SIGMA = 0.01  # the depth's nearest-sample width in the normalised frame (a target's diagonal is about 3)
+
+
+def cavity_points(pair: PreparedPair, seed: int) -> np.ndarray:
+    """Points inside the target's convex hull but outside the target (its cavity, as the penetration term sees
+    it: behind no oriented surface), away from the walls; (P, 3), possibly empty."""
+    return hollow(pair.target_vertices.cpu().numpy().astype(np.float64), pair.index, seed, CAVITY_SIGMA)
+
+
+def hollow(verts: np.ndarray, index: losses.SurfaceIndex, seed: int, sigma: float) -> np.ndarray:
+    """Points inside the convex hull of ``verts`` but outside the surface ``index`` samples (outward normals, the
+    same frame), at least ``CAVITY_MARGIN`` of the box diagonal from the walls; (P, 3), possibly empty.
+    ``sigma``: the signed depth's width, in the frame's units."""
+    lo, hi = verts.min(0), verts.max(0)
+    probes = lo + (hi - lo) * np.random.default_rng(seed).random((CAVITY_PROBES, 3))
+    try:
+        hull = Delaunay(trimesh.convex.convex_hull(verts).vertices)
+    except (QhullError, ValueError):  # a flat mesh has no volume and no cavity
+        return np.zeros((0, 3))
+    probes = probes[hull.find_simplex(probes) >= 0]
+    if not len(probes):
+        return probes
+    dist, _ = index.tree.query(probes, k=1, workers=1)
+    depth = losses.signed_depth(torch.as_tensor(probes, dtype=torch.float32)[None], index, sigma, 8)[0]
+    keep = (depth.numpy() < 0) & (dist > CAVITY_MARGIN * float(np.linalg.norm(hi - lo)))
+    return probes[keep]
+
+
+def opening_sides(pair: PreparedPair, points: np.ndarray) -> np.ndarray:
+    """The two horizontal sides of the opening that cavity ``points`` span, shortest first, with the probes' wall
+    gap (``CAVITY_MARGIN`` of the target's diagonal) added back: the cavity's width, wall to wall."""
+    verts = pair.target_vertices.cpu().numpy().astype(np.float64)
+    margin = 2 * CAVITY_MARGIN * float(np.linalg.norm(np.ptp(verts, axis=0)))
+    return np.sort(np.ptp(points[:, [0, 2]], axis=0) + margin)
+
+

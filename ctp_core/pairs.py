@@ -19,7 +19,7 @@ from __future__ import annotations
 import functools
 import math
 import weakref
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import TypeAlias, TypeVar
@@ -57,12 +57,22 @@ def objects(target: Target) -> list[tuple[str, trimesh.Trimesh]]:
     return placed
 
 
-def attachment(target: Target, on: str | None) -> trimesh.Trimesh:
-    """The object of ``target`` named ``on`` (the one the source relates to); the whole target for None."""
-    if on is None:
+def grounds_of(on: str | Sequence[str] | None) -> tuple[str, ...]:
+    """The names of the objects the source relates to: none, one, or several ("between" has two)."""
+    return () if on is None else (on,) if isinstance(on, str) else tuple(on)
+
+
+def attachment(target: Target, on: str | Sequence[str] | None) -> trimesh.Trimesh:
+    """The objects of ``target`` named ``on`` (the ones the source relates to), as one mesh; the whole target for
+    None."""
+    named = grounds_of(on)
+    if not named:
         return geometry(target)
     parts = objects(target)
-    return parts[_position([name for name, _ in parts], on)][1]
+    picked = [parts[_position([name for name, _ in parts], n)][1] for n in named]
+    if len(picked) == 1:
+        return picked[0]
+    return trimesh.util.concatenate([trimesh.Trimesh(m.vertices, m.faces, process=False) for m in picked])
 
 
 def _position(names: list[str], on: str) -> int:
@@ -103,7 +113,9 @@ class PreparedPair:
     source_samples: torch.Tensor  # (N, 3) source local frame
     source_surface: SurfaceIndex  # source samples + outward normals, source local frame (what is inside the source)
     target_outward: list[trimesh.Trimesh]  # each target object, file frame, outward winding (``outward``)
-    attach: SurfaceIndex | None = None  # samples of the object the source relates to; None: all of ``index``
+    attach: SurfaceIndex | None = None  # samples of the object(s) the source relates to; None: all of ``index``
+    # each named ground's samples where the source relates to several objects ("between"), in the order named
+    grounds: list[SurfaceIndex] = field(default_factory=list)
     # the target's front, (3,) unit, normalised frame (its file's +Z for glTF, turned as the target is)
     target_front: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
     # False where no convention gives a front (or a symmetric target): directional relations use the viewer's frame
@@ -185,7 +197,7 @@ class PreparedPair:
 
 def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed: int,
                  device: str = "cpu", canonicalise: bool = True, judge: canonical.Judge | None = None,
-                 on: str | None = None, target_up: canonical.Upright | None = None,
+                 on: str | Sequence[str] | None = None, target_up: canonical.Upright | None = None,
                  target_axes: orientation.Axes = orientation.FROM_FILE,
                  source_axes: orientation.Axes = orientation.FROM_FILE) -> PreparedPair:
     """Normalise, orient and sample a pair once per run (everything later reuses it).
@@ -194,10 +206,10 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
     ``source_axes``: the format's convention, an axis given, or ``auto``'s geometric guess, by ``judge`` when
     given); ``canonicalise`` False keeps the target file's +Y as up whatever they say. The target's up turns the
     normalised frame (renders show it as CLIP expects); the source's is its starting orientation. A scene
-    target's up is its base's (``base``); it gets ``samples`` samples per object; ``on`` names the object the
-    soft-ICP term attaches to. ``target_up``: the target's upright turn when it is known already (a stored
-    result's, ``adjust``): a later look at the same scene must have the same up as the run, which a judge may
-    have chosen.
+    target's up is its base's (``base``); it gets ``samples`` samples per object; ``on`` names the object (or the
+    objects: "between" has two grounds) the soft-ICP term attaches to. ``target_up``: the target's upright turn
+    when it is known already (a stored result's, ``adjust``): a later look at the same scene must have the same up
+    as the run, which a judge may have chosen.
     """
     whole, up_from = geometry(target), base(target)
     if target_up is None:
@@ -223,8 +235,10 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
     as_tensor = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=device)  # noqa: E731
     index = lambda p, n: SurfaceIndex(as_tensor(target_to_norm.apply(p)),  # noqa: E731
                                      as_tensor(target_to_norm.apply_directions(n)))
-    position = None if on is None else _position([name for name, _ in parts], on)
-    attach = index(*sampled[position]) if position is not None and len(parts) > 1 else None
+    positions = [_position([name for name, _ in parts], n) for n in grounds_of(on)]
+    named = [index(*sampled[i]) for i in positions] if len(parts) > 1 else []
+    attach = None if not named else named[0] if len(named) == 1 else SurfaceIndex(
+        torch.cat([g.points for g in named]), torch.cat([g.normals for g in named]))
     return PreparedPair(
         target=target,
         source=source,
@@ -241,6 +255,7 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
                                     as_tensor(source_to_local.apply_directions(s_nrm))),
         target_outward=oriented,
         attach=attach,
+        grounds=named if len(named) > 1 else [],
         target_front=_unit(target_to_norm.apply_directions(target_up.front[None])[0]),
         front_trusted=target_up.front_trusted,
         source_front=_unit(np.asarray(source_up.front, dtype=np.float64)),

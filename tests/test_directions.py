@@ -21,7 +21,8 @@ from ctp_core.align import align
 from ctp_core.config import AlignConfig
 from ctp_core.geometry.pose import Poses, apply_pose
 from ctp_core.pairs import prepare_pair
-from ctp_core.relations import builders, predicates
+from ctp_core.relations import apart, attached, builders, measures, predicates
+from ctp_core.relations.registry import SPECS
 from ctp_core.search import proposals
 
 
@@ -300,7 +301,7 @@ def _below_proposals(pair) -> tuple[list[str], torch.Tensor, trimesh.Trimesh]:
     rotations = proposals.orientations(pair, config, torch.Generator().manual_seed(0))
     one = contact.Proposals(Poses(torch.zeros(1, 3), torch.tensor([[1.0, 0.0, 0.0, 0.0]]), torch.zeros(1)),
                                      ["top"], None, rotations, contact.contact_index(pair, seed=0))
-    made = builders.BUILDERS["below"](pair, one, 0, reading("below"), 0.0,
+    made = SPECS["below"].builder(pair, one, 0, reading("below"), 0.0,
                                                 builders.own_count(config))
     with torch.inference_mode():
         held = predicates.holds(predicates.relation_score(pair, made.poses, reading("below")))
@@ -313,7 +314,7 @@ def test_below_proposals_stand_the_box_on_the_floor_under_a_lifted_part(where):
             else prepare_pair(hung_lamp(), SMALL_BOX, samples=1500, seed=0, canonicalise=False, on="lamp"))
     region, held, made = _below_proposals(pair)
     assert set(region) == {"below"} and len(region) >= 6 and held.float().mean() >= 0.75, held
-    bottoms = apply_pose(predicates.features(pair).source_points, made.poses.t, made.poses.q,
+    bottoms = apply_pose(measures.features(pair).source_points, made.poses.t, made.poses.q,
                          made.poses.log_s)[..., 1].min(1).values
     assert torch.allclose(bottoms, torch.full_like(bottoms, pair.floor), atol=0.02 * pair.target_radius), bottoms
 
@@ -324,7 +325,7 @@ def test_no_below_proposals_where_nothing_is_lifted_off_the_floor():
     base = proposals.propose(pair, config, proposals.region_weights(None), 0.0,
                                     torch.Generator().manual_seed(0))
     count = builders.own_count(config)
-    assert builders.beneath(pair, base, 0, reading("below"), 0.0, count) is None
+    assert apart.beneath(pair, base, 0, reading("below"), 0.0, count) is None
     assert builders.extend(pair, config, base, reading("below"), 0) is base
 
 
@@ -379,8 +380,8 @@ def test_lean_proposals_on_a_named_side_lean_on_that_side():
     config = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0}, search={"candidates": 48})
     base = proposals.propose(pair, config, proposals.region_weights(None), 0.0,
                                     torch.Generator().manual_seed(0))
-    made = builders.lean(pair, base, 0, reading("lean+behind"), 0.0, builders.own_count(config))
-    centres = apply_pose(predicates.features(pair).source_centre[None], made.poses.t, made.poses.q,
+    made = attached.lean(pair, base, 0, reading("lean+behind"), 0.0, builders.own_count(config))
+    centres = apply_pose(measures.features(pair).source_centre[None], made.poses.t, made.poses.q,
                          made.poses.log_s)[:, 0]
     assert bool((centres[:, 2] < -0.45).all()), centres  # all behind the backrest (the sofa faces +Z)
     with torch.inference_mode():

@@ -16,7 +16,8 @@ import trimesh
 
 from ctp_core.geometry.pose import Poses
 from ctp_core.pairs import prepare_pair
-from ctp_core.relations import predicates
+from ctp_core.relations import attached, measures, predicates
+from ctp_core.relations.registry import SPECS
 from ctp_core.relations.vocabulary import RELATIONS, RelationReading
 
 
@@ -187,7 +188,7 @@ def test_scores_are_scale_free(scale):
     assert torch.allclose(plain, scaled, rtol=1e-2, atol=1e-3)
 
 
-@pytest.mark.parametrize("relation", list(predicates.JUDGES))
+@pytest.mark.parametrize("relation", list(SPECS))
 def test_batched_equals_one_by_one_and_gradients_are_finite(relation):
     pair = prepared(table(), BALL)
     p = poses(pair, list(BALL_POSES.values()))
@@ -287,8 +288,8 @@ def test_a_ring_on_a_peg_prefers_hanging_freely_to_swung_aside_stuck_under_the_w
     stuck = pose([0.3, 0.5 - 0.17, -0.05])  # its top against the wall's underside (y = 0.5): held by nothing seen
     prefer, score = _preference(wall_with_peg(), ring(), [threaded, swung, flat, stuck], "hang")
     assert predicates.holds(score).tolist() == [True, True, True, True], score
-    assert prefer[0] < 0.05 and prefer[0] + 0.05 < prefer[1] < prefer[3] < prefer[2] == predicates.FAR, prefer
-    assert prefer[3] >= predicates.FIXED, prefer
+    assert prefer[0] < 0.05 and prefer[0] + 0.05 < prefer[1] < prefer[3] < prefer[2] == measures.FAR, prefer
+    assert prefer[3] >= attached.FIXED, prefer
 
 
 def test_preference_is_zero_where_the_relation_says_nothing_more_and_batched_equals_one_by_one():
@@ -302,7 +303,7 @@ def test_preference_is_zero_where_the_relation_says_nothing_more_and_batched_equ
         assert torch.allclose(batched, single, atol=1e-5), relation
 
 
-@pytest.mark.parametrize("relation", [*predicates.JUDGES, None])
+@pytest.mark.parametrize("relation", [*SPECS, None])
 def test_terms_equal_the_predicates_one_by_one(relation):
     """``terms`` (what the objective reads, one support footprint per pose) equals the public predicates."""
     pair = prepared(table(), BALL)

@@ -19,7 +19,7 @@ from ctp_core import align as stages
 from ctp_core import contact, objective
 from ctp_core.align import align
 from ctp_core.config import AlignConfig, schedule
-from ctp_core.relations import predicates
+from ctp_core.relations import measures, predicates
 from ctp_core.search import ordering
 
 
@@ -220,7 +220,7 @@ def test_a_ball_under_the_table_ends_under_its_middle_and_a_cup_on_it_on_its_top
 def test_a_ring_hung_on_a_peg_is_threaded_on_it_and_the_wall_keeps_its_file_up():
     """The geometric guess would lay the wall on its back (a thin slab topples); what things hang on is fixed in
     place, and every object keeps its file's up unless asked (the general rule), and the hang proposals
-    (``builders.hung``) thread the ring on
+    (``attached.hung``) thread the ring on
     the peg, which the preference (hanging freely, plumb) then chooses over the ring flat against the wall."""
     wall, ring_ = wall_with_peg(), ring()
     config = AlignConfig.from_preset("default", loss={"lambda_clip": 0.0})  # the test preset's 3 hang proposals
@@ -269,7 +269,7 @@ def test_penetrate_proposals_drive_the_source_end_first_into_the_target_never_up
         poses = props.poses.select(pierce)
         held = predicates.holds(predicates.relation_score(run.pair, poses, reading("penetrate")))
         floor = float(run.pair.target_vertices[:, 1].min())
-        lowest = predicates.posed_source(predicates.features(run.pair), poses).points[..., 1].min(-1).values
+        lowest = measures.posed_source(measures.features(run.pair), poses).points[..., 1].min(-1).values
     assert held.float().mean() > 0.9, held
     assert (lowest > floor - 1e-3).all(), lowest  # none enters from below, through the floor
     result = align(block, stick, "a stick sticking into the block", config, target_name="block", source_name="stick")

@@ -1,5 +1,5 @@
-"""A relation is one record (``priors.relations.RELATIONS``) and one judge (``predicates.JUDGES``), with a builder of
-its own proposals where the regions do not reach it (``builders.BUILDERS``); the relation a run uses is
+"""A relation is one record (``vocabulary.RELATIONS``) and one spec (``registry.SPECS``: its judge, and a builder of
+its own proposals where the regions do not reach it); the relation a run uses is
 one value (``RelationReading``). The relation proposals are tested one by one on small generated meshes: what they
 make satisfies the relation's score, as many as their share of the search."""
 
@@ -17,7 +17,9 @@ from ctp_core import contact
 from ctp_core.config import AlignConfig
 from ctp_core.geometry.pose import Poses
 from ctp_core.priors.prior import ScenePrior
-from ctp_core.relations import builders, predicates
+from ctp_core.relations import apart, attached, builders, predicates, registry, resting
+from ctp_core.relations.registry import SPECS
+from ctp_core.relations.spec import Judge, Spec
 from ctp_core.relations.vocabulary import RELATIONS, Relation, RelationReading
 from ctp_core.search import proposals
 
@@ -29,15 +31,15 @@ SHARE = builders.own_count(CONFIG)
 # --- one record, one judge -----------------------------------------------------------------------------------------
 
 def test_every_relation_has_one_record_and_one_judge_and_builders_are_for_relations_only():
-    assert set(predicates.JUDGES) == set(RELATIONS)
+    assert set(SPECS) == set(RELATIONS)
     assert all(record.name == name for name, record in RELATIONS.items())
-    assert set(builders.BUILDERS) <= set(RELATIONS)
+    assert not registry.check(SPECS)
     assert all(set(r.figure_regions) | set(r.ground_regions) <= set(proposals.REGIONS) for r in RELATIONS.values())
     # the resting family shares one judge, and only it includes stability in its score
-    resting = {name for name, r in RELATIONS.items() if r.rests}
-    assert resting == {"on", "stand", "sit", "lie"}
-    assert {name for name, j in predicates.JUDGES.items() if j.score is predicates._score_resting} == resting
-    assert all(RELATIONS[name].steady for name in resting)
+    family = {name for name, r in RELATIONS.items() if r.rests}
+    assert family == {"on", "stand", "sit", "lie"}
+    assert {name for name, s in SPECS.items() if s.judge.score is resting.score_resting} == family
+    assert all(RELATIONS[name].steady for name in family)
 
 
 def test_the_directional_kinds_weigh_the_regions_as_beside_does_in_either_role():
@@ -59,7 +61,7 @@ def test_adding_a_relation_is_its_record_and_its_judge(monkeypatch):
     derived function with nothing else changed."""
     record = Relation("hover", 0.0, 0.0, 0.5, kind="vertical", figure_regions={"drop": 5.0})
     monkeypatch.setitem(RELATIONS, "hover", record)
-    monkeypatch.setitem(predicates.JUDGES, "hover", predicates.Judge(predicates._score_above))
+    monkeypatch.setitem(SPECS, "hover", Spec("hover", Judge(apart.score_above)))
     reading = RelationReading("hover")
     assert reading.known and not reading.steady and not reading.rests and reading.side is None
     assert proposals.region_weights(reading)["drop"] == 5.0
@@ -114,7 +116,7 @@ def _base(pair) -> contact.Proposals:
 
 def _built(pair, name: str, seed: int = 0) -> tuple[contact.Proposals, torch.Tensor]:
     reading = RelationReading(name)
-    made = builders.BUILDERS[reading.position](pair, _base(pair), seed, reading, 0.0, SHARE)
+    made = SPECS[reading.position].builder(pair, _base(pair), seed, reading, 0.0, SHARE)
     assert made is not None and len(made.poses), name
     with torch.inference_mode():
         held = predicates.holds(predicates.relation_score(pair, made.poses, reading))
@@ -196,7 +198,7 @@ def test_a_pairs_fixed_geometry_is_built_once_while_the_pair_lives():
 
     pair = prepared(box([1, 1, 1], [0, 0.5, 0]), box([0.3, 0.3, 0.3], [0, 0, 0]))
     assert build(pair) is build(pair) and len(calls) == 1
-    assert builders.hook_points(pair) is builders.hook_points(pair)
+    assert attached.hook_points(pair) is attached.hook_points(pair)
     other = prepared(box([1, 1, 1], [0, 0.5, 0]), box([0.2, 0.2, 0.2], [0, 0, 0]))
     build(other)
     assert len(calls) == 2

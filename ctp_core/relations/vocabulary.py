@@ -18,6 +18,7 @@ target's own frame: ``predicates``); ``implied`` what a reading of an orientatio
 
 from __future__ import annotations
 
+import functools
 import re
 from dataclasses import dataclass, field
 
@@ -25,8 +26,8 @@ from dataclasses import dataclass, field
 @dataclass(frozen=True)
 class Relation:
     """One relation of the vocabulary, all that is known of it without the geometry: its reading priors and the
-    declarative facts the engine reads (its score, preference and proposals are ``predicates.JUDGES`` and
-    ``builders.BUILDERS``, under the same name).
+    declarative facts the engine reads (its score, preference, proposals and scale bound are its spec's,
+    ``registry.SPECS``, under the same name).
 
     ``figure_contact``, ``ground_contact``: the share of the figure's and of the ground's surface in contact.
     ``penetration``: "yes" (cut, pierce, embed ... unless the ground is a container: a key stuck in a
@@ -35,8 +36,9 @@ class Relation:
     know one of them; what sits on, in or hangs from something is usually the smaller of the two.
     ``kind``: ``contact`` (the figure touches or rests on its ground: the relations above), ``side`` (beside the
     ground on one of its sides, in its own frame: ``front``, ``behind``, ``left``, ``right``), ``vertical``
-    (``above``, ``below``: a gap, no contact), ``distance`` (``near``, ``far``) or ``orientation`` (which way the
-    figure's front points: ``facing``, ``facing_away``, ``aligned``; said alone or after a position).
+    (``above``, ``below``: a gap, no contact), ``distance`` (``near``, ``far``), ``orientation`` (which way the
+    figure's front points: ``facing``, ``facing_away``, ``aligned``; said alone or after a position) or ``between``
+    (two grounds: the figure in the gap between them).
     ``rests``: the figure rests on its ground from above (the resting family: its score includes stability).
     ``steady``: stability applies (``predicates.stable``): what stands on something, the ground or the floor, rather
     than hangs, is fixed or goes into it.
@@ -106,8 +108,10 @@ RELATIONS: dict[str, Relation] = {r.name: r for r in (
     _apart("far", "distance"),
     # which way the figure's front points, relative to the ground
     *(_apart(name, "orientation") for name in ("facing", "facing_away", "aligned")),
+    # two grounds: on the floor in the gap between them, clear of both
+    Relation("between", 0.0, 0.0, 0.5, kind="between", steady=True, figure_regions={"floor": 4.0, "gap": 2.0}),
 )}
-PLACING = {"contact", "side", "vertical", "distance"}  # the kinds that say where the figure is
+PLACING = {"contact", "side", "vertical", "distance", "between"}  # the kinds that say where the figure is
 JOIN = "+"  # a reading of two: a position and an orientation ("front+facing"), a lean and its side ("lean+behind")
 # where an orientation said alone puts the figure: "a chair facing the desk" stands near the desk, not across the room
 ORIENTED_NEAR = "near"
@@ -264,6 +268,8 @@ CUES: list[Cue] = [
     Cue(r"on (?:top of )?" + _HEAD + r"|around " + _POSS + r" (?:neck|waist|wrist|finger|arm)s?|worn by",
         "wear"),
     Cue(r"wear(?:s|ing)?|dressed in|put(?:s|ting)? on|has on|donning", "wear", True),
+    # two grounds, named after the cue ("between the sofa and the armchair"): before "in" and the sides
+    Cue(r"(?:in |midway |halfway |right )?between|in the middle of(?= [a-z ]+ and )|flanked by", "between"),
     # held
     Cue(r"in " + _POSS + r" " + _BODY + r"|held (?:by|in)", "hold"),
     Cue(r"hold(?:s|ing)?|carr(?:y|ies|ying)|grasp(?:s|ing)?|grip(?:s|ping)?|clutch(?:es|ing)?|wield(?:s|ing)?"
@@ -329,7 +335,12 @@ CUES: list[Cue] = [
     Cue(r"supporting", "on", True),  # "a table supporting a lamp"
     Cue(r"on[ _]top[ _]of|on top|atop|onto|upon|supported[ _]by|on", "on"),
 ]
-_COMPILED = [(re.compile(r"(?<![a-z])(?:" + c.pattern + r")(?![a-z])"), c) for c in CUES]
+
+
+@functools.cache
+def _compiled(cue: Cue) -> re.Pattern:
+    """A cue's pattern as whole words (compiled once per cue; ``CUES`` may grow, a new relation's wordings)."""
+    return re.compile(r"(?<![a-z])(?:" + cue.pattern + r")(?![a-z])")
 
 
 @dataclass(frozen=True)
@@ -357,7 +368,8 @@ def find_cue(prompt: str, aside=None, kinds: set[str] | None = None) -> CueMatch
     text = clean(prompt)
     first = None
     set_aside: list[tuple[int, int]] = []
-    for regex, cue in _COMPILED:
+    for cue in CUES:
+        regex = _compiled(cue)
         if kinds is not None and RELATIONS[cue.relation].kind not in kinds:
             continue
         for m in regex.finditer(text):
@@ -404,3 +416,34 @@ def source_is_figure(cue: CueMatch, source_at: list[int], target_at: list[int]) 
     if pos in source_at and pos in target_at:
         return None
     return nearest[0][1] == "s"
+
+
+_ARTICLE = re.compile(r"^(?:the|a|an|his|her|its|their|two|both|each)\s+")
+_PHRASE_END = re.compile(r"[,.;:!?]|\s(?:with|while|where|so|facing|near|on|in|under|beside|next)\s")
+
+
+def ground_phrases(prompt: str, cue: CueMatch) -> list[str]:
+    """The grounds a cue of two names after it ("between the sofa and the armchair": ["sofa", "armchair"]), the
+    articles dropped; one phrase when the prompt names them together ("flanked by two chairs": ["chairs"])."""
+    text = clean(prompt)[cue.end:]
+    end = _PHRASE_END.search(text)
+    phrase = (text[:end.start()] if end else text).strip()
+    names = [_ARTICLE.sub("", part.strip()).strip() for part in re.split(r"\s+and\s+|\s*&\s*", phrase)]
+    return [name for name in names if name]
+
+
+def named_grounds(prompt: str, placed: list[str]) -> list[str]:
+    """The placed objects a two-ground cue names ("a lamp between the sofa and the armchair", with "sofa" and
+    "armchair" placed: both), in the prompt's order: a phrase names the object whose name it is, holds or ends
+    with; [] without such a cue, or where a phrase names none of them."""
+    cue = find_cue(prompt, kinds={"between"})
+    if cue is None or cue.relation.name != "between":
+        return []
+    found = []
+    for phrase in ground_phrases(prompt, cue):
+        match = next((name for name in placed if name.lower() == phrase), None) or next(
+            (name for name in placed if name.lower() in phrase or phrase.endswith(name.lower().split()[-1])), None)
+        if match is None:
+            return []
+        found.append(match)
+    return found if len(set(found)) == len(found) else []

@@ -27,11 +27,20 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 import trimesh
-from scipy.spatial import Delaunay, QhullError
+from scipy.spatial import QhullError
 
-from ctp_core import losses
 from ctp_core.config import AlignConfig, share_of
-from ctp_core.contact import APPROACHES, NEAR, Proposals, Site, clearance, contact_index, place, surface_regions
+from ctp_core.contact import (
+    APPROACHES,
+    NEAR,
+    Proposals,
+    Site,
+    cavity_points,
+    clearance,
+    contact_index,
+    place,
+    surface_regions,
+)
 from ctp_core.geometry import sampling
 from ctp_core.geometry.pose import (
     Poses,
@@ -45,7 +54,6 @@ from ctp_core.relations.vocabulary import RelationReading
 
 REGIONS: tuple[str, ...] = ("top", "side", "bottom", "inside", "gap", "drop", "floor")
 HULL_POINTS = 96  # source convex hull vertices kept for the stable poses
-CAVITY_PROBES = 4096  # quasi-random points in the target AABB tried as cavity proposals
 
 
 def region_weights(reading: RelationReading | None) -> dict[str, float]:
@@ -112,35 +120,6 @@ def _stable_poses(source: trimesh.Trimesh, seed: int) -> list[np.ndarray]:
     except (QhullError, ValueError, IndexError):
         return []
     return list(rests)
-
-
-def cavity_points(pair: PreparedPair, seed: int) -> np.ndarray:
-    """Points inside the target's convex hull but outside the target (its cavity, as the penetration term sees
-    it: behind no oriented surface), away from the walls; (P, 3), possibly empty."""
-    return hollow(pair.target_vertices.cpu().numpy().astype(np.float64), pair.index, seed, CAVITY_SIGMA)
-
-
-CAVITY_MARGIN = 0.02  # of the hull's box diagonal: how far a cavity point stays from the walls
-CAVITY_SIGMA = 0.01  # the depth's nearest-sample width in the normalised frame (a target's diagonal is about 3)
-
-
-def hollow(verts: np.ndarray, index: losses.SurfaceIndex, seed: int, sigma: float) -> np.ndarray:
-    """Points inside the convex hull of ``verts`` but outside the surface ``index`` samples (outward normals, the
-    same frame), at least ``CAVITY_MARGIN`` of the box diagonal from the walls; (P, 3), possibly empty.
-    ``sigma``: the signed depth's width, in the frame's units."""
-    lo, hi = verts.min(0), verts.max(0)
-    probes = lo + (hi - lo) * np.random.default_rng(seed).random((CAVITY_PROBES, 3))
-    try:
-        hull = Delaunay(trimesh.convex.convex_hull(verts).vertices)
-    except (QhullError, ValueError):  # a flat mesh has no volume and no cavity
-        return np.zeros((0, 3))
-    probes = probes[hull.find_simplex(probes) >= 0]
-    if not len(probes):
-        return probes
-    dist, _ = index.tree.query(probes, k=1, workers=1)
-    depth = losses.signed_depth(torch.as_tensor(probes, dtype=torch.float32)[None], index, sigma, 8)[0]
-    keep = (depth.numpy() < 0) & (dist > CAVITY_MARGIN * float(np.linalg.norm(hi - lo)))
-    return probes[keep]
 
 
 def floor_points(pair: PreparedPair, count: int, margin: float, rng: np.random.Generator) -> np.ndarray:

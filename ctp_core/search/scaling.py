@@ -18,8 +18,8 @@ contact favours a smaller source) and is a tie-break where a guide does, plus a 
 Where the geometry bounds the scale, it decides over the priors (``Bound``, ``geometric_bound``):
 - ``in`` (the target has a cavity): the source fits the cavity: its two shortest sides at most the cavity's two
   horizontal sides. An upper bound: the rungs above it are dropped (the bound kept as one), the wall starts there.
-- ``hang`` (the source has a hook point, ``builders.hook_points``): its loop takes the part it hangs on:
-  the widest hook clearance at least the target's thinnest up-facing part (``builders.peg_thickness``).
+- ``hang`` (the source has a hook point, ``attached.hook_points``): its loop takes the part it hangs on:
+  the widest hook clearance at least the target's thinnest up-facing part (``attached.peg_thickness``).
   A lower bound: the rungs below it are raised to it, the wall starts there.
 - ``on``, a lid (the source flat, the target open at its top): the source's footprint (its two horizontal sides,
   upright) covers the opening's two horizontal sides, as a lid covers a jar's rim. A lower bound, as ``hang``.
@@ -42,8 +42,8 @@ import torch
 
 from ctp_core.pairs import PreparedPair
 from ctp_core.priors import ScenePrior
-from ctp_core.relations import builders
-from ctp_core.search import proposals
+from ctp_core.relations.registry import SPECS
+from ctp_core.relations.spec import Bound
 
 PRIOR_SIGMA = 0.42  # the rules provider's size-ratio error, |ln(estimate / label)|, 68th percentile
 LADDER_WIDTH = 1.08  # ... its 90th percentile: the ladder spans the ratio's scale times exp(+-LADDER_WIDTH)
@@ -51,24 +51,7 @@ RUNGS = 5  # scales the search tries (an odd count: the centre is one)
 PRIOR_WEIGHT = 1.0  # the ``scale`` term's prior half where the geometry alone judges: it decides the size
 PRIOR_FLOOR = 1e-3  # ... where a guide judges fully: a tie-break, far under what a guide's term moves between sizes
 WALL = 100.0  # the ``scale`` term's weight per squared log-unit beyond the ladder's ends (or a geometric bound)
-CREST = math.radians(20.0)  # ``hang``: a sample's normal within this of straight up sees the part's whole thickness
-FLAT = 0.5  # a lid: its upright height at most this share of its smaller horizontal side
-OPENING_DEPTH = 0.1  # a top opening: cavity points within this share of the target's height from its top
-FIT_STEPS = 64  # log scales scanned for the ``wear`` fit over twice the ladder's span
-FIT_TOLERANCE = math.log(1.25)  # a ``wear`` fit's band: the scales where the source's inside is within 25 % of the
 # width of what wears it (the ladder and the scale term's sigma come from that band, not the priors' error)
-
-
-@dataclass(frozen=True)
-class Bound:
-    """What the geometry says of the scale (log pose scale, source local -> normalised)."""
-
-    kind: str  # what bounds it: "in: fits the cavity", "hang: ...", "on: ...", "wear: ..."
-    log_s: float
-    side: str  # "upper": the rungs above go; "lower": the rungs below go; "fit": the ladder's centre
-    band: tuple[float, float] | None = None  # a fit's: the log scales within ``FIT_TOLERANCE`` of fitting
-
-
 @dataclass(frozen=True)
 class ScalePlan:
     """The run's scales (log pose scale, source local -> normalised, which is also the source file -> target file
@@ -124,111 +107,14 @@ def ratio_scale(pair: PreparedPair, size_ratio: float) -> float:
     return math.log(size_ratio * target_side / max(source_side, 1e-30))
 
 
-def cavity_bound(pair: PreparedPair, seed: int) -> float | None:
-    """``in``: the largest log scale at which the source's two shortest sides fit the target cavity's two
-    horizontal sides (normalised frame, +Y up); None without a cavity."""
-    cavity = proposals.cavity_points(pair, seed)
-    if len(cavity) < 8:
-        return None
-    opening = _opening(pair, cavity)
-    sides = np.sort(np.ptp(pair.source_vertices.cpu().numpy(), axis=0))[:2]
-    return float(np.min(np.log(opening / np.maximum(sides, 1e-30))))
-
-
-def wear_fit(pair: PreparedPair, seed: int, around: float) -> Bound | None:
-    """``wear``: the smallest log scale (within twice the ladder's span of ``around``) at which the source's cavity,
-    in its upright frame, is as wide as the target's top part as deep as the cavity (normalised frame, +Y up): a
-    cap on a sphere comes down until its rim meets it, so a larger one sits lower, over a wider part. With the
-    band of scales within ``FIT_TOLERANCE`` of fitting; None when the source has no cavity or the scan finds no
-    such scale."""
-    local = pair.source_vertices.cpu().numpy().astype(np.float64)
-    surface = pair.source_surface
-    diagonal = float(np.linalg.norm(np.ptp(local, axis=0)))  # the source's, local frame
-    sigma = proposals.CAVITY_SIGMA * diagonal / max(
-        float(np.linalg.norm(np.ptp(pair.target_vertices.cpu().numpy(), axis=0))), 1e-30)
-    inside = proposals.hollow(local, surface, seed, sigma)
-    if len(inside) < 8:
-        return None
-    upright = inside @ pair.source_upright.rotation.T
-    margin = 2 * proposals.CAVITY_MARGIN * diagonal
-    width, depth = float(np.ptp(upright[:, [0, 2]], axis=0).max()) + margin, float(np.ptp(upright[:, 1])) + margin
-    points = pair.anchor.points.cpu().numpy().astype(np.float64)
-    top = float(points[:, 1].max())
-    scales = np.linspace(around - 2 * LADDER_WIDTH, around + 2 * LADDER_WIDTH, FIT_STEPS)
-    misfit = []  # ln(the covered part's width / the inside's width) at each scale: > 0 while it cannot go on
-    for log_s in scales:
-        part = points[points[:, 1] >= top - math.exp(log_s) * depth]
-        head = float(np.ptp(part[:, [0, 2]], axis=0).max()) if len(part) > 1 else 0.0
-        misfit.append(math.log(max(head, 1e-30) / (math.exp(log_s) * width)))
-    misfit = np.asarray(misfit)
-    fits = np.flatnonzero(misfit <= 0)
-    if not len(fits) or fits[0] == 0:  # never wide enough, or wide enough at any scale scanned: no fit
-        return None
-    best = int(fits[0])  # the smallest scale whose inside takes the part it covers: snug
-    near = scales[np.abs(misfit) <= FIT_TOLERANCE]
-    near = near[np.abs(near - scales[best]) <= 2 * FIT_TOLERANCE + 1e-9]  # the best's own stretch, not a far one
-    return Bound("wear: fits what wears it", float(scales[best]), "fit",
-                 band=(float(min(near.min(initial=scales[best]), scales[best])),
-                       float(max(near.max(initial=scales[best]), scales[best]))))
-
-
-def hang_bound(pair: PreparedPair) -> float | None:
-    """``hang``: the smallest log scale at which some hook point's loop (``builders.hook_points``: its
-    clearance, source local units) takes the thinnest part of the target, so that a loop can pass over a peg at
-    all: the vertical thickness (``peg_thickness``, normalised frame) under the samples facing within ``CREST`` of
-    straight up (a round peg's crest, a rail's flat: the part's whole thickness; on a peg's slopes the column under
-    a sample is thinner than the part); None without a hook point or such a sample with an underside."""
-    _, _, hooks, clearance = builders.hook_points(pair)
-    _, normals, top, thickness, _, _ = builders.peg_thickness(pair)
-    thickness = thickness[np.isfinite(thickness) & (normals[top, 1] >= math.cos(CREST))]
-    if not len(hooks) or not len(thickness):
-        return None
-    return math.log(float(thickness.min()) / max(float(clearance.max()), 1e-30))
-
-
-def lid_bound(pair: PreparedPair, seed: int) -> float | None:
-    """``on``, a flat source (its upright height at most ``FLAT`` of its smaller horizontal side) on a target open
-    at the top (cavity points, ``proposals.cavity_points``, within ``OPENING_DEPTH`` of its height from its top):
-    the smallest log scale at which the source's footprint (its two horizontal sides, upright frame) covers that
-    opening's two horizontal sides, as a lid covers a jar's or a box's rim; None otherwise."""
-    upright = pair.source_vertices.cpu().numpy().astype(np.float64) @ pair.source_upright.rotation.T
-    sides = np.ptp(upright, axis=0)
-    footprint = np.sort(sides[[0, 2]])
-    if sides[1] > FLAT * footprint[0]:
-        return None
-    cavity = proposals.cavity_points(pair, seed)
-    verts = pair.target_vertices.cpu().numpy().astype(np.float64)
-    top, height = float(verts[:, 1].max()), float(np.ptp(verts[:, 1]))
-    mouth = cavity[cavity[:, 1] >= top - OPENING_DEPTH * height]
-    if len(mouth) < 8:
-        return None
-    return float(np.max(np.log(_opening(pair, mouth) / np.maximum(footprint, 1e-30))))
-
-
-def _opening(pair: PreparedPair, points: np.ndarray) -> np.ndarray:
-    """The two horizontal sides of the opening that cavity ``points`` span, shortest first, with the probes' wall
-    gap (``proposals.CAVITY_MARGIN`` of the target's diagonal) added back: the cavity's width, wall to wall."""
-    verts = pair.target_vertices.cpu().numpy().astype(np.float64)
-    margin = 2 * proposals.CAVITY_MARGIN * float(np.linalg.norm(np.ptp(verts, axis=0)))
-    return np.sort(np.ptp(points[:, [0, 2]], axis=0) + margin)
-
-
 def geometric_bound(pair: PreparedPair, prior: ScenePrior, seed: int, ratio: float) -> Bound | None:
-    """The geometry's bound on the scale for the priors' relation (the source the figure), or None."""
+    """The geometry's bound on the scale for the priors' relation (the source the figure; its spec's ``bound``,
+    looking twice the ladder's width either side of the priors' scale ``ratio``), or None."""
     reading = prior.reading
-    placed = reading.name if reading is not None and reading.source_is_figure else None
-    if placed == "in":
-        limit = cavity_bound(pair, seed)
-        return None if limit is None else Bound("in: fits the cavity", limit, "upper")
-    if placed == "wear":
-        return wear_fit(pair, seed, ratio)
-    if placed == "hang":
-        limit = hang_bound(pair)
-        return None if limit is None else Bound("hang: its loop takes the peg", limit, "lower")
-    if placed == "on":
-        limit = lid_bound(pair, seed)
-        return None if limit is None else Bound("on: a lid covers the opening", limit, "lower")
-    return None
+    if reading is None or not reading.source_is_figure or reading.name not in SPECS:
+        return None
+    bound = SPECS[reading.name].bound
+    return None if bound is None else bound(pair, seed, ratio, 2 * LADDER_WIDTH)
 
 
 def plan(pair: PreparedPair, prior: ScenePrior, names: dict[str, str | None], seed: int,
