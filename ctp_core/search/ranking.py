@@ -285,82 +285,28 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
     # views that frame the largest source (scale mode: the ladder's top rung); duplicates at the first one's size
     cameras = coarse_cameras(pair, config, float(proposals.poses.log_s.max()))
     distinct = distinct_of(pair, config, float(proposals.poses.log_s[0]))
-    screened = 0
-    if scorer.guided and 0 < cfg.shortlist < len(proposals.poses):  # only what can be the answer reaches the encoder
-        screened = len(proposals.poses)
-        with scorer.clock.time("search"):
-            geometric = scorer.screen(proposals.poses, weights)
-        proposals = proposals.select(encoder_shortlist(proposals.poses, geometric, weights, cfg.shortlist,
-                                                       distinct, cfg.min_share))
-    poses = proposals.poses
-    fine_count = min(cfg.fine, len(poses))
-    sweep_count = cfg.sweep * (len(proposals.rotations) if proposals.rotations is not None else 0)
-    if cfg.sweep_keep:
-        sweep_count = min(sweep_count, cfg.sweep * cfg.sweep_keep)
-    tiles = tiles_of(pair, config, poses) if scorer.guided else None  # no guide: nothing to tell tiles apart
-    tiled_count = len(poses) if tiles is not None else 0
-    total = len(poses) + sweep_count + tiled_count + fine_count
-
-    relation = scorer.reading.name if scorer.reading is not None else None
-    gate = scorer.gate  # the guide's, once the coarse stage has measured it (or as the scorer was gated)
-    held = [0, 0]  # candidates where the relation holds, of those scored (coarse and sweep)
-
-    def emit(done: int, best: float | None = None, restarts: int | None = None) -> None:
-        """A search event; ``restarts``: the refinement's count once known (the kept poses), before that the
-        planned one (``k``, plus the tile stage's where it runs: the message says what it adds)."""
-        if on_event:
-            elapsed = time.perf_counter() - started
-            tiled = cfg.tile_restarts if tiles is not None else 0
-            message = f"search: {done}/{total} candidates scored"
-            if relation is not None and held[1]:
-                message += f"; {held[0]} of {held[1]} hold '{relation}'"
-            message += f"; {k} restarts" + (f" + {tiled} from the tile stage" if tiled else "")
-            if gate is not None:
-                message += f"; {gate.summary()}"
-            counted = relation is not None and held[1]
-            on_event(ProgressEvent(kind="step", phase=0, phases=phases, step=done, steps=total,
-                                   restarts=restarts if restarts is not None else k + tiled, elapsed_s=elapsed,
-                                   eta_s=None, best_objective=best, stage="search", message=message,
-                                   relation=relation, relation_holds=held[0] if counted else None,
-                                   relation_checked=held[1] if counted else None))
-
-    emit(0)
+    proposals, screened = _screened(scorer, proposals, weights, distinct)
+    plan = _Plan.of(scorer, proposals, k, on_event, started, phases)
+    plan.emit(0)
     with scorer.clock.time("search"):
-        goal_embeddings = embed_shared_goal(scorer, cameras)
-        terms = terms_of(scorer, poses, weights, cameras, batch=cfg.batch, goal_embeddings=goal_embeddings,
-                         progress=emit, should_cancel=should_cancel, views=True)
-        views = terms.pop("clip_views", None)
-        if scorer.guided and gate is None and len(poses) > 1:  # how far the guide may override the relation
-            gate = guide_noise(scorer, poses, terms, weights, cameras, goal_embeddings, views)
-            scorer = scorer.gated(gate)  # the later stages score under it
-            if gate.override == 0:
-                tiles = None  # a guide with no signal cannot tell tiles apart either
-                total -= tiled_count
-                tiled_count = 0
+        scorer, terms, goal_embeddings = _coarse(scorer, proposals.poses, weights, cameras, plan, should_cancel)
         coarse = ranking_key(scorer, terms, weights)
-        swept = sweep(proposals, pair, coarse, cfg.sweep, distinct[0]) if sweep_count else None
-        if swept is not None and cfg.sweep_keep and len(swept) > sweep_count:  # the turns the geometry allows
-            screened += len(swept)
-            swept = swept.select(encoder_shortlist(swept, scorer.screen(swept, weights), weights, sweep_count,
-                                                   distinct, cfg.min_share))
+        swept, turns_screened = _sweep_turns(scorer, proposals, weights, coarse, distinct, plan)
+        screened += turns_screened
+        poses = proposals.poses
         if swept is not None and len(swept):
             extra = terms_of(scorer, swept, weights, cameras, batch=cfg.batch, goal_embeddings=goal_embeddings,
-                             should_cancel=should_cancel, progress=lambda n: emit(len(poses) + n))
+                             should_cancel=should_cancel, progress=lambda n: plan.emit(len(proposals.poses) + n))
             poses = Poses.cat([poses, swept])
             terms = {key: torch.cat([terms[key], extra[key]]) for key in terms}
             coarse = ranking_key(scorer, terms, weights)
-        held[:] = [int(holding(terms).sum()), len(poses)]
+        plan.held = (int(holding(terms).sum()), len(poses))
         proposed = proposals.poses
-        tiled = None if tiles is None else tile_score(
-            scorer, proposed, weights, tiles, batch=cfg.batch, should_cancel=should_cancel,
-            progress=lambda n: emit(total - fine_count - tiled_count + n))
-        emit(total - fine_count)
-        shortlist = shortlist_of(poses, coarse, fine_count, *distinct)
-        fine_poses = poses.select(shortlist)
-        fine = score(scorer, fine_poses, weights, fine_cameras(pair, config, fine_poses), batch=cfg.batch,
-                     progress=lambda n: emit(total - fine_count + n), should_cancel=should_cancel)
-        # the fine views see each candidate closer; the coarse ones see all in the same frame: rank by both
-        ranked = fine.average(coarse.select(shortlist))
+        tiled = None if plan.tiles is None else tile_score(
+            scorer, proposed, weights, plan.tiles, batch=cfg.batch, should_cancel=should_cancel,
+            progress=lambda n: plan.emit(plan.total - plan.fine_count - plan.tiled_count + n))
+        plan.emit(plan.total - plan.fine_count)
+        fine_poses, ranked = _fine(scorer, pair, poses, coarse, weights, distinct, plan, should_cancel)
         best = diverse_top(fine_poses, ranked, k, *distinct)
         kept, objectives = fine_poses.select(best), ranked.select(best)
         stages = {"coarse": (poses, coarse), "fine": (fine_poses, ranked)}
@@ -369,9 +315,136 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
             kept, objectives = merge(kept, objectives, proposed.select(picks), tiled.select(picks), cfg.tile_restarts,
                                      distinct)
             stages["tiles"] = (proposed, tiled)
-    emit(total, float(objectives.value[0]) if len(objectives) else None, restarts=len(kept))
+    plan.emit(plan.total, float(objectives.value[0]) if len(objectives) else None, restarts=len(kept))
     return Ranked(kept, objectives, len(poses) + len(fine_poses) + (0 if tiled is None else len(tiled)),
-                  0 if swept is None else len(swept), time.perf_counter() - began, stages, held[0], gate, screened)
+                  0 if swept is None else len(swept), time.perf_counter() - began, stages, plan.held[0], plan.gate,
+                  screened)
+
+
+@dataclass
+class _Plan:
+    """What a search plans to score and what its events say of it: candidate evaluations planned (``total``: coarse,
+    sweep, tile and fine stages), the tiles of the tile stage (None: it does not run), the relation's holds once
+    counted, the guide's gate once measured."""
+
+    on_event: ProgressCallback | None
+    started: float
+    phases: int
+    k: int  # restarts planned, besides the tile stage's
+    tile_restarts: int  # restarts the tile stage adds where it runs
+    relation: str | None
+    gate: Gate | None
+    tiles: tuple[torch.Tensor, torch.Tensor, float] | None
+    total: int
+    sweep_count: int
+    tiled_count: int
+    fine_count: int
+    held: tuple[int, int] = (0, 0)  # candidates where the relation holds, of those scored (coarse and sweep)
+
+    @classmethod
+    def of(cls, scorer: Scorer, proposals: Proposals, k: int, on_event: ProgressCallback | None, started: float,
+           phases: int) -> _Plan:
+        """The stages' counts: every proposal coarse, the sweep's turns (``search.sweep`` sites, at most
+        ``sweep_keep`` turns each where set), every proposal again in the tile stage where it runs (only with a
+        guide: without one nothing tells tiles apart), and ``search.fine`` of them fine."""
+        cfg, poses = scorer.config.search, proposals.poses
+        fine_count = min(cfg.fine, len(poses))
+        sweep_count = cfg.sweep * (len(proposals.rotations) if proposals.rotations is not None else 0)
+        if cfg.sweep_keep:
+            sweep_count = min(sweep_count, cfg.sweep * cfg.sweep_keep)
+        tiles = tiles_of(scorer.pair, scorer.config, poses) if scorer.guided else None
+        tiled_count = len(poses) if tiles is not None else 0
+        total = len(poses) + sweep_count + tiled_count + fine_count
+        relation = scorer.reading.name if scorer.reading is not None else None
+        # the guide's gate, once the coarse stage has measured it (or as the scorer was gated)
+        return cls(on_event, started, phases, k, cfg.tile_restarts, relation, scorer.gate, tiles, total, sweep_count,
+                   tiled_count, fine_count)
+
+    def emit(self, done: int, best: float | None = None, restarts: int | None = None) -> None:
+        """A search event; ``restarts``: the refinement's count once known (the kept poses), before that the
+        planned one (``k``, plus the tile stage's where it runs: the message says what it adds)."""
+        if self.on_event:
+            elapsed = time.perf_counter() - self.started
+            tiled = self.tile_restarts if self.tiles is not None else 0
+            holds, checked = self.held
+            message = f"search: {done}/{self.total} candidates scored"
+            if self.relation is not None and checked:
+                message += f"; {holds} of {checked} hold '{self.relation}'"
+            message += f"; {self.k} restarts" + (f" + {tiled} from the tile stage" if tiled else "")
+            if self.gate is not None:
+                message += f"; {self.gate.summary()}"
+            counted = self.relation is not None and checked
+            self.on_event(ProgressEvent(kind="step", phase=0, phases=self.phases, step=done, steps=self.total,
+                                        restarts=restarts if restarts is not None else self.k + tiled,
+                                        elapsed_s=elapsed, eta_s=None, best_objective=best, stage="search",
+                                        message=message, relation=self.relation,
+                                        relation_holds=holds if counted else None,
+                                        relation_checked=checked if counted else None))
+
+    def drop_tiles(self) -> None:
+        """No tile stage after all (a guide with no signal cannot tell tiles apart): its evaluations unplanned."""
+        self.tiles = None
+        self.total -= self.tiled_count
+        self.tiled_count = 0
+
+
+def _screened(scorer: Scorer, proposals: Proposals, weights: Phase,
+              distinct: tuple[float, float]) -> tuple[Proposals, int]:
+    """The proposals the encoder will see, and how many the geometry screened to choose them: with a guide and more
+    than ``search.shortlist`` proposals, only those of ``encoder_shortlist`` (only what can be the answer reaches
+    the encoder); else all, none screened."""
+    cfg = scorer.config.search
+    if not (scorer.guided and 0 < cfg.shortlist < len(proposals.poses)):
+        return proposals, 0
+    with scorer.clock.time("search"):
+        geometric = scorer.screen(proposals.poses, weights)
+    shortlist = encoder_shortlist(proposals.poses, geometric, weights, cfg.shortlist, distinct, cfg.min_share)
+    return proposals.select(shortlist), len(proposals.poses)
+
+
+def _coarse(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, plan: _Plan,
+            should_cancel: CancelCheck | None) -> tuple[Scorer, dict[str, torch.Tensor], torch.Tensor | None]:
+    """The coarse stage: every candidate's terms at the shared views. Where there is a guide and no gate yet, the
+    gate (how far the guide may override the relation: ``guide_noise``) is measured on them and the scorer gated
+    by it, for the later stages. Returns the scorer they score with, the terms and the views' goal embeddings."""
+    cfg = scorer.config.search
+    goal_embeddings = embed_shared_goal(scorer, cameras)
+    terms = terms_of(scorer, poses, weights, cameras, batch=cfg.batch, goal_embeddings=goal_embeddings,
+                     progress=plan.emit, should_cancel=should_cancel, views=True)
+    views = terms.pop("clip_views", None)
+    if scorer.guided and plan.gate is None and len(poses) > 1:  # how far the guide may override the relation
+        plan.gate = guide_noise(scorer, poses, terms, weights, cameras, goal_embeddings, views)
+        scorer = scorer.gated(plan.gate)  # the later stages score under it
+        if plan.gate.override == 0:
+            plan.drop_tiles()  # a guide with no signal cannot tell tiles apart either
+    return scorer, terms, goal_embeddings
+
+
+def _sweep_turns(scorer: Scorer, proposals: Proposals, weights: Phase, coarse: Key, distinct: tuple[float, float],
+                 plan: _Plan) -> tuple[Poses | None, int]:
+    """The sweep's candidates (``sweep``: every turn at the best distinct coarse sites; None where none are
+    planned), cut to the turns the geometry allows (``encoder_shortlist``) where ``search.sweep_keep`` is set and
+    more were made; and how many the geometry screened for that."""
+    cfg = scorer.config.search
+    swept = sweep(proposals, scorer.pair, coarse, cfg.sweep, distinct[0]) if plan.sweep_count else None
+    if swept is None or not cfg.sweep_keep or len(swept) <= plan.sweep_count:
+        return swept, 0
+    shortlist = encoder_shortlist(swept, scorer.screen(swept, weights), weights, plan.sweep_count, distinct,
+                                  cfg.min_share)
+    return swept.select(shortlist), len(swept)
+
+
+def _fine(scorer: Scorer, pair: PreparedPair, poses: Poses, coarse: Key, weights: Phase,
+          distinct: tuple[float, float], plan: _Plan, should_cancel: CancelCheck | None) -> tuple[Poses, Key]:
+    """The fine stage: the coarse and sweep candidates' shortlist (``shortlist_of``) scored at views zoomed toward
+    each, and their key ranking by both stages."""
+    shortlist = shortlist_of(poses, coarse, plan.fine_count, *distinct)
+    fine_poses = poses.select(shortlist)
+    fine = score(scorer, fine_poses, weights, fine_cameras(pair, scorer.config, fine_poses),
+                 batch=scorer.config.search.batch, progress=lambda n: plan.emit(plan.total - plan.fine_count + n),
+                 should_cancel=should_cancel)
+    # the fine views see each candidate closer; the coarse ones see all in the same frame: rank by both
+    return fine_poses, fine.average(coarse.select(shortlist))
 
 
 def merge(first: Poses, first_keys: Key, second: Poses, second_keys: Key, m: int,
