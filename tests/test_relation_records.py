@@ -14,13 +14,15 @@ import trimesh
 from test_predicates import BALL, BALL_POSES, box, cup, poses, prepared, ring, table, wall_with_peg
 
 from ctp_core import contact
+from ctp_core.align import align
 from ctp_core.config import AlignConfig
 from ctp_core.geometry.pose import Poses
+from ctp_core.priors import get_provider
 from ctp_core.priors.prior import ScenePrior
-from ctp_core.relations import apart, attached, builders, predicates, registry, resting
+from ctp_core.relations import apart, attached, builders, predicates, registry, resting, vocabulary
 from ctp_core.relations.registry import SPECS
 from ctp_core.relations.spec import Judge, Spec
-from ctp_core.relations.vocabulary import RELATIONS, Relation, RelationReading
+from ctp_core.relations.vocabulary import RELATIONS, Cue, Relation, RelationReading
 from ctp_core.search import proposals
 
 CONFIG = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0}, search={"candidates": 48})
@@ -75,6 +77,27 @@ def test_adding_a_relation_is_its_record_and_its_judge(monkeypatch):
     # a steady one: stability joins its terms (not resting: its score does not include it)
     monkeypatch.setitem(RELATIONS, "hover", replace(record, steady=True))
     assert torch.allclose(predicates.terms(pair, p, reading)["stable"], predicates.stable(pair, p))
+
+
+
+def test_a_relation_added_as_the_docs_say_runs_end_to_end(monkeypatch):
+    """A one-ground relation added where docs/relations.md ("Adding a relation") says, and nowhere else: a record
+    and a wording in ``vocabulary``, a spec in the registry. A whole run reads it from the prompt, searches, judges
+    and reports it."""
+    record = Relation("teeter", 0.05, 0.02, 0.3, rests=True, steady=True, figure_regions={"top": 4.0, "drop": 4.0})
+    monkeypatch.setitem(RELATIONS, "teeter", record)
+    monkeypatch.setattr(vocabulary, "CUES", [Cue(r"teeter(?:s|ing)? on", "teeter"), *vocabulary.CUES])
+    monkeypatch.setitem(SPECS, "teeter", Spec("teeter", resting.SPECS["on"].judge, usual="on the top"))
+    assert not registry.check(SPECS)
+    prompt = "a ball teetering on the table"
+    assert get_provider("rules").estimate("table", "ball", prompt).relation == "teeter"
+    ball = BALL.copy()
+    ball.apply_translation([3.0, 0.5, 2.0])
+    config = AlignConfig.from_preset("test").merged({"loss": {"lambda_clip": 0.0}})
+    result = align(table(), ball, prompt, config, target_name="table", source_name="ball")
+    assert result.relation["name"] == "teeter" and result.relation["holds"], result.relation
+    monkeypatch.undo()
+    assert get_provider("rules").estimate("table", "ball", prompt).relation != "teeter"
 
 
 # --- the reading ---------------------------------------------------------------------------------------------------

@@ -256,8 +256,8 @@ def _between_frame(grounds: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Ten
 
 
 def _score_between(c: Context) -> torch.Tensor:
-    """``between`` (two grounds: "between the sofa and the armchair"): on the floor, clear of both (a gap of at
-    least ``CONTACT``), the figure wholly in the gap between the grounds' facing sides along the line joining
+    """``between`` (two grounds: "between the sofa and the armchair"): on the floor, clear of both (past contact, as
+    ``above`` keeps: ``CLEAR``), the figure wholly in the gap between the grounds' facing sides along the line joining
     their centres, and its centre within the corridor they share across that line. With fewer than two grounds
     named it cannot hold: ``FAR``."""
     if len(c.grounds) < 2:
@@ -269,7 +269,7 @@ def _score_between(c: Context) -> torch.Tensor:
     lateral = c.h(corridor[0] - across) + c.h(across - corridor[1])
     floor = c.h((c.bottom() - c.floor).abs() - c.tol())
     clear, _ = _apart(c)
-    return floor + inside + lateral + c.h(CONTACT * c.unit - clear)
+    return floor + inside + lateral + c.h(CLEAR * c.unit - clear)
 
 
 def _prefer_between(c: Context) -> torch.Tensor:
