@@ -104,6 +104,37 @@ def rank_agreement(reference: torch.Tensor, other: torch.Tensor, top: int = 10) 
 
 
 def main() -> None:
+    args = _arguments()
+    load_start = loadavg()
+    bench = _Runtimes(args.spec)
+    bench.use("torch_fp32")  # the reference everywhere: the text is encoded once, in torch fp32
+    text = bench.guide.encode_text(PROMPTS)
+    views = scenes(args.views, args.size, seed=1)
+    batches = [int(b) for b in args.batches.split(",")]
+    fwd_bwd, ms, ratio = _timed(bench, text, views, batches, args)
+    cos, grad, pose_scores, renders = _precision(bench, text, views, args)
+
+    result = {"spec": args.spec, "threads": bench.threads, "native_bf16": bench.native, "views": args.views,
+              "size": args.size, "loadavg_start": load_start, "import_transformers_s": round(bench.import_s, 3),
+              "build_s": round(bench.build_s, 3), "onnx_export_or_load_s": round(bench.export_s, 3),
+              "onnx_dir": str(bench.onnx_dir)}
+    result.update({f"fwd_bwd_s_{n.split('_')[1]}": round(statistics.median(v), 3) for n, v in fwd_bwd.items()})
+    result["ms_per_image"] = {b: {n: round(statistics.median(v), 2) for n, v in ms[b].items()} for b in batches}
+    result["speedup_vs_torch_fp32"] = {b: {n: round(statistics.median(v), 2) for n, v in ratio[b].items()
+                                           if n != "torch_fp32"} for b in batches}
+    _precision_figures(result, cos, grad)
+    result["ranking"] = {"case": str(args.case) if args.case else "primitives", "poses": len(renders),
+                         "score_range_fp32": [round(float(pose_scores["torch_fp32"].min()), 4),
+                                              round(float(pose_scores["torch_fp32"].max()), 4)],
+                         **{n: rank_agreement(pose_scores["torch_fp32"], v) for n, v in pose_scores.items()
+                            if n != "torch_fp32"}}
+    result["loadavg_end"] = loadavg()
+    print(json.dumps(result))
+    if args.table:
+        print(markdown(result, batches, list(bench.runtimes)), file=sys.stderr)
+
+
+def _arguments() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--spec", default="random:ViT-B-32")
     parser.add_argument("--views", type=int, default=8, help="images per forward+backward (a step's views)")
@@ -114,94 +145,104 @@ def main() -> None:
     parser.add_argument("--case", type=Path, help="bench case folder for the candidate poses (default: primitives)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--table", action="store_true", help="also print a Markdown table to stderr")
-    args = parser.parse_args()
-    load_start = loadavg()
+    return parser.parse_args()
 
-    start = time.perf_counter()
-    import transformers  # noqa: F401  (timed: a worker pays this once per process)
 
-    import_s = time.perf_counter() - start
-    from ctp_core.guide.guidance import cpu_has_fast_bf16
-    from ctp_core.guide.loaders import load_guide
+class _Runtimes:
+    """The guide under test and the runtimes it is switched between (``runtimes``: name -> (encoders, autocast),
+    encoders None for torch), with the fixed costs a worker pays once: ``import transformers``, building the model,
+    exporting the ONNX towers or loading them from the cache."""
 
-    start = time.perf_counter()
-    guide = load_guide(args.spec, autocast=False)
-    build_s = time.perf_counter() - start
-    native = cpu_has_fast_bf16()
-    threads = torch.get_num_threads()
-    start = time.perf_counter()
-    guide.use_runtime("onnx", threads)
-    onnx32 = guide.encoders
-    export_s = time.perf_counter() - start
-    guide.use_runtime("onnx-int8", threads)
-    onnx8 = guide.encoders
-    if onnx32 is None or onnx8 is None:
-        raise SystemExit("ONNX Runtime unavailable (see the warning above)")
+    def __init__(self, spec: str):
+        start = time.perf_counter()
+        import transformers  # noqa: F401  (timed: a worker pays this once per process)
 
-    # name -> (encoders, autocast): encoders None is torch; the guide is switched between them.
-    runtimes = {"torch_fp32": (None, False), **({"torch_bf16": (None, True)} if native else {}),
-                "onnx_fp32": (onnx32, False), "onnx_int8": (onnx8, False)}
+        self.import_s = time.perf_counter() - start
+        from ctp_core.guide.guidance import cpu_has_fast_bf16
+        from ctp_core.guide.loaders import load_guide
 
-    def use(name: str) -> None:
-        guide.encoders, guide.autocast = runtimes[name]
+        start = time.perf_counter()
+        self.guide = load_guide(spec, autocast=False)
+        self.build_s = time.perf_counter() - start
+        self.native = cpu_has_fast_bf16()
+        self.threads = torch.get_num_threads()
+        start = time.perf_counter()
+        self.guide.use_runtime("onnx", self.threads)
+        onnx32 = self.guide.encoders
+        self.export_s = time.perf_counter() - start
+        self.guide.use_runtime("onnx-int8", self.threads)
+        onnx8 = self.guide.encoders
+        if onnx32 is None or onnx8 is None:
+            raise SystemExit("ONNX Runtime unavailable (see the warning above)")
+        self.onnx_dir = onnx32.directory
+        self.runtimes = {"torch_fp32": (None, False), **({"torch_bf16": (None, True)} if self.native else {}),
+                         "onnx_fp32": (onnx32, False), "onnx_int8": (onnx8, False)}
+        self.grad_names = [n for n in ("torch_fp32", "torch_bf16") if n in self.runtimes]
 
-    use("torch_fp32")  # the reference everywhere: the text is encoded once, in torch fp32
-    text = guide.encode_text(PROMPTS)
-    views = scenes(args.views, args.size, seed=1)
+    def use(self, name: str) -> None:
+        self.guide.encoders, self.guide.autocast = self.runtimes[name]
 
-    def step() -> torch.Tensor:
+    def step(self, views: torch.Tensor, text: torch.Tensor) -> torch.Tensor:
+        """One optimiser step's forward+backward of ``views``; the pixel gradient."""
         images = views.clone().requires_grad_(True)
-        (-(guide.encode_images(images) @ text[0]).mean()).backward()
+        (-(self.guide.encode_images(images) @ text[0]).mean()).backward()
         return images.grad
 
-    batches = [int(b) for b in args.batches.split(",")]
+
+def _timed(bench: _Runtimes, text: torch.Tensor, views: torch.Tensor, batches: list[int],
+           args: argparse.Namespace) -> tuple[dict, dict, dict]:
+    """Seconds of a step's forward+backward per gradient runtime; per batch size, each runtime's forward-only ms per
+    image and its speed-up over torch fp32 (per round): ``--repeats`` rounds after a warm-up one."""
     batch_images = {b: scenes(b, args.size, seed=2 + b) for b in batches}
-    grad_names = [n for n in ("torch_fp32", "torch_bf16") if n in runtimes]
-    fwd_bwd = {n: [] for n in grad_names}
-    ms = {b: {n: [] for n in runtimes} for b in batches}
-    ratio = {b: {n: [] for n in runtimes} for b in batches}
+    fwd_bwd = {n: [] for n in bench.grad_names}
+    ms = {b: {n: [] for n in bench.runtimes} for b in batches}
+    ratio = {b: {n: [] for n in bench.runtimes} for b in batches}
     # Interleave everything, one warm-up round first: on a shared machine load drifts, and alternating
     # keeps it from favouring whichever runtime ran in the quieter minute; ratios are taken per round.
     for round_ in range(args.repeats + 1):
-        for name in grad_names:
-            use(name)
-            elapsed = seconds(step)
+        for name in bench.grad_names:
+            bench.use(name)
+            elapsed = seconds(lambda: bench.step(views, text))
             if round_:
                 fwd_bwd[name].append(elapsed)
         for b in batches:
             this_round = {}
-            for name in runtimes:
-                use(name)
-                this_round[name] = seconds(lambda b=b: guide.score(batch_images[b], text[0], batch_size=b))
+            for name in bench.runtimes:
+                bench.use(name)
+                this_round[name] = seconds(lambda b=b: bench.guide.score(batch_images[b], text[0], batch_size=b))
             if round_:
                 for name, elapsed in this_round.items():
                     ms[b][name].append(1000 * elapsed / b)
                     ratio[b][name].append(this_round["torch_fp32"] / elapsed)
+    return fwd_bwd, ms, ratio
 
+
+def _precision(bench: _Runtimes, text: torch.Tensor, views: torch.Tensor,
+               args: argparse.Namespace) -> tuple[dict, dict, dict, torch.Tensor]:
+    """Per runtime: the image-text cosines of ``--compare-images`` scenes, the pixel gradient of a step (gradient
+    runtimes), the scores of ``--poses`` candidate renders against their prompt; and those renders."""
     compare = scenes(args.compare_images, args.size, seed=3)
     cos, grad = {}, {}
-    for name in runtimes:
-        use(name)
-        cos[name] = guide.score(compare, text)
-    for name in grad_names:
-        use(name)
-        grad[name] = step().flatten()
+    for name in bench.runtimes:
+        bench.use(name)
+        cos[name] = bench.guide.score(compare, text)
+    for name in bench.grad_names:
+        bench.use(name)
+        grad[name] = bench.step(views, text).flatten()
     renders, prompt = candidate_renders(args.case, args.poses, args.size, seed=4)
-    use("torch_fp32")
-    prompt_emb = guide.encode_text([prompt])[0]
+    bench.use("torch_fp32")
+    prompt_emb = bench.guide.encode_text([prompt])[0]
     pose_scores = {}
-    for name in runtimes:
-        use(name)
-        pose_scores[name] = guide.score(renders, prompt_emb)
+    for name in bench.runtimes:
+        bench.use(name)
+        pose_scores[name] = bench.guide.score(renders, prompt_emb)
+    return cos, grad, pose_scores, renders
 
-    result = {"spec": args.spec, "threads": threads, "native_bf16": native, "views": args.views, "size": args.size,
-              "loadavg_start": load_start, "import_transformers_s": round(import_s, 3), "build_s": round(build_s, 3),
-              "onnx_export_or_load_s": round(export_s, 3), "onnx_dir": str(onnx32.directory)}
-    result.update({f"fwd_bwd_s_{n.split('_')[1]}": round(statistics.median(v), 3) for n, v in fwd_bwd.items()})
-    result["ms_per_image"] = {b: {n: round(statistics.median(v), 2) for n, v in ms[b].items()} for b in batches}
-    result["speedup_vs_torch_fp32"] = {b: {n: round(statistics.median(v), 2) for n, v in ratio[b].items()
-                                           if n != "torch_fp32"} for b in batches}
-    result["max_abs_cos_diff"] = {n: float((cos[n] - cos["torch_fp32"]).abs().max()) for n in runtimes
+
+def _precision_figures(result: dict, cos: dict, grad: dict) -> None:
+    """The cosine changes to torch fp32 and, with bf16, its gradient's direction and its step's speed-up, in
+    ``result``."""
+    result["max_abs_cos_diff"] = {n: float((cos[n] - cos["torch_fp32"]).abs().max()) for n in cos
                                   if n != "torch_fp32"}
     result["cos_pairs"] = cos["torch_fp32"].numel()
     result["cos_range_fp32"] = [round(float(cos["torch_fp32"].min()), 4), round(float(cos["torch_fp32"].max()), 4)]
@@ -209,15 +250,6 @@ def main() -> None:
         result["grad_cos_bf16_fp32"] = round(float(torch.nn.functional.cosine_similarity(
             grad["torch_bf16"].double(), grad["torch_fp32"].double(), dim=0)), 5)
         result["speedup_fwd_bwd"] = round(result["fwd_bwd_s_fp32"] / result["fwd_bwd_s_bf16"], 2)
-    result["ranking"] = {"case": str(args.case) if args.case else "primitives", "poses": len(renders),
-                         "score_range_fp32": [round(float(pose_scores["torch_fp32"].min()), 4),
-                                              round(float(pose_scores["torch_fp32"].max()), 4)],
-                         **{n: rank_agreement(pose_scores["torch_fp32"], v) for n, v in pose_scores.items()
-                            if n != "torch_fp32"}}
-    result["loadavg_end"] = loadavg()
-    print(json.dumps(result))
-    if args.table:
-        print(markdown(result, batches, list(runtimes)), file=sys.stderr)
 
 
 def markdown(result: dict, batches: list[int], names: list[str]) -> str:
