@@ -130,13 +130,14 @@ class ProgressBar:
 
     Beside the step count it shows what a person can follow, from the engine's readout of the restarts' best poses
     on the fixed evaluation views (``ProgressEvent``): ``holds``, in how many the prompt's relation holds (of
-    the candidates scored, in the search); ``match``, the best restart's cosine between its views and the prompt
-    (or image) under the guidance model, higher is better; ``gap``, its distance to the target, % of the source's
-    size, lower is better. The objective itself is not shown: its weights change between phases, so its value
-    jumps although nothing got worse.
+    the candidates scored, in the search); ``match``, the answer's cosine between its views and the prompt (or
+    image) under the guidance model, higher is better; ``gap``, its distance to the target, % of the source's
+    size, lower is better. The answer is the restart the run would answer with at that step
+    (``ProgressEvent.restart``: ``ordering.select_answer``), the final one at the end. The objective itself is
+    not shown: its weights change between phases, so its value jumps although nothing got worse.
     """
 
-    LEGEND = ("progress: holds = where the prompt's relation holds; match = cosine between the best restart's "
+    LEGEND = ("progress: holds = where the prompt's relation holds; match = cosine between the answer's "
               "views and the prompt (higher is better); gap = its distance to the target, % of the source's size")
 
     def __init__(self, stream=None, enabled: bool = True):

@@ -3,7 +3,10 @@
 All restarts are one batch: one render call renders restarts x views, one guide call embeds them, and
 the losses return one value per restart. Each phase starts from every restart's best pose so far with
 a fresh Adam; the best pose per restart is judged on fixed evaluation views (never the random
-training views), and the answer is the best restart by that objective.
+training views) by ``ordering.improves``. The answer is the restart ``ordering.select_answer`` picks among those
+poses (``Optimiser.answer``): the relation first, near the target, then the objective (with a guide, soft-ICP
+left out among those that touch), so not always the lowest objective; the progress readout describes that
+restart too.
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ from ctp_core.search.ordering import Gate, holding, improves, select_answer
 
 @dataclass
 class Outcome:
-    best: int  # index of the chosen restart
+    best: int  # the answer's restart (``Optimiser.answer``: ``ordering.select_answer``), not the lowest objective's
     poses: Poses  # best pose of every restart
     objectives: torch.Tensor  # (B,) on the evaluation views, last phase's weights
     terms: dict[str, torch.Tensor]  # (B,) each: clip, icp, pen, rel of the best poses
@@ -102,21 +105,18 @@ class Optimiser:
         best = start.detached()
         phase_timings = []
         scores: dict[str, torch.Tensor] = {}
+        answer = 0
         for phase in self.plan:
             before, t0 = self.clock.mark(), time.perf_counter()
             self._emit("phase_start", phase, message=f"phase {phase.index}/{len(self.plan)}")
             best, scores = self._phase(phase, best, scores.get("clip"))
             phase_timings.append(self.clock.since(before, t0))
-            self._emit("phase_end", phase, **self._readout(best, scores))
+            answer = self.answer(best, scores, phase)  # the last phase's: the run's answer
+            self._emit("phase_end", phase, **self._readout(best, scores, answer))
         objectives = scores["objective"]
         totals = self.clock.since(self._clock_start, self.start)
-        scorer, last = self.scorer, self.plan[-1]
         return Outcome(
-            best=select_answer(scores, clearance(scorer.pair, scorer.pair.index, best),
-                               touch_limit(scorer.pair, best), last, guided=scorer.use_clip,
-                               touches=scorer.contact_ratio > 0, share=scorer.config.search.min_share,
-                               gate=self.scorer.gate),
-            poses=best, objectives=objectives,
+            best=answer, poses=best, objectives=objectives,
             terms={k: scores[k] for k in ("clip", "icp", "pen", "rel", "sunk")}, timings=totals,
             phase_timings=phase_timings, clip_images=self.scorer.clip_images, steps_run=self.done,
             gate=self.scorer.gate,
@@ -167,20 +167,31 @@ class Optimiser:
                 scores = {k: torch.where(better, now[k], scores[k]) for k in scores}
             if (step + 1) % cfg.progress_every == 0 or step + 1 == phase.steps:
                 losses_now = {k: float(v.mean()) for k, v in last.items()}
-                self._emit("step", phase, losses=losses_now, **self._readout(best, scores))
+                readout = self._readout(best, scores, self.answer(best, scores, phase))
+                self._emit("step", phase, losses=losses_now, **readout)
         return best, scores
 
-    def _readout(self, best: Poses, scores: dict[str, torch.Tensor]) -> dict:
-        """The progress figures of the restarts' best poses so far (evaluation views): the lowest objective, and
-        what a person reads instead of it (its scale changes with each phase's weights): the best restart's
-        match to the guide (mean cosine; none without one, or with one whose gate is 0) and its gap to the
-        target (source diagonals, within the target samples' spacing), and in how many restarts the prompt's
-        relation holds."""
+    def answer(self, best: Poses, scores: dict[str, torch.Tensor], phase: Phase) -> int:
+        """The restart whose best pose is the answer (``ordering.select_answer`` under ``phase``'s weights and the
+        search's gate): after the last phase the run's (``Outcome.best``), before it the answer were the run to
+        stop there. Not the lowest objective: the selection orders by the relation first, leaves out restarts far
+        from the target and, with a guide, soft-ICP among those that touch."""
         scorer = self.scorer
-        i = int(scores["objective"].argmin())
+        return select_answer(scores, clearance(scorer.pair, scorer.pair.index, best), touch_limit(scorer.pair, best),
+                             phase, guided=scorer.use_clip, touches=scorer.contact_ratio > 0,
+                             share=scorer.config.search.min_share, gate=scorer.gate)
+
+    def _readout(self, best: Poses, scores: dict[str, torch.Tensor], answer: int) -> dict:
+        """The progress figures of restart ``answer`` (the one the run would answer with now: ``answer``) on the
+        evaluation views: its objective, and what a person reads instead of it (its scale changes with each
+        phase's weights): its match to the guide (mean cosine; none without one, or with one whose gate is 0) and
+        its gap to the target (source diagonals, within the target samples' spacing), and in how many restarts
+        the prompt's relation holds."""
+        scorer = self.scorer
+        i = answer
         gap = contact_gap(scorer.pair, best.select(slice(i, i + 1)))
         reading = scorer.reading
-        return {"best_objective": float(scores["objective"][i]), "contact_gap": float(gap[0]),
+        return {"restart": i, "best_objective": float(scores["objective"][i]), "contact_gap": float(gap[0]),
                 "guide_match": -float(scores["clip"][i]) if scorer.guided else None,
                 "relation": reading.name if reading is not None else None,
                 "relation_holds": int(holding(scores).sum()) if reading is not None else None,

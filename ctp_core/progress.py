@@ -32,15 +32,19 @@ class ProgressEvent:
     elapsed_s: float
     eta_s: float | None
     losses: dict[str, float] = field(default_factory=dict)  # mean over restarts of the last step
+    # the search: its best candidate's objective; the refinement: the objective of ``restart``
     best_objective: float | None = None
     message: str = ""
     stage: StageName = "refine"
+    # the refinement: the restart the readout describes, the answer were the run to stop now
+    # (``ordering.select_answer``; the run's answer at the last phase's end and at ``done``)
+    restart: int | None = None
     # what a person reads instead of the objective (whose scale changes with each phase's weights):
     relation: str | None = None  # the prompt's relation where it judges poses (None: unknown or off)
     relation_holds: int | None = None  # where it holds: of the candidates scored so far (search), of the restarts
     relation_checked: int | None = None  # ... out of this many
-    guide_match: float | None = None  # the best restart's mean cosine to the guide's goal, evaluation views
-    contact_gap: float | None = None  # the best restart's gap to the target, source diagonals, within the target
+    guide_match: float | None = None  # ``restart``'s mean cosine to the guide's goal, evaluation views
+    contact_gap: float | None = None  # ``restart``'s gap to the target, source diagonals, within the target
     # samples' spacing (0: touching)
 
     @property

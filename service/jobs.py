@@ -178,8 +178,9 @@ class Progress(BaseModel):
     elapsed_s: float = Field(0.0, description="seconds since the worker started the job")
     eta_s: float | None = Field(None, description="estimated seconds left; null when unknown")
     objective: float | None = Field(
-        None, description="objective of the best restart at the last scored step (lower is better; comparable "
-        "within a phase, whose weights differ): the figure to watch while it runs; null before the first score")
+        None, description="objective of the answer so far (the restart the run would answer with now; in the "
+        "search, the best candidate) at the last scored step (lower is better; comparable within a phase, whose "
+        "weights differ); null before the first score")
     message: str = Field("", description="human-readable status line")
     # What a person reads instead of the objective: its scale changes with each phase's weights.
     relation: str | None = Field(None, description="the prompt's relation where it judges poses (on, in, under, "
@@ -187,10 +188,10 @@ class Progress(BaseModel):
     relation_holds: int | None = Field(None, description="where that relation holds: of the candidates scored so "
                                        "far (search) or of the restarts (refinement); null without a relation")
     relation_checked: int | None = Field(None, description="out of this many (relation_holds' denominator)")
-    guide_match: float | None = Field(None, description="the best restart's match to the prompt's guide: mean "
+    guide_match: float | None = Field(None, description="the answer's match to the prompt's guide: mean "
                                       "cosine between its views and the goal (higher is better); null without a "
                                       "guide, or with one that does not tell the candidates apart")
-    contact_gap: float | None = Field(None, description="the best restart's gap to the target in source "
+    contact_gap: float | None = Field(None, description="the answer's gap to the target in source "
                                       "diagonals, within the target's sample spacing (0: touching); null during "
                                       "the search")
 

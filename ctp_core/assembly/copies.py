@@ -195,8 +195,13 @@ def _names(source_name: str, target_name: str, n: int) -> list[str]:
 
 def _spaced(result: AlignResult, out: Copies) -> int:
     """The alternative a scatter copy takes: the first (the answer first) whose relation holds and that keeps
-    ``SPACING`` from every earlier copy; else the one that holds and keeps the widest gap; else the answer."""
-    if not out.copies:
+    ``SPACING`` from every earlier copy; else the one that holds and keeps the widest gap; else the answer
+    (``ordering.spaced_key``)."""
+    import torch
+
+    from ctp_core.search import ordering
+
+    if not out.copies or not result.alternatives:
         return 0
     points = _surface(out.source)
     diagonal = _diagonal(out.source)
@@ -205,12 +210,9 @@ def _spaced(result: AlignResult, out: Copies) -> int:
     for alt in result.alternatives:
         posed = trimesh.transform_points(points, np.asarray(alt["source_to_target"]))
         gaps.append(min(_gap(mesh, posed) for mesh in earlier) / diagonal)
-        holds.append(alt["relation"] is None or alt["relation"]["holds"])
-    for k, (gap, held) in enumerate(zip(gaps, holds, strict=True)):
-        if held and gap >= SPACING:
-            return k
-    held = [k for k, h in enumerate(holds) if h]
-    return max(held, key=lambda k: gaps[k]) if held else 0
+        holds.append(alt["relation"] is None or bool(alt["relation"]["holds"]))
+    key = ordering.spaced_key(torch.tensor(holds), torch.tensor(gaps, dtype=torch.float64), SPACING)
+    return key.argmin()
 
 
 def _surface(mesh: trimesh.Trimesh, count: int = 400) -> np.ndarray:

@@ -1,5 +1,5 @@
-"""The one place that orders poses: which pose beats which, in the search, the refinement, the selection and the
-alternatives.
+"""The one place that orders poses: which pose beats which, in the search, the guide's shortlist, the refinement,
+the selection, the alternatives and the scattered copies.
 
 Every order is lexicographic (``Key``): first the *tier*, then the *value* (lower is better in both).
 
@@ -14,11 +14,19 @@ The gate is measured once, by the search (``ranking.search`` returns it in ``Ran
 later order as an argument: the refinement's scorer (``objective.Scorer.gated``), the selection
 (``select_answer``) and the report. ``improves`` is the refinement's order between a restart's new pose and its
 best so far; ``alternatives_key`` the order of the placements a person picks among.
+
+The answer is the restart ``select_answer`` returns, the only function that decides it: not always the lowest
+objective (the relation orders first, a restart far from the target is left out, and with a guide soft-ICP does
+not count among the restarts that touch). The optimiser's progress readout (``optimise.Optimiser.answer``), the
+report's ``best_restart`` and the first alternative are that restart. ``split_shortlist`` is the order of the
+candidates the guide sees (``ranking.encoder_shortlist``), ``spaced_key`` that of the placements a scattered copy
+takes the first of (``assembly.copies``).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -300,3 +308,33 @@ def alternatives_key(terms: dict[str, torch.Tensor], objectives: torch.Tensor, f
     holds = holding({**terms, "objective": objectives})
     key = Key((~holds).long().cpu(), objectives.double().cpu()).excluding(far.cpu())
     return key.first(best)
+
+
+def split_shortlist(terms: dict[str, torch.Tensor], weights: Phase, k: int, share: float,
+                    pick: Callable[[Key, int], list[int]]) -> list[int]:
+    """``k`` poses chosen by the geometry alone, the relation first (the guide's shortlist,
+    ``ranking.encoder_shortlist``): ``pick(key, n)`` (up to ``n`` indices best first by ``key``; the caller's
+    diversity) takes them from the poses where the relation holds (``holding``), in ``rank_key``'s geometric
+    order, but for ``share_of(k, share)`` slots that go to the poses where it fails (a misread prompt must not make
+    the right answer unreachable: the principle of ``rank_key``'s pool); slots one side cannot fill go to the
+    other. Where it holds nowhere, every slot goes to the others. Indices ``pick`` returns from the other side
+    (duplicates filling its count) are dropped."""
+    key = rank_key(terms, weights, share=share)
+    held = holding(terms)
+    others = int((~held).sum())
+    reserve = min(others, share_of(k, share)) if held.any() else others
+    inside = [i for i in pick(key.excluding(~held), k - reserve) if held[i]]
+    rest = [i for i in pick(key.excluding(held), k - len(inside)) if not held[i]]
+    return inside + rest
+
+
+def spaced_key(holds: torch.Tensor, gaps: torch.Tensor, spacing: float) -> Key:
+    """The order of placements given in their own order (``AlignResult.alternatives``: the answer first) that a
+    scattered copy takes the first of (``assembly.copies``): those where the relation holds (``holds``, their
+    verdicts) and whose ``gaps`` to the earlier copies are at least ``spacing``, in their order; then those where
+    it holds, the widest gap first; then the others in their order (the answer first)."""
+    holds, gaps = holds.cpu().bool(), gaps.cpu().double()
+    apart = holds & (gaps >= spacing)
+    tier = torch.where(apart, 0, torch.where(holds, 1, 2)).long()
+    value = torch.where(holds & ~apart, -gaps, torch.arange(len(gaps), dtype=torch.float64))
+    return Key(tier, value)

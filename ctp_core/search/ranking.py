@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 import torch
 
-from ctp_core.config import AlignConfig, share_of
+from ctp_core.config import AlignConfig
 from ctp_core.config.schedule import Phase
 from ctp_core.contact import Proposals, place
 from ctp_core.errors import Canceled
@@ -42,7 +42,7 @@ from ctp_core.objective import Scorer, goal_rows
 from ctp_core.pairs import PreparedPair
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.render.cameras import Cameras, orbit
-from ctp_core.search.ordering import Gate, Key, holding, rank_key, search_key
+from ctp_core.search.ordering import Gate, Key, holding, search_key, split_shortlist
 
 HIDDEN = 1e-6  # tile stage: a smaller change of the guide's term than this is a source its views do not see
 GATE_PROBES = 4  # ``guide_noise``: candidates scored again, moved by a negligible amount
@@ -475,14 +475,8 @@ def encoder_shortlist(poses: Poses, terms: dict[str, torch.Tensor], weights: Pha
     places first (``shortlist_of``: the guide is what tells places apart, so they must reach it), then
     ``share_of(k, share)`` where it fails, best by the geometry (a misread prompt must not make the right answer
     unreachable: ``search.min_share``, the principle of the region weights); slots one side cannot fill go to
-    the other. A candidate the relation rules out costs no encoder image."""
-    key = rank_key(terms, weights, share=share)
-    held = holding(terms)
-    others = int((~held).sum())
-    reserve = min(others, share_of(k, share)) if held.any() else others
-    inside = [i for i in shortlist_of(poses, key.excluding(~held), k - reserve, *distinct) if held[i]]
-    rest = [i for i in shortlist_of(poses, key.excluding(held), k - len(inside), *distinct) if not held[i]]
-    return inside + rest
+    the other (``ordering.split_shortlist``). A candidate the relation rules out costs no encoder image."""
+    return split_shortlist(terms, weights, k, share, lambda key, n: shortlist_of(poses, key, n, *distinct))
 
 
 def ranking_key(scorer: Scorer, terms: dict[str, torch.Tensor], weights: Phase,

@@ -386,21 +386,22 @@ function renderProgress(job) {
 }
 
 // What a person reads instead of the objective (its scale changes with each phase's weights): the relation's
-// verdict, the best restart's match to the guide and its gap to the target; the objective only when none is known.
+// verdict, the answer's match to the guide and its gap to the target (the restart the run would answer with now,
+// its answer at the end); the objective only when none is known.
 function readout(p) {
   const parts = [];
   if (p.relation && p.relation_checked) {
     const what = p.stage && p.stage.name === "search" ? "candidates scored" : "restarts";
     parts.push(`'${p.relation}' holds for ${p.relation_holds} of ${p.relation_checked} ${what}`);
   }
-  if (p.guide_match != null) parts.push(`guide match ${p.guide_match.toFixed(3)} (best restart; higher is better)`);
+  if (p.guide_match != null) parts.push(`guide match ${p.guide_match.toFixed(3)} (the answer; higher is better)`);
   if (p.contact_gap != null) {
     parts.push(p.contact_gap < 0.005 ? "touching" : `gap ${(100 * p.contact_gap).toFixed(1)} % of the source's size`);
   }
   // the objective only while no readout came (a run without a relation, before its refinement); the exporting
   // and done events carry none, and the last readout stays up
   if (!parts.length && p.objective != null && !state.figures.length && !state.readout) {
-    return `objective ${p.objective.toFixed(4)} (best restart; lower is better)`;
+    return `objective ${p.objective.toFixed(4)} (best so far; lower is better)`;
   }
   if (parts.length) state.readout = true;
   return parts.join(" - ");
