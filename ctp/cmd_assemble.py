@@ -3,8 +3,9 @@
     ctp assemble BASE --add SOURCE "PROMPT" [--add SOURCE "PROMPT" ...]
     ctp assemble --plan plan.yaml
 
-Each ``--add`` places one object relative to the one added before it (names come from the file names:
-``coffee_cup.glb`` is "coffee cup"). A
+Each ``--add`` places one object relative to the one added before it, or to the two placed objects a "between"
+prompt names ("a lamp between the sofa and the armchair"); names come from the file names: ``coffee_cup.glb`` is
+"coffee cup". A
 plan file says more (paths are relative to the plan file)::
 
     base: table.glb              # the object that stays put; its file frame is the scene frame
@@ -19,6 +20,9 @@ plan file says more (paths are relative to the plan file)::
       - file: cup.glb
         image: cup_on_plate.png  # a reference picture instead of a prompt
         options: {contact_ratio: 0.3}   # this stage only
+      - file: vase.glb
+        prompt: a vase between the plate and the cup
+        on: [plate, cup]         # two grounds ("between"); a between prompt naming placed objects finds them
 
 Outputs, progress bar and exit codes are those of ``ctp align``: the GLB holds every object as its own
 named node, the report every stage, the preview the whole scene.
@@ -133,12 +137,18 @@ def _step(entry: Any, folder: Path, config, i: int, loader):
 
 def _from_yaml(entry: Any) -> Any:
     """A YAML step as the plan means it: YAML 1.1 reads the key ``on:`` as true, and bare numbers (``name: 2``)
-    of the text keys as numbers."""
+    of the text keys, and of an ``on`` list's names (``on: [1, 2]``), as numbers."""
     if not isinstance(entry, dict):
         return entry
     entry = {("on" if key is True else key): value for key, value in entry.items()}
-    return {key: str(value) if key in ("prompt", "name", "on") and isinstance(value, int | float) else value
-            for key, value in entry.items()}
+    if isinstance(entry.get("on"), list):
+        entry["on"] = [_text(name) for name in entry["on"]]
+    return {key: _text(value) if key in ("prompt", "name", "on") else value for key, value in entry.items()}
+
+
+def _text(value: Any) -> Any:
+    """A bare YAML number as text."""
+    return str(value) if isinstance(value, int | float) else value
 
 
 def _with_options(config, options: dict[str, Any], where: str):

@@ -139,7 +139,7 @@ def assembly_report(assembly: Assembly) -> dict:
         "frame": SCENE,
         "objects": [{"name": p.name, "transform": transform(p.to_scene)} for p in assembly.objects],
         "stages": [{"stage": s.index, "of": s.count, "name": s.step.name, "on": s.on,
-                    "image_guided": s.step.image is not None,
+                    "grounds": s.grounds or [s.on], "image_guided": s.step.image is not None,
                     **_run(s.result, transform(assembly.objects[s.index].to_scene))} for s in assembly.results],
         "model": first.model, "seed": first.seed, "preset": first.preset,
         "timings": _jsonable(assembly.timings),

@@ -10,6 +10,7 @@ from fastapi.concurrency import run_in_threadpool
 
 from ctp_core.errors import CtpError
 from ctp_core.io import load_objects
+from ctp_core.relations.vocabulary import named_grounds
 from service.deps import own_job
 from service.errors import ApiError
 
@@ -20,12 +21,15 @@ class ChainedTarget:
 
     file: str
     data: bytes
-    on: str  # the object the source relates to
+    on: list[str]  # the objects the source relates to: one, or two ("between")
     faces: int
 
 
-async def chained_target(request: Request, form, who: str, job_id: str, on: str | None) -> ChainedTarget:
-    """The result scene of the caller's succeeded job ``job_id``: 404 for another key's, 409 unfinished."""
+async def chained_target(request: Request, form, who: str, job_id: str, on: list[str],
+                         prompt: str | None = None) -> ChainedTarget:
+    """The result scene of the caller's succeeded job ``job_id``: 404 for another key's, 409 unfinished. The
+    source relates to the objects ``on`` names (422 ``invalid_name`` for one the scene lacks); with fewer than
+    two, to the two a "between" prompt names where it names two of the scene's objects; else the last placed."""
     if "target" in form:
         raise ApiError(400, "invalid_field", "give a target file or target_job, not both", field="target_job")
     record = await own_job(request, job_id.strip(), who)
@@ -42,10 +46,13 @@ async def chained_target(request: Request, form, who: str, job_id: str, on: str 
     except CtpError as exc:
         raise ApiError(422, exc.code, exc.message, field="target_job") from None
     names = list(scene.geometry)  # load_objects: one geometry per node, named as it, in the file's order
-    if on is not None and on not in names:
-        raise ApiError(422, "invalid_name", f"on: job {record.id}'s scene has no object {on!r} "
-                       f"(it has {', '.join(names)})", field="on")
-    return ChainedTarget(file, data, on or names[-1], sum(len(m.faces) for m in scene.geometry.values()))
+    for name in on:
+        if name not in names:
+            raise ApiError(422, "invalid_name", f"on: job {record.id}'s scene has no object {name!r} "
+                           f"(it has {', '.join(names)})", field="on")
+    named = named_grounds(prompt, names) if prompt and len(on) < 2 else []
+    return ChainedTarget(file, data, named if len(named) >= 2 else on or names[-1:],
+                         sum(len(m.faces) for m in scene.geometry.values()))
 
 
 def _load_objects(data: bytes, filename: str, limits):

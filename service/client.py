@@ -106,7 +106,7 @@ class Client:
     def submit(self, target: MeshInput | None, source: MeshInput, prompt: str | None = None, *,
                image: MeshInput | None = None, options: dict[str, Any] | None = None,
                target_name: str | None = None, source_name: str | None = None,
-               target_job: str | None = None, on: str | None = None, webhook: str | None = None,
+               target_job: str | None = None, on: str | Sequence[str] | None = None, webhook: str | None = None,
                webhook_events: Sequence[str] | None = None, idempotency_key: str | None = None,
                wait: int | None = None, queue: str | None = None) -> dict[str, Any]:
         """Upload a pair; returns ``{id, status, links}`` (queued), or the whole job (as ``status``) when it
@@ -114,11 +114,11 @@ class Client:
         prompt or an image.
 
         ``target_job`` (with ``target`` None) uses that succeeded job's result scene as the target; ``on``
-        names the object of it the source relates to (default: the last placed one). ``webhook``: a URL the
-        job's ``webhook_events`` (default ``completed``) are POSTed to, signed. ``idempotency_key``: a retry
-        with the same key answers the first request's job instead of starting another (``ServiceError`` 409
-        ``idempotency_conflict`` when the request differs). ``wait``: up to 60 s (``Prefer: wait``).
-        ``queue``: the named queue to run on (option ``queue``; default the service's)."""
+        names the object of it the source relates to, or a list of two ("between"; default: the last placed
+        one). ``webhook``: a URL the job's ``webhook_events`` (default ``completed``) are POSTed to, signed.
+        ``idempotency_key``: a retry with the same key answers the first request's job instead of starting
+        another (``ServiceError`` 409 ``idempotency_conflict`` when the request differs). ``wait``: up to 60 s
+        (``Prefer: wait``). ``queue``: the named queue to run on (option ``queue``; default the service's)."""
         options = _with_queue(options, queue)
         files = {"source": _file(source)}
         if target is not None:
@@ -126,7 +126,7 @@ class Client:
         if image is not None:
             files["image"] = _file(image)
         data = {k: v for k, v in {"prompt": prompt, "target_name": target_name, "source_name": source_name,
-                                  "target_job": target_job, "on": on,
+                                  "target_job": target_job, "on": [on] if isinstance(on, str) else on,
                                   "options": json.dumps(options) if options else None,
                                   **_webhook(webhook, webhook_events)}.items() if v is not None}
         return self._submit("/align", files, data, idempotency_key, wait)

@@ -20,6 +20,7 @@ from typing import Any
 from fastapi import Request
 from starlette.datastructures import UploadFile
 
+from ctp_core.assembly.plan import MAX_GROUNDS
 from ctp_core.errors import CtpError, ImageError, MeshError
 from ctp_core.io import SUPPORTED_EXTENSIONS, MeshLimits, load_image
 from ctp_core.io.loader import LoaderUnavailable, MeshLoader
@@ -94,8 +95,12 @@ ALIGN_BODY = {
             "target_job": {"type": "string", "description": "instead of `target` (not with it): the id of one of "
                            "your succeeded jobs, whose result scene becomes the target, read back as its separate "
                            "objects (404 for an unknown job or another key's, 409 if it has not succeeded)"},
-            "on": {"type": "string", "maxLength": NAME_MAX, "description": "with `target_job`: the object of that "
-                   "scene the source relates to (soft-ICP attaches to it); default the last placed one"},
+            "on": {"type": "array", "items": {"type": "string", "maxLength": NAME_MAX}, "minItems": 1,
+                   "maxItems": MAX_GROUNDS, "uniqueItems": True,
+                   "description": "with `target_job`: the object of that scene the source relates to (soft-ICP "
+                   "attaches to it), or two objects, one part each (`on=sofa`, `on=armchair`: \"a lamp between the "
+                   "sofa and the armchair\"); default the last placed one, or the two placed objects a between "
+                   "prompt names; 422 `invalid_name` for a name the scene does not have"},
             "source": mesh_field("the mesh to place, same formats"),
             "prompt": {"type": "string", "minLength": 1, "maxLength": PROMPT_MAX,
                        "description": "what the arrangement should look like; required unless `image` is given"},
@@ -131,7 +136,11 @@ async def read_form(request: Request, fields: set[str] = FORM_FIELDS, max_files:
 
 
 def text(form, name: str) -> str | None:
-    value = form.get(name)
+    return text_value(form.get(name), name)
+
+
+def text_value(value, name: str) -> str | None:
+    """One text part of field ``name`` (None: absent): 400 ``invalid_field`` for a file or text not UTF-8."""
     if isinstance(value, UploadFile):
         raise ApiError(400, "invalid_field", f"{name} must be a text field, not a file", field=name)
     if value is not None:
@@ -140,6 +149,16 @@ def text(form, name: str) -> str | None:
         except UnicodeEncodeError:  # lone surrogates: the body was not UTF-8
             raise ApiError(400, "invalid_field", f"{name} is not valid UTF-8 text", field=name) from None
     return value
+
+
+def grounds(form) -> list[str]:
+    """The ``on`` parts (a repeated text field): 0 to ``MAX_GROUNDS`` distinct names; 400 ``invalid_field``
+    otherwise."""
+    names = [text_value(value, "on") for value in form.getlist("on")]
+    if len(names) > MAX_GROUNDS or len(set(names)) < len(names):
+        raise ApiError(400, "invalid_field", f"on names one object or {MAX_GROUNDS} different ones, one part each "
+                       f"(got {len(names)} parts)", field="on")
+    return names
 
 
 def file(form, name: str) -> UploadFile:

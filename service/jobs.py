@@ -215,7 +215,8 @@ class AssemblyStep(BaseModel):
     file: str = Field(description="the source's file name (its extension gives the format)")
     prompt: str | None = None
     has_image: bool = Field(False, description="guided by the reference picture in blob image-<i>")
-    on: str | None = Field(None, description="the placed object it relates to; None: the last placed one")
+    on: str | list[str] | None = Field(None, description="the placed object(s) it relates to (two: \"between\"); "
+                                       "None: the last placed one, or the two a between prompt names")
     config: AlignConfig = Field(description="this stage's config (the assembly's options, then the step's), "
                                 "validated at submit")
 
@@ -247,7 +248,8 @@ class JobRecord(BaseModel):
                                 "threads when it takes the job")
     kind: Literal["align", "assemble"] = "align"
     target_job: str | None = Field(None, description="the job whose result scene is the target (POST /align)")
-    on: str | None = Field(None, description="with target_job: the object of its scene the source relates to")
+    on: str | list[str] | None = Field(None, description="with target_job: the object(s) of its scene the source "
+                                       "relates to (two: \"between\")")
     steps: list[AssemblyStep] = Field(default_factory=list, description="an assembly's stages")
     count: int = Field(1, description="copies of the source an alignment places (ctp_core.assembly.copies)")
     arrangement: str | None = Field(None, description="how several copies stand together; None for one")

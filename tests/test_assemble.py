@@ -201,7 +201,7 @@ def test_table_setting_sample_is_a_valid_plan(tmp_path):
     config = AlignConfig.from_preset("test", model="random:tiny")
     base, base_name, steps, _ = read_plan(write_table_setting(tmp_path), config)
     assert base_name == "table" and [(s.name, s.on, s.prompt) for s in steps] == [
-        ("plate", None, "a plate on the table"), ("cup", "plate", "a cup on the plate")]
+        ("plate", (), "a plate on the table"), ("cup", ("plate",), "a cup on the plate")]
     assert base.extents.max() > 10 * steps[1].source.extents.max()
 
 
@@ -214,7 +214,7 @@ def test_a_yaml_plan_means_on_and_bare_numbers_as_written(tmp_path, meshes):
     (tmp_path / "plan.yaml").write_text("base: table.glb\nsteps:\n  - {file: plate.glb, prompt: 7, name: 2}\n"
                                         "  - {file: cup.glb, prompt: x, on: 2}\n")
     _, _, steps, _ = read_plan(tmp_path / "plan.yaml", AlignConfig.from_preset("test", model="random:tiny"))
-    assert [(s.name, s.prompt, s.on) for s in steps] == [("2", "7", None), ("cup", "x", "2")]
+    assert [(s.name, s.prompt, s.on) for s in steps] == [("2", "7", ()), ("cup", "x", ("2",))]
 
 
 def test_a_scene_keeps_its_base_s_up():

@@ -20,6 +20,7 @@ from ctp_core.io import load_objects
 from ctp_core.pairs import objects
 from tests.conftest import REPO, service_env, wait_for
 from tests.test_assemble import GEOMETRY_ONLY, check_contacts, table_plate_cup
+from tests.test_assemble_between import LAMP_PROMPT, check_between, sofa_armchair_lamp
 
 ALPHA, BETA = ({"Authorization": f"Bearer {k}"} for k in ("alpha", "beta"))
 
@@ -128,6 +129,10 @@ def test_chained_align_adds_to_a_finished_scene(api, assembled, files):
     ([{"file": "saucer.glb", "prompt": "x"}], ("plate",), 400, "invalid_plan"),
     ([{"file": "plate.glb", "prompt": "x"}], ("plate", "cup"), 400, "invalid_plan"),  # cup.glb is never used
     ([{"file": "plate.glb", "prompt": "x", "on": "saucer"}], ("plate",), 422, "invalid_plan"),
+    ([{"file": "plate.glb", "prompt": "x", "on": ["table", "saucer"]}], ("plate",), 422, "invalid_plan"),
+    ([{"file": "plate.glb", "prompt": "x", "on": ["table", "table"]}], ("plate",), 400, "invalid_plan"),
+    ([{"file": "plate.glb", "prompt": "x", "on": ["table", "a", "b"]}], ("plate",), 400, "invalid_plan"),
+    ([{"file": "plate.glb", "prompt": "x", "on": []}], ("plate",), 400, "invalid_plan"),
     ([{"file": "plate.glb", "prompt": "x", "name": "table"}], ("plate",), 422, "invalid_plan"),
     ([{"file": "plate.glb", "prompt": "x", "options": {"model": "random:tiny"}}], ("plate",), 400, "invalid_plan"),
     ([{"file": "plate.glb", "prompt": "x", "options": [1]}], ("plate",), 400, "invalid_plan"),
@@ -257,6 +262,65 @@ def test_python_client_assembles_and_chains(api, worker, files, tmp_path):
             client.assemble(("table.glb", files["table"]), [{"file": ("cup.glb", files["cup"]), "image": None}],
                             options=fast)
         assert (err.value.status, err.value.code) == (422, "invalid_plan")  # neither prompt nor image
+
+
+ROOM = [{"file": "armchair.glb", "prompt": "an armchair beside the sofa"},
+        {"file": "lamp.glb", "prompt": LAMP_PROMPT, "on": ["sofa", "armchair"]}]
+
+
+@pytest.fixture(scope="module")
+def room():
+    return {name: mesh.export(file_type="glb") for name, mesh in sofa_armchair_lamp().items()}
+
+
+def post_room(api, room, plan, sources):
+    parts = [("base", ("sofa.glb", room["sofa"]))] + [("source", (f"{n}.glb", room[n])) for n in sources]
+    return api.client.post("/assemble", files=parts, headers=ALPHA,
+                           data={"plan": json.dumps(plan), "options": json.dumps(GEOMETRY_ONLY)})
+
+
+def test_an_assembly_step_between_two_placed_objects(api, worker, room):
+    """A step's ``on`` as a list of two: checked against the objects placed before it, then run and reported."""
+    unplaced = post_room(api, room, [ROOM[0], {**ROOM[1], "on": ["sofa", "table"]}], ("armchair", "lamp"))
+    assert (unplaced.status_code, unplaced.json()["error"]["code"], unplaced.json()["error"]["field"]) == (
+        422, "invalid_plan", "plan.1.on"), unplaced.text
+    assert "'table' is not an object placed before it" in unplaced.json()["error"]["message"]
+    accepted = post_room(api, room, ROOM, ("armchair", "lamp"))
+    assert accepted.status_code == 202, accepted.text
+    job = finished(api, accepted.json()["id"])
+    assert job["status"] == "succeeded", job
+    report = api.client.get(f"/jobs/{job['id']}/report.json", headers=ALPHA).json()
+    assert [(s["name"], s["on"], s["grounds"]) for s in report["stages"]] == [
+        ("armchair", "sofa", ["sofa"]), ("lamp", "sofa", ["sofa", "armchair"])]
+    assert report["stages"][1]["relation"]["name"] == "between" and report["stages"][1]["relation"]["holds"]
+    check_between(api.client.get(f"/jobs/{job['id']}/result.glb", headers=ALPHA).content)
+
+
+def test_a_chained_job_between_two_objects_of_the_scene(api, worker, room):
+    """``on`` given twice (one part per name) on a ``target_job``: the two objects of that scene it relates to."""
+    from service.client import Client
+
+    accepted = post_room(api, room, ROOM[:1], ("armchair",))
+    assert accepted.status_code == 202, accepted.text
+    scene = finished(api, accepted.json()["id"])
+    assert scene["status"] == "succeeded", scene
+    data = {"target_job": scene["id"], "prompt": LAMP_PROMPT, "options": json.dumps(GEOMETRY_ONLY)}
+    lamp = {"source": ("lamp.glb", room["lamp"])}
+    for on, status, code in [(["sofa", "armchair", "sofa"], 400, "invalid_field"),
+                             (["sofa", "sofa"], 400, "invalid_field"),
+                             (["sofa", "table"], 422, "invalid_name")]:
+        answer = api.client.post("/align", data={**data, "on": on}, files=lamp, headers=ALPHA)
+        assert (answer.status_code, answer.json()["error"]["code"], answer.json()["error"]["field"]) == (
+            status, code, "on"), (on, answer.text)
+    with Client(api.url, api_key="alpha") as client:
+        job = client.submit(None, ("lamp.glb", room["lamp"]), LAMP_PROMPT, options=GEOMETRY_ONLY,
+                            target_job=scene["id"], on=["armchair", "sofa"])
+        assert client.wait(job["id"], timeout_s=180)["status"] == "succeeded"
+        report = json.loads(client.download(job["id"], "report.json"))
+        glb = client.download(job["id"])
+    assert (report["extra"]["on"], report["extra"]["grounds"]) == ("armchair", ["armchair", "sofa"])
+    assert report["relation"]["name"] == "between" and report["relation"]["holds"], report["relation"]
+    check_between(glb)
 
 
 def test_control_characters_in_a_source_file_name(api, files):

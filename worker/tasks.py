@@ -247,7 +247,7 @@ def adjust_job(adjustment: AdjustmentRecord, jobs: Jobs, limits: MeshLimits) -> 
     upright = (facts.get("extra") or {}).get("target_upright")
     done = adjust(target, source, np.asarray(request.transform), record.config, settle=request.settle,
                   direction=request.direction, upright=None if upright is None else upright["rotation"],
-                  on=entry["on"] if copies else record.on,
+                  on=entry["on"] if copies else (facts.get("extra") or {}).get("grounds") or record.on,
                   reading=RelationReading.from_verdict(entry.get("relation")))
     if request.save:
         saved_at = now()

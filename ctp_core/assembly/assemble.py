@@ -3,7 +3,8 @@
 ``assemble(base, steps, config)`` places each step's source in turn (the plan a user writes, and its
 checks, are ``plan``'s). Step k runs the one ``align`` pipeline with the scene of the objects placed in
 steps 0..k-1 as its target: the soft-ICP term
-attaches the source to the object the step relates to (``on``, default the last placed one), the
+attaches the source to the objects the step relates to (``on``: one, or two for "between"; default the last
+placed one, and a "between" prompt naming two placed objects relates it to both), the
 penetration term and the renders see every placed object with its own materials, and the priors get
 the source's name and the related object's name and size. Placed objects never move.
 
@@ -22,7 +23,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import trimesh
 
-from ctp_core.assembly.plan import check_plan
+from ctp_core.assembly.plan import check_plan, ground_names
 from ctp_core.config import AUTO, AlignConfig
 from ctp_core.errors import Canceled, ConfigError, CtpError
 from ctp_core.geometry import frames
@@ -43,7 +44,8 @@ class Step:
     name: str
     prompt: str | None = None
     image: np.ndarray | None = None  # (H, W, 3) uint8 reference picture instead of the prompt
-    on: str | None = None  # the placed object it relates to; None: the last placed one
+    on: str | Sequence[str] | None = None  # the placed object(s) it relates to (two: "between"); None: the last
+    # placed one, or the two a "between" prompt names
     config: AlignConfig | None = None  # this step's options; None: the assembly's config
 
 
@@ -58,13 +60,15 @@ class Placed:
 
 @dataclass
 class StepResult:
-    """What step ``index`` (1-based) of ``count`` did: the step, the object it related to, the run."""
+    """What step ``index`` (1-based) of ``count`` did: the step, the objects it related to (``on`` the first,
+    ``grounds`` all of them), the run."""
 
     index: int
     count: int
     step: Step
     on: str
     result: AlignResult
+    grounds: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -109,11 +113,12 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
     ``field`` ``steps.<i>[.<its field>]``; ``Canceled`` passes through. Model ``auto`` is chosen once for all
     steps (``choice``: already chosen, a worker's), so every step has the same guide.
     """
-    from ctp_core.align import align
+    from ctp_core.align import align, grounds
 
     started = time.perf_counter()
     configs = [step.config or config for step in steps]
-    check_plan(base_name, [(s.name, s.on, s.prompt is not None or s.image is not None or c.loss.lambda_clip == 0)
+    check_plan(base_name, [(s.name, ground_names(s.on),
+                            s.prompt is not None or s.image is not None or c.loss.lambda_clip == 0)
                            for s, c in zip(steps, configs, strict=True)])
     if any(c.model != config.model for c in configs):
         raise ConfigError("every stage must use the assembly's model (it is loaded once)", field="model")
@@ -129,12 +134,13 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
     placed = [Placed(base_name, base, frames.Similarity(np.eye(4), frames.SCENE, frames.SCENE))]
     results: list[StepResult] = []
     for index, (step, step_config) in enumerate(zip(steps, configs, strict=True), start=1):
-        on = step.on or placed[-1].name
+        scene = scene_of(placed)
+        on = ground_names(grounds(scene, step.prompt, ground_names(step.on) or placed[-1].name))
         if on_step is not None:
             on_step(index, len(steps), step)
         try:
-            result = align(scene_of(placed), step.source, step.prompt, step_config, on=on, image=step.image,
-                           target_name=on, source_name=step.name, guide=guide, on_event=on_event,
+            result = align(scene, step.source, step.prompt, step_config, on=on[0] if len(on) == 1 else list(on),
+                           image=step.image, target_name=on[0], source_name=step.name, guide=guide, on_event=on_event,
                            should_cancel=should_cancel, choice=choice)
         except Canceled:
             raise
@@ -145,5 +151,5 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
         # The step's target file frame is the scene frame (every placed object is in it).
         placed.append(Placed(step.name, step.source,
                              frames.Similarity(result.source_to_target, frames.SOURCE_FILE, frames.SCENE)))
-        results.append(StepResult(index, len(steps), step, on, result))
+        results.append(StepResult(index, len(steps), step, on[0], result, list(on)))
     return Assembly(placed, results, {"total_s": round(time.perf_counter() - started, 3)})

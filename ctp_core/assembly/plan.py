@@ -12,8 +12,10 @@ from typing import Any
 
 from ctp_core.errors import ConfigError
 
-__all__ = ["STEP_KEYS", "PlanError", "PlanStep", "check_plan", "plan_step", "step_options"]
+__all__ = ["MAX_GROUNDS", "STEP_KEYS", "PlanError", "PlanStep", "check_plan", "ground_names", "plan_step",
+           "step_options"]
 
+MAX_GROUNDS = 2  # objects one step relates to: one, or two ("a lamp between the sofa and the armchair")
 STEP_KEYS = frozenset({"file", "prompt", "image", "name", "on", "options"})  # one step of a plan
 _ASSEMBLY_ONLY = frozenset({"preset", "model"})  # the whole assembly's: one model is loaded for every stage
 
@@ -23,36 +25,57 @@ class PlanError(ConfigError):
     the API answers 400 ``invalid_plan``."""
 
 
+def ground_names(on: str | Sequence[str] | None) -> tuple[str, ...]:
+    """The names a step's ``on`` gives: none, one (a name) or several (a list)."""
+    return () if on is None else (on,) if isinstance(on, str) else tuple(on)
+
+
 @dataclass(frozen=True)
 class PlanStep:
-    """One step of a plan as written (``file`` and ``image`` name files; the adapters read them)."""
+    """One step of a plan as written (``file`` and ``image`` name files; the adapters read them). ``on``, given as
+    a name or a list of names, is kept as the tuple of the placed objects it relates to (empty: the default)."""
 
     file: str
     prompt: str | None = None
     image: str | None = None
     name: str | None = None  # None: the adapter's default (the file stem)
-    on: str | None = None
+    on: tuple[str, ...] = ()
     options: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "on", ground_names(self.on))
 
 
 def plan_step(entry: Any, where: str, *, assembly_options: str) -> PlanStep:
     """A plan step (a mapping of ``STEP_KEYS``) checked for shape: ``file`` given, no unknown key, the text
-    keys strings, a prompt or an image (not both), ``options`` a mapping without preset and model (set for
-    the whole assembly where ``assembly_options`` says). Raises ``PlanError`` with ``field`` ``<where>[.<key>]``."""
+    keys strings, ``on`` a name or a list of one or two distinct names, a prompt or an image (not both),
+    ``options`` a mapping without preset and model (set for the whole assembly where ``assembly_options`` says).
+    Raises ``PlanError`` with ``field`` ``<where>[.<key>]``."""
     if not isinstance(entry, dict) or not isinstance(entry.get("file"), str):
         raise PlanError(f"{where}: a step is a mapping with file: its source's file name", field=where)
     unknown = sorted(set(entry) - STEP_KEYS, key=str)
     if unknown:
         raise PlanError(f"{where}: unknown key {unknown[0]!r}; known: {', '.join(sorted(STEP_KEYS))}",
                         field=f"{where}.{unknown[0]}")
-    for key in ("prompt", "image", "name", "on"):
+    for key in ("prompt", "image", "name"):
         if entry.get(key) is not None and not isinstance(entry[key], str):
             raise PlanError(f"{where}.{key} must be a string", field=f"{where}.{key}")
     if entry.get("prompt") is not None and entry.get("image") is not None:
         raise PlanError(f"{where}: give a prompt or an image, not both", field=f"{where}.prompt")
     return PlanStep(file=entry["file"], prompt=entry.get("prompt"), image=entry.get("image"), name=entry.get("name"),
-                    on=entry.get("on"), options=step_options(entry.get("options"), f"{where}.options",
-                                                              assembly_options=assembly_options))
+                    on=_on(entry.get("on"), f"{where}.on"),
+                    options=step_options(entry.get("options"), f"{where}.options", assembly_options=assembly_options))
+
+
+def _on(on: Any, where: str) -> tuple[str, ...]:
+    """A step's ``on``: absent, a name, or a list of 1 to ``MAX_GROUNDS`` distinct names."""
+    if on is None or isinstance(on, str):
+        return ground_names(on)
+    if not isinstance(on, list) or not 1 <= len(on) <= MAX_GROUNDS or not all(isinstance(n, str) for n in on):
+        raise PlanError(f"{where} must be a name or a list of 1 to {MAX_GROUNDS} names", field=where)
+    if len(set(on)) < len(on):
+        raise PlanError(f"{where} names {on[0]!r} twice; the grounds are different objects", field=where)
+    return tuple(on)
 
 
 def step_options(options: Any, where: str, *, assembly_options: str) -> dict[str, Any]:
@@ -66,9 +89,10 @@ def step_options(options: Any, where: str, *, assembly_options: str) -> dict[str
     return options
 
 
-def check_plan(base_name: str, steps: Sequence[tuple[str, str | None, bool]]) -> None:
-    """Each step's (name, on, guided): names unique and non-empty, every ``on`` an object placed before
-    it, a prompt or an image wherever the guidance term is on. Raises ConfigError naming the step."""
+def check_plan(base_name: str, steps: Sequence[tuple[str, Sequence[str], bool]]) -> None:
+    """Each step's (name, on: the names of the objects it relates to, guided): names unique and non-empty, every
+    name in ``on`` an object placed before it, a prompt or an image wherever the guidance term is on. Raises
+    ConfigError naming the step."""
     if not steps:
         raise ConfigError("an assembly needs at least one step", field="steps")
     names = [base_name]
@@ -78,9 +102,10 @@ def check_plan(base_name: str, steps: Sequence[tuple[str, str | None, bool]]) ->
         if name in names:
             raise ConfigError(f"step {i + 1}: the name {name!r} is already used; names must be unique",
                               field=f"steps.{i}.name")
-        if on is not None and on not in names:
-            raise ConfigError(f"step {i + 1} ({name}): on {on!r} is not an object placed before it "
-                              f"({', '.join(names)})", field=f"steps.{i}.on")
+        for ground in ground_names(on):
+            if ground not in names:
+                raise ConfigError(f"step {i + 1} ({name}): on {ground!r} is not an object placed before it "
+                                  f"({', '.join(names)})", field=f"steps.{i}.on")
         if not guided:
             raise ConfigError(f"step {i + 1} ({name}) needs a prompt or an image", field=f"steps.{i}.prompt")
         names.append(name)

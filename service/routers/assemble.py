@@ -5,7 +5,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, Request, Response
 from fastapi.concurrency import run_in_threadpool
 
-from ctp_core.assembly.plan import PlanError, PlanStep, check_plan, plan_step
+from ctp_core.assembly.plan import PlanError, PlanStep, check_plan, ground_names, plan_step
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.guide.selection import asks_for_guide
@@ -40,8 +40,10 @@ ASSEMBLE_BODY = {
             "plan": {"type": "string", "minLength": 1, "contentMediaType": "application/json",
                      "description": "JSON list, one object per stage in placing order: `file` (a source part's "
                      "file name, required), `prompt` or `image` (an image part's file name), `name` (unique; "
-                     "default the file stem), `on` (the placed object it relates to; default the last placed "
-                     "one), `options` (AlignOptions of this stage, without preset and model)"},
+                     "default the file stem), `on` (the placed object it relates to, or a list of two: "
+                     "`[\"sofa\", \"armchair\"]` for \"a lamp between the sofa and the armchair\"; default the "
+                     "last placed one, or the two placed objects a between prompt names), `options` "
+                     "(AlignOptions of this stage, without preset and model)"},
             "options": {"type": "string", "contentMediaType": "application/json",
                         "contentSchema": {"$ref": "#/components/schemas/JobOptions"},
                         "description": "JSON object of run options (JobOptions: AlignOptions for every stage, and "
@@ -124,13 +126,13 @@ async def _assembly_job(request: Request, form, who: str, job_id: str) -> submit
         configs.append(step_config)
         prompt = None if entry.prompt is None else forms.clean_prompt(entry.prompt, f"{where}.prompt", where)
         steps.append(AssemblyStep(name=_name(entry.name, file, where), file=file, prompt=prompt,
-                                  has_image=entry.image is not None, on=entry.on,
+                                  has_image=entry.image is not None, on=list(entry.on) or None,
                                   config=step_config))
     unused = sorted(set(sources) - set(meshes))
     if unused:
         raise ApiError(400, "invalid_plan", f"source part {unused[0]!r} is not used by any step", field="source")
     try:
-        check_plan(base_name, [(s.name, s.on, s.prompt is not None or s.has_image or
+        check_plan(base_name, [(s.name, ground_names(s.on), s.prompt is not None or s.has_image or
                                 s.config.loss.lambda_clip == 0) for s in steps])
     except ConfigError as exc:
         raise ApiError(422, "invalid_plan", exc.message,

@@ -65,12 +65,12 @@ async def _align_job(request: Request, form, who: str, job_id: str) -> submit_.B
                           image=image is not None)
     blobs: dict[str, bytes] = {}
     files: dict[str, str] = {}
-    target_job, on = forms.text(form, "target_job"), forms.text(form, "on")
-    if on is not None and target_job is None:
+    target_job, on = forms.text(form, "target_job"), forms.grounds(form)
+    if on and target_job is None:
         raise ApiError(400, "invalid_field", "on names an object of a target_job's scene; give target_job", field="on")
     if target_job is not None and "target" in form:
         raise ApiError(400, "invalid_field", "give a target file or a target_job, not both", field="target")
-    chained = await chained_target(request, form, who, target_job, on) if target_job is not None else None
+    chained = await chained_target(request, form, who, target_job, on, prompt) if target_job is not None else None
     faces = chained.faces if chained else 0
     for role in ("source",) if chained else ("target", "source"):
         upload = forms.file(form, role)
@@ -88,9 +88,9 @@ async def _align_job(request: Request, form, who: str, job_id: str) -> submit_.B
     copies, arrangement = _copies(prompt, count, arrangement, source_name, image is not None, chained is not None)
     record = JobRecord(
         id=job_id, owner=who, created_at=now(), prompt=prompt, has_image=image is not None,
-        target_name=forms.object_name(form, "target", on or files["target"]), source_name=source_name,
+        target_name=forms.object_name(form, "target", on[0] if on else files["target"]), source_name=source_name,
         target_file=files["target"], source_file=files["source"], config=config,
-        target_job=target_job, on=on, queue=queue, downloads=settings.downloads, count=copies,
+        target_job=target_job, on=on or None, queue=queue, downloads=settings.downloads, count=copies,
         arrangement=arrangement,
     )
     return record, blobs, [config]

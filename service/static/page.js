@@ -92,6 +92,7 @@ const size = (n) => (n < 1024 * 1024 ? `${(n / 1024).toFixed(1)} kB` : `${(n / 1
 /** Put a file in the target or source slot (a pick, a drop, an example; chaining a result will too). */
 export function setFile(role, file) {
   state.files[role] = file;
+  if (role === "target") $("grounds").hidden = true; // shown again for a chained scene (addObject)
   for (const name of ["up", "front"]) $(`${name}-${role}`).value = "file"; // a new file: its own frame first
   $(`chosen-${role}`).textContent = file ? `${file.name} (${size(file.size)})` : "or drop a mesh here";
   $(`drop-${role}`).classList.toggle("has-file", Boolean(file));
@@ -260,6 +261,7 @@ async function submit(event) {
   for (const role of ROLES) {
     const chained = role === "target" && state.chained && state.files.target === state.chained.file;
     if (chained) data.append("target_job", state.chained.id); // the scene itself, read back as its objects
+    if (chained) for (const id of ["on-1", "on-2"]) if ($(id).value) data.append("on", $(id).value); // its grounds
     else if (state.files[role]) data.append(role, state.files[role], state.files[role].name);
     const name = $(`name-${role}`).value.trim();
     if (name) data.append(`${role}_name`, name);
@@ -439,16 +441,34 @@ async function cancel(id) {
 
 /** "Add an object to this scene": the next job's target is this result's scene (target_job), its objects
  * kept apart and in place; the form keeps the other settings, and the scene shows in the target's preview. */
-function addObject() {
+async function addObject() {
   const { id, blobs } = state.result;
   const file = new File([blobs["result.glb"]], `scene-${id.slice(0, 8)}.glb`, { type: "model/gltf-binary" });
   setFile("target", file);
   state.chained = { id, file };
   $("chosen-target").textContent = `the scene of job ${id.slice(0, 8)} (its objects stay put)`;
+  const names = await glbNodeNames(blobs["result.glb"]);
+  fillGrounds($("on-1"), "the last placed (or the two a \"between\" prompt names)", names);
+  fillGrounds($("on-2"), "no other", names);
+  $("grounds").hidden = false;
   setFile("source", null);
   for (const field of ["name-target", "name-source", "prompt"]) $(field).value = "";
   $("new-job").scrollIntoView();
   $("prompt").focus();
+}
+
+/** The names of a GLB's mesh nodes, as the service reads the scene back (its JSON chunk; the 3D view's names are
+ * three.js's, with spaces replaced). */
+async function glbNodeNames(glb) {
+  const buffer = await glb.arrayBuffer();
+  const length = new DataView(buffer).getUint32(12, true);
+  const json = JSON.parse(new TextDecoder().decode(new Uint8Array(buffer, 20, length)));
+  return (json.nodes || []).filter((node) => node.mesh !== undefined && node.name).map((node) => node.name);
+}
+
+/** A "relates to" select: "" (``none``: the service's default), then the scene's objects. */
+function fillGrounds(select, none, names) {
+  select.replaceChildren(new Option(none, ""), ...names.map((name) => new Option(name, name)));
 }
 
 async function showResult(id) {
@@ -603,6 +623,8 @@ function showFacts(report) {
   ];
   if (report.copies) rows.splice(0, 3, ...copyRows(report, fixed)); // several copies: no one transform
   if (report.guide_say) rows.push(["who chose", report.guide_say.summary]); // the guide's say (ordering.Gate)
+  const grounds = (report.extra || {}).grounds || [];
+  if (grounds.length) rows.push(["relates to", grounds.join(" and ")]); // a scene target's objects it was placed by
   if (report.adjusted) {
     rows.push(["adjusted", `by hand, saved ${new Date(report.adjustment.saved_at).toLocaleString()} `
       + "(the objective is the run's; original.glb keeps its placement)"]);
