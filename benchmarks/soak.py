@@ -148,6 +148,38 @@ def _children_running(pid: int, needle: str) -> list[int]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    args = _arguments(argv)
+    rng = random.Random(args.seed)
+
+    tmp = tempfile.TemporaryDirectory()
+    env = {**os.environ, "XDG_CACHE_HOME": tmp.name, "CTP_MODEL": "random:tiny", "CTP_LOG_LEVEL": "WARNING",
+           "CTP_MAX_ACTIVE_JOBS": "100000", "CTP_THREADS": "1", "OMP_NUM_THREADS": "1", "OMP_WAIT_POLICY": "PASSIVE",
+           "CTP_HEARTBEAT_S": "0.5", "CTP_LEASE_S": "5", "CTP_LOAD_TIMEOUT_S": "5", "CTP_MAX_NODES": "1000000"}
+    env.pop("REDIS_URL", None)
+    port = free_port()
+    url = f"http://127.0.0.1:{port}"
+    log = open(Path(tmp.name) / "serve.log", "wb")  # noqa: SIM115 - closed below
+    serve = subprocess.Popen([sys.executable, "-m", "ctp", "serve", "--port", str(port), "--workers", "2"],
+                             env=env, cwd=REPO, stdout=log, stderr=subprocess.STDOUT)
+    soak = _Soak(args, serve, url)
+    try:
+        soak.wait_ready()
+        soak.run(rng)
+    finally:
+        soak.stop.set()
+        stop_processes([serve], grace_s=60)
+        log.close()
+    # Raw tracebacks (not inside a JSON log line): what the service must never print.
+    tracebacks = (Path(tmp.name) / "serve.log").read_text(errors="replace").count("\nTraceback (most recent call")
+    figures = _figures(soak, tracebacks)
+    print(json.dumps(figures, indent=2))
+    if args.json:
+        args.json.write_text(json.dumps(figures, indent=2))
+    tmp.cleanup()
+    return 0 if figures["ok"] else 1
+
+
+def _arguments(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--minutes", type=float, default=3.0, help="how long to send requests")
     parser.add_argument("--requests", type=int, default=5000, help="stop sending after this many")
@@ -163,37 +195,39 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--status-p99-ms", type=float, default=250.0, help="bound on GET /jobs/{id}'s p99 latency")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path, default=None, help="also write the figures here")
-    args = parser.parse_args(argv)
-    rng = random.Random(args.seed)
+    return parser.parse_args(argv)
 
-    tmp = tempfile.TemporaryDirectory()
-    env = {**os.environ, "XDG_CACHE_HOME": tmp.name, "CTP_MODEL": "random:tiny", "CTP_LOG_LEVEL": "WARNING",
-           "CTP_MAX_ACTIVE_JOBS": "100000", "CTP_THREADS": "1", "OMP_NUM_THREADS": "1", "OMP_WAIT_POLICY": "PASSIVE",
-           "CTP_HEARTBEAT_S": "0.5", "CTP_LEASE_S": "5", "CTP_LOAD_TIMEOUT_S": "5", "CTP_MAX_NODES": "1000000"}
-    env.pop("REDIS_URL", None)
-    port = free_port()
-    url = f"http://127.0.0.1:{port}"
-    log = open(Path(tmp.name) / "serve.log", "wb")  # noqa: SIM115 - closed below
-    serve = subprocess.Popen([sys.executable, "-m", "ctp", "serve", "--port", str(port), "--workers", "2"],
-                             env=env, cwd=REPO, stdout=log, stderr=subprocess.STDOUT)
-    hostile = _hostile()
-    counts: collections.Counter = collections.Counter()
-    statuses: collections.Counter = collections.Counter()
-    valid: list[str] = []
-    kind: dict[str, str] = {}  # job id -> "valid" or the extreme pair's name
-    latencies: list[float] = []
-    kills: list[float] = []
-    redis_kills: list[float] = []
-    deaths: list[int] = []  # worker pids that vanished without being killed here
-    rss: list[float] = []
-    loader_rss: list[float] = [0.0]
-    lock = threading.Lock()
-    stop = threading.Event()
-    sent = [0]
-    box, ball = _box_and_ball()
-    extreme = _extreme()
-    try:
-        with httpx.Client(base_url=url, timeout=120) as client:
+
+class _Soak:
+    """One soak of a running ``ctp serve``: the threads that send requests, kill workers and Redis, and watch
+    workers and memory, and what they record (under ``lock``): the answers, the jobs and how they ended, the kills,
+    the deaths, the RSS and status-latency samples."""
+
+    def __init__(self, args: argparse.Namespace, serve: subprocess.Popen, url: str):
+        self.args, self.serve, self.url = args, serve, url
+        self.hostile = _hostile()
+        self.counts: collections.Counter = collections.Counter()
+        self.statuses: collections.Counter = collections.Counter()
+        self.valid: list[str] = []
+        self.kind: dict[str, str] = {}  # job id -> "valid" or the extreme pair's name
+        self.latencies: list[float] = []
+        self.kills: list[float] = []
+        self.redis_kills: list[float] = []
+        self.deaths: list[int] = []  # worker pids that vanished without being killed here
+        self.rss: list[float] = []
+        self.loader_rss: list[float] = [0.0]
+        self.lock = threading.Lock()
+        self.stop = threading.Event()
+        self.sent = 0
+        self.box, self.ball = _box_and_ball()
+        self.extreme = _extreme()
+        self.killed: set[int] = set()
+        self.ended: dict[str, dict] = {}
+        self.sending_s = 0.0
+
+    def wait_ready(self) -> None:
+        """Until serve reports its two workers (at most 3 minutes)."""
+        with httpx.Client(base_url=self.url, timeout=120) as client:
             deadline = time.monotonic() + 180
             while True:
                 try:
@@ -201,120 +235,130 @@ def main(argv: list[str] | None = None) -> int:
                         break
                 except httpx.TransportError:
                     pass
-                if time.monotonic() > deadline or serve.poll() is not None:
+                if time.monotonic() > deadline or self.serve.poll() is not None:
                     raise RuntimeError("ctp serve did not become ready")
                 time.sleep(0.5)
 
-        def send(seed: int) -> None:
-            local = random.Random(seed)
-            with httpx.Client(base_url=url, timeout=120) as client:
-                while not stop.is_set():
-                    with lock:
-                        if sent[0] >= args.requests:
-                            return
-                        sent[0] += 1
-                        in_flight = len(valid) - statuses["ended"]
-                    if local.random() < args.valid_share and in_flight < 6:
-                        name, files, data = "valid", {"target": ("box.glb", box), "source": ("ball.glb", ball)}, {
-                            "prompt": "a ball on top of a box", "options": json.dumps(OPTIONS)}
-                        if local.random() < args.extreme_share:
-                            label, files = local.choice(extreme)
-                            name = f"extreme {label}"
-                    else:
-                        name, files, data = local.choice(hostile)
-                    try:
-                        answer = client.post("/align", files=files, data=data)
-                    except httpx.TransportError as exc:
-                        with lock:
-                            counts[f"transport error {type(exc).__name__}"] += 1
-                        continue
-                    with lock:
-                        counts[f"{name}: {answer.status_code}"] += 1
-                        if name.startswith(("valid", "extreme")) and answer.status_code == 202:
-                            valid.append(answer.json()["id"])
-                            kind[valid[-1]] = name
-
-        killed: set[int] = set()
-
-        def kill_loop(every: tuple[float, float], needle: str, done: list[float], seed: int) -> None:
-            """SIGKILL a child of serve running ``needle`` every ``every`` seconds (uniform)."""
-            local = random.Random(seed)
-            if max(every) <= 0:
-                return
-            while not stop.wait(local.uniform(*every)):
-                pids = _children_running(serve.pid, needle)
-                if pids:
-                    victim = local.choice(pids)
-                    killed.add(victim)
-                    os.kill(victim, signal.SIGKILL)
-                    done.append(time.monotonic())
-
-        def watch_workers() -> None:
-            """A worker pid that disappears without a kill from here died (memory, a crash)."""
-            known = set(_children_running(serve.pid, " worker"))
-            while not stop.wait(0.5):
-                now = set(_children_running(serve.pid, " worker"))
-                deaths.extend(pid for pid in known - now if pid not in killed)
-                known = now
-
-        def watch_rss() -> None:
-            while not stop.wait(0.5):
-                rss.append(_rss_mb(serve.pid))
-                loader_rss.extend(_rss_mb(p) for p in _children_running(serve.pid, "ctp_core.io.loader"))
-
+    def run(self, rng: random.Random) -> None:
+        """Send from ``--clients`` threads for ``--minutes`` (or ``--requests``) with the killers and watchers
+        running, polling the valid jobs; then wait up to 3 minutes for those still running."""
+        args = self.args
         started = time.monotonic()
-        threads = [threading.Thread(target=send, args=(args.seed + i,)) for i in range(args.clients)]
-        helpers = [threading.Thread(target=kill_loop, args=(args.kill_every, " worker", kills, rng.random()),
+        threads = [threading.Thread(target=self.send, args=(args.seed + i,)) for i in range(args.clients)]
+        helpers = [threading.Thread(target=self.kill_loop, args=(args.kill_every, " worker", self.kills, rng.random()),
                                     daemon=True),
-                   threading.Thread(target=kill_loop, args=(args.redis_kill_every, "redis-server", redis_kills,
-                                                            rng.random()), daemon=True),
-                   *(threading.Thread(target=f, daemon=True) for f in (watch_rss, watch_workers))]
+                   threading.Thread(target=self.kill_loop, args=(args.redis_kill_every, "redis-server",
+                                                                 self.redis_kills, rng.random()), daemon=True),
+                   *(threading.Thread(target=f, daemon=True) for f in (self.watch_rss, self.watch_workers))]
         for t in [*threads, *helpers]:
             t.start()
-        ended: dict[str, dict] = {}
-        with httpx.Client(base_url=url, timeout=30) as client:
-            def poll() -> None:
-                for job_id in [j for j in list(valid) if j not in ended]:
-                    try:
-                        asked = time.perf_counter()
-                        job = client.get(f"/jobs/{job_id}").json()
-                        latencies.append(time.perf_counter() - asked)
-                    except (httpx.TransportError, ValueError):
-                        continue
-                    if job.get("status") in TERMINAL:
-                        ended[job_id] = job
-                        with lock:
-                            statuses["ended"] += 1
-
+        with httpx.Client(base_url=self.url, timeout=30) as client:
             while any(t.is_alive() for t in threads):
                 if time.monotonic() - started > 60 * args.minutes:
-                    stop.set()
-                poll()
+                    self.stop.set()
+                self.poll(client)
                 time.sleep(1.0)
-            sending_s = time.monotonic() - started
-            stop.set()
+            self.sending_s = time.monotonic() - started
+            self.stop.set()
             drain = time.monotonic() + 180
-            while len(ended) < len(valid) and time.monotonic() < drain:
-                poll()
+            while len(self.ended) < len(self.valid) and time.monotonic() < drain:
+                self.poll(client)
                 time.sleep(1.0)
-        def outcome(job: dict) -> str:
-            return job["status"] if job["status"] != "failed" else f"failed {job['error']['code']}"
 
-        outcomes = collections.Counter(outcome(j) for i, j in ended.items() if kind[i] == "valid")
-        extreme_outcomes = collections.Counter(f"{kind[i]}: {outcome(j)}" for i, j in ended.items()
-                                               if kind[i] != "valid")
-    finally:
-        stop.set()
-        stop_processes([serve], grace_s=60)
-        log.close()
-    # Raw tracebacks (not inside a JSON log line): what the service must never print.
-    tracebacks = (Path(tmp.name) / "serve.log").read_text(errors="replace").count("\nTraceback (most recent call")
+    def request(self, local: random.Random, in_flight: int) -> tuple[str, dict, dict]:
+        """The next request (name, files, form): a valid job (``--valid-share``, while fewer than 6 run; an
+        extreme pair for ``--extreme-share`` of them) or a hostile upload."""
+        if local.random() < self.args.valid_share and in_flight < 6:
+            name, files, data = "valid", {"target": ("box.glb", self.box), "source": ("ball.glb", self.ball)}, {
+                "prompt": "a ball on top of a box", "options": json.dumps(OPTIONS)}
+            if local.random() < self.args.extreme_share:
+                label, files = local.choice(self.extreme)
+                name = f"extreme {label}"
+            return name, files, data
+        return local.choice(self.hostile)
+
+    def send(self, seed: int) -> None:
+        """A client: requests until stopped or ``--requests`` are sent; each answer counted, each job accepted
+        kept."""
+        local = random.Random(seed)
+        with httpx.Client(base_url=self.url, timeout=120) as client:
+            while not self.stop.is_set():
+                with self.lock:
+                    if self.sent >= self.args.requests:
+                        return
+                    self.sent += 1
+                    in_flight = len(self.valid) - self.statuses["ended"]
+                name, files, data = self.request(local, in_flight)
+                try:
+                    answer = client.post("/align", files=files, data=data)
+                except httpx.TransportError as exc:
+                    with self.lock:
+                        self.counts[f"transport error {type(exc).__name__}"] += 1
+                    continue
+                with self.lock:
+                    self.counts[f"{name}: {answer.status_code}"] += 1
+                    if name.startswith(("valid", "extreme")) and answer.status_code == 202:
+                        self.valid.append(answer.json()["id"])
+                        self.kind[self.valid[-1]] = name
+
+    def kill_loop(self, every: tuple[float, float], needle: str, done: list[float], seed: float) -> None:
+        """SIGKILL a child of serve running ``needle`` every ``every`` seconds (uniform)."""
+        local = random.Random(seed)
+        if max(every) <= 0:
+            return
+        while not self.stop.wait(local.uniform(*every)):
+            pids = _children_running(self.serve.pid, needle)
+            if pids:
+                victim = local.choice(pids)
+                self.killed.add(victim)
+                os.kill(victim, signal.SIGKILL)
+                done.append(time.monotonic())
+
+    def watch_workers(self) -> None:
+        """A worker pid that disappears without a kill from here died (memory, a crash)."""
+        known = set(_children_running(self.serve.pid, " worker"))
+        while not self.stop.wait(0.5):
+            now = set(_children_running(self.serve.pid, " worker"))
+            self.deaths.extend(pid for pid in known - now if pid not in self.killed)
+            known = now
+
+    def watch_rss(self) -> None:
+        while not self.stop.wait(0.5):
+            self.rss.append(_rss_mb(self.serve.pid))
+            self.loader_rss.extend(_rss_mb(p) for p in _children_running(self.serve.pid, "ctp_core.io.loader"))
+
+    def poll(self, client: httpx.Client) -> None:
+        """The status of every valid job not ended yet, its latency sampled; the ended kept."""
+        for job_id in [j for j in list(self.valid) if j not in self.ended]:
+            try:
+                asked = time.perf_counter()
+                job = client.get(f"/jobs/{job_id}").json()
+                self.latencies.append(time.perf_counter() - asked)
+            except (httpx.TransportError, ValueError):
+                continue
+            if job.get("status") in TERMINAL:
+                self.ended[job_id] = job
+                with self.lock:
+                    self.statuses["ended"] += 1
+
+
+def _outcome(job: dict) -> str:
+    return job["status"] if job["status"] != "failed" else f"failed {job['error']['code']}"
+
+
+def _figures(soak: _Soak, tracebacks: int) -> dict:
+    """What the soak reports, and ``ok``: whether every check passed (see the module docstring)."""
+    args, counts, ended, kind, latencies, rss = soak.args, soak.counts, soak.ended, soak.kind, soak.latencies, soak.rss
+    valid = soak.valid
+    outcomes = collections.Counter(_outcome(j) for i, j in ended.items() if kind[i] == "valid")
+    extreme_outcomes = collections.Counter(f"{kind[i]}: {_outcome(j)}" for i, j in ended.items()
+                                           if kind[i] != "valid")
     hostile_answers = {k: v for k, v in counts.items() if not k.startswith(("valid", "extreme"))}
     figures = {
-        "sending_s": round(sending_s, 1), "requests": sent[0], "worker_kills": len(kills),
-        "redis_kills": len(redis_kills), "serve_log_raw_tracebacks": tracebacks,
+        "sending_s": round(soak.sending_s, 1), "requests": soak.sent, "worker_kills": len(soak.kills),
+        "redis_kills": len(soak.redis_kills), "serve_log_raw_tracebacks": tracebacks,
         "valid_accepted": len(valid), "valid_outcomes": dict(outcomes), "valid_stuck": len(valid) - len(ended),
-        "extreme_outcomes": dict(sorted(extreme_outcomes.items())), "worker_deaths": len(deaths),
+        "extreme_outcomes": dict(sorted(extreme_outcomes.items())), "worker_deaths": len(soak.deaths),
         "status_latency_ms": {"requests": len(latencies),
                               "p50": round(1000 * float(np.percentile(latencies, 50)), 1) if latencies else None,
                               "p99": round(1000 * float(np.percentile(latencies, 99)), 1) if latencies else None,
@@ -325,7 +369,7 @@ def main(argv: list[str] | None = None) -> int:
         "status_500": sum(v for k, v in counts.items() if k.endswith(": 500")),
         "api_rss_mb": {"start": round(rss[0], 1) if rss else None, "peak": round(max(rss, default=0), 1),
                        "end": round(rss[-1], 1) if rss else None, "bound": args.rss_mb},
-        "loader_process_rss_peak_mb": round(max(loader_rss), 1),
+        "loader_process_rss_peak_mb": round(max(soak.loader_rss), 1),
     }
     figures["jobs_lost"] = figures["valid_stuck"] + outcomes.get("failed worker_lost", 0) + sum(
         v for k, v in extreme_outcomes.items() if k.endswith("failed worker_lost"))
@@ -336,18 +380,13 @@ def main(argv: list[str] | None = None) -> int:
     # workers from taking them all down); any other loss is the service's failure.
     figures["jobs_lost_unbounded"] = figures["jobs_lost"] - sum(1 for j in lost_jobs if j["attempts"] >= 2)
     p99 = figures["status_latency_ms"]["p99"]
-    ok = (figures["jobs_lost_unbounded"] == 0 and figures["status_500"] == 0 and not figures["hostile_other"]
-          and not tracebacks
-          and set(outcomes) <= {"succeeded", "failed worker_lost"}
-          and all(k.endswith(("succeeded", "failed job_too_large")) for k in extreme_outcomes)
-          and not deaths and max(rss, default=0) <= args.rss_mb
-          and (p99 is None or p99 <= args.status_p99_ms))
-    figures["ok"] = ok
-    print(json.dumps(figures, indent=2))
-    if args.json:
-        args.json.write_text(json.dumps(figures, indent=2))
-    tmp.cleanup()
-    return 0 if ok else 1
+    figures["ok"] = (figures["jobs_lost_unbounded"] == 0 and figures["status_500"] == 0 and not figures["hostile_other"]
+                     and not tracebacks
+                     and set(outcomes) <= {"succeeded", "failed worker_lost"}
+                     and all(k.endswith(("succeeded", "failed job_too_large")) for k in extreme_outcomes)
+                     and not soak.deaths and max(rss, default=0) <= args.rss_mb
+                     and (p99 is None or p99 <= args.status_p99_ms))
+    return figures
 
 
 if __name__ == "__main__":
