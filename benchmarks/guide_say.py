@@ -7,7 +7,7 @@ them, scored at the coarse views by the guide and the geometry; printed per case
   and the others;
 - ``agreement``: how often the guide ranks a holding proposal before a failing one (the Mann-Whitney AUC, 0.5 by
   chance), over all proposals, and ``agreement_seen`` over the ones the search lets the guide see
-  (``ranking.encoder_shortlist``); ``z``: the first's distance from chance in standard errors;
+  (``coarse_to_fine.encoder_shortlist``); ``z``: the first's distance from chance in standard errors;
 - ``gate``: the run's ``Gate`` as the search measures it on what it lets the guide see (spread, noise, override);
 - ``views_agree``: the rank correlation (Spearman) between the guide's term seen by the first coarse view alone
   and by the second alone, over the holding proposals it sees (what it orders), and ``views_agree_seen`` over all
@@ -41,7 +41,7 @@ from ctp_core.config import AlignConfig
 from ctp_core.geometry import sampling
 from ctp_core.geometry.pose import Poses
 from ctp_core.guide.loaders import guide_for
-from ctp_core.search import ordering, ranking
+from ctp_core.search import coarse_to_fine, ordering
 
 
 def agreement(terms: dict[str, torch.Tensor]) -> tuple[float, int, int] | None:
@@ -64,7 +64,7 @@ def view_term(scorer, poses, cameras, view: int, batch: int) -> torch.Tensor:
     """(N,) the guide's term of ``poses`` seen by one of the shared ``cameras`` alone."""
     one = replace(cameras, eye=cameras.eye[:, [view]], at=cameras.at[:, [view]], fov_deg=cameras.fov_deg[:, [view]],
                   up=None if cameras.up is None else cameras.up[:, [view]])
-    goal = ranking.embed_shared_goal(scorer, one)
+    goal = coarse_to_fine.embed_shared_goal(scorer, one)
     with torch.inference_mode():
         chunks = [poses.select(slice(lo, lo + batch)) for lo in range(0, len(poses), batch)]
         return torch.cat([scorer.clip_term(c, one.expand(len(c)), goal) for c in chunks])
@@ -102,7 +102,7 @@ def knows(scorer, poses, terms, weights, cameras, goal, shift: float, favourites
     moves = (shift * scorer.pair.source_diagonal * base.log_s.exp())[:, None, None] * axes.to(base.t)[None]
     twins = Poses((base.t[:, None] + moves).reshape(-1, 3), base.q.repeat_interleave(len(axes), 0),
                   base.log_s.repeat_interleave(len(axes)))
-    twin_terms = ranking.terms_of(scorer, twins, weights, cameras, batch=len(twins), goal_embeddings=goal)
+    twin_terms = coarse_to_fine.terms_of(scorer, twins, weights, cameras, batch=len(twins), goal_embeddings=goal)
     kept = ordering.holding(twin_terms).reshape(len(picked), len(axes))
     score = twin_terms["clip"].reshape(len(picked), len(axes))
     right = tested = 0
@@ -133,19 +133,19 @@ def run_case(case, args) -> dict:
                         target_name=case.target_name, source_name=case.source_name)
     poses = align.propose(run, init).poses
     scorer, weights = run.scorer, run.plan[0]
-    cameras = ranking.coarse_cameras(run.pair, config, float(poses.log_s.max()))  # as ranking.search frames them
-    terms = ranking.terms_of(scorer, poses, weights, cameras, batch=config.search.batch)
+    cameras = coarse_to_fine.coarse_cameras(run.pair, config, float(poses.log_s.max()))  # as the search frames them
+    terms = coarse_to_fine.terms_of(scorer, poses, weights, cameras, batch=config.search.batch)
     held = ordering.holding(terms)
-    seen = ranking.encoder_shortlist(poses, terms, weights, config.search.shortlist,
-                                     ranking.distinct_of(run.pair, config, float(poses.log_s[0])),
+    seen = coarse_to_fine.encoder_shortlist(poses, terms, weights, config.search.shortlist,
+                                     coarse_to_fine.distinct_of(run.pair, config, float(poses.log_s[0])),
                                      config.search.min_share)
     shown_poses, shown_terms = poses.select(seen), {k: v[seen] for k, v in terms.items()}
     every, shown = agreement(terms), agreement(shown_terms)
-    gate = ranking.guide_noise(scorer, shown_poses, shown_terms, weights, cameras,
-                               ranking.embed_shared_goal(scorer, cameras))
+    gate = coarse_to_fine.guide_noise(scorer, shown_poses, shown_terms, weights, cameras,
+                               coarse_to_fine.embed_shared_goal(scorer, cameras))
     first, second = (view_term(scorer, shown_poses, cameras, v, config.search.batch) for v in (0, 1))
     mask = held[seen]
-    goal = ranking.embed_shared_goal(scorer, cameras)
+    goal = coarse_to_fine.embed_shared_goal(scorer, cameras)
     twins = {shift: knows(scorer, shown_poses, shown_terms, weights, cameras, goal, shift) for shift in args.shifts}
     points = sampling.surface_samples(source, 500, args.seed)[0]
     geometric = ordering.rank_key(terms, weights, share=config.search.min_share)

@@ -31,7 +31,7 @@ from ctp_core.config import AlignConfig
 from ctp_core.geometry import sampling
 from ctp_core.geometry.pose import Poses, apply_pose
 from ctp_core.guide.loaders import guide_for
-from ctp_core.search import ranking
+from ctp_core.search import coarse_to_fine
 
 
 @contextmanager
@@ -74,7 +74,7 @@ def run_case(case, args) -> dict:
                         target_name=case.target_name, source_name=case.source_name)
     proposals = align.propose(run, init)
     pair, poses = run.pair, proposals.poses
-    cameras = ranking.coarse_cameras(pair, config, float(poses.log_s[0]))
+    cameras = coarse_to_fine.coarse_cameras(pair, config, float(poses.log_s[0]))
     nothing = Poses(torch.zeros(1, 3), poses.q[:1], torch.full((1,), -30.0))  # a point-sized source: not drawn
     with precision(guide, False), torch.inference_mode():
         goal_views = run.scorer.embed_goal(cameras)[0]  # (C, D): the reference seen by each view

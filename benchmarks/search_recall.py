@@ -28,7 +28,7 @@ from ctp_core.bench.cases import discover
 from ctp_core.bench.guides import guide_inputs
 from ctp_core.config import AlignConfig
 from ctp_core.geometry import sampling
-from ctp_core.search import ordering, ranking
+from ctp_core.search import coarse_to_fine, ordering
 
 CLOSE = 0.2  # ADD-S of a pose counted as close to the reference (success is 0.1)
 
@@ -71,7 +71,7 @@ def run_case(case, args) -> dict:
     run = align.prepare(target, source, case.prompt, config, guide=guide, goal=inputs.goal,
                         target_name=case.target_name, source_name=case.source_name)
     proposals = align.propose(run, init)
-    ranked = ranking.search(run.scorer, proposals, run.plan[0], k=config.optim.restarts)
+    ranked = coarse_to_fine.search(run.scorer, proposals, run.plan[0], k=config.optim.restarts)
     outcome = align.refine(run, ranked.poses, ranked.gate)
     answer = align.result(run, outcome, case.prompt)
     row = {"case": case.id, "relation": case.relation, "seconds": round(time.perf_counter() - started, 1)}

@@ -254,12 +254,12 @@ def score(run: Run, proposals: Proposals, *, gate: Gate | None = None, on_event:
     candidates apart (``ordering.search_key``, ``ordering.Gate``), otherwise by the first phase's objective:
     its proposals already touch without interpenetrating.
     """
-    from ctp_core.search import ranking
+    from ctp_core.search import coarse_to_fine
 
     if not run.config.search.enabled:
         return proposals.poses, None
     scorer = run.scorer if gate is None else run.scorer.gated(gate)
-    ranked = ranking.search(scorer, proposals, run.plan[0], k=run.config.optim.restarts, on_event=on_event,
+    ranked = coarse_to_fine.search(scorer, proposals, run.plan[0], k=run.config.optim.restarts, on_event=on_event,
                             should_cancel=should_cancel, phases=len(run.plan), started=run.started)
     run.timings["search_s"] = round(ranked.seconds, 3)
     run.timings["search_candidates"] = ranked.scored
@@ -356,13 +356,13 @@ def alternatives(run: Run, outcome: Outcome) -> list[int]:
     source diagonals *and* ``distinct_rotation_deg``, as the search counts duplicates) and those that ended far
     from the target (over ``contact.NEAR`` source diagonals) left out. A prompt like "a cup on the table" has
     many right answers; a person picks among these."""
-    from ctp_core.search import ordering, ranking
+    from ctp_core.search import coarse_to_fine, ordering
 
     poses = outcome.poses
     far = contact.clearance(run.pair, run.pair.index, poses) > contact.NEAR
     key = ordering.alternatives_key(outcome.terms, outcome.objectives, far, outcome.best)
-    distance, angle = ranking.distinct_of(run.pair, run.config, float(poses.log_s[0]))
-    kept = ranking.diverse_top(poses, key, MAX_ALTERNATIVES, distance, angle, fill=False)
+    distance, angle = coarse_to_fine.distinct_of(run.pair, run.config, float(poses.log_s[0]))
+    kept = coarse_to_fine.diverse_top(poses, key, MAX_ALTERNATIVES, distance, angle, fill=False)
     finite = key.finite()
     return [i for i in kept if finite[i] or i == outcome.best]
 

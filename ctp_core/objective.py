@@ -150,7 +150,7 @@ class Scorer:
         """The geometry's terms and objective (``clip`` 0) on ``SCREEN_POINTS`` of the source's samples, forward
         only: enough to tell where the relation holds and which poses intersect (the relation's own features are
         fewer still), at a fraction of the cost. The search screens every proposal with it before the guide
-        sees any (``ranking.encoder_shortlist``)."""
+        sees any (``coarse_to_fine.encoder_shortlist``)."""
         with torch.inference_mode():
             terms = self._score(poses, weights, None, None, None, encode=False, points=SCREEN_POINTS)
         return {k: v.clone().cpu() for k, v in terms.items()}

@@ -80,7 +80,7 @@ def initial_poses(pair: PreparedPair, config: AlignConfig, log_s: float, generat
 
 class Optimiser:
     """Runs the phase plan over a batch of restarts; one instance per run. ``gate``: the search's
-    (``ranking.Ranked.gate``; None: not measured), which sets what the scorer encodes and how the answer is
+    (``coarse_to_fine.Ranked.gate``; None: not measured), which sets what the scorer encodes and how the answer is
     selected."""
 
     def __init__(self, scorer: Scorer, plan: list[Phase], on_event: ProgressCallback | None = None,

@@ -17,7 +17,7 @@ from ctp_core.assembly import copies
 from ctp_core.config import AlignConfig, schedule, share_of
 from ctp_core.geometry import pose
 from ctp_core.io.examples import get_example
-from ctp_core.search import ordering, ranking
+from ctp_core.search import coarse_to_fine, ordering
 
 GEOMETRY = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0})
 GUIDED = AlignConfig.from_preset("test", model="random:tiny")
@@ -87,16 +87,17 @@ def test_a_guided_run_reads_out_the_selected_restart(name):
     _assert_the_readout_is_the_answers(run, outcome, result, events)
 
 
-# -- the shortlist: ``ordering.split_shortlist`` as ``ranking.encoder_shortlist`` chose before -----------------
+# -- the shortlist: ``ordering.split_shortlist`` as ``coarse_to_fine.encoder_shortlist`` chose before -----------------
 
 def _old_encoder_shortlist(poses, terms, weights, k, distinct, share):
-    """``ranking.encoder_shortlist`` as it was written before it called ``ordering``."""
+    """``coarse_to_fine.encoder_shortlist`` as it was written before it called ``ordering``."""
     key = ordering.rank_key(terms, weights, share=share)
     held = ordering.holding(terms)
     others = int((~held).sum())
     reserve = min(others, share_of(k, share)) if held.any() else others
-    inside = [i for i in ranking.shortlist_of(poses, key.excluding(~held), k - reserve, *distinct) if held[i]]
-    rest = [i for i in ranking.shortlist_of(poses, key.excluding(held), k - len(inside), *distinct) if not held[i]]
+    inside = [i for i in coarse_to_fine.shortlist_of(poses, key.excluding(~held), k - reserve, *distinct) if held[i]]
+    rest = [i for i in coarse_to_fine.shortlist_of(poses, key.excluding(held), k - len(inside), *distinct)
+            if not held[i]]
     return inside + rest
 
 
@@ -120,11 +121,11 @@ def test_the_encoder_shortlist_orders_through_ordering_as_before(seed, monkeypat
     poses, terms = _random_candidates(seed, 30)
     calls = []
     split = ordering.split_shortlist
-    monkeypatch.setattr(ranking, "split_shortlist", lambda *args: calls.append(args) or split(*args))
+    monkeypatch.setattr(coarse_to_fine, "split_shortlist", lambda *args: calls.append(args) or split(*args))
     for k in (1, 5, 12, 40):
         for share in (0.0, 0.08, 0.5):
             want = _old_encoder_shortlist(poses, terms, weights, k, (0.5, 30.0), share)
-            assert ranking.encoder_shortlist(poses, terms, weights, k, (0.5, 30.0), share) == want
+            assert coarse_to_fine.encoder_shortlist(poses, terms, weights, k, (0.5, 30.0), share) == want
     assert len(calls) == 12  # every shortlist went through ``ordering``
 
 

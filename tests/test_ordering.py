@@ -175,7 +175,7 @@ def test_the_alternatives_put_the_answer_first_then_the_holding_ones_and_leave_o
 
 
 def test_a_guide_earns_its_say_by_both_tests_the_lower_deciding():
-    """Signal (spread against noise) and agreement (``ranking.view_agreement``): a consistent function of the
+    """Signal (spread against noise) and agreement (``coarse_to_fine.view_agreement``): a consistent function of the
     image passes the first, so the second limits it; not measured, the second sets no limit."""
     loud = Gate(spread=1.0, noise=0.01)
     assert loud.override == 1.0 and Gate(1.0, 0.01, agree=0.05).override == 1.0
@@ -189,7 +189,7 @@ def test_a_guide_earns_its_say_by_both_tests_the_lower_deciding():
 
 def test_view_agreement_is_zero_where_the_views_share_a_favourite_and_one_half_by_chance():
     """Where each view's favourite ranks in the other views' order (0: first; the share ranked before it)."""
-    from ctp_core.search.ranking import view_agreement
+    from ctp_core.search.coarse_to_fine import view_agreement
 
     same = torch.tensor([[0.0, 0.1], [1.0, 0.5], [2.0, 0.7], [3.0, 0.2]])
     assert view_agreement(same) == 0.0

@@ -1,4 +1,4 @@
-"""The search stage alone (``proposals``, ``ranking``) and inside align: proposals, relation weights, the shared
+"""The search stage alone (``proposals``, ``coarse_to_fine``) and inside align: proposals, relation weights, the shared
 scorer, cancel, counts."""
 
 import math
@@ -16,7 +16,7 @@ from ctp_core.geometry import pose, sampling
 from ctp_core.guide import goals
 from ctp_core.guide.loaders import get_guide
 from ctp_core.relations.vocabulary import RELATIONS, RelationReading
-from ctp_core.search import ordering, proposals, ranking
+from ctp_core.search import coarse_to_fine, ordering, proposals
 
 CONFIG = AlignConfig.from_preset("test", model="random:tiny", search={"candidates": 40}, loss={"samples": 1500})
 
@@ -172,13 +172,13 @@ def test_search_counts_every_encoder_image_including_the_oracles(meshes, zoom):
     scorer = objective.Scorer(pair, config, 0.2, guide=guide, goal=oracle)
     weights = schedule.phases(config, allow_penetration=False)[-1]
     events = []
-    ranked = ranking.search(scorer, props, weights, k=2, on_event=events.append)
+    ranked = coarse_to_fine.search(scorer, props, weights, k=2, on_event=events.append)
     cfg = config.search
     n, fine = len(props.poses), min(cfg.fine, len(props.poses))
     assert 0 < ranked.swept <= cfg.sweep * len(props.rotations)  # every orientation at the best site(s)
     # candidates x views (coarse and sweep, the guide's noise probes), the shared coarse reference views once,
     # the fine ones each
-    coarse = (n + ranked.swept + min(ranking.GATE_PROBES, n)) * cfg.coarse_views
+    coarse = (n + ranked.swept + min(coarse_to_fine.GATE_PROBES, n)) * cfg.coarse_views
     refs = cfg.fine_views if cfg.fine_zoom == 0 else fine * cfg.fine_views  # shared fine views without zoom
     assert scorer.clip_images == coarse + cfg.coarse_views + fine * cfg.fine_views + refs
     assert ranked.scored == n + ranked.swept + fine
@@ -200,10 +200,10 @@ def _small_ball_on_table():
 
 def test_tiles_only_where_the_source_is_small_and_each_frames_its_sources(meshes):
     pair, props = _proposals(*meshes["box on table"])
-    assert ranking.tiles_of(pair, CONFIG, props.poses) is None  # the block is a fifth of the table: no tiles
+    assert coarse_to_fine.tiles_of(pair, CONFIG, props.poses) is None  # the block is a fifth of the table: no tiles
     table, ball, _ = _small_ball_on_table()
     pair, props = _proposals(table, ball)
-    tile, centres, radius = ranking.tiles_of(pair, CONFIG, props.poses)
+    tile, centres, radius = coarse_to_fine.tiles_of(pair, CONFIG, props.poses)
     assert len(centres) > 1 and tile.shape == (len(props.poses),)
     reach = (props.poses.t - centres[tile]).norm(dim=-1) + pair.source_radius
     assert bool((reach <= radius + 1e-5).all())  # every source wholly inside its tile's framed radius
@@ -229,7 +229,7 @@ def test_tile_scores_rank_the_change_a_source_makes_in_its_tiles_views():
     poses = pose.Poses(t, q, torch.full((2,), math.log(scale)))
     poses = pose.Poses.cat([poses, pose.Poses(t[:1] + torch.tensor([[0.0, -0.15, 0.0]]), q[:1],
                                                         poses.log_s[:1])])  # inside the table top: hidden
-    keys = ranking.tile_score(scorer, poses, weights, ranking.tiles_of(pair, CONFIG, poses), batch=8)
+    keys = coarse_to_fine.tile_score(scorer, poses, weights, coarse_to_fine.tiles_of(pair, CONFIG, poses), batch=8)
     assert keys.value[0] < 0 < keys.value[1] and torch.isinf(keys.value[2])
 
 
@@ -245,12 +245,12 @@ def _small_ball_oracle():
 
 def test_the_tile_stage_counts_its_images_and_adds_its_restarts(monkeypatch):
     # a guide the gate trusts (random:tiny's spread is within its noise here: no tile stage then)
-    monkeypatch.setattr(ranking, "guide_noise", lambda *args: ordering.Gate(1.0, 0.0))
+    monkeypatch.setattr(coarse_to_fine, "guide_noise", lambda *args: ordering.Gate(1.0, 0.0))
     pair, props, guide, scorer, weights = _small_ball_oracle()
     events = []
-    ranked = ranking.search(scorer, props, weights, k=2, on_event=events.append)
+    ranked = coarse_to_fine.search(scorer, props, weights, k=2, on_event=events.append)
     cfg, n = CONFIG.search, len(props.poses)
-    tiles = len(ranking.tiles_of(pair, CONFIG, props.poses)[1])
+    tiles = len(coarse_to_fine.tiles_of(pair, CONFIG, props.poses)[1])
     fine = min(cfg.fine, n)
     coarse = (n + ranked.swept) * cfg.coarse_views + cfg.coarse_views
     tiled = n * cfg.coarse_views + 2 * tiles * cfg.coarse_views  # each tile: its reference and its empty views
@@ -266,7 +266,7 @@ def test_the_sweep_tries_every_orientation_at_the_best_site(meshes):
     target, source = meshes["box on table"]
     pair, props = _proposals(target, source)
     objectives = ordering.Key.plain(torch.arange(len(props.poses), dtype=torch.float32))  # the first is the best
-    swept = ranking.sweep(props, pair, objectives, 1, 0.1)
+    swept = coarse_to_fine.sweep(props, pair, objectives, 1, 0.1)
     assert 0 < len(swept) <= len(props.rotations)
     turns = torch.nn.functional.normalize(swept.q, dim=-1) @ torch.nn.functional.normalize(props.rotations, dim=-1).T
     assert (turns.abs().max(dim=1).values > 0.9999).all()  # each is one of the source's orientations
@@ -278,8 +278,8 @@ def test_diverse_top_skips_near_duplicates():
     q = torch.tensor([[1.0, 0, 0, 0]] * 3)
     poses = pose.Poses(t, q, torch.zeros(3))
     objectives = ordering.Key.plain(torch.tensor([0.0, 0.1, 0.2]))
-    assert ranking.diverse_top(poses, objectives, 2, 0.1, 30.0) == [0, 2]
-    assert ranking.diverse_top(poses, objectives, 3, 0.1, 30.0) == [0, 2, 1]
+    assert coarse_to_fine.diverse_top(poses, objectives, 2, 0.1, 30.0) == [0, 2]
+    assert coarse_to_fine.diverse_top(poses, objectives, 3, 0.1, 30.0) == [0, 2, 1]
 
 
 def test_the_fine_shortlist_keeps_distinct_places_before_turns():
@@ -290,10 +290,10 @@ def test_the_fine_shortlist_keeps_distinct_places_before_turns():
     q = torch.cat([q_turns, torch.tensor([[1.0, 0, 0, 0]]).repeat(5, 1)])
     poses = pose.Poses(t, q, torch.zeros(15))
     objectives = ordering.Key.plain(torch.arange(15, dtype=torch.float32))  # the ten turns first
-    picked = ranking.shortlist_of(poses, objectives, 6, 0.1, 30.0)
+    picked = coarse_to_fine.shortlist_of(poses, objectives, 6, 0.1, 30.0)
     assert len(picked) == len(set(picked)) == 6
     assert len({tuple(poses.t[i].tolist()) for i in picked}) >= 3  # best turn at the first place + 2 others
-    assert ranking.diverse_top(poses, objectives, 6, 0.1, 30.0) == [0, 1, 2, 3, 4, 5]  # without: one place
+    assert coarse_to_fine.diverse_top(poses, objectives, 6, 0.1, 30.0) == [0, 1, 2, 3, 4, 5]  # without: one place
 
 
 def test_the_answer_is_the_best_restart_that_stays_near_the_target(meshes):
@@ -430,13 +430,14 @@ def test_the_encoder_shortlist_takes_distinct_places_where_the_relation_holds_an
     weights = schedule.phases(CONFIG, allow_penetration=False)[0]
     rel = [0.0] * 6 + [1.0] * 4
     key = [5.0, 4.0, 3.0, 2.0, 1.0, 0.0, 9.0, 8.0, 7.0, 6.0]  # lower is better
-    picked = ranking.encoder_shortlist(poses, _terms(rel, key), weights, 5, (0.5, 30.0), 0.08)
+    picked = coarse_to_fine.encoder_shortlist(poses, _terms(rel, key), weights, 5, (0.5, 30.0), 0.08)
     assert sorted(picked) == [2, 3, 4, 5, 9]
-    few = ranking.encoder_shortlist(poses, _terms([0.0, 0.0] + [1.0] * 8, key), weights, 5, (0.5, 30.0), 0.08)
+    few = coarse_to_fine.encoder_shortlist(poses, _terms([0.0, 0.0] + [1.0] * 8, key), weights, 5, (0.5, 30.0), 0.08)
     assert sorted(few) == [0, 1, 3, 4, 5]  # both that hold, the three best others
     # near-duplicates (the same place and turn) do not take two slots while distinct places remain
     dup = pose.Poses.cat([poses.select([5, 5, 4]), poses.select([0])])
-    picked = ranking.encoder_shortlist(dup, _terms([0.0] * 4, [0.0, 0.0, 1.0, 2.0]), weights, 3, (0.5, 30.0), 0.08)
+    picked = coarse_to_fine.encoder_shortlist(dup, _terms([0.0] * 4, [0.0, 0.0, 1.0, 2.0]), weights, 3, (0.5, 30.0),
+                                              0.08)
     assert sorted(picked) == [0, 2, 3]
 
 
@@ -450,14 +451,14 @@ def _text_scorer(pair, config, relation=None):
 def test_the_guide_sees_only_the_shortlist_and_the_turns_the_geometry_allows(meshes, monkeypatch):
     """``search.shortlist`` of the proposals reach the encoder (screened by the geometry, ``Scorer.screen``),
     ``sweep_keep`` turns per site: the images are counted exactly (a text goal encodes no images)."""
-    monkeypatch.setattr(ranking, "guide_noise", lambda *args: ordering.Gate(1.0, 0.0))  # a guide with signal
+    monkeypatch.setattr(coarse_to_fine, "guide_noise", lambda *args: ordering.Gate(1.0, 0.0))  # a guide with signal
     config = CONFIG.model_copy(update={"search": CONFIG.search.model_copy(update={"shortlist": 10,
                                                                                   "sweep_keep": 5})})
     pair, props = _proposals(*meshes["box on table"], config)
     assert len(props.poses) > 10
     scorer = _text_scorer(pair, config, relation="on")
     weights = schedule.phases(config, allow_penetration=False)[0]
-    ranked = ranking.search(scorer, props, weights, k=2)
+    ranked = coarse_to_fine.search(scorer, props, weights, k=2)
     cfg = config.search
     assert ranked.swept == cfg.sweep * cfg.sweep_keep
     fine = min(cfg.fine, 10 + ranked.swept)
@@ -473,10 +474,10 @@ def test_the_guide_sees_only_the_shortlist_and_the_turns_the_geometry_allows(mes
 def test_a_guide_without_signal_encodes_nothing_after_the_coarse_stage(meshes, monkeypatch):
     """Gate override 0 (its spread within its noise): the geometry ranks, so the sweep, the fine stage, the
     refinement's gradient and the selection's views encode no image."""
-    monkeypatch.setattr(ranking, "guide_noise", lambda *args: ordering.Gate(0.0, 1.0))
+    monkeypatch.setattr(coarse_to_fine, "guide_noise", lambda *args: ordering.Gate(0.0, 1.0))
     run = prepare(*meshes["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box")
     props = propose(run)
-    ranked = ranking.search(run.scorer, props, run.plan[0], k=2)
+    ranked = coarse_to_fine.search(run.scorer, props, run.plan[0], k=2)
     coarse = len(props.poses) * CONFIG.search.coarse_views
     assert not run.scorer.gated(ranked.gate).guided and run.scorer.clip_images == coarse and ranked.swept > 0
     outcome = refine(run, ranked.poses, ranked.gate)
@@ -505,14 +506,14 @@ def test_the_tile_stage_encodes_across_tiles_in_full_batches():
     """All tiles' goal views in one encoder call, their empty views and the poses ``batch`` at a time across
     tiles (it was a few small calls per tile: ~100 on a table of 34 tiles)."""
     pair, props, guide, scorer, weights = _small_ball_oracle()
-    tiles = ranking.tiles_of(pair, CONFIG, props.poses)
+    tiles = coarse_to_fine.tiles_of(pair, CONFIG, props.poses)
     count, n, batch = len(tiles[1]), len(props.poses), 16
     assert count > 2
     calls = []
     encode = guide.encode_images
     guide.encode_images = lambda images: calls.append(len(images)) or encode(images)
     try:
-        keys = ranking.tile_score(scorer, props.poses, weights, tiles, batch=batch)
+        keys = coarse_to_fine.tile_score(scorer, props.poses, weights, tiles, batch=batch)
     finally:
         guide.encode_images = encode
     views = CONFIG.search.coarse_views
@@ -530,7 +531,7 @@ def test_the_fast_preset_places_in_contact_within_its_encoder_budget(meshes):
                                   search={"coarse_image_size": 64, "fine_image_size": 64})
     result = align(*meshes["box on table"], "a box on the table", cfg, target_name="table", source_name="box")
     s, cam, opt = cfg.search, cfg.camera, cfg.optim
-    budget = ((s.shortlist + ranking.GATE_PROBES) * s.coarse_views + s.fine * s.fine_views
+    budget = ((s.shortlist + coarse_to_fine.GATE_PROBES) * s.coarse_views + s.fine * s.fine_views
               + opt.restarts * cam.eval_views * (1 + opt.phases))
     assert 0 < result.clip_images <= budget
     placed = result.source.copy()
@@ -544,10 +545,10 @@ def test_progress_reads_the_relation_the_guide_and_the_gap(meshes, monkeypatch):
     """What the page and the CLI show instead of the objective: the search says where the relation holds among the
     candidates scored and one restart count (planned, then kept); the refinement, in how many restarts it holds,
     the best restart's guide match (a cosine) and its gap to the target."""
-    monkeypatch.setattr(ranking, "guide_noise", lambda *args: ordering.Gate(1.0, 0.0))  # a guide with signal
+    monkeypatch.setattr(coarse_to_fine, "guide_noise", lambda *args: ordering.Gate(1.0, 0.0))  # a guide with signal
     run = prepare(*meshes["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box")
     events = []
-    ranked = ranking.search(run.scorer, propose(run), run.plan[0], k=2, on_event=events.append)
+    ranked = coarse_to_fine.search(run.scorer, propose(run), run.plan[0], k=2, on_event=events.append)
     assert {e.restarts for e in events[:-1]} == {2} and events[-1].restarts == len(ranked.poses)
     counted = [e for e in events if e.relation_holds is not None]
     assert counted and all(e.relation == "on" and 0 <= e.relation_holds <= e.relation_checked for e in counted)
@@ -563,7 +564,7 @@ def test_progress_reads_the_relation_the_guide_and_the_gap(meshes, monkeypatch):
 def test_the_report_and_the_progress_say_who_chose_among_the_poses_that_hold(meshes, monkeypatch, gate, chose):
     """The guide's say as the search measured it (``ordering.Gate``) reaches the search's progress message and
     the report: who ordered the poses where the relation holds, and why, in one line."""
-    monkeypatch.setattr(ranking, "guide_noise", lambda *args: gate)
+    monkeypatch.setattr(coarse_to_fine, "guide_noise", lambda *args: gate)
     events = []
     result = align(*meshes["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box",
                    on_event=events.append)

@@ -126,7 +126,7 @@ class SearchConfig(_Strict):
     shortlist: int = Field(
         0, ge=0, le=20000, description="with a guide, the proposals whose images it sees at the coarse stage, "
         "chosen by the relation and the geometry (distinct places where the relation holds first, then a "
-        "``min_share`` of the others: ``ranking.encoder_shortlist``); 0: all of them"
+        "``min_share`` of the others: ``coarse_to_fine.encoder_shortlist``); 0: all of them"
     )
     coarse_views: int = Field(2, ge=1, le=16, description="fixed views of the coarse stage, the same for all")
     coarse_image_size: int = Field(128, ge=32, le=1024, description="render size of the coarse stage")
@@ -162,7 +162,7 @@ class SearchConfig(_Strict):
     min_share: float = Field(
         0.08, gt=0.0, le=1.0, description="every proposal region keeps at least this share of its "
         "unweighted count, whatever the relation read from the prompt; also what of the poses where the relation "
-        "fails reach the guide (``ranking.encoder_shortlist``) and may be ranked with those where it holds "
+        "fails reach the guide (``coarse_to_fine.encoder_shortlist``) and may be ranked with those where it holds "
         "(``ordering.rank_key``); counted by ``share_of``"
     )
     distinct_translation: float = Field(

@@ -10,7 +10,7 @@ Every order is lexicographic (``Key``): first the *tier*, then the *value* (lowe
   candidates against its noise, and whether its views agree), plus the usual arrangement as far as the guide's
   say leaves it (``Gate.weigh``); otherwise the geometric objective.
 
-The gate is measured once, by the search (``ranking.search`` returns it in ``Ranked.gate``), and handed to every
+The gate is measured once, by the search (``coarse_to_fine.search`` returns it in ``Ranked.gate``), and handed to every
 later order as an argument: the refinement's scorer (``objective.Scorer.gated``), the selection
 (``select_answer``) and the report. ``improves`` is the refinement's order between a restart's new pose and its
 best so far; ``alternatives_key`` the order of the placements a person picks among.
@@ -19,7 +19,7 @@ The answer is the restart ``select_answer`` returns, the only function that deci
 objective (the relation orders first, a restart far from the target is left out, and with a guide soft-ICP does
 not count among the restarts that touch). The optimiser's progress readout (``optimise.Optimiser.answer``), the
 report's ``best_restart`` and the first alternative are that restart. ``split_shortlist`` is the order of the
-candidates the guide sees (``ranking.encoder_shortlist``), ``spaced_key`` that of the placements a scattered copy
+candidates the guide sees (``coarse_to_fine.encoder_shortlist``), ``spaced_key`` that of the placements a scattered copy
 takes the first of (``assembly.copies``).
 """
 
@@ -103,13 +103,13 @@ class Key:
 
 @dataclass(frozen=True)
 class Gate:
-    """How far a guide may override the relation, earned in each run by two tests (``ranking.guide_noise``), the
+    """How far a guide may override the relation, earned in each run by two tests (``coarse_to_fine.guide_noise``), the
     lower one deciding (``override``):
 
     - signal: its scores' spread over the search's candidates (standard deviation) against its noise (the
       largest change of the score of a few candidates moved by a negligible amount); from 0 (spread at most the
       noise: it does not tell the candidates apart) to 1 at ``GATE_FULL`` times the noise;
-    - agreement (``agree``: ``ranking.view_agreement``, where each coarse view's favourite among the holding
+    - agreement (``agree``: ``coarse_to_fine.view_agreement``, where each coarse view's favourite among the holding
       candidates ranks in the other views, 0 the best, 0.5 chance; None: not measured, no limit): from 0 at
       ``AGREE_CHANCE`` to 1 at ``AGREE_FULL``. A consistent function of the image passes the first test, noise
       included (a random encoder is one); only a guide that sees where the source is agrees with itself from
@@ -313,7 +313,7 @@ def alternatives_key(terms: dict[str, torch.Tensor], objectives: torch.Tensor, f
 def split_shortlist(terms: dict[str, torch.Tensor], weights: Phase, k: int, share: float,
                     pick: Callable[[Key, int], list[int]]) -> list[int]:
     """``k`` poses chosen by the geometry alone, the relation first (the guide's shortlist,
-    ``ranking.encoder_shortlist``): ``pick(key, n)`` (up to ``n`` indices best first by ``key``; the caller's
+    ``coarse_to_fine.encoder_shortlist``): ``pick(key, n)`` (up to ``n`` indices best first by ``key``; the caller's
     diversity) takes them from the poses where the relation holds (``holding``), in ``rank_key``'s geometric
     order, but for ``share_of(k, share)`` slots that go to the poses where it fails (a misread prompt must not make
     the right answer unreachable: the principle of ``rank_key``'s pool); slots one side cannot fill go to the

@@ -2,7 +2,7 @@
 
 The benchmark protocol (and any user's file) starts the source anywhere with any rotation, and local descent
 spends its whole budget getting close. The search instead enumerates poses that already touch the target and
-lets the guide rank them in batches, with no gradient (``ranking``).
+lets the guide rank them in batches, with no gradient (``coarse_to_fine``).
 
 ``propose``: points on the target surface (area-weighted, denser where the surface faces up and along rims),
 split into regions (``REGIONS``): surfaces facing up, sideways and down, the target's cavity (inside its convex

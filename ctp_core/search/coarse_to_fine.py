@@ -1,4 +1,5 @@
-"""How the search ranks its candidates (``proposals``): score them forward only, keep a diverse best few.
+"""The search, coarse to fine: how it ranks its candidates (``proposals``), forward only, and keeps a diverse best
+few.
 
 First the geometry screens every proposal (``Scorer.screen``: the relation's verdict, penetration, contact; no
 render) and only ``search.shortlist`` of them reach the guide (``encoder_shortlist``: distinct places where the
