@@ -136,7 +136,21 @@ def test_drop_push_save_and_chain_on_the_adjusted_scene(api, worker):
     original_glb = api.client.get(f"/jobs/{job_id}/result.glb", headers=AUTH).content
     assert np.allclose(ball_in(original_glb)[0], answer, atol=1e-6)
 
-    # what the API refuses before queueing anything
+    _refused_before_queueing(api, job_id, answer)
+    _measured_where_the_run_left_it(api, job_id, answer)
+    lifted = moved(answer, dx=0.1, dy=0.4)
+    down = _dropped_back_into_contact(api, job_id, lifted)
+    _pushed_and_dropped_beside_the_table(api, job_id)
+    _saved_with_the_original_kept(api, job_id, lifted, down, report, original_glb)
+    final = _saved_again(api, job_id, down, report, original_glb)
+    chained_id, scene = _chained_on_the_adjusted_scene(api, job_id, final)
+    _chained_job_adjusted(api, chained_id, scene)
+
+
+def _refused_before_queueing(api, job_id: str, answer: list) -> None:
+    """What the API refuses before queueing anything: a transform that is no rigid motion with a scale (a 3x3, a
+    shear, a mirror, a NaN), a push with no direction or a zero one, an unknown settle, a transform that is no
+    matrix; and the original of a job never adjusted."""
     sheared = moved(answer)
     sheared[0][1] += 0.5
     mirrored = (np.array(answer) @ np.diag([-1.0, 1, 1, 1])).tolist()
@@ -150,7 +164,10 @@ def test_drop_push_save_and_chain_on_the_adjusted_scene(api, worker):
     assert error(post(api, job_id, {"transform": "up"}))[:2] == (400, "invalid_request")
     assert error(api.client.get(f"/jobs/{job_id}/original.glb", headers=AUTH)) == (404, "not_adjusted", None)
 
-    # measured where the run left it: touching, no penetration past the search's threshold
+
+def _measured_where_the_run_left_it(api, job_id: str, answer: list) -> None:
+    """The run's own transform, not settled: touching, no penetration past the search's threshold; the
+    adjustment readable at its link by its owner only."""
     here = post(api, job_id, {"transform": answer})
     assert here.status_code == 200 and here.headers["Preference-Applied"] == "wait=60", here.text
     here = here.json()
@@ -162,8 +179,10 @@ def test_drop_push_save_and_chain_on_the_adjusted_scene(api, worker):
     assert error(api.client.get(f"/jobs/{job_id}/adjust/{'d' * 32}", headers=AUTH))[:2] == (404,
                                                                                            "adjustment_not_found")
 
-    # raised by hand and dropped: back in contact, lower than it was lifted to
-    lifted = moved(answer, dx=0.1, dy=0.4)
+
+def _dropped_back_into_contact(api, job_id: str, lifted: list) -> np.ndarray:
+    """Raised by hand (``lifted``) and dropped: straight down, back in contact, lower than it was lifted to; the
+    dropped transform."""
     dropped = post(api, job_id, {"transform": lifted, "settle": "drop"}).json()
     result = dropped["result"]
     assert dropped["status"] == "succeeded" and result["settled"] and not result["on_floor"], dropped
@@ -174,19 +193,26 @@ def test_drop_push_save_and_chain_on_the_adjusted_scene(api, worker):
     ball = BALL.copy().apply_transform(down)
     gap, depth = sits_on_table(ball)
     assert gap < 0.02 and depth < 0.02, (gap, depth)
+    return down
 
-    # beside the table at its height, pushed toward it: stops at its side; pushed away: nothing met, left as sent
+
+def _pushed_and_dropped_beside_the_table(api, job_id: str) -> None:
+    """Beside the table at its height, pushed toward it: stops at its side; pushed away: nothing met, left as sent;
+    dropped where nothing of the table is under it: rests where the table stands."""
     beside = moved(np.eye(4), dx=-1.2)
     pushed = post(api, job_id, {"transform": beside, "settle": "push", "direction": [1, 0, 0]}).json()["result"]
     assert pushed["settled"] and abs(pushed["transform"][0][3] - (-0.65)) < 0.03, pushed
     away = post(api, job_id, {"transform": beside, "settle": "push", "direction": [-1, 0, 0]}).json()["result"]
     assert away["settled"] is False and np.allclose(away["transform"], beside) and not away["touching"], away
-    # dropped where nothing of the table is under it: rests where the table stands
     floor = post(api, job_id, {"transform": moved(np.eye(4), dx=1.5, dy=1.0), "settle": "drop"}).json()["result"]
     assert floor["settled"] and floor["on_floor"] and not floor["touching"], floor
     assert abs(BALL.copy().apply_transform(floor["transform"]).vertices[:, 1].min() - (-0.05)) < 0.01
 
-    # saved (through the Python client): the job's result is the adjusted scene, the original kept
+
+def _saved_with_the_original_kept(api, job_id: str, lifted: list, down: np.ndarray, report: dict,
+                                  original_glb: bytes) -> None:
+    """Saved (through the Python client): the job's result is the adjusted scene (its GLB, its report, the job's
+    ``adjusted``), the original kept."""
     with Client(api.url, api_key=KEY) as client:
         saved = client.adjust(job_id, lifted, settle="drop", save=True)
     assert saved["status"] == "succeeded" and saved["result"]["saved"], saved
@@ -205,15 +231,20 @@ def test_drop_push_save_and_chain_on_the_adjusted_scene(api, worker):
     job = api.client.get(f"/jobs/{job_id}", headers=AUTH).json()
     assert job["adjusted"]["adjustment"] == saved["id"] and np.allclose(job["adjusted"]["transform"], down)
 
-    # a second save moves it again; the original stays the run's own
+
+def _saved_again(api, job_id: str, down: np.ndarray, report: dict, original_glb: bytes) -> np.ndarray:
+    """A second save moves it again; the original stays the run's own. The saved transform."""
     again = post(api, job_id, {"transform": moved(down, dz=0.1), "save": True}).json()
     assert again["result"]["saved"] and again["result"]["touching"], again
     assert api.client.get(f"/jobs/{job_id}/original.glb", headers=AUTH).content == original_glb
     assert api.client.get(f"/jobs/{job_id}/report.json", headers=AUTH).json()["adjustment"][
         "original_transform"] == report["transform"]
-    final = np.array(again["result"]["transform"])
+    return np.array(again["result"]["transform"])
 
-    # target_job chaining builds on the adjusted scene: the ball stays where it was saved
+
+def _chained_on_the_adjusted_scene(api, job_id: str, final: np.ndarray) -> tuple[str, trimesh.Scene]:
+    """``target_job`` chaining builds on the adjusted scene: the ball stays where it was saved (``final``). The
+    chained job and its result scene."""
     cube = trimesh.creation.box((0.1, 0.1, 0.1))
     chained = api.client.post("/align", headers=AUTH, files={"source": ("cube.glb", cube.export(file_type="glb"))},
                               data={"target_job": job_id, "prompt": "a cube on the ball", "options": json.dumps(FAST)})
@@ -224,9 +255,12 @@ def test_drop_push_save_and_chain_on_the_adjusted_scene(api, worker):
     matrix, geometry = scene.graph["source"]  # the adjusted job's source, one of the chained job's target objects
     placed = scene.geometry[geometry].copy().apply_transform(matrix)
     assert np.allclose(placed.bounds, BALL.copy().apply_transform(final).bounds, atol=1e-5)
+    return chained.json()["id"], scene
 
-    # the chained job adjusts the same way: its cube (the last of three objects) lifted, dropped and saved
-    chained_id = chained.json()["id"]
+
+def _chained_job_adjusted(api, chained_id: str, scene: trimesh.Scene) -> None:
+    """The chained job adjusts the same way: its cube (the last of three objects) lifted, dropped and saved; the
+    objects it was added to stay put."""
     cube_at = api.client.get(f"/jobs/{chained_id}/report.json", headers=AUTH).json()["transform"]["matrix"]
     redone = post(api, chained_id, {"transform": moved(cube_at, dy=0.3), "settle": "drop", "save": True}).json()
     assert redone["status"] == "succeeded" and redone["result"]["settled"], redone
