@@ -164,7 +164,7 @@ def _run(result: AlignResult, answer: dict | None = None) -> dict:
         "objective": _jsonable(result.objective),
         "prompt": result.prompt,
         "model": result.model,
-        "guide": result.guide,  # the guide chosen for the run (a model spec or "none") and why (guide_choice)
+        "guide": result.guide,  # the guide chosen for the run (a model spec or "none") and why (``guide.selection``)
         "guide_why": result.guide_why,
         "seed": config.seed,
         "preset": config.preset,

@@ -287,7 +287,7 @@ def test_pixels_guide_is_labelled_and_reports_placement_success(bench_dir, tmp_p
         assert "upper-bound" in row["guide_description"]
         m = row["metrics"]
         assert m["placement_success"] == (m["centroid_error"] <= 0.5 and m["iou"] <= 0.02)
-        # the relation the priors read from the prompt, judged on the answer (ctp_core/predicates.py)
+        # the relation the priors read from the prompt, judged on the answer (ctp_core/relations/predicates.py)
         assert m["relation"] is None or isinstance(m["relation_holds"], bool)
     summary = (out / "summary.md").read_text()
     assert "| ctp pixels (upper bound, no encoder) (test) |" in summary and "placement" in summary

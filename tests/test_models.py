@@ -187,7 +187,7 @@ def test_offline_or_unreachable_is_one_line_and_a_failure(tmp_path):
 
 
 def test_choosing_and_pulling_import_no_torch():
-    code = "import sys; from ctp_core import guide_choice, model_store; print('torch' in sys.modules)"
+    code = "import sys; from ctp_core.guide import selection, store; print('torch' in sys.modules)"
     run = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert run.stdout.strip() == "False", run.stderr
 

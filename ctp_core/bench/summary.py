@@ -262,7 +262,7 @@ def write_summary(rows: list[dict], out: Path, commands: list[str] = ()) -> Path
               f"within {PLACEMENT_RADIUS} source diagonals of the reference and IoU ≤ {PLACEMENT_IOU}; "
               "placement@k is any of the run's alternatives (the answer first) placed so; "
               "relation holds is the answer judged by the relation the priors read from the prompt "
-              "(ctp_core/predicates.py, docs/relations.md) in the reference's frame (the case's files as they are, "
+              "(ctp_core/relations/predicates.py, docs/relations.md) in the reference's frame (the case's files as they are, "
               "never turned as a run may turn them), stable its centre of mass over its support (resting "
               "relations only), valid the relation holding, stable where that applies and IoU ≤ "
               f"{PLACEMENT_IOU} (unless the relation goes into the target), each over the runs where it applies; "

@@ -35,7 +35,7 @@ def crossing(up: str, front: str) -> bool:
     angles to its up (``file`` and ``auto`` are checked once the object's up is known: ``orientation.orient``)."""
     return up[0] in "+-" and front[0] in "+-" and up[1] == front[1]
 Runtime = Literal["auto", "torch", "onnx", "onnx-int8"]  # the runtimes, spelled once (runtime.RUNTIMES)
-AUTO = "auto"  # the model spec that picks the guide per run (guide_choice)
+AUTO = "auto"  # the model spec that picks the guide per run (``guide.selection``)
 DEFAULT_MODEL = "hf:openai/clip-vit-base-patch32"  # what auto uses where its weights are
 MAX_ALTERNATIVES = 4  # distinct placements a result offers, the answer among them (align.alternatives)
 
@@ -178,8 +178,8 @@ class AlignConfig(_Strict):
     preset: str = "default"
     seed: int = Field(0, ge=0, le=2**32 - 1, description="random seed (numpy and torch take any value in range)")
     device: Literal["cpu", "cuda"] = "cpu"
-    model: str = Field(AUTO, description="guidance model spec (guidance.py); auto: the default CLIP model where its "
-                       "weights are here, else no guide (the geometry and the prompt's relation; guide_choice.py)")
+    model: str = Field(AUTO, description="guidance model spec (guide/guidance.py); auto: the default CLIP model where its "
+                       "weights are here, else no guide (the geometry and the prompt's relation; guide/selection.py)")
     autocast: bool = Field(True, description="fp16 on CUDA, bf16 on CPUs with native bf16 (AVX512-BF16/AMX), else fp32")
     runtime: Runtime = Field(
         "auto", description="where forward-only encoding runs (scoring, selection, judge): torch, onnx (ONNX "
