@@ -179,7 +179,8 @@ class AlignConfig(_Strict):
     seed: int = Field(0, ge=0, le=2**32 - 1, description="random seed (numpy and torch take any value in range)")
     device: Literal["cpu", "cuda"] = "cpu"
     model: str = Field(AUTO, description="guidance model spec (guide/guidance.py); auto: the default CLIP model "
-                       "where its weights are here, else no guide (the geometry and the prompt's relation; guide/selection.py)")
+                       "where its weights are here, else no guide (the geometry and the prompt's relation; "
+                       "guide/selection.py)")
     autocast: bool = Field(True, description="fp16 on CUDA, bf16 on CPUs with native bf16 (AVX512-BF16/AMX), else fp32")
     runtime: Runtime = Field(
         "auto", description="where forward-only encoding runs (scoring, selection, judge): torch, onnx (ONNX "
