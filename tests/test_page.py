@@ -202,12 +202,22 @@ CANVAS_COLOURS = """
 
 
 def test_upload_follow_view_download_and_a_refused_upload(api, worker, browser, tmp_path):
-    from selenium.webdriver.common.by import By
-    from selenium.webdriver.support.ui import Select
-
-    driver, find = browser, browser.find_element
+    driver = browser
     open_page(driver, api)
+    target, source = _example_then_own_files(driver, tmp_path)
+    _previews_and_the_up(driver, target)
+    _options_set(driver)
+    job_id = _submitted_and_followed(driver)
+    _result_viewed(driver)
+    _downloaded_and_reopened(driver, api, job_id)
+    _broken_upload_refused(driver, api, tmp_path, source)
 
+
+def _example_then_own_files(driver, tmp_path) -> tuple[bytes, bytes]:
+    """An example fills the form; then the user's own files replace it, one chosen, one dropped. The pair."""
+    from selenium.webdriver.common.by import By
+
+    find = driver.find_element
     find(By.CSS_SELECTOR, "[data-sample='apple-in-bowl']").click()  # an example fills the form
     wait_for(lambda: "bowl.glb" in find(By.ID, "chosen-target").text, 20, "the example's target")
     assert "apple.glb" in find(By.ID, "chosen-source").text
@@ -221,7 +231,16 @@ def test_upload_follow_view_download_and_a_refused_upload(api, worker, browser, 
     find(By.ID, "file-target").send_keys(str(tmp_path / "table.glb"))
     drop_file(driver, "drop-source", "ball.glb", source)
     assert "ball.glb" in find(By.ID, "chosen-source").text
-    # each input appears at once in its own small 3D view, with what the service makes of it (POST /inspect)
+    return target, source
+
+
+def _previews_and_the_up(driver, target: bytes) -> None:
+    """Each input appears at once in its own small 3D view, with what the service makes of it (POST /inspect); the
+    user flips the target's up (asked again, the arrows redrawn) and goes back to the file's."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import Select
+
+    find = driver.find_element
     drawn = lambda: all(find(By.ID, f"preview-{r}").get_attribute("data-ready") == "1" for r in ("target", "source"))  # noqa: E731
     wait_for(drawn, 30, "both input previews drawn, with the up arrow")
     faces = len(trimesh.load(io.BytesIO(target), file_type="glb", force="mesh").faces)
@@ -237,12 +256,27 @@ def test_upload_follow_view_download_and_a_refused_upload(api, worker, browser, 
     wait_for(lambda: "glTF convention" in find(By.ID, "inspect-target").text, 20, "the file's up again")
     find(By.ID, "drop-target").location_once_scrolled_into_view  # noqa: B018
     shoot(driver, "previews")
+
+
+def _options_set(driver) -> None:
+    """The prompt, the test preset, a seed and two restarts."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import Select
+
+    find = driver.find_element
     find(By.ID, "prompt").send_keys("a ball on top of a table")
     Select(find(By.ID, "opt-preset")).select_by_value("test")
     find(By.ID, "opt-seed").send_keys("3")
     find(By.ID, "opt-restarts").send_keys("2")
     shoot(driver, "form")
 
+
+def _submitted_and_followed(driver) -> str:
+    """Submitted: the progress panel follows the job to 100 %, then the readout, the job's guide and the 3D viewer.
+    The job's id."""
+    from selenium.webdriver.common.by import By
+
+    find = driver.find_element
     find(By.ID, "submit").click()
     wait_for(lambda: find(By.ID, "progress").is_displayed(), 20, "the progress panel")
     job_id = find(By.ID, "job-id").text
@@ -256,7 +290,14 @@ def test_upload_follow_view_download_and_a_refused_upload(api, worker, browser, 
     assert find(By.ID, "guide").text == "guide: random:tiny"  # the job's guide (CTP_MODEL names one: no banner)
     assert not find(By.ID, "guide-banner").is_displayed()
     wait_for(lambda: find(By.ID, "viewer").get_attribute("data-ready"), 60, "the 3D viewer")
+    return job_id
 
+
+def _result_viewed(driver) -> None:
+    """The WebGL canvas shows the scene, each object in its own colour when tinted; the result's facts."""
+    from selenium.webdriver.common.by import By
+
+    find = driver.find_element
     colours = driver.execute_script(CANVAS_COLOURS, BACKGROUND)
     assert colours["differ"] > 0.02 * colours["total"], colours  # the WebGL canvas shows the scene
     find(By.ID, "tint").click()  # each object in its own colour: blue target, orange source
@@ -272,6 +313,13 @@ def test_upload_follow_view_download_and_a_refused_upload(api, worker, browser, 
     find(By.ID, "tint").click()
     shoot(driver, "result")
 
+
+def _downloaded_and_reopened(driver, api, job_id: str) -> None:
+    """The GLB download is what the service serves; the job list reopens the result; the key travelled in a header
+    only."""
+    from selenium.webdriver.common.by import By
+
+    find = driver.find_element
     find(By.CSS_SELECTOR, "[data-file='result.glb']").click()
     downloaded = driver.downloads / f"{job_id}-result.glb"
     wait_for(downloaded.exists, 20, "the GLB download")
@@ -290,6 +338,12 @@ def test_upload_follow_view_download_and_a_refused_upload(api, worker, browser, 
     fetched = driver.execute_script("return performance.getEntriesByType('resource').map((e) => e.name)")
     assert fetched and not [u for u in fetched if KEY in u]
 
+
+def _broken_upload_refused(driver, api, tmp_path, source: bytes) -> None:
+    """A broken file: its preview says the refusal before any job, and the submit shows the API's own error."""
+    from selenium.webdriver.common.by import By
+
+    find = driver.find_element
     broken = tmp_path / "broken.glb"
     broken.write_bytes(b"glTF" + bytes(range(256)) * 4)
     find(By.ID, "file-target").send_keys(str(broken))
@@ -484,8 +538,25 @@ def test_adjust_the_source_by_hand_drop_it_and_save(api, worker, browser):
     "Drop to contact" lowers it onto the table (the worker's settle) and "Save" stores it: the job's result.glb
     has the source node at the saved transform, touching the table (measured on the GLB with trimesh), and
     original.glb is the run's own GLB. Screenshots of each step in runs/screens/adjust-*.png."""
+    job_id, report, original = _a_ball_on_the_table(api)
+    driver = browser
+    shown = _handles_shown(driver, api, job_id, report)
+    _lifted_pushed_and_reset(driver, shown)
+    _scaled_evenly(driver, shown)
+    dropped = _dragged_and_dropped(driver, shown)
+    _saved(driver)
+    _saved_scene_downloaded(driver, api, job_id, dropped, original)
+
+
+def _adjust_state(driver) -> str:
     from selenium.webdriver.common.by import By
 
+    return driver.find_element(By.ID, "adjust-state").get_attribute("data-state")
+
+
+def _a_ball_on_the_table(api) -> tuple[str, dict, bytes]:
+    """A job that puts the ball on the table (the relation holds: dropping it lands it there again): its id, its
+    report and its GLB."""
     target, source = table_and_ball()
     answer = api.client.post("/align", headers=AUTH,
                              files={"target": ("table.glb", target), "source": ("ball.glb", source)},
@@ -496,8 +567,15 @@ def test_adjust_the_source_by_hand_drop_it_and_save(api, worker, browser):
     report = api.client.get(f"/jobs/{job_id}/report.json", headers=AUTH).json()
     assert report["relation"]["holds"], report["relation"]  # the ball on the table: dropping it lands it there again
     original = api.client.get(f"/jobs/{job_id}/result.glb", headers=AUTH).content
+    return job_id, report, original
 
-    driver, find = browser, browser.find_element
+
+def _handles_shown(driver, api, job_id: str, report: dict) -> np.ndarray:
+    """The result opened with its handles, nothing to save yet; the source as the report places it (the matrix
+    shown)."""
+    from selenium.webdriver.common.by import By
+
+    find = driver.find_element
     open_result(driver, api, job_id)
     assert find(By.ID, "adjust").is_displayed() and not find(By.ID, "adjust-save").is_enabled()
     shown = np.array(driver.execute_script(SOURCE_MATRIX))
@@ -505,10 +583,17 @@ def test_adjust_the_source_by_hand_drop_it_and_save(api, worker, browser):
     find(By.CSS_SELECTOR, "input[name=adjust-mode][value=translate]").click()
     find(By.ID, "viewer").location_once_scrolled_into_view  # noqa: B018 - the drag needs it on screen
     shoot(driver, "adjust-handles")
+    return shown
 
-    state = lambda: find(By.ID, "adjust-state").get_attribute("data-state")  # noqa: E731
+
+def _lifted_pushed_and_reset(driver, shown: np.ndarray) -> None:
+    """A drag of the up arrow lifts the source along it only (the facts follow); a push along the view settles it
+    or meets nothing; "Reset" puts it back."""
+    from selenium.webdriver.common.by import By
+
+    find = driver.find_element
     drag_handle(driver, "y", 120)
-    wait_for(lambda: state() == "moved", 10, "the drag to move the source")
+    wait_for(lambda: _adjust_state(driver) == "moved", 10, "the drag to move the source")
     lifted = np.array(driver.execute_script(SOURCE_MATRIX))
     assert lifted[1, 3] > shown[1, 3] + 0.05, (lifted, shown)  # up, the arrow's axis
     assert np.allclose(lifted[[0, 2], 3], shown[[0, 2], 3], atol=1e-6) and np.allclose(lifted[:3, :3], shown[:3, :3])
@@ -516,43 +601,70 @@ def test_adjust_the_source_by_hand_drop_it_and_save(api, worker, browser):
     shoot(driver, "adjust-dragged")
 
     find(By.ID, "adjust-push").click()  # the way the view looks: onto something, or nothing met
-    wait_for(lambda: state() in ("settled", "unsettled"), 60, "the push")
+    wait_for(lambda: _adjust_state(driver) in ("settled", "unsettled"), 60, "the push")
     find(By.ID, "adjust-reset").click()
-    assert state() == "idle" and np.allclose(driver.execute_script(SOURCE_MATRIX), shown, atol=1e-6)
+    assert _adjust_state(driver) == "idle" and np.allclose(driver.execute_script(SOURCE_MATRIX), shown, atol=1e-6)
 
+
+def _scaled_evenly(driver, shown: np.ndarray) -> None:
+    """A drag of one axis of the scale handle scales the source by one factor on every axis; then reset, back to
+    moving."""
+    from selenium.webdriver.common.by import By
+
+    find = driver.find_element
     find(By.CSS_SELECTOR, "input[name=adjust-mode][value=scale]").click()
     drag_handle(driver, "x", 40)  # one axis of the scale handle: the page keeps the scale one factor
-    wait_for(lambda: state() == "moved", 10, "the scale drag")
+    wait_for(lambda: _adjust_state(driver) == "moved", 10, "the scale drag")
     linear = np.array(driver.execute_script(SOURCE_MATRIX))[:3, :3] @ np.linalg.inv(shown[:3, :3])
     factors = np.linalg.svd(linear, compute_uv=False)
     assert abs(factors[0] - 1) > 0.05 and np.allclose(factors, factors[0], rtol=1e-6), factors
     find(By.ID, "adjust-reset").click()
     find(By.CSS_SELECTOR, "input[name=adjust-mode][value=translate]").click()
 
+
+def _dragged_and_dropped(driver, shown: np.ndarray) -> np.ndarray:
+    """Dragged along the table and up off it, then "Drop to contact": straight down onto the table, touching, at a
+    placement of its own. The dropped matrix."""
+    from selenium.webdriver.common.by import By
+
+    find = driver.find_element
     drag_handle(driver, "x", 60)  # along the table, then up off it
     drag_handle(driver, "y", 120)
-    wait_for(lambda: state() == "moved", 10, "the second drag")
+    wait_for(lambda: _adjust_state(driver) == "moved", 10, "the second drag")
     lifted = np.array(driver.execute_script(SOURCE_MATRIX))
     assert lifted[0, 3] > shown[0, 3] + 0.03 and lifted[1, 3] > shown[1, 3] + 0.05, (lifted, shown)
     find(By.ID, "adjust-drop").click()
-    wait_for(lambda: state() in ("settled", "unsettled", "failed"), 60, "the drop")
+    wait_for(lambda: _adjust_state(driver) in ("settled", "unsettled", "failed"), 60, "the drop")
     line = find(By.ID, "adjust-state").text
-    assert state() == "settled" and line.startswith("dropped - touching - penetration"), line
+    assert _adjust_state(driver) == "settled" and line.startswith("dropped - touching - penetration"), line
     dropped = np.array(driver.execute_script(SOURCE_MATRIX))
     assert dropped[1, 3] < lifted[1, 3] - 0.03 and np.allclose(dropped[[0, 2], 3], lifted[[0, 2], 3], atol=1e-5)
     assert not np.allclose(dropped, shown, atol=0.03)  # a placement of its own, not the run's
     shoot(driver, "adjust-dropped")
+    return dropped
 
+
+def _saved(driver) -> None:
+    """The "Save" button: the saved result shown, said adjusted, with the original to download."""
+    from selenium.webdriver.common.by import By
+
+    find = driver.find_element
     find(By.ID, "adjust-save").click()
-    wait_for(lambda: state() in ("saved", "failed"), 60, "the save")
-    assert state() == "saved", find(By.ID, "adjust-state").text
+    wait_for(lambda: _adjust_state(driver) in ("saved", "failed"), 60, "the save")
+    assert _adjust_state(driver) == "saved", find(By.ID, "adjust-state").text
     wait_for(lambda: find(By.ID, "viewer").get_attribute("data-ready"), 30, "the saved result shown")
     assert "adjusted" in find(By.ID, "transform").text
     assert find(By.CSS_SELECTOR, "[data-file='original.glb']").is_displayed()
     find(By.ID, "result").location_once_scrolled_into_view  # noqa: B018
     shoot(driver, "adjust-saved")
 
-    find(By.CSS_SELECTOR, "[data-file='result.glb']").click()  # the page's download is the saved scene
+
+def _saved_scene_downloaded(driver, api, job_id: str, dropped: np.ndarray, original: bytes) -> None:
+    """The page's download is the saved scene: its source node at the dropped transform, touching the table
+    (measured on the GLB with trimesh); original.glb is the run's own, the report says adjusted."""
+    from selenium.webdriver.common.by import By
+
+    driver.find_element(By.CSS_SELECTOR, "[data-file='result.glb']").click()  # the page's download is the saved scene
     downloaded = driver.downloads / f"{job_id}-result.glb"
     wait_for(downloaded.exists, 20, "the GLB download")
     time.sleep(0.2)
