@@ -260,9 +260,10 @@ async function submit(event) {
   const data = new FormData();
   for (const role of ROLES) {
     const chained = role === "target" && state.chained && state.files.target === state.chained.file;
-    if (chained) data.append("target_job", state.chained.id); // the scene itself, read back as its objects
-    if (chained) for (const id of ["on-1", "on-2"]) if ($(id).value) data.append("on", $(id).value); // its grounds
-    else if (state.files[role]) data.append(role, state.files[role], state.files[role].name);
+    if (chained) {
+      data.append("target_job", state.chained.id); // the scene itself, read back as its objects
+      for (const id of ["on-1", "on-2"]) if ($(id).value) data.append("on", $(id).value); // its grounds
+    } else if (state.files[role]) data.append(role, state.files[role], state.files[role].name);
     const name = $(`name-${role}`).value.trim();
     if (name) data.append(`${role}_name`, name);
   }
