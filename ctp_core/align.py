@@ -204,7 +204,8 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
     loaded = time.perf_counter()
     names = {"target": target_name, "source": source_name, "on": pairs.grounds_of(on)[0] if on else None,
              "grounds": list(pairs.grounds_of(on))}
-    scales = scaling.plan(pair, prior, names, config.seed, guided=goal is not None) if config.scale else None
+    read = {key: names[key] for key in ("target", "source", "on")}  # the names the priors read
+    scales = scaling.plan(pair, prior, read, config.seed, guided=goal is not None) if config.scale else None
     scorer = objective.Scorer(pair, config, prior.contact_ratio, guide=guide, goal=goal, reading=prior.reading,
                               scale=scales)
     plan = schedule.phases(config, allow_penetration=prior.penetration)
