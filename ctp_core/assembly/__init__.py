@@ -1,1 +1,3 @@
-"""Assembly."""
+"""Scenes of several objects: ``plan`` (a plan's steps checked, torch-free: the service validates with it),
+``assemble`` (a plan placed step by step, each step a run on the scene so far) and ``copies`` (several of a kind,
+arranged)."""
