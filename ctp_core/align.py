@@ -23,6 +23,7 @@ from ctp_core.errors import ConfigError
 from ctp_core.geometry import frames
 from ctp_core.guide import selection
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
+from ctp_core.reading.names import ground_names
 from ctp_core.relations import vocabulary
 
 if TYPE_CHECKING:  # the stages import these lazily: importing align stays light
@@ -143,13 +144,13 @@ class Run:
 def grounds(target: trimesh.Trimesh | trimesh.Scene, prompt: str | None, on: str | Sequence[str] | None
             ) -> str | Sequence[str] | None:
     """The placed objects the source relates to: ``on`` as given, or, where a scene target's prompt names two of its
-    objects as grounds ("between the sofa and the armchair") and ``on`` names fewer, those two."""
+    objects as grounds ("between the sofa and the armchair") and ``on`` names fewer, those two
+    (``vocabulary.grounds``)."""
     from ctp_core import pairs
 
-    if isinstance(target, trimesh.Trimesh) or not prompt or len(pairs.grounds_of(on)) >= 2:
+    if isinstance(target, trimesh.Trimesh):
         return on
-    named = vocabulary.named_grounds(prompt, [name for name, _ in pairs.objects(target)])
-    return named if len(named) >= 2 else on
+    return vocabulary.grounds(prompt, ground_names(on), [name for name, _ in pairs.objects(target)]) or on
 
 
 def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, prompt: str | None,
@@ -202,8 +203,8 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
     else:
         goal = None
     loaded = time.perf_counter()
-    names = {"target": target_name, "source": source_name, "on": pairs.grounds_of(on)[0] if on else None,
-             "grounds": list(pairs.grounds_of(on))}
+    named = ground_names(on)
+    names = {"target": target_name, "source": source_name, "on": named[0] if named else None, "grounds": list(named)}
     read = {key: names[key] for key in ("target", "source", "on")}  # the names the priors read
     scales = scaling.plan(pair, prior, read, config.seed, guided=goal is not None) if config.scale else None
     scorer = objective.Scorer(pair, config, prior.contact_ratio, guide=guide, goal=goal, reading=prior.reading,

@@ -181,14 +181,13 @@ class Optimiser:
                              phase, guided=scorer.use_clip, touches=scorer.contact_ratio > 0,
                              share=scorer.config.search.min_share, gate=scorer.gate)
 
-    def _readout(self, best: Poses, scores: dict[str, torch.Tensor], answer: int) -> dict:
-        """The progress figures of restart ``answer`` (the one the run would answer with now: ``answer``) on the
+    def _readout(self, best: Poses, scores: dict[str, torch.Tensor], i: int) -> dict:
+        """The progress figures of restart ``i`` (the one the run would answer with now: ``answer``) on the
         evaluation views: its objective, and what a person reads instead of it (its scale changes with each
         phase's weights): its match to the guide (mean cosine; none without one, or with one whose gate is 0) and
         its gap to the target (source diagonals, within the target samples' spacing), and in how many restarts
         the prompt's relation holds."""
         scorer = self.scorer
-        i = answer
         gap = contact_gap(scorer.pair, best.select(slice(i, i + 1)))
         reading = scorer.reading
         return {"restart": i, "best_objective": float(scores["objective"][i]), "contact_gap": float(gap[0]),

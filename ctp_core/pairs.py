@@ -33,6 +33,7 @@ from ctp_core.errors import ConfigError
 from ctp_core.geometry import frames, sampling
 from ctp_core.losses import SurfaceIndex
 from ctp_core.orientation import canonical
+from ctp_core.reading.names import ground_names
 from ctp_core.render.cameras import framing_cameras
 from ctp_core.render.structures import MeshArrays
 
@@ -57,22 +58,15 @@ def objects(target: Target) -> list[tuple[str, trimesh.Trimesh]]:
     return placed
 
 
-def grounds_of(on: str | Sequence[str] | None) -> tuple[str, ...]:
-    """The names of the objects the source relates to: none, one, or several ("between" has two)."""
-    return () if on is None else (on,) if isinstance(on, str) else tuple(on)
-
-
 def attachment(target: Target, on: str | Sequence[str] | None) -> trimesh.Trimesh:
     """The objects of ``target`` named ``on`` (the ones the source relates to), as one mesh; the whole target for
     None."""
-    named = grounds_of(on)
+    named = ground_names(on)
     if not named:
         return geometry(target)
     parts = objects(target)
     picked = [parts[_position([name for name, _ in parts], n)][1] for n in named]
-    if len(picked) == 1:
-        return picked[0]
-    return trimesh.util.concatenate([trimesh.Trimesh(m.vertices, m.faces, process=False) for m in picked])
+    return picked[0] if len(picked) == 1 else _triangles(picked)
 
 
 def _position(names: list[str], on: str) -> int:
@@ -94,7 +88,12 @@ def geometry(target: Target) -> trimesh.Trimesh:
     """All triangles of ``target`` as one mesh (no visuals): what framing and the upright turn look at."""
     if isinstance(target, trimesh.Trimesh):
         return target
-    parts = [trimesh.Trimesh(m.vertices, m.faces, process=False) for _, m in objects(target)]
+    return _triangles([m for _, m in objects(target)])
+
+
+def _triangles(meshes: list[trimesh.Trimesh]) -> trimesh.Trimesh:
+    """The triangles of ``meshes`` as one mesh, without their visuals."""
+    parts = [trimesh.Trimesh(m.vertices, m.faces, process=False) for m in meshes]
     return parts[0] if len(parts) == 1 else trimesh.util.concatenate(parts)
 
 
@@ -235,7 +234,7 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
     as_tensor = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=device)  # noqa: E731
     index = lambda p, n: SurfaceIndex(as_tensor(target_to_norm.apply(p)),  # noqa: E731
                                      as_tensor(target_to_norm.apply_directions(n)))
-    positions = [_position([name for name, _ in parts], n) for n in grounds_of(on)]
+    positions = [_position([name for name, _ in parts], n) for n in ground_names(on)]
     named = [index(*sampled[i]) for i in positions] if len(parts) > 1 else []
     attach = None if not named else named[0] if len(named) == 1 else SurfaceIndex(
         torch.cat([g.points for g in named]), torch.cat([g.normals for g in named]))

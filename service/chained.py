@@ -10,7 +10,7 @@ from fastapi.concurrency import run_in_threadpool
 
 from ctp_core.errors import CtpError
 from ctp_core.io import load_objects
-from ctp_core.relations.vocabulary import named_grounds
+from ctp_core.relations.vocabulary import grounds
 from service.deps import own_job
 from service.errors import ApiError
 
@@ -50,8 +50,7 @@ async def chained_target(request: Request, form, who: str, job_id: str, on: list
         if name not in names:
             raise ApiError(422, "invalid_name", f"on: job {record.id}'s scene has no object {name!r} "
                            f"(it has {', '.join(names)})", field="on")
-    named = named_grounds(prompt, names) if prompt and len(on) < 2 else []
-    return ChainedTarget(file, data, named if len(named) >= 2 else on or names[-1:],
+    return ChainedTarget(file, data, grounds(prompt, on, names) or names[-1:],
                          sum(len(m.faces) for m in scene.geometry.values()))
 
 

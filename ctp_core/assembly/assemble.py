@@ -23,12 +23,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 import trimesh
 
-from ctp_core.assembly.plan import check_plan, ground_names
+from ctp_core.assembly.plan import check_plan
 from ctp_core.config import AUTO, AlignConfig
 from ctp_core.errors import Canceled, ConfigError, CtpError
 from ctp_core.geometry import frames
 from ctp_core.guide import selection
 from ctp_core.progress import CancelCheck, ProgressCallback
+from ctp_core.reading.names import ground_names
+from ctp_core.relations import vocabulary
 
 if TYPE_CHECKING:  # the engine (torch) loads only when a step runs: the API checks plans with plan.check_plan
     from ctp_core.align import AlignResult
@@ -113,7 +115,7 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
     ``field`` ``steps.<i>[.<its field>]``; ``Canceled`` passes through. Model ``auto`` is chosen once for all
     steps (``choice``: already chosen, a worker's), so every step has the same guide.
     """
-    from ctp_core.align import align, grounds
+    from ctp_core.align import align
 
     started = time.perf_counter()
     configs = [step.config or config for step in steps]
@@ -135,11 +137,11 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
     results: list[StepResult] = []
     for index, (step, step_config) in enumerate(zip(steps, configs, strict=True), start=1):
         scene = scene_of(placed)
-        on = ground_names(grounds(scene, step.prompt, ground_names(step.on) or placed[-1].name))
+        on = vocabulary.grounds(step.prompt, ground_names(step.on), [p.name for p in placed]) or [placed[-1].name]
         if on_step is not None:
             on_step(index, len(steps), step)
         try:
-            result = align(scene, step.source, step.prompt, step_config, on=on[0] if len(on) == 1 else list(on),
+            result = align(scene, step.source, step.prompt, step_config, on=on,
                            image=step.image, target_name=on[0], source_name=step.name, guide=guide, on_event=on_event,
                            should_cancel=should_cancel, choice=choice)
         except Canceled:
@@ -151,5 +153,5 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
         # The step's target file frame is the scene frame (every placed object is in it).
         placed.append(Placed(step.name, step.source,
                              frames.Similarity(result.source_to_target, frames.SOURCE_FILE, frames.SCENE)))
-        results.append(StepResult(index, len(steps), step, on[0], result, list(on)))
+        results.append(StepResult(index, len(steps), step, on[0], result, on))
     return Assembly(placed, results, {"total_s": round(time.perf_counter() - started, 3)})

@@ -7,7 +7,7 @@ copy against the copy under it). Greedy rather than joint because each copy is t
 engine, judged as a single placement is, at a cost linear in the count; a joint search would need poses of
 several sources in one batch, which the objective does not have.
 
-Arrangements (``priors.counts.ARRANGEMENTS``; ``auto``: the prompt's cue, else ``scatter``):
+Arrangements (``reading.counts.ARRANGEMENTS``; ``auto``: the prompt's cue, else ``scatter``):
 - ``scatter`` (on, in, anything): each copy is an ``align`` run on the scene so far; of its distinct placements
   (``AlignResult.alternatives``) the first whose relation holds and that keeps ``SPACING`` from the earlier copies
   is taken.
@@ -84,7 +84,7 @@ class Copies:
     target_name: str
     source_name: str
     prompt: str | None
-    one_prompt: str | None  # what each copy is read and guided by (``priors.counts.one_copy``)
+    one_prompt: str | None  # what each copy is read and guided by (``reading.counts.one_copy``)
     config: AlignConfig
     arrangement: str
     counted: CountReading  # what the prompt said of the number and the arrangement

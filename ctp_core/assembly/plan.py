@@ -11,8 +11,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ctp_core.errors import ConfigError
+from ctp_core.reading.names import ground_names
 
-__all__ = ["MAX_GROUNDS", "STEP_KEYS", "PlanError", "PlanStep", "check_plan", "ground_names", "plan_step",
+__all__ = ["MAX_GROUNDS", "STEP_KEYS", "PlanError", "PlanStep", "check_plan", "plan_step",
            "step_options"]
 
 MAX_GROUNDS = 2  # objects one step relates to: one, or two ("a lamp between the sofa and the armchair")
@@ -24,10 +25,6 @@ class PlanError(ConfigError):
     """A plan step of the wrong shape (a bad option value is a plain ``ConfigError``): the CLI prints it,
     the API answers 400 ``invalid_plan``."""
 
-
-def ground_names(on: str | Sequence[str] | None) -> tuple[str, ...]:
-    """The names a step's ``on`` gives: none, one (a name) or several (a list)."""
-    return () if on is None else (on,) if isinstance(on, str) else tuple(on)
 
 
 @dataclass(frozen=True)

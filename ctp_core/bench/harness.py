@@ -74,7 +74,7 @@ class BenchOptions:
     threads: int | None = None
     runtime: str | None = None  # forward-only runtime of every guide (AlignConfig.runtime); None: the preset's
     count: int = 1  # copies of the source per run (``ctp_core.assembly.copies``): ctp and geometry, the text guide
-    arrangement: str = "auto"  # how the copies stand together (``priors.counts.CHOICES``)
+    arrangement: str = "auto"  # how the copies stand together (``reading.counts.CHOICES``)
 
     def __post_init__(self) -> None:
         unknown = [m for m in self.methods if m not in METHODS]

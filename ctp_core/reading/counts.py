@@ -126,7 +126,7 @@ def check_count(count: int) -> int:
 
 def choose(prompt: str | None, count: int | None = None, arrangement: str = "auto", source_name: str | None = None
            ) -> tuple[int, str, CountReading]:
-    """(count, arrangement, the prompt's reading, ``priors.counts.read``): the options win over the prompt; ``auto``
+    """(count, arrangement, the prompt's reading, ``counts.read``): the options win over the prompt; ``auto``
     is the prompt's cue or ``scatter``; a collective noun without a number ("a stack of") is ``SEVERAL`` copies."""
     if arrangement not in CHOICES:
         raise ConfigError(f"arrangement is one of {', '.join(CHOICES)}, not {arrangement!r}",

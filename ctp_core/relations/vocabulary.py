@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import functools
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 
@@ -447,3 +448,12 @@ def named_grounds(prompt: str, placed: list[str]) -> list[str]:
             return []
         found.append(match)
     return found if len(set(found)) == len(found) else []
+
+
+def grounds(prompt: str | None, given: Sequence[str], placed: list[str]) -> list[str]:
+    """The placed objects a source relates to: ``given`` where it names two or more; else the two a "between"
+    prompt names among ``placed`` (``named_grounds``); else ``given`` (empty: the caller's default)."""
+    if len(given) >= 2 or not prompt:
+        return list(given)
+    named = named_grounds(prompt, placed)
+    return named if len(named) >= 2 else list(given)

@@ -5,11 +5,11 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, Request, Response
 from fastapi.concurrency import run_in_threadpool
 
-from ctp_core.assembly.plan import PlanError, PlanStep, check_plan, ground_names, plan_step
+from ctp_core.assembly.plan import PlanError, PlanStep, check_plan, plan_step
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.guide.selection import asks_for_guide
-from ctp_core.reading.names import NAME_MAX, default_name
+from ctp_core.reading.names import NAME_MAX, default_name, ground_names
 from service import forms, submit
 from service.deps import owner
 from service.errors import ApiError
