@@ -6,6 +6,7 @@ make satisfies the relation's score, as many as their share of the search."""
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -98,6 +99,21 @@ def test_a_relation_added_as_the_docs_say_runs_end_to_end(monkeypatch):
     assert result.relation["name"] == "teeter" and result.relation["holds"], result.relation
     monkeypatch.undo()
     assert get_provider("rules").estimate("table", "ball", prompt).relation != "teeter"
+
+
+
+def test_docs_relations_lists_every_specs_usual_place():
+    """docs/relations.md's usual-place table is the registry's: each spec's ``usual`` and whether its preference
+    ranks toward it, with relations that share both on one row."""
+    rows = {}
+    for name, spec in SPECS.items():
+        rows.setdefault((spec.usual, spec.judge.preference is not None), []).append(name)
+    expected = [f"| {', '.join(names)} | {usual} | {'yes' if ranked else 'no: wherever it holds'} |"
+                for (usual, ranked), names in rows.items()]
+    assert all(spec.usual for spec in SPECS.values())
+    docs = (Path(__file__).resolve().parents[1] / "docs" / "relations.md").read_text().splitlines()
+    start = docs.index("| relations | usual place | ranked toward it |") + 2
+    assert docs[start:start + len(expected) + 1] == [*expected, ""]
 
 
 # --- the reading ---------------------------------------------------------------------------------------------------

@@ -303,11 +303,12 @@ def between(pair: PreparedPair, proposals: Proposals, seed: int, reading: Relati
     return kept_where_put(pair, proposals, q, anchor, log_s, "between")
 
 SIDES = ("front", "behind", "left", "right")
+_ON_SIDE = {"front": "in front of the ground", "behind": "behind the ground", "left": "to the ground's left",
+            "right": "to the ground's right"}
 SPECS: dict[str, Spec] = {
     "beside": Spec("beside", Judge(_score_beside), usual="on any side, a small gap away (which side: the guide's)"),
     "under": Spec("under", Judge(_score_under, off_centre), usual="under the middle of the part overhead"),
-    **{side: Spec(side, Judge(partial(_score_side, side=side)), apart, usual=f"on the ground's {side} side")
-       for side in SIDES},
+    **{side: Spec(side, Judge(partial(_score_side, side=side)), apart, usual=_ON_SIDE[side]) for side in SIDES},
     "above": Spec("above", Judge(score_above), apart, usual="over the ground's top, clear of it"),
     "below": Spec("below", Judge(_score_below, _prefer_below), beneath,
                   usual="on the floor under the ground's middle"),
