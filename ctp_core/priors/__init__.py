@@ -14,7 +14,7 @@ from ctp_core.errors import ConfigError
 from ctp_core.priors.openai import OpenAIProvider, PriorSettings
 from ctp_core.priors.prior import PriorProvider, ScenePrior, clamp_size, to_report
 from ctp_core.priors.rules import RulesProvider
-from ctp_core.reading import lexicon
+from ctp_core.reading import lexicon, places
 
 __all__ = ["PROVIDERS", "OpenAIProvider", "PriorProvider", "PriorSettings", "RulesProvider", "ScenePrior",
            "get_provider", "mesh_size_ratio", "resolve_priors", "to_report"]
@@ -102,6 +102,7 @@ def resolve_priors(
         reason="; ".join(reasons),
         relation=prior.relation,
         source_is_figure=prior.source_is_figure,
+        place=places.read(prompt),
     )
 
 

@@ -28,11 +28,12 @@ class ScenePrior:
     # say. The search weights where it proposes poses by it (never excluding a region).
     relation: str | None = None
     source_is_figure: bool = True
+    place: str | None = None  # where on or beside the ground the prompt names (``reading.places``), None: the usual
 
     @property
     def reading(self) -> RelationReading | None:
         """The relation as a run uses it (one value: the name and the source's role); None without one."""
-        return None if self.relation is None else RelationReading(self.relation, self.source_is_figure)
+        return None if self.relation is None else RelationReading(self.relation, self.source_is_figure, self.place)
 
     def to_dict(self) -> dict:
         return asdict(self)

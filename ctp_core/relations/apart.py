@@ -13,6 +13,7 @@ from scipy.spatial import cKDTree
 from ctp_core.contact import Proposals, surface_regions
 from ctp_core.geometry.pose import quaternion_product, quaternion_to_matrix
 from ctp_core.pairs import PreparedPair
+from ctp_core.relations import parts
 from ctp_core.relations.building import LEAN_POINTS, kept_where_put, target_axes, yaw_turn
 from ctp_core.relations.measures import (
     CONTACT,
@@ -150,6 +151,38 @@ def _score_aligned(c: Context) -> torch.Tensor:
     """``aligned`` (with): the figure's front within 45 degrees of the ground's horizontal front (``axes``; the
     viewer's frame makes it face the viewer). In cosine units."""
     return hinge(FACING - (c.heading * c.front).sum(-1))
+
+
+def _standing(c: Context) -> torch.Tensor:
+    """(B,) ``Context.upright``: how far the figure is turned from standing as it is set down (0 without one)."""
+    return c.upright if c.upright is not None else torch.zeros_like(c.unit)
+
+
+def _prefer_side(c: Context, side: str) -> torch.Tensor:
+    """``front``, ``behind``, ``left``, ``right``: standing, centred on that side of the ground, a hand's width out
+    (``parts.side_place``; the wedge of ``_score_side`` stays the judge of where it holds)."""
+    if c.pair is None:
+        return torch.zeros_like(c.unit)
+    return _standing(c) + parts.side_place(c, parts.parts(c.pair).sides[side])
+
+
+LATERAL = ("left", "right")  # "beside": the ground's own sides, left first where both are equally usual
+SECOND_SIDE = 0.05  # ``_prefer_beside``: what the right side costs against the left (a fixed order, not a judgement)
+
+
+def _prefer_beside(c: Context) -> torch.Tensor:
+    """``beside`` (next to): standing at a lateral side of the ground (its left or right, in its frame), centred on
+    it, a hand's width out (``parts.side_place``): the nearer of the two, the left first on a tie."""
+    if c.pair is None:
+        return torch.zeros_like(c.unit)
+    sides = parts.parts(c.pair).sides
+    each = [parts.side_place(c, sides[name]) + i * SECOND_SIDE for i, name in enumerate(LATERAL)]
+    return _standing(c) + torch.minimum(*each)
+
+
+def _prefer_under(c: Context) -> torch.Tensor:
+    """``under``: standing, under the middle of the ground (``off_centre``)."""
+    return _standing(c) + off_centre(c)
 
 
 def _prefer_below(c: Context) -> torch.Tensor:
@@ -303,12 +336,16 @@ def between(pair: PreparedPair, proposals: Proposals, seed: int, reading: Relati
     return kept_where_put(pair, proposals, q, anchor, log_s, "between")
 
 SIDES = ("front", "behind", "left", "right")
-_ON_SIDE = {"front": "in front of the ground", "behind": "behind the ground", "left": "to the ground's left",
-            "right": "to the ground's right"}
+_ON_SIDE = {side: f"standing {where}, centred on that side, a hand's width away" for side, where in (
+    ("front", "in front of the ground"), ("behind", "behind the ground"), ("left", "to the ground's left"),
+    ("right", "to the ground's right"))}
 SPECS: dict[str, Spec] = {
-    "beside": Spec("beside", Judge(_score_beside), usual="on any side, a small gap away (which side: the guide's)"),
-    "under": Spec("under", Judge(_score_under, off_centre), usual="under the middle of the part overhead"),
-    **{side: Spec(side, Judge(partial(_score_side, side=side)), apart, usual=_ON_SIDE[side]) for side in SIDES},
+    "beside": Spec("beside", Judge(_score_beside, _prefer_beside),
+                   usual="standing at the ground's left or right side (the left first), centred on it, a hand's width"
+                         " away"),
+    "under": Spec("under", Judge(_score_under, _prefer_under), usual="standing under the middle of the part overhead"),
+    **{side: Spec(side, Judge(partial(_score_side, side=side), partial(_prefer_side, side=side)), apart,
+                  usual=_ON_SIDE[side]) for side in SIDES},
     "above": Spec("above", Judge(score_above), apart, usual="over the ground's top, clear of it"),
     "below": Spec("below", Judge(_score_below, _prefer_below), beneath,
                   usual="on the floor under the ground's middle"),

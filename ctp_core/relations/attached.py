@@ -11,6 +11,7 @@ from scipy.spatial import cKDTree
 from ctp_core.contact import Proposals, surface_regions
 from ctp_core.geometry.pose import quaternion_product, quaternion_to_matrix
 from ctp_core.pairs import PreparedPair, per_pair
+from ctp_core.relations import parts
 from ctp_core.relations.apart import FACING
 from ctp_core.relations.building import LEAN_POINTS, long_axis_up, lowered, quaternion_onto, target_axes, yaw_turn
 from ctp_core.relations.measures import (
@@ -95,6 +96,22 @@ def _score_lean(c: Context) -> torch.Tensor:
     raised = fig.points[..., 1] >= (c.bottom() + LEAN_RISE * c.unit)[:, None]
     side = c.h(c.finite(soft_min(gap, c.tau(), mask=raised)) - c.reach())
     return side + c.h((c.bottom() - c.floor).abs() - c.tol())
+
+
+def _prefer_lean(c: Context) -> torch.Tensor:
+    """``lean``: against a side a person reaches (``parts.SideOf.accessible``: not the back of a ground with a
+    front, which stands against a wall), centred on it (``parts.side_place``, touching: no gap term): the nearest
+    such side's; the middle of the ground's footprint (``off_centre``) where the pair has no parts."""
+    if c.pair is None:
+        return off_centre(c)
+    sides = [s for s in parts.parts(c.pair).sides.values() if s.accessible]
+    return torch.stack([parts.side_place(c, s, gap=False) for s in sides]).min(0).values
+
+
+def _prefer_hang(c: Context) -> torch.Tensor:
+    """``hang``: hung freely from what bears it (``_borne``), at the middle of the ground (``off_centre``: a towel
+    rail's middle, not its end)."""
+    return _borne(c) + off_centre(c)
 
 
 LEAN_TILTS = (15.0, 30.0, 45.0)  # degrees from the source's frame toward the target
@@ -238,7 +255,8 @@ SPECS: dict[str, Spec] = {
     "attach": Spec("attach", Judge(_score_attach), usual="anywhere on the ground's surface"),
     "hold": Spec("hold", Judge(_score_hold), usual="at the ground's side, below its top"),
     "wrap": Spec("wrap", Judge(_score_wrap), usual="around a part of the ground"),
-    "hang": Spec("hang", Judge(_score_hang, _borne), hung, _takes_the_peg,
-                 "hung freely below what bears it, its centre under the hook"),
-    "lean": Spec("lean", Judge(_score_lean, off_centre), lean, usual="against a side, near its middle"),
+    "hang": Spec("hang", Judge(_score_hang, _prefer_hang), hung, _takes_the_peg,
+                 "hung freely below what bears it, its centre under the hook, at the middle of the bar"),
+    "lean": Spec("lean", Judge(_score_lean, _prefer_lean), lean,
+                 usual="against a side a person reaches (not the back of furniture), centred on it"),
 }

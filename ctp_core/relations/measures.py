@@ -316,7 +316,17 @@ def context(pair: PreparedPair, poses: Poses, reading: RelationReading | None) -
     front, left = axes(ground_front, pair.front_trusted)
     flat = figure_front * torch.tensor([1.0, 0.0, 1.0], device=figure_front.device)
     grounds = features(pair).grounds if placed else []
-    return Context(figure, ground, floor, front=front, left=left, heading=flat, grounds=grounds)
+    upright = _uprightness(pair, poses) if placed else None
+    return Context(figure, ground, floor, front=front, left=left, heading=flat, grounds=grounds,
+                   pair=pair if placed else None, reading=reading, upright=upright)
+
+
+def _uprightness(pair: PreparedPair, poses: Poses) -> torch.Tensor:
+    """(B,) how far each pose turns the source from standing as it is set down (its own up, ``source_upright``: the
+    file's for glTF), 0 upright to 2 upside down: 1 less the cosine between its posed up and +Y."""
+    up = pair.source_to_local.apply_directions(pair.source_upright.up[None])[0]
+    up = torch.as_tensor(up / np.linalg.norm(up), dtype=torch.float32, device=poses.t.device)
+    return 1.0 - torch.einsum("bij,j->bi", quaternion_to_matrix(poses.q), up)[:, 1]
 
 
 @dataclass
@@ -331,6 +341,9 @@ class Context:
     # as the cosine of its elevation, so a front pointing up faces nothing (a chair lying on its back)
     grounds: list[torch.Tensor] = field(default_factory=list)  # (M, 3) each named ground's samples ("between"),
     # the source the figure; empty with one ground
+    pair: PreparedPair | None = None  # the pair, where the source is the figure: its ground's parts (``parts``)
+    reading: RelationReading | None = None  # the reading judged: the place its prompt names
+    upright: torch.Tensor | None = None  # (B,) ``_uprightness``, where the source is the figure
 
     @property
     def unit(self) -> torch.Tensor:  # (B,) figure diagonal

@@ -8,6 +8,8 @@ import torch
 from ctp_core import contact
 from ctp_core.contact import opening_sides
 from ctp_core.pairs import PreparedPair
+from ctp_core.reading.places import SHELVES
+from ctp_core.relations import parts
 from ctp_core.relations.measures import (
     FAR,
     Context,
@@ -24,6 +26,7 @@ from ctp_core.relations.measures import (
 from ctp_core.relations.spec import Bound, Judge, Spec
 
 ON_TOP = 0.05  # "on top of": no ground surface higher than the figure's top by more than this over it
+FOOTPRINT_MIDDLE = 0.5  # ... over the middle of its footprint: this share of its half-width about its centre
 
 
 def score_resting(c: Context) -> torch.Tensor:
@@ -61,9 +64,13 @@ def _apex(c: Context) -> torch.Tensor:
 
 
 def _overhead(c: Context) -> torch.Tensor:
-    """How far ground surface rises above the figure's top over its footprint (figure diagonals, hinged)."""
+    """How far ground surface rises above the figure's top over the middle of its footprint (within half its
+    half-width of its centre's column: a shelf above covers it, a chair's back rising at its edge does not), in
+    figure diagonals, hinged; 0 where the prompt names a shelf ("on the middle shelf": a board is above it)."""
     fig, ground = c.figure, c.ground.side
-    radius = half_width(fig)  # (B,)
+    if c.reading is not None and c.reading.place in SHELVES:
+        return torch.zeros_like(c.unit)
+    radius = FOOTPRINT_MIDDLE * half_width(fig)  # (B,)
     gp = ground.points.expand(fig.points.shape[0], -1, -1)
     horizontal = (gp[..., [0, 2]] - fig.centre[:, None, [0, 2]]).norm(dim=-1)
     over = horizontal <= radius[:, None]
@@ -80,8 +87,21 @@ def _unsteady(c: Context) -> torch.Tensor:
 
 
 def _prefer_resting(c: Context) -> torch.Tensor:
-    """Resting: on the top, steadily, near the middle."""
-    return summit_drop(c) + _unsteady(c) + off_centre(c)
+    """Resting: standing as it is set down (``Context.upright``), steadily, on the usual surface
+    (``parts.figure_surface``: a table's top, a chair's seat, the shelf the prompt names) in the middle of its free
+    area (``parts.surface_place``); on the top near the middle where no surface holds the figure (a spire, a head)."""
+    steady = _unsteady(c) + (c.upright if c.upright is not None else torch.zeros_like(c.unit))
+    surface = None if c.pair is None else parts.figure_surface(c.pair, float(c.unit.mean()), _place(c))
+    if surface is None:
+        return summit_drop(c) + steady + off_centre(c)
+    drop = (surface.height - c.figure.points[..., 1].min(-1).values).abs() / c.unit
+    return drop + steady + parts.surface_place(c, surface, _place(c))
+
+
+def _place(c: Context) -> str | None:
+    return None if c.reading is None else c.reading.place
+
+
 
 
 FLAT = 0.5  # a lid: its upright height at most this share of its smaller horizontal side
@@ -113,7 +133,8 @@ def _lid(pair: PreparedPair, seed: int, around: float, span: float) -> Bound | N
 
 
 _RESTING = Judge(score_resting, _prefer_resting)
-_USUAL = "on the top, resting steadily on its base, near the middle of the ground's footprint"
+_USUAL = ("on the usual surface (a table's or cabinet's top, the seat of a chair, sofa or bench, the shelf or end the "
+          "prompt names), standing as it is set down, steadily, in the middle of the surface's free area")
 SPECS: dict[str, Spec] = {
     "on": Spec("on", _RESTING, bound=_lid, usual=_USUAL),
     **{name: Spec(name, _RESTING, usual=_USUAL) for name in ("stand", "sit", "lie")},

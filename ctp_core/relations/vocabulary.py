@@ -148,6 +148,7 @@ class RelationReading:
 
     name: str
     source_is_figure: bool = True
+    place: str | None = None  # where on or beside the ground the prompt names (``reading.places``); None: the usual
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "name", implied(self.name))  # what a name means is judged: "facing" is near+facing
@@ -158,7 +159,7 @@ class RelationReading:
         without one."""
         if not verdict or verdict.get("name") is None:
             return None
-        return cls(verdict["name"], verdict.get("role") != "ground")
+        return cls(verdict["name"], verdict.get("role") != "ground", verdict.get("place"))
 
     @property
     def parts(self) -> tuple[str, ...]:

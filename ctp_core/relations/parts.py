@@ -1,0 +1,281 @@
+"""Parts of the ground the geometry can name, from the ground alone: where people put things on, beside or against it.
+
+A relation holds in many places ("a cup on the table" holds on the whole top); its *usual place* (``Spec.usual``) is
+one of these parts, centred: the support surface a person uses (the top of a table, the seat of a chair, the shelf
+the prompt names), the middle of a side, a bar's middle. ``parts`` finds them once per pair (``per_pair``), in the
+normalised frame (+Y up, the ground's front and left as ``measures.axes`` gives them), from the samples of the object
+the source relates to (``PreparedPair.anchor``):
+
+- **support surfaces**: up-facing samples (normal within ``FLAT`` of +Y) joined where they are near in height and
+  across (``JOIN`` sample spacings): a table's top, a chair's seat, a bookcase's boards, a bench's slats as one.
+  Each has its height, area and, per sample, its *clearance*: how high a thing standing there can be before it
+  meets the ground above it (inf where nothing is above);
+- **the top**: the highest surface; a **shelf**: a surface with the ground above most of it; **the seat**: a
+  surface with a back rising behind it (ground above it along one of its edges, over at least half that edge's
+  length, and none over its middle);
+- **the sides**: front, behind, left, right, each with its span across (where its middle is) and whether a person
+  reaches it (``accessible``: a ground with a trusted front that stands on the floor has its back against the wall).
+
+``usual_surface`` picks the surface "on" means for a figure of a given size: the one the prompt's place names
+(``RelationReading.place``: the top, a shelf by its order), else the highest surface that holds the figure and is at
+least ``SHARE`` as large as the largest that does (a table's top; a chair's seat, not its backrest's top rail).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from ctp_core.pairs import PreparedPair, per_pair
+from ctp_core.reading.places import ENDS, SHELVES
+from ctp_core.relations.measures import Context, axes, hinge, soft_min, surface_gap, toward
+
+FLAT = 0.85  # a support sample's normal: at least this cosine with +Y (a seat's gentle slope, not a dome's flank)
+JOIN = 3.0  # support samples this many sample spacings apart (across and in height) belong to one surface
+MIN_SAMPLES = 6  # a surface has at least this many samples (fewer: a rim's crest, an edge's bevel)
+SHARE = 0.5  # ``usual_surface``: the highest surface at least this share of the largest one's free area
+COVERED = 0.8  # a shelf: the ground above at least this share of its samples
+BACK = 0.5  # a seat: ground rising over at least this share of one edge's length (its back)
+SIDES = ("front", "behind", "left", "right")
+
+
+@dataclass
+class Surface:
+    """One support surface (normalised frame)."""
+
+    points: np.ndarray  # (M, 3) its samples
+    clearance: np.ndarray  # (M,) free height above each sample (inf: open above)
+    height: float  # the median height of its samples
+    spacing: float  # the samples' spacing: area per sample is its square
+    name: str = "surface"  # "top", "seat", "shelf" or "surface"
+    reason: str = ""
+
+    @property
+    def area(self) -> float:
+        return len(self.points) * self.spacing**2
+
+    def free(self, height: float) -> np.ndarray:
+        """(M,) bool: the samples where a figure ``height`` tall stands clear of the ground above."""
+        return self.clearance >= height
+
+    def middle(self, height: float) -> np.ndarray:
+        """(2,) the middle (x, z) of the free area for a figure ``height`` tall (of the whole surface where none is
+        free): the centre of its extent, not its mean (a slatted seat's samples are uneven)."""
+        pts = self.points[self.free(height)] if self.free(height).any() else self.points
+        xz = pts[:, [0, 2]]
+        return (np.percentile(xz, 5, axis=0) + np.percentile(xz, 95, axis=0)) / 2
+
+    def half_span(self, height: float) -> float:
+        """Half the free area's diagonal extent (x, z), normalised units."""
+        pts = self.points[self.free(height)] if self.free(height).any() else self.points
+        xz = pts[:, [0, 2]]
+        return float(np.linalg.norm(np.percentile(xz, 95, axis=0) - np.percentile(xz, 5, axis=0)) / 2)
+
+
+@dataclass
+class SideOf:
+    """One side of the ground (normalised frame)."""
+
+    name: str  # "front", "behind", "left", "right"
+    direction: np.ndarray  # (3,) horizontal unit vector out of that side
+    across: np.ndarray  # (3,) horizontal unit vector along the side
+    reach: float  # the ground's farthest extent along ``direction``
+    span: tuple[float, float]  # the ground's extent along ``across``
+    accessible: bool
+    reason: str = ""
+
+    @property
+    def middle(self) -> float:
+        return (self.span[0] + self.span[1]) / 2
+
+    @property
+    def half(self) -> float:
+        return max((self.span[1] - self.span[0]) / 2, 1e-9)
+
+
+@dataclass
+class Parts:
+    """The ground's named parts (``parts``)."""
+
+    surfaces: list[Surface] = field(default_factory=list)  # highest first
+    sides: dict[str, SideOf] = field(default_factory=dict)
+    height: float = 0.0  # the ground's height, normalised units
+    floor: float = 0.0
+
+    def describe(self) -> list[str]:
+        """One line per named part, with its reason (reports, the page)."""
+        lines = [s.reason for s in self.surfaces if s.name != "surface"]
+        lines += [s.reason for s in self.sides.values()]
+        return lines
+
+
+@per_pair
+def parts(pair: PreparedPair) -> Parts:
+    """The pair's ground's ``Parts``, found on first use and kept while the pair lives."""
+    anchor = pair.anchor
+    points = anchor.points.detach().cpu().numpy().astype(np.float64)
+    normals = anchor.normals.detach().cpu().numpy().astype(np.float64)
+    spacing = pair.sample_spacing(len(pair.index.points))
+    floor, top = float(points[:, 1].min()), float(points[:, 1].max())
+    front, left = axes(torch.as_tensor(pair.target_front, dtype=torch.float32)[None], pair.front_trusted)
+    found = Parts(_surfaces(points, normals, spacing), {}, top - floor, floor)
+    found.sides = _sides(points, front, left, pair.front_trusted, floor)
+    return found
+
+
+def _surfaces(points: np.ndarray, normals: np.ndarray, spacing: float) -> list[Surface]:
+    up = np.flatnonzero(normals[:, 1] >= FLAT)
+    if len(up) < MIN_SAMPLES:
+        return []
+    pts = points[up]
+    pairs = cKDTree(pts).query_pairs(JOIN * spacing, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(pts), len(pts)))
+    count, label = connected_components(graph, directed=False)
+    clearance = _clearance(points, pts, spacing)
+    surfaces = [Surface(pts[label == k], clearance[label == k], float(np.median(pts[label == k, 1])), spacing)
+                for k in range(count) if (label == k).sum() >= MIN_SAMPLES]
+    surfaces.sort(key=lambda s: -s.height)
+    for i, s in enumerate(surfaces):
+        s.name, s.reason = _name(s, i == 0, points, spacing)
+    return surfaces
+
+
+def _clearance(points: np.ndarray, up: np.ndarray, spacing: float) -> np.ndarray:
+    """(U,) for each up-facing sample, the height of the nearest ground sample above it in its column (within
+    ``JOIN`` spacings across, higher by more than ``JOIN`` spacings), less its own; inf where none is."""
+    tree = cKDTree(points[:, [0, 2]])
+    out = np.full(len(up), np.inf)
+    for i, near in enumerate(tree.query_ball_point(up[:, [0, 2]], r=JOIN * spacing, workers=1)):
+        above = points[near, 1] - up[i, 1]
+        above = above[above > JOIN * spacing]
+        if len(above):
+            out[i] = above.min()
+    return out
+
+
+def _name(surface: Surface, highest: bool, points: np.ndarray, spacing: float) -> tuple[str, str]:
+    """The surface's name and why: the top, a shelf, the seat or a surface."""
+    at = f"up-facing at {surface.height:.2f}, {surface.area:.3f} in area"
+    covered = float(np.isfinite(surface.clearance).mean())
+    if highest:
+        return "top", f"the top: the highest surface, {at}"
+    if covered >= COVERED:
+        return "shelf", f"a shelf: {at}, the ground above {covered:.0%} of it"
+    back = _back(surface, points, spacing)
+    if back is not None:
+        return "seat", f"the seat: {at}, a back rising behind it ({back})"
+    return "surface", f"a surface: {at}"
+
+
+def _back(surface: Surface, points: np.ndarray, spacing: float) -> str | None:
+    """Which edge of ``surface`` a back rises from (ground higher than the surface by a third of the surface's
+    width, within ``JOIN`` spacings outside or over that edge, along at least ``BACK`` of it); None where none does."""
+    xz = surface.points[:, [0, 2]]
+    lo, hi = np.percentile(xz, 2, axis=0), np.percentile(xz, 98, axis=0)
+    rise = surface.height + np.min(hi - lo) / 3
+    high = points[points[:, 1] >= rise]
+    if not len(high):
+        return None
+    margin = JOIN * spacing
+    for axis, sign, name in ((1, -1, "-z"), (1, 1, "+z"), (0, -1, "-x"), (0, 1, "+x")):
+        edge = lo[axis] if sign < 0 else hi[axis]
+        other = 1 - axis
+        near = high[np.abs(high[:, 2 * axis] - edge) <= 2 * margin]  # column 0 is x, 2 is z
+        inside = near[(near[:, 2 * other] >= lo[other]) & (near[:, 2 * other] <= hi[other])]
+        if not len(inside):
+            continue
+        bins = np.linspace(lo[other], hi[other], 11)
+        covered = np.unique(np.digitize(inside[:, 2 * other], bins)).size / 10
+        if covered >= BACK:
+            return f"along its {name} edge"
+    return None
+
+
+def _sides(points: np.ndarray, front: torch.Tensor, left: torch.Tensor, trusted: bool, floor: float
+           ) -> dict[str, SideOf]:
+    out = {}
+    for name in SIDES:
+        u = toward(name, front, left)[0].double().numpy()
+        v = np.array([u[2], 0.0, -u[0]])
+        along, across = points @ u, points @ v
+        against = trusted and name == "behind"
+        reason = (f"{name}: against the wall (a ground with a front stands with its back to one)" if against
+                  else f"{name}: a person reaches it")
+        out[name] = SideOf(name, u, v, float(along.max()), (float(across.min()), float(across.max())), not against,
+                           reason)
+    return out
+
+
+
+def usual_surface(found: Parts, height: float, width: float, place: str | None = None) -> Surface | None:
+    """The surface "on" means for a figure ``height`` tall and ``width`` across (normalised units): the one
+    ``place`` names (the top; a shelf by its order from the bottom, the top counted as the highest), else the
+    highest that holds the figure (free samples covering at least its footprint) and is at least ``SHARE`` as
+    large as the largest that does; None where none holds it (a spire, a head: the summit is the usual place)."""
+    holds = [s for s in found.surfaces if s.free(height).sum() * s.spacing**2 >= 0.5 * width**2]
+    if not holds:
+        return None
+    if place == "top":
+        return found.surfaces[0]
+    if place in SHELVES:
+        boards = sorted(holds, key=lambda s: s.height)
+        return boards[round(SHELVES[place] * (len(boards) - 1))]
+    largest = max(s.free(height).sum() * s.spacing**2 for s in holds)
+    return next(s for s in holds if s.free(height).sum() * s.spacing**2 >= SHARE * largest)
+
+
+@per_pair
+def upright_shape(pair: PreparedPair) -> tuple[float, float]:
+    """(height, width) of the source standing as it is set down (``source_upright``), in its diagonals: a figure's
+    are these times its posed diagonal."""
+    pts = pair.source_vertices.cpu().numpy().astype(np.float64) @ pair.source_upright.rotation.T
+    sides = np.ptp(pts, axis=0)
+    diagonal = max(float(np.linalg.norm(sides)), 1e-12)
+    return float(sides[1]) / diagonal, float(max(sides[0], sides[2])) / diagonal
+
+
+def figure_surface(pair: PreparedPair, diagonal: float, place: str | None) -> Surface | None:
+    """``usual_surface`` for the source at a posed diagonal ``diagonal`` (normalised units)."""
+    height, width = upright_shape(pair)
+    return usual_surface(parts(pair), height * diagonal, width * diagonal, place)
+
+
+SIDE_GAP = 0.1  # ``side_place``: a gap to the ground up to this many figure diagonals is "a hand's width"
+
+
+def surface_place(c: Context, surface: Surface, place: str | None) -> torch.Tensor:
+    """(B,) how far the figure's centre is from where on ``surface`` it goes: the middle of its free area, in
+    its half-spans; where the prompt names an end, an edge or a corner, how near the middle it is instead (and
+    for a named end, how far toward the other end)."""
+    height = upright_shape(c.pair)[0] * float(c.unit.mean())
+    middle = torch.as_tensor(surface.middle(height), dtype=c.unit.dtype, device=c.unit.device)
+    half = max(surface.half_span(height), 1e-9)
+    offset = c.figure.centre[:, [0, 2]] - middle
+    if place not in ENDS:
+        return offset.norm(dim=-1) / half
+    away = (1.0 - offset.norm(dim=-1) / half).clamp_min(0.0)
+    if place in ("left end", "right end"):
+        sign = 1.0 if place == "left end" else -1.0
+        away = away + (-sign * (offset * c.left[:, [0, 2]]).sum(-1) / half).clamp_min(0.0)
+    return away
+
+
+def side_place(c: Context, side: SideOf, gap: bool = True) -> torch.Tensor:
+    """(B,) how far the figure is from the middle of ``side``: its centre's offset along the side from the side's
+    middle, in the side's half-spans; how far its centre is short of being out beyond that side (figure diagonals);
+    with ``gap``, its gap to the ground past ``SIDE_GAP`` figure diagonals (a hand's width away, not across the
+    room)."""
+    as_t = lambda a: torch.as_tensor(a, dtype=c.unit.dtype, device=c.unit.device)  # noqa: E731
+    centre = c.figure.centre
+    across = ((centre @ as_t(side.across)) - side.middle).abs() / side.half
+    beyond = (centre @ as_t(side.direction)) - side.reach
+    out = across + hinge(-beyond / c.unit)
+    if gap:
+        distance, _ = surface_gap(c.figure.points, c.ground)
+        out = out + hinge(c.finite(soft_min(distance, c.tau())) / c.unit - SIDE_GAP)
+    return out
