@@ -180,6 +180,14 @@ def _prefer_beside(c: Context) -> torch.Tensor:
     return _standing(c) + torch.minimum(*each)
 
 
+def _where_side(c: Context, side: str) -> str | None:
+    return None if c.pair is None else parts.parts(c.pair).sides[side].reason
+
+
+def _where_beside(c: Context) -> str | None:
+    return None if c.pair is None else "; ".join(parts.parts(c.pair).sides[name].reason for name in LATERAL)
+
+
 def _prefer_under(c: Context) -> torch.Tensor:
     """``under``: standing, under the middle of the ground (``off_centre``)."""
     return _standing(c) + off_centre(c)
@@ -210,6 +218,8 @@ def apart(pair: PreparedPair, proposals: Proposals, seed: int, reading: Relation
     front, left = target_axes(pair)
     if kind == "side":
         u = toward(position, front, left).expand(count, 3)
+    elif position == "beside":  # the ground's lateral sides, alternately (``_prefer_beside``)
+        u = torch.cat([toward(LATERAL[i % 2], front, left) for i in range(count)])
     else:
         angle = torch.as_tensor(rng.uniform(0, 2 * math.pi, count), dtype=torch.float32)
         u = torch.stack([angle.sin(), torch.zeros_like(angle), angle.cos()], -1)
@@ -231,11 +241,12 @@ def apart(pair: PreparedPair, proposals: Proposals, seed: int, reading: Relation
     else:  # on the floor, out from the target's extent along u, by a gap in the band
         across = torch.stack([u[:, 2], torch.zeros(count), -u[:, 0]], -1)
         reach = (target @ u.T).max(0).values + (-(rotated * u[:, None, :]).sum(-1)).max(1).values
-        gap = torch.as_tensor(rng.uniform(*APART_GAPS["side" if kind == "side" else position if kind == "distance"
+        lateral = kind == "side" or position == "beside"
+        gap = torch.as_tensor(rng.uniform(*APART_GAPS["side" if lateral else position if kind == "distance"
                                                       else "near"], count), dtype=torch.float32)
         beside = target @ across.T  # (M, B): the target's extent across u
         lo, high = beside.min(0).values, beside.max(0).values
-        level = lo + (high - lo) * torch.as_tensor(rng.uniform(0.25, 0.75, count) if kind == "side"
+        level = lo + (high - lo) * torch.as_tensor(rng.uniform(0.25, 0.75, count) if lateral
                                                    else np.full(count, 0.5), dtype=torch.float32)
         anchor = u * (reach + gap * (source_diagonal + 2 * pair.target_radius) / 2)[:, None] + across * level[:, None]
         anchor[:, 1] = pair.floor
@@ -340,12 +351,12 @@ _ON_SIDE = {side: f"standing {where}, centred on that side, a hand's width away"
     ("front", "in front of the ground"), ("behind", "behind the ground"), ("left", "to the ground's left"),
     ("right", "to the ground's right"))}
 SPECS: dict[str, Spec] = {
-    "beside": Spec("beside", Judge(_score_beside, _prefer_beside),
+    "beside": Spec("beside", Judge(_score_beside, _prefer_beside), apart,
                    usual="standing at the ground's left or right side (the left first), centred on it, a hand's width"
-                         " away"),
+                         " away", where=_where_beside),
     "under": Spec("under", Judge(_score_under, _prefer_under), usual="standing under the middle of the part overhead"),
     **{side: Spec(side, Judge(partial(_score_side, side=side), partial(_prefer_side, side=side)), apart,
-                  usual=_ON_SIDE[side]) for side in SIDES},
+                  usual=_ON_SIDE[side], where=partial(_where_side, side=side)) for side in SIDES},
     "above": Spec("above", Judge(score_above), apart, usual="over the ground's top, clear of it"),
     "below": Spec("below", Judge(_score_below, _prefer_below), beneath,
                   usual="on the floor under the ground's middle"),

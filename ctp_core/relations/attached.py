@@ -98,14 +98,38 @@ def _score_lean(c: Context) -> torch.Tensor:
     return side + c.h((c.bottom() - c.floor).abs() - c.tol())
 
 
+LEAN_ORDER = 0.1  # ``_prefer_lean``: what a side costs per place in the order of the sides a person leans on
+
+
 def _prefer_lean(c: Context) -> torch.Tensor:
-    """``lean``: against a side a person reaches (``parts.SideOf.accessible``: not the back of a ground with a
-    front, which stands against a wall), centred on it (``parts.side_place``, touching: no gap term): the nearest
-    such side's; the middle of the ground's footprint (``off_centre``) where the pair has no parts."""
+    """``lean``: heavy end down (the figure's centre low between its bottom and its top, as a share of its height,
+    whatever its tilt: a rake on its head, a guitar on its body), nearly upright (1 less its height in its
+    diagonals: leaning a little, not lying half down) against a side a person reaches (``parts.SideOf.accessible``: not the back of a ground with
+    a front, which stands against a wall), centred on it (``parts.side_place``, touching: no gap term): the nearest
+    such side's, in ``lean_order``; the middle of the ground's footprint (``off_centre``) where the source is the
+    ground."""
     if c.pair is None:
         return off_centre(c)
-    sides = [s for s in parts.parts(c.pair).sides.values() if s.accessible]
-    return torch.stack([parts.side_place(c, s, gap=False) for s in sides]).min(0).values
+    low = (c.figure.centre[:, 1] - c.bottom()) / (c.top() - c.bottom()).clamp_min(1e-9)
+    sides = parts.parts(c.pair).sides
+    each = [parts.side_place(c, sides[name], gap=False) + i * LEAN_ORDER
+            for i, name in enumerate(lean_order(c.pair.front_trusted))]
+    steep = 1.0 - (c.top() - c.bottom()) / c.unit
+    return low + steep + torch.stack(each).min(0).values
+
+
+def lean_order(trusted: bool) -> tuple[str, ...]:
+    """The sides a person leans a thing on, first first: a ground with a front of its own is used from it (drawers,
+    doors, a seat) and stands with its back to a wall, so its left and right, then its front; one without (a drum,
+    a post) from the side the viewer sees first, then the others."""
+    return ("left", "right", "front") if trusted else ("front", "left", "right", "behind")
+
+
+def _where_lean(c: Context) -> str | None:
+    if c.pair is None:
+        return None
+    order = lean_order(c.pair.front_trusted)
+    return f"the {', then the '.join(order)}; " + "; ".join(s.reason for s in parts.parts(c.pair).sides.values())
 
 
 def _prefer_hang(c: Context) -> torch.Tensor:
@@ -121,7 +145,8 @@ HOOK_REACH = 0.1  # a hook point: at least this many source diagonals from the s
 
 def lean(pair: PreparedPair, proposals: Proposals, seed: int, reading: RelationReading | None,
          log_s: float, count: int) -> Proposals | None:
-    """Tilted sources standing on the floor against the target's sides (``extend``); None without side samples."""
+    """Tilted sources standing on the floor against the target's sides (``extend``), more of them near the middle
+    of the sides a person reaches (``parts.near_side_middles``); None without side samples."""
     points, normals, regions, _ = surface_regions(pair)
     side = regions["side"]
     horizontal = normals[side] * np.array([1.0, 0.0, 1.0])
@@ -135,7 +160,8 @@ def lean(pair: PreparedPair, proposals: Proposals, seed: int, reading: RelationR
     if not len(side):
         return None
     rng = np.random.default_rng(seed + 23)
-    pick = rng.integers(len(side), size=count)
+    usual = parts.near_side_middles(parts.parts(pair), points[side], horizontal)
+    pick = rng.choice(len(side), size=count, p=usual / usual.sum())
     n = torch.as_tensor(horizontal[pick], dtype=torch.float32)
     up = torch.tensor([0.0, 1.0, 0.0]).expand(count, 3)
     axis = torch.nn.functional.normalize(torch.linalg.cross(n, up), dim=-1)  # tilts +Y toward -n (the target)
@@ -258,5 +284,6 @@ SPECS: dict[str, Spec] = {
     "hang": Spec("hang", Judge(_score_hang, _prefer_hang), hung, _takes_the_peg,
                  "hung freely below what bears it, its centre under the hook, at the middle of the bar"),
     "lean": Spec("lean", Judge(_score_lean, _prefer_lean), lean,
-                 usual="against a side a person reaches (not the back of furniture), centred on it"),
+                 usual="heavy end down, against a side a person reaches (not the back of furniture), centred on it",
+                 where=_where_lean),
 }

@@ -279,3 +279,21 @@ def side_place(c: Context, side: SideOf, gap: bool = True) -> torch.Tensor:
         distance, _ = surface_gap(c.figure.points, c.ground)
         out = out + hinge(c.finite(soft_min(distance, c.tau())) / c.unit - SIDE_GAP)
     return out
+
+
+MIDDLE_WIDTH = 0.2  # ``near_side_middles``: how far from a side's middle, in its half-spans, still counts as near it
+MIDDLE_WEIGHT = 4.0  # ... and how much more a sample there is drawn than one elsewhere
+
+
+def near_side_middles(found: Parts, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(N,) a drawing weight for each of a ground's side samples (``points``, horizontal unit ``normals``): 1, and
+    up to ``MIDDLE_WEIGHT`` more near the middle of the side a person reaches that the sample faces out of (a
+    builder's share of poses at the usual place; the others keep every side's ends and corners in reach)."""
+    weight = np.ones(len(points))
+    for side in found.sides.values():
+        if not side.accessible:
+            continue
+        facing = normals @ side.direction >= np.cos(np.pi / 4)
+        offset = (points @ side.across - side.middle) / side.half
+        weight += facing * MIDDLE_WEIGHT * np.exp(-0.5 * (offset / MIDDLE_WIDTH) ** 2)
+    return weight

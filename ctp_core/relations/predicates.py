@@ -36,6 +36,7 @@ from ctp_core.geometry.pose import Poses
 from ctp_core.pairs import PreparedPair
 from ctp_core.relations.measures import Context, context, stability, surface_gap
 from ctp_core.relations.registry import SPECS
+from ctp_core.relations.spec import Spec
 from ctp_core.relations.vocabulary import RelationReading
 
 # --- constants (figure diagonals unless said otherwise) ------------------------------------------------------
@@ -55,12 +56,15 @@ class RelationVerdict:
     frame: str | None = None  # whose front sides and orientations are judged in: "target" (its own) or "viewer"
     parts: list[dict] | None = None  # each relation of a reading that says two ("front+facing"): name, score, holds
     note: str | None = None  # what the verdict cannot judge here (``UNHELD``: nothing in the pair holds the figure up)
+    place: str | None = None  # the place the prompt names (``reading.places``: "middle shelf", "edge"), if any
+    usual: str | None = None  # the usual place (``Spec.usual``) and the ground's part it is on, with why (``where``)
 
     def to_dict(self) -> dict:
-        """The verdict as reports write it: ``side``, ``frame``, ``parts`` and ``note`` only where they say
-        something."""
+        """The verdict as reports write it: ``side``, ``frame``, ``parts``, ``note``, ``place`` and ``usual`` only
+        where they say something."""
         out = asdict(self)
-        return {k: v for k, v in out.items() if v is not None or k not in ("side", "frame", "parts", "note")}
+        optional = ("side", "frame", "parts", "note", "place", "usual")
+        return {k: v for k, v in out.items() if v is not None or k not in optional}
 
 
 # the verdict's ``note`` where a relation that asks no support (not ``steady``: above, below, hang, ...) leaves its
@@ -186,11 +190,20 @@ def verdict(pair: PreparedPair, pose: Poses | np.ndarray, reading: RelationReadi
         each = [float(SPECS[p].judge.score(c)[0]) for p in named]
         steady = bool(holds(float(stability(c)[0]))) if reading.steady else None
         unheld = not reading.steady and not bool(_held(c)[0])
+        usual = _usual(c, SPECS[reading.position])
     return RelationVerdict(
         reading.name, reading.role, round(sum(each), 4), bool(holds(sum(each))),
         steady, reading.side, frame(pair) if reading.directional else None,
         [{"name": p, "score": round(e, 4), "holds": bool(holds(e))} for p, e in zip(named, each, strict=True)]
-        if len(named) > 1 else None, UNHELD if unheld else None)
+        if len(named) > 1 else None, UNHELD if unheld else None, reading.place, usual)
+
+
+def _usual(c: Context, spec: Spec) -> str | None:
+    """The spec's usual place in words, with the part of the ground it is on (``Spec.where``) where it names one."""
+    if not spec.usual:
+        return None
+    where = spec.where(c) if spec.where is not None else None
+    return spec.usual if where is None else f"{spec.usual} ({where})"
 
 
 def _held(c: Context) -> torch.Tensor:

@@ -8,7 +8,7 @@ import torch
 from ctp_core import contact
 from ctp_core.contact import opening_sides
 from ctp_core.pairs import PreparedPair
-from ctp_core.reading.places import SHELVES
+from ctp_core.reading.places import ENDS, SHELVES
 from ctp_core.relations import parts
 from ctp_core.relations.measures import (
     FAR,
@@ -98,6 +98,17 @@ def _prefer_resting(c: Context) -> torch.Tensor:
     return drop + steady + parts.surface_place(c, surface, _place(c))
 
 
+def _where(c: Context) -> str | None:
+    """The surface the usual place is on, and why (``parts.figure_surface``)."""
+    if c.pair is None:
+        return None
+    surface = parts.figure_surface(c.pair, float(c.unit.mean()), _place(c))
+    if surface is None:
+        return "no surface holds it: on the top, near the middle"
+    named = _place(c)
+    return surface.reason + (f"; at its {named}" if named in ENDS else "; in the middle of its free area")
+
+
 def _place(c: Context) -> str | None:
     return None if c.reading is None else c.reading.place
 
@@ -136,6 +147,6 @@ _RESTING = Judge(score_resting, _prefer_resting)
 _USUAL = ("on the usual surface (a table's or cabinet's top, the seat of a chair, sofa or bench, the shelf or end the "
           "prompt names), standing as it is set down, steadily, in the middle of the surface's free area")
 SPECS: dict[str, Spec] = {
-    "on": Spec("on", _RESTING, bound=_lid, usual=_USUAL),
-    **{name: Spec(name, _RESTING, usual=_USUAL) for name in ("stand", "sit", "lie")},
+    "on": Spec("on", _RESTING, bound=_lid, usual=_USUAL, where=_where),
+    **{name: Spec(name, _RESTING, usual=_USUAL, where=_where) for name in ("stand", "sit", "lie")},
 }

@@ -52,7 +52,8 @@ class Spec:
     poses it makes by construction where the search's regions do not reach it (None: the regions do). ``bound``:
     what the geometry says of the source's scale (None: nothing). ``usual``: where people usually put the figure,
     in words (reports, docs/relations.md); the preference ranks poses toward it. ``grounds``: how many objects the
-    figure is placed relative to (1; 2 for "between").
+    figure is placed relative to (1; 2 for "between"). ``where``: the ground's part the usual place is on, with
+    its reason (``parts``: "the seat: up-facing at ..., a back rising behind it").
     """
 
     name: str
@@ -61,3 +62,5 @@ class Spec:
     bound: ScaleBound | None = None
     usual: str = ""
     grounds: int = 1
+    where: Callable[[Context], str | None] | None = None  # the part the usual place is on for this pose's pair
+    # and why, in words (the verdict's ``usual``; ``parts``); None: ``usual`` says it all

@@ -624,6 +624,10 @@ function showFacts(report) {
   ];
   if (report.copies) rows.splice(0, 3, ...copyRows(report, fixed)); // several copies: no one transform
   if (report.guide_say) rows.push(["who chose", report.guide_say.summary]); // the guide's say (ordering.Gate)
+  const verdict = report.relation || {};
+  if (verdict.usual) { // the relation's usual place and the ground's part it is on (predicates.RelationVerdict)
+    rows.push(["usual place", (verdict.place ? `the prompt names "${verdict.place}": ` : "") + verdict.usual]);
+  }
   const grounds = (report.extra || {}).grounds || [];
   if (grounds.length) rows.push(["relates to", grounds.join(" and ")]); // a scene target's objects it was placed by
   if (report.adjusted) {
