@@ -32,7 +32,7 @@ def test_get_provider_returns_named_providers_and_refuses_unknown_names():
         prior = provider.estimate("table", "cup", "a cup on the table")
         assert isinstance(prior, ScenePrior)
         assert set(prior.to_dict()) == {"size_ratio", "penetration", "contact_ratio", "provider", "reason", "relation",
-                                        "source_is_figure"}
+                                        "source_is_figure", "place"}
     with pytest.raises(ConfigError) as err:
         get_provider("llama")
     assert err.value.field == "hparams_provider"

@@ -255,8 +255,9 @@ def apart(pair: PreparedPair, proposals: Proposals, seed: int, reading: Relation
 
 def beneath(pair: PreparedPair, proposals: Proposals, seed: int, reading: RelationReading | None,
             log_s: float, count: int) -> Proposals | None:
-    """Sources standing on the floor under a down-facing point of the target lifted high enough for them
-    (``extend``; the module docstring says where); None where no point is."""
+    """Sources standing on the floor under a down-facing point of the target lifted high enough for them, more of
+    them near the middle of its footprint (``near_middle``) (``extend``; the module docstring says where); None
+    where no point is."""
     points, _, regions, density = surface_regions(pair)
     under = regions["bottom"]
     rng = np.random.default_rng(seed + 43)
@@ -276,11 +277,21 @@ def beneath(pair: PreparedPair, proposals: Proposals, seed: int, reading: Relati
     keep = np.flatnonzero(fits.any(1))
     if not len(keep):
         return None
-    weights = density[under][None, :] * fits[keep]
+    weights = density[under][None, :] * fits[keep] * near_middle(points[under])[None, :]
     pick = [under[rng.choice(len(under), p=w / w.sum())] for w in weights]
     anchor = torch.as_tensor(points[pick], dtype=torch.float32)
     anchor[:, 1] = pair.floor
-    return kept_where_put(pair, proposals, q[torch.as_tensor(keep)], anchor, log_s, "below")
+    label = "below" if reading is None else reading.position
+    return kept_where_put(pair, proposals, q[torch.as_tensor(keep)], anchor, log_s, label)
+
+
+def near_middle(points: np.ndarray) -> np.ndarray:
+    """(N,) a drawing weight for points of a ground: 1, and up to ``parts.MIDDLE_WEIGHT`` more near the middle of
+    its footprint (within ``parts.MIDDLE_WIDTH`` of its half-extents), where the usual place is."""
+    xz = points[:, [0, 2]]
+    low, high = xz.min(0), xz.max(0)
+    offset = (xz - (low + high) / 2) / np.maximum((high - low) / 2, 1e-9)
+    return 1.0 + parts.MIDDLE_WEIGHT * np.exp(-0.5 * (np.linalg.norm(offset, axis=1) / parts.MIDDLE_WIDTH) ** 2)
 
 
 
@@ -354,7 +365,8 @@ SPECS: dict[str, Spec] = {
     "beside": Spec("beside", Judge(_score_beside, _prefer_beside), apart,
                    usual="standing at the ground's left or right side (the left first), centred on it, a hand's width"
                          " away", where=_where_beside),
-    "under": Spec("under", Judge(_score_under, _prefer_under), usual="standing under the middle of the part overhead"),
+    "under": Spec("under", Judge(_score_under, _prefer_under), beneath,
+                  usual="standing under the middle of the part overhead"),
     **{side: Spec(side, Judge(partial(_score_side, side=side), partial(_prefer_side, side=side)), apart,
                   usual=_ON_SIDE[side], where=partial(_where_side, side=side)) for side in SIDES},
     "above": Spec("above", Judge(score_above), apart, usual="over the ground's top, clear of it"),

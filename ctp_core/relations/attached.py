@@ -16,6 +16,7 @@ from ctp_core.relations.apart import FACING
 from ctp_core.relations.building import LEAN_POINTS, long_axis_up, lowered, quaternion_onto, target_axes, yaw_turn
 from ctp_core.relations.measures import (
     FAR,
+    OFF_CENTRE,
     Context,
     features,
     hinge,
@@ -104,10 +105,10 @@ LEAN_ORDER = 0.1  # ``_prefer_lean``: what a side costs per place in the order o
 def _prefer_lean(c: Context) -> torch.Tensor:
     """``lean``: heavy end down (the figure's centre low between its bottom and its top, as a share of its height,
     whatever its tilt: a rake on its head, a guitar on its body), nearly upright (1 less its height in its
-    diagonals: leaning a little, not lying half down) against a side a person reaches (``parts.SideOf.accessible``: not the back of a ground with
-    a front, which stands against a wall), centred on it (``parts.side_place``, touching: no gap term): the nearest
-    such side's, in ``lean_order``; the middle of the ground's footprint (``off_centre``) where the source is the
-    ground."""
+    diagonals: leaning a little, not lying half down) against a side a person reaches (``parts.SideOf.accessible``:
+    not the back of a ground with a front, which stands against a wall), centred on it (``parts.side_place``,
+    touching: no gap term): the nearest such side's, in ``lean_order``; the middle of the ground's footprint
+    (``off_centre``) where the source is the ground."""
     if c.pair is None:
         return off_centre(c)
     low = (c.figure.centre[:, 1] - c.bottom()) / (c.top() - c.bottom()).clamp_min(1e-9)
@@ -133,9 +134,20 @@ def _where_lean(c: Context) -> str | None:
 
 
 def _prefer_hang(c: Context) -> torch.Tensor:
-    """``hang``: hung freely from what bears it (``_borne``), at the middle of the ground (``off_centre``: a towel
-    rail's middle, not its end)."""
-    return _borne(c) + off_centre(c)
+    """``hang``: hung freely from what bears it (``_borne``), at the middle of the ground along its length
+    (``along_middle``: a towel rail's middle, not its end; a peg's place on its wall is where the peg is)."""
+    borne = _borne(c)
+    return borne + torch.where(borne < FAR, along_middle(c), torch.zeros_like(borne))
+
+
+def along_middle(c: Context) -> torch.Tensor:
+    """(B,) ``OFF_CENTRE`` x the distance of the figure's centre from the middle of the ground's footprint along
+    its longer horizontal extent (x or z), in half that extent."""
+    gp = c.ground.side.points[..., [0, 2]]
+    low, high = gp.min(1).values, gp.max(1).values  # (B or 1, 2)
+    axis = int((high - low)[0].argmax())
+    half = ((high - low)[:, axis] / 2).clamp_min(1e-9)
+    return OFF_CENTRE * (c.figure.centre[:, 2 * axis] - (low + high)[:, axis] / 2).abs() / half
 
 
 LEAN_TILTS = (15.0, 30.0, 45.0)  # degrees from the source's frame toward the target

@@ -17,8 +17,8 @@ the source relates to (``PreparedPair.anchor``):
   reaches it (``accessible``: a ground with a trusted front that stands on the floor has its back against the wall).
 
 ``usual_surface`` picks the surface "on" means for a figure of a given size: the one the prompt's place names
-(``RelationReading.place``: the top, a shelf by its order), else the highest surface that holds the figure and is at
-least ``SHARE`` as large as the largest that does (a table's top; a chair's seat, not its backrest's top rail).
+(``RelationReading.place``: the top, a shelf by its order), else the highest surface that holds the figure with room
+(``holds``: a table's top; a chair's seat, not its backrest's top rail).
 """
 
 from __future__ import annotations
@@ -38,9 +38,10 @@ from ctp_core.relations.measures import Context, axes, hinge, soft_min, surface_
 FLAT = 0.85  # a support sample's normal: at least this cosine with +Y (a seat's gentle slope, not a dome's flank)
 JOIN = 3.0  # support samples this many sample spacings apart (across and in height) belong to one surface
 MIN_SAMPLES = 6  # a surface has at least this many samples (fewer: a rim's crest, an edge's bevel)
-SHARE = 0.5  # ``usual_surface``: the highest surface at least this share of the largest one's free area
 COVERED = 0.8  # a shelf: the ground above at least this share of its samples
 BACK = 0.5  # a seat: ground rising over at least this share of one edge's length (its back)
+SIDE_GAP = 0.1  # ``side_place``: a gap to the ground up to this many figure diagonals is "a hand's width"
+TOP_BAND = 0.05  # "on top of": the highest surface is the top where it is within this share of the ground's height
 SIDES = ("front", "behind", "left", "right")
 
 
@@ -123,12 +124,13 @@ def parts(pair: PreparedPair) -> Parts:
     spacing = pair.sample_spacing(len(pair.index.points))
     floor, top = float(points[:, 1].min()), float(points[:, 1].max())
     front, left = axes(torch.as_tensor(pair.target_front, dtype=torch.float32)[None], pair.front_trusted)
-    found = Parts(_surfaces(points, normals, spacing), {}, top - floor, floor)
+    unit = 1.0 / pair.target_to_normalised.scale  # target file units per normalised unit: what reasons say
+    found = Parts(_surfaces(points, normals, spacing, floor, unit), {}, top - floor, floor)
     found.sides = _sides(points, front, left, pair.front_trusted, floor)
     return found
 
 
-def _surfaces(points: np.ndarray, normals: np.ndarray, spacing: float) -> list[Surface]:
+def _surfaces(points: np.ndarray, normals: np.ndarray, spacing: float, floor: float, unit: float) -> list[Surface]:
     up = np.flatnonzero(normals[:, 1] >= FLAT)
     if len(up) < MIN_SAMPLES:
         return []
@@ -141,7 +143,7 @@ def _surfaces(points: np.ndarray, normals: np.ndarray, spacing: float) -> list[S
                 for k in range(count) if (label == k).sum() >= MIN_SAMPLES]
     surfaces.sort(key=lambda s: -s.height)
     for i, s in enumerate(surfaces):
-        s.name, s.reason = _name(s, i == 0, points, spacing)
+        s.name, s.reason = _name(s, i == 0, points, spacing, (s.height - floor) * unit, s.area * unit**2)
     return surfaces
 
 
@@ -158,9 +160,11 @@ def _clearance(points: np.ndarray, up: np.ndarray, spacing: float) -> np.ndarray
     return out
 
 
-def _name(surface: Surface, highest: bool, points: np.ndarray, spacing: float) -> tuple[str, str]:
-    """The surface's name and why: the top, a shelf, the seat or a surface."""
-    at = f"up-facing at {surface.height:.2f}, {surface.area:.3f} in area"
+def _name(surface: Surface, highest: bool, points: np.ndarray, spacing: float, height: float, area: float
+          ) -> tuple[str, str]:
+    """The surface's name and why: the top, a shelf, the seat or a surface (``height`` over the ground's base and
+    ``area``, target file units)."""
+    at = f"up-facing {height:.3g} over the base, {area:.3g} in area (file units)"
     covered = float(np.isfinite(surface.clearance).mean())
     if highest:
         return "top", f"the top: the highest surface, {at}"
@@ -212,40 +216,52 @@ def _sides(points: np.ndarray, front: torch.Tensor, left: torch.Tensor, trusted:
 
 
 
-def usual_surface(found: Parts, height: float, width: float, place: str | None = None) -> Surface | None:
-    """The surface "on" means for a figure ``height`` tall and ``width`` across (normalised units): the one
-    ``place`` names (the top; a shelf by its order from the bottom, the top counted as the highest), else the
-    highest that holds the figure (free samples covering at least its footprint) and is at least ``SHARE`` as
-    large as the largest that does; None where none holds it (a spire, a head: the summit is the usual place)."""
-    holds = [s for s in found.surfaces if s.free(height).sum() * s.spacing**2 >= 0.5 * width**2]
-    if not holds:
+def usual_surface(found: Parts, height: float, footprint: tuple[float, float], place: str | None = None
+                  ) -> Surface | None:
+    """The surface "on" means for a figure ``height`` tall with ``footprint`` (its shorter and longer horizontal
+    sides), normalised units: the one ``place`` names (the top: the highest surface, where it is the ground's top,
+    else None; a shelf by its order from the bottom among the covered surfaces), else the highest that holds the
+    figure (``holds``: a table's top, a chair's seat rather than its backrest's top rail); None where none holds it
+    (a spire, a head: the summit is the usual place)."""
+    holding = [s for s in found.surfaces if holds(s, height, footprint)]
+    if place == "top":  # the highest surface where it is the ground's top; else a summit (a spire's tip)
+        top = found.surfaces[0] if found.surfaces else None
+        return top if top is not None and top.height >= found.floor + (1 - TOP_BAND) * found.height else None
+    if not holding:
         return None
-    if place == "top":
-        return found.surfaces[0]
     if place in SHELVES:
-        boards = sorted(holds, key=lambda s: s.height)
+        boards = sorted([s for s in holding if s.name == "shelf"] or holding, key=lambda s: s.height)
         return boards[round(SHELVES[place] * (len(boards) - 1))]
-    largest = max(s.free(height).sum() * s.spacing**2 for s in holds)
-    return next(s for s in holds if s.free(height).sum() * s.spacing**2 >= SHARE * largest)
+    return holding[0]
+
+
+def holds(surface: Surface, height: float, footprint: tuple[float, float]) -> bool:
+    """Whether the figure stands on ``surface`` with room: the free area (``Surface.free``: clear of the ground
+    above for its ``height``) is as wide as its footprint both ways (the extents' shorter side against the
+    footprint's shorter side, the longer against the longer) and covers at least its footprint's area."""
+    free = surface.free(height)
+    if not free.any() or free.sum() * surface.spacing**2 < footprint[0] * footprint[1]:
+        return False
+    xz = surface.points[free][:, [0, 2]]
+    extent = np.sort(np.ptp(xz, axis=0) + surface.spacing)
+    return bool(extent[0] >= footprint[0] and extent[1] >= footprint[1])
 
 
 @per_pair
-def upright_shape(pair: PreparedPair) -> tuple[float, float]:
-    """(height, width) of the source standing as it is set down (``source_upright``), in its diagonals: a figure's
-    are these times its posed diagonal."""
+def upright_shape(pair: PreparedPair) -> tuple[float, float, float]:
+    """(height, shorter horizontal side, longer horizontal side) of the source standing as it is set down
+    (``source_upright``), in its diagonals: a posed figure's are these times its diagonal."""
     pts = pair.source_vertices.cpu().numpy().astype(np.float64) @ pair.source_upright.rotation.T
     sides = np.ptp(pts, axis=0)
     diagonal = max(float(np.linalg.norm(sides)), 1e-12)
-    return float(sides[1]) / diagonal, float(max(sides[0], sides[2])) / diagonal
+    small, large = sorted((float(sides[0]), float(sides[2])))
+    return float(sides[1]) / diagonal, small / diagonal, large / diagonal
 
 
 def figure_surface(pair: PreparedPair, diagonal: float, place: str | None) -> Surface | None:
     """``usual_surface`` for the source at a posed diagonal ``diagonal`` (normalised units)."""
-    height, width = upright_shape(pair)
-    return usual_surface(parts(pair), height * diagonal, width * diagonal, place)
-
-
-SIDE_GAP = 0.1  # ``side_place``: a gap to the ground up to this many figure diagonals is "a hand's width"
+    height, small, large = upright_shape(pair)
+    return usual_surface(parts(pair), height * diagonal, (small * diagonal, large * diagonal), place)
 
 
 def surface_place(c: Context, surface: Surface, place: str | None) -> torch.Tensor:

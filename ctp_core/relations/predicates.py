@@ -57,7 +57,7 @@ class RelationVerdict:
     parts: list[dict] | None = None  # each relation of a reading that says two ("front+facing"): name, score, holds
     note: str | None = None  # what the verdict cannot judge here (``UNHELD``: nothing in the pair holds the figure up)
     place: str | None = None  # the place the prompt names (``reading.places``: "middle shelf", "edge"), if any
-    usual: str | None = None  # the usual place (``Spec.usual``) and the ground's part it is on, with why (``where``)
+    usual: str | None = None  # the ground's part the usual place is on, with why (``Spec.where``), else ``Spec.usual``
 
     def to_dict(self) -> dict:
         """The verdict as reports write it: ``side``, ``frame``, ``parts``, ``note``, ``place`` and ``usual`` only
@@ -199,11 +199,10 @@ def verdict(pair: PreparedPair, pose: Poses | np.ndarray, reading: RelationReadi
 
 
 def _usual(c: Context, spec: Spec) -> str | None:
-    """The spec's usual place in words, with the part of the ground it is on (``Spec.where``) where it names one."""
-    if not spec.usual:
-        return None
+    """The part of the ground the usual place is on, with why (``Spec.where``), else the spec's usual place in
+    words (``Spec.usual``); None where it has neither."""
     where = spec.where(c) if spec.where is not None else None
-    return spec.usual if where is None else f"{spec.usual} ({where})"
+    return where or spec.usual or None
 
 
 def _held(c: Context) -> torch.Tensor:

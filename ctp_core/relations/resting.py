@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 
 from ctp_core import contact
-from ctp_core.contact import opening_sides
+from ctp_core.contact import Proposals, opening_sides
+from ctp_core.geometry.pose import quaternion_product, quaternion_to_matrix
 from ctp_core.pairs import PreparedPair
 from ctp_core.reading.places import ENDS, SHELVES
 from ctp_core.relations import parts
+from ctp_core.relations.building import LEAN_POINTS, lowered, yaw_turn
 from ctp_core.relations.measures import (
     FAR,
     Context,
@@ -24,6 +28,7 @@ from ctp_core.relations.measures import (
     support_depth,
 )
 from ctp_core.relations.spec import Bound, Judge, Spec
+from ctp_core.relations.vocabulary import RelationReading
 
 ON_TOP = 0.05  # "on top of": no ground surface higher than the figure's top by more than this over it
 FOOTPRINT_MIDDLE = 0.5  # ... over the middle of its footprint: this share of its half-width about its centre
@@ -143,10 +148,39 @@ def _lid(pair: PreparedPair, seed: int, around: float, span: float) -> Bound | N
     return None if limit is None else Bound("on: a lid covers the opening", limit, "lower")
 
 
+MIDDLE_JITTER = 0.15  # ``on_usual_surface``: anchors this share of the surface's half-span about its middle, at most
+
+
+def on_usual_surface(pair: PreparedPair, proposals: Proposals, seed: int, reading: RelationReading | None,
+                     log_s: float, count: int) -> Proposals | None:
+    """Sources lowered onto the middle of the usual surface (``parts.figure_surface``: the one "on" means for this
+    figure, or the one the prompt's place names), within ``MIDDLE_JITTER`` of its half-span, in the source's own
+    resting frames turned about +Y at random (``extend``): the regions' proposals fall anywhere on the ground and
+    the refinement centres them only as far as the contact lets it. None where no surface holds the figure."""
+    scale = math.exp(log_s)
+    place = None if reading is None else reading.place
+    surface = parts.figure_surface(pair, pair.source_diagonal * scale, place)
+    if surface is None or place in ENDS:
+        return None
+    rng = np.random.default_rng(seed + 47)
+    height = parts.upright_shape(pair)[0] * pair.source_diagonal * scale
+    middle, half = surface.middle(height), surface.half_span(height)
+    resting = proposals.rotations[torch.as_tensor(rng.integers(len(proposals.rotations), size=count))].cpu()
+    q = torch.cat([quaternion_product(yaw_turn(float(a)), resting[i:i + 1])
+                   for i, a in enumerate(rng.uniform(0, 2 * math.pi, count))])
+    rotated = torch.einsum("bij,nj->bni", quaternion_to_matrix(q), pair.source_subset(LEAN_POINTS).cpu()) * scale
+    offset = rng.uniform(-1, 1, (count, 2)) * MIDDLE_JITTER * half
+    start = torch.zeros(count, 3)
+    start[:, [0, 2]] = torch.as_tensor(middle + offset, dtype=torch.float32)
+    start[:, 1] = surface.height - rotated[..., 1].min(dim=1).values + 0.01 * pair.target_radius
+    up = torch.tensor([0.0, 1.0, 0.0]).expand(count, 3)
+    return lowered(pair, proposals, q, start, up, False, log_s, "on")
+
+
 _RESTING = Judge(score_resting, _prefer_resting)
 _USUAL = ("on the usual surface (a table's or cabinet's top, the seat of a chair, sofa or bench, the shelf or end the "
           "prompt names), standing as it is set down, steadily, in the middle of the surface's free area")
 SPECS: dict[str, Spec] = {
-    "on": Spec("on", _RESTING, bound=_lid, usual=_USUAL, where=_where),
-    **{name: Spec(name, _RESTING, usual=_USUAL, where=_where) for name in ("stand", "sit", "lie")},
+    "on": Spec("on", _RESTING, on_usual_surface, _lid, usual=_USUAL, where=_where),
+    **{name: Spec(name, _RESTING, on_usual_surface, usual=_USUAL, where=_where) for name in ("stand", "sit", "lie")},
 }

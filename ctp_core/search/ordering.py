@@ -184,11 +184,14 @@ TRUSTED = Gate(spread=1.0, noise=0.0)  # a gate not measured (yet): the guide tr
 
 
 def holding(terms: dict[str, torch.Tensor]) -> torch.Tensor:
-    """(B,) bool: where the relation holds (``predicates.holds`` of the ``rel`` term; everywhere without one) and
-    the pose does not intersect the target (``sunk`` at most ``SUNK``; 0 where penetration is allowed).
+    """(B,) bool: where the relation holds (``predicates.holds`` of the ``rel`` term; everywhere without one),
+    steadily where it asks that (the ``stable`` term: a report's ``valid`` asks it too), and the pose does not
+    intersect the target (``sunk`` at most ``SUNK``; 0 where penetration is allowed).
     Intersecting is worse than the relation failing: without the second rule a pose pulled into the target's wall
     by a containment relation would outrank every clean pose beside it."""
     held = predicates.holds(terms["rel"]) if "rel" in terms else torch.ones_like(terms["objective"], dtype=torch.bool)
+    if "stable" in terms:  # a relation that asks its figure to stand steadily (``stable``: 0 where it does)
+        held = held & predicates.holds(terms["stable"]).to(held.device)
     return held & ~intersecting(terms).to(held.device)
 
 
