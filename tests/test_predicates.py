@@ -244,8 +244,10 @@ def test_a_plate_on_a_table_prefers_lying_flat_to_standing_on_its_rim():
 
 
 def test_on_top_of_prefers_the_highest_surface():
-    """A small box on a tower's top rather than on its lower step (both hold "on": up-facing, nothing above)."""
-    tower = trimesh.util.concatenate([box([2, 1, 2], [0, 0.5, 0]), box([0.6, 1, 0.6], [0, 1.5, 0])])
+    """A small box on a tower's top rather than on its lower step (both hold "on": up-facing, nothing above). One
+    solid (a union): the step is a ring round the tower, not a full face under it, and its ring is about as roomy
+    for the box as the top."""
+    tower = trimesh.boolean.union([box([2, 1, 2], [0, 0.5, 0]), box([0.6, 1, 0.6], [0, 1.5, 0])])
     cube = box([0.2, 0.2, 0.2], [0, 0, 0])
     top, step = pose([0, 2.1, 0]), pose([0.75, 1.1, 0.75])
     prefer, score = _preference(tower, cube, [top, step], "on")

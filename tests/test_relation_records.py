@@ -217,8 +217,10 @@ def test_extend_replaces_as_many_region_proposals_only_for_a_placed_figure():
     base = proposals.propose(pair, CONFIG, proposals.region_weights(None), 0.0, torch.Generator().manual_seed(0))
     extended = builders.extend(pair, CONFIG, base, RelationReading("near"), 0)
     assert len(extended.poses) == len(base.poses) and "near" in extended.region
-    for reading in (None, RelationReading("near", False), RelationReading("on"), RelationReading("levitate")):
-        assert builders.extend(pair, CONFIG, base, reading, 0) is base
+    for reading in (None, RelationReading("near", False), RelationReading("attach"), RelationReading("levitate")):
+        assert builders.extend(pair, CONFIG, base, reading, 0) is base  # no builder, or not a placed figure
+    on = builders.extend(pair, CONFIG, base, RelationReading("on"), 0)  # on the middle of the usual surface
+    assert len(on.poses) == len(base.poses) and "on" in on.region
     off = CONFIG.model_copy(update={"relation": False})
     assert builders.extend(pair, off, base, RelationReading("near"), 0) is base
 

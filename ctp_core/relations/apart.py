@@ -25,6 +25,7 @@ from ctp_core.relations.measures import (
     horizontal_unit,
     hull_distance_2d,
     off_centre,
+    off_floor,
     soft_max,
     soft_min,
     surface_gap,
@@ -154,8 +155,10 @@ def _score_aligned(c: Context) -> torch.Tensor:
 
 
 def _standing(c: Context) -> torch.Tensor:
-    """(B,) ``Context.upright``: how far the figure is turned from standing as it is set down (0 without one)."""
-    return c.upright if c.upright is not None else torch.zeros_like(c.unit)
+    """(B,) how far the figure is from standing on the floor as it is set down: ``Context.upright`` (0 without one)
+    and how far it stands off the floor (``off_floor``)."""
+    turned = c.upright if c.upright is not None else torch.zeros_like(c.unit)
+    return turned + off_floor(c)
 
 
 def _prefer_side(c: Context, side: str) -> torch.Tensor:

@@ -21,6 +21,7 @@ from ctp_core.relations.measures import (
     features,
     hinge,
     off_centre,
+    off_floor,
     soft_max,
     soft_min,
     surface_gap,
@@ -105,18 +106,20 @@ LEAN_ORDER = 0.1  # ``_prefer_lean``: what a side costs per place in the order o
 def _prefer_lean(c: Context) -> torch.Tensor:
     """``lean``: heavy end down (the figure's centre low between its bottom and its top, as a share of its height,
     whatever its tilt: a rake on its head, a guitar on its body), nearly upright (1 less its height in its
-    diagonals: leaning a little, not lying half down) against a side a person reaches (``parts.SideOf.accessible``:
-    not the back of a ground with a front, which stands against a wall), centred on it (``parts.side_place``,
-    touching: no gap term): the nearest such side's, in ``lean_order``; the middle of the ground's footprint
+    diagonals: leaning a little, not lying half down), standing on the floor (``off_floor``), against a side a
+    person reaches (``parts.SideOf.accessible``: not the back of a ground with a front, which stands against a
+    wall), centred on it (``parts.side_place``, touching: no gap term): the nearest such side's, in ``lean_order``
+    (the side the prompt names, where it names one: "against the back of"); the middle of the ground's footprint
     (``off_centre``) where the source is the ground."""
     if c.pair is None:
         return off_centre(c)
     low = (c.figure.centre[:, 1] - c.bottom()) / (c.top() - c.bottom()).clamp_min(1e-9)
     sides = parts.parts(c.pair).sides
-    each = [parts.side_place(c, sides[name], gap=False) + i * LEAN_ORDER
-            for i, name in enumerate(lean_order(c.pair.front_trusted))]
+    named = c.reading.side if c.reading is not None else None  # "against the back of": that side only
+    order = (named,) if named in sides else lean_order(c.pair.front_trusted)
+    each = [parts.side_place(c, sides[name], gap=False) + i * LEAN_ORDER for i, name in enumerate(order)]
     steep = 1.0 - (c.top() - c.bottom()) / c.unit
-    return low + steep + torch.stack(each).min(0).values
+    return low + steep + off_floor(c) + torch.stack(each).min(0).values
 
 
 def lean_order(trusted: bool) -> tuple[str, ...]:

@@ -438,3 +438,12 @@ def off_centre(c: Context) -> torch.Tensor:
     return OFF_CENTRE * (c.figure.centre[:, [0, 2]] - (low + high) / 2).norm(dim=-1) / half
 
 
+
+
+ON_FLOOR = 0.25  # ``off_floor``: what standing off the floor by the whole contact tolerance costs
+
+
+def off_floor(c: Context) -> torch.Tensor:
+    """(B,) the figure's bottom's height from the floor, either way, ``ON_FLOOR`` per contact tolerance
+    (``Context.tol``: within it the judge says it stands there, but a box sunk by all of it shows)."""
+    return ON_FLOOR * (c.bottom() - c.floor).abs() / c.tol()

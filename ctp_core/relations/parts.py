@@ -17,8 +17,8 @@ the source relates to (``PreparedPair.anchor``):
   reaches it (``accessible``: a ground with a trusted front that stands on the floor has its back against the wall).
 
 ``usual_surface`` picks the surface "on" means for a figure of a given size: the one the prompt's place names
-(``RelationReading.place``: the top, a shelf by its order), else the highest surface that holds the figure with room
-(``holds``: a table's top; a chair's seat, not its backrest's top rail).
+(``RelationReading.place``: the top, a shelf by its order), else the highest uncovered surface that holds the figure
+with room (``room``: a table's top; a chair's seat, not its backrest's top rail).
 """
 
 from __future__ import annotations
@@ -27,20 +27,25 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
+from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from ctp_core.pairs import PreparedPair, per_pair
 from ctp_core.reading.places import ENDS, SHELVES
-from ctp_core.relations.measures import Context, axes, hinge, soft_min, surface_gap, toward
+from ctp_core.relations.measures import Context, axes, hinge, soft_min, toward
 
 FLAT = 0.85  # a support sample's normal: at least this cosine with +Y (a seat's gentle slope, not a dome's flank)
 JOIN = 3.0  # support samples this many sample spacings apart (across and in height) belong to one surface
+COLUMN = 1.5  # a sample's column: this many sample spacings about it, seen from above
 MIN_SAMPLES = 6  # a surface has at least this many samples (fewer: a rim's crest, an edge's bevel)
 COVERED = 0.8  # a shelf: the ground above at least this share of its samples
 BACK = 0.5  # a seat: ground rising over at least this share of one edge's length (its back)
 SIDE_GAP = 0.1  # ``side_place``: a gap to the ground up to this many figure diagonals is "a hand's width"
+FIT = 0.75  # ``usual_surface``: a surface holds a figure whose footprint overhangs it by up to a quarter (a cushion
+# as large as the seat it is on: the judge's stability says whether it rests; this only chooses where)
+ROOM_SHARE = 0.5  # ``usual_surface``: the highest surface with at least this share of the roomiest one's room
 TOP_BAND = 0.05  # "on top of": the highest surface is the top where it is within this share of the ground's height
 SIDES = ("front", "behind", "left", "right")
 
@@ -138,7 +143,7 @@ def _surfaces(points: np.ndarray, normals: np.ndarray, spacing: float, floor: fl
     pairs = cKDTree(pts).query_pairs(JOIN * spacing, output_type="ndarray")
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(pts), len(pts)))
     count, label = connected_components(graph, directed=False)
-    clearance = _clearance(points, pts, spacing)
+    clearance = _clearance(points, normals, pts, spacing)
     surfaces = [Surface(pts[label == k], clearance[label == k], float(np.median(pts[label == k, 1])), spacing)
                 for k in range(count) if (label == k).sum() >= MIN_SAMPLES]
     surfaces.sort(key=lambda s: -s.height)
@@ -147,13 +152,17 @@ def _surfaces(points: np.ndarray, normals: np.ndarray, spacing: float, floor: fl
     return surfaces
 
 
-def _clearance(points: np.ndarray, up: np.ndarray, spacing: float) -> np.ndarray:
-    """(U,) for each up-facing sample, the height of the nearest ground sample above it in its column (within
-    ``JOIN`` spacings across, higher by more than ``JOIN`` spacings), less its own; inf where none is."""
-    tree = cKDTree(points[:, [0, 2]])
+def _clearance(points: np.ndarray, normals: np.ndarray, up: np.ndarray, spacing: float) -> np.ndarray:
+    """(U,) for each up-facing sample, how far above it the nearest underside of the ground is (a down-facing
+    sample within ``COLUMN`` spacings of its column, higher by more than ``JOIN`` spacings: a board's underside,
+    not a divider's face beside it); inf where none is."""
+    down = points[normals[:, 1] <= -FLAT]
     out = np.full(len(up), np.inf)
-    for i, near in enumerate(tree.query_ball_point(up[:, [0, 2]], r=JOIN * spacing, workers=1)):
-        above = points[near, 1] - up[i, 1]
+    if not len(down):
+        return out
+    tree = cKDTree(down[:, [0, 2]])
+    for i, near in enumerate(tree.query_ball_point(up[:, [0, 2]], r=COLUMN * spacing, workers=1)):
+        above = down[near, 1] - up[i, 1]
         above = above[above > JOIN * spacing]
         if len(above):
             out[i] = above.min()
@@ -220,31 +229,45 @@ def usual_surface(found: Parts, height: float, footprint: tuple[float, float], p
                   ) -> Surface | None:
     """The surface "on" means for a figure ``height`` tall with ``footprint`` (its shorter and longer horizontal
     sides), normalised units: the one ``place`` names (the top: the highest surface, where it is the ground's top,
-    else None; a shelf by its order from the bottom among the covered surfaces), else the highest that holds the
-    figure (``holds``: a table's top, a chair's seat rather than its backrest's top rail); None where none holds it
-    (a spire, a head: the summit is the usual place)."""
-    holding = [s for s in found.surfaces if holds(s, height, footprint)]
+    else None; a shelf by its order from the bottom among the covered surfaces), else the highest uncovered surface
+    the figure fits (``room`` at least ``FIT``) with room (at least ``ROOM_SHARE`` of the roomiest's: a table's
+    top; a chair's seat rather than its backrest's top rail; an armchair's seat rather than an arm its base only
+    just fits); None where none fits (a spire, a head: the summit is the usual place)."""
     if place == "top":  # the highest surface where it is the ground's top; else a summit (a spire's tip)
         top = found.surfaces[0] if found.surfaces else None
         return top if top is not None and top.height >= found.floor + (1 - TOP_BAND) * found.height else None
-    if not holding:
+    fits = [(s, room(s, height, footprint)) for s in found.surfaces]
+    fits = [(s, r) for s, r in fits if r >= FIT]
+    if not fits:
         return None
     if place in SHELVES:
-        boards = sorted([s for s in holding if s.name == "shelf"] or holding, key=lambda s: s.height)
+        boards = sorted([s for s, _ in fits if s.name == "shelf"] or [s for s, _ in fits], key=lambda s: s.height)
         return boards[round(SHELVES[place] * (len(boards) - 1))]
-    return holding[0]
+    open_above = [(s, r) for s, r in fits if s.name != "shelf"] or fits
+    roomiest = max(r for _, r in open_above)
+    return next(s for s, r in open_above if r >= ROOM_SHARE * roomiest)
 
 
-def holds(surface: Surface, height: float, footprint: tuple[float, float]) -> bool:
-    """Whether the figure stands on ``surface`` with room: the free area (``Surface.free``: clear of the ground
-    above for its ``height``) is as wide as its footprint both ways (the extents' shorter side against the
-    footprint's shorter side, the longer against the longer) and covers at least its footprint's area."""
+def room(surface: Surface, height: float, footprint: tuple[float, float]) -> float:
+    """How many times the figure's footprint's shorter side fits across the widest clear spot of ``surface``'s
+    free area (``Surface.free``: clear of the ground above for its ``height``): the diameter of the largest disc
+    inside it (``inscribed``) over that side; 0 where the free area is smaller than ``FIT`` squared of the
+    footprint's. A ring round a tower's top is as roomy as it is wide, not as its outer extent."""
     free = surface.free(height)
-    if not free.any() or free.sum() * surface.spacing**2 < footprint[0] * footprint[1]:
-        return False
-    xz = surface.points[free][:, [0, 2]]
-    extent = np.sort(np.ptp(xz, axis=0) + surface.spacing)
-    return bool(extent[0] >= footprint[0] and extent[1] >= footprint[1])
+    if not free.any() or free.sum() * surface.spacing**2 < FIT**2 * footprint[0] * footprint[1]:
+        return 0.0
+    return inscribed(surface.points[free][:, [0, 2]], surface.spacing) / max(footprint[0], 1e-12)
+
+
+def inscribed(xz: np.ndarray, spacing: float) -> float:
+    """The diameter of the largest disc inside the area the samples ``xz`` (N, 2) cover: the samples on a grid of
+    their spacing, closed over one cell (the gaps between samples), and the largest distance of a covered cell
+    from an uncovered one."""
+    cells = np.floor((xz - xz.min(0)) / spacing).astype(int) + 1
+    grid = np.zeros(cells.max(0) + 2, dtype=bool)
+    grid[cells[:, 0], cells[:, 1]] = True
+    grid = ndimage.binary_closing(grid, structure=np.ones((3, 3)))
+    return float(max(2 * ndimage.distance_transform_edt(grid).max() - 1, 1) * spacing)
 
 
 @per_pair
@@ -284,16 +307,17 @@ def surface_place(c: Context, surface: Surface, place: str | None) -> torch.Tens
 def side_place(c: Context, side: SideOf, gap: bool = True) -> torch.Tensor:
     """(B,) how far the figure is from the middle of ``side``: its centre's offset along the side from the side's
     middle, in the side's half-spans; how far its centre is short of being out beyond that side (figure diagonals);
-    with ``gap``, its gap to the ground past ``SIDE_GAP`` figure diagonals (a hand's width away, not across the
-    room)."""
+    with ``gap``, its gap to the ground out that way (their extents', as a person sees a stool beside a desk, not
+    to the nearest surface: a desk's top overhangs the room under it) past ``SIDE_GAP`` figure diagonals (a hand's
+    width away, not across the room)."""
     as_t = lambda a: torch.as_tensor(a, dtype=c.unit.dtype, device=c.unit.device)  # noqa: E731
     centre = c.figure.centre
     across = ((centre @ as_t(side.across)) - side.middle).abs() / side.half
     beyond = (centre @ as_t(side.direction)) - side.reach
     out = across + hinge(-beyond / c.unit)
-    if gap:
-        distance, _ = surface_gap(c.figure.points, c.ground)
-        out = out + hinge(c.finite(soft_min(distance, c.tau())) / c.unit - SIDE_GAP)
+    if gap:  # the figure's nearest extent out that way past the ground's farthest: their bounding boxes' gap
+        nearest = soft_min(c.figure.points @ as_t(side.direction), c.tau())
+        out = out + hinge((nearest - side.reach) / c.unit - SIDE_GAP)
     return out
 
 

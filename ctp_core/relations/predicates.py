@@ -135,16 +135,13 @@ def preference(pair: PreparedPair, poses: Poses, reading: RelationReading | None
     top, the corner included, and geometry at contact (soft-ICP) favours corners and edges, where more target
     samples fall near the source. Read among poses where the relation holds; never part of the verdict.
 
-    - resting (``on``, ``stand``, ``sit``, ``lie``): on the *top* (``drop``: the height between the ground's
-      highest point and the figure's bottom, in figure diagonals, either way: held a hair above a table's top,
-      within the contact tolerance, is not resting on it; a cross "on top of" a church sits on its spire, not on a lower
-      roof; a cup on a plate's inner floor is a fraction of its own size below the plate's rim), resting
-      *steadily* (``unsteady``: 1 less the depth of the centre's projection inside its support's footprint, in
-      its half-widths, at least 0: a plate lying flat rather than on its rim, a cup on its base rather than its
-      side) and *near the middle* (``OFF_CENTRE`` x the horizontal distance of the figure's centre from the
-      middle of the ground's footprint, in the ground's half-widths);
-    - ``in``, ``under``, ``lean``: near the middle (a ball under a table's middle, not by a leg; a board leaning
-      on a face's middle rather than on a corner); ``in`` also *held by its sides* (1 less ``_enclosure``: the
+    - resting (``on``, ``stand``, ``sit``, ``lie``): standing as it is set down, steadily, on the *usual surface*
+      (``parts.figure_surface``: a table's top, a chair's seat, the shelf the prompt names) in the middle of its
+      free area; on the top near the middle where no surface holds the figure (a spire, a head);
+    - ``front``, ``behind``, ``left``, ``right``, ``beside``: standing, centred on that side (``beside``: a lateral
+      one), a hand's width out (``parts.side_place``);
+    - ``lean``: heavy end down, nearly upright, centred on a side a person leans things on (``lean_order``);
+    - ``in``, ``under``: near the middle; ``in`` also *held by its sides* (1 less ``_enclosure``: the
       share of horizontal directions from the figure's foot that meet the ground: 1 in a mug, a bun, a candle
       holder's cup; a candle within the convex hull of a candelabra's open frame, where "in" holds too, is
       half surrounded at best);
@@ -156,8 +153,8 @@ def preference(pair: PreparedPair, poses: Poses, reading: RelationReading | None
       rather than lying sunk along it) and *from above the floor* (the figure's depth below the floor the ground
       stands on, in figure diagonals: driven up through a block's base it would pass through the floor);
     - ``below``: on the floor (a box below a hung lamp stands under it), near the middle;
-    - the others (``beside``: which side is the guide's to say; ``attach``, ``hold``, ``wrap``, the other
-      directional ones): zeros (their ``Judge`` has no preference).
+    - the others (``attach``, ``hold``, ``wrap``, ``above``, ``near``, ``far``, the orientations): zeros (their
+      ``Judge`` has no preference).
     Differentiable in ``poses`` but for the counts (a refinement term: ``objective.PREFER`` x ``lambda_rel``,
     and with a guide only as far as it cannot tell poses apart, ``Scorer.relation_terms``).
     """
