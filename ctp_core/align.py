@@ -24,7 +24,7 @@ from ctp_core.geometry import frames
 from ctp_core.guide import selection
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.reading.names import ground_names
-from ctp_core.relations import vocabulary
+from ctp_core.relations import parts, vocabulary
 
 if TYPE_CHECKING:  # the stages import these lazily: importing align stays light
     from ctp_core.config.schedule import Phase
@@ -236,6 +236,10 @@ def propose(run: Run, init: np.ndarray | None = None) -> Proposals:
     if not config.search.enabled:
         return contact.Proposals(starts, ["random"] * len(starts))
     t0 = time.perf_counter()
+    if run.reading is not None and run.reading.source_is_figure:  # the ground's parts, found once (kept per pair)
+        parts.parts(pair)
+    run.timings["parts_s"] = round(time.perf_counter() - t0, 3)
+    t0 = time.perf_counter()
     weights = proposals.region_weights(run.reading)
     given = starts.select(slice(0, 1)) if init is not None else None
     rungs = run.scale.rungs if run.scale else float(starts.log_s[0])
@@ -354,17 +358,20 @@ def _uint8(images: torch.Tensor) -> np.ndarray:
 def alternatives(run: Run, outcome: Outcome) -> list[int]:
     """Restart indices of the best distinct placements the run refined, the answer first, at most
     ``MAX_ALTERNATIVES``, in ``ordering.alternatives_key``'s order (the relation first, then the objective on
-    the evaluation views), near ones (``search.distinct_translation``
-    source diagonals *and* ``distinct_rotation_deg``, as the search counts duplicates) and those that ended far
-    from the target (over ``contact.NEAR`` source diagonals) left out. A prompt like "a cup on the table" has
-    many right answers; a person picks among these."""
+    the evaluation views): first the best at each distinct place (``search.distinct_translation`` source
+    diagonals apart, any turn: the next places after the usual one), then other turns (near ones: that distance
+    *and* ``distinct_rotation_deg``, as the search counts duplicates); those that ended far from the target (over
+    ``contact.NEAR`` source diagonals) left out. A prompt like "a cup on the table" has many right answers; a
+    person picks among these."""
     from ctp_core.search import coarse_to_fine, ordering
 
     poses = outcome.poses
     far = contact.clearance(run.pair, run.pair.index, poses) > contact.NEAR
     key = ordering.alternatives_key(outcome.terms, outcome.objectives, far, outcome.best)
     distance, angle = coarse_to_fine.distinct_of(run.pair, run.config, float(poses.log_s[0]))
-    kept = coarse_to_fine.diverse_top(poses, key, MAX_ALTERNATIVES, distance, angle, fill=False)
+    places = coarse_to_fine.diverse_top(poses, key, MAX_ALTERNATIVES, distance, 180.0, fill=False)
+    turns = coarse_to_fine.diverse_top(poses, key, MAX_ALTERNATIVES, distance, angle, fill=False)
+    kept = (places + [i for i in turns if i not in places])[:MAX_ALTERNATIVES]
     finite = key.finite()
     return [i for i in kept if finite[i] or i == outcome.best]
 

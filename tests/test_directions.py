@@ -182,7 +182,8 @@ def test_directional_scores_are_scale_free(relation):
 def test_a_contact_relations_verdict_keeps_its_shape():
     pair = prepared(table(), BOX)
     verdict = predicates.verdict(pair, poses(pair, [pose([0, 1.3, 0])]).matrices()[0], reading("on")).to_dict()
-    assert set(verdict) == {"name", "role", "score", "holds", "stable", "usual"}
+    assert set(verdict) == {"name", "role", "score", "holds", "stable", "usual", "pose"}
+    assert verdict["pose"].startswith("standing as it is set down"), verdict["pose"]
     assert verdict["usual"].startswith("the top: the highest surface"), verdict["usual"]  # the ground's part named
 
 

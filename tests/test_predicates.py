@@ -210,9 +210,10 @@ def test_unknown_relation_has_no_term_and_verdict_reports():
     assert predicates.relation_score(pair, p, reading("levitate")).tolist() == [0.0] * 4
     assert predicates.verdict(pair, p.matrices()[0], None) is None
     v = predicates.verdict(pair, p.matrices()[0], reading("on"))
-    usual = v.to_dict().pop("usual")
-    assert {k: x for k, x in v.to_dict().items() if k != "usual"} == {
+    usual, stands = v.to_dict()["usual"], v.to_dict()["pose"]
+    assert {k: x for k, x in v.to_dict().items() if k not in ("usual", "pose")} == {
         "name": "on", "role": "figure", "score": 0.0, "holds": True, "stable": True}
+    assert stands.startswith("standing as it is set down"), stands
     assert usual.startswith("the top: the highest surface"), usual  # the table's top, named by the ground's parts
 
 

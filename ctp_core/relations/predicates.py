@@ -57,13 +57,14 @@ class RelationVerdict:
     parts: list[dict] | None = None  # each relation of a reading that says two ("front+facing"): name, score, holds
     note: str | None = None  # what the verdict cannot judge here (``UNHELD``: nothing in the pair holds the figure up)
     place: str | None = None  # the place the prompt names (``reading.places``: "middle shelf", "edge"), if any
+    pose: str | None = None  # how the source stands against how it is set down (its own up), where it is placed
     usual: str | None = None  # the ground's part the usual place is on, with why (``Spec.where``), else ``Spec.usual``
 
     def to_dict(self) -> dict:
-        """The verdict as reports write it: ``side``, ``frame``, ``parts``, ``note``, ``place`` and ``usual`` only
-        where they say something."""
+        """The verdict as reports write it: ``side``, ``frame``, ``parts``, ``note``, ``place``, ``usual`` and
+        ``pose`` only where they say something."""
         out = asdict(self)
-        optional = ("side", "frame", "parts", "note", "place", "usual")
+        optional = ("side", "frame", "parts", "note", "place", "usual", "pose")
         return {k: v for k, v in out.items() if v is not None or k not in optional}
 
 
@@ -188,11 +189,25 @@ def verdict(pair: PreparedPair, pose: Poses | np.ndarray, reading: RelationReadi
         steady = bool(holds(float(stability(c)[0]))) if reading.steady else None
         unheld = not reading.steady and not bool(_held(c)[0])
         usual = _usual(c, SPECS[reading.position])
+        stands = None if c.upright is None else _stands(pair, float(c.upright[0]))
     return RelationVerdict(
         reading.name, reading.role, round(sum(each), 4), bool(holds(sum(each))),
         steady, reading.side, frame(pair) if reading.directional else None,
         [{"name": p, "score": round(e, 4), "holds": bool(holds(e))} for p, e in zip(named, each, strict=True)]
-        if len(named) > 1 else None, UNHELD if unheld else None, reading.place, usual)
+        if len(named) > 1 else None, UNHELD if unheld else None, place=reading.place, usual=usual, pose=stands)
+
+
+UPRIGHT_DEG = 10.0  # ``_stands``: within this of its own up, a source stands as it is set down
+
+
+def _stands(pair: PreparedPair, upright: float) -> str:
+    """How the source stands against how it is set down (``measures.Context.upright``: 1 less the cosine between its
+    own up and +Y), with where its own up comes from (``source_upright``'s reason)."""
+    angle = math.degrees(math.acos(max(-1.0, min(1.0, 1.0 - upright))))
+    why = pair.source_upright.reason
+    if angle <= UPRIGHT_DEG:
+        return f"standing as it is set down ({why})"
+    return f"turned {angle:.0f} deg from how it is set down ({why})"
 
 
 def _usual(c: Context, spec: Spec) -> str | None:

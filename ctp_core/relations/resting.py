@@ -9,7 +9,7 @@ import torch
 
 from ctp_core import contact
 from ctp_core.contact import Proposals, opening_sides
-from ctp_core.geometry.pose import quaternion_product, quaternion_to_matrix
+from ctp_core.geometry.pose import matrix_to_quaternion, quaternion_product, quaternion_to_matrix
 from ctp_core.pairs import PreparedPair
 from ctp_core.reading.places import ENDS, SHELVES
 from ctp_core.relations import parts
@@ -154,8 +154,9 @@ MIDDLE_JITTER = 0.15  # ``on_usual_surface``: anchors this share of the surface'
 def on_usual_surface(pair: PreparedPair, proposals: Proposals, seed: int, reading: RelationReading | None,
                      log_s: float, count: int) -> Proposals | None:
     """Sources lowered onto the middle of the usual surface (``parts.figure_surface``: the one "on" means for this
-    figure, or the one the prompt's place names), within ``MIDDLE_JITTER`` of its half-span, in the source's own
-    resting frames turned about +Y at random (``extend``): the regions' proposals fall anywhere on the ground and
+    figure, or the one the prompt's place names), within ``MIDDLE_JITTER`` of its half-span, half of them standing
+    as the source is set down (``source_upright``), half in its other resting frames, turned about +Y at random
+    (``extend``): the regions' proposals fall anywhere on the ground and
     the refinement centres them only as far as the contact lets it. None where no surface holds the figure."""
     scale = math.exp(log_s)
     place = None if reading is None else reading.place
@@ -166,6 +167,8 @@ def on_usual_surface(pair: PreparedPair, proposals: Proposals, seed: int, readin
     height = parts.upright_shape(pair)[0] * pair.source_diagonal * scale
     middle, half = surface.middle(height), surface.half_span(height)
     resting = proposals.rotations[torch.as_tensor(rng.integers(len(proposals.rotations), size=count))].cpu()
+    standing = torch.as_tensor(matrix_to_quaternion(pair.source_upright.rotation), dtype=torch.float32)
+    resting[: (count + 1) // 2] = standing  # half as it is set down, half in its other resting frames
     q = torch.cat([quaternion_product(yaw_turn(float(a)), resting[i:i + 1])
                    for i, a in enumerate(rng.uniform(0, 2 * math.pi, count))])
     rotated = torch.einsum("bij,nj->bni", quaternion_to_matrix(q), pair.source_subset(LEAN_POINTS).cpu()) * scale

@@ -628,6 +628,7 @@ function showFacts(report) {
   if (verdict.usual) { // the relation's usual place and the ground's part it is on (predicates.RelationVerdict)
     rows.push(["usual place", (verdict.place ? `the prompt names "${verdict.place}": ` : "") + verdict.usual]);
   }
+  if (verdict.pose) rows.push(["source pose", verdict.pose]); // how it stands against how it is set down
   const grounds = (report.extra || {}).grounds || [];
   if (grounds.length) rows.push(["relates to", grounds.join(" and ")]); // a scene target's objects it was placed by
   if (report.adjusted) {
