@@ -67,6 +67,7 @@ class AlignResult:
     best_restart: int | None = None  # the restart the answer comes from (``ordering.select_answer``'s pick)
     on: str | None = None  # the placed object an assembly step relates to (the first, where there are several)
     grounds: list[str] = field(default_factory=list)  # every placed object it relates to ("between": two)
+    ground_parts: list[str] = field(default_factory=list)  # the ground's named parts, with why (``parts.describe``)
     guided_by: str | None = None  # what guided the run, in words (the report's "guidance")
     model: str | None = None  # the guidance model; None for a geometry-only run
     guide: str = "none"  # the guide chosen for the run: a model spec or "none" (selection.GuideChoice)
@@ -316,6 +317,7 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
                  "source_name": run.names.get("source")},
         restarts=restarts, timings=timings, preview=preview, best_restart=best, on=run.names.get("on"),
         grounds=run.names.get("grounds", []),
+        ground_parts=parts.parts(pair).describe() if run.reading is not None and run.reading.source_is_figure else [],
         guided_by=goal.description if goal is not None else "none (geometry only)",
         model=config.model if goal is not None else None,
         runtime=getattr(run.scorer.guide, "runtime", None),  # the pixels guide has none

@@ -14,6 +14,7 @@ import trimesh
 from test_directions import gltf, prepared
 from test_predicates import box, pose, poses
 
+from ctp_core import export
 from ctp_core.align import align
 from ctp_core.config import AlignConfig
 from ctp_core.reading import places
@@ -226,6 +227,10 @@ def test_a_cushion_on_a_dining_chair_ends_on_the_seat_and_the_report_names_it():
     assert result.relation["holds"], result.relation
     assert centre[1] < 0.6 and abs(centre[0]) < 0.1, centre  # on the seat (its top at 0.47), not the back (1.0)
     assert result.relation["usual"].startswith("the seat"), result.relation["usual"]
+    assert result.relation["pose"].startswith("standing as it is set down"), result.relation["pose"]
+    written = export.report(result)  # the report names every part with why
+    assert written["extra"]["parts"] == result.ground_parts and any(
+        line.startswith("the seat") for line in written["extra"]["parts"]), written["extra"]["parts"]
 
 
 def test_a_crate_left_of_a_desk_ends_centred_on_its_left_side():

@@ -629,6 +629,8 @@ function showFacts(report) {
     rows.push(["usual place", (verdict.place ? `the prompt names "${verdict.place}": ` : "") + verdict.usual]);
   }
   if (verdict.pose) rows.push(["source pose", verdict.pose]); // how it stands against how it is set down
+  const named = (report.extra || {}).parts || [];
+  if (named.length) rows.push(["the ground's parts", named.join("; ")]); // relations.parts, with why
   const grounds = (report.extra || {}).grounds || [];
   if (grounds.length) rows.push(["relates to", grounds.join(" and ")]); // a scene target's objects it was placed by
   if (report.adjusted) {
