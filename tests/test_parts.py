@@ -242,3 +242,28 @@ def test_a_crate_left_of_a_desk_ends_centred_on_its_left_side():
 def test_parts_name_their_reasons_in_file_units():
     found = parts.parts(prepared(dining_chair(), cushion()))
     assert any("0.47 over the base" in line for line in found.describe()), found.describe()
+
+
+def pen_holder() -> trimesh.Trimesh:
+    """An open cylinder 0.08 wide and 0.1 tall (its floor 0.005 thick), standing on y = 0: a narrow container."""
+    outer = trimesh.creation.cylinder(radius=0.04, height=0.1, sections=32)
+    inner = trimesh.creation.cylinder(radius=0.036, height=0.1, sections=32)
+    inner.apply_translation([0, 0, 0.005])
+    cup = trimesh.boolean.difference([outer, inner])
+    cup.apply_transform(trimesh.transformations.rotation_matrix(-math.pi / 2, [1, 0, 0]))
+    cup.apply_translation([0, 0.05, 0])
+    return gltf(cup)
+
+
+def test_a_pencil_in_a_narrow_pen_holder_goes_in_through_its_opening():
+    pencil = trimesh.creation.cylinder(radius=0.004, height=0.18, sections=12)
+    pencil.apply_transform(trimesh.transformations.rotation_matrix(-math.pi / 2, [1, 0, 0]))
+    result, centre = _run(pen_holder(), gltf(pencil), "a pencil in the pen holder", "pen holder", "pencil")
+    assert result.relation["holds"], result.relation
+    placed = pencil.copy()
+    placed.apply_translation([3.0, 0.5, 2.0])
+    placed.apply_transform(result.source_to_target)
+    low, high = placed.bounds
+    # along the holder's axis: its foot inside the cavity, its top out above the rim, nowhere through the wall
+    assert np.hypot(centre[0], centre[2]) < 0.03 and low[1] < 0.05 and high[1] > 0.1, placed.bounds
+    assert high[1] - low[1] > 0.15, placed.bounds  # standing along the axis, not lying across the mouth
