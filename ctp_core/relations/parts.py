@@ -2,7 +2,7 @@
 
 A relation holds in many places ("a cup on the table" holds on the whole top); its *usual place* (``Spec.usual``) is
 one of these parts, centred: the support surface a person uses (the top of a table, the seat of a chair, the shelf
-the prompt names), the middle of a side, a bar's middle. ``parts`` finds them once per pair (``per_pair``), in the
+the prompt names), the middle of a side. ``parts`` finds them once per pair (``per_pair``), in the
 normalised frame (+Y up, the ground's front and left as ``measures.axes`` gives them), from the samples of the object
 the source relates to (``PreparedPair.anchor``):
 
@@ -10,11 +10,11 @@ the source relates to (``PreparedPair.anchor``):
   across (``JOIN`` sample spacings): a table's top, a chair's seat, a bookcase's boards, a bench's slats as one.
   Each has its height, area and, per sample, its *clearance*: how high a thing standing there can be before it
   meets the ground above it (inf where nothing is above);
-- **the top**: the highest surface; a **shelf**: a surface with the ground above most of it; **the seat**: a
-  surface with a back rising behind it (ground above it along one of its edges, over at least half that edge's
-  length, and none over its middle);
+- **the top**: the highest surface; a **shelf**: a surface with the ground's underside above most of it
+  (``COVERED``); **the seat**: another surface with a back rising behind it (ground higher than it by a third of
+  its width along one of its edges, over at least ``BACK`` of that edge's length);
 - **the sides**: front, behind, left, right, each with its span across (where its middle is) and whether a person
-  reaches it (``accessible``: a ground with a trusted front that stands on the floor has its back against the wall).
+  reaches it (``accessible``: a ground with a front of its own stands with its back against a wall).
 
 ``usual_surface`` picks the surface "on" means for a figure of a given size: the one the prompt's place names
 (``RelationReading.place``: the top, a shelf by its order), else the highest uncovered surface that holds the figure
@@ -69,18 +69,23 @@ class Surface:
         """(M,) bool: the samples where a figure ``height`` tall stands clear of the ground above."""
         return self.clearance >= height
 
+    def extent(self, height: float) -> tuple[np.ndarray, np.ndarray]:
+        """(low, high) (x, z) of the free area for a figure ``height`` tall (of the whole surface where none is
+        free), its 5th and 95th percentiles: a stray sample does not widen it."""
+        free = self.free(height)
+        xz = (self.points[free] if free.any() else self.points)[:, [0, 2]]
+        return np.percentile(xz, 5, axis=0), np.percentile(xz, 95, axis=0)
+
     def middle(self, height: float) -> np.ndarray:
-        """(2,) the middle (x, z) of the free area for a figure ``height`` tall (of the whole surface where none is
-        free): the centre of its extent, not its mean (a slatted seat's samples are uneven)."""
-        pts = self.points[self.free(height)] if self.free(height).any() else self.points
-        xz = pts[:, [0, 2]]
-        return (np.percentile(xz, 5, axis=0) + np.percentile(xz, 95, axis=0)) / 2
+        """(2,) the middle (x, z) of the free area: the centre of its extent, not its mean (a slatted seat's samples
+        are uneven)."""
+        low, high = self.extent(height)
+        return (low + high) / 2
 
     def half_span(self, height: float) -> float:
         """Half the free area's diagonal extent (x, z), normalised units."""
-        pts = self.points[self.free(height)] if self.free(height).any() else self.points
-        xz = pts[:, [0, 2]]
-        return float(np.linalg.norm(np.percentile(xz, 95, axis=0) - np.percentile(xz, 5, axis=0)) / 2)
+        low, high = self.extent(height)
+        return float(np.linalg.norm(high - low) / 2)
 
 
 @dataclass
