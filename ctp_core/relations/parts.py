@@ -136,7 +136,7 @@ def parts(pair: PreparedPair) -> Parts:
     front, left = axes(torch.as_tensor(pair.target_front, dtype=torch.float32)[None], pair.front_trusted)
     unit = 1.0 / pair.target_to_normalised.scale  # target file units per normalised unit: what reasons say
     found = Parts(_surfaces(points, normals, spacing, floor, unit), {}, top - floor, floor)
-    found.sides = _sides(points, front, left, pair.front_trusted, floor)
+    found.sides = _sides(points, front, left, pair.front_trusted)
     return found
 
 
@@ -192,7 +192,8 @@ def _name(surface: Surface, highest: bool, points: np.ndarray, spacing: float, h
 
 def _back(surface: Surface, points: np.ndarray, spacing: float) -> str | None:
     """Which edge of ``surface`` a back rises from (ground higher than the surface by a third of the surface's
-    width, within ``JOIN`` spacings outside or over that edge, along at least ``BACK`` of it); None where none does."""
+    width, within twice ``JOIN`` spacings of that edge, along at least ``BACK`` of it, counted in tenths of the
+    edge); None where none does."""
     xz = surface.points[:, [0, 2]]
     lo, hi = np.percentile(xz, 2, axis=0), np.percentile(xz, 98, axis=0)
     rise = surface.height + np.min(hi - lo) / 3
@@ -214,8 +215,7 @@ def _back(surface: Surface, points: np.ndarray, spacing: float) -> str | None:
     return None
 
 
-def _sides(points: np.ndarray, front: torch.Tensor, left: torch.Tensor, trusted: bool, floor: float
-           ) -> dict[str, SideOf]:
+def _sides(points: np.ndarray, front: torch.Tensor, left: torch.Tensor, trusted: bool) -> dict[str, SideOf]:
     out = {}
     for name in SIDES:
         u = toward(name, front, left)[0].double().numpy()
