@@ -117,6 +117,7 @@ class Parts:
     sides: dict[str, SideOf] = field(default_factory=dict)
     height: float = 0.0  # the ground's height, normalised units
     floor: float = 0.0
+    chosen: dict = field(default_factory=dict, repr=False)  # ``figure_surface``'s answers, by size and place
 
     def describe(self) -> list[str]:
         """One line per named part, with its reason (reports, the page)."""
@@ -287,9 +288,14 @@ def upright_shape(pair: PreparedPair) -> tuple[float, float, float]:
 
 
 def figure_surface(pair: PreparedPair, diagonal: float, place: str | None) -> Surface | None:
-    """``usual_surface`` for the source at a posed diagonal ``diagonal`` (normalised units)."""
-    height, small, large = upright_shape(pair)
-    return usual_surface(parts(pair), height * diagonal, (small * diagonal, large * diagonal), place)
+    """``usual_surface`` for the source at a posed diagonal ``diagonal`` (normalised units), kept per size and
+    place with the pair's parts (every preference of a run asks it again)."""
+    found = parts(pair)
+    key = (round(diagonal, 9), place)
+    if key not in found.chosen:
+        height, small, large = upright_shape(pair)
+        found.chosen[key] = usual_surface(found, height * diagonal, (small * diagonal, large * diagonal), place)
+    return found.chosen[key]
 
 
 def surface_place(c: Context, surface: Surface, place: str | None) -> torch.Tensor:
