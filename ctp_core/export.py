@@ -188,11 +188,11 @@ def _extra(result: AlignResult) -> dict:
     """The run's provenance fields under the report's ``extra`` key, in the order the report has always had."""
     return {
         "best_restart": result.best_restart, "on": result.on, "grounds": result.grounds,
-        "parts": result.ground_parts,  # the ground's named parts the usual places are on, with why
         "guidance": result.guided_by,
         "runtime": result.runtime, "clip_images": result.clip_images, "phase_timings": result.phase_timings,
         "target_upright": _frame(result.target_upright), "source_upright": _frame(result.source_upright),
         "scale": result.scaling,  # scale mode: initial scale and where from, the ladder, the final scale
+        "parts": result.ground_parts,  # the ground's named parts the usual places are on, with why
     }
 
 

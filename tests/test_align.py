@@ -129,7 +129,7 @@ def test_cli_align_end_to_end(tmp_path, meshes, capsys):
         placed = trimesh.load(path, force="scene").graph["source"][0]
         np.testing.assert_allclose(placed, alternatives[k]["transform"]["matrix"], atol=1e-6)
     assert list(data["extra"]) == ["best_restart", "on", "grounds", "guidance", "runtime", "clip_images",
-                                   "phase_timings", "target_upright", "source_upright", "scale"]
+                                   "phase_timings", "target_upright", "source_upright", "scale", "parts"]
     assert data["extra"]["scale"] is None  # rigid: the scale found only in scale mode (tests/test_scale_mode.py)
     assert data["extra"]["clip_images"] > 0 and len(data["extra"]["phase_timings"]) == data["config"]["optim"]["phases"]
     frame = ["rotation", "changed", "up", "front", "front_trusted", "reason", "front_reason"]

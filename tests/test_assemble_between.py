@@ -1,7 +1,8 @@
 """A step with two grounds ("a lamp between the sofa and the armchair") through the assembly layers: the plan's
 ``on`` as a name or a list (``plan_step``, ``check_plan``, a YAML plan), and ``ctp assemble`` placing a sofa, an
-armchair beside it and a lamp between the two, geometry only: the report names both grounds, the relation's
-verdict holds, and the GLB as written has the lamp between them without entering either."""
+armchair away from it ("far": room for a lamp between them; "beside" stands it a hand's width away, its usual
+place) and a lamp between the two, geometry only: the report names both grounds, the relation's verdict holds, and
+the GLB as written has the lamp between them without entering either."""
 
 from __future__ import annotations
 
@@ -74,7 +75,7 @@ def test_a_yaml_plan_takes_a_list_of_grounds(tmp_path):
     for name, mesh in sofa_armchair_lamp().items():
         mesh.export(tmp_path / f"{name}.glb")
     (tmp_path / "plan.yaml").write_text(
-        "base: sofa.glb\nsteps:\n  - {file: armchair.glb, prompt: an armchair beside the sofa, name: 2}\n"
+        "base: sofa.glb\nsteps:\n  - {file: armchair.glb, prompt: an armchair far from the sofa, name: 2}\n"
         f"  - file: lamp.glb\n    prompt: {LAMP_PROMPT}\n    on: [sofa, 2]\n")
     _, _, steps, _ = read_plan(tmp_path / "plan.yaml", AlignConfig.from_preset("test", model="random:tiny"))
     assert [(s.name, s.on) for s in steps] == [("2", ()), ("lamp", ("sofa", "2"))]
@@ -120,7 +121,7 @@ def test_cli_add_places_a_lamp_between_two_placed_objects(tmp_path, capsys):
         mesh.export(tmp_path / f"{name}.glb")
     out, report = tmp_path / "room.glb", tmp_path / "report.json"
     code = main(["assemble", str(tmp_path / "sofa.glb"),
-                 "--add", str(tmp_path / "armchair.glb"), "an armchair beside the sofa",
+                 "--add", str(tmp_path / "armchair.glb"), "an armchair far from the sofa",
                  "--add", str(tmp_path / "lamp.glb"), LAMP_PROMPT,
                  "--preset", "test", "--model", "random:tiny", "--no-guidance", "--seed", "0",
                  "--out", str(out), "--report", str(report), "--quiet"])
@@ -141,7 +142,7 @@ def test_assemble_takes_the_two_grounds_a_step_names():
 
     meshes = sofa_armchair_lamp()
     config = AlignConfig.from_preset("test", model="random:tiny", seed=0, loss={"lambda_clip": 0.0})
-    assembly = assemble(meshes["sofa"], [Step(meshes["armchair"], "armchair", "an armchair beside the sofa"),
+    assembly = assemble(meshes["sofa"], [Step(meshes["armchair"], "armchair", "an armchair far from the sofa"),
                                          Step(meshes["lamp"], "lamp", LAMP_PROMPT, on=("armchair", "sofa"))],
                         config, base_name="sofa")
     lamp = json.loads(json.dumps(assembly_report(assembly)))["stages"][1]

@@ -264,7 +264,7 @@ def test_python_client_assembles_and_chains(api, worker, files, tmp_path):
         assert (err.value.status, err.value.code) == (422, "invalid_plan")  # neither prompt nor image
 
 
-ROOM = [{"file": "armchair.glb", "prompt": "an armchair beside the sofa"},
+ROOM = [{"file": "armchair.glb", "prompt": "an armchair far from the sofa"},
         {"file": "lamp.glb", "prompt": LAMP_PROMPT, "on": ["sofa", "armchair"]}]
 
 

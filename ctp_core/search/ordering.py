@@ -218,7 +218,7 @@ def rank_key(terms: dict[str, torch.Tensor], weights: Phase, *, share: float, gu
     if guide_key is None or override <= 0:
         if geometric is None:
             geometric = combine({**terms, "clip": torch.zeros_like(terms["objective"])}, weights)
-        return Key((~holds).long(), usual_first(geometric, terms, weights))
+        return Key((~holds).long(), usual_first(geometric, terms, weights, holds))
     key = guide_key.double() + tie * terms.get("prefer", torch.zeros_like(guide_key)).double()
     pool = holds.clone()
     others = torch.nonzero(~holds)[:, 0]
@@ -228,16 +228,19 @@ def rank_key(terms: dict[str, torch.Tensor], weights: Phase, *, share: float, gu
     return Key((~pool).long(), key)
 
 
-def usual_first(geometric: torch.Tensor, terms: dict[str, torch.Tensor], weights: Phase) -> torch.Tensor:
-    """(B,) float64: what orders poses where the geometry alone chooses: the usual arrangement (``prefer``) one to
-    one against the geometric objective in units of the relation's weight (``lambda_rel``). In the objective the
-    usual arrangement weighs ``PREFER`` of the relation, which is right for the gradient (it must not pull a pose
-    off the relation) but lets soft-ICP, which favours corners and edges where more samples fall near the source,
-    decide among poses that all hold; ordered here, among them the usual place comes first and the geometry breaks
-    what it cannot tell. Without a relation term: the objective as it is."""
+def usual_first(geometric: torch.Tensor, terms: dict[str, torch.Tensor], weights: Phase, holds: torch.Tensor
+                ) -> torch.Tensor:
+    """(B,) float64: what orders poses where the geometry alone chooses: among those that hold (``holds``) the
+    usual arrangement (``prefer``) one to one against the geometric objective in units of the relation's weight
+    (``lambda_rel``); the others by the objective alone (where nothing holds, the least violation comes first, not
+    the usual place). In the objective the usual arrangement weighs ``PREFER`` of the relation, which is right for
+    the gradient (it must not pull a pose off the relation) but lets soft-ICP, which favours corners and edges where
+    more samples fall near the source, decide among poses that all hold; ordered here, among them the usual place
+    comes first and the geometry breaks what it cannot tell. Without a relation term: the objective as it is."""
     if not weights.lambda_rel or "prefer" not in terms:
         return geometric.double()
-    return geometric.double() / weights.lambda_rel + terms["prefer"].to(geometric.device).double()
+    usual = geometric.double() / weights.lambda_rel + terms["prefer"].to(geometric.device).double()
+    return torch.where(holds.to(geometric.device), usual, geometric.double())
 
 
 def search_key(terms: dict[str, torch.Tensor], weights: Phase, gate: Gate | None, *, guided: bool, share: float,
