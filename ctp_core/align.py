@@ -216,6 +216,12 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
                scale=scales)
 
 
+def ground_parts(run: Run) -> parts.Parts | None:
+    """The ground's parts (``parts.parts``, kept per pair) where the run places the source relative to a ground
+    by a relation; None otherwise."""
+    return parts.parts(run.pair) if run.reading is not None and run.reading.source_is_figure else None
+
+
 def propose(run: Run, init: np.ndarray | None = None) -> Proposals:
     """Search on: contact proposals (``proposals.propose``); off: the random starts (``optimise.initial_poses``).
 
@@ -237,8 +243,7 @@ def propose(run: Run, init: np.ndarray | None = None) -> Proposals:
     if not config.search.enabled:
         return contact.Proposals(starts, ["random"] * len(starts))
     t0 = time.perf_counter()
-    if run.reading is not None and run.reading.source_is_figure:  # the ground's parts, found once (kept per pair)
-        parts.parts(pair)
+    ground_parts(run)  # found once here, timed, and kept with the pair for the builders and preferences
     run.timings["parts_s"] = round(time.perf_counter() - t0, 3)
     t0 = time.perf_counter()
     weights = proposals.region_weights(run.reading)
@@ -317,7 +322,7 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
                  "source_name": run.names.get("source")},
         restarts=restarts, timings=timings, preview=preview, best_restart=best, on=run.names.get("on"),
         grounds=run.names.get("grounds", []),
-        ground_parts=parts.parts(pair).describe() if run.reading is not None and run.reading.source_is_figure else [],
+        ground_parts=[] if (found := ground_parts(run)) is None else found.describe(),
         guided_by=goal.description if goal is not None else "none (geometry only)",
         model=config.model if goal is not None else None,
         runtime=getattr(run.scorer.guide, "runtime", None),  # the pixels guide has none

@@ -182,7 +182,7 @@ class Optimiser:
                              share=scorer.config.search.min_share, gate=scorer.gate)
 
     def _readout(self, best: Poses, scores: dict[str, torch.Tensor], i: int) -> dict:
-        """The progress figures of restart ``i`` (the one the run would answer with now: ``answer``) on the
+        """The progress figures of restart ``i`` (the one the run would answer with now) on the
         evaluation views: its objective, and what a person reads instead of it (its scale changes with each
         phase's weights): its match to the guide (mean cosine; none without one, or with one whose gate is 0) and
         its gap to the target (source diagonals, within the target samples' spacing), and in how many restarts

@@ -93,7 +93,7 @@ def test_the_back_of_a_ground_with_a_front_is_against_the_wall_and_the_others_ar
     sides = parts.parts(pair).sides
     assert [name for name, s in sides.items() if not s.accessible] == ["behind"]
     pair.front_trusted = False
-    parts.parts.__wrapped__(pair)  # the cache keeps the first; build afresh with no front
+    # the cache keeps the first: build afresh with no front
     assert all(s.accessible for s in parts.parts.__wrapped__(pair).sides.values())
 
 
@@ -101,14 +101,14 @@ def test_the_back_of_a_ground_with_a_front_is_against_the_wall_and_the_others_ar
                                               ("lower shelf", 0.04), ("upper shelf", 0.64)])
 def test_the_usual_surface_is_the_highest_that_fits_or_the_one_the_prompt_names(place, board):
     pair = prepared(bookcase(), crate(0.15))
-    surface = parts.figure_surface(pair, pair.source_diagonal, place)
+    surface = parts.usual_spot(pair, pair.source_diagonal, place).surface
     height_in_file = (surface.height - pair.floor) / pair.target_to_normalised.scale
     assert height_in_file == pytest.approx(board, abs=0.02), (place, surface.reason)
 
 
 def test_the_seat_is_the_usual_surface_of_a_chair_for_a_cushion_not_the_backrest_top():
     pair = prepared(dining_chair(), cushion())
-    assert parts.figure_surface(pair, pair.source_diagonal, None).name == "seat"
+    assert parts.usual_spot(pair, pair.source_diagonal, None).surface.name == "seat"
 
 
 # --- the usual place of each relation ----------------------------------------------------------------------------
@@ -161,10 +161,9 @@ def test_beside_prefers_a_lateral_side_to_the_front():
 def _leaning_board(position, facing):
     """A board 1.0 tall leaning 15 degrees toward the ground at ``position`` (its centre), ``facing`` out."""
     board = gltf(box([0.3, 1.0, 0.04], [0, 0, 0]))
-    tilt = -math.radians(15) if facing == "+z" else math.radians(15)
-    axis = [1, 0, 0] if facing in ("+z", "-z") else [0, 0, 1]
-    tilt = tilt if facing in ("+z", "-z") else (math.radians(15) if facing == "+x" else -math.radians(15))
-    return board, pose(position, trimesh.transformations.rotation_matrix(tilt, axis)[:3, :3])
+    tilts = {"+z": ([1, 0, 0], -15), "-z": ([1, 0, 0], 15), "+x": ([0, 0, 1], 15), "-x": ([0, 0, 1], -15)}
+    axis, degrees = tilts[facing]
+    return board, pose(position, trimesh.transformations.rotation_matrix(math.radians(degrees), axis)[:3, :3])
 
 
 def test_lean_prefers_a_side_of_a_cabinet_to_its_back():

@@ -2,8 +2,8 @@
 
 A relation's usual place (``relations.spec.Spec.usual``) is where people put the figure when nothing more is said:
 the middle of a table's top, the middle of a side. A prompt may name another: "at the edge of", "in the corner of",
-"on the middle shelf", "on the left end". ``read`` gives that place as one of ``PLACES`` (None where the prompt names
-none); the relations' preferences read it (``relations.parts``). Torch-free.
+"on the middle shelf", "on the left end". ``read`` gives that place (one of ``_PATTERNS``' names; None where the prompt
+names none); the relations' preferences read it (``relations.parts``). Torch-free.
 """
 
 from __future__ import annotations
@@ -25,12 +25,11 @@ _PATTERNS: tuple[tuple[str, str], ...] = (
     ("foot", r"\b(?:at|by) the foot of\b"),
     ("top", r"\bon (?:the )?top of\b|\batop\b|\bon top\b"),
 )
-PLACES: tuple[str, ...] = tuple(dict.fromkeys(place for place, _ in _PATTERNS))
 SHELVES = {"lower shelf": 0.0, "middle shelf": 0.5, "upper shelf": 1.0, "top shelf": 1.0}  # order from the bottom
 ENDS = ("edge", "corner", "end", "left end", "right end", "head", "foot")  # away from the middle
 
 
 def read(prompt: str) -> str | None:
-    """The place the prompt names (one of ``PLACES``), or None."""
+    """The place the prompt names (the first of ``_PATTERNS`` that matches), or None."""
     text = " ".join(prompt.lower().split())
     return next((place for place, pattern in _PATTERNS if re.search(pattern, text)), None)

@@ -11,10 +11,10 @@ import torch
 from scipy.spatial import cKDTree
 
 from ctp_core.contact import Proposals, surface_regions
-from ctp_core.geometry.pose import quaternion_product, quaternion_to_matrix
+from ctp_core.geometry.pose import quaternion_to_matrix
 from ctp_core.pairs import PreparedPair
 from ctp_core.relations import parts
-from ctp_core.relations.building import LEAN_POINTS, kept_where_put, target_axes, yaw_turn
+from ctp_core.relations.building import LEAN_POINTS, kept_where_put, random_resting, target_axes, yawed
 from ctp_core.relations.measures import (
     CONTACT,
     FAR,
@@ -30,6 +30,7 @@ from ctp_core.relations.measures import (
     soft_min,
     surface_gap,
     toward,
+    turned,
 )
 from ctp_core.relations.spec import Judge, Spec
 from ctp_core.relations.vocabulary import RelationReading
@@ -155,10 +156,9 @@ def _score_aligned(c: Context) -> torch.Tensor:
 
 
 def _standing(c: Context) -> torch.Tensor:
-    """(B,) how far the figure is from standing on the floor as it is set down: ``Context.upright`` (0 without one)
-    and how far it stands off the floor (``off_floor``)."""
-    turned = c.upright if c.upright is not None else torch.zeros_like(c.unit)
-    return turned + off_floor(c)
+    """(B,) how far the figure is from standing on the floor as it is set down: how far it is turned from it
+    (``turned``) and how far it stands off the floor (``off_floor``)."""
+    return turned(c) + off_floor(c)
 
 
 def _prefer_side(c: Context, side: str) -> torch.Tensor:
@@ -226,14 +226,14 @@ def apart(pair: PreparedPair, proposals: Proposals, seed: int, reading: Relation
     else:
         angle = torch.as_tensor(rng.uniform(0, 2 * math.pi, count), dtype=torch.float32)
         u = torch.stack([angle.sin(), torch.zeros_like(angle), angle.cos()], -1)
-    resting = proposals.rotations[torch.as_tensor(rng.integers(len(proposals.rotations), size=count))].cpu()
+    resting = random_resting(proposals, rng, count)
     if turn is None or kind == "vertical":
         heading = rng.uniform(0, 2 * math.pi, count)
     else:  # the source's front (azimuth about +Y, from +Z) to the wanted direction
         want = {"facing": -u, "facing_away": u, "aligned": front.expand(count, 3)}[turn]
         own = quaternion_to_matrix(resting) @ torch.as_tensor(pair.source_front, dtype=torch.float32)
         heading = (torch.atan2(want[:, 0], want[:, 2]) - torch.atan2(own[:, 0], own[:, 2])).numpy()
-    q = torch.cat([quaternion_product(yaw_turn(float(a)), resting[i:i + 1]) for i, a in enumerate(heading)])
+    q = yawed(resting, heading)
     rotated = torch.einsum("bij,nj->bni", quaternion_to_matrix(q), pair.source_subset(LEAN_POINTS).cpu()) * scale
     source_diagonal = pair.source_diagonal * scale
     if position == "above":  # over a point of the target's top, clear of it
@@ -259,15 +259,14 @@ def apart(pair: PreparedPair, proposals: Proposals, seed: int, reading: Relation
 def beneath(pair: PreparedPair, proposals: Proposals, seed: int, reading: RelationReading | None,
             log_s: float, count: int) -> Proposals | None:
     """Sources standing on the floor under a down-facing point of the target lifted high enough for them, more of
-    them near the middle of its footprint (``near_middle``) (``extend``; the module docstring says where); None
-    where no point is."""
+    them near the middle of its footprint (``near_footprint_middle``) (``extend``; the module docstring says
+    where); None where no point is."""
     points, _, regions, density = surface_regions(pair)
     under = regions["bottom"]
     rng = np.random.default_rng(seed + 43)
     scale = math.exp(log_s)
-    resting = proposals.rotations[torch.as_tensor(rng.integers(len(proposals.rotations), size=count))].cpu()
-    q = torch.cat([quaternion_product(yaw_turn(float(a)), resting[i:i + 1])
-                   for i, a in enumerate(rng.uniform(0, 2 * math.pi, count))])
+    resting = random_resting(proposals, rng, count)
+    q = yawed(resting, rng.uniform(0, 2 * math.pi, count))
     rising = torch.einsum("bij,nj->bni", quaternion_to_matrix(q), pair.source_subset(LEAN_POINTS).cpu())[..., 1]
     heights = (rising.amax(1) - rising.amin(1)) * scale
     reach = pair.source_diagonal / 2 * scale  # the source's widest half-width, any way it is turned
@@ -280,7 +279,7 @@ def beneath(pair: PreparedPair, proposals: Proposals, seed: int, reading: Relati
     keep = np.flatnonzero(fits.any(1))
     if not len(keep):
         return None
-    weights = density[under][None, :] * fits[keep] * near_middle(points[under])[None, :]
+    weights = density[under][None, :] * fits[keep] * near_footprint_middle(points[under])[None, :]
     pick = [under[rng.choice(len(under), p=w / w.sum())] for w in weights]
     anchor = torch.as_tensor(points[pick], dtype=torch.float32)
     anchor[:, 1] = pair.floor
@@ -288,13 +287,13 @@ def beneath(pair: PreparedPair, proposals: Proposals, seed: int, reading: Relati
     return kept_where_put(pair, proposals, q[torch.as_tensor(keep)], anchor, log_s, label)
 
 
-def near_middle(points: np.ndarray) -> np.ndarray:
-    """(N,) a drawing weight for points of a ground: 1, and up to ``parts.MIDDLE_WEIGHT`` more near the middle of
-    its footprint (within ``parts.MIDDLE_WIDTH`` of its half-extents), where the usual place is."""
+def near_footprint_middle(points: np.ndarray) -> np.ndarray:
+    """(N,) a drawing weight for points of a ground: 1, and more near the middle of its footprint
+    (``parts.near_middle`` of the offset in its half-extents), where the usual place is."""
     xz = points[:, [0, 2]]
     low, high = xz.min(0), xz.max(0)
     offset = (xz - (low + high) / 2) / np.maximum((high - low) / 2, 1e-9)
-    return 1.0 + parts.MIDDLE_WEIGHT * np.exp(-0.5 * (np.linalg.norm(offset, axis=1) / parts.MIDDLE_WIDTH) ** 2)
+    return 1.0 + parts.near_middle(np.linalg.norm(offset, axis=1))
 
 
 
@@ -355,9 +354,8 @@ def between(pair: PreparedPair, proposals: Proposals, seed: int, reading: Relati
                                                                          dtype=torch.float32)
     anchor = along[:, None] * u + across[:, None] * v
     anchor[:, 1] = pair.floor
-    resting = proposals.rotations[torch.as_tensor(rng.integers(len(proposals.rotations), size=count))].cpu()
-    q = torch.cat([quaternion_product(yaw_turn(float(a)), resting[i:i + 1])
-                   for i, a in enumerate(rng.uniform(0, 2 * math.pi, count))])
+    resting = random_resting(proposals, rng, count)
+    q = yawed(resting, rng.uniform(0, 2 * math.pi, count))
     return kept_where_put(pair, proposals, q, anchor, log_s, "between")
 
 SIDES = ("front", "behind", "left", "right")

@@ -54,6 +54,17 @@ def yaw_turn(angle: float) -> torch.Tensor:
     return torch.tensor([[math.cos(angle / 2), 0.0, math.sin(angle / 2), 0.0]])
 
 
+def random_resting(proposals: Proposals, rng: np.random.Generator, count: int) -> torch.Tensor:
+    """(count, 4) the source's own orientations (``proposals.rotations``: upright, flipped, resting) drawn at
+    random, on the CPU."""
+    return proposals.rotations[torch.as_tensor(rng.integers(len(proposals.rotations), size=count))].cpu()
+
+
+def yawed(q: torch.Tensor, angles) -> torch.Tensor:
+    """(B, 4) each orientation of ``q`` (B, 4) turned about +Y by its angle of ``angles`` (B radians)."""
+    return torch.cat([quaternion_product(yaw_turn(float(a)), q[i:i + 1]) for i, a in enumerate(angles)])
+
+
 def lowered(pair: PreparedPair, proposals: Proposals, q: torch.Tensor, anchor: torch.Tensor, normal: torch.Tensor,
              on_surface: bool, log_s: float, label: str) -> Proposals:
     """Sources turned by ``q`` moved straight along -``normal`` from ``anchor`` into contact (``contact.place``),

@@ -239,6 +239,7 @@ class Features:
     target_trees: dict[str, losses.SurfaceIndex | None]  # per normal subset ("up", "down", "side", ...)
     target_figure: Side  # a subset of the target as a figure (the ground role), static
     grounds: list[torch.Tensor]  # (M, 3) samples of each named ground where there are several ("between")
+    source_up: torch.Tensor  # (3,) source local frame, unit: its own up (``source_upright``: the file's for glTF)
 
 
 @per_pair
@@ -273,7 +274,9 @@ def _build(pair: PreparedPair) -> Features:
                   torch.tensor([t_spacing], device=device), anchor)
     centre = as_t(local.apply(pts.mean(0)[None])[0])
     grounds = [g.points for g in pair.grounds]
-    return Features(s_points, s_normals, centre, math.sqrt(s_area / FIGURE_POINTS), target, trees, figure, grounds)
+    up = local.apply_directions(pair.source_upright.up[None])[0]
+    return Features(s_points, s_normals, centre, math.sqrt(s_area / FIGURE_POINTS), target, trees, figure, grounds,
+                    as_t(up / np.linalg.norm(up)))
 
 
 def posed_source(feat: Features, poses: Poses) -> Side:
@@ -322,10 +325,9 @@ def context(pair: PreparedPair, poses: Poses, reading: RelationReading | None) -
 
 
 def _uprightness(pair: PreparedPair, poses: Poses) -> torch.Tensor:
-    """(B,) how far each pose turns the source from standing as it is set down (its own up, ``source_upright``: the
-    file's for glTF), 0 upright to 2 upside down: 1 less the cosine between its posed up and +Y."""
-    up = pair.source_to_local.apply_directions(pair.source_upright.up[None])[0]
-    up = torch.as_tensor(up / np.linalg.norm(up), dtype=torch.float32, device=poses.t.device)
+    """(B,) how far each pose turns the source from standing as it is set down (its own up, ``Features.source_up``),
+    0 upright to 2 upside down: 1 less the cosine between its posed up and +Y."""
+    up = features(pair).source_up.to(poses.t.device)
     return 1.0 - torch.einsum("bij,j->bi", quaternion_to_matrix(poses.q), up)[:, 1]
 
 
@@ -344,6 +346,11 @@ class Context:
     pair: PreparedPair | None = None  # the pair, where the source is the figure: its ground's parts (``parts``)
     reading: RelationReading | None = None  # the reading judged: the place its prompt names
     upright: torch.Tensor | None = None  # (B,) ``_uprightness``, where the source is the figure
+
+    @property
+    def place(self) -> str | None:
+        """The place on or beside the ground the prompt names (``RelationReading.place``), or None."""
+        return None if self.reading is None else self.reading.place
 
     @property
     def unit(self) -> torch.Tensor:  # (B,) figure diagonal
@@ -438,6 +445,10 @@ def off_centre(c: Context) -> torch.Tensor:
     return OFF_CENTRE * (c.figure.centre[:, [0, 2]] - (low + high) / 2).norm(dim=-1) / half
 
 
+def turned(c: Context) -> torch.Tensor:
+    """(B,) ``Context.upright``: how far the figure is turned from standing as it is set down (0 where the source
+    is the ground)."""
+    return c.upright if c.upright is not None else torch.zeros_like(c.unit)
 
 
 ON_FLOOR = 0.25  # ``off_floor``: what standing off the floor by the whole contact tolerance costs

@@ -69,24 +69,6 @@ class Surface:
         """(M,) bool: the samples where a figure ``height`` tall stands clear of the ground above."""
         return self.clearance >= height
 
-    def extent(self, height: float) -> tuple[np.ndarray, np.ndarray]:
-        """(low, high) (x, z) of the free area for a figure ``height`` tall (of the whole surface where none is
-        free), its 5th and 95th percentiles: a stray sample does not widen it."""
-        free = self.free(height)
-        xz = (self.points[free] if free.any() else self.points)[:, [0, 2]]
-        return np.percentile(xz, 5, axis=0), np.percentile(xz, 95, axis=0)
-
-    def middle(self, height: float) -> np.ndarray:
-        """(2,) the middle (x, z) of the free area: the centre of its extent, not its mean (a slatted seat's samples
-        are uneven)."""
-        low, high = self.extent(height)
-        return (low + high) / 2
-
-    def half_span(self, height: float) -> float:
-        """Half the free area's diagonal extent (x, z), normalised units."""
-        low, high = self.extent(height)
-        return float(np.linalg.norm(high - low) / 2)
-
 
 @dataclass
 class SideOf:
@@ -117,7 +99,7 @@ class Parts:
     sides: dict[str, SideOf] = field(default_factory=dict)
     height: float = 0.0  # the ground's height, normalised units
     floor: float = 0.0
-    chosen: dict = field(default_factory=dict, repr=False)  # ``figure_surface``'s answers, by size and place
+    chosen: dict = field(default_factory=dict, repr=False)  # ``usual_spot``'s answers, by size and place
 
     def describe(self) -> list[str]:
         """One line per named part, with its reason (reports, the page)."""
@@ -287,25 +269,42 @@ def upright_shape(pair: PreparedPair) -> tuple[float, float, float]:
     return float(sides[1]) / diagonal, small / diagonal, large / diagonal
 
 
-def figure_surface(pair: PreparedPair, diagonal: float, place: str | None) -> Surface | None:
-    """``usual_surface`` for the source at a posed diagonal ``diagonal`` (normalised units), kept per size and
-    place with the pair's parts (every preference of a run asks it again)."""
+@dataclass(frozen=True)
+class Spot:
+    """Where on the usual surface a figure goes: the surface, the middle (x, z) of its free area for the figure
+    and that area's half diagonal extent (normalised units), from its samples' 5th to 95th percentiles (a stray
+    sample does not widen it; a slatted seat's uneven samples do not move its middle)."""
+
+    surface: Surface
+    middle: np.ndarray
+    half: float
+
+
+def usual_spot(pair: PreparedPair, diagonal: float, place: str | None) -> Spot | None:
+    """``usual_surface`` and its ``Spot`` for the source at a posed diagonal ``diagonal`` (normalised units), kept
+    per size and place with the pair's parts (every preference of a run asks it again)."""
     found = parts(pair)
     key = (round(diagonal, 9), place)
     if key not in found.chosen:
         height, small, large = upright_shape(pair)
-        found.chosen[key] = usual_surface(found, height * diagonal, (small * diagonal, large * diagonal), place)
+        surface = usual_surface(found, height * diagonal, (small * diagonal, large * diagonal), place)
+        found.chosen[key] = None if surface is None else _spot(surface, height * diagonal)
     return found.chosen[key]
 
 
-def surface_place(c: Context, surface: Surface, place: str | None) -> torch.Tensor:
-    """(B,) how far the figure's centre is from where on ``surface`` it goes: the middle of its free area, in
-    its half-spans; where the prompt names an end, an edge or a corner, how near the middle it is instead (and
-    for a named end, how far toward the other end)."""
-    height = upright_shape(c.pair)[0] * float(c.unit.mean())
-    middle = torch.as_tensor(surface.middle(height), dtype=c.unit.dtype, device=c.unit.device)
-    half = max(surface.half_span(height), 1e-9)
-    offset = c.figure.centre[:, [0, 2]] - middle
+def _spot(surface: Surface, height: float) -> Spot:
+    free = surface.free(height)
+    xz = (surface.points[free] if free.any() else surface.points)[:, [0, 2]]
+    low, high = np.percentile(xz, 5, axis=0), np.percentile(xz, 95, axis=0)
+    return Spot(surface, (low + high) / 2, max(float(np.linalg.norm(high - low) / 2), 1e-9))
+
+
+def spot_place(c: Context, spot: Spot) -> torch.Tensor:
+    """(B,) how far the figure's centre is from where on the usual surface it goes (``spot``): the middle of its
+    free area, in its half-spans; where the prompt names an end, an edge or a corner, how near the middle it is
+    instead (and for a named end, how far toward the other end)."""
+    place, half = c.place, spot.half
+    offset = c.figure.centre[:, [0, 2]] - torch.as_tensor(spot.middle, dtype=c.unit.dtype, device=c.unit.device)
     if place not in ENDS:
         return offset.norm(dim=-1) / half
     away = (1.0 - offset.norm(dim=-1) / half).clamp_min(0.0)
@@ -332,7 +331,7 @@ def side_place(c: Context, side: SideOf, gap: bool = True) -> torch.Tensor:
     return out
 
 
-MIDDLE_WIDTH = 0.2  # ``near_side_middles``: how far from a side's middle, in its half-spans, still counts as near it
+MIDDLE_WIDTH = 0.2  # ``near_middle``: how far from a middle, in half-spans, still counts as near it
 MIDDLE_WEIGHT = 4.0  # ... and how much more a sample there is drawn than one elsewhere
 
 
@@ -345,6 +344,11 @@ def near_side_middles(found: Parts, points: np.ndarray, normals: np.ndarray) -> 
         if not side.accessible:
             continue
         facing = normals @ side.direction >= np.cos(np.pi / 4)
-        offset = (points @ side.across - side.middle) / side.half
-        weight += facing * MIDDLE_WEIGHT * np.exp(-0.5 * (offset / MIDDLE_WIDTH) ** 2)
+        weight += facing * near_middle((points @ side.across - side.middle) / side.half)
     return weight
+
+
+def near_middle(offset: np.ndarray) -> np.ndarray:
+    """(N,) up to ``MIDDLE_WEIGHT``, falling off with ``offset`` from a middle (in half-spans) over
+    ``MIDDLE_WIDTH``: what a builder's drawing weight adds near the usual place."""
+    return MIDDLE_WEIGHT * np.exp(-0.5 * (offset / MIDDLE_WIDTH) ** 2)

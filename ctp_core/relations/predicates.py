@@ -137,7 +137,7 @@ def preference(pair: PreparedPair, poses: Poses, reading: RelationReading | None
     samples fall near the source. Read among poses where the relation holds; never part of the verdict.
 
     - resting (``on``, ``stand``, ``sit``, ``lie``): standing as it is set down, steadily, on the *usual surface*
-      (``parts.figure_surface``: a table's top, a chair's seat, the shelf the prompt names) in the middle of its
+      (``parts.usual_spot``: a table's top, a chair's seat, the shelf the prompt names) in the middle of its
       free area; on the top near the middle where no surface holds the figure (a spire, a head);
     - ``front``, ``behind``, ``left``, ``right``, ``beside``: standing, centred on that side (``beside``: a lateral
       one), a hand's width out (``parts.side_place``);

@@ -9,11 +9,11 @@ import torch
 
 from ctp_core import contact
 from ctp_core.contact import Proposals, opening_sides
-from ctp_core.geometry.pose import matrix_to_quaternion, quaternion_product, quaternion_to_matrix
+from ctp_core.geometry.pose import matrix_to_quaternion, quaternion_to_matrix
 from ctp_core.pairs import PreparedPair
 from ctp_core.reading.places import ENDS, SHELVES
 from ctp_core.relations import parts
-from ctp_core.relations.building import LEAN_POINTS, lowered, yaw_turn
+from ctp_core.relations.building import LEAN_POINTS, lowered, random_resting, yawed
 from ctp_core.relations.measures import (
     FAR,
     Context,
@@ -26,6 +26,7 @@ from ctp_core.relations.measures import (
     stability,
     summit_drop,
     support_depth,
+    turned,
 )
 from ctp_core.relations.spec import Bound, Judge, Spec
 from ctp_core.relations.vocabulary import RelationReading
@@ -73,7 +74,7 @@ def _overhead(c: Context) -> torch.Tensor:
     half-width of its centre's column: a shelf above covers it, a chair's back rising at its edge does not), in
     figure diagonals, hinged; 0 where the prompt names a shelf ("on the middle shelf": a board is above it)."""
     fig, ground = c.figure, c.ground.side
-    if c.reading is not None and c.reading.place in SHELVES:
+    if c.place in SHELVES:
         return torch.zeros_like(c.unit)
     radius = FOOTPRINT_MIDDLE * half_width(fig)  # (B,)
     gp = ground.points.expand(fig.points.shape[0], -1, -1)
@@ -92,32 +93,29 @@ def _unsteady(c: Context) -> torch.Tensor:
 
 
 def _prefer_resting(c: Context) -> torch.Tensor:
-    """Resting: standing as it is set down (``Context.upright``), steadily, on the usual surface
-    (``parts.figure_surface``: a table's top, a chair's seat, the shelf the prompt names) in the middle of its free
-    area (``parts.surface_place``); on the top near the middle where no surface holds the figure (a spire, a head)."""
-    steady = _unsteady(c) + (c.upright if c.upright is not None else torch.zeros_like(c.unit))
-    surface = None if c.pair is None else parts.figure_surface(c.pair, float(c.unit.mean()), _place(c))
-    if surface is None:
+    """Resting: standing as it is set down (``measures.turned``), steadily, on the usual surface
+    (``parts.usual_spot``: a table's top, a chair's seat, the shelf the prompt names) in the middle of its free
+    area (``parts.spot_place``); on the top near the middle where no surface holds the figure (a spire, a head)."""
+    steady = _unsteady(c) + turned(c)
+    spot = _spot(c)
+    if spot is None:
         return summit_drop(c) + steady + off_centre(c)
-    drop = (surface.height - c.figure.points[..., 1].min(-1).values).abs() / c.unit
-    return drop + steady + parts.surface_place(c, surface, _place(c))
+    drop = (spot.surface.height - c.figure.points[..., 1].min(-1).values).abs() / c.unit
+    return drop + steady + parts.spot_place(c, spot)
+
+
+def _spot(c: Context) -> parts.Spot | None:
+    return None if c.pair is None else parts.usual_spot(c.pair, float(c.unit.mean()), c.place)
 
 
 def _where(c: Context) -> str | None:
-    """The surface the usual place is on, and why (``parts.figure_surface``)."""
+    """The surface the usual place is on, and why (``parts.usual_spot``)."""
     if c.pair is None:
         return None
-    surface = parts.figure_surface(c.pair, float(c.unit.mean()), _place(c))
-    if surface is None:
+    spot = _spot(c)
+    if spot is None:
         return "no surface holds it: on the top, near the middle"
-    named = _place(c)
-    return surface.reason + (f"; at its {named}" if named in ENDS else "; in the middle of its free area")
-
-
-def _place(c: Context) -> str | None:
-    return None if c.reading is None else c.reading.place
-
-
+    return spot.surface.reason + (f"; at its {c.place}" if c.place in ENDS else "; in the middle of its free area")
 
 
 FLAT = 0.5  # a lid: its upright height at most this share of its smaller horizontal side
@@ -153,29 +151,26 @@ MIDDLE_JITTER = 0.15  # ``on_usual_surface``: anchors this share of the surface'
 
 def on_usual_surface(pair: PreparedPair, proposals: Proposals, seed: int, reading: RelationReading | None,
                      log_s: float, count: int) -> Proposals | None:
-    """Sources lowered onto the middle of the usual surface (``parts.figure_surface``: the one "on" means for this
+    """Sources lowered onto the middle of the usual surface (``parts.usual_spot``: the one "on" means for this
     figure, or the one the prompt's place names), within ``MIDDLE_JITTER`` of its half-span, half of them standing
     as the source is set down (``source_upright``), half in its other resting frames, turned about +Y at random
-    (``extend``): the regions' proposals fall anywhere on the ground and
-    the refinement centres them only as far as the contact lets it. None where no surface holds the figure."""
+    (``extend``): the regions' proposals fall anywhere on the ground and the refinement centres them only as far
+    as the contact lets it. None where no surface holds the figure, or where the prompt names an end or an edge."""
     scale = math.exp(log_s)
     place = None if reading is None else reading.place
-    surface = parts.figure_surface(pair, pair.source_diagonal * scale, place)
-    if surface is None or place in ENDS:
+    spot = parts.usual_spot(pair, pair.source_diagonal * scale, place)
+    if spot is None or place in ENDS:
         return None
     rng = np.random.default_rng(seed + 47)
-    height = parts.upright_shape(pair)[0] * pair.source_diagonal * scale
-    middle, half = surface.middle(height), surface.half_span(height)
-    resting = proposals.rotations[torch.as_tensor(rng.integers(len(proposals.rotations), size=count))].cpu()
+    resting = random_resting(proposals, rng, count)
     standing = torch.as_tensor(matrix_to_quaternion(pair.source_upright.rotation), dtype=torch.float32)
     resting[: (count + 1) // 2] = standing  # half as it is set down, half in its other resting frames
-    q = torch.cat([quaternion_product(yaw_turn(float(a)), resting[i:i + 1])
-                   for i, a in enumerate(rng.uniform(0, 2 * math.pi, count))])
+    q = yawed(resting, rng.uniform(0, 2 * math.pi, count))
     rotated = torch.einsum("bij,nj->bni", quaternion_to_matrix(q), pair.source_subset(LEAN_POINTS).cpu()) * scale
-    offset = rng.uniform(-1, 1, (count, 2)) * MIDDLE_JITTER * half
+    offset = rng.uniform(-1, 1, (count, 2)) * MIDDLE_JITTER * spot.half
     start = torch.zeros(count, 3)
-    start[:, [0, 2]] = torch.as_tensor(middle + offset, dtype=torch.float32)
-    start[:, 1] = surface.height - rotated[..., 1].min(dim=1).values + 0.01 * pair.target_radius
+    start[:, [0, 2]] = torch.as_tensor(spot.middle + offset, dtype=torch.float32)
+    start[:, 1] = spot.surface.height - rotated[..., 1].min(dim=1).values + 0.01 * pair.target_radius
     up = torch.tensor([0.0, 1.0, 0.0]).expand(count, 3)
     return lowered(pair, proposals, q, start, up, False, log_s, "on")
 
