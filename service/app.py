@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
 import time
 from typing import Any
 
@@ -31,6 +32,8 @@ from service.deps import digest
 from service.errors import BodyLimit, install_handlers
 from service.forms import OPTIONS_DEPTH, OPTIONS_MAX, PROMPT_MAX
 from service.jobs import Jobs
+from service.reconcile import EVERY_S as RECONCILE_EVERY_S
+from service.reconcile import reconcile
 from service.routers import adjust, assemble, health, inspect, page, webhooks
 from service.routers import jobs as jobs_router
 from service.schemas import JobOptions
@@ -206,17 +209,22 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
 
 async def _reap_forever(jobs: Jobs, period_s: float) -> None:
-    """Reap jobs of dead workers every heartbeat period (``Jobs.reap``); expire stored files about once a minute.
+    """Reap jobs of dead workers every heartbeat period (``Jobs.reap``); from start-up on, about once a minute, put
+    back queued jobs that lost their place in the queue (``service.reconcile``) and expire stored files.
 
     After a Redis outage, reaping waits one lease: a lease that lapsed while Redis was away is the outage's doing,
     not the worker's, and the workers, which wait outages out (``worker.outage``), renew it within a heartbeat.
     One log line per outage."""
-    last_sweep = resume_at = 0.0
+    last_sweep = last_pass = -math.inf
+    resume_at = 0.0
     down = False
     while True:
         try:
             if time.monotonic() >= resume_at:
                 await run_in_threadpool(jobs.reap)
+                if time.monotonic() - last_pass > RECONCILE_EVERY_S:
+                    await run_in_threadpool(reconcile, jobs)
+                    last_pass = time.monotonic()
             if time.monotonic() - last_sweep > SWEEP_EVERY_S:
                 await run_in_threadpool(jobs.storage.sweep)
                 last_sweep = time.monotonic()

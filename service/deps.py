@@ -50,18 +50,19 @@ async def own_job(request: Request, job_id: str, who: str) -> JobRecord:
 
 
 async def enqueue(request: Request, record: JobRecord, blobs: dict[str, bytes],
-                  configs: Sequence[AlignConfig]) -> None:
+                  configs: Sequence[AlignConfig], claim: tuple[str, str] | None = None) -> None:
     """Queue a validated job (``POST /align`` and ``POST /assemble``, through ``service.submit``) on its named
     queue: 503 when no worker can run it and 422 ``queue_not_served`` when no worker serves its queue (refused
     now rather than accepted and failed later; a worker being restarted counts, ``Jobs.unavailable``), 429 over
     the key's active-job limit.
 
     ``configs`` are what the job runs: an assembly's every stage (each with its own options), so one guided
-    step makes the job need the model however geometry-only the assembly's options are."""
+    step makes the job need the model however geometry-only the assembly's options are. ``claim``: the request's
+    ``Idempotency-Key`` claim, kept as long as the job by the transaction that queues it (``Jobs.submit``)."""
     settings, jobs = request.app.state.settings, request.app.state.jobs
     await check_workers(request, {c.model for c in configs if c.uses_model}, record.queue)
     try:
-        await run_in_threadpool(jobs.submit, record, blobs, settings.max_active_jobs)
+        await run_in_threadpool(jobs.submit, record, blobs, settings.max_active_jobs, claim)
     except TooManyJobs as exc:
         raise ApiError(429, "too_many_jobs", str(exc), headers={"Retry-After": str(exc.retry_after_s)}) from None
 

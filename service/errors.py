@@ -15,6 +15,7 @@ from starlette.routing import Match
 
 from ctp_core.errors import CtpError
 from service.jobs import JobError
+from service.redact import redact
 from service.schemas import ErrorBody
 from service.storage import StorageUnavailable
 
@@ -55,7 +56,9 @@ class ApiError(Exception):
 
 
 def error_response(status: int, error: JobError, headers=None) -> JSONResponse:
-    """The stable error body; a 503 carries its ``Retry-After`` (a 429's comes with the error: ``Jobs.retry_after``)."""
+    """The stable error body, its message without the machine's paths (``service.redact``: any caller may read it);
+    a 503 carries its ``Retry-After`` (a 429's comes with the error: ``Jobs.retry_after``)."""
+    error = error.model_copy(update={"message": redact(error.message)})
     if status == 503:
         headers = {"Retry-After": str(RETRY_AFTER_S.get(error.code, RETRY_AFTER_OTHER_S)), **(headers or {})}
     return JSONResponse(ErrorBody(error=error).model_dump(mode="json"), status_code=status, headers=headers)

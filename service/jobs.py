@@ -51,8 +51,9 @@ from rq.job import Job as RqJob
 from rq.serializers import JSONSerializer
 
 from ctp_core.config import AlignConfig
+from service import faults
 from service.settings import DEFAULT_QUEUE
-from service.storage import Storage, open_storage
+from service.storage import Storage, StorageUnavailable, open_storage
 from service.webhooks import PROGRESS_EVERY_S, Outbox, Webhook
 from service.workers import Offer, SeenWorker, Workers, served_queues, serving
 
@@ -114,6 +115,11 @@ return 0
 """
 
 
+class ClaimLost(Exception):
+    """A submit's ``Idempotency-Key`` claim lapsed (its request was stalled past the claim's hold) and another request
+    holds it now: this one creates no job (``service.submit``)."""
+
+
 class TooManyJobs(Exception):
     """The key already has its limit of queued plus running jobs; ``retry_after_s``: when to ask again."""
 
@@ -125,29 +131,6 @@ class TooManyJobs(Exception):
 # 429's Retry-After bounds (s): an estimate under a second is rounded up to one; the upper bound is what a client
 # waits when none of the key's jobs has an estimate yet (all queued, or loading): about the first minute of a job.
 SLOT_RETRY_S = (1, 60)
-
-# Admission of one job under its key's limit, atomic (``Jobs.submit``). KEYS: the key's active set, the job's record,
-# the key's owned index; ARGV: job id, limit, record JSON, TTL (s), created (Unix s), the record key prefix, then
-# the terminal statuses. A slot whose record expired or ended (released already in the transaction that ended it,
-# kept here so that no path can leak a slot) is forgotten; a slot is taken only with its record, so no submit's
-# slot is ever without one. The record keys are built in the script (one Redis, not a cluster).
-_ADMIT = """
-local ended = {}
-for i = 7, #ARGV do ended[ARGV[i]] = true end
-local live = 0
-for _, id in ipairs(redis.call('SMEMBERS', KEYS[1])) do
-  local raw = redis.call('GET', ARGV[6] .. id)
-  if raw and not ended[cjson.decode(raw)['status']] then live = live + 1 else redis.call('SREM', KEYS[1], id) end
-end
-if live >= tonumber(ARGV[2]) then return 0 end
-redis.call('SADD', KEYS[1], ARGV[1])
-redis.call('EXPIRE', KEYS[1], ARGV[4])
-redis.call('SET', KEYS[2], ARGV[3], 'EX', ARGV[4])
-redis.call('ZADD', KEYS[3], ARGV[5], ARGV[1])
-redis.call('EXPIRE', KEYS[3], ARGV[4])
-return 1
-"""
-
 
 class Stage(BaseModel):
     """Which part of the pipeline runs now, and which alignment of the job (an assembly places several)."""
@@ -311,7 +294,6 @@ class Jobs:
         self.default_queue = default_queue
         self.workers = Workers(redis, prefix=prefix, lease_s=lease_s, worker_grace_s=worker_grace_s,
                                default_queue=default_queue)
-        self._admit = redis.register_script(_ADMIT)
         self._renew_lease = redis.register_script(_RENEW_LEASE)
 
     @classmethod
@@ -351,6 +333,11 @@ class Jobs:
     @property
     def _running_key(self) -> str:
         return f"{self.prefix}:running"
+
+    @property
+    def queued_key(self) -> str:
+        """The index of queued jobs: job id -> the id of the rq job that waits for it (``service.reconcile``)."""
+        return f"{self.prefix}:queued"
 
     # -- reading ------------------------------------------------------------------------------------
     def get(self, job_id: str) -> JobRecord | None:
@@ -401,42 +388,93 @@ class Jobs:
                 or (worker is not None and flags.worker != worker))
 
     # -- writing ------------------------------------------------------------------------------------
-    def submit(self, record: JobRecord, blobs: dict[str, bytes], max_active: int) -> JobRecord:
-        """Admit the record under the per-key limit, store the inputs, then enqueue; raises TooManyJobs over
-        the limit (``retry_after_s``: when a slot is likely free).
+    def submit(self, record: JobRecord, blobs: dict[str, bytes], max_active: int,
+               claim: tuple[str, str] | None = None) -> JobRecord:
+        """Store the inputs, then admit the record under the per-key limit and put it on its queue, in one
+        transaction (``_admit``); raises TooManyJobs over the limit (``retry_after_s``: when a slot is likely free).
 
-        Admission is one Lua script (``_ADMIT``): it forgets the key's stale slots, counts the live ones and,
-        under the limit, takes a slot and writes the record together, so concurrent submits (any number of API
-        processes) never admit more than the limit, and every slot has its record from the moment it is taken.
-        The job's time limit is the configured one per stage (an assembly of n objects gets n times it)."""
-        owned = self._owned_key(record.owner)
+        The inputs go first, so that no worker ever sees a job without them; the record, the key's slot and the rq
+        job are then written together, so no crash leaves a record without its place in the queue or a slot without
+        its record, and concurrent submits (any number of API processes) never admit more than the limit.
+        ``claim``: the request's ``Idempotency-Key`` claim (key, value), kept as long as the job in that same
+        transaction and checked to be still this request's (``ClaimLost`` otherwise). A submit over the limit is
+        refused before its inputs are stored, and deletes them when another submit took the last slot meanwhile; one
+        whose transaction's outcome is unknown (Redis went away under it) keeps them: they may be the job's, and they
+        expire with it. The job's time limit is the configured one per stage (an assembly of n objects gets n times
+        it)."""
+        if self._taken(self.redis, record.owner) >= max_active:  # the common refusal, before any upload is stored
+            raise self._full(record.owner, max_active)
         try:
-            admitted = self._admit(
-                keys=[self._active_key(record.owner), self.record_key(record.id), owned],
-                args=[record.id, max_active, record.model_dump_json(), self.ttl_s, record.created_at.timestamp(),
-                      self.record_key(""), *TERMINAL])
-            if not admitted:
-                raise TooManyJobs(f"this key already has {max_active} queued or running jobs; wait for one to end",
-                                  retry_after_s=self.retry_after(record.owner))
-            for name, data in blobs.items():  # a refused submit stores nothing; no worker sees the job before _enqueue
+            for name, data in blobs.items():
                 self.storage.put(record.id, name, data)
-            self._enqueue(record, record.id)
-        except Exception:  # TooManyJobs too: then nothing was stored (deleting absent blobs is a no-op)
-            self.redis.srem(self._active_key(record.owner), record.id)
-            self.redis.zrem(owned, record.id)
-            self.redis.delete(self.record_key(record.id))
+            faults.point("submit.stored")
+            admitted = self._admit(record, max_active, claim)
+        except (ClaimLost, StorageUnavailable):
             self.storage.delete(record.id, list(blobs))
             raise
+        if not admitted:  # another submit took the last slot meanwhile
+            self.storage.delete(record.id, list(blobs))
+            raise self._full(record.owner, max_active)
         log.info("job queued", extra={"job_id": record.id, "owner": record.owner, "queue": record.queue})
+        faults.point("submit.queued")
         return record
 
-    def _enqueue(self, record: JobRecord, rq_id: str, pipe: Any = None) -> None:
-        """Put the job on its rq queue as rq job ``rq_id`` (a job queued again gets a new one: the rq job of its
-        earlier run may still be finalised by the worker that ran it); on ``pipe``, in its transaction."""
+    def _admit(self, record: JobRecord, max_active: int, claim: tuple[str, str] | None) -> bool:
+        """The admission (False: the key has its limit of live jobs) and, with it, the record, the slot, the owner's
+        index and the rq job, under WATCH of the key's slots: any change to them (another admission, a job ending)
+        makes this one count again. A slot whose record ended or expired is forgotten here (released already in the
+        transaction that ended it; kept here so that no path can leak a slot)."""
+        active, owned = self._active_key(record.owner), self._owned_key(record.owner)
+        with self.redis.pipeline() as pipe:
+            while True:
+                try:
+                    pipe.watch(active, *([claim[0]] if claim else []))
+                    if claim is not None and pipe.get(claim[0]) != claim[1].encode():
+                        raise ClaimLost("the Idempotency-Key's claim lapsed and another request holds it")
+                    ended: list[str] = []
+                    if self._taken(pipe, record.owner, ended) >= max_active:
+                        pipe.unwatch()
+                        return False
+                    pipe.multi()
+                    if ended:
+                        pipe.srem(active, *ended)
+                    pipe.sadd(active, record.id)
+                    pipe.expire(active, self.ttl_s)
+                    pipe.set(self.record_key(record.id), record.model_dump_json(), ex=self.ttl_s)
+                    pipe.zadd(owned, {record.id: record.created_at.timestamp()})
+                    pipe.expire(owned, self.ttl_s)
+                    if claim is not None:
+                        pipe.expire(claim[0], self.ttl_s)
+                    self._enqueue(record, record.id, pipe)
+                    pipe.execute()
+                    return True
+                except WatchError:
+                    continue
+
+    def _taken(self, client: Any, owner: str, ended: list[str] | None = None) -> int:
+        """How many of ``owner``'s slots hold a live job (read on ``client``: a watching pipeline, or Redis);
+        ``ended`` gets the slots whose job ended or expired."""
+        ids = [raw.decode() for raw in client.smembers(self._active_key(owner))]
+        raws = client.mget([self.record_key(i) for i in ids]) if ids else []
+        gone = [i for i, raw in zip(ids, raws, strict=True)
+                if raw is None or _StopFlags.model_validate_json(raw).status in TERMINAL]
+        if ended is not None:
+            ended.extend(gone)
+        return len(ids) - len(gone)
+
+    def _enqueue(self, record: JobRecord, rq_id: str, pipe: Any) -> None:
+        """Put the job on its rq queue as rq job ``rq_id`` in ``pipe``'s transaction, the one that writes its record
+        ``queued`` (a job queued again gets a new one: the rq job of its earlier run may still be finalised by the
+        worker that ran it), and note it in the index of queued jobs (``service.reconcile``)."""
         self.rq_queue(record.queue).enqueue(TASK, record.id, job_id=rq_id,
                                             job_timeout=self.job_timeout_s * record.stage_count, result_ttl=0,
                                             failure_ttl=self.ttl_s, description=f"{record.kind} {record.id}",
                                             pipeline=pipe)
+        pipe.hset(self.queued_key, record.id, rq_id)
+
+    def _full(self, owner: str, max_active: int) -> TooManyJobs:
+        return TooManyJobs(f"this key already has {max_active} queued or running jobs; wait for one to end",
+                           retry_after_s=self.retry_after(owner))
 
     def retry_after(self, owner: str) -> int:
         """Seconds until one of ``owner``'s jobs is likely to end and free a slot: the soonest estimate of its
@@ -463,6 +501,7 @@ class Jobs:
         def also(pipe, _r: JobRecord) -> None:
             pipe.set(self._lease_key(job_id), worker, ex=self.lease_s)
             pipe.sadd(self._running_key, job_id)
+            pipe.hdel(self.queued_key, job_id)
 
         record = self._update(job_id, change, also)
         return record if record is not None and record.status == "running" and record.worker == worker else None
@@ -538,6 +577,24 @@ class Jobs:
         log.warning("job queued again", extra={"job_id": job_id, "status": "queued"})
         return record
 
+    def enqueue_again(self, job_id: str) -> JobRecord | None:
+        """A queued job whose rq job no longer waits in its queue (``service.reconcile``): put on its queue again as
+        a new rq job, in the transaction that rewrites its record; None when it is no longer queued. An rq job too
+        many is harmless: the worker that takes it finds the job no longer queued and skips it (``start``)."""
+
+        def change(r: JobRecord) -> JobRecord | None:
+            if r.status != "queued":
+                return None
+            return r.model_copy(update={"progress": r.progress.model_copy(update={
+                "message": "its place in the queue was lost (a worker stopped between taking it and starting it); "
+                "queued again"})})
+
+        record = self._update(job_id, change, lambda pipe, r: self._enqueue(r, new_id(), pipe))
+        if record is None or record.status != "queued":
+            return None
+        log.warning("job put on its queue again", extra={"job_id": job_id, "status": "queued"})
+        return record
+
     def mark_adjusted(self, job_id: str, adjusted: SavedAdjustment) -> JobRecord | None:
         """A saved adjustment of a succeeded job (its files are stored already); None for an unknown id."""
         return self._update(job_id, lambda r: r.model_copy(update={"adjusted": adjusted})
@@ -573,6 +630,7 @@ class Jobs:
         pipe.delete(self._lease_key(r.id))
         pipe.srem(self._running_key, r.id)
         pipe.srem(self._active_key(r.owner), r.id)
+        pipe.hdel(self.queued_key, r.id)
 
     def _update(self, job_id: str, change: Callable[[JobRecord], JobRecord | None],
                 also: Callable[[Any, JobRecord], None] | None = None) -> JobRecord | None:
@@ -670,7 +728,7 @@ class Jobs:
 
     def reap(self) -> list[str]:
         """Running jobs whose worker missed its lease: queued again while under ``MAX_ATTEMPTS`` (and not being
-        canceled), else failed ``worker_lost``; returns their ids."""
+        canceled), else failed ``worker_lost``, or canceled when that was asked; returns their ids."""
         reaped = []
         for raw in self.redis.smembers(self._running_key):
             job_id = raw.decode()
@@ -685,15 +743,19 @@ class Jobs:
             again = self._requeue(job_id, lambda r: r.attempts < MAX_ATTEMPTS and not r.cancel_requested,
                                   counted=True, message=f"{missed}; queued again (attempt {record.attempts + 1} of "
                                   f"{MAX_ATTEMPTS})")
-            why = ("it was being canceled" if record.cancel_requested else
-                   f"it was not run again (attempt {record.attempts} of {MAX_ATTEMPTS}): submit it again")
+            status: Status = "queued"
             if again is None:
-                failed = self.finish(job_id, "failed", JobError(code="worker_lost", message=f"{missed}; {why}"))
-                if failed is None or failed.error is None or failed.error.code != "worker_lost":
+                if (self.get(job_id) or record).cancel_requested:  # what its client asked, not a loss
+                    status, error = "canceled", JobError(code="canceled", message=f"{missed}; it was being canceled")
+                else:
+                    status, error = "failed", JobError(code="worker_lost", message=(
+                        f"{missed}; it was not run again (attempt {record.attempts} of {MAX_ATTEMPTS}): "
+                        "submit it again"))
+                ended = self.finish(job_id, status, error)
+                if ended is None or ended.status != status or ended.error != error:
                     continue  # it ended, or expired, meanwhile
             reaped.append(job_id)
-            log.warning("job reaped", extra={"job_id": job_id, "worker": record.worker,
-                                             "status": "queued" if again else "failed"})
+            log.warning("job reaped", extra={"job_id": job_id, "worker": record.worker, "status": status})
         return reaped
 
 

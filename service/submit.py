@@ -3,15 +3,17 @@
 
 Idempotency: the first request with a key claims it in Redis (``SET NX``, per owner) with its fingerprint
 (a hash of the route, every field and every upload's bytes) and the id its job will have, so of two
-concurrent submits with one key exactly one builds a job; the other waits for that job and answers it. The
-claim lives ``CLAIM_S`` while the job is being checked (a request that dies there frees its key then),
-is dropped when the submit is refused (the client may fix it and retry with the key) and lives as long as
-the job once it is queued.
+concurrent submits with one key exactly one builds a job; the other waits for that job and answers it. While
+the job is being checked the claim lives ``CLAIM_HOLD_S`` at a time, renewed by its request, so that a request
+that dies there (its API process killed) frees the key within that; it is dropped when the submit is refused
+(the client may fix it and retry with the key), and the transaction that queues the job keeps it as long as the
+job (``Jobs.submit``), so that no crash between the two leaves a job whose key is free for a second one.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hashlib
 import json
 import re
@@ -20,24 +22,26 @@ from collections.abc import Awaitable, Callable
 from fastapi import Header, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
+from redis.exceptions import RedisError
 from starlette.datastructures import UploadFile
 
 from ctp_core.config import AlignConfig
 from service import forms
 from service.deps import enqueue
 from service.errors import ApiError, documented
-from service.jobs import TERMINAL, JobRecord, new_id
+from service.jobs import TERMINAL, ClaimLost, JobRecord, new_id
 from service.schemas import Accepted, JobOut, links
 from service.webhooks import DEFAULT_EVENTS, EVENTS, Webhook, WebhookInvalid, check_url, resolve
 
 WAIT_MAX_S = 60  # Prefer: wait=N above this waits this long
 KEY_MAX = 255
-CLAIM_S = 600  # a claimed key whose job is not queued by then is free again
+CLAIM_HOLD_S = 15  # a claim whose request stops renewing it (every third of this) is free again after this
 REPLAY_WAIT_S = 60.0  # a second request with a key waits this long for the first one's job
 _KEY = re.compile(rf"[\x21-\x7e]{{1,{KEY_MAX}}}")  # visible ASCII
 _WAIT = re.compile(r"[0-9]{1,9}")
-# Compare and delete: a claim is dropped only by the request that holds it.
+# Compare and delete, compare and renew: a claim is dropped or renewed only by the request that holds it.
 _RELEASE = "if redis.call('GET', KEYS[1]) == ARGV[1] then return redis.call('DEL', KEYS[1]) end return 0"
+_RENEW = "if redis.call('GET', KEYS[1]) == ARGV[1] then return redis.call('EXPIRE', KEYS[1], ARGV[2]) end return 0"
 
 Built = tuple[JobRecord, dict[str, bytes], list[AlignConfig]]
 
@@ -73,17 +77,22 @@ async def accept(request: Request, who: str, form, build: Callable[[str], Awaita
             fingerprint, request.url.path, form))
         if claim.existing is not None:
             return await _answer(request, claim.existing, wait_s, replay=True)
+    renewing = asyncio.create_task(claim.renew()) if claim is not None else None
     try:
         record, blobs, configs = await build(claim.job_id if claim else new_id())
         if webhook is not None:
             record = record.model_copy(update={"webhook": webhook})
-        await enqueue(request, record, blobs, configs)
+        await enqueue(request, record, blobs, configs, claim=(claim.key, claim.value) if claim else None)
+    except ClaimLost:
+        raise ApiError(409, "idempotency_in_progress", "this request was stalled and another request with the same "
+                       "Idempotency-Key took it over; retry it later", field="Idempotency-Key") from None
     except Exception:
         if claim is not None:
             await claim.release()
         raise
-    if claim is not None:
-        await claim.keep()
+    finally:
+        if renewing is not None:
+            renewing.cancel()
     return await _answer(request, record, wait_s)
 
 
@@ -178,7 +187,7 @@ class _Claim:
         value = json.dumps({"fingerprint": print_, "job": job_id})
         deadline = asyncio.get_running_loop().time() + REPLAY_WAIT_S
         while True:
-            if await state.aredis.set(key, value, nx=True, ex=CLAIM_S):
+            if await state.aredis.set(key, value, nx=True, ex=CLAIM_HOLD_S):
                 return cls(request, key, value, job_id, None)
             raw = await state.aredis.get(key)
             if raw is not None:
@@ -195,10 +204,13 @@ class _Claim:
                                    "being checked; retry it later", field="Idempotency-Key")
             await asyncio.sleep(0.1)
 
-    async def keep(self) -> None:
-        """The job is queued: remember the key as long as the job."""
-        state = self.request.app.state
-        await state.aredis.expire(self.key, state.jobs.ttl_s)
+    async def renew(self) -> None:
+        """Keep the claim while the request checks its job (until cancelled); a renewal Redis does not answer is
+        tried again at the next one."""
+        while True:
+            await asyncio.sleep(CLAIM_HOLD_S / 3)
+            with contextlib.suppress(RedisError):
+                await self.request.app.state.aredis.eval(_RENEW, 1, self.key, self.value, CLAIM_HOLD_S)
 
     async def release(self) -> None:
         """The submit was refused: free the key (only if it is still this request's)."""

@@ -14,7 +14,8 @@ import pytest
 import redis
 
 from ctp_core.config import AlignConfig
-from service.jobs import JobError, JobRecord, Jobs, Progress, TooManyJobs, new_id, now
+from service.jobs import ClaimLost, JobError, JobRecord, Jobs, Progress, TooManyJobs, new_id, now
+from service.reconcile import reconcile
 from service.settings import Settings
 from service.storage import DirStorage, RedisStorage
 
@@ -144,12 +145,70 @@ def test_a_lease_that_lapsed_in_a_redis_outage_is_renewed_by_the_next_heartbeat(
 
 
 def test_a_lost_job_being_canceled_is_not_run_again(jobs):
+    """It ends as its client asked, canceled, not failed by the loss of its worker."""
     record = queued(jobs)
     jobs.start(record.id, "gone")
     jobs.cancel(record.id)
     lapse(jobs, record.id)
     assert jobs.reap() == [record.id]
-    assert jobs.get(record.id).error.message.endswith("; it was being canceled")
+    ended = jobs.get(record.id)
+    assert (ended.status, ended.error.code) == ("canceled", "canceled")
+    assert ended.error.message.endswith("; it was being canceled")
+
+
+def test_a_submit_writes_record_slot_and_rq_job_together_or_not_at_all(jobs, monkeypatch):
+    """One transaction: a failure while it is built (here the rq job's) leaves no record, no slot and no rq job."""
+    def broken(*_args):
+        raise RuntimeError("cut between the record and the queue")
+
+    monkeypatch.setattr(jobs, "_enqueue", broken)
+    record = JobRecord(id=new_id(), owner="me", created_at=now(), prompt="p", config=AlignConfig())
+    with pytest.raises(RuntimeError):
+        jobs.submit(record, {"target": b"t", "source": b"s"}, 10)
+    assert jobs.get(record.id) is None and jobs.rq_queue().get_job_ids() == []
+    assert not jobs.redis.exists(f"{jobs.prefix}:active:me") and not jobs.redis.exists(jobs.queued_key)
+
+
+def test_a_submit_keeps_its_idempotency_claim_with_the_job_or_makes_none(jobs):
+    """The claim (renewed for seconds at a time while the request checks its job) lives as long as the job from the
+    transaction that queues it; a claim another request took over makes no job and keeps no upload."""
+    record = JobRecord(id=new_id(), owner="me", created_at=now(), prompt="p", config=AlignConfig())
+    jobs.redis.set("claim", "theirs", ex=10)
+    with pytest.raises(ClaimLost):
+        jobs.submit(record, {"target": b"t", "source": b"s"}, 10, claim=("claim", "mine"))
+    assert jobs.get(record.id) is None and jobs.storage.get(record.id, "target") is None
+    jobs.redis.set("claim", "mine", ex=10)
+    jobs.submit(record, {"target": b"t", "source": b"s"}, 10, claim=("claim", "mine"))
+    assert jobs.get(record.id).status == "queued" and 10 < jobs.redis.ttl("claim") <= 600
+
+
+def test_a_queued_job_whose_rq_job_left_its_queue_is_put_back(jobs):
+    """A worker took the rq job off the queue (rq moves it to its intermediate list) and died before starting the
+    job: the reconciler notes it, and once that has lasted its grace puts the job on its queue again; an entry of a
+    job no longer queued is dropped."""
+    record = queued(jobs)
+    queue = jobs.rq_queue()
+    jobs.redis.lmove(queue.key, queue.intermediate_queue_key)
+    assert reconcile(jobs, force=True) == []  # first seen out of its queue: within the grace
+    assert reconcile(jobs, force=True, grace_s=0) == [record.id]
+    (rq_id,) = queue.get_job_ids()
+    assert rq_id != record.id and jobs.redis.hget(jobs.queued_key, record.id).decode() == rq_id
+    assert jobs.get(record.id).progress.message.startswith("its place in the queue was lost")
+    assert reconcile(jobs, force=True, grace_s=0) == []  # waiting in its queue: left alone
+    assert jobs.start(record.id, "w1").attempts == 1 and not jobs.redis.hexists(jobs.queued_key, record.id)
+    stale = queued(jobs)
+    jobs.redis.delete(jobs.record_key(stale.id))  # expired while queued
+    assert reconcile(jobs, force=True, grace_s=0) == [] and not jobs.redis.hexists(jobs.queued_key, stale.id)
+
+
+def test_one_reconciler_pass_a_minute_for_the_whole_deployment(jobs):
+    record = queued(jobs)
+    queue = jobs.rq_queue()
+    jobs.redis.lmove(queue.key, queue.intermediate_queue_key)
+    assert reconcile(jobs, grace_s=0) == [record.id]  # the pass of this minute
+    jobs.redis.lmove(queue.key, queue.intermediate_queue_key)
+    assert reconcile(jobs, grace_s=0) == []  # another API process's pass, the same minute: none
+    assert 50 < jobs.redis.ttl(f"{jobs.prefix}:reconciler") <= 60
 
 
 def test_a_stopping_worker_hands_its_job_back_uncounted(jobs):

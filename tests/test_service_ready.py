@@ -1,6 +1,6 @@
 """Readiness means "a job submitted now can succeed": a real worker whose default model has no weights
 here (an ``hf:`` path that does not exist) makes ``/readyz`` and ``POST /align`` answer 503
-``model_unavailable`` with the worker's reason, while jobs it can run (another allowed model, or a
+``model_unavailable`` with the worker's reason (its paths redacted: any caller may read it), while jobs it can run (another allowed model, or a
 geometry-only job that needs no model) are still accepted and succeed. What only the worker knows (its
 device and runtime) it checks when it takes a job: a job it cannot serve fails at once."""
 
@@ -41,7 +41,8 @@ def test_readyz_says_the_default_model_is_unavailable_and_why(api, live_worker):
     assert answer.status_code == 503
     error = answer.json()["error"]
     assert error["code"] == "model_unavailable"
-    assert MISSING in error["message"] and "no transformers model directory at /nonexistent" in error["message"]
+    assert error["message"] == ("no live worker can run the default model (CTP_MODEL) 'hf:<path>': no transformers "
+                                "model directory at <path> (expected config.json from save_pretrained)")
 
 
 def test_a_job_needing_the_missing_model_is_refused_up_front(api, live_worker):
@@ -75,7 +76,7 @@ def test_an_assembly_with_one_guided_step_needs_the_model(api, live_worker):
     guided = json.dumps([{"file": "ball.glb", "prompt": "a ball on a box", "options": {"lambda_clip": 1}}])
     refused = api.client.post("/assemble", files=parts, data={"plan": guided, "options": geometry_only})
     assert (refused.status_code, refused.json()["error"]["code"]) == (503, "model_unavailable"), refused.text
-    assert MISSING in refused.json()["error"]["message"]
+    assert "can run model 'hf:<path>': no transformers model directory at <path>" in refused.json()["error"]["message"]
     geometry_step = json.dumps([{"file": "ball.glb", "options": {"lambda_clip": 0}}])  # and the other way round
     accepted = api.client.post("/assemble", files=parts, data={"plan": geometry_step,
                                                                "options": json.dumps({"preset": "test"})})

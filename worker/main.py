@@ -12,7 +12,8 @@ when the optimiser has been quiet for a while.
 
 Its Redis clients wait out a Redis outage (``worker.outage``). A stop signal (SIGTERM or SIGINT, the first or any
 later one) is always a warm stop: the running job is handed back at its next step, queued again for another worker
-(``Jobs.hand_back``), or finishes first if it gets there sooner; the worker then leaves.
+(``Jobs.hand_back``), or finishes first if it gets there sooner; the worker then leaves. The stop flag is set before
+anything is torn down, and whatever error ends a job after it is the stop's, not the job's (``worker.stop``).
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from service import logs
 from service.jobs import Jobs, Progress
 from service.settings import Settings
 from worker.outage import OUTAGE, patient_redis
+from worker.stop import Stop
 
 log = logging.getLogger("ctp.worker")
 
@@ -111,7 +113,7 @@ class WorkerContext:
     name: str
     beat: Heartbeat
     loader: MeshLoader
-    stopping: threading.Event  # set by a stop signal: the running job is handed back at its next step
+    stop: Stop  # requested by a stop signal: the running job is handed back at its next step
 
 
 _CONTEXT: WorkerContext | None = None
@@ -138,7 +140,7 @@ def run_worker(settings: Settings, *, burst: bool = False, name: str | None = No
     queues = settings.served_queues
     beat = Heartbeat(jobs, name, settings.heartbeat_s, settings.progress_every_s, models, queues)
     loader = settings.mesh_loader(processes=1)
-    _CONTEXT = WorkerContext(settings, jobs, name, beat, loader, threading.Event())
+    _CONTEXT = WorkerContext(settings, jobs, name, beat, loader, Stop())
     beat.start()
     # rq gets a connection of its own: it raises the socket timeout above its blocking dequeue, which the
     # heartbeat thread's connections (redis-py's default timeout) must not share.
@@ -146,7 +148,7 @@ def run_worker(settings: Settings, *, burst: bool = False, name: str | None = No
     worker = _Worker([jobs.rq_queue(q).name for q in queues],
                      connection=patient_redis(settings.redis_url, settings.redis_patience_s),
                      serializer=JSONSerializer, name=name)
-    worker.stopping = _CONTEXT.stopping
+    worker.stop = _CONTEXT.stop
     log.info("worker ready", extra={"worker": name, "queues": queues})
     try:
         worker.work(burst=burst, logging_level=settings.log_level.upper())
@@ -166,14 +168,13 @@ class _Worker(SimpleWorker):
     """rq's in-process worker, whose every stop signal is a warm stop that hands the running job back: rq's own
     makes a second signal a cold stop, which would kill the job mid-run and leave it to be reaped."""
 
-    stopping: threading.Event
+    stop: Stop
 
     def request_stop(self, signum, frame) -> None:
-        if self.stopping.is_set():  # under way: a later signal changes nothing
+        if not self.stop.request():  # under way: a later signal changes nothing
             return
         log.info("stop requested (%s): the running job, if any, is handed back", signal.Signals(signum).name,
                  extra={"worker": self.name})
-        self.stopping.set()
         self._shutdown_requested_date = utcnow()
         self._shutdown()  # idle: stop now; busy: once the job returns
 

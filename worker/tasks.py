@@ -149,6 +149,7 @@ def run_job(job_id: str) -> str:
         stage = progress.stage
         ctx.beat.publish(progress, force=force)
 
+    stored: list[str] = []  # the results written so far: a job handed back leaves none behind
     try:
         with job_memory(ctx.settings.job_memory_mb) as budget_mb:
             record = served(record, ctx.settings)
@@ -158,20 +159,23 @@ def run_job(job_id: str) -> str:
             if inputs["target"] is None or inputs.get("source", inputs.get("source-0")) is None:
                 raise CtpError("the job's uploads expired before a worker picked it up", code="inputs_expired")
             job = JobContext(loader=ctx.loader, limits=ctx.settings.mesh_limits, on_progress=on_progress,
-                             should_cancel=lambda: ctx.stopping.is_set() or ctx.jobs.should_stop(job_id, ctx.name),
+                             should_cancel=lambda: ctx.stop.requested or ctx.jobs.should_stop(job_id, ctx.name),
                              choice=auto)
             files, alternatives = (assemble_job if record.kind == "assemble" else align_job)(record, inputs, job)
             for name, data in files.items():
+                stored.append(name)
                 ctx.jobs.storage.put(job_id, name, data)
             status = "succeeded"
-    except Canceled as exc:
-        if ctx.stopping.is_set() and ctx.jobs.hand_back(job_id, ctx.name) is not None:
-            log.info("job handed back", extra={"job_id": job_id, "worker": ctx.name})
-            return "handed back"
-        status, error = "canceled", JobError(code=exc.code, message="canceled while running")
     except Exception as exc:
-        error = failure(exc, stage, budget_mb, "job", ctx.settings.job_timeout_s * record.stage_count,
-                        {"job_id": job_id, "worker": ctx.name})
+        if ctx.stop.hands_back(exc) and ctx.jobs.hand_back(job_id, ctx.name) is not None:
+            ctx.jobs.storage.delete(job_id, stored)
+            log.info("job handed back", extra={"job_id": job_id, "worker": ctx.name, "code": _code(exc)})
+            return "handed back"
+        if isinstance(exc, Canceled):
+            status, error = "canceled", JobError(code=exc.code, message="canceled while running")
+        else:
+            error = failure(exc, stage, budget_mb, "job", ctx.settings.job_timeout_s * record.stage_count,
+                            {"job_id": job_id, "worker": ctx.name})
     finally:
         ctx.beat.end()
     if error is not None and error.code == JobTooLarge.code:
@@ -203,6 +207,11 @@ def run_adjustment(adjustment_id: str) -> str:
     status = "failed" if error is not None else "succeeded"
     adjustments.finish(adjustment_id, status, outcome, error)
     return status
+
+
+def _code(exc: Exception) -> str:
+    """What ended a job that was handed back, for its log line: the engine's code, else the exception's type."""
+    return exc.code if isinstance(exc, CtpError) else type(exc).__name__
 
 
 def failure(exc: Exception, stage: Stage, budget_mb: int | None, what: str, limit_s: int,

@@ -12,7 +12,9 @@ server) that import only what loading needs (numpy, trimesh, PIL; not torch), un
   child whose parent vanished mid-load cannot spin on.
 
 A child that dies for any other reason is replaced the same way. ``close()`` kills the children, so a
-caller waiting on one returns at once (``loader_unavailable``) and shutdown never waits on a load.
+caller waiting on one returns at once (``loader_unavailable``) and shutdown never waits on a load. The children
+run in a process group of their own: a terminal's Ctrl-C (SIGINT to the foreground group) or a SIGTERM to the
+owner's group reaches the owner, which decides what its loads in flight mean, never a child mid-start or mid-load.
 The service, the worker and the CLI all load uploads through a ``MeshLoader``.
 """
 
@@ -24,7 +26,6 @@ import pickle
 import queue
 import resource
 import select
-import signal
 import struct
 import subprocess
 import sys
@@ -170,7 +171,8 @@ class _Child:
         env = {**os.environ, **_THREAD_ENV, "PYTHONPATH": os.pathsep.join(
             [_ROOT, *filter(None, [os.environ.get("PYTHONPATH")])])}
         self.process = subprocess.Popen([sys.executable, "-m", "ctp_core.io.loader", str(memory_bytes)],
-                                        stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env, cwd=_ROOT)
+                                        stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env, cwd=_ROOT,
+                                        process_group=0)
         try:
             if self._read(time.monotonic() + start_timeout_s, start=True) != (_READY,):
                 raise _Died("the loading process did not start")
@@ -224,7 +226,6 @@ class _Child:
 
 def _serve(memory_bytes: int) -> None:
     """The child: set the limits, import the loader, then answer requests until stdin closes."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # a terminal's ^C is for the parent, which stops us
     replies = os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)  # anything a library prints goes to stderr, never into the replies
     requests = os.fdopen(0, "rb")

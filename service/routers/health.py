@@ -9,6 +9,7 @@ from ctp_core.config import AUTO, DEFAULT_MODEL
 from ctp_core.guide.selection import GuideChoice, unguided
 from service.errors import documented, error_response
 from service.jobs import JobError
+from service.redact import redact
 from service.schemas import Health, Ready
 from service.workers import served_queues, serving
 
@@ -57,14 +58,17 @@ def readyz(request: Request):
 
 def _guide(model: str, offers: dict[str, dict[str, str | None]]) -> dict[str, str | None]:
     """What guides jobs with default options (``Ready.guide``): CTP_MODEL when it names a model; under auto the
-    default model where a worker can run it, else none, with the workers' reason and the command that fixes it."""
+    default model where a worker can run it, else none, with the workers' reason and the command that fixes it
+    (without the paths the workers name: ``service.redact``)."""
     if model != AUTO:
-        return GuideChoice(model, "named by CTP_MODEL").to_dict()
-    reasons = {served.get(DEFAULT_MODEL, "no worker offers it") for served in offers.values()}
-    if None in reasons:
-        return GuideChoice(DEFAULT_MODEL, "auto: a worker has the weights of the default model").to_dict()
-    return unguided("; ".join(sorted(reasons))).to_dict()
+        choice = GuideChoice(model, "named by CTP_MODEL")
+    else:
+        reasons = {served.get(DEFAULT_MODEL, "no worker offers it") for served in offers.values()}
+        choice = (GuideChoice(DEFAULT_MODEL, "auto: a worker has the weights of the default model") if None in reasons
+                  else unguided("; ".join(sorted(reasons))))
+    return {key: value and redact(value) for key, value in choice.to_dict().items()}
 
 
 def _runnable(offers) -> list[str]:
-    return sorted({spec for served in offers for spec, why in served.items() if why is None})
+    """The model specs the offers can run (a spec that is a path on the workers redacted)."""
+    return sorted({redact(spec) for served in offers for spec, why in served.items() if why is None})
