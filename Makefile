@@ -39,3 +39,33 @@ lint: install
 # (each: results.jsonl and commands.txt as `ctp bench` writes them, run.json with the machine kind and date).
 docs-bench: install
 	$(BIN)/python benchmarks/docs_tables.py
+
+# The Blender add-on (integrations/blender, a Blender extension) as the zip a user installs from disk
+# (docs/blender.md); named as Blender names extension packages, <id>-<version>.zip.
+BLENDER_ADDON_SRC := integrations/blender/blender_manifest.toml $(wildcard integrations/blender/*.py)
+BLENDER_ADDON := dist/ctp_place-$(shell sed -n 's/^version = "\(.*\)"/\1/p' integrations/blender/blender_manifest.toml).zip
+.PHONY: blender-addon test-blender docs-blender
+blender-addon: $(BLENDER_ADDON)
+$(BLENDER_ADDON): $(BLENDER_ADDON_SRC)
+	@mkdir -p dist
+	@rm -f $@
+	cd integrations/blender && $(PY) -m zipfile -c $(CURDIR)/$@ $(notdir $(BLENDER_ADDON_SRC))
+
+# The add-on's tests (tests/blender) in real headless Blender: the bpy module (CPython 3.11) in a venv of its own,
+# as it pins numpy<2, which the project's venv cannot have. They start `ctp serve` from the project's venv.
+BLENDER_VENV := .venv-blender
+$(BLENDER_VENV)/.installed: tests/blender/requirements.txt
+	@echo "make test-blender: creating $(BLENDER_VENV) (pip's output goes to $(BLENDER_VENV)/install.log)"
+	@$(PY) -m venv $(BLENDER_VENV)
+	@$(BLENDER_VENV)/bin/pip install -r tests/blender/requirements.txt >$(BLENDER_VENV)/install.log 2>&1 || \
+	  { tail -n 30 $(BLENDER_VENV)/install.log; echo "make test-blender: install failed"; exit 1; }
+	@touch $@
+
+# --confcutdir: the project's tests/conftest.py imports ctp, which is not in this venv
+test-blender: install $(BLENDER_VENV)/.installed
+	CTP_BIN=$(CURDIR)/$(BIN)/ctp $(BLENDER_VENV)/bin/pytest -q -rs --confcutdir=tests/blender tests/blender
+
+# docs/blender.md's picture, rendered by the Blender tests
+docs-blender: install $(BLENDER_VENV)/.installed
+	CTP_BLENDER_PICTURE=$(CURDIR)/docs/blender-result.png CTP_BIN=$(CURDIR)/$(BIN)/ctp \
+	  $(BLENDER_VENV)/bin/pytest -q -rs --confcutdir=tests/blender tests/blender -k places_the_cup

@@ -1,0 +1,158 @@
+"""The operators: Place (export, submit, follow, apply as one undo step), Cancel, and Keep (one alternative).
+
+Place from the panel (invoke) follows the job with a modal timer, so Blender stays responsive; from a script or
+in background mode (execute) it waits for the job where it is. Errors are reported as one line, never a
+traceback."""
+
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import bpy
+
+from .client import Client
+from .job import Job
+from .props import preferences
+from .scene import SceneError, apply_result, export_pair, pick
+
+TICK_S = 0.25
+_running: Job | None = None  # the one job being followed; Cancel reaches it here
+
+
+def running() -> Job | None:
+    return _running
+
+
+class CTP_OT_place(bpy.types.Operator):
+    """Place the selected object relative to the target as the prompt says, with the ctp service"""
+
+    bl_idname = "ctp.place"
+    bl_label = "Place"
+    bl_options = {"UNDO"}  # one undo step, pushed when the result is applied (not REGISTER: no redo that reruns it)
+
+    @classmethod
+    def poll(cls, context: bpy.types.Context) -> bool:
+        return context.mode == "OBJECT" and _running is None
+
+    def invoke(self, context: bpy.types.Context, event: bpy.types.Event) -> set[str]:
+        if not self._start(context):
+            return {"CANCELLED"}
+        wm = context.window_manager
+        self.timer = wm.event_timer_add(TICK_S, window=context.window)
+        wm.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context: bpy.types.Context, event: bpy.types.Event) -> set[str]:
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"}
+        state = context.window_manager.ctp_job
+        state.message, state.fraction = _running.message, _running.fraction
+        context.workspace.status_text_set(f"ctp: {state.message} ({state.fraction:.0%})")
+        for area in context.screen.areas:
+            if area.type == "VIEW_3D":
+                area.tag_redraw()
+        if not _running.ended.is_set():
+            return {"PASS_THROUGH"}
+        context.window_manager.event_timer_remove(self.timer)
+        context.workspace.status_text_set(None)
+        return self._finish(context)
+
+    def execute(self, context: bpy.types.Context) -> set[str]:
+        if not self._start(context):
+            return {"CANCELLED"}
+        _running.join()
+        return self._finish(context)
+
+    def _start(self, context: bpy.types.Context) -> bool:
+        """Exports the pair and starts the job's thread; False (reported) when that cannot be done."""
+        global _running
+        state, settings = context.window_manager.ctp_job, context.scene.ctp
+        state.error = ""
+        try:
+            target, source = pick(context, settings.target)
+            if not settings.prompt.strip():
+                raise SceneError("write a prompt, e.g. 'a cup on the table'")
+            folder = Path(tempfile.mkdtemp(prefix="ctp-blender-"))
+            started = time.perf_counter()
+            self.exported = export_pair(context, target, source, folder)
+            self.export_s = time.perf_counter() - started
+        except (SceneError, RuntimeError) as exc:  # RuntimeError: the glTF exporter's own failures
+            self._fail(state, str(exc))
+            return False
+        self.source_name = source.name
+        options = {"preset": settings.preset}
+        if settings.count:
+            options["count"] = settings.count
+        if settings.arrangement != "auto":
+            options["arrangement"] = settings.arrangement
+        fields = {"prompt": settings.prompt, "target_name": target.name, "source_name": source.name,
+                  "options": json.dumps(options)}
+        prefs = preferences(context)
+        _running = Job(Client(prefs.url, prefs.api_key), folder, folder / "target.glb", folder / "source.glb", fields)
+        _running.start()
+        state.running, state.message, state.fraction = True, "uploading", 0.0
+        return True
+
+    def _finish(self, context: bpy.types.Context) -> set[str]:
+        """The ended job into the scene: its placement (FINISHED: the undo step), or its error (CANCELLED)."""
+        global _running
+        job, _running = _running, None
+        state = context.window_manager.ctp_job
+        state.running = False
+        if job.canceled:
+            state.message = "canceled: the scene is as it was"
+            self.report({"INFO"}, f"ctp: {state.message}")
+            return {"CANCELLED"}
+        source = bpy.data.objects.get(self.source_name)
+        if job.error is None and source is None:
+            job.error = f"the source object {self.source_name} is gone (renamed or deleted during the job)"
+        if job.error is not None:
+            return self._fail(state, job.error)
+        try:
+            placed = apply_result(context.scene, source, self.exported, job.report)
+        except (KeyError, ValueError, TypeError) as exc:  # a report this add-on cannot read
+            return self._fail(state, f"the service's report could not be read: {exc}")
+        state.message = f"placed {', '.join(o.name for o in placed)}: {context.scene.ctp_result.summary}"
+        self.report({"INFO"}, f"ctp: {state.message}")
+        return {"FINISHED"}
+
+    def _fail(self, state: bpy.types.PropertyGroup, message: str) -> set[str]:
+        state.error = message
+        self.report({"ERROR"}, f"ctp: {message}")
+        return {"CANCELLED"}
+
+
+class CTP_OT_cancel(bpy.types.Operator):
+    """Cancel the running placement (DELETE /jobs/{id}); the scene stays as it is"""
+
+    bl_idname = "ctp.cancel"
+    bl_label = "Cancel"
+
+    @classmethod
+    def poll(cls, context: bpy.types.Context) -> bool:
+        return _running is not None
+
+    def execute(self, context: bpy.types.Context) -> set[str]:
+        _running.cancel()
+        context.window_manager.ctp_job.message = "canceling"
+        return {"FINISHED"}
+
+
+class CTP_OT_keep(bpy.types.Operator):
+    """Keep the alternative shown now and close the list"""
+
+    bl_idname = "ctp.keep"
+    bl_label = "Keep This One"
+    bl_options = {"UNDO"}
+
+    @classmethod
+    def poll(cls, context: bpy.types.Context) -> bool:
+        return len(context.scene.ctp_result.alternatives) > 0
+
+    def execute(self, context: bpy.types.Context) -> set[str]:
+        context.scene.ctp_result.alternatives.clear()
+        return {"FINISHED"}
+
+
+CLASSES = (CTP_OT_place, CTP_OT_cancel, CTP_OT_keep)
