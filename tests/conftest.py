@@ -23,6 +23,8 @@ from ctp.cmd_serve import stop_processes
 from service.embedded import EmbeddedRedis, free_port
 
 REPO = Path(__file__).resolve().parents[1]
+# the Blender add-on's tests need the bpy module, in a venv of their own (`make test-blender`)
+collect_ignore = ["blender"]
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -14,12 +14,12 @@ def register() -> None:
     props.register()
     for cls in CLASSES:
         bpy.utils.register_class(cls)
+    bpy.app.handlers.load_pre.append(ops.abandon)
 
 
 def unregister() -> None:
-    running = ops.running()
-    if running is not None:
-        running.cancel()
+    bpy.app.handlers.load_pre.remove(ops.abandon)
+    ops.abandon()
     for cls in reversed(CLASSES):
         bpy.utils.unregister_class(cls)
     props.unregister()

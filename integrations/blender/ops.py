@@ -5,8 +5,8 @@ in background mode (execute) it waits for the job where it is. Errors are report
 traceback."""
 
 import json
+import shutil
 import tempfile
-import time
 from pathlib import Path
 
 import bpy
@@ -22,6 +22,16 @@ _running: Job | None = None  # the one job being followed; Cancel reaches it her
 
 def running() -> Job | None:
     return _running
+
+
+@bpy.app.handlers.persistent
+def abandon(*_args) -> None:
+    """Cancels the job being followed: on unregister, and when a file is opened during it (which ends the modal
+    operator without a word), so that Place works again."""
+    global _running
+    if _running is not None:
+        _running.cancel()
+        _running = None
 
 
 class CTP_OT_place(bpy.types.Operator):
@@ -47,12 +57,12 @@ class CTP_OT_place(bpy.types.Operator):
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
         state = context.window_manager.ctp_job
-        state.message, state.fraction = _running.message, _running.fraction
+        state.message, state.fraction = self.job.message, self.job.fraction
         context.workspace.status_text_set(f"ctp: {state.message} ({state.fraction:.0%})")
         for area in context.screen.areas:
             if area.type == "VIEW_3D":
                 area.tag_redraw()
-        if not _running.ended.is_set():
+        if not self.job.ended.is_set():
             return {"PASS_THROUGH"}
         context.window_manager.event_timer_remove(self.timer)
         context.workspace.status_text_set(None)
@@ -61,7 +71,7 @@ class CTP_OT_place(bpy.types.Operator):
     def execute(self, context: bpy.types.Context) -> set[str]:
         if not self._start(context):
             return {"CANCELLED"}
-        _running.join()
+        self.job.join()
         return self._finish(context)
 
     def _start(self, context: bpy.types.Context) -> bool:
@@ -69,15 +79,14 @@ class CTP_OT_place(bpy.types.Operator):
         global _running
         state, settings = context.window_manager.ctp_job, context.scene.ctp
         state.error = ""
+        folder = Path(tempfile.mkdtemp(prefix="ctp-blender-"))  # the job removes it when it ends
         try:
             target, source = pick(context, settings.target)
             if not settings.prompt.strip():
                 raise SceneError("write a prompt, e.g. 'a cup on the table'")
-            folder = Path(tempfile.mkdtemp(prefix="ctp-blender-"))
-            started = time.perf_counter()
             self.exported = export_pair(context, target, source, folder)
-            self.export_s = time.perf_counter() - started
         except (SceneError, RuntimeError) as exc:  # RuntimeError: the glTF exporter's own failures
+            shutil.rmtree(folder, ignore_errors=True)
             self._fail(state, str(exc))
             return False
         self.source_name = source.name
@@ -89,17 +98,18 @@ class CTP_OT_place(bpy.types.Operator):
         fields = {"prompt": settings.prompt, "target_name": target.name, "source_name": source.name,
                   "options": json.dumps(options)}
         prefs = preferences(context)
-        _running = Job(Client(prefs.url, prefs.api_key), folder, folder / "target.glb", folder / "source.glb", fields)
-        _running.start()
-        state.running, state.message, state.fraction = True, "uploading", 0.0
+        self.job = _running = Job(Client(prefs.url, prefs.api_key), folder, folder / "target.glb",
+                                  folder / "source.glb", fields)
+        self.job.start()
+        state.message, state.fraction = "uploading", 0.0
         return True
 
     def _finish(self, context: bpy.types.Context) -> set[str]:
         """The ended job into the scene: its placement (FINISHED: the undo step), or its error (CANCELLED)."""
         global _running
-        job, _running = _running, None
-        state = context.window_manager.ctp_job
-        state.running = False
+        if _running is self.job:
+            _running = None
+        job, state = self.job, context.window_manager.ctp_job
         if job.canceled:
             state.message = "canceled: the scene is as it was"
             self.report({"INFO"}, f"ctp: {state.message}")

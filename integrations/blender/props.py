@@ -4,7 +4,6 @@ last placement (``scene.ctp_result``: in the scene, so undo takes it back with t
 
 import bpy
 from bpy.props import (
-    BoolProperty,
     CollectionProperty,
     EnumProperty,
     FloatProperty,
@@ -85,7 +84,6 @@ class Result(bpy.types.PropertyGroup):
 
 
 class JobState(bpy.types.PropertyGroup):
-    running: BoolProperty()
     message: StringProperty()
     fraction: FloatProperty(min=0.0, max=1.0)
     error: StringProperty(description="Why the last placement did not happen")

@@ -7,10 +7,12 @@ of ctp is importable here, so the service is reached over HTTP only, as the add-
 
 import atexit
 import importlib
+import json
 import os
 import shutil
 import signal
 import socket
+import struct
 import subprocess
 import tempfile
 import time
@@ -107,7 +109,7 @@ def scene(addon, service):
     preferences = bpy.context.preferences.addons[addon.__name__].preferences
     preferences.url, preferences.api_key = service, ""
     state = bpy.context.window_manager.ctp_job
-    state.running, state.message, state.fraction, state.error = False, "", 0.0, ""
+    state.message, state.fraction, state.error = "", 0.0, ""
     return bpy.context.scene
 
 
@@ -141,11 +143,11 @@ def make_table(location=(1.0, 2.0, 0.0), turn_z: float = 0.6) -> bpy.types.Objec
     return table
 
 
-def make_cup(location=(4.0, -3.0, 1.5), rotation=(0.5, 0.3, 1.2)) -> bpy.types.Object:
+def make_cup(location=(4.0, -3.0, 1.5), rotation=(0.5, 0.3, 1.2), segments: int = 32) -> bpy.types.Object:
     """A cup (a closed cylinder 8 cm across, 10 cm high, its origin at its base's centre), far from the table and
     turned; a Bevel modifier, so the export has to use the evaluated mesh."""
     mesh = bmesh.new()
-    bmesh.ops.create_cone(mesh, cap_ends=True, segments=32, radius1=0.04, radius2=0.04, depth=0.1,
+    bmesh.ops.create_cone(mesh, cap_ends=True, segments=segments, radius1=0.04, radius2=0.04, depth=0.1,
                           matrix=Matrix.Translation((0, 0, 0.05)))
     cup = new_object("Cup", mesh, (0.1, 0.3, 0.8, 1.0))
     cup.modifiers.new("Bevel", "BEVEL").width = 0.004
@@ -184,3 +186,16 @@ def upright(obj: bpy.types.Object) -> float:
     """How closely the object's own +Z points up in the world (1: upright)."""
     return (obj.matrix_world.to_3x3() @ Vector((0, 0, 1))).normalized().z
 
+
+def place(prompt: str, preset: str = "test", count: int = 0) -> set[str]:
+    """The Place button as a script presses it: execute (background mode has no modal loop), undo step pushed."""
+    settings = bpy.context.scene.ctp
+    settings.prompt, settings.preset, settings.count = prompt, preset, count
+    return bpy.ops.ctp.place("EXEC_DEFAULT", True)
+
+
+def read_glb(path: Path) -> dict:
+    """The JSON chunk of a GLB (glTF 2.0 binary: a 12-byte header, then the JSON chunk's length and type)."""
+    data = path.read_bytes()
+    (length,) = struct.unpack_from("<I", data, 12)
+    return json.loads(data[20:20 + length])

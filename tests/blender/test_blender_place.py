@@ -4,7 +4,6 @@ alternatives, a parented and scaled source, cancel, and the errors a user sees."
 
 import json
 import os
-import struct
 import threading
 import time
 import urllib.request
@@ -13,6 +12,7 @@ from pathlib import Path
 
 import bmesh
 import bpy
+import numpy
 import pytest
 from conftest import (
     REPO,
@@ -21,19 +21,14 @@ from conftest import (
     make_table,
     new_object,
     on_table_top,
+    place,
+    read_glb,
     select,
     upright,
 )
 from mathutils import Euler, Matrix, Quaternion, Vector
 
 PICTURE = os.environ.get("CTP_BLENDER_PICTURE")  # where the docs' picture goes (make docs-blender); else tmp
-
-
-def place(prompt: str, preset: str = "test", count: int = 0) -> set[str]:
-    """The Place button as a script presses it: execute (background mode has no modal loop), undo step pushed."""
-    settings = bpy.context.scene.ctp
-    settings.prompt, settings.preset, settings.count = prompt, preset, count
-    return bpy.ops.ctp.place("EXEC_DEFAULT", True)
 
 
 def snapshot() -> dict[str, tuple]:
@@ -75,17 +70,28 @@ def render(scene: bpy.types.Scene, table: bpy.types.Object, tmp_path: Path) -> N
     """The result as Blender's Workbench renders it headless: the docs' picture."""
     camera = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
     scene.collection.objects.link(camera)
-    camera.location = table.matrix_world @ Vector((1.3, -1.5, 1.6))
-    camera.rotation_euler = (table.location + Vector((0, 0, 0.6)) - camera.location).to_track_quat("-Z", "Y").to_euler()
+    camera.location = table.matrix_world @ Vector((1.6, -1.9, 1.5))
+    look = table.location + Vector((0, 0, 0.45)) - camera.location
+    camera.rotation_euler = look.to_track_quat("-Z", "Y").to_euler()
     scene.camera = camera
+    scene.world = bpy.data.worlds.new("World")
+    scene.world.color = (0.75, 0.78, 0.82)  # the background Workbench renders
     scene.render.engine = "BLENDER_WORKBENCH"
     scene.display.shading.color_type = "MATERIAL"
-    scene.render.resolution_x, scene.render.resolution_y = 480, 320
+    scene.render.resolution_x, scene.render.resolution_y = 400, 260
     scene.render.image_settings.file_format = "PNG"
+    scene.render.image_settings.color_mode = "RGB"
+    scene.render.image_settings.compression = 100
+    scene.render.dither_intensity = 0.0  # no noise: a small PNG
     scene.render.filepath = PICTURE or str(tmp_path / "blender-result.png")
     bpy.ops.render.render(write_still=True)
     bpy.data.objects.remove(camera)
-    assert Path(scene.render.filepath).stat().st_size > 5_000
+    picture = bpy.data.images.load(scene.render.filepath)
+    pixels = numpy.empty(len(picture.pixels), dtype=numpy.float32)
+    picture.pixels.foreach_get(pixels)
+    r, g, b = (pixels.reshape(-1, 4)[:, i] for i in range(3))
+    assert ((b > r + 0.2) & (b > g + 0.1)).sum() > 50  # the blue cup is in the picture
+    bpy.data.images.remove(picture)
 
 
 def test_blender_alternatives_step_and_keep(scene, addon):
@@ -229,13 +235,6 @@ def test_blender_export_frame_is_the_one_placed_world_undoes(scene, addon, tmp_p
 def _quaternion(xyzw) -> Quaternion:
     x, y, z, w = xyzw  # glTF's order
     return Quaternion((w, x, y, z))
-
-
-def read_glb(path: Path) -> dict:
-    """The JSON chunk of a GLB (glTF 2.0 binary: a 12-byte header, then the JSON chunk's length and type)."""
-    data = path.read_bytes()
-    (length,) = struct.unpack_from("<I", data, 12)
-    return json.loads(data[20:20 + length])
 
 
 def test_blender_extension_zip_lists_the_add_on(addon):
