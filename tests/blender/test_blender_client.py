@@ -12,19 +12,19 @@ import pytest
 
 @contextlib.contextmanager
 def scripted(answers: list[tuple[int, dict[str, str], dict]]):
-    """A server that gives ``answers`` (status, headers, JSON body) in turn, one per request; yields its URL and
-    the Authorization header of each request."""
-    seen: list[str | None] = []
+    """A server that gives ``answers`` (status, headers, JSON body; ``{url}`` in a header is its own URL) in turn,
+    one per request; yields its URL and the path and Authorization header of each request."""
+    seen: list[tuple[str, str | None]] = []
 
     class Handler(BaseHTTPRequestHandler):
         def answer(self) -> None:
             self.rfile.read(int(self.headers.get("Content-Length") or 0))
-            seen.append(self.headers.get("Authorization"))
+            seen.append((self.path, self.headers.get("Authorization")))
             status, headers, body = answers.pop(0)
             data = json.dumps(body).encode()
             self.send_response(status)
             for name, value in {**headers, "Content-Type": "application/json"}.items():
-                self.send_header(name, value)
+                self.send_header(name, value.format(url=f"http://127.0.0.1:{self.server.server_port}"))
             self.send_header("Content-Length", str(len(data)))
             self.end_headers()
             self.wfile.write(data)
@@ -59,7 +59,7 @@ def test_blender_client_waits_out_a_429_retry_after(addon, tmp_path):
         started = time.monotonic()
         assert client.submit(glb, glb, {"prompt": "a cup on the table"})["id"] == "j1"
     assert time.monotonic() - started >= 1.0
-    assert seen == ["Bearer secret", "Bearer secret"]
+    assert seen == [("/align", "Bearer secret"), ("/align", "Bearer secret")]
     assert len(waits) == 1 and "2 jobs of this key are running" in waits[0] and "again in 1 s" in waits[0]
 
 
@@ -79,4 +79,19 @@ def test_blender_client_401_says_where_the_key_goes(addon):
             addon.client.Client(url).status("j1")
         with pytest.raises(addon.client.ServiceError, match="refused the API key.*add-on's preferences"):
             addon.client.Client(url, "wrong").status("j1")
-    assert seen == [None, "Bearer wrong"]
+    assert [key for _, key in seen] == [None, "Bearer wrong"]
+
+
+def test_blender_client_follows_a_download_redirect_without_the_key(addon):
+    """A deployment with presigned downloads answers 307 to the store: the key must not go there."""
+    with scripted([(307, {"Location": "{url}/presigned/report.json?signature=s"}, {}),
+                   (200, {}, {"transform": None})]) as (url, seen):
+        assert addon.client.Client(url, "secret").report("j1") == {"transform": None}
+    assert seen == [("/jobs/j1/report.json", "Bearer secret"), ("/presigned/report.json?signature=s", None)]
+
+
+def test_blender_report_in_other_frames_is_refused(addon):
+    """The add-on's formula is for source file -> target file; a report that says otherwise is not guessed at."""
+    transform = {"from_frame": "source_local", "to_frame": "normalised", "matrix": [[1, 0, 0, 0]] * 4}
+    with pytest.raises(ValueError, match="source_local to normalised"):
+        addon.report.placements({"transform": transform, "relation": None})
