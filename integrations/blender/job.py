@@ -41,7 +41,7 @@ class Job(threading.Thread):
         except ServiceError as exc:  # a refused upload is named by its object, not by the file sent
             named = {"target": self.fields["target_name"], "source": self.fields["source_name"]}.get(exc.field)
             self.error = f"{named}: {exc}" if named else str(exc)
-        except Exception as exc:  # noqa: BLE001 - shown as one line in the panel, never a traceback
+        except Exception as exc:  # shown as one line in the panel, never a traceback
             self.error = f"{type(exc).__name__}: {exc}"
         finally:
             shutil.rmtree(self.folder, ignore_errors=True)
