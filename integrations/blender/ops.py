@@ -85,9 +85,9 @@ class CTP_OT_place(bpy.types.Operator):
             if not settings.prompt.strip():
                 raise SceneError("write a prompt, e.g. 'a cup on the table'")
             self.exported = export_pair(context, target, source, folder)
-        except (SceneError, RuntimeError) as exc:  # RuntimeError: the glTF exporter's own failures
+        except Exception as exc:  # SceneError, the glTF exporter's RuntimeError, anything else: one line
             shutil.rmtree(folder, ignore_errors=True)
-            self._fail(state, str(exc))
+            self._fail(state, str(exc) or type(exc).__name__)
             return False
         self.source_name = source.name
         options = {"preset": settings.preset}
@@ -121,8 +121,8 @@ class CTP_OT_place(bpy.types.Operator):
             return self._fail(state, job.error)
         try:
             placed = apply_result(context.scene, source, self.exported, job.report)
-        except (KeyError, ValueError, TypeError) as exc:  # a report this add-on cannot read
-            return self._fail(state, f"the service's report could not be read: {exc}")
+        except Exception as exc:  # a report this add-on cannot read, mostly: one line
+            return self._fail(state, f"the result could not be applied: {type(exc).__name__}: {exc}")
         state.message = f"placed {', '.join(o.name for o in placed)}: {context.scene.ctp_result.summary}"
         self.report({"INFO"}, f"ctp: {state.message}")
         return {"FINISHED"}
