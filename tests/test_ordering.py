@@ -13,14 +13,20 @@ from ctp_core.config import AlignConfig, share_of
 from ctp_core.config.schedule import Phase
 from ctp_core.contact import NEAR, TOUCH
 from ctp_core.objective import combine
-from ctp_core.search import ordering
-from ctp_core.search.ordering import GATE_FULL, SUNK, Gate, Key
+from ctp_core.search import chance, ordering
+from ctp_core.search.ordering import CHANCE_DECADES, FULL_DECADES, SUNK, TIE_NOISE, Gate, Key
 
 WEIGHTS = Phase(index=1, steps=1, lambda_clip=1.0, lambda_icp=1.0, lambda_pen=1.0, sigma_icp=0.1, look_at_beta=0.0,
                 zoom=1.0, lambda_rel=1.0)
 SHARE = AlignConfig.from_preset("test").search.min_share
 HELD, FAILED = 0.0, 0.5  # ``rel`` scores: the relation holds (at most ``predicates.HOLDS``), fails
 
+
+
+def said(say: float, *, spread: float = 1.0, noise: float = 0.01) -> Gate:
+    """A gate whose tests earned ``say`` (0 to 1): both p-values at the evidence that gives it."""
+    p = 1.0 if say <= 0 else 10 ** -(CHANCE_DECADES + say * FULL_DECADES)
+    return Gate(spread, noise, spread_p=p, agree_p=p, agree=0.1)
 
 def _terms(rel, icp, clip=None, sunk=None) -> dict[str, torch.Tensor]:
     n = len(rel)
@@ -76,18 +82,33 @@ def test_without_a_guide_a_holding_pose_beats_a_failing_one_with_a_better_object
     key = ordering.rank_key(terms, WEIGHTS, share=SHARE)
     assert key.tier.tolist() == [1, 0, 0] and key.argsort().tolist() == [2, 1, 0]
     # a guided key with a gate of override 0 ranks as the geometry does
-    silent = ordering.search_key(terms, WEIGHTS, Gate(spread=1e-4, noise=1e-4), guided=True, share=SHARE)
+    silent = ordering.search_key(terms, WEIGHTS, said(0.0), guided=True, share=SHARE)
     assert silent.argsort().tolist() == [2, 1, 0]
 
 
-@pytest.mark.parametrize(("ratio", "override", "chooser"), [
-    (0.5, 0.0, "geometry"), (1.0, 0.0, "geometry"), (1.0 + 1e-9, 0.0, "both"), (2.5, 0.5, "both"),
-    (GATE_FULL, 1.0, "guide"), (10.0, 1.0, "guide")])
-def test_the_gate_grows_from_the_noise_to_gate_full_times_it(ratio, override, chooser):
-    gate = Gate(spread=ratio * 0.01, noise=0.01)
+@pytest.mark.parametrize(("decades", "lead", "override", "chooser"), [
+    (1.0, 0.0, 0.0, "geometry"), (2.0, 0.0, 0.0, "geometry"), (2.5, 0.0, 0.5, "both"), (3.0, 0.0, 1.0, "guide"),
+    (4.0, 0.0, 1.0, "guide"), (3.0, 0.5, 0.5, "both"), (3.0, 1.0, 0.0, "geometry"), (3.5, 5.0, 0.5, "both")])
+def test_the_say_grows_past_chance_once_in_100_and_a_sure_geometry_asks_for_more(decades, lead, override, chooser):
+    """Evidence against chance in decades (-log10 p): none until chance's one run in 100, the full say a decade
+    past it; each unit of the geometry's lead (at most ``LEAD_MAX``) asks for one more decade."""
+    p = 10 ** -decades
+    gate = Gate(spread=0.1, noise=0.01, spread_p=p, agree_p=p, agree=0.1, lead=lead)
     assert gate.override == pytest.approx(override, abs=1e-6) and gate.chooser == chooser
-    assert gate.tie == pytest.approx(GATE_FULL * 0.01)
-    assert gate.to_dict()["chose"] == chooser
+    assert gate.tie == pytest.approx(TIE_NOISE * 0.01)
+    said = gate.to_dict()
+    assert said["chose"] == chooser and said["agree_p"] == p and said["lead"] == lead
+
+
+def test_the_weaker_test_decides_and_says_what_chance_gives_it():
+    spread_only = Gate(spread=0.1, noise=0.01, spread_p=1e-4, agree_p=0.25, agree=0.31)
+    assert spread_only.override == 0.0  # a consistent function of the image, views that agree by chance: no say
+    assert "one time in 4" in spread_only.summary() and spread_only.summary().endswith("no say, the geometry chose")
+    assert Gate(spread=0.1, noise=0.01, spread_p=0.3, agree_p=1e-4, agree=0.0).override == 0.0
+    few = Gate(spread=0.1, noise=0.01, spread_p=1e-4, agree_p=1.0)  # too few poses hold to test the agreement
+    assert few.override == 0.0 and "too few places hold" in few.summary()
+    sure = Gate(spread=0.1, noise=0.01, spread_p=1e-5, agree_p=1e-4, agree=0.0, lead=0.4)
+    assert "less than one time in 10,000" in sure.summary() and "leads by 0.4" in sure.summary()
 
 
 def test_a_gate_without_measurable_noise_trusts_the_guide():
@@ -96,14 +117,14 @@ def test_a_gate_without_measurable_noise_trusts_the_guide():
     assert "no measurable noise" in gate.summary()
 
 
-@pytest.mark.parametrize("spread", [4.0, 2.5, 1.3])  # override 1, 0.5, 0.1
-def test_a_guide_admits_a_share_of_the_failing_poses_it_likes_best(spread):
+@pytest.mark.parametrize("say", [1.0, 0.5, 0.1])
+def test_a_guide_admits_a_share_of_the_failing_poses_it_likes_best(say):
     """``ceil(override x share x others)`` of the poses where the relation fails join the pool, the guide's best
     among them; the rest rank after every pooled pose."""
     failing = 25
     clip = [-0.5, -0.4] + [-0.9 + 0.01 * i for i in range(failing)]  # the guide prefers the failing ones
     terms = _terms([HELD] * 2 + [FAILED] * failing, [0.0] * (2 + failing), clip)
-    gate = Gate(spread=spread, noise=1.0)
+    gate = said(say, noise=1.0)
     key = ordering.search_key(terms, WEIGHTS, gate, guided=True, share=SHARE)
     admitted = share_of(failing, gate.override * SHARE)
     assert admitted == math.ceil(gate.override * SHARE * failing) >= 1
@@ -120,7 +141,7 @@ def test_the_share_keeps_at_least_one_of_a_non_empty_count():
 def test_the_tie_lets_the_usual_arrangement_break_only_what_the_guide_cannot_tell():
     terms = _terms([HELD, HELD], [0.0, 0.0], clip=[-0.997, -0.993])
     terms["prefer"] = torch.tensor([0.9, 0.2])  # the guide's favourite is the less usual arrangement
-    sure, unsure = Gate(spread=0.02, noise=5e-4), Gate(spread=0.02, noise=0.01)
+    sure, unsure = said(1.0, spread=0.02, noise=5e-4), said(1 / 3, spread=0.02, noise=0.01)
     assert ordering.search_key(terms, WEIGHTS, sure, guided=True, share=SHARE).argsort().tolist() == [0, 1]
     assert ordering.search_key(terms, WEIGHTS, unsure, guided=True, share=SHARE).argsort().tolist() == [1, 0]
 
@@ -149,7 +170,7 @@ def test_the_guided_selection_leaves_soft_icp_out_unless_the_gate_says_the_guide
     rule = {"touches": True, "share": SHARE}
     assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=True, **rule) == 0  # gate None: trusted
     assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=True, gate=Gate(1.0, 0.01), **rule) == 0
-    silent = Gate(spread=1e-4, noise=2e-4)  # override 0: the geometry alone, as without a guide
+    silent = said(0.0)  # override 0: the geometry alone, as without a guide
     assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=True, gate=silent, **rule) == 1
     assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=False, **rule) == 1
 
@@ -174,31 +195,58 @@ def test_the_alternatives_put_the_answer_first_then_the_holding_ones_and_leave_o
     assert key.finite().tolist() == [True, True, True, False, False]  # the answer's -inf, the far pose's inf
 
 
-def test_a_guide_earns_its_say_by_both_tests_the_lower_deciding():
-    """Signal (spread against noise) and agreement (``coarse_to_fine.view_agreement``): a consistent function of the
-    image passes the first, so the second limits it; not measured, the second sets no limit."""
-    loud = Gate(spread=1.0, noise=0.01)
-    assert loud.override == 1.0 and Gate(1.0, 0.01, agree=0.05).override == 1.0
-    assert Gate(1.0, 0.01, agree=ordering.AGREE_CHANCE).override == 0.0  # views that pick by chance: no say
-    assert Gate(1.0, 0.01, agree=0.3).override == pytest.approx(0.5)  # half-way to AGREE_FULL
-    assert Gate(1e-4, 1e-4, agree=0.0).override == 0.0  # agreeing views do not lift a guide within its noise
-    silenced = Gate(1.0, 0.01, agree=0.6)
-    assert silenced.chooser == "geometry" and "60% down the other's order" in silenced.summary()
-    assert silenced.to_dict()["agree"] == 0.6
-
-
-def test_view_agreement_is_zero_where_the_views_share_a_favourite_and_one_half_by_chance():
-    """Where each view's favourite ranks in the other views' order (0: first; the share ranked before it)."""
-    from ctp_core.search.coarse_to_fine import view_agreement
-
+def test_agreement_is_zero_where_the_views_share_a_favourite_and_one_half_by_chance():
+    """Where each view's favourite ranks in the other views' order (0: first; the share ranked before it); tied
+    scores share their middle rank."""
     same = torch.tensor([[0.0, 0.1], [1.0, 0.5], [2.0, 0.7], [3.0, 0.2]])
-    assert view_agreement(same) == 0.0
+    assert float(chance.agreement(same)) == 0.0
     opposed = torch.tensor([[0.0, 3.0], [1.0, 2.0], [2.0, 1.0], [3.0, 0.0]])
-    assert view_agreement(opposed) == 1.0
+    assert float(chance.agreement(opposed)) == 1.0
+    assert float(chance.agreement(torch.ones(5, 4))) == 0.5  # a guide that cannot tell its candidates apart
     generator = torch.Generator().manual_seed(0)
-    chance = [view_agreement(torch.rand(40, 3, generator=generator)) for _ in range(300)]
-    assert sum(chance) / len(chance) == pytest.approx(0.5, abs=0.03)
-    assert view_agreement(same[:2]) is None and view_agreement(same[:, :1]) is None
+    assert float(chance.agreement(torch.rand(300, 40, 3, generator=generator)).mean()) == pytest.approx(0.5, abs=0.03)
+    observed, p = chance.agreement_chance(same[:2])
+    assert observed is None and float(p) == 1.0 and float(chance.agreement_chance(same[:, :1])[1]) == 1.0
+
+
+@pytest.mark.parametrize("views", [2, 4])
+@pytest.mark.parametrize("count", [3, 5, 8, 16, 40])
+def test_noise_earns_no_say_in_99_percent_of_runs_and_a_strong_guide_the_full_say(count, views):
+    """Pure noise on ``count`` candidates and ``views`` views (1,000 seeded score tables per case, 10,000 in all,
+    each with its own noise probes): the say is 0 in at least 99 %; a guide whose views share their order (plus
+    a little noise) and whose spread is far past its probes' changes earns the full say where the test can show
+    it (four views and enough candidates)."""
+    generator = torch.Generator().manual_seed(1000 * count + views)
+    tables = torch.randn(1000, count, views, generator=generator)
+    _, agree_p = chance.agreement_chance(tables, seed=count)
+    changes = torch.randn(1000, 4, generator=generator) - torch.randn(1000, 4, generator=generator)
+    says = [Gate(1.0, 1.0, spread_p=chance.spread_chance(tables[i, :, 0], changes[i]), agree_p=float(agree_p[i]))
+            .override for i in range(len(tables))]
+    assert sum(say == 0 for say in says) >= 0.99 * len(says)
+    order = torch.randn(count, 1, generator=generator)
+    strong = order + 0.01 * torch.randn(count, views, generator=generator)
+    agree, p = chance.agreement_chance(strong)
+    gate = Gate(1.0, 1e-3, spread_p=chance.spread_chance(strong[:, 0], 1e-3 * torch.randn(4, generator=generator)),
+                agree_p=float(p), agree=float(agree))
+    assert float(agree) == 0.0
+    if views == 2 or count == 3:  # the favourites coincide by chance once in N (or N^3 = 27): no say
+        assert gate.override == 0.0
+    else:  # once in N^3: some say from 5 candidates, the full say from 16
+        assert gate.override > 0 and (gate.override == 1.0 or count < 16)
+
+
+def test_the_spread_test_asks_more_than_the_noise_of_a_few_probes():
+    generator = torch.Generator().manual_seed(3)
+    scores = torch.randn(60, generator=generator)
+    assert chance.spread_chance(scores, 0.05 * torch.randn(4, generator=generator)) < 1e-3  # spread 20x the noise
+    assert chance.spread_chance(scores, torch.randn(4, generator=generator)) > 0.01  # spread as large as the noise
+    assert chance.spread_chance(scores, torch.zeros(4)) == 0.0 and chance.spread_chance(scores[:1], torch.ones(4)) == 1
+
+
+def test_the_geometry_leads_by_its_best_poses_gap_in_its_spreads():
+    assert chance.lead(torch.tensor([0.0, 1.0, 1.0, 1.0])) == pytest.approx(2.0)  # std 0.5
+    assert chance.lead(torch.tensor([0.0, 0.0, 1.0, 1.0])) == 0.0  # a tie at the top: no lead
+    assert chance.lead(torch.tensor([0.0, 1.0])) == 0.0 and chance.lead(torch.zeros(5)) == 0.0
 
 
 def test_between_the_says_ends_the_guide_and_the_usual_arrangement_count_in_their_spreads():
@@ -207,13 +255,13 @@ def test_between_the_says_ends_the_guide_and_the_usual_arrangement_count_in_thei
     ``tie``; never less than ``tie``."""
     guide = torch.tensor([0.0, 1.0, 2.0, 3.0]) * 0.01  # the guide prefers pose 0
     prefer = torch.tensor([3.0, 2.0, 1.0, 0.0]) * 0.75  # the usual arrangement pose 3 (already x (1 - 0.25))
-    quarter = Gate(spread=7e-4, noise=4e-4)  # spread 1.75 x noise: override 0.25, tie 0.0016
+    quarter = said(0.25, spread=7e-4, noise=4e-4)  # tie 0.0016
     assert quarter.override == pytest.approx(0.25)
     weight = quarter.weigh(guide, prefer)
     assert weight > quarter.tie and int(torch.argmin(guide + weight * prefer)) == 3  # the arrangement's pick
     assert float((weight * prefer).std()) / float(guide.std()) == pytest.approx(3.0)
     assert int(torch.argmin(guide + quarter.tie * prefer)) == 0  # the tie alone would leave the guide's
-    three_quarters = Gate(spread=1.3e-3, noise=4e-4)  # override 0.75: a third of a spread per spread
+    three_quarters = said(0.75, spread=1.3e-3, noise=4e-4)  #: a third of a spread per spread
     assert float((three_quarters.weigh(guide, prefer / 3) * prefer / 3).std()) / float(guide.std()) == \
         pytest.approx(1 / 3)
     full = Gate(spread=1.0, noise=0.01)

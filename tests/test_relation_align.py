@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import torch
 import trimesh
+from test_ordering import said
 from test_predicates import box, cup, reading, ring, rot, table, wall_with_peg
 
 from ctp_core import align as stages
@@ -114,9 +115,8 @@ def test_a_guide_ranks_among_the_holding_candidates_plus_a_share_of_the_others()
 def test_a_guide_whose_spread_is_within_its_noise_does_not_override_the_relation():
     """The gate: spread over the candidates at most the guide's noise -> override 0 -> rank by relation and
     geometry; the guide's favourite (failing the relation, worse geometry) stays last."""
-    gate = ordering.Gate(spread=1e-4, noise=2e-4)
+    gate = said(0.0, spread=1e-4, noise=2e-4)
     assert gate.override == 0.0 and ordering.Gate(1.0, 0.1).override == 1.0
-    assert 0 < ordering.Gate(2e-4, 1e-4).override < 1
     terms = _terms([1.0, 0.0, 0.0], [0.0, 0.02, 0.01], clip=[-0.9, -0.3, -0.2])
     key = _guided(gate, terms)
     assert key.argsort().tolist() == [2, 1, 0]
@@ -184,7 +184,7 @@ def test_the_usual_arrangement_ranks_without_a_guide_and_breaks_only_the_guides_
     clear, limit = torch.zeros(2), torch.full((2,), contact.TOUCH)
     rule = {"touches": True, "share": SHARE}
     assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=False, **rule) == 1
-    signal, noisy = ordering.Gate(spread=0.02, noise=5e-4), ordering.Gate(spread=0.02, noise=0.01)
+    signal, noisy = said(1.0, spread=0.02, noise=5e-4), said(1 / 3, spread=0.02, noise=0.01)
     assert signal.override == 1.0 and 0 < noisy.override < 1
     assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=True, gate=signal, **rule) == 0  # 8 noises
     assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=True, gate=noisy, **rule) == 1  # within
@@ -199,7 +199,7 @@ def test_the_preference_counts_as_far_as_the_guide_cannot_tell_poses_apart():
     bare.use_clip = True
     assert bare.preference_weight == 1.0  # not measured yet: the geometry's screen ranks with it
     assert bare.gated(ordering.Gate(spread=1.0, noise=0.01)).preference_weight == 0.0
-    assert bare.gated(ordering.Gate(spread=2.5e-4, noise=1e-4)).preference_weight == pytest.approx(0.5)
+    assert bare.gated(said(0.5)).preference_weight == pytest.approx(0.5)
     assert bare.preference_weight == 1.0  # the twin's gate is its own
 
 

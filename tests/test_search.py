@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import torch
 import trimesh
+from test_ordering import said
 
 from ctp_core import contact, export, metrics, objective, pairs
 from ctp_core.align import align, prepare, propose, refine
@@ -160,7 +161,8 @@ def test_the_scorer_scores_n_candidates_then_m_restarts(meshes):
 
 
 @pytest.mark.parametrize("zoom", [0.0, 0.5])
-def test_search_counts_every_encoder_image_including_the_oracles(meshes, zoom):
+def test_search_counts_every_encoder_image_including_the_oracles(meshes, monkeypatch, zoom):
+    monkeypatch.setattr(ordering, "CHANCE_DECADES", -10.0)  # the gate trusts the tiny random guide: every stage encodes
     config = CONFIG.model_copy(update={"search": CONFIG.search.model_copy(update={"fine_zoom": zoom})})
     target, source = meshes["box on table"]
     pair, props = _proposals(target, source, config)
@@ -177,10 +179,13 @@ def test_search_counts_every_encoder_image_including_the_oracles(meshes, zoom):
     n, fine = len(props.poses), min(cfg.fine, len(props.poses))
     assert 0 < ranked.swept <= cfg.sweep * len(props.rotations)  # every orientation at the best site(s)
     # candidates x views (coarse and sweep, the guide's noise probes), the shared coarse reference views once,
-    # the fine ones each
+    # the places its choice is checked on from the held-out views and those views' references, the fine ones each
     coarse = (n + ranked.swept + min(coarse_to_fine.GATE_PROBES, n)) * cfg.coarse_views
+    held_out = len(coarse_to_fine.HELD_OUT_AZIMUTHS)
+    checks = (ranked.gate.places + 1) * held_out
+    assert ranked.gate.override == 1.0 and ranked.gate.places >= 3
     refs = cfg.fine_views if cfg.fine_zoom == 0 else fine * cfg.fine_views  # shared fine views without zoom
-    assert scorer.clip_images == coarse + cfg.coarse_views + fine * cfg.fine_views + refs
+    assert scorer.clip_images == coarse + cfg.coarse_views + checks + fine * cfg.fine_views + refs
     assert ranked.scored == n + ranked.swept + fine
     assert len(ranked.poses) == 2 and ranked.objectives.argsort().tolist() == [0, 1]  # best first
     planned = n + cfg.sweep * len(props.rotations) + fine
@@ -474,7 +479,7 @@ def test_the_guide_sees_only_the_shortlist_and_the_turns_the_geometry_allows(mes
 def test_a_guide_without_signal_encodes_nothing_after_the_coarse_stage(meshes, monkeypatch):
     """Gate override 0 (its spread within its noise): the geometry ranks, so the sweep, the fine stage, the
     refinement's gradient and the selection's views encode no image."""
-    monkeypatch.setattr(coarse_to_fine, "guide_noise", lambda *args: ordering.Gate(0.0, 1.0))
+    monkeypatch.setattr(coarse_to_fine, "guide_noise", lambda *args: said(0.0, spread=0.0, noise=1.0))
     run = prepare(*meshes["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box")
     props = propose(run)
     ranked = coarse_to_fine.search(run.scorer, props, run.plan[0], k=2)
@@ -523,15 +528,17 @@ def test_the_tile_stage_encodes_across_tiles_in_full_batches():
 
 def test_the_fast_preset_places_in_contact_within_its_encoder_budget(meshes):
     """``fast``: the relation and the geometry choose, the guide glances: no gradient images, and at most the
-    shortlist (and the gate's probes) at the coarse views, the fine few, and each restart's start and end on the
-    evaluation views. ``default`` takes no gradient either; ``descent`` and ``paper`` descend the guide."""
+    shortlist (and the gate's probes) at the coarse views, its best few places from the views that check its
+    choice, the fine few, and each restart's start and end on the evaluation views. ``default`` takes no gradient
+    either; ``descent`` and ``paper`` descend the guide."""
     assert not AlignConfig.from_preset("default").needs_image_gradient
     assert all(AlignConfig.from_preset(name).needs_image_gradient for name in ("descent", "paper"))
     cfg = AlignConfig.from_preset("fast", model="random:tiny", loss={"samples": 600},
                                   search={"coarse_image_size": 64, "fine_image_size": 64})
     result = align(*meshes["box on table"], "a box on the table", cfg, target_name="table", source_name="box")
     s, cam, opt = cfg.search, cfg.camera, cfg.optim
-    budget = ((s.shortlist + coarse_to_fine.GATE_PROBES) * s.coarse_views + s.fine * s.fine_views
+    checks = coarse_to_fine.AGREE_PLACES * len(coarse_to_fine.HELD_OUT_AZIMUTHS)
+    budget = ((s.shortlist + coarse_to_fine.GATE_PROBES) * s.coarse_views + checks + s.fine * s.fine_views
               + opt.restarts * cam.eval_views * (1 + opt.phases))
     assert 0 < result.clip_images <= budget
     placed = result.source.copy()
@@ -559,7 +566,7 @@ def test_progress_reads_the_relation_the_guide_and_the_gap(meshes, monkeypatch):
     assert all(-1 <= e.guide_match <= 1 and 0 <= e.contact_gap < 0.2 for e in steps)
 
 
-@pytest.mark.parametrize(("gate", "chose"), [(ordering.Gate(0.0, 1.0), "geometry"), (ordering.Gate(2.5, 1.0), "both"),
+@pytest.mark.parametrize(("gate", "chose"), [(said(0.0, noise=1.0), "geometry"), (said(0.5, noise=1.0), "both"),
                                              (ordering.Gate(1.0, 0.0), "guide")])
 def test_the_report_and_the_progress_say_who_chose_among_the_poses_that_hold(meshes, monkeypatch, gate, chose):
     """The guide's say as the search measured it (``ordering.Gate``) reaches the search's progress message and

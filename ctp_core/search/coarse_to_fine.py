@@ -39,17 +39,19 @@ from ctp_core.config.schedule import Phase
 from ctp_core.contact import Proposals, place
 from ctp_core.errors import Canceled
 from ctp_core.geometry.pose import Poses, quaternion_product
-from ctp_core.objective import Scorer, goal_rows
+from ctp_core.objective import Scorer, combine, goal_rows
 from ctp_core.pairs import PreparedPair
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.render.cameras import Cameras, orbit
-from ctp_core.search.ordering import Gate, Key, holding, search_key, split_shortlist
+from ctp_core.search import chance
+from ctp_core.search.ordering import Gate, Key, holding, search_key, split_shortlist, usual_first
 
 HIDDEN = 1e-6  # tile stage: a smaller change of the guide's term than this is a source its views do not see
 GATE_PROBES = 4  # ``guide_noise``: candidates scored again, moved by a negligible amount
 GATE_SHIFT = 0.01  # ... by this many source diagonals
 GATE_TURN_DEG = 1.0  # ... and turned this much about +Y
-AGREE_MIN = 3  # ``view_agreement``: fewer holding candidates than this tell nothing
+HELD_OUT_AZIMUTHS = (0.0, 90.0, 180.0, 270.0)  # ``agreement_cameras``: the views that check the guide's choice
+AGREE_PLACES = 8  # ``agreement_views``: its best distinct places they see (full agreement: chance 1 in 8^4)
 
 
 @dataclass
@@ -70,23 +72,37 @@ def _scene_radius(pair: PreparedPair, log_s: float) -> float:
 
 
 def coarse_cameras(pair: PreparedPair, config: AlignConfig, log_s: float, look_at: torch.Tensor | None = None,
-                   radius: float | None = None) -> Cameras:
+                   radius: float | None = None, azimuths: list[float] | None = None) -> Cameras:
     """(K, C) fixed views (K = 1: around the target centre) that frame the target and any source touching it,
-    or, given ``look_at`` (K, 3) and ``radius``, that frame that much around each point (the tile stage).
+    or, given ``look_at`` (K, 3) and ``radius``, that frame that much around each point (the tile stage); at
+    ``azimuths`` (degrees about +Y in the normalised frame), by default ``search.coarse_views`` of them evenly
+    spaced (``coarse_azimuths``).
 
     They depend on the target and the source's size only (never on a candidate or a reference pose).
     """
     cfg, cam = config.search, config.camera
-    views = cfg.coarse_views
+    azimuths = coarse_azimuths(cfg.coarse_views) if azimuths is None else azimuths
+    views = len(azimuths)
     fov = cam.eval_fov_deg
     look_at = torch.zeros(1, 3) if look_at is None else look_at.cpu()
     radius = _scene_radius(pair, log_s) if radius is None else radius
     distance = radius / math.sin(math.radians(fov) / 2) * 1.05
-    azimuth = torch.arange(views, dtype=torch.float32)[None].expand(len(look_at), -1) * (360.0 / views) + 45.0
+    azimuth = torch.tensor(azimuths, dtype=torch.float32)[None].expand(len(look_at), -1)
     full = lambda v: torch.full((len(look_at), views), float(v))  # noqa: E731
     device = pair.source_vertices.device
     return orbit(look_at, azimuth, full(cam.eval_elevation_deg), full(distance), full(fov),
                  cfg.coarse_image_size).to(device)
+
+
+def coarse_azimuths(views: int) -> list[float]:
+    """``views`` azimuths evenly spaced from 45 degrees (a corner view first: the front and a side both seen)."""
+    return [45.0 + i * 360.0 / views for i in range(views)]
+
+
+def agreement_cameras(pair: PreparedPair, config: AlignConfig, log_s: float) -> Cameras:
+    """The views the guide's choice is checked from (``agreement_views``): front, left, back and right
+    (``HELD_OUT_AZIMUTHS``), none of the coarse stage's corner views with its default one, two or four."""
+    return coarse_cameras(pair, config, log_s, azimuths=list(HELD_OUT_AZIMUTHS))
 
 
 def tiles_of(pair: PreparedPair, config: AlignConfig, poses: Poses) -> tuple[torch.Tensor, torch.Tensor, float] | None:
@@ -204,16 +220,20 @@ def score(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, bat
 
 
 def guide_noise(scorer: Scorer, poses: Poses, terms: dict[str, torch.Tensor], weights: Phase, cameras: Cameras,
-                goal_embeddings: torch.Tensor | None, views: torch.Tensor | None = None) -> Gate:
-    """The guide's ``Gate`` from a stage's candidates: the spread (standard deviation) of its term over them,
-    and how far its views agree on its favourite where the relation holds (``view_agreement`` of ``views``, the
-    candidates' (N, C) ``clip_views``; None: not measured), against its noise: the largest change of its term
-    when ``GATE_PROBES`` of them (spread over its order) are
-    moved by ``GATE_SHIFT`` of the source's diagonal and turned ``GATE_TURN_DEG`` about +Y (a change the
-    geometry and any placement metric cannot tell; renders then differ a little at the source's edges and the
-    encoder's rounding (bf16 under autocast) differs with them). Costs ``GATE_PROBES`` candidates' encodes
-    (a few per cent of the coarse stage's); ``benchmarks/guide_signal.py`` compares the same spread to the
-    bf16 rounding offline."""
+                goal_embeddings: torch.Tensor | None, checks: Cameras, distinct: tuple[float, float]) -> Gate:
+    """The guide's ``Gate`` from a stage's candidates, each test against what chance gives on them (``chance``):
+
+    - the spread of its term over them against its noise: the changes of its term when ``GATE_PROBES`` of them
+      (spread over its order) are moved by ``GATE_SHIFT`` of the source's diagonal and turned ``GATE_TURN_DEG``
+      about +Y (a change the geometry and any placement metric cannot tell; renders then differ a little at the
+      source's edges and the encoder's rounding (bf16 under autocast) differs with them): ``GATE_PROBES``
+      encodes;
+    - whether views it has not seen confirm its choice where the relation holds (``agreement_views`` from the
+      ``checks`` views, its best places at least ``distinct`` apart);
+    - the geometry's lead: the usual arrangement's best pose that holds against the next (``usual_first``).
+
+    ``benchmarks/guide_signal.py`` compares the same spread to the bf16 rounding offline, ``benchmarks/guide_say.py``
+    the say per case."""
     clip = terms["clip"]
     order = torch.argsort(clip)
     picks = order[torch.linspace(0, len(order) - 1, min(GATE_PROBES, len(order))).round().long()].unique()
@@ -226,26 +246,32 @@ def guide_noise(scorer: Scorer, poses: Poses, terms: dict[str, torch.Tensor], we
     moved = Poses(probe.t + (GATE_SHIFT * diagonal)[:, None] * direction.to(probe.t),
                   quaternion_product(turn.to(probe.q), probe.q), probe.log_s)
     again = terms_of(scorer, moved, weights, cameras, batch=len(picks), goal_embeddings=goal_embeddings)["clip"]
-    noise = float((again - clip[picks]).abs().max())
-    agree = None if views is None else view_agreement(views[holding(terms)])
-    return Gate(float(clip.std()) if len(clip) > 1 else 0.0, noise, agree)
+    changes = again - clip[picks]
+    held = holding(terms)
+    checked = agreement_views(scorer, poses, terms, held, weights, checks, distinct)
+    agree, agree_p = chance.agreement_chance(checked, seed=scorer.config.seed)
+    geometric = combine({**terms, "clip": torch.zeros_like(clip)}, weights)
+    lead = chance.lead(usual_first(geometric, terms, weights, held)[held])
+    return Gate(float(clip.std()) if len(clip) > 1 else 0.0, float(changes.abs().max()),
+                chance.spread_chance(clip, changes), float(agree_p), None if agree is None else float(agree), lead,
+                len(checked))
 
 
-def view_agreement(views: torch.Tensor) -> float | None:
-    """Where each view's favourite ranks in each other view's order, as the share of the candidates that view
-    ranks before it (0: its best too; 0.5 by chance), averaged over the ordered pairs of views; None with fewer
-    than ``AGREE_MIN`` candidates or one view. ``views``: (N, C) the guide's term per candidate and view (lower
-    is better), over the candidates where the relation holds (what the guide orders).
-
-    Why this is the guide's say: a guide that sees where the source belongs prefers the same pose from every
-    side, while a consistent function of the image that does not (a random encoder with any prompt, the issue's
-    "weak guide") prefers, in each view, what that view's pixels happen to favour."""
-    count, sides = views.shape
-    if count < AGREE_MIN or sides < 2:
-        return None
-    shares = [float((views[:, b] < views[int(torch.argmin(views[:, a])), b]).double().sum()) / (count - 1)
-              for a in range(sides) for b in range(sides) if a != b]
-    return sum(shares) / len(shares)
+def agreement_views(scorer: Scorer, poses: Poses, terms: dict[str, torch.Tensor], held: torch.Tensor,
+                    weights: Phase, checks: Cameras, distinct: tuple[float, float]) -> torch.Tensor:
+    """(K, 1 + V) the guide's choice and what ``checks``, views it has not seen, say of it: its ``AGREE_PLACES`` best
+    candidates where the relation holds (``held``: what it orders), each at least ``distinct`` from a better
+    one (near twins would tie by its noise), by its term at the coarse views (``terms["clip"]``: the first
+    column), then seen from each of those views alone (the V others: K x V encodes). Under noise they
+    order the K at random whatever the first column says, so ``chance.agreement_chance`` tests them as
+    independent views; a guide that sees where the source belongs prefers the same place from every side."""
+    index = torch.nonzero(held.cpu())[:, 0]
+    clip = terms["clip"].cpu()
+    best = index[diverse_top(poses.select(index), Key.plain(clip[index]), AGREE_PLACES, *distinct, fill=False)]
+    if len(best) < chance.AGREE_MIN:
+        return clip[best][:, None]
+    seen = terms_of(scorer, poses.select(best), weights, checks, batch=scorer.config.search.batch, views=True)
+    return torch.cat([clip[best][:, None], seen["clip_views"].cpu()], dim=1)
 
 
 def diverse_top(poses: Poses, objectives: Key, k: int, distance: float, angle_deg: float, *,
@@ -290,7 +316,9 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
     plan = _Plan.of(scorer, proposals, k, on_event, started, phases)
     plan.emit(0)
     with scorer.clock.time("search"):
-        scorer, terms, goal_embeddings = _coarse(scorer, proposals.poses, weights, cameras, plan, should_cancel)
+        checks = agreement_cameras(pair, config, float(proposals.poses.log_s.max()))
+        scorer, terms, goal_embeddings = _coarse(scorer, proposals.poses, weights, cameras, checks, distinct, plan,
+                                                 should_cancel)
         coarse = ranking_key(scorer, terms, weights)
         swept, turns_screened = _sweep_turns(scorer, proposals, weights, coarse, distinct, plan)
         screened += turns_screened
@@ -403,18 +431,19 @@ def _screened(scorer: Scorer, proposals: Proposals, weights: Phase,
     return proposals.select(shortlist), len(proposals.poses)
 
 
-def _coarse(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, plan: _Plan,
-            should_cancel: CancelCheck | None) -> tuple[Scorer, dict[str, torch.Tensor], torch.Tensor | None]:
+def _coarse(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, checks: Cameras,
+            distinct: tuple[float, float], plan: _Plan, should_cancel: CancelCheck | None
+            ) -> tuple[Scorer, dict[str, torch.Tensor], torch.Tensor | None]:
     """The coarse stage: every candidate's terms at the shared views. Where there is a guide and no gate yet, the
-    gate (how far the guide may override the relation: ``guide_noise``) is measured on them and the scorer gated
-    by it, for the later stages. Returns the scorer they score with, the terms and the views' goal embeddings."""
+    gate (how far the guide may override the relation: ``guide_noise``, its choice checked from the ``checks``
+    views) is measured on them and the scorer gated by it, for the later stages. Returns the scorer they score
+    with, the terms and the views' goal embeddings."""
     cfg = scorer.config.search
     goal_embeddings = embed_shared_goal(scorer, cameras)
     terms = terms_of(scorer, poses, weights, cameras, batch=cfg.batch, goal_embeddings=goal_embeddings,
-                     progress=plan.emit, should_cancel=should_cancel, views=True)
-    views = terms.pop("clip_views", None)
+                     progress=plan.emit, should_cancel=should_cancel)
     if scorer.guided and plan.gate is None and len(poses) > 1:  # how far the guide may override the relation
-        plan.gate = guide_noise(scorer, poses, terms, weights, cameras, goal_embeddings, views)
+        plan.gate = guide_noise(scorer, poses, terms, weights, cameras, goal_embeddings, checks, distinct)
         scorer = scorer.gated(plan.gate)  # the later stages score under it
         if plan.gate.override == 0:
             plan.drop_tiles()  # a guide with no signal cannot tell tiles apart either

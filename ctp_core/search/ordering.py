@@ -36,10 +36,12 @@ from ctp_core.config.schedule import Phase
 from ctp_core.contact import NEAR
 from ctp_core.objective import combine
 from ctp_core.relations import predicates
+from ctp_core.search import chance
 
-GATE_FULL = 4.0  # ``Gate``: a guide whose spread is this many times its noise may override the relation fully
-AGREE_CHANCE = 0.5  # ``Gate.agree`` of a guide whose views pick their favourites independently: no say
-AGREE_FULL = 0.1  # ... of one whose favourite from each side is among the other sides' best tenth: the full say
+CHANCE_DECADES = 2.0  # ``Gate``: evidence (-log10 p) a guide's tests must pass for any say: noise does once in 100
+FULL_DECADES = 1.0  # ... and this many decades past it for the full say
+LEAD_MAX = 1.0  # ... plus one decade per unit of the geometry's lead, at most this many
+TIE_NOISE = 4.0  # ``Gate.tie``: the usual arrangement's unit where the guide orders, in the guide's noises
 SUNK = 0.01  # source diagonals of penetration (``sunk``) past which a pose intersects: a sphere pressed into a
 # plane by a tenth of its diagonal (forward and enclosed halves ~ depth^2 / radius / 2 each side summed)
 
@@ -103,48 +105,54 @@ class Key:
 
 @dataclass(frozen=True)
 class Gate:
-    """How far a guide may override the relation, earned in each run by two tests (``coarse_to_fine.guide_noise``), the
-    lower one deciding (``override``):
+    """How far a guide may override the relation and the usual arrangement, earned in each run by showing on the
+    search's own candidates what noise would not show there (``coarse_to_fine.guide_noise``; the tests in
+    ``chance``):
 
-    - signal: its scores' spread over the search's candidates (standard deviation) against its noise (the
-      largest change of the score of a few candidates moved by a negligible amount); from 0 (spread at most the
-      noise: it does not tell the candidates apart) to 1 at ``GATE_FULL`` times the noise;
-    - agreement (``agree``: ``coarse_to_fine.view_agreement``, where each coarse view's favourite among the holding
-      candidates ranks in the other views, 0 the best, 0.5 chance; None: not measured, no limit): from 0 at
-      ``AGREE_CHANCE`` to 1 at ``AGREE_FULL``. A consistent function of the image passes the first test, noise
-      included (a random encoder is one); only a guide that sees where the source is agrees with itself from
-      another side.
+    - spread (``spread_p``): its scores' spread over the candidates against its noise (the changes of a few
+      candidates' scores when moved by a negligible amount), an F test;
+    - agreement (``agree_p``): where each view's favourite among the candidates that hold ranks in the other views'
+      orders (``agree``), against the same views' scores shuffled; a consistent function of the image passes the
+      first test, noise included (a random encoder is one); only a guide that sees where the source is agrees
+      with itself from other sides.
+
+    The evidence is the weaker test's, in decades (-log10 p): the say is 0 until it passes ``CHANCE_DECADES``
+    (noise does one run in 100) plus the geometry's ``lead`` (its best pose's lead in its own spread units, at most
+    ``LEAD_MAX``: a sure geometry asks for more), and full ``FULL_DECADES`` past that.
     """
 
     spread: float
     noise: float
+    spread_p: float = 0.0
+    agree_p: float = 0.0
     agree: float | None = None
+    lead: float = 0.0
+    places: int = 0  # the guide's best places the agreement was checked on (``coarse_to_fine.agreement_views``)
 
     @property
     def ratio(self) -> float:
         return self.spread / self.noise if self.noise > 0 else math.inf
 
     @property
+    def evidence(self) -> float:
+        """The weaker test's evidence against chance, in decades."""
+        return min(chance.decades(self.spread_p), chance.decades(self.agree_p))
+
+    @property
+    def needed(self) -> float:
+        """The evidence that starts a say: chance's one run in 100, one more decade per unit of the geometry's
+        lead."""
+        return CHANCE_DECADES + min(self.lead, LEAD_MAX)
+
+    @property
     def override(self) -> float:
-        return min(self.signal, self.agreement)
-
-    @property
-    def signal(self) -> float:
-        """The say the spread earns: 0 within the noise, 1 at ``GATE_FULL`` times it."""
-        return float(min(1.0, max(0.0, (self.ratio - 1.0) / (GATE_FULL - 1.0))))
-
-    @property
-    def agreement(self) -> float:
-        """The say the views' agreement earns: 0 at chance, 1 at ``AGREE_FULL``; 1 where not measured."""
-        if self.agree is None:
-            return 1.0
-        return float(min(1.0, max(0.0, (AGREE_CHANCE - self.agree) / (AGREE_CHANCE - AGREE_FULL))))
+        return float(min(1.0, max(0.0, (self.evidence - self.needed) / FULL_DECADES)))
 
     @property
     def tie(self) -> float:
         """What one unit of ``prefer`` is worth where the guide orders (``rank_key``, ``select_answer``): a
-        difference of the guide's term the gate would trust fully (``GATE_FULL`` x its noise)."""
-        return GATE_FULL * self.noise
+        difference of the guide's term well past its noise (``TIE_NOISE`` x the noise)."""
+        return TIE_NOISE * self.noise
 
     def weigh(self, guide: torch.Tensor, prefer: torch.Tensor) -> float:
         """What one unit of ``prefer`` (the usual arrangement, already x (1 - override): ``Scorer.preference_weight``)
@@ -165,22 +173,27 @@ class Gate:
         return "geometry" if self.override <= 0 else "guide" if self.override >= 1 else "both"
 
     def summary(self) -> str:
-        """The gate in one line, for the progress readout, the report and the page."""
-        spread = f"the guide's scores spread {self.ratio:.1f}x their noise" if self.noise > 0 else (
-            "the guide's scores have no measurable noise")
-        if self.agree is not None:
-            spread += (f", each view's favourite ranks {self.agree:.0%} down the other's order "
-                       f"({AGREE_CHANCE:.0%} by chance)")
-        return spread + {"geometry": ": the geometry chose", "guide": ": the guide chose",
-                         "both": f": the guide chose, the usual arrangement weighing {1 - self.override:.2f}"
-                         }[self.chooser]
+        """The gate in one line, for the progress readout, the report and the page: what chance gives each test
+        in words, the geometry's lead, who chose."""
+        spread = (f"the guide's spread ({self.ratio:.1f}x its noise) is what chance gives {chance.odds(self.spread_p)}"
+                  if self.noise > 0 else "the guide's scores have no measurable noise")
+        agree = ("too few places hold for views it has not seen to check its choice" if self.agree is None else
+                 f"views it has not seen agree with its choice among its {self.places} best places (each one's "
+                 f"favourite {self.agree:.0%} down the others' orders, 50% by chance) {chance.odds(self.agree_p)}")
+        lead = f"; the geometry's best leads by {self.lead:.1f} of its spreads" if self.lead >= 0.05 else ""
+        return f"{spread}, {agree}{lead}" + {
+            "geometry": ": no say, the geometry chose", "guide": ": the guide chose",
+            "both": f": the guide chose, the usual arrangement weighing {1 - self.override:.2f}"}[self.chooser]
 
-    def to_dict(self) -> dict[str, float | str]:
-        return {"spread": self.spread, "noise": self.noise, "agree": self.agree, "override": round(self.override, 3),
-                "chose": self.chooser, "summary": self.summary()}
+    def to_dict(self) -> dict[str, float | str | None]:
+        return {"spread": self.spread, "noise": self.noise, "spread_p": self.spread_p, "agree": self.agree,
+                "agree_p": self.agree_p, "places": self.places, "lead": round(self.lead, 3),
+                "evidence": round(min(self.evidence, 99.0), 3),
+                "needed": round(self.needed, 3), "override": round(self.override, 3), "chose": self.chooser,
+                "summary": self.summary()}
 
 
-TRUSTED = Gate(spread=1.0, noise=0.0)  # a gate not measured (yet): the guide trusted fully (override 1, tie 0)
+TRUSTED = Gate(spread=1.0, noise=0.0)  # a gate not measured (yet): the guide trusted fully (p 0: override 1, tie 0)
 
 
 def holding(terms: dict[str, torch.Tensor]) -> torch.Tensor:
