@@ -10,7 +10,10 @@ A stored run is a folder ``benchmarks/results/RUN/`` holding
 
 In docs/benchmarks.md the text between ``<!-- bench-table:RUN -->`` and ``<!-- /bench-table -->`` is RUN's table:
 its command, machine kind and date, then per variant and per case set (the rows' ``origin``) the counts of
-placement, placement@k, success, relation holds and valid, with ADD-S and time medians. Regenerate with
+placement, placement@k, success, relation holds and valid, with ADD-S and time medians. The text between
+``<!-- say-table:BASE:RUN,RUN,... -->`` and ``<!-- /say-table -->`` is the guide's say in guided runs
+(``say_table``): how often each guide had a say, and the placements it gained and lost against BASE, a run
+without a guide over the same cases; then each run's command, machine kind and date. Regenerate with
 
     python benchmarks/docs_tables.py            # rewrites the regions (make docs-bench)
     python benchmarks/docs_tables.py --check    # exit 1 if a region is stale or names no stored run
@@ -33,6 +36,7 @@ REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"
 DOC = REPO / "docs" / "benchmarks.md"
 REGION = re.compile(r"(<!-- bench-table:([\w.-]+) -->\n)(.*?)(<!-- /bench-table -->)", re.S)
+SAY_REGION = re.compile(r"(<!-- say-table:([\w.-]+):([\w.,-]+) -->\n)(.*?)(<!-- /say-table -->)", re.S)
 # the fields that name a row (``harness.row_key``): a resumed run may have written a row twice, the last one counts
 ROW_KEY = ("case", "init", "method", "protocol", "seed", "ablation", "preset", "guide", "encoder", "copies")
 
@@ -45,12 +49,15 @@ class Run:
     machine: str
     date: str
     note: str = ""
+    where: str = ""  # the folder as a reader finds it: ``benchmarks/results/NAME/`` for a stored run
 
 
-def load_run(folder: Path) -> Run:
-    """One stored run; a missing file or a ``run.json`` without ``machine`` and ``date`` is an error."""
+def load_run(folder: Path, *, stored: bool = True) -> Run:
+    """One stored run; a missing file or a ``run.json`` without ``machine`` and ``date`` is an error. Not
+    ``stored`` (a ``ctp bench --out`` folder as it is): ``run.json`` is optional, machine and date unknown."""
     folder = Path(folder)
-    meta = json.loads((folder / "run.json").read_text())
+    meta = json.loads((folder / "run.json").read_text()) if stored or (folder / "run.json").exists() else {
+        "machine": "this machine", "date": "not stored"}
     missing = [key for key in ("machine", "date") if not meta.get(key)]
     if missing:
         raise ValueError(f"{folder / 'run.json'}: missing {', '.join(missing)}")
@@ -61,7 +68,7 @@ def load_run(folder: Path) -> Run:
             rows[tuple(row.get(k) for k in ROW_KEY)] = row
     commands = [c for c in (folder / "commands.txt").read_text().splitlines() if c.strip()]
     return Run(folder.name, list(rows.values()), commands, str(meta["machine"]), str(meta["date"]),
-               str(meta.get("note", "")))
+               str(meta.get("note", "")), f"benchmarks/results/{folder.name}/" if stored else f"{folder}/")
 
 
 def stored_runs(root: Path = RESULTS) -> dict[str, Run]:
@@ -101,7 +108,7 @@ def table(run: Run) -> str:
     """The Markdown of one run's region: what ran, where and when, then one line per variant and case set."""
     head = ["variant", "set", "ok/runs", "with reference", "placement", "placement@k", "success", "relation holds",
             "valid", "ADD-S median", "time s median"]
-    lines = [f"Run `{run.name}` (`benchmarks/results/{run.name}/`), {run.date}, on {run.machine}"
+    lines = [f"Run `{run.name}` (`{run.where}`), {run.date}, on {run.machine}"
              f"{'; ' + run.note if run.note else ''}. From the repository root:", "", "```",
              *run.commands, "```", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     variants: dict[str, list[dict]] = defaultdict(list)
@@ -118,12 +125,51 @@ def table(run: Run) -> str:
     return "\n".join(lines) + "\n"
 
 
+def say_table(runs: list[Run], base: Run) -> str:
+    """The Markdown of a say-table region: per guided run, the cases with a reference, how many the guide had a
+    say on (``guide_say.override`` > 0) and a full say, the largest, the placements, those gained and lost
+    against ``base`` (a run without a guide over the same cases) and the successes (ADD-S); then where each run
+    comes from."""
+    head = ["run", "guide", "cases", "a say", "full say", "largest say", "placement", "gained", "lost", "success"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    before = _placed(base.rows)
+    for run in runs:
+        ok = [r for r in run.rows if r.get("status") == "ok" and r["metrics"].get("placement_success") is not None]
+        says = [float(((r.get("extra") or {}).get("guide_say") or {}).get("override") or 0.0) for r in ok]
+        placed = _placed(ok)
+        gained = sorted(c for c, hit in placed.items() if hit and before.get(c) is False)
+        lost = sorted(c for c, hit in placed.items() if not hit and before.get(c))
+        guides = ", ".join(sorted({f"{r.get('guide')}" + (f"/{r['encoder']}" if r.get("encoder") else "")
+                                   for r in ok}))
+        lines.append("| " + " | ".join([
+            f"`{run.name}`", guides, str(len(ok)), str(sum(v > 0 for v in says)), str(sum(v >= 1 for v in says)),
+            f"{max(says, default=0.0):.2f}", f"{sum(placed.values())}/{len(placed)}", ", ".join(gained) or "–",
+            ", ".join(lost) or "–", _count(ok, "success")]) + " |")
+    lines.append("")
+    for run in [base, *runs]:
+        lines.append(f"- `{run.name}` (`{run.where}`), {run.date}, on {run.machine}"
+                     f"{'; ' + run.note if run.note else ''}: `" + "`; `".join(run.commands) + "`")
+    return "\n".join(lines) + "\n"
+
+
+def _placed(rows: list[dict]) -> dict[str, bool]:
+    """case -> placed, over the ok rows with a reference (the last row of a case counts)."""
+    return {r["case"]: bool(r["metrics"]["placement_success"]) for r in rows
+            if r.get("status") == "ok" and r["metrics"].get("placement_success") is not None}
+
+
 def rewrite(text: str, runs: dict[str, Run]) -> str:
-    """``text`` with every bench-table region replaced by its run's table; a region naming no run is an error."""
-    unknown = sorted({m.group(2) for m in REGION.finditer(text)} - set(runs))
+    """``text`` with every bench-table and say-table region replaced by its runs' table; a region naming no stored
+    run is an error."""
+    named = {m.group(2) for m in REGION.finditer(text)}
+    for m in SAY_REGION.finditer(text):
+        named |= {m.group(2), *m.group(3).split(",")}
+    unknown = sorted(named - set(runs))
     if unknown:
-        raise KeyError(f"bench-table regions name runs that are not stored: {', '.join(unknown)}")
-    return REGION.sub(lambda m: m.group(1) + table(runs[m.group(2)]) + m.group(4), text)
+        raise KeyError(f"table regions name runs that are not stored: {', '.join(unknown)}")
+    text = REGION.sub(lambda m: m.group(1) + table(runs[m.group(2)]) + m.group(4), text)
+    return SAY_REGION.sub(lambda m: m.group(1) + say_table([runs[n] for n in m.group(3).split(",")],
+                                                           runs[m.group(2)]) + m.group(5), text)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -136,6 +182,8 @@ def main(argv: list[str] | None = None) -> int:
     text = args.doc.read_text()
     new = rewrite(text, runs)
     shown = {m.group(2) for m in REGION.finditer(text)}
+    for m in SAY_REGION.finditer(text):
+        shown |= {m.group(2), *m.group(3).split(",")}
     for name in sorted(set(runs) - shown):
         print(f"note: stored run {name} has no region in {args.doc}: add <!-- bench-table:{name} --> "
               "<!-- /bench-table --> where it belongs", file=sys.stderr)

@@ -13,7 +13,7 @@ from scipy.spatial import cKDTree
 
 def clip_view_loss(image_embeddings: torch.Tensor, goal_embeddings: torch.Tensor) -> torch.Tensor:
     """(B, C) -cos(e_img, e_goal) per view; L_clip is its mean over the views (``Scorer.clip_term``), each view
-    alone what ``coarse_to_fine.view_agreement`` compares.
+    alone what ``coarse_to_fine.agreement_views`` compares (the guide's say: ``search.chance``).
 
     image_embeddings (B, C, D); goal_embeddings (D,) for a text or image prompt, or (B, C, D) for a
     per-view goal (the oracle guide). Both are expected L2-normalised; we normalise again so a

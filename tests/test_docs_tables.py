@@ -63,6 +63,26 @@ def test_a_region_naming_no_stored_run_is_an_error(tmp_path):
         docs_tables.main(["--doc", str(doc), "--results", str(tmp_path / "results")])
 
 
+def test_the_say_table_counts_the_guides_say_and_the_placements_it_gained_and_lost(tmp_path):
+    base = [_row(f"a-{i}", "alpha", placed=i < 2, valid=True, adds=0.05) for i in range(4)]
+    guided = [_row(f"a-{i}", "alpha", placed=i in (0, 2), valid=True, adds=0.05, method="ctp") for i in range(4)]
+    for row, say in zip(guided, [0.0, 0.4, 1.0, 0.0], strict=True):
+        row.update(guide="oracle", encoder="random:tiny", extra={"guide_say": {"override": say}})
+    _store(tmp_path / "results" / "geo", base, "ctp bench X --method geometry", "2026-12-05")
+    _store(tmp_path / "results" / "say", guided, "ctp bench X --guide oracle", "2026-12-05")
+    doc = tmp_path / "bench.md"
+    doc.write_text("<!-- say-table:geo:say -->\n<!-- /say-table -->\n")
+    assert docs_tables.main(["--doc", str(doc), "--results", str(tmp_path / "results")]) == 0
+    text = doc.read_text()
+    # 2 of 4 with a say, 1 full, placed 2 of 4: a-2 gained, a-1 lost against the run without a guide
+    assert "| `say` | oracle/random:tiny | 4 | 2 | 1 | 1.00 | 2/4 | a-2 | a-1 | 4/4 |" in text
+    assert "`ctp bench X --method geometry`" in text and "`ctp bench X --guide oracle`" in text
+    assert docs_tables.main(["--doc", str(doc), "--results", str(tmp_path / "results"), "--check"]) == 0
+    doc.write_text("<!-- say-table:geo:gone -->\n<!-- /say-table -->\n")
+    with pytest.raises(KeyError, match="gone"):
+        docs_tables.main(["--doc", str(doc), "--results", str(tmp_path / "results")])
+
+
 def test_a_run_without_machine_or_date_is_refused(tmp_path):
     _store(tmp_path / "r", [_row("a-1", "alpha", placed=True, valid=True, adds=0.05)], "ctp bench X", "")
     with pytest.raises(ValueError, match="date"):

@@ -7,9 +7,9 @@ noise would not show there. Two statistics, each with a per-run null (no extra e
   candidates that view ranks before it, averaged over the ordered pairs of views (0: every view prefers the same
   pose; 0.5 by chance). Its null (``agreement_chance``) is a permutation test: each view's scores shuffled across
   the candidates independently, ``DRAWS`` times, vectorised; the p-value is the share of shuffles that agree at
-  least as well (with the observed one counted, so never below 1 / (``DRAWS`` + 1)). With two views the
-  favourites can at best coincide, which chance does once in N: the test needs more views than the search's
-  two (``coarse_to_fine.agreement_views``); with four, full agreement over N candidates is chance once in N^3.
+  least as well (with the observed one counted, so never below 1 / (``DRAWS`` + 1)). Two views' favourites can
+  at best coincide, which chance does once in N: the search checks the guide's choice from four views it has not
+  seen (``coarse_to_fine.agreement_views``), where full agreement over N places is chance once in N^4.
 - **spread** (``spread_chance``): the scores' variance over the candidates against the variance of their noise
   (half the mean square of the probes' changes, ``coarse_to_fine.guide_noise``), an F test with (N - 1, probes)
   degrees of freedom: how often noise alone would spread the candidates as far.
@@ -26,7 +26,7 @@ import math
 import torch
 from scipy import stats
 
-DRAWS = 9999  # ``agreement_chance``: tables of the permutation null (p-values from 1e-4; ~10 ms at 16 x 4)
+DRAWS = 9999  # ``agreement_chance``: tables of the permutation null (p-values from 1e-4; ~10 ms at 8 x 5)
 AGREE_MIN = 3  # ``agreement``: fewer candidates than this tell nothing (chance gives any order of two)
 
 

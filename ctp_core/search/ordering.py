@@ -6,9 +6,10 @@ Every order is lexicographic (``Key``): first the *tier*, then the *value* (lowe
 - The tier is the prompt's relation: the poses where it holds and nothing intersects (``holding``) come first.
   With a guide, the guide's favourites among the others (``ceil(override x share x others)``: ``rank_key``)
   join them, so a misread prompt cannot make the right answer unreachable.
-- The value is the guide's term where the guide tells poses apart (``Gate``: its spread over the search's
-  candidates against its noise, and whether its views agree), plus the usual arrangement as far as the guide's
-  say leaves it (``Gate.weigh``); otherwise the geometric objective.
+- The value is the guide's term where the guide has earned a say (``Gate``: its spread over the search's
+  candidates against its noise, and whether views it has not seen agree with its choice, each against what
+  chance gives on them: ``chance``), plus the usual arrangement as far as the guide's say leaves it
+  (``Gate.weigh``); otherwise the geometric objective.
 
 The gate is measured once, by the search (``coarse_to_fine.search`` returns it in ``Ranked.gate``), and handed to every
 later order as an argument: the refinement's scorer (``objective.Scorer.gated``), the selection
