@@ -100,7 +100,7 @@ def decades(p: float) -> float:
 
 
 def odds(p: float) -> str:
-    """A p-value in words a user reads: "one time in 4", "less than one time in 10,000"."""
+    """A p-value in words a user reads: "one time in 4", "less than one time in 10,000", "more often than not"."""
     if p <= 1 / (DRAWS + 1):
         return f"less than one time in {DRAWS + 1:,}"
-    return "every time" if p >= 0.5 else f"one time in {round(1 / p):,}"
+    return "more often than not" if p >= 0.5 else f"one time in {round(1 / p):,}"

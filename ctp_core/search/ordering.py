@@ -176,10 +176,10 @@ class Gate:
     def summary(self) -> str:
         """The gate in one line, for the progress readout, the report and the page: what chance gives each test
         in words, the geometry's lead, who chose."""
-        spread = (f"the guide's spread ({self.ratio:.1f}x its noise) is what chance gives {chance.odds(self.spread_p)}"
+        spread = (f"chance gives the guide's spread ({self.ratio:.1f}x its noise) {chance.odds(self.spread_p)}"
                   if self.noise > 0 else "the guide's scores have no measurable noise")
         agree = ("too few places hold for views it has not seen to check its choice" if self.agree is None else
-                 f"views it has not seen agree with its choice among its {self.places} best places (each one's "
+                 f"views it has not seen agreeing as well with its choice among its {self.places} best places (each "
                  f"favourite {self.agree:.0%} down the others' orders, 50% by chance) {chance.odds(self.agree_p)}")
         lead = f"; the geometry's best leads by {self.lead:.1f} of its spreads" if self.lead >= 0.05 else ""
         return f"{spread}, {agree}{lead}" + {
