@@ -35,7 +35,7 @@ from service.webhooks import DEFAULT_EVENTS, EVENTS, Webhook, WebhookInvalid, ch
 
 WAIT_MAX_S = 60  # Prefer: wait=N above this waits this long
 KEY_MAX = 255
-CLAIM_HOLD_S = 15  # a claim whose request stops renewing it (every third of this) is free again after this
+CLAIM_HOLD_S = 6  # a claim whose request stops renewing it (every third of this) is free again after this
 REPLAY_WAIT_S = 60.0  # a second request with a key waits this long for the first one's job
 _KEY = re.compile(rf"[\x21-\x7e]{{1,{KEY_MAX}}}")  # visible ASCII
 _WAIT = re.compile(r"[0-9]{1,9}")

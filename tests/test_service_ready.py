@@ -1,8 +1,9 @@
 """Readiness means "a job submitted now can succeed": a real worker whose default model has no weights
 here (an ``hf:`` path that does not exist) makes ``/readyz`` and ``POST /align`` answer 503
-``model_unavailable`` with the worker's reason (its paths redacted: any caller may read it), while jobs it can run (another allowed model, or a
-geometry-only job that needs no model) are still accepted and succeed. What only the worker knows (its
-device and runtime) it checks when it takes a job: a job it cannot serve fails at once."""
+``model_unavailable`` with the worker's reason (its paths redacted: any caller may read it), while jobs it
+can run (another allowed model, or a geometry-only job that needs no model) are still accepted and succeed.
+What only the worker knows (its device and runtime) it checks when it takes a job: a job it cannot serve
+fails at once."""
 
 from __future__ import annotations
 

@@ -178,6 +178,15 @@ class _Worker(SimpleWorker):
         self._shutdown_requested_date = utcnow()
         self._shutdown()  # idle: stop now; busy: once the job returns
 
+    def unsubscribe(self) -> None:
+        """rq's, with a bounded wait for redis-py's pubsub thread, whose ``stop`` waits for the thread: after the
+        unsubscribe it may sleep out its whole period (60 s) before it looks at its flag, which held a stopping worker
+        that long. It is a daemon thread: the process leaves without it."""
+        if self.pubsub_thread:
+            self.pubsub.unsubscribe()
+            self.pubsub_thread.stop(timeout=1)
+            self.pubsub.close()
+
 
 def where(settings: Settings) -> dict[str, Any]:
     """Where this worker runs a job (device, threads, forward-only runtime): the only parts of a validated
