@@ -23,9 +23,9 @@ MAX_COPIES = 12  # a run's copies at most: each is a placement of its own, and t
 SEVERAL = 3  # copies where a collective noun says several but no number ("a stack of plates", "a row of books")
 AROUND = "beside+facing"  # what each copy around the target is judged by, whatever the prompt's words
 
-_WORDS = {"one": 1, "two": 2, "three": 3, "four": 4, "five": 5, "six": 6, "seven": 7, "eight": 8, "nine": 9,
-          "ten": 10, "eleven": 11, "twelve": 12, "thirteen": 13, "fourteen": 14, "fifteen": 15, "sixteen": 16,
-          "seventeen": 17, "eighteen": 18, "nineteen": 19, "twenty": 20}
+NUMBER_WORDS = {"one": 1, "two": 2, "three": 3, "four": 4, "five": 5, "six": 6, "seven": 7, "eight": 8, "nine": 9,
+                "ten": 10, "eleven": 11, "twelve": 12, "thirteen": 13, "fourteen": 14, "fifteen": 15, "sixteen": 16,
+                "seventeen": 17, "eighteen": 18, "nineteen": 19, "twenty": 20}
 _PHRASES = {"half a dozen": 6, "a dozen": 12, "one dozen": 12, "a pair of": 2, "a couple of": 2, "a trio of": 3}
 # one object named as a pair: "a pair of glasses" is one pair of glasses, not two
 _ONE_PAIR = {"glasses", "sunglasses", "spectacles", "goggles", "binoculars", "scissors", "shears", "pliers", "tongs",
@@ -35,7 +35,7 @@ _ONE_PAIR = {"glasses", "sunglasses", "spectacles", "goggles", "binoculars", "sc
 _UNITS = r"(?:mm|cm|m|km|in|inch(?:es)?|ft|feet|foot|meters?|metres?|centimet(?:er|re)s?|times|o'clock|percent|%)\b"
 _COUNT = re.compile(
     r"\b(?P<phrase>" + "|".join(sorted(map(re.escape, _PHRASES), key=len, reverse=True)) + r")\b"
-    r"|\b(?P<number>\d{1,3}|" + "|".join(_WORDS) + r")\b(?=\s+(?!" + _UNITS + r")[a-z])", re.IGNORECASE)
+    r"|\b(?P<number>\d{1,3}|" + "|".join(NUMBER_WORDS) + r")\b(?=\s+(?!" + _UNITS + r")[a-z])", re.IGNORECASE)
 _AROUND = re.compile(r"(?<!wrapped )(?<!coiled )(?<!tied )(?<!wound )(?<!looped )\b(?:a)?round\b"
                      r"|\b(?:surrounding|encircling|circling)\b", re.IGNORECASE)
 _ROW = re.compile(r"\bin (?:a |one )?(?:row|line)\b|\b(?:a )?(?:row|line) of\b|\blined up\b|\bside by side\b",
@@ -75,7 +75,7 @@ def read(prompt: str | None, source_name: str | None = None) -> CountReading:
             count = _PHRASES[found.group("phrase").lower()]
         else:
             word = found.group("number").lower()
-            count = int(word) if word.isdigit() else _WORDS[word]
+            count = int(word) if word.isdigit() else NUMBER_WORDS[word]
         said.append(f"'{found.group(0)}' -> {count}")
     arrangement = None
     for name, cue in _CUES:
