@@ -22,6 +22,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "align": ("ctp.cmd_align", "place SOURCE relative to TARGET from a text prompt (in-process)"),
     "example": ("ctp.cmd_example", "write a generated sample pair (target and source GLB) to try ctp on"),
     "assemble": ("ctp.cmd_assemble", "build a scene one object at a time: BASE --add SOURCE PROMPT ... or --plan"),
+    "compose": ("ctp.cmd_compose", "a scene from one sentence: OBJECTS... --prompt TEXT, read into a plan and placed"),
     "priors": ("ctp.cmd_priors", "print the scene priors (size ratio, penetration, contact ratio)"),
     "bench": ("ctp.cmd_bench", "run the evaluation harness over benchmark cases"),
     "models": ("ctp.cmd_models", "list, pull (resumable, verified) and remove guidance models in the local cache"),

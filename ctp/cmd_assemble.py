@@ -57,8 +57,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ctp_core import export
-    from ctp_core.assembly.assemble import assemble
     from ctp_core.io.loader import MeshLoader
 
     config = config_from_args(args)
@@ -73,6 +71,15 @@ def run(args: argparse.Namespace) -> int:
             base, base_name = loader.load(args.base, name="base"), names.default_name(args.base.name, "base")
             steps = [_step({"file": str(path), "prompt": prompt}, Path.cwd(), config, i, loader)
                      for i, (path, prompt) in enumerate(args.add)]
+    return run_assembly(args, base, base_name, steps, config)
+
+
+def run_assembly(args: argparse.Namespace, base, base_name: str, steps: list, config, **summary: Any) -> int:
+    """Place ``steps`` around ``base`` with a progress bar and a line per stage, write the outputs and print the
+    JSON summary (``summary``: more of it): what ``ctp assemble`` and ``ctp compose`` do once they have steps."""
+    from ctp_core import export
+    from ctp_core.assembly.assemble import assemble
+
     bar = ProgressBar(sys.stderr, enabled=not args.quiet)
 
     def on_step(index: int, count: int, step) -> None:
@@ -84,13 +91,13 @@ def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     assembly = assemble(base, steps, config, base_name=base_name, on_event=bar, on_step=on_step)
     export.write_outputs(assembly, glb=args.out, report_path=args.report, preview=args.preview)
-    summary = {"out": str(args.out), "seconds": round(time.perf_counter() - started, 2), "preset": config.preset,
-               "model": assembly.results[0].result.model, "guide": assembly.results[0].result.guide,
-               "objects": [{"name": p.name, "scale": round(p.to_scene.scale, 6),
-                            "translation": [round(v, 6) for v in p.to_scene.translation.tolist()]}
-                           for p in assembly.objects],
-               "objectives": [round(s.result.objective, 6) for s in assembly.results]}
-    print(json.dumps(summary))
+    print(json.dumps({
+        "out": str(args.out), "seconds": round(time.perf_counter() - started, 2), "preset": config.preset,
+        "model": assembly.results[0].result.model, "guide": assembly.results[0].result.guide,
+        "objects": [{"name": p.name, "scale": round(p.to_scene.scale, 6),
+                     "translation": [round(v, 6) for v in p.to_scene.translation.tolist()]}
+                    for p in assembly.objects],
+        "objectives": [round(s.result.objective, 6) for s in assembly.results], **summary}))
     return 0
 
 

@@ -18,6 +18,7 @@ falls the way the run's views looked down.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Any, Literal, get_args
 
@@ -67,7 +68,7 @@ class Adjusted:
 
 def adjust(target: Target, source: trimesh.Trimesh, source_to_target: np.ndarray, config: AlignConfig, *,
            settle: Settle = "none", direction: np.ndarray | None = None, upright: np.ndarray | None = None,
-           on: str | None = None, reading: RelationReading | None = None) -> Adjusted:
+           on: str | Sequence[str] | None = None, reading: RelationReading | None = None) -> Adjusted:
     """Measure (and with ``settle``, first settle) the source at ``source_to_target`` against ``target``.
 
     ``config``: the job's (its loss samples, seed and penetration terms); ``upright``: (3, 3) target file ->

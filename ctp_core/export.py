@@ -133,14 +133,17 @@ def report(result: AlignResult) -> dict:
 
 
 def assembly_report(assembly: Assembly) -> dict:
-    """The record of an assembly: every object's file -> scene transform, then each stage's run."""
+    """The record of an assembly: every object's file -> scene transform, each stage's run (``kept``: where its
+    answer broke an earlier relation), every relation judged on the final scene (``whole``)."""
     first = assembly.results[0].result.config
     return {
         "frame": SCENE,
         "objects": [{"name": p.name, "transform": transform(p.to_scene)} for p in assembly.objects],
         "stages": [{"stage": s.index, "of": s.count, "name": s.step.name, "on": s.on,
                     "grounds": s.grounds or [s.on], "image_guided": s.step.image is not None,
-                    **_run(s.result, transform(assembly.objects[s.index].to_scene))} for s in assembly.results],
+                    **_run(s.result, transform(assembly.objects[s.index].to_scene)),
+                    **({"kept": s.kept} if s.kept else {})} for s in assembly.results],
+        "whole": _jsonable(assembly.whole),
         "model": first.model, "seed": first.seed, "preset": first.preset,
         "timings": _jsonable(assembly.timings),
         **_provenance(),

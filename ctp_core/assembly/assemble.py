@@ -8,6 +8,12 @@ placed one, and a "between" prompt naming two placed objects relates it to both)
 penetration term and the renders see every placed object with its own materials, and the priors get
 the source's name and the related object's name and size. Placed objects never move.
 
+Judged as a whole (``whole``): once a step is placed, the relations of the steps before it that held are judged
+again with it in the scene; where it breaks one (or sinks into an object), its run's other distinct placements
+(``AlignResult.alternatives``) are tried in order and the first that breaks nothing is kept (``StepResult.kept``
+says which and what the answer broke). After the last step every relation is judged on the final scene
+(``Assembly.whole``, the report's ``whole``: each verdict, ``all_hold``, ``none_intersect``).
+
 Frames (``frames``): the *scene* frame is the base's file frame. Every object keeps its own file
 frame; ``Placed.to_scene`` maps it into the scene (the identity for the base). A step's target is
 already in the scene frame, so its answer (source file -> target file) is the source's ``to_scene``.
@@ -18,7 +24,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import trimesh
@@ -71,6 +77,9 @@ class StepResult:
     on: str
     result: AlignResult
     grounds: list[str] = field(default_factory=list)
+    # where the run's answer broke an earlier relation: {"alternative": the one kept (0: none did better, the
+    # answer), "broke": what the answer broke, in words}; None where the answer broke nothing
+    kept: dict[str, Any] | None = None
 
 
 @dataclass
@@ -80,6 +89,7 @@ class Assembly:
     objects: list[Placed]
     results: list[StepResult]
     timings: dict[str, float] = field(default_factory=dict)
+    whole: dict[str, Any] | None = None  # every step's relation judged on the final scene (``judged``)
 
     @property
     def preview(self) -> np.ndarray | None:
@@ -150,8 +160,59 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
             where = f"steps.{index - 1}" + (f".{exc.field}" if exc.field else "")
             raise type(exc)(f"stage {index}/{len(steps)} ({step.name}): {exc.message}", code=exc.code,
                             field=where) from exc
-        # The step's target file frame is the scene frame (every placed object is in it).
-        placed.append(Placed(step.name, step.source,
-                             frames.Similarity(result.source_to_target, frames.SOURCE_FILE, frames.SCENE)))
-        results.append(StepResult(index, len(steps), step, on[0], result, on))
-    return Assembly(placed, results, {"total_s": round(time.perf_counter() - started, 3)})
+        result, kept = _keeping(placed, results, step, result, on)
+        placed.append(_placed(step, result))
+        results.append(StepResult(index, len(steps), step, on[0], result, on, kept))
+    return Assembly(placed, results, {"total_s": round(time.perf_counter() - started, 3)}, judged(placed, results))
+
+
+def _placed(step: Step, result: AlignResult) -> Placed:
+    """The step's object where its run puts it (the run's target file frame is the scene frame)."""
+    return Placed(step.name, step.source, frames.Similarity(result.source_to_target, frames.SOURCE_FILE, frames.SCENE))
+
+
+def _keeping(placed: list[Placed], results: list[StepResult], step: Step, result: AlignResult, on: list[str]
+             ) -> tuple[AlignResult, dict[str, Any] | None]:
+    """The run's answer, or where it breaks an earlier relation (``_breaks``), the first of its alternatives that
+    breaks nothing (the answer where none does), with what the answer broke."""
+    answer_broke = _breaks([*placed, _placed(step, result)], results, result, on)
+    if not answer_broke:
+        return result, None
+    for k in range(1, len(result.alternatives)):
+        other = result.alternative(k)
+        if not _breaks([*placed, _placed(step, other)], results, other, on):
+            return other, {"alternative": k, "broke": answer_broke}
+    return result, {"alternative": 0, "broke": answer_broke}
+
+
+def _breaks(objects: list[Placed], earlier: list[StepResult], result: AlignResult, on: list[str]) -> list[str]:
+    """What the last of ``objects`` (placed by ``result``) breaks, in words: each earlier step whose relation held
+    and now fails or whose object now intersects another, and the new object where it intersects one."""
+    from ctp_core.assembly import whole
+
+    found = []
+    for step in earlier:
+        if step.result.relation is not None and step.result.relation.get("holds"):
+            now = _verdict(objects, step.index, step.result, step.grounds)
+            if not now["holds"] or now["intersects"]:
+                found.append(whole.said(now))
+    new = _verdict(objects, len(objects) - 1, result, on)
+    return [*found, whole.said(new)] if new["intersects"] else found
+
+
+def judged(objects: list[Placed], results: list[StepResult]) -> dict[str, Any]:
+    """Every step's relation judged on the scene ``objects``: the verdicts (``whole.verdict``), ``all_hold`` (None
+    where no step has a relation) and ``none_intersect``."""
+    relations = [_verdict(objects, s.index, s.result, s.grounds) for s in results]
+    known = [r for r in relations if r["holds"] is not None]
+    return {"relations": relations, "all_hold": all(r["holds"] for r in known) if known else None,
+            "none_intersect": not any(r["intersects"] for r in relations)}
+
+
+def _verdict(objects: list[Placed], index: int, result: AlignResult, grounds: list[str]) -> dict[str, Any]:
+    """``whole.verdict`` of ``objects[index]`` (placed by ``result``) against every other object."""
+    from ctp_core.assembly import whole
+
+    placed = objects[index]
+    return whole.verdict(scene_of([p for i, p in enumerate(objects) if i != index]), placed.name, placed.mesh,
+                         np.asarray(placed.to_scene.matrix), result, grounds)

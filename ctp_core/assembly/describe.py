@@ -142,7 +142,7 @@ def read(description: str, names: Sequence[str]) -> ScenePlan:
         phrase, clause = reader.unknown[0]
         raise DescriptionError(f"'{phrase}' (in '{clause}') names none of the objects ({', '.join(keys)}): name "
                                "the uploads as the description does", code="unknown_object", field="prompt")
-    return _plan(description, keys, reader)
+    return _plan(description, [" ".join(n.split()) for n in names], keys, reader)
 
 
 def _check_keys(names: Sequence[str], keys: list[str]) -> None:
@@ -259,13 +259,15 @@ class _Reader:
         return found
 
     def _name_at(self, tokens: list[tuple[int, int, str]], i: int) -> tuple[int, str] | None:
-        """(tokens, key) of an upload's name starting at token ``i``: the whole name, or its last word where no
-        other upload's name ends with it."""
+        """(tokens, key) of an upload's name starting at token ``i``: the whole name (or its words as one: "tool
+        box" is said "toolbox"), or its last word where no other upload's name ends with it."""
         for key in sorted(filter(None, self.keys), key=lambda k: -len(k.split())):
             words = key.split()
             said = [t[2] for t in tokens[i:i + len(words)]]
             if len(said) == len(words) and said[:-1] == words[:-1] and words[-1] in lexicon.singulars(said[-1]):
                 return len(words), key
+            if len(words) > 1 and "".join(words) in lexicon.singulars(tokens[i][2]):
+                return 1, key
         heads = [k for k in self.keys if k and k.split()[-1] in lexicon.singulars(tokens[i][2])]
         return (1, heads[0]) if len(heads) == 1 else None
 
@@ -370,8 +372,9 @@ class _Reader:
         return "".join(out) + clause[at:]
 
 
-def _plan(description: str, keys: list[str], reader: _Reader) -> ScenePlan:
-    """The plan of what the reader read: nodes with copies, every ground placed before its figures."""
+def _plan(description: str, names: list[str], keys: list[str], reader: _Reader) -> ScenePlan:
+    """The plan of what the reader read: nodes (named as the uploads, copies ``<name>_k``), every ground placed
+    before its figures."""
     placed_by: dict[str, _Said] = {}
     for said in reader.said:
         if said.figure in placed_by:
@@ -389,16 +392,17 @@ def _plan(description: str, keys: list[str], reader: _Reader) -> ScenePlan:
         raise DescriptionError("every object is placed on another: nothing stays put (the description goes in a "
                                "circle)" if reader.said else "the description places no object relative to another",
                                code="placement_cycle" if reader.said else "nothing_placed", field="prompt")
-    nodes = {key: [key] if count[key] == 1 else [f"{key}_{k}" for k in range(1, count[key] + 1)] for key in keys}
+    nodes = {key: [name] if count[key] == 1 else [f"{name}_{k}" for k in range(1, count[key] + 1)]
+             for key, name in zip(keys, names, strict=True)}
     base = nodes[roots[0]][0]
     unnamed = [key for key in keys if key not in reader.counts]
-    warnings = [f"the {key} is not named in the description: on the floor beside the {base}" for key in unnamed]
-    warnings += [f"the {key} is not placed by the description: on the floor beside the {base}"
+    warnings = [f"the {key} is not named in the description: on the floor beside the {roots[0]}" for key in unnamed]
+    warnings += [f"the {key} is not placed by the description: on the floor beside the {roots[0]}"
                  for key in roots[1:] if key not in placed_by]
     steps: list[Placement] = []
     for key in [*roots, *unnamed]:
         said = placed_by.get(key)
-        steps.extend(_floor(key, [n for n in nodes[key] if n != base], keys.index(key), base,
+        steps.extend(_floor(key, [n for n in nodes[key] if n != base], keys.index(key), (base, roots[0]),
                             said.clause if said else ""))
     done = {*roots, *unnamed}
     pending = [s for s in reader.said if not s.floor]
@@ -413,9 +417,11 @@ def _plan(description: str, keys: list[str], reader: _Reader) -> ScenePlan:
     return ScenePlan(description, base, keys.index(roots[0]), steps, warnings)
 
 
-def _floor(key: str, names: list[str], upload: int, base: str, said: str) -> list[Placement]:
-    """Steps that put copies on the floor beside the base (said so, or the description does not place them)."""
-    ground = f"other {key}" if base.startswith(f"{key}_") else base.split("_")[0]  # a copy of the base: "the other"
+def _floor(key: str, names: list[str], upload: int, base: tuple[str, str], said: str) -> list[Placement]:
+    """Steps that put copies on the floor beside the base (``base``: its node and what the description calls it),
+    where the description says so or does not place them."""
+    base, called = base
+    ground = f"other {key}" if key == called else called  # a copy of the base: "a table beside the other table"
     prompt = f"{'an' if key[0] in 'aeiou' else 'a'} {key} beside the {ground}"
     return [Placement(name, upload, prompt, (base,), _relation(base, name, prompt, said or prompt), said, floor=True)
             for name in names]
