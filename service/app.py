@@ -34,7 +34,7 @@ from service.forms import OPTIONS_DEPTH, OPTIONS_MAX, PROMPT_MAX
 from service.jobs import Jobs
 from service.reconcile import EVERY_S as RECONCILE_EVERY_S
 from service.reconcile import reconcile
-from service.routers import adjust, assemble, health, inspect, page, webhooks
+from service.routers import adjust, assemble, health, inspect, page, scenes, webhooks
 from service.routers import jobs as jobs_router
 from service.schemas import JobOptions
 from service.settings import Settings
@@ -49,10 +49,11 @@ Place one 3D object relative to another from a text prompt (Copy-Transform-Paste
 
 Submit two meshes and a prompt to `POST /align`, follow `GET /jobs/{{id}}` (or its server-sent
 `events`), then download `result.glb`; `GET /jobs` lists the caller's jobs. `POST /assemble` builds a
-scene of several objects, one stage each, as one job; `POST /align` with `target_job` adds one object to
-an earlier job's scene. `POST /jobs/{{id}}/adjust` measures a placement of the source made by hand, settles it
-into contact ("drop", "push") and with `save` stores it as the job's result (the run's own at `original.glb`).
-Jobs run on queue workers; records and results expire after the configured TTL
+scene of several objects, one stage each, as one job; `POST /scenes` builds one from a sentence ("a piano
+with its stool in front of it and a metronome on top"), whose plan `POST /plans/read` shows first; `POST /align`
+with `target_job` adds one object to an earlier job's scene. `POST /jobs/{{id}}/adjust` measures a placement of the
+source made by hand, settles it into contact ("drop", "push") and with `save` stores it as the job's result (the
+run's own at `original.glb`). Jobs run on queue workers; records and results expire after the configured TTL
 (`CTP_JOB_TTL_S`). A web page for all of this is at `/`; these docs work offline (`/docs`, `/redoc`).
 
 **Authentication.** When the service has API keys (`CTP_API_KEYS`), every call except `/healthz` and
@@ -83,6 +84,9 @@ Jobs run on queue workers; records and results expire after the configured TTL
   return), `invalid_option` (includes an integer option out of its range), `unknown_option`,
   `invalid_name` (1 to {NAME_MAX} characters, no control characters; also a file name with control
   characters), `invalid_plan` (duplicate step names, an `on` that is not placed before the step),
+  a description `POST /plans/read` and `POST /scenes` cannot read: `unknown_object`, `placement_cycle`,
+  `placed_twice`, `nothing_placed`, `unclear_clause`, `too_few_objects`, `empty_description`,
+  `invalid_description`,
   `mesh_empty`, `mesh_unreadable` (corrupt, or a glTF whose accessors, buffer views or
   buffers disagree, including a `data:` buffer whose `byteLength` is not its decoded size),
   `mesh_invalid_values` (NaN/inf), `mesh_external_reference` (glTF URIs), `mesh_zip_invalid` (bombs,
@@ -184,6 +188,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.mount("/static", page.static_files(), name="static")
     app.include_router(assemble.router)
     app.include_router(adjust.router)
+    app.include_router(scenes.router)
     app.webhooks.include_router(webhooks.router)
 
     def openapi() -> dict[str, Any]:

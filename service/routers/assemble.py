@@ -76,21 +76,29 @@ async def submit_assembly(request: Request, who: str = Depends(owner),
 
 async def _assembly_job(request: Request, form, who: str, job_id: str) -> submit.Built:
     """The assembly a ``POST /assemble`` form asks for, checked: its record, uploads and every stage's config."""
+    plan = _plan(forms.text(form, "plan"), request.app.state.settings.max_stages)
+    base = forms.file(form, "base")
+    base_file = forms.file_name(base, "base")
+    return await assembly_job(request, form, who, job_id, plan, base, forms.object_name(form, "base", base_file),
+                              file_parts(form, "source"))
+
+
+async def assembly_job(request: Request, form, who: str, job_id: str, plan: list[PlanStep], base,
+                       base_name: str, sources: dict) -> submit.Built:
+    """An assembly job checked (``POST /assemble``'s and ``POST /scenes``'s): the base part, the source parts by
+    file name (one part may be read by several steps, the base's too), the form's options, images and webhooks;
+    its record, uploads and every stage's config."""
     settings = request.app.state.settings
-    plan = _plan(forms.text(form, "plan"), settings.max_stages)
     options, queue = forms.job_options(form, settings.default_queue)
     # one guide for all stages (it is loaded once): a stage that asks for guidance asks it for the assembly
     guided = any(asks_for_guide({**options, **e.options}, e.image is not None) for e in plan)
     config = build_config(options, default_model=settings.model, allowed_models=settings.allowed_models,
                           image=guided)
-    sources = _parts(form, "source")
-    images = _parts(form, "image")
-    base = forms.file(form, "base")
+    images = file_parts(form, "image")
     base_file = forms.file_name(base, "base")
     blobs = {"target": await forms.read_limited(base, settings.max_upload_bytes, "base", "mesh_file_too_large")}
     loader = request.app.state.loader
     faces = await run_in_threadpool(forms.check_mesh, loader, blobs["target"], base_file, settings.mesh_limits, "base")
-    base_name = forms.object_name(form, "base", base_file)
     steps: list[AssemblyStep] = []
     configs: list[AlignConfig] = []  # every stage's own (the assembly's options, then the step's)
     meshes: dict[str, tuple[bytes, int]] = {}  # a part is read and checked once, however many steps use it
@@ -101,7 +109,9 @@ async def _assembly_job(request: Request, form, who: str, job_id: str) -> submit
         if file not in sources:
             raise ApiError(400, "invalid_plan", f"{where}: no source part has the file name {file!r}",
                            field=f"{where}.file")
-        if file not in meshes:
+        if file not in meshes and sources[file] is base:  # a copy of the base ("two tables with a lamp on each")
+            meshes[file] = blobs["target"], faces
+        elif file not in meshes:
             data = await forms.read_limited(sources[file], settings.max_upload_bytes, "source", "mesh_file_too_large")
             meshes[file] = data, await run_in_threadpool(forms.check_mesh, loader, data, file, settings.mesh_limits,
                                                          "source")
@@ -128,7 +138,7 @@ async def _assembly_job(request: Request, form, who: str, job_id: str) -> submit
         steps.append(AssemblyStep(name=_name(entry.name, file, where), file=file, prompt=prompt,
                                   has_image=entry.image is not None, on=list(entry.on) or None,
                                   config=step_config))
-    unused = sorted(set(sources) - set(meshes))
+    unused = sorted(f for f, part in sources.items() if f not in meshes and part is not base)
     if unused:
         raise ApiError(400, "invalid_plan", f"source part {unused[0]!r} is not used by any step", field="source")
     try:
@@ -160,7 +170,7 @@ def _plan(raw: str | None, max_stages: int) -> list[PlanStep]:
         raise ApiError(400, "invalid_plan", exc.message, field=exc.field) from None
 
 
-def _parts(form, name: str) -> dict:
+def file_parts(form, name: str) -> dict:
     """The file parts of a repeated field by file name (distinct names: the plan refers to them)."""
     parts = {}
     for value in form.getlist(name):

@@ -1,0 +1,83 @@
+"""``POST /plans/read`` and ``POST /scenes`` against a real Redis, uvicorn and ``ctp worker``: a description read
+into a plan without a job, its refusals (422 with the reader's code), and a described scene placed as one job with
+per-stage progress and every relation judged again on the final scene."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from ctp_core.io import load_objects
+from tests.conftest import service_env
+from tests.test_assemble import GEOMETRY_ONLY
+from tests.test_compose import _bench, _box
+
+ALPHA = {"Authorization": "Bearer alpha"}
+DESCRIPTION = "put the toolbox on the workbench; a stool to its left"
+
+
+@pytest.fixture(scope="module")
+def env(private_redis):
+    return service_env(private_redis.url, "scn", api_keys="alpha", max_stages=4, max_active_jobs=5)
+
+
+@pytest.fixture(scope="module")
+def parts():
+    meshes = {"workbench": _bench(), "toolbox": _box(0.45, 0.25, 0.2), "stool": _box(0.5, 0.45, 0.35)}
+    return [("object", (f"{name}.glb", mesh.export(file_type="glb"))) for name, mesh in meshes.items()]
+
+
+def test_a_description_reads_into_a_plan_without_a_job(api):
+    answer = api.client.post("/plans/read", json={"prompt": DESCRIPTION, "names": ["workbench", "toolbox", "stool"]},
+                             headers=ALPHA)
+    assert answer.status_code == 200, answer.text
+    plan = answer.json()
+    assert plan["base"] == "workbench" and plan["warnings"] == []
+    assert [(s["name"], s["relation"], s["on"]) for s in plan["steps"]] == [
+        ("toolbox", "on", ["workbench"]), ("stool", "left", ["workbench"])]
+
+
+@pytest.mark.parametrize(("body", "status", "code"), [
+    ({"prompt": "a metronome on the workbench", "names": ["workbench", "stool"]}, 422, "unknown_object"),
+    ({"prompt": "a stool on the bench; the bench on the stool", "names": ["bench", "stool"]}, 422, "placement_cycle"),
+    ({"prompt": "a stool near the bench", "names": ["bench"]}, 400, "invalid_request"),
+])
+def test_a_description_that_cannot_be_read_is_a_4xx_with_a_code(api, body, status, code):
+    answer = api.client.post("/plans/read", json=body, headers=ALPHA)
+    assert answer.status_code == status, answer.text
+    error = answer.json()["error"]
+    assert error["code"] == code and error["message"]
+
+
+def test_a_scene_naming_an_object_with_no_upload_is_refused_before_queueing(api, parts):
+    answer = api.client.post("/scenes", files=parts[:2], data={"prompt": "a metronome on the workbench"},
+                             headers=ALPHA)
+    assert answer.status_code == 422, answer.text
+    assert answer.json()["error"]["code"] == "unknown_object" and "metronome" in answer.json()["error"]["message"]
+    names = api.client.post("/scenes", files=parts[:2], data={"prompt": DESCRIPTION, "names": '["a"]'},
+                            headers=ALPHA)
+    assert names.status_code == 422 and names.json()["error"]["field"] == "names"
+    assert api.client.get("/jobs", headers=ALPHA).json()["total"] == 0
+
+
+def test_a_described_scene_is_one_job_with_stage_progress(api, worker, parts, tmp_path):
+    accepted = api.client.post("/scenes", files=parts, data={"prompt": DESCRIPTION,
+                                                             "options": json.dumps(GEOMETRY_ONLY)}, headers=ALPHA)
+    assert accepted.status_code == 202, accepted.text
+    job_id = accepted.json()["id"]
+    events = []
+    with api.client.stream("GET", f"/jobs/{job_id}/events", headers=ALPHA, timeout=180) as stream:
+        for line in stream.iter_lines():
+            if line.startswith("data: "):
+                events.append(json.loads(line.removeprefix("data: ")))
+    assert events[-1]["status"] == "succeeded", events[-1]
+    messages = [e["progress"]["message"] for e in events]
+    assert any(m.startswith('stage 2/2: "a stool to its left"') for m in messages), messages
+    whole = api.client.get(f"/jobs/{job_id}/report.json", headers=ALPHA).json()["whole"]
+    assert [(r["name"], r["relation"], r["holds"]) for r in whole["relations"]] == [
+        ("toolbox", "on", True), ("stool", "left", True)]
+    assert whole["none_intersect"]
+    glb = tmp_path / "scene.glb"
+    glb.write_bytes(api.client.get(f"/jobs/{job_id}/result.glb", headers=ALPHA).content)
+    assert list(load_objects(glb).geometry) == ["workbench", "toolbox", "stool"]
