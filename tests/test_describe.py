@@ -121,3 +121,13 @@ def test_errors_name_what_is_wrong(description, names, code, says):
     with pytest.raises(DescriptionError) as caught:
         read(description, names)
     assert caught.value.code == code and says in caught.value.message
+
+
+def test_between_them_ends_its_clause_and_a_named_object_is_never_dropped():
+    assert steps("a sofa with an armchair to its left, a lamp between them and a coffee table in front of the sofa",
+                 ["sofa", "armchair", "lamp", "coffee table"]) == [
+        ("armchair", "left", ("sofa",)), ("lamp", "between", ("armchair", "sofa")),
+        ("coffee table", "front", ("sofa",))]
+    plan = read("a lamp on the table, and a table with two chairs", ["table", "chair", "lamp"])
+    assert [(s.name, s.floor) for s in plan.steps] == [("chair_1", True), ("chair_2", True), ("lamp", False)]
+    assert plan.warnings == ["the chair is not placed by the description: on the floor beside the table"]

@@ -35,7 +35,7 @@ _SENTENCES = re.compile(r"\s*(?:[;\n]|\.(?:\s|$))\s*")
 # A constraint triple's relation as layout tools write it ("front of") -> the words the reader reads.
 _TRIPLE_WORDS = {"front of": "in front of", "in front": "in front of", "front": "in front of",
                  "side of": "beside", "on top": "on top of", "top of": "on top of", "face": "facing",
-                 "faces": "facing", "next": "next to", "back of": "behind", "under of": "under"}
+                 "faces": "facing", "next": "next to", "back of": "behind"}
 _DETERMINERS = frozenset({"a", "an", "the", "another", "some", "both", "every", "his", "her", "its", "their", "my",
                           "your", "our", "this", "that", "these", "those", *counts.NUMBER_WORDS})
 # Words that end an object's phrase: prepositions, conjunctions, verbs of placing.
@@ -110,8 +110,9 @@ class _Mention:
 
 @dataclass
 class _Said:
-    """One clause read: its figure, its grounds (object keys; "each": one ground copy per figure copy), the
-    relation's clause with references resolved, the count said of the figure."""
+    """One clause read: its figure, its grounds (object keys; "each": one ground copy per figure copy), the clause
+    and the step's prompt (the clause with its references back said by name), whether it puts the figure on the
+    floor."""
 
     figure: str
     grounds: list[str]
@@ -214,9 +215,10 @@ def _the(phrase: str) -> str:
 
 
 def _open_between(piece: str) -> bool:
-    """A piece that ends inside "between X and Y" (its cue has fewer than two grounds yet)."""
+    """A piece that ends inside "between X and Y" (its cue has fewer than two grounds yet; "between them" has)."""
     cue = vocabulary.find_cue(piece, kinds={"between"})
-    return cue is not None and len(vocabulary.ground_phrases(piece, cue)) < 2
+    return cue is not None and vocabulary.ground_phrases(piece, cue) not in (["them"], ["it"]) and len(
+        vocabulary.ground_phrases(piece, cue)) < 2
 
 
 class _Reader:
@@ -395,10 +397,9 @@ def _plan(description: str, names: list[str], keys: list[str], reader: _Reader) 
     nodes = {key: [name] if count[key] == 1 else [f"{name}_{k}" for k in range(1, count[key] + 1)]
              for key, name in zip(keys, names, strict=True)}
     base = nodes[roots[0]][0]
-    unnamed = [key for key in keys if key not in reader.counts]
-    warnings = [f"the {key} is not named in the description: on the floor beside the {roots[0]}" for key in unnamed]
-    warnings += [f"the {key} is not placed by the description: on the floor beside the {roots[0]}"
-                 for key in roots[1:] if key not in placed_by]
+    unnamed = [key for key in keys if key not in placed_by and key not in roots]  # never named, or never placed
+    warnings = [f"the {key} is not {'placed by' if key in reader.counts else 'named in'} the description: on the "
+                f"floor beside the {roots[0]}" for key in [*(k for k in roots[1:] if k not in placed_by), *unnamed]]
     steps: list[Placement] = []
     for key in [*roots, *unnamed]:
         said = placed_by.get(key)
