@@ -9,6 +9,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import signal
 import subprocess
@@ -31,23 +32,29 @@ def add_arguments(parser: argparse.ArgumentParser, name: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from service.settings import Settings
+    listening = contextlib.nullcontext()
+    if args.command == "worker":  # before the imports below, which take seconds: a stop meanwhile is not lost
+        from worker.stop import Stop
 
-    try:
-        settings = Settings()
-    except ValueError as exc:  # pydantic's ValidationError
-        print(f"error: invalid_setting: {exc}", file=sys.stderr)
-        return 2
-    return _serve(settings, args) if args.command == "serve" else _work(settings, args)
+        listening = Stop().listening()
+    with listening as stop:
+        from service.settings import Settings
+
+        try:
+            settings = Settings()
+        except ValueError as exc:  # pydantic's ValidationError
+            print(f"error: invalid_setting: {exc}", file=sys.stderr)
+            return 2
+        return _serve(settings, args) if args.command == "serve" else _work(settings, args, stop)
 
 
-def _work(settings, args: argparse.Namespace) -> int:
+def _work(settings, args: argparse.Namespace, stop) -> int:
     from worker.main import run_worker
 
     if not settings.redis_url:
         print("error: missing_setting: set REDIS_URL to the Redis shared with the API", file=sys.stderr)
         return 2
-    return run_worker(settings, burst=args.burst, name=args.name)
+    return run_worker(settings, stop, burst=args.burst, name=args.name)
 
 
 def _serve(settings, args: argparse.Namespace) -> int:

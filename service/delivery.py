@@ -86,11 +86,8 @@ class Deliverer(threading.Thread):
             delivered = status is not None and 200 <= status < 300
             next_at = time.time() + min(BACKOFF_MAX_S, BACKOFF_FIRST_S * 2 ** (delivery.attempts - 1))
             final = delivered or delivery.event == "progress" or next_at > delivery.created + self.retry_s
-            if final:
-                self.jobs.outbox.done(delivery)
-            else:
-                self.jobs.outbox.retry(delivery, next_at)
-            self.jobs.delivery_done(delivery.job_id, delivered=delivered, final=final, status=status, error=error)
+            self.jobs.delivery_done(delivery, delivered=delivered, retry_at=None if final else next_at,
+                                    status=status, error=error)
             outcome = "delivered" if delivered else "given up" if final else "failed, will retry"
             log.log(logging.DEBUG if delivered else logging.WARNING, "webhook %s event %s (attempt %d)%s",
                     delivery.event, outcome, delivery.attempts, f": {error}" if error else "",

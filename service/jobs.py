@@ -54,7 +54,7 @@ from ctp_core.config import AlignConfig
 from service import faults
 from service.settings import DEFAULT_QUEUE
 from service.storage import Storage, StorageUnavailable, open_storage
-from service.webhooks import PROGRESS_EVERY_S, Outbox, Webhook
+from service.webhooks import PROGRESS_EVERY_S, Delivery, Outbox, Webhook
 from service.workers import Offer, SeenWorker, Workers, served_queues, serving
 
 if TYPE_CHECKING:
@@ -656,10 +656,14 @@ class Jobs:
 
         return compare_and_set(self.redis, key, JobRecord, change, write)
 
-    def delivery_done(self, job_id: str, *, delivered: bool, final: bool, status: int | None,
+    def delivery_done(self, delivery: Delivery, *, delivered: bool, retry_at: float | None, status: int | None,
                       error: str | None) -> JobRecord | None:
-        """Count one delivery attempt of the job's webhook (``service.delivery``); ``final``: its event is
-        delivered or given up, no longer pending."""
+        """Count one delivery attempt of the job's webhook (``service.delivery``) and settle its event in the outbox
+        (``Outbox.settle``: due again at ``retry_at``, or gone: delivered or given up, no longer pending), in one
+        transaction, so that a deliverer killed after an attempt never leaves the job's count and the outbox apart.
+        None when the job's record is gone (its event is settled all the same)."""
+        final = retry_at is None
+        settled = False
 
         def change(r: JobRecord) -> JobRecord | None:
             if r.webhook is None:
@@ -674,7 +678,17 @@ class Jobs:
                     update["failed"] = hook.failed + 1
             return r.model_copy(update={"webhook": hook.model_copy(update=update)})
 
-        return self._update(job_id, change)
+        def also(pipe, _r: JobRecord) -> None:
+            nonlocal settled
+            self.outbox.settle(pipe, delivery, retry_at)
+            settled = True
+
+        record = self._update(delivery.job_id, change, also)
+        if not settled:
+            with self.redis.pipeline() as pipe:
+                self.outbox.settle(pipe, delivery, retry_at)
+                pipe.execute()
+        return record
 
     # -- liveness -----------------------------------------------------------------------------------
     def heartbeat(self, worker: str, job_id: str | None, models: dict[str, str | None] | None = None,

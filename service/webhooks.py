@@ -180,14 +180,12 @@ class Outbox:
             self.redis.zrem(self._due_key, *gone)
         return [Delivery.model_validate_json(raw) for raw in raws if raw is not None]
 
-    def retry(self, delivery: Delivery, at: float) -> None:
-        with self.redis.pipeline() as pipe:
-            pipe.set(self._key(delivery.id), delivery.model_dump_json(), ex=self.ttl_s)
-            pipe.zadd(self._due_key, {delivery.id: at})
-            pipe.execute()
-
-    def done(self, delivery: Delivery) -> None:
-        with self.redis.pipeline() as pipe:
+    def settle(self, pipe, delivery: Delivery, retry_at: float | None) -> None:
+        """After an attempt, on the caller's transaction (the one that counts it in the job, ``Jobs.delivery_done``):
+        due again at ``retry_at``, or gone (None: delivered or given up)."""
+        if retry_at is None:
             pipe.zrem(self._due_key, delivery.id)
             pipe.delete(self._key(delivery.id))
-            pipe.execute()
+        else:
+            pipe.set(self._key(delivery.id), delivery.model_dump_json(), ex=self.ttl_s)
+            pipe.zadd(self._due_key, {delivery.id: retry_at})

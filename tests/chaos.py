@@ -164,9 +164,12 @@ class Deployment:
         return subprocess.Popen([sys.executable, "-m", "ctp", *args], env=env or self.env, cwd=REPO, stdout=log,
                                 stderr=subprocess.STDOUT, process_group=self.leader.pid)
 
-    def start_api(self, **env: str) -> None:
-        """The API, answering once it does; ``env``: extra variables for this run of it (a fault point)."""
+    def start_api(self, *, wait: bool = True, **env: str) -> None:
+        """The API, answering once it does (``wait``; else the requests that follow wait for it); ``env``: extra
+        variables for this run of it (a fault point)."""
         self.api = self._spawn(["serve", "--workers", "0", "--port", str(self.port)], "api.log", {**self.env, **env})
+        if not wait:
+            return
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline and self.api.poll() is None:
             try:
@@ -270,7 +273,7 @@ class Deployment:
             os.killpg(self.leader.pid, signal.SIGINT)
             self._drained()
             self.start_worker(0)  # the others at the next ``heal``: a supervisor's staggered restarts
-            self.start_api()
+            self.start_api(wait=False)
         elif kind == "worker":
             slot = self._running(job_id)
             self.processes[slot].kill()
@@ -284,7 +287,7 @@ class Deployment:
         elif kind == "api":
             self.api.kill()
             self.api.wait()
-            self.start_api()
+            self.start_api(wait=False)
         else:
             raise ValueError(f"unknown fault {kind!r}")
 
@@ -311,7 +314,7 @@ class Deployment:
         return pids.index(pid) if pid in pids else 0
 
     # -- trials ---------------------------------------------------------------------------------------------------
-    def calibrate(self, jobs: int = 3) -> float:
+    def calibrate(self, jobs: int = 2) -> float:
         """The life of a job without a fault, from the submit's answer to its completed webhook (s): the shortest of
         ``jobs`` (a worker's first job also starts its loading process)."""
         lives = []

@@ -388,8 +388,9 @@ def test_events_are_queued_with_the_change_that_caused_them(private_redis):
     jobs.cancel(canceled.id)
     (delivery,) = jobs.outbox.claim(10, hold_s=60)
     assert (delivery.job_id, delivery.event) == (canceled.id, "completed")
-    jobs.outbox.done(delivery)
-    assert jobs.delivery_done(canceled.id, delivered=True, final=True, status=204, error=None).webhook.model_dump(
+    assert jobs.delivery_done(delivery, delivered=True, retry_at=None, status=204, error=None).webhook.model_dump(
         include={"delivered", "pending", "attempts", "last_status"}) == {"delivered": 1, "pending": 0, "attempts": 1,
                                                                           "last_status": 204}
+    assert not jobs.redis.exists(f"{jobs.prefix}:webhook:{delivery.id}")  # settled with the count, in one step
+    assert jobs.redis.zscore(f"{jobs.prefix}:webhooks", delivery.id) is None
     client.close()

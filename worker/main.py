@@ -126,21 +126,23 @@ def context() -> WorkerContext:
     return _CONTEXT
 
 
-def run_worker(settings: Settings, *, burst: bool = False, name: str | None = None) -> int:
-    """Preload the default model, then take jobs until stopped (SIGTERM/SIGINT: after the current job)."""
+def run_worker(settings: Settings, stop: Stop, *, burst: bool = False, name: str | None = None) -> int:
+    """Preload the default model, then take jobs until stopped (SIGTERM/SIGINT: after the current job). ``stop``: the
+    process's stop, listening since before the engine's imports (``Stop.listening``: ``ctp worker``); a stop during
+    start-up leaves before any job is taken, with status 128 + the signal."""
     global _CONTEXT
     logs.configure(settings.log_level)
-    for stop in (signal.SIGINT, signal.SIGTERM):  # until rq's loop takes over: no job yet, leave at once
-        signal.signal(stop, _leave)
     name = name or f"{socket.gethostname()}.{os.getpid()}"
     OUTAGE.worker = name
     jobs = Jobs.from_settings(settings, patient_redis(settings.redis_url, settings.redis_patience_s,
                                                       health_check_interval=30))
     models = _preload(settings)
+    if stop.requested:  # a stop whose exit an import swallowed (``Stop.listening``)
+        return stop.exit_status
     queues = settings.served_queues
     beat = Heartbeat(jobs, name, settings.heartbeat_s, settings.progress_every_s, models, queues)
     loader = settings.mesh_loader(processes=1)
-    _CONTEXT = WorkerContext(settings, jobs, name, beat, loader, Stop())
+    _CONTEXT = WorkerContext(settings, jobs, name, beat, loader, stop)
     beat.start()
     # rq gets a connection of its own: it raises the socket timeout above its blocking dequeue, which the
     # heartbeat thread's connections (redis-py's default timeout) must not share.
@@ -148,7 +150,7 @@ def run_worker(settings: Settings, *, burst: bool = False, name: str | None = No
     worker = _Worker([jobs.rq_queue(q).name for q in queues],
                      connection=patient_redis(settings.redis_url, settings.redis_patience_s),
                      serializer=JSONSerializer, name=name)
-    worker.stop = _CONTEXT.stop
+    worker.stop = stop
     log.info("worker ready", extra={"worker": name, "queues": queues})
     try:
         worker.work(burst=burst, logging_level=settings.log_level.upper())
@@ -160,10 +162,6 @@ def run_worker(settings: Settings, *, burst: bool = False, name: str | None = No
     return 0
 
 
-def _leave(signum: int, _frame) -> None:
-    raise SystemExit(128 + signum)  # not KeyboardInterrupt's traceback
-
-
 class _Worker(SimpleWorker):
     """rq's in-process worker, whose every stop signal is a warm stop that hands the running job back: rq's own
     makes a second signal a cold stop, which would kill the job mid-run and leave it to be reaped."""
@@ -171,7 +169,7 @@ class _Worker(SimpleWorker):
     stop: Stop
 
     def request_stop(self, signum, frame) -> None:
-        if not self.stop.request():  # under way: a later signal changes nothing
+        if not self.stop.request(signum):  # under way: a later signal changes nothing
             return
         log.info("stop requested (%s): the running job, if any, is handed back", signal.Signals(signum).name,
                  extra={"worker": self.name})
