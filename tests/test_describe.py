@@ -131,3 +131,10 @@ def test_between_them_ends_its_clause_and_a_named_object_is_never_dropped():
     plan = read("a lamp on the table, and a table with two chairs", ["table", "chair", "lamp"])
     assert [(s.name, s.floor) for s in plan.steps] == [("chair_1", True), ("chair_2", True), ("lamp", False)]
     assert plan.warnings == ["the chair is not placed by the description: on the floor beside the table"]
+
+
+def test_a_clause_naming_three_objects_relates_the_first_two():
+    plan = read("a lamp on the desk beside the monitor", ["desk", "lamp", "monitor"])
+    assert [(s.name, s.relation, s.on, s.prompt) for s in plan.steps] == [
+        ("monitor", "beside", ("desk",), "a monitor beside the desk"), ("lamp", "on", ("desk",), "a lamp on the desk")]
+    assert plan.warnings == ["the monitor is not placed by the description: on the floor beside the desk"]

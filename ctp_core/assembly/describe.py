@@ -300,7 +300,7 @@ class _Reader:
             if m in named:  # the number said just before its name ("two paint tins"), wherever it is named so
                 said = counts.read(clause[before.end if before else 0:m.end], m.key).count or 1
                 self.counts[m.key] = max(said, self.counts.get(m.key, 1))
-        cue = vocabulary.find_cue(clause, kinds=vocabulary.PLACING) or vocabulary.find_cue(clause)
+        cue = _cue(clause, mentions) if len(named) > 2 else _cue(clause)
         if cue is None or self.unknown and self.unknown[-1][1] == clause:
             self.recent.extend(m.key for m in named)
             self.previous = [m.key for m in named]
@@ -312,19 +312,20 @@ class _Reader:
             raise DescriptionError(f"'{clause}' names no object to place", code="unclear_clause", field="prompt")
         figure = figures[0] if cue.cue.figure_after else figures[-1]
         self.recent.extend(m.key for m in figure_side if not m.back and m is not figure)
-        grounds, each = self._grounds(ground_side, figure.key, cue, clause)
+        grounds, each, used = self._grounds(ground_side, figure.key, cue, clause)
         floor = not grounds and bool(_FLOOR & set(clause[cue.end:].split()))
         if not grounds and not floor:
             grounds = [self._back(figure.key, clause)]
-            ground_side = []
+        said = clause[:used[-1].end] if len(named) > 2 and used else clause  # the words after are of another
         self.recent.extend([figure.key, *grounds])
         self.previous = [figure.key, *grounds]
-        prompt = self._prompt(clause, ground_side, grounds) if grounds else clause
+        prompt = self._prompt(said, [m for m in ground_side if m.end <= len(said)], grounds) if grounds else clause
         self.said.append(_Said(figure.key, grounds, clause, prompt, each, floor))
 
     def _grounds(self, side: list[_Mention], figure: str, cue: vocabulary.CueMatch, clause: str
-                 ) -> tuple[list[str], bool]:
-        """The clause's grounds (object keys) and whether they are "each" of a group's copies."""
+                 ) -> tuple[list[str], bool, list[_Mention]]:
+        """The clause's grounds (object keys), whether they are "each" of a group's copies, and the mentions they
+        come from."""
         most = MAX_GROUNDS if cue.relation.kind == "between" else 1
         grounds: list[str] = []
         each = False
@@ -340,7 +341,7 @@ class _Reader:
         if figure in grounds:
             raise DescriptionError(f"'{clause}' places the {figure} relative to itself", code="unclear_clause",
                                    field="prompt")
-        return grounds[:most], each
+        return grounds[:most], each, side[:most]
 
     def _back(self, figure: str, clause: str) -> str:
         """What "it" (or a clause without a ground) refers to: the object named last that is not the figure."""
@@ -372,6 +373,17 @@ class _Reader:
             out.append(clause[at:m.start] + said)
             at = m.end
         return "".join(out) + clause[at:]
+
+
+def _cue(clause: str, mentions: Sequence[_Mention] = ()) -> vocabulary.CueMatch | None:
+    """The clause's relation cue as the pair reader finds it (a placing cue first). A clause naming three objects
+    or more ("a lamp on the desk beside the monitor") relates the first two: the cue of the shortest start of the
+    clause that names an object before its cue and one after it."""
+    for mention in mentions[1:]:
+        cue = _cue(clause[:mention.end])
+        if cue is not None and cue.end <= mention.start and any(m.end <= cue.start for m in mentions):
+            return cue
+    return vocabulary.find_cue(clause, kinds=vocabulary.PLACING) or vocabulary.find_cue(clause)
 
 
 def _plan(description: str, names: list[str], keys: list[str], reader: _Reader) -> ScenePlan:

@@ -1,6 +1,7 @@
 // The ctp page: a client of the JSON API like any other (POST /align, GET /jobs/{id}/events, results).
 // Every call goes through fetch with the API key, when there is one, in the Authorization header (never
 // in a URL); results are fetched as blobs and shown from blob URLs, so the same code works with keys on.
+import { wireScene, wholeRows } from "./scene.js";
 import { Viewer, similarityParts } from "./viewer.js";
 
 const $ = (id) => document.getElementById(id);
@@ -633,6 +634,7 @@ function showFacts(report) {
   if (named.length) rows.push(["the ground's parts", named.join("; ")]); // relations.parts, with why
   const grounds = (report.extra || {}).grounds || [];
   if (grounds.length) rows.push(["relates to", grounds.join(" and ")]); // a scene target's objects it was placed by
+  rows.push(...wholeRows(report)); // an assembly: every relation judged again on the final scene
   if (report.adjusted) {
     rows.push(["adjusted", `by hand, saved ${new Date(report.adjustment.saved_at).toLocaleString()} `
       + "(the objective is the run's; original.glb keeps its placement)"]);
@@ -916,6 +918,7 @@ async function init() {
   $("align-form").addEventListener("submit", submit);
   document.querySelectorAll("[data-file]").forEach((b) => b.addEventListener("click", () => download(b.dataset.file)));
   $("add-object").addEventListener("click", addObject);
+  wireScene({ api, follow, options, showError, clearError, refreshJobs });
   document.querySelectorAll("input[name=adjust-mode]").forEach((r) => r.addEventListener("change", () => {
     state.viewer?.setHandles(document.querySelector("input[name=adjust-mode]:checked").value || null);
   }));
