@@ -11,7 +11,7 @@ named as a ground stays put (its file frame is the scene frame); an object the d
 the floor beside it, said on stderr. ``--dry-run`` prints the plan as ``ctp assemble --plan`` reads it (paths
 as given here; each step's reading in a comment) and exits: save it, edit it, run it with ``ctp assemble
 --plan``. The GLB has one node per object (copies ``<name>_1`` ...), the report every stage and, under
-``scene``, every relation judged again on the final scene.
+``whole``, every relation judged again on the final scene.
 """
 
 from __future__ import annotations
@@ -30,12 +30,14 @@ from ctp_core.reading import names
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.epilog = __doc__.split("\n\n", 1)[1]  # the examples and what is read how
     parser.add_argument("objects", type=Path, nargs="+", metavar="OBJECT", help="the meshes the description names")
     parser.add_argument("--prompt", required=True, metavar="TEXT",
                         help='the scene in one sentence ("a piano with its stool in front of it and a metronome '
                         'on top")')
-    parser.add_argument("--names", nargs="+", metavar="NAME", help="what each OBJECT is, in order (default: the file "
-                        "names)")
+    parser.add_argument("--names", nargs="+", metavar="NAME", help="what each OBJECT is, in order, given after the "
+                        "OBJECTs (default: the file names)")
     parser.add_argument("--dry-run", action="store_true", help="print the plan (YAML, as ctp assemble --plan reads "
                         "it) and exit")
     add_run_arguments(parser)
