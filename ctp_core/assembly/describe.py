@@ -136,8 +136,9 @@ def read(description: str, names: Sequence[str]) -> ScenePlan:
     reader = _Reader(keys)
     for clause in _clauses(text, reader):
         reader.clause(clause)
-    if not reader.counts and len({_singular(p) for p, _ in reader.unknown}) == len(keys):
-        return _by_order(description, names, reader)
+    phrases = list(dict.fromkeys(_singular(p) for p, _ in reader.unknown))
+    if not reader.counts and len(phrases) == len(keys) and phrases != list(names):  # read by them once at most
+        return _by_order(description, names, phrases)
     _check_keys(names, keys)
     if reader.unknown:
         phrase, clause = reader.unknown[0]
@@ -156,10 +157,9 @@ def _check_keys(names: Sequence[str], keys: list[str]) -> None:
             raise DescriptionError(f"two objects are called {key!r}: give each its own name", field="names")
 
 
-def _by_order(description: str, names: Sequence[str], reader: _Reader) -> ScenePlan:
+def _by_order(description: str, names: Sequence[str], phrases: list[str]) -> ScenePlan:
     """No upload's name said and one object phrase per upload: the uploads in the order the description names
-    its objects (said so)."""
-    phrases = list(dict.fromkeys(_singular(p) for p, _ in reader.unknown))
+    its objects (``phrases``), said so."""
     plan = read(description, phrases)
     plan.warnings.insert(0, "no object's name is said: matched in the order the description names them ("
                          + ", ".join(f"{n} as {p}" for n, p in zip(names, phrases, strict=True)) + ")")
