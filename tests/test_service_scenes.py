@@ -9,7 +9,7 @@ import json
 import pytest
 
 from ctp_core.io import load_objects
-from tests.conftest import service_env
+from tests.conftest import service_env, wait_for
 from tests.test_assemble import GEOMETRY_ONLY
 from tests.test_compose import _bench, _box
 
@@ -81,3 +81,22 @@ def test_a_described_scene_is_one_job_with_stage_progress(api, worker, parts, tm
     glb = tmp_path / "scene.glb"
     glb.write_bytes(api.client.get(f"/jobs/{job_id}/result.glb", headers=ALPHA).content)
     assert list(load_objects(glb).geometry) == ["workbench", "toolbox", "stool"]
+
+
+def test_copies_of_the_base_are_read_from_its_one_part(api, worker, tmp_path):
+    """"two tables with a lamp on each": the base's part is also the second table's source (read once)."""
+    files = [("object", ("table.glb", _bench(0.8, 0.72, 0.6).export(file_type="glb"))),
+             ("object", ("lamp.glb", _box(0.2, 0.45, 0.2).export(file_type="glb")))]
+    accepted = api.client.post("/scenes", files=files, data={"prompt": "two tables with a lamp on each",
+                                                             "options": json.dumps(GEOMETRY_ONLY)}, headers=ALPHA)
+    assert accepted.status_code == 202, accepted.text
+    job_id = accepted.json()["id"]
+    done = wait_for(lambda: (j := api.client.get(f"/jobs/{job_id}", headers=ALPHA).json())["status"]
+                    in ("succeeded", "failed") and j, 180, "the job")
+    assert done["status"] == "succeeded", done
+    glb = tmp_path / "tables.glb"
+    glb.write_bytes(api.client.get(f"/jobs/{job_id}/result.glb", headers=ALPHA).content)
+    assert list(load_objects(glb).geometry) == ["table_1", "table_2", "lamp_1", "lamp_2"]
+    whole = api.client.get(f"/jobs/{job_id}/report.json", headers=ALPHA).json()["whole"]
+    assert [(r["name"], r["on"]) for r in whole["relations"]] == [
+        ("table_2", ["table_1"]), ("lamp_1", ["table_1"]), ("lamp_2", ["table_2"])]
