@@ -22,6 +22,15 @@ and exits 1 when a check fails.
     python benchmarks/soak.py --minutes 3
     python benchmarks/soak.py --minutes 3 --redis-kill-every 20 40
     python benchmarks/soak.py --minutes 4 --kill-every 0 0 --extreme-share 0.5 --valid-share 0.5
+
+``--chaos N`` runs, instead, N seeded chaos trials (``tests.chaos``, the harness of ``tests/test_chaos.py``): the
+service as separate processes, one job at a time, each hit by one fault at an instant drawn over its life (SIGINT to
+the process group, SIGKILL of the worker running it, of redis-server, of the API; some also canceled), what was killed
+restarted, and every promise checked (the job ends succeeded or canceled as asked, whole results, one record per job,
+one delivery per webhook event, no 500). A broken promise is recorded with its trial, fault, instant and seed, and the
+trials go on; it prints the figures (JSON) and exits 1 when any was broken:
+
+    python benchmarks/soak.py --chaos 200 --seed 51
 """
 
 from __future__ import annotations
@@ -149,6 +158,8 @@ def _children_running(pid: int, needle: str) -> list[int]:
 
 def main(argv: list[str] | None = None) -> int:
     args = _arguments(argv)
+    if args.chaos:
+        return _chaos(args)
     rng = random.Random(args.seed)
 
     tmp = tempfile.TemporaryDirectory()
@@ -195,7 +206,42 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--status-p99-ms", type=float, default=250.0, help="bound on GET /jobs/{id}'s p99 latency")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path, default=None, help="also write the figures here")
+    parser.add_argument("--chaos", type=int, default=0, metavar="N", help="run N seeded chaos trials instead")
+    parser.add_argument("--span-s", type=float, default=None,
+                        help="--chaos: draw the instants over this many seconds (default: 1.25 x a job's life)")
     return parser.parse_args(argv)
+
+
+def _chaos(args: argparse.Namespace) -> int:
+    """``--chaos N``: the trials, every one run even after a broken promise; the figures printed (and ``--json``)."""
+    from tests.chaos import ChaosFailure, Deployment
+
+    started = time.monotonic()
+    broken: list[str] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        deployment = Deployment(Path(tmp))
+        try:
+            life_s = deployment.calibrate()
+            span_s = args.span_s or round(1.25 * life_s, 2)
+            for index in range(args.chaos):
+                try:
+                    deployment.trial(args.seed, index, span_s)
+                except ChaosFailure as exc:
+                    broken.append(str(exc))
+            figures = deployment.figures()
+        finally:
+            deployment.stop()
+    ledger = figures["ledger"]
+    broken += [f"{what}: {ledger[key]}" for key, what in (("lost", "records lost"), ("listed_twice", "records listed "
+               "twice"), ("of_no_submit", "records of no submit")) if ledger[key]]
+    if figures["statuses"].get("500"):
+        broken.append(f"{figures['statuses']['500']} answers 500")
+    figures.update(seed=args.seed, span_s=span_s, calibration_s=round(life_s, 2),
+                   wall_s=round(time.monotonic() - started, 1), broken=broken, ok=not broken)
+    print(json.dumps(figures, indent=2))
+    if args.json:
+        args.json.write_text(json.dumps(figures, indent=2))
+    return 0 if figures["ok"] else 1
 
 
 class _Soak:
