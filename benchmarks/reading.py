@@ -3,9 +3,10 @@
 Each row is a prompt with the expected reading: the relation (a reading of two joined by ``+``, "front+facing"),
 which object is its figure (``source`` or ``target``) and the side of the ground the figure is on (``front``,
 ``behind``, ``left``, ``right``; empty where none is named). Prints the accuracy of each column and of all three
-together, per origin (the public vocabularies the wordings come from: SpatialSense, Sr3D, Holodeck, LayoutVLM; the
-issue's examples; paraphrases) and overall; ``--errors`` lists the misses. Runs against whichever ``ctp_core`` is
-imported (``PYTHONPATH``), so an older checkout gives the "before" column (one without ``side_of`` reads no side).
+together, per origin (the public vocabularies the wordings come from: SpatialSense, Rel3D, Sr3D, Holodeck,
+LayoutVLM; the issue's examples; paraphrases) and overall; ``--errors`` lists the misses. Runs against whichever
+``ctp_core`` is imported (``PYTHONPATH``), so an older checkout gives the "before" column (one without ``side_of``
+reads no side).
 
     python benchmarks/reading.py [--errors] [--phrases benchmarks/reading_heldout.csv]
 """

@@ -1,9 +1,10 @@
 """The reading of a prompt: what the rules read of (target name, source name, prompt) before any number.
 
 ``read`` applies ``PASSES`` in order to a ``PromptReading``: the relation cue and a lean's side, each name resolved
-in the prompt's context, the cue's relation and who its figure is, the ground, the contents it holds, afloat,
-encased, draped, into an opening, and the reading's name (a lean's side, an orientation). Each pass rewrites a part
-of the reading and says why in its notes. The numbers (size, penetration, contact) are ``priors.rules``'s.
+in the prompt's context, the cue's relation and who its figure is, the ground (the middle of a container is in it),
+the contents it holds, afloat, encased, draped, into an opening, and the reading's name (a lean's side, an
+orientation). Each pass rewrites a part of the reading and says why in its notes. The numbers (size, penetration,
+contact) are ``priors.rules``'s.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ _AGENT_CUTS = re.compile(r"cut|slic|stab|pierc|skewer|spear|impal|carv")
 # Cues of moving on water ("floating in", "a duck paddling on"), and of being at a water body's rim instead.
 _AFLOAT = re.compile(r"float|swim|bob|paddl")
 _AT_EDGE = re.compile(r"edge|rim|brink|lip")
+_AMID = re.compile(r"(?:at|in) the (?:very )?(?:middle|center|centre) of")  # Holodeck's "center"
 FASTENER_MAX_M = 0.1  # a pointed thing this short that holds or fastens a pierceable solid is a pin through it
 # Said of water: under its surface, beneath the waves.
 _WATER_SAID = re.compile(r"\b(?:submerged|underwater|(?:under|beneath|below) (?:the )?(?:water|waves|surface))\b")
@@ -180,6 +182,13 @@ def _ground_named(r: PromptReading) -> None:
     r.figure_name = r.source_name if r.figure else r.target_name
 
 
+def _amid_container(r: PromptReading) -> None:
+    """In the middle of a container: in it ("a toy in the middle of the box"; of a table, a rug or a plate: on it)."""
+    if (r.relation.name == "on" and r.cue is not None and _AMID.fullmatch(r.cue.text) and r.ground is not None
+            and r.ground.has("container") and not r.ground.has("flat")):
+        r.relation, r.why = vocabulary.RELATIONS["in"], f"'{r.cue.text}' a container: in it"
+
+
 def _tucked_into_fold(r: PromptReading) -> None:
     """Tucked or slipped into a food: into a fold of it, as into a container ("a fortune tucked inside a fortune
     cookie")."""
@@ -320,7 +329,7 @@ def _named(r: PromptReading) -> None:
     """The reading's name: the relation, joined with a lean's side and with an orientation said about the same
     ground ("in front of the sofa, facing it": both judged)."""
     r.name = r.relation.name if r.leant is None else vocabulary.JOIN.join((r.relation.name, r.leant))
-    turn = _orientation(r.prompt, r.cue, r.relation, r.aside, r.ground_at)
+    turn = _orientation(r.prompt, r.cue, r.relation, r.aside, r.ground_at, r.source_at if r.figure else r.target_at)
     if turn is not None:  # "in front of the sofa, facing it": both judged
         r.name += vocabulary.JOIN + turn.cue.relation
         r.name_notes.append(f"'{turn.text}' -> {turn.cue.relation} too")
@@ -337,9 +346,9 @@ def _side_noted(r: PromptReading) -> None:
 # then the relation and who the figure is, then the ground and its contents, then the name).
 PASSES: tuple[Callable[[PromptReading], None], ...] = (
     _find_cue, _resolve_objects, _relation_of_cue, _drinker_holds, _fastener_pierces, _bite_pierces, _ground_named,
-    _tucked_into_fold, _contents_held, _under_contents, _drinking_water, _water_said, _buried_in_contents,
-    _hidden_in_mass, _encased_in_solid, _rooted_in_soil, _afloat_on_water, _afloat_in_container, _afloat_in_air,
-    _draped_over, _into_opening, _relation_noted, _ground_under_figure, _named, _side_noted,
+    _amid_container, _tucked_into_fold, _contents_held, _under_contents, _drinking_water, _water_said,
+    _buried_in_contents, _hidden_in_mass, _encased_in_solid, _rooted_in_soil, _afloat_on_water, _afloat_in_container,
+    _afloat_in_air, _draped_over, _into_opening, _relation_noted, _ground_under_figure, _named, _side_noted,
 )
 
 
@@ -373,13 +382,17 @@ def _mentions(prompt: str, name: str, match: lexicon.Match | None) -> list[int]:
 
 
 def _orientation(prompt: str, cue: vocabulary.CueMatch | None, relation: vocabulary.Relation, aside,
-                 ground_at: list[int]) -> vocabulary.CueMatch | None:
+                 ground_at: list[int], figure_at: list[int]) -> vocabulary.CueMatch | None:
     """An orientation said after a position about the same ground ("in front of the desk, facing it", "next to the
-    sofa, facing the sofa"); None where there is none, or it is about something else ("facing the window")."""
+    sofa, facing the sofa"); None where there is none, it is about something else ("facing the window"), or it is
+    said before the figure is named: the viewer's (Sr3D's "facing the bed from the side you sit on it, choose the
+    pillow on its left")."""
     if cue is None or relation.kind == "orientation":
         return None
     turn = vocabulary.find_cue(prompt, aside, {"orientation"})
     if turn is None or turn.start < cue.end and cue.start < turn.end:
+        return None
+    if figure_at and min(figure_at) > turn.start:  # the viewer's: "facing the bed ..., choose the pillow on its left"
         return None
     return turn if not context.about_another(prompt, turn.end, ground_at) else None
 

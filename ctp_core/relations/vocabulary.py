@@ -271,7 +271,8 @@ CUES: list[Cue] = [
         "wear"),
     Cue(r"wear(?:s|ing)?|dressed in|put(?:s|ting)? on|has on|donning", "wear", True),
     # two grounds, named after the cue ("between the sofa and the armchair"): before "in" and the sides
-    Cue(r"(?:in |midway |halfway |right )?between|in the middle of(?= [a-z ]+ and )|flanked by", "between"),
+    Cue(r"(?:in |midway |halfway |right )?between|in the (?:middle|center|centre) of(?= [a-z ]+ and )|flanked by",
+        "between"),
     # held
     Cue(r"in " + _POSS + r" " + _BODY + r"|held (?:by|in)", "hold"),
     Cue(r"hold(?:s|ing)?|carr(?:y|ies|ying)|grasp(?:s|ing)?|grip(?:s|ping)?|clutch(?:es|ing)?|wield(?:s|ing)?"
@@ -288,24 +289,28 @@ CUES: list[Cue] = [
     Cue(r"fac(?:e|es|ing) away(?: from)?|turned away from|look(?:s|ing)? away from|point(?:s|ing)? away from"
         r"|with (?:its|his|her|their) backs? (?:to|toward|towards)", "facing_away"),
     Cue(r"facing(?:[ _](?:to|toward|towards))?|fac(?:e|es)[ _](?:to|toward|towards)"  # "a rock face": no facing
-        r"|faces(?= (?:the|a|an|its|his|her|their) )|turned (?:to|toward|towards)"
+        r"|faces(?= (?!(?:of|on|in|at|with|and|are|were)(?![a-z]))[a-z])|turned (?:to|toward|towards)"
         r"|look(?:s|ing)? (?:at|toward|towards)|point(?:s|ing)?[ _](?:at|to|toward|towards)"
         r"|oriented (?:to|toward|towards)", "facing"),
     Cue(r"align(?:s|ed)?[ _](?:with|to)|parallel (?:to|with)|in line with|lined up with|(?:in|with) the same"
         r" direction as", "aligned"),
-    Cue(r"not far from|near(?:by)?|close (?:to|by)|closest to|in the vicinity of|a short distance from|within reach of",
-        "near"),
+    Cue(r"not far from|near(?:by|er|est)?(?: to)?|close(?:r|st)? to|close by|in the vicinity of|a short distance from"
+        r"|within reach of|outside(?: of)?", "near"),
     Cue(r"far(?: away| off)? from|farthest from|furthest from|a long way from|distant from|at a distance from"
-        r"|(?<!facing )(?<!faces )(?<!face )(?<!turned )(?<!looking )(?<!pointing )(?:away|apart) from", "far"),
+        r"|(?<!facing )(?<!faces )(?<!face )(?<!turned )(?<!looking )(?<!looks )(?<!pointing )(?<!points )"
+        r"(?:away|apart) from", "far"),
     # supported postures
     Cue(r"rid(?:e|es|ing)|astride|straddl[a-z]+|driv(?:e|es|ing)|(?:sit|sits|sitting|seated|sat)"
         r" (?:on|in|at|astride|inside)", "sit"),
-    Cue(r"(?:lying|lies|laid|lay|sleeping|sleeps|napping|curled up|draped|spread) (?:on|over|across|upon)",
-        "lie"),
+    Cue(r"(?:lying|lies|laid|lay|sleeping|sleeps|napping|curled up|draped|spread) (?:on|over|across|upon)"
+        r"|cover(?:s|ing)(?= (?:the|a|an|its|his|her|their) )", "lie"),  # a cover lies over what it covers
+    Cue(r"covered (?:by|with)", "lie", True),
     Cue(r"(?:standing|stands|stood|perched|perching|balanced|balancing|landed|hopping) (?:on|upon|atop)",
         "stand"),
-    Cue(r"(?:wrapped|coiled|wound|tied|looped|wrapping|coiling) (?:around|round)|around", "wrap"),
-    Cue(r"lean(?:s|ing|ed)? (?:against|on|in)|propped (?:against|up|on)|rest(?:s|ing)? against|against", "lean"),
+    Cue(r"(?:wrapped|coiled|wound|tied|looped|wrapping|coiling) (?:around|round)|around|surround(?:s|ing)"
+        r"|encircl(?:es|ing)", "wrap"),
+    Cue(r"lean(?:s|ing|ed)? (?:against|on|in)|propped (?:against|up|on)|rest(?:s|ing)? against|against"
+        r"|touch(?:es|ing)", "lean"),  # touching its side: Rel3D's "touching"
     # moving over a support: feet, wheels or a belly on it
     Cue(r"(?:walk|run|crawl|stroll|march|hik|climb|roll|skat|ski|slid|trott|gallop|wander)(?:s|ing|ed|e|es)?"
         r" (?:over|across|along|up|down|on)", "stand"),
@@ -325,9 +330,11 @@ CUES: list[Cue] = [
     Cue(r"above|over(?:head of)?", "above"),  # "over" said of a cloth drapes (rules)
     Cue(r"swim(?:s|ming)?|float(?:s|ing)?|hover(?:s|ing)?|fl(?:y|ies|ying) (?:around|past)", "beside"),  # free in
     # the air or water: no contact
-    Cue(r"beside|next[ _]to|alongside|(?:at|by|to) (?:the|its|his|her|their) side(?: of)?|side[ _]of|side by side",
-        "beside"),
+    Cue(r"beside|next[ _]to|alongside|(?:at|by|to) (?:the|its|his|her|their) side(?: of)?|side[ _]of|side by side"
+        r"|adjacent to|paired with", "beside"),
     Cue(r"(?:at|on) the (?:edge|rim|brink|lip) of", "on"),  # "a pigeon drinking at the edge of a fountain"
+    # Holodeck's "center": "a vase in the middle of the table" is on it (in a container: in it, ``passes``)
+    Cue(r"(?:at|in) the (?:very )?(?:middle|center|centre) of", "on"),
     Cue(r"through", "in"),  # penetrates only when a pointed thing goes through a solid
     Cue(r"filled with|full of|contain(?:s|ing)?|holding inside", "in", True),
     Cue(r"stir(?:s|red|ring)?", "in"),  # "a candy cane stirring a mug of hot chocolate": its end in it
