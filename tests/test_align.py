@@ -65,7 +65,7 @@ def test_align_is_deterministic_and_reports_progress(meshes):
     assert kinds.count("phase_end") == cfg.optim.phases
     assert events[-1].step == cfg.optim.steps and events[-1].fraction == 1.0
     assert len(a.restarts) == cfg.optim.restarts
-    assert a.objective == min(r["objective"] for r in a.restarts)
+    assert a.objective == a.restarts[a.best_restart]["objective"]  # the answer: the selection's, not the lowest
     assert a.priors["provider"] and 0 <= a.priors["contact_ratio"] <= 1
     assert a.preview.shape == (4, 224, 224, 3) and a.preview.dtype == np.uint8
     # rigid: the scale of the answer is the file-relative scale (1)
@@ -89,7 +89,7 @@ def test_geometry_only_brings_source_into_contact(meshes):
     from ctp_core import metrics
 
     cfg = AlignConfig.from_preset("descent", loss={"lambda_clip": 0.0, "samples": 1500}, contact_ratio=0.3,
-                                  penetration="forbid", optim={"restarts": 2, "steps": 90})
+                                  penetration="forbid", optim={"restarts": 2, "steps": 150})  # 90 stop 1-2 % short
     result = align(*meshes, None, cfg)
     placed = result.source.copy()
     placed.apply_transform(result.source_to_target)

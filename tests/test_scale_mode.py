@@ -17,13 +17,14 @@ import numpy as np
 import pytest
 import torch
 import trimesh
+from test_ordering import said
 
 from ctp_core.align import align, prepare, propose
 from ctp_core.config import AlignConfig
 from ctp_core.export import report
 from ctp_core.pairs import prepare_pair
 from ctp_core.priors import ScenePrior
-from ctp_core.search import coarse_to_fine, ordering, scaling
+from ctp_core.search import coarse_to_fine, scaling
 
 # |ln(found / true)| allowed: ln 1.5, about the rules provider's size-ratio error at its 68th percentile
 # (scaling.PRIOR_SIGMA): where the priors set the scale, no better can be asked of them
@@ -204,7 +205,7 @@ def test_a_guide_the_gate_silences_places_as_the_geometry_does(monkeypatch):
     target, source, target_name, source_name, prompt = _pair("ball in a bowl")
     source = _scaled(source, 100.0)
     geometry = align(target, source, prompt, _config(), target_name=target_name, source_name=source_name)
-    monkeypatch.setattr(coarse_to_fine, "guide_noise", lambda *args: ordering.Gate(0.0, 1.0))
+    monkeypatch.setattr(coarse_to_fine, "guide_noise", lambda *args: said(0.0, spread=0.0, noise=1.0))
     guided = AlignConfig.from_preset("test", scale=True, threads=1, model="random:tiny", search={"candidates": 144})
     silenced = align(target, source, prompt, guided, target_name=target_name, source_name=source_name)
     assert silenced.guide_say["chose"] == "geometry"

@@ -70,10 +70,11 @@ class PlannedStep(BaseModel):
 class ReadPlan(BaseModel):
     """A description read into a plan: the base stays put; the steps in placing order."""
 
-    description: str
+    description: str = Field(description="the description as read (the request's `prompt`)")
     base: str = Field(description="the object that stays put (its file frame is the scene frame)")
     base_upload: int = Field(description="its index into `names`")
-    steps: list[PlannedStep]
+    steps: list[PlannedStep] = Field(description="the objects placed, in placing order: every ground before its "
+                                     "figures")
     warnings: list[str] = Field(description="what was assumed: an object not named or not placed, names matched by "
                                 "order")
 
