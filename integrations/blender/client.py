@@ -117,7 +117,8 @@ class Client:
 
 
 def retry_after(answer: urllib.error.HTTPError) -> float | None:
-    """The seconds a 429 or 503 asks to wait (``Retry-After``: seconds or an HTTP date); None otherwise."""
+    """The seconds a 429 or 503 asks to wait (``Retry-After``: seconds or an HTTP date); None otherwise. The rule
+    of ``service.client.retry_after``, kept here too: inside Blender the add-on has the standard library only."""
     value = answer.headers.get("Retry-After") if answer.code in (429, 503) else None
     if value is None:
         return None
