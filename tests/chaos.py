@@ -154,10 +154,14 @@ class Deployment:
         self.api: subprocess.Popen | None = None
         self.processes: list[subprocess.Popen | None] = [None] * self.workers
         self._logs: list = []
-        for slot in range(self.workers):  # first: they take longest to start (the model), and need only Redis
-            self.start_worker(slot)
-        self.start_api()
-        self.wait_ready(self.workers)
+        try:
+            for slot in range(self.workers):  # first: they take longest to start (the model), and need only Redis
+                self.start_worker(slot)
+            self.start_api()
+            self.wait_ready(self.workers)
+        except BaseException:
+            self.stop()
+            raise
 
     # -- processes ----------------------------------------------------------------------------------------------
     def _spawn(self, args: list[str], log_name: str, env: dict[str, str] | None = None) -> subprocess.Popen:
@@ -214,16 +218,18 @@ class Deployment:
 
     def stop(self) -> None:
         """Everything, at once: the group (API and workers), the leader, Redis, the receiver."""
-        self.http.close()
-        self.store.close()
-        self.receiver.close()
-        os.killpg(self.leader.pid, signal.SIGKILL)
-        for process in [self.api, *self.processes, self.leader]:
-            if process is not None:
-                process.wait()
-        self.redis.stop()
-        for log in self._logs:
-            log.close()
+        try:
+            os.killpg(self.leader.pid, signal.SIGKILL)
+            for process in [self.api, *self.processes, self.leader]:
+                if process is not None:
+                    process.wait()
+        finally:
+            self.redis.stop()
+            self.http.close()
+            self.store.close()
+            self.receiver.close()
+            for log in self._logs:
+                log.close()
 
     # -- requests -------------------------------------------------------------------------------------------------
     def request(self, method: str, path: str, *, retry_503: bool = True, timeout_s: float = 90.0,
@@ -420,7 +426,7 @@ class Deployment:
             "cancels": sum(t.cancel_at_s is not None for t in self.trials),
             "jobs": dict(collections.Counter(t.status or "lost" for t in self.trials)),
             "attempts": {str(k): v for k, v in sorted(collections.Counter(t.attempts for t in self.trials
-                                                                          if t.attempts).items())},
+                                                                          if t.attempts is not None).items())},
             "webhooks_redelivered": sum(t.redelivered for t in self.trials),
             "statuses": {str(k): v for k, v in sorted(self.statuses.items())},
             "ledger": self.ledger(),
