@@ -9,6 +9,10 @@ server-sent events stream, so the API, the workers and the reaper can race witho
     queued -> running -> succeeded | failed | canceled
     queued -> canceled                      (DELETE before a worker picks it up)
 
+A record is written ``queued`` only in the transaction that puts its rq job on the queue (``submit``, ``_requeue``,
+``enqueue_again``), noted in the index of queued jobs (``queued_key``) that the reconciler reads
+(``service.reconcile``): no crash leaves a queued record without its place in the queue for long.
+
 A change that is an event the job's webhook subscribes to (start, progress at most once a second, completed)
 also queues a delivery in the webhook outbox, in the same transaction (``service.webhooks``).
 
