@@ -1,6 +1,6 @@
 """Chaos at every instant of a job: a stop or a crash at any moment hands the job back, never fails it or loses it.
 
-The seeded trials (``tests.chaos``): ``CTP_CHAOS_TRIALS`` of them (12 by default, three of each fault, for the
+The seeded trials (``tests.chaos``): ``CTP_CHAOS_TRIALS`` of them (20 by default, five of each fault, for the
 suite's time; the 200 of docs/service.md are ``benchmarks/soak.py --chaos 200``), seed ``CTP_CHAOS_SEED``, each a
 fault at an instant drawn over a job's life as measured first (``CTP_CHAOS_SPAN_S`` fixes that span;
 ``CTP_CHAOS_ONLY`` runs one trial: a failure prints all three).
@@ -26,7 +26,7 @@ from tests.chaos import Deployment
 from tests.conftest import wait_for
 from tests.test_service_serve import _cmdline, children
 
-TRIALS = int(os.environ.get("CTP_CHAOS_TRIALS", "12"))
+TRIALS = int(os.environ.get("CTP_CHAOS_TRIALS", "20"))
 SEED = int(os.environ.get("CTP_CHAOS_SEED", "51"))
 ONLY = os.environ.get("CTP_CHAOS_ONLY")
 SPAN_S = os.environ.get("CTP_CHAOS_SPAN_S")
