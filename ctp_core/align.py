@@ -80,6 +80,8 @@ class AlignResult:
     # the answer's relation verdict (predicates.RelationVerdict.to_dict: name, role figure/ground, score, holds,
     # stable); None when the priors read no relation
     relation: dict[str, Any] | None = None
+    # whether the answer touches the target (``contact_of``: gap in source diagonals, touching); None: not measured
+    contact: dict[str, Any] | None = None
     warnings: list[dict[str, Any]] = field(default_factory=list)  # {"code", "message", ...}: the run went on
     # the best distinct placements the run refined, the answer first (``alternatives``): restart, source_to_target
     # (file frames, 4x4), objective, the guide's and geometry's terms, relation verdict
@@ -98,7 +100,7 @@ class AlignResult:
         chosen = self.alternatives[k]
         return replace(self, source_to_target=np.asarray(chosen["source_to_target"], dtype=np.float64),
                        objective=chosen["objective"], best_restart=chosen["restart"],
-                       relation=chosen.get("relation", self.relation))
+                       relation=chosen.get("relation", self.relation), contact=chosen.get("contact", self.contact))
 
     @property
     def transform(self) -> frames.Similarity:
@@ -336,13 +338,15 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
         answer.scaling = {**run.scale.to_dict(), "final": answer.scale}
     verdict = predicates.verdict(pair, matrices[best], run.reading)
     answer.relation = verdict.to_dict() if verdict is not None else None
+    gaps = contact.contact_gap(pair, outcome.poses)
+    answer.contact = contact_of(float(gaps[best]))
     picks = alternatives(run, outcome)
     for i in picks:
         judged = predicates.verdict(pair, matrices[i], run.reading)
         answer.alternatives.append({
             "restart": i, "source_to_target": answers[i], "objective": float(outcome.objectives[i]),
             **{k: float(outcome.terms[k][i]) for k in ("clip", "icp", "pen", "rel")},
-            "relation": judged.to_dict() if judged is not None else None})
+            "relation": judged.to_dict() if judged is not None else None, "contact": contact_of(float(gaps[i]))})
     answer.thumbnails = _uint8(torch.stack([pairs.render_pair(pair, matrices[i], views=1, image_size=THUMBNAIL)[0]
                                             for i in picks]))
     if on_event:
@@ -381,6 +385,12 @@ def alternatives(run: Run, outcome: Outcome) -> list[int]:
     kept = (places + [i for i in turns if i not in places])[:MAX_ALTERNATIVES]
     finite = key.finite()
     return [i for i in kept if finite[i] or i == outcome.best]
+
+
+def contact_of(gap: float) -> dict[str, Any]:
+    """A placement's contact as reports say it: its ``contact.contact_gap`` (source diagonals; 0 within the
+    target samples' spacing) and whether that is touching (at most ``contact.TOUCH``, as ``adjust`` says it)."""
+    return {"gap": round(gap, 5), "touching": gap <= contact.TOUCH}
 
 
 def scale_ratio_warning(ratio: float) -> dict[str, Any] | None:

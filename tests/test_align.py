@@ -98,6 +98,12 @@ def test_geometry_only_brings_source_into_contact(meshes):
     assert metrics.intersection_over_union(meshes[0], placed).iou <= 0.01
 
 
+def alternatives_touch(report: dict) -> bool:
+    """Each alternative says its own contact, the answer's as the report's."""
+    found = report["alternatives"]
+    return found[0]["contact"] == report["contact"] and all(set(a["contact"]) == {"gap", "touching"} for a in found)
+
+
 def test_cli_align_end_to_end(tmp_path, meshes, capsys):
     target, source = tmp_path / "table.glb", tmp_path / "cup.glb"
     meshes[0].export(target)
@@ -117,8 +123,9 @@ def test_cli_align_end_to_end(tmp_path, meshes, capsys):
     assert data["relation"]["name"] == "on" and data["relation"]["role"] == "figure"  # predicates.RelationVerdict
     assert summary["relation"] == data["relation"]
     assert list(data) == ["transform", "objective", "prompt", "model", "guide", "guide_why", "seed", "preset",
-                          "config", "hparams", "relation", "guide_say", "restarts", "alternatives", "timings",
-                          "extra", "warnings", "versions", "created_at"]
+                          "config", "hparams", "relation", "contact", "guide_say", "restarts", "alternatives",
+                          "timings", "extra", "warnings", "versions", "created_at"]
+    assert data["contact"]["touching"] and alternatives_touch(data)
     # the best distinct placements, the answer first; --alternatives 3 wrote the next two beside --out
     alternatives = data["alternatives"]
     assert alternatives[0]["restart"] == data["extra"]["best_restart"]

@@ -24,9 +24,10 @@ def placements(report: dict[str, Any]) -> list[Placement]:
     if report.get("copies"):
         return [Placement(copy["name"], _matrix(copy["transform"]), verdict(copy.get("relation")))
                 for copy in report["copies"]]
-    found = report.get("alternatives") or [{"transform": report["transform"], "relation": report.get("relation")}]
+    found = report.get("alternatives") or [{"transform": report["transform"], "relation": report.get("relation"),
+                                            "contact": report.get("contact")}]
     return [Placement("answer" if k == 0 else f"alternative {k + 1}", _matrix(alt["transform"]),
-                      verdict(alt.get("relation"))) for k, alt in enumerate(found)]
+                      verdict(alt.get("relation"), alt.get("contact"))) for k, alt in enumerate(found)]
 
 
 def _matrix(transform: dict[str, Any]) -> list[list[float]]:
@@ -37,14 +38,16 @@ def _matrix(transform: dict[str, Any]) -> list[list[float]]:
     return transform["matrix"]
 
 
-def verdict(relation: dict[str, Any] | None) -> str:
-    """``'on' holds, stable``: the geometry's judgement of the prompt's relation (``relations.predicates``)."""
-    if not relation:
-        return "no relation read from the prompt"
-    words = [f"'{relation['name']}' {'holds' if relation['holds'] else 'does not hold'}"]
-    if relation.get("stable") is not None:
+def verdict(relation: dict[str, Any] | None, contact: dict[str, Any] | None = None) -> str:
+    """``'on' holds, stable, touching``: the geometry's judgement of the prompt's relation (``relations.predicates``)
+    and whether the placement touches the target (the report's ``contact``, where it has one)."""
+    words = ([f"'{relation['name']}' {'holds' if relation['holds'] else 'does not hold'}"] if relation else
+             ["no relation read from the prompt"])
+    if relation and relation.get("stable") is not None:
         words.append("stable" if relation["stable"] else "not stable")
-    if relation.get("note"):
+    if contact:
+        words.append("touching" if contact["touching"] else f"{contact['gap']:.2f} source diagonals from touching")
+    if relation and relation.get("note"):
         words.append(relation["note"])
     return ", ".join(words)
 
@@ -55,7 +58,7 @@ def summary(report: dict[str, Any]) -> str:
         m = report.get("metrics") or {}
         return (f"{m.get('relation_holds', 0)} of {m.get('judged', 0)} copies: '{report.get('relation')}' holds; "
                 f"{'none intersect' if m.get('none_intersect') else 'some intersect'}")
-    return verdict(report.get("relation"))
+    return verdict(report.get("relation"), report.get("contact"))
 
 
 def guide(report: dict[str, Any]) -> str:

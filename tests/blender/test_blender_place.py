@@ -55,7 +55,7 @@ def test_blender_places_the_cup_on_the_table(scene, tmp_path):
     assert after["Table"] == before["Table"]
     assert after["Cup"][1:] == before["Cup"][1:]  # the same mesh, materials and modifiers
     result = scene.ctp_result
-    assert result.summary.startswith("'on' holds"), result.summary
+    assert result.summary.startswith("'on' holds, stable, touching"), result.summary
     assert result.guide.startswith("guide: random:tiny"), result.guide
     assert bpy.context.window_manager.ctp_job.error == ""
     render(scene, table, tmp_path)
