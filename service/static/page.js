@@ -274,15 +274,20 @@ async function submit(event) {
     data.append("prompt", $("prompt").value);
   }
   data.append("options", JSON.stringify(options()));
-  $("submit").disabled = true;
+  await submitJob("align", data, $("submit"));
+}
+
+// A form to a job endpoint ("align", "assemble"): the button off while it is sent, then the job followed.
+async function submitJob(path, data, button) {
+  button.disabled = true;
   try {
-    const accepted = await api.json("align", { method: "POST", body: data });
+    const accepted = await api.json(path, { method: "POST", body: data });
     follow(accepted.id);
     refreshJobs();
   } catch (err) {
     showError(err);
   } finally {
-    $("submit").disabled = false;
+    button.disabled = false;
   }
 }
 
@@ -918,7 +923,7 @@ async function init() {
   $("align-form").addEventListener("submit", submit);
   document.querySelectorAll("[data-file]").forEach((b) => b.addEventListener("click", () => download(b.dataset.file)));
   $("add-object").addEventListener("click", addObject);
-  wireScene({ api, follow, options, showError, clearError, refreshJobs });
+  wireScene({ api, options, showError, clearError, submitJob });
   document.querySelectorAll("input[name=adjust-mode]").forEach((r) => r.addEventListener("change", () => {
     state.viewer?.setHandles(document.querySelector("input[name=adjust-mode]:checked").value || null);
   }));

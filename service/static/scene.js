@@ -1,7 +1,7 @@
 // A scene from one sentence on the page: several meshes and one description are read into a plan
 // (POST /plans/read), shown as a list a person can correct (each step's prompt and what it relates to), then
 // placed as that plan says (POST /assemble: the edited plan, not the sentence, is what runs). The page's own
-// calls, option fields and job follower are passed in by page.js (wireScene), so this module holds no state
+// calls, option fields and job submitter are passed in by page.js (wireScene), so this module holds no state
 // of the page's and imports nothing from it.
 
 const $ = (id) => document.getElementById(id);
@@ -9,7 +9,7 @@ const $ = (id) => document.getElementById(id);
 /** The name the service gives a file when none is said (ctp_core.reading.names.default_name). */
 const stemName = (file) => file.name.replace(/\.[^.]*$/, "").replace(/[_-]/g, " ").trim() || "object";
 
-export function wireScene({ api, follow, options, showError, clearError, refreshJobs }) {
+export function wireScene({ api, options, showError, clearError, submitJob }) {
   const scene = { files: [], plan: null };
 
   $("scene-files").addEventListener("change", () => {
@@ -89,16 +89,7 @@ export function wireScene({ api, follow, options, showError, clearError, refresh
     for (const index of used) data.append("source", scene.files[index], scene.files[index].name);
     data.append("plan", JSON.stringify(editedSteps()));
     data.append("options", JSON.stringify(options()));
-    $("scene-place").disabled = true;
-    try {
-      const accepted = await api.json("assemble", { method: "POST", body: data });
-      follow(accepted.id);
-      refreshJobs();
-    } catch (err) {
-      showError(err);
-    } finally {
-      $("scene-place").disabled = false;
-    }
+    await submitJob("assemble", data, $("scene-place"));
   });
 }
 
