@@ -316,7 +316,7 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
     plan = _Plan.of(scorer, proposals, k, on_event, started, phases)
     plan.emit(0)
     with scorer.clock.time("search"):
-        checks = agreement_cameras(pair, config, float(proposals.poses.log_s.max()))
+        checks = agreement_cameras(pair, config, float(proposals.poses.log_s.max())) if scorer.guided else None
         scorer, terms, goal_embeddings = _coarse(scorer, proposals.poses, weights, cameras, checks, distinct, plan,
                                                  should_cancel)
         coarse = ranking_key(scorer, terms, weights)
@@ -431,7 +431,7 @@ def _screened(scorer: Scorer, proposals: Proposals, weights: Phase,
     return proposals.select(shortlist), len(proposals.poses)
 
 
-def _coarse(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, checks: Cameras,
+def _coarse(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, checks: Cameras | None,
             distinct: tuple[float, float], plan: _Plan, should_cancel: CancelCheck | None
             ) -> tuple[Scorer, dict[str, torch.Tensor], torch.Tensor | None]:
     """The coarse stage: every candidate's terms at the shared views. Where there is a guide and no gate yet, the
