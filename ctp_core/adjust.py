@@ -94,7 +94,7 @@ def adjust(target: Target, source: trimesh.Trimesh, source_to_target: np.ndarray
         normal = _approach_normal(pair, settle, direction)
         placed, on_floor = _settle(pair, pose, normal, config.seed, floor=settle == "drop")
         placed_gap = float(contact.contact_gap(pair, placed)[0])
-        settled = placed_gap <= contact.TOUCH or on_floor
+        settled = contact.touching(placed_gap) or on_floor
         if settled:
             moved = float((placed.t - pose.t).norm() / contact.source_diagonal(pair, pose)[0])
             pose, gap = placed, placed_gap
@@ -106,7 +106,7 @@ def adjust(target: Target, source: trimesh.Trimesh, source_to_target: np.ndarray
     verdict = predicates.verdict(pair, pose, reading)
     return Adjusted(source_to_target=pair.source_to_target(pose.matrices()[0]), settle=settle, settled=settled,
                     moved=round(moved, 5), on_floor=on_floor, penetration=round(sunk, 6), contact_gap=round(gap, 5),
-                    touching=gap <= contact.TOUCH, relation=None if verdict is None else verdict.to_dict())
+                    touching=contact.touching(gap), relation=None if verdict is None else verdict.to_dict())
 
 
 def read_back(scene: trimesh.Scene, source_to_target: np.ndarray, node: str | None = None

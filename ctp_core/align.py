@@ -389,8 +389,8 @@ def alternatives(run: Run, outcome: Outcome) -> list[int]:
 
 def contact_of(gap: float) -> dict[str, Any]:
     """A placement's contact as reports say it: its ``contact.contact_gap`` (source diagonals; 0 within the
-    target samples' spacing) and whether that is touching (at most ``contact.TOUCH``, as ``adjust`` says it)."""
-    return {"gap": round(gap, 5), "touching": gap <= contact.TOUCH}
+    target samples' spacing) and whether that is touching (``contact.touching``, as ``adjust`` says it)."""
+    return {"gap": round(gap, 5), "touching": contact.touching(gap)}
 
 
 def scale_ratio_warning(ratio: float) -> dict[str, Any] | None:

@@ -54,6 +54,11 @@ def contact_gap(pair: PreparedPair, poses: Poses) -> torch.Tensor:
     return (clearance(pair, pair.index, poses) - (touch_limit(pair, poses) - TOUCH)).clamp(min=0)
 
 
+def touching(gap: float) -> bool:
+    """Whether a ``contact_gap`` counts as touching: at most ``TOUCH``, as the answer's selection counts it."""
+    return gap <= TOUCH
+
+
 def touch_limit(pair: PreparedPair, poses: Poses) -> torch.Tensor:
     """(B,) the ``clearance`` (source diagonals) under which a pose touches: ``TOUCH`` plus the spacing of the
     target samples (a small source on a big target is farther from the nearest sample than from the surface)."""
