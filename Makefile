@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 export OMP_WAIT_POLICY ?= PASSIVE
 
-.PHONY: install serve test lint bench-render docs-bench
+.PHONY: install serve test lint typecheck bench-render docs-bench
 install: $(VENV)/.installed
 
 # One line per step. pip's own output (this machine's pip configuration warns a lot) goes to the log, whose
@@ -32,8 +32,14 @@ serve: install
 test: install
 	$(BIN)/pytest -q -rs
 
+# .ci/run runs both before the tests. ruff's rules: [tool.ruff] in pyproject.toml.
 lint: install
 	$(BIN)/ruff check .
+
+# mypy on ctp_core, service, worker and ctp ([tool.mypy]'s files), at the level set there, with the modules still
+# to be raised listed there
+typecheck: install
+	$(BIN)/mypy
 
 # The result tables of docs/benchmarks.md, regenerated from the stored runs under benchmarks/results/
 # (each: results.jsonl and commands.txt as `ctp bench` writes them, run.json with the machine kind and date).

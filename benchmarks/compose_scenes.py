@@ -17,7 +17,7 @@ import time
 import trimesh
 
 from ctp_core.assembly.assemble import Step, assemble
-from ctp_core.assembly.describe import read
+from ctp_core.assembly.describe import read_description
 from ctp_core.config import AlignConfig
 
 
@@ -75,7 +75,7 @@ SCENES = (
 def run(scene: tuple[str, list[str], str], config: AlignConfig) -> dict:
     """One scene read and placed: its plan, the final scene's verdicts, the retries and the times."""
     ident, names, description = scene
-    plan = read(description, names)
+    plan = read_description(description, names)
     meshes = [OBJECTS[name]() for name in names]
     steps = [Step(source=meshes[s.upload].copy(), name=s.name, prompt=s.prompt, on=list(s.on)) for s in plan.steps]
     started = time.perf_counter()

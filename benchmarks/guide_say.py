@@ -1,4 +1,4 @@
-"""How often a guide gets a say, and what it changes (``ordering.Gate``, ``search.chance``), over ``ctp bench`` runs.
+"""How often a guide gets a say, and what it changes (``GuideSay``, ``search.chance``), over ``ctp bench`` runs.
 
 Per guided run folder (``ctp bench --out``): the cases with a reference, how many the guide had a say on (the
 report's ``guide_say.override`` > 0) and a full say, the largest, the placements, and the cases it gained and lost

@@ -4,9 +4,8 @@ Each row is a prompt with the expected reading: the relation (a reading of two j
 which object is its figure (``source`` or ``target``) and the side of the ground the figure is on (``front``,
 ``behind``, ``left``, ``right``; empty where none is named). Prints the accuracy of each column and of all three
 together, per origin (the public vocabularies the wordings come from: SpatialSense, Rel3D, Sr3D, Holodeck,
-LayoutVLM; the issue's examples; paraphrases) and overall; ``--errors`` lists the misses. Runs against whichever
-``ctp_core`` is imported (``PYTHONPATH``), so an older checkout gives the "before" column (one without ``side_of``
-reads no side).
+LayoutVLM; the issue's examples; paraphrases) and overall; ``--errors`` lists the misses. An expected relation is
+compared as a reading (``RelationReading.parse``: "facing" said alone is near+facing).
 
     python benchmarks/reading.py [--errors] [--phrases benchmarks/reading_heldout.csv]
 """
@@ -19,7 +18,7 @@ from collections import defaultdict
 from pathlib import Path
 
 from ctp_core.priors import get_provider
-from ctp_core.relations import vocabulary
+from ctp_core.reading.relation import RelationReading
 
 PHRASES = Path(__file__).resolve().parent.parent / "tests" / "reading_phrases.csv"
 COLUMNS = ("relation", "figure", "side")
@@ -28,9 +27,9 @@ COLUMNS = ("relation", "figure", "side")
 def read(row: dict) -> dict:
     """The provider's reading of one row, in the file's columns."""
     prior = get_provider("rules").estimate(row["target"], row["source"], row["prompt"])
-    side_of = getattr(vocabulary, "side_of", lambda name: None)
-    return {"relation": prior.relation, "figure": "source" if prior.source_is_figure else "target",
-            "side": side_of(prior.relation) or ""}
+    reading = prior.reading
+    return {"relation": reading.name, "figure": "source" if reading.source_is_figure else "target",
+            "side": reading.side or ""}
 
 
 def main() -> int:
@@ -43,7 +42,8 @@ def main() -> int:
     right: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
     for row in rows:
         got = read(row)
-        ok = {c: got[c] == row[c] for c in COLUMNS}
+        expected = {**row, "relation": RelationReading.parse(row["relation"]).name}
+        ok = {c: got[c] == expected[c] for c in COLUMNS}
         ok["all"] = all(ok.values())
         for origin in (row["origin"], "overall"):
             right[origin]["rows"] += 1

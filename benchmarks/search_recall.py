@@ -72,7 +72,7 @@ def run_case(case, args) -> dict:
                         target_name=case.target_name, source_name=case.source_name)
     proposals = align.propose(run, init)
     ranked = coarse_to_fine.search(run.scorer, proposals, run.plan[0], k=config.optim.restarts)
-    outcome = align.refine(run, ranked.poses, ranked.gate)
+    outcome = align.refine(run, ranked.poses, ranked.say)
     answer = align.result(run, outcome, case.prompt)
     row = {"case": case.id, "relation": case.relation, "seconds": round(time.perf_counter() - started, 1)}
     points = sampling.surface_samples(source, 500, args.seed)[0]

@@ -24,7 +24,7 @@ import yaml
 
 from ctp.cmd_align import add_run_arguments, config_from_args
 from ctp.cmd_assemble import run_assembly
-from ctp_core.assembly.describe import ScenePlan, read
+from ctp_core.assembly.describe import ScenePlan, read_description
 from ctp_core.errors import ConfigError
 from ctp_core.reading import names
 
@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     if len(called) != len(args.objects):
         raise ConfigError(f"--names gives {len(called)} names for {len(args.objects)} objects: one each",
                           field="names")
-    plan = read(args.prompt, called)
+    plan = read_description(args.prompt, called)
     if args.dry_run:
         print(plan_yaml(plan, [str(path) for path in args.objects]), end="")
         return 0

@@ -51,12 +51,12 @@ def run(args: argparse.Namespace) -> int:
         source_extent=_number(args.source_extent, "source-extent"),
     )
     out = priors.to_report(prior.to_dict())
-    said = counts.read(args.prompt, args.source)
+    said = counts.read_count(args.prompt, args.source)
     if said.count is not None or said.arrangement is not None:  # several of a kind: what each copy is read as
         one = counts.one_copy(args.prompt, said.arrangement or "scatter")
         copy = priors.get_provider(args.provider).estimate(args.target, args.source, one)
-        out["copies"] = {**said.to_dict(), "copy_prompt": one,
-                         "copy_relation": counts.AROUND if said.arrangement == "around" else copy.relation}
+        judged = counts.AROUND if said.arrangement == "around" else copy.reading
+        out["copies"] = {**said.to_dict(), "copy_prompt": one, "copy_relation": None if judged is None else judged.name}
     print(json.dumps(out, indent=2))
     return 0
 

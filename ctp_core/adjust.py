@@ -33,8 +33,8 @@ from ctp_core.geometry import frames
 from ctp_core.geometry.pose import Poses, apply_pose
 from ctp_core.orientation import canonical
 from ctp_core.pairs import PreparedPair, Target, prepare_pair
+from ctp_core.reading.relation import RelationReading
 from ctp_core.relations import predicates
-from ctp_core.relations.vocabulary import RelationReading
 
 Settle = Literal["none", "drop", "push"]
 SETTLES: tuple[str, ...] = get_args(Settle)

@@ -23,8 +23,9 @@ from ctp_core.errors import ConfigError
 from ctp_core.geometry import frames
 from ctp_core.guide import selection
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
+from ctp_core.reading import cues
 from ctp_core.reading.names import ground_names
-from ctp_core.relations import parts, vocabulary
+from ctp_core.relations import parts
 
 if TYPE_CHECKING:  # the stages import these lazily: importing align stays light
     from ctp_core.config.schedule import Phase
@@ -35,8 +36,8 @@ if TYPE_CHECKING:  # the stages import these lazily: importing align stays light
     from ctp_core.optimise import Outcome
     from ctp_core.orientation import canonical
     from ctp_core.pairs import PreparedPair
-    from ctp_core.relations.vocabulary import RelationReading
-    from ctp_core.search.ordering import Gate
+    from ctp_core.reading.relation import RelationReading
+    from ctp_core.search.ordering import GuideSay
     from ctp_core.search.proposals import Proposals
     from ctp_core.search.scaling import ScalePlan
 
@@ -148,12 +149,12 @@ def grounds(target: trimesh.Trimesh | trimesh.Scene, prompt: str | None, on: str
             ) -> str | Sequence[str] | None:
     """The placed objects the source relates to: ``on`` as given, or, where a scene target's prompt names two of its
     objects as grounds ("between the sofa and the armchair") and ``on`` names fewer, those two
-    (``vocabulary.grounds``)."""
+    (``cues.grounds``)."""
     from ctp_core import pairs
 
     if isinstance(target, trimesh.Trimesh):
         return on
-    return vocabulary.grounds(prompt, ground_names(on), [name for name, _ in pairs.objects(target)]) or on
+    return cues.grounds(prompt, ground_names(on), [name for name, _ in pairs.objects(target)]) or on
 
 
 def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, prompt: str | None,
@@ -221,7 +222,7 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
 def ground_parts(run: Run) -> parts.Parts | None:
     """The ground's parts (``parts.parts``, kept per pair) where the run places the source relative to a ground
     by a relation; None otherwise."""
-    return parts.parts(run.pair) if run.reading is not None and run.reading.source_is_figure else None
+    return parts.find_parts(run.pair) if run.reading is not None and run.reading.source_is_figure else None
 
 
 def propose(run: Run, init: np.ndarray | None = None) -> Proposals:
@@ -258,21 +259,21 @@ def propose(run: Run, init: np.ndarray | None = None) -> Proposals:
     return proposed
 
 
-def score(run: Run, proposals: Proposals, *, gate: Gate | None = None, on_event: ProgressCallback | None = None,
-          should_cancel: CancelCheck | None = None) -> tuple[Poses, Gate | None]:
+def score(run: Run, proposals: Proposals, *, say: GuideSay | None = None, on_event: ProgressCallback | None = None,
+          should_cancel: CancelCheck | None = None) -> tuple[Poses, GuideSay | None]:
     """The optimiser's starts: the search's diverse best ``optim.restarts`` (forward-only scoring), or the
     proposals as they are when the search is off; and the guide's gate the search measured (None: none measured),
     or ``gate`` as given (measured by an earlier search of the run: not measured again).
 
     The search ranks by the prompt's relation first, then by the guide where there is one and it tells the
-    candidates apart (``ordering.search_key``, ``ordering.Gate``), otherwise by the first phase's objective:
+    candidates apart (``ordering.search_key``, ``ordering.GuideSay``), otherwise by the first phase's objective:
     its proposals already touch without interpenetrating.
     """
     from ctp_core.search import coarse_to_fine
 
     if not run.config.search.enabled:
         return proposals.poses, None
-    scorer = run.scorer if gate is None else run.scorer.gated(gate)
+    scorer = run.scorer if say is None else run.scorer.gated(say)
     ranked = coarse_to_fine.search(scorer, proposals, run.plan[0], k=run.config.optim.restarts, on_event=on_event,
                             should_cancel=should_cancel, phases=len(run.plan), started=run.started)
     run.timings["search_s"] = round(ranked.seconds, 3)
@@ -281,19 +282,19 @@ def score(run: Run, proposals: Proposals, *, gate: Gate | None = None, on_event:
         run.timings["search_screened"] = ranked.screened
     if run.scorer.reading is not None:
         run.timings["search_relation_holds"] = ranked.holding  # of the coarse and sweep candidates
-    if ranked.gate is not None:  # the guide's spread over the candidates, its noise, how far it may override
-        said = ranked.gate.to_dict()
+    if ranked.say is not None:  # the guide's spread over the candidates, its noise, how far it may override
+        said = ranked.say.to_dict()
         run.timings.update({f"guide_{k}": said[k] for k in ("spread", "noise", "override")})
-    return ranked.poses, ranked.gate
+    return ranked.poses, ranked.say
 
 
-def refine(run: Run, starts: Poses, gate: Gate | None = None, *, on_event: ProgressCallback | None = None,
+def refine(run: Run, starts: Poses, say: GuideSay | None = None, *, on_event: ProgressCallback | None = None,
            should_cancel: CancelCheck | None = None) -> Outcome:
     """The phased optimiser from ``starts`` (one restart each) under the search's ``gate`` (``score``; None: not
     measured); returns its ``Outcome``."""
     from ctp_core import optimise
 
-    runner = optimise.Optimiser(run.scorer, run.plan, on_event=on_event, should_cancel=should_cancel, gate=gate)
+    runner = optimise.Optimiser(run.scorer, run.plan, on_event=on_event, should_cancel=should_cancel, say=say)
     return runner.run(starts)
 
 
@@ -332,7 +333,7 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
         phase_timings=[{k: round(v, 3) for k, v in p.items()} for p in outcome.phase_timings],
         target_upright=pair.target_upright, source_upright=pair.source_upright,
         warnings=list(run.warnings),
-        guide_say=None if outcome.gate is None else outcome.gate.to_dict(),
+        guide_say=None if outcome.say is None else outcome.say.to_dict(),
     )
     if run.scale is not None:
         answer.scaling = {**run.scale.to_dict(), "final": answer.scale}
@@ -372,12 +373,12 @@ def alternatives(run: Run, outcome: Outcome) -> list[int]:
     the evaluation views): first the best at each distinct place (``search.distinct_translation`` source
     diagonals apart, any turn: the next places after the usual one), then other turns (near ones: that distance
     *and* ``distinct_rotation_deg``, as the search counts duplicates); those that ended far from the target (over
-    ``contact.NEAR`` source diagonals) left out. A prompt like "a cup on the table" has many right answers; a
+    ``contact.REACH`` source diagonals) left out. A prompt like "a cup on the table" has many right answers; a
     person picks among these."""
     from ctp_core.search import coarse_to_fine, ordering
 
     poses = outcome.poses
-    far = contact.clearance(run.pair, run.pair.index, poses) > contact.NEAR
+    far = contact.clearance(run.pair, run.pair.index, poses) > contact.REACH
     key = ordering.alternatives_key(outcome.terms, outcome.objectives, far, outcome.best)
     distance, angle = coarse_to_fine.distinct_of(run.pair, run.config, float(poses.log_s[0]))
     places = coarse_to_fine.diverse_top(poses, key, MAX_ALTERNATIVES, distance, 180.0, fill=False)
@@ -443,13 +444,13 @@ def align(
     run = prepare(target, source, prompt, config, on=on, image=image, target_name=target_name,
                   source_name=source_name, guide=guide, goal=goal)
     proposals = propose(run, init)
-    starts, gate = score(run, proposals, on_event=on_event, should_cancel=should_cancel)
-    if gate is not None and gate.override <= 0 and run.scale is not None and len(run.scale.rungs) > 1:
+    starts, say = score(run, proposals, on_event=on_event, should_cancel=should_cancel)
+    if say is not None and say.amount <= 0 and run.scale is not None and len(run.scale.rungs) > 1:
         # a guide the gate silences chooses no rung, and across rungs the geometry would pick where the relation
         # holds most easily (``scaling``): search again as without a guide, every proposal at the centre
         run.scale = run.scale.at_centre()
-        starts, gate = score(run, propose(run, init), gate=gate, on_event=on_event, should_cancel=should_cancel)
-    outcome = refine(run, starts, gate, on_event=on_event, should_cancel=should_cancel)
+        starts, say = score(run, propose(run, init), say=say, on_event=on_event, should_cancel=should_cancel)
+    outcome = refine(run, starts, say, on_event=on_event, should_cancel=should_cancel)
     answer = result(run, outcome, prompt, on_event=on_event)
     answer.guide, answer.guide_why = chosen.guide, chosen.why
     return answer

@@ -21,7 +21,7 @@ from ctp_core.geometry import sampling
 from ctp_core.geometry.pose import Poses, apply_pose, quaternion_to_matrix
 from ctp_core.pairs import UP_FACING, PreparedPair
 
-NEAR = 2.0  # source diagonals: a pose whose source is farther than this from the target places it nowhere
+REACH = 2.0  # source diagonals: a pose whose source is farther than this from the target places it nowhere
 TOUCH = 0.1  # source diagonals: a refined pose this close to the target touches it (plus the samples' spacing)
 # How a proposal comes into contact (``settle``): toward the closest target sample (a surface's outward normal
 # is where it starts from), straight down its site's -normal (lowered from above), or not at all (it rests on

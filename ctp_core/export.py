@@ -175,7 +175,7 @@ def _run(result: AlignResult, answer: dict | None = None) -> dict:
         "hparams": _jsonable(priors.to_report(result.priors)),
         "relation": _jsonable(result.relation),  # predicates.RelationVerdict of the answer; None without one
         "contact": _jsonable(result.contact),  # align.contact_of: the answer's gap to the target, touching or not
-        "guide_say": _jsonable(result.guide_say),  # ordering.Gate: the guide's say and who chose; None: no guide
+        "guide_say": _jsonable(result.guide_say),  # ordering.GuideSay: the guide's say and who chose; None: no guide
         "restarts": _jsonable(result.restarts),
         # the best distinct placements, the answer first (an assembly's stages: none, their frames differ)
         "alternatives": [] if answer is not None else [

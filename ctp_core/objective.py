@@ -8,7 +8,7 @@ only on the fixed evaluation views). The weights are a ``schedule.Phase``'s, so 
 (``config.loss.lambda_clip`` through the phase plan); ``combine`` is the one place the terms are summed.
 
 The prompt's relation also *orders* poses before any weighted sum: that order, and how far a guide may override
-it (``Gate``), is ``ordering``'s.
+it (``GuideSay``), is ``ordering``'s.
 """
 
 from __future__ import annotations
@@ -29,8 +29,8 @@ from ctp_core.guide.goals import Goal
 from ctp_core.guide.guidance import Guide
 from ctp_core.pairs import PreparedPair
 from ctp_core.progress import Clock
+from ctp_core.reading.relation import RelationReading
 from ctp_core.relations import predicates
-from ctp_core.relations.vocabulary import RelationReading
 from ctp_core.render.cameras import Cameras, evaluation_views
 
 
@@ -41,11 +41,11 @@ class ScaleTerm(Protocol):
 
 
 class Say(Protocol):
-    """What a scorer needs of the guide's gate (``search.ordering.Gate``, a layer above): how far the guide may
+    """What a scorer needs of the guide's gate (``search.ordering.GuideSay``, a layer above): how far the guide may
     override the usual arrangement, 0 to 1."""
 
     @property
-    def override(self) -> float: ...
+    def amount(self) -> float: ...
 
 
 SCREEN_POINTS = 256  # ``Scorer.screen``: source samples of the geometric screen before the guide
@@ -65,16 +65,16 @@ def goal_rows(goal_embeddings: torch.Tensor | None, rows: slice | torch.Tensor,
     return goal_embeddings[rows]
 
 
-def combine(terms: dict[str, torch.Tensor], weights: Phase) -> torch.Tensor:
+def combine(terms: dict[str, torch.Tensor], phase: Phase) -> torch.Tensor:
     """The weighted sum, one value per pose: the only place the weights meet the terms (``rel`` and ``stable``
     count where present: the relation's, ``Scorer.relation_terms``; ``scale`` in scale mode, weighted already:
     ``scaling.ScalePlan.term``)."""
-    out = weights.lambda_clip * terms["clip"] + weights.lambda_icp * terms["icp"] + weights.lambda_pen * terms["pen"]
+    out = phase.lambda_clip * terms["clip"] + phase.lambda_icp * terms["icp"] + phase.lambda_pen * terms["pen"]
     if "scale" in terms:
         out = out + terms["scale"]
-    if weights.lambda_rel and "rel" in terms:
+    if phase.lambda_rel and "rel" in terms:
         zeros = torch.zeros_like(out)
-        out = out + weights.lambda_rel * (terms["rel"] + terms.get("stable", zeros)
+        out = out + phase.lambda_rel * (terms["rel"] + terms.get("stable", zeros)
                                           + PREFER * terms.get("prefer", zeros))
     return out
 
@@ -89,23 +89,23 @@ class Scorer:
 
     def __init__(self, pair: PreparedPair, config: AlignConfig, contact_ratio: float, guide: Guide | None = None,
                  goal: Goal | None = None, clock: Clock | None = None, *, reading: RelationReading | None = None,
-                 scale: ScaleTerm | None = None, gate: Say | None = None):
+                 scale: ScaleTerm | None = None, say: Say | None = None):
         self.pair, self.config, self.contact_ratio = pair, config, contact_ratio
         self.scale = scale  # scale mode: the ``scale`` term's plan (None: rigid, no term)
         # the prompt's relation where it judges poses (None: unknown, or ``config.relation`` off: zero terms)
-        self.reading = reading if config.relation and reading is not None and reading.known else None
-        self.gate = gate  # the guide's gate as the search measured it (None: not measured, trusted): ``gated``
+        self.reading = reading if config.relation else None
+        self.say = say  # the guide's gate as the search measured it (None: not measured, trusted): ``gated``
         self.guide, self.goal = guide, goal
         self.use_clip = goal is not None and guide is not None and config.loss.lambda_clip > 0
         self.clock = clock or Clock()
         self._images = _Tally()
         self._eval: tuple[Cameras, torch.Tensor] | None = None
 
-    def gated(self, gate: Say | None) -> Scorer:
+    def gated(self, say: Say | None) -> Scorer:
         """This scorer under the search's ``gate`` (what it encodes, how much the usual arrangement weighs:
         ``guided``, ``preference_weight``); it shares the clock and the count of encoded images."""
         twin = copy.copy(self)
-        twin.gate, twin._eval = gate, None
+        twin.say, twin._eval = say, None
         return twin
 
     @property
@@ -119,13 +119,13 @@ class Scorer:
 
     @property
     def guided(self) -> bool:
-        """Whether scoring encodes images: a guide, and one the search has not found without signal (``Gate``
+        """Whether scoring encodes images: a guide, and one the search has not found without signal (``GuideSay``
         override 0: its scores spread no more than its noise). Once it has, the guide ranks nothing (the
         geometry does, ``ordering.rank_key``), so its images are not encoded: the rest of the search, the
         refinement's gradient and the selection's views run on the geometry alone."""
-        return self.use_clip and (self.gate is None or self.gate.override > 0)
+        return self.use_clip and (self.say is None or self.say.amount > 0)
 
-    def geometry(self, poses: Poses, weights: Phase, points: int | None = None) -> dict[str, torch.Tensor]:
+    def geometry(self, poses: Poses, phase: Phase, points: int | None = None) -> dict[str, torch.Tensor]:
         """Soft-ICP and penetration (zero when the phase switches it off), the penetration in source diagonals
         (``sunk``: what ``ordering.holding`` reads), the relation's terms, the ``scale`` term in scale mode and
         the posed centroid. ``points``: on that many of the source's samples (``PreparedPair.source_subset``)
@@ -134,8 +134,8 @@ class Scorer:
         samples = self.pair.source_samples if points is None else self.pair.source_subset(points)
         with self.clock.time("geometry"):
             pts = apply_pose(samples, poses.t, poses.q, poses.log_s)
-            icp = losses.soft_icp(pts, self.pair.anchor, self.contact_ratio, weights.sigma_icp, cfg.icp_neighbours)
-            if weights.lambda_pen > 0:
+            icp = losses.soft_icp(pts, self.pair.anchor, self.contact_ratio, phase.sigma_icp, cfg.icp_neighbours)
+            if phase.lambda_pen > 0:
                 pen = losses.penetration(pts, self.pair.index, cfg.sigma_pen, cfg.c_pen, cfg.icp_neighbours)
                 pen = pen + self.enclosed(poses)
             else:
@@ -146,13 +146,13 @@ class Scorer:
             out["scale"] = self.scale.term(poses.log_s, self.preference_weight)
         return out
 
-    def screen(self, poses: Poses, weights: Phase) -> dict[str, torch.Tensor]:
+    def screen(self, poses: Poses, phase: Phase) -> dict[str, torch.Tensor]:
         """The geometry's terms and objective (``clip`` 0) on ``SCREEN_POINTS`` of the source's samples, forward
         only: enough to tell where the relation holds and which poses intersect (the relation's own features are
         fewer still), at a fraction of the cost. The search screens every proposal with it before the guide
         sees any (``coarse_to_fine.encoder_shortlist``)."""
         with torch.inference_mode():
-            terms = self._score(poses, weights, None, None, None, encode=False, points=SCREEN_POINTS)
+            terms = self._score(poses, phase, None, None, None, encode=False, points=SCREEN_POINTS)
         return {k: v.clone().cpu() for k, v in terms.items()}
 
     def enclosed(self, poses: Poses) -> torch.Tensor:
@@ -188,12 +188,12 @@ class Scorer:
     @property
     def preference_weight(self) -> float:
         """How much ``predicates.preference`` (the usual arrangement among poses where the relation holds) counts:
-        fully without a guide, and with one as much as its ``Gate`` says it cannot tell poses apart (1 less its
+        fully without a guide, and with one as much as its ``GuideSay`` says it cannot tell poses apart (1 less its
         override): a guide with signal is the judge of where (a cup on a table's corner when the picture says
         so); one without must not leave it to soft-ICP, which favours corners."""
-        if not self.use_clip or self.gate is None:
+        if not self.use_clip or self.say is None:
             return 1.0
-        return 1.0 - self.gate.override
+        return 1.0 - self.say.amount
 
     def embed_goal(self, cameras: Cameras) -> torch.Tensor:
         """The goal's embeddings for these cameras; a per-view goal (the oracle) encodes one image per view."""
@@ -228,7 +228,7 @@ class Scorer:
                 images.backward(image_grad)
         return (each if views else value).detach()
 
-    def score(self, poses: Poses, weights: Phase, cameras: Cameras, goal_embeddings: torch.Tensor | None = None,
+    def score(self, poses: Poses, phase: Phase, cameras: Cameras, goal_embeddings: torch.Tensor | None = None,
               batch: int | None = None, *, encode: bool = True, views: bool = False) -> dict[str, torch.Tensor]:
         """Every term and the objective of ``poses`` on ``cameras``, forward only, ``batch`` poses per call.
 
@@ -239,10 +239,10 @@ class Scorer:
         ``views``: where it encodes, also ``clip_views`` (B, C), the guide's term seen by each view alone.
         """
         with torch.inference_mode():
-            out = self._score(poses, weights, cameras, goal_embeddings, batch, encode and self.guided, views=views)
+            out = self._score(poses, phase, cameras, goal_embeddings, batch, encode and self.guided, views=views)
         return {k: v.clone() for k, v in out.items()}  # normal tensors, usable outside inference mode
 
-    def _score(self, poses: Poses, weights: Phase, cameras: Cameras | None, goal_embeddings: torch.Tensor | None,
+    def _score(self, poses: Poses, phase: Phase, cameras: Cameras | None, goal_embeddings: torch.Tensor | None,
                batch: int | None, encode: bool, points: int | None = None,
                views: bool = False) -> dict[str, torch.Tensor]:
         """``score``'s work, without inference mode or copies; ``cameras`` may be None where nothing is encoded,
@@ -254,7 +254,7 @@ class Scorer:
         parts: list[dict[str, torch.Tensor]] = []
         for lo in range(0, len(poses), step):
             chunk = poses.select(slice(lo, lo + step))
-            terms = self.geometry(chunk, weights, points)
+            terms = self.geometry(chunk, phase, points)
             del terms["centroid"]
             if encode:
                 cams = cameras.expand(len(chunk)) if shared else cameras.rows(lo, lo + step)
@@ -266,7 +266,7 @@ class Scorer:
                 terms["clip"] = torch.zeros_like(terms["icp"])
             parts.append(terms)
         out = {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
-        out["objective"] = combine(out, weights)
+        out["objective"] = combine(out, phase)
         return out
 
     def evaluation_cameras(self) -> tuple[Cameras, torch.Tensor | None]:
@@ -282,17 +282,17 @@ class Scorer:
             self._eval = (cams, goal_embeddings)
         return self._eval
 
-    def evaluate(self, poses: Poses, weights: Phase, clip: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+    def evaluate(self, poses: Poses, phase: Phase, clip: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """The selection objective on the fixed evaluation views, for any number of poses. ``clip``: the guide's
         term of these poses on these views, already known (a phase starts from the poses the last one ended
         with evaluated): only the geometry is computed again, under this phase's weights."""
         with self.clock.time("eval"):
             cams, goal_embeddings = self.evaluation_cameras()
             if clip is None:
-                return self.score(poses, weights, cams, goal_embeddings)
-            out = self.score(poses, weights, cams, encode=False)
+                return self.score(poses, phase, cams, goal_embeddings)
+            out = self.score(poses, phase, cams, encode=False)
         out["clip"] = clip.clone()
-        out["objective"] = combine(out, weights)
+        out["objective"] = combine(out, phase)
         return out
 
 

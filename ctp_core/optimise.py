@@ -27,7 +27,7 @@ from ctp_core.objective import Scorer, combine
 from ctp_core.pairs import PreparedPair
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.render.cameras import sample_training_views
-from ctp_core.search.ordering import Gate, holding, improves, select_answer
+from ctp_core.search.ordering import GuideSay, holding, improves, select_answer
 
 
 @dataclass
@@ -40,7 +40,7 @@ class Outcome:
     phase_timings: list[dict[str, float]]
     clip_images: int
     steps_run: int = 0
-    gate: Gate | None = None  # the search's gate the refinement and the selection ran under; None: not measured
+    say: GuideSay | None = None  # the search's gate the refinement and the selection ran under; None: not measured
 
 
 def initial_poses(pair: PreparedPair, config: AlignConfig, log_s: float, generator: torch.Generator,
@@ -84,8 +84,8 @@ class Optimiser:
     selected."""
 
     def __init__(self, scorer: Scorer, plan: list[Phase], on_event: ProgressCallback | None = None,
-                 should_cancel: CancelCheck | None = None, gate: Gate | None = None):
-        self.scorer = scorer.gated(gate)  # its ``gate`` is the one the selection and the outcome read
+                 should_cancel: CancelCheck | None = None, say: GuideSay | None = None):
+        self.scorer = scorer.gated(say)  # its ``gate`` is the one the selection and the outcome read
         self.plan = plan
         self.on_event = on_event or (lambda event: None)
         self.should_cancel = should_cancel or (lambda: False)
@@ -119,7 +119,7 @@ class Optimiser:
             best=answer, poses=best, objectives=objectives,
             terms={k: scores[k] for k in ("clip", "icp", "pen", "rel", "sunk")}, timings=totals,
             phase_timings=phase_timings, clip_images=self.scorer.clip_images, steps_run=self.done,
-            gate=self.scorer.gate,
+            say=self.scorer.say,
         )
 
     def _phase(self, phase: Phase, start: Poses, clip: torch.Tensor | None) -> tuple[Poses, dict[str, torch.Tensor]]:
@@ -179,7 +179,7 @@ class Optimiser:
         scorer = self.scorer
         return select_answer(scores, clearance(scorer.pair, scorer.pair.index, best), touch_limit(scorer.pair, best),
                              phase, guided=scorer.use_clip, touches=scorer.contact_ratio > 0,
-                             share=scorer.config.search.min_share, gate=scorer.gate)
+                             share=scorer.config.search.min_share, say=scorer.say)
 
     def _readout(self, best: Poses, scores: dict[str, torch.Tensor], i: int) -> dict:
         """The progress figures of restart ``i`` (the one the run would answer with now) on the

@@ -10,7 +10,7 @@ from fastapi.concurrency import run_in_threadpool
 
 from ctp_core.errors import CtpError
 from ctp_core.io import load_objects
-from ctp_core.relations.vocabulary import grounds
+from ctp_core.reading.cues import grounds
 from service.deps import own_job
 from service.errors import ApiError
 

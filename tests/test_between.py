@@ -11,11 +11,12 @@ from test_predicates import box, pose, poses
 from ctp_core.align import align
 from ctp_core.config import AlignConfig
 from ctp_core.pairs import prepare_pair
-from ctp_core.relations import predicates, vocabulary
-from ctp_core.relations.registry import SPECS
-from ctp_core.relations.vocabulary import RelationReading
+from ctp_core.reading import cues
+from ctp_core.reading.records import RELATIONS
+from ctp_core.reading.relation import RelationReading
+from ctp_core.relations import predicates
 
-BETWEEN = RelationReading("between")
+BETWEEN = RelationReading.parse("between")
 POST = trimesh.creation.cylinder(radius=0.15, height=0.6, transform=trimesh.transformations.rotation_matrix(
     np.pi / 2, [1, 0, 0]))  # upright (+Y), its centre at its origin: stands at y = 0.3
 
@@ -39,25 +40,25 @@ def prepared(on=("sofa", "armchair")):
     ("a table flanked by two chairs", ["chairs"]),
 ])
 def test_the_reader_reads_between_and_its_two_grounds(prompt, grounds):
-    cue = vocabulary.find_cue(prompt)
+    cue = cues.find_cue(prompt)
     assert cue.relation.name == "between"
-    assert vocabulary.ground_phrases(prompt, cue) == grounds
+    assert cues.ground_phrases(prompt, cue) == grounds
 
 
 def test_in_the_middle_of_one_thing_is_not_between():
-    assert vocabulary.find_cue("a vase in the middle of the table").relation.name != "between"
+    assert cues.find_cue("a vase in the middle of the table").relation.name != "between"
 
 
 def test_named_grounds_match_placed_objects_in_the_prompts_order():
     placed = ["floor", "armchair", "sofa"]
-    assert vocabulary.named_grounds("a lamp between the big sofa and the armchair", placed) == ["sofa", "armchair"]
-    assert vocabulary.named_grounds("a lamp between the sofa and the piano", placed) == []
-    assert vocabulary.named_grounds("a lamp on the sofa", placed) == []
+    assert cues.named_grounds("a lamp between the big sofa and the armchair", placed) == ["sofa", "armchair"]
+    assert cues.named_grounds("a lamp between the sofa and the piano", placed) == []
+    assert cues.named_grounds("a lamp on the sofa", placed) == []
 
 
 def test_between_has_two_grounds_and_only_it():
-    assert SPECS["between"].grounds == 2
-    assert [name for name, spec in SPECS.items() if spec.grounds != 1] == ["between"]
+    assert RELATIONS["between"].grounds == 2
+    assert [name for name, record in RELATIONS.items() if record.grounds != 1] == ["between"]
 
 
 def test_the_judge_holds_in_the_gap_only():

@@ -12,7 +12,7 @@ import trimesh
 import yaml
 
 from ctp.cli import main
-from ctp_core.assembly.describe import read
+from ctp_core.assembly.describe import read_description
 
 DESCRIPTION = "a workbench, a toolbox on it, a stool to its left and two paint tins under it"
 RUN = ["--preset", "test", "--no-guidance", "--seed", "0", "--quiet"]
@@ -96,7 +96,7 @@ def test_names_must_be_one_per_object(props, capsys):
 
 
 def test_the_plan_names_nodes_as_the_uploads():
-    plan = read(DESCRIPTION, ["Workbench", "ToolBox", "Stool", "Paint_Tin"])
+    plan = read_description(DESCRIPTION, ["Workbench", "ToolBox", "Stool", "Paint_Tin"])
     assert plan.base == "Workbench" and [s.name for s in plan.steps] == [
         "ToolBox", "Stool", "Paint_Tin_1", "Paint_Tin_2"]
 
@@ -109,7 +109,7 @@ def test_a_step_that_breaks_an_earlier_relation_is_retried_among_its_alternative
     from ctp.cli import command_parser
     from ctp.cmd_align import config_from_args
     from ctp_core.assembly.assemble import Step, _keeping, assemble, judged
-    from ctp_core.assembly.describe import read as read_plan
+    from ctp_core.assembly.describe import read_description as read_plan
 
     meshes = [trimesh.load(props / f"{n}.glb", force="mesh") for n in ("workbench", "toolbox", "stool")]
     plan = read_plan("a toolbox on the workbench and a stool to its left", ["workbench", "toolbox", "stool"])

@@ -68,7 +68,7 @@ def test_four_boxes_around_a_table_stand_at_its_four_sides_facing_it():
         front = c.source_to_target[:3, :3] @ [0.0, 0.0, 1.0]  # the box's front (+Z, its file's) turned to the table
         inward = -centre * [1.0, 0.0, 1.0]
         assert front @ inward / np.linalg.norm(inward) > math.cos(math.radians(10))
-        assert c.relation["holds"] and [p["name"] for p in c.relation["parts"]] == ["beside", "facing"]
+        assert c.relation["holds"] and [p["name"] for p in c.relation["each"]] == ["beside", "facing"]
     assert len(sides) == 4
     _apart(out)
 
@@ -129,7 +129,7 @@ def test_the_count_is_bounded_with_a_coded_error():
     ("a pair of shoes by the door", "shoe", 2, None, None),
 ])
 def test_the_prompt_s_number_and_arrangement_are_read(prompt, source, count, arrangement, relation):
-    reading = counts.read(prompt, source)
+    reading = counts.read_count(prompt, source)
     assert (reading.count, reading.arrangement) == (count, arrangement), reading.why
     one = counts.one_copy(prompt, arrangement or "scatter")
     if relation is not None:  # what each copy is judged by

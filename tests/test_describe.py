@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from ctp_core.assembly.describe import DescriptionError, read
+from ctp_core.assembly.describe import DescriptionError, read_description
 from ctp_core.assembly.plan import check_plan, plan_step
 from ctp_core.reading import passes
 
@@ -15,7 +15,7 @@ BENCH = ["workbench", "toolbox", "stool", "paint tin"]
 
 def steps(description: str, names: list[str]) -> list[tuple[str, str, tuple[str, ...]]]:
     """(node, relation, on) of each step of the plan, in placing order."""
-    return [(s.name, s.relation, s.on) for s in read(description, names).steps]
+    return [(s.name, s.relation, s.on) for s in read_description(description, names).steps]
 
 
 @pytest.mark.parametrize("description", [
@@ -26,7 +26,7 @@ def steps(description: str, names: list[str]) -> list[tuple[str, str, tuple[str,
     "a metronome on the piano, and the stool in front of the piano",  # figures before their ground is named
 ])
 def test_one_scene_in_every_style(description):
-    plan = read(description, PIANO)
+    plan = read_description(description, PIANO)
     assert plan.base == "piano" and plan.base_upload == 0 and not plan.warnings
     assert sorted((s.name, s.relation, s.on) for s in plan.steps) == [
         ("metronome", "on", ("piano",)), ("stool", "front", ("piano",))]
@@ -42,14 +42,14 @@ def test_each_puts_one_copy_on_each_copy_of_the_ground():
     assert steps("a cushion on each chair; two chairs beside the table", ["table", "chair", "cushion"]) == [
         ("chair_1", "beside", ("table",)), ("chair_2", "beside", ("table",)),
         ("cushion_1", "on", ("chair_1",)), ("cushion_2", "on", ("chair_2",))]
-    plan = read("two tables with a lamp on each", ["table", "lamp"])
+    plan = read_description("two tables with a lamp on each", ["table", "lamp"])
     assert plan.base == "table_1"  # a copy of the first ground stays put, the other goes beside it
     assert [(s.name, s.on, s.floor) for s in plan.steps] == [
         ("table_2", ("table_1",), True), ("lamp_1", ("table_1",), False), ("lamp_2", ("table_2",), False)]
 
 
 def test_between_has_two_grounds_and_them_refers_to_the_copies():
-    plan = read("a lamp between the sofa and the armchair", ["sofa", "armchair", "lamp"])
+    plan = read_description("a lamp between the sofa and the armchair", ["sofa", "armchair", "lamp"])
     assert [(s.name, s.relation, s.on) for s in plan.steps] == [
         ("armchair", "beside", ("sofa",)), ("lamp", "between", ("sofa", "armchair"))]
     assert plan.warnings == ["the armchair is not placed by the description: on the floor beside the sofa"]
@@ -65,13 +65,14 @@ def test_a_sofa_and_an_armchair_then_between_them():
 
 
 def test_orientation_after_a_comma_stays_with_its_clause():
-    plan = read("a chair in front of the desk, facing it, and a lamp on the desk", ["desk", "chair", "lamp"])
+    plan = read_description("a chair in front of the desk, facing it, and a lamp on the desk",
+                            ["desk", "chair", "lamp"])
     assert [(s.name, s.relation) for s in plan.steps] == [("chair", "front+facing"), ("lamp", "on")]
     assert plan.steps[0].prompt == "a chair in front of the desk, facing the desk"
 
 
 def test_every_ground_is_placed_before_its_figures():
-    plan = read("a cup on the table, the table on the rug, a rug on the floor", ["cup", "table", "rug"])
+    plan = read_description("a cup on the table, the table on the rug, a rug on the floor", ["cup", "table", "rug"])
     assert plan.base == "rug" and [s.name for s in plan.steps] == ["table", "cup"]
     placed = {plan.base}
     for step in plan.steps:
@@ -82,26 +83,26 @@ def test_every_ground_is_placed_before_its_figures():
 def test_the_plan_is_one_assemble_takes():
     """The plan is an assembly plan: its steps pass ``plan_step`` and ``check_plan``, and each step's prompt reads
     as the step's relation with its node as the figure (what ``align`` will read)."""
-    plan = read("a workbench, a toolbox on it, a stool to its left and two paint tins under it", BENCH)
+    plan = read_description("a workbench, a toolbox on it, a stool to its left and two paint tins under it", BENCH)
     files = [f"{n.replace(' ', '_')}.glb" for n in BENCH]
     written = plan.assembly_plan(files)
     assert written["base"] == "workbench.glb" and written["name"] == "workbench"
     checked = [plan_step(entry, f"steps.{i}", assembly_options="") for i, entry in enumerate(written["steps"])]
     check_plan(written["name"], [(s.name, s.on, True) for s in checked])
     for step in plan.steps:
-        reading = passes.read(step.on[0], step.name, step.prompt)
-        assert reading.figure and reading.name == step.relation
+        reading = passes.read_prompt(step.on[0], step.name, step.prompt)
+        assert reading.figure and reading.reading.name == step.relation
 
 
 def test_upload_never_named_goes_beside_the_first_and_is_said():
-    plan = read("a desk with a monitor on it", ["desk", "monitor", "plant"])
+    plan = read_description("a desk with a monitor on it", ["desk", "monitor", "plant"])
     assert [(s.name, s.relation, s.on, s.floor) for s in plan.steps] == [
         ("plant", "beside", ("desk",), True), ("monitor", "on", ("desk",), False)]
     assert plan.warnings == ["the plant is not named in the description: on the floor beside the desk"]
 
 
 def test_names_not_said_match_the_uploads_in_order_of_mention():
-    plan = read("a piano with its stool in front of it", ["obj1", "obj2"])
+    plan = read_description("a piano with its stool in front of it", ["obj1", "obj2"])
     assert [(s.name, s.upload, s.on) for s in plan.steps] == [("stool", 1, ("piano",))]
     assert "obj1 as piano, obj2 as stool" in plan.warnings[0]
 
@@ -119,7 +120,7 @@ def test_names_not_said_match_the_uploads_in_order_of_mention():
 ])
 def test_errors_name_what_is_wrong(description, names, code, says):
     with pytest.raises(DescriptionError) as caught:
-        read(description, names)
+        read_description(description, names)
     assert caught.value.code == code and says in caught.value.message
 
 
@@ -128,13 +129,13 @@ def test_between_them_ends_its_clause_and_a_named_object_is_never_dropped():
                  ["sofa", "armchair", "lamp", "coffee table"]) == [
         ("armchair", "left", ("sofa",)), ("lamp", "between", ("armchair", "sofa")),
         ("coffee table", "front", ("sofa",))]
-    plan = read("a lamp on the table, and a table with two chairs", ["table", "chair", "lamp"])
+    plan = read_description("a lamp on the table, and a table with two chairs", ["table", "chair", "lamp"])
     assert [(s.name, s.floor) for s in plan.steps] == [("chair_1", True), ("chair_2", True), ("lamp", False)]
     assert plan.warnings == ["the chair is not placed by the description: on the floor beside the table"]
 
 
 def test_a_clause_naming_three_objects_relates_the_first_two():
-    plan = read("a lamp on the desk beside the monitor", ["desk", "lamp", "monitor"])
+    plan = read_description("a lamp on the desk beside the monitor", ["desk", "lamp", "monitor"])
     assert [(s.name, s.relation, s.on, s.prompt) for s in plan.steps] == [
         ("monitor", "beside", ("desk",), "a monitor beside the desk"), ("lamp", "on", ("desk",), "a lamp on the desk")]
     assert plan.warnings == ["the monitor is not placed by the description: on the floor beside the desk"]

@@ -153,7 +153,7 @@ def test_a_reading_of_two_relations_holds_when_both_do_and_the_verdict_says_each
     assert _holding(pair, [facing, away], "front+facing") == [True, False]
     verdict = predicates.verdict(pair, poses(pair, [away]).matrices()[0], reading("front+facing")).to_dict()
     assert verdict["side"] == "front" and verdict["frame"] == "target" and not verdict["holds"]
-    assert [(p["name"], p["holds"]) for p in verdict["parts"]] == [("front", True), ("facing", False)]
+    assert [(p["name"], p["holds"]) for p in verdict["each"]] == [("front", True), ("facing", False)]
     assert verdict["stable"]
 
 
@@ -228,7 +228,7 @@ def test_a_chair_in_front_of_a_desk_facing_it_ends_there_turned_to_it():
     result = _run(DESK, chair(), "a chair in front of the desk, facing it", "desk", "chair")
     verdict = result.relation
     assert verdict["name"] == "front+facing" and verdict["side"] == "front" and verdict["holds"], verdict
-    assert [p["holds"] for p in verdict["parts"]] == [True, True], verdict
+    assert [p["holds"] for p in verdict["each"]] == [True, True], verdict
     placed = _posed(result, chair())
     front = result.source_to_target[:3, :3] @ np.array([0.0, 0.0, 1.0])  # the chair's file front, turned
     assert placed.bounds.mean(0)[2] > 0.35 and front[2] < -np.cos(np.radians(45)), (placed.bounds, front)
@@ -341,7 +341,7 @@ def test_an_orientation_said_alone_stands_near_its_ground():
     close, across_the_room = pose(CHAIR_AT, toward), pose([0, 0.425, 6.0], toward)
     assert _holding(pair, [close, across_the_room], "facing") == [True, False]
     verdict = predicates.verdict(pair, poses(pair, [across_the_room]).matrices()[0], reading("facing")).to_dict()
-    assert [(p["name"], p["holds"]) for p in verdict["parts"]] == [("near", False), ("facing", True)], verdict
+    assert [(p["name"], p["holds"]) for p in verdict["each"]] == [("near", False), ("facing", True)], verdict
 
 
 def test_a_chair_facing_the_desk_ends_near_it_turned_to_it():

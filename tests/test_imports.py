@@ -195,12 +195,13 @@ def test_the_graph_sees_function_level_and_typing_imports_and_reports_a_cycle():
 # -- layers ---------------------------------------------------------------------------------------------------
 # The engine's families, lowest first (docs/engine.md, "Layers"): a module may import its own layer and the
 # layers below, never one above. A family is a package or a concept module of ``ctp_core``; a module's layer is
-# its family's, the longest family name that contains it. One family is split on purpose: the relations'
-# records (``relations.vocabulary``, torch-free) are words the reader and the service read, below the
-# relations' geometry (judges, builders). A new package or top-level module must be given its layer here.
+# its family's, the longest family name that contains it. The words (``reading``: the relations' records, cues and
+# readings, places, parts' names; ``priors``) are torch-free, read by the service, below the relations' geometry
+# (judges, builders, parts), which is keyed by their names. A new package or top-level module must be given its
+# layer here.
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("base", ("ctp_core", "errors", "progress", "geometry", "losses")),
-    ("words", ("relations.vocabulary", "reading", "priors")),
+    ("words", ("reading", "priors")),
     ("config", ("config",)),
     ("load", ("io", "orientation")),
     ("render", ("render",)),
@@ -264,7 +265,7 @@ def test_imports_go_down_the_layers():
 def test_the_layer_check_reports_an_upward_import():
     edges = {"ctp_core.relations.predicates": {"ctp_core.align": [Import("ctp_core.align", 7, True)]},
              "ctp_core.pairs": {"ctp_core.render": [Import("ctp_core.render", 3, False)]},
-             "ctp_core.relations.vocabulary": {"ctp_core.relations.builders": [Import("x", 5, False, True)]}}
+             "ctp_core.reading.records": {"ctp_core.relations.builders": [Import("x", 5, False, True)]}}
     assert upward(edges) == [
         "ctp_core.relations.predicates (relations) imports ctp_core.align (pipeline, line 7, in a function)",
-        "ctp_core.relations.vocabulary (words) imports ctp_core.relations.builders (relations, line 5, for typing)"]
+        "ctp_core.reading.records (words) imports ctp_core.relations.builders (relations, line 5, for typing)"]

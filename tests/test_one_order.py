@@ -26,8 +26,8 @@ GUIDED = AlignConfig.from_preset("test", model="random:tiny")
 def _stages(target, source, prompt, config, names, events):
     """``align``'s stages one by one (``prepare`` ... ``result``): the run, its outcome and the result."""
     run = stages.prepare(target, source, prompt, config, target_name=names[0], source_name=names[1])
-    starts, gate = stages.score(run, stages.propose(run), on_event=events.append)
-    outcome = stages.refine(run, starts, gate, on_event=events.append)
+    starts, say = stages.score(run, stages.propose(run), on_event=events.append)
+    outcome = stages.refine(run, starts, say, on_event=events.append)
     return run, outcome, stages.result(run, outcome, prompt, on_event=events.append)
 
 

@@ -11,10 +11,10 @@ import torch
 
 from ctp_core.config import AlignConfig, share_of
 from ctp_core.config.schedule import Phase
-from ctp_core.contact import NEAR, TOUCH
+from ctp_core.contact import REACH, TOUCH
 from ctp_core.objective import combine
 from ctp_core.search import chance, ordering
-from ctp_core.search.ordering import CHANCE_DECADES, FULL_DECADES, SUNK, TIE_NOISE, Gate, Key
+from ctp_core.search.ordering import CHANCE_DECADES, FULL_DECADES, SUNK, TIE_NOISE, GuideSay, Key
 
 WEIGHTS = Phase(index=1, steps=1, lambda_clip=1.0, lambda_icp=1.0, lambda_pen=1.0, sigma_icp=0.1, look_at_beta=0.0,
                 zoom=1.0, lambda_rel=1.0)
@@ -23,10 +23,10 @@ HELD, FAILED = 0.0, 0.5  # ``rel`` scores: the relation holds (at most ``predica
 
 
 
-def said(say: float, *, spread: float = 1.0, noise: float = 0.01) -> Gate:
+def said(say: float, *, spread: float = 1.0, noise: float = 0.01) -> GuideSay:
     """A gate whose tests earned ``say`` (0 to 1): both p-values at the evidence that gives it."""
     p = 1.0 if say <= 0 else 10 ** -(CHANCE_DECADES + say * FULL_DECADES)
-    return Gate(spread, noise, spread_p=p, agree_p=p, agree=0.1)
+    return GuideSay(spread, noise, spread_p=p, agree_p=p, agree=0.1)
 
 def _terms(rel, icp, clip=None, sunk=None) -> dict[str, torch.Tensor]:
     n = len(rel)
@@ -89,32 +89,32 @@ def test_without_a_guide_a_holding_pose_beats_a_failing_one_with_a_better_object
 @pytest.mark.parametrize(("decades", "lead", "override", "chooser"), [
     (1.0, 0.0, 0.0, "geometry"), (2.0, 0.0, 0.0, "geometry"), (2.5, 0.0, 0.5, "both"), (3.0, 0.0, 1.0, "guide"),
     (4.0, 0.0, 1.0, "guide"), (3.0, 0.5, 0.5, "both"), (3.0, 1.0, 0.0, "geometry"), (3.5, 5.0, 0.5, "both")])
-def test_the_say_grows_past_chance_once_in_100_and_a_sure_geometry_asks_for_more(decades, lead, override, chooser):
+def test_the_say_grows_past_chance_once_in_100_and_a_sure_geometry_asks_for_more(decades, lead, amount, chooser):
     """Evidence against chance in decades (-log10 p): none until chance's one run in 100, the full say a decade
     past it; each unit of the geometry's lead (at most ``LEAD_MAX``) asks for one more decade."""
     p = 10 ** -decades
-    gate = Gate(spread=0.1, noise=0.01, spread_p=p, agree_p=p, agree=0.1, lead=lead)
-    assert gate.override == pytest.approx(override, abs=1e-6) and gate.chooser == chooser
-    assert gate.tie == pytest.approx(TIE_NOISE * 0.01)
-    said = gate.to_dict()
+    say = GuideSay(spread=0.1, noise=0.01, spread_p=p, agree_p=p, agree=0.1, lead=lead)
+    assert say.amount == pytest.approx(amount, abs=1e-6) and say.chooser == chooser
+    assert say.tie == pytest.approx(TIE_NOISE * 0.01)
+    said = say.to_dict()
     assert said["chose"] == chooser and said["agree_p"] == p and said["lead"] == lead
 
 
 def test_the_weaker_test_decides_and_says_what_chance_gives_it():
-    spread_only = Gate(spread=0.1, noise=0.01, spread_p=1e-4, agree_p=0.25, agree=0.31)
-    assert spread_only.override == 0.0  # a consistent function of the image, views that agree by chance: no say
+    spread_only = GuideSay(spread=0.1, noise=0.01, spread_p=1e-4, agree_p=0.25, agree=0.31)
+    assert spread_only.amount == 0.0  # a consistent function of the image, views that agree by chance: no say
     assert "one time in 4" in spread_only.summary() and spread_only.summary().endswith("no say, the geometry chose")
-    assert Gate(spread=0.1, noise=0.01, spread_p=0.3, agree_p=1e-4, agree=0.0).override == 0.0
-    few = Gate(spread=0.1, noise=0.01, spread_p=1e-4, agree_p=1.0)  # too few poses hold to test the agreement
-    assert few.override == 0.0 and "too few places hold" in few.summary()
-    sure = Gate(spread=0.1, noise=0.01, spread_p=1e-5, agree_p=1e-4, agree=0.0, lead=0.4)
+    assert GuideSay(spread=0.1, noise=0.01, spread_p=0.3, agree_p=1e-4, agree=0.0).amount == 0.0
+    few = GuideSay(spread=0.1, noise=0.01, spread_p=1e-4, agree_p=1.0)  # too few poses hold to test the agreement
+    assert few.amount == 0.0 and "too few places hold" in few.summary()
+    sure = GuideSay(spread=0.1, noise=0.01, spread_p=1e-5, agree_p=1e-4, agree=0.0, lead=0.4)
     assert "less than one time in 10,000" in sure.summary() and "leads by 0.4" in sure.summary()
 
 
 def test_a_gate_without_measurable_noise_trusts_the_guide():
-    gate = Gate(spread=0.1, noise=0.0)
-    assert gate.ratio == math.inf and gate.override == 1.0 and gate.chooser == "guide"
-    assert "no measurable noise" in gate.summary()
+    say = GuideSay(spread=0.1, noise=0.0)
+    assert say.ratio == math.inf and say.amount == 1.0 and say.chooser == "guide"
+    assert "no measurable noise" in say.summary()
 
 
 @pytest.mark.parametrize("say", [1.0, 0.5, 0.1])
@@ -124,10 +124,10 @@ def test_a_guide_admits_a_share_of_the_failing_poses_it_likes_best(say):
     failing = 25
     clip = [-0.5, -0.4] + [-0.9 + 0.01 * i for i in range(failing)]  # the guide prefers the failing ones
     terms = _terms([HELD] * 2 + [FAILED] * failing, [0.0] * (2 + failing), clip)
-    gate = said(say, noise=1.0)
-    key = ordering.search_key(terms, WEIGHTS, gate, guided=True, share=SHARE)
-    admitted = share_of(failing, gate.override * SHARE)
-    assert admitted == math.ceil(gate.override * SHARE * failing) >= 1
+    say = said(say, noise=1.0)
+    key = ordering.search_key(terms, WEIGHTS, say, guided=True, share=SHARE)
+    admitted = share_of(failing, say.amount * SHARE)
+    assert admitted == math.ceil(say.amount * SHARE * failing) >= 1
     assert int((key.tier == 0).sum()) == 2 + admitted
     pooled = key.argsort().tolist()[: 2 + admitted]
     assert sorted(pooled) == [0, 1, *range(2, 2 + admitted)]  # the guide's best failing ones, by index here
@@ -160,7 +160,7 @@ def test_the_selection_without_a_guide_takes_the_best_holding_near_pose():
     terms = _terms([FAILED, HELD, HELD], [-10.0, 1.0, 2.0])
     clear, limit = torch.tensor([0.0, 0.0, 0.0]), torch.full((3,), TOUCH)
     assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=False, touches=True, share=SHARE) == 1
-    away = torch.tensor([0.0, NEAR + 1.0, 0.0])  # the best holding pose drifted off: the next one
+    away = torch.tensor([0.0, REACH + 1.0, 0.0])  # the best holding pose drifted off: the next one
     assert ordering.select_answer(terms, away, limit, WEIGHTS, guided=False, touches=True, share=SHARE) == 2
 
 
@@ -169,9 +169,9 @@ def test_the_guided_selection_leaves_soft_icp_out_unless_the_gate_says_the_guide
     clear, limit = torch.zeros(2), torch.full((2,), TOUCH)
     rule = {"touches": True, "share": SHARE}
     assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=True, **rule) == 0  # gate None: trusted
-    assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=True, gate=Gate(1.0, 0.01), **rule) == 0
+    assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=True, say=GuideSay(1.0, 0.01), **rule) == 0
     silent = said(0.0)  # override 0: the geometry alone, as without a guide
-    assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=True, gate=silent, **rule) == 1
+    assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=True, say=silent, **rule) == 1
     assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=False, **rule) == 1
 
 
@@ -220,19 +220,19 @@ def test_noise_earns_no_say_in_99_percent_of_runs_and_a_strong_guide_the_full_sa
     tables = torch.randn(1000, count, views, generator=generator)
     _, agree_p = chance.agreement_chance(tables, seed=count)
     changes = torch.randn(1000, 4, generator=generator) - torch.randn(1000, 4, generator=generator)
-    says = [Gate(1.0, 1.0, spread_p=chance.spread_chance(tables[i, :, 0], changes[i]), agree_p=float(agree_p[i]))
-            .override for i in range(len(tables))]
+    says = [GuideSay(1.0, 1.0, spread_p=chance.spread_chance(tables[i, :, 0], changes[i]), agree_p=float(agree_p[i]))
+            .amount for i in range(len(tables))]
     assert sum(say == 0 for say in says) >= 0.99 * len(says)
     order = torch.randn(count, 1, generator=generator)
     strong = order + 0.01 * torch.randn(count, views, generator=generator)
     agree, p = chance.agreement_chance(strong)
-    gate = Gate(1.0, 1e-3, spread_p=chance.spread_chance(strong[:, 0], 1e-3 * torch.randn(4, generator=generator)),
+    say = GuideSay(1.0, 1e-3, spread_p=chance.spread_chance(strong[:, 0], 1e-3 * torch.randn(4, generator=generator)),
                 agree_p=float(p), agree=float(agree))
     assert float(agree) == 0.0
     if views == 2 or count == 3:  # the favourites coincide by chance once in N (or N^3 = 27): no say
-        assert gate.override == 0.0
+        assert say.amount == 0.0
     else:  # once in N^3: some say from 5 candidates, the full say from 16
-        assert gate.override > 0 and (gate.override == 1.0 or count < 16)
+        assert say.amount > 0 and (say.amount == 1.0 or count < 16)
 
 
 def test_the_spread_test_asks_more_than_the_noise_of_a_few_probes():
@@ -250,13 +250,13 @@ def test_the_geometry_leads_by_its_best_poses_gap_in_its_spreads():
 
 
 def test_between_the_says_ends_the_guide_and_the_usual_arrangement_count_in_their_spreads():
-    """``Gate.weigh``: with a say of 0.25 the guide must beat the usual arrangement by three of its spreads per
+    """``GuideSay.weigh``: with a say of 0.25 the guide must beat the usual arrangement by three of its spreads per
     spread of the arrangement (weights override : 1 - override); at the ends, and where either does not vary,
     ``tie``; never less than ``tie``."""
     guide = torch.tensor([0.0, 1.0, 2.0, 3.0]) * 0.01  # the guide prefers pose 0
     prefer = torch.tensor([3.0, 2.0, 1.0, 0.0]) * 0.75  # the usual arrangement pose 3 (already x (1 - 0.25))
     quarter = said(0.25, spread=7e-4, noise=4e-4)  # tie 0.0016
-    assert quarter.override == pytest.approx(0.25)
+    assert quarter.amount == pytest.approx(0.25)
     weight = quarter.weigh(guide, prefer)
     assert weight > quarter.tie and int(torch.argmin(guide + weight * prefer)) == 3  # the arrangement's pick
     assert float((weight * prefer).std()) / float(guide.std()) == pytest.approx(3.0)
@@ -264,5 +264,5 @@ def test_between_the_says_ends_the_guide_and_the_usual_arrangement_count_in_thei
     three_quarters = said(0.75, spread=1.3e-3, noise=4e-4)  #: a third of a spread per spread
     assert float((three_quarters.weigh(guide, prefer / 3) * prefer / 3).std()) / float(guide.std()) == \
         pytest.approx(1 / 3)
-    full = Gate(spread=1.0, noise=0.01)
+    full = GuideSay(spread=1.0, noise=0.01)
     assert full.weigh(guide, prefer) == full.tie and quarter.weigh(guide, torch.zeros(4)) == quarter.tie

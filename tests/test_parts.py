@@ -7,6 +7,7 @@ Meshes are built in their file frame, +Y up, the glTF front (+Z); pairs are prep
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -18,8 +19,8 @@ from ctp_core import export
 from ctp_core.align import align
 from ctp_core.config import AlignConfig
 from ctp_core.reading import places
+from ctp_core.reading.relation import RelationReading
 from ctp_core.relations import parts, predicates
-from ctp_core.relations.vocabulary import RelationReading
 
 
 def dining_chair() -> trimesh.Trimesh:
@@ -66,7 +67,7 @@ def crate(side: float = 0.3) -> trimesh.Trimesh:
 
 def prefer_and_score(target, source, matrices, relation, place=None):
     pair = prepared(target, source)
-    reading = RelationReading(relation, True, place)
+    reading = RelationReading.parse(relation, place=place)
     p = poses(pair, matrices)
     return predicates.preference(pair, p, reading), predicates.relation_score(pair, p, reading)
 
@@ -74,7 +75,7 @@ def prefer_and_score(target, source, matrices, relation, place=None):
 # --- the parts ---------------------------------------------------------------------------------------------------
 
 def test_a_chair_has_a_seat_with_a_back_and_its_backrest_top_is_the_top():
-    found = parts.parts(prepared(dining_chair(), cushion()))
+    found = parts.find_parts(prepared(dining_chair(), cushion()))
     names = [s.name for s in found.surfaces]
     assert names[0] == "top" and "seat" in names, names
     seat = found.surfaces[names.index("seat")]
@@ -83,18 +84,18 @@ def test_a_chair_has_a_seat_with_a_back_and_its_backrest_top_is_the_top():
 
 
 def test_a_bookcase_has_its_top_and_three_shelves_in_order():
-    found = parts.parts(prepared(bookcase(), crate(0.15)))
+    found = parts.find_parts(prepared(bookcase(), crate(0.15)))
     names = [s.name for s in found.surfaces]
     assert names == ["top", "shelf", "shelf", "shelf"], [(s.name, s.reason) for s in found.surfaces]
 
 
 def test_the_back_of_a_ground_with_a_front_is_against_the_wall_and_the_others_are_reached():
     pair = prepared(cabinet(), crate())
-    sides = parts.parts(pair).sides
+    sides = parts.find_parts(pair).sides
     assert [name for name, s in sides.items() if not s.accessible] == ["behind"]
     pair.front_trusted = False
     # the cache keeps the first: build afresh with no front
-    assert all(s.accessible for s in parts.parts.__wrapped__(pair).sides.values())
+    assert all(s.accessible for s in parts.find_parts.__wrapped__(pair).sides.values())
 
 
 @pytest.mark.parametrize(("place", "board"), [(None, 0.94), ("top", 0.94), ("middle shelf", 0.34),
@@ -197,7 +198,7 @@ def test_hang_prefers_the_middle_of_the_rail_to_its_end():
     ("a cushion on the dining chair", None),
 ])
 def test_the_prompt_names_a_place(prompt, place):
-    assert places.read(prompt) == place
+    assert places.read_place(prompt) == place
 
 
 def test_the_priors_carry_the_place_to_the_reading():
@@ -238,8 +239,43 @@ def test_a_crate_left_of_a_desk_ends_centred_on_its_left_side():
     assert centre[0] > 0.6 and abs(centre[2]) < 0.15, centre  # the desk's own left is +X; centred along z
 
 
+def test_the_parts_registry_is_consistent_and_its_check_sees_a_broken_one():
+    assert parts.check(parts.PARTS) == []
+    assert [p.name for p in parts.PARTS.values() if p.detect is not None][-1] == "surface"  # it takes every surface
+    no_shelf = {name: part for name, part in parts.PARTS.items() if name != "shelf"}
+    problems = parts.check(no_shelf)
+    assert "shelf: a part name without a part" in problems
+    assert any(p.startswith("lower shelf: selects 0 parts") for p in problems), problems
+    twice = {**parts.PARTS, "top": replace(parts.PARTS["top"], places=frozenset({places.Place.TOP, places.Place.EDGE}))}
+    assert any(p.startswith("edge: selects 2 parts") for p in parts.check(twice))
+
+
+def stepped_block() -> trimesh.Trimesh:
+    """A block 0.6 wide with a step: its top at 0.5 over x < 0, a lower step at 0.25 over x > 0."""
+    pieces = [box([0.3, 0.5, 0.4], [-0.15, 0.25, 0]), box([0.3, 0.25, 0.4], [0.15, 0.125, 0])]
+    return gltf(trimesh.util.concatenate(pieces))
+
+
+def test_a_part_added_as_the_docs_say_is_named_in_a_run_report(monkeypatch):
+    """docs/relations.md, "Adding a part": a name and a detector in ``PARTS`` (asked after the top's, before the
+    others: a step's riser reads as a seat's back), and nothing else. A run on a ground that has one names it, with
+    its reason, in the report's parts."""
+    def step(found: parts.Found) -> str | None:
+        return None if found.highest else f"a step: {found.at}"
+
+    top, *others = parts.PARTS.items()
+    monkeypatch.setattr(parts, "PARTS", dict([top, ("step", parts.Part("step", step)), *others]))
+    result, _ = _run(stepped_block(), crate(0.1), "a crate on the stepped block", "stepped block", "crate")
+    named = export.report(result)["extra"]["parts"]
+    assert any(line.startswith("a step: up-facing 0.25 over the base") for line in named), named
+    assert any(line.startswith("the top: the highest surface, up-facing 0.5") for line in named), named
+    monkeypatch.undo()
+    found = parts.find_parts.__wrapped__(prepared(stepped_block(), crate(0.1)))
+    assert [s.name for s in found.surfaces] == ["top", "seat"]  # without it: a back rises behind the step
+
+
 def test_parts_name_their_reasons_in_file_units():
-    found = parts.parts(prepared(dining_chair(), cushion()))
+    found = parts.find_parts(prepared(dining_chair(), cushion()))
     assert any("0.47 over the base" in line for line in found.describe()), found.describe()
 
 

@@ -15,8 +15,7 @@ from ctp_core.errors import ConfigError
 from ctp_core.priors import PriorSettings, RulesProvider, ScenePrior, get_provider, mesh_size_ratio, resolve_priors
 from ctp_core.priors.openai import AnswerError, parse_answer
 from ctp_core.priors.prior import clamp_contact, clamp_size
-from ctp_core.reading import context, lexicon
-from ctp_core.relations import vocabulary
+from ctp_core.reading import context, cues, lexicon, records
 
 
 def rules(target: str, source: str, prompt: str) -> ScenePrior:
@@ -212,11 +211,11 @@ def test_parts_and_size_words():
 
 def test_unknown_objects_fall_back_and_say_so():
     prior = rules("zorblax", "quux", "a quux on the zorblax")
-    assert prior.size_ratio == vocabulary.RELATIONS["on"].figure_size  # what rests on a thing is smaller
+    assert prior.size_ratio == records.RELATIONS["on"].figure_size  # what rests on a thing is smaller
     assert "fallback" in prior.reason and "zorblax" in prior.reason
     # the same relation with the unknown source as the ground: the inverse ratio
     assert rules("zorblax", "quux", "a zorblax on the quux").size_ratio == pytest.approx(
-        1 / vocabulary.RELATIONS["on"].figure_size)
+        1 / records.RELATIONS["on"].figure_size)
     assert rules("zorblax", "quux", "a quux beside the zorblax").size_ratio == 1.0
     holder = rules("grimbly", "sword", "grimbly holding a sword")
     assert holder.size_ratio == pytest.approx(lexicon.lookup("sword").size_m / 1.75)
@@ -365,7 +364,7 @@ def test_sizes_fit_the_scene():
 ])
 def test_relation_and_contact_from_the_scene(target, source, prompt, relation, low, high):
     prior = rules(target, source, prompt)
-    assert prior.relation == relation, prior.reason
+    assert prior.reading.name == relation, prior.reason
     assert low <= prior.contact_ratio <= high, prior.reason
 
 
@@ -575,9 +574,9 @@ def test_rules_provider_class_is_the_default():
 
 def test_the_rules_say_which_relation_they_read():
     prior = RulesProvider().estimate("table", "cup", "a cup on the table")
-    assert (prior.relation, prior.source_is_figure) == ("on", True)
+    assert (prior.reading.name, prior.reading.source_is_figure) == ("on", True)
     worn = RulesProvider().estimate("hat", "pinocchio", "Pinocchio wearing a hat")
-    assert (worn.relation, worn.source_is_figure) == ("wear", False)
+    assert (worn.reading.name, worn.reading.source_is_figure) == ("wear", False)
 
 
 # --- kinds of misses of the frozen batch12 (none of these prompts is a labelled one) --------------------------
@@ -671,8 +670,8 @@ def test_half_submerged_is_partly_under_and_a_body_of_water_is_any_spring_or_wat
 
 def test_a_cue_about_a_substance_yields_to_the_one_that_relates_the_objects():
     prior = rules("lake", "hippo", "a hippo wallowing in the lake with its nostrils above the water")
-    assert prior.relation == "in" and prior.penetration
-    alone = vocabulary.find_cue("a kite flying above the water")  # no other cue: it stands
+    assert prior.reading.name == "in" and prior.penetration
+    alone = cues.find_cue("a kite flying above the water")  # no other cue: it stands
     assert alone is not None and alone.relation.name == "above"
 
 
@@ -701,7 +700,7 @@ def test_what_goes_into_a_container_sticks_out_by_a_few_times_its_size_at_most()
 
 def test_at_the_edge_of_something_is_on_its_rim_not_in_it():
     prior = rules("pond", "duck", "a duck resting at the edge of the pond")
-    assert prior.relation == "on" and not prior.penetration
+    assert prior.reading.name == "on" and not prior.penetration
 
 
 # --- kinds of misses of the frozen batch17 ----------------------------------------------------------------------
@@ -746,7 +745,7 @@ def test_buried_in_a_container_is_in_what_it_holds():
 def test_a_short_pointed_fastener_goes_through_the_solid_it_holds_or_fastens():
     assert rules("cushion", "safety_pin", "a safety pin fastening a cushion cover").penetration
     prior = rules("fabric", "pins", "pins holding a label on the fabric")
-    assert prior.penetration and prior.source_is_figure
+    assert prior.penetration and prior.reading.source_is_figure
     assert not rules("clipboard", "pen", "a pen clipped to a clipboard").penetration
     assert not rules("plate", "chopsticks", "chopsticks holding a dumpling above a plate").penetration
 
@@ -754,7 +753,7 @@ def test_a_short_pointed_fastener_goes_through_the_solid_it_holds_or_fastens():
 def test_food_shaped_things_on_a_stick_are_skewered_and_adverbs_do_not_hide_a_cue():
     assert rules("stick", "corn_dog", "a corn dog on a stick").penetration
     assert rules("plank", "saw", "a saw stuck halfway through a plank").penetration
-    assert vocabulary.find_cue("a spade pushed deep into the soil").relation.name == "penetrate"
+    assert cues.find_cue("a spade pushed deep into the soil").relation.name == "penetrate"
 
 
 def test_plastic_or_tin_creatures_are_toys_and_fish_are_wholly_under_water():
@@ -775,7 +774,7 @@ def test_a_holder_of_a_long_thin_thing_is_shorter_than_it():
 
 def test_pressed_staked_or_chopped_open_are_cues_that_go_in():
     for prompt in ("a thumb pressed into the dough", "a marker staked in the field", "an axe splitting open a log"):
-        assert vocabulary.find_cue(prompt).relation.name == "penetrate", prompt
+        assert cues.find_cue(prompt).relation.name == "penetrate", prompt
 
 
 def test_a_building_made_of_a_sweet_is_that_sweet_an_ice_cream_van_is_a_van():
@@ -809,7 +808,7 @@ def test_pinned_to_a_person_is_through_their_clothes_stuck_in_a_container_named_
 def test_pushed_through_pierces_a_participle_before_a_noun_is_no_cue_hooks_made_to_pierce_are_pointed():
     assert rules("sausage", "skewer", "a skewer pushed through a sausage").penetration
     prior = rules("sausage", "butcher_hook", "a butcher hook through a hanging sausage")
-    assert prior.penetration and prior.relation == "in"
+    assert prior.penetration and prior.reading.name == "in"
     assert rules("fish_hook", "maggot", "a maggot threaded onto a fish hook").penetration
     assert not rules("wall", "coat", "a coat on a coat hook on the wall").penetration
 
@@ -891,20 +890,20 @@ def test_an_animal_drinking_from_something_has_its_muzzle_in_the_water_someone_d
     cat = rules("bowl", "cat", "a cat drinking out of a bowl")
     assert cat.penetration and "water" in cat.reason
     man = rules("cup", "man", "a man drinking from a cup")
-    assert not man.penetration and man.relation == "hold"
+    assert not man.penetration and man.reading.name == "hold"
 
 
 def test_a_biting_or_stinging_insect_pierces_the_skin_other_biters_hold():
     tick = rules("dog", "tick", "a tick biting the dog's ear")
-    assert tick.penetration and tick.contact_ratio <= 0.05 and tick.source_is_figure
+    assert tick.penetration and tick.contact_ratio <= 0.05 and tick.reading.source_is_figure
     assert rules("boy", "wasp", "a wasp stinging a boy's hand").penetration
     assert not rules("bone", "puppy", "a puppy biting a bone").penetration
 
 
 def test_a_container_between_the_two_objects_leaves_the_relation_to_the_ground():
     lamp = rules("desk", "pencils", "pencils in a mug on the desk")
-    assert lamp.relation == "on" and not lamp.penetration
-    assert rules("mug", "pencils", "pencils in a mug on the desk").relation == "in"  # the mug itself
+    assert lamp.reading.name == "on" and not lamp.penetration
+    assert rules("mug", "pencils", "pencils in a mug on the desk").reading.name == "in"  # the mug itself
 
 
 def test_contents_of_a_container_unknown_standing_up_a_paper_version_unknown_figure_at_most_a_metre():

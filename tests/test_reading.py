@@ -11,14 +11,15 @@ from pathlib import Path
 import pytest
 
 from ctp_core.priors import get_provider
-from ctp_core.relations import vocabulary
+from ctp_core.reading import records
+from ctp_core.reading.relation import RelationReading
 
 ROWS = list(csv.DictReader((Path(__file__).parent / "reading_phrases.csv").open()))
 
 
 def test_the_phrase_list_covers_every_new_relation_from_each_vocabulary():
-    named = {p for row in ROWS for p in vocabulary.parts(row["relation"])}
-    new = {name for name, r in vocabulary.RELATIONS.items() if r.kind != "contact"}
+    named = {p for row in ROWS for p in RelationReading.parse(row["relation"]).relations}
+    new = {name for name, r in records.RELATIONS.items() if r.kind != "contact"}
     assert new <= named and len(ROWS) >= 80
     origins = {"spatialsense", "rel3d", "sr3d", "holodeck", "layoutvlm", "issue", "paraphrase"}
     assert origins == {r["origin"] for r in ROWS}
@@ -27,8 +28,9 @@ def test_the_phrase_list_covers_every_new_relation_from_each_vocabulary():
 @pytest.mark.parametrize("row", ROWS, ids=[row["prompt"] for row in ROWS])
 def test_the_reader_reads_the_relation_its_figure_and_its_side(row):
     prior = get_provider("rules").estimate(row["target"], row["source"], row["prompt"])
-    got = (prior.relation, "source" if prior.source_is_figure else "target", vocabulary.side_of(prior.relation) or "")
-    assert got == (row["relation"], row["figure"], row["side"]), prior.reason
+    reading = prior.reading
+    got = (reading.name, "source" if reading.source_is_figure else "target", reading.side or "")
+    assert got == (RelationReading.parse(row["relation"]).name, row["figure"], row["side"]), prior.reason
 
 
 def test_ctp_priors_shows_the_reading_and_its_side(capsys):

@@ -1,5 +1,5 @@
 """The prompt's relation where poses are judged: the search's ranking, the guide's gate, the refinement and the
-selection (``ordering.rank_key``, ``ordering.Gate``, ``ordering.search_key``, ``align``).
+selection (``ordering.rank_key``, ``ordering.GuideSay``, ``ordering.search_key``, ``align``).
 
 Generated pairs whose answer is known (``test_predicates``' scenes, +Y up, prepared without the upright turn);
 geometry only (``lambda_clip`` 0), the ``test`` preset: a second or two per run.
@@ -95,9 +95,9 @@ def test_ranking_puts_the_candidates_that_hold_the_relation_first():
 SHARE = AlignConfig.from_preset("test").search.min_share
 
 
-def _guided(gate, terms):
+def _guided(say, terms):
     """The search's key of ``terms`` with a guide under ``gate``."""
-    return ordering.search_key(terms, WEIGHTS, gate, guided=True, share=SHARE)
+    return ordering.search_key(terms, WEIGHTS, say, guided=True, share=SHARE)
 
 
 def test_a_guide_ranks_among_the_holding_candidates_plus_a_share_of_the_others():
@@ -106,7 +106,7 @@ def test_a_guide_ranks_among_the_holding_candidates_plus_a_share_of_the_others()
     rel = [0.0] * 4 + [1.0] * 20
     clip = [-0.5, -0.6, -0.55, -0.4] + [-0.9] + [-0.1] * 19  # the guide's best fails the relation
     terms = _terms(rel, [0.0] * 24, clip)
-    key = _guided(ordering.Gate(spread=1.0, noise=0.01), terms)
+    key = _guided(ordering.GuideSay(spread=1.0, noise=0.01), terms)
     admitted = math.ceil(SHARE * 20)
     assert admitted == 2 and key.argsort().tolist()[:5] == [4, 1, 2, 0, 3]
     assert int((key.tier > 0).sum()) == 20 - admitted  # the rest: after every pooled candidate
@@ -115,17 +115,17 @@ def test_a_guide_ranks_among_the_holding_candidates_plus_a_share_of_the_others()
 def test_a_guide_whose_spread_is_within_its_noise_does_not_override_the_relation():
     """The gate: spread over the candidates at most the guide's noise -> override 0 -> rank by relation and
     geometry; the guide's favourite (failing the relation, worse geometry) stays last."""
-    gate = said(0.0, spread=1e-4, noise=2e-4)
-    assert gate.override == 0.0 and ordering.Gate(1.0, 0.1).override == 1.0
+    say = said(0.0, spread=1e-4, noise=2e-4)
+    assert say.amount == 0.0 and ordering.GuideSay(1.0, 0.1).amount == 1.0
     terms = _terms([1.0, 0.0, 0.0], [0.0, 0.02, 0.01], clip=[-0.9, -0.3, -0.2])
-    key = _guided(gate, terms)
+    key = _guided(say, terms)
     assert key.argsort().tolist() == [2, 1, 0]
     # the selection of the refined answer follows the same gate: geometry without signal, the guide with it
     # (the restart failing the relation pays its weighted relation term there: lambda_rel x its score)
     clear, limit = torch.zeros(3), torch.full((3,), contact.TOUCH)
     rule = {"guided": True, "touches": True, "share": SHARE}
-    assert ordering.select_answer(terms, clear, limit, WEIGHTS, **rule, gate=gate) == 2
-    assert ordering.select_answer(terms, clear, limit, WEIGHTS, **rule, gate=ordering.Gate(1.0, 0.1)) == 1
+    assert ordering.select_answer(terms, clear, limit, WEIGHTS, **rule, say=say) == 2
+    assert ordering.select_answer(terms, clear, limit, WEIGHTS, **rule, say=ordering.GuideSay(1.0, 0.1)) == 1
 
 
 def test_lean_proposals_stand_tilted_against_a_side_where_the_regions_have_none():
@@ -185,20 +185,20 @@ def test_the_usual_arrangement_ranks_without_a_guide_and_breaks_only_the_guides_
     rule = {"touches": True, "share": SHARE}
     assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=False, **rule) == 1
     signal, noisy = said(1.0, spread=0.02, noise=5e-4), said(1 / 3, spread=0.02, noise=0.01)
-    assert signal.override == 1.0 and 0 < noisy.override < 1
-    assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=True, gate=signal, **rule) == 0  # 8 noises
-    assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=True, gate=noisy, **rule) == 1  # within
+    assert signal.amount == 1.0 and 0 < noisy.amount < 1
+    assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=True, say=signal, **rule) == 0  # 8 noises
+    assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=True, say=noisy, **rule) == 1  # within
     assert _guided(signal, terms).argsort().tolist() == [0, 1]
     assert _guided(noisy, terms).argsort().tolist() == [1, 0]
 
 
 def test_the_preference_counts_as_far_as_the_guide_cannot_tell_poses_apart():
     bare = objective.Scorer.__new__(objective.Scorer)
-    bare.use_clip, bare.gate, bare._eval = False, None, None
+    bare.use_clip, bare.say, bare._eval = False, None, None
     assert bare.preference_weight == 1.0
     bare.use_clip = True
     assert bare.preference_weight == 1.0  # not measured yet: the geometry's screen ranks with it
-    assert bare.gated(ordering.Gate(spread=1.0, noise=0.01)).preference_weight == 0.0
+    assert bare.gated(ordering.GuideSay(spread=1.0, noise=0.01)).preference_weight == 0.0
     assert bare.gated(said(0.5)).preference_weight == pytest.approx(0.5)
     assert bare.preference_weight == 1.0  # the twin's gate is its own
 
@@ -226,7 +226,7 @@ def test_a_ring_hung_on_a_peg_is_threaded_on_it_and_the_wall_keeps_its_file_up()
     config = AlignConfig.from_preset("default", loss={"lambda_clip": 0.0})  # the test preset's 3 hang proposals
     # seldom leave its few refinement steps a plumb one
     run = stages.prepare(wall, ring_, "a ring hanging on the peg", config, target_name="peg", source_name="ring")
-    assert run.prior.relation == "hang" and not run.pair.target_upright.changed
+    assert run.prior.reading.name == "hang" and not run.pair.target_upright.changed
     assert "states no up" in run.pair.target_upright.reason
     props = stages.propose(run)
     assert "hang" in props.region
@@ -236,7 +236,7 @@ def test_a_ring_hung_on_a_peg_is_threaded_on_it_and_the_wall_keeps_its_file_up()
     # threaded: the peg (y = 1, x = 0, z from 0 to 0.4) passes through the ring's hole, its centre below the peg
     assert abs(centre[0]) < 0.05 and 0.85 < centre[1] < 0.95 and 0.0 < centre[2] < 0.4, centre
     on = stages.prepare(wall, ring_, "a ring on the peg", config, target_name="peg", source_name="ring")
-    assert on.prior.relation == "on" and not on.pair.target_upright.changed  # "on" as well: the file's up
+    assert on.prior.reading.name == "on" and not on.pair.target_upright.changed  # "on" as well: the file's up
     lying = stages.prepare(wall, ring_, "a ring on the peg", config.model_copy(update={"target_up": "auto"}),
                            target_name="peg", source_name="ring")
     assert lying.pair.target_upright.changed  # asked for the geometric guess: laid on its back
@@ -252,7 +252,7 @@ def test_hang_proposals_need_a_hook_on_the_source_and_a_part_of_the_target_thin_
     config = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0})
     run = stages.prepare(target(), source(), "a thing hanging on the stand", config, target_name="stand",
                          source_name="thing")
-    assert run.prior.relation == "hang"
+    assert run.prior.reading.name == "hang"
     assert ("hang" in stages.propose(run).region) == expected
 
 
@@ -261,7 +261,7 @@ def test_penetrate_proposals_drive_the_source_end_first_into_the_target_never_up
     config = AlignConfig.from_preset("default", loss={"lambda_clip": 0.0})
     run = stages.prepare(block, stick, "a stick sticking into the block", config, target_name="block",
                          source_name="stick")
-    assert run.prior.relation == "penetrate"
+    assert run.prior.reading.name == "penetrate"
     props = stages.propose(run)
     pierce = [i for i, r in enumerate(props.region) if r == "pierce"]
     assert pierce

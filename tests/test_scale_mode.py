@@ -183,7 +183,7 @@ def test_the_ladder_spans_the_priors_error_around_the_ratio():
 
 def test_in_drops_the_rungs_the_cavity_cannot_hold():
     plan = _plan("in", size_ratio=2.0)  # a ball twice the bowl cannot be in it
-    assert plan.bound is not None and plan.bound.side == "upper"
+    assert plan.bound is not None and plan.bound.cuts == "upper"
     assert max(plan.rungs) == pytest.approx(plan.bound.log_s) == pytest.approx(plan.high)
     assert plan.centre == pytest.approx(plan.high)
     # the bowl's inside, 0.188 across, over the ball's 0.1 (probes keep off the walls: within 5 %)
@@ -199,7 +199,7 @@ def test_without_a_guide_the_search_proposes_at_the_centre_alone():
 
 
 def test_a_guide_the_gate_silences_places_as_the_geometry_does(monkeypatch):
-    """A guide with no say (``Gate`` override 0) cannot choose among the ladder's rungs, and across them the
+    """A guide with no say (``GuideSay`` override 0) cannot choose among the ladder's rungs, and across them the
     geometry would pick the one where the relation holds most easily: the run searches again as without a guide,
     every proposal at the centre, and its answer is the geometry's."""
     target, source, target_name, source_name, prompt = _pair("ball in a bowl")
@@ -220,7 +220,7 @@ def test_hang_and_lid_bounds_raise_a_too_small_ratio(name):
     cover the jar's opening: the ladder's floor and its centre rise to the bound."""
     relation, snug = ("hang", 0.075 / 0.08) if name == "ring on a peg" else ("on", 0.092 / 0.104)
     plan = _plan(relation, size_ratio=0.4, name=name, guided=False)
-    assert plan.bound is not None and plan.bound.side == "lower" and plan.bound.kind.startswith(relation)
+    assert plan.bound is not None and plan.bound.cuts == "lower" and plan.bound.reason.startswith(relation)
     assert 0.85 * snug <= math.exp(plan.bound.log_s) <= 1.05 * snug
     assert plan.centre == plan.low == pytest.approx(plan.bound.log_s)
     assert plan.bound.log_s > plan.ratio_log_s

@@ -16,7 +16,8 @@ from ctp_core.errors import Canceled
 from ctp_core.geometry import pose, sampling
 from ctp_core.guide import goals
 from ctp_core.guide.loaders import get_guide
-from ctp_core.relations.vocabulary import RELATIONS, RelationReading
+from ctp_core.reading.records import RELATIONS
+from ctp_core.reading.relation import RelationReading
 from ctp_core.search import coarse_to_fine, ordering, proposals
 
 CONFIG = AlignConfig.from_preset("test", model="random:tiny", search={"candidates": 40}, loss={"samples": 1500})
@@ -72,9 +73,10 @@ def test_proposals_touch_and_do_not_penetrate(meshes, name):
 
 
 @pytest.mark.parametrize("figure", [True, False])
-@pytest.mark.parametrize("relation", [None, "other", *RELATIONS])
+@pytest.mark.parametrize("relation", [None, *RELATIONS])
 def test_a_relation_weight_never_zeroes_a_region(relation, figure):
-    weights = proposals.region_weights(None if relation is None else RelationReading(relation, figure))
+    role = "figure" if figure else "ground"
+    weights = proposals.region_weights(None if relation is None else RelationReading.parse(relation, role))
     assert set(weights) == set(proposals.REGIONS) and min(weights.values()) >= 1.0
     available = {"top": 300, "side": 900, "bottom": 300, "inside": 40, "gap": 450, "drop": 375, "floor": 190}
     counts = proposals.allocate(available, weights, 64, CONFIG.search.min_share)
@@ -88,7 +90,7 @@ def test_the_prompt_relation_shifts_proposals_without_removing_any(meshes):
     pair = pairs.prepare_pair(target, source, samples=CONFIG.loss.samples, seed=0)
     gen = lambda: torch.Generator().manual_seed(0)  # noqa: E731
     plain = proposals.propose(pair, CONFIG, proposals.region_weights(None), 0.0, gen())
-    inside = proposals.propose(pair, CONFIG, proposals.region_weights(RelationReading("in")), 0.0, gen())
+    inside = proposals.propose(pair, CONFIG, proposals.region_weights(RelationReading.parse("in")), 0.0, gen())
     assert inside.region.count("inside") > plain.region.count("inside")
     assert set(inside.region) == set(plain.region)
 
@@ -182,8 +184,8 @@ def test_search_counts_every_encoder_image_including_the_oracles(meshes, monkeyp
     # the places its choice is checked on from the held-out views and those views' references, the fine ones each
     coarse = (n + ranked.swept + min(coarse_to_fine.GATE_PROBES, n)) * cfg.coarse_views
     held_out = len(coarse_to_fine.HELD_OUT_AZIMUTHS)
-    checks = (ranked.gate.places + 1) * held_out
-    assert ranked.gate.override == 1.0 and ranked.gate.places >= 3
+    checks = (ranked.say.places + 1) * held_out
+    assert ranked.say.amount == 1.0 and ranked.say.places >= 3
     refs = cfg.fine_views if cfg.fine_zoom == 0 else fine * cfg.fine_views  # shared fine views without zoom
     assert scorer.clip_images == coarse + cfg.coarse_views + checks + fine * cfg.fine_views + refs
     assert ranked.scored == n + ranked.swept + fine
@@ -250,7 +252,7 @@ def _small_ball_oracle():
 
 def test_the_tile_stage_counts_its_images_and_adds_its_restarts(monkeypatch):
     # a guide the gate trusts (random:tiny's spread is within its noise here: no tile stage then)
-    monkeypatch.setattr(coarse_to_fine, "guide_noise", lambda *args: ordering.Gate(1.0, 0.0))
+    monkeypatch.setattr(coarse_to_fine, "guide_noise", lambda *args: ordering.GuideSay(1.0, 0.0))
     pair, props, guide, scorer, weights = _small_ball_oracle()
     events = []
     ranked = coarse_to_fine.search(scorer, props, weights, k=2, on_event=events.append)
@@ -309,7 +311,7 @@ def test_the_answer_is_the_best_restart_that_stays_near_the_target(meshes):
     q = torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(2, 1)
     poses = pose.Poses(torch.tensor([[0.0, 30.0, 0.0], [0.0, 0.3, 0.0]]), q, torch.zeros(2))
     clear = contact.clearance(pair, pair.index, poses)
-    assert clear[0] > contact.NEAR >= clear[1]
+    assert clear[0] > contact.REACH >= clear[1]
     terms = {"objective": torch.tensor([-1.0, 0.0]), "clip": torch.tensor([-1.0, 0.0]), "icp": torch.zeros(2),
              "pen": torch.zeros(2)}
     weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
@@ -371,7 +373,7 @@ def test_cancel_during_search(meshes):
 def test_stages_are_callable_alone(meshes):
     run = prepare(*meshes["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box")
     props = propose(run)
-    assert run.prior.relation == "on" and len(props.poses) >= CONFIG.search.candidates // 2  # wedged ones dropped
+    assert run.prior.reading.name == "on" and len(props.poses) >= CONFIG.search.candidates // 2  # wedged ones dropped
     off = CONFIG.model_copy(update={"search": CONFIG.search.model_copy(update={"enabled": False})})
     assert propose(prepare(*meshes["box on table"], None, off)).region == ["random"] * off.optim.restarts
 
@@ -450,13 +452,13 @@ def _text_scorer(pair, config, relation=None):
     guide, text = get_guide("random:tiny"), goals.TextGoal("a box on the table")
     text.prepare(pair, guide)
     return objective.Scorer(pair, config, 0.2, guide=guide, goal=text,
-                            reading=None if relation is None else RelationReading(relation))
+                            reading=None if relation is None else RelationReading.parse(relation))
 
 
 def test_the_guide_sees_only_the_shortlist_and_the_turns_the_geometry_allows(meshes, monkeypatch):
     """``search.shortlist`` of the proposals reach the encoder (screened by the geometry, ``Scorer.screen``),
     ``sweep_keep`` turns per site: the images are counted exactly (a text goal encodes no images)."""
-    monkeypatch.setattr(coarse_to_fine, "guide_noise", lambda *args: ordering.Gate(1.0, 0.0))  # a guide with signal
+    monkeypatch.setattr(coarse_to_fine, "guide_noise", lambda *args: ordering.GuideSay(1.0, 0.0))  # a guide with signal
     config = CONFIG.model_copy(update={"search": CONFIG.search.model_copy(update={"shortlist": 10,
                                                                                   "sweep_keep": 5})})
     pair, props = _proposals(*meshes["box on table"], config)
@@ -484,8 +486,8 @@ def test_a_guide_without_signal_encodes_nothing_after_the_coarse_stage(meshes, m
     props = propose(run)
     ranked = coarse_to_fine.search(run.scorer, props, run.plan[0], k=2)
     coarse = len(props.poses) * CONFIG.search.coarse_views
-    assert not run.scorer.gated(ranked.gate).guided and run.scorer.clip_images == coarse and ranked.swept > 0
-    outcome = refine(run, ranked.poses, ranked.gate)
+    assert not run.scorer.gated(ranked.say).guided and run.scorer.clip_images == coarse and ranked.swept > 0
+    outcome = refine(run, ranked.poses, ranked.say)
     assert outcome.clip_images == coarse and len(outcome.objectives) == 2
 
 
@@ -552,7 +554,7 @@ def test_progress_reads_the_relation_the_guide_and_the_gap(meshes, monkeypatch):
     """What the page and the CLI show instead of the objective: the search says where the relation holds among the
     candidates scored and one restart count (planned, then kept); the refinement, in how many restarts it holds,
     the best restart's guide match (a cosine) and its gap to the target."""
-    monkeypatch.setattr(coarse_to_fine, "guide_noise", lambda *args: ordering.Gate(1.0, 0.0))  # a guide with signal
+    monkeypatch.setattr(coarse_to_fine, "guide_noise", lambda *args: ordering.GuideSay(1.0, 0.0))  # a guide with signal
     run = prepare(*meshes["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box")
     events = []
     ranked = coarse_to_fine.search(run.scorer, propose(run), run.plan[0], k=2, on_event=events.append)
@@ -560,23 +562,23 @@ def test_progress_reads_the_relation_the_guide_and_the_gap(meshes, monkeypatch):
     counted = [e for e in events if e.relation_holds is not None]
     assert counted and all(e.relation == "on" and 0 <= e.relation_holds <= e.relation_checked for e in counted)
     refined = []
-    refine(run, ranked.poses, ranked.gate, on_event=refined.append)
+    refine(run, ranked.poses, ranked.say, on_event=refined.append)
     steps = [e for e in refined if e.kind in ("step", "phase_end")]
     assert steps and all(e.relation == "on" and e.relation_checked == len(ranked.poses) for e in steps)
     assert all(-1 <= e.guide_match <= 1 and 0 <= e.contact_gap < 0.2 for e in steps)
 
 
 @pytest.mark.parametrize(("gate", "chose"), [(said(0.0, noise=1.0), "geometry"), (said(0.5, noise=1.0), "both"),
-                                             (ordering.Gate(1.0, 0.0), "guide")])
-def test_the_report_and_the_progress_say_who_chose_among_the_poses_that_hold(meshes, monkeypatch, gate, chose):
-    """The guide's say as the search measured it (``ordering.Gate``) reaches the search's progress message and
+                                             (ordering.GuideSay(1.0, 0.0), "guide")])
+def test_the_report_and_the_progress_say_who_chose_among_the_poses_that_hold(meshes, monkeypatch, say, chose):
+    """The guide's say as the search measured it (``ordering.GuideSay``) reaches the search's progress message and
     the report: who ordered the poses where the relation holds, and why, in one line."""
-    monkeypatch.setattr(coarse_to_fine, "guide_noise", lambda *args: gate)
+    monkeypatch.setattr(coarse_to_fine, "guide_noise", lambda *args: say)
     events = []
     result = align(*meshes["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box",
                    on_event=events.append)
     said = export.report(result)["guide_say"]
-    assert said["chose"] == chose and said["override"] == round(gate.override, 3)
+    assert said["chose"] == chose and said["override"] == round(say.amount, 3)
     assert said["summary"].endswith({"geometry": "the geometry chose", "guide": "the guide chose",
                                      "both": "the usual arrangement weighing 0.50"}[chose])
     assert said["summary"] in [e.message for e in events if e.stage == "search"][-1]

@@ -45,7 +45,7 @@ from ctp_core.guide.selection import GuideChoice
 from ctp_core.io import MeshLimits, load_image, load_objects
 from ctp_core.io.loader import MeshLoader
 from ctp_core.progress import ProgressEvent
-from ctp_core.relations.vocabulary import RelationReading
+from ctp_core.reading.relation import RelationReading
 from service.adjustments import AdjustmentRecord, Adjustments, AdjustOutcome
 from service.jobs import (
     ORIGINAL,

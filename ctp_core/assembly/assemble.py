@@ -35,8 +35,8 @@ from ctp_core.errors import Canceled, ConfigError, CtpError
 from ctp_core.geometry import frames
 from ctp_core.guide import selection
 from ctp_core.progress import CancelCheck, ProgressCallback
+from ctp_core.reading import cues
 from ctp_core.reading.names import ground_names
-from ctp_core.relations import vocabulary
 
 if TYPE_CHECKING:  # the engine (torch) loads only when a step runs: the API checks plans with plan.check_plan
     from ctp_core.align import AlignResult
@@ -147,7 +147,7 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
     results: list[StepResult] = []
     for index, (step, step_config) in enumerate(zip(steps, configs, strict=True), start=1):
         scene = scene_of(placed)
-        on = vocabulary.grounds(step.prompt, ground_names(step.on), [p.name for p in placed]) or [placed[-1].name]
+        on = cues.grounds(step.prompt, ground_names(step.on), [p.name for p in placed]) or [placed[-1].name]
         if on_step is not None:
             on_step(index, len(steps), step)
         try:

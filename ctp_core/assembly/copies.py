@@ -45,7 +45,8 @@ from ctp_core.guide import selection
 from ctp_core.progress import CancelCheck, ProgressCallback
 from ctp_core.reading import counts
 from ctp_core.reading.counts import MAX_COPIES, CountReading, choose, one_copy
-from ctp_core.relations.vocabulary import RelationReading
+from ctp_core.reading.records import RelationName
+from ctp_core.reading.relation import RelationReading
 
 if TYPE_CHECKING:
     from ctp_core.align import AlignResult
@@ -55,8 +56,7 @@ __all__ = ["Copies", "Copy", "place_copies", "placed_copies", "set_metrics"]
 
 GAP = 0.1  # source diagonals between neighbours in a row and between a copy and the target (around)
 SPACING = 0.05  # scatter: the gap kept between copies where a placement allows it, source diagonals
-AROUND = RelationReading(counts.AROUND)  # what each copy around the target is judged by
-ON = RelationReading("on")  # a stack's copy on the copy under it
+ON = RelationReading(RelationName.ON)  # a stack's copy on the copy under it
 
 CopyCallback = Callable[[int, int], None]
 
@@ -143,7 +143,7 @@ def place_copies(target: trimesh.Trimesh, source: trimesh.Trimesh, prompt: str |
     base = pairs.prepare_pair(target, source, samples=config.loss.samples, seed=config.seed, device="cpu",
                               canonicalise=config.upright, **orientation.configured(config))
     # around is the arrangement's own relation whatever the prompt's words ("chairs by the table", --arrangement)
-    judged = AROUND if kind == "around" else prior.reading
+    judged = counts.AROUND if kind == "around" else prior.reading
     out = Copies(target, source, target_name, source_name, prompt, one, config, kind, counted, judged,
                  guide=chosen.guide, guide_why=chosen.why)
     names = _names(source_name, target_name, n)
@@ -267,7 +267,7 @@ def _pose(base: PreparedPair, rotation: np.ndarray, centre_xz: np.ndarray, botto
 
 def _on_top(reading: RelationReading | None) -> bool:
     """Whether a row stands on the target's top: its relation rests on it or goes in it (else on the floor)."""
-    return reading is not None and (reading.rests or "in" in reading.parts)
+    return reading is not None and (reading.rests or "in" in reading.relations)
 
 
 def _slots(base: PreparedPair, kind: str, n: int, reading: RelationReading | None) -> list[np.ndarray]:

@@ -1,11 +1,11 @@
 """A scene from one sentence: a description of several objects read into an assembly plan.
 
 "a piano with its stool in front of it and a metronome on top", "put the stool in front of the piano; stand the
-metronome on it", "stool, front of, piano; metronome, on, piano". ``read(description, names)`` splits the
+metronome on it", "stool, front of, piano; metronome, on, piano". ``read_description(description, names)`` splits the
 description into clauses (commas, "and", ";", a constraint triple per sentence), finds in each the objects it
 names (the uploads' ``names``, plurals too; "it", "its", "them", "each" and a clause without a ground refer back
 to the object named last that is not the clause's figure), and reads each clause's relation and figure with the
-pair reader (``passes.read``): one reader serves a pair and a plan, so a clause means here what the same words
+pair reader (``passes.read_prompt``): one reader serves a pair and a plan, so a clause means here what the same words
 mean to ``ctp align``. A count makes copies ("two paint tins": ``paint tin_1``, ``paint tin_2``; "a lamp on each"
 one per copy of the ground). The plan places every ground before its figures, the first object named as a
 ground (that no clause places) staying put; an object the description never places goes on the floor beside it,
@@ -21,10 +21,10 @@ from dataclasses import asdict, dataclass, field
 
 from ctp_core.assembly.plan import MAX_GROUNDS
 from ctp_core.errors import ConfigError
-from ctp_core.reading import counts, lexicon, passes
-from ctp_core.relations import vocabulary
+from ctp_core.reading import counts, cues, lexicon, passes, records
+from ctp_core.reading.places import PLACE_WORDS
 
-__all__ = ["DescriptionError", "Placement", "ScenePlan", "read"]
+__all__ = ["DescriptionError", "Placement", "ScenePlan", "read_description"]
 
 DESCRIPTION_MAX = 2000  # characters of a description
 # A clause begins with an imperative or a filler that says nothing of the arrangement.
@@ -39,13 +39,11 @@ _TRIPLE_WORDS = {"front of": "in front of", "in front": "in front of", "front": 
 _DETERMINERS = frozenset({"a", "an", "the", "another", "some", "both", "every", "his", "her", "its", "their", "my",
                           "your", "our", "this", "that", "these", "those", *counts.NUMBER_WORDS})
 # Words that end an object's phrase: prepositions, conjunctions, verbs of placing.
-_ENDS = frozenset({"and", "with", "of", "to", "on", "in", "at", "by", "under", "beside", "behind", "near", "next",
-                   "between", "above", "below", "over", "inside", "atop", "facing", "against", "into", "onto",
-                   "from", "around", "for", "while", "that", "which", "is", "are", "stands", "sits", "rests",
-                   "lies", "hangs", "leans", "it", "them", "each", "beneath", "underneath", "opposite", "across"})
-# Parts and places of a ground, not objects ("on top of it", "to its left", "in the middle of").
-_PLACES = frozenset({"top", "front", "back", "left", "right", "side", "sides", "middle", "centre", "center", "edge",
-                     "corner", "end", "rear", "other", "bottom", "one", "way", "foot", "head", "rim"})
+_PHRASE_ENDS = frozenset({
+    "and", "with", "of", "to", "on", "in", "at", "by", "under", "beside", "behind", "near", "next", "between", "above",
+    "below", "over", "inside", "atop", "facing", "against", "into", "onto", "from", "around", "for", "while", "that",
+    "which", "is", "are", "stands", "sits", "rests", "lies", "hangs", "leans", "it", "them", "each", "beneath",
+    "underneath", "opposite", "across"})
 _FLOOR = frozenset({"floor", "ground", "room"})  # "a rug on the floor": on the floor beside the first object
 
 
@@ -122,7 +120,7 @@ class _Said:
     floor: bool = False
 
 
-def read(description: str, names: Sequence[str]) -> ScenePlan:
+def read_description(description: str, names: Sequence[str]) -> ScenePlan:
     """The plan of ``description`` over the uploads called ``names`` (given names, else the files' stems): see the
     module's docstring. Raises ``DescriptionError`` (``field`` ``prompt`` or ``names``)."""
     text = " ".join(description.split())
@@ -160,7 +158,7 @@ def _check_keys(names: Sequence[str], keys: list[str]) -> None:
 def _by_order(description: str, names: Sequence[str], phrases: list[str]) -> ScenePlan:
     """No upload's name said and one object phrase per upload: the uploads in the order the description names
     its objects (``phrases``), said so."""
-    plan = read(description, phrases)
+    plan = read_description(description, phrases)
     plan.warnings.insert(0, "no object's name is said: matched in the order the description names them ("
                          + ", ".join(f"{n} as {p}" for n, p in zip(names, phrases, strict=True)) + ")")
     return plan
@@ -201,10 +199,10 @@ def _triple(sentence: str) -> str | None:
     if not 3 <= len(parts) <= 2 + MAX_GROUNDS or not all(parts):
         return None
     relation = _TRIPLE_WORDS.get(parts[1].lower(), parts[1].lower())
-    cue = vocabulary.find_cue(relation)
+    cue = cues.find_cue(relation)
     if cue is None or cue.start != 0 or cue.end != len(relation):
         return None
-    if (len(parts) == 4) != (cue.relation.kind == "between"):
+    if (len(parts) == 4) != (cue.relation.grounds == 2):
         return None
     grounds = " and ".join(_the(p) for p in parts[2:])
     return f"{_the(parts[0])} {relation} {grounds}"
@@ -216,9 +214,9 @@ def _the(phrase: str) -> str:
 
 def _open_between(piece: str) -> bool:
     """A piece that ends inside "between X and Y" (its cue has fewer than two grounds yet; "between them" has)."""
-    cue = vocabulary.find_cue(piece, kinds={"between"})
-    return cue is not None and vocabulary.ground_phrases(piece, cue) not in (["them"], ["it"]) and len(
-        vocabulary.ground_phrases(piece, cue)) < 2
+    cue = cues.find_cue(piece, kinds={"between"})
+    return cue is not None and cues.ground_phrases(piece, cue) not in (["them"], ["it"]) and len(
+        cues.ground_phrases(piece, cue)) < 2
 
 
 class _Reader:
@@ -249,7 +247,7 @@ class _Reader:
             word = tokens[i][2]
             if word in ("it", "them"):
                 found.append(_Mention(tokens[i][0], tokens[i][1], word))
-            elif word == "each" and (i + 1 == len(tokens) or tokens[i + 1][2] in _ENDS | {"one"}):
+            elif word == "each" and (i + 1 == len(tokens) or tokens[i + 1][2] in _PHRASE_ENDS | {"one"}):
                 found.append(_Mention(tokens[i][0], tokens[i][1], "each"))
             elif word in _DETERMINERS and word != "each":
                 phrase = self._phrase(tokens, i + 1)
@@ -277,12 +275,12 @@ class _Reader:
         """The words of an object's phrase from token ``i`` (up to three, to a word that ends a phrase); [] for a
         part or place of a ground ("the top", "its left") or where an upload's name starts."""
         words: list[str] = []
-        while i < len(tokens) and len(words) < 3 and tokens[i][2] not in _ENDS | _DETERMINERS:
+        while i < len(tokens) and len(words) < 3 and tokens[i][2] not in _PHRASE_ENDS | _DETERMINERS:
             if self._name_at(tokens, i) is not None:
                 return []
             words.append(tokens[i][2])
             i += 1
-        return [] if not words or words[-1] in _PLACES | _FLOOR else words
+        return [] if not words or words[-1] in PLACE_WORDS | _FLOOR else words
 
     def names_object(self, piece: str) -> bool:
         """Whether a piece names an object of its own (not only a reference back: "facing it")."""
@@ -298,7 +296,7 @@ class _Reader:
         named = [m for m in mentions if m.known and not m.back]
         for before, m in zip([None, *mentions], mentions, strict=False):
             if m in named:  # the number said just before its name ("two paint tins"), wherever it is named so
-                said = counts.read(clause[before.end if before else 0:m.end], m.key).count or 1
+                said = counts.read_count(clause[before.end if before else 0:m.end], m.key).count or 1
                 self.counts[m.key] = max(said, self.counts.get(m.key, 1))
         cue = _cue(clause, mentions) if len(named) > 2 else _cue(clause)
         if cue is None or self.unknown and self.unknown[-1][1] == clause:
@@ -322,11 +320,11 @@ class _Reader:
         prompt = self._prompt(said, [m for m in ground_side if m.end <= len(said)], grounds) if grounds else clause
         self.said.append(_Said(figure.key, grounds, clause, prompt, each, floor))
 
-    def _grounds(self, side: list[_Mention], figure: str, cue: vocabulary.CueMatch, clause: str
+    def _grounds(self, side: list[_Mention], figure: str, cue: cues.CueMatch, clause: str
                  ) -> tuple[list[str], bool, list[_Mention]]:
         """The clause's grounds (object keys), whether they are "each" of a group's copies, and the mentions they
         come from."""
-        most = MAX_GROUNDS if cue.relation.kind == "between" else 1
+        most = cue.relation.grounds
         grounds: list[str] = []
         each = False
         for m in side[:most]:
@@ -366,7 +364,7 @@ class _Reader:
     def _prompt(self, clause: str, side: list[_Mention], grounds: list[str]) -> str:
         """The clause with its references back said by name ("a metronome on the piano")."""
         if not side and not {"its", "their"} & set(clause.split()):  # "a metronome on top": of what it refers to
-            return f"{clause} {'of ' if clause.split()[-1] in _PLACES else ''}the {grounds[0]}"
+            return f"{clause} {'of ' if clause.split()[-1] in PLACE_WORDS else ''}the {grounds[0]}"
         out, at = [], 0
         for m in (m for m in side if m.back):
             said = " and ".join(f"the {g}" for g in grounds) if m.key == "them" else f"the {grounds[0]}"
@@ -375,7 +373,7 @@ class _Reader:
         return "".join(out) + clause[at:]
 
 
-def _cue(clause: str, mentions: Sequence[_Mention] = ()) -> vocabulary.CueMatch | None:
+def _cue(clause: str, mentions: Sequence[_Mention] = ()) -> cues.CueMatch | None:
     """The clause's relation cue as the pair reader finds it (a placing cue first). A clause naming three objects
     or more ("a lamp on the desk beside the monitor") relates the first two: the cue of the shortest start of the
     clause that names an object before its cue and one after it."""
@@ -383,7 +381,7 @@ def _cue(clause: str, mentions: Sequence[_Mention] = ()) -> vocabulary.CueMatch 
         cue = _cue(clause[:mention.end])
         if cue is not None and cue.end <= mention.start and any(m.end <= cue.start for m in mentions):
             return cue
-    return vocabulary.find_cue(clause, kinds=vocabulary.PLACING) or vocabulary.find_cue(clause)
+    return cues.find_cue(clause, kinds=records.PLACING) or cues.find_cue(clause)
 
 
 def _plan(description: str, names: list[str], keys: list[str], reader: _Reader) -> ScenePlan:
@@ -451,7 +449,7 @@ def _steps(said: _Said, nodes: dict[str, list[str]], keys: list[str]) -> list[Pl
     for k, name in enumerate(figures):
         if said.each:
             on = tuple(nodes[g][k] for g in said.grounds)
-        elif len(said.grounds) == 1 and len(nodes[said.grounds[0]]) > 1 and vocabulary.find_cue(prompt,
+        elif len(said.grounds) == 1 and len(nodes[said.grounds[0]]) > 1 and cues.find_cue(prompt,
                                                                                              kinds={"between"}):
             on = tuple(nodes[said.grounds[0]][:MAX_GROUNDS])  # "a brush between them": two copies
         else:
@@ -462,8 +460,8 @@ def _steps(said: _Said, nodes: dict[str, list[str]], keys: list[str]) -> list[Pl
 
 def _relation(ground: str, figure: str, prompt: str, clause: str) -> str:
     """The relation the pair reader reads of a step's prompt; an error where it takes the figure for the ground."""
-    reading = passes.read(ground, figure, prompt)
+    reading = passes.read_prompt(ground, figure, prompt)
     if not reading.figure:
         raise DescriptionError(f"'{clause}': the reader takes the {figure} as the ground here; say it as 'the "
                                f"{figure} <where> the {ground}'", code="unclear_clause", field="prompt")
-    return reading.name
+    return reading.reading.name

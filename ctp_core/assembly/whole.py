@@ -18,8 +18,8 @@ import numpy as np
 import trimesh
 
 from ctp_core import adjust
-from ctp_core.relations import vocabulary
-from ctp_core.relations.vocabulary import RelationReading
+from ctp_core.reading import records
+from ctp_core.reading.relation import RelationReading
 from ctp_core.search.ordering import SUNK
 
 if TYPE_CHECKING:
@@ -37,8 +37,8 @@ def verdict(others: trimesh.Scene, name: str, mesh: trimesh.Trimesh, to_scene: n
     # the scene's up and front found as the step's run found them, from its objects (their files' frames)
     done = adjust.adjust(others, mesh, to_scene, result.config, on=list(grounds), reading=reading)
     judged = done.relation or {}
-    into = reading is not None and any(vocabulary.RELATIONS[p].penetration != "no" for p in reading.parts
-                                       if p in vocabulary.RELATIONS)
+    into = reading is not None and any(records.RELATIONS[p].penetration != "no" for p in reading.relations
+                                       if p in records.RELATIONS)
     return {"name": name, "relation": judged.get("name"), "on": list(grounds), "holds": judged.get("holds"),
             "stable": judged.get("stable"), "penetration": done.penetration,
             "intersects": not into and done.penetration > SUNK}

@@ -5,7 +5,7 @@ composition checks that the frames chain, so a missing or doubled step fails lou
 silently misplacing the source. The frames:
 
 - ``target_file`` / ``source_file``: as uploaded, scene graph flattened (``io.load_mesh``).
-- ``pairs``: an assembly's frame (``assemble``), the base's file frame. Stage k aligns its source
+- ``scene`` (``SCENE``): an assembly's frame (``assemble``), the base's file frame. Stage k aligns its source
   against the objects placed so far, all in this frame, so each stage's target file frame *is* the
   scene frame and its answer maps source file -> scene.
 - ``target_upright``: the target file frame turned by its canonical rotation (``canonical``); equal to

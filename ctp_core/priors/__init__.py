@@ -9,6 +9,7 @@ OpenAI-compatible chat endpoint, falling back to the rules on any failure). ``re
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 from ctp_core.errors import ConfigError
 from ctp_core.priors.openai import OpenAIProvider, PriorSettings
@@ -100,9 +101,7 @@ def resolve_priors(
         contact_ratio=float(prior.contact_ratio if contact_ratio is None else contact_ratio),
         provider=prior.provider + ("; explicit: " + ", ".join(explicit) if explicit else ""),
         reason="; ".join(reasons),
-        relation=prior.relation,
-        source_is_figure=prior.source_is_figure,
-        place=places.read(prompt),
+        reading=None if prior.reading is None else replace(prior.reading, place=places.read_place(prompt)),
     )
 
 

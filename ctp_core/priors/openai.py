@@ -83,7 +83,7 @@ class OpenAIProvider:
         return ScenePrior(size_ratio=clamp_size(answers["size_ratio"]), penetration=answers["penetration"],
                           contact_ratio=clamp_contact(answers["contact_ratio"]), provider=self.name,
                           reason=f"answered by {self.settings.model or 'the endpoint default model'}",
-                          relation=rules.relation, source_is_figure=rules.source_is_figure)
+                          reading=rules.reading)
 
     def _headers(self) -> dict[str, str]:
         key = self.settings.api_key
@@ -110,7 +110,7 @@ class OpenAIProvider:
         return ScenePrior(prior.size_ratio, prior.penetration, prior.contact_ratio,
                           provider=f"{prior.provider} (fallback: {why})",
                           reason=f"openai provider failed ({why}); {prior.reason}",
-                          relation=prior.relation, source_is_figure=prior.source_is_figure)
+                          reading=prior.reading)
 
 
 def _readable(name: str) -> str:

@@ -2,7 +2,8 @@
 
 ``size_ratio`` is source/target bounding-box size (longest side over longest side), the initial scale
 in scale mode; ``penetration`` says the arrangement needs one solid inside the other (lambda_pen = 0);
-``contact_ratio`` is the fraction of the source surface touching the target (the soft-ICP ratio r).
+``contact_ratio`` is the fraction of the source surface touching the target (the soft-ICP ratio r). Beside the
+numbers, the relation the prompt names (``reading``), which reports write as three fields (``to_dict``).
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ import math
 from dataclasses import asdict, dataclass
 from typing import Protocol
 
-from ctp_core.relations.vocabulary import RelationReading
+from ctp_core.reading.relation import RelationReading
 
 SIZE_RANGE = (0.1, 10.0)  # the paper clamps guessed size ratios here: beyond it a guess is noise
 
@@ -23,20 +24,17 @@ class ScenePrior:
     contact_ratio: float  # [0, 1] -> soft-ICP ratio r
     provider: str  # "rules", "openai", "rules (fallback: <why>)", or with "; explicit: <fields>"
     reason: str  # short, for humans
-    # the spatial relation read from the prompt (a key of ``relations.RELATIONS``: "on", "in", "beside" ...)
-    # and whether the source is its figure (the thing placed) or its ground; None when the provider does not
-    # say. The search weights where it proposes poses by it (never excluding a region).
-    relation: str | None = None
-    source_is_figure: bool = True
-    place: str | None = None  # where on or beside the ground the prompt names (``reading.places``), None: the usual
-
-    @property
-    def reading(self) -> RelationReading | None:
-        """The relation as a run uses it (one value: the name and the source's role); None without one."""
-        return None if self.relation is None else RelationReading(self.relation, self.source_is_figure, self.place)
+    # the relation read from the prompt (who plays the figure, the place on the ground the prompt names); None when
+    # the provider does not say. The search weights where it proposes poses by it (never excluding a region).
+    reading: RelationReading | None = None
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        """The prior as reports write it: the reading as its name, the source's role and the place."""
+        values = {key: value for key, value in asdict(self).items() if key != "reading"}
+        reading = self.reading
+        return {**values, "relation": None if reading is None else reading.name,
+                "source_is_figure": True if reading is None else reading.source_is_figure,
+                "place": None if reading is None else reading.place}
 
 
 def to_report(values: dict) -> dict:

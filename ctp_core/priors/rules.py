@@ -1,4 +1,4 @@
-"""The deterministic scene-prior provider: the numbers of a prompt's reading (``reading.passes.read``).
+"""The deterministic scene-prior provider: the numbers of a prompt's reading (``reading.passes.read_prompt``).
 
 The reading gives the relation, who its figure is, the ground and the contents it holds; this module sizes the
 figure from the lexicon (``_size_ratio``), says whether it goes into the ground (``_penetration``) and how much of
@@ -12,10 +12,10 @@ from __future__ import annotations
 import re
 
 from ctp_core.priors.prior import ScenePrior, clamp_contact, clamp_size
-from ctp_core.reading import context, lexicon
+from ctp_core.reading import context, lexicon, records
 from ctp_core.reading.context import PERSON_M  # an unknown name that holds, wears or rides is someone this tall
-from ctp_core.reading.passes import FASTENER_MAX_M, SUPPORT, PromptReading, pierceable, read
-from ctp_core.relations import vocabulary
+from ctp_core.reading.passes import FASTENER_MAX_M, PromptReading, pierceable, read_prompt
+from ctp_core.reading.records import RelationName, Role
 
 STICKS_OUT = 2.5  # ... and a long thing or a plant that sticks out of it is at most this size of it
 # An unknown figure on or in a known ground is an object someone handles: its size is the relation's typical share
@@ -55,7 +55,6 @@ IMMERSED_CONTACT = {"whole": 0.9, "part": 0.4, "pointed": 0.3}  # "pointed" also
 # What a figure or a doll carries or wears, whatever the prompt's relation ("with a katana strapped to his back").
 _GEAR = {"clothing and accessories", "tools, weapons and equipment"}
 # Relations whose ground must be an agent (the wearer, the holder, the rider).
-_AGENT_GROUND = {"wear", "hold"}
 
 
 class RulesProvider:
@@ -65,15 +64,14 @@ class RulesProvider:
 
     def estimate(self, target_name: str, source_name: str, prompt: str) -> ScenePrior:
         """The prior of a prompt: its reading (``read``), then its size ratio, penetration and contact."""
-        reading = read(target_name, source_name, prompt)
+        reading = read_prompt(target_name, source_name, prompt)
         size, size_why = _sized(reading)
         penetration, pen_why = _penetrates(reading)
         contact = _touches(reading, size, penetration)
         notes = [size_why, *reading.name_notes, *reading.notes, pen_why]
         return ScenePrior(size_ratio=clamp_size(size), penetration=penetration,
                           contact_ratio=clamp_contact(contact), provider=self.name,
-                          reason="; ".join(n for n in notes if n), relation=reading.name,
-                          source_is_figure=reading.figure)
+                          reason="; ".join(n for n in notes if n), reading=reading.reading)
 
 
 def _sized(r: PromptReading) -> tuple[float, str]:
@@ -81,7 +79,7 @@ def _sized(r: PromptReading) -> tuple[float, str]:
     stands upright in a container may stick out of it."""
     upright = r.cue is not None and _UPRIGHT.search(r.text[:r.cue.start]) is not None
     return _size_ratio(r.target_name, r.source_name, r.target, r.source,  # a drinker is at the rim
-                       vocabulary.RELATIONS["on"] if r.drinks else r.relation, r.figure, upright)
+                       records.RELATIONS[RelationName.ON] if r.drinks else r.relation, r.figure, upright)
 
 
 def _penetrates(r: PromptReading) -> tuple[bool, str]:
@@ -174,7 +172,7 @@ def _sizes(target_name, source_name, target, source, relation, figure: bool
         if match is not None:
             sizes.append(match.size_m)
             whys.append(f"{name}: {match.how}")
-        elif is_ground and relation.name in _AGENT_GROUND or not is_ground and relation.name == "sit":
+        elif relation.agent == (Role.GROUND if is_ground else Role.FIGURE):
             sizes.append(PERSON_M)
             whys.append(f"{name!r}: unknown, taken as a person ({PERSON_M:g} m) because it {relation.name}s")
         else:
@@ -192,7 +190,7 @@ def _to_scale(fig_match, ground_match, relation) -> bool:
     """A figure made to its ground's scale: a doll's or an action figure's gear, a small animal's clothes."""
     return (ground_match is not None and fig_match is not None and fig_match.size_m > 0.5 * ground_match.size_m
             and not fig_match.has("agent") and (
-                relation.name in _AGENT_GROUND and ground_match.entry.domain == "toys and figures"
+                relation.agent == Role.GROUND and ground_match.entry.domain == "toys and figures"
                 or fig_match.entry.domain in _GEAR and ground_match.entry.name == "toy"
                 or relation.name == "wear" and ground_match.entry.domain == "animals"
                 and fig_match.entry.domain == "clothing and accessories" and ground_match.size_m < PERSON_M))
@@ -316,8 +314,8 @@ def _contact(relation, figure: bool, source, immersed_in: str | None = None, afl
 def _shaped(contact: float, relation, source) -> float:
     """The figure's ``contact`` for its shape (``_contact``): a ball touches at a point, a sheet lies on a face, a
     soft thing settles, a wrap hugs."""
-    if source.has("round") and relation.name in SUPPORT | {"in"}:
-        contact = min(contact, 0.05 if relation.name in SUPPORT else 0.1)
+    if source.has("round") and (relation.supports or relation.name == RelationName.IN):
+        contact = min(contact, 0.05 if relation.supports else 0.1)
     if source.has("flat") and relation.name in {"on", "lie", "attach"}:
         contact = max(contact, 0.45)
     if source.has("flat") and not source.has("soft") and relation.name == "hang":

@@ -28,8 +28,7 @@ import re
 from dataclasses import replace
 from functools import lru_cache
 
-from ctp_core.reading import lexicon
-from ctp_core.relations import vocabulary
+from ctp_core.reading import cues, lexicon
 
 # A size word in the prompt is relative to the kind ("a big knife" is no twice-as-long knife): the name's
 # factor (``lexicon.SIZE_WORDS``) damped to this power.
@@ -108,7 +107,7 @@ def _is_contents(word: str, before: str | None) -> bool:
 @lru_cache(maxsize=64)
 def prompt_words(prompt: str) -> tuple[tuple[int, str], ...]:
     """The prompt's words with their offsets; every reader of one prompt shares a single tokenisation."""
-    return tuple((m.start(), m.group(0)) for m in _WORD.finditer(vocabulary.clean(prompt)))
+    return tuple((m.start(), m.group(0)) for m in _WORD.finditer(cues.clean(prompt)))
 
 
 def modifiers(prompt: str, mention_at: list[int]) -> list[str]:

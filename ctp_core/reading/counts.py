@@ -1,7 +1,7 @@
 """Several of a kind: how many copies of the source a run places and how they stand together.
 
 "three apples in the bowl", "a pair of vases on the shelf", "four chairs around the table", "5 books in a row on
-the shelf", "a dozen eggs", "a stack of plates". ``read`` finds the number (a numeral, a number word up to twenty,
+the shelf", "a dozen eggs", "a stack of plates". ``read_count`` finds the number (a numeral, a number word up to twenty,
 "a pair/couple of", "a dozen", "half a dozen") and an arrangement cue; ``choose`` settles a run's count and
 arrangement (the options over the prompt, bounded by ``MAX_COPIES``); ``one_copy`` is the prompt each copy is
 read and guided by: the number and the arrangement's words taken out, so the relation reader sees "apples in the
@@ -16,12 +16,15 @@ import re
 from dataclasses import dataclass
 
 from ctp_core.errors import ConfigError
+from ctp_core.reading.records import RelationName
+from ctp_core.reading.relation import RelationReading
 
 ARRANGEMENTS = ("scatter", "around", "row", "stack")  # how copies stand together (``ctp_core.assembly.copies``)
 CHOICES = ("auto", *ARRANGEMENTS)  # the option's values: auto is the prompt's cue, else scatter
 MAX_COPIES = 12  # a run's copies at most: each is a placement of its own, and the set's checks are pairwise
 SEVERAL = 3  # copies where a collective noun says several but no number ("a stack of plates", "a row of books")
-AROUND = "beside+facing"  # what each copy around the target is judged by, whatever the prompt's words
+# what each copy around the target is judged by, whatever the prompt's words
+AROUND = RelationReading(RelationName.BESIDE, orientation=RelationName.FACING)
 
 NUMBER_WORDS = {"one": 1, "two": 2, "three": 3, "four": 4, "five": 5, "six": 6, "seven": 7, "eight": 8, "nine": 9,
                 "ten": 10, "eleven": 11, "twelve": 12, "thirteen": 13, "fourteen": 14, "fifteen": 15, "sixteen": 16,
@@ -61,7 +64,7 @@ class CountReading:
         return {"count": self.count, "arrangement": self.arrangement, "why": self.why, "several": self.several}
 
 
-def read(prompt: str | None, source_name: str | None = None) -> CountReading:
+def read_count(prompt: str | None, source_name: str | None = None) -> CountReading:
     """The number of copies and the arrangement a prompt names; the first number said of the source counts (one of
     the three words after it is a word of the source's name: "two swords" does not count men holding them), any
     number where the source has no name ("source")."""
@@ -126,12 +129,12 @@ def check_count(count: int) -> int:
 
 def choose(prompt: str | None, count: int | None = None, arrangement: str = "auto", source_name: str | None = None
            ) -> tuple[int, str, CountReading]:
-    """(count, arrangement, the prompt's reading, ``counts.read``): the options win over the prompt; ``auto``
+    """(count, arrangement, the prompt's reading, ``counts.read_count``): the options win over the prompt; ``auto``
     is the prompt's cue or ``scatter``; a collective noun without a number ("a stack of") is ``SEVERAL`` copies."""
     if arrangement not in CHOICES:
         raise ConfigError(f"arrangement is one of {', '.join(CHOICES)}, not {arrangement!r}",
                           code="invalid_arrangement", field="arrangement")
-    reading = read(prompt, source_name)
+    reading = read_count(prompt, source_name)
     if count is None:
         count = reading.count or (SEVERAL if reading.several else 1)
     kind = arrangement if arrangement != "auto" else reading.arrangement or "scatter"

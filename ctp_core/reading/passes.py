@@ -1,10 +1,10 @@
 """The reading of a prompt: what the rules read of (target name, source name, prompt) before any number.
 
-``read`` applies ``PASSES`` in order to a ``PromptReading``: the relation cue and a lean's side, each name resolved
-in the prompt's context, the cue's relation and who its figure is, the ground (the middle of a container is in it),
-the contents it holds, afloat, encased, draped, into an opening, and the reading's name (a lean's side, an
-orientation). Each pass rewrites a part of the reading and says why in its notes. The numbers (size, penetration,
-contact) are ``priors.rules``'s.
+``read_prompt`` applies ``PASSES`` in order to a ``PromptReading``: the relation cue and a lean's side, each name
+resolved in the prompt's context, the cue's relation and who its figure is, the ground (the middle of a container is
+in it), the contents it holds, afloat, encased, draped, into an opening, and the reading (``RelationReading``: the
+relation with a lean's side and an orientation). Each pass rewrites a part of the reading and says why in its notes.
+The numbers (size, penetration, contact) are ``priors.rules``'s.
 """
 
 from __future__ import annotations
@@ -13,12 +13,10 @@ import re
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
-from ctp_core.reading import context, lexicon
-from ctp_core.relations import vocabulary
+from ctp_core.reading import context, cues, lexicon, records
+from ctp_core.reading.records import Kind, RelationName, Role
+from ctp_core.reading.relation import RelationReading
 
-# Relations that rest on, lean on, hang from or are attached to the ground (where a ball touches at a point, a sheet
-# lies on a face, a soft thing settles: ``priors.rules``).
-SUPPORT = {"on", "stand", "sit", "lie", "lean", "hang", "attach"}
 # Cues of cutting that someone does with a tool in hand ("a chef cutting a cake"), not with their own body.
 _AGENT_CUTS = re.compile(r"cut|slic|stab|pierc|skewer|spear|impal|carv")
 # Cues of moving on water ("floating in", "a duck paddling on"), and of being at a water body's rim instead.
@@ -48,7 +46,7 @@ _BITES = re.compile(r"bit|sting")
 
 @dataclass
 class PromptReading:
-    """What the rules have read of one prompt (``read``); each of ``PASSES`` rewrites a part of it, in order.
+    """What the rules have read of one prompt (``read_prompt``); each of ``PASSES`` rewrites a part of it, in order.
 
     ``figure``: the source is the relation's figure (else the target is). ``ground``, ``ground_name`` and
     ``ground_at`` are the ground as ``_ground_named`` names it once the figure is settled (a later swap of the
@@ -58,17 +56,17 @@ class PromptReading:
     """
 
     prompt: str
-    text: str  # ``vocabulary.clean(prompt)``: lower case, offsets those of the prompt
+    text: str  # ``cues.clean(prompt)``: lower case, offsets those of the prompt
     target_name: str
     source_name: str
     target: lexicon.Match | None
     source: lexicon.Match | None
     target_at: list[int]  # where the prompt mentions each (``_mentions``)
     source_at: list[int]
-    cue: vocabulary.CueMatch | None = None
-    leant: str | None = None  # the side of the ground a lean touches
+    cue: cues.CueMatch | None = None
+    leant: RelationName | None = None  # the side of the ground a lean touches
     figure: bool = True
-    relation: vocabulary.Relation | None = None
+    relation: records.Relation | None = None
     why: str = ""  # the reason for ``relation``
     notes: list[str] = field(default_factory=list)
     drinks: bool = False  # an animal drinking from the ground
@@ -80,17 +78,17 @@ class PromptReading:
     filled: str | None = None
     afloat: bool = False
     encased: bool = False
-    name: str = ""  # the reading's relation name (with a lean's side, an orientation)
+    reading: RelationReading | None = None  # the relation as a run uses it (with a lean's side, an orientation)
     name_notes: list[str] = field(default_factory=list)
 
     @classmethod
     def start(cls, target_name: str, source_name: str, prompt: str) -> PromptReading:
         """The lexicon's entries for both names and where the prompt mentions each."""
         target, source = lexicon.lookup(target_name), lexicon.lookup(source_name)
-        return cls(prompt, vocabulary.clean(prompt), target_name, source_name, target, source,
+        return cls(prompt, cues.clean(prompt), target_name, source_name, target, source,
                    _mentions(prompt, target_name, target), _mentions(prompt, source_name, source))
 
-    def aside(self, c: vocabulary.CueMatch) -> bool:
+    def aside(self, c: cues.CueMatch) -> bool:
         """A cue about something other than the two objects."""
         prompt, mentions = self.prompt, self.target_at + self.source_at
         # "... with only its eyes above the water": about a part
@@ -98,7 +96,7 @@ class PromptReading:
                 and not context.names_next(prompt, c.end, mentions)
                 or c.text in {"in", "inside"}  # "a candle in a bucket on the table": on the table
                 and context.other_container(prompt, c.end, mentions)
-                or vocabulary.RELATIONS[c.cue.relation].kind != "contact"  # "... to the left of the plate"
+                or c.relation.aside  # "... to the left of the plate"
                 and context.about_another(prompt, c.end, mentions))
 
     def reground(self, ground: lexicon.Match) -> None:
@@ -111,12 +109,12 @@ def _find_cue(r: PromptReading) -> None:
     """The relation cue, a lean's side, and who the figure is from where each object is mentioned around the cue
     (the source, where the mentions do not say)."""
     # a position first ("in front of the sofa, facing it": front), an orientation alone ("facing the sofa")
-    cue = vocabulary.find_cue(r.prompt, r.aside, vocabulary.PLACING) or vocabulary.find_cue(r.prompt, r.aside)
+    cue = cues.find_cue(r.prompt, r.aside, records.PLACING) or cues.find_cue(r.prompt, r.aside)
     # "against the back of the sofa", "behind the sofa, against it": a lean, on that side
     r.cue, r.leant = _leaning(r.prompt, cue, r.aside, r.target_at + r.source_at)
     figure = None
     if r.cue is not None:
-        figure = vocabulary.source_is_figure(r.cue, r.source_at, r.target_at)
+        figure = cues.source_is_figure(r.cue, r.source_at, r.target_at)
     if figure is None:
         figure = True  # the source is what gets placed: by default it is the figure
     r.figure = figure
@@ -125,19 +123,19 @@ def _find_cue(r: PromptReading) -> None:
 def _resolve_objects(r: PromptReading) -> None:
     """Each name resolved in the prompt's context (``context.resolve``); an unknown wearer, holder or sitter is an
     agent."""
-    agent_role = {"wear": "ground", "hold": "ground", "sit": "figure"}.get(r.cue.cue.relation if r.cue else "")
+    agent_role = r.cue.relation.agent if r.cue else None
     r.target, r.source = (
         context.resolve(r.target_name, r.prompt, r.target_at, r.source,
-                        agent_role == ("ground" if r.figure else "figure"), r.source_name),
+                        agent_role == (Role.GROUND if r.figure else Role.FIGURE), r.source_name),
         context.resolve(r.source_name, r.prompt, r.source_at, r.target,
-                        agent_role == ("figure" if r.figure else "ground"), r.target_name))
+                        agent_role == (Role.FIGURE if r.figure else Role.GROUND), r.target_name))
 
 
 def _relation_of_cue(r: PromptReading) -> None:
     """The cue's relation (``_relation``); a side said with a lean ("behind the sofa, against it") is a lean."""
     r.relation, r.why = _relation(r.cue, r.target, r.source, r.source if r.figure else r.target)
     if r.leant is not None and r.relation.name != "lean":  # "behind the sofa, against it"
-        r.relation, r.why = vocabulary.RELATIONS["lean"], f"'{r.cue.text}', leaning -> lean"
+        r.relation, r.why = records.RELATIONS[RelationName.LEAN], f"'{r.cue.text}', leaning -> lean"
 
 
 def _drinker_holds(r: PromptReading) -> None:
@@ -146,7 +144,7 @@ def _drinker_holds(r: PromptReading) -> None:
     drinker = r.source if r.figure else r.target
     if r.drinks and not (drinker is not None and drinker.entry.domain == "animals"):
         r.figure, r.drinks = not r.figure, False  # "a man drinking from a cup": he holds it
-        r.relation, r.why = vocabulary.RELATIONS["hold"], f"'{r.cue.text}' said of someone: holding it"
+        r.relation, r.why = records.RELATIONS[RelationName.HOLD], f"'{r.cue.text}' said of someone: holding it"
 
 
 def _fastener_pierces(r: PromptReading) -> None:
@@ -156,7 +154,7 @@ def _fastener_pierces(r: PromptReading) -> None:
     if (r.relation.name == "hold" and holder is not None and holder.has("pointed") and not holder.has("agent")
             and (holder.size_m <= FASTENER_MAX_M or holder.has("staked")) and pierceable(held)):
         r.figure = not r.figure
-        r.relation = vocabulary.RELATIONS["penetrate"]
+        r.relation = records.RELATIONS[RelationName.PENETRATE]
         r.why = f"'{r.cue.text}' said of a pointed {holder.phrase}: a fastener in the {held.phrase}"
 
 
@@ -169,7 +167,7 @@ def _bite_pierces(r: PromptReading) -> None:
                                                                   or pierceable(held)))
     if r.bites:
         r.figure = not r.figure
-        r.relation = vocabulary.RELATIONS["penetrate"]
+        r.relation = records.RELATIONS[RelationName.PENETRATE]
         r.why = f"'{r.cue.text}' said of a {holder.phrase}: its bite or sting pierces the skin"
 
 
@@ -186,7 +184,7 @@ def _amid_container(r: PromptReading) -> None:
     """In the middle of a container: in it ("a toy in the middle of the box"; of a table, a rug or a plate: on it)."""
     if (r.relation.name == "on" and r.cue is not None and _AMID.fullmatch(r.cue.text) and r.ground is not None
             and r.ground.has("container") and not r.ground.has("flat")):
-        r.relation, r.why = vocabulary.RELATIONS["in"], f"'{r.cue.text}' a container: in it"
+        r.relation, r.why = records.RELATIONS[RelationName.IN], f"'{r.cue.text}' a container: in it"
 
 
 def _tucked_into_fold(r: PromptReading) -> None:
@@ -219,9 +217,9 @@ def _contents_held(r: PromptReading) -> None:
 def _under_contents(r: PromptReading) -> None:
     """On the bottom of a ground full of contents, or under the water it holds: in them ("an ornament on the gravel
     of an aquarium of water")."""
-    if (r.filled is not None and r.relation.name in SUPPORT | {"under"} and r.ground is not None
+    if (r.filled is not None and (r.relation.supports or r.relation.name == RelationName.UNDER) and r.ground is not None
             and (_ON_BOTTOM.search(r.text) or r.relation.name == "under" and _WATER_SAID.search(r.text))):
-        r.relation, r.why = vocabulary.RELATIONS["in"], r.why + f"; under the {r.filled} it holds"
+        r.relation, r.why = records.RELATIONS[RelationName.IN], r.why + f"; under the {r.filled} it holds"
 
 
 def _drinking_water(r: PromptReading) -> None:
@@ -236,7 +234,7 @@ def _water_said(r: PromptReading) -> None:
     if r.filled is None and r.ground is not None and r.ground.has("container") and _WATER_SAID.search(r.text):
         r.filled = "water"  # "a toy submarine underwater in the bathtub"
         if r.relation.name == "under":  # "a submarine beneath the waves of the sea"
-            r.relation, r.why = vocabulary.RELATIONS["in"], r.why + "; under the water it holds"
+            r.relation, r.why = records.RELATIONS[RelationName.IN], r.why + "; under the water it holds"
 
 
 def _buried_in_contents(r: PromptReading) -> None:
@@ -274,7 +272,7 @@ def _afloat_on_water(r: PromptReading) -> None:
     next ("a swan gliding on the lake"; not "a frog on a lily pad in a pond", nor at the edge of a fountain: on its
     rim)."""
     r.afloat = r.cue is not None and _AFLOAT.match(r.cue.text) is not None
-    if (not r.afloat and r.filled is not None and r.relation.name in SUPPORT and r.ground is not None
+    if (not r.afloat and r.filled is not None and r.relation.supports and r.ground is not None
             and r.ground.entry.domain == "buildings and places"  # "a swan gliding on the lake", not "a frog
             and r.cue is not None and context.names_next(r.prompt, r.cue.end, r.ground_at)  # on a lily pad in a pond"
             and not _AT_EDGE.search(r.cue.text)):  # at the edge of a fountain: on its rim
@@ -293,7 +291,7 @@ def _afloat_in_container(r: PromptReading) -> None:
 def _afloat_in_air(r: PromptReading) -> None:
     """Afloat in nothing that holds water (in air, in open water): beside it, no contact."""
     if r.afloat and r.filled is None:
-        r.relation, r.why = vocabulary.RELATIONS["beside"], f"'{r.cue.text}' in air or open water: no contact"
+        r.relation, r.why = records.RELATIONS[RelationName.BESIDE], f"'{r.cue.text}' in air or open water: no contact"
 
 
 def _draped_over(r: PromptReading) -> None:
@@ -301,7 +299,7 @@ def _draped_over(r: PromptReading) -> None:
     fig_match = r.source if r.figure else r.target
     if (r.relation.name == "above" and r.cue is not None and r.cue.text == "over" and fig_match is not None
             and (fig_match.has("soft") or fig_match.has("wrap"))):
-        r.relation, r.why = vocabulary.RELATIONS["lie"], "'over' said of a cloth or a cover: draped over"
+        r.relation, r.why = records.RELATIONS[RelationName.LIE], "'over' said of a cloth or a cover: draped over"
 
 
 def _into_opening(r: PromptReading) -> None:
@@ -321,29 +319,29 @@ def _ground_under_figure(r: PromptReading) -> None:
     """The target under the source: the target rests on the source ("a table under a cup": the cup is on the
     table)."""
     if r.relation.name == "under" and not r.figure:  # "a table under a cup": the cup is on the table
-        r.relation, r.figure = vocabulary.RELATIONS["on"], True
+        r.relation, r.figure = records.RELATIONS[RelationName.ON], True
         r.notes.append("read as the target resting on the source")
 
 
 def _named(r: PromptReading) -> None:
-    """The reading's name: the relation, joined with a lean's side and with an orientation said about the same
-    ground ("in front of the sofa, facing it": both judged)."""
-    r.name = r.relation.name if r.leant is None else vocabulary.JOIN.join((r.relation.name, r.leant))
+    """The reading: the relation, with a lean's side and with an orientation said about the same ground ("in front
+    of the sofa, facing it": both judged)."""
     turn = _orientation(r.prompt, r.cue, r.relation, r.aside, r.ground_at, r.source_at if r.figure else r.target_at)
     if turn is not None:  # "in front of the sofa, facing it": both judged
-        r.name += vocabulary.JOIN + turn.cue.relation
         r.name_notes.append(f"'{turn.text}' -> {turn.cue.relation} too")
+    more = [r for r in (r.leant, turn.cue.relation if turn else None) if r is not None]
+    r.reading = RelationReading.of(r.relation.name, *more, role=Role.FIGURE if r.figure else Role.GROUND)
 
 
 def _side_noted(r: PromptReading) -> None:
-    """The side of the ground the name puts the figure on, leading the name's notes."""
-    side = vocabulary.side_of(r.name)
+    """The side of the ground the reading puts the figure on, leading the name's notes."""
+    side = r.reading.side if r.reading is not None else None
     if side is not None:
         r.name_notes.insert(0, f"on the {r.ground_name}'s {side} side (its own front, else the viewer's)")
 
 
-# The rewrites of a reading, in the order ``read`` applies them: each reads what those before it settled (the cue,
-# then the relation and who the figure is, then the ground and its contents, then the name).
+# The rewrites of a reading, in the order ``read_prompt`` applies them: each reads what those before it settled (the
+# cue, then the relation and who the figure is, then the ground and its contents, then the name).
 PASSES: tuple[Callable[[PromptReading], None], ...] = (
     _find_cue, _resolve_objects, _relation_of_cue, _drinker_holds, _fastener_pierces, _bite_pierces, _ground_named,
     _amid_container, _tucked_into_fold, _contents_held, _under_contents, _drinking_water, _water_said,
@@ -352,7 +350,7 @@ PASSES: tuple[Callable[[PromptReading], None], ...] = (
 )
 
 
-def read(target_name: str, source_name: str, prompt: str) -> PromptReading:
+def read_prompt(target_name: str, source_name: str, prompt: str) -> PromptReading:
     """The reading of a prompt about two named objects: ``PromptReading.start``, rewritten by each of ``PASSES``."""
     reading = PromptReading.start(target_name, source_name, prompt)
     for rewrite in PASSES:
@@ -381,15 +379,15 @@ def _mentions(prompt: str, name: str, match: lexicon.Match | None) -> list[int]:
     return [offsets[i] for i, t in enumerate(tokens) if forms & set(lexicon.singulars(t))]
 
 
-def _orientation(prompt: str, cue: vocabulary.CueMatch | None, relation: vocabulary.Relation, aside,
-                 ground_at: list[int], figure_at: list[int]) -> vocabulary.CueMatch | None:
+def _orientation(prompt: str, cue: cues.CueMatch | None, relation: records.Relation, aside,
+                 ground_at: list[int], figure_at: list[int]) -> cues.CueMatch | None:
     """An orientation said after a position about the same ground ("in front of the desk, facing it", "next to the
     sofa, facing the sofa"); None where there is none, it is about something else ("facing the window"), or it is
     said before the figure is named: the viewer's (Sr3D's "facing the bed from the side you sit on it, choose the
     pillow on its left")."""
-    if cue is None or relation.kind == "orientation":
+    if cue is None or relation.kind == Kind.ORIENTATION:
         return None
-    turn = vocabulary.find_cue(prompt, aside, {"orientation"})
+    turn = cues.find_cue(prompt, aside, {Kind.ORIENTATION})
     if turn is None or turn.start < cue.end and cue.start < turn.end:
         return None
     if figure_at and min(figure_at) > turn.start:  # the viewer's: "facing the bed ..., choose the pillow on its left"
@@ -400,25 +398,26 @@ def _orientation(prompt: str, cue: vocabulary.CueMatch | None, relation: vocabul
 # the side a lean's ground is touched on, named after the lean: "against the back of", "on the left-hand end of"
 _LEANT_ON = re.compile(r"\s+(?:the |its |his |her |their )?(front|back|rear|left|right)(?:[- ]hand)?(?: side| end)?"
                        r" of(?![a-z])")
-_SIDE_WORD = {"front": "front", "back": "behind", "rear": "behind", "left": "left", "right": "right"}
+_SIDE_WORD = {"front": RelationName.FRONT, "back": RelationName.BEHIND, "rear": RelationName.BEHIND,
+              "left": RelationName.LEFT, "right": RelationName.RIGHT}
 
 
-def _leaning(prompt: str, cue: vocabulary.CueMatch | None, aside, mention_at: list[int]
-             ) -> tuple[vocabulary.CueMatch | None, str | None]:
+def _leaning(prompt: str, cue: cues.CueMatch | None, aside, mention_at: list[int]
+             ) -> tuple[cues.CueMatch | None, RelationName | None]:
     """The cue to read and the side of the ground a lean touches, where the prompt names one: after the lean
     ("against the back of the sofa", "leaning on the front of the car": ``front``, ``behind``, ``left``, ``right``;
     "the side of" names none), or as a side with a lean about the same ground ("behind the sofa, against it",
     "leaning against the left side of the amp"; the earlier of the two cues says who the figure is). ``(cue,
     None)`` otherwise."""
     if cue is None or cue.cue.relation == "lean":
-        said = cue and _LEANT_ON.match(vocabulary.clean(prompt), cue.end)
+        said = cue and _LEANT_ON.match(cues.clean(prompt), cue.end)
         return cue, _SIDE_WORD[said.group(1)] if said else None
-    if cue.relation.kind != "side":
+    if cue.relation.kind != Kind.SIDE:
         return cue, None
-    lean = vocabulary.find_cue(prompt, aside, {"contact"})
+    lean = cues.find_cue(prompt, aside, {Kind.CONTACT})
     if lean is None or lean.cue.relation != "lean" or lean.start < cue.end and cue.start < lean.end:
         return cue, None
-    said_of_side = lean.end <= cue.start and _BEFORE_SIDE.fullmatch(vocabulary.clean(prompt)[lean.end:cue.start])
+    said_of_side = lean.end <= cue.start and _BEFORE_SIDE.fullmatch(cues.clean(prompt)[lean.end:cue.start])
     if not said_of_side and context.about_another(prompt, lean.end, mention_at):  # "... leaning on the wall"
         return cue, None
     return min(cue, lean, key=lambda c: c.start), cue.cue.relation
@@ -427,25 +426,25 @@ def _leaning(prompt: str, cue: vocabulary.CueMatch | None, aside, mention_at: li
 _BEFORE_SIDE = re.compile(r"\s*(?:the |its |his |her |their )?")  # "against the [left side of]": one phrase
 
 
-def _relation(cue, target, source, figure) -> tuple[vocabulary.Relation, str]:
+def _relation(cue, target, source, figure) -> tuple[records.Relation, str]:
     """The cue's relation; only agents ride or sit ("a ball riding down a slide" rests on it), and
     agents cut with tools, not themselves ("a chef cutting a cake" handles it; "a worm poking out of an apple"
     is in it)."""
     if cue is not None:
-        rel = vocabulary.RELATIONS[cue.cue.relation]
+        rel = records.RELATIONS[cue.cue.relation]
         if rel.name == "sit" and figure is not None and not figure.has("agent"):
-            return vocabulary.RELATIONS["on"], f"'{cue.text}' said of an object: resting on"
+            return records.RELATIONS[RelationName.ON], f"'{cue.text}' said of an object: resting on"
         if (rel.name == "penetrate" and figure is not None and figure.has("agent")
                 and _AGENT_CUTS.match(cue.text)):  # "a chef cutting a cake"
-            return vocabulary.RELATIONS["hold"], f"'{cue.text}' said of someone: handling it, with a tool"
+            return records.RELATIONS[RelationName.HOLD], f"'{cue.text}' said of someone: handling it, with a tool"
         if rel.name == "wear" and figure is not None and figure.has("agent"):  # "a bird on a giraffe's head"
-            return vocabulary.RELATIONS["stand"], f"'{cue.text}' said of a creature: standing on it"
+            return records.RELATIONS[RelationName.STAND], f"'{cue.text}' said of a creature: standing on it"
         return rel, f"'{cue.text}' -> {rel.name}"
     if source is not None and lexicon.bare_part(source.phrase) is not None:
-        return vocabulary.RELATIONS["on"], "no relation cue; a detachable part: assumed seated on its owner"
+        return records.RELATIONS[RelationName.ON], "no relation cue; a detachable part: assumed seated on its owner"
     if target is not None and target.has("container") and (source is None or source.size_m <= target.size_m):
-        return vocabulary.RELATIONS["in"], "no relation cue; the target holds things: assumed inside"
-    return vocabulary.RELATIONS["on"], "no relation cue: assumed resting on"
+        return records.RELATIONS[RelationName.IN], "no relation cue; the target holds things: assumed inside"
+    return records.RELATIONS[RelationName.ON], "no relation cue: assumed resting on"
 
 
 def _solid(ground) -> bool:

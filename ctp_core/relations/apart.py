@@ -13,6 +13,8 @@ from scipy.spatial import cKDTree
 from ctp_core.contact import Proposals, surface_regions
 from ctp_core.geometry.pose import quaternion_to_matrix
 from ctp_core.pairs import PreparedPair
+from ctp_core.reading.records import RelationName
+from ctp_core.reading.relation import RelationReading
 from ctp_core.relations import parts
 from ctp_core.relations.building import LEAN_POINTS, kept_where_put, random_resting, target_axes, yawed
 from ctp_core.relations.measures import (
@@ -33,7 +35,6 @@ from ctp_core.relations.measures import (
     turned,
 )
 from ctp_core.relations.spec import Judge, Spec
-from ctp_core.relations.vocabulary import RelationReading
 
 BESIDE_GAP = 0.5  # "beside": the gap at most this many *mean* diagonals of figure and ground
 UNDER_REACH = 0.5  # "under": a downward-facing ground sample above the figure within this of its centre's column
@@ -161,15 +162,16 @@ def _standing(c: Context) -> torch.Tensor:
     return turned(c) + off_floor(c)
 
 
-def _prefer_side(c: Context, side: str) -> torch.Tensor:
+def _prefer_side(c: Context, side: RelationName) -> torch.Tensor:
     """``front``, ``behind``, ``left``, ``right``: standing, centred on that side of the ground, a hand's width out
     (``parts.side_place``; the wedge of ``_score_side`` stays the judge of where it holds)."""
     if c.pair is None:
         return torch.zeros_like(c.unit)
-    return _standing(c) + parts.side_place(c, parts.parts(c.pair).sides[side])
+    return _standing(c) + parts.side_place(c, parts.find_parts(c.pair).sides[side])
 
 
-LATERAL = ("left", "right")  # "beside": the ground's own sides, left first where both are equally usual
+# "beside": the ground's own sides, left first where both are equally usual
+LATERAL = (RelationName.LEFT, RelationName.RIGHT)
 SECOND_SIDE = 0.05  # ``_prefer_beside``: what the right side costs against the left (a fixed order, not a judgement)
 
 
@@ -178,17 +180,17 @@ def _prefer_beside(c: Context) -> torch.Tensor:
     it, a hand's width out (``parts.side_place``): the nearer of the two, the left first on a tie."""
     if c.pair is None:
         return torch.zeros_like(c.unit)
-    sides = parts.parts(c.pair).sides
+    sides = parts.find_parts(c.pair).sides
     each = [parts.side_place(c, sides[name]) + i * SECOND_SIDE for i, name in enumerate(LATERAL)]
     return _standing(c) + torch.minimum(*each)
 
 
-def _where_side(c: Context, side: str) -> str | None:
-    return None if c.pair is None else parts.parts(c.pair).sides[side].reason
+def _where_side(c: Context, side: RelationName) -> str | None:
+    return None if c.pair is None else parts.find_parts(c.pair).sides[side].reason
 
 
 def _where_beside(c: Context) -> str | None:
-    return None if c.pair is None else "; ".join(parts.parts(c.pair).sides[name].reason for name in LATERAL)
+    return None if c.pair is None else "; ".join(parts.find_parts(c.pair).sides[name].reason for name in LATERAL)
 
 
 def _prefer_under(c: Context) -> torch.Tensor:
@@ -358,27 +360,28 @@ def between(pair: PreparedPair, proposals: Proposals, seed: int, reading: Relati
     q = yawed(resting, rng.uniform(0, 2 * math.pi, count))
     return kept_where_put(pair, proposals, q, anchor, log_s, "between")
 
-SIDES = ("front", "behind", "left", "right")
 _ON_SIDE = {side: f"standing {where}, centred on that side, a hand's width away" for side, where in (
-    ("front", "in front of the ground"), ("behind", "behind the ground"), ("left", "to the ground's left"),
-    ("right", "to the ground's right"))}
-SPECS: dict[str, Spec] = {
-    "beside": Spec("beside", Judge(_score_beside, _prefer_beside), apart,
+    (RelationName.FRONT, "in front of the ground"), (RelationName.BEHIND, "behind the ground"),
+    (RelationName.LEFT, "to the ground's left"), (RelationName.RIGHT, "to the ground's right"))}
+R = RelationName
+SPECS: dict[RelationName, Spec] = {
+    R.BESIDE: Spec(R.BESIDE, Judge(_score_beside, _prefer_beside), apart,
                    usual="standing at the ground's left or right side (the left first), centred on it, a hand's width"
                          " away", where=_where_beside),
-    "under": Spec("under", Judge(_score_under, _prefer_under), beneath,
+    R.UNDER: Spec(R.UNDER, Judge(_score_under, _prefer_under), beneath,
                   usual="standing under the middle of the part overhead"),
     **{side: Spec(side, Judge(partial(_score_side, side=side), partial(_prefer_side, side=side)), apart,
-                  usual=_ON_SIDE[side], where=partial(_where_side, side=side)) for side in SIDES},
-    "above": Spec("above", Judge(score_above), apart, usual="over the ground's top, clear of it"),
-    "below": Spec("below", Judge(_score_below, _prefer_below), beneath,
+                  usual=_ON_SIDE[side], where=partial(_where_side, side=side)) for side in _ON_SIDE},
+    R.ABOVE: Spec(R.ABOVE, Judge(score_above), apart, usual="over the ground's top, clear of it"),
+    R.BELOW: Spec(R.BELOW, Judge(_score_below, _prefer_below), beneath,
                   usual="on the floor under the ground's middle"),
-    "near": Spec("near", Judge(_score_near), apart, usual="on the floor close to the ground"),
-    "far": Spec("far", Judge(_score_far), apart, usual="on the floor away from the ground"),
-    "facing": Spec("facing", Judge(partial(_score_facing, sign=1.0)), apart, usual="its front toward the ground"),
-    "facing_away": Spec("facing_away", Judge(partial(_score_facing, sign=-1.0)), apart,
+    R.NEAR: Spec(R.NEAR, Judge(_score_near), apart, usual="on the floor close to the ground"),
+    R.FAR: Spec(R.FAR, Judge(_score_far), apart, usual="on the floor away from the ground"),
+    R.FACING: Spec(R.FACING, Judge(partial(_score_facing, sign=1.0)), apart, usual="its front toward the ground"),
+    R.FACING_AWAY: Spec(R.FACING_AWAY, Judge(partial(_score_facing, sign=-1.0)), apart,
                         usual="its front away from the ground"),
-    "aligned": Spec("aligned", Judge(_score_aligned), apart, usual="its front along the ground's front"),
-    "between": Spec("between", Judge(_score_between, _prefer_between), between,
-                    usual="on the floor in the middle of the gap between the two grounds", grounds=2),
+    R.ALIGNED: Spec(R.ALIGNED, Judge(_score_aligned), apart, usual="its front along the ground's front"),
+    R.BETWEEN: Spec(R.BETWEEN, Judge(_score_between, _prefer_between), between,
+                    usual="on the floor in the middle of the gap between the two grounds"),
 }
+del R

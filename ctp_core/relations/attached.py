@@ -11,6 +11,8 @@ from scipy.spatial import cKDTree
 from ctp_core.contact import Proposals, surface_regions
 from ctp_core.geometry.pose import quaternion_product, quaternion_to_matrix
 from ctp_core.pairs import PreparedPair, per_pair
+from ctp_core.reading.records import RelationName
+from ctp_core.reading.relation import RelationReading
 from ctp_core.relations import parts
 from ctp_core.relations.apart import FACING
 from ctp_core.relations.building import LEAN_POINTS, long_axis_up, lowered, quaternion_onto, target_axes, yaw_turn
@@ -28,7 +30,6 @@ from ctp_core.relations.measures import (
     toward,
 )
 from ctp_core.relations.spec import Bound, Judge, Spec
-from ctp_core.relations.vocabulary import RelationReading
 
 WRAP_SHARE = 0.3  # "wrap": at least this share of the figure touching (the relation table's contact is 0.6)
 LEAN_RISE = 0.25  # "lean": the side contact at least this far above the figure's bottom (lying flat: ~0)
@@ -107,14 +108,14 @@ def _prefer_lean(c: Context) -> torch.Tensor:
     """``lean``: heavy end down (the figure's centre low between its bottom and its top, as a share of its height,
     whatever its tilt: a rake on its head, a guitar on its body), nearly upright (1 less its height in its
     diagonals: leaning a little, not lying half down), standing on the floor (``off_floor``), against a side a
-    person reaches (``parts.SideOf.accessible``: not the back of a ground with a front, which stands against a
+    person reaches (``parts.GroundSide.accessible``: not the back of a ground with a front, which stands against a
     wall), centred on it (``parts.side_place``, touching: no gap term): the nearest such side's, in ``lean_order``
     (the side the prompt names, where it names one: "against the back of"); the middle of the ground's footprint
     (``off_centre``) where the source is the ground."""
     if c.pair is None:
         return off_centre(c)
     low = (c.figure.centre[:, 1] - c.bottom()) / (c.top() - c.bottom()).clamp_min(1e-9)
-    sides = parts.parts(c.pair).sides
+    sides = parts.find_parts(c.pair).sides
     named = c.reading.side if c.reading is not None else None  # "against the back of": that side only
     order = (named,) if named in sides else lean_order(c.pair.front_trusted)
     each = [parts.side_place(c, sides[name], gap=False) + i * LEAN_ORDER for i, name in enumerate(order)]
@@ -122,18 +123,19 @@ def _prefer_lean(c: Context) -> torch.Tensor:
     return low + steep + off_floor(c) + torch.stack(each).min(0).values
 
 
-def lean_order(trusted: bool) -> tuple[str, ...]:
+def lean_order(trusted: bool) -> tuple[RelationName, ...]:
     """The sides a person leans a thing on, first first: a ground with a front of its own is used from it (drawers,
     doors, a seat) and stands with its back to a wall, so its left and right, then its front; one without (a drum,
     a post) from the side the viewer sees first, then the others."""
-    return ("left", "right", "front") if trusted else ("front", "left", "right", "behind")
+    R = RelationName
+    return (R.LEFT, R.RIGHT, R.FRONT) if trusted else (R.FRONT, R.LEFT, R.RIGHT, R.BEHIND)
 
 
 def _where_lean(c: Context) -> str | None:
     if c.pair is None:
         return None
     order = lean_order(c.pair.front_trusted)
-    return f"the {', then the '.join(order)}; " + "; ".join(s.reason for s in parts.parts(c.pair).sides.values())
+    return f"the {', then the '.join(order)}; " + "; ".join(s.reason for s in parts.find_parts(c.pair).sides.values())
 
 
 def _prefer_hang(c: Context) -> torch.Tensor:
@@ -175,7 +177,7 @@ def lean(pair: PreparedPair, proposals: Proposals, seed: int, reading: RelationR
     if not len(side):
         return None
     rng = np.random.default_rng(seed + 23)
-    usual = parts.near_side_middles(parts.parts(pair), points[side], horizontal)
+    usual = parts.near_side_middles(parts.find_parts(pair), points[side], horizontal)
     pick = rng.choice(len(side), size=count, p=usual / usual.sum())
     n = torch.as_tensor(horizontal[pick], dtype=torch.float32)
     up = torch.tensor([0.0, 1.0, 0.0]).expand(count, 3)
@@ -292,13 +294,15 @@ def _takes_the_peg(pair: PreparedPair, seed: int, around: float, span: float) ->
     return None if limit is None else Bound("hang: its loop takes the peg", limit, "lower")
 
 
-SPECS: dict[str, Spec] = {
-    "attach": Spec("attach", Judge(_score_attach), usual="anywhere on the ground's surface"),
-    "hold": Spec("hold", Judge(_score_hold), usual="at the ground's side, below its top"),
-    "wrap": Spec("wrap", Judge(_score_wrap), usual="around a part of the ground"),
-    "hang": Spec("hang", Judge(_score_hang, _prefer_hang), hung, _takes_the_peg,
+R = RelationName
+SPECS: dict[RelationName, Spec] = {
+    R.ATTACH: Spec(R.ATTACH, Judge(_score_attach), usual="anywhere on the ground's surface"),
+    R.HOLD: Spec(R.HOLD, Judge(_score_hold), usual="at the ground's side, below its top"),
+    R.WRAP: Spec(R.WRAP, Judge(_score_wrap), usual="around a part of the ground"),
+    R.HANG: Spec(R.HANG, Judge(_score_hang, _prefer_hang), hung, _takes_the_peg,
                  "hung freely below what bears it, its centre under the hook, at the middle of the bar"),
-    "lean": Spec("lean", Judge(_score_lean, _prefer_lean), lean,
+    R.LEAN: Spec(R.LEAN, Judge(_score_lean, _prefer_lean), lean,
                  usual="heavy end down, against a side a person reaches (not the back of furniture), centred on it",
                  where=_where_lean),
 }
+del R

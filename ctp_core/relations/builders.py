@@ -47,13 +47,13 @@ footprint); where nothing the target has is lifted high enough for the source (a
 none are made. Kept where they are put (free of the target by construction: the
 approach "none"; those that meet another part of it are dropped): the regions settle every proposal into contact.
 
+``under`` is made as ``below`` is (``beneath``) and ``beside`` as the sides are (``apart``, at the ground's lateral
+sides, alternately).
+
 Each kind is made only where it is the prompt's relation (its position, the first of a reading of two) with the
 source as the figure and ``config.relation`` is on, in place of as many region proposals (``extend``); otherwise
 the proposals are unchanged. Each relation's builder is its spec's (``registry.SPECS``, ``Spec.builder``; a
 relation without one has none), defined in the relation's kind module.
-
-Not done (docs/relations.md lists them): "under" (the floor under a down-facing part), "beside" (the floor
-just outside the footprint): the floor region already gives poses where those hold.
 """
 
 from __future__ import annotations
@@ -65,8 +65,8 @@ from ctp_core.config import AlignConfig, share_of
 from ctp_core.contact import Proposals, Site
 from ctp_core.geometry.pose import Poses
 from ctp_core.pairs import PreparedPair
+from ctp_core.reading.relation import RelationReading
 from ctp_core.relations.registry import SPECS
-from ctp_core.relations.vocabulary import RelationReading
 
 SHARE = 0.25  # a relation's own proposals, as a share of ``search.candidates`` (in place of the regions')
 
@@ -82,7 +82,7 @@ def extend(pair: PreparedPair, config: AlignConfig, proposals: Proposals, readin
     the module docstring) in place of as many of theirs, spread evenly over them (the caller's start kept): the
     relation's proposals take their share of ``search.candidates`` rather than adding to it, so the search costs
     what it does without them."""
-    if reading is None or not reading.known or not reading.source_is_figure or not config.relation:
+    if reading is None or not reading.source_is_figure or not config.relation:
         return proposals
     build = SPECS[reading.position].builder
     if build is None or proposals.rotations is None:

@@ -11,6 +11,8 @@ from ctp_core import contact
 from ctp_core.contact import Proposals, opening_sides, surface_regions
 from ctp_core.geometry.pose import Poses, quaternion_product, quaternion_to_matrix
 from ctp_core.pairs import PreparedPair
+from ctp_core.reading.records import RelationName
+from ctp_core.reading.relation import RelationReading
 from ctp_core.relations.building import LEAN_POINTS, labelled, long_axis_up, lowered, quaternion_onto, straight_sites
 from ctp_core.relations.measures import (
     FAR,
@@ -27,7 +29,6 @@ from ctp_core.relations.measures import (
     surface_gap,
 )
 from ctp_core.relations.spec import Bound, Judge, Spec
-from ctp_core.relations.vocabulary import RelationReading
 
 IN_DEPTH = 0.1  # "in": the figure's lowest point this far below the rim (less is resting on the rim)
 PENETRATE = (0.02, 0.9)  # "penetrate": the share of the figure inside the ground, in this open range
@@ -240,10 +241,12 @@ def _fits_cavity(pair: PreparedPair, seed: int, around: float, span: float) -> B
     return None if limit is None else Bound("in: fits the cavity", limit, "upper")
 
 
-SPECS: dict[str, Spec] = {
-    "in": Spec("in", Judge(_score_in, _prefer_in), contained, _fits_cavity,
+R = RelationName
+SPECS: dict[RelationName, Spec] = {
+    R.IN: Spec(R.IN, Judge(_score_in, _prefer_in), contained, _fits_cavity,
                "in the cavity, near its middle, held by its sides"),
-    "penetrate": Spec("penetrate", Judge(_score_penetrate, _prefer_penetrate), pierced,
+    R.PENETRATE: Spec(R.PENETRATE, Judge(_score_penetrate, _prefer_penetrate), pierced,
                       usual="end first into the middle, from above the floor"),
-    "wear": Spec("wear", Judge(_score_wear, summit_drop), bound=wear_fit, usual="over the highest summit"),
+    R.WEAR: Spec(R.WEAR, Judge(_score_wear, summit_drop), bound=wear_fit, usual="over the highest summit"),
 }
+del R

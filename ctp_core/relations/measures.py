@@ -1,4 +1,4 @@
-"""What every relation's judge measures: a posed figure and its ground as samples (``Side``, ``Ground``,
+"""What every relation's judge measures: a posed figure and its ground as samples (``Samples``, ``Ground``,
 ``Context``), gaps to the ground's surface, hinges and smooth extremes, the support footprint and stability,
 the ground's axes and summits.
 
@@ -21,7 +21,8 @@ from ctp_core import losses
 from ctp_core.geometry import sampling
 from ctp_core.geometry.pose import Poses, apply_pose, quaternion_to_matrix
 from ctp_core.pairs import UP_FACING, PreparedPair, per_pair
-from ctp_core.relations.vocabulary import RelationReading
+from ctp_core.reading.places import Place
+from ctp_core.reading.relation import RelationReading
 from ctp_core.render.cameras import FIRST_AZIMUTH
 
 FIGURE_POINTS = 192  # figure samples a score looks at: enough to find a contact patch, cheap for hundreds of poses
@@ -87,7 +88,7 @@ def soft_max(x: torch.Tensor, tau: torch.Tensor | float, dim: int = -1, mask: to
 
 
 @dataclass
-class Side:
+class Samples:
     """One object's samples in the normalised frame: (B or 1, N, 3) points and outward unit normals."""
 
     points: torch.Tensor
@@ -105,7 +106,7 @@ class Side:
 class Ground:
     """Nearest ground samples to figure points, optionally restricted to a subset (e.g. up-facing)."""
 
-    def __init__(self, side: Side, trees: dict[str, losses.SurfaceIndex | None]):
+    def __init__(self, side: Samples, trees: dict[str, losses.SurfaceIndex | None]):
         self.side, self.trees = side, trees
 
     def mask(self, which: str) -> torch.Tensor:
@@ -235,9 +236,9 @@ class Features:
     source_normals: torch.Tensor  # (FIGURE_POINTS, 3) source local frame, unit
     source_centre: torch.Tensor  # (3,) source local frame: mean of area-weighted samples
     source_spacing: float  # source local units: sqrt(area / count)
-    target: Side  # the related object (``PreparedPair.anchor``), static
+    target: Samples  # the related object (``PreparedPair.anchor``), static
     target_trees: dict[str, losses.SurfaceIndex | None]  # per normal subset ("up", "down", "side", ...)
-    target_figure: Side  # a subset of the target as a figure (the ground role), static
+    target_figure: Samples  # a subset of the target as a figure (the ground role), static
     grounds: list[torch.Tensor]  # (M, 3) samples of each named ground where there are several ("between")
     source_up: torch.Tensor  # (3,) source local frame, unit: its own up (``source_upright``: the file's for glTF)
 
@@ -262,7 +263,7 @@ def _build(pair: PreparedPair) -> Features:
     lo, hi = t_points.min(0).values, t_points.max(0).values
     diag = (hi - lo).norm()
     t_spacing = pair.sample_spacing(len(pair.index.points))
-    target = Side(t_points[None], t_normals[None], t_points.mean(0)[None], diag[None],
+    target = Samples(t_points[None], t_normals[None], t_points.mean(0)[None], diag[None],
                   torch.tensor([t_spacing], device=device), anchor)
     ny = t_normals[:, 1]
     subsets = {"all": torch.ones_like(ny, dtype=torch.bool), "up": ny > UP_FACING, "down": ny < -UP_FACING,
@@ -270,7 +271,7 @@ def _build(pair: PreparedPair) -> Features:
     trees = {k: (anchor if k == "all" else losses.SurfaceIndex(t_points[m], t_normals[m]) if m.any() else None)
              for k, m in subsets.items()}
     pick = torch.linspace(0, len(t_points) - 1, min(GROUND_POINTS, len(t_points))).long()
-    figure = Side(t_points[pick][None], t_normals[pick][None], t_points.mean(0)[None], diag[None],
+    figure = Samples(t_points[pick][None], t_normals[pick][None], t_points.mean(0)[None], diag[None],
                   torch.tensor([t_spacing], device=device), anchor)
     centre = as_t(local.apply(pts.mean(0)[None])[0])
     grounds = [g.points for g in pair.grounds]
@@ -279,7 +280,7 @@ def _build(pair: PreparedPair) -> Features:
                     as_t(up / np.linalg.norm(up)))
 
 
-def posed_source(feat: Features, poses: Poses) -> Side:
+def posed_source(feat: Features, poses: Poses) -> Samples:
     """The source's samples at each pose, (B, N, 3), with its centre, diagonal and sample spacing."""
     pts = apply_pose(feat.source_points, poses.t, poses.q, poses.log_s)
     rot = quaternion_to_matrix(poses.q)
@@ -288,10 +289,10 @@ def posed_source(feat: Features, poses: Poses) -> Side:
     scale = poses.log_s.exp()
     local = feat.source_points
     diag = (local.max(0).values - local.min(0).values).norm() * scale
-    return Side(pts, nrm, centre, diag, feat.source_spacing * scale)
+    return Samples(pts, nrm, centre, diag, feat.source_spacing * scale)
 
 
-def roles(pair: PreparedPair, poses: Poses, placed: bool) -> tuple[Side, Ground, torch.Tensor]:
+def roles(pair: PreparedPair, poses: Poses, placed: bool) -> tuple[Samples, Ground, torch.Tensor]:
     """(figure, ground, floor height (B,)) for either role: ``placed``, the source is the figure."""
     feat = features(pair)
     source = posed_source(feat, poses)
@@ -300,7 +301,7 @@ def roles(pair: PreparedPair, poses: Poses, placed: bool) -> tuple[Side, Ground,
         floor = torch.full((b,), pair.floor, device=source.points.device)
         return source, Ground(feat.target, feat.target_trees), floor
     fig = feat.target_figure
-    figure = Side(fig.points.expand(b, -1, -1), fig.normals.expand(b, -1, -1), fig.centre.expand(b, -1),
+    figure = Samples(fig.points.expand(b, -1, -1), fig.normals.expand(b, -1, -1), fig.centre.expand(b, -1),
                   fig.diagonal.expand(b), fig.spacing.expand(b))
     floor = soft_min(source.points[..., 1], SOFT * source.diagonal[:, None])  # the ground's lowest level
     return figure, Ground(source, {}), floor
@@ -333,7 +334,7 @@ def _uprightness(pair: PreparedPair, poses: Poses) -> torch.Tensor:
 
 @dataclass
 class Context:
-    figure: Side
+    figure: Samples
     ground: Ground
     floor: torch.Tensor  # (B,)
     depth: torch.Tensor | None = None  # ``support_depth``, once computed (a convex hull per pose)
@@ -348,7 +349,7 @@ class Context:
     upright: torch.Tensor | None = None  # (B,) ``_uprightness``, where the source is the figure
 
     @property
-    def place(self) -> str | None:
+    def place(self) -> Place | None:
         """The place on or beside the ground the prompt names (``RelationReading.place``), or None."""
         return None if self.reading is None else self.reading.place
 
@@ -391,7 +392,7 @@ class Context:
         return self.h(self.finite(soft_min(gap, self.tau())) - self.reach())
 
 
-def half_width(fig: Side) -> torch.Tensor:
+def half_width(fig: Samples) -> torch.Tensor:
     """(B,) the figure's horizontal half-extent about its centre (the largest horizontal sample distance)."""
     return (fig.points[..., [0, 2]] - fig.centre[:, None, [0, 2]]).norm(dim=-1).max(-1).values.detach()
 
@@ -418,7 +419,7 @@ def stability(c: Context) -> torch.Tensor:
     return c.h(support_depth(c))
 
 
-def ground_summits(ground: Side, radius: float) -> torch.Tensor:
+def ground_summits(ground: Samples, radius: float) -> torch.Tensor:
     """(B or 1, P, 3) the ground's summit samples (``sampling.summits``: highest in their column and its
     neighbours, ``radius`` cells); a posed ground (one per pose) keeps its highest sample only."""
     if not ground.static:

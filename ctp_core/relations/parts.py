@@ -1,28 +1,35 @@
 """Parts of the ground the geometry can name, from the ground alone: where people put things on, beside or against it.
 
+``PARTS`` is their registry: each part with its name (``reading.places.PartName``), its detector, the places a prompt
+names that select it and the relations whose preference uses it; docs/relations.md, "Adding a part", says how to add
+one, and ``check`` (run by the tests) what is inconsistent.
+
 A relation holds in many places ("a cup on the table" holds on the whole top); its *usual place* (``Spec.usual``) is
 one of these parts, centred: the support surface a person uses (the top of a table, the seat of a chair, the shelf
 the prompt names), the middle of a side. ``parts`` finds them once per pair (``per_pair``), in the
 normalised frame (+Y up, the ground's front and left as ``measures.axes`` gives them), from the samples of the object
-the source relates to (``PreparedPair.anchor``):
+the source relates to (``PreparedPair.anchor``). ``find_parts`` finds them once per pair:
 
-- **support surfaces**: up-facing samples (normal within ``FLAT`` of +Y) joined where they are near in height and
-  across (``JOIN`` sample spacings): a table's top, a chair's seat, a bookcase's boards, a bench's slats as one.
+- **support surfaces**: up-facing samples (normal within ``UP_COS`` of +Y) joined where they are near in height and
+  across (``JOIN_SPACINGS`` sample spacings): a table's top, a chair's seat, a bookcase's boards, a bench's slats as
+  one.
   Each has its height, area and, per sample, its *clearance*: how high a thing standing there can be before it
   meets the ground above it (inf where nothing is above);
-- **the top**: the highest surface; a **shelf**: a surface with the ground's underside above most of it
-  (``COVERED``); **the seat**: another surface with a back rising behind it (ground higher than it by a third of
-  its width along one of its edges, over at least ``BACK`` of that edge's length);
+- each surface named by the first part of ``PARTS`` whose detector takes it: **the top**, the highest surface; a
+  **shelf**, a surface with the ground's underside above most of it (``COVERED``); **the seat**, another surface
+  with a back rising behind it (ground higher than it by a third of its width along one of its edges, over at least
+  ``BACK`` of that edge's length); else **a surface**;
 - **the sides**: front, behind, left, right, each with its span across (where its middle is) and whether a person
   reaches it (``accessible``: a ground with a front of its own stands with its back against a wall).
 
 ``usual_surface`` picks the surface "on" means for a figure of a given size: the one the prompt's place names
-(``RelationReading.place``: the top, a shelf by its order), else the highest uncovered surface that holds the figure
-with room (``room``: a table's top; a chair's seat, not its backrest's top rail).
+(``RelationReading.place``: the top, a shelf by its order: the place's part in ``PARTS``), else the highest uncovered
+surface that holds the figure with room (``room``: a table's top; a chair's seat, not its backrest's top rail).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -33,11 +40,12 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from ctp_core.pairs import PreparedPair, per_pair
-from ctp_core.reading.places import ENDS, SHELVES
+from ctp_core.reading.places import OFF_MIDDLE, SHELVES, PartName, Place
+from ctp_core.reading.records import RelationName
 from ctp_core.relations.measures import Context, axes, hinge, soft_min, toward
 
-FLAT = 0.85  # a support sample's normal: at least this cosine with +Y (a seat's gentle slope, not a dome's flank)
-JOIN = 3.0  # support samples this many sample spacings apart (across and in height) belong to one surface
+UP_COS = 0.85  # a support sample's normal: at least this cosine with +Y (a seat's gentle slope, not a dome's flank)
+JOIN_SPACINGS = 3.0  # support samples this many sample spacings apart (across and in height) belong to one surface
 COLUMN = 1.5  # a sample's column: this many sample spacings about it, seen from above
 MIN_SAMPLES = 6  # a surface has at least this many samples (fewer: a rim's crest, an edge's bevel)
 COVERED = 0.8  # a shelf: the ground above at least this share of its samples
@@ -47,7 +55,7 @@ FIT = 0.75  # ``usual_surface``: a surface holds a figure whose footprint overha
 # as large as the seat it is on: the judge's stability says whether it rests; this only chooses where)
 ROOM_SHARE = 0.5  # ``usual_surface``: the highest surface with at least this share of the roomiest one's room
 TOP_BAND = 0.05  # "on top of": the highest surface is the top where it is within this share of the ground's height
-SIDES = ("front", "behind", "left", "right")
+SIDES = (RelationName.FRONT, RelationName.BEHIND, RelationName.LEFT, RelationName.RIGHT)
 
 
 @dataclass
@@ -58,7 +66,7 @@ class Surface:
     clearance: np.ndarray  # (M,) free height above each sample (inf: open above)
     height: float  # the median height of its samples
     spacing: float  # the samples' spacing: area per sample is its square
-    name: str = "surface"  # "top", "seat", "shelf" or "surface"
+    name: PartName = PartName.SURFACE  # the part it is (``PARTS``)
     reason: str = ""
 
     @property
@@ -70,11 +78,11 @@ class Surface:
         return self.clearance >= height
 
 
-@dataclass
-class SideOf:
+@dataclass(frozen=True)
+class GroundSide:
     """One side of the ground (normalised frame)."""
 
-    name: str  # "front", "behind", "left", "right"
+    name: RelationName  # front, behind, left, right
     direction: np.ndarray  # (3,) horizontal unit vector out of that side
     across: np.ndarray  # (3,) horizontal unit vector along the side
     reach: float  # the ground's farthest extent along ``direction``
@@ -91,25 +99,25 @@ class SideOf:
         return max((self.span[1] - self.span[0]) / 2, 1e-9)
 
 
-@dataclass
+@dataclass(frozen=True)
 class Parts:
-    """The ground's named parts (``parts``)."""
+    """The ground's named parts (``find_parts``); what is chosen on them per figure size is ``usual_spot``'s, kept
+    beside them (``_spots``)."""
 
-    surfaces: list[Surface] = field(default_factory=list)  # highest first
-    sides: dict[str, SideOf] = field(default_factory=dict)
+    surfaces: tuple[Surface, ...] = ()  # highest first
+    sides: dict[RelationName, GroundSide] = field(default_factory=dict)
     height: float = 0.0  # the ground's height, normalised units
     floor: float = 0.0
-    chosen: dict = field(default_factory=dict, repr=False)  # ``usual_spot``'s answers, by size and place
 
     def describe(self) -> list[str]:
         """One line per named part, with its reason (reports, the page)."""
-        lines = [s.reason for s in self.surfaces if s.name != "surface"]
+        lines = [s.reason for s in self.surfaces if s.name != PartName.SURFACE]
         lines += [s.reason for s in self.sides.values()]
         return lines
 
 
 @per_pair
-def parts(pair: PreparedPair) -> Parts:
+def find_parts(pair: PreparedPair) -> Parts:
     """The pair's ground's ``Parts``, found on first use and kept while the pair lives."""
     anchor = pair.anchor
     points = anchor.points.detach().cpu().numpy().astype(np.float64)
@@ -118,17 +126,16 @@ def parts(pair: PreparedPair) -> Parts:
     floor, top = float(points[:, 1].min()), float(points[:, 1].max())
     front, left = axes(torch.as_tensor(pair.target_front, dtype=torch.float32)[None], pair.front_trusted)
     unit = 1.0 / pair.target_to_normalised.scale  # target file units per normalised unit: what reasons say
-    found = Parts(_surfaces(points, normals, spacing, floor, unit), {}, top - floor, floor)
-    found.sides = _sides(points, front, left, pair.front_trusted)
-    return found
+    surfaces = tuple(_surfaces(points, normals, spacing, floor, unit))
+    return Parts(surfaces, _sides(points, front, left, pair.front_trusted), top - floor, floor)
 
 
 def _surfaces(points: np.ndarray, normals: np.ndarray, spacing: float, floor: float, unit: float) -> list[Surface]:
-    up = np.flatnonzero(normals[:, 1] >= FLAT)
+    up = np.flatnonzero(normals[:, 1] >= UP_COS)
     if len(up) < MIN_SAMPLES:
         return []
     pts = points[up]
-    pairs = cKDTree(pts).query_pairs(JOIN * spacing, output_type="ndarray")
+    pairs = cKDTree(pts).query_pairs(JOIN_SPACINGS * spacing, output_type="ndarray")
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(pts), len(pts)))
     count, label = connected_components(graph, directed=False)
     clearance = _clearance(points, normals, pts, spacing)
@@ -136,46 +143,67 @@ def _surfaces(points: np.ndarray, normals: np.ndarray, spacing: float, floor: fl
                 for k in range(count) if (label == k).sum() >= MIN_SAMPLES]
     surfaces.sort(key=lambda s: -s.height)
     for i, s in enumerate(surfaces):
-        s.name, s.reason = _name(s, i == 0, points, spacing, (s.height - floor) * unit, s.area * unit**2)
+        found = Found(s, i == 0, points, spacing, (s.height - floor) * unit, s.area * unit**2)
+        s.name, s.reason = next((part.name, why) for part in PARTS.values() if part.detect is not None
+                                for why in [part.detect(found)] if why is not None)
     return surfaces
 
 
 def _clearance(points: np.ndarray, normals: np.ndarray, up: np.ndarray, spacing: float) -> np.ndarray:
     """(U,) for each up-facing sample, how far above it the nearest underside of the ground is (a down-facing
-    sample within ``COLUMN`` spacings of its column, higher by more than ``JOIN`` spacings: a board's underside,
-    not a divider's face beside it); inf where none is."""
-    down = points[normals[:, 1] <= -FLAT]
+    sample within ``COLUMN`` spacings of its column, higher by more than ``JOIN_SPACINGS`` spacings: a board's
+    underside, not a divider's face beside it); inf where none is."""
+    down = points[normals[:, 1] <= -UP_COS]
     out = np.full(len(up), np.inf)
     if not len(down):
         return out
     tree = cKDTree(down[:, [0, 2]])
     for i, near in enumerate(tree.query_ball_point(up[:, [0, 2]], r=COLUMN * spacing, workers=1)):
         above = down[near, 1] - up[i, 1]
-        above = above[above > JOIN * spacing]
+        above = above[above > JOIN_SPACINGS * spacing]
         if len(above):
             out[i] = above.min()
     return out
 
 
-def _name(surface: Surface, highest: bool, points: np.ndarray, spacing: float, height: float, area: float
-          ) -> tuple[str, str]:
-    """The surface's name and why: the top, a shelf, the seat or a surface (``height`` over the ground's base and
-    ``area``, target file units)."""
-    at = f"up-facing {height:.3g} over the base, {area:.3g} in area (file units)"
-    covered = float(np.isfinite(surface.clearance).mean())
-    if highest:
-        return "top", f"the top: the highest surface, {at}"
-    if covered >= COVERED:
-        return "shelf", f"a shelf: {at}, the ground above {covered:.0%} of it"
-    back = _back(surface, points, spacing)
-    if back is not None:
-        return "seat", f"the seat: {at}, a back rising behind it ({back})"
-    return "surface", f"a surface: {at}"
+@dataclass(frozen=True)
+class Found:
+    """A support surface as the parts' detectors see it: the surface, whether it is the highest, the ground's samples
+    and their spacing, and its height over the ground's base and its area in target file units (what reasons say)."""
+
+    surface: Surface
+    highest: bool
+    points: np.ndarray
+    spacing: float
+    height: float
+    area: float
+
+    @property
+    def at(self) -> str:
+        return f"up-facing {self.height:.3g} over the base, {self.area:.3g} in area (file units)"
+
+
+def _top(f: Found) -> str | None:
+    return f"the top: the highest surface, {f.at}" if f.highest else None
+
+
+def _shelf(f: Found) -> str | None:
+    covered = float(np.isfinite(f.surface.clearance).mean())
+    return f"a shelf: {f.at}, the ground above {covered:.0%} of it" if covered >= COVERED else None
+
+
+def _seat(f: Found) -> str | None:
+    back = _back(f.surface, f.points, f.spacing)
+    return None if back is None else f"the seat: {f.at}, a back rising behind it ({back})"
+
+
+def _surface(f: Found) -> str:
+    return f"a surface: {f.at}"
 
 
 def _back(surface: Surface, points: np.ndarray, spacing: float) -> str | None:
     """Which edge of ``surface`` a back rises from (ground higher than the surface by a third of the surface's
-    width, within twice ``JOIN`` spacings of that edge, along at least ``BACK`` of it, counted in tenths of the
+    width, within twice ``JOIN_SPACINGS`` spacings of that edge, along at least ``BACK`` of it, counted in tenths of the
     edge); None where none does."""
     xz = surface.points[:, [0, 2]]
     lo, hi = np.percentile(xz, 2, axis=0), np.percentile(xz, 98, axis=0)
@@ -183,7 +211,7 @@ def _back(surface: Surface, points: np.ndarray, spacing: float) -> str | None:
     high = points[points[:, 1] >= rise]
     if not len(high):
         return None
-    margin = JOIN * spacing
+    margin = JOIN_SPACINGS * spacing
     for axis, sign, name in ((1, -1, "-z"), (1, 1, "+z"), (0, -1, "-x"), (0, 1, "+x")):
         edge = lo[axis] if sign < 0 else hi[axis]
         other = 1 - axis
@@ -198,22 +226,22 @@ def _back(surface: Surface, points: np.ndarray, spacing: float) -> str | None:
     return None
 
 
-def _sides(points: np.ndarray, front: torch.Tensor, left: torch.Tensor, trusted: bool) -> dict[str, SideOf]:
+def _sides(points: np.ndarray, front: torch.Tensor, left: torch.Tensor, trusted: bool
+           ) -> dict[RelationName, GroundSide]:
     out = {}
     for name in SIDES:
         u = toward(name, front, left)[0].double().numpy()
         v = np.array([u[2], 0.0, -u[0]])
         along, across = points @ u, points @ v
-        against = trusted and name == "behind"
+        against = trusted and name == RelationName.BEHIND
         reason = (f"{name}: against the wall (a ground with a front stands with its back to one)" if against
                   else f"{name}: a person reaches it")
-        out[name] = SideOf(name, u, v, float(along.max()), (float(across.min()), float(across.max())), not against,
+        out[name] = GroundSide(name, u, v, float(along.max()), (float(across.min()), float(across.max())), not against,
                            reason)
     return out
 
 
-
-def usual_surface(found: Parts, height: float, footprint: tuple[float, float], place: str | None = None
+def usual_surface(found: Parts, height: float, footprint: tuple[float, float], place: Place | None = None
                   ) -> Surface | None:
     """The surface "on" means for a figure ``height`` tall with ``footprint`` (its shorter and longer horizontal
     sides), normalised units: the one ``place`` names (the top: the highest surface, where it is the ground's top,
@@ -221,7 +249,7 @@ def usual_surface(found: Parts, height: float, footprint: tuple[float, float], p
     the figure fits (``room`` at least ``FIT``) with room (at least ``ROOM_SHARE`` of the roomiest's: a table's
     top; a chair's seat rather than its backrest's top rail; an armchair's seat rather than an arm its base only
     just fits); None where none fits (a spire, a head: the summit is the usual place)."""
-    if place == "top":  # the highest surface where it is the ground's top; else a summit (a spire's tip)
+    if place == Place.TOP:  # the highest surface where it is the ground's top; else a summit (a spire's tip)
         top = found.surfaces[0] if found.surfaces else None
         return top if top is not None and top.height >= found.floor + (1 - TOP_BAND) * found.height else None
     fits = [(s, room(s, height, footprint)) for s in found.surfaces]
@@ -229,9 +257,10 @@ def usual_surface(found: Parts, height: float, footprint: tuple[float, float], p
     if not fits:
         return None
     if place in SHELVES:
-        boards = sorted([s for s, _ in fits if s.name == "shelf"] or [s for s, _ in fits], key=lambda s: s.height)
+        boards = sorted([s for s, _ in fits if s.name == PartName.SHELF] or [s for s, _ in fits],
+                        key=lambda s: s.height)
         return boards[round(SHELVES[place] * (len(boards) - 1))]
-    open_above = [(s, r) for s, r in fits if s.name != "shelf"] or fits
+    open_above = [(s, r) for s, r in fits if s.name != PartName.SHELF] or fits
     roomiest = max(r for _, r in open_above)
     return next(s for s, r in open_above if r >= ROOM_SHARE * roomiest)
 
@@ -280,16 +309,22 @@ class Spot:
     half: float
 
 
-def usual_spot(pair: PreparedPair, diagonal: float, place: str | None) -> Spot | None:
+def usual_spot(pair: PreparedPair, diagonal: float, place: Place | None) -> Spot | None:
     """``usual_surface`` and its ``Spot`` for the source at a posed diagonal ``diagonal`` (normalised units), kept
-    per size and place with the pair's parts (every preference of a run asks it again)."""
-    found = parts(pair)
+    per size and place beside the pair's parts (every preference of a run asks it again)."""
+    chosen = _spots(pair)
     key = (round(diagonal, 9), place)
-    if key not in found.chosen:
+    if key not in chosen:
         height, small, large = upright_shape(pair)
-        surface = usual_surface(found, height * diagonal, (small * diagonal, large * diagonal), place)
-        found.chosen[key] = None if surface is None else _spot(surface, height * diagonal)
-    return found.chosen[key]
+        surface = usual_surface(find_parts(pair), height * diagonal, (small * diagonal, large * diagonal), place)
+        chosen[key] = None if surface is None else _spot(surface, height * diagonal)
+    return chosen[key]
+
+
+@per_pair
+def _spots(pair: PreparedPair) -> dict[tuple[float, Place | None], Spot | None]:
+    """``usual_spot``'s answers for the pair, by size and place."""
+    return {}
 
 
 def _spot(surface: Surface, height: float) -> Spot:
@@ -305,16 +340,16 @@ def spot_place(c: Context, spot: Spot) -> torch.Tensor:
     instead (and for a named end, how far toward the other end)."""
     place, half = c.place, spot.half
     offset = c.figure.centre[:, [0, 2]] - torch.as_tensor(spot.middle, dtype=c.unit.dtype, device=c.unit.device)
-    if place not in ENDS:
+    if place not in OFF_MIDDLE:
         return offset.norm(dim=-1) / half
     away = (1.0 - offset.norm(dim=-1) / half).clamp_min(0.0)
-    if place in ("left end", "right end"):
-        sign = 1.0 if place == "left end" else -1.0
+    if place in (Place.LEFT_END, Place.RIGHT_END):
+        sign = 1.0 if place == Place.LEFT_END else -1.0
         away = away + (-sign * (offset * c.left[:, [0, 2]]).sum(-1) / half).clamp_min(0.0)
     return away
 
 
-def side_place(c: Context, side: SideOf, gap: bool = True) -> torch.Tensor:
+def side_place(c: Context, side: GroundSide, gap: bool = True) -> torch.Tensor:
     """(B,) how far the figure is from the middle of ``side``: its centre's offset along the side from the side's
     middle, in the side's half-spans; how far its centre is short of being out beyond that side (figure diagonals);
     with ``gap``, its gap to the ground out that way (their extents', as a person sees a stool beside a desk, not
@@ -352,3 +387,46 @@ def near_middle(offset: np.ndarray) -> np.ndarray:
     """(N,) up to ``MIDDLE_WEIGHT``, falling off with ``offset`` from a middle (in half-spans) over
     ``MIDDLE_WIDTH``: what a builder's drawing weight adds near the usual place."""
     return MIDDLE_WEIGHT * np.exp(-0.5 * (offset / MIDDLE_WIDTH) ** 2)
+
+
+# --- the registry --------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Part:
+    """One part the geometry names: ``detect`` says why a support surface is this part (None: it is not; the sides
+    are found by ``_sides``, no detector), ``places`` the places a prompt names that select it, ``relations`` those
+    whose preference uses it."""
+
+    name: PartName
+    detect: Callable[[Found], str | None] | None
+    places: frozenset[Place] = frozenset()
+    relations: frozenset[RelationName] = frozenset()
+
+
+_RESTING = frozenset({RelationName.ON, RelationName.STAND, RelationName.SIT, RelationName.LIE})
+# In the order the detectors are asked (a surface is the first part that takes it; ``surface`` takes every one).
+PARTS: dict[PartName, Part] = {p.name: p for p in (
+    Part(PartName.TOP, _top, frozenset({Place.TOP}), _RESTING),
+    Part(PartName.SHELF, _shelf, frozenset(SHELVES), _RESTING),
+    Part(PartName.SEAT, _seat, frozenset(), _RESTING),
+    Part(PartName.SURFACE, _surface, frozenset(OFF_MIDDLE), _RESTING),
+    Part(PartName.SIDE, None, frozenset(), frozenset({*SIDES, RelationName.BESIDE, RelationName.LEAN})),
+)}
+
+
+def check(parts: dict[PartName, Part]) -> list[str]:
+    """What is inconsistent among the parts, the places and the relations (empty when nothing is): every part has a
+    name of ``PartName`` and is filed under it, every place selects one part, every relation a part names exists,
+    and the last detector takes every surface."""
+    problems = [f"{name}: a part name without a part" for name in PartName if name not in parts]
+    problems += [f"{name}: filed under another name" for name, part in parts.items() if part.name != name]
+    for place in Place:
+        owners = [p.name for p in parts.values() if place in p.places]
+        if len(owners) != 1:
+            problems.append(f"{place}: selects {len(owners)} parts ({owners})")
+    problems += [f"{p.name}: names {r}, no relation" for p in parts.values() for r in p.relations
+                 if r not in set(RelationName)]
+    detectors = [p for p in parts.values() if p.detect is not None]
+    if not detectors or detectors[-1].name != PartName.SURFACE:
+        problems.append("the last detector is not the surface's (some surface would have no name)")
+    return problems

@@ -16,7 +16,7 @@ under a vase") the same definitions are read the other way round: the target is 
 source its ground. The definitions, in words, are in ``docs/relations.md`` and in each ``_score_*`` docstring.
 
 Each relation's score and preference are its spec's (``registry.SPECS``: the kind modules ``resting``, ``contained``,
-``attached``, ``apart``), under the name of its record in ``vocabulary.RELATIONS`` (which says the rest: resting,
+``attached``, ``apart``), under the name of its record in ``records.RELATIONS`` (which says the rest: resting,
 stability, region weights); the measures they share are ``measures``'.
 
 Directions (sides, orientations) are the ground's own (``axes``: its front from ``PreparedPair.target_front`` or the
@@ -34,10 +34,12 @@ import torch
 
 from ctp_core.geometry.pose import Poses
 from ctp_core.pairs import PreparedPair
+from ctp_core.reading.places import Place
+from ctp_core.reading.records import RelationName, Role
+from ctp_core.reading.relation import RelationReading
 from ctp_core.relations.measures import Context, context, stability, surface_gap
 from ctp_core.relations.registry import SPECS
 from ctp_core.relations.spec import Spec
-from ctp_core.relations.vocabulary import RelationReading
 
 # --- constants (figure diagonals unless said otherwise) ------------------------------------------------------
 HOLDS = 0.02  # a relation holds when its score is at most this (hinges are exactly 0 once within tolerance)
@@ -48,23 +50,23 @@ class RelationVerdict:
     """One pose's relation, as reports show it: the name, the source's role, the score and the verdict."""
 
     name: str
-    role: str  # "figure" (the source is the thing placed) or "ground" (the target is placed on/in/... the source)
+    role: Role  # the source's: the figure (the thing placed) or the ground (the target is placed on/in/... it)
     score: float  # figure diagonals; 0 when it holds
     holds: bool
     stable: bool | None = None  # centre of mass over its support; None where the relation is not a resting one
-    side: str | None = None  # the side of the ground the figure is on, where the reading names one
+    side: RelationName | None = None  # the side of the ground the figure is on, where the reading names one
     frame: str | None = None  # whose front sides and orientations are judged in: "target" (its own) or "viewer"
-    parts: list[dict] | None = None  # each relation of a reading that says two ("front+facing"): name, score, holds
+    each: list[dict] | None = None  # each relation of a reading of several ("front+facing"): name, score, holds
     note: str | None = None  # what the verdict cannot judge here (``UNHELD``: nothing in the pair holds the figure up)
-    place: str | None = None  # the place the prompt names (``reading.places``: "middle shelf", "edge"), if any
+    place: Place | None = None  # the place the prompt names (``reading.places``: "middle shelf", "edge"), if any
     pose: str | None = None  # how the source stands against how it is set down (its own up), where it is placed
     usual: str | None = None  # the ground's part the usual place is on, with why (``Spec.where``), else ``Spec.usual``
 
     def to_dict(self) -> dict:
-        """The verdict as reports write it: ``side``, ``frame``, ``parts``, ``note``, ``place``, ``usual`` and
+        """The verdict as reports write it: ``side``, ``frame``, ``each``, ``note``, ``place``, ``usual`` and
         ``pose`` only where they say something."""
         out = asdict(self)
-        optional = ("side", "frame", "parts", "note", "place", "usual", "pose")
+        optional = ("side", "frame", "each", "note", "place", "usual", "pose")
         return {k: v for k, v in out.items() if v is not None or k not in optional}
 
 
@@ -88,15 +90,6 @@ def holds(scores: torch.Tensor | float) -> torch.Tensor | bool:
     return bool(scores <= HOLDS)
 
 
-# --- one side of a relation, posed -------------------------------------------------------------------------------
-
-
-# --- convex hulls: indices from detached points, geometry from live ones (gradients reach the points) -------------
-
-
-# --- what a pair needs once ---------------------------------------------------------------------------------------
-
-
 # --- the relations ------------------------------------------------------------------------------------------------
 def relation_score(pair: PreparedPair, poses: Poses, reading: RelationReading | None) -> torch.Tensor:
     """(B,) how far each pose is from satisfying the ``reading`` (figure diagonals; 0 when it holds).
@@ -104,7 +97,7 @@ def relation_score(pair: PreparedPair, poses: Poses, reading: RelationReading | 
     A reading that makes the source the ground reads it the other way round (the target placed relative to the
     posed source). An unknown relation or None has no term: zeros. Differentiable in ``poses``.
     """
-    if reading is None or not reading.known:
+    if reading is None:
         return torch.zeros(len(poses), device=poses.t.device)
     return _score(context(pair, poses, reading), reading)
 
@@ -115,11 +108,11 @@ def terms(pair: PreparedPair, poses: Poses, reading: RelationReading | None) -> 
     otherwise) and ``prefer`` (``preference``), from one posing of the samples and one support footprint per pose
     (the objective's relation terms)."""
     zeros = torch.zeros(len(poses), device=poses.t.device)
-    if reading is None or not reading.known:
+    if reading is None:
         return {"rel": zeros, "stable": zeros, "prefer": zeros}
     c = context(pair, poses, reading)
     steady = stability(c) if reading.steady and not reading.rests else zeros
-    return {"rel": _score(c, reading), "stable": steady, "prefer": sum(_prefer(c, p) for p in reading.parts)}
+    return {"rel": _score(c, reading), "stable": steady, "prefer": sum(_prefer(c, p) for p in reading.relations)}
 
 
 def stable(pair: PreparedPair, poses: Poses, reading: RelationReading | None = None) -> torch.Tensor:
@@ -159,18 +152,18 @@ def preference(pair: PreparedPair, poses: Poses, reading: RelationReading | None
     Differentiable in ``poses`` but for the counts (a refinement term: ``objective.PREFER`` x ``lambda_rel``,
     and with a guide only as far as it cannot tell poses apart, ``Scorer.relation_terms``).
     """
-    if reading is None or not reading.known or all(SPECS[p].judge.preference is None for p in reading.parts):
+    if reading is None or all(SPECS[p].judge.preference is None for p in reading.relations):
         return torch.zeros(len(poses), device=poses.t.device)
     c = context(pair, poses, reading)
-    return sum(_prefer(c, p) for p in reading.parts)
+    return sum(_prefer(c, p) for p in reading.relations)
 
 
 def _score(c: Context, reading: RelationReading) -> torch.Tensor:
     """The sum of the scores of the relations a reading names (each 0 when it holds)."""
-    return sum(SPECS[p].judge.score(c) for p in reading.parts)
+    return sum(SPECS[p].judge.score(c) for p in reading.relations)
 
 
-def _prefer(c: Context, relation: str) -> torch.Tensor:
+def _prefer(c: Context, relation: RelationName) -> torch.Tensor:
     """One relation's ``preference`` (zeros where it says nothing more)."""
     prefer = SPECS[relation].judge.preference
     return torch.zeros_like(c.unit) if prefer is None else prefer(c)
@@ -178,11 +171,11 @@ def _prefer(c: Context, relation: str) -> torch.Tensor:
 
 def verdict(pair: PreparedPair, pose: Poses | np.ndarray, reading: RelationReading | None) -> RelationVerdict | None:
     """One pose's verdict (a 1-pose ``Poses`` or a 4x4 source local -> normalised); None without a known relation."""
-    if reading is None or not reading.known:
+    if reading is None:
         return None
     if not isinstance(pose, Poses):
         pose = poses_of(pose, pair.source_samples.device)
-    named = reading.parts
+    named = reading.relations
     with torch.no_grad():
         c = context(pair, pose, reading)
         each = [float(SPECS[p].judge.score(c)[0]) for p in named]

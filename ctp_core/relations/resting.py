@@ -11,7 +11,9 @@ from ctp_core import contact
 from ctp_core.contact import Proposals, opening_sides
 from ctp_core.geometry.pose import matrix_to_quaternion, quaternion_to_matrix
 from ctp_core.pairs import PreparedPair
-from ctp_core.reading.places import ENDS, SHELVES
+from ctp_core.reading.places import OFF_MIDDLE, SHELVES
+from ctp_core.reading.records import RelationName
+from ctp_core.reading.relation import RelationReading
 from ctp_core.relations import parts
 from ctp_core.relations.building import LEAN_POINTS, lowered, random_resting, yawed
 from ctp_core.relations.measures import (
@@ -29,7 +31,6 @@ from ctp_core.relations.measures import (
     turned,
 )
 from ctp_core.relations.spec import Bound, Judge, Spec
-from ctp_core.relations.vocabulary import RelationReading
 
 ON_TOP = 0.05  # "on top of": no ground surface higher than the figure's top by more than this over it
 FOOTPRINT_MIDDLE = 0.5  # ... over the middle of its footprint: this share of its half-width about its centre
@@ -115,7 +116,8 @@ def _where(c: Context) -> str | None:
     spot = _spot(c)
     if spot is None:
         return "no surface holds it: on the top, near the middle"
-    return spot.surface.reason + (f"; at its {c.place}" if c.place in ENDS else "; in the middle of its free area")
+    at = f"; at its {c.place}" if c.place in OFF_MIDDLE else "; in the middle of its free area"
+    return spot.surface.reason + at
 
 
 FLAT = 0.5  # a lid: its upright height at most this share of its smaller horizontal side
@@ -159,7 +161,7 @@ def on_usual_surface(pair: PreparedPair, proposals: Proposals, seed: int, readin
     scale = math.exp(log_s)
     place = None if reading is None else reading.place
     spot = parts.usual_spot(pair, pair.source_diagonal * scale, place)
-    if spot is None or place in ENDS:
+    if spot is None or place in OFF_MIDDLE:
         return None
     rng = np.random.default_rng(seed + 47)
     resting = random_resting(proposals, rng, count)
@@ -178,7 +180,9 @@ def on_usual_surface(pair: PreparedPair, proposals: Proposals, seed: int, readin
 _RESTING = Judge(score_resting, _prefer_resting)
 _USUAL = ("on the usual surface (a table's or cabinet's top, the seat of a chair, sofa or bench, the shelf or end the "
           "prompt names), standing as it is set down, steadily, in the middle of the surface's free area")
-SPECS: dict[str, Spec] = {
-    "on": Spec("on", _RESTING, on_usual_surface, _lid, usual=_USUAL, where=_where),
-    **{name: Spec(name, _RESTING, on_usual_surface, usual=_USUAL, where=_where) for name in ("stand", "sit", "lie")},
+R = RelationName
+SPECS: dict[RelationName, Spec] = {
+    R.ON: Spec(R.ON, _RESTING, on_usual_surface, _lid, usual=_USUAL, where=_where),
+    **{name: Spec(name, _RESTING, on_usual_surface, usual=_USUAL, where=_where) for name in (R.STAND, R.SIT, R.LIE)},
 }
+del R

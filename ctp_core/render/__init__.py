@@ -31,7 +31,7 @@ frame and B x C cameras (N = B * C images); ``render`` is their composition:
 
 Shading: flat (one normal per face), because low-poly uploads (a 20-face star) have no meaningful vertex
 normals; two-sided (the normal is flipped to face the camera); by default a key light from the camera,
-raised a little, plus ambient (``Lights``). Faces with a vertex closer than ``NEAR`` to the camera plane
+raised a little, plus ambient (``Lights``). Faces with a vertex closer than ``NEAR_PLANE`` to the camera plane
 are dropped.
 """
 
@@ -48,7 +48,7 @@ from torch import Tensor
 from ctp_core.render.cameras import Cameras, view_to_pixels
 from ctp_core.render.structures import MeshArrays
 
-NEAR = 1e-2  # normalised-frame units; faces reaching closer to the camera plane are not drawn
+NEAR_PLANE = 1e-2  # normalised-frame units; faces reaching closer to the camera plane are not drawn
 SPAN_TOL = 1e-4  # pixels of slack in the scanline spans, so centres on shared edges never fall in a crack
 
 
@@ -328,7 +328,7 @@ def _face_instances(faces: Tensor, verts: Tensor, cameras: Cameras) -> tuple[Ten
         area2 = (x[:, 1] - x[:, 0]) * (y[:, 2] - y[:, 0]) - (x[:, 2] - x[:, 0]) * (y[:, 1] - y[:, 0])
         # Faces under ~1e-6 px² cover no pixel centre; dropping them (and exact-zero triple products, which
         # float32 cancellation gives for tiny faces) keeps 1/det out of the backward pass.
-        keep = (depth.amin(-1) > NEAR) & (area2.abs() > 1e-6) & (det.detach() != 0)
+        keep = (depth.amin(-1) > NEAR_PLANE) & (area2.abs() > 1e-6) & (det.detach() != 0)
         lo = torch.stack([x.amin(-1), y.amin(-1)], -1).clamp(-1, size + 1)
         hi = torch.stack([x.amax(-1), y.amax(-1)], -1).clamp(-1, size + 1)
         first = torch.ceil(lo - 0.5).long().clamp_min(0)

@@ -1,4 +1,4 @@
-"""What chance gives a guide on this run's own candidates: the tests behind the guide's say (``ordering.Gate``).
+"""What chance gives a guide on this run's own candidates: the tests behind the guide's say (``ordering.GuideSay``).
 
 A guide earns a say over where the source goes only by showing, on the candidates the search scored, something
 noise would not show there. Two statistics, each with a per-run null (no extra encode for the null itself):
@@ -16,7 +16,7 @@ noise would not show there. Two statistics, each with a per-run null (no extra e
 
 The **geometry's lead** (``lead``) is how far the usual arrangement's best pose stands ahead of the next, in
 units of its own spread over the poses that hold: the gate asks a guide for one more decade of evidence per unit
-(``Gate.needed``) before it overrules a geometry that is sure.
+(``GuideSay.needed``) before it overrules a geometry that is sure.
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ few.
 First the geometry screens every proposal (``Scorer.screen``: the relation's verdict, penetration, contact; no
 render) and only ``search.shortlist`` of them reach the guide (``encoder_shortlist``: distinct places where the
 relation holds, and a share of the others), so the encoder's images go to what can be the answer; a guide whose
-spread is within its noise (``ordering.Gate`` override 0) encodes nothing after the coarse stage
+spread is within its noise (``ordering.GuideSay`` override 0) encodes nothing after the coarse stage
 (``Scorer.gated``, ``Scorer.guided``). ``score``: the objective's terms (``objective.Scorer``) of every candidate,
 ranked by the prompt's relation first, then by the guide's term where there is a guide with signal
 (``ordering.search_key``, ``guide_noise``: the proposals satisfy the geometry already), forward only under inference
@@ -44,7 +44,7 @@ from ctp_core.pairs import PreparedPair
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.render.cameras import Cameras, orbit
 from ctp_core.search import chance
-from ctp_core.search.ordering import Gate, Key, holding, search_key, split_shortlist, usual_first
+from ctp_core.search.ordering import GuideSay, Key, holding, search_key, split_shortlist, usual_first
 
 HIDDEN = 1e-6  # tile stage: a smaller change of the guide's term than this is a source its views do not see
 GATE_PROBES = 4  # ``guide_noise``: candidates scored again, moved by a negligible amount
@@ -63,7 +63,7 @@ class Ranked:
     seconds: float
     stages: dict[str, tuple[Poses, Key]] = field(default_factory=dict)  # per stage: poses, ranking key
     holding: int = 0  # coarse and sweep candidates where the prompt's relation holds (all without one)
-    gate: Gate | None = None  # the guide's gate, for the refinement and the selection; None: not measured
+    say: GuideSay | None = None  # the guide's gate, for the refinement and the selection; None: not measured
     screened: int = 0  # poses the geometry screened before the guide saw the shortlist (proposals, sweep turns)
 
 
@@ -126,7 +126,7 @@ def tiles_of(pair: PreparedPair, config: AlignConfig, poses: Poses) -> tuple[tor
     return tile, centres, cell * (math.sqrt(3) / 2) + pair.source_radius * math.exp(log_s)
 
 
-def tile_score(scorer: Scorer, poses: Poses, weights: Phase, tiles: tuple[torch.Tensor, torch.Tensor, float], *,
+def tile_score(scorer: Scorer, poses: Poses, phase: Phase, tiles: tuple[torch.Tensor, torch.Tensor, float], *,
                batch: int, progress=lambda scored: None,
                should_cancel: CancelCheck | None = None) -> Key:
     """(N,) each pose's ranking key (``ranking_key``: the relation first) by the guide's term in the coarse views
@@ -145,13 +145,13 @@ def tile_score(scorer: Scorer, poses: Poses, weights: Phase, tiles: tuple[torch.
     goal_embeddings = embed_shared_goal(scorer, cameras)  # (K, C, D) for a per-view goal, (D,) otherwise
     count = len(centres)
     empty = Poses(centres.to(poses.t), poses.q[:1].expand(count, 4), torch.full((count,), -30.0).to(poses.log_s))
-    base = terms_of(scorer, empty, weights, cameras, batch=batch, goal_embeddings=goal_embeddings,
+    base = terms_of(scorer, empty, phase, cameras, batch=batch, goal_embeddings=goal_embeddings,
                     should_cancel=should_cancel)["clip"]
-    terms = terms_of(scorer, poses, weights, cameras.take(tile.to(cameras.eye.device)), batch=batch,
+    terms = terms_of(scorer, poses, phase, cameras.take(tile.to(cameras.eye.device)), batch=batch,
                      goal_embeddings=goal_rows(goal_embeddings, tile), progress=progress, should_cancel=should_cancel)
     moved = terms["clip"] - base[tile]
     change = torch.where(moved.abs() > HIDDEN, moved, torch.full_like(moved, torch.inf))
-    return ranking_key(scorer, terms, weights, guide_key=change)
+    return ranking_key(scorer, terms, phase, guide_key=change)
 
 
 def fine_cameras(pair: PreparedPair, config: AlignConfig, poses: Poses) -> Cameras:
@@ -185,7 +185,7 @@ def embed_shared_goal(scorer: Scorer, cameras: Cameras) -> torch.Tensor | None:
     return embeddings.clone()
 
 
-def terms_of(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, batch: int,
+def terms_of(scorer: Scorer, poses: Poses, phase: Phase, cameras: Cameras, *, batch: int,
              goal_embeddings: torch.Tensor | None = None, progress=lambda scored: None,
              should_cancel: CancelCheck | None = None, views: bool = False) -> dict[str, torch.Tensor]:
     """The objective's terms (``Scorer.score``: clip, icp, pen, rel, stable, objective) of ``poses`` on ``cameras``
@@ -203,25 +203,25 @@ def terms_of(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, 
         chunk = poses.select(slice(lo, lo + batch))
         cams = cameras if shared else cameras.rows(lo, lo + batch)
         goal = goal_rows(goal_embeddings, slice(lo, lo + batch), shared)
-        out.append({k: v.cpu() for k, v in scorer.score(chunk, weights, cams, goal, views=views).items()})
+        out.append({k: v.cpu() for k, v in scorer.score(chunk, phase, cams, goal, views=views).items()})
         progress(lo + len(chunk))
     if not out:
         return {k: torch.zeros(0) for k in ("clip", "icp", "pen", "sunk", "rel", "stable", "prefer", "objective")}
     return {k: torch.cat([part[k] for part in out]) for k in out[0]}
 
 
-def score(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, *, batch: int,
+def score(scorer: Scorer, poses: Poses, phase: Phase, cameras: Cameras, *, batch: int,
           goal_embeddings: torch.Tensor | None = None, progress=lambda scored: None,
           should_cancel: CancelCheck | None = None) -> Key:
     """(N,) ranking keys (``ranking_key``) of ``poses`` on ``cameras``: ``terms_of``, then ranked together."""
-    terms = terms_of(scorer, poses, weights, cameras, batch=batch, goal_embeddings=goal_embeddings,
+    terms = terms_of(scorer, poses, phase, cameras, batch=batch, goal_embeddings=goal_embeddings,
                      progress=progress, should_cancel=should_cancel)
-    return ranking_key(scorer, terms, weights)
+    return ranking_key(scorer, terms, phase)
 
 
-def guide_noise(scorer: Scorer, poses: Poses, terms: dict[str, torch.Tensor], weights: Phase, cameras: Cameras,
-                goal_embeddings: torch.Tensor | None, checks: Cameras, distinct: tuple[float, float]) -> Gate:
-    """The guide's ``Gate`` from a stage's candidates, each test against what chance gives on them (``chance``):
+def guide_noise(scorer: Scorer, poses: Poses, terms: dict[str, torch.Tensor], phase: Phase, cameras: Cameras,
+                goal_embeddings: torch.Tensor | None, checks: Cameras, distinct: tuple[float, float]) -> GuideSay:
+    """The guide's ``GuideSay`` from a stage's candidates, each test against what chance gives on them (``chance``):
 
     - the spread of its term over them against its noise: the changes of its term when ``GATE_PROBES`` of them
       (spread over its order) are moved by ``GATE_SHIFT`` of the source's diagonal and turned ``GATE_TURN_DEG``
@@ -245,20 +245,20 @@ def guide_noise(scorer: Scorer, poses: Poses, terms: dict[str, torch.Tensor], we
     turn = torch.tensor([math.cos(half), 0.0, math.sin(half), 0.0]).expand(len(picks), 4)
     moved = Poses(probe.t + (GATE_SHIFT * diagonal)[:, None] * direction.to(probe.t),
                   quaternion_product(turn.to(probe.q), probe.q), probe.log_s)
-    again = terms_of(scorer, moved, weights, cameras, batch=len(picks), goal_embeddings=goal_embeddings)["clip"]
+    again = terms_of(scorer, moved, phase, cameras, batch=len(picks), goal_embeddings=goal_embeddings)["clip"]
     changes = again - clip[picks]
     held = holding(terms)
-    checked = agreement_views(scorer, poses, terms, held, weights, checks, distinct)
+    checked = agreement_views(scorer, poses, terms, held, phase, checks, distinct)
     agree, agree_p = chance.agreement_chance(checked, seed=scorer.config.seed)
-    geometric = combine({**terms, "clip": torch.zeros_like(clip)}, weights)
-    lead = chance.lead(usual_first(geometric, terms, weights, held)[held])
-    return Gate(float(clip.std()) if len(clip) > 1 else 0.0, float(changes.abs().max()),
+    geometric = combine({**terms, "clip": torch.zeros_like(clip)}, phase)
+    lead = chance.lead(usual_first(geometric, terms, phase, held)[held])
+    return GuideSay(float(clip.std()) if len(clip) > 1 else 0.0, float(changes.abs().max()),
                 chance.spread_chance(clip, changes), float(agree_p), None if agree is None else float(agree), lead,
                 len(checked))
 
 
 def agreement_views(scorer: Scorer, poses: Poses, terms: dict[str, torch.Tensor], held: torch.Tensor,
-                    weights: Phase, checks: Cameras, distinct: tuple[float, float]) -> torch.Tensor:
+                    phase: Phase, checks: Cameras, distinct: tuple[float, float]) -> torch.Tensor:
     """(K, 1 + V) the guide's choice and what ``checks``, views it has not seen, say of it: its ``AGREE_PLACES`` best
     candidates where the relation holds (``held``: what it orders), each at least ``distinct`` from a better
     one (near twins would tie by its noise), by its term at the coarse views (``terms["clip"]``: the first
@@ -270,7 +270,7 @@ def agreement_views(scorer: Scorer, poses: Poses, terms: dict[str, torch.Tensor]
     best = index[diverse_top(poses.select(index), Key.plain(clip[index]), AGREE_PLACES, *distinct, fill=False)]
     if len(best) < chance.AGREE_MIN:
         return clip[best][:, None]
-    seen = terms_of(scorer, poses.select(best), weights, checks, batch=scorer.config.search.batch, views=True)
+    seen = terms_of(scorer, poses.select(best), phase, checks, batch=scorer.config.search.batch, views=True)
     return torch.cat([clip[best][:, None], seen["clip_views"].cpu()], dim=1)
 
 
@@ -297,7 +297,7 @@ def diverse_top(poses: Poses, objectives: Key, k: int, distance: float, angle_de
     return kept
 
 
-def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
+def search(scorer: Scorer, proposals: Proposals, phase: Phase, *, k: int,
            on_event: ProgressCallback | None = None, should_cancel: CancelCheck | None = None,
            phases: int = 1, started: float | None = None) -> Ranked:
     """Coarse then fine scoring of ``proposals`` and the diverse best ``k`` (see module docstring). A ``scorer``
@@ -312,30 +312,30 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
     # views that frame the largest source (scale mode: the ladder's top rung); duplicates at the first one's size
     cameras = coarse_cameras(pair, config, float(proposals.poses.log_s.max()))
     distinct = distinct_of(pair, config, float(proposals.poses.log_s[0]))
-    proposals, screened = _screened(scorer, proposals, weights, distinct)
+    proposals, screened = _screened(scorer, proposals, phase, distinct)
     plan = _Plan.of(scorer, proposals, k, on_event, started, phases)
     plan.emit(0)
     with scorer.clock.time("search"):
         checks = agreement_cameras(pair, config, float(proposals.poses.log_s.max())) if scorer.guided else None
-        scorer, terms, goal_embeddings = _coarse(scorer, proposals.poses, weights, cameras, checks, distinct, plan,
+        scorer, terms, goal_embeddings = _coarse(scorer, proposals.poses, phase, cameras, checks, distinct, plan,
                                                  should_cancel)
-        coarse = ranking_key(scorer, terms, weights)
-        swept, turns_screened = _sweep_turns(scorer, proposals, weights, coarse, distinct, plan)
+        coarse = ranking_key(scorer, terms, phase)
+        swept, turns_screened = _sweep_turns(scorer, proposals, phase, coarse, distinct, plan)
         screened += turns_screened
         poses = proposals.poses
         if swept is not None and len(swept):
-            extra = terms_of(scorer, swept, weights, cameras, batch=cfg.batch, goal_embeddings=goal_embeddings,
+            extra = terms_of(scorer, swept, phase, cameras, batch=cfg.batch, goal_embeddings=goal_embeddings,
                              should_cancel=should_cancel, progress=lambda n: plan.emit(len(proposals.poses) + n))
             poses = Poses.cat([poses, swept])
             terms = {key: torch.cat([terms[key], extra[key]]) for key in terms}
-            coarse = ranking_key(scorer, terms, weights)
+            coarse = ranking_key(scorer, terms, phase)
         plan.held = (int(holding(terms).sum()), len(poses))
         proposed = proposals.poses
         tiled = None if plan.tiles is None else tile_score(
-            scorer, proposed, weights, plan.tiles, batch=cfg.batch, should_cancel=should_cancel,
+            scorer, proposed, phase, plan.tiles, batch=cfg.batch, should_cancel=should_cancel,
             progress=lambda n: plan.emit(plan.total - plan.fine_count - plan.tiled_count + n))
         plan.emit(plan.total - plan.fine_count)
-        fine_poses, ranked = _fine(scorer, pair, poses, coarse, weights, distinct, plan, should_cancel)
+        fine_poses, ranked = _fine(scorer, pair, poses, coarse, phase, distinct, plan, should_cancel)
         best = diverse_top(fine_poses, ranked, k, *distinct)
         kept, objectives = fine_poses.select(best), ranked.select(best)
         stages = {"coarse": (poses, coarse), "fine": (fine_poses, ranked)}
@@ -346,7 +346,7 @@ def search(scorer: Scorer, proposals: Proposals, weights: Phase, *, k: int,
             stages["tiles"] = (proposed, tiled)
     plan.emit(plan.total, float(objectives.value[0]) if len(objectives) else None, restarts=len(kept))
     return Ranked(kept, objectives, len(poses) + len(fine_poses) + (0 if tiled is None else len(tiled)),
-                  0 if swept is None else len(swept), time.perf_counter() - began, stages, plan.held[0], plan.gate,
+                  0 if swept is None else len(swept), time.perf_counter() - began, stages, plan.held[0], plan.say,
                   screened)
 
 
@@ -362,7 +362,7 @@ class _Plan:
     k: int  # restarts planned, besides the tile stage's
     tile_restarts: int  # restarts the tile stage adds where it runs
     relation: str | None
-    gate: Gate | None
+    say: GuideSay | None
     tiles: tuple[torch.Tensor, torch.Tensor, float] | None
     total: int
     sweep_count: int
@@ -386,7 +386,7 @@ class _Plan:
         total = len(poses) + sweep_count + tiled_count + fine_count
         relation = scorer.reading.name if scorer.reading is not None else None
         # the guide's gate, once the coarse stage has measured it (or as the scorer was gated)
-        return cls(on_event, started, phases, k, cfg.tile_restarts, relation, scorer.gate, tiles, total, sweep_count,
+        return cls(on_event, started, phases, k, cfg.tile_restarts, relation, scorer.say, tiles, total, sweep_count,
                    tiled_count, fine_count)
 
     def emit(self, done: int, best: float | None = None, restarts: int | None = None) -> None:
@@ -400,7 +400,7 @@ class _Plan:
             if self.relation is not None and checked:
                 message += f"; {holds} of {checked} hold '{self.relation}'"
             message += f"; {self.k} restarts" + (f" + {tiled} from the tile stage" if tiled else "")
-            if self.gate is not None:
+            if self.say is not None:
                 message += f"; {self.gate.summary()}"
             counted = self.relation is not None and checked
             self.on_event(ProgressEvent(kind="step", phase=0, phases=self.phases, step=done, steps=self.total,
@@ -417,7 +417,7 @@ class _Plan:
         self.tiled_count = 0
 
 
-def _screened(scorer: Scorer, proposals: Proposals, weights: Phase,
+def _screened(scorer: Scorer, proposals: Proposals, phase: Phase,
               distinct: tuple[float, float]) -> tuple[Proposals, int]:
     """The proposals the encoder will see, and how many the geometry screened to choose them: with a guide and more
     than ``search.shortlist`` proposals, only those of ``encoder_shortlist`` (only what can be the answer reaches
@@ -426,12 +426,12 @@ def _screened(scorer: Scorer, proposals: Proposals, weights: Phase,
     if not (scorer.guided and 0 < cfg.shortlist < len(proposals.poses)):
         return proposals, 0
     with scorer.clock.time("search"):
-        geometric = scorer.screen(proposals.poses, weights)
-    shortlist = encoder_shortlist(proposals.poses, geometric, weights, cfg.shortlist, distinct, cfg.min_share)
+        geometric = scorer.screen(proposals.poses, phase)
+    shortlist = encoder_shortlist(proposals.poses, geometric, phase, cfg.shortlist, distinct, cfg.min_share)
     return proposals.select(shortlist), len(proposals.poses)
 
 
-def _coarse(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, checks: Cameras | None,
+def _coarse(scorer: Scorer, poses: Poses, phase: Phase, cameras: Cameras, checks: Cameras | None,
             distinct: tuple[float, float], plan: _Plan, should_cancel: CancelCheck | None
             ) -> tuple[Scorer, dict[str, torch.Tensor], torch.Tensor | None]:
     """The coarse stage: every candidate's terms at the shared views. Where there is a guide and no gate yet, the
@@ -440,17 +440,17 @@ def _coarse(scorer: Scorer, poses: Poses, weights: Phase, cameras: Cameras, chec
     with, the terms and the views' goal embeddings."""
     cfg = scorer.config.search
     goal_embeddings = embed_shared_goal(scorer, cameras)
-    terms = terms_of(scorer, poses, weights, cameras, batch=cfg.batch, goal_embeddings=goal_embeddings,
+    terms = terms_of(scorer, poses, phase, cameras, batch=cfg.batch, goal_embeddings=goal_embeddings,
                      progress=plan.emit, should_cancel=should_cancel)
-    if scorer.guided and plan.gate is None and len(poses) > 1:  # how far the guide may override the relation
-        plan.gate = guide_noise(scorer, poses, terms, weights, cameras, goal_embeddings, checks, distinct)
-        scorer = scorer.gated(plan.gate)  # the later stages score under it
-        if plan.gate.override == 0:
+    if scorer.guided and plan.say is None and len(poses) > 1:  # how far the guide may override the relation
+        plan.say = guide_noise(scorer, poses, terms, phase, cameras, goal_embeddings, checks, distinct)
+        scorer = scorer.gated(plan.say)  # the later stages score under it
+        if plan.say.amount == 0:
             plan.drop_tiles()  # a guide with no signal cannot tell tiles apart either
     return scorer, terms, goal_embeddings
 
 
-def _sweep_turns(scorer: Scorer, proposals: Proposals, weights: Phase, coarse: Key, distinct: tuple[float, float],
+def _sweep_turns(scorer: Scorer, proposals: Proposals, phase: Phase, coarse: Key, distinct: tuple[float, float],
                  plan: _Plan) -> tuple[Poses | None, int]:
     """The sweep's candidates (``sweep``: every turn at the best distinct coarse sites; None where none are
     planned), cut to the turns the geometry allows (``encoder_shortlist``) where ``search.sweep_keep`` is set and
@@ -459,18 +459,18 @@ def _sweep_turns(scorer: Scorer, proposals: Proposals, weights: Phase, coarse: K
     swept = sweep(proposals, scorer.pair, coarse, cfg.sweep, distinct[0]) if plan.sweep_count else None
     if swept is None or not cfg.sweep_keep or len(swept) <= plan.sweep_count:
         return swept, 0
-    shortlist = encoder_shortlist(swept, scorer.screen(swept, weights), weights, plan.sweep_count, distinct,
+    shortlist = encoder_shortlist(swept, scorer.screen(swept, phase), phase, plan.sweep_count, distinct,
                                   cfg.min_share)
     return swept.select(shortlist), len(swept)
 
 
-def _fine(scorer: Scorer, pair: PreparedPair, poses: Poses, coarse: Key, weights: Phase,
+def _fine(scorer: Scorer, pair: PreparedPair, poses: Poses, coarse: Key, phase: Phase,
           distinct: tuple[float, float], plan: _Plan, should_cancel: CancelCheck | None) -> tuple[Poses, Key]:
     """The fine stage: the coarse and sweep candidates' shortlist (``shortlist_of``) scored at views zoomed toward
     each, and their key ranking by both stages."""
     shortlist = shortlist_of(poses, coarse, plan.fine_count, *distinct)
     fine_poses = poses.select(shortlist)
-    fine = score(scorer, fine_poses, weights, fine_cameras(pair, scorer.config, fine_poses),
+    fine = score(scorer, fine_poses, phase, fine_cameras(pair, scorer.config, fine_poses),
                  batch=scorer.config.search.batch, progress=lambda n: plan.emit(plan.total - plan.fine_count + n),
                  should_cancel=should_cancel)
     # the fine views see each candidate closer; the coarse ones see all in the same frame: rank by both
@@ -498,7 +498,7 @@ def shortlist_of(poses: Poses, objectives: Key, k: int, distance: float, angle_d
     return places + rest[: k - len(places)]
 
 
-def encoder_shortlist(poses: Poses, terms: dict[str, torch.Tensor], weights: Phase, k: int,
+def encoder_shortlist(poses: Poses, terms: dict[str, torch.Tensor], phase: Phase, k: int,
                       distinct: tuple[float, float], share: float) -> list[int]:
     """Indices of the ``k`` candidates whose images the guide will see, chosen without it from their geometric
     ``terms`` (``Scorer.screen``): where the prompt's relation holds, the best at distinct
@@ -506,15 +506,15 @@ def encoder_shortlist(poses: Poses, terms: dict[str, torch.Tensor], weights: Pha
     ``share_of(k, share)`` where it fails, best by the geometry (a misread prompt must not make the right answer
     unreachable: ``search.min_share``, the principle of the region weights); slots one side cannot fill go to
     the other (``ordering.split_shortlist``). A candidate the relation rules out costs no encoder image."""
-    return split_shortlist(terms, weights, k, share, lambda key, n: shortlist_of(poses, key, n, *distinct))
+    return split_shortlist(terms, phase, k, share, lambda key, n: shortlist_of(poses, key, n, *distinct))
 
 
-def ranking_key(scorer: Scorer, terms: dict[str, torch.Tensor], weights: Phase,
+def ranking_key(scorer: Scorer, terms: dict[str, torch.Tensor], phase: Phase,
                 guide_key: torch.Tensor | None = None) -> Key:
     """What the search ranks a stage's candidates by (``ordering.search_key``): with ``scorer``'s guide as far as
     the gate it scores under lets it (``Scorer.gated``; None: not measured yet), the search's ``min_share``;
     ``guide_key``: the tile stage's change."""
-    return search_key(terms, weights, scorer.gate, guided=scorer.use_clip, share=scorer.config.search.min_share,
+    return search_key(terms, phase, scorer.say, guided=scorer.use_clip, share=scorer.config.search.min_share,
                       guide_key=guide_key)
 
 

@@ -6,10 +6,10 @@ Every order is lexicographic (``Key``): first the *tier*, then the *value* (lowe
 - The tier is the prompt's relation: the poses where it holds and nothing intersects (``holding``) come first.
   With a guide, the guide's favourites among the others (``ceil(override x share x others)``: ``rank_key``)
   join them, so a misread prompt cannot make the right answer unreachable.
-- The value is the guide's term where the guide has earned a say (``Gate``: its spread over the search's
+- The value is the guide's term where the guide has earned a say (``GuideSay``: its spread over the search's
   candidates against its noise, and whether views it has not seen agree with its choice, each against what
   chance gives on them: ``chance``), plus the usual arrangement as far as the guide's say leaves it
-  (``Gate.weigh``); otherwise the geometric objective.
+  (``GuideSay.weigh``); otherwise the geometric objective.
 
 The gate is measured once, by the search (``coarse_to_fine.search`` returns it in ``Ranked.gate``), and handed to every
 later order as an argument: the refinement's scorer (``objective.Scorer.gated``), the selection
@@ -34,15 +34,15 @@ import torch
 
 from ctp_core.config import share_of
 from ctp_core.config.schedule import Phase
-from ctp_core.contact import NEAR
+from ctp_core.contact import REACH
 from ctp_core.objective import combine
 from ctp_core.relations import predicates
 from ctp_core.search import chance
 
-CHANCE_DECADES = 2.0  # ``Gate``: evidence (-log10 p) a guide's tests must pass for any say: noise does once in 100
+CHANCE_DECADES = 2.0  # ``GuideSay``: evidence (-log10 p) a guide's tests must pass for any say: noise does once in 100
 FULL_DECADES = 1.0  # ... and this many decades past it for the full say
 LEAD_MAX = 1.0  # ... plus one decade per unit of the geometry's lead, at most this many
-TIE_NOISE = 4.0  # ``Gate.tie``: the usual arrangement's unit where the guide orders, in the guide's noises
+TIE_NOISE = 4.0  # ``GuideSay.tie``: the usual arrangement's unit where the guide orders, in the guide's noises
 SUNK = 0.01  # source diagonals of penetration (``sunk``) past which a pose intersects: a sphere pressed into a
 # plane by a tenth of its diagonal (forward and enclosed halves ~ depth^2 / radius / 2 each side summed)
 
@@ -105,7 +105,7 @@ class Key:
 
 
 @dataclass(frozen=True)
-class Gate:
+class GuideSay:
     """How far a guide may override the relation and the usual arrangement, earned in each run by showing on the
     search's own candidates what noise would not show there (``coarse_to_fine.guide_noise``; the tests in
     ``chance``):
@@ -146,7 +146,7 @@ class Gate:
         return CHANCE_DECADES + min(self.lead, LEAD_MAX)
 
     @property
-    def override(self) -> float:
+    def amount(self) -> float:
         return float(min(1.0, max(0.0, (self.evidence - self.needed) / FULL_DECADES)))
 
     @property
@@ -162,16 +162,16 @@ class Gate:
         0.25 must beat the usual arrangement by three of its spreads per spread of the arrangement); never less
         than ``tie``, which breaks what the guide cannot tell (at override 1 ``prefer`` is 0 and counts nothing)."""
         spreads = [float(x.double().std()) if len(x) > 1 else 0.0 for x in (guide, prefer)]
-        if not 0 < self.override < 1 or min(spreads) <= 0:
+        if not 0 < self.amount < 1 or min(spreads) <= 0:
             return self.tie
-        return max(self.tie, spreads[0] * (1 - self.override) / (self.override * spreads[1]))
+        return max(self.tie, spreads[0] * (1 - self.amount) / (self.amount * spreads[1]))
 
     @property
     def chooser(self) -> str:
         """Who orders the poses where the relation holds: ``geometry`` (override 0: the usual arrangement),
         ``guide`` (override 1: the usual arrangement only breaks its ties) or ``both`` (between: the usual
         arrangement weighs 1 - override, ``Scorer.preference_weight``)."""
-        return "geometry" if self.override <= 0 else "guide" if self.override >= 1 else "both"
+        return "geometry" if self.amount <= 0 else "guide" if self.amount >= 1 else "both"
 
     def summary(self) -> str:
         """The gate in one line, for the progress readout, the report and the page: what chance gives each test
@@ -190,11 +190,11 @@ class Gate:
         return {"spread": self.spread, "noise": self.noise, "spread_p": self.spread_p, "agree": self.agree,
                 "agree_p": self.agree_p, "places": self.places, "lead": round(self.lead, 3),
                 "evidence": round(min(self.evidence, 99.0), 3),
-                "needed": round(self.needed, 3), "override": round(self.override, 3), "chose": self.chooser,
+                "needed": round(self.needed, 3), "override": round(self.amount, 3), "chose": self.chooser,
                 "summary": self.summary()}
 
 
-TRUSTED = Gate(spread=1.0, noise=0.0)  # a gate not measured (yet): the guide trusted fully (p 0: override 1, tie 0)
+TRUSTED = GuideSay(spread=1.0, noise=0.0)  # a gate not measured (yet): the guide trusted fully (p 0: override 1, tie 0)
 
 
 def holding(terms: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -217,32 +217,32 @@ def intersecting(terms: dict[str, torch.Tensor]) -> torch.Tensor:
     return sunk > SUNK
 
 
-def rank_key(terms: dict[str, torch.Tensor], weights: Phase, *, share: float, guide_key: torch.Tensor | None = None,
-             override: float = 1.0, geometric: torch.Tensor | None = None, tie: float = 0.0) -> Key:
+def rank_key(terms: dict[str, torch.Tensor], phase: Phase, *, share: float, guide_key: torch.Tensor | None = None,
+             amount: float = 1.0, geometric: torch.Tensor | None = None, tie: float = 0.0) -> Key:
     """The relation first, then a value.
 
     Without a guide (``guide_key`` None) or with ``override`` 0: tier 0 where the relation holds (``holding``),
     1 elsewhere; value the geometric objective (``geometric``, else ``combine`` without the guide's term). With a
     guide: tier 0 over the *pool*, the poses where the relation holds plus the ``ceil(override x share x
     others)`` others that the guide ranks best (``share``: the search's ``min_share``, the principle of the
-    region weights); value the guide's key plus ``tie`` per unit of ``prefer`` (``Gate.weigh``: the usual
+    region weights); value the guide's key plus ``tie`` per unit of ``prefer`` (``GuideSay.weigh``: the usual
     arrangement weighs as much as the guide's say leaves it, and breaks what the guide cannot tell).
     """
     holds = holding(terms).to(terms["objective"].device)
-    if guide_key is None or override <= 0:
+    if guide_key is None or amount <= 0:
         if geometric is None:
-            geometric = combine({**terms, "clip": torch.zeros_like(terms["objective"])}, weights)
-        return Key((~holds).long(), usual_first(geometric, terms, weights, holds))
+            geometric = combine({**terms, "clip": torch.zeros_like(terms["objective"])}, phase)
+        return Key((~holds).long(), usual_first(geometric, terms, phase, holds))
     key = guide_key.double() + tie * terms.get("prefer", torch.zeros_like(guide_key)).double()
     pool = holds.clone()
     others = torch.nonzero(~holds)[:, 0]
-    admit = share_of(len(others), override * share)
+    admit = share_of(len(others), amount * share)
     if admit:
         pool[others[torch.argsort(key[others])[:admit]]] = True
     return Key((~pool).long(), key)
 
 
-def usual_first(geometric: torch.Tensor, terms: dict[str, torch.Tensor], weights: Phase, holds: torch.Tensor
+def usual_first(geometric: torch.Tensor, terms: dict[str, torch.Tensor], phase: Phase, holds: torch.Tensor
                 ) -> torch.Tensor:
     """(B,) float64: what orders poses where the geometry alone chooses: among those that hold (``holds``) the
     usual arrangement (``prefer``) one to one against the geometric objective in units of the relation's weight
@@ -251,13 +251,13 @@ def usual_first(geometric: torch.Tensor, terms: dict[str, torch.Tensor], weights
     the gradient (it must not pull a pose off the relation) but lets soft-ICP, which favours corners and edges where
     more samples fall near the source, decide among poses that all hold; ordered here, among them the usual place
     comes first and the geometry breaks what it cannot tell. Without a relation term: the objective as it is."""
-    if not weights.lambda_rel or "prefer" not in terms:
+    if not phase.lambda_rel or "prefer" not in terms:
         return geometric.double()
-    usual = geometric.double() / weights.lambda_rel + terms["prefer"].to(geometric.device).double()
+    usual = geometric.double() / phase.lambda_rel + terms["prefer"].to(geometric.device).double()
     return torch.where(holds.to(geometric.device), usual, geometric.double())
 
 
-def search_key(terms: dict[str, torch.Tensor], weights: Phase, gate: Gate | None, *, guided: bool, share: float,
+def search_key(terms: dict[str, torch.Tensor], phase: Phase, say: GuideSay | None, *, guided: bool, share: float,
                guide_key: torch.Tensor | None = None) -> Key:
     """What the search ranks a stage's candidates by (``rank_key``): with a guide (``guided``) that ``gate`` lets
     override (None: not measured yet, trusted), its term (``guide_key``: the tile stage's change); otherwise the
@@ -269,13 +269,13 @@ def search_key(terms: dict[str, torch.Tensor], weights: Phase, gate: Gate | None
     candidates can exceed the guide's by orders of magnitude, and any weighted sum would rank as geometry alone.
     The refinement and the final selection use the whole objective.
     """
-    gate = gate or TRUSTED
-    key = (terms["clip"] if guide_key is None else guide_key) if guided and gate.override > 0 else None
+    say = say or TRUSTED
+    key = (terms["clip"] if guide_key is None else guide_key) if guided and say.amount > 0 else None
     tie = 0.0
     if key is not None:
         held = holding(terms).to(key.device)
-        tie = gate.weigh(key[held], terms.get("prefer", torch.zeros_like(key))[held])
-    return rank_key(terms, weights, guide_key=key, override=gate.override, share=share, tie=tie)
+        tie = say.weigh(key[held], terms.get("prefer", torch.zeros_like(key))[held])
+    return rank_key(terms, phase, guide_key=key, amount=say.amount, share=share, tie=tie)
 
 
 def improves(now: dict[str, torch.Tensor], best: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -286,9 +286,9 @@ def improves(now: dict[str, torch.Tensor], best: dict[str, torch.Tensor]) -> tor
     return (held & ~was) | ((held == was) & (now["objective"] < best["objective"]))
 
 
-def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: torch.Tensor, weights: Phase, *,
-                  guided: bool, touches: bool, share: float, gate: Gate | None = None) -> int:
-    """The answer among refined poses: those within ``NEAR`` of the target (any when none is: an image guide can
+def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: torch.Tensor, phase: Phase, *,
+                  guided: bool, touches: bool, share: float, say: GuideSay | None = None) -> int:
+    """The answer among refined poses: those within ``REACH`` of the target (any when none is: an image guide can
     prefer a source gone out of view, an absent source differing less from the goal than a misplaced one); with
     a guide, among them those that touch (``touches``: the relation's contact ratio is > 0), the lowest
     objective without its soft-ICP term (the guide's and the penetration's); otherwise, or when none touches,
@@ -303,18 +303,18 @@ def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: to
     touching restarts can outweigh the guide's; the search ranks its candidates by the guide the same way
     (``search_key``). Penetration likewise counts only past ``SUNK``: at contact the two halves see a few
     samples a hair inside, which times ``lambda_pen`` can outweigh the guide. The usual arrangement
-    (``prefer``, already x (1 - override): ``Scorer.preference_weight``) counts ``Gate.weigh`` per unit over the
+    (``prefer``, already x (1 - override): ``Scorer.preference_weight``) counts ``GuideSay.weigh`` per unit over the
     restarts that hold (as much as the guide's say leaves it, at least a difference the gate would trust fully),
     not its objective weight, which would outweigh any guide.
     ``clear`` and ``limit``: per pose, in source diagonals (``contact.clearance``, ``contact.touch_limit``).
     """
-    gate = gate or TRUSTED
-    override = gate.override
+    say = say or TRUSTED
+    amount = say.amount
     key = terms["objective"]
-    if guided and override <= 0:  # a guide without signal: the geometry alone
-        guided, key = False, combine({**terms, "clip": torch.zeros_like(key)}, weights)
+    if guided and amount <= 0:  # a guide without signal: the geometry alone
+        guided, key = False, combine({**terms, "clip": torch.zeros_like(key)}, phase)
     clear, limit = clear.to(key.device), limit.to(key.device)
-    near = clear <= NEAR
+    near = clear <= REACH
     pool = near if near.any() else torch.ones_like(near)
     if guided:
         fit = pool & ((clear <= limit) | (not touches))
@@ -323,12 +323,12 @@ def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: to
             if "sunk" in terms:  # penetration counts where the pose intersects, not at contact
                 pen = torch.where(intersecting(terms).to(pen.device), pen, torch.zeros_like(pen))
             zeros = torch.zeros_like(key)
-            key = combine({**terms, "icp": zeros, "pen": pen, "prefer": zeros}, weights)
+            key = combine({**terms, "icp": zeros, "pen": pen, "prefer": zeros}, phase)
             prefer, judged = terms.get("prefer", zeros), fit & holding(terms).to(fit.device)
-            pool, key = fit, key + gate.weigh(key[judged], prefer[judged]) * prefer
+            pool, key = fit, key + say.weigh(key[judged], prefer[judged]) * prefer
     key = torch.where(pool, key.double(), torch.full_like(key, torch.inf, dtype=torch.float64))
-    ranked = rank_key({**terms, "objective": key}, weights, guide_key=key if guided else None,
-                      override=override, share=share, geometric=key)
+    ranked = rank_key({**terms, "objective": key}, phase, guide_key=key if guided else None,
+                      amount=amount, share=share, geometric=key)
     return ranked.argmin()
 
 
@@ -342,7 +342,7 @@ def alternatives_key(terms: dict[str, torch.Tensor], objectives: torch.Tensor, f
     return key.first(best)
 
 
-def split_shortlist(terms: dict[str, torch.Tensor], weights: Phase, k: int, share: float,
+def split_shortlist(terms: dict[str, torch.Tensor], phase: Phase, k: int, share: float,
                     pick: Callable[[Key, int], list[int]]) -> list[int]:
     """``k`` poses chosen by the geometry alone, the relation first (the guide's shortlist,
     ``coarse_to_fine.encoder_shortlist``): ``pick(key, n)`` (up to ``n`` indices best first by ``key``; the caller's
@@ -351,7 +351,7 @@ def split_shortlist(terms: dict[str, torch.Tensor], weights: Phase, k: int, shar
     the right answer unreachable: the principle of ``rank_key``'s pool); slots one side cannot fill go to the
     other. Where it holds nowhere, every slot goes to the others. Indices ``pick`` returns from the other side
     (duplicates filling its count) are dropped."""
-    key = rank_key(terms, weights, share=share)
+    key = rank_key(terms, phase, share=share)
     held = holding(terms)
     others = int((~held).sum())
     reserve = min(others, share_of(k, share)) if held.any() else others

@@ -32,7 +32,7 @@ from scipy.spatial import QhullError
 from ctp_core.config import AlignConfig, share_of
 from ctp_core.contact import (
     APPROACHES,
-    NEAR,
+    REACH,
     Proposals,
     Site,
     cavity_points,
@@ -50,7 +50,7 @@ from ctp_core.geometry.pose import (
 )
 from ctp_core.orientation import canonical
 from ctp_core.pairs import PreparedPair
-from ctp_core.relations.vocabulary import RelationReading
+from ctp_core.reading.relation import RelationReading
 
 REGIONS: tuple[str, ...] = ("top", "side", "bottom", "inside", "gap", "drop", "floor")
 HULL_POINTS = 96  # source convex hull vertices kept for the stable poses
@@ -139,7 +139,7 @@ def propose(pair: PreparedPair, config: AlignConfig, weights: dict[str, float], 
     Proposals the settling could not free from the target are dropped. ``log_s`` is the source scale of every
     proposal (rigid: kept from the files or the caller's start), or the scales they take in turn (scale mode:
     ``scaling.ScalePlan.rungs``, the first one sizing the floor's margin, the gaps and the summits' cells);
-    ``init`` (one pose) is added as a candidate as given when it is within ``contact.NEAR`` of the target.
+    ``init`` (one pose) is added as a candidate as given when it is within ``contact.REACH`` of the target.
     """
     cfg = config.search
     rungs = [float(log_s)] if isinstance(log_s, int | float) else [float(r) for r in log_s]
@@ -188,7 +188,7 @@ def propose(pair: PreparedPair, config: AlignConfig, weights: dict[str, float], 
     poses, free = place(pair, index, q, sites, scales)
     labels = [label for label, ok in zip(labels, free.tolist(), strict=True) if ok]
     sites = sites.select(free)
-    if init is not None and float(clearance(pair, index, init.select(slice(0, 1)))[0]) <= NEAR:
+    if init is not None and float(clearance(pair, index, init.select(slice(0, 1)))[0]) <= REACH:
         # the caller's start, as given, where it is near the target (a start away from it answers no contact
         # search, yet an image guide can rank it high: an absent source differs less from the goal than a
         # misplaced one); no site: the orientation sweep skips it

@@ -67,7 +67,7 @@ class ScalePlan:
     names: dict[str, str | None]  # the names the priors read (target, source, on)
     bound: Bound | None = None
     sigma: float = PRIOR_SIGMA  # the centre's uncertainty (log): the priors' error, or half a fit's band
-    relation: str | None = None  # the priors' relation
+    relation: str | None = None  # the priors' reading, by its name (the report's)
     rejected: str | None = None  # a geometric fit left out, and why
 
     def term(self, log_s: torch.Tensor, geometric: float = 1.0) -> torch.Tensor:
@@ -90,9 +90,9 @@ class ScalePlan:
         return {"initial": math.exp(self.centre), "from": "priors" if self.centre == self.ratio_log_s else "geometry",
                 "size_ratio": self.size_ratio, "priors_scale": math.exp(self.ratio_log_s),
                 "names": self.names, "priors_reason": self.reason,
-                "constraint": None if self.bound is None else {"kind": self.bound.kind,
+                "constraint": None if self.bound is None else {"kind": self.bound.reason,
                                                               "scale": math.exp(self.bound.log_s),
-                                                              "side": self.bound.side},
+                                                              "side": self.bound.cuts},
                 "sigma": self.sigma, "relation": self.relation, "rejected": self.rejected,
                 "ladder": [math.exp(r) for r in sorted(self.rungs)], "band": [math.exp(self.low), math.exp(self.high)]}
 
@@ -111,9 +111,9 @@ def geometric_bound(pair: PreparedPair, prior: ScenePrior, seed: int, ratio: flo
     """The geometry's bound on the scale for the priors' relation (the source the figure; its spec's ``bound``,
     looking twice the ladder's width either side of the priors' scale ``ratio``), or None."""
     reading = prior.reading
-    if reading is None or not reading.source_is_figure or reading.name not in SPECS:
+    if reading is None or not reading.source_is_figure:
         return None
-    bound = SPECS[reading.name].bound
+    bound = SPECS[reading.position].bound
     return None if bound is None else bound(pair, seed, ratio, 2 * LADDER_WIDTH)
 
 
@@ -123,14 +123,14 @@ def plan(pair: PreparedPair, prior: ScenePrior, names: dict[str, str | None], se
     a guide will judge the candidates; without one the search proposes at the centre alone (``searched``)."""
     ratio = ratio_scale(pair, prior.size_ratio)
     bound = geometric_bound(pair, prior, seed, ratio)
-    if bound is not None and bound.side != "upper" and (
-            abs(bound.log_s - ratio) if bound.side == "fit" else bound.log_s - ratio) > LADDER_WIDTH:
+    if bound is not None and bound.cuts != "upper" and (
+            abs(bound.log_s - ratio) if bound.cuts == "fit" else bound.log_s - ratio) > LADDER_WIDTH:
         # two estimates that disagree past the priors' 90th percentile: the bound's model does not apply (a comb or
         # a flower "on its head" is no hollow thing worn over the top; a coin on a cup is no lid), the priors decide
         low, high = math.exp(ratio - LADDER_WIDTH), math.exp(ratio + LADDER_WIDTH)
-        why = f"{bound.kind} at {math.exp(bound.log_s):.3g}, outside the priors' band ({low:.3g} to {high:.3g})"
-        return replace(plan(pair, replace(prior, relation=None), names, seed, guided), relation=prior.relation,
-                       rejected=why)
+        why = f"{bound.reason} at {math.exp(bound.log_s):.3g}, outside the priors' band ({low:.3g} to {high:.3g})"
+        return replace(plan(pair, replace(prior, reading=None), names, seed, guided),
+                       relation=None if prior.reading is None else prior.reading.name, rejected=why)
     sigma = PRIOR_SIGMA
     if bound is not None and bound.band is not None:  # a fit: its own band, not the priors' error
         centre, (low, high) = bound.log_s, bound.band
@@ -139,7 +139,7 @@ def plan(pair: PreparedPair, prior: ScenePrior, names: dict[str, str | None], se
     else:
         centre, low, high = ratio, ratio - LADDER_WIDTH, ratio + LADDER_WIDTH
         rungs = np.linspace(low, high, RUNGS).tolist()
-        if bound is not None and bound.side == "upper":  # "in": the rungs above go, the wall starts there
+        if bound is not None and bound.cuts == "upper":  # "in": the rungs above go, the wall starts there
             high = min(high, bound.log_s)
             low = min(low, high)
         elif bound is not None:  # "hang", "on": the rungs below go, the wall starts there
@@ -149,5 +149,5 @@ def plan(pair: PreparedPair, prior: ScenePrior, names: dict[str, str | None], se
         rungs = sorted({min(max(r, low), high) for r in rungs})
     searched = sorted(rungs, key=lambda r: (abs(r - centre), r))  # the centre first
     laddered = ScalePlan(ratio, centre, tuple(searched), low, high, prior.size_ratio, prior.reason, names, bound,
-                         sigma=sigma, relation=prior.relation)
+                         sigma=sigma, relation=None if prior.reading is None else prior.reading.name)
     return laddered if guided else laddered.at_centre()

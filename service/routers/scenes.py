@@ -7,7 +7,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, Request, Response
 from pydantic import BaseModel, Field
 
-from ctp_core.assembly.describe import DESCRIPTION_MAX, DescriptionError, ScenePlan, read
+from ctp_core.assembly.describe import DESCRIPTION_MAX, DescriptionError, ScenePlan, read_description
 from ctp_core.assembly.plan import plan_step
 from ctp_core.reading.names import default_name
 from service import forms, submit
@@ -139,8 +139,8 @@ def _names(form, files: list[str]) -> list[str]:
 
 
 def _read(prompt: str, names: list[str]) -> ScenePlan:
-    """``describe.read``, its refusals as 422 with the reader's code."""
+    """``describe.read_description``, its refusals as 422 with the reader's code."""
     try:
-        return read(prompt, names)
+        return read_description(prompt, names)
     except DescriptionError as exc:
         raise ApiError(422, exc.code, exc.message, field=exc.field) from None
