@@ -486,7 +486,7 @@ def test_a_guide_without_signal_encodes_nothing_after_the_coarse_stage(meshes, m
     props = propose(run)
     ranked = coarse_to_fine.search(run.scorer, props, run.plan[0], k=2)
     coarse = len(props.poses) * CONFIG.search.coarse_views
-    assert not run.scorer.gated(ranked.say).guided and run.scorer.clip_images == coarse and ranked.swept > 0
+    assert not run.scorer.with_say(ranked.say).guided and run.scorer.clip_images == coarse and ranked.swept > 0
     outcome = refine(run, ranked.poses, ranked.say)
     assert outcome.clip_images == coarse and len(outcome.objectives) == 2
 
