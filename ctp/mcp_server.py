@@ -10,6 +10,7 @@ is a tool error (``isError``) carrying the service's code and message, never a t
 from __future__ import annotations
 
 import json
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -195,18 +196,29 @@ def build(service: Service) -> MCPServer:
 
 async def _run(ctx: Context, work: Callable[[Progress], dict[str, Any]]) -> dict[str, Any] | CallToolResult:
     """``work`` in a worker thread (the client is synchronous), its job's progress sent as MCP progress
-    notifications, a refusal as a tool error."""
+    notifications, a refusal as a tool error. A request the client cancels answers at once; the thread stops
+    following the job at its next event (the job goes on: ``cancel`` stops it)."""
+    abandoned = threading.Event()
+
     def progress(job: dict[str, Any]) -> None:
+        if abandoned.is_set():
+            raise _Abandoned
         step = job.get("progress") or {}
         anyio.from_thread.run(ctx.report_progress, float(step.get("fraction") or 0.0), 1.0,
                               step.get("message") or job["status"])
 
     try:
-        return await anyio.to_thread.run_sync(work, progress)
+        return await anyio.to_thread.run_sync(work, progress, abandon_on_cancel=True)
     except ServiceError as exc:
         return _error(exc.code, exc.message, exc.field, status=exc.status)
     except ToolFailure as exc:
         return _error(exc.code, exc.message, exc.field)
+    finally:
+        abandoned.set()
+
+
+class _Abandoned(Exception):
+    """Raised in a worker thread whose request was cancelled: it stops following the job."""
 
 
 def _error(code: str, message: str, field: str | None = None, status: int | None = None) -> CallToolResult:

@@ -228,24 +228,35 @@ def test_bad_input_is_a_tool_error_with_its_code(connect, files):
     assert table["up"] == [0.0, 1.0, 0.0] and table["size"] == pytest.approx(1.2)
 
 
-def test_cancel_a_running_job(connect, files):
+def test_cancel_a_running_job(connect, api, files):
+    """A request the client gives up on answers at once and leaves its job running; ``cancel`` stops the job. A job
+    started without waiting is followed to its result by ``job_status``."""
+    pair = {"target": str(files / "table.glb"), "source": str(files / "cup.glb"), "prompt": "a cup on the table",
+            **FAST}
+    before = {job["id"] for job in api.client.get("/jobs").json()["jobs"]}
+
     async def body(client: ClientSession):
-        started = await client.call_tool("place", {
-            "target": str(files / "table.glb"), "source": str(files / "cup.glb"), "prompt": "a cup on the table",
-            "preset": "test", "options": {"steps": 100000}, "wait": False})
-        job_id = started.structured_content["job_id"]
-        with anyio.fail_after(60):
-            while (await client.call_tool("job_status", {"job_id": job_id})).structured_content["status"] != "running":
-                await anyio.sleep(0.2)
+        with anyio.move_on_after(3) as given_up:
+            await client.call_tool("place", {**pair, "options": {"steps": 100000}})  # it would take minutes
+        assert given_up.cancelled_caught
+        started = [job for job in api.client.get("/jobs").json()["jobs"] if job["id"] not in before]
+        assert len(started) == 1 and started[0]["status"] == "running"
+        job_id = started[0]["id"]
         canceled = await client.call_tool("cancel", {"job_id": job_id})
         final = await client.call_tool("job_status", {"job_id": job_id, "wait": True, "timeout_s": 60})
         again = await client.call_tool("cancel", {"job_id": job_id})
-        return canceled, final, again
+        queued = await client.call_tool("place", {**pair, "wait": False})
+        followed = await client.call_tool("job_status", {"job_id": queued.structured_content["job_id"],
+                                                         "wait": True, "timeout_s": 60})
+        return canceled, final, again, queued, followed
 
-    canceled, final, again = drive(connect, "stdio", body)
+    canceled, final, again, queued, followed = drive(connect, "stdio", body)
     assert not canceled.is_error, canceled.content
     assert final.structured_content["status"] == "canceled"
     assert _error(again)["code"] == "job_finished"
+    assert queued.structured_content["status"] in ("queued", "running") and "placement" not in queued.structured_content
+    assert followed.structured_content["status"] == "succeeded"
+    assert followed.structured_content["placement"]["verdict"].startswith("'on' holds")
 
 
 def test_no_service_is_a_tool_error_naming_it(tmp_path):
