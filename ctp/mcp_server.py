@@ -24,7 +24,7 @@ from mcp.server.mcpserver import Context, MCPServer
 from mcp.types import CallToolResult, TextContent
 from pydantic import Field
 
-from ctp_core.config import PRESETS
+from ctp_core.config import PRESETS, Direction
 from ctp_core.geometry.frames import z_up
 from ctp_core.reading.counts import ARRANGEMENTS
 from ctp_core.reading.names import default_name
@@ -74,9 +74,6 @@ class Service:
     url: str
     api_key: str | None
     results: Path  # one folder per job: result.glb, report.json
-
-    def client(self) -> Client:
-        return Client(self.url, self.api_key)
 
 
 Progress = Callable[[dict[str, Any]], None]
@@ -147,10 +144,11 @@ def build(service: Service) -> MCPServer:
 
     @app.tool(name="inspect")
     async def inspect(mesh: Path_, ctx: Context,
-                      up: Annotated[str, Field(description="where its up comes from: file (the format's "
-                                               "convention), auto (a geometric guess) or an axis +x, -x, +y, -y, "
-                                               "+z, -z")] = "file",
-                      front: Annotated[str, Field(description="where its front comes from, as for up")] = "file",
+                      up: Annotated[Direction, Field(description="where its up comes from: file (the format's "
+                                                     "convention: +Y for glTF), auto (a geometric guess) or an axis "
+                                                     "of the file")] = "file",
+                      front: Annotated[Direction, Field(description="where its front comes from: file (+Z for "
+                                                        "glTF), auto, or an axis at right angles to the up")] = "file",
                       ) -> dict[str, Any]:
         """Read one mesh as a placing job would, without a job: `size` and `extents` (file units), `faces`, the
         `up` and `front` a job will use (unit vectors in the file frame) and why, whether it is `turned` upright.
@@ -294,7 +292,8 @@ class Work:
         """The job in a few fields; a failed one as its error, a succeeded one with its result (downloaded)."""
         if job["status"] == "failed":
             error = job.get("error") or {}
-            raise ToolFailure(error.get("code", "job_failed"), error.get("message", "the job failed"))
+            raise ToolFailure(error.get("code", "job_failed"),
+                              f"job {job['id']} failed: {error.get('message', 'no reason given')}")
         step = job.get("progress") or {}
         answer = {"job_id": job["id"], **{k: job[k] for k in JOB_FIELDS if job.get(k) is not None},
                   "progress": {k: step[k] for k in ("fraction", "message", "eta_s") if step.get(k) is not None}}
