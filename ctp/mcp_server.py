@@ -194,16 +194,20 @@ def build(service: Service) -> MCPServer:
 
 async def _run(ctx: Context, work: Callable[[Progress], dict[str, Any]]) -> dict[str, Any] | CallToolResult:
     """``work`` in a worker thread (the client is synchronous), its job's progress sent as MCP progress
-    notifications, a refusal as a tool error. A request the client cancels answers at once; the thread stops
-    following the job at its next event (the job goes on: ``cancel`` stops it)."""
+    notifications (only as the job's fraction grows: the protocol has each notification's progress above the
+    last), a refusal as a tool error. A request the client cancels answers at once; the thread stops following the
+    job at its next event (the job goes on: ``cancel`` stops it)."""
     abandoned = threading.Event()
+    sent: list[float] = []
 
     def progress(job: dict[str, Any]) -> None:
         if abandoned.is_set():
             raise _Abandoned
         step = job.get("progress") or {}
-        anyio.from_thread.run(ctx.report_progress, float(step.get("fraction") or 0.0), 1.0,
-                              step.get("message") or job["status"])
+        fraction = float(step.get("fraction") or 0.0)
+        if not sent or fraction > sent[-1]:
+            sent.append(fraction)
+            anyio.from_thread.run(ctx.report_progress, fraction, 1.0, step.get("message") or job["status"])
 
     try:
         return await anyio.to_thread.run_sync(work, progress, abandon_on_cancel=True)

@@ -17,15 +17,13 @@ import httpx
 import numpy as np
 import pytest
 import trimesh
+from mcp import ClientSession, StdioServerParameters, stdio_client
+from mcp.client.streamable_http import streamable_http_client
 
 from ctp.cmd_serve import stop_processes
 from ctp_core.io.examples import get_example, write_table_setting
 from service.embedded import free_port
 from tests.conftest import REPO, service_env, wait_for
-
-mcp = pytest.importorskip("mcp", reason="the MCP SDK (a dependency: pip install -e .) is not installed")
-from mcp import ClientSession, StdioServerParameters, stdio_client  # noqa: E402
-from mcp.client.streamable_http import streamable_http_client  # noqa: E402
 
 FAST = {"preset": "test", "seed": 1}
 TABLE_TOP, TABLE_HALF = 0.75, (0.6, 0.4)  # ctp_core.io.examples' table: top height, half width (x) and depth (z)
@@ -181,7 +179,8 @@ def test_place_puts_the_cup_on_the_table_with_progress(connect, transport, files
     assert answer["alternatives"] and all(a["verdict"] for a in answer["alternatives"])
     assert any("top" in part for part in answer["target_parts"])
     _cup_on_table(answer, trimesh.load(files / "cup.glb", force="mesh"))
-    assert steps and steps[-1] == (1.0, 1.0, "done")  # the job's progress, the last at its end
+    assert steps and steps[-1][:2] == (1.0, 1.0) and all(message for *_, message in steps)  # the last at the end
+    assert all(a[0] < b[0] for a, b in zip(steps, steps[1:], strict=False))  # each above the last, as MCP has it
     assert json.loads(report.contents[0].text)["transform"]["matrix"] == answer["placement"]["matrix"]
 
 
