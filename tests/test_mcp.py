@@ -184,6 +184,25 @@ def test_place_puts_the_cup_on_the_table_with_progress(connect, transport, files
     assert json.loads(report.contents[0].text)["transform"]["matrix"] == answer["placement"]["matrix"]
 
 
+def test_place_several_copies(connect, files):
+    """One placement per copy, each as the report has it, its verdict in words (the fast preset need not make
+    both hold: the words must say which)."""
+    async def body(client: ClientSession):
+        placed = await client.call_tool("place", {
+            "target": str(files / "table.glb"), "source": str(files / "cup.glb"), "prompt": "two cups on the table",
+            "target_name": "table", "source_name": "cup", "count": 2, "arrangement": "row", **FAST})
+        assert not placed.is_error, placed.content
+        report = await client.read_resource(placed.structured_content["report_resource"])
+        return placed.structured_content["copies"], json.loads(report.contents[0].text)["copies"]
+
+    copies, reported = drive(connect, "http", body)
+    assert [c["name"] for c in copies] == [c["name"] for c in reported] == ["cup_1", "cup_2"]
+    for copy, truth in zip(copies, reported, strict=True):
+        assert copy["matrix"] == truth["transform"]["matrix"]
+        holds = truth["relation"]["holds"]
+        assert copy["verdict"].startswith("'on' holds" if holds else "'on' does not hold")
+
+
 def test_compose_places_a_three_object_sentence(connect, files):
     async def body(client: ClientSession):
         return await client.call_tool("compose", {
