@@ -36,16 +36,16 @@ geometry: contact, support, penetration and whether the sentence's relation hold
 coordinates. Meshes are files on the machine this server runs on (GLB, glTF, OBJ, PLY, STL or a zip of one). A
 transform is a row-major 4x4 that moves the placed object's file frame into the reference object's file frame:
 `matrix` in glTF's axes (+Y up), `matrix_z_up` in Blender's (+Z up). `read_plan` checks a sentence for free; `place`
-and `compose` run a job (seconds with preset "test" or "fast", longer with "default"); `job_status` and `cancel`
-follow or stop one."""
+and `compose` run a job (a few seconds with preset "test" or "fast", tens with "default" on a small CPU service,
+minutes with "descent", hours with "paper"); `job_status` and `cancel` follow or stop one."""
 
 Preset = Literal[tuple(PRESETS)]  # type: ignore[valid-type]
 Arrangement = Literal[("auto", *ARRANGEMENTS)]  # type: ignore[valid-type]
 Path_ = Annotated[str, Field(description="path of a mesh file on the machine the ctp MCP server runs on (absolute "
                              "or relative to its working directory): .glb, .gltf, .obj, .ply, .stl or .zip")]
-PresetArg = Annotated[Preset | None, Field(description="run budget: test (seconds, for trying things), fast, "
-                                           "default (a search, then refinement; the service's default), descent, "
-                                           "paper")]
+PresetArg = Annotated[Preset | None, Field(description="run budget: test (seconds, for trying things), fast "
+                                           "(seconds), default (a search, then refinement; the service's "
+                                           "default), descent (minutes), paper (hours)")]
 SeedArg = Annotated[int | None, Field(ge=0, le=2**32 - 1, description="random seed (the same seed and inputs give "
                                       "the same answer)")]
 OptionsArg = Annotated[dict[str, Any] | None, Field(description="further job options as the service names them "
@@ -346,7 +346,7 @@ def result(report: dict[str, Any]) -> dict[str, Any]:
         return {"objects": [{"name": o["name"], **_matrices(o["transform"]),
                              "verdict": _scene_verdict(judged.get(o["name"]))} for o in report["objects"]],
                 "all_hold": whole.get("all_hold"), "none_intersect": whole.get("none_intersect"),
-                "warnings": report.get("warnings", [])}
+                "warnings": [w for stage in report["stages"] for w in stage.get("warnings", [])]}
     found = {"guide": report.get("guide"), "warnings": report.get("warnings", []),
              "target_parts": (report.get("extra") or {}).get("parts", [])}
     if report.get("copies"):
