@@ -133,7 +133,7 @@ def test_the_prompt_s_number_and_arrangement_are_read(prompt, source, count, arr
     assert (reading.count, reading.arrangement) == (count, arrangement), reading.why
     one = counts.one_copy(prompt, arrangement or "scatter")
     if relation is not None:  # what each copy is judged by
-        assert get_provider("rules").estimate("target", source, one).relation == relation, one
+        assert get_provider("rules").estimate("target", source, one).reading.name == relation, one
 
 
 def test_the_count_option_wins_and_an_arrangement_alone_means_several():

@@ -24,6 +24,7 @@ from ctp_core.config import AlignConfig
 from ctp_core.export import report
 from ctp_core.pairs import prepare_pair
 from ctp_core.priors import ScenePrior
+from ctp_core.reading.relation import RelationReading
 from ctp_core.search import coarse_to_fine, scaling
 
 # |ln(found / true)| allowed: ln 1.5, about the rules provider's size-ratio error at its 68th percentile
@@ -167,7 +168,8 @@ def _plan(relation: str | None, size_ratio: float = 0.5, name: str = "ball in a 
           guided: bool = True) -> scaling.ScalePlan:
     target, source, *_ = _pair(name)
     pair = prepare_pair(target, source, samples=1000, seed=0)
-    prior = ScenePrior(size_ratio, False, 0.2, "rules", "test", relation=relation)
+    reading = None if relation is None else RelationReading.parse(relation)
+    prior = ScenePrior(size_ratio, False, 0.2, "rules", "test", reading=reading)
     return scaling.plan(pair, prior, {"target": "bowl", "source": "ball", "on": None}, seed=0, guided=guided)
 
 
@@ -234,7 +236,8 @@ def test_a_flat_thing_far_smaller_than_the_opening_is_no_lid():
     coin = trimesh.creation.cylinder(radius=0.0125, height=0.002, sections=32)
     coin.apply_transform(trimesh.transformations.rotation_matrix(-math.pi / 2, [1, 0, 0]))
     pair = prepare_pair(target, coin, samples=1000, seed=0)
-    plan = scaling.plan(pair, ScenePrior(0.25, False, 0.2, "rules", "test", relation="on"), {}, seed=0)
+    prior = ScenePrior(0.25, False, 0.2, "rules", "test", reading=RelationReading.parse("on"))
+    plan = scaling.plan(pair, prior, {}, seed=0)
     assert plan.bound is None and plan.rejected.startswith("on: a lid") and plan.centre == plan.ratio_log_s
 
 
