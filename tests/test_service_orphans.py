@@ -100,6 +100,12 @@ def test_a_stale_record_stops_nothing(tmp_path, private_redis):
         _ended(server)
 
 
+def test_a_worker_lifeline_that_is_not_open_is_one_line(capsys):
+    assert main(["worker", "--lifeline", "987654"]) == 2
+    err = capsys.readouterr().err
+    assert err == "error: invalid_argument: --lifeline 987654 is not an open file descriptor\n"
+
+
 _OWNER = ("import sys, time\nfrom service.embedded import EmbeddedRedis\n"
           "server = EmbeddedRedis(sys.argv[1], detached=True)\nserver.start()\n"
           "print(server.port, server.server_pid, flush=True)\ntime.sleep(600)\n")
