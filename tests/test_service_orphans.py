@@ -160,6 +160,27 @@ def test_an_orphaned_redis_that_lingers_is_shut_down_through_its_port(tmp_path, 
             os.kill(pid, signal.SIGKILL)
 
 
+def test_the_server_outlives_the_thread_that_started_it_and_ends_with_its_keeper(tmp_path):
+    """Started from a thread that then ends (as ``ctp serve``'s supervisor thread restarts it), the server runs on:
+    it is tied to the process, not the thread. Its keeper SIGKILLed, the server still stops cleanly (its parent-death
+    signal is SIGTERM: the append-only file flushed)."""
+    server = EmbeddedRedis(tmp_path)
+    starter = threading.Thread(target=server.start)
+    starter.start()
+    starter.join()
+    try:
+        time.sleep(0.5)  # a parent-death signal tied to the thread would have arrived by now
+        assert servers_using(tmp_path) == [server.server_pid]
+        redis.Redis.from_url(server.url).ping()
+        pid = server.server_pid
+        server.process.kill()
+        server.process.wait()
+        wait_for(lambda: not alive(pid), 10, "the redis-server of the killed keeper to stop")
+        assert "Redis is now ready to exit" in (tmp_path / "redis.log").read_text()
+    finally:
+        server.stop()
+
+
 def _started(client: Client, workers: int) -> None:
     wait_for(lambda: (r := _readyz(client)) and r["status"] == "ready" and r["workers"] == workers, 120,
              f"ctp serve to be ready with {workers} worker(s)", 0.5)
