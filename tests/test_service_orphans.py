@@ -22,7 +22,7 @@ from service.client import Client
 from service.embedded import EmbeddedRedis, free_port, servers_using
 from tests.conftest import REPO, service_env, wait_for
 from tests.test_service import BALL, BOX, FAST
-from tests.test_service_serve import _kill_left, _readyz, _serve, _stop, alive, descendants
+from tests.test_service_serve import _cmdline, _kill_left, _readyz, _serve, _stop, alive, descendants
 
 pytestmark = pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs Linux /proc to find the processes")
 
@@ -190,7 +190,10 @@ def _killed(serve: subprocess.Popen, started: list[int]) -> None:
     """SIGKILL to ``ctp serve`` alone: every process it started is gone within a few seconds."""
     serve.send_signal(signal.SIGKILL)
     serve.wait()
-    wait_for(lambda: not any(alive(p) for p in started), 8, "the processes of the killed ctp serve to end")
+    try:
+        wait_for(lambda: not any(alive(p) for p in started), 8, "the processes of the killed ctp serve to end")
+    except pytest.fail.Exception:
+        pytest.fail(f"still running 8 s after ctp serve was killed: {[_cmdline(p) for p in started if alive(p)]}")
 
 
 def test_a_killed_serve_leaves_no_orphan_and_its_restart_runs_one_redis(tmp_path):
@@ -209,14 +212,14 @@ def test_a_killed_serve_leaves_no_orphan_and_its_restart_runs_one_redis(tmp_path
     try:
         with Client(f"http://127.0.0.1:{port}") as client:
             _started(client, 2)
+            assert len(servers_using(folder)) == 1
             running = [client.submit(("box.glb", BOX), ("ball.glb", BALL), "a ball on a box",
-                                     options={**FAST, "steps": 40}) for _ in range(2)]
+                                     options={**FAST, "steps": 100}) for _ in range(2)]  # not done before the kill
             waiting = client.submit(("box.glb", BOX), ("ball.glb", BALL), "a ball on top of a box", options=FAST)
             wait_for(lambda: all(client.status(j["id"])["progress"]["step"] > 0 for j in running), 90,
-                     "both jobs to take a step")
+                     "both jobs to take a step", interval_s=0.02)
             started = descendants(serve.pid)
             every += started
-            assert len(servers_using(folder)) == 1
         _killed(serve, started)
 
         serve = _serve(env, port, log)
