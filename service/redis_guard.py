@@ -55,7 +55,8 @@ def _clients(port: int) -> int:
     """Clients connected to the server besides this one; 0 when it does not answer (nothing to wait for)."""
     import redis
 
-    client = redis.Redis(port=port, socket_connect_timeout=1, socket_timeout=1, retry=None)
+    # retry None: no retries (redis-py 8 retries by default); its stubs ask for a Retry
+    client = redis.Redis(port=port, socket_connect_timeout=1, socket_timeout=1, retry=None)  # type: ignore[arg-type]
     try:
         return int(client.info("clients")["connected_clients"]) - 1
     except redis.RedisError:
