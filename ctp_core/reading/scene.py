@@ -1,0 +1,699 @@
+"""A scene as people describe it, read by its sentence structure: who is placed where, relative to what.
+
+"Put the teapot on the tea tray in the middle of the kitchen table, and the wine crate under the table", "a park
+bench with a litter bin to its right and a pizza box on its seat", "two traffic cones stand next to the crowd
+barrier with the wet floor sign between them". ``read_scene(text, keys)`` reads a description over the objects it
+may name (``keys``: each upload's name as words) into ``Said`` records, one per relation said of an object:
+
+- **Phrases.** The words are tokens; an object's phrase is an upload's name (plurals too, a head word only one
+  upload has), a reference back ("it", "them", "each", "both"), a part of an object named by a possessive ("its
+  seat", "the bench's seat", "the top shelf of the bookcase": the ground is the possessor, the part its place), or
+  a phrase after a determiner that names no upload (an error for the plan: never a guess). A count before a name
+  makes copies ("two boxes", "a pair of shoes"; "a pair of glasses" is one, ``counts``). The relation cues are the
+  pair reader's (``cues.CUES``), every one found in the sentence, the most specific first where they overlap.
+- **Clauses.** A sentence splits at ";", "." and "then"; within it, a clause is its figures (one phrase, or several
+  joined by "and": "a trophy and a wooden bird stand on the chest") and the relations said of them, each a cue and
+  its grounds ("between the teapot and the paper bag": two). A cue with no figure of its own modifies the clause
+  before ("..., facing the monitor"); a bare phrase with "too" or "as well" repeats the clause before for it ("the
+  mug too"); a phrase with no cue is only named ("a workbench, ..."); "with" attaches the clauses after it to the
+  clause's subject ("a bench with a bin to its right"). A relation fronted before its figure ("next to the bed, a
+  lamp") is the figure's all the same.
+- **A clause with two relations.** The first is the figure's. A second relation of support after a first ("the
+  teapot on the tray in the middle of the table") says where the first ground is: a step of its own (the tray on
+  the table, in its middle); after "between" or a group ("between the teapot and the bag on the table") it is where
+  the grounds stand (each on the table). Any other second relation is said of the figure too ("the lamp on the
+  desk to its right": on the desk, and right of the monitor): kept as ``also``.
+- **References.** "it"/"its" is the subject of the clause it is said in (the object "with" attaches to), else the
+  scene's topic (a first phrase named with no relation: "a workbench, a toolbox on it"), else the object named last
+  that the clause does not already relate ("the lamp on the desk to its right": not the desk); never the figure
+  itself, never a group of copies; "in it" prefers a container. "them" and "both" are the group named last (the
+  copies of a count, figures or grounds joined by "and"), else the clause's subject and its ground, else the last
+  two objects named; "each" one ground copy per figure copy. A cue with its ground left out ("a stool in front")
+  reads as "it".
+
+Why no parser library: spaCy 3.8 is on the registry, but without a trained pipeline it has no parser, and its
+English pipelines are published outside the registry (GitHub releases) under their own licence terms; a service
+that reads a sentence before queueing would depend on a model file it cannot fetch or pin from the registry. The
+sentences are short, their vocabulary (object names, relation cues, references) is closed and known to the reader,
+so the structure above is read from tokens here. Torch-free.
+"""
+
+from __future__ import annotations
+
+import re
+import unicodedata
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+from ctp_core.reading import counts, cues, lexicon, records
+from ctp_core.reading.places import PART_WORDS, PLACE_WORDS, read_place
+from ctp_core.reading.records import RelationName
+
+__all__ = ["DETERMINERS", "FLOOR", "MAX_GROUNDS", "ROOM", "Said", "SceneReading", "SceneReadingError", "clean",
+           "is_support", "read_scene"]
+
+MAX_GROUNDS = 2  # objects one relation relates a figure to: one, or two ("between")
+DETERMINERS = frozenset({"a", "an", "the", "another", "some", "both", "every", "his", "her", "its", "their", "my",
+                         "your", "our", "this", "that", "these", "those", "each", *counts.NUMBER_WORDS})
+# A count said as a noun before "of" ("a pair of shoes", "a couple of chairs"): part of the determiner
+_QUANTITY = frozenset({"pair", "couple", "trio", "dozen", "set", "stack", "pile", "row", "line", "few", "number"})
+# Words that end an object's phrase: prepositions, conjunctions, verbs of placing.
+_PHRASE_ENDS = frozenset({
+    "and", "with", "of", "to", "on", "in", "at", "by", "under", "beside", "behind", "near", "next", "between",
+    "above", "below", "over", "inside", "atop", "facing", "against", "into", "onto", "from", "around", "for", "while",
+    "that", "which", "is", "are", "stands", "stand", "sits", "sit", "rests", "rest", "lies", "lie", "hangs", "leans",
+    "go", "goes", "it", "them", "each", "beneath", "underneath", "opposite", "across", "too", "then", "up", "down",
+    "faces", "face", "standing", "sitting", "lying", "resting", "along", "beyond", "past", "toward", "towards"})
+FLOOR = frozenset({"floor", "ground", "room", "carpet"})  # "a rug on the floor": stands on the floor
+ROOM = frozenset({"wall", "walls", "ceiling", "window", "door", "doorway", "entrance", "corner", "camera", "viewer"})
+_ALSO = frozenset({"too", "also"})
+_BREAK_WORDS = frozenset({"then", "afterwards", "finally", "next"})
+_POSSESSIVE = frozenset({"its", "their", "his", "her"})
+# what "them", "both" and "each" said alone are
+_GROUP_WORDS = frozenset({"them", "both", "each"})
+
+
+class SceneReadingError(ValueError):
+    """A description the reader cannot read (a relation of an object to itself, a reference with nothing to refer
+    to): ``code`` as the plan's errors write it."""
+
+    def __init__(self, message: str, code: str = "unclear_clause") -> None:
+        super().__init__(message)
+        self.message, self.code = message, code
+
+
+@dataclass(frozen=True)
+class Said:
+    """One relation said of an object: its ``figure`` (an upload's key), the relation's cue as said (``cue``; its
+    relation ``relation``), its ``grounds`` (keys; ``group``: one object made of them all, "next to them"; ``each``:
+    one ground copy per figure copy), the words of the ground's part or place ("top shelf", "seat"; ``part``),
+    whether it stands on the floor (``floor``), whether it is the figure's own relation (``primary``; else said of
+    it as well: ``also``) and the clause it comes from."""
+
+    figure: str
+    relation: RelationName
+    cue: str
+    grounds: tuple[str, ...]
+    clause: str
+    part: str = ""
+    group: bool = False
+    each: bool = False
+    floor: bool = False
+    primary: bool = True
+    room: str = ""  # a ground that is part of the room, no object ("the wall")
+    derived: bool = False  # said of a ground by a relation after the figure's ("the tray ... in the middle of the
+    # table"): yields to a relation said of it directly
+    det: str = "the"  # how the figure was said: "the", or "a" for one of several or one said with "a"
+
+    @property
+    def supports(self) -> bool:
+        """Whether the ground holds the figure up (on, in, ...)."""
+        return is_support(self.relation)
+
+
+def is_support(relation: RelationName) -> bool:
+    """A relation whose ground holds its figure up: it rests on it, is in it, hangs from it, is fixed to it."""
+    return records.RELATIONS[relation].supports or relation == RelationName.IN
+
+
+@dataclass
+class SceneReading:
+    """What a description says: every relation (``said``, in the order said), the copies of each object said with
+    a count (``counts``), the objects in the order named (``named``), the phrases naming no upload (``unknown``:
+    (phrase, clause)), and what the reader assumed (``notes``)."""
+
+    said: list[Said] = field(default_factory=list)
+    counts: dict[str, int] = field(default_factory=dict)
+    named: list[str] = field(default_factory=list)
+    unknown: list[tuple[str, str]] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+
+def clean(text: str) -> str:
+    """Lower case, accents dropped ("café" -> "cafe"), spaces single."""
+    text = unicodedata.normalize("NFKD", text).encode("ascii", "ignore").decode()
+    return " ".join(text.lower().split())
+
+
+# -- tokens and phrases -------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class _Tok:
+    start: int
+    end: int
+    word: str
+
+
+@dataclass(frozen=True)
+class _Phrase:
+    """An object phrase: ``key`` an upload's key, a reference ("it", "them", "each", "both"), or a phrase naming no
+    upload (``known`` False). ``part``: the part or place of it named ("seat"); ``each``: "each chair"; ``det``:
+    the determiner said; ``count``: the number said before it (0: none)."""
+
+    start: int
+    end: int
+    key: str
+    known: bool = True
+    part: str = ""
+    each: bool = False
+    det: str = ""
+    count: int = 0
+    room: bool = False
+
+    @property
+    def back(self) -> bool:
+        return self.key in ("it", "them", "each", "both")
+
+
+@dataclass(frozen=True)
+class _Cue:
+    start: int
+    end: int
+    match: cues.CueMatch
+
+    @property
+    def relation(self) -> RelationName:
+        return self.match.cue.relation
+
+    @property
+    def implied(self) -> bool:
+        """A cue that names its ground by a possessive before a side ("to its right", "on their left"): the ground
+        is a reference back."""
+        words = self.match.text.split()
+        return (len(words) >= 2 and any(w in _POSSESSIVE for w in words[:-1]) and words[-1] in PLACE_WORDS | {"side",
+                "end"} and self.relation != RelationName.FACING_AWAY)
+
+    @property
+    def open_side(self) -> bool:
+        """A side said without "of" ("in front", "on top"): its ground may be left out."""
+        return self.match.text.split()[-1] in PLACE_WORDS
+
+
+@dataclass
+class _Element:
+    kind: str  # "np", "cue", "and", "comma", "with", "too", "break", "word", "floor"
+    start: int
+    end: int
+    phrase: _Phrase | None = None
+    cue: _Cue | None = None
+
+
+def _tokens(text: str) -> list[_Tok]:
+    return [_Tok(m.start(), m.end(), m.group()) for m in re.finditer(r"[a-z]+|\d+|[,;.:!?]", text)]
+
+
+class _Names:
+    """Finds the uploads' names in tokens."""
+
+    def __init__(self, keys: Sequence[str]) -> None:
+        self.keys = [k for k in keys if k]
+        self.longest_first = sorted(self.keys, key=lambda k: -len(k.split()))
+
+    def at(self, toks: list[_Tok], i: int) -> tuple[int, str] | None:
+        """(tokens, key) of an upload's name starting at token ``i``: the whole name (or its words as one: "tool
+        box" said "toolbox"), else its last word where no other upload's name ends with it."""
+        for key in self.longest_first:
+            words = key.split()
+            said = [t.word for t in toks[i:i + len(words)]]
+            if len(said) == len(words) and said[:-1] == words[:-1] and words[-1] in lexicon.singulars(said[-1]):
+                return len(words), key
+            if len(words) > 1 and "".join(words) in lexicon.singulars(toks[i].word):
+                return 1, key
+        heads = [k for k in self.keys if k.split()[-1] in lexicon.singulars(toks[i].word)]
+        return (1, heads[0]) if len(heads) == 1 else None
+
+
+def _phrases(text: str, toks: list[_Tok], names: _Names) -> list[_Phrase]:
+    """The object phrases of a sentence, in order (see the module's docstring)."""
+    found: list[_Phrase] = []
+    i = 0
+    det, det_at = "", -1
+    while i < len(toks):
+        word = toks[i].word
+        hit = names.at(toks, i)
+        if hit is not None:
+            n, key = hit
+            start = toks[det_at].start if det_at >= 0 and det_at >= i - 4 else toks[i].start
+            said = counts.read_count(text[start:toks[i + n - 1].end], key).count or 0
+            each = i > 0 and toks[i - 1].word == "each"
+            end = i + n
+            part = ""
+            # "the bench's seat": a part named after the possessor
+            if end + 1 < len(toks) and text[toks[end - 1].end:toks[end].start] == "  " and toks[end].word in PART_WORDS:
+                part, end = toks[end].word, end + 1
+            found.append(_Phrase(toks[i].start, toks[end - 1].end, key, det=det, count=said, each=each, part=part))
+            det, det_at = "", -1
+            i = end
+            continue
+        if word in ("it", "them") or word == "both" and (i + 1 == len(toks) or toks[i + 1].word in _PHRASE_ENDS
+                                                          or not toks[i + 1].word.isalpha()):
+            found.append(_Phrase(toks[i].start, toks[i].end, word))
+        elif word == "each" and (i + 1 == len(toks) or toks[i + 1].word in _PHRASE_ENDS | {"one"}
+                                 or not toks[i + 1].word.isalpha()):
+            found.append(_Phrase(toks[i].start, toks[i].end, "each"))
+        elif word in _POSSESSIVE and i + 1 < len(toks) and _part_at(toks, i + 1, names) is not None:
+            n, part = _part_at(toks, i + 1, names)  # "its seat", "its top shelf": a part of what "its" refers to
+            found.append(_Phrase(toks[i].start, toks[i + n].end, "them" if word == "their" else "it", part=part))
+            i += n + 1
+            continue
+        elif word == "the" and i + 1 < len(toks) and _part_at(toks, i + 1, names) is not None:
+            n, part = _part_at(toks, i + 1, names)  # "the seat of the bench": the bench, its seat
+            j = i + 1 + n
+            if j + 1 < len(toks) and toks[j].word == "of":
+                k = j + 1 + (toks[j + 1].word in DETERMINERS)
+                owner = names.at(toks, k) if k < len(toks) else None
+                if owner is not None:
+                    m, key = owner
+                    found.append(_Phrase(toks[i].start, toks[k + m - 1].end, key, part=part, det="the"))
+                    i = k + m
+                    continue
+        elif word in DETERMINERS and word != "each":
+            if i + 2 < len(toks) and toks[i + 1].word in _QUANTITY and toks[i + 2].word == "of":
+                det, det_at = word, i  # "a pair of shoes": the count is read with the name
+                i += 3
+                continue
+            words = _phrase_words(toks, i + 1, names)
+            if words:
+                end = toks[i + len(words)].end
+                room = words[-1] in FLOOR | ROOM
+                found.append(_Phrase(toks[i + 1].start, end, " ".join(words), known=False, room=room))
+                i += len(words) + 1
+                continue
+            det, det_at = word, i
+        i += 1
+    return found
+
+
+def _part_at(toks: list[_Tok], i: int, names: _Names) -> tuple[int, str] | None:
+    """(tokens, words) of a part's or place's name starting at token ``i`` ("seat", "top shelf"), None where an
+    upload's name starts there."""
+    if names.at(toks, i) is not None:
+        return None
+    if toks[i].word in PART_WORDS:
+        return 1, toks[i].word
+    if i + 1 < len(toks) and toks[i + 1].word in PART_WORDS and toks[i].word in PLACE_WORDS | {
+            "lower", "upper", "bottom", "second", "lowest", "highest", "uppermost"}:
+        if names.at(toks, i + 1) is None:
+            return 2, f"{toks[i].word} {toks[i + 1].word}"
+    return None
+
+
+def _phrase_words(toks: list[_Tok], i: int, names: _Names) -> list[str]:
+    """The words of a phrase naming no upload from token ``i`` (up to three, to a word that ends a phrase); [] for a
+    part or place of a ground ("the top", "its left") or where an upload's name starts."""
+    words: list[str] = []
+    while (i < len(toks) and len(words) < 3 and toks[i].word.isalpha()
+           and toks[i].word not in _PHRASE_ENDS | DETERMINERS):
+        if names.at(toks, i) is not None:
+            return []
+        words.append(toks[i].word)
+        i += 1
+    if not words or words[-1] in PLACE_WORDS | PART_WORDS or words[0] in _QUANTITY:
+        return []
+    return words
+
+
+def _cues(text: str, phrases: list[_Phrase]) -> list[_Cue]:
+    """Every relation cue of a sentence, the most specific first where two overlap; none inside an object's
+    phrase, nor a participle that describes a noun ("a hanging lamp")."""
+    taken: list[_Cue] = []
+    spans = [(p.start, p.end) for p in phrases]
+    for cue in cues.CUES:
+        for m in cues._compiled(cue).finditer(cues.clean(text)):
+            found = cues.CueMatch(cue, m.start(), m.end(), m.group(0))
+            if any(c.start < found.end and found.start < c.end for c in taken):
+                continue
+            if any(s < found.end and found.start < e for s, e in spans):
+                continue
+            if cues._adjective(text, found):
+                continue
+            top = _ON_TOP.match(text, found.end)
+            if top is not None and found.text.split()[-1] in ("on", "upon"):  # "sits on top of": on its top
+                found = cues.CueMatch(cue, found.start, top.end(), text[found.start:top.end()])
+            taken.append(_Cue(found.start, found.end, found))
+    return sorted(taken, key=lambda c: c.start)
+
+
+_ON_TOP = re.compile(r" top(?: of)?(?![a-z])")
+
+
+def _elements(text: str, toks: list[_Tok], phrases: list[_Phrase], found: list[_Cue]) -> list[_Element]:
+    """The sentence as a sequence of phrases, cues and the words that join them."""
+    out: list[_Element] = []
+    at = {p.start: p for p in phrases}
+    cue_at = {c.start: c for c in found}
+    covered = 0
+    for t in toks:
+        if t.start < covered:
+            continue
+        if t.start in at:
+            p = at[t.start]
+            out.append(_Element("np", p.start, p.end, phrase=p))
+            covered = p.end
+        elif t.start in cue_at:
+            c = cue_at[t.start]
+            out.append(_Element("cue", c.start, c.end, cue=c))
+            covered = c.end
+        elif t.word == "and":
+            out.append(_Element("and", t.start, t.end))
+        elif t.word in (",", ":"):
+            out.append(_Element("comma", t.start, t.end))
+        elif t.word == "with":
+            out.append(_Element("with", t.start, t.end))
+        elif t.word in _ALSO or t.word == "well" and out and out[-1].kind == "word" and text[out[-1].start:
+                                                                                             out[-1].end] == "as":
+            out.append(_Element("too", t.start, t.end))
+        elif t.word in FLOOR:
+            out.append(_Element("floor", t.start, t.end))
+        else:
+            out.append(_Element("word", t.start, t.end))
+    return out
+
+
+# -- clauses ------------------------------------------------------------------------------------------------------
+
+@dataclass
+class _Relation:
+    cue: _Cue
+    grounds: list[_Phrase] = field(default_factory=list)
+    floor: bool = False
+    room: str = ""
+
+    @property
+    def wants(self) -> int:
+        return records.RELATIONS[self.cue.relation].grounds
+
+    @property
+    def filled(self) -> int:
+        """Grounds said so far ("them" and "both": two)."""
+        return sum(2 if g.key in ("them", "both") else 1 for g in self.grounds)
+
+
+@dataclass
+class _Clause:
+    figures: list[_Phrase]
+    relations: list[_Relation] = field(default_factory=list)
+    host: str | None = None  # what "it" is in a clause attached by "with"
+    start: int = 0
+    end: int = 0
+    too: bool = False  # "the mug too": the clause before, said of its figures
+
+
+def _sentences(text: str) -> list[tuple[int, int]]:
+    """(start, end) of each part of the description between ";", ".", "!", "?" and "then"."""
+    out, start = [], 0
+    for m in re.finditer(r"[;.!?\n]|,?\s*(?:and\s+)?\b(?:then|afterwards|finally)\b", text):
+        if m.start() > start:
+            out.append((start, m.start()))
+        start = m.end()
+    if start < len(text):
+        out.append((start, len(text)))
+    return [(s, e) for s, e in out if text[s:e].strip(" ,")]
+
+
+def _clauses(text: str, elements: list[_Element]) -> tuple[list[_Clause], list[_Phrase]]:
+    """The clauses of one sentence (see the module's docstring), and the phrases named with no relation."""
+    clauses: list[_Clause] = []
+    figures: list[_Phrase] = []  # named, waiting for their cue
+    loose: list[_Phrase] = []
+    current: _Clause | None = None
+    host: str | None = None
+    subject: str | None = None
+    fronted: _Clause | None = None
+    previous = ""
+
+    def close() -> None:
+        nonlocal current
+        if current is not None:
+            clauses.append(current)
+        current = None
+
+    for k, el in enumerate(elements):
+        if el.kind == "np":
+            p = el.phrase
+            assert p is not None
+            rel = current.relations[-1] if current is not None and current.relations else None
+            if fronted is not None and (fronted.relations[-1].grounds or fronted.relations[-1].floor) and not (
+                    previous == "and" and fronted.relations[-1].filled < fronted.relations[-1].wants):
+                fronted.figures = [p]  # "next to the bed, a lamp": the lamp is the figure
+                current, fronted = fronted, None
+                current.end = el.end
+            elif rel is not None and (not rel.grounds and not rel.floor and not _implied_done(rel)
+                                      or previous == "and" and rel.filled < rel.wants):
+                rel.grounds.append(p)
+                current.end = el.end  # type: ignore[union-attr]
+            elif fronted is not None:
+                fronted.relations[-1].grounds.append(p)
+            elif (rel is not None and previous == "and" and host is None and not _ahead(elements, k)
+                  and rel.cue.relation != RelationName.BETWEEN and not any(g.back for g in rel.grounds)):
+                rel.grounds.append(p)  # "next to the sofa and the armchair": one ground made of both
+                current.end = el.end  # type: ignore[union-attr]
+            elif previous == "and" and figures and current is None:
+                figures.append(p)  # "a trophy and a bird stand on the chest"
+            else:
+                close()
+                loose.extend(figures)
+                figures = [p]
+                if subject is None:
+                    subject = p.key if not p.back else None
+        elif el.kind == "cue":
+            assert el.cue is not None
+            cue = el.cue
+            if cue.match.cue.figure_after and figures:  # "a basket filled with apples": the apples in the basket
+                close()
+                fronted = _Clause([], [_Relation(cue, list(figures))], host=host, start=figures[0].start, end=el.end)
+                figures = []
+            elif figures:
+                close()
+                current = _Clause(figures, [_Relation(cue)], host=host, start=figures[0].start, end=el.end)
+                figures = []
+            elif current is not None:
+                current.relations.append(_Relation(cue))  # "..., facing the monitor": of the clause's figure
+                current.end = el.end
+            elif clauses and previous in ("comma", "word"):
+                current = clauses.pop()
+                current.relations.append(_Relation(cue))
+                current.end = el.end
+            else:
+                fronted = _Clause([], [_Relation(cue)], host=host, start=el.start, end=el.end)
+            if current is not None and cue.implied:
+                current.relations[-1].grounds.append(_Phrase(cue.start, cue.end, "it"))
+        elif el.kind == "floor":
+            target = current if current is not None else fronted
+            if target is not None and target.relations and not target.relations[-1].grounds:
+                target.relations[-1].floor = True
+        elif el.kind == "with":
+            host = (current.figures[0].key if current is not None and current.figures and not current.figures[0].back
+                    else figures[0].key if figures and not figures[0].back else subject if subject else host)
+            if current is None and figures:
+                loose.extend(figures)  # "a park bench with ...": named, placed by no relation of its own
+                figures = []
+            close()
+        elif el.kind == "too":
+            if figures and clauses:
+                close()
+                before = clauses[-1]
+                clauses.append(_Clause(figures, [_Relation(r.cue, list(r.grounds), r.floor) for r in before.relations],
+                                       host=before.host, start=figures[0].start, end=el.end, too=True))
+                figures = []
+        if el.kind in ("np", "cue", "floor"):
+            if current is not None:
+                current.end = max(current.end, el.end)
+        previous = el.kind if el.kind != "word" or previous not in ("and", "comma") else previous
+        if el.kind == "word" and el.end - el.start > 0 and text[el.start:el.end] in ("is", "are"):
+            previous = "word"
+    close()
+    loose.extend(figures)
+    if fronted is not None and fronted.figures:
+        clauses.append(fronted)
+    return clauses, loose
+
+
+def _implied_done(rel: _Relation) -> bool:
+    return bool(rel.grounds) or rel.cue.implied
+
+
+def _ahead(elements: list[_Element], k: int) -> bool:
+    """Whether the phrase at ``k`` has a cue of its own before the next phrase or joint ("and the lamp on ...")."""
+    for el in elements[k + 1:]:
+        if el.kind == "cue":
+            return True
+        if el.kind in ("np", "and", "comma", "with"):
+            return False
+        if el.kind == "too":
+            return True
+    return False
+
+
+# -- references ---------------------------------------------------------------------------------------------------
+
+class _Reader:
+    """The clauses read one after another, references resolved against what was named before."""
+
+    def __init__(self, keys: Sequence[str]) -> None:
+        self.names = _Names(keys)
+        self.out = SceneReading()
+        self.recent: list[str] = []  # objects in the order named, references resolved
+        self.groups: list[tuple[str, ...]] = []  # groups named ("two boxes": one key; "a trophy and a bird": two)
+        self.topic: str | None = None
+
+    def read(self, text: str) -> SceneReading:
+        for start, end in _sentences(text):
+            self.sentence(text, start, end)
+        return self.out
+
+    def sentence(self, full: str, start: int, end: int) -> None:
+        text = full[:end]
+        toks = [t for t in _tokens(text) if t.start >= start]
+        phrases = _phrases(text, toks, self.names)
+        for p in phrases:
+            if not p.known and not p.room:
+                self.out.unknown.append((text[p.start:p.end], full[start:end].strip(" ,")))
+            if p.known and not p.back:
+                if p.count:
+                    self.out.counts[p.key] = max(p.count, self.out.counts.get(p.key, 1))
+                self.out.named.append(p.key)
+        elements = _elements(text, toks, phrases, _cues(text, phrases))
+        clauses, loose = _clauses(text, elements)
+        first = next((p for p in phrases if p.known and not p.back), None)
+        if self.topic is None and not self.out.said and first is not None and any(p is first for p in loose):
+            self.topic = first.key  # "a workbench, a toolbox on it": what the scene is about
+        for p in loose:
+            if p.known and not p.back:
+                self.recent.append(p.key)
+                if self.out.counts.get(p.key, 1) > 1:
+                    self.groups.append((p.key,))
+        for clause in clauses:
+            try:
+                self.clause(text, clause)
+            except SceneReadingError:
+                if not self.out.unknown:  # a phrase naming no upload is the error to report
+                    raise
+
+    def clause(self, text: str, clause: _Clause) -> None:
+        said = text[clause.start:clause.end].strip(" ,")
+        figures = [f for f in clause.figures if f.known and not f.back]
+        if clause.figures and not figures:
+            back = clause.figures[0]
+            figures = [replace(back, key=k) for k in self._resolve(back, [], clause, said, None)]
+        if not figures:
+            raise SceneReadingError(f"'{said}' names no object to place")
+        keys = [f.key for f in figures]
+        if len(figures) > 1:
+            self.groups.append(tuple(keys))
+        for f in figures:
+            if self.out.counts.get(f.key, 1) > 1:
+                self.groups.append((f.key,))
+        self.recent.extend(keys)
+        first_support: list[str] | None = None
+        primary_grounds: list[str] = []
+        primary_group = False
+        for index, rel in enumerate(clause.relations):
+            grounds: list[str] = []
+            part, each, group, room = "", False, False, ""
+            for g in rel.grounds[:max(rel.wants, len(rel.grounds))]:
+                if g.room:
+                    room = g.key
+                    continue
+                if not g.known:
+                    continue
+                if g.back:
+                    resolved = self._resolve(g, keys, clause, said, rel, used=[*primary_grounds, *grounds])
+                    each = each or g.key == "each"
+                    group = group or g.key in ("them", "both") and rel.wants == 1
+                    grounds.extend(resolved)
+                else:
+                    grounds.append(g.key)
+                    each = each or g.each
+                part = part or g.part
+            if not grounds and not rel.floor and not room and not rel.grounds:
+                grounds = self._resolve(_Phrase(rel.cue.start, rel.cue.end, "it"), keys, clause, said, rel,
+                                        used=primary_grounds)  # "a stool in front": of what the clause is about
+            if len(grounds) > 1 and rel.wants == 1:
+                group = True  # "next to the sofa and the armchair"
+                self.groups.append(tuple(grounds))
+            if set(grounds) & set(keys):
+                raise SceneReadingError(f"'{said}' places the {keys[0]} relative to itself")
+            self.recent.extend(g for g in grounds if g not in self.recent[-1:])
+            relation = rel.cue.relation
+            common = {"cue": rel.cue.match.text, "grounds": tuple(grounds), "clause": said, "part": part,
+                      "group": group, "each": each, "floor": rel.floor and not grounds, "relation": relation,
+                      "room": room}
+            if index == 0:
+                first_support = grounds if is_support(relation) else None
+                primary_grounds, primary_group = grounds, group or relation == RelationName.BETWEEN
+                for f in figures:
+                    self.out.said.append(Said(figure=f.key, det=_det(f), **common))
+                continue
+            if is_support(relation) and (first_support or primary_group) and grounds:
+                # "the teapot on the tray in the middle of the table": the tray on the table; "between the teapot
+                # and the bag on the table": each on the table
+                below = first_support or primary_grounds
+                for g in below:
+                    if g not in grounds:
+                        self.out.said.append(Said(figure=g, **{**common, "derived": True}))
+                        self.out.notes.append(f"'{said}': the {g} {rel.cue.match.text} the {grounds[0]}")
+                first_support = grounds
+                continue
+            for f in figures:
+                self.out.said.append(Said(figure=f.key, det=_det(f), **{**common, "primary": False}))
+
+    def _resolve(self, ref: _Phrase, figures: list[str], clause: _Clause, said: str, rel: _Relation | None,
+                 used: Sequence[str] = ()) -> list[str]:
+        """The objects a reference stands for (see the module's docstring)."""
+        if ref.key in ("them", "both", "each"):
+            return self._group(figures, clause, said, ref.key, rel)
+        relation = rel.cue.relation if rel is not None else None
+        candidates = [clause.host, self.topic, *reversed(self.recent)]
+        fitting = [k for k in dict.fromkeys(c for c in candidates if c) if k not in figures and k not in used
+                   and self.out.counts.get(k, 1) == 1]
+        if not fitting:
+            fitting = [k for k in dict.fromkeys(c for c in candidates if c) if k not in figures]
+        if not fitting:
+            raise SceneReadingError(f"'{said}': nothing named before it to place the {figures[0] if figures else 'it'}"
+                                    " against")
+        if relation == RelationName.IN:  # "in it": a container, where one is in reach
+            holder = next((k for k in fitting[:3] if (m := lexicon.lookup(k)) is not None and m.has("container")),
+                          None)
+            if holder is not None:
+                return [holder]
+        return [fitting[0]]
+
+    def _group(self, figures: list[str], clause: _Clause, said: str, word: str, rel: _Relation | None
+               ) -> list[str]:
+        """What "them", "both" or "each" stands for: the group named last that is not the figure's, else the clause's
+        subject and its ground, else the last two objects named."""
+        for group in reversed(self.groups):
+            if not set(group) & set(figures):
+                return list(group)
+        if clause.host is not None and clause.host not in figures:
+            host_ground = next((s.grounds for s in reversed(self.out.said) if s.figure == clause.host and s.grounds),
+                               ())
+            if host_ground:
+                return [clause.host, *host_ground][:MAX_GROUNDS]
+        last = [k for k in dict.fromkeys(reversed(self.recent)) if k not in figures][:2]
+        if len(last) < 2:
+            raise SceneReadingError(f"'{said}': '{word}' needs two objects named before it")
+        return last[::-1]  # in the order named
+
+
+def _det(p: _Phrase) -> str:
+    return "a" if p.count > 1 or p.det in ("a", "an", "another", "some") or p.det in counts.NUMBER_WORDS else "the"
+
+
+def read_scene(text: str, keys: Sequence[str]) -> SceneReading:
+    """The relations a description says of the objects called ``keys`` (see the module's docstring). Raises
+    ``SceneReadingError`` where a clause cannot be read."""
+    return _Reader(keys).read(clean(text))
+
+
+def names_in(text: str, keys: Sequence[str]) -> list[str]:
+    """The keys a piece of text names, in order."""
+    toks = _tokens(clean(text))
+    return [p.key for p in _phrases(clean(text), toks, _Names(keys)) if p.known and not p.back]
+
+
+def is_place_said(part: str) -> bool:
+    """Whether a part's words name a place the geometry reads ("top shelf", "edge")."""
+    return bool(part) and read_place(f"on the {part} of it") is not None
+
