@@ -22,12 +22,12 @@ from __future__ import annotations
 
 import re
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 from ctp_core.assembly.plan import MAX_GROUNDS
 from ctp_core.errors import ConfigError
 from ctp_core.reading import counts, cues, lexicon, passes, scene
-from ctp_core.reading.records import RELATIONS, Kind
+from ctp_core.reading.records import RELATIONS, Kind, RelationName
 from ctp_core.reading.scene import DETERMINERS, Said, SceneReading, SceneReadingError
 
 __all__ = ["DescriptionError", "Placement", "ScenePlan", "read_description"]
@@ -199,6 +199,52 @@ def _plan(description: str, names: list[str], keys: list[str], reading: SceneRea
     """The plan of what the reader read: nodes (named as the uploads, copies ``<name>_k``), the base, every ground
     placed before its figures."""
     notes: dict[str, list[str]] = {}
+    placed_by, also = _relations(reading, notes)
+    count = {key: reading.counts.get(key, 1) for key in keys}
+    for said in placed_by.values():
+        if said.each and len(said.grounds) == 1:
+            count[said.figure] = count[said.grounds[0]]
+    roots = list(dict.fromkeys(
+        [*(k for k, s in placed_by.items() if s.floor),
+         *(g for s in placed_by.values() for g in s.grounds if g not in placed_by)]))
+    if not roots:
+        if not placed_by:
+            raise DescriptionError("the description places no object relative to another", code="nothing_placed",
+                                   field="prompt")
+        raise DescriptionError("every object is placed on another: nothing stays put (the description goes in a "
+                               "circle)", code="placement_cycle", field="prompt")
+    base_key = _base(roots, placed_by)
+    nodes = {key: [name] if count[key] == 1 else [f"{name}_{k}" for k in range(1, count[key] + 1)]
+             for key, name in zip(keys, names, strict=True)}
+    base = nodes[base_key][0]
+    unplaced = [k for k in roots if k != base_key and k not in placed_by]
+    unnamed = [key for key in keys if key not in placed_by and key not in roots]  # never named, or never placed
+    for key in [*unplaced, *unnamed]:
+        how = "placed by" if key in reading.named else "named in"
+        notes.setdefault(key, []).append(f"the {key} is not {how} the description: on the floor beside the "
+                                         f"{base_key}")
+    support: dict[str, str] = {base: FLOOR}
+    steps: list[Placement] = []
+    for key in [base_key, *(k for k in roots if k != base_key and k in placed_by), *unplaced, *unnamed]:
+        said = placed_by.get(key)
+        for node in nodes[key]:
+            if node != base:
+                warned = tuple(notes.get(key, ())) if key != base_key or node == nodes[key][1] else ()
+                steps.append(_floor(key, node, keys.index(key), (base, base_key), said.clause if said else "",
+                                    warned))
+                support[node] = FLOOR
+    done = {base_key, *roots, *unnamed}
+    for said in _order([s for s in placed_by.values() if not s.floor and s.figure not in done], done, also):
+        for step in _steps(said, nodes, keys, also.get(said.figure, []), support, tuple(notes.get(said.figure, ()))):
+            support[step.name] = step.support
+            steps.append(step)
+    warnings = list(dict.fromkeys(w for s in steps for w in s.warnings))
+    return ScenePlan(description, base, keys.index(base_key), steps, warnings)
+
+
+def _relations(reading: SceneReading, notes: dict[str, list[str]]) -> tuple[dict[str, Said], dict[str, list[Said]]]:
+    """Each object's own relation (the one that places it) and the others said of it; what cannot be placed noted
+    under its object."""
     placed_by: dict[str, Said] = {}
     for said in reading.said:
         if not said.primary or said.derived:
@@ -218,60 +264,29 @@ def _plan(description: str, names: list[str], keys: list[str], reading: SceneRea
     for said in reading.said:
         if not said.primary and said.grounds:
             also.setdefault(said.figure, []).append(said)
-    count = {key: reading.counts.get(key, 1) for key in keys}
-    for said in placed_by.values():
-        if said.each and len(said.grounds) == 1:
-            count[said.figure] = count[said.grounds[0]]
-    grounds_of = {key: [g for g in s.grounds] for key, s in placed_by.items() if not s.floor}
-    roots = list(dict.fromkeys(
-        [*(k for k, s in placed_by.items() if s.floor),
-         *(g for s in placed_by.values() for g in s.grounds if g not in placed_by)]))
-    if not roots:
-        if not placed_by:
-            raise DescriptionError("the description places no object relative to another", code="nothing_placed",
-                                   field="prompt")
-        raise DescriptionError("every object is placed on another: nothing stays put (the description goes in a "
-                               "circle)", code="placement_cycle", field="prompt")
-    base_key = _base(roots, placed_by, keys)
-    nodes = {key: [name] if count[key] == 1 else [f"{name}_{k}" for k in range(1, count[key] + 1)]
-             for key, name in zip(keys, names, strict=True)}
-    base = nodes[base_key][0]
-    unplaced = [k for k in roots if k != base_key and k not in placed_by]
-    unnamed = [key for key in keys if key not in placed_by and key not in roots]  # never named, or never placed
-    for key in [*unplaced, *unnamed]:
-        how = "placed by" if key in reading.named else "named in"
-        notes.setdefault(key, []).append(f"the {key} is not {how} the description: on the floor beside the "
-                                         f"{base_key}")
-    support: dict[str, str] = {base: FLOOR}
-    steps: list[Placement] = []
-    for key in [base_key, *(k for k in roots if k != base_key and k in placed_by), *unplaced, *unnamed]:
-        said = placed_by.get(key)
-        for node in nodes[key]:
-            if node == base:
-                continue
-            warned = tuple(notes.get(key, ())) if key != base_key or node == nodes[key][1] else ()
-            steps.append(_floor(key, node, keys.index(key), (base, base_key), said.clause if said else "", warned))
-            support[node] = FLOOR
-    done = {base_key, *roots, *unnamed}
-    pending = [s for s in placed_by.values() if not s.floor and s.figure not in done]
+        elif not said.primary and said.room:
+            notes.setdefault(said.figure, []).append(f"'{said.clause}': the {said.room} is no object of the scene: "
+                                                     f"'{said.cue} the {said.room}' is not judged")
+    return placed_by, also
+
+
+def _order(pending: list[Said], done: set[str], also: dict[str, list[Said]]) -> list[Said]:
+    """The relations in placing order: every ground before its figures; a relation whose other objects are placed
+    first ("right of the monitor": after the monitor) where the grounds leave a choice."""
+    out: list[Said] = []
     while pending:
-        ready = [s for s in pending if all(g in done for g in grounds_of[s.figure])]
+        ready = [s for s in pending if all(g in done for g in s.grounds)]
         if not ready:
             raise DescriptionError("the description goes in a circle: " + "; ".join(f"'{s.clause}'" for s in pending),
                                    code="placement_cycle", field="prompt")
-        # a step whose other relations' objects are placed goes first ("right of the monitor": after the monitor)
         said = next((s for s in ready if all(g in done for a in also.get(s.figure, ()) for g in a.grounds)), ready[0])
         pending.remove(said)
-        for step in _steps(said, nodes, keys, also.get(said.figure, []), support, tuple(notes.get(said.figure, ()))):
-            support[step.name] = step.support
-            steps.append(step)
+        out.append(said)
         done.add(said.figure)
-    warnings = [w for s in steps for w in s.warnings]
-    warnings += [n for n in reading.notes if n not in warnings and "not" in n]
-    return ScenePlan(description, base, keys.index(base_key), steps, list(dict.fromkeys(warnings)))
+    return out
 
 
-def _base(roots: list[str], placed_by: dict[str, Said], keys: list[str]) -> str:
+def _base(roots: list[str], placed_by: dict[str, Said]) -> str:
     """What stays put: among the objects no clause places, the one that holds up the most objects (through what
     they hold up), then the largest the lexicon knows, then the first named."""
     def held(key: str, seen: frozenset[str] = frozenset()) -> int:
@@ -341,6 +356,11 @@ def _steps(said: Said, nodes: dict[str, list[str]], keys: list[str], also: list[
     copies = len(said.grounds) == 1 and len(nodes[said.grounds[0]]) > 1 and (said.group or said.relation == "between")
     figure = f"{said.det if len(figures) == 1 else 'a'} {said.figure}".replace("a a", "an a")
     figure = f"{_a(said.figure)} {said.figure}" if figure.startswith("a ") else figure
+    if said.figure.split()[-1] in counts.ONE_PAIR:  # "a pair of glasses": one object said as a pair
+        figure = f"the {said.figure}"
+    if len(figures) > 1 and counts.read_count(said.clause).arrangement == "around":
+        said = replace(said, cue="beside")  # "four chairs around the table": each beside it, facing it
+        also = [*also, replace(said, relation=RelationName.FACING, cue="facing", primary=False)]
     prompt = _prompt(said, figure, list(said.grounds), copies)
     turns = [a for a in also if RELATIONS[a.relation].kind == Kind.ORIENTATION]
     for a in turns:  # "in front of the desk, facing it": one reading, both judged; facing another: said too
@@ -386,5 +406,3 @@ def _relation(ground: str, figure: str, prompt: str, clause: str) -> str:
                                f"{figure} <where> the {ground}'", code="unclear_clause", field="prompt")
     return reading.reading.name
 
-
-_ = counts

@@ -251,13 +251,13 @@ def _phrases(text: str, toks: list[_Tok], names: _Names) -> list[_Phrase]:
         elif word == "each" and (i + 1 == len(toks) or toks[i + 1].word in _PHRASE_ENDS | {"one"}
                                  or not toks[i + 1].word.isalpha()):
             found.append(_Phrase(toks[i].start, toks[i].end, "each"))
-        elif word in _POSSESSIVE and i + 1 < len(toks) and _part_at(toks, i + 1, names) is not None:
-            n, part = _part_at(toks, i + 1, names)  # "its seat", "its top shelf": a part of what "its" refers to
+        elif word in _POSSESSIVE and (at_part := _part_at(toks, i + 1, names)) is not None:
+            n, part = at_part  # "its seat", "its top shelf": a part of what "its" refers to
             found.append(_Phrase(toks[i].start, toks[i + n].end, "them" if word == "their" else "it", part=part))
             i += n + 1
             continue
-        elif word == "the" and i + 1 < len(toks) and _part_at(toks, i + 1, names) is not None:
-            n, part = _part_at(toks, i + 1, names)  # "the seat of the bench": the bench, its seat
+        elif word == "the" and (at_part := _part_at(toks, i + 1, names)) is not None:
+            n, part = at_part  # "the seat of the bench": the bench, its seat
             j = i + 1 + n
             if j + 1 < len(toks) and toks[j].word == "of":
                 k = j + 1 + (toks[j + 1].word in DETERMINERS)
@@ -287,14 +287,13 @@ def _phrases(text: str, toks: list[_Tok], names: _Names) -> list[_Phrase]:
 def _part_at(toks: list[_Tok], i: int, names: _Names) -> tuple[int, str] | None:
     """(tokens, words) of a part's or place's name starting at token ``i`` ("seat", "top shelf"), None where an
     upload's name starts there."""
-    if names.at(toks, i) is not None:
+    if i >= len(toks) or names.at(toks, i) is not None:
         return None
     if toks[i].word in PART_WORDS:
         return 1, toks[i].word
-    if i + 1 < len(toks) and toks[i + 1].word in PART_WORDS and toks[i].word in PLACE_WORDS | {
-            "lower", "upper", "bottom", "second", "lowest", "highest", "uppermost"}:
-        if names.at(toks, i + 1) is None:
-            return 2, f"{toks[i].word} {toks[i + 1].word}"
+    if (i + 1 < len(toks) and toks[i + 1].word in PART_WORDS and names.at(toks, i + 1) is None
+            and toks[i].word in PLACE_WORDS | {"lower", "upper", "bottom", "second", "lowest", "highest", "uppermost"}):
+        return 2, f"{toks[i].word} {toks[i + 1].word}"
     return None
 
 
@@ -413,104 +412,118 @@ def _sentences(text: str) -> list[tuple[int, int]]:
 
 def _clauses(text: str, elements: list[_Element]) -> tuple[list[_Clause], list[_Phrase]]:
     """The clauses of one sentence (see the module's docstring), and the phrases named with no relation."""
-    clauses: list[_Clause] = []
-    figures: list[_Phrase] = []  # named, waiting for their cue
-    loose: list[_Phrase] = []
-    current: _Clause | None = None
-    host: str | None = None
-    subject: str | None = None
-    fronted: _Clause | None = None
-    previous = ""
-
-    def close() -> None:
-        nonlocal current
-        if current is not None:
-            clauses.append(current)
-        current = None
-
+    parser = _Parser(text, elements)
     for k, el in enumerate(elements):
-        if el.kind == "np":
-            p = el.phrase
-            assert p is not None
-            rel = current.relations[-1] if current is not None and current.relations else None
-            if fronted is not None and (fronted.relations[-1].grounds or fronted.relations[-1].floor) and not (
-                    previous == "and" and fronted.relations[-1].filled < fronted.relations[-1].wants):
-                fronted.figures = [p]  # "next to the bed, a lamp": the lamp is the figure
-                current, fronted = fronted, None
-                current.end = el.end
-            elif rel is not None and (not rel.grounds and not rel.floor and not _implied_done(rel)
-                                      or previous == "and" and rel.filled < rel.wants):
-                rel.grounds.append(p)
-                current.end = el.end  # type: ignore[union-attr]
-            elif fronted is not None:
-                fronted.relations[-1].grounds.append(p)
-            elif (rel is not None and previous == "and" and host is None and not _ahead(elements, k)
-                  and rel.cue.relation != RelationName.BETWEEN and not any(g.back for g in rel.grounds)):
-                rel.grounds.append(p)  # "next to the sofa and the armchair": one ground made of both
-                current.end = el.end  # type: ignore[union-attr]
-            elif previous == "and" and figures and current is None:
-                figures.append(p)  # "a trophy and a bird stand on the chest"
-            else:
-                close()
-                loose.extend(figures)
-                figures = [p]
-                if subject is None:
-                    subject = p.key if not p.back else None
-        elif el.kind == "cue":
-            assert el.cue is not None
-            cue = el.cue
-            if cue.match.cue.figure_after and figures:  # "a basket filled with apples": the apples in the basket
-                close()
-                fronted = _Clause([], [_Relation(cue, list(figures))], host=host, start=figures[0].start, end=el.end)
-                figures = []
-            elif figures:
-                close()
-                current = _Clause(figures, [_Relation(cue)], host=host, start=figures[0].start, end=el.end)
-                figures = []
-            elif current is not None:
-                current.relations.append(_Relation(cue))  # "..., facing the monitor": of the clause's figure
-                current.end = el.end
-            elif clauses and previous in ("comma", "word"):
-                current = clauses.pop()
-                current.relations.append(_Relation(cue))
-                current.end = el.end
-            else:
-                fronted = _Clause([], [_Relation(cue)], host=host, start=el.start, end=el.end)
-            if current is not None and cue.implied:
-                current.relations[-1].grounds.append(_Phrase(cue.start, cue.end, "it"))
-        elif el.kind == "floor":
-            target = current if current is not None else fronted
-            if target is not None and target.relations and not target.relations[-1].grounds:
-                target.relations[-1].floor = True
-        elif el.kind == "with":
-            host = (current.figures[0].key if current is not None and current.figures and not current.figures[0].back
-                    else figures[0].key if figures and not figures[0].back else subject if subject else host)
-            if current is None and figures:
-                loose.extend(figures)  # "a park bench with ...": named, placed by no relation of its own
-                figures = []
-            close()
-        elif el.kind == "too":
-            if figures and clauses:
-                close()
-                before = clauses[-1]
-                clauses.append(_Clause(figures, [_Relation(r.cue, list(r.grounds), r.floor) for r in before.relations],
-                                       host=before.host, start=figures[0].start, end=el.end, too=True))
-                figures = []
-        if el.kind in ("np", "cue", "floor"):
-            if current is not None:
-                current.end = max(current.end, el.end)
-        previous = el.kind if el.kind != "word" or previous not in ("and", "comma") else previous
-        if el.kind == "word" and el.end - el.start > 0 and text[el.start:el.end] in ("is", "are"):
-            previous = "word"
-    close()
-    loose.extend(figures)
-    if fronted is not None and fronted.figures:
-        clauses.append(fronted)
-    return clauses, loose
+        getattr(parser, f"on_{el.kind}")(k, el)
+        if el.kind in ("np", "cue", "floor") and parser.current is not None:
+            parser.current.end = max(parser.current.end, el.end)
+        if el.kind != "word" or parser.previous not in ("and", "comma") or text[el.start:el.end] in ("is", "are"):
+            parser.previous = el.kind
+    return parser.done()
 
 
-def _implied_done(rel: _Relation) -> bool:
-    return bool(rel.grounds) or rel.cue.implied
+class _Parser:
+    """One sentence's elements read left to right into clauses."""
+
+    def __init__(self, text: str, elements: list[_Element]) -> None:
+        self.text, self.elements = text, elements
+        self.clauses: list[_Clause] = []
+        self.figures: list[_Phrase] = []  # named, waiting for their cue
+        self.loose: list[_Phrase] = []  # named with no relation of their own
+        self.current: _Clause | None = None
+        self.fronted: _Clause | None = None  # a relation said before its figure ("next to the bed, a lamp")
+        self.host: str | None = None  # what "with" attaches to
+        self.subject: str | None = None
+        self.previous = ""
+
+    def close(self) -> None:
+        if self.current is not None:
+            self.clauses.append(self.current)
+        self.current = None
+
+    def done(self) -> tuple[list[_Clause], list[_Phrase]]:
+        self.close()
+        self.loose.extend(self.figures)
+        if self.fronted is not None and self.fronted.figures:
+            self.clauses.append(self.fronted)
+        return self.clauses, self.loose
+
+    def on_np(self, k: int, el: _Element) -> None:
+        p = el.phrase
+        assert p is not None
+        current, fronted, joined = self.current, self.fronted, self.previous == "and"
+        rel = current.relations[-1] if current is not None and current.relations else None
+        if fronted is not None and (fronted.relations[-1].grounds or fronted.relations[-1].floor) and not (
+                joined and fronted.relations[-1].filled < fronted.relations[-1].wants):
+            fronted.figures = [p]  # "next to the bed, a lamp": the lamp is the figure
+            self.current, self.fronted = fronted, None
+        elif rel is not None and (not rel.grounds and not rel.floor and not rel.cue.implied
+                                  or joined and rel.filled < rel.wants):
+            rel.grounds.append(p)
+        elif fronted is not None:
+            fronted.relations[-1].grounds.append(p)
+        elif (rel is not None and joined and self.host is None and not _ahead(self.elements, k)
+              and rel.cue.relation != RelationName.BETWEEN and not any(g.back for g in rel.grounds)):
+            rel.grounds.append(p)  # "next to the sofa and the armchair": one ground made of both
+        elif joined and self.figures and current is None:
+            self.figures.append(p)  # "a trophy and a bird stand on the chest"
+        else:
+            self.close()
+            self.loose.extend(self.figures)
+            self.figures = [p]
+            if self.subject is None and not p.back:
+                self.subject = p.key
+
+    def on_cue(self, k: int, el: _Element) -> None:
+        cue = el.cue
+        assert cue is not None
+        if cue.match.cue.figure_after and self.figures:  # "a basket filled with apples": the apples in the basket
+            self.close()
+            self.fronted = _Clause([], [_Relation(cue, list(self.figures))], host=self.host,
+                                   start=self.figures[0].start, end=el.end)
+            self.figures = []
+        elif self.figures:
+            self.close()
+            self.current = _Clause(self.figures, [_Relation(cue)], host=self.host, start=self.figures[0].start,
+                                   end=el.end)
+            self.figures = []
+        elif self.current is not None:
+            self.current.relations.append(_Relation(cue))  # "..., facing the monitor": of the clause's figure
+        elif self.clauses and self.previous in ("comma", "word"):
+            self.current = self.clauses.pop()
+            self.current.relations.append(_Relation(cue))
+        else:
+            self.fronted = _Clause([], [_Relation(cue)], host=self.host, start=el.start, end=el.end)
+        if self.current is not None and cue.implied:
+            self.current.relations[-1].grounds.append(_Phrase(cue.start, cue.end, "it"))
+
+    def on_floor(self, k: int, el: _Element) -> None:
+        target = self.current if self.current is not None else self.fronted
+        if target is not None and target.relations and not target.relations[-1].grounds:
+            target.relations[-1].floor = True
+
+    def on_with(self, k: int, el: _Element) -> None:
+        current, figures = self.current, self.figures
+        self.host = (current.figures[0].key if current is not None and current.figures and not current.figures[0].back
+                     else figures[0].key if figures and not figures[0].back else self.subject or self.host)
+        if current is None and figures:
+            self.loose.extend(figures)  # "a park bench with ...": named, placed by no relation of its own
+            self.figures = []
+        self.close()
+
+    def on_too(self, k: int, el: _Element) -> None:
+        if self.figures and (self.clauses or self.current is not None):
+            self.close()
+            before = self.clauses[-1]
+            self.clauses.append(_Clause(self.figures, [_Relation(r.cue, list(r.grounds), r.floor)
+                                                       for r in before.relations],
+                                        host=before.host, start=self.figures[0].start, end=el.end, too=True))
+            self.figures = []
+
+    def on_and(self, k: int, el: _Element) -> None:
+        pass
+
+    on_comma = on_word = on_and
 
 
 def _ahead(elements: list[_Element], k: int) -> bool:
@@ -585,58 +598,53 @@ class _Reader:
             if self.out.counts.get(f.key, 1) > 1:
                 self.groups.append((f.key,))
         self.recent.extend(keys)
+        if clause.relations and all(g.room for g in clause.relations[0].grounds) and clause.relations[0].grounds:
+            # "with its back to the wall in front of the desk": the figure's place is the object's relation
+            clause.relations = [*clause.relations[1:], clause.relations[0]]
         first_support: list[str] | None = None
-        primary_grounds: list[str] = []
-        primary_group = False
-        for index, rel in enumerate(clause.relations):
-            grounds: list[str] = []
-            part, each, group, room = "", False, False, ""
-            for g in rel.grounds[:max(rel.wants, len(rel.grounds))]:
-                if g.room:
-                    room = g.key
-                    continue
-                if not g.known:
-                    continue
-                if g.back:
-                    resolved = self._resolve(g, keys, clause, said, rel, used=[*primary_grounds, *grounds])
-                    each = each or g.key == "each"
-                    group = group or g.key in ("them", "both") and rel.wants == 1
-                    grounds.extend(resolved)
-                else:
-                    grounds.append(g.key)
-                    each = each or g.each
-                part = part or g.part
-            if not grounds and not rel.floor and not room and not rel.grounds:
-                grounds = self._resolve(_Phrase(rel.cue.start, rel.cue.end, "it"), keys, clause, said, rel,
-                                        used=primary_grounds)  # "a stool in front": of what the clause is about
-            if len(grounds) > 1 and rel.wants == 1:
-                group = True  # "next to the sofa and the armchair"
-                self.groups.append(tuple(grounds))
-            if set(grounds) & set(keys):
-                raise SceneReadingError(f"'{said}' places the {keys[0]} relative to itself")
-            self.recent.extend(g for g in grounds if g not in self.recent[-1:])
-            relation = rel.cue.relation
-            common = {"cue": rel.cue.match.text, "grounds": tuple(grounds), "clause": said, "part": part,
-                      "group": group, "each": each, "floor": rel.floor and not grounds, "relation": relation,
-                      "room": room}
-            if index == 0:
-                first_support = grounds if is_support(relation) else None
-                primary_grounds, primary_group = grounds, group or relation == RelationName.BETWEEN
-                for f in figures:
-                    self.out.said.append(Said(figure=f.key, det=_det(f), **common))
-                continue
-            if is_support(relation) and (first_support or primary_group) and grounds:
+        primary: _Ground | None = None
+        for rel in clause.relations:
+            ground = self._grounds(rel, keys, clause, said, primary.keys if primary is not None else [])
+            if primary is None:
+                primary = ground
+                first_support = ground.keys if is_support(rel.cue.relation) else None
+                self.out.said.extend(ground.said(rel, f.key, said, _det(f)) for f in figures)
+            elif is_support(rel.cue.relation) and (first_support or primary.group) and ground.keys:
                 # "the teapot on the tray in the middle of the table": the tray on the table; "between the teapot
                 # and the bag on the table": each on the table
-                below = first_support or primary_grounds
-                for g in below:
-                    if g not in grounds:
-                        self.out.said.append(Said(figure=g, **{**common, "derived": True}))
-                        self.out.notes.append(f"'{said}': the {g} {rel.cue.match.text} the {grounds[0]}")
-                first_support = grounds
-                continue
-            for f in figures:
-                self.out.said.append(Said(figure=f.key, det=_det(f), **{**common, "primary": False}))
+                below = first_support or primary.keys
+                self.out.said.extend(replace(ground.said(rel, g, said, "the"), derived=True) for g in below
+                                     if g not in ground.keys)
+                first_support = ground.keys
+            else:
+                self.out.said.extend(replace(ground.said(rel, f.key, said, _det(f)), primary=False) for f in figures)
+
+    def _grounds(self, rel: _Relation, keys: list[str], clause: _Clause, said: str, used: list[str]) -> _Ground:
+        """A relation's grounds, references resolved: "them" a group, "each" its copies, a part its possessor."""
+        out = _Ground()
+        for g in rel.grounds:
+            if g.room:
+                out.room = g.key
+            elif g.known and g.back:
+                out.keys.extend(self._resolve(g, keys, clause, said, rel, used=[*used, *out.keys]))
+                out.each = out.each or g.key == "each"
+                out.group = out.group or g.key in ("them", "both") and rel.wants == 1
+            elif g.known:
+                out.keys.append(g.key)
+                out.each = out.each or g.each
+            out.part = out.part or g.part
+        if not out.keys and not rel.floor and not out.room and not rel.grounds:
+            out.keys = self._resolve(_Phrase(rel.cue.start, rel.cue.end, "it"), keys, clause, said, rel,
+                                     used=used)  # "a stool in front": of what the clause is about
+        if len(out.keys) > 1 and rel.wants == 1:
+            out.group = True  # "next to the sofa and the armchair"
+            self.groups.append(tuple(out.keys))
+        if set(out.keys) & set(keys):
+            raise SceneReadingError(f"'{said}' places the {keys[0]} relative to itself")
+        self.recent.extend(g for g in out.keys if g not in self.recent[-1:])
+        out.floor = rel.floor and not out.keys
+        out.group = out.group or rel.cue.relation == RelationName.BETWEEN and len(out.keys) > 1
+        return out
 
     def _resolve(self, ref: _Phrase, figures: list[str], clause: _Clause, said: str, rel: _Relation | None,
                  used: Sequence[str] = ()) -> list[str]:
@@ -675,6 +683,23 @@ class _Reader:
         if len(last) < 2:
             raise SceneReadingError(f"'{said}': '{word}' needs two objects named before it")
         return last[::-1]  # in the order named
+
+
+@dataclass
+class _Ground:
+    """A relation's grounds as read (keys) and what was said of them."""
+
+    keys: list[str] = field(default_factory=list)
+    part: str = ""
+    group: bool = False
+    each: bool = False
+    floor: bool = False
+    room: str = ""
+
+    def said(self, rel: _Relation, figure: str, clause: str, det: str) -> Said:
+        return Said(figure, rel.cue.relation, rel.cue.match.text, tuple(self.keys), clause, self.part,
+                    self.group and rel.cue.relation != RelationName.BETWEEN, self.each, self.floor,
+                    room=self.room, det=det)
 
 
 def _det(p: _Phrase) -> str:

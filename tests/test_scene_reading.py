@@ -1,0 +1,183 @@
+"""A scene as people describe it, read by its sentence structure (``ctp_core.reading.scene``) and planned
+(``describe.read_description``): sentences written for these tests in the styles people use (none of them the dev
+set's), one construction or more each: a participle or "with" modifier on the right object, coordinated figures and
+grounds, nested places, groups, references by the clause's subject and agreement, counts and pairs, a part named by
+a possessive, ellipsis; the base that supports others whatever the order of mention; each step's support, its other
+relations and its warnings."""
+
+from __future__ import annotations
+
+import pytest
+
+from ctp_core.assembly.describe import DescriptionError, read_description
+from ctp_core.assembly.plan import check_plan
+from ctp_core.reading import scene
+
+
+def plan_of(description: str, names: list[str]):
+    plan = read_description(description, names)
+    check_plan(plan.base, [(s.name, s.on, True) for s in plan.steps])  # a plan assemble takes
+    return plan
+
+
+def steps(description: str, names: list[str]) -> dict[str, tuple[str, tuple[str, ...], str]]:
+    """node -> (relation, on, support) of each step."""
+    return {s.name: (s.relation, s.on, s.support) for s in plan_of(description, names).steps}
+
+
+def test_a_participle_after_a_comma_modifies_the_clause_before_and_its_is_the_subject_before():
+    plan = plan_of("Place the laptop on the dining table and the coffee mug on the table to its left, then push the "
+                   "armchair up next to the table, facing the laptop.", ["dining table", "laptop", "coffee mug",
+                                                                          "armchair"])
+    assert plan.base == "dining table" and not plan.warnings
+    got = {s.name: s for s in plan.steps}
+    assert (got["coffee mug"].relation, got["coffee mug"].on, got["coffee mug"].support) == (
+        "on", ("dining table",), "dining table")
+    # "its" is the laptop: the table is the clause's own ground, the mug its figure
+    assert [(a.relation, a.on) for a in got["coffee mug"].also] == [("left", ("laptop",))]
+    assert got["armchair"].relation == "beside" and [(a.relation, a.on) for a in got["armchair"].also] == [
+        ("near+facing", ("laptop",))]
+    assert [s.name for s in plan.steps].index("laptop") < [s.name for s in plan.steps].index("armchair")
+
+
+def test_with_attaches_to_the_subject_and_it_is_the_subject_not_the_nearest_noun():
+    assert steps("The bookcase stands against the wall with a plant in front of it and two baskets on its lower "
+                 "shelf.", ["bookcase", "plant", "basket"]) == {
+        "plant": ("front", ("bookcase",), "floor"), "basket_1": ("on", ("bookcase",), "bookcase"),
+        "basket_2": ("on", ("bookcase",), "bookcase")}
+    got = steps("The crate rests on top of the pallet with three jars standing in it.", ["pallet", "crate", "jar"])
+    assert got["crate"] == ("on", ("pallet",), "pallet")
+    assert {got[f"jar_{k}"] for k in (1, 2, 3)} == {("in", ("crate",), "crate")}  # the crate, not the pallet
+
+
+def test_a_part_named_by_a_possessive_is_its_possessor_its_place_kept_where_one_is_read():
+    plan = plan_of("A sofa with a plant to its left and a blanket on its seat, and a rug under the sofa.",
+                   ["sofa", "plant", "blanket", "rug"])
+    got = {s.name: s for s in plan.steps}
+    assert (got["blanket"].relation, got["blanket"].on, got["blanket"].prompt) == ("on", ("sofa",),
+                                                                                   "a blanket on the sofa")
+    assert got["plant"].on == ("sofa",) and got["plant"].relation == "left" and got["rug"].relation == "under"
+    assert any("seat" in w for w in got["blanket"].warnings)  # the part is dropped, said so on its step
+    shelf = plan_of("a bookcase with two vases on its top shelf", ["bookcase", "vase"]).steps[0]
+    assert shelf.prompt == "a vase on the top shelf of the bookcase" and shelf.on == ("bookcase",)
+    assert steps("a lamp on the seat of the bench", ["bench", "lamp"]) == {"lamp": ("on", ("bench",), "bench")}
+
+
+def test_coordinated_figures_are_each_placed_by_their_clause():
+    got = steps("Put the radio and the kettle on the counter, and the stool to the right of it.",
+                ["counter", "radio", "kettle", "stool"])
+    assert got == {"radio": ("on", ("counter",), "counter"), "kettle": ("on", ("counter",), "counter"),
+                   "stool": ("right", ("counter",), "floor")}  # "it": the counter (the figures are two)
+
+
+def test_a_nested_place_is_two_steps_and_the_furniture_is_the_base():
+    plan = plan_of("Set the vase on the plate in the centre of the coffee table, and the basket under the table.",
+                   ["coffee table", "plate", "vase", "basket"])
+    assert plan.base == "coffee table" and not plan.warnings
+    assert [(s.name, s.relation, s.on, s.support) for s in plan.steps] == [
+        ("basket", "under", ("coffee table",), "floor"), ("plate", "on", ("coffee table",), "coffee table"),
+        ("vase", "on", ("plate",), "plate")]
+    plan = plan_of("a cup on the saucer on the tray on the table", ["cup", "saucer", "tray", "table"])
+    assert plan.base == "table" and [(s.name, s.on) for s in plan.steps] == [
+        ("tray", ("table",)), ("saucer", ("tray",)), ("cup", ("saucer",))]
+
+
+def test_a_place_after_between_is_where_its_grounds_stand():
+    plan = plan_of("The candle goes between the bowl and the vase on the dining table.",
+                   ["dining table", "bowl", "vase", "candle"])
+    assert plan.base == "dining table" and not plan.warnings
+    assert [(s.name, s.relation, s.on, s.support) for s in plan.steps] == [
+        ("bowl", "on", ("dining table",), "dining table"), ("vase", "on", ("dining table",), "dining table"),
+        ("candle", "between", ("bowl", "vase"), "dining table")]
+
+
+def test_them_is_the_group_named_last_and_next_to_them_is_all_of_it():
+    got = steps("Three crates go beside the shelf and the broom next to them, with the ladder behind the shelf.",
+                ["shelf", "crate", "broom", "ladder"])
+    assert got["broom"] == ("beside", ("crate_1", "crate_2"), "floor")
+    assert got["ladder"] == ("behind", ("shelf",), "floor")
+    got = steps("A lamp and a clock stand on the nightstand and a photo frame next to them.",
+                ["nightstand", "lamp", "clock", "photo frame"])
+    assert got["photo frame"] == ("beside", ("lamp", "clock"), "nightstand")  # on the same top as the group
+
+
+def test_them_without_a_group_is_the_subject_and_its_ground():
+    got = steps("A desk with a printer on it and a chair in front; the bookcase goes to the left of the desk, with "
+                "the bin between them.", ["desk", "printer", "chair", "bookcase", "bin"])
+    assert got["chair"] == ("front", ("desk",), "floor")  # "in front": of the desk, the ground left out
+    assert got["printer"] == ("on", ("desk",), "desk")
+    assert got["bin"] == ("between", ("bookcase", "desk"), "floor")
+
+
+def test_copies_of_a_count_between_them_and_both_and_each():
+    got = steps("Two lamps stand beside the sofa with the side table between them.", ["sofa", "lamp", "side table"])
+    assert got["side table"] == ("between", ("lamp_1", "lamp_2"), "floor")
+    assert steps("two benches with a pot plant on each", ["bench", "pot plant"]) == {
+        "bench_2": ("beside", ("bench_1",), "floor"), "pot plant_1": ("on", ("bench_1",), "bench_1"),
+        "pot plant_2": ("on", ("bench_2",), "bench_2")}
+    got = steps("a crate beside the barrel, and a lantern next to both", ["barrel", "crate", "lantern"])
+    assert got["lantern"] == ("beside", ("crate", "barrel"), "floor")
+
+
+def test_a_pair_of_is_two_copies_unless_one_thing_is_called_a_pair():
+    got = steps("A lamp and a clock stand on the nightstand, and a pair of slippers is under the bed; the "
+                "nightstand is next to the bed.", ["bed", "nightstand", "lamp", "clock", "slipper"])
+    assert got["slipper_1"] == got["slipper_2"] == ("under", ("bed",), "floor")
+    assert got["nightstand"] == ("beside", ("bed",), "floor")
+    assert steps("a pair of glasses on the desk", ["desk", "glasses"]) == {"glasses": ("on", ("desk",), "desk")}
+
+
+def test_ellipsis_repeats_the_clause_before_and_a_fronted_place_is_its_figures():
+    assert steps("a mug on the desk, and the plate too", ["desk", "mug", "plate"]) == {
+        "mug": ("on", ("desk",), "desk"), "plate": ("on", ("desk",), "desk")}
+    assert steps("next to the bed, a nightstand with a lamp on it", ["bed", "nightstand", "lamp"]) == {
+        "nightstand": ("beside", ("bed",), "floor"), "lamp": ("on", ("nightstand",), "nightstand")}
+
+
+def test_the_base_supports_others_whatever_the_order_of_mention():
+    plan = plan_of("the mug goes on the tray, and the tray on the desk", ["mug", "tray", "desk"])
+    assert plan.base == "desk" and [s.name for s in plan.steps] == ["tray", "mug"]
+    plan = plan_of("a vase on the shelf, with the armchair next to the lamp", ["lamp", "vase", "shelf", "armchair"])
+    assert plan.base == "shelf"  # it holds the vase; the lamp holds nothing
+    assert [w for s in plan.steps for w in s.warnings] == [
+        "the lamp is not placed by the description: on the floor beside the shelf"]
+
+
+def test_an_orientation_with_a_room_ground_does_not_hide_the_objects_relation():
+    plan = plan_of("a chair with its back to the wall in front of the desk", ["desk", "chair"])
+    assert [(s.name, s.relation, s.on) for s in plan.steps] == [("chair", "front", ("desk",))]
+    assert "wall" in plan.steps[0].warnings[0]
+
+
+def test_copies_around_a_table_face_it():
+    got = steps("Four chairs stand around the table with the lamp between them.", ["table", "chair", "lamp"])
+    assert {got[f"chair_{k}"] for k in range(1, 5)} == {("beside+facing", ("table",), "floor")}
+
+
+def test_the_plan_and_its_steps_carry_supports_also_and_warnings():
+    plan = read_description("Place the laptop on the dining table and the coffee mug on the table to its left, and "
+                            "a plant", ["dining table", "laptop", "coffee mug", "plant"])
+    written = plan.to_dict()
+    assert written["base_support"] == "floor" and written["reader"] == "rules"
+    mug = next(s for s in written["steps"] if s["name"] == "coffee mug")
+    assert mug["support"] == "dining table" and mug["also"][0]["relation"] == "left"
+    plant = next(s for s in written["steps"] if s["name"] == "plant")
+    assert plant["floor"] and plant["warnings"] == written["warnings"] == [
+        "the plant is not placed by the description: on the floor beside the dining table"]
+
+
+@pytest.mark.parametrize(("description", "names", "code"), [
+    ("a rug under the bed and the bed on it", ["bed", "rug"], "placement_cycle"),
+    ("the vase on the shelf with a candle on its rim too", ["shelf", "vase", "lamp"], "unknown_object"),
+    ("a candle next to itself", ["candle", "shelf"], "unclear_clause"),
+])
+def test_what_cannot_be_read_is_still_an_error(description, names, code):
+    with pytest.raises(DescriptionError) as caught:
+        read_description(description, names)
+    assert caught.value.code == code
+
+
+def test_the_scene_reader_reads_words_only():
+    reading = scene.read_scene("the teapot on the tray in the middle of the table", ["table", "tray", "teapot"])
+    assert [(s.figure, s.relation, s.grounds, s.derived) for s in reading.said] == [
+        ("teapot", "on", ("tray",), False), ("tray", "on", ("table",), True)]
