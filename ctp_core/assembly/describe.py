@@ -30,7 +30,7 @@ from ctp_core.reading import counts, cues, lexicon, passes, scene
 from ctp_core.reading.records import RELATIONS, Kind, RelationName
 from ctp_core.reading.scene import DETERMINERS, Said, SceneReading, SceneReadingError
 
-__all__ = ["DescriptionError", "Placement", "ScenePlan", "read_description"]
+__all__ = ["Also", "DescriptionError", "Placement", "ScenePlan", "keys_of", "plan_relations", "read_description"]
 
 DESCRIPTION_MAX = 2000  # characters of a description
 FLOOR = "floor"  # what a step stands on when no object holds it up
@@ -117,7 +117,7 @@ def read_description(description: str, names: Sequence[str]) -> ScenePlan:
         raise DescriptionError("the description is empty", code="empty_description", field="prompt")
     if len(text) > DESCRIPTION_MAX:
         raise DescriptionError(f"the description is over {DESCRIPTION_MAX} characters", field="prompt")
-    keys = [" ".join(w for w in lexicon.words(name) if w not in _DETERMINERS) for name in names]
+    keys = keys_of(names)
     if len(keys) < 2:
         raise DescriptionError("a scene needs at least two objects", code="too_few_objects", field="names")
     said = "; ".join(_triple(s) or s for s in filter(None, _SENTENCES.split(text.strip(" .")))) + "."
@@ -136,7 +136,12 @@ def read_description(description: str, names: Sequence[str]) -> ScenePlan:
         phrase, clause = reading.unknown[0]
         raise DescriptionError(f"'{phrase}' (in '{clause}') names none of the objects ({', '.join(keys)}): name "
                                "the uploads as the description does", code="unknown_object", field="prompt")
-    return _plan(description, [" ".join(n.split()) for n in names], keys, reading)
+    return plan_relations(description, [" ".join(n.split()) for n in names], keys, reading)
+
+
+def keys_of(names: Sequence[str]) -> list[str]:
+    """What a description calls each upload: its name's words, determiners dropped ("The Sofa" -> "sofa")."""
+    return [" ".join(w for w in lexicon.words(name) if w not in _DETERMINERS) for name in names]
 
 
 def _unknown(text: str, keys: list[str]) -> list[tuple[str, str]]:
@@ -195,9 +200,9 @@ def _the(phrase: str) -> str:
 
 # -- the plan -----------------------------------------------------------------------------------------------------
 
-def _plan(description: str, names: list[str], keys: list[str], reading: SceneReading) -> ScenePlan:
-    """The plan of what the reader read: nodes (named as the uploads, copies ``<name>_k``), the base, every ground
-    placed before its figures."""
+def plan_relations(description: str, names: list[str], keys: list[str], reading: SceneReading) -> ScenePlan:
+    """The plan of what a reader read (the rules, or a language model's answer: ``readers``): nodes (named as the
+    uploads, copies ``<name>_k``), the base, every ground placed before its figures."""
     notes: dict[str, list[str]] = {}
     placed_by, also = _relations(reading, notes)
     count = {key: reading.counts.get(key, 1) for key in keys}

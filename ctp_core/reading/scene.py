@@ -634,8 +634,8 @@ class _Reader:
                 out.each = out.each or g.each
             out.part = out.part or g.part
         if not out.keys and not rel.floor and not out.room and not rel.grounds:
-            out.keys = self._resolve(_Phrase(rel.cue.start, rel.cue.end, "it"), keys, clause, said, rel,
-                                     used=used)  # "a stool in front": of what the clause is about
+            out.keys = self._left_out(keys, used) or self._resolve(
+                _Phrase(rel.cue.start, rel.cue.end, "it"), keys, clause, said, rel, used=used)
         if len(out.keys) > 1 and rel.wants == 1:
             out.group = True  # "next to the sofa and the armchair"
             self.groups.append(tuple(out.keys))
@@ -645,6 +645,19 @@ class _Reader:
         out.floor = rel.floor and not out.keys
         out.group = out.group or rel.cue.relation == RelationName.BETWEEN and len(out.keys) > 1
         return out
+
+    def _left_out(self, figures: list[str], used: Sequence[str]) -> list[str]:
+        """The ground of a cue said without one ("a stool in front", "a metronome on top"): the scene's topic, else
+        the object most often a ground so far (the one the others are arranged around)."""
+        if self.topic is not None and self.topic not in figures:
+            return [self.topic]
+        tally: dict[str, int] = {}
+        for said in self.out.said:
+            for g in said.grounds:
+                if g not in figures and g not in used and self.out.counts.get(g, 1) == 1:
+                    tally[g] = tally.get(g, 0) + 1
+        recency = {k: i for i, k in enumerate(self.recent)}
+        return [max(tally, key=lambda g: (tally[g], recency.get(g, -1)))] if tally else []
 
     def _resolve(self, ref: _Phrase, figures: list[str], clause: _Clause, said: str, rel: _Relation | None,
                  used: Sequence[str] = ()) -> list[str]:
