@@ -181,3 +181,15 @@ def test_the_scene_reader_reads_words_only():
     reading = scene.read_scene("the teapot on the tray in the middle of the table", ["table", "tray", "teapot"])
     assert [(s.figure, s.relation, s.grounds, s.derived) for s in reading.said] == [
         ("teapot", "on", ("tray",), False), ("tray", "on", ("table",), True)]
+
+
+def test_a_verb_of_placing_that_is_also_a_cue_is_the_order_not_the_relation():
+    assert steps("Hang the mirror above the sink, and put the soap dish next to it.",
+                 ["sink", "mirror", "soap dish"]) == {"mirror": ("above", ("sink",), "floor"),
+                                                      "soap dish": ("beside", ("sink",), "floor")}
+
+
+def test_a_place_in_the_room_is_no_object_and_the_objects_relation_places_the_figure():
+    plan = plan_of("Put a plant in the corner next to the bookshelf.", ["bookshelf", "plant"])
+    assert [(s.name, s.relation, s.on) for s in plan.steps] == [("plant", "beside", ("bookshelf",))]
+    assert "corner" in plan.steps[0].warnings[0]

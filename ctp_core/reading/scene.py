@@ -307,6 +307,8 @@ def _phrase_words(toks: list[_Tok], i: int, names: _Names) -> list[str]:
             return []
         words.append(toks[i].word)
         i += 1
+    if words and words[-1] in ROOM and (i >= len(toks) or toks[i].word != "of"):
+        return words  # "in the corner": of the room
     if not words or words[-1] in PLACE_WORDS | PART_WORDS or words[0] in _QUANTITY:
         return []
     return words
@@ -326,6 +328,8 @@ def _cues(text: str, phrases: list[_Phrase]) -> list[_Cue]:
                 continue
             if cues._adjective(text, found):
                 continue
+            if _imperative(text, found):
+                continue
             top = _ON_TOP.match(text, found.end)
             if top is not None and found.text.split()[-1] in ("on", "upon"):  # "sits on top of": on its top
                 found = cues.CueMatch(cue, found.start, top.end(), text[found.start:top.end()])
@@ -334,6 +338,16 @@ def _cues(text: str, phrases: list[_Phrase]) -> list[_Cue]:
 
 
 _ON_TOP = re.compile(r" top(?: of)?(?![a-z])")
+_CLAUSE_START = re.compile(r"(?:^|[,;:.]|\b(?:and|then|please|now|also))\s*$")
+_DETERMINER_NEXT = re.compile(r"\s+(?:" + "|".join(sorted(DETERMINERS)) + r")\b")
+
+
+def _imperative(text: str, cue: cues.CueMatch) -> bool:
+    """A one-word cue that opens a clause before its object ("hang the mirror above the sink"): the verb of an
+    order, not the relation."""
+    return (" " not in cue.text and not cue.text.endswith(("ing", "s", "ed"))  # "facing the monitor" is a relation
+            and _CLAUSE_START.search(text[:cue.start]) is not None
+            and _DETERMINER_NEXT.match(text, cue.end) is not None)
 
 
 def _elements(text: str, toks: list[_Tok], phrases: list[_Phrase], found: list[_Cue]) -> list[_Element]:
@@ -604,7 +618,12 @@ class _Reader:
         first_support: list[str] | None = None
         primary: _Ground | None = None
         for rel in clause.relations:
-            ground = self._grounds(rel, keys, clause, said, primary.keys if primary is not None else [])
+            try:
+                ground = self._grounds(rel, keys, clause, said, primary.keys if primary is not None else [])
+            except SceneReadingError:
+                if len(clause.relations) == 1:
+                    raise
+                continue  # a reference with nothing to refer to, beside a relation that places the figure
             if primary is None:
                 primary = ground
                 first_support = ground.keys if is_support(rel.cue.relation) else None
