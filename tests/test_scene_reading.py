@@ -193,3 +193,9 @@ def test_a_place_in_the_room_is_no_object_and_the_objects_relation_places_the_fi
     plan = plan_of("Put a plant in the corner next to the bookshelf.", ["bookshelf", "plant"])
     assert [(s.name, s.relation, s.on) for s in plan.steps] == [("plant", "beside", ("bookshelf",))]
     assert "corner" in plan.steps[0].warnings[0]
+
+
+def test_a_way_to_face_after_a_place_may_be_of_the_same_ground():
+    got = steps("a desk with a monitor on it, a chair in front of it, facing it, and a lamp to its right",
+                ["desk", "monitor", "chair", "lamp"])
+    assert got["chair"] == ("front+facing", ("desk",), "floor") and got["lamp"] == ("right", ("desk",), "floor")

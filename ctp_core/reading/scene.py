@@ -47,7 +47,7 @@ from dataclasses import dataclass, field, replace
 
 from ctp_core.reading import counts, cues, lexicon, records
 from ctp_core.reading.places import PART_WORDS, PLACE_WORDS, read_place
-from ctp_core.reading.records import RelationName
+from ctp_core.reading.records import Kind, RelationName
 
 __all__ = ["DETERMINERS", "FLOOR", "MAX_GROUNDS", "ROOM", "Said", "SceneReading", "SceneReadingError", "clean",
            "is_support", "read_scene"]
@@ -619,7 +619,11 @@ class _Reader:
         primary: _Ground | None = None
         for rel in clause.relations:
             try:
-                ground = self._grounds(rel, keys, clause, said, primary.keys if primary is not None else [])
+                # a second place is not the first one's ground ("on the desk to its right": not the desk's right);
+                # a way to face may be ("in front of the desk, facing it")
+                turn = records.RELATIONS[rel.cue.relation].kind == Kind.ORIENTATION
+                ground = self._grounds(rel, keys, clause, said, primary.keys if primary is not None and not turn
+                                       else [])
             except SceneReadingError:
                 if len(clause.relations) == 1:
                     raise
