@@ -31,10 +31,12 @@ def test_a_participle_after_a_comma_modifies_the_clause_before_and_its_is_the_su
                                                                           "armchair"])
     assert plan.base == "dining table" and not plan.warnings
     got = {s.name: s for s in plan.steps}
+    # "its" is the laptop: the table is the clause's own ground, the mug its figure; the laptop stands on the table
+    # too, so the mug is placed left of the laptop, on the table's top (its support), and "on" is said as well
     assert (got["coffee mug"].relation, got["coffee mug"].on, got["coffee mug"].support) == (
-        "on", ("dining table",), "dining table")
-    # "its" is the laptop: the table is the clause's own ground, the mug its figure
-    assert [(a.relation, a.on) for a in got["coffee mug"].also] == [("left", ("laptop",))]
+        "left", ("laptop",), "dining table")
+    assert [(a.relation, a.on) for a in got["coffee mug"].also] == [("on", ("dining table",))]
+    assert got["coffee mug"].prompt == "the coffee mug to the left of the laptop, on the dining table"
     assert got["armchair"].relation == "beside" and [(a.relation, a.on) for a in got["armchair"].also] == [
         ("near+facing", ("laptop",))]
     assert [s.name for s in plan.steps].index("laptop") < [s.name for s in plan.steps].index("armchair")
@@ -160,7 +162,7 @@ def test_the_plan_and_its_steps_carry_supports_also_and_warnings():
     written = plan.to_dict()
     assert written["base_support"] == "floor" and written["reader"] == "rules"
     mug = next(s for s in written["steps"] if s["name"] == "coffee mug")
-    assert mug["support"] == "dining table" and mug["also"][0]["relation"] == "left"
+    assert mug["support"] == "dining table" and mug["also"][0]["relation"] == "on"
     plant = next(s for s in written["steps"] if s["name"] == "plant")
     assert plant["floor"] and plant["warnings"] == written["warnings"] == [
         "the plant is not placed by the description: on the floor beside the dining table"]
@@ -199,3 +201,14 @@ def test_a_way_to_face_after_a_place_may_be_of_the_same_ground():
     got = steps("a desk with a monitor on it, a chair in front of it, facing it, and a lamp to its right",
                 ["desk", "monitor", "chair", "lamp"])
     assert got["chair"] == ("front+facing", ("desk",), "floor") and got["lamp"] == ("right", ("desk",), "floor")
+
+
+def test_on_a_top_and_beside_what_stands_there_is_placed_beside_it_on_that_top():
+    got = {s.name: s for s in plan_of("Put the kettle on the counter and the toaster on the counter next to it.",
+                                      ["counter", "kettle", "toaster"]).steps}
+    assert (got["toaster"].relation, got["toaster"].on, got["toaster"].support) == ("beside", ("kettle",), "counter")
+    # beside something that stands elsewhere: the relation of support places it, the other is said as well
+    got = {s.name: s for s in plan_of("the kettle next to the counter and the toaster on the counter next to it",
+                                      ["counter", "kettle", "toaster"]).steps}
+    assert (got["toaster"].relation, got["toaster"].on) == ("on", ("counter",))
+    assert [(a.relation, a.on) for a in got["toaster"].also] == [("beside", ("kettle",))]

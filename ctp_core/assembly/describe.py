@@ -240,7 +240,8 @@ def plan_relations(description: str, names: list[str], keys: list[str], reading:
                 support[node] = FLOOR
     done = {base_key, *roots, *unnamed}
     for said in _order([s for s in placed_by.values() if not s.floor and s.figure not in done], done, also):
-        for step in _steps(said, nodes, keys, also.get(said.figure, []), support, tuple(notes.get(said.figure, ()))):
+        said, more = _on_the_same_top(said, also.get(said.figure, []), support, nodes)
+        for step in _steps(said, nodes, keys, more, support, tuple(notes.get(said.figure, ()))):
             support[step.name] = step.support
             steps.append(step)
     warnings = list(dict.fromkeys(w for s in steps for w in s.warnings))
@@ -289,6 +290,22 @@ def _order(pending: list[Said], done: set[str], also: dict[str, list[Said]]) -> 
         out.append(said)
         done.add(said.figure)
     return out
+
+
+def _on_the_same_top(said: Said, also: list[Said], support: dict[str, str], nodes: dict[str, list[str]]
+                     ) -> tuple[Said, list[Said]]:
+    """An object put on something and beside, between or in front of objects standing on that same thing ("the lamp
+    on the desk to the right of the monitor", the monitor on the desk): placed by that relation, standing on the
+    same top (its step's ``support``), the relation of support said as well."""
+    if not said.supports or said.each or len(said.grounds) != 1:
+        return said, also
+    top = nodes[said.grounds[0]][0]
+    for other in also:
+        if (RELATIONS[other.relation].kind in _ALONGSIDE - {Kind.ORIENTATION} and other.grounds
+                and all(support.get(nodes[g][0]) == top for g in other.grounds)):
+            placed = replace(other, primary=True, clause=said.clause, det=said.det)
+            return placed, [replace(said, primary=False), *(a for a in also if a is not other)]
+    return said, also
 
 
 def _base(roots: list[str], placed_by: dict[str, Said]) -> str:
@@ -367,6 +384,10 @@ def _steps(said: Said, nodes: dict[str, list[str]], keys: list[str], also: list[
         said = replace(said, cue="beside")  # "four chairs around the table": each beside it, facing it
         also = [*also, replace(said, relation=RelationName.FACING, cue="facing", primary=False)]
     prompt = _prompt(said, figure, list(said.grounds), copies)
+    held = [a for a in also if a.supports and not said.supports and len(a.grounds) == 1
+            and a.grounds[0] not in said.grounds]
+    for a in held[:1]:  # "to the right of the monitor, on the desk": where it stands said too
+        prompt += f", {_cue_words(a, _ground_words(a, list(a.grounds), False))}"
     turns = [a for a in also if RELATIONS[a.relation].kind == Kind.ORIENTATION]
     for a in turns:  # "in front of the desk, facing it": one reading, both judged; facing another: said too
         prompt += f", {_cue_words(a, _ground_words(a, list(a.grounds), False))}"
