@@ -212,3 +212,23 @@ def test_on_a_top_and_beside_what_stands_there_is_placed_beside_it_on_that_top()
                                       ["counter", "kettle", "toaster"]).steps}
     assert (got["toaster"].relation, got["toaster"].on) == ("on", ("counter",))
     assert [(a.relation, a.on) for a in got["toaster"].also] == [("beside", ("kettle",))]
+
+
+def test_a_compound_name_said_by_its_last_part_and_a_place_said_by_a_possessive():
+    got = steps("Three paint cans go under the workbench and the ladder next to them, with the stool in front of the "
+                "bench.", ["workbench", "paint can", "ladder", "stool"])
+    assert got["stool"] == ("front", ("workbench",), "floor")  # "the bench": the workbench
+    assert got["ladder"] == ("beside", ("paint can_1", "paint can_2"), "floor")
+    plan = plan_of("A picnic table with a cooler to its left and a basket on its top, and a frisbee under the table.",
+                   ["picnic table", "cooler", "basket", "frisbee"])
+    assert plan.base == "picnic table" and not plan.warnings  # the frisbee is no ground of "on its top"
+    assert {s.name: s.prompt for s in plan.steps}["basket"] == "a basket on the top of the picnic table"
+
+
+def test_on_each_side_is_beside_and_a_support_read_by_the_reader():
+    assert steps("A bed with a nightstand on each side and a lamp on each nightstand.", ["bed", "nightstand", "lamp"]
+                 ) == {"nightstand": ("beside", ("bed",), "floor"), "lamp": ("on", ("nightstand",), "nightstand")}
+    got = steps("A sofa with two cushions on it and a throw blanket over its arm, and the coffee table in front of it.",
+                ["sofa", "cushion", "throw blanket", "coffee table"])
+    assert got["throw blanket"] == ("lie", ("sofa",), "sofa")  # "over", said of a cloth: draped on it
+    assert got["coffee table"] == ("front", ("sofa",), "floor")

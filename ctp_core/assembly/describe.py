@@ -407,17 +407,19 @@ def _steps(said: Said, nodes: dict[str, list[str]], keys: list[str], also: list[
         more = tuple(Also(_relation(nodes[a.grounds[0]][0], name, p, a.clause), tuple(
             nodes[g][0] for g in a.grounds)[:MAX_GROUNDS], p) for a in others
             for p in [_prompt(a, f"the {said.figure}", list(a.grounds), False)])
-        out.append(Placement(name, upload, prompt, on, relation, said.clause, support=_support(said, on, support),
+        out.append(Placement(name, upload, prompt, on, relation, said.clause, support=_support(relation, on, support),
                              also=more, warnings=tuple(notes)))
     return out
 
 
-def _support(said: Said, on: tuple[str, ...], support: dict[str, str]) -> str:
-    """What a step's object stands on: the ground of a relation of support; for one beside, between or in front of
-    objects that stand on the same thing, that thing; else the floor."""
-    if said.supports:
+def _support(relation: str, on: tuple[str, ...], support: dict[str, str]) -> str:
+    """What a step's object stands on, by the relation the reader reads (``relation``): the ground of a relation of
+    support; for one beside, between or in front of objects that stand on the same thing, that thing; else the
+    floor."""
+    position = RelationName(relation.split("+")[0])
+    if scene.is_support(position):
         return on[0]
-    if RELATIONS[said.relation].kind in _ALONGSIDE:
+    if RELATIONS[position].kind in _ALONGSIDE:
         below = {support.get(g, FLOOR) for g in on}
         if len(below) == 1:
             return below.pop()

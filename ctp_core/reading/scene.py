@@ -67,6 +67,8 @@ _PHRASE_ENDS = frozenset({
 FLOOR = frozenset({"floor", "ground", "room", "carpet"})  # "a rug on the floor": stands on the floor
 ROOM = frozenset({"wall", "walls", "ceiling", "window", "door", "doorway", "entrance", "corner", "camera", "viewer"})
 _ALSO = frozenset({"too", "also"})
+# places of a ground a possessive names as a part ("on its top", "at its edge"; its sides are the cues' words)
+_PLACES_OF = frozenset({"top", "edge", "corner", "end", "middle", "centre", "center", "rim", "bottom", "head", "foot"})
 _BREAK_WORDS = frozenset({"then", "afterwards", "finally", "next"})
 _POSSESSIVE = frozenset({"its", "their", "his", "her"})
 # what "them", "both" and "each" said alone are
@@ -222,6 +224,17 @@ class _Names:
         heads = [k for k in self.keys if k.split()[-1] in lexicon.singulars(toks[i].word)]
         return (1, heads[0]) if len(heads) == 1 else None
 
+    def tail(self, toks: list[_Tok], i: int) -> str | None:
+        """The one upload whose one-word name ends with the word at ``i`` ("bench" of "workbench"), where no name is
+        said there."""
+        if i >= len(toks) or self.at(toks, i) is not None or len(toks[i].word) < 4:
+            return None
+        if i + 1 < len(toks) and self.at(toks, i + 1) is not None:
+            return None
+        ends = [k for k in self.keys if " " not in k and any(
+            k.endswith(form) and k != form for form in lexicon.singulars(toks[i].word))]
+        return ends[0] if len(ends) == 1 else None
+
 
 def _phrases(text: str, toks: list[_Tok], names: _Names) -> list[_Phrase]:
     """The object phrases of a sentence, in order (see the module's docstring)."""
@@ -251,7 +264,7 @@ def _phrases(text: str, toks: list[_Tok], names: _Names) -> list[_Phrase]:
         elif word == "each" and (i + 1 == len(toks) or toks[i + 1].word in _PHRASE_ENDS | {"one"}
                                  or not toks[i + 1].word.isalpha()):
             found.append(_Phrase(toks[i].start, toks[i].end, "each"))
-        elif word in _POSSESSIVE and (at_part := _part_at(toks, i + 1, names)) is not None:
+        elif word in _POSSESSIVE and (at_part := _part_at(toks, i + 1, names, possessive=True)) is not None:
             n, part = at_part  # "its seat", "its top shelf": a part of what "its" refers to
             found.append(_Phrase(toks[i].start, toks[i + n].end, "them" if word == "their" else "it", part=part))
             i += n + 1
@@ -272,6 +285,11 @@ def _phrases(text: str, toks: list[_Tok], names: _Names) -> list[_Phrase]:
                 det, det_at = word, i  # "a pair of shoes": the count is read with the name
                 i += 3
                 continue
+            tail = names.tail(toks, i + 1)
+            if tail is not None:  # "the bench" of a workbench
+                found.append(_Phrase(toks[i + 1].start, toks[i + 1].end, tail, det=word))
+                i += 2
+                continue
             words = _phrase_words(toks, i + 1, names)
             if words:
                 end = toks[i + len(words)].end
@@ -284,16 +302,16 @@ def _phrases(text: str, toks: list[_Tok], names: _Names) -> list[_Phrase]:
     return found
 
 
-def _part_at(toks: list[_Tok], i: int, names: _Names) -> tuple[int, str] | None:
+def _part_at(toks: list[_Tok], i: int, names: _Names, possessive: bool = False) -> tuple[int, str] | None:
     """(tokens, words) of a part's or place's name starting at token ``i`` ("seat", "top shelf"), None where an
     upload's name starts there."""
     if i >= len(toks) or names.at(toks, i) is not None:
         return None
-    if toks[i].word in PART_WORDS:
-        return 1, toks[i].word
     if (i + 1 < len(toks) and toks[i + 1].word in PART_WORDS and names.at(toks, i + 1) is None
             and toks[i].word in PLACE_WORDS | {"lower", "upper", "bottom", "second", "lowest", "highest", "uppermost"}):
-        return 2, f"{toks[i].word} {toks[i + 1].word}"
+        return 2, f"{toks[i].word} {toks[i + 1].word}"  # "top shelf"
+    if toks[i].word in PART_WORDS or possessive and toks[i].word in _PLACES_OF:
+        return 1, toks[i].word
     return None
 
 
@@ -472,7 +490,8 @@ class _Parser:
             fronted.figures = [p]  # "next to the bed, a lamp": the lamp is the figure
             self.current, self.fronted = fronted, None
         elif rel is not None and (not rel.grounds and not rel.floor and not rel.cue.implied
-                                  or joined and rel.filled < rel.wants):
+                                  and self.previous not in ("comma", "and", "with")
+                                  or joined and 0 < rel.filled < rel.wants):
             rel.grounds.append(p)
         elif fronted is not None:
             fronted.relations[-1].grounds.append(p)
