@@ -232,3 +232,27 @@ def test_on_each_side_is_beside_and_a_support_read_by_the_reader():
                 ["sofa", "cushion", "throw blanket", "coffee table"])
     assert got["throw blanket"] == ("lie", ("sofa",), "sofa")  # "over", said of a cloth: draped on it
     assert got["coffee table"] == ("front", ("sofa",), "floor")
+
+
+def test_a_relation_said_first_places_every_figure_after_it():
+    assert steps("On the desk are a laptop and a lamp.", ["desk", "laptop", "lamp"]) == {
+        "laptop": ("on", ("desk",), "desk"), "lamp": ("on", ("desk",), "desk")}
+
+
+def test_a_place_of_the_ground_said_with_the_cue_stays_in_the_prompt():
+    plan = plan_of("The mug sits at the edge of the desk.", ["desk", "mug"])
+    assert [(s.relation, s.prompt) for s in plan.steps] == [("on", "the mug sits at the edge of the desk")]
+
+
+def test_it_is_not_a_ground_the_clause_names_elsewhere():
+    got = {s.name: s for s in plan_of("Put the teapot on the tray and the cups next to it on the tray too.",
+                                      ["tray", "teapot", "cup"]).steps}
+    assert (got["cup"].relation, got["cup"].on, got["cup"].support) == ("beside", ("teapot",), "tray")
+    assert got["cup"].prompt == "the cup next to the teapot, on the tray"
+
+
+def test_one_more_of_a_kind_is_said_not_guessed_and_no_sofa_goes_on_an_armchair():
+    plan = plan_of("Two cushions on the sofa and one on the armchair.", ["sofa", "cushion", "armchair"])
+    assert plan.base == "sofa" and [(s.name, s.on) for s in plan.steps if not s.floor] == [
+        ("cushion_1", ("sofa",)), ("cushion_2", ("sofa",))]
+    assert any("one on the armchair" in w for w in plan.warnings)

@@ -244,7 +244,7 @@ def plan_relations(description: str, names: list[str], keys: list[str], reading:
         for step in _steps(said, nodes, keys, more, support, tuple(notes.get(said.figure, ()))):
             support[step.name] = step.support
             steps.append(step)
-    warnings = list(dict.fromkeys(w for s in steps for w in s.warnings))
+    warnings = list(dict.fromkeys([*(w for s in steps for w in s.warnings), *reading.notes]))
     return ScenePlan(description, base, keys.index(base_key), steps, warnings)
 
 

@@ -164,7 +164,7 @@ class _Phrase:
 
     @property
     def back(self) -> bool:
-        return self.key in ("it", "them", "each", "both")
+        return self.key in ("it", "them", "each", "both", "one")
 
 
 @dataclass(frozen=True)
@@ -258,7 +258,10 @@ def _phrases(text: str, toks: list[_Tok], names: _Names) -> list[_Phrase]:
             det, det_at = "", -1
             i = end
             continue
-        if word in ("it", "them") or word == "both" and (i + 1 == len(toks) or toks[i + 1].word in _PHRASE_ENDS
+        if word in ("one", "another") and (i + 1 == len(toks) or toks[i + 1].word in _PHRASE_ENDS) and (
+                i > 0 and toks[i - 1].word in ("and", ",")):
+            found.append(_Phrase(toks[i].start, toks[i].end, "one"))  # "two cushions on the sofa and one on ..."
+        elif word in ("it", "them") or word == "both" and (i + 1 == len(toks) or toks[i + 1].word in _PHRASE_ENDS
                                                           or not toks[i + 1].word.isalpha()):
             found.append(_Phrase(toks[i].start, toks[i].end, word))
         elif word == "each" and (i + 1 == len(toks) or toks[i + 1].word in _PHRASE_ENDS | {"one"}
@@ -349,13 +352,18 @@ def _cues(text: str, phrases: list[_Phrase]) -> list[_Cue]:
             if _imperative(text, found):
                 continue
             top = _ON_TOP.match(text, found.end)
-            if top is not None and found.text.split()[-1] in ("on", "upon"):  # "sits on top of": on its top
+            if top is not None and found.text.split()[-1] in ("on", "upon", "at", "in"):  # "sits on top of",
+                # "sits at the edge of": the place of the ground said with the cue
                 found = cues.CueMatch(cue, found.start, top.end(), text[found.start:top.end()])
             taken.append(_Cue(found.start, found.end, found))
     return sorted(taken, key=lambda c: c.start)
 
 
-_ON_TOP = re.compile(r" top(?: of)?(?![a-z])")
+_ON_TOP = re.compile(r" (?:top(?: of)?|the (?:very )?(?:top|edge|rim|brink|lip|corner|far end|end|middle|centre|center)"
+                     r" of)(?![a-z])")
+_PREPOSITIONS = frozenset({"on", "in", "at", "by", "under", "behind", "beside", "above", "below", "near", "inside",
+                           "atop", "onto", "upon", "over", "along", "among", "within", "against", "around", "through",
+                           "between", "beneath", "underneath", "opposite", "outside", "into", "alongside", "amongst"})
 _CLAUSE_START = re.compile(r"(?:^|[,;:.]|\b(?:and|then|please|now|also))\s*$")
 _DETERMINER_NEXT = re.compile(r"\s+(?:" + "|".join(sorted(DETERMINERS)) + r")\b")
 
@@ -364,6 +372,7 @@ def _imperative(text: str, cue: cues.CueMatch) -> bool:
     """A one-word cue that opens a clause before its object ("hang the mirror above the sink"): the verb of an
     order, not the relation."""
     return (" " not in cue.text and not cue.text.endswith(("ing", "s", "ed"))  # "facing the monitor" is a relation
+            and cue.text not in _PREPOSITIONS  # "on the desk are ...": a relation said first
             and _CLAUSE_START.search(text[:cue.start]) is not None
             and _DETERMINER_NEXT.match(text, cue.end) is not None)
 
@@ -428,6 +437,7 @@ class _Clause:
     start: int = 0
     end: int = 0
     too: bool = False  # "the mug too": the clause before, said of its figures
+    inverted: bool = False  # its relation said before its figures ("on the desk are a laptop and a lamp")
 
 
 def _sentences(text: str) -> list[tuple[int, int]]:
@@ -488,7 +498,10 @@ class _Parser:
         if fronted is not None and (fronted.relations[-1].grounds or fronted.relations[-1].floor) and not (
                 joined and fronted.relations[-1].filled < fronted.relations[-1].wants):
             fronted.figures = [p]  # "next to the bed, a lamp": the lamp is the figure
+            fronted.inverted = True
             self.current, self.fronted = fronted, None
+        elif current is not None and current.inverted and joined and current.figures[-1].end >= current.end:
+            current.figures.append(p)  # "on the desk are a laptop and a lamp"
         elif rel is not None and (not rel.grounds and not rel.floor and not rel.cue.implied
                                   and self.previous not in ("comma", "and", "with")
                                   or joined and 0 < rel.filled < rel.wants):
@@ -618,6 +631,10 @@ class _Reader:
 
     def clause(self, text: str, clause: _Clause) -> None:
         said = text[clause.start:clause.end].strip(" ,")
+        if clause.figures and clause.figures[0].key == "one":
+            self.out.notes.append(f"'{said}': one more of a kind said this way is not read: say each place with "
+                                  "its own count")
+            return
         figures = [f for f in clause.figures if f.known and not f.back]
         if clause.figures and not figures:
             back = clause.figures[0]
@@ -636,13 +653,15 @@ class _Reader:
             clause.relations = [*clause.relations[1:], clause.relations[0]]
         first_support: list[str] | None = None
         primary: _Ground | None = None
+        # a reference is not to a ground the clause names ("the cups next to it on the tray": not the tray)
+        named = [g.key for r in clause.relations for g in r.grounds if g.known and not g.back and not g.room]
         for rel in clause.relations:
             try:
                 # a second place is not the first one's ground ("on the desk to its right": not the desk's right);
                 # a way to face may be ("in front of the desk, facing it")
                 turn = records.RELATIONS[rel.cue.relation].kind == Kind.ORIENTATION
-                ground = self._grounds(rel, keys, clause, said, primary.keys if primary is not None and not turn
-                                       else [])
+                ground = self._grounds(rel, keys, clause, said, [] if turn else [
+                    *named, *(primary.keys if primary is not None else [])])
             except SceneReadingError:
                 if len(clause.relations) == 1:
                     raise
@@ -651,7 +670,8 @@ class _Reader:
                 primary = ground
                 first_support = ground.keys if is_support(rel.cue.relation) else None
                 self.out.said.extend(ground.said(rel, f.key, said, _det(f)) for f in figures)
-            elif is_support(rel.cue.relation) and (first_support or primary.group) and ground.keys:
+            elif (is_support(rel.cue.relation) and (first_support or primary.group) and ground.keys
+                  and all(_fits(g, ground.keys[0]) for g in first_support or primary.keys)):
                 # "the teapot on the tray in the middle of the table": the tray on the table; "between the teapot
                 # and the bag on the table": each on the table
                 below = first_support or primary.keys
@@ -755,6 +775,12 @@ class _Ground:
         return Said(figure, rel.cue.relation, rel.cue.match.text, tuple(self.keys), clause, self.part,
                     self.group and rel.cue.relation != RelationName.BETWEEN, self.each, self.floor,
                     room=self.room, det=det)
+
+
+def _fits(figure: str, ground: str) -> bool:
+    """Whether ``figure`` can stand on ``ground`` as far as the lexicon's sizes say (no sofa on an armchair)."""
+    a, b = lexicon.lookup(figure), lexicon.lookup(ground)
+    return a is None or b is None or a.size_m <= b.size_m
 
 
 def _det(p: _Phrase) -> str:
