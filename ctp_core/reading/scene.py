@@ -245,18 +245,9 @@ def _phrases(text: str, toks: list[_Tok], names: _Names) -> list[_Phrase]:
         word = toks[i].word
         hit = names.at(toks, i)
         if hit is not None:
-            n, key = hit
-            start = toks[det_at].start if det_at >= 0 and det_at >= i - 4 else toks[i].start
-            said = counts.read_count(text[start:toks[i + n - 1].end], key).count or 0
-            each = i > 0 and toks[i - 1].word == "each"
-            end = i + n
-            part = ""
-            # "the bench's seat": a part named after the possessor
-            if end + 1 < len(toks) and text[toks[end - 1].end:toks[end].start] == "  " and toks[end].word in PART_WORDS:
-                part, end = toks[end].word, end + 1
-            found.append(_Phrase(toks[i].start, toks[end - 1].end, key, det=det, count=said, each=each, part=part))
+            phrase, i = _named(text, toks, i, hit, det, det_at)
+            found.append(phrase)
             det, det_at = "", -1
-            i = end
             continue
         if word in ("one", "another") and (i + 1 == len(toks) or toks[i + 1].word in _PHRASE_ENDS) and (
                 i > 0 and toks[i - 1].word in ("and", ",")):
@@ -303,6 +294,20 @@ def _phrases(text: str, toks: list[_Tok], names: _Names) -> list[_Phrase]:
             det, det_at = word, i
         i += 1
     return found
+
+
+def _named(text: str, toks: list[_Tok], i: int, hit: tuple[int, str], det: str, det_at: int) -> tuple[_Phrase, int]:
+    """The phrase of an upload's name at token ``i`` (``hit``: its tokens and key), with the count said before it
+    and a part said after it ("the bench's seat"), and the token after it."""
+    n, key = hit
+    start = toks[det_at].start if det_at >= 0 and det_at >= i - 4 else toks[i].start
+    said = counts.read_count(text[start:toks[i + n - 1].end], key).count or 0
+    each = i > 0 and toks[i - 1].word == "each"
+    end = i + n
+    part = ""
+    if end + 1 < len(toks) and text[toks[end - 1].end:toks[end].start] == "  " and toks[end].word in PART_WORDS:
+        part, end = toks[end].word, end + 1
+    return _Phrase(toks[i].start, toks[end - 1].end, key, det=det, count=said, each=each, part=part), end
 
 
 def _part_at(toks: list[_Tok], i: int, names: _Names, possessive: bool = False) -> tuple[int, str] | None:
