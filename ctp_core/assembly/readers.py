@@ -92,7 +92,8 @@ def get_reader(name: str | None = None, settings: PriorSettings | None = None) -
 
 
 def plan_schema(names: Sequence[str]) -> dict[str, Any]:
-    """The JSON schema of the answer: the relations of the objects called ``names``."""
+    """The JSON schema of the answer: the relations of the objects called ``names`` (only the keywords strict
+    structured outputs accept; the bounds said in descriptions are checked on the answer, ``_check``)."""
     called = list(dict.fromkeys(" ".join(n.split()) for n in names))
     return {
         "type": "object", "additionalProperties": False, "required": ["objects"],
@@ -100,9 +101,10 @@ def plan_schema(names: Sequence[str]) -> dict[str, Any]:
             "type": "object", "additionalProperties": False, "required": ["name", "count", "relation", "on"],
             "properties": {
                 "name": {"type": "string", "enum": called},
-                "count": {"type": "integer", "minimum": 1, "maximum": MAX_COPIES},
+                "count": {"type": "integer", "description": f"1 to {MAX_COPIES}"},
                 "relation": {"type": "string", "enum": [*map(str, RELATION_WORDS), FLOOR]},
-                "on": {"type": "array", "items": {"type": "string", "enum": called}, "maxItems": MAX_GROUNDS},
+                "on": {"type": "array", "items": {"type": "string", "enum": called},
+                       "description": f"at most {MAX_GROUNDS}"},
             }}}},
     }
 
