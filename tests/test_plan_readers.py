@@ -61,6 +61,8 @@ def test_a_fenced_answer_with_a_think_block_is_read():
     ("the boxes go under the desk", 200, "AnswerError"),  # no JSON
     (json.dumps({"objects": [{"name": "sofa", "count": 1, "relation": "on", "on": ["chair"]}]}), 200,
      "none of the objects"),  # breaks the schema
+    (json.dumps({"objects": [{"name": "chair", "count": 99, "relation": "on", "on": ["writing desk"]}]}), 200,
+     "count must be"),  # a bound the schema says in words
     (json.dumps({"objects": [{"name": "chair", "count": 1, "relation": "on", "on": ["pedal bin"]},
                              {"name": "pedal bin", "count": 1, "relation": "on", "on": ["chair"]}]}), 200,
      "circle"),  # does not plan
