@@ -6,30 +6,36 @@ barrier with the wet floor sign between them". ``read_scene(text, keys)`` reads 
 may name (``keys``: each upload's name as words) into ``Said`` records, one per relation said of an object:
 
 - **Phrases.** The words are tokens; an object's phrase is an upload's name (plurals too, a head word only one
-  upload has), a reference back ("it", "them", "each", "both"), a part of an object named by a possessive ("its
-  seat", "the bench's seat", "the top shelf of the bookcase": the ground is the possessor, the part its place), or
-  a phrase after a determiner that names no upload (an error for the plan: never a guess). A count before a name
-  makes copies ("two boxes", "a pair of shoes"; "a pair of glasses" is one, ``counts``). The relation cues are the
-  pair reader's (``cues.CUES``), every one found in the sentence, the most specific first where they overlap.
+  upload has, a one-word name's last part after a determiner: "the bench" of a workbench), a reference back ("it",
+  "them", "each", "both"), a part of an object named by a possessive ("its seat", "on its top", "the bench's seat",
+  "the top shelf of the bookcase": the ground is the possessor, the part its place), a place of the room ("the
+  wall", "the corner", "the floor": no object), or a phrase after a determiner that names no upload (an error for
+  the plan: never a guess). A count before a name makes copies ("two boxes", "a pair of shoes"; "a pair of
+  glasses" is one, ``counts``); "and one on ..." is noted, not guessed. The relation cues are the pair reader's
+  (``cues.CUES``), every one found in the sentence, the most specific first where they overlap; a one-word verb
+  opening a clause before its object ("hang the mirror above the sink") is the order, not the relation.
 - **Clauses.** A sentence splits at ";", "." and "then"; within it, a clause is its figures (one phrase, or several
   joined by "and": "a trophy and a wooden bird stand on the chest") and the relations said of them, each a cue and
   its grounds ("between the teapot and the paper bag": two). A cue with no figure of its own modifies the clause
   before ("..., facing the monitor"); a bare phrase with "too" or "as well" repeats the clause before for it ("the
   mug too"); a phrase with no cue is only named ("a workbench, ..."); "with" attaches the clauses after it to the
-  clause's subject ("a bench with a bin to its right"). A relation fronted before its figure ("next to the bed, a
-  lamp") is the figure's all the same.
+  clause's subject ("a bench with a bin to its right"). A relation fronted before its figures ("next to the bed, a
+  lamp"; "on the desk are a laptop and a lamp") is theirs all the same. A cue's ground follows it (never across a
+  comma or "and").
 - **A clause with two relations.** The first is the figure's. A second relation of support after a first ("the
   teapot on the tray in the middle of the table") says where the first ground is: a step of its own (the tray on
   the table, in its middle); after "between" or a group ("between the teapot and the bag on the table") it is where
-  the grounds stand (each on the table). Any other second relation is said of the figure too ("the lamp on the
-  desk to its right": on the desk, and right of the monitor): kept as ``also``.
+  the grounds stand (each on the table); where the lexicon's sizes allow it (no sofa on an armchair). Any other
+  second relation is said of the figure too ("the lamp on the desk to its right": on the desk, and right of the
+  monitor): kept as ``also``.
 - **References.** "it"/"its" is the subject of the clause it is said in (the object "with" attaches to), else the
   scene's topic (a first phrase named with no relation: "a workbench, a toolbox on it"), else the object named last
-  that the clause does not already relate ("the lamp on the desk to its right": not the desk); never the figure
-  itself, never a group of copies; "in it" prefers a container. "them" and "both" are the group named last (the
-  copies of a count, figures or grounds joined by "and"), else the clause's subject and its ground, else the last
-  two objects named; "each" one ground copy per figure copy. A cue with its ground left out ("a stool in front")
-  reads as "it".
+  that the clause does not already relate ("the lamp on the desk to its right": not the desk; "the cups next to it
+  on the tray": not the tray; a way to face may be of the place's ground: "in front of the desk, facing it");
+  never the figure itself, never a group of copies; "in it" prefers a container. "them" and "both" are the group
+  named last (the copies of a count, figures or grounds joined by "and"), else the clause's subject and its
+  ground, else the last two objects named; "each" one ground copy per figure copy. A cue with its ground left out
+  ("a stool in front", "a metronome on top") is of the topic, else of the object most often a ground so far.
 
 Why no parser library: spaCy 3.8 is on the registry, but without a trained pipeline it has no parser, and its
 English pipelines are published outside the registry (GitHub releases) under their own licence terms; a service
@@ -796,12 +802,6 @@ def read_scene(text: str, keys: Sequence[str]) -> SceneReading:
     """The relations a description says of the objects called ``keys`` (see the module's docstring). Raises
     ``SceneReadingError`` where a clause cannot be read."""
     return _Reader(keys).read(clean(text))
-
-
-def names_in(text: str, keys: Sequence[str]) -> list[str]:
-    """The keys a piece of text names, in order."""
-    toks = _tokens(clean(text))
-    return [p.key for p in _phrases(clean(text), toks, _Names(keys)) if p.known and not p.back]
 
 
 def is_place_said(part: str) -> bool:
