@@ -641,7 +641,8 @@ class _Reader:
                     raise
 
     def clause(self, text: str, clause: _Clause) -> None:
-        said = text[clause.start:clause.end].strip(" ,")
+        before = _SAID_BEFORE.search(text[:clause.start])  # "the", "two", "a pair of" ... before the first figure
+        said = text[before.start() if before else clause.start:clause.end].strip(" ,")
         if clause.figures and clause.figures[0].key == "one":
             self.out.notes.append(f"'{said}': one more of a kind said this way is not read: say each place with "
                                   "its own count")
@@ -786,6 +787,9 @@ class _Ground:
         return Said(figure, rel.cue.relation, rel.cue.match.text, tuple(self.keys), clause, self.part,
                     self.group and rel.cue.relation != RelationName.BETWEEN, self.each, self.floor,
                     room=self.room, det=det)
+
+
+_SAID_BEFORE = re.compile(r"(?:\b(?:" + "|".join(sorted(DETERMINERS | _QUANTITY | {"of"})) + r")\s+)+$")
 
 
 def _fits(figure: str, ground: str) -> bool:
