@@ -256,3 +256,12 @@ def test_one_more_of_a_kind_is_said_not_guessed_and_no_sofa_goes_on_an_armchair(
     assert plan.base == "sofa" and [(s.name, s.on) for s in plan.steps if not s.floor] == [
         ("cushion_1", ("sofa",)), ("cushion_2", ("sofa",))]
     assert any("one on the armchair" in w for w in plan.warnings)
+
+
+def test_a_list_of_figures_ending_in_and_is_placed_whole_and_a_first_phrase_alone_is_the_topic():
+    assert steps("A laptop, a mug and a lamp on the desk, and the chair in front of it.",
+                 ["desk", "laptop", "mug", "lamp", "chair"]) == {
+        "laptop": ("on", ("desk",), "desk"), "mug": ("on", ("desk",), "desk"), "lamp": ("on", ("desk",), "desk"),
+        "chair": ("front", ("desk",), "floor")}
+    assert steps("The sofa has a cushion on it, and the lamp is to the left.", ["sofa", "cushion", "lamp"]) == {
+        "cushion": ("on", ("sofa",), "sofa"), "lamp": ("left", ("sofa",), "floor")}

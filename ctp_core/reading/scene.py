@@ -483,6 +483,7 @@ class _Parser:
         self.clauses: list[_Clause] = []
         self.figures: list[_Phrase] = []  # named, waiting for their cue
         self.loose: list[_Phrase] = []  # named with no relation of their own
+        self.listed: list[_Phrase] = []  # named before a comma, figures if the list goes on to "and"
         self.current: _Clause | None = None
         self.fronted: _Clause | None = None  # a relation said before its figure ("next to the bed, a lamp")
         self.host: str | None = None  # what "with" attaches to
@@ -496,7 +497,7 @@ class _Parser:
 
     def done(self) -> tuple[list[_Clause], list[_Phrase]]:
         self.close()
-        self.loose.extend(self.figures)
+        self.loose.extend([*self.listed, *self.figures])
         if self.fronted is not None and self.fronted.figures:
             self.clauses.append(self.fronted)
         return self.clauses, self.loose
@@ -526,7 +527,11 @@ class _Parser:
             self.figures.append(p)  # "a trophy and a bird stand on the chest"
         else:
             self.close()
-            self.loose.extend(self.figures)
+            if self.previous == "comma" and self.figures and current is None:
+                self.listed.extend(self.figures)  # "a laptop, a mug and a lamp on the desk", if "and" ends the list
+            else:
+                self.loose.extend([*self.listed, *self.figures])
+                self.listed = []
             self.figures = [p]
             if self.subject is None and not p.back:
                 self.subject = p.key
@@ -541,6 +546,11 @@ class _Parser:
             self.figures = []
         elif self.figures:
             self.close()
+            if len(self.figures) > 1:  # "a laptop, a mug and a lamp on the desk": the whole list
+                self.figures = [*self.listed, *self.figures]
+            else:  # "a workbench, a toolbox on it": the workbench only named
+                self.loose.extend(self.listed)
+            self.listed = []
             self.current = _Clause(self.figures, [_Relation(cue)], host=self.host, start=self.figures[0].start,
                                    end=el.end)
             self.figures = []
@@ -564,8 +574,8 @@ class _Parser:
         self.host = (current.figures[0].key if current is not None and current.figures and not current.figures[0].back
                      else figures[0].key if figures and not figures[0].back else self.subject or self.host)
         if current is None and figures:
-            self.loose.extend(figures)  # "a park bench with ...": named, placed by no relation of its own
-            self.figures = []
+            self.loose.extend([*self.listed, *figures])  # "a park bench with ...": named, placed by no relation
+            self.figures, self.listed = [], []
         self.close()
 
     def on_too(self, k: int, el: _Element) -> None:
