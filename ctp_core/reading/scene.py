@@ -16,12 +16,12 @@ may name (``keys``: each upload's name as words) into ``Said`` records, one per 
   opening a clause before its object ("hang the mirror above the sink") is the order, not the relation.
 - **Clauses.** A sentence splits at ";", "." and "then"; within it, a clause is its figures (one phrase, or several
   joined by "and": "a trophy and a wooden bird stand on the chest", "a laptop, a mug and a lamp on the desk") and
-  the relations said of them, each a cue and its grounds ("between the teapot and the paper bag": two). A cue with no figure of its own modifies the clause
-  before ("..., facing the monitor"); a bare phrase with "too" or "as well" repeats the clause before for it ("the
-  mug too"); a phrase with no cue is only named ("a workbench, ..."); "with" attaches the clauses after it to the
-  clause's subject ("a bench with a bin to its right"). A relation fronted before its figures ("next to the bed, a
-  lamp"; "on the desk are a laptop and a lamp") is theirs all the same. A cue's ground follows it (never across a
-  comma or "and").
+  the relations said of them, each a cue and its grounds ("between the teapot and the paper bag": two). A cue with
+  no figure of its own modifies the clause before ("..., facing the monitor"); a bare phrase with "too" or "as
+  well" repeats the clause before for it ("the mug too"); a phrase with no cue is only named ("a workbench, ...");
+  "with" attaches the clauses after it to the clause's subject ("a bench with a bin to its right"). A relation
+  fronted before its figures ("next to the bed, a lamp"; "on the desk are a laptop and a lamp") is theirs all the
+  same. A cue's ground follows it (never across a comma or "and").
 - **A clause with two relations.** The first is the figure's. A second relation of support after a first ("the
   teapot on the tray in the middle of the table") says where the first ground is: a step of its own (the tray on
   the table, in its middle); after "between" or a group ("between the teapot and the bag on the table") it is where
