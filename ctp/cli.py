@@ -28,6 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "models": ("ctp.cmd_models", "list, pull (resumable, verified) and remove guidance models in the local cache"),
     "serve": ("ctp.cmd_serve", "start the HTTP API (embedded Redis + worker when REDIS_URL is unset)"),
     "worker": ("ctp.cmd_serve", "run a queue worker against REDIS_URL"),
+    "mcp": ("ctp.cmd_mcp", "serve ctp's placements as MCP tools for agents (stdio, or --http), over the service"),
 }
 # A command's deprecated spellings -> the command: still accepted and listed by ``ctp --help``, not in the synopsis.
 ALIASES: dict[str, str] = {"hparams": "priors"}

@@ -262,8 +262,8 @@ def propose(run: Run, init: np.ndarray | None = None) -> Proposals:
 def score(run: Run, proposals: Proposals, *, say: GuideSay | None = None, on_event: ProgressCallback | None = None,
           should_cancel: CancelCheck | None = None) -> tuple[Poses, GuideSay | None]:
     """The optimiser's starts: the search's diverse best ``optim.restarts`` (forward-only scoring), or the
-    proposals as they are when the search is off; and the guide's gate the search measured (None: none measured),
-    or ``gate`` as given (measured by an earlier search of the run: not measured again).
+    proposals as they are when the search is off; and the guide's say the search measured (None: none measured),
+    or ``say`` as given (measured by an earlier search of the run: not measured again).
 
     The search ranks by the prompt's relation first, then by the guide where there is one and it tells the
     candidates apart (``ordering.search_key``, ``ordering.GuideSay``), otherwise by the first phase's objective:
@@ -273,7 +273,7 @@ def score(run: Run, proposals: Proposals, *, say: GuideSay | None = None, on_eve
 
     if not run.config.search.enabled:
         return proposals.poses, None
-    scorer = run.scorer if say is None else run.scorer.gated(say)
+    scorer = run.scorer if say is None else run.scorer.with_say(say)
     ranked = coarse_to_fine.search(scorer, proposals, run.plan[0], k=run.config.optim.restarts, on_event=on_event,
                             should_cancel=should_cancel, phases=len(run.plan), started=run.started)
     run.timings["search_s"] = round(ranked.seconds, 3)
@@ -290,7 +290,7 @@ def score(run: Run, proposals: Proposals, *, say: GuideSay | None = None, on_eve
 
 def refine(run: Run, starts: Poses, say: GuideSay | None = None, *, on_event: ProgressCallback | None = None,
            should_cancel: CancelCheck | None = None) -> Outcome:
-    """The phased optimiser from ``starts`` (one restart each) under the search's ``gate`` (``score``; None: not
+    """The phased optimiser from ``starts`` (one restart each) under the search's ``say`` (``score``; None: not
     measured); returns its ``Outcome``."""
     from ctp_core import optimise
 
@@ -446,7 +446,7 @@ def align(
     proposals = propose(run, init)
     starts, say = score(run, proposals, on_event=on_event, should_cancel=should_cancel)
     if say is not None and say.amount <= 0 and run.scale is not None and len(run.scale.rungs) > 1:
-        # a guide the gate silences chooses no rung, and across rungs the geometry would pick where the relation
+        # a guide its say silences chooses no rung, and across rungs the geometry would pick where the relation
         # holds most easily (``scaling``): search again as without a guide, every proposal at the centre
         run.scale = run.scale.at_centre()
         starts, say = score(run, propose(run, init), say=say, on_event=on_event, should_cancel=should_cancel)

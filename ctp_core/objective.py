@@ -41,7 +41,7 @@ class ScaleTerm(Protocol):
 
 
 class Say(Protocol):
-    """What a scorer needs of the guide's gate (``search.ordering.GuideSay``, a layer above): how far the guide may
+    """What a scorer needs of the guide's say (``search.ordering.GuideSay``, a layer above): how far the guide may
     override the usual arrangement, 0 to 1."""
 
     @property
@@ -94,15 +94,15 @@ class Scorer:
         self.scale = scale  # scale mode: the ``scale`` term's plan (None: rigid, no term)
         # the prompt's relation where it judges poses (None: unknown, or ``config.relation`` off: zero terms)
         self.reading = reading if config.relation else None
-        self.say = say  # the guide's gate as the search measured it (None: not measured, trusted): ``gated``
+        self.say = say  # the guide's say as the search measured it (None: not measured, trusted): ``with_say``
         self.guide, self.goal = guide, goal
         self.use_clip = goal is not None and guide is not None and config.loss.lambda_clip > 0
         self.clock = clock or Clock()
         self._images = _Tally()
         self._eval: tuple[Cameras, torch.Tensor] | None = None
 
-    def gated(self, say: Say | None) -> Scorer:
-        """This scorer under the search's ``gate`` (what it encodes, how much the usual arrangement weighs:
+    def with_say(self, say: Say | None) -> Scorer:
+        """This scorer under the search's ``say`` (what it encodes, how much the usual arrangement weighs:
         ``guided``, ``preference_weight``); it shares the clock and the count of encoded images."""
         twin = copy.copy(self)
         twin.say, twin._eval = say, None
@@ -110,7 +110,7 @@ class Scorer:
 
     @property
     def clip_images(self) -> int:
-        """Images the guide encoded, by this scorer and every ``gated`` twin of it."""
+        """Images the guide encoded, by this scorer and every ``with_say`` twin of it."""
         return self._images.count
 
     @clip_images.setter

@@ -40,7 +40,7 @@ class Outcome:
     phase_timings: list[dict[str, float]]
     clip_images: int
     steps_run: int = 0
-    say: GuideSay | None = None  # the search's gate the refinement and the selection ran under; None: not measured
+    say: GuideSay | None = None  # the search's say the refinement and the selection ran under; None: not measured
 
 
 def initial_poses(pair: PreparedPair, config: AlignConfig, log_s: float, generator: torch.Generator,
@@ -79,13 +79,13 @@ def initial_poses(pair: PreparedPair, config: AlignConfig, log_s: float, generat
 
 
 class Optimiser:
-    """Runs the phase plan over a batch of restarts; one instance per run. ``gate``: the search's
-    (``coarse_to_fine.Ranked.gate``; None: not measured), which sets what the scorer encodes and how the answer is
+    """Runs the phase plan over a batch of restarts; one instance per run. ``say``: the search's
+    (``coarse_to_fine.Ranked.say``; None: not measured), which sets what the scorer encodes and how the answer is
     selected."""
 
     def __init__(self, scorer: Scorer, plan: list[Phase], on_event: ProgressCallback | None = None,
                  should_cancel: CancelCheck | None = None, say: GuideSay | None = None):
-        self.scorer = scorer.gated(say)  # its ``gate`` is the one the selection and the outcome read
+        self.scorer = scorer.with_say(say)  # its ``say`` is the one the selection and the outcome read
         self.plan = plan
         self.on_event = on_event or (lambda event: None)
         self.should_cancel = should_cancel or (lambda: False)
@@ -173,7 +173,7 @@ class Optimiser:
 
     def answer(self, best: Poses, scores: dict[str, torch.Tensor], phase: Phase) -> int:
         """The restart whose best pose is the answer (``ordering.select_answer`` under ``phase``'s weights and the
-        search's gate): after the last phase the run's (``Outcome.best``), before it the answer were the run to
+        search's say): after the last phase the run's (``Outcome.best``), before it the answer were the run to
         stop there. Not the lowest objective: the selection orders by the relation first, leaves out restarts far
         from the target and, with a guide, soft-ICP among those that touch."""
         scorer = self.scorer
@@ -184,7 +184,7 @@ class Optimiser:
     def _readout(self, best: Poses, scores: dict[str, torch.Tensor], i: int) -> dict:
         """The progress figures of restart ``i`` (the one the run would answer with now) on the
         evaluation views: its objective, and what a person reads instead of it (its scale changes with each
-        phase's weights): its match to the guide (mean cosine; none without one, or with one whose gate is 0) and
+        phase's weights): its match to the guide (mean cosine; none without one, or with one whose say is 0) and
         its gap to the target (source diagonals, within the target samples' spacing), and in how many restarts
         the prompt's relation holds."""
         scorer = self.scorer

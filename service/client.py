@@ -161,6 +161,26 @@ class Client:
                                   **_webhook(webhook, webhook_events)}.items() if v is not None}
         return self._submit("/assemble", files, data, idempotency_key, wait)
 
+    def read_plan(self, prompt: str, names: Sequence[str]) -> dict[str, Any]:
+        """The plan ``scene`` would place, read from ``prompt`` over the objects ``names`` (``POST /plans/read``),
+        with its ``warnings``; queues nothing. A sentence the reader refuses raises ``ServiceError`` 422 with the
+        reader's code (``unknown_object``, ``placement_cycle``, ...)."""
+        return self._json(self.http.post("/plans/read", json={"prompt": prompt, "names": list(names)}))
+
+    def scene(self, objects: Sequence[MeshInput], prompt: str, *, names: Sequence[str] | None = None,
+              options: dict[str, Any] | None = None, idempotency_key: str | None = None,
+              wait: int | None = None, queue: str | None = None) -> dict[str, Any]:
+        """A scene from one sentence as one job (``POST /scenes``); returns ``{id, status, links}``, or the job
+        (``idempotency_key``, ``wait`` and ``queue`` as in ``submit``). ``names``: what each object is, in order
+        (default from the file names, as ``assemble`` names them)."""
+        options = _with_queue(options, queue)
+        files = [_file(item) for item in objects]
+        names = list(names) if names is not None else [default_name(name, "object") for name, _ in files]
+        parts = [("object", (f"{i}-{name}", data)) for i, (name, data) in enumerate(files)]  # distinct part names
+        data = {k: v for k, v in {"prompt": prompt, "names": json.dumps(names),
+                                  "options": json.dumps(options) if options else None}.items() if v is not None}
+        return self._submit("/scenes", parts, data, idempotency_key, wait)
+
     def _submit(self, path: str, files, data: dict[str, str], idempotency_key: str | None,
                 wait: int | None) -> dict[str, Any]:
         headers = {"Idempotency-Key": idempotency_key} if idempotency_key is not None else {}

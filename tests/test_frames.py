@@ -107,3 +107,17 @@ def test_source_to_target_undoes_the_frames():
     # placing the source with the answer, then normalising, equals posing its local copy
     assert np.allclose(t2n.apply(answer.apply(source)), pose.apply(s2l.apply(source)), atol=1e-9)
     assert np.isclose(answer.scale, pose.scale)
+
+
+def test_z_up_writes_a_gltf_transform_in_blenders_axes():
+    """Up in glTF (+Y) is up in Blender (+Z), glTF's +Z (towards the viewer) is Blender's -Y; a turn about the
+    vertical stays one about the vertical, by the same angle."""
+    turn = np.eye(4)
+    turn[:3, :3] = Rotation.from_euler("y", 30, degrees=True).as_matrix()
+    turn[:3, 3] = [0.1, 0.75, 0.2]
+    blender = frames.z_up(turn)
+    assert np.allclose(blender[:3, 3], [0.1, -0.2, 0.75])
+    assert np.allclose(blender[:3, :3], Rotation.from_euler("z", 30, degrees=True).as_matrix())
+    point = np.array([0.3, 0.4, 0.5, 1.0])  # the same point in both axes: glTF (x, y, z) is Blender (x, -z, y)
+    as_blender = lambda p: np.array([p[0], -p[2], p[1], 1.0])  # noqa: E731
+    assert np.allclose(blender @ as_blender(point), as_blender(turn @ point))

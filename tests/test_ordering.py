@@ -86,7 +86,7 @@ def test_without_a_guide_a_holding_pose_beats_a_failing_one_with_a_better_object
     assert silent.argsort().tolist() == [2, 1, 0]
 
 
-@pytest.mark.parametrize(("decades", "lead", "override", "chooser"), [
+@pytest.mark.parametrize(("decades", "lead", "amount", "chooser"), [
     (1.0, 0.0, 0.0, "geometry"), (2.0, 0.0, 0.0, "geometry"), (2.5, 0.0, 0.5, "both"), (3.0, 0.0, 1.0, "guide"),
     (4.0, 0.0, 1.0, "guide"), (3.0, 0.5, 0.5, "both"), (3.0, 1.0, 0.0, "geometry"), (3.5, 5.0, 0.5, "both")])
 def test_the_say_grows_past_chance_once_in_100_and_a_sure_geometry_asks_for_more(decades, lead, amount, chooser):

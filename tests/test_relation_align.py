@@ -96,7 +96,7 @@ SHARE = AlignConfig.from_preset("test").search.min_share
 
 
 def _guided(say, terms):
-    """The search's key of ``terms`` with a guide under ``gate``."""
+    """The search's key of ``terms`` with a guide under ``say``."""
     return ordering.search_key(terms, WEIGHTS, say, guided=True, share=SHARE)
 
 
@@ -198,8 +198,8 @@ def test_the_preference_counts_as_far_as_the_guide_cannot_tell_poses_apart():
     assert bare.preference_weight == 1.0
     bare.use_clip = True
     assert bare.preference_weight == 1.0  # not measured yet: the geometry's screen ranks with it
-    assert bare.gated(ordering.GuideSay(spread=1.0, noise=0.01)).preference_weight == 0.0
-    assert bare.gated(said(0.5)).preference_weight == pytest.approx(0.5)
+    assert bare.with_say(ordering.GuideSay(spread=1.0, noise=0.01)).preference_weight == 0.0
+    assert bare.with_say(said(0.5)).preference_weight == pytest.approx(0.5)
     assert bare.preference_weight == 1.0  # the twin's gate is its own
 
 

@@ -486,7 +486,7 @@ def test_a_guide_without_signal_encodes_nothing_after_the_coarse_stage(meshes, m
     props = propose(run)
     ranked = coarse_to_fine.search(run.scorer, props, run.plan[0], k=2)
     coarse = len(props.poses) * CONFIG.search.coarse_views
-    assert not run.scorer.gated(ranked.say).guided and run.scorer.clip_images == coarse and ranked.swept > 0
+    assert not run.scorer.with_say(ranked.say).guided and run.scorer.clip_images == coarse and ranked.swept > 0
     outcome = refine(run, ranked.poses, ranked.say)
     assert outcome.clip_images == coarse and len(outcome.objectives) == 2
 
@@ -568,7 +568,7 @@ def test_progress_reads_the_relation_the_guide_and_the_gap(meshes, monkeypatch):
     assert all(-1 <= e.guide_match <= 1 and 0 <= e.contact_gap < 0.2 for e in steps)
 
 
-@pytest.mark.parametrize(("gate", "chose"), [(said(0.0, noise=1.0), "geometry"), (said(0.5, noise=1.0), "both"),
+@pytest.mark.parametrize(("say", "chose"), [(said(0.0, noise=1.0), "geometry"), (said(0.5, noise=1.0), "both"),
                                              (ordering.GuideSay(1.0, 0.0), "guide")])
 def test_the_report_and_the_progress_say_who_chose_among_the_poses_that_hold(meshes, monkeypatch, say, chose):
     """The guide's say as the search measured it (``ordering.GuideSay``) reaches the search's progress message and

@@ -185,3 +185,17 @@ def source_to_target(pose: np.ndarray, target_to_norm: Similarity, source_to_loc
     """A pose (4, 4, source local -> normalised) as the answer: source file -> target file."""
     posed = Similarity(pose, SOURCE_LOCAL, NORMALISED)
     return target_to_norm.inverse() @ posed @ source_to_local
+
+
+# Z-up world (Blender's) -> glTF's Y-up: (x, y, z) -> (x, z, -y), as glTF exporters write positions with +Y up
+Y_UP = np.array([[1.0, 0.0, 0.0, 0.0],
+                 [0.0, 0.0, 1.0, 0.0],
+                 [0.0, -1.0, 0.0, 0.0],
+                 [0.0, 0.0, 0.0, 1.0]])
+
+
+def z_up(matrix) -> np.ndarray:
+    """A 4x4 between glTF (Y-up) frames written between the same frames with +Z up (Blender's axes):
+    ``Y_UP⁻¹ @ matrix @ Y_UP``. The Blender add-on applies the same turn with ``mathutils``
+    (``integrations/blender/frames.py``: it stays stdlib-only, so it keeps its own copy of ``Y_UP``)."""
+    return Y_UP.T @ np.asarray(matrix, dtype=np.float64) @ Y_UP

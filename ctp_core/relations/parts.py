@@ -6,14 +6,13 @@ one, and ``check`` (run by the tests) what is inconsistent.
 
 A relation holds in many places ("a cup on the table" holds on the whole top); its *usual place* (``Spec.usual``) is
 one of these parts, centred: the support surface a person uses (the top of a table, the seat of a chair, the shelf
-the prompt names), the middle of a side. ``parts`` finds them once per pair (``per_pair``), in the
+the prompt names), the middle of a side. ``find_parts`` finds them once per pair (``per_pair``), in the
 normalised frame (+Y up, the ground's front and left as ``measures.axes`` gives them), from the samples of the object
-the source relates to (``PreparedPair.anchor``). ``find_parts`` finds them once per pair:
+the source relates to (``PreparedPair.anchor``):
 
 - **support surfaces**: up-facing samples (normal within ``UP_COS`` of +Y) joined where they are near in height and
   across (``JOIN_SPACINGS`` sample spacings): a table's top, a chair's seat, a bookcase's boards, a bench's slats as
-  one.
-  Each has its height, area and, per sample, its *clearance*: how high a thing standing there can be before it
+  one. Each has its height, area and, per sample, its *clearance*: how high a thing standing there can be before it
   meets the ground above it (inf where nothing is above);
 - each surface named by the first part of ``PARTS`` whose detector takes it: **the top**, the highest surface; a
   **shelf**, a surface with the ground's underside above most of it (``COVERED``); **the seat**, another surface

@@ -15,7 +15,7 @@ noise would not show there. Two statistics, each with a per-run null (no extra e
   degrees of freedom: how often noise alone would spread the candidates as far.
 
 The **geometry's lead** (``lead``) is how far the usual arrangement's best pose stands ahead of the next, in
-units of its own spread over the poses that hold: the gate asks a guide for one more decade of evidence per unit
+units of its own spread over the poses that hold: the say asks a guide for one more decade of evidence per unit
 (``GuideSay.needed``) before it overrules a geometry that is sure.
 """
 

@@ -5,7 +5,7 @@ First the geometry screens every proposal (``Scorer.screen``: the relation's ver
 render) and only ``search.shortlist`` of them reach the guide (``encoder_shortlist``: distinct places where the
 relation holds, and a share of the others), so the encoder's images go to what can be the answer; a guide whose
 spread is within its noise (``ordering.GuideSay`` override 0) encodes nothing after the coarse stage
-(``Scorer.gated``, ``Scorer.guided``). ``score``: the objective's terms (``objective.Scorer``) of every candidate,
+(``Scorer.with_say``, ``Scorer.guided``). ``score``: the objective's terms (``objective.Scorer``) of every candidate,
 ranked by the prompt's relation first, then by the guide's term where there is a guide with signal
 (``ordering.search_key``, ``guide_noise``: the proposals satisfy the geometry already), forward only under inference
 mode, ``search.batch`` candidates x views per render and encoder call: first all candidates at a few fixed views
@@ -63,7 +63,7 @@ class Ranked:
     seconds: float
     stages: dict[str, tuple[Poses, Key]] = field(default_factory=dict)  # per stage: poses, ranking key
     holding: int = 0  # coarse and sweep candidates where the prompt's relation holds (all without one)
-    say: GuideSay | None = None  # the guide's gate, for the refinement and the selection; None: not measured
+    say: GuideSay | None = None  # the guide's say, for the refinement and the selection; None: not measured
     screened: int = 0  # poses the geometry screened before the guide saw the shortlist (proposals, sweep turns)
 
 
@@ -301,7 +301,7 @@ def search(scorer: Scorer, proposals: Proposals, phase: Phase, *, k: int,
            on_event: ProgressCallback | None = None, should_cancel: CancelCheck | None = None,
            phases: int = 1, started: float | None = None) -> Ranked:
     """Coarse then fine scoring of ``proposals`` and the diverse best ``k`` (see module docstring). A ``scorer``
-    gated already (``Scorer.gated``) keeps its gate: one that silences the guide searches as without a guide.
+    with its say already (``Scorer.with_say``) keeps its say: one that silences the guide searches as without a guide.
 
     Events: kind ``step`` with stage ``search``, step/steps = candidate evaluations done / planned.
     """
@@ -354,7 +354,7 @@ def search(scorer: Scorer, proposals: Proposals, phase: Phase, *, k: int,
 class _Plan:
     """What a search plans to score and what its events say of it: candidate evaluations planned (``total``: coarse,
     sweep, tile and fine stages), the tiles of the tile stage (None: it does not run), the relation's holds once
-    counted, the guide's gate once measured."""
+    counted, the guide's say once measured."""
 
     on_event: ProgressCallback | None
     started: float
@@ -385,7 +385,7 @@ class _Plan:
         tiled_count = len(poses) if tiles is not None else 0
         total = len(poses) + sweep_count + tiled_count + fine_count
         relation = scorer.reading.name if scorer.reading is not None else None
-        # the guide's gate, once the coarse stage has measured it (or as the scorer was gated)
+        # the guide's say, once the coarse stage has measured it (or as the scorer was given it)
         return cls(on_event, started, phases, k, cfg.tile_restarts, relation, scorer.say, tiles, total, sweep_count,
                    tiled_count, fine_count)
 
@@ -401,7 +401,7 @@ class _Plan:
                 message += f"; {holds} of {checked} hold '{self.relation}'"
             message += f"; {self.k} restarts" + (f" + {tiled} from the tile stage" if tiled else "")
             if self.say is not None:
-                message += f"; {self.gate.summary()}"
+                message += f"; {self.say.summary()}"
             counted = self.relation is not None and checked
             self.on_event(ProgressEvent(kind="step", phase=0, phases=self.phases, step=done, steps=self.total,
                                         restarts=restarts if restarts is not None else self.k + tiled,
@@ -434,9 +434,9 @@ def _screened(scorer: Scorer, proposals: Proposals, phase: Phase,
 def _coarse(scorer: Scorer, poses: Poses, phase: Phase, cameras: Cameras, checks: Cameras | None,
             distinct: tuple[float, float], plan: _Plan, should_cancel: CancelCheck | None
             ) -> tuple[Scorer, dict[str, torch.Tensor], torch.Tensor | None]:
-    """The coarse stage: every candidate's terms at the shared views. Where there is a guide and no gate yet, the
-    gate (how far the guide may override the relation: ``guide_noise``, its choice checked from the ``checks``
-    views) is measured on them and the scorer gated by it, for the later stages. Returns the scorer they score
+    """The coarse stage: every candidate's terms at the shared views. Where there is a guide and no say yet, its
+    say (how far the guide may override the relation: ``guide_noise``, its choice checked from the ``checks``
+    views) is measured on them and the scorer given it, for the later stages. Returns the scorer they score
     with, the terms and the views' goal embeddings."""
     cfg = scorer.config.search
     goal_embeddings = embed_shared_goal(scorer, cameras)
@@ -444,7 +444,7 @@ def _coarse(scorer: Scorer, poses: Poses, phase: Phase, cameras: Cameras, checks
                      progress=plan.emit, should_cancel=should_cancel)
     if scorer.guided and plan.say is None and len(poses) > 1:  # how far the guide may override the relation
         plan.say = guide_noise(scorer, poses, terms, phase, cameras, goal_embeddings, checks, distinct)
-        scorer = scorer.gated(plan.say)  # the later stages score under it
+        scorer = scorer.with_say(plan.say)  # the later stages score under it
         if plan.say.amount == 0:
             plan.drop_tiles()  # a guide with no signal cannot tell tiles apart either
     return scorer, terms, goal_embeddings
@@ -512,7 +512,7 @@ def encoder_shortlist(poses: Poses, terms: dict[str, torch.Tensor], phase: Phase
 def ranking_key(scorer: Scorer, terms: dict[str, torch.Tensor], phase: Phase,
                 guide_key: torch.Tensor | None = None) -> Key:
     """What the search ranks a stage's candidates by (``ordering.search_key``): with ``scorer``'s guide as far as
-    the gate it scores under lets it (``Scorer.gated``; None: not measured yet), the search's ``min_share``;
+    the say it scores under lets it (``Scorer.with_say``; None: not measured yet), the search's ``min_share``;
     ``guide_key``: the tile stage's change."""
     return search_key(terms, phase, scorer.say, guided=scorer.use_clip, share=scorer.config.search.min_share,
                       guide_key=guide_key)

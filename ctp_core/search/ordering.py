@@ -11,8 +11,8 @@ Every order is lexicographic (``Key``): first the *tier*, then the *value* (lowe
   chance gives on them: ``chance``), plus the usual arrangement as far as the guide's say leaves it
   (``GuideSay.weigh``); otherwise the geometric objective.
 
-The gate is measured once, by the search (``coarse_to_fine.search`` returns it in ``Ranked.gate``), and handed to every
-later order as an argument: the refinement's scorer (``objective.Scorer.gated``), the selection
+The say is measured once, by the search (``coarse_to_fine.search`` returns it in ``Ranked.say``), and handed to every
+later order as an argument: the refinement's scorer (``objective.Scorer.with_say``), the selection
 (``select_answer``) and the report. ``improves`` is the refinement's order between a restart's new pose and its
 best so far; ``alternatives_key`` the order of the placements a person picks among.
 
@@ -174,7 +174,7 @@ class GuideSay:
         return "geometry" if self.amount <= 0 else "guide" if self.amount >= 1 else "both"
 
     def summary(self) -> str:
-        """The gate in one line, for the progress readout, the report and the page: what chance gives each test
+        """The say in one line, for the progress readout, the report and the page: what chance gives each test
         in words, the geometry's lead, who chose."""
         spread = (f"chance gives the guide's spread ({self.ratio:.1f}x its noise) {chance.odds(self.spread_p)}"
                   if self.noise > 0 else "the guide's scores have no measurable noise")
@@ -184,7 +184,7 @@ class GuideSay:
         lead = f"; the geometry's best leads by {self.lead:.1f} of its spreads" if self.lead >= 0.05 else ""
         return f"{spread}, {agree}{lead}" + {
             "geometry": ": no say, the geometry chose", "guide": ": the guide chose",
-            "both": f": the guide chose, the usual arrangement weighing {1 - self.override:.2f}"}[self.chooser]
+            "both": f": the guide chose, the usual arrangement weighing {1 - self.amount:.2f}"}[self.chooser]
 
     def to_dict(self) -> dict[str, float | str | None]:
         return {"spread": self.spread, "noise": self.noise, "spread_p": self.spread_p, "agree": self.agree,
@@ -194,7 +194,7 @@ class GuideSay:
                 "summary": self.summary()}
 
 
-TRUSTED = GuideSay(spread=1.0, noise=0.0)  # a gate not measured (yet): the guide trusted fully (p 0: override 1, tie 0)
+TRUSTED = GuideSay(spread=1.0, noise=0.0)  # a say not measured (yet): the guide trusted fully (p 0: amount 1, tie 0)
 
 
 def holding(terms: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -259,7 +259,7 @@ def usual_first(geometric: torch.Tensor, terms: dict[str, torch.Tensor], phase: 
 
 def search_key(terms: dict[str, torch.Tensor], phase: Phase, say: GuideSay | None, *, guided: bool, share: float,
                guide_key: torch.Tensor | None = None) -> Key:
-    """What the search ranks a stage's candidates by (``rank_key``): with a guide (``guided``) that ``gate`` lets
+    """What the search ranks a stage's candidates by (``rank_key``): with a guide (``guided``) that ``say`` lets
     override (None: not measured yet, trusted), its term (``guide_key``: the tile stage's change); otherwise the
     geometric objective.
 
@@ -293,8 +293,8 @@ def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: to
     a guide, among them those that touch (``touches``: the relation's contact ratio is > 0), the lowest
     objective without its soft-ICP term (the guide's and the penetration's); otherwise, or when none touches,
     the lowest objective. The relation orders first, as in the search (``rank_key``): the restarts where it
-    holds, plus, with a guide, a share of the others (``gate``'s override x ``share``, at least one when the
-    override is > 0); a ``gate`` with override 0 (a guide with no signal) selects as without a guide; None (not
+    holds, plus, with a guide, a share of the others (``say``'s amount x ``share``, at least one when the
+    amount is > 0); a ``say`` with amount 0 (a guide with no signal) selects as without a guide; None (not
     measured) trusts the guide fully. An admitted restart that fails the relation still pays its weighted
     relation term in the objective (``lambda_rel`` x its score): the guide overrides the relation at the
     selection only by more than that.
@@ -304,7 +304,7 @@ def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: to
     (``search_key``). Penetration likewise counts only past ``SUNK``: at contact the two halves see a few
     samples a hair inside, which times ``lambda_pen`` can outweigh the guide. The usual arrangement
     (``prefer``, already x (1 - override): ``Scorer.preference_weight``) counts ``GuideSay.weigh`` per unit over the
-    restarts that hold (as much as the guide's say leaves it, at least a difference the gate would trust fully),
+    restarts that hold (as much as the guide's say leaves it, at least a difference a full say would trust),
     not its objective weight, which would outweigh any guide.
     ``clear`` and ``limit``: per pose, in source diagonals (``contact.clearance``, ``contact.touch_limit``).
     """

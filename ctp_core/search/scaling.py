@@ -73,7 +73,7 @@ class ScalePlan:
     def term(self, log_s: torch.Tensor, geometric: float = 1.0) -> torch.Tensor:
         """(B,) the objective's ``scale`` term: w x ((log s - centre) / sigma)^2 / 2, plus ``WALL`` x the
         squared distance beyond the band (``low``, ``high``). ``geometric``: how far the geometry judges alone (1
-        without a guide, 0 with one whose gate overrides fully: ``Scorer.preference_weight``); w runs from
+        without a guide, 0 with one whose say is full: ``Scorer.preference_weight``); w runs from
         ``PRIOR_FLOOR`` to ``PRIOR_WEIGHT`` with it: soft-ICP and the relation's terms at contact favour a smaller
         source, and nothing but a guide sees which size is right."""
         weight = PRIOR_FLOOR + (PRIOR_WEIGHT - PRIOR_FLOOR) * geometric
