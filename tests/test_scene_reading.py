@@ -265,3 +265,11 @@ def test_a_list_of_figures_ending_in_and_is_placed_whole_and_a_first_phrase_alon
         "chair": ("front", ("desk",), "floor")}
     assert steps("The sofa has a cushion on it, and the lamp is to the left.", ["sofa", "cushion", "lamp"]) == {
         "cushion": ("on", ("sofa",), "sofa"), "lamp": ("left", ("sofa",), "floor")}
+
+
+def test_a_relation_after_a_ground_says_where_that_ground_stands_where_the_sizes_say_so():
+    assert steps("Place the lamp on the nightstand by the bed.", ["bed", "nightstand", "lamp"]) == {
+        "nightstand": ("beside", ("bed",), "floor"), "lamp": ("on", ("nightstand",), "nightstand")}
+    assert steps("Place a lamp on each of the two nightstands beside the bed.", ["bed", "nightstand", "lamp"]) == {
+        "nightstand_1": ("beside", ("bed",), "floor"), "nightstand_2": ("beside", ("bed",), "floor"),
+        "lamp_1": ("on", ("nightstand_1",), "nightstand_1"), "lamp_2": ("on", ("nightstand_2",), "nightstand_2")}

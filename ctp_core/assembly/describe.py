@@ -273,7 +273,38 @@ def _relations(reading: SceneReading, notes: dict[str, list[str]]) -> tuple[dict
         elif not said.primary and said.room:
             notes.setdefault(said.figure, []).append(f"'{said.clause}': the {said.room} is no object of the scene: "
                                                      f"'{said.cue} the {said.room}' is not judged")
+    _places_of_grounds(placed_by, also)
     return placed_by, also
+
+
+def _places_of_grounds(placed_by: dict[str, Said], also: dict[str, list[Said]]) -> None:
+    """A figure put on A and beside (in front of, ...) B, where nothing else places A or B, says where they stand:
+    B smaller than A stands on A ("a lamp on the desk beside the monitor": the monitor on the desk, the lamp beside
+    it there); A smaller than B stands by B as said ("a lamp on the nightstand by the bed": the nightstand by the
+    bed). Where the lexicon knows neither size, nothing is assumed (B goes beside the base, with a warning)."""
+    for figure, said in list(placed_by.items()):
+        if not said.supports or len(said.grounds) != 1:
+            continue
+        (top,) = said.grounds
+        for other in also.get(figure, []):
+            if RELATIONS[other.relation].kind not in _ALONGSIDE - {Kind.ORIENTATION} or len(other.grounds) != 1:
+                continue
+            (beside,) = other.grounds
+            if beside in placed_by or beside == top:
+                continue
+            a, b = _size(top), _size(beside)
+            if a is None or b is None:
+                continue
+            if b < a:  # the monitor on the desk
+                placed_by[beside] = replace(said, figure=beside, det="the", derived=True, part="")
+            elif top not in placed_by:  # the nightstand by the bed
+                placed_by[top] = replace(other, figure=top, det="the", derived=True, primary=True)
+                also[figure] = [a for a in also[figure] if a is not other]
+
+
+def _size(key: str) -> float | None:
+    match = lexicon.lookup(key)
+    return match.size_m if match is not None else None
 
 
 def _order(pending: list[Said], done: set[str], also: dict[str, list[Said]]) -> list[Said]:

@@ -247,13 +247,14 @@ def _phrases(text: str, toks: list[_Tok], names: _Names) -> list[_Phrase]:
     found: list[_Phrase] = []
     i = 0
     det, det_at = "", -1
+    each_of = False  # "each of the ...": the next name is each of its copies
     while i < len(toks):
         word = toks[i].word
         hit = names.at(toks, i)
         if hit is not None:
             phrase, i = _named(text, toks, i, hit, det, det_at)
-            found.append(phrase)
-            det, det_at = "", -1
+            found.append(replace(phrase, each=phrase.each or each_of))
+            det, det_at, each_of = "", -1, False
             continue
         if word in ("one", "another") and (i + 1 == len(toks) or toks[i + 1].word in _PHRASE_ENDS) and (
                 i > 0 and toks[i - 1].word in ("and", ",")):
@@ -261,6 +262,11 @@ def _phrases(text: str, toks: list[_Tok], names: _Names) -> list[_Phrase]:
         elif word in ("it", "them") or word == "both" and (i + 1 == len(toks) or toks[i + 1].word in _PHRASE_ENDS
                                                           or not toks[i + 1].word.isalpha()):
             found.append(_Phrase(toks[i].start, toks[i].end, word))
+        elif (word == "each" and i + 2 < len(toks) and toks[i + 1].word == "of"
+              and (names.at(toks, i + 2) is not None or toks[i + 2].word in DETERMINERS)):
+            i += 2  # "each of the nightstands": the nightstands, one copy on each
+            each_of = True
+            continue
         elif word == "each" and (i + 1 == len(toks) or toks[i + 1].word in _PHRASE_ENDS | {"one"}
                                  or not toks[i + 1].word.isalpha()):
             found.append(_Phrase(toks[i].start, toks[i].end, "each"))
