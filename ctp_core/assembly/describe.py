@@ -346,11 +346,7 @@ def _base(roots: list[str], placed_by: dict[str, Said]) -> str:
         above = [f for f, s in placed_by.items() if s.supports and key in s.grounds and f not in seen]
         return len(above) + sum(held(f, seen | {key}) for f in above)
 
-    def size(key: str) -> float:
-        match = lexicon.lookup(key)
-        return match.size_m if match is not None else 0.0
-
-    return max(roots, key=lambda k: (held(k), size(k), -roots.index(k)))
+    return max(roots, key=lambda k: (held(k), _size(k) or 0.0, -roots.index(k)))
 
 
 def _floor(key: str, node: str, upload: int, base: tuple[str, str], said: str, warnings: tuple[str, ...]
@@ -407,10 +403,10 @@ def _steps(said: Said, nodes: dict[str, list[str]], keys: list[str], also: list[
     upload = keys.index(said.figure)
     figures = nodes[said.figure]
     copies = len(said.grounds) == 1 and len(nodes[said.grounds[0]]) > 1 and (said.group or said.relation == "between")
-    figure = f"{said.det if len(figures) == 1 else 'a'} {said.figure}".replace("a a", "an a")
-    figure = f"{_a(said.figure)} {said.figure}" if figure.startswith("a ") else figure
+    det = "a" if len(figures) > 1 else said.det
     if said.figure.split()[-1] in counts.ONE_PAIR:  # "a pair of glasses": one object said as a pair
-        figure = f"the {said.figure}"
+        det = "the"
+    figure = f"{_a(said.figure) if det == 'a' else det} {said.figure}"
     if len(figures) > 1 and counts.read_count(said.clause).arrangement == "around":
         said = replace(said, cue="beside")  # "four chairs around the table": each beside it, facing it
         also = [*also, replace(said, relation=RelationName.FACING, cue="facing", primary=False)]
