@@ -273,3 +273,16 @@ def test_a_relation_after_a_ground_says_where_that_ground_stands_where_the_sizes
     assert steps("Place a lamp on each of the two nightstands beside the bed.", ["bed", "nightstand", "lamp"]) == {
         "nightstand_1": ("beside", ("bed",), "floor"), "nightstand_2": ("beside", ("bed",), "floor"),
         "lamp_1": ("on", ("nightstand_1",), "nightstand_1"), "lamp_2": ("on", ("nightstand_2",), "nightstand_2")}
+
+
+def test_it_beside_something_is_rather_a_thing_of_its_size_than_the_furniture_it_stands_on():
+    got = steps("Put the laptop on the desk and the phone beside it.", ["desk", "laptop", "phone"])
+    assert got["phone"] == ("beside", ("laptop",), "desk")  # on the desk, beside the laptop
+
+
+def test_flanking_and_the_other_side():
+    assert steps("Two potted plants flank the bench, one on each side.", ["bench", "potted plant"]) == {
+        "potted plant_1": ("beside", ("bench",), "floor"), "potted plant_2": ("beside", ("bench",), "floor")}
+    got = steps("Next to the armchair stands a floor lamp, and a side table is on its other side.",
+                ["armchair", "floor lamp", "side table"])
+    assert got == {"floor lamp": ("beside", ("armchair",), "floor"), "side table": ("beside", ("armchair",), "floor")}

@@ -130,8 +130,8 @@ CUES: list[Cue] = [
     Cue(r"swim(?:s|ming)?|float(?:s|ing)?|hover(?:s|ing)?|fl(?:y|ies|ying) (?:around|past)", R.BESIDE),  # free in
     # the air or water: no contact
     Cue(r"beside|next[ _]to|alongside|(?:at|by|to) (?:the|its|his|her|their) side(?: of)?|side[ _]of|side by side"
-        r"|adjacent to|paired with|along|among(?:st)?|detached from|on (?:each|either|both|opposite) sides?(?: of)?",
-        R.BESIDE),
+        r"|adjacent to|paired with|along|among(?:st)?|detached from|flank(?:s|ing)?"
+        r"|on (?:each|either|both|opposite|the other|its other|their other) sides?(?: of)?", R.BESIDE),
     Cue(r"(?:at|on) the (?:edge|rim|brink|lip) of", R.ON),  # "a pigeon drinking at the edge of a fountain"
     # Holodeck's "center": "a vase in the middle of the table" is on it (in a container: in it, ``passes``)
     Cue(r"(?:at|in) the (?:very )?(?:middle|center|centre) of", R.ON),

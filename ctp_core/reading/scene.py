@@ -32,7 +32,9 @@ may name (``keys``: each upload's name as words) into ``Said`` records, one per 
   scene's topic (a first phrase named with no relation: "a workbench, a toolbox on it"), else the object named last
   that the clause does not already relate ("the lamp on the desk to its right": not the desk; "the cups next to it
   on the tray": not the tray; a way to face may be of the place's ground: "in front of the desk, facing it");
-  never the figure itself, never a group of copies; "in it" prefers a container. "them" and "both" are the group
+  never the figure itself, never a group of copies nor one of the figures joined by "and" in the clause before;
+  "in it" prefers a container; beside (left of, near ...) it, found by recency, prefers a thing of the figure's
+  size among the last three ("the laptop on the desk and the phone beside it": the laptop). "them" and "both" are the group
   named last (the copies of a count, figures or grounds joined by "and"), else the clause's subject and its
   ground, else the last two objects named; "each" one ground copy per figure copy. A cue with its ground left out
   ("a stool in front", "a metronome on top") is of the topic, else of the object most often a ground so far.
@@ -518,7 +520,8 @@ class _Parser:
             fronted.figures = [p]  # "next to the bed, a lamp": the lamp is the figure
             fronted.inverted = True
             self.current, self.fronted = fronted, None
-        elif current is not None and current.inverted and joined and current.figures[-1].end >= current.end:
+        elif (current is not None and current.inverted and joined and current.figures[-1].end >= current.end
+              and not _ahead(self.elements, k)):
             current.figures.append(p)  # "on the desk are a laptop and a lamp"
         elif rel is not None and (not rel.grounds and not rel.floor and not rel.cue.implied
                                   and self.previous not in ("comma", "and", "with")
@@ -622,6 +625,8 @@ class _Reader:
         self.recent: list[str] = []  # objects in the order named, references resolved
         self.groups: list[tuple[str, ...]] = []  # groups named ("two boxes": one key; "a trophy and a bird": two)
         self.topic: str | None = None
+        self.joined: set[str] = set()  # the figures joined by "and" in the clause before: no "it"
+        self.joined_next: set[str] = set()
 
     def read(self, text: str) -> SceneReading:
         for start, end in _sentences(text):
@@ -660,6 +665,8 @@ class _Reader:
         before = _SAID_BEFORE.search(text[:clause.start])  # "the", "two", "a pair of" ... before the first figure
         said = text[before.start() if before else clause.start:clause.end].strip(" ,")
         if clause.figures and clause.figures[0].key == "one":
+            if re.search(r"\b(?:each|either|both)\b", said):
+                return  # "two plants flank the bench, one on each side": the clause before, distributed
             self.out.notes.append(f"'{said}': one more of a kind said this way is not read: say each place with "
                                   "its own count")
             return
@@ -672,6 +679,8 @@ class _Reader:
         keys = [f.key for f in figures]
         if len(figures) > 1:
             self.groups.append(tuple(keys))
+        # "the lamp and the trophy on the chest, and the stool left of it": "it" is not one of the two
+        self.joined, self.joined_next = self.joined_next, set(keys) if len(figures) > 1 else set()
         for f in figures:
             if self.out.counts.get(f.key, 1) > 1:
                 self.groups.append((f.key,))
@@ -757,7 +766,7 @@ class _Reader:
         relation = rel.cue.relation if rel is not None else None
         candidates = [clause.host, self.topic, *reversed(self.recent)]
         fitting = [k for k in dict.fromkeys(c for c in candidates if c) if k not in figures and k not in used
-                   and self.out.counts.get(k, 1) == 1]
+                   and self.out.counts.get(k, 1) == 1 and k not in self.joined]
         if not fitting:
             fitting = [k for k in dict.fromkeys(c for c in candidates if c) if k not in figures]
         if not fitting:
@@ -768,7 +777,12 @@ class _Reader:
                           None)
             if holder is not None:
                 return [holder]
-        return [fitting[0]]
+        chosen = fitting[0]
+        if (relation is not None and records.RELATIONS[relation].kind in (Kind.SIDE, Kind.DISTANCE) and figures
+                and chosen not in (clause.host, self.topic) and not _alike(figures[0], chosen)):
+            # "the laptop on the desk and the phone beside it": beside the laptop, a thing of its size
+            chosen = next((k for k in fitting[:3] if _alike(figures[0], k)), chosen)
+        return [chosen]
 
     def _group(self, figures: list[str], clause: _Clause, said: str, word: str, rel: _Relation | None
                ) -> list[str]:
@@ -806,6 +820,15 @@ class _Ground:
 
 
 _SAID_BEFORE = re.compile(r"(?:\b(?:" + "|".join(sorted(DETERMINERS | _QUANTITY | {"of"})) + r")\s+)+$")
+
+
+ALIKE = 2.5  # sizes within this factor: things that stand side by side on the same surface
+
+
+def _alike(a: str, b: str) -> bool:
+    """Whether the lexicon knows both sizes and they are within ``ALIKE`` of each other."""
+    x, y = lexicon.lookup(a), lexicon.lookup(b)
+    return x is not None and y is not None and max(x.size_m, y.size_m) <= ALIKE * min(x.size_m, y.size_m)
 
 
 def _fits(figure: str, ground: str) -> bool:
