@@ -34,9 +34,9 @@ may name (``keys``: each upload's name as words) into ``Said`` records, one per 
   on the tray": not the tray; a way to face may be of the place's ground: "in front of the desk, facing it");
   never the figure itself, never a group of copies nor one of the figures joined by "and" in the clause before;
   "in it" prefers a container; beside (left of, near ...) it, found by recency, prefers a thing of the figure's
-  size among the last three ("the laptop on the desk and the phone beside it": the laptop). "them" and "both" are the group
-  named last (the copies of a count, figures or grounds joined by "and"), else the clause's subject and its
-  ground, else the last two objects named; "each" one ground copy per figure copy. A cue with its ground left out
+  size among the last three ("the laptop on the desk and the phone beside it": the laptop). "them" and "both" are
+  the group named last (the copies of a count, figures or grounds joined by "and"), else the clause's subject and
+  its ground, else the last two objects named; "each" one ground copy per figure copy. A cue with its ground left out
   ("a stool in front", "a metronome on top") is of the topic, else of the object most often a ground so far.
 
 Why no parser library: spaCy 3.8 is on the registry, but without a trained pipeline it has no parser, and its
