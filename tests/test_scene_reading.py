@@ -286,3 +286,66 @@ def test_flanking_and_the_other_side():
     got = steps("Next to the armchair stands a floor lamp, and a side table is on its other side.",
                 ["armchair", "floor lamp", "side table"])
     assert got == {"floor lamp": ("beside", ("armchair",), "floor"), "side table": ("beside", ("armchair",), "floor")}
+
+
+# One sentence in the style of each dev scene, with other objects and words: every object placed by its clause,
+# the base, the references (node -> relation, on).
+LIKE_THE_DEV_SET = [
+    ("Set the TV on the media console and the speaker on the console to its left, then push the armchair "
+     "up in front of the console, facing the TV.",
+     ["media console", "TV", "speaker", "armchair"], "media console",
+     {"TV": ("on", ("media console",)), "speaker": ("left", ("TV",)), "armchair": ("front", ("media console",))}),
+    ("Three baskets go under the bench and the umbrella stand next to them, with the coat rack behind the "
+     "bench.",
+     ["bench", "basket", "umbrella stand", "coat rack"], "bench",
+     {"basket_1": ("under", ("bench",)), "basket_2": ("under", ("bench",)), "basket_3": ("under", ("bench",)),
+      "umbrella stand": ("beside", ("basket_1", "basket_2")), "coat rack": ("behind", ("bench",))}),
+    ("Put two spoons in the jar and the whisk in the pot, then set the pot down next to the jar.",
+     ["jar", "spoon", "pot", "whisk"], "jar",
+     {"spoon_1": ("in", ("jar",)), "spoon_2": ("in", ("jar",)), "pot": ("beside", ("jar",)),
+      "whisk": ("in", ("pot",))}),
+    ("The bed faces the wardrobe, with a nightstand to the right of the bed and two pillows on it.",
+     ["wardrobe", "bed", "nightstand", "pillow"], "wardrobe",
+     {"bed": ("near+facing", ("wardrobe",)), "nightstand": ("right", ("bed",)), "pillow_1": ("on", ("bed",)),
+      "pillow_2": ("on", ("bed",))}),
+    ("Put the vase on the doily in the middle of the side table, and the basket under the table.",
+     ["side table", "doily", "vase", "basket"], "side table",
+     {"basket": ("under", ("side table",)), "doily": ("on", ("side table",)), "vase": ("on", ("doily",))}),
+    ("The desk sits in front of the window seat and the bookshelf next to the window seat; a globe and a "
+     "clock stand on the desk, and a pair of slippers is under the window seat.",
+     ["window seat", "desk", "bookshelf", "globe", "clock", "slipper"], "window seat",
+     {"desk": ("front", ("window seat",)), "bookshelf": ("beside", ("window seat",)), "globe": ("on", ("desk",)),
+      "clock": ("on", ("desk",)), "slipper_1": ("under", ("window seat",)), "slipper_2": ("under", ("window seat",))}),
+    ("The candle goes between the salt shaker and the pepper mill on the dining table.",
+     ["dining table", "salt shaker", "pepper mill", "candle"], "dining table",
+     {"salt shaker": ("on", ("dining table",)), "pepper mill": ("on", ("dining table",)),
+      "candle": ("between", ("salt shaker", "pepper mill"))}),
+    ("A picnic table with a cooler to its right and a plate on its top, and a ball under the table.",
+     ["picnic table", "cooler", "plate", "ball"], "picnic table",
+     {"cooler": ("right", ("picnic table",)), "plate": ("on", ("picnic table",)),
+      "ball": ("under", ("picnic table",))}),
+    ("Put the vase and the clock on the mantelpiece, and the armchair to the right of it.",
+     ["mantelpiece", "vase", "clock", "armchair"], "mantelpiece",
+     {"vase": ("on", ("mantelpiece",)), "clock": ("on", ("mantelpiece",)), "armchair": ("right", ("mantelpiece",))}),
+    ("A counter with a microwave on it and a stool in front; the fridge goes to the left of the counter, "
+     "with the trash can between them.",
+     ["counter", "microwave", "stool", "fridge", "trash can"], "counter",
+     {"microwave": ("on", ("counter",)), "stool": ("front", ("counter",)), "fridge": ("left", ("counter",)),
+      "trash can": ("between", ("fridge", "counter"))}),
+    ("Two bollards stand next to the bench with the bin between them.",
+     ["bench", "bollard", "bin"], "bench",
+     {"bollard_1": ("beside", ("bench",)), "bollard_2": ("beside", ("bench",)),
+      "bin": ("between", ("bollard_1", "bollard_2"))}),
+    ("The basket sits on top of the stool with three apples lying in it.",
+     ["stool", "basket", "apple"], "stool",
+     {"basket": ("on", ("stool",)), "apple_1": ("in", ("basket",)), "apple_2": ("in", ("basket",)),
+      "apple_3": ("in", ("basket",))}),
+]
+
+
+@pytest.mark.parametrize(("description", "names", "base", "expected"), LIKE_THE_DEV_SET,
+                         ids=[c[0][:40] for c in LIKE_THE_DEV_SET])
+def test_sentences_in_the_dev_sets_styles(description, names, base, expected):
+    plan = plan_of(description, names)
+    assert plan.base == base and not plan.warnings
+    assert {s.name: (s.relation, s.on) for s in plan.steps} == expected
