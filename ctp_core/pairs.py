@@ -31,6 +31,7 @@ import trimesh
 from ctp_core import orientation, render
 from ctp_core.errors import ConfigError
 from ctp_core.geometry import frames, sampling
+from ctp_core.geometry.pose import matrix_to_quaternion
 from ctp_core.losses import SurfaceIndex
 from ctp_core.orientation import canonical
 from ctp_core.reading.names import ground_names
@@ -120,6 +121,16 @@ class PreparedPair:
     # False where no convention gives a front (or a symmetric target): directional relations use the viewer's frame
     front_trusted: bool = True
     source_front: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))  # (3,) unit, source local
+    # the source keeps its own up (``keeps_up``): every pose is its upright frame turned about +Y only; why or why not
+    source_keeps_up: bool = False
+    source_up_why: str = ""
+
+    @cached_property
+    def source_up_quaternion(self) -> torch.Tensor:
+        """(4,) the source's upright turn (source local -> a frame where it stands, +Y up) as a unit quaternion:
+        what every pose of a source that keeps its up starts with (``pose.upright_twist``)."""
+        q = matrix_to_quaternion(self.source_upright.rotation)
+        return torch.as_tensor(q, dtype=torch.float32, device=self.source_vertices.device)
 
     @property
     def anchor(self) -> SurfaceIndex:
@@ -198,7 +209,7 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
                  device: str = "cpu", canonicalise: bool = True, judge: canonical.Judge | None = None,
                  on: str | Sequence[str] | None = None, target_up: canonical.Upright | None = None,
                  target_axes: orientation.Axes = orientation.FROM_FILE,
-                 source_axes: orientation.Axes = orientation.FROM_FILE) -> PreparedPair:
+                 source_axes: orientation.Axes = orientation.FROM_FILE, keep_up: bool = False) -> PreparedPair:
     """Normalise, orient and sample a pair once per run (everything later reuses it).
 
     Each object's up and front come from its file first (``orientation.orient`` by ``target_axes`` and
@@ -208,7 +219,8 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
     target's up is its base's (``base``); it gets ``samples`` samples per object; ``on`` names the object (or the
     objects: "between" has two grounds) the soft-ICP term attaches to. ``target_up``: the target's upright turn
     when it is known already (a stored result's, ``adjust``): a later look at the same scene must have the same up
-    as the run, which a judge may have chosen.
+    as the run, which a judge may have chosen. ``keep_up``: the source keeps its own up where it is clear
+    (``canonical.clear_up``; ``PreparedPair.source_keeps_up`` says whether it did and why).
     """
     whole, up_from = geometry(target), base(target)
     if target_up is None:
@@ -217,6 +229,7 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
         if not canonicalise:
             target_up.reason = "up: the file's +Y (the upright step is off)"
     source_up = orientation.orient(source, source_axes, seed=seed, role="source")
+    keeps, why = canonical.clear_up(source, source_up.up) if keep_up else (False, "")
     target_to_norm = frames.target_to_normalised(whole.vertices, target_up.rotation)
     source_to_local = frames.source_local(source.bounds, target_to_norm)
 
@@ -258,6 +271,8 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
         target_front=_unit(target_to_norm.apply_directions(target_up.front[None])[0]),
         front_trusted=target_up.front_trusted,
         source_front=_unit(np.asarray(source_up.front, dtype=np.float64)),
+        source_keeps_up=keeps,
+        source_up_why=why,
     )
 
 
