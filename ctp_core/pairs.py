@@ -124,6 +124,10 @@ class PreparedPair:
     # the source keeps its own up (``keeps_up``): every pose is its upright frame turned about +Y only; why or why not
     source_keeps_up: bool = False
     source_up_why: str = ""
+    # the level the named grounds stand at (normalised frame, +Y up: the lowest of their bottoms, never under the
+    # scene's floor); None: not a scene, or no ground named (``floor``)
+    ground_level: float | None = None
+    _scene_floor: float | None = None  # the base's bottom (normalised frame); None: the target's lowest point
 
     @cached_property
     def source_up_quaternion(self) -> torch.Tensor:
@@ -143,11 +147,19 @@ class PreparedPair:
         lo, hi = self.target_vertices.min(0).values, self.target_vertices.max(0).values
         return float((hi - lo).norm() / 2)
 
-    @cached_property
+    @property
     def floor(self) -> float:
-        """The height the target stands on (normalised frame, +Y up): its lowest point, every object of a scene.
-        What stands beside, under or leans on the target stands there too."""
-        return float(self.target_vertices[:, 1].min())
+        """The height the target stands on (normalised frame, +Y up): what stands beside, under or leans on the
+        target stands there too. Its lowest point for one mesh; in a scene with named grounds, the level the grounds
+        stand at (``ground_level``: a mug on a table stands at the table's top, and a cup next to it stands there,
+        not on the floor under the table); else the scene's floor (``scene_floor``)."""
+        return self.scene_floor if self.ground_level is None else self.ground_level
+
+    @cached_property
+    def scene_floor(self) -> float:
+        """The floor of the target (normalised frame): the bottom of its base (``base``: the object that stays put;
+        the mesh itself for one mesh). Nothing placed goes below it."""
+        return self._scene_floor if self._scene_floor is not None else float(self.target_vertices[:, 1].min())
 
     @cached_property
     def target_area(self) -> float:
@@ -248,6 +260,8 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
     index = lambda p, n: SurfaceIndex(as_tensor(target_to_norm.apply(p)),  # noqa: E731
                                      as_tensor(target_to_norm.apply_directions(n)))
     positions = [_position([name for name, _ in parts], n) for n in ground_names(on)]
+    bottoms = [float(target_to_norm.apply(np.asarray(m.vertices))[:, 1].min()) for _, m in parts]
+    ground_level = max(min(bottoms[i] for i in positions), bottoms[0]) if positions and len(parts) > 1 else None
     named = [index(*sampled[i]) for i in positions] if len(parts) > 1 else []
     attach = None if not named else named[0] if len(named) == 1 else SurfaceIndex(
         torch.cat([g.points for g in named]), torch.cat([g.normals for g in named]))
@@ -273,6 +287,8 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
         source_front=_unit(np.asarray(source_up.front, dtype=np.float64)),
         source_keeps_up=keeps,
         source_up_why=why,
+        ground_level=ground_level,
+        _scene_floor=bottoms[0],
     )
 
 
