@@ -128,6 +128,9 @@ class PreparedPair:
     # scene's floor); None: not a scene, or no ground named (``floor``)
     ground_level: float | None = None
     _scene_floor: float | None = None  # the base's bottom (normalised frame); None: the target's lowest point
+    # the floor is solid: the penetration term charges the source below ``scene_floor`` as inside it (a scene of
+    # placed objects, whose floor is its base's bottom); False for one mesh
+    solid_floor: bool = False
 
     @cached_property
     def source_up_quaternion(self) -> torch.Tensor:
@@ -260,6 +263,9 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
     index = lambda p, n: SurfaceIndex(as_tensor(target_to_norm.apply(p)),  # noqa: E731
                                      as_tensor(target_to_norm.apply_directions(n)))
     positions = [_position([name for name, _ in parts], n) for n in ground_names(on)]
+    front, trusted = target_up.front, target_up.front_trusted
+    if positions and positions[0] != 0 and isinstance(target, trimesh.Scene):
+        front, trusted = ground_front(target, parts[positions[0]][0], target_up.up, seed)
     bottoms = [float(target_to_norm.apply(np.asarray(m.vertices))[:, 1].min()) for _, m in parts]
     ground_level = max(min(bottoms[i] for i in positions), bottoms[0]) if positions and len(parts) > 1 else None
     named = [index(*sampled[i]) for i in positions] if len(parts) > 1 else []
@@ -282,14 +288,31 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
         target_outward=oriented,
         attach=attach,
         grounds=named if len(named) > 1 else [],
-        target_front=_unit(target_to_norm.apply_directions(target_up.front[None])[0]),
-        front_trusted=target_up.front_trusted,
+        target_front=_unit(target_to_norm.apply_directions(front[None])[0]),
+        front_trusted=trusted,
         source_front=_unit(np.asarray(source_up.front, dtype=np.float64)),
         source_keeps_up=keeps,
         source_up_why=why,
         ground_level=ground_level,
         _scene_floor=bottoms[0],
+        solid_floor=isinstance(target, trimesh.Scene),
     )
+
+
+def ground_front(target: trimesh.Scene, name: str, up: np.ndarray, seed: int) -> tuple[np.ndarray, bool]:
+    """The front of the placed object ``name`` in the target file frame (horizontal, unit) and whether it is
+    trusted: its own (``orientation.orient`` of its mesh in its own file frame: the glTF's +Z, its nodes' turn)
+    turned as its node places it, made square to ``up`` (the scene's, target file frame). A scene's up and front
+    are its base's; a directional relation to another of its objects ("to the left of the sofa" once the sofa is
+    turned to face the TV) is in that object's own frame."""
+    matrix, key = target.graph[name]
+    own = orientation.orient(target.geometry[key], seed=seed, role="target")
+    linear = np.asarray(matrix, dtype=np.float64)[:3, :3]
+    front = linear @ own.front
+    front = front - (front @ up) * up  # a front tipped toward the up keeps its horizontal part
+    if np.linalg.norm(front) < 1e-6:
+        return np.array([0.0, 0.0, 1.0]), False
+    return front / np.linalg.norm(front), own.front_trusted
 
 
 def _unit(vector: np.ndarray) -> np.ndarray:

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -160,7 +160,7 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
             where = f"steps.{index - 1}" + (f".{exc.field}" if exc.field else "")
             raise type(exc)(f"stage {index}/{len(steps)} ({step.name}): {exc.message}", code=exc.code,
                             field=where) from exc
-        result, kept = _keeping(placed, results, step, result, on)
+        result, kept = _keeping(placed, results, step, _on_floor(result, step.source, placed[0]), on)
         placed.append(_placed(step, result))
         results.append(StepResult(index, len(steps), step, on[0], result, on, kept))
     return Assembly(placed, results, {"total_s": round(time.perf_counter() - started, 3)}, judged(placed, results))
@@ -171,6 +171,21 @@ def _placed(step: Step, result: AlignResult) -> Placed:
     return Placed(step.name, step.source, frames.Similarity(result.source_to_target, frames.SOURCE_FILE, frames.SCENE))
 
 
+def _on_floor(result: AlignResult, source: trimesh.Trimesh, base: Placed) -> AlignResult:
+    """The run's answer raised onto the floor where it ends under it (the floor is the base's bottom: its file frame
+    is the scene frame): nothing placed goes below the floor. The search charges it as penetration (a mean over the
+    source's samples: a chair's leg tips sunk a centimetre cost it little), so the last of it is lifted here, straight
+    up, by its lowest vertex's depth."""
+    floor = float(base.mesh.bounds[0][1])
+    matrix = np.asarray(result.source_to_target, dtype=np.float64)
+    lowest = float(trimesh.transform_points(np.asarray(source.vertices), matrix)[:, 1].min())
+    if lowest >= floor:
+        return result
+    lifted = matrix.copy()
+    lifted[1, 3] += floor - lowest
+    return replace(result, source_to_target=lifted)
+
+
 def _keeping(placed: list[Placed], results: list[StepResult], step: Step, result: AlignResult, on: list[str]
              ) -> tuple[AlignResult, dict[str, Any] | None]:
     """The run's answer, or where it breaks an earlier relation (``_breaks``), the first of its alternatives that
@@ -179,7 +194,7 @@ def _keeping(placed: list[Placed], results: list[StepResult], step: Step, result
     if not answer_broke:
         return result, None
     for k in range(1, len(result.alternatives)):
-        other = result.alternative(k)
+        other = _on_floor(result.alternative(k), step.source, placed[0])
         if not _breaks([*placed, _placed(step, other)], results, other, on):
             return other, {"alternative": k, "broke": answer_broke}
     return result, {"alternative": 0, "broke": answer_broke}
@@ -214,5 +229,8 @@ def _verdict(objects: list[Placed], index: int, result: AlignResult, grounds: li
     from ctp_core.assembly import whole
 
     placed = objects[index]
-    return whole.verdict(scene_of([p for i, p in enumerate(objects) if i != index]), placed.name, placed.mesh,
-                         np.asarray(placed.to_scene.matrix), result, grounds)
+    others = [p for i, p in enumerate(objects) if i != index]
+    floor = float(objects[0].mesh.bounds[0][1])  # the base's bottom: its file frame is the scene frame
+    return whole.verdict(scene_of(others), placed.name, placed.mesh, np.asarray(placed.to_scene.matrix), result,
+                         grounds, placed=[(p.name, p.mesh, np.asarray(p.to_scene.matrix)) for p in others],
+                         floor=floor)

@@ -401,7 +401,7 @@ class _Plan:
                 message += f"; {holds} of {checked} hold '{self.relation}'"
             message += f"; {self.k} restarts" + (f" + {tiled} from the tile stage" if tiled else "")
             if self.say is not None:
-                message += f"; {self.gate.summary()}"
+                message += f"; {self.say.summary()}"
             counted = self.relation is not None and checked
             self.on_event(ProgressEvent(kind="step", phase=0, phases=self.phases, step=done, steps=self.total,
                                         restarts=restarts if restarts is not None else self.k + tiled,

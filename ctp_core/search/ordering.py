@@ -184,7 +184,7 @@ class GuideSay:
         lead = f"; the geometry's best leads by {self.lead:.1f} of its spreads" if self.lead >= 0.05 else ""
         return f"{spread}, {agree}{lead}" + {
             "geometry": ": no say, the geometry chose", "guide": ": the guide chose",
-            "both": f": the guide chose, the usual arrangement weighing {1 - self.override:.2f}"}[self.chooser]
+            "both": f": the guide chose, the usual arrangement weighing {1 - self.amount:.2f}"}[self.chooser]
 
     def to_dict(self) -> dict[str, float | str | None]:
         return {"spread": self.spread, "noise": self.noise, "spread_p": self.spread_p, "agree": self.agree,
