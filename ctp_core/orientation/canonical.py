@@ -140,9 +140,10 @@ def upright_rotation(mesh: trimesh.Trimesh, seed: int = 0, judge: Judge | None =
 def clear_up(mesh: trimesh.Trimesh, up: np.ndarray) -> tuple[bool, str]:
     """Whether ``up`` (file frame, unit) is clearly the way ``mesh`` stands, with the reason: ``up`` is one of its
     resting poses (within 8 degrees) and that pose stands on legs (a chair, a table, a stool), or on a real base
-    (``BASE_FILL``: a sofa, a cabinet, a box, a mug, a rug lying flat) scoring at least 1/20 of its best base
-    (``_KEEP_RATIO``, the margin ``upright_rotation`` keeps an authored pose by) that is not a top with legs on its
-    other side (a table upside down). The same evidence that keeps an upload as authored: what passes stands as it
+    (``BASE_FILL``: a sofa, a cabinet, a box, a mug) scoring at least 1/20 of its best base (``_KEEP_RATIO``, the
+    margin ``upright_rotation`` keeps an authored pose by), or the pose it most likely comes to rest in (a rug lying
+    flat: the score's height squared favours its edge), and not a top with legs on its other side (a table upside
+    down). The same evidence that keeps an upload as authored: what passes stands as it
     is set down, and a placement that tips it is wrong whatever relation it satisfies."""
     candidates = resting_poses(unit_size(mesh))
     at = [c for c in candidates if np.dot(c["up"], up) > _AUTHORED_COS]
@@ -155,7 +156,8 @@ def clear_up(mesh: trimesh.Trimesh, up: np.ndarray) -> tuple[bool, str]:
     if _legs_under(pose, legged) is not None:
         return False, "that up rests on a top with legs on its other side"
     bases = [c for c in candidates if c["fill"] >= BASE_FILL]
-    if pose["fill"] >= BASE_FILL and pose["score"] >= _KEEP_RATIO * bases[0]["score"]:
+    likeliest = max(candidates, key=lambda c: c["probability"])
+    if pose["fill"] >= BASE_FILL and (pose["score"] >= _KEEP_RATIO * bases[0]["score"] or pose is likeliest):
         return True, f"it rests on a base with that up ({pose['fill']:.0%} contact)"
     return False, "no real base or legs with that up"
 
