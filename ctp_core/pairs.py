@@ -244,7 +244,9 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
         if not canonicalise:
             target_up.reason = "up: the file's +Y (the upright step is off)"
     source_up = orientation.orient(source, source_axes, seed=seed, role="source")
-    keeps, why = canonical.clear_up(source, source_up.up) if keep_up else (False, "")
+    stated = source_axes.up not in ("file", "auto") or (
+        source_axes.up == "file" and orientation.file_format(source) in orientation.CONVENTIONS)
+    keeps, why = canonical.clear_up(source, source_up.up, stated) if keep_up else (False, "")
     target_to_norm = frames.target_to_normalised(whole.vertices, target_up.rotation)
     source_to_local = frames.source_local(source.bounds, target_to_norm)
 

@@ -188,21 +188,30 @@ def _on_floor(result: AlignResult, source: trimesh.Trimesh, base: Placed) -> Ali
 
 def _keeping(placed: list[Placed], results: list[StepResult], step: Step, result: AlignResult, on: list[str]
              ) -> tuple[AlignResult, dict[str, Any] | None]:
-    """The run's answer, or where it breaks an earlier relation (``_breaks``), the first of its alternatives that
-    breaks nothing (the answer where none does), with what the answer broke."""
-    answer_broke = _breaks([*placed, _placed(step, result)], results, result, on)
+    """The run's answer, or where it breaks an earlier relation or sinks (``_breaks``), the first of its
+    alternatives that breaks nothing; where none does, the one that breaks the fewest, then sinks the least (the
+    answer on a tie), with what the answer broke."""
+    answer_broke, answer_sunk = _breaks([*placed, _placed(step, result)], results, result, on)
     if not answer_broke:
         return result, None
+    best, best_key = 0, (len(answer_broke), answer_sunk)
+    tried = [result]
     for k in range(1, len(result.alternatives)):
         other = _on_floor(result.alternative(k), step.source, placed[0])
-        if not _breaks([*placed, _placed(step, other)], results, other, on):
+        tried.append(other)
+        broke, sunk = _breaks([*placed, _placed(step, other)], results, other, on)
+        if not broke:
             return other, {"alternative": k, "broke": answer_broke}
-    return result, {"alternative": 0, "broke": answer_broke}
+        if (len(broke), sunk) < best_key:
+            best, best_key = k, (len(broke), sunk)
+    return tried[best], {"alternative": best, "broke": answer_broke, "none_clean": True}
 
 
-def _breaks(objects: list[Placed], earlier: list[StepResult], result: AlignResult, on: list[str]) -> list[str]:
+def _breaks(objects: list[Placed], earlier: list[StepResult], result: AlignResult, on: list[str]
+            ) -> tuple[list[str], float]:
     """What the last of ``objects`` (placed by ``result``) breaks, in words: each earlier step whose relation held
-    and now fails or whose object now intersects another, and the new object where it intersects one."""
+    and now fails or whose object now intersects another, and the new object where it intersects one; and how deep
+    the new object sinks (millimetres into another object or below the floor, the deeper: ``sinking``)."""
     from ctp_core.assembly import whole
 
     found = []
@@ -212,7 +221,8 @@ def _breaks(objects: list[Placed], earlier: list[StepResult], result: AlignResul
             if not now["holds"] or now["intersects"]:
                 found.append(whole.said(now))
     new = _verdict(objects, len(objects) - 1, result, on)
-    return [*found, whole.said(new)] if new["intersects"] else found
+    sunk = max(new["penetration_mm"], new["below_floor_mm"])
+    return ([*found, whole.said(new)] if new["intersects"] else found), sunk
 
 
 def judged(objects: list[Placed], results: list[StepResult]) -> dict[str, Any]:
