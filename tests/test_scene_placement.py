@@ -262,3 +262,27 @@ def test_the_whole_scene_reports_millimetres_and_nothing_ends_under_the_floor():
         assert verdict["penetration_mm"] <= 1000 * sinking.SINK or verdict["intersects"]
     for name in ("mug", "chair"):
         assert placed(done, name).bounds[0][1] >= -1e-6
+
+
+def test_a_step_sunk_into_what_it_rests_on_with_no_clean_alternative_is_raised_out_of_it():
+    """A cushion whose every placement is 2 cm into the sofa's seat: none is clean, so the least bad is raised by
+    its measured depth and kept resting on the seat; the record says so."""
+    from dataclasses import replace
+
+    from ctp_core.assembly.assemble import _keeping, judged
+
+    cushion = gltf(box([0.4, 0.12, 0.4], [0, 0, 0]))
+    done = assemble(sofa(), [Step(cushion, "cushion", "a cushion on the sofa", on="sofa")], config(),
+                    base_name="sofa")
+    answer = done.results[0].result
+    sunk = np.array(answer.source_to_target)
+    sunk[1, 3] -= 0.02
+    entry = {"source_to_target": sunk.tolist(), "objective": answer.objective, "restart": answer.best_restart,
+             "relation": answer.relation}
+    bad = replace(answer, source_to_target=sunk, alternatives=[entry, entry])
+    kept, record = _keeping(done.objects[:1], [], done.results[0].step, bad, ["sofa"])
+    assert record["lifted"] and any("sinks" in b for b in record["broke"]), record
+    lifted = cushion.copy().apply_transform(kept.source_to_target)
+    assert lifted.bounds[0][1] == pytest.approx(placed(done, "cushion").bounds[0][1], abs=0.004)
+    moved = [done.objects[0], replace(done.objects[1], to_scene=replace(done.objects[1].to_scene, matrix=sunk))]
+    assert judged(moved, done.results)["relations"][0]["penetration_mm"] == pytest.approx(20.0, abs=3.0)

@@ -189,22 +189,46 @@ def _on_floor(result: AlignResult, source: trimesh.Trimesh, base: Placed) -> Ali
 def _keeping(placed: list[Placed], results: list[StepResult], step: Step, result: AlignResult, on: list[str]
              ) -> tuple[AlignResult, dict[str, Any] | None]:
     """The run's answer, or where it breaks an earlier relation or sinks (``_breaks``), the first of its
-    alternatives that breaks nothing; where none does, the one that breaks the fewest, then sinks the least (the
-    answer on a tie), with what the answer broke."""
+    alternatives that breaks nothing; where none does, the first (of ``LIFTED``, the least bad first) that breaks
+    nothing once raised straight up by how deep it sinks (``LIFTS`` times at most: a cushion sunk into a sofa's seat
+    then rests on it); else the one that breaks the fewest, then sinks the least (the answer on a tie), with what
+    the answer broke."""
     answer_broke, answer_sunk = _breaks([*placed, _placed(step, result)], results, result, on)
     if not answer_broke:
         return result, None
     best, best_key = 0, (len(answer_broke), answer_sunk)
-    tried = [result]
+    tried = [(result, answer_sunk)]
     for k in range(1, len(result.alternatives)):
         other = _on_floor(result.alternative(k), step.source, placed[0])
-        tried.append(other)
         broke, sunk = _breaks([*placed, _placed(step, other)], results, other, on)
+        tried.append((other, sunk))
         if not broke:
             return other, {"alternative": k, "broke": answer_broke}
         if (len(broke), sunk) < best_key:
             best, best_key = k, (len(broke), sunk)
-    return tried[best], {"alternative": best, "broke": answer_broke, "none_clean": True}
+    # none is clean: a placement sunk into what it rests on (a cushion into a sofa's seat) comes up out of it
+    for k in sorted(range(len(tried)), key=lambda i: (i != best, i))[:LIFTED]:
+        candidate, sunk = tried[k]
+        for _ in range(LIFTS):
+            if sunk <= 0:
+                break
+            candidate = _raised(candidate, sunk / 1000 + LIFT_CLEAR * step.source.scale)
+            broke, sunk = _breaks([*placed, _placed(step, candidate)], results, candidate, on)
+            if not broke:
+                return candidate, {"alternative": k, "broke": answer_broke, "lifted": True}
+    return tried[best][0], {"alternative": best, "broke": answer_broke, "none_clean": True}
+
+
+LIFTS = 2  # times a sunk placement is raised by its depth before it is given up
+LIFTED = 2  # placements raised: the least bad, then the answer (or the first alternative)
+LIFT_CLEAR = 1e-4  # of the source's size: what a raised placement clears its depth by
+
+
+def _raised(result: AlignResult, height: float) -> AlignResult:
+    """The run's placement moved straight up by ``height`` (scene units)."""
+    matrix = np.array(result.source_to_target, dtype=np.float64)
+    matrix[1, 3] += height
+    return replace(result, source_to_target=matrix)
 
 
 def _breaks(objects: list[Placed], earlier: list[StepResult], result: AlignResult, on: list[str]
