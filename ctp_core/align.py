@@ -97,6 +97,9 @@ class AlignResult:
     # the guide's say over the geometry as the search measured it (``ordering.Gate.to_dict``: spread, noise,
     # override, who chose, a summary line); None without a guide or a search
     guide_say: dict[str, Any] | None = None
+    # a scene step: whether the source kept its own up (turns about +Y only) and why (``canonical.clear_up``);
+    # None where nothing was asked (a single pair, or a relation that tips its figure)
+    keeps_up: dict[str, Any] | None = None
     # scale mode: the initial scale, where it came from (the priors' names and ratio, the geometry's constraint),
     # the ladder the search tried and the final scale (``scaling.ScalePlan.to_dict`` + "final"); None: rigid
     scaling: dict[str, Any] | None = None
@@ -356,6 +359,8 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
     )
     if run.scale is not None:
         answer.scaling = {**run.scale.to_dict(), "final": answer.scale}
+    if pair.source_up_why:
+        answer.keeps_up = {"kept": pair.source_keeps_up, "why": pair.source_up_why}
     verdict = predicates.verdict(pair, matrices[best], run.reading)
     answer.relation = verdict.to_dict() if verdict is not None else None
     gaps = contact.contact_gap(pair, outcome.poses)

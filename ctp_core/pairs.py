@@ -124,8 +124,8 @@ class PreparedPair:
     # the source keeps its own up (``keeps_up``): every pose is its upright frame turned about +Y only; why or why not
     source_keeps_up: bool = False
     source_up_why: str = ""
-    # the level the named grounds stand at (normalised frame, +Y up: the lowest of their bottoms, never under the
-    # scene's floor); None: not a scene, or no ground named (``floor``)
+    # the level the named grounds stand at (normalised frame, +Y up: what each rests on, ``support_level``, the
+    # lowest of them; never under the scene's floor); None: not a scene, or no ground named (``floor``)
     ground_level: float | None = None
     _scene_floor: float | None = None  # the base's bottom (normalised frame); None: the target's lowest point
     # the floor is solid: the penetration term charges the source below ``scene_floor`` as inside it (a scene of
@@ -268,8 +268,13 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
     front, trusted = target_up.front, target_up.front_trusted
     if positions and positions[0] != 0 and isinstance(target, trimesh.Scene):
         front, trusted = ground_front(target, parts[positions[0]][0], target_up.up, seed)
-    bottoms = [float(target_to_norm.apply(np.asarray(m.vertices))[:, 1].min()) for _, m in parts]
-    ground_level = max(min(bottoms[i] for i in positions), bottoms[0]) if positions and len(parts) > 1 else None
+    placed = [target_to_norm.apply(np.asarray(m.vertices)) for _, m in parts]
+    bottoms = [float(v[:, 1].min()) for v in placed]
+    ground_level = None
+    if positions and len(parts) > 1:
+        plain = [trimesh.Trimesh(m.vertices, m.faces, process=False) for _, m in parts]
+        ground_level = min(support_level(plain[i], [o for k, o in enumerate(plain) if k != i], target_to_norm,
+                                         target_up.up, bottoms[0]) for i in positions)
     named = [index(*sampled[i]) for i in positions] if len(parts) > 1 else []
     attach = None if not named else named[0] if len(named) == 1 else SurfaceIndex(
         torch.cat([g.points for g in named]), torch.cat([g.normals for g in named]))
@@ -299,6 +304,33 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
         _scene_floor=bottoms[0],
         solid_floor=isinstance(target, trimesh.Scene),
     )
+
+
+SUPPORT_BAND = 0.02  # of a ground's height: a surface this close above its bottom still carries it (sunk a little)
+SUPPORT_RAYS = 16  # the ground's lowest vertices a ray is cast down from, and its footprint's centre
+
+
+def support_level(ground: trimesh.Trimesh, others: list[trimesh.Trimesh], to_normalised: frames.Similarity,
+                  up: np.ndarray, floor: float) -> float:
+    """The level a ground stands at (normalised frame, +Y up): the highest surface of the other objects straight
+    under its lowest points (rays cast down ``up``, file frame, from ``SUPPORT_BAND`` of its height above them):
+    what it rests on (a table's top under a mug, a crate's floor under a bottle in it); the floor where nothing is
+    (a lamp hung over the floor: a box below it stands on the floor, not at the lamp's bottom). Never under
+    ``floor``."""
+    vertices = np.asarray(ground.vertices, dtype=np.float64)
+    height = vertices @ up
+    band = SUPPORT_BAND * float(np.ptp(height))
+    order = np.argsort(height)[:SUPPORT_RAYS]
+    lowest = vertices[order[height[order] <= height.min() + band]]  # its bottom, not a part higher up
+    centre = vertices.mean(0) - ((vertices.mean(0) @ up) - height.min()) * up
+    origins = np.vstack([lowest, centre]) + band * up
+    directions = np.tile(-up, (len(origins), 1))
+    level = floor
+    for other in others:
+        hits, _, _ = other.ray.intersects_location(origins, directions, multiple_hits=False)
+        if len(hits):
+            level = max(level, float(to_normalised.apply(hits)[:, 1].max()))
+    return level
 
 
 def ground_front(target: trimesh.Scene, name: str, up: np.ndarray, seed: int) -> tuple[np.ndarray, bool]:

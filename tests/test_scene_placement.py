@@ -20,6 +20,7 @@ from ctp_core.align import align
 from ctp_core.assembly import sinking
 from ctp_core.assembly.assemble import Step, assemble
 from ctp_core.config import AlignConfig
+from ctp_core.export import assembly_report
 from ctp_core.geometry.pose import matrix_to_quaternion, quaternion_to_matrix, random_quaternions, upright_twist
 from ctp_core.io import load_mesh
 from ctp_core.orientation import canonical
@@ -127,6 +128,8 @@ def test_a_chair_in_front_of_a_desk_stands_upright():
     chair_bounds = placed(done, "chair").bounds
     assert chair_bounds[0][2] > 0.25  # in front: past the desk's front face (z = 0.3), 5 cm of overlap allowed
     assert chair_bounds[0][1] >= -1e-6  # nothing under the floor (the desk's feet)
+    stage = assembly_report(done)["stages"][0]
+    assert stage["keeps_up"] == {"kept": True, "why": "it stands on 4 legs with that up"}, stage.get("keeps_up")
 
 
 def test_a_sofa_facing_a_tv_stand_stands_upright():
