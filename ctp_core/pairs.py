@@ -273,8 +273,9 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
     ground_level = None
     if positions and len(parts) > 1:
         plain = [trimesh.Trimesh(m.vertices, m.faces, process=False) for _, m in parts]
-        ground_level = min(support_level(plain[i], [o for k, o in enumerate(plain) if k != i], target_to_norm,
-                                         target_up.up, bottoms[0]) for i in positions)
+        ground_level = min(bottoms[0] if i == 0 else support_level(  # the base stands on the floor
+            plain[i], [o for k, o in enumerate(plain) if k != i], target_to_norm, target_up.up, bottoms[0])
+            for i in positions)
     named = [index(*sampled[i]) for i in positions] if len(parts) > 1 else []
     attach = None if not named else named[0] if len(named) == 1 else SurfaceIndex(
         torch.cat([g.points for g in named]), torch.cat([g.normals for g in named]))
@@ -313,7 +314,8 @@ SUPPORT_RAYS = 16  # the ground's lowest vertices a ray is cast down from, and i
 def support_level(ground: trimesh.Trimesh, others: list[trimesh.Trimesh], to_normalised: frames.Similarity,
                   up: np.ndarray, floor: float) -> float:
     """The level a ground stands at (normalised frame, +Y up): the highest surface of the other objects straight
-    under its lowest points (rays cast down ``up``, file frame, from ``SUPPORT_BAND`` of its height above them):
+    under its lowest points (rays cast down ``up``, file frame, from ``SUPPORT_BAND`` of its height above them,
+    level surfaces only; the base's level is the floor itself):
     what it rests on (a table's top under a mug, a crate's floor under a bottle in it); the floor where nothing is
     (a lamp hung over the floor: a box below it stands on the floor, not at the lamp's bottom). Never under
     ``floor``."""
@@ -327,9 +329,11 @@ def support_level(ground: trimesh.Trimesh, others: list[trimesh.Trimesh], to_nor
     directions = np.tile(-up, (len(origins), 1))
     level = floor
     for other in others:
-        hits, _, _ = other.ray.intersects_location(origins, directions, multiple_hits=False)
-        if len(hits):
-            level = max(level, float(to_normalised.apply(hits)[:, 1].max()))
+        hits, _, faces = other.ray.intersects_location(origins, directions, multiple_hits=True)
+        # a level surface (either winding: uploads' normals are not to be trusted), not a wall grazed on the way
+        level_face = np.abs(np.asarray(other.face_normals)[faces] @ up) > UP_FACING
+        if level_face.any():
+            level = max(level, float(to_normalised.apply(hits[level_face])[:, 1].max()))
     return level
 
 
