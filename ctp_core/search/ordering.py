@@ -170,7 +170,7 @@ class GuideSay:
     def chooser(self) -> str:
         """Who orders the poses where the relation holds: ``geometry`` (amount 0: the usual arrangement),
         ``guide`` (amount 1: the usual arrangement only breaks its ties) or ``both`` (between: the usual
-        arrangement weighs 1 - override, ``Scorer.preference_weight``)."""
+        arrangement weighs 1 - amount, ``Scorer.preference_weight``)."""
         return "geometry" if self.amount <= 0 else "guide" if self.amount >= 1 else "both"
 
     def summary(self) -> str:
@@ -221,7 +221,7 @@ def rank_key(terms: dict[str, torch.Tensor], phase: Phase, *, share: float, guid
              amount: float = 1.0, geometric: torch.Tensor | None = None, tie: float = 0.0) -> Key:
     """The relation first, then a value.
 
-    Without a guide (``guide_key`` None) or with ``override`` 0: tier 0 where the relation holds (``holding``),
+    Without a guide (``guide_key`` None) or with ``amount`` 0: tier 0 where the relation holds (``holding``),
     1 elsewhere; value the geometric objective (``geometric``, else ``combine`` without the guide's term). With a
     guide: tier 0 over the *pool*, the poses where the relation holds plus the ``ceil(amount x share x
     others)`` others that the guide ranks best (``share``: the search's ``min_share``, the principle of the
