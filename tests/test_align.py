@@ -116,7 +116,7 @@ def test_cli_align_end_to_end(tmp_path, meshes, capsys):
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert summary["out"] == str(out)
     scene = trimesh.load(out, force="scene")
-    assert len(scene.geometry) == 2
+    assert list(scene.geometry) == ["table", "cup"]
     data = json.loads(report.read_text())
     np.testing.assert_allclose(np.array(data["transform"]["matrix"]), summary_matrix(summary, data), atol=1e-9)
     assert data["prompt"] == "a cup on the table" and data["model"] == data["guide"] == "random:tiny"
@@ -133,7 +133,7 @@ def test_cli_align_end_to_end(tmp_path, meshes, capsys):
     written = [str(tmp_path / f"scene-{k}.glb") for k in range(2, min(3, len(alternatives)) + 1)]
     assert summary.get("alternatives", []) == written and len(alternatives) >= 2
     for k, path in enumerate(written, start=1):
-        placed = trimesh.load(path, force="scene").graph["source"][0]
+        placed = trimesh.load(path, force="scene").graph["cup"][0]  # named by the file's stem
         np.testing.assert_allclose(placed, alternatives[k]["transform"]["matrix"], atol=1e-6)
     assert list(data["extra"]) == ["best_restart", "on", "grounds", "guidance", "runtime", "clip_images",
                                    "phase_timings", "target_upright", "source_upright", "scale", "parts"]

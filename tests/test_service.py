@@ -375,11 +375,11 @@ def test_end_to_end_with_progress_events(api, worker):
     assert final["started_at"] <= final["finished_at"] and final["progress"]["fraction"] == 1.0
 
     scene = trimesh.load(io.BytesIO(api.client.get(links["result"]).content), file_type="glb")
-    assert set(scene.geometry) == {"target", "source"}
-    assert len(scene.geometry["target"].faces) == len(trimesh.creation.box().faces)
+    assert list(scene.geometry) == ["box", "ball"]  # named by the uploads' file names
+    assert len(scene.geometry["box"].faces) == len(trimesh.creation.box().faces)
     report = api.client.get(links["report"]).json()
     matrix = np.array(report["transform"]["matrix"])
-    np.testing.assert_allclose(scene.graph["source"][0], matrix, atol=1e-5)
+    np.testing.assert_allclose(scene.graph["ball"][0], matrix, atol=1e-5)
     preview = Image.open(io.BytesIO(api.client.get(links["preview"]).content))
     assert preview.format == "PNG" and preview.width > 0
     job = api.client.get(accepted.json()["links"]["self"]).json()
@@ -392,7 +392,7 @@ def test_end_to_end_with_progress_events(api, worker):
     assert api.client.get(links["result"], params={"alternative": 0}).content == api.client.get(links["result"]).content
     second = trimesh.load(io.BytesIO(api.client.get(links["result"], params={"alternative": 1}).content),
                           file_type="glb")
-    np.testing.assert_allclose(second.graph["source"][0], report["alternatives"][1]["transform"]["matrix"], atol=1e-5)
+    np.testing.assert_allclose(second.graph["ball"][0], report["alternatives"][1]["transform"]["matrix"], atol=1e-5)
     past = api.client.get(links["result"], params={"alternative": len(alternatives)})
     assert (past.status_code, past.json()["error"]["code"]) == (404, "alternative_not_found")
     wrong = api.client.get(links["report"], params={"alternative": 1})

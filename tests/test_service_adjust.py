@@ -252,7 +252,8 @@ def _chained_on_the_adjusted_scene(api, job_id: str, final: np.ndarray) -> tuple
     succeeded(api, chained.json()["id"])
     scene = trimesh.load(io.BytesIO(api.client.get(f"/jobs/{chained.json()['id']}/result.glb", headers=AUTH).content),
                          file_type="glb")
-    matrix, geometry = scene.graph["source"]  # the adjusted job's source, one of the chained job's target objects
+    assert set(scene.graph.nodes_geometry) == {"table", "ball", "cube"}  # the saved scene kept its names
+    matrix, geometry = scene.graph["ball"]  # the adjusted job's source, one of the chained job's target objects
     placed = scene.geometry[geometry].copy().apply_transform(matrix)
     assert np.allclose(placed.bounds, BALL.copy().apply_transform(final).bounds, atol=1e-5)
     return chained.json()["id"], scene
