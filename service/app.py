@@ -117,9 +117,13 @@ method of the path.
 **Queues.** Workers serve named queues (`CTP_QUEUES`, e.g. GPU and CPU workers); a job goes to the one its
 `queue` option names, default the deployment's (`CTP_DEFAULT_QUEUE`), and is judged by that queue's workers.
 
-**Downloads.** A job's `links.downloads` says how its result, report and preview answer: `stream` (200 with the
+**Downloads.** A job's `links.downloads` says how its result and preview answer: `stream` (200 with the
 file) or `redirect` (307 to a short-lived presigned URL of the object store; follow it without the
-Authorization header).
+Authorization header). `report.json` is always streamed.
+
+**Nothing of the machine.** No answer names the server's paths or cache folders: every job answer (`GET
+/jobs/{id}`, the list, the events, webhooks), `report.json` and every error say `<path>` where a worker wrote one
+(e.g. in `guide_why`, where it looked for a model's weights).
 
 **Webhooks, retries and waiting.** `webhook` (and `webhook_events`: `start`, `progress`, `completed`;
 default `completed`) on a submit POSTs the job's events there, signed as Standard Webhooks does (headers
