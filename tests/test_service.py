@@ -215,7 +215,7 @@ def test_inspect_reads_one_mesh_as_a_job_would(api):
     assert box["front"] == pytest.approx([0, 0, 1]) and "glTF" in box["reason"]
     for bad in ({"up": "upward"}, {"up": "+y", "front": "-y"}):
         refused = api.client.post("/inspect", files={"mesh": ("box.glb", BOX)}, data=bad)
-        assert (refused.status_code, refused.json()["error"]["code"]) == (422, "invalid_field"), refused.text
+        assert (refused.status_code, refused.json()["error"]["code"]) == (422, "invalid_option"), refused.text
 
     from service.client import Client, ServiceError
 
@@ -242,7 +242,7 @@ def test_inspect_refuses_what_a_job_would_with_the_same_code(api, case):
 def test_inspect_refuses_an_up_or_front_a_job_would_refuse(api, fields, field):
     answer = api.client.post("/inspect", files={"mesh": ("box.glb", BOX)}, data=fields)
     assert (answer.status_code, answer.json()["error"]["code"], answer.json()["error"]["field"]) == (
-        422, "invalid_field", field), answer.text
+        422, "invalid_option", field), answer.text
 
 
 @pytest.mark.parametrize("case", list(BAD_INPUTS))
