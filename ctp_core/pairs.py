@@ -122,6 +122,14 @@ class PreparedPair:
     source_front: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))  # (3,) unit, source local
 
     @property
+    def source_spin_axis(self) -> torch.Tensor | None:
+        """(3,) the source's up (source local frame) where it is rotationally symmetric about it, else None: two
+        poses whose turns differ by a spin about it look the same."""
+        if not self.source_upright.symmetric:
+            return None
+        return torch.as_tensor(_unit(self.source_upright.up), dtype=torch.float32, device=self.source_vertices.device)
+
+    @property
     def anchor(self) -> SurfaceIndex:
         """What the soft-ICP term pulls toward: the related object's samples, or the whole target's."""
         return self.index if self.attach is None else self.attach
