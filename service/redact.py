@@ -2,20 +2,23 @@
 
 Every text it hands out passes through ``redact``: filesystem paths (absolute, ``~``-relative, ``./``-relative) and
 cache folder names (``.cache/...``, the Hugging Face cache's ``models--...`` entries) become ``<path>``. That is
-``/readyz`` and every error answer (which may be read without a key), and every job answer (``GET /jobs/{id}``,
-the job list, its events and webhooks) and ``report.json`` (``redact_json``: each string in them, e.g. a
-worker's ``guide_why`` naming where it looked for a model's weights). Which model is missing and the command that
-gets it stay; where a worker looked for it is the operator's to read in the worker's log. The API's own routes
-(``POST /align``, ...) are not paths. Hostnames (worker names, the stores' addresses) and versions are never put in
-those texts.
+``/readyz`` and every error answer (which may be read without a key), and every job and adjustment answer (``GET
+/jobs/{id}``, the job list, its events and webhooks: ``redact_model``) and ``report.json`` (``redact_json``: each
+string in them, e.g. a worker's ``guide_why`` naming where it looked for a model's weights). Which model is
+missing and the command that gets it stay; where a worker looked for it is the operator's to read in the worker's
+log. The API's own routes (``POST /align``, ...) are not paths. Hostnames (worker names, the stores' addresses)
+and versions are never put in those texts.
 """
 
 from __future__ import annotations
 
 import re
-from typing import Any
+from typing import Any, TypeVar
+
+from pydantic import BaseModel
 
 PLACEHOLDER = "<path>"
+Model = TypeVar("Model", bound=BaseModel)
 _ROUTES = "align|assemble|jobs|inspect|readyz|healthz|docs|redoc|openapi|static"
 _SEGMENT = r"""[^\s'"`()\[\]{},;<>]"""
 _PATHS = re.compile(
@@ -39,3 +42,8 @@ def redact_json(value: Any) -> Any:
     if isinstance(value, list):
         return [redact_json(item) for item in value]
     return value
+
+
+def redact_model(model: Model) -> Model:
+    """``model`` (a job's progress or error, as a worker or the service wrote it) with ``redact_json`` applied."""
+    return type(model).model_validate(redact_json(model.model_dump(mode="json")))

@@ -6,7 +6,7 @@ service allows; an option left out takes the preset's value.
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Any, Literal, TypeVar
+from typing import Any, Literal
 
 from pydantic import BaseModel, Field, create_model
 
@@ -16,11 +16,9 @@ from ctp_core.errors import ConfigError
 from ctp_core.guide.selection import asks_for_guide
 from ctp_core.reading.counts import CHOICES, MAX_COPIES
 from service.jobs import Alternative, JobError, JobRecord, Progress, SavedAdjustment, Status
-from service.redact import redact, redact_json
+from service.redact import redact, redact_model
 from service.settings import QUEUE_NAME
 from service.webhooks import Event, Webhook
-
-Said = TypeVar("Said", Progress, JobError)  # what a worker or the service writes in a job record
 
 
 def build_config(options: dict[str, Any], *, default_model: str, allowed_models: list[str],
@@ -137,18 +135,13 @@ class JobOut(BaseModel):
     def of(cls, r: JobRecord) -> JobOut:
         """The job as every answer, event and webhook gives it: what the service and its workers wrote in it
         (progress, error, guide) without the machine's paths (``service.redact``)."""
-        return cls(id=r.id, status=r.status, progress=_said(r.progress), created_at=r.created_at,
-                   started_at=r.started_at, finished_at=r.finished_at, error=r.error and _said(r.error),
+        return cls(id=r.id, status=r.status, progress=redact_model(r.progress), created_at=r.created_at,
+                   started_at=r.started_at, finished_at=r.finished_at, error=r.error and redact_model(r.error),
                    cancel_requested=r.cancel_requested, attempts=r.attempts, prompt=r.prompt, image_guided=r.has_image,
                    webhook=r.webhook, queue=r.queue, target_job=r.target_job, stages=r.stage_count,
                    count=r.count, arrangement=r.arrangement,
                    alternatives=r.alternatives, adjusted=r.adjusted, guide=r.guide and redact(r.guide),
                    guide_why=r.guide_why and redact(r.guide_why), links=links(r.id, r.downloads))
-
-
-def _said(model: Said) -> Said:
-    """``model`` with ``service.redact`` applied to each of its texts."""
-    return type(model).model_validate(redact_json(model.model_dump(mode="json")))
 
 
 class WebhookPayload(BaseModel):
