@@ -8,6 +8,7 @@ LayoutVLM; the issue's examples; paraphrases) and overall; ``--errors`` lists th
 compared as a reading (``RelationReading.parse``: "facing" said alone is near+facing).
 
     python benchmarks/reading.py [--errors] [--phrases benchmarks/reading_heldout.csv]
+    python benchmarks/reading.py --phrases tests/reading_phrases_vsr.csv     # one phrase per VSR relation
 """
 
 from __future__ import annotations

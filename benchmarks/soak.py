@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import functools
 import json
 import os
 import random
@@ -46,6 +47,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import httpx
@@ -56,7 +58,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from ctp.cmd_serve import stop_processes  # noqa: E402
-from service.embedded import free_port  # noqa: E402
+from service.embedded import free_port, servers_using  # noqa: E402
 from tests.test_loader import wide_glb  # noqa: E402
 from tests.test_service import (  # noqa: E402
     deep_chain_glb,
@@ -172,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
     log = open(Path(tmp.name) / "serve.log", "wb")  # noqa: SIM115 - closed below
     serve = subprocess.Popen([sys.executable, "-m", "ctp", "serve", "--port", str(port), "--workers", "2"],
                              env=env, cwd=REPO, stdout=log, stderr=subprocess.STDOUT)
-    soak = _Soak(args, serve, url)
+    soak = _Soak(args, serve, url, Path(tmp.name) / "ctp" / "redis")
     try:
         soak.wait_ready()
         soak.run(rng)
@@ -249,8 +251,8 @@ class _Soak:
     workers and memory, and what they record (under ``lock``): the answers, the jobs and how they ended, the kills,
     the deaths, the RSS and status-latency samples."""
 
-    def __init__(self, args: argparse.Namespace, serve: subprocess.Popen, url: str):
-        self.args, self.serve, self.url = args, serve, url
+    def __init__(self, args: argparse.Namespace, serve: subprocess.Popen, url: str, redis_dir: Path):
+        self.args, self.serve, self.url, self.redis_dir = args, serve, url, redis_dir
         self.hostile = _hostile()
         self.counts: collections.Counter = collections.Counter()
         self.statuses: collections.Counter = collections.Counter()
@@ -291,10 +293,12 @@ class _Soak:
         args = self.args
         started = time.monotonic()
         threads = [threading.Thread(target=self.send, args=(args.seed + i,)) for i in range(args.clients)]
-        helpers = [threading.Thread(target=self.kill_loop, args=(args.kill_every, " worker", self.kills, rng.random()),
+        workers = functools.partial(_children_running, self.serve.pid, " worker")
+        servers = functools.partial(servers_using, self.redis_dir)  # the redis-server itself, not its keeper
+        helpers = [threading.Thread(target=self.kill_loop, args=(args.kill_every, workers, self.kills, rng.random()),
                                     daemon=True),
-                   threading.Thread(target=self.kill_loop, args=(args.redis_kill_every, "redis-server",
-                                                                 self.redis_kills, rng.random()), daemon=True),
+                   threading.Thread(target=self.kill_loop, args=(args.redis_kill_every, servers, self.redis_kills,
+                                                                 rng.random()), daemon=True),
                    *(threading.Thread(target=f, daemon=True) for f in (self.watch_rss, self.watch_workers))]
         for t in [*threads, *helpers]:
             t.start()
@@ -347,13 +351,14 @@ class _Soak:
                         self.valid.append(answer.json()["id"])
                         self.kind[self.valid[-1]] = name
 
-    def kill_loop(self, every: tuple[float, float], needle: str, done: list[float], seed: float) -> None:
-        """SIGKILL a child of serve running ``needle`` every ``every`` seconds (uniform)."""
+    def kill_loop(self, every: tuple[float, float], victims: Callable[[], list[int]], done: list[float],
+                  seed: float) -> None:
+        """SIGKILL one of ``victims()`` every ``every`` seconds (uniform)."""
         local = random.Random(seed)
         if max(every) <= 0:
             return
         while not self.stop.wait(local.uniform(*every)):
-            pids = _children_running(self.serve.pid, needle)
+            pids = victims()
             if pids:
                 victim = local.choice(pids)
                 self.killed.add(victim)

@@ -6,12 +6,13 @@ assemble`` places one (``ctp_core.assembly.describe``, then ``cmd_assemble.run_a
     ctp compose a.glb b.glb --names workbench toolbox --prompt "a toolbox on the workbench" --dry-run
 
 Objects are named by ``--names`` (one per file, in order), else by their file names (``paint_tin.glb``: "paint
-tin"); a description that names none of them matches them in the order it names its objects. The first object
-named as a ground stays put (its file frame is the scene frame); an object the description never places goes on
-the floor beside it, said on stderr. ``--dry-run`` prints the plan as ``ctp assemble --plan`` reads it (paths
-as given here; each step's reading in a comment) and exits: save it, edit it, run it with ``ctp assemble
---plan``. The GLB has one node per object (copies ``<name>_1`` ...), the report every stage and, under
-``whole``, every relation judged again on the final scene.
+tin"); a description that names none of them matches them in the order it names its objects. The object that
+supports others and is supported by none stays put (its file frame is the scene frame); an object the description
+never places goes on the floor beside it, said on stderr. ``--reader openai`` asks an OpenAI-compatible endpoint
+(``CTP_LLM_*``) for the plan, the rules on any failure. ``--dry-run`` prints the plan as ``ctp assemble --plan``
+reads it (paths as given here; each step's reading, what it stands on, its other relations and its warnings in
+comments) and exits: save it, edit it, run it with ``ctp assemble --plan``. The GLB has one node per object (copies
+``<name>_1`` ...), the report every stage and, under ``whole``, every relation judged again on the final scene.
 """
 
 from __future__ import annotations
@@ -24,7 +25,8 @@ import yaml
 
 from ctp.cmd_align import add_run_arguments, config_from_args
 from ctp.cmd_assemble import run_assembly
-from ctp_core.assembly.describe import ScenePlan, read_description
+from ctp_core.assembly.describe import ScenePlan
+from ctp_core.assembly.readers import READERS, get_reader
 from ctp_core.errors import ConfigError
 from ctp_core.reading import names
 
@@ -38,6 +40,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'on top")')
     parser.add_argument("--names", nargs="+", metavar="NAME", help="what each OBJECT is, in order, given after the "
                         "OBJECTs (default: the file names)")
+    parser.add_argument("--reader", choices=READERS, default=None, help="who reads the description: the rules "
+                        "(default, CTP_PLAN_READER) or an OpenAI-compatible endpoint (CTP_LLM_*; the rules on any "
+                        "failure)")
     parser.add_argument("--dry-run", action="store_true", help="print the plan (YAML, as ctp assemble --plan reads "
                         "it) and exit")
     add_run_arguments(parser)
@@ -51,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     if len(called) != len(args.objects):
         raise ConfigError(f"--names gives {len(called)} names for {len(args.objects)} objects: one each",
                           field="names")
-    plan = read_description(args.prompt, called)
+    plan = get_reader(args.reader).read(args.prompt, called)
     if args.dry_run:
         print(plan_yaml(plan, [str(path) for path in args.objects]), end="")
         return 0
@@ -67,8 +72,11 @@ def run(args: argparse.Namespace) -> int:
 def plan_yaml(plan: ScenePlan, files: list[str]) -> str:
     """The plan as ``ctp assemble --plan`` reads it, after comments with the description, what was assumed and
     each step's reading."""
-    lines = [f"# {plan.description}", *(f"# warning: {w}" for w in plan.warnings),
-             f"# {plan.base} stays put",
-             *(f"# {i}. {s.name}: {s.relation} {' and '.join(s.on)}" + (f" (said: '{s.said}')" if s.said else "")
-               for i, s in enumerate(plan.steps, start=1))]
+    lines = [f"# {plan.description}", f"# read by {plan.reader}", f"# {plan.base} stays put (on the floor)"]
+    for i, s in enumerate(plan.steps, start=1):
+        lines.append(f"# {i}. {s.name}: {s.relation} {' and '.join(s.on)}; stands on {s.support}"
+                     + (f" (said: '{s.said}')" if s.said else ""))
+        lines += [f"#    also {a.relation} {' and '.join(a.on)}" for a in s.also]
+        lines += [f"#    warning: {w}" for w in s.warnings]
+    lines += [f"# warning: {w}" for w in plan.warnings if not any(w in s.warnings for s in plan.steps)]
     return "\n".join(lines) + "\n" + yaml.safe_dump(plan.assembly_plan(files), sort_keys=False, width=110)

@@ -2,8 +2,10 @@
 
 ``ctp serve`` with no ``REDIS_URL`` is the one-command service: it starts an embedded redis-server
 (``service.embedded``) and one worker process next to the API, restarts either when it dies
-(``service.supervisor``), and stops them on exit. With
-``REDIS_URL`` it serves the API only and workers are started elsewhere with ``ctp worker``.
+(``service.supervisor``), and stops them on exit. Killed outright (SIGKILL, the out-of-memory killer), it takes
+them along: each holds its lifeline (``service.lifeline``), the workers hand their running jobs back and leave, and
+the embedded Redis stops after them. With ``REDIS_URL`` it serves the API only and workers are started elsewhere with
+``ctp worker``.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 
 STOP_GRACE_S = 10.0
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
@@ -29,6 +32,10 @@ def add_arguments(parser: argparse.ArgumentParser, name: str) -> None:
     else:
         parser.add_argument("--burst", action="store_true", help="quit once the queue is empty")
         parser.add_argument("--name", default=None, help="worker name (default: HOST.PID)")
+        parser.add_argument("--lifeline", type=int, default=None, metavar="FD",
+                            help="an inherited pipe's read end whose write end the starting process holds (`ctp "
+                            "serve` passes one): when that process is gone, however it ended, the worker stops as on "
+                            f"SIGTERM (its job handed back), and is killed if still there {STOP_GRACE_S:.0f} s later")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -38,6 +45,10 @@ def run(args: argparse.Namespace) -> int:
 
         listening = Stop().listening()
     with listening as stop:
+        if args.command == "worker" and args.lifeline is not None and not _follow(args.lifeline):
+            print(f"error: invalid_argument: --lifeline {args.lifeline} is not an open file descriptor",
+                  file=sys.stderr)
+            return 2
         from service.settings import Settings
 
         try:
@@ -46,6 +57,25 @@ def run(args: argparse.Namespace) -> int:
             print(f"error: invalid_setting: {exc}", file=sys.stderr)
             return 2
         return _serve(settings, args) if args.command == "serve" else _work(settings, args, stop)
+
+
+def _follow(fd: int) -> bool:
+    """Stop this worker as SIGTERM does once its parent is gone (the lifeline ``fd`` ends), and kill it if it has not
+    left ``STOP_GRACE_S`` later, as the parent's own stop would (``stop_processes``); False if ``fd`` is not open."""
+    from service import lifeline
+
+    try:
+        os.fstat(fd)
+    except OSError:
+        return False
+
+    def orphaned() -> None:
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(STOP_GRACE_S)
+        os.kill(os.getpid(), signal.SIGKILL)
+
+    lifeline.watch(fd, orphaned)
+    return True
 
 
 def _work(settings, args: argparse.Namespace, stop) -> int:
@@ -60,6 +90,7 @@ def _work(settings, args: argparse.Namespace, stop) -> int:
 def _serve(settings, args: argparse.Namespace) -> int:
     import uvicorn
 
+    from service import lifeline
     from service.app import create_app
     from service.embedded import EmbeddedRedis
     from service.supervisor import Supervisor
@@ -76,9 +107,10 @@ def _serve(settings, args: argparse.Namespace) -> int:
     if n_workers:
         _say_if_default_model_missing(settings.model)
     env = {**os.environ, "REDIS_URL": settings.redis_url}
+    fd = lifeline.child_end()  # the workers end with this process, however it ends (service.lifeline)
     # workers and the embedded Redis are restarted when they die (service.supervisor)
-    supervisor = Supervisor(lambda: subprocess.Popen([sys.executable, "-m", "ctp", "worker"], env=env), n_workers,
-                            embedded)
+    supervisor = Supervisor(lambda: subprocess.Popen([sys.executable, "-m", "ctp", "worker", "--lifeline", str(fd)],
+                                                     env=env, pass_fds=(fd,)), n_workers, embedded)
     where = f"embedded Redis in {embedded.data_dir}" if embedded else "REDIS_URL"
     print(f"ctp: serving on http://{args.host}:{args.port} ({where}, {n_workers} local worker(s))", file=sys.stderr)
     # uvicorn re-raises the SIGINT or SIGTERM it shut down on; make that an exception (exit status 128 + signal, no

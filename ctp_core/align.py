@@ -49,6 +49,12 @@ __all__ = ["AlignResult", "ProgressEvent", "align", "scale_ratio_warning"]
 # guide cannot see it, and its placement rests on the geometry (contact) alone. The run still ends, with a
 # ``scale_ratio_extreme`` warning.
 SIZE_RATIO_RANGE = (1e-3, 1e3)
+# Relations whose figure stands as it is set down: in a scene step, a source with a clear up
+# (``canonical.clear_up``) placed by one of these (or by no relation) keeps it (``PreparedPair.source_keeps_up``).
+# Not the others: leaning, lying, hanging, held, worn, wrapped, driven in, attached, and "in" (a rake goes into a
+# bucket any way it fits).
+STANDING = frozenset({"stand", "sit", "on", "under", "beside", "front", "behind", "left", "right", "above", "below",
+                      "near", "far", "facing", "facing_away", "aligned", "between"})
 
 
 @dataclass
@@ -91,6 +97,9 @@ class AlignResult:
     # the guide's say over the geometry as the search measured it (``ordering.Gate.to_dict``: spread, noise,
     # override, who chose, a summary line); None without a guide or a search
     guide_say: dict[str, Any] | None = None
+    # a scene step: whether the source kept its own up (turns about +Y only) and why (``canonical.clear_up``);
+    # None where nothing was asked (a single pair, or a relation that tips its figure)
+    keeps_up: dict[str, Any] | None = None
     # scale mode: the initial scale, where it came from (the priors' names and ratio, the geometry's constraint),
     # the ladder the search tried and the final scale (``scaling.ScalePlan.to_dict`` + "final"); None: rigid
     scaling: dict[str, Any] | None = None
@@ -193,7 +202,8 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
         base_name, base = (target_name, target) if isinstance(target, trimesh.Trimesh) else pairs.objects(target)[0]
         judge = upright_judge(base, guide, base_name, device=config.device)
     pair = pairs.prepare_pair(target, source, samples=config.loss.samples, seed=config.seed, device=config.device,
-                              canonicalise=config.upright, judge=judge, on=on, **orientation.configured(config))
+                              canonicalise=config.upright, judge=judge, on=on, keep_up=keeps_up(target, prior.reading),
+                              **orientation.configured(config))
     prepared = time.perf_counter()
 
     if goal is None and config.loss.lambda_clip > 0:
@@ -217,6 +227,15 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
     return Run(config, pair, prior, scorer, plan, goal, started,
                {"prepare_s": round(prepared - started, 3), "model_s": round(loaded - prepared, 3)}, names,
                scale=scales)
+
+
+def keeps_up(target: trimesh.Trimesh | trimesh.Scene, reading: RelationReading | None) -> bool:
+    """Whether a source placed on ``target`` by ``reading`` keeps its own up where it is clear: in a scene step
+    (a ``trimesh.Scene`` target: an assembly's or a set of copies'), by no relation or only by ``STANDING`` ones.
+    A single pair is left free (a pair's benchmarks turn sources over on purpose)."""
+    if not isinstance(target, trimesh.Scene):
+        return False
+    return reading is None or all(str(name) in STANDING for name in reading.relations)
 
 
 def ground_parts(run: Run) -> parts.Parts | None:
@@ -255,6 +274,9 @@ def propose(run: Run, init: np.ndarray | None = None) -> Proposals:
     proposed = proposals.propose(pair, config, weights, rungs, generator, init=given)
     # the relation's own poses, where the regions do not reach them ("lean")
     proposed = builders.extend(pair, config, proposed, run.reading, config.seed)
+    kept = proposals.standing(pair, proposed.poses).tolist() if pair.source_keeps_up else []
+    if kept:  # a builder's own turns (a stick stood on end) tip a source that keeps its up
+        proposed = proposed.select(kept)
     run.timings["propose_s"] = round(time.perf_counter() - t0, 3)
     return proposed
 
@@ -337,6 +359,8 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
     )
     if run.scale is not None:
         answer.scaling = {**run.scale.to_dict(), "final": answer.scale}
+    if pair.source_up_why:
+        answer.keeps_up = {"kept": pair.source_keeps_up, "why": pair.source_up_why}
     verdict = predicates.verdict(pair, matrices[best], run.reading)
     answer.relation = verdict.to_dict() if verdict is not None else None
     gaps = contact.contact_gap(pair, outcome.poses)

@@ -132,8 +132,9 @@ def report(result: AlignResult) -> dict:
 
 
 def assembly_report(assembly: Assembly) -> dict:
-    """The record of an assembly: every object's file -> scene transform, each stage's run (``kept``: where its
-    answer broke an earlier relation), every relation judged on the final scene (``whole``)."""
+    """The record of an assembly: every object's file -> scene transform, each stage's run (``keeps_up``: whether
+    its source kept its own up and why; ``kept``: where its answer broke an earlier relation), every relation judged
+    on the final scene (``whole``)."""
     first = assembly.results[0].result.config
     return {
         "frame": SCENE,
@@ -141,6 +142,7 @@ def assembly_report(assembly: Assembly) -> dict:
         "stages": [{"stage": s.index, "of": s.count, "name": s.step.name, "on": s.on,
                     "grounds": s.grounds or [s.on], "image_guided": s.step.image is not None,
                     **_run(s.result, transform(assembly.objects[s.index].to_scene)),
+                    **({"keeps_up": s.result.keeps_up} if s.result.keeps_up else {}),
                     **({"kept": s.kept} if s.kept else {})} for s in assembly.results],
         "whole": _jsonable(assembly.whole),
         "model": first.model, "seed": first.seed, "preset": first.preset,

@@ -92,6 +92,12 @@ def penetration(source: torch.Tensor, index: SurfaceIndex, sigma: float, margin:
     return torch.relu(signed_depth(source, index, sigma, k) - margin).mean(dim=1)
 
 
+def below_floor(source: torch.Tensor, floor: float, margin: float) -> torch.Tensor:
+    """(B,) the floor's share of the penetration: the mean over source samples (B, N, 3) of their depth under the
+    plane y = ``floor`` past ``margin``, as ``penetration`` charges depth inside the target."""
+    return torch.relu(floor - source[..., 1] - margin).mean(dim=1)
+
+
 def enclosed_penetration(points: torch.Tensor, inside: torch.Tensor, source: SurfaceIndex, scale: torch.Tensor,
                          area_ratio: torch.Tensor, sigma: float, margin: float, k: int) -> torch.Tensor:
     """(B,) the other half of the penetration: target samples inside the posed source.

@@ -138,6 +138,8 @@ class Scorer:
             if phase.lambda_pen > 0:
                 pen = losses.penetration(pts, self.pair.index, cfg.sigma_pen, cfg.c_pen, cfg.icp_neighbours)
                 pen = pen + self.enclosed(poses)
+                if self.pair.solid_floor:  # a scene's floor is solid: nothing placed goes under it
+                    pen = pen + losses.below_floor(pts, self.pair.scene_floor, cfg.c_pen)
             else:
                 pen = torch.zeros_like(icp)
             sunk = pen.detach() / source_diagonal(self.pair, poses).to(pen.device)

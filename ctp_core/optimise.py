@@ -22,7 +22,13 @@ from ctp_core.config import AlignConfig
 from ctp_core.config.schedule import Phase
 from ctp_core.contact import clearance, contact_gap, touch_limit
 from ctp_core.errors import Canceled
-from ctp_core.geometry.pose import Poses, matrix_to_quaternion, quaternion_product, random_quaternions
+from ctp_core.geometry.pose import (
+    Poses,
+    matrix_to_quaternion,
+    quaternion_product,
+    random_quaternions,
+    upright_twist,
+)
 from ctp_core.objective import Scorer, combine
 from ctp_core.pairs import PreparedPair
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
@@ -102,7 +108,7 @@ class Optimiser:
     # -- loop ----------------------------------------------------------------------------------------
     def run(self, start: Poses) -> Outcome:
         self.restarts = len(start)
-        best = start.detached()
+        best = self._standing(start.detached())
         phase_timings = []
         scores: dict[str, torch.Tensor] = {}
         answer = 0
@@ -157,6 +163,9 @@ class Optimiser:
                 loss.sum().backward()
             opt.step()
             self._perturb(opt)
+            if self.scorer.pair.source_keeps_up:
+                with torch.no_grad():
+                    q.copy_(upright_twist(q, self.scorer.pair.source_up_quaternion))
             sched.step()
             self.done += 1
             if (step + 1) % cfg.optim.eval_every == 0 or step + 1 == phase.steps:
@@ -170,6 +179,15 @@ class Optimiser:
                 readout = self._readout(best, scores, self.answer(best, scores, phase))
                 self._emit("step", phase, losses=losses_now, **readout)
         return best, scores
+
+    def _standing(self, poses: Poses) -> Poses:
+        """``poses`` with each rotation the nearest that keeps the source standing (``pose.upright_twist``) where the
+        source keeps its up (``PreparedPair.source_keeps_up``): its rotation is then a turn about +Y alone, before
+        the first step and after every one."""
+        pair = self.scorer.pair
+        if not pair.source_keeps_up:
+            return poses
+        return Poses(poses.t, upright_twist(poses.q, pair.source_up_quaternion.to(poses.q.device)), poses.log_s)
 
     def answer(self, best: Poses, scores: dict[str, torch.Tensor], phase: Phase) -> int:
         """The restart whose best pose is the answer (``ordering.select_answer`` under ``phase``'s weights and the

@@ -31,6 +31,7 @@ import trimesh
 from ctp_core import orientation, render
 from ctp_core.errors import ConfigError
 from ctp_core.geometry import frames, sampling
+from ctp_core.geometry.pose import matrix_to_quaternion
 from ctp_core.losses import SurfaceIndex
 from ctp_core.orientation import canonical
 from ctp_core.reading.names import ground_names
@@ -120,6 +121,23 @@ class PreparedPair:
     # False where no convention gives a front (or a symmetric target): directional relations use the viewer's frame
     front_trusted: bool = True
     source_front: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))  # (3,) unit, source local
+    # the source keeps its own up (``keeps_up``): every pose is its upright frame turned about +Y only; why or why not
+    source_keeps_up: bool = False
+    source_up_why: str = ""
+    # the level the named grounds stand at (normalised frame, +Y up: what each rests on, ``support_level``, the
+    # lowest of them; never under the scene's floor); None: not a scene, or no ground named (``floor``)
+    ground_level: float | None = None
+    _scene_floor: float | None = None  # the base's bottom (normalised frame); None: the target's lowest point
+    # the floor is solid: the penetration term charges the source below ``scene_floor`` as inside it (a scene of
+    # placed objects, whose floor is its base's bottom); False for one mesh
+    solid_floor: bool = False
+
+    @cached_property
+    def source_up_quaternion(self) -> torch.Tensor:
+        """(4,) the source's upright turn (source local -> a frame where it stands, +Y up) as a unit quaternion:
+        what every pose of a source that keeps its up starts with (``pose.upright_twist``)."""
+        q = matrix_to_quaternion(self.source_upright.rotation)
+        return torch.as_tensor(q, dtype=torch.float32, device=self.source_vertices.device)
 
     @property
     def source_spin_axis(self) -> torch.Tensor | None:
@@ -140,11 +158,19 @@ class PreparedPair:
         lo, hi = self.target_vertices.min(0).values, self.target_vertices.max(0).values
         return float((hi - lo).norm() / 2)
 
-    @cached_property
+    @property
     def floor(self) -> float:
-        """The height the target stands on (normalised frame, +Y up): its lowest point, every object of a scene.
-        What stands beside, under or leans on the target stands there too."""
-        return float(self.target_vertices[:, 1].min())
+        """The height the target stands on (normalised frame, +Y up): what stands beside, under or leans on the
+        target stands there too. Its lowest point for one mesh; in a scene with named grounds, the level the grounds
+        stand at (``ground_level``: a mug on a table stands at the table's top, and a cup next to it stands there,
+        not on the floor under the table); else the scene's floor (``scene_floor``)."""
+        return self.scene_floor if self.ground_level is None else self.ground_level
+
+    @cached_property
+    def scene_floor(self) -> float:
+        """The floor of the target (normalised frame): the bottom of its base (``base``: the object that stays put;
+        the mesh itself for one mesh). Nothing placed goes below it."""
+        return self._scene_floor if self._scene_floor is not None else float(self.target_vertices[:, 1].min())
 
     @cached_property
     def target_area(self) -> float:
@@ -206,7 +232,7 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
                  device: str = "cpu", canonicalise: bool = True, judge: canonical.Judge | None = None,
                  on: str | Sequence[str] | None = None, target_up: canonical.Upright | None = None,
                  target_axes: orientation.Axes = orientation.FROM_FILE,
-                 source_axes: orientation.Axes = orientation.FROM_FILE) -> PreparedPair:
+                 source_axes: orientation.Axes = orientation.FROM_FILE, keep_up: bool = False) -> PreparedPair:
     """Normalise, orient and sample a pair once per run (everything later reuses it).
 
     Each object's up and front come from its file first (``orientation.orient`` by ``target_axes`` and
@@ -216,7 +242,8 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
     target's up is its base's (``base``); it gets ``samples`` samples per object; ``on`` names the object (or the
     objects: "between" has two grounds) the soft-ICP term attaches to. ``target_up``: the target's upright turn
     when it is known already (a stored result's, ``adjust``): a later look at the same scene must have the same up
-    as the run, which a judge may have chosen.
+    as the run, which a judge may have chosen. ``keep_up``: the source keeps its own up where it is clear
+    (``canonical.clear_up``; ``PreparedPair.source_keeps_up`` says whether it did and why).
     """
     whole, up_from = geometry(target), base(target)
     if target_up is None:
@@ -225,6 +252,9 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
         if not canonicalise:
             target_up.reason = "up: the file's +Y (the upright step is off)"
     source_up = orientation.orient(source, source_axes, seed=seed, role="source")
+    stated = source_axes.up not in ("file", "auto") or (
+        source_axes.up == "file" and orientation.file_format(source) in orientation.CONVENTIONS)
+    keeps, why = canonical.clear_up(source, source_up.up, stated) if keep_up else (False, "")
     target_to_norm = frames.target_to_normalised(whole.vertices, target_up.rotation)
     source_to_local = frames.source_local(source.bounds, target_to_norm)
 
@@ -243,6 +273,17 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
     index = lambda p, n: SurfaceIndex(as_tensor(target_to_norm.apply(p)),  # noqa: E731
                                      as_tensor(target_to_norm.apply_directions(n)))
     positions = [_position([name for name, _ in parts], n) for n in ground_names(on)]
+    front, trusted = target_up.front, target_up.front_trusted
+    if positions and positions[0] != 0 and isinstance(target, trimesh.Scene):
+        front, trusted = ground_front(target, parts[positions[0]][0], target_up.up, seed)
+    placed = [target_to_norm.apply(np.asarray(m.vertices)) for _, m in parts]
+    bottoms = [float(v[:, 1].min()) for v in placed]
+    ground_level = None
+    if positions and len(parts) > 1:
+        plain = [trimesh.Trimesh(m.vertices, m.faces, process=False) for _, m in parts]
+        ground_level = min(bottoms[0] if i == 0 else support_level(  # the base stands on the floor
+            plain[i], [o for k, o in enumerate(plain) if k != i], target_to_norm, target_up.up, bottoms[0])
+            for i in positions)
     named = [index(*sampled[i]) for i in positions] if len(parts) > 1 else []
     attach = None if not named else named[0] if len(named) == 1 else SurfaceIndex(
         torch.cat([g.points for g in named]), torch.cat([g.normals for g in named]))
@@ -263,10 +304,61 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
         target_outward=oriented,
         attach=attach,
         grounds=named if len(named) > 1 else [],
-        target_front=_unit(target_to_norm.apply_directions(target_up.front[None])[0]),
-        front_trusted=target_up.front_trusted,
+        target_front=_unit(target_to_norm.apply_directions(front[None])[0]),
+        front_trusted=trusted,
         source_front=_unit(np.asarray(source_up.front, dtype=np.float64)),
+        source_keeps_up=keeps,
+        source_up_why=why,
+        ground_level=ground_level,
+        _scene_floor=bottoms[0],
+        solid_floor=isinstance(target, trimesh.Scene),
     )
+
+
+SUPPORT_BAND = 0.02  # of a ground's height: a surface this close above its bottom still carries it (sunk a little)
+SUPPORT_RAYS = 16  # the ground's lowest vertices a ray is cast down from, and its footprint's centre
+
+
+def support_level(ground: trimesh.Trimesh, others: list[trimesh.Trimesh], to_normalised: frames.Similarity,
+                  up: np.ndarray, floor: float) -> float:
+    """The level a ground stands at (normalised frame, +Y up): the highest surface of the other objects straight
+    under its lowest points (rays cast down ``up``, file frame, from ``SUPPORT_BAND`` of its height above them,
+    level surfaces only; the base's level is the floor itself):
+    what it rests on (a table's top under a mug, a crate's floor under a bottle in it); the floor where nothing is
+    (a lamp hung over the floor: a box below it stands on the floor, not at the lamp's bottom). Never under
+    ``floor``."""
+    vertices = np.asarray(ground.vertices, dtype=np.float64)
+    height = vertices @ up
+    band = SUPPORT_BAND * float(np.ptp(height))
+    order = np.argsort(height)[:SUPPORT_RAYS]
+    lowest = vertices[order[height[order] <= height.min() + band]]  # its bottom, not a part higher up
+    centre = vertices.mean(0) - ((vertices.mean(0) @ up) - height.min()) * up
+    origins = np.vstack([lowest, centre]) + band * up
+    directions = np.tile(-up, (len(origins), 1))
+    level = floor
+    for other in others:
+        hits, _, faces = other.ray.intersects_location(origins, directions, multiple_hits=True)
+        # a level surface (either winding: uploads' normals are not to be trusted), not a wall grazed on the way
+        level_face = np.abs(np.asarray(other.face_normals)[faces] @ up) > UP_FACING
+        if level_face.any():
+            level = max(level, float(to_normalised.apply(hits[level_face])[:, 1].max()))
+    return level
+
+
+def ground_front(target: trimesh.Scene, name: str, up: np.ndarray, seed: int) -> tuple[np.ndarray, bool]:
+    """The front of the placed object ``name`` in the target file frame (horizontal, unit) and whether it is
+    trusted: its own (``orientation.orient`` of its mesh in its own file frame: the glTF's +Z, its nodes' turn)
+    turned as its node places it, made square to ``up`` (the scene's, target file frame). A scene's up and front
+    are its base's; a directional relation to another of its objects ("to the left of the sofa" once the sofa is
+    turned to face the TV) is in that object's own frame."""
+    matrix, key = target.graph[name]
+    own = orientation.orient(target.geometry[key], seed=seed, role="target")
+    linear = np.asarray(matrix, dtype=np.float64)[:3, :3]
+    front = linear @ own.front
+    front = front - (front @ up) * up  # a front tipped toward the up keeps its horizontal part
+    if np.linalg.norm(front) < 1e-6:
+        return np.array([0.0, 0.0, 1.0]), False
+    return front / np.linalg.norm(front), own.front_trusted
 
 
 def _unit(vector: np.ndarray) -> np.ndarray:

@@ -250,8 +250,7 @@ class Deployment:
             self.processes[slot].wait()
             self.start_worker(slot)
         elif kind == "redis":
-            self.redis.process.kill()
-            self.redis.process.wait()
+            self.redis.kill()
             time.sleep(1.0)  # ctp serve's supervisor: the first back-off
             self.redis.start()
         elif kind == "api":

@@ -1,6 +1,12 @@
 """The rules provider reads the directional vocabulary: every phrase of ``reading_phrases.csv`` (wordings of
-SpatialSense, Rel3D, Sr3D, Holodeck and LayoutVLM, the issue's examples and paraphrases) gets its expected relation,
-figure and side (``benchmarks/reading.py`` prints the same as an accuracy table)."""
+SpatialSense, Rel3D, Sr3D, Holodeck and LayoutVLM, the issue's examples and paraphrases) and of
+``reading_phrases_vsr.csv`` (one phrase per relation of the Visual Spatial Reasoning dataset that says where an object
+goes, its VSR relation in the ``vsr`` column) gets its expected relation, figure and side (``benchmarks/reading.py
+[--phrases tests/reading_phrases_vsr.csv]`` prints the same as an accuracy table).
+
+VSR's 66 relations not in the second list say no place to put an object in a scene: motion ("off", "past", "down",
+"deep down", "up", "from", "to", "down from", "across"), parts and makeup ("has as a part", "part of", "consists of",
+"with"), "perpendicular to", "beyond", "out of", "meeting", "at" said alone."""
 
 from __future__ import annotations
 
@@ -15,6 +21,7 @@ from ctp_core.reading import records
 from ctp_core.reading.relation import RelationReading
 
 ROWS = list(csv.DictReader((Path(__file__).parent / "reading_phrases.csv").open()))
+VSR = list(csv.DictReader((Path(__file__).parent / "reading_phrases_vsr.csv").open()))
 
 
 def test_the_phrase_list_covers_every_new_relation_from_each_vocabulary():
@@ -25,7 +32,11 @@ def test_the_phrase_list_covers_every_new_relation_from_each_vocabulary():
     assert origins == {r["origin"] for r in ROWS}
 
 
-@pytest.mark.parametrize("row", ROWS, ids=[row["prompt"] for row in ROWS])
+def test_the_vsr_list_has_one_phrase_per_placing_relation_of_vsr():
+    assert len(VSR) >= 50 and len({row["vsr"] for row in VSR}) == len(VSR) and {r["origin"] for r in VSR} == {"vsr"}
+
+
+@pytest.mark.parametrize("row", ROWS + VSR, ids=[row["prompt"] for row in ROWS + VSR])
 def test_the_reader_reads_the_relation_its_figure_and_its_side(row):
     prior = get_provider("rules").estimate(row["target"], row["source"], row["prompt"])
     reading = prior.reading

@@ -34,6 +34,8 @@ def test_read_a_plan_correct_a_step_and_place_the_scene(api, worker, browser, tm
     wait_for(lambda: len(rows()) == 2, 10, "the plan")
     assert find(By.ID, "scene-plan").text.startswith("workbench stays put")
     assert [r.find_element(By.CLASS_NAME, "step-name").text for r in rows()] == ["toolbox (on)", "stool (left)"]
+    assert [r.find_element(By.CLASS_NAME, "step-support").text for r in rows()] == [
+        "stands on workbench", "stands on floor"]  # each step's support
     corrected = rows()[1].find_element(By.CLASS_NAME, "step-prompt")  # the person moves the stool to the right
     corrected.clear()
     corrected.send_keys("a stool to the right of the workbench")

@@ -225,8 +225,7 @@ def test_redis_sigkill_mid_job_loses_nothing(tmp_path):
         wait_stepping(api, running)
         queued = submit(api).json()["id"]
         time.sleep(1.2)  # appendfsync everysec: the submission is on disk
-        server.process.kill()
-        server.process.wait()
+        server.kill()
         time.sleep(1.0)
         server.start()
         for job_id in (running, queued):
@@ -283,8 +282,7 @@ def test_a_worker_whose_redis_stays_gone_exits_1_without_a_traceback(tmp_path):
     worker = Worker(env, tmp_path / "worker.log")
     try:
         wait_ready(api)
-        server.process.kill()
-        server.process.wait()
+        server.kill()
         assert worker.process.wait(timeout=60) == 1
     finally:
         worker.stop()

@@ -36,6 +36,21 @@ def test_a_description_reads_into_a_plan_without_a_job(api):
     assert plan["base"] == "workbench" and plan["warnings"] == []
     assert [(s["name"], s["relation"], s["on"]) for s in plan["steps"]] == [
         ("toolbox", "on", ["workbench"]), ("stool", "left", ["workbench"])]
+    assert [s["support"] for s in plan["steps"]] == ["workbench", "floor"] and plan["reader"] == "rules"
+
+
+def test_the_plan_read_shows_supports_other_relations_and_warnings_on_their_steps(api):
+    answer = api.client.post("/plans/read", json={
+        "prompt": "the mug on the tray in the middle of the workbench, and the stool next to it",
+        "names": ["mug", "tray", "workbench", "stool", "lamp"]}, headers=ALPHA)
+    assert answer.status_code == 200, answer.text
+    plan = answer.json()
+    assert plan["base"] == "workbench" and plan["base_support"] == "floor"  # what supports the others stays put
+    steps = {s["name"]: s for s in plan["steps"]}
+    assert (steps["tray"]["on"], steps["tray"]["support"]) == (["workbench"], "workbench")
+    assert (steps["mug"]["on"], steps["mug"]["support"]) == (["tray"], "tray")
+    assert steps["lamp"]["floor"] and steps["lamp"]["warnings"] == plan["warnings"] == [
+        "the lamp is not named in the description: on the floor beside the workbench"]
 
 
 @pytest.mark.parametrize(("body", "status", "code"), [
@@ -74,7 +89,7 @@ def test_a_described_scene_is_one_job_with_stage_progress(api, worker, parts, tm
                 events.append(json.loads(line.removeprefix("data: ")))
     assert events[-1]["status"] == "succeeded", events[-1]
     messages = [e["progress"]["message"] for e in events]
-    assert any(m.startswith('stage 2/2: "a stool to its left"') for m in messages), messages
+    assert any(m.startswith('stage 2/2: "a stool to the left of the workbench"') for m in messages), messages
     whole = api.client.get(f"/jobs/{job_id}/report.json", headers=ALPHA).json()["whole"]
     assert [(r["name"], r["relation"], r["holds"]) for r in whole["relations"]] == [
         ("toolbox", "on", True), ("stool", "left", True)]

@@ -17,7 +17,7 @@ import pytest
 
 from ctp.cli import main
 from service.client import Client
-from service.embedded import free_port
+from service.embedded import free_port, servers_using
 from tests.conftest import REPO, service_env, wait_for
 from tests.test_loader import wide_glb
 from tests.test_service import BALL, BOX, FAST
@@ -33,6 +33,14 @@ def children(pid: int) -> list[int]:
             continue
         if int(fields[1]) == pid:
             found.append(int(stat.parent.name))
+    return found
+
+
+def descendants(pid: int) -> list[int]:
+    """Every process under ``pid``: children, theirs, and so on (Linux /proc)."""
+    found = children(pid)
+    for child in list(found):
+        found += descendants(child)
     return found
 
 
@@ -80,8 +88,9 @@ def test_one_command_service_and_clean_stop(tmp_path):
                     return False
 
             wait_for(ready, 120, "ctp serve to be ready", interval_s=0.5)
-            started = children(serve.pid)
-            assert len(started) == 2  # redis-server and one worker
+            assert len(children(serve.pid)) == 2  # the embedded Redis's keeper and one worker
+            started = descendants(serve.pid)
+            assert len(servers_using(tmp_path / "cache" / "ctp" / "redis")) == 1
             assert (tmp_path / "cache" / "ctp" / "redis" / "appendonly.aof").exists()
             job = client.submit(("box.glb", BOX), ("ball.glb", BALL), "a ball on top of a box", options=FAST)
             assert client.wait(job["id"], timeout_s=120)["status"] == "succeeded"
@@ -152,10 +161,11 @@ def test_embedded_service_heals_a_killed_worker_and_redis(tmp_path):
             wait_for(lambda: client.status(busy["id"])["status"] == "running", 60, "the long job to start")
             assert client.status(queued["id"])["status"] == "queued"
             time.sleep(1.5)  # appendfsync everysec: the submission is on disk
-            redis_pid = _child(serve.pid, "redis-server")
+            folder = tmp_path / "cache" / "ctp" / "redis"
+            [redis_pid] = servers_using(folder)
             os.kill(redis_pid, signal.SIGKILL)
-            wait_for(lambda: (p := _child(serve.pid, "redis-server")) not in (None, redis_pid) and p, 30,
-                     "redis-server to be restarted")
+            wait_for(lambda: (p := servers_using(folder)) and p != [redis_pid], 30, "redis-server to be restarted")
+            assert len(servers_using(folder)) == 1
 
             def answered(job_id):
                 try:
@@ -187,7 +197,7 @@ def test_embedded_service_heals_a_killed_worker_and_redis(tmp_path):
     finally:
         if serve.poll() is None:
             serve.kill()
-        for pid in children(serve.pid):
+        for pid in descendants(serve.pid):
             with contextlib.suppress(OSError):
                 os.kill(pid, signal.SIGKILL)
         log.close()
@@ -195,8 +205,8 @@ def test_embedded_service_heals_a_killed_worker_and_redis(tmp_path):
     assert "supervisor: worker 1 restarted" in text and "supervisor: redis-server restarted" in text
 
 
-def _serve(env: dict[str, str], port: int, log, **popen) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "ctp", "serve", "--port", str(port)], env=env, cwd=REPO,
+def _serve(env: dict[str, str], port: int, log, *args: str, **popen) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "ctp", "serve", "--port", str(port), *args], env=env, cwd=REPO,
                             stdout=log, stderr=subprocess.STDOUT, **popen)
 
 
@@ -223,7 +233,7 @@ def test_ctrl_c_drains_and_loses_no_job(tmp_path):
     try:
         with Client(f"http://127.0.0.1:{port}") as client:
             wait_for(lambda: (r := _readyz(client)) and r["status"] == "ready", 120, "ctp serve to be ready", 0.5)
-            started = children(serve.pid)
+            started = descendants(serve.pid)
             running = client.submit(("box.glb", BOX), ("ball.glb", BALL), "a ball on a box",
                                     options={**FAST, "steps": 40})
             waiting = client.submit(("box.glb", BOX), ("ball.glb", BALL), "a ball on top of a box", options=FAST)
@@ -243,7 +253,7 @@ def test_ctrl_c_drains_and_loses_no_job(tmp_path):
             for job in (running, waiting):
                 final = client.wait(job["id"], timeout_s=240)
                 assert (final["status"], final["attempts"]) == ("succeeded", 1), final
-            started = children(serve.pid)
+            started = descendants(serve.pid)
         _stop(serve, started)
     finally:
         _kill_left(serve, started, log)

@@ -29,13 +29,14 @@ FAST = {"preset": "test", "model": "random:tiny"}
 ALPHA, BETA = ({"Authorization": f"Bearer {k}"} for k in ("alpha", "beta"))
 
 
-def verify(secret: str, headers, body: bytes) -> dict:
+def verify(secret: str, headers, body: bytes, received_at: float) -> dict:
     """What a receiver does (docs/service.md): HMAC-SHA256 of "{id}.{timestamp}.{body}" with the base64-decoded
-    secret, compared with each "v1,<base64>" of the signature header; a stale timestamp is refused."""
+    secret, compared with each "v1,<base64>" of the signature header; a timestamp stale when it was received (at
+    ``received_at``) is refused."""
     key = base64.b64decode(secret.removeprefix("whsec_"))
     signed = f"{headers['webhook-id']}.{headers['webhook-timestamp']}.".encode() + body
     expected = base64.b64encode(hmac.new(key, signed, hashlib.sha256).digest()).decode()
-    if abs(time.time() - int(headers["webhook-timestamp"])) > 300:
+    if abs(received_at - int(headers["webhook-timestamp"])) > 300:
         raise ValueError("stale webhook")
     if not any(hmac.compare_digest(expected, sig.partition(",")[2]) for sig in headers["webhook-signature"].split()):
         raise ValueError("bad signature")
@@ -89,7 +90,7 @@ class Receiver:
             seen = list(self.deliveries)
         out = []
         for d in seen:
-            payload = verify(SECRET, d["headers"], d["body"])
+            payload = verify(SECRET, d["headers"], d["body"], d["at"])
             if payload["data"]["id"] == job_id and (path is None or d["path"] == path):
                 out.append({**d, "payload": payload})
         return out

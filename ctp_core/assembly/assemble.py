@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -160,7 +160,7 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
             where = f"steps.{index - 1}" + (f".{exc.field}" if exc.field else "")
             raise type(exc)(f"stage {index}/{len(steps)} ({step.name}): {exc.message}", code=exc.code,
                             field=where) from exc
-        result, kept = _keeping(placed, results, step, result, on)
+        result, kept = _keeping(placed, results, step, _on_floor(result, step.source, placed[0]), on)
         placed.append(_placed(step, result))
         results.append(StepResult(index, len(steps), step, on[0], result, on, kept))
     return Assembly(placed, results, {"total_s": round(time.perf_counter() - started, 3)}, judged(placed, results))
@@ -171,23 +171,71 @@ def _placed(step: Step, result: AlignResult) -> Placed:
     return Placed(step.name, step.source, frames.Similarity(result.source_to_target, frames.SOURCE_FILE, frames.SCENE))
 
 
+def _on_floor(result: AlignResult, source: trimesh.Trimesh, base: Placed) -> AlignResult:
+    """The run's answer raised onto the floor where it ends under it (the floor is the base's bottom: its file frame
+    is the scene frame): nothing placed goes below the floor. The search charges it as penetration (a mean over the
+    source's samples: a chair's leg tips sunk a centimetre cost it little), so the last of it is lifted here, straight
+    up, by its lowest vertex's depth."""
+    floor = float(base.mesh.bounds[0][1])
+    matrix = np.asarray(result.source_to_target, dtype=np.float64)
+    lowest = float(trimesh.transform_points(np.asarray(source.vertices), matrix)[:, 1].min())
+    if lowest >= floor:
+        return result
+    lifted = matrix.copy()
+    lifted[1, 3] += floor - lowest
+    return replace(result, source_to_target=lifted)
+
+
 def _keeping(placed: list[Placed], results: list[StepResult], step: Step, result: AlignResult, on: list[str]
              ) -> tuple[AlignResult, dict[str, Any] | None]:
-    """The run's answer, or where it breaks an earlier relation (``_breaks``), the first of its alternatives that
-    breaks nothing (the answer where none does), with what the answer broke."""
-    answer_broke = _breaks([*placed, _placed(step, result)], results, result, on)
+    """The run's answer, or where it breaks an earlier relation or sinks (``_breaks``), the first of its
+    alternatives that breaks nothing; where none does, the first (of ``LIFTED``, the least bad first) that breaks
+    nothing once raised straight up by how deep it sinks (``LIFTS`` times at most: a cushion sunk into a sofa's seat
+    then rests on it); else the one that breaks the fewest, then sinks the least (the answer on a tie), with what
+    the answer broke."""
+    answer_broke, answer_sunk = _breaks([*placed, _placed(step, result)], results, result, on)
     if not answer_broke:
         return result, None
+    best, best_key = 0, (len(answer_broke), answer_sunk)
+    tried = [(result, answer_sunk)]
     for k in range(1, len(result.alternatives)):
-        other = result.alternative(k)
-        if not _breaks([*placed, _placed(step, other)], results, other, on):
+        other = _on_floor(result.alternative(k), step.source, placed[0])
+        broke, sunk = _breaks([*placed, _placed(step, other)], results, other, on)
+        tried.append((other, sunk))
+        if not broke:
             return other, {"alternative": k, "broke": answer_broke}
-    return result, {"alternative": 0, "broke": answer_broke}
+        if (len(broke), sunk) < best_key:
+            best, best_key = k, (len(broke), sunk)
+    # none is clean: a placement sunk into what it rests on (a cushion into a sofa's seat) comes up out of it
+    for k in sorted(range(len(tried)), key=lambda i: (i != best, i))[:LIFTED]:
+        candidate, sunk = tried[k]
+        for _ in range(LIFTS):
+            if sunk <= 0:
+                break
+            candidate = _raised(candidate, sunk / 1000 + LIFT_CLEAR * step.source.scale)
+            broke, sunk = _breaks([*placed, _placed(step, candidate)], results, candidate, on)
+            if not broke:
+                return candidate, {"alternative": k, "broke": answer_broke, "lifted": True}
+    return tried[best][0], {"alternative": best, "broke": answer_broke, "none_clean": True}
 
 
-def _breaks(objects: list[Placed], earlier: list[StepResult], result: AlignResult, on: list[str]) -> list[str]:
+LIFTS = 2  # times a sunk placement is raised by its depth before it is given up
+LIFTED = 2  # placements raised: the least bad, then the answer (or the first alternative)
+LIFT_CLEAR = 1e-4  # of the source's size: what a raised placement clears its depth by
+
+
+def _raised(result: AlignResult, height: float) -> AlignResult:
+    """The run's placement moved straight up by ``height`` (scene units)."""
+    matrix = np.array(result.source_to_target, dtype=np.float64)
+    matrix[1, 3] += height
+    return replace(result, source_to_target=matrix)
+
+
+def _breaks(objects: list[Placed], earlier: list[StepResult], result: AlignResult, on: list[str]
+            ) -> tuple[list[str], float]:
     """What the last of ``objects`` (placed by ``result``) breaks, in words: each earlier step whose relation held
-    and now fails or whose object now intersects another, and the new object where it intersects one."""
+    and now fails or whose object now intersects another, and the new object where it intersects one; and how deep
+    the new object sinks (millimetres into another object or below the floor, the deeper: ``sinking``)."""
     from ctp_core.assembly import whole
 
     found = []
@@ -197,7 +245,8 @@ def _breaks(objects: list[Placed], earlier: list[StepResult], result: AlignResul
             if not now["holds"] or now["intersects"]:
                 found.append(whole.said(now))
     new = _verdict(objects, len(objects) - 1, result, on)
-    return [*found, whole.said(new)] if new["intersects"] else found
+    sunk = max(new["penetration_mm"], new["below_floor_mm"])
+    return ([*found, whole.said(new)] if new["intersects"] else found), sunk
 
 
 def judged(objects: list[Placed], results: list[StepResult]) -> dict[str, Any]:
@@ -214,5 +263,8 @@ def _verdict(objects: list[Placed], index: int, result: AlignResult, grounds: li
     from ctp_core.assembly import whole
 
     placed = objects[index]
-    return whole.verdict(scene_of([p for i, p in enumerate(objects) if i != index]), placed.name, placed.mesh,
-                         np.asarray(placed.to_scene.matrix), result, grounds)
+    others = [p for i, p in enumerate(objects) if i != index]
+    floor = float(objects[0].mesh.bounds[0][1])  # the base's bottom: its file frame is the scene frame
+    return whole.verdict(scene_of(others), placed.name, placed.mesh, np.asarray(placed.to_scene.matrix), result,
+                         grounds, placed=[(p.name, p.mesh, np.asarray(p.to_scene.matrix)) for p in others],
+                         floor=floor)

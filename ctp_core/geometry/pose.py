@@ -65,6 +65,20 @@ def quaternion_product(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     ], dim=-1)
 
 
+def upright_twist(q: torch.Tensor, q_up: torch.Tensor) -> torch.Tensor:
+    """(B, 4) each rotation of ``q`` (B, 4) brought to the nearest that keeps a source standing: its own upright
+    turn ``q_up`` (4,) followed by a turn about +Y only (the twist about +Y of ``q`` after ``q_up`` undone, the
+    swing dropped). Unit, w first."""
+    q = normalise_quaternion(q)
+    inverse = q_up * torch.tensor([1.0, -1.0, -1.0, -1.0], dtype=q_up.dtype, device=q_up.device)
+    rel = quaternion_product(q, inverse.expand_as(q))
+    twist = torch.stack([rel[:, 0], torch.zeros_like(rel[:, 0]), rel[:, 2], torch.zeros_like(rel[:, 0])], dim=-1)
+    norm = twist.norm(dim=-1, keepdim=True)
+    identity = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=q.dtype, device=q.device).expand_as(twist)
+    twist = torch.where(norm > 1e-6, twist / norm.clamp_min(1e-12), identity)  # upside down: any turn, none
+    return normalise_quaternion(quaternion_product(twist, q_up.expand_as(q)))
+
+
 def random_quaternions(n: int, generator: torch.Generator) -> torch.Tensor:
     """Uniformly distributed rotations (Shoemake), (n, 4) w first."""
     u1, u2, u3 = torch.rand(3, n, generator=generator, dtype=torch.float64)

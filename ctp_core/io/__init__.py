@@ -537,12 +537,53 @@ def _instances(scene: trimesh.Scene, limits: MeshLimits, label: str) -> list[tup
 
 
 def _flatten(scene: trimesh.Scene, limits: MeshLimits, label: str) -> trimesh.Trimesh:
-    """Apply node transforms and concatenate every triangle mesh instance (points and lines dropped)."""
+    """Apply node transforms and concatenate every triangle mesh instance (points and lines dropped). A glTF whose
+    nodes turn the object about its up keeps the front they give it (``node_front``) in ``metadata["front"]``."""
     instances = _instances(scene, limits, label)
     mesh = trimesh.util.concatenate([geometry.copy().apply_transform(matrix) for _, matrix, geometry in instances])
     mesh = _checked(mesh, label)
     mesh.metadata["file_format"] = scene.metadata.get("file_format")
+    if scene.metadata.get("file_format") in ("glb", "gltf"):
+        front = node_front(instances)
+        if front is not None:
+            mesh.metadata["front"] = front.tolist()
     return mesh
+
+
+_Y_AXIS, _Z_AXIS = np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0])
+_NODE_AXIS_COS = math.cos(math.radians(10.0))  # a node axis this close to the scene's up is the object's up
+
+
+def node_front(instances: list[tuple[str, np.ndarray, trimesh.Trimesh]]) -> np.ndarray | None:
+    """The front a glTF's nodes give the object, in the flattened file frame (horizontal, unit), where it is not
+    the file's +Z; None where it is, or where the nodes say none.
+
+    An asset's front is its own +Z (glTF 2.0, 3.4) and its node's turn carries it: a desk modelled facing +Z and
+    turned 90 degrees about +Y by its node faces +X once flattened. The node that decides is the largest instance's
+    (by area). Its own axis that ends up along the scene's +Y is the object's up: its +Y, the front then its +Z; or
+    its +Z (an export from a Z-up tool behind a -90 degree turn about X), the front then its -Y, as in
+    ``orientation``'s rule for Z-up files; any other (the object tipped by its node) gives no front."""
+    if not instances:
+        return None
+    _, matrix, _ = max(instances, key=lambda item: item[2].area * abs(np.linalg.det(item[1][:3, :3])) ** (2 / 3))
+    linear = np.asarray(matrix, dtype=np.float64)[:3, :3]
+    scale = abs(np.linalg.det(linear)) ** (1 / 3)
+    if not scale > 0:
+        return None
+    rotation = linear / scale
+    up = rotation.T @ _Y_AXIS  # the node's own axis that ends up along the scene's +Y
+    if up @ _Y_AXIS > _NODE_AXIS_COS:
+        own = _Z_AXIS
+    elif up @ _Z_AXIS > _NODE_AXIS_COS:
+        own = -_Y_AXIS
+    else:
+        return None
+    front = rotation @ own
+    front[1] = 0.0
+    if np.linalg.norm(front) < 0.5:
+        return None
+    front /= np.linalg.norm(front)
+    return None if front @ _Z_AXIS > math.cos(math.radians(1.0)) else front
 
 
 def _separate(scene: trimesh.Scene, limits: MeshLimits, label: str) -> trimesh.Scene:

@@ -114,10 +114,15 @@ def orient(mesh: trimesh.Trimesh, axes: Axes = FROM_FILE, *, seed: int = 0, judg
             raise ConfigError(f"front {axes.front} is not at right angles to the up "
                               f"{np.round(up, 3).tolist()}", field=f"{role}_front")
     else:
-        # the convention's front, turned as the up was turned away from the convention's up (if it was)
+        # the convention's front, turned as the up was turned away from the convention's up (if it was); a glTF's
+        # nodes that turn the object about its up carry its front (``io.node_front``)
+        node = mesh.metadata.get("front") if convention else None
+        if node is not None:
+            convention_front = np.asarray(node, dtype=np.float64)
         front = canonical.turn_onto(convention_up, up) @ convention_front
         trusted = bool(convention) and axes.up in ("file", "+y")
-        why = (f"front: {_named(front)}, the {convention} convention" if convention
+        why = (f"front: {_named(front)}, the {convention} convention (+Z) turned by the file's node" if node is not None
+               else f"front: {_named(front)}, the {convention} convention" if convention
                else f"front: {_named(front)}, the usual front of a {'Y' if convention_up is _Y else 'Z'}-up export "
                     f"({fmt or 'a mesh made in code'} states none): not trusted")
         if trusted and upright.symmetric:

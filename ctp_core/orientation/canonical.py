@@ -139,6 +139,35 @@ def upright_rotation(mesh: trimesh.Trimesh, seed: int = 0, judge: Judge | None =
     return Upright(rotation, True, reason, axes, candidates)
 
 
+def clear_up(mesh: trimesh.Trimesh, up: np.ndarray, stated: bool = False) -> tuple[bool, str]:
+    """Whether ``up`` (file frame, unit) is clearly the way ``mesh`` stands, with the reason: ``up`` is one of its
+    resting poses (within 8 degrees) and that pose stands on legs (a chair, a table, a stool), or on a real base
+    (``BASE_FILL``: a sofa, a cabinet, a box, a mug) scoring at least 1/20 of its best base (``_KEEP_RATIO``, the
+    margin ``upright_rotation`` keeps an authored pose by), or the pose it most likely comes to rest in (a rug lying
+    flat: the score's height squared favours its edge), and not a top with legs on its other side (a table upside
+    down). The same evidence that keeps an upload as authored: what passes stands as it is set down, and a
+    placement that tips it is wrong whatever relation it satisfies. ``stated``: the file states its up (glTF's +Y
+    by its spec, or an axis given): then any resting pose with that up is clear (a sofa on four short feet, which
+    neither legs nor a base show), and only an up it cannot stand on (a rake on its tines) is not."""
+    candidates = resting_poses(unit_size(mesh))
+    at = [c for c in candidates if np.dot(c["up"], up) > _AUTHORED_COS]
+    if not at:
+        return False, "its up is none of its resting poses"
+    pose = at[0]
+    if pose["feet"] >= LEGS:
+        return True, f"it stands on {pose['feet']} legs with that up"
+    legged = [c for c in candidates if c["feet"] >= LEGS]
+    if _legs_under(pose, legged) is not None:
+        return False, "that up rests on a top with legs on its other side"
+    if stated:
+        return True, "its file states that up and it stands on it"
+    bases = [c for c in candidates if c["fill"] >= BASE_FILL]
+    likeliest = max(candidates, key=lambda c: c["probability"])
+    if pose["fill"] >= BASE_FILL and (pose["score"] >= _KEEP_RATIO * bases[0]["score"] or pose is likeliest):
+        return True, f"it rests on a base with that up ({pose['fill']:.0%} contact)"
+    return False, "no real base or legs with that up"
+
+
 def _judged(axes: np.ndarray, candidates: list[dict], judge: Judge, margin: float) -> Upright:
     """Let ``judge`` pick among the file's +Y, the best resting poses and the dominant-axis directions."""
     ups = [_Y] + [_snapped(np.asarray(c["up"]), axes) for c in candidates[:_JUDGED_POSES]]

@@ -31,7 +31,7 @@ NUMBER_WORDS = {"one": 1, "two": 2, "three": 3, "four": 4, "five": 5, "six": 6, 
                 "seventeen": 17, "eighteen": 18, "nineteen": 19, "twenty": 20}
 _PHRASES = {"half a dozen": 6, "a dozen": 12, "one dozen": 12, "a pair of": 2, "a couple of": 2, "a trio of": 3}
 # one object named as a pair: "a pair of glasses" is one pair of glasses, not two
-_ONE_PAIR = {"glasses", "sunglasses", "spectacles", "goggles", "binoculars", "scissors", "shears", "pliers", "tongs",
+ONE_PAIR = {"glasses", "sunglasses", "spectacles", "goggles", "binoculars", "scissors", "shears", "pliers", "tongs",
              "tweezers", "trousers", "pants", "jeans", "shorts", "leggings", "tights", "pajamas", "pyjamas",
              "headphones", "earphones", "handcuffs", "overalls", "dungarees"}
 # a number before a word (an object), not before a unit ("2 m", "3 cm tall") or a time
@@ -92,9 +92,9 @@ def read_count(prompt: str | None, source_name: str | None = None) -> CountReadi
 
 
 def _one_pair(found: re.Match, text: str) -> bool:
-    """Whether ``found`` is "a pair of" before a thing that is one object called a pair (``_ONE_PAIR``)."""
+    """Whether ``found`` is "a pair of" before a thing that is one object called a pair (``ONE_PAIR``)."""
     after = re.findall(r"[a-z]+", text[found.end():].lower())[:1]
-    return (found.group("phrase") or "").lower() == "a pair of" and bool(after) and after[0] in _ONE_PAIR
+    return (found.group("phrase") or "").lower() == "a pair of" and bool(after) and after[0] in ONE_PAIR
 
 
 def _names(after: str, words: set[str]) -> bool:

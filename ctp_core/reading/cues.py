@@ -83,7 +83,7 @@ CUES: list[Cue] = [
     Cue(_side("right"), R.RIGHT),
     # "on the front of", "on the back of a horse": on it
     # "by the front door", "at the front of the desk" (its front edge), "strapped to his back": no side
-    Cue(r"in front(?: of)?|opposite|across from|" + _side("front", "to|by", "_", " of"), R.FRONT),
+    Cue(r"in front(?: of)?|opposite|across from|ahead of|" + _side("front", "to|by", "_", " of"), R.FRONT),
     Cue(r"behind|in back of|" + _side("(?:back|rear)", "to|at|by", "_", " of"), R.BEHIND),
     Cue(r"fac(?:e|es|ing) away(?: from)?|turned away from|look(?:s|ing)? away from|point(?:s|ing)? away from"
         r"|with (?:its|his|her|their) backs? (?:to|toward|towards)", R.FACING_AWAY),
@@ -118,7 +118,7 @@ CUES: list[Cue] = [
         r" (?:high |right |just |directly |up )?above", R.ABOVE),
     Cue(r"hang(?:s|ing)?|hung|dangl(?:e|es|ing)|suspended", R.HANG),
     Cue(r"attached|glued|taped|stuck (?:on|to)|fixed (?:on|to)|fasten(?:s|ed|ing)?|mounted|stapled|clipped"
-        r"|pinned (?:to|on)",
+        r"|pinned (?:to|on)|connected (?:to|with)|joined to",
         R.ATTACH),
     Cue(r"under(?:neath)?|beneath", R.UNDER),
     Cue(r"below", R.BELOW),
@@ -130,7 +130,8 @@ CUES: list[Cue] = [
     Cue(r"swim(?:s|ming)?|float(?:s|ing)?|hover(?:s|ing)?|fl(?:y|ies|ying) (?:around|past)", R.BESIDE),  # free in
     # the air or water: no contact
     Cue(r"beside|next[ _]to|alongside|(?:at|by|to) (?:the|its|his|her|their) side(?: of)?|side[ _]of|side by side"
-        r"|adjacent to|paired with", R.BESIDE),
+        r"|adjacent to|paired with|along|among(?:st)?|detached from|flank(?:s|ing)?"
+        r"|on (?:each|either|both|opposite|the other|its other|their other) sides?(?: of)?", R.BESIDE),
     Cue(r"(?:at|on) the (?:edge|rim|brink|lip) of", R.ON),  # "a pigeon drinking at the edge of a fountain"
     # Holodeck's "center": "a vase in the middle of the table" is on it (in a container: in it, ``passes``)
     Cue(r"(?:at|in) the (?:very )?(?:middle|center|centre) of", R.ON),
@@ -139,9 +140,11 @@ CUES: list[Cue] = [
     Cue(r"stir(?:s|red|ring)?", R.IN),  # "a candy cane stirring a mug of hot chocolate": its end in it
     # "a horse drinking from a trough": an animal's muzzle in the water (rules; someone drinking holds the cup)
     Cue(r"(?:drink|sip|lapp?)(?:s|ing|ped|ping)?(?: (?:up )?water)? (?:from|out of)", R.IN),
-    Cue(r"inside|into|within|in", R.IN),
+    Cue(r"enclosed (?:by|in|within)|inside|into|within|in", R.IN),
     Cue(r"supporting", R.ON, True),  # "a table supporting a lamp"
     Cue(r"on[ _]top[ _]of|on top|atop|onto|upon|supported[ _]by|on", R.ON),
+    # VSR's "by" ("a bike by the door"), after every wording with "by" of its own ("held by", "covered by")
+    Cue(r"(?:right |just |close )?by", R.BESIDE),
 ]
 del R
 

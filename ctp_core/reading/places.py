@@ -45,6 +45,12 @@ class PartName(StrEnum):
 PLACE_WORDS = frozenset({"top", "front", "back", "left", "right", "side", "sides", "middle", "centre", "center",
                          "edge", "corner", "end", "rear", "other", "bottom", "one", "way", "foot", "head", "rim"})
 
+# A ground's parts a possessive names ("on its seat", "the bench's seat", "on the top shelf of the bookcase"): the
+# ground is the possessor; the words are its place where ``read_place`` reads one, else dropped.
+PART_WORDS = frozenset({"seat", "seats", "shelf", "shelves", "surface", "tabletop", "worktop", "countertop", "lid",
+                        "ledge", "armrest", "backrest", "mattress", "tier", "board", "deck", "platform", "base",
+                        "arm", "arms", "leg", "legs", "handle", "drawer", "drawers", "doors", "roof", "hood"})
+
 P = Place
 # (place, pattern), first match wins; the patterns read the prompt lower-cased
 _PATTERNS: tuple[tuple[Place, str], ...] = (

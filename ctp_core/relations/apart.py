@@ -51,7 +51,7 @@ def _score_under(c: Context) -> torch.Tensor:
     downward-facing ground sample above the figure's top, past ``UNDER_REACH`` figure half-widths (a vertical
     shortfall counts as distance too); the figure's centre outside the ground's footprint; its bottom off the
     floor (above or below it) past contact."""
-    fig, ground = c.figure, c.ground.side
+    fig, ground = c.figure, c.ground.samples
     gp = ground.points.expand(fig.points.shape[0], -1, -1)
     down = c.ground.mask("down").expand(gp.shape[:2])
     horizontal = (gp[..., [0, 2]] - fig.centre[:, None, [0, 2]]).norm(dim=-1)
@@ -67,7 +67,7 @@ def _score_beside(c: Context) -> torch.Tensor:
     """``beside`` (next to, behind, in front of): on the ground's floor (the figure's bottom at the ground's
     lowest level), its centre outside the ground's footprint, and a gap to the ground at most ``BESIDE_GAP``
     mean diagonals; contact is not required."""
-    fig, ground = c.figure, c.ground.side
+    fig, ground = c.figure, c.ground.samples
     floor = c.h((c.bottom() - c.floor).abs() - c.tol())
     outside = c.h(-hull_distance_2d(fig.centre[:, [0, 2]], ground.points[..., [0, 2]]))
     gap, mean_diag = _apart(c)
@@ -78,7 +78,7 @@ def _apart(c: Context) -> tuple[torch.Tensor, torch.Tensor]:
     """(B,) the gap between the figure and the ground's surface (a smooth minimum over the figure's samples), and
     the mean of their diagonals, normalised units."""
     gap, _ = surface_gap(c.figure.points, c.ground)
-    return c.finite(soft_min(gap, c.tau())), (c.unit + c.ground.side.diagonal.expand_as(c.unit)) / 2
+    return c.finite(soft_min(gap, c.tau())), (c.unit + c.ground.samples.diagonal.expand_as(c.unit)) / 2
 
 
 def _score_side(c: Context, side: str) -> torch.Tensor:
@@ -95,14 +95,14 @@ def _score_side(c: Context, side: str) -> torch.Tensor:
 
 def _beyond(c: Context, direction: torch.Tensor) -> torch.Tensor:
     """(B,) how far the figure's centre lies beyond the ground's farthest sample along ``direction`` (B, 3)."""
-    extent = (c.ground.side.points * direction[:, None, :]).sum(-1).max(-1).values
+    extent = (c.ground.samples.points * direction[:, None, :]).sum(-1).max(-1).values
     return (c.figure.centre * direction).sum(-1) - extent
 
 
 def score_above(c: Context) -> torch.Tensor:
     """``above`` (no contact: a painting above a sofa, a lamp over a table; Sr3D's): the figure's bottom higher than
     the ground's top by more than contact (``CLEAR``), their footprints overlapping (``_overlap``)."""
-    top = c.ground.side.points[..., 1].max(-1).values.expand_as(c.unit)
+    top = c.ground.samples.points[..., 1].max(-1).values.expand_as(c.unit)
     return c.h(top + CLEAR * c.unit - c.bottom()) + _overlap(c)
 
 
@@ -115,7 +115,7 @@ def _score_below(c: Context) -> torch.Tensor:
     floor) leaves no room: the score is then least tucked low against it, and never holds. ``under`` is the
     same place standing on the floor; ``below`` asks no contact with anything."""
     fig = c.figure
-    gp = c.ground.side.points.expand(fig.points.shape[0], -1, -1)
+    gp = c.ground.samples.points.expand(fig.points.shape[0], -1, -1)
     over = (gp[..., [0, 2]] - fig.centre[:, None, [0, 2]]).norm(dim=-1) <= half_width(fig)[:, None]
     clearance = soft_min(gp[..., 1], c.tau(), mask=over) - c.top()
     clearance = torch.where(torch.isfinite(clearance), clearance, -FAR * c.unit)  # nothing over it
@@ -125,7 +125,7 @@ def _score_below(c: Context) -> torch.Tensor:
 def _overlap(c: Context) -> torch.Tensor:
     """How far the footprints (seen from above) are from overlapping: the figure's centre farther than its own
     half-width from the ground's footprint (its convex hull), figure diagonals, hinged."""
-    hull = hull_distance_2d(c.figure.centre[:, [0, 2]], c.ground.side.points[..., [0, 2]])
+    hull = hull_distance_2d(c.figure.centre[:, [0, 2]], c.ground.samples.points[..., [0, 2]])
     return c.h(hull - half_width(c.figure))
 
 
@@ -146,7 +146,7 @@ def _score_facing(c: Context, sign: float) -> torch.Tensor:
     """``facing`` (sign 1; Holodeck's "face to") and ``facing_away`` (-1): the figure's own front within 45 degrees
     (``FACING``) of the horizontal direction to the ground's centre, or of the direction away from it (a chair lying
     on its back, its front up, faces nothing). In cosine units (scale-free by nature)."""
-    toward = horizontal_unit(c.ground.side.centre - c.figure.centre)
+    toward = horizontal_unit(c.ground.samples.centre - c.figure.centre)
     return hinge(FACING - sign * (c.heading * toward).sum(-1))
 
 

@@ -45,8 +45,8 @@ def _score_attach(c: Context) -> torch.Tensor:
 def _score_hold(c: Context) -> torch.Tensor:
     """``hold``: in contact with the ground, at its side surfaces (a hand closes around a handle from the side),
     not set on top of it: the figure's centre below the ground's top."""
-    ground_top = c.ground.side.points[..., 1].max(-1).values
-    return c.touching("side") + c.h(c.figure.centre[:, 1] - ground_top)
+    ground_top = c.ground.samples.points[..., 1].max(-1).values
+    return c.touching("wall") + c.h(c.figure.centre[:, 1] - ground_top)
 
 
 def _score_wrap(c: Context) -> torch.Tensor:
@@ -95,7 +95,7 @@ def _score_lean(c: Context) -> torch.Tensor:
     figure's bottom, while that bottom is on the floor (a board lying flat against a box's foot only touches
     at the floor)."""
     fig = c.figure
-    gap, _ = surface_gap(fig.points, c.ground, "side")
+    gap, _ = surface_gap(fig.points, c.ground, "wall")
     raised = fig.points[..., 1] >= (c.bottom() + LEAN_RISE * c.unit)[:, None]
     side = c.h(c.finite(soft_min(gap, c.tau(), mask=raised)) - c.reach())
     return side + c.h((c.bottom() - c.floor).abs() - c.tol())
@@ -148,7 +148,7 @@ def _prefer_hang(c: Context) -> torch.Tensor:
 def along_middle(c: Context) -> torch.Tensor:
     """(B,) ``OFF_CENTRE`` x the distance of the figure's centre from the middle of the ground's footprint along
     its longer horizontal extent (x or z), in half that extent."""
-    gp = c.ground.side.points[..., [0, 2]]
+    gp = c.ground.samples.points[..., [0, 2]]
     low, high = gp.min(1).values, gp.max(1).values  # (B or 1, 2)
     axis = int((high - low)[0].argmax())
     half = ((high - low)[:, axis] / 2).clamp_min(1e-9)

@@ -42,7 +42,7 @@ def _score_in(c: Context) -> torch.Tensor:
     ``IN_DEPTH`` and inside the ground's convex hull under its centre (so inside the hull's footprint), resting
     on the inner floor or walls (in contact with the ground). A candle in a holder or a lipstick in its cover
     sticks out above the rim: its centre need not be below it, its foot must."""
-    fig, ground = c.figure, c.ground.side
+    fig, ground = c.figure, c.ground.samples
     rim = ground.points[..., 1].max(-1).values.expand_as(c.unit)
     foot = torch.stack([fig.centre[:, 0], c.bottom(), fig.centre[:, 2]], -1)
     hull = hull_distance_3d(foot, ground.points)
@@ -57,7 +57,7 @@ def _prefer_in(c: Context) -> torch.Tensor:
 def _enclosure(c: Context) -> torch.Tensor:
     """(B,) ``enclosure`` of the figure's foot: its centre's column, ``FOOT`` above its lowest point."""
     foot = torch.stack([c.figure.centre[:, 0], c.bottom() + FOOT * c.unit, c.figure.centre[:, 2]], -1)
-    return enclosure(foot, c.ground.side.points, c.ground.side.spacing, FOOT * c.unit)
+    return enclosure(foot, c.ground.samples.points, c.ground.samples.spacing, FOOT * c.unit)
 
 
 def enclosure(foot: torch.Tensor, ground: torch.Tensor, spacing: torch.Tensor | float,
@@ -115,7 +115,7 @@ def _score_wear(c: Context) -> torch.Tensor:
     """``wear``: on a summit of the ground (a peak of its top surface: a head's top, ``sampling.summits`` with
     the figure's width as the neighbourhood; the one nearest the figure), covering it: that summit within
     ``WEAR_CENTRE`` figure half-widths of the figure's centre column, the figure's bottom below it, in contact."""
-    fig, ground = c.figure, c.ground.side
+    fig, ground = c.figure, c.ground.samples
     width = half_width(fig)
     peaks = ground_summits(ground, float(width.mean()))  # (B or 1, P, 3)
     offset = (peaks[..., [0, 2]] - fig.centre[:, None, [0, 2]]).norm(dim=-1)  # (B, P)

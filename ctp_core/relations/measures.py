@@ -106,18 +106,18 @@ class Samples:
 class Ground:
     """Nearest ground samples to figure points, optionally restricted to a subset (e.g. up-facing)."""
 
-    def __init__(self, side: Samples, trees: dict[str, losses.SurfaceIndex | None]):
-        self.side, self.trees = side, trees
+    def __init__(self, samples: Samples, trees: dict[str, losses.SurfaceIndex | None]):
+        self.samples, self.trees = samples, trees
 
     def mask(self, which: str) -> torch.Tensor:
-        ny = self.side.normals[..., 1]
+        ny = self.samples.normals[..., 1]
         return {"all": torch.ones_like(ny, dtype=torch.bool), "up": ny > UP_FACING, "down": ny < -UP_FACING,
-                "side": ny.abs() <= UP_FACING, "not_down": ny >= -UP_FACING}[which]
+                "wall": ny.abs() <= UP_FACING, "not_down": ny >= -UP_FACING}[which]
 
     def nearest(self, points: torch.Tensor, which: str = "all") -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(u, n, found) for (B, N, 3) points: nearest ground sample of the subset, its normal, whether the subset
         has any sample (B, N) (points of a pose whose subset is empty get a far sample)."""
-        side = self.side
+        side = self.samples
         if side.static:
             tree = self.trees.get(which)
             if tree is None:  # an empty subset
@@ -155,7 +155,7 @@ def gap_to(points: torch.Tensor, ground: Ground, u: torch.Tensor, n: torch.Tenso
     diff = points - u
     along = (diff * n).sum(-1)
     tangent = (diff - along[..., None] * n).norm(dim=-1)
-    spacing = ground.side.spacing.reshape(-1, 1)
+    spacing = ground.samples.spacing.reshape(-1, 1)
     gap = torch.sqrt(along.clamp_min(0.0) ** 2 + (tangent - spacing).clamp_min(0.0) ** 2 + 1e-12)
     far = torch.full_like(gap, 1e6)
     return torch.where(found, gap, far), torch.where(found, along, far)
@@ -237,7 +237,7 @@ class Features:
     source_centre: torch.Tensor  # (3,) source local frame: mean of area-weighted samples
     source_spacing: float  # source local units: sqrt(area / count)
     target: Samples  # the related object (``PreparedPair.anchor``), static
-    target_trees: dict[str, losses.SurfaceIndex | None]  # per normal subset ("up", "down", "side", ...)
+    target_trees: dict[str, losses.SurfaceIndex | None]  # per normal subset ("up", "down", "wall", ...)
     target_figure: Samples  # a subset of the target as a figure (the ground role), static
     grounds: list[torch.Tensor]  # (M, 3) samples of each named ground where there are several ("between")
     source_up: torch.Tensor  # (3,) source local frame, unit: its own up (``source_upright``: the file's for glTF)
@@ -267,7 +267,7 @@ def _build(pair: PreparedPair) -> Features:
                   torch.tensor([t_spacing], device=device), anchor)
     ny = t_normals[:, 1]
     subsets = {"all": torch.ones_like(ny, dtype=torch.bool), "up": ny > UP_FACING, "down": ny < -UP_FACING,
-               "side": ny.abs() <= UP_FACING, "not_down": ny >= -UP_FACING}
+               "wall": ny.abs() <= UP_FACING, "not_down": ny >= -UP_FACING}
     trees = {k: (anchor if k == "all" else losses.SurfaceIndex(t_points[m], t_normals[m]) if m.any() else None)
              for k, m in subsets.items()}
     pick = torch.linspace(0, len(t_points) - 1, min(GROUND_POINTS, len(t_points))).long()
@@ -367,7 +367,7 @@ class Context:
         only past a third of the spacing); the spacing is in ``surface_gap`` tangentially, but along the normal a
         coarsely sampled tip rises between its samples: a small cross settled on a church's spire stood 1.15 x
         ``tol`` above its nearest up-facing sample."""
-        return torch.maximum(self.tol(), self.ground.side.spacing.reshape(-1).expand_as(self.unit) / 3)
+        return torch.maximum(self.tol(), self.ground.samples.spacing.reshape(-1).expand_as(self.unit) / 3)
 
     def tau(self) -> torch.Tensor:
         return (SOFT * self.unit)[:, None]
@@ -433,14 +433,14 @@ def ground_summits(ground: Samples, radius: float) -> torch.Tensor:
 def summit_drop(c: Context) -> torch.Tensor:
     """(B,) the height between the ground's highest point and the figure's bottom, either way, in figure diagonals:
     hard extremes (the smooth ones sit a few tau out, and would lift a plate)."""
-    top = c.ground.side.points[..., 1].max(-1).values.expand_as(c.unit)
+    top = c.ground.samples.points[..., 1].max(-1).values.expand_as(c.unit)
     return (top - c.figure.points[..., 1].min(-1).values).abs() / c.unit
 
 
 def off_centre(c: Context) -> torch.Tensor:
     """(B,) ``OFF_CENTRE`` x the horizontal distance of the figure's centre from the middle of the ground's
     footprint, in the ground's half-widths."""
-    gp = c.ground.side.points[..., [0, 2]]
+    gp = c.ground.samples.points[..., [0, 2]]
     low, high = gp.min(1).values, gp.max(1).values
     half = ((high - low).norm(dim=-1) / 2).clamp_min(1e-9)
     return OFF_CENTRE * (c.figure.centre[:, [0, 2]] - (low + high) / 2).norm(dim=-1) / half

@@ -63,9 +63,9 @@ def _apex(c: Context) -> torch.Tensor:
     cup touching a table's leg with its base's edge is beside no summit: the table's top is higher."""
     fig = c.figure
     width = half_width(fig)
-    peaks = ground_summits(c.ground.side, float(width.mean())).detach()  # (B or 1, P, 3)
+    peaks = ground_summits(c.ground.samples, float(width.mean())).detach()  # (B or 1, P, 3)
     offset = (peaks[..., [0, 2]] - fig.centre[:, None, [0, 2]]).norm(dim=-1)
-    slack = (c.reach() + c.ground.side.spacing.reshape(-1).expand_as(c.unit))[:, None]
+    slack = (c.reach() + c.ground.samples.spacing.reshape(-1).expand_as(c.unit))[:, None]
     under = (offset <= width[:, None]) & ((peaks[..., 1] - c.bottom()[:, None]).abs() <= slack)
     return torch.where(under.detach().any(-1), torch.zeros_like(c.unit), torch.full_like(c.unit, FAR))
 
@@ -74,7 +74,7 @@ def _overhead(c: Context) -> torch.Tensor:
     """How far ground surface rises above the figure's top over the middle of its footprint (within half its
     half-width of its centre's column: a shelf above covers it, a chair's back rising at its edge does not), in
     figure diagonals, hinged; 0 where the prompt names a shelf ("on the middle shelf": a board is above it)."""
-    fig, ground = c.figure, c.ground.side
+    fig, ground = c.figure, c.ground.samples
     if c.place in SHELVES:
         return torch.zeros_like(c.unit)
     radius = FOOTPRINT_MIDDLE * half_width(fig)  # (B,)

@@ -4,7 +4,7 @@ few.
 First the geometry screens every proposal (``Scorer.screen``: the relation's verdict, penetration, contact; no
 render) and only ``search.shortlist`` of them reach the guide (``encoder_shortlist``: distinct places where the
 relation holds, and a share of the others), so the encoder's images go to what can be the answer; a guide whose
-spread is within its noise (``ordering.GuideSay`` override 0) encodes nothing after the coarse stage
+spread is within its noise (``ordering.GuideSay`` amount 0) encodes nothing after the coarse stage
 (``Scorer.with_say``, ``Scorer.guided``). ``score``: the objective's terms (``objective.Scorer``) of every candidate,
 ranked by the prompt's relation first, then by the guide's term where there is a guide with signal
 (``ordering.search_key``, ``guide_noise``: the proposals satisfy the geometry already), forward only under inference

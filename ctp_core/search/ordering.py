@@ -4,7 +4,7 @@ the selection, the alternatives and the scattered copies.
 Every order is lexicographic (``Key``): first the *tier*, then the *value* (lower is better in both).
 
 - The tier is the prompt's relation: the poses where it holds and nothing intersects (``holding``) come first.
-  With a guide, the guide's favourites among the others (``ceil(override x share x others)``: ``rank_key``)
+  With a guide, the guide's favourites among the others (``ceil(amount x share x others)``: ``rank_key``)
   join them, so a misread prompt cannot make the right answer unreachable.
 - The value is the guide's term where the guide has earned a say (``GuideSay``: its spread over the search's
   candidates against its noise, and whether views it has not seen agree with its choice, each against what
@@ -156,11 +156,11 @@ class GuideSay:
         return TIE_NOISE * self.noise
 
     def weigh(self, guide: torch.Tensor, prefer: torch.Tensor) -> float:
-        """What one unit of ``prefer`` (the usual arrangement, already x (1 - override): ``Scorer.preference_weight``)
+        """What one unit of ``prefer`` (the usual arrangement, already x (1 - amount): ``Scorer.preference_weight``)
         is worth against the ``guide``'s term where the guide orders these poses: between the say's ends the two
-        count in units of their own spread over them, weighted override : 1 - override (a guide with a say of
+        count in units of their own spread over them, weighted amount : 1 - amount (a guide with a say of
         0.25 must beat the usual arrangement by three of its spreads per spread of the arrangement); never less
-        than ``tie``, which breaks what the guide cannot tell (at override 1 ``prefer`` is 0 and counts nothing)."""
+        than ``tie``, which breaks what the guide cannot tell (at amount 1 ``prefer`` is 0 and counts nothing)."""
         spreads = [float(x.double().std()) if len(x) > 1 else 0.0 for x in (guide, prefer)]
         if not 0 < self.amount < 1 or min(spreads) <= 0:
             return self.tie
@@ -168,9 +168,9 @@ class GuideSay:
 
     @property
     def chooser(self) -> str:
-        """Who orders the poses where the relation holds: ``geometry`` (override 0: the usual arrangement),
-        ``guide`` (override 1: the usual arrangement only breaks its ties) or ``both`` (between: the usual
-        arrangement weighs 1 - override, ``Scorer.preference_weight``)."""
+        """Who orders the poses where the relation holds: ``geometry`` (amount 0: the usual arrangement),
+        ``guide`` (amount 1: the usual arrangement only breaks its ties) or ``both`` (between: the usual
+        arrangement weighs 1 - amount, ``Scorer.preference_weight``)."""
         return "geometry" if self.amount <= 0 else "guide" if self.amount >= 1 else "both"
 
     def summary(self) -> str:
@@ -221,9 +221,9 @@ def rank_key(terms: dict[str, torch.Tensor], phase: Phase, *, share: float, guid
              amount: float = 1.0, geometric: torch.Tensor | None = None, tie: float = 0.0) -> Key:
     """The relation first, then a value.
 
-    Without a guide (``guide_key`` None) or with ``override`` 0: tier 0 where the relation holds (``holding``),
+    Without a guide (``guide_key`` None) or with ``amount`` 0: tier 0 where the relation holds (``holding``),
     1 elsewhere; value the geometric objective (``geometric``, else ``combine`` without the guide's term). With a
-    guide: tier 0 over the *pool*, the poses where the relation holds plus the ``ceil(override x share x
+    guide: tier 0 over the *pool*, the poses where the relation holds plus the ``ceil(amount x share x
     others)`` others that the guide ranks best (``share``: the search's ``min_share``, the principle of the
     region weights); value the guide's key plus ``tie`` per unit of ``prefer`` (``GuideSay.weigh``: the usual
     arrangement weighs as much as the guide's say leaves it, and breaks what the guide cannot tell).
@@ -303,7 +303,7 @@ def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: to
     touching restarts can outweigh the guide's; the search ranks its candidates by the guide the same way
     (``search_key``). Penetration likewise counts only past ``SUNK``: at contact the two halves see a few
     samples a hair inside, which times ``lambda_pen`` can outweigh the guide. The usual arrangement
-    (``prefer``, already x (1 - override): ``Scorer.preference_weight``) counts ``GuideSay.weigh`` per unit over the
+    (``prefer``, already x (1 - amount): ``Scorer.preference_weight``) counts ``GuideSay.weigh`` per unit over the
     restarts that hold (as much as the guide's say leaves it, at least a difference a full say would trust),
     not its objective weight, which would outweigh any guide.
     ``clear`` and ``limit``: per pose, in source diagonals (``contact.clearance``, ``contact.touch_limit``).

@@ -46,6 +46,7 @@ from ctp_core.geometry.pose import (
     Poses,
     matrix_to_quaternion,
     quaternion_product,
+    quaternion_to_matrix,
     random_quaternions,
 )
 from ctp_core.orientation import canonical
@@ -83,14 +84,18 @@ def orientations(pair: PreparedPair, config: AlignConfig, generator: torch.Gener
 
     The upright frame and its flip, each turned in ``search.yaw_steps`` about +Y, and the ``search.stable_poses``
     most probable resting poses (trimesh, on the source's convex hull) turned the same way; in the ``random``
-    init mode as many uniform rotations instead (the resting poses are not computed).
+    init mode as many uniform rotations instead (the resting poses are not computed). A source that keeps its up
+    (``PreparedPair.source_keeps_up``) gets its upright frame turned about +Y only, in either mode.
     """
     cfg = config.search
-    if config.optim.init_rotation == "random":  # as many as the source's own frames give at most
-        return random_quaternions(cfg.yaw_steps * (2 + cfg.stable_poses), generator)
     yaw = torch.arange(cfg.yaw_steps, dtype=torch.float32) * (2 * math.pi / cfg.yaw_steps)
     turns = torch.stack([torch.cos(yaw / 2), 0 * yaw, torch.sin(yaw / 2), 0 * yaw], dim=1)
     up = pair.source_upright.rotation
+    if pair.source_keeps_up:  # its upright frame turned about +Y, nothing else (random mode too)
+        return quaternion_product(turns, torch.as_tensor(matrix_to_quaternion(up), dtype=torch.float32)[None]
+                                  .expand(len(turns), -1))
+    if config.optim.init_rotation == "random":  # as many as the source's own frames give at most
+        return random_quaternions(cfg.yaw_steps * (2 + cfg.stable_poses), generator)
     flip = np.diag([1.0, -1.0, -1.0])  # half turn about x: upside down
     bases = [up, flip @ up]
     if cfg.stable_poses:
@@ -100,6 +105,17 @@ def orientations(pair: PreparedPair, config: AlignConfig, generator: torch.Gener
     base = torch.tensor(np.stack([matrix_to_quaternion(b) for b in bases]), dtype=torch.float32)
     q = quaternion_product(turns[:, None].expand(-1, len(base), -1), base[None].expand(len(turns), -1, -1))
     return q.reshape(-1, 4)
+
+
+STANDING_COS = math.cos(math.radians(2.0))  # a pose whose source's up is this close to +Y keeps it standing
+
+
+def standing(pair: PreparedPair, poses: Poses) -> torch.Tensor:
+    """(B,) indices of the poses that keep the source standing: its own up (``source_upright``) within 2 degrees
+    of +Y (what ``orientations`` makes for a source that keeps its up; a builder's own turns may not)."""
+    up = torch.as_tensor(pair.source_upright.up, dtype=torch.float32)
+    posed = torch.einsum("bij,j->bi", quaternion_to_matrix(poses.q.cpu()), up)
+    return torch.nonzero(posed[:, 1] >= STANDING_COS).flatten()
 
 
 def _stable_poses(source: trimesh.Trimesh, seed: int) -> list[np.ndarray]:

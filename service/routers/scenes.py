@@ -8,9 +8,11 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Request, Response
 from pydantic import BaseModel, Field
+from starlette.concurrency import run_in_threadpool
 
-from ctp_core.assembly.describe import DESCRIPTION_MAX, DescriptionError, ScenePlan, read_description
+from ctp_core.assembly.describe import DESCRIPTION_MAX, DescriptionError, ScenePlan
 from ctp_core.assembly.plan import plan_step
+from ctp_core.assembly.readers import get_reader
 from ctp_core.reading.names import NAME_MAX, default_name
 from service import forms, submit
 from service.deps import owner
@@ -59,6 +61,15 @@ class PlanRequest(BaseModel):
         f"upload order; 1 to {NAME_MAX} characters, one not a space, no control characters")
 
 
+class AlsoSaid(BaseModel):
+    """A relation said of a step's object besides the one that places it ("the lamp on the desk to its right":
+    right of the monitor)."""
+
+    relation: str = Field(description="the relation the reader reads of `prompt`")
+    on: list[str] = Field(description="the placed objects it relates to")
+    prompt: str = Field(description="the relation in words, by name")
+
+
 class PlannedStep(BaseModel):
     """One step of a read plan."""
 
@@ -69,6 +80,11 @@ class PlannedStep(BaseModel):
     relation: str = Field(description="the relation the reader reads of `prompt` (as `ctp priors` reads it)")
     said: str = Field(description="the clause it comes from; empty where the description does not place it")
     floor: bool = Field(description="on the floor beside the base: said so, or not placed by the description")
+    support: str = Field(description="what the object stands on: the ground of an on/in relation; beside, between "
+                         "or in front of objects standing on the same thing, that thing; else `floor`")
+    also: list[AlsoSaid] = Field(description="the other relations the description says of the object")
+    warnings: list[str] = Field(description="what was assumed about this step (an object not placed by the "
+                                "description, a part of a ground not told apart)")
 
 
 class ReadPlan(BaseModel):
@@ -79,20 +95,25 @@ class ReadPlan(BaseModel):
     base_upload: int = Field(description="its index into `names`")
     steps: list[PlannedStep] = Field(description="the objects placed, in placing order: every ground before its "
                                      "figures")
-    warnings: list[str] = Field(description="what was assumed: an object not named or not placed, names matched by "
-                                "order")
+    base_support: str = Field(description="what the base stands on: `floor`")
+    warnings: list[str] = Field(description="what was assumed: every step's warnings, names matched by order, a "
+                                "reader that fell back to the rules")
+    reader: str = Field(description="who read it: `rules`, `openai`, or `rules (fallback: why)`")
 
 
 @router.post("/plans/read", response_model=ReadPlan, responses=documented(400, 401, 422, 503),
              summary="Read a description into a plan",
              description="The plan `POST /scenes` would place, read from `prompt` over the objects called `names`, "
-             "without a job: each clause a step (its figure, relation and grounds), every ground placed before its "
-             "figures, copies for a count. 422 with the reader's code where the description cannot be read: "
-             "`unknown_object` (it names an object no name matches), `placement_cycle`, `placed_twice`, "
-             "`nothing_placed`, `unclear_clause`, `too_few_objects`, `empty_description`, `invalid_description`.")
+             "without a job: each object a step (its relation and grounds, what it stands on, the other relations "
+             "said of it, its warnings), the base the object that supports others, every ground placed before its "
+             "figures, copies for a count. Read by the rules unless the service sets `CTP_PLAN_READER=openai` (an "
+             "OpenAI-compatible endpoint, the rules on any failure: `reader` says which). 422 with the reader's code "
+             "where the description cannot be read: `unknown_object` (it names an object no name matches), "
+             "`placement_cycle`, `placed_twice`, `nothing_placed`, `unclear_clause`, `too_few_objects`, "
+             "`empty_description`, `invalid_description`.")
 async def read_plan(body: PlanRequest, _who: str = Depends(owner)) -> ReadPlan:
     names = [forms.clean_name(name, f"names.{i}") for i, name in enumerate(body.names)]
-    return ReadPlan(**_read(body.prompt, names).to_dict())
+    return ReadPlan(**(await _read(body.prompt, names)).to_dict())
 
 
 @router.post("/scenes", status_code=202, response_model=Accepted, openapi_extra={"requestBody": SCENE_BODY},
@@ -120,7 +141,7 @@ async def _scene_job(request: Request, form, who: str, job_id: str) -> submit.Bu
     prompt = forms.text(form, "prompt")
     if prompt is None or not prompt.strip():
         raise ApiError(400, "missing_field", "prompt is required: the scene in one sentence", field="prompt")
-    plan = _read(prompt, _names(form, files))  # each step's prompt is checked as POST /assemble checks it
+    plan = await _read(prompt, _names(form, files))  # each step's prompt is checked as POST /assemble checks it
     if len(plan.steps) > request.app.state.settings.max_stages:
         raise ApiError(413, "too_many_stages", f"the plan has {len(plan.steps)} stages, over the limit of "
                        f"{request.app.state.settings.max_stages}", field="prompt")
@@ -142,9 +163,10 @@ def _names(form, files: list[str]) -> list[str]:
     return [forms.clean_name(name, f"names.{i}") for i, name in enumerate(names)]
 
 
-def _read(prompt: str, names: list[str]) -> ScenePlan:
-    """``describe.read_description``, its refusals as 422 with the reader's code."""
+async def _read(prompt: str, names: list[str]) -> ScenePlan:
+    """The plan reader's plan (``readers.get_reader``: the rules unless ``CTP_PLAN_READER`` says otherwise; a model's
+    endpoint is asked off the event loop), its refusals as 422 with the reader's code."""
     try:
-        return read_description(prompt, names)
+        return await run_in_threadpool(get_reader().read, prompt, names)
     except DescriptionError as exc:
         raise ApiError(422, exc.code, exc.message, field=exc.field) from None

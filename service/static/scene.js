@@ -1,5 +1,6 @@
 // A scene from one sentence on the page: several meshes and one description are read into a plan
-// (POST /plans/read), shown as a list a person can correct (each step's prompt and what it relates to), then
+// (POST /plans/read), shown as a list a person can correct (each step's prompt and what it relates to; what it
+// stands on, the other relations said of it and its warnings shown beside it), then
 // placed as that plan says (POST /assemble: the edited plan, not the sentence, is what runs). The page's own
 // calls, option fields and job submitter are passed in by page.js (wireScene), so this module holds no state
 // of the page's and imports nothing from it.
@@ -48,7 +49,7 @@ export function wireScene({ api, options, showError, clearError, submitJob }) {
   function showPlan(plan) {
     const list = $("scene-plan");
     const base = document.createElement("li");
-    base.textContent = `${plan.base} stays put`;
+    base.textContent = `${plan.base} stays put (stands on the floor)`;
     list.append(base);
     plan.steps.forEach((step, i) => {
       const row = document.createElement("li");
@@ -60,10 +61,23 @@ export function wireScene({ api, options, showError, clearError, submitJob }) {
                                                                      className: "step-prompt" });
       const on = Object.assign(document.createElement("input"), { type: "text", value: step.on.join(", "),
                                                                  className: "step-on", title: "relates to" });
-      row.append(what, " ", prompt, " relates to ", on);
+      const stands = Object.assign(document.createElement("span"), {
+        className: "step-support", textContent: `stands on ${step.support}`,
+      });
+      row.append(what, " ", prompt, " relates to ", on, " ", stands);
+      for (const also of step.also) {  // what the description says of the object besides
+        row.append(Object.assign(document.createElement("div"), {
+          className: "step-also hint", textContent: `also ${also.relation} ${also.on.join(" and ")}`,
+        }));
+      }
+      for (const warning of step.warnings) {  // each warning next to its step
+        row.append(Object.assign(document.createElement("div"), { className: "step-warning hint",
+                                                                  textContent: `warning: ${warning}` }));
+      }
       list.append(row);
     });
-    $("scene-warnings").textContent = plan.warnings.join("; ");
+    const stepWarnings = new Set(plan.steps.flatMap((step) => step.warnings));
+    $("scene-warnings").textContent = plan.warnings.filter((w) => !stepWarnings.has(w)).join("; ");
     $("scene-place").disabled = false;
   }
 
