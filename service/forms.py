@@ -41,6 +41,8 @@ _NAME_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
 # What ``clean_name`` accepts, as the contract states it: a character that is not a space, no control characters.
 NAME_PATTERN = r"^[^\x00-\x1f\x7f]*[^\s\x00-\x1f\x7f][^\x00-\x1f\x7f]*$"
 NAME_SCHEMA = {"type": "string", "minLength": 1, "maxLength": NAME_MAX, "pattern": NAME_PATTERN}
+# What ``clean_prompt`` accepts: a character that is not a space, no control characters but tab, newline, return.
+PROMPT_PATTERN = r"^[^\x00-\x08\x0b\x0c\x0e-\x1f\x7f]*[^\s\x00-\x1f\x7f][^\x00-\x08\x0b\x0c\x0e-\x1f\x7f]*$"
 LIST_FIELDS = ("one part per item (`on=sofa`, `on=armchair`) or one part holding a JSON list "
                "(`on=[\"sofa\", \"armchair\"]`; a single part starting with `[` is read so); 400 `invalid_field` "
                "for a malformed list or a wrong count")
@@ -107,7 +109,7 @@ ALIGN_BODY = {
                    f"{LIST_FIELDS}; default the last placed one, or the two placed objects a between prompt names; "
                    "422 `invalid_name` for a name the scene does not have"},
             "source": mesh_field("the mesh to place, same formats"),
-            "prompt": {"type": "string", "minLength": 1, "maxLength": PROMPT_MAX,
+            "prompt": {"type": "string", "minLength": 1, "maxLength": PROMPT_MAX, "pattern": PROMPT_PATTERN,
                        "description": "what the arrangement should look like; required unless `image` is given"},
             "image": image_field("reference picture for image-guided alignment instead of the text"),
             "options": {"type": "string", "contentMediaType": "application/json",

@@ -133,7 +133,8 @@ def test_each_error_code_has_one_status():
 
 def test_the_limits_on_names_are_in_the_contract(api, parked):
     """What the fuzzer found: an empty name in ``POST /plans/read`` was refused by a limit the schema did not state.
-    The schema states each name's limits, and a request outside them is 400 as the contract says."""
+    The schema states each name's limits (and a prompt's), and a request outside them is 400 as the contract
+    says."""
     spec = api.client.get("/openapi.json").json()
     item = spec["components"]["schemas"]["PlanRequest"]["properties"]["names"]["items"]
     assert (item["minLength"], item["maxLength"]) == (1, NAME_MAX) and re.fullmatch(item["pattern"], "paint tin")
@@ -144,6 +145,9 @@ def test_the_limits_on_names_are_in_the_contract(api, parked):
         assert answer.status_code == 400, answer.text
     form = spec["paths"]["/scenes"]["post"]["requestBody"]["content"]["multipart/form-data"]["schema"]["properties"]
     assert form["names"]["type"] == "array" and form["names"]["items"]["minLength"] == 1
+    align = spec["paths"]["/align"]["post"]["requestBody"]["content"]["multipart/form-data"]["schema"]["properties"]
+    for text in ("a cup on the table", "a cup\ton the table\n", " \t", "a cup\x07", "\n\n a cup"):  # as the server
+        assert bool(re.fullmatch(align["prompt"]["pattern"], text)) == bool(text.strip() and "\x07" not in text)
 
 
 def test_a_bounded_schemathesis_run_finds_nothing(private_redis, tmp_path):
