@@ -26,8 +26,9 @@ $(VENV)/.installed: pyproject.toml
 	@touch $@
 	@echo "make install: done ($(VENV))"
 
+# Ctrl-C ends `ctp serve` with status 130: a normal stop here, not a make error
 serve: install
-	$(BIN)/ctp serve
+	@$(BIN)/ctp serve || [ $$? -eq 130 ]
 
 test: install
 	$(BIN)/pytest -q -rs

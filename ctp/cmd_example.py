@@ -1,7 +1,8 @@
 """``ctp example``: write a generated example pair (``ctp_core.io.examples``) to try ``ctp align`` and the service on.
 
 Prints the paths written (target first) on stdout, and on stderr the ``ctp align`` line that places the
-example's source by its prompt. Exit codes: 0 written; 2 bad usage (an unknown example).
+example's source by its prompt (the README's Quick start, with the machine's best guide). Exit codes: 0 written;
+2 bad usage (an unknown example).
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ def run(args: argparse.Namespace) -> int:
     print(target)
     print(source)
     command = ["ctp", "align", str(target), str(source), "--prompt", example.prompt, "--target-name",
-               example.target_name, "--source-name", example.source_name, "--preset", "test", "--model", "random:tiny"]
+               example.target_name, "--source-name", example.source_name, "--preset", "test",
+               "--out", str(args.dir / "scene.glb"), "--report", str(args.dir / "report.json")]
     print(f"{example.name}: {example.prompt!r}; try:\n  {shlex.join(command)}", file=sys.stderr)
     return 0

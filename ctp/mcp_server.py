@@ -106,7 +106,7 @@ def build(service: Service) -> MCPServer:
         `matrix_z_up` (the same in Blender's axes, +Z up: set it as the source's matrix_world when both were
         exported at the origin), the relation's `verdict` in words ("'on' holds, stable, touching"), `contact`;
         `alternatives` (other poses, the answer first), `target_parts` (the target's named parts the relation
-        used), and `glb`, the path of the placed scene (target and source as nodes). Several copies: `copies`,
+        used), and `glb`, the path of the placed scene (a node per object, named as it). Several copies: `copies`,
         one placement each."""
         options = _options(options, preset=preset, count=count, arrangement=arrangement, seed=seed)
         return await _run(ctx, lambda progress: work.place(target, source, prompt, target_name, source_name,

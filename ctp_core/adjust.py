@@ -127,6 +127,7 @@ def read_back(scene: trimesh.Scene, source_to_target: np.ndarray, node: str | No
     source = scene.geometry[name].copy().apply_transform(back.matrix)
     if len(before) == 1:
         target = scene.geometry[before[0]]
+        target.metadata["name"] = before[0]  # saved again under its own name (export.arrangement_glb)
     else:
         target = trimesh.Scene()
         for part in before:

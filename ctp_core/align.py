@@ -397,8 +397,9 @@ def alternatives(run: Run, outcome: Outcome) -> list[int]:
     the evaluation views): first the best at each distinct place (``search.distinct_translation`` source
     diagonals apart, any turn: the next places after the usual one), then other turns (near ones: that distance
     *and* ``distinct_rotation_deg``, as the search counts duplicates); those that ended far from the target (over
-    ``contact.REACH`` source diagonals) left out. A prompt like "a cup on the table" has many right answers; a
-    person picks among these."""
+    ``contact.REACH`` source diagonals) left out; a source symmetric about its up (``PreparedPair.source_spin_axis``)
+    has no other turn that differs by a spin about it alone. A prompt like "a cup on the table" has many right
+    answers; a person picks among these."""
     from ctp_core.search import coarse_to_fine, ordering
 
     poses = outcome.poses
@@ -406,7 +407,8 @@ def alternatives(run: Run, outcome: Outcome) -> list[int]:
     key = ordering.alternatives_key(outcome.terms, outcome.objectives, far, outcome.best)
     distance, angle = coarse_to_fine.distinct_of(run.pair, run.config, float(poses.log_s[0]))
     places = coarse_to_fine.diverse_top(poses, key, MAX_ALTERNATIVES, distance, 180.0, fill=False)
-    turns = coarse_to_fine.diverse_top(poses, key, MAX_ALTERNATIVES, distance, angle, fill=False)
+    turns = coarse_to_fine.diverse_top(poses, key, MAX_ALTERNATIVES, distance, angle, fill=False,
+                                       spin_axis=run.pair.source_spin_axis)
     kept = (places + [i for i in turns if i not in places])[:MAX_ALTERNATIVES]
     finite = key.finite()
     return [i for i in kept if finite[i] or i == outcome.best]

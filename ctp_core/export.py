@@ -38,30 +38,29 @@ if TYPE_CHECKING:  # align imports the whole engine; exporting a result needs no
     from ctp_core.align import AlignResult
 
 
-def scene_glb(result: AlignResult, source_name: str = "source") -> bytes:
-    """One GLB with named nodes and their materials: "target" (identity) and "source" (placed)."""
-    return arrangement_glb(result.target, result.source, result.source_to_target, source_name)
+def scene_glb(result: AlignResult, source_name: str | None = None, target_name: str | None = None) -> bytes:
+    """One GLB with named nodes and their materials: the target (identity) and the source (placed), named as
+    given here, else by the names the run's priors read (``result.priors``)."""
+    return arrangement_glb(result.target, result.source, result.source_to_target,
+                           source_name or result.priors.get("source_name") or "source",
+                           target_name or result.priors.get("target_name"))
 
 
 def arrangement_glb(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, source_to_target: np.ndarray,
-                    source_name: str = "source") -> bytes:
+                    source_name: str = "source", target_name: str | None = None) -> bytes:
     """A target (file frame, untouched) and the source under its source file -> target file matrix, as one GLB.
 
-    A scene target (the objects placed so far) keeps one node per object under its own name, and the
-    source's node is then named ``source_name`` (made unique among them); a single mesh target's nodes are
-    "target" and "source". The source is the last node (``adjust`` reads it back so).
+    A scene target (the objects placed so far) keeps one node per object under its own name; a single mesh
+    target's node is ``target_name`` (unset: the mesh's own name, ``pairs.objects``). The source's node is named
+    ``source_name``, made unique among them, and is the last node (``adjust`` reads it back so).
     """
     scene = trimesh.Scene()
-    if isinstance(target, trimesh.Scene):
-        placed = objects(target)
-        names = [name for name, _ in placed]
-        for name, mesh in placed:
-            scene.add_geometry(mesh, node_name=name, geom_name=name)
-        source_name = next(n for n in (source_name, *(f"{source_name}-{i}" for i in range(2, len(names) + 3)))
-                           if n not in names)
-    else:
-        scene.add_geometry(target, node_name="target", geom_name="target")
-        source_name = "source"
+    placed = [(target_name, target)] if isinstance(target, trimesh.Trimesh) and target_name else objects(target)
+    names = [name for name, _ in placed]
+    for name, mesh in placed:
+        scene.add_geometry(mesh, node_name=name, geom_name=name)
+    source_name = next(n for n in (source_name, *(f"{source_name}-{i}" for i in range(2, len(names) + 3)))
+                       if n not in names)
     scene.add_geometry(source, node_name=source_name, geom_name=source_name,
                        transform=np.asarray(source_to_target, dtype=np.float64))
     return trimesh.exchange.gltf.export_glb(scene)

@@ -140,6 +140,14 @@ class PreparedPair:
         return torch.as_tensor(q, dtype=torch.float32, device=self.source_vertices.device)
 
     @property
+    def source_spin_axis(self) -> torch.Tensor | None:
+        """(3,) the source's up (source local frame) where it is rotationally symmetric about it, else None: two
+        poses whose turns differ by a spin about it look the same."""
+        if not self.source_upright.symmetric:
+            return None
+        return torch.as_tensor(_unit(self.source_upright.up), dtype=torch.float32, device=self.source_vertices.device)
+
+    @property
     def anchor(self) -> SurfaceIndex:
         """What the soft-ICP term pulls toward: the related object's samples, or the whole target's."""
         return self.index if self.attach is None else self.attach

@@ -25,6 +25,7 @@ from typing import Literal
 from pydantic import BaseModel, Field
 
 from service.jobs import JobError, Jobs, compare_and_set, now
+from service.redact import redact_model
 
 log = logging.getLogger("ctp.service")
 
@@ -104,7 +105,8 @@ class AdjustmentRecord(BaseModel):
 
     def out(self) -> Adjustment:
         return Adjustment(id=self.id, job=self.job, status=self.status, created_at=self.created_at,
-                          finished_at=self.finished_at, request=self.request, result=self.result, error=self.error,
+                          finished_at=self.finished_at, request=self.request, result=self.result,
+                          error=self.error and redact_model(self.error),
                           link=f"/jobs/{self.job}/adjust/{self.id}")
 
 

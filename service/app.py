@@ -66,7 +66,8 @@ run's own at `original.glb`). Jobs run on queue workers; records and results exp
   not a JSON object, is over {OPTIONS_MAX} characters or {OPTIONS_DEPTH} levels deep, or holds an integer
   beyond 64 bits, NaN or infinity), `invalid_plan` (an assembly plan that is not a JSON list of steps, or
   names a file part not sent), `invalid_field` also for `webhook_events` without `webhook`,
-  `invalid_idempotency_key` (not 1 to 255 visible ASCII characters)
+  `invalid_idempotency_key` (not 1 to 255 visible ASCII characters); a list field (`on`, `names`) is one part
+  per item or one part holding a JSON list, and its malformed list or wrong count is `invalid_field`
 - 401: `unauthorized`
 - 404: `job_not_found` (also a `target_job` that is unknown or another key's), `not_found`,
   `adjustment_not_found`, `not_adjusted` (`original.glb` of a job with no saved adjustment)
@@ -81,9 +82,11 @@ run's own at `original.glb`). Jobs run on queue workers; records and results exp
   (all meshes of a job, `CTP_MAX_SCENE_FACES`)
 - 415: `mesh_unknown_format` (extension not .glb, .gltf, .obj, .zip (OBJ+MTL), .ply or .stl)
 - 422: `invalid_prompt` (1 to {PROMPT_MAX} characters, no control characters but tab, newline and carriage
-  return), `invalid_option` (includes an integer option out of its range), `unknown_option`,
+  return), `invalid_option` (includes an integer option out of its range, and `POST /inspect`'s `up` and
+  `front`), `unknown_option`,
   `invalid_name` (1 to {NAME_MAX} characters, no control characters; also a file name with control
-  characters), `invalid_plan` (duplicate step names, an `on` that is not placed before the step),
+  characters), `invalid_step` (a plan's step with a repeated name, an `on` that is not placed before it, or
+  neither prompt nor image while guided),
   a description `POST /plans/read` and `POST /scenes` cannot read: `unknown_object`, `placement_cycle`,
   `placed_twice`, `nothing_placed`, `unclear_clause`, `too_few_objects`, `empty_description`,
   `invalid_description`,
@@ -111,15 +114,19 @@ run's own at `original.glb`). Jobs run on queue workers; records and results exp
 
 Every 429 and 503 carries `Retry-After` (seconds): for 429 the soonest estimate of the key's running jobs (1 to
 60), for 503 by code: `redis_unavailable` 2, `storage_unavailable` 5, `loader_unavailable` 10, `no_worker` 30,
-`model_unavailable` 60. A query value out of its bounds is 400 `invalid_request`; a 405's `Allow` lists every
-method of the path.
+`model_unavailable` 60. A query value out of its bounds is 400 `invalid_request`; a method the path does not have
+is 405 `method_not_allowed`, its `Allow` listing every method of the path. Each code has one status.
 
 **Queues.** Workers serve named queues (`CTP_QUEUES`, e.g. GPU and CPU workers); a job goes to the one its
 `queue` option names, default the deployment's (`CTP_DEFAULT_QUEUE`), and is judged by that queue's workers.
 
-**Downloads.** A job's `links.downloads` says how its result, report and preview answer: `stream` (200 with the
+**Downloads.** A job's `links.downloads` says how its result and preview answer: `stream` (200 with the
 file) or `redirect` (307 to a short-lived presigned URL of the object store; follow it without the
-Authorization header).
+Authorization header). `report.json` is always streamed.
+
+**Nothing of the machine.** No answer names the server's paths or cache folders: every job answer (`GET
+/jobs/{{id}}`, the list, the events, webhooks), `report.json` and every error say `<path>` where a worker wrote one
+(e.g. in `guide_why`, where it looked for a model's weights).
 
 **Webhooks, retries and waiting.** `webhook` (and `webhook_events`: `start`, `progress`, `completed`;
 default `completed`) on a submit POSTs the job's events there, signed as Standard Webhooks does (headers

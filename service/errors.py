@@ -100,7 +100,7 @@ def install_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(StarletteHTTPException)
     async def _http_error(request: Request, exc: StarletteHTTPException):
-        code = "not_found" if exc.status_code == 404 else "invalid_request"
+        code = {404: "not_found", 405: "method_not_allowed"}.get(exc.status_code, "invalid_request")
         headers = exc.headers
         if exc.status_code == 405:  # Starlette's Allow names only the first route of the path
             headers = {**(headers or {}), "Allow": ", ".join(_allowed(request))}

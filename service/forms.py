@@ -38,6 +38,14 @@ INT_MAX = 2**63 - 1  # JSON integers must fit in 64 bits
 # C0 control characters; a prompt may hold tab, newline and carriage return, a name none of them.
 _PROMPT_CONTROL = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
 _NAME_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+# What ``clean_name`` accepts, as the contract states it: a character that is not a space, no control characters.
+NAME_PATTERN = r"^[^\x00-\x1f\x7f]*[^\s\x00-\x1f\x7f][^\x00-\x1f\x7f]*$"
+NAME_SCHEMA = {"type": "string", "minLength": 1, "maxLength": NAME_MAX, "pattern": NAME_PATTERN}
+# What ``clean_prompt`` accepts: a character that is not a space, no control characters but tab, newline, return.
+PROMPT_PATTERN = r"^[^\x00-\x08\x0b\x0c\x0e-\x1f\x7f]*[^\s\x00-\x1f\x7f][^\x00-\x08\x0b\x0c\x0e-\x1f\x7f]*$"
+LIST_FIELDS = ("one part per item (`on=sofa`, `on=armchair`) or one part holding a JSON list "
+               "(`on=[\"sofa\", \"armchair\"]`; a single part starting with `[` is read so); 400 `invalid_field` "
+               "for a malformed list or a wrong count")
 WEBHOOK_FIELDS = {"webhook", "webhook_events"}  # both submit routes (service.submit)
 FORM_FIELDS = {"target", "source", "prompt", "image", "options", "target_name", "source_name",
                "target_job", "on", *WEBHOOK_FIELDS}
@@ -95,24 +103,21 @@ ALIGN_BODY = {
             "target_job": {"type": "string", "description": "instead of `target` (not with it): the id of one of "
                            "your succeeded jobs, whose result scene becomes the target, read back as its separate "
                            "objects (404 for an unknown job or another key's, 409 if it has not succeeded)"},
-            "on": {"type": "array", "items": {"type": "string", "maxLength": NAME_MAX}, "minItems": 1,
-                   "maxItems": MAX_GROUNDS, "uniqueItems": True,
+            "on": {"type": "array", "items": NAME_SCHEMA, "minItems": 1, "maxItems": MAX_GROUNDS, "uniqueItems": True,
                    "description": "with `target_job`: the object of that scene the source relates to (soft-ICP "
-                   "attaches to it), or two objects, one part each (`on=sofa`, `on=armchair`: \"a lamp between the "
-                   "sofa and the armchair\"); default the last placed one, or the two placed objects a between "
-                   "prompt names; 422 `invalid_name` for a name the scene does not have"},
+                   "attaches to it), or two objects (\"a lamp between the sofa and the armchair\"): "
+                   f"{LIST_FIELDS}; default the last placed one, or the two placed objects a between prompt names; "
+                   "422 `invalid_name` for a name the scene does not have"},
             "source": mesh_field("the mesh to place, same formats"),
-            "prompt": {"type": "string", "minLength": 1, "maxLength": PROMPT_MAX,
+            "prompt": {"type": "string", "minLength": 1, "maxLength": PROMPT_MAX, "pattern": PROMPT_PATTERN,
                        "description": "what the arrangement should look like; required unless `image` is given"},
             "image": image_field("reference picture for image-guided alignment instead of the text"),
             "options": {"type": "string", "contentMediaType": "application/json",
                         "contentSchema": {"$ref": "#/components/schemas/JobOptions"},
                         "description": "JSON object of run options (JobOptions: AlignOptions and queue)"},
-            "target_name": {"type": "string", "maxLength": NAME_MAX,
-                            "description": "what the target is (\"sundae\"), for the scene priors; "
+            "target_name": {**NAME_SCHEMA, "description": "what the target is (\"sundae\"), for the scene priors; "
                             "default: its file name"},
-            "source_name": {"type": "string", "maxLength": NAME_MAX,
-                            "description": "what the source is (\"cherry\"); default: its file name"},
+            "source_name": {**NAME_SCHEMA, "description": "what the source is (\"cherry\"); default: its file name"},
             **WEBHOOK_PROPERTIES,
         },
     }, "encoding": {"image": IMAGE_ENCODING}}},
@@ -123,7 +128,7 @@ async def read_form(request: Request, fields: set[str] = FORM_FIELDS, max_files:
     if not request.headers.get("content-type", "").startswith("multipart/form-data"):
         raise ApiError(400, "invalid_request", f"send multipart/form-data (fields {', '.join(sorted(fields))})")
     try:
-        form = await request.form(max_files=max_files, max_fields=10)
+        form = await request.form(max_files=max_files, max_fields=10 + max_files)  # a list field: a part per file
     except ApiError:
         raise
     except Exception as exc:  # python-multipart and Starlette raise several types for a broken body
@@ -151,13 +156,25 @@ def text_value(value, name: str) -> str | None:
     return value
 
 
+def text_list(form, name: str) -> list[str] | None:
+    """A list field (``LIST_FIELDS``): its parts, or the JSON list of strings its one part holds (None: absent);
+    400 ``invalid_field`` for a malformed list."""
+    parts = [text_value(value, name) for value in form.getlist(name)]
+    if len(parts) != 1 or not (parts[0] or "").lstrip().startswith("["):
+        return [part for part in parts if part is not None] or None
+    items = strict_json(parts[0] or "", name, "invalid_field")
+    if not isinstance(items, list) or not all(isinstance(item, str) for item in items):
+        raise ApiError(400, "invalid_field", f"{name} must be a JSON list of strings, or one part per item",
+                       field=name)
+    return items
+
+
 def grounds(form) -> list[str]:
-    """The ``on`` parts (a repeated text field): 0 to ``MAX_GROUNDS`` distinct names; 400 ``invalid_field``
-    otherwise."""
-    names = [text_value(value, "on") for value in form.getlist("on")]
+    """The ``on`` list (``text_list``): 0 to ``MAX_GROUNDS`` distinct names; 400 ``invalid_field`` otherwise."""
+    names = text_list(form, "on") or []
     if len(names) > MAX_GROUNDS or len(set(names)) < len(names):
-        raise ApiError(400, "invalid_field", f"on names one object or {MAX_GROUNDS} different ones, one part each "
-                       f"(got {len(names)} parts)", field="on")
+        raise ApiError(400, "invalid_field", f"on names one object or {MAX_GROUNDS} different ones "
+                       f"(got {len(names)})", field="on")
     return names
 
 

@@ -551,7 +551,7 @@ class Jobs:
         """A stopping ``worker`` gives its running job back: queued again, the attempt not counted. None when the
         job is no longer its own (reaped, canceled); then nothing changes."""
         return self._requeue(job_id, lambda r: r.worker == worker and not r.cancel_requested, counted=False,
-                             message=f"handed back by worker {worker}, which was stopping; waiting for a worker")
+                             message="handed back by its worker, which was stopping; waiting for a worker")
 
     def _requeue(self, job_id: str, when: Callable[[JobRecord], bool], *, counted: bool,
                  message: str) -> JobRecord | None:
@@ -756,8 +756,7 @@ class Jobs:
             if record is None or record.status in TERMINAL:
                 self.redis.srem(self._running_key, job_id)
                 continue
-            missed = (f"the worker running this job ({record.worker}) missed its lease: no heartbeat for "
-                      f"{self.lease_s} s")
+            missed = f"the worker running this job missed its lease: no heartbeat for {self.lease_s} s"
             again = self._requeue(job_id, lambda r: r.attempts < MAX_ATTEMPTS and not r.cancel_requested,
                                   counted=True, message=f"{missed}; queued again (attempt {record.attempts + 1} of "
                                   f"{MAX_ATTEMPTS})")

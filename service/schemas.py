@@ -16,6 +16,7 @@ from ctp_core.errors import ConfigError
 from ctp_core.guide.selection import asks_for_guide
 from ctp_core.reading.counts import CHOICES, MAX_COPIES
 from service.jobs import Alternative, JobError, JobRecord, Progress, SavedAdjustment, Status
+from service.redact import redact, redact_model
 from service.settings import QUEUE_NAME
 from service.webhooks import Event, Webhook
 
@@ -132,13 +133,15 @@ class JobOut(BaseModel):
 
     @classmethod
     def of(cls, r: JobRecord) -> JobOut:
-        return cls(id=r.id, status=r.status, progress=r.progress, created_at=r.created_at,
-                   started_at=r.started_at, finished_at=r.finished_at, error=r.error,
+        """The job as every answer, event and webhook gives it: what the service and its workers wrote in it
+        (progress, error, guide) without the machine's paths (``service.redact``)."""
+        return cls(id=r.id, status=r.status, progress=redact_model(r.progress), created_at=r.created_at,
+                   started_at=r.started_at, finished_at=r.finished_at, error=r.error and redact_model(r.error),
                    cancel_requested=r.cancel_requested, attempts=r.attempts, prompt=r.prompt, image_guided=r.has_image,
                    webhook=r.webhook, queue=r.queue, target_job=r.target_job, stages=r.stage_count,
                    count=r.count, arrangement=r.arrangement,
-                   alternatives=r.alternatives, adjusted=r.adjusted, guide=r.guide, guide_why=r.guide_why,
-                   links=links(r.id, r.downloads))
+                   alternatives=r.alternatives, adjusted=r.adjusted, guide=r.guide and redact(r.guide),
+                   guide_why=r.guide_why and redact(r.guide_why), links=links(r.id, r.downloads))
 
 
 class WebhookPayload(BaseModel):

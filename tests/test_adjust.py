@@ -72,9 +72,11 @@ def test_drop_falls_along_the_jobs_up_not_the_files_y():
 def test_a_result_glb_reads_back_as_it_was_written_and_the_report_keeps_the_first_original():
     table = trimesh.creation.box((1.0, 0.1, 0.8))
     placed = at(0.1, 0.35, 0.0, trimesh.transformations.rotation_matrix(0.5, [0, 1, 0])[:3, :3], 1.5)
-    scene = load_objects(arrangement_glb(table, BALL, placed), filename="result.glb")
+    scene = load_objects(arrangement_glb(table, BALL, placed, "ball", "table"), filename="result.glb")
     target, source, name = read_back(scene, placed)
-    assert name == "source" and isinstance(target, trimesh.Trimesh)
+    assert name == "ball" and isinstance(target, trimesh.Trimesh)
+    again = load_objects(arrangement_glb(target, source, placed, name), filename="result.glb")
+    assert list(again.geometry) == ["table", "ball"]  # saved again under the same names
     assert np.allclose(source.bounds, BALL.bounds, atol=1e-5) and np.allclose(target.bounds, table.bounds)
     done = adjust(target, source, placed, CONFIG, settle="drop")  # upright None: found from the table as a run does
     assert done.settled and done.touching and done.penetration < 0.01, done

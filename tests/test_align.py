@@ -17,6 +17,7 @@ from ctp_core.guide import runtime
 from ctp_core.guide.goals import TextGoal
 from ctp_core.guide.guidance import cpu_has_fast_bf16
 from ctp_core.guide.loaders import get_guide
+from ctp_core.io.examples import get_example
 from ctp_core.pairs import prepare_pair
 
 
@@ -116,7 +117,7 @@ def test_cli_align_end_to_end(tmp_path, meshes, capsys):
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert summary["out"] == str(out)
     scene = trimesh.load(out, force="scene")
-    assert len(scene.geometry) == 2
+    assert list(scene.geometry) == ["table", "cup"]
     data = json.loads(report.read_text())
     np.testing.assert_allclose(np.array(data["transform"]["matrix"]), summary_matrix(summary, data), atol=1e-9)
     assert data["prompt"] == "a cup on the table" and data["model"] == data["guide"] == "random:tiny"
@@ -133,7 +134,7 @@ def test_cli_align_end_to_end(tmp_path, meshes, capsys):
     written = [str(tmp_path / f"scene-{k}.glb") for k in range(2, min(3, len(alternatives)) + 1)]
     assert summary.get("alternatives", []) == written and len(alternatives) >= 2
     for k, path in enumerate(written, start=1):
-        placed = trimesh.load(path, force="scene").graph["source"][0]
+        placed = trimesh.load(path, force="scene").graph["cup"][0]  # named by the file's stem
         np.testing.assert_allclose(placed, alternatives[k]["transform"]["matrix"], atol=1e-6)
     assert list(data["extra"]) == ["best_restart", "on", "grounds", "guidance", "runtime", "clip_images",
                                    "phase_timings", "target_upright", "source_upright", "scale", "parts"]
@@ -207,6 +208,38 @@ def test_degenerate_meshes_align(case):
     distance = np.linalg.norm(matrix[:3, :3] @ source.bounds.mean(0) + matrix[:3, 3]
                               - target.bounds.mean(0))
     assert distance < 10 * target.extents.max()
+
+
+def test_alternatives_of_a_round_cup_differ_by_more_than_a_spin_about_its_up():
+    """The example cup is round about its up (the report's source frame finds it): no two alternatives stand at
+    the same place (0.25 source diagonals) with its up pointing the same way (30 degrees), which would look the
+    same, a spin about its axis alone."""
+    table, cup = get_example("cup-on-table").meshes()
+    config = AlignConfig.from_preset("test", model="random:tiny", optim={"restarts": 6})
+    result = align(table, cup, "a cup on the table", config, target_name="table", source_name="cup")
+    assert result.source_upright.symmetric and not result.target_upright.symmetric
+    up, diagonal = result.source_upright.up, float(np.linalg.norm(cup.extents))
+    placed = [np.asarray(a["source_to_target"]) for a in result.alternatives]
+    assert len(placed) >= 2
+    for i, a in enumerate(placed):
+        for b in placed[:i]:
+            apart = np.linalg.norm(a[:3, 3] - b[:3, 3]) / diagonal
+            ua, ub = (m[:3, :3] @ up / np.linalg.norm(m[:3, :3] @ up) for m in (a, b))
+            assert apart >= 0.25 - 1e-6 or np.degrees(np.arccos(np.clip(ua @ ub, -1, 1))) >= 30 - 1e-3
+
+
+def test_alternative_turns_of_a_symmetric_source_are_told_apart_by_its_axis():
+    """``diverse_top`` with a spin axis: a quarter turn about it is the same pose, a quarter turn across it is not;
+    without one every quarter turn counts."""
+    from ctp_core.search.coarse_to_fine import diverse_top
+    from ctp_core.search.ordering import Key
+
+    half = np.sqrt(0.5)
+    q = torch.tensor([[1.0, 0, 0, 0], [half, 0, half, 0], [half, half, 0, 0]])  # none, about +Y, about +X
+    poses = pose.Poses(torch.zeros(3, 3), q, torch.zeros(3))
+    best = Key.plain(torch.tensor([0.0, 1.0, 2.0]))
+    assert diverse_top(poses, best, 3, 0.1, 30.0, fill=False) == [0, 1, 2]
+    assert diverse_top(poses, best, 3, 0.1, 30.0, fill=False, spin_axis=torch.tensor([0.0, 1.0, 0.0])) == [0, 2]
 
 
 def test_alternatives_are_distinct_placements_the_answer_first(meshes):

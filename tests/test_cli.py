@@ -5,10 +5,12 @@ line whose figures mean something, and one-line refusals from ``ctp serve``."""
 from __future__ import annotations
 
 import io
+import shlex
 import subprocess
 import sys
 
 import pytest
+import trimesh
 
 from ctp.cli import main
 from ctp.cmd_align import ProgressBar
@@ -84,6 +86,15 @@ def test_example_writes_the_sample_pair_and_says_what_to_run(tmp_path, capsys):
     assert out.split() == [str(tmp_path / "bowl.glb"), str(tmp_path / "apple.glb")]
     assert (tmp_path / "bowl.glb").stat().st_size > 0
     assert "ctp align" in err and "'an apple in a bowl'" in err and "--target-name bowl" in err
+
+
+def test_example_suggests_a_command_that_runs_and_names_the_result_nodes(tmp_path, capsys):
+    assert main(["example", "--dir", str(tmp_path)]) == 0
+    command = shlex.split(capsys.readouterr().err.splitlines()[-1])
+    assert command[:2] == ["ctp", "align"] and "--model" not in command  # the README's: the machine's best guide
+    assert main([*command[1:], "--quiet"]) == 0
+    scene = trimesh.load(tmp_path / "scene.glb", force="scene")
+    assert set(scene.graph.nodes_geometry) == {"table", "cup"}
 
 
 def event(kind: str, step: int, **readout) -> ProgressEvent:

@@ -1,11 +1,12 @@
-"""The generated example pairs load through the same loader as uploads and are small."""
+"""The generated example pairs load through the same loader as uploads, are small and name their nodes."""
 
 from __future__ import annotations
 
 import pytest
+import trimesh
 
 from ctp_core.io import load_mesh
-from ctp_core.io.examples import EXAMPLES, get_example
+from ctp_core.io.examples import EXAMPLES, get_example, write_table_setting
 
 
 @pytest.mark.parametrize("name", sorted(EXAMPLES))
@@ -22,3 +23,16 @@ def test_examples_are_small_loadable_glbs(name, tmp_path):
 def test_unknown_example_names_the_known_ones():
     with pytest.raises(KeyError, match="cup-on-table"):
         get_example("teapot")
+
+
+@pytest.mark.parametrize("name", sorted(EXAMPLES))
+def test_example_nodes_are_named_as_the_objects(name, tmp_path):
+    example = get_example(name)
+    for path, role in zip(example.write(tmp_path), (example.target_name, example.source_name), strict=True):
+        assert trimesh.load(path, force="scene").graph.nodes_geometry == [role]
+
+
+def test_table_setting_nodes_are_named_as_their_files(tmp_path):
+    write_table_setting(tmp_path)
+    for name in ("table", "plate", "cup"):
+        assert trimesh.load(tmp_path / f"{name}.glb", force="scene").graph.nodes_geometry == [name]

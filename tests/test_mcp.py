@@ -151,8 +151,8 @@ def _cup_on_table(answer: dict[str, Any], cup: trimesh.Trimesh) -> None:
     assert np.allclose(in_z_up[:, [0, 1, 2]], placed[:, [0, 2, 1]] * [1, -1, 1], atol=1e-6)
     scene = trimesh.load(answer["glb"], force="scene")
     nodes = {node: scene.graph[node] for node in scene.graph.nodes_geometry}
-    assert set(nodes) == {"target", "source"}
-    matrix, geometry = nodes["source"]
+    assert set(nodes) == {"table", "cup"}
+    matrix, geometry = nodes["cup"]
     served = trimesh.transform_points(scene.geometry[geometry].vertices, matrix)
     assert served[:, 1].min() == pytest.approx(TABLE_TOP, abs=0.01)
     assert np.all(np.abs(served[:, [0, 2]]) < TABLE_HALF)

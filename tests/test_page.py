@@ -303,7 +303,7 @@ def _result_viewed(driver) -> None:
     find(By.ID, "tint").click()  # each object in its own colour: blue target, orange source
     tinted = driver.execute_script(CANVAS_COLOURS, BACKGROUND)
     assert tinted["blue"] > 0.005 * tinted["total"] and tinted["orange"] > 0.0005 * tinted["total"], tinted
-    assert [e.text for e in driver.find_elements(By.CSS_SELECTOR, "#parts label")][:2] == ["target", "source"]
+    assert [e.text for e in driver.find_elements(By.CSS_SELECTOR, "#parts label")][:2] == ["table", "ball"]
     assert find(By.ID, "result-prompt").text == '"a ball on top of a table"'
     assert "translation" in find(By.ID, "transform").text
     assert "chose" in find(By.ID, "transform").text  # who ordered the poses: the guide, the geometry or both
@@ -327,7 +327,7 @@ def _downloaded_and_reopened(driver, api, job_id: str) -> None:
     served = api.client.get(f"/jobs/{job_id}/result.glb", headers=AUTH).content
     assert downloaded.read_bytes() == served
     scene = trimesh.load(downloaded, file_type="glb")
-    assert {"target", "source"} <= set(scene.graph.nodes_geometry)
+    assert set(scene.graph.nodes_geometry) == {"table", "ball"}  # named by the uploads' file names
 
     rows = driver.find_elements(By.CSS_SELECTOR, f"#jobs-body tr[data-id='{job_id}']")
     assert rows and "succeeded" in rows[0].text
@@ -671,10 +671,10 @@ def _saved_scene_downloaded(driver, api, job_id: str, dropped: np.ndarray, origi
     glb = downloaded.read_bytes()
     assert glb == api.client.get(f"/jobs/{job_id}/result.glb", headers=AUTH).content
     scene = trimesh.load(io.BytesIO(glb), file_type="glb")
-    node, geometry = scene.graph["source"]
+    node, geometry = scene.graph["ball"]
     assert np.allclose(node, dropped, atol=1e-5)  # the source node holds the saved transform
     ball = scene.geometry[geometry].copy().apply_transform(node)
-    table = scene.geometry[scene.graph["target"][1]].copy().apply_transform(scene.graph["target"][0])
+    table = scene.geometry[scene.graph["table"][1]].copy().apply_transform(scene.graph["table"][0])
     inside = float(trimesh.proximity.signed_distance(table, ball.vertices).max())  # > 0: a ball vertex in the table
     diagonal = float(np.linalg.norm(ball.extents))
     assert -0.02 * diagonal < inside < 0.02 * diagonal, inside  # touching: no gap, no penetration past 2 %

@@ -76,7 +76,7 @@ def test_quick_start_align_runs_as_written(tmp_path):
     preamble = 'make() { [ "$*" = install ]; }\n'
     bash(preamble + block("cli"), tmp_path, readme_env(tmp_path))
     scene = trimesh.load(tmp_path / "try" / "scene.glb", force="scene")
-    assert set(scene.geometry) == {"target", "source"}
+    assert set(scene.geometry) == {"table", "cup"}  # the names given
     report = json.loads((tmp_path / "try" / "report.json").read_text())
     assert (report["hparams"]["target_name"], report["hparams"]["source_name"]) == ("table", "cup")
     assert report["guide"] == "none" and "not in the Hugging Face cache" in report["guide_why"]  # no weights
@@ -111,7 +111,7 @@ def test_service_walk_through_and_client_run_as_written(tmp_path):
         assert "event: end" in run.stdout and '"status":"succeeded"' in run.stdout
         assert '"code":"job_finished"' in run.stdout  # the last line: cancel of the ended job
         served = trimesh.load(tmp_path / "try" / "served.glb", force="scene")
-        assert set(served.geometry) == {"target", "source"}
+        assert set(served.geometry) == {"table", "cup"}
         assert '"target_name": "table"' in run.stdout  # the report says which names the priors read
 
         client = subprocess.run([sys.executable, "-c", block("client").replace("127.0.0.1:8000", f"127.0.0.1:{port}")],

@@ -215,7 +215,7 @@ def test_inspect_reads_one_mesh_as_a_job_would(api):
     assert box["front"] == pytest.approx([0, 0, 1]) and "glTF" in box["reason"]
     for bad in ({"up": "upward"}, {"up": "+y", "front": "-y"}):
         refused = api.client.post("/inspect", files={"mesh": ("box.glb", BOX)}, data=bad)
-        assert (refused.status_code, refused.json()["error"]["code"]) == (422, "invalid_field"), refused.text
+        assert (refused.status_code, refused.json()["error"]["code"]) == (422, "invalid_option"), refused.text
 
     from service.client import Client, ServiceError
 
@@ -242,7 +242,7 @@ def test_inspect_refuses_what_a_job_would_with_the_same_code(api, case):
 def test_inspect_refuses_an_up_or_front_a_job_would_refuse(api, fields, field):
     answer = api.client.post("/inspect", files={"mesh": ("box.glb", BOX)}, data=fields)
     assert (answer.status_code, answer.json()["error"]["code"], answer.json()["error"]["field"]) == (
-        422, "invalid_field", field), answer.text
+        422, "invalid_option", field), answer.text
 
 
 @pytest.mark.parametrize("case", list(BAD_INPUTS))
@@ -375,11 +375,11 @@ def test_end_to_end_with_progress_events(api, worker):
     assert final["started_at"] <= final["finished_at"] and final["progress"]["fraction"] == 1.0
 
     scene = trimesh.load(io.BytesIO(api.client.get(links["result"]).content), file_type="glb")
-    assert set(scene.geometry) == {"target", "source"}
-    assert len(scene.geometry["target"].faces) == len(trimesh.creation.box().faces)
+    assert list(scene.geometry) == ["box", "ball"]  # named by the uploads' file names
+    assert len(scene.geometry["box"].faces) == len(trimesh.creation.box().faces)
     report = api.client.get(links["report"]).json()
     matrix = np.array(report["transform"]["matrix"])
-    np.testing.assert_allclose(scene.graph["source"][0], matrix, atol=1e-5)
+    np.testing.assert_allclose(scene.graph["ball"][0], matrix, atol=1e-5)
     preview = Image.open(io.BytesIO(api.client.get(links["preview"]).content))
     assert preview.format == "PNG" and preview.width > 0
     job = api.client.get(accepted.json()["links"]["self"]).json()
@@ -392,7 +392,7 @@ def test_end_to_end_with_progress_events(api, worker):
     assert api.client.get(links["result"], params={"alternative": 0}).content == api.client.get(links["result"]).content
     second = trimesh.load(io.BytesIO(api.client.get(links["result"], params={"alternative": 1}).content),
                           file_type="glb")
-    np.testing.assert_allclose(second.graph["source"][0], report["alternatives"][1]["transform"]["matrix"], atol=1e-5)
+    np.testing.assert_allclose(second.graph["ball"][0], report["alternatives"][1]["transform"]["matrix"], atol=1e-5)
     past = api.client.get(links["result"], params={"alternative": len(alternatives)})
     assert (past.status_code, past.json()["error"]["code"]) == (404, "alternative_not_found")
     wrong = api.client.get(links["report"], params={"alternative": 1})

@@ -68,8 +68,9 @@ def moved(matrix, dx=0.0, dy=0.0, dz=0.0) -> list[list[float]]:
     return out.tolist()
 
 
-def ball_in(glb: bytes, node: str = "source") -> tuple[np.ndarray, trimesh.Trimesh]:
-    """The source node's own matrix in a result GLB (not flattened) and the ball it places, target file frame."""
+def ball_in(glb: bytes, node: str = "ball") -> tuple[np.ndarray, trimesh.Trimesh]:
+    """The source node's own matrix in a result GLB (not flattened; named by ball.glb) and the ball it places, target
+    file frame."""
     scene = trimesh.load(io.BytesIO(glb), file_type="glb")
     matrix, geometry = scene.graph[node]
     return np.asarray(matrix), scene.geometry[geometry].copy().apply_transform(matrix)
@@ -252,7 +253,8 @@ def _chained_on_the_adjusted_scene(api, job_id: str, final: np.ndarray) -> tuple
     succeeded(api, chained.json()["id"])
     scene = trimesh.load(io.BytesIO(api.client.get(f"/jobs/{chained.json()['id']}/result.glb", headers=AUTH).content),
                          file_type="glb")
-    matrix, geometry = scene.graph["source"]  # the adjusted job's source, one of the chained job's target objects
+    assert set(scene.graph.nodes_geometry) == {"table", "ball", "cube"}  # the saved scene kept its names
+    matrix, geometry = scene.graph["ball"]  # the adjusted job's source, one of the chained job's target objects
     placed = scene.geometry[geometry].copy().apply_transform(matrix)
     assert np.allclose(placed.bounds, BALL.copy().apply_transform(final).bounds, atol=1e-5)
     return chained.json()["id"], scene
@@ -269,5 +271,5 @@ def _chained_job_adjusted(api, chained_id: str, scene: trimesh.Scene) -> None:
                            file_type="glb")
     assert list(resaved.graph.nodes_geometry) == list(scene.graph.nodes_geometry)  # the same three nodes
     assert np.allclose(resaved.graph["cube"][0], redone["result"]["transform"], atol=1e-6)
-    for kept in ("target", "source"):  # the objects it was added to stay put
+    for kept in ("table", "ball"):  # the objects it was added to stay put
         assert np.allclose(resaved.graph[kept][0], scene.graph[kept][0])

@@ -128,18 +128,18 @@ def test_chained_align_adds_to_a_finished_scene(api, assembled, files):
     ([], ("plate",), 400, "invalid_plan"),
     ([{"file": "saucer.glb", "prompt": "x"}], ("plate",), 400, "invalid_plan"),
     ([{"file": "plate.glb", "prompt": "x"}], ("plate", "cup"), 400, "invalid_plan"),  # cup.glb is never used
-    ([{"file": "plate.glb", "prompt": "x", "on": "saucer"}], ("plate",), 422, "invalid_plan"),
-    ([{"file": "plate.glb", "prompt": "x", "on": ["table", "saucer"]}], ("plate",), 422, "invalid_plan"),
+    ([{"file": "plate.glb", "prompt": "x", "on": "saucer"}], ("plate",), 422, "invalid_step"),
+    ([{"file": "plate.glb", "prompt": "x", "on": ["table", "saucer"]}], ("plate",), 422, "invalid_step"),
     ([{"file": "plate.glb", "prompt": "x", "on": ["table", "table"]}], ("plate",), 400, "invalid_plan"),
     ([{"file": "plate.glb", "prompt": "x", "on": ["table", "a", "b"]}], ("plate",), 400, "invalid_plan"),
     ([{"file": "plate.glb", "prompt": "x", "on": []}], ("plate",), 400, "invalid_plan"),
-    ([{"file": "plate.glb", "prompt": "x", "name": "table"}], ("plate",), 422, "invalid_plan"),
+    ([{"file": "plate.glb", "prompt": "x", "name": "table"}], ("plate",), 422, "invalid_step"),
     ([{"file": "plate.glb", "prompt": "x", "options": {"model": "random:tiny"}}], ("plate",), 400, "invalid_plan"),
     ([{"file": "plate.glb", "prompt": "x", "options": [1]}], ("plate",), 400, "invalid_plan"),
     ([{"file": "plate.glb", "prompt": "x", "image": "x.png"}], ("plate",), 400, "invalid_plan"),
     ([{"file": "plate.glb", "prompt": 5}], ("plate",), 400, "invalid_plan"),
     ([{"file": "plate.glb", "prompt": "x", "options": {"steps": 0}}], ("plate",), 422, "invalid_option"),
-    ([{"file": "plate.glb"}], ("plate",), 422, "invalid_plan"),  # neither prompt nor image, guidance on
+    ([{"file": "plate.glb"}], ("plate",), 422, "invalid_step"),  # neither prompt nor image, guidance on
     ([{"file": "plate.glb", "prompt": "a plate\x1b[2J on the table"}], ("plate",), 422, "invalid_prompt"),
     ([{"file": "plate.glb", "prompt": "x", "name": "pl\x00ate"}], ("plate",), 422, "invalid_name"),  # as POST /align
     ([{"file": "cup.glb", "prompt": "x"}] * 4, ("cup",), 413, "too_many_stages"),
@@ -148,7 +148,7 @@ def test_chained_align_adds_to_a_finished_scene(api, assembled, files):
 def test_bad_plans_are_refused_before_queueing(api, files, plan, sources, status, code):
     raw = plan if isinstance(plan, str) else json.dumps(plan)
     parts = [("base", ("table.glb", files["table"]))] + [("source", (f"{n}.glb", files[n])) for n in sources]
-    options = {"preset": "test"} if code == "invalid_plan" and plan == [{"file": "plate.glb"}] else GEOMETRY_ONLY
+    options = {"preset": "test"} if code == "invalid_step" and plan == [{"file": "plate.glb"}] else GEOMETRY_ONLY
     answer = api.client.post("/assemble", files=parts, data={"plan": raw, "options": json.dumps(options)},
                              headers=ALPHA)
     assert (answer.status_code, answer.json()["error"]["code"]) == (status, code), answer.text
@@ -261,7 +261,7 @@ def test_python_client_assembles_and_chains(api, worker, files, tmp_path):
         with pytest.raises(ServiceError) as err:
             client.assemble(("table.glb", files["table"]), [{"file": ("cup.glb", files["cup"]), "image": None}],
                             options=fast)
-        assert (err.value.status, err.value.code) == (422, "invalid_plan")  # neither prompt nor image
+        assert (err.value.status, err.value.code) == (422, "invalid_step")  # neither prompt nor image
 
 
 ROOM = [{"file": "armchair.glb", "prompt": "an armchair far from the sofa"},
@@ -283,7 +283,7 @@ def test_an_assembly_step_between_two_placed_objects(api, worker, room):
     """A step's ``on`` as a list of two: checked against the objects placed before it, then run and reported."""
     unplaced = post_room(api, room, [ROOM[0], {**ROOM[1], "on": ["sofa", "table"]}], ("armchair", "lamp"))
     assert (unplaced.status_code, unplaced.json()["error"]["code"], unplaced.json()["error"]["field"]) == (
-        422, "invalid_plan", "plan.1.on"), unplaced.text
+        422, "invalid_step", "plan.1.on"), unplaced.text
     assert "'table' is not an object placed before it" in unplaced.json()["error"]["message"]
     accepted = post_room(api, room, ROOM, ("armchair", "lamp"))
     assert accepted.status_code == 202, accepted.text

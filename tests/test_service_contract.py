@@ -4,8 +4,10 @@ client waits that long), and a bounded schemathesis run finds nothing the schema
 
 from __future__ import annotations
 
+import collections
 import json
 import os
+import re
 import subprocess
 import sys
 import threading
@@ -14,6 +16,7 @@ from concurrent.futures import ThreadPoolExecutor
 import httpx
 import pytest
 
+from ctp_core.reading.names import NAME_MAX
 from service.client import Client, ServiceError
 from tests.conftest import REPO, Api, Worker, park_worker, service_env, wait_ready
 from tests.test_service import BALL, BOX, FAST
@@ -115,6 +118,36 @@ def test_the_bounds_the_fuzzer_found_are_4xx(api, parked):
                            data={"target_job": "0" * 32, "prompt": "a ball on a box"})
     assert (both.status_code, both.json()["error"]["code"], both.json()["error"]["field"]) == (
         400, "invalid_field", "target")
+
+
+def test_each_error_code_has_one_status():
+    """A code means one HTTP status wherever the service answers it (every ``ApiError`` and handler in service/)."""
+    statuses = collections.defaultdict(set)
+    for path in (REPO / "service").rglob("*.py"):
+        text = path.read_text()
+        for status, code in re.findall(r'(?:ApiError|error_response)\(\s*(\d{3}),\s*(?:JobError\(code=)?"(\w+)"', text):
+            statuses[code].add(int(status))
+    assert len(statuses) > 30 and statuses["invalid_field"] == {400}, dict(statuses)  # the scan finds them
+    assert not {code: found for code, found in statuses.items() if len(found) > 1}
+
+
+def test_the_limits_on_names_are_in_the_contract(api, parked):
+    """What the fuzzer found: an empty name in ``POST /plans/read`` was refused by a limit the schema did not state.
+    The schema states each name's limits (and a prompt's), and a request outside them is 400 as the contract
+    says."""
+    spec = api.client.get("/openapi.json").json()
+    item = spec["components"]["schemas"]["PlanRequest"]["properties"]["names"]["items"]
+    assert (item["minLength"], item["maxLength"]) == (1, NAME_MAX) and re.fullmatch(item["pattern"], "paint tin")
+    assert not any(re.fullmatch(item["pattern"], bad) for bad in (" ", "a\x07b", "\t"))
+    for body in ({"prompt": "a stool near the bench", "names": ["bench", ""]},
+                 {"prompt": "a stool near the bench", "names": ["bench", "  "]}):
+        answer = api.client.post("/plans/read", json=body)
+        assert answer.status_code == 400, answer.text
+    form = spec["paths"]["/scenes"]["post"]["requestBody"]["content"]["multipart/form-data"]["schema"]["properties"]
+    assert form["names"]["type"] == "array" and form["names"]["items"]["minLength"] == 1
+    align = spec["paths"]["/align"]["post"]["requestBody"]["content"]["multipart/form-data"]["schema"]["properties"]
+    for text in ("a cup on the table", "a cup\ton the table\n", " \t", "a cup\x07", "\n\n a cup"):  # as the server
+        assert bool(re.fullmatch(align["prompt"]["pattern"], text)) == bool(text.strip() and "\x07" not in text)
 
 
 def test_a_bounded_schemathesis_run_finds_nothing(private_redis, tmp_path):

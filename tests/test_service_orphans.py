@@ -237,7 +237,7 @@ def test_a_killed_serve_leaves_no_orphan_and_its_restart_runs_one_redis(tmp_path
             for job in running:
                 back = client.status(job["id"])
                 assert (back["status"], back["attempts"], back["error"]) == ("queued", 0, None), back
-                assert back["progress"]["message"].startswith("handed back by worker ")
+                assert back["progress"]["message"].startswith("handed back by its worker")
             assert client.status(waiting["id"])["status"] == "queued"
             for job in [*running, waiting]:
                 final = client.wait(job["id"], timeout_s=240)

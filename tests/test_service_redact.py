@@ -16,12 +16,13 @@ import socket
 import fastapi
 import httpx
 import pytest
+import trimesh
 import uvicorn
 
 from ctp_core.config import DEFAULT_MODEL
 from ctp_core.guide.checkpoints import missing
 from service.redact import PLACEHOLDER, redact
-from tests.conftest import REPO, Api, park_worker, service_env
+from tests.conftest import REPO, Api, park_worker, service_env, wait_for
 from tests.test_service import BALL, BOX
 
 KEY = "stranger-test-key"
@@ -124,3 +125,36 @@ def test_without_keys_no_error_answer_names_a_path(private_redis, tmp_path):
         leave()
         api.stop()
 
+
+
+def test_no_job_answer_or_report_names_a_path(api, env, worker):
+    """A real worker under model auto without the default model's weights: the guide_why it writes names the
+    session's Hugging Face cache. Every answer about an alignment and an assembly (submit, the job, the list, the
+    events, report.json with each stage's guide_why) says ``<path>`` instead, and names no other path."""
+    auth = {"Authorization": f"Bearer {KEY}"}
+    cube = trimesh.creation.box((0.1, 0.1, 0.1)).export(file_type="glb")
+    submits = [
+        api.client.post("/align", headers=auth, files={"target": ("box.glb", BOX), "source": ("ball.glb", BALL)},
+                        data={"prompt": "a ball on a box", "options": json.dumps({"preset": "test"})}),
+        api.client.post("/assemble", headers=auth, files=[
+            ("base", ("box.glb", BOX)), ("source", ("ball.glb", BALL)), ("source", ("cube.glb", cube))], data={
+            "plan": json.dumps([{"file": "ball.glb", "prompt": "a ball on the box"},
+                                {"file": "cube.glb", "prompt": "a cube on the box", "on": "box"}]),
+            "options": json.dumps({"preset": "test"})}),
+    ]
+    assert [s.status_code for s in submits] == [202, 202], [s.text for s in submits]
+    answers = list(submits)
+    for job_id in (s.json()["id"] for s in submits):
+        wait_for(lambda job_id=job_id: api.client.get(f"/jobs/{job_id}", headers=auth).json()["status"] in (
+            "succeeded", "failed"), 300, f"job {job_id} to end")
+        job = api.client.get(f"/jobs/{job_id}", headers=auth)
+        report = api.client.get(f"/jobs/{job_id}/report.json", headers=auth)
+        assert (job.json()["status"], report.status_code) == ("succeeded", 200), job.text
+        assert f"not in the Hugging Face cache ({PLACEHOLDER})" in job.json()["guide_why"]  # a path was there
+        whys = [report.json().get("guide_why")] + [s["guide_why"] for s in report.json().get("stages", [])]
+        assert all(f"({PLACEHOLDER})" in why for why in whys if why is not None) and any(whys), whys
+        answers += [job, report, api.client.get(f"/jobs/{job_id}/events", headers=auth),
+                    api.client.delete(f"/jobs/{job_id}", headers=auth)]
+    answers.append(api.client.get("/jobs", headers=auth))
+    told = {answer.request.url.path: found for answer in answers if (found := leaks(answer, machine=False))}
+    assert not told, told

@@ -72,7 +72,8 @@ def test_a_scene_naming_an_object_with_no_upload_is_refused_before_queueing(api,
     assert answer.json()["error"]["code"] == "unknown_object" and "metronome" in answer.json()["error"]["message"]
     names = api.client.post("/scenes", files=parts[:2], data={"prompt": DESCRIPTION, "names": '["a"]'},
                             headers=ALPHA)
-    assert names.status_code == 422 and names.json()["error"]["field"] == "names"
+    assert (names.status_code, names.json()["error"]["code"], names.json()["error"]["field"]) == (
+        400, "invalid_field", "names")
     assert api.client.get("/jobs", headers=ALPHA).json()["total"] == 0
 
 
@@ -115,3 +116,20 @@ def test_copies_of_the_base_are_read_from_its_one_part(api, worker, tmp_path):
     whole = api.client.get(f"/jobs/{job_id}/report.json", headers=ALPHA).json()["whole"]
     assert [(r["name"], r["on"]) for r in whole["relations"]] == [
         ("table_2", ["table_1"]), ("lamp_1", ["table_1"]), ("lamp_2", ["table_2"])]
+
+
+@pytest.mark.parametrize("names", [["anvil", "gizmo"], '["anvil", "gizmo"]'], ids=["repeated parts", "a JSON list"])
+def test_names_are_one_part_each_or_a_json_list(api, parts, names):
+    """Both forms name the parts: the description reads over those names (here to a cycle, so nothing is queued;
+    over the file names it would name no object)."""
+    answer = api.client.post("/scenes", files=parts[:2], headers=ALPHA, data={
+        "prompt": "a gizmo on the anvil; the anvil on the gizmo", "names": names})
+    assert (answer.status_code, answer.json()["error"]["code"]) == (422, "placement_cycle"), answer.text
+
+
+@pytest.mark.parametrize("names", ['["anvil", "gizmo"', '["anvil"]', ["anvil", "gizmo", "vice"], '{"a": 1}'],
+                         ids=["malformed", "one short", "one over", "not a list"])
+def test_a_names_list_that_does_not_fit_is_400_invalid_field(api, parts, names):
+    answer = api.client.post("/scenes", files=parts[:2], headers=ALPHA, data={"prompt": DESCRIPTION, "names": names})
+    assert (answer.status_code, answer.json()["error"]["code"], answer.json()["error"]["field"]) == (
+        400, "invalid_field", "names"), answer.text

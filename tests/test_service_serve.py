@@ -248,7 +248,7 @@ def test_ctrl_c_drains_and_loses_no_job(tmp_path):
             assert (first["status"], first["workers"]) == ("restarting", 0)  # the stopped worker does not count
             back = client.status(running["id"])
             assert (back["status"], back["attempts"], back["error"]) == ("queued", 0, None), back
-            assert back["progress"]["message"].startswith("handed back by worker ")
+            assert back["progress"]["message"].startswith("handed back by its worker")
             assert client.status(waiting["id"])["status"] == "queued"
             for job in (running, waiting):
                 final = client.wait(job["id"], timeout_s=240)

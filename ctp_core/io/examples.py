@@ -1,8 +1,9 @@
 """Small example pairs made in code: something to try ``ctp align``, the service and the web page on.
 
 Each example is two coloured meshes generated here (no third-party data, nothing to license), a few kB as
-GLB, with the prompt and the object names the priors should read. Units are metres, +Y up, each mesh in
-its own file frame with its base at y = 0 (the source sits wherever it was modelled: the engine places it).
+GLB, with the prompt and the object names the priors should read; each file's one node is named so too. Units
+are metres, +Y up, each mesh in its own file frame with its base at y = 0 (the source sits wherever it was
+modelled: the engine places it).
 """
 
 from __future__ import annotations
@@ -105,7 +106,7 @@ class Example:
     def files(self) -> dict[str, bytes]:
         """{file name: GLB bytes} for the target and the source."""
         target, source = self.meshes()
-        return {self.target_file: _glb(target), self.source_file: _glb(source)}
+        return {self.target_file: _glb(target, self.target_name), self.source_file: _glb(source, self.source_name)}
 
     def write(self, directory: str | Path) -> list[Path]:
         """Write both GLBs into ``directory`` (created if needed); returns their paths, target first."""
@@ -119,8 +120,11 @@ class Example:
         return paths
 
 
-def _glb(mesh: trimesh.Trimesh) -> bytes:
-    return trimesh.exchange.gltf.export_glb(trimesh.Scene(mesh))
+def _glb(mesh: trimesh.Trimesh, name: str) -> bytes:
+    """``mesh`` as a GLB of one node named ``name`` (what a DCC tool or the priors read it as)."""
+    scene = trimesh.Scene()
+    scene.add_geometry(mesh, node_name=name, geom_name=name)
+    return trimesh.exchange.gltf.export_glb(scene)
 
 
 EXAMPLES: dict[str, Example] = {e.name: e for e in (
@@ -154,7 +158,7 @@ def write_table_setting(directory: str | Path) -> Path:
     folder = Path(directory)
     folder.mkdir(parents=True, exist_ok=True)
     for name, make in (("table", _table), ("plate", _plate), ("cup", _cup)):
-        (folder / f"{name}.glb").write_bytes(_glb(make()))
+        (folder / f"{name}.glb").write_bytes(_glb(make(), name))
     plan = folder / "plan.yaml"
     plan.write_text(TABLE_SETTING_PLAN)
     return plan

@@ -103,6 +103,7 @@ def orient(mesh: trimesh.Trimesh, axes: Axes = FROM_FILE, *, seed: int = 0, judg
     else:
         upright = _unstated(mesh, fmt)
     up = upright.up
+    upright.symmetric = _symmetric_about(mesh, up, seed)
     convention_up = _Y if convention or np.allclose(up, _Y) or up @ _Z < _Z_UP_COS else _Z
     convention_front = _Z if convention_up is _Y else -_Y
     if axes.front == "auto":
@@ -124,7 +125,7 @@ def orient(mesh: trimesh.Trimesh, axes: Axes = FROM_FILE, *, seed: int = 0, judg
                else f"front: {_named(front)}, the {convention} convention" if convention
                else f"front: {_named(front)}, the usual front of a {'Y' if convention_up is _Y else 'Z'}-up export "
                     f"({fmt or 'a mesh made in code'} states none): not trusted")
-        if trusted and _symmetric_about(mesh, up, seed):
+        if trusted and upright.symmetric:
             trusted, why = False, f"{why}; the object is symmetric about its up, so no side is its front"
     front = front - (front @ up) * up
     front /= np.linalg.norm(front)

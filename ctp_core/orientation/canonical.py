@@ -91,6 +91,8 @@ class Upright:
     front: np.ndarray = field(default_factory=lambda: _Z.copy())
     front_trusted: bool = False
     front_reason: str = "no front given: the file's +Z, not trusted"
+    # rotationally symmetric about its up (``orientation.orient``): a spin about it shows nothing
+    symmetric: bool = False
 
     @property
     def up(self) -> np.ndarray:

@@ -38,7 +38,7 @@ from ctp_core.config import AlignConfig
 from ctp_core.config.schedule import Phase
 from ctp_core.contact import Proposals, place
 from ctp_core.errors import Canceled
-from ctp_core.geometry.pose import Poses, quaternion_product
+from ctp_core.geometry.pose import Poses, quaternion_product, quaternion_to_matrix
 from ctp_core.objective import Scorer, combine, goal_rows
 from ctp_core.pairs import PreparedPair
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
@@ -275,20 +275,25 @@ def agreement_views(scorer: Scorer, poses: Poses, terms: dict[str, torch.Tensor]
 
 
 def diverse_top(poses: Poses, objectives: Key, k: int, distance: float, angle_deg: float, *,
-                fill: bool = True) -> list[int]:
+                fill: bool = True, spin_axis: torch.Tensor | None = None) -> list[int]:
     """Indices of the ``k`` best poses (first by ``objectives``), skipping any within ``distance`` (normalised
     units) and ``angle_deg`` of one already kept; duplicates fill in only when too few distinct poses exist
-    (``fill``)."""
+    (``fill``). ``spin_axis`` (3,), source local frame (``PreparedPair.source_spin_axis``): the source is
+    symmetric about it, so two turns are as far apart as the directions they turn it to, a spin about it none."""
     order = objectives.argsort().tolist()
     q = torch.nn.functional.normalize(poses.q, dim=-1)
+    pointing = None if spin_axis is None else quaternion_to_matrix(q) @ spin_axis.to(q)
     kept: list[int] = []
     for i in order:
         if len(kept) == k:
             break
         if kept:
             near = (poses.t[kept] - poses.t[i]).norm(dim=-1) < distance
-            dot = (q[kept] @ q[i]).abs().clamp(max=1.0)
-            close = torch.rad2deg(2 * torch.acos(dot)) < angle_deg
+            if pointing is None:
+                turned = 2 * torch.acos((q[kept] @ q[i]).abs().clamp(max=1.0))
+            else:
+                turned = torch.acos((pointing[kept] @ pointing[i]).clamp(-1.0, 1.0))
+            close = torch.rad2deg(turned) < angle_deg
             if bool((near & close).any()):
                 continue
         kept.append(i)

@@ -39,7 +39,7 @@ class Job(threading.Thread):
         try:
             self._follow()
         except ServiceError as exc:  # a refused upload is named by its object, not by the file sent
-            named = {"target": self.fields["target_name"], "source": self.fields["source_name"]}.get(exc.field)
+            named = self.fields.get(f"{exc.field}_name") if exc.field in ("target", "source") else None
             self.error = f"{named}: {exc}" if named else str(exc)
         except Exception as exc:  # shown as one line in the panel, never a traceback
             self.error = f"{type(exc).__name__}: {exc}"

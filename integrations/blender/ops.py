@@ -13,6 +13,7 @@ import bpy
 
 from .client import Client
 from .job import Job
+from .names import object_name
 from .props import preferences
 from .scene import SceneError, apply_result, export_pair, pick
 
@@ -95,8 +96,11 @@ class CTP_OT_place(bpy.types.Operator):
             options["count"] = settings.count
         if settings.arrangement != "auto":
             options["arrangement"] = settings.arrangement
-        fields = {"prompt": settings.prompt, "target_name": target.name, "source_name": source.name,
-                  "options": json.dumps(options)}
+        fields = {"prompt": settings.prompt, "options": json.dumps(options)}
+        for role, obj in (("target", target), ("source", source)):  # unnamed: the service reads the file's
+            name = object_name(obj.name, obj.data.name)
+            if name is not None:
+                fields[f"{role}_name"] = name
         prefs = preferences(context)
         self.job = _running = Job(Client(prefs.url, prefs.api_key), folder, folder / "target.glb",
                                   folder / "source.glb", fields)

@@ -145,7 +145,7 @@ async def assembly_job(request: Request, form, who: str, job_id: str, plan: list
         check_plan(base_name, [(s.name, ground_names(s.on), s.prompt is not None or s.has_image or
                                 s.config.loss.lambda_clip == 0) for s in steps])
     except ConfigError as exc:
-        raise ApiError(422, "invalid_plan", exc.message,
+        raise ApiError(422, "invalid_step", exc.message,
                        field=f"plan.{(exc.field or '').removeprefix('steps.')}") from None
     record = JobRecord(id=job_id, owner=who, created_at=now(), kind="assemble", prompt=None,  # per stage: steps
                        has_image=any(s.has_image for s in steps), target_name=base_name, target_file=base_file,

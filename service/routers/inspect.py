@@ -68,7 +68,7 @@ async def inspect(request: Request, _who: str = Depends(owner)) -> Inspection:
     try:
         axes = orientation.Axes(*(forms.text(form, name) or "file" for name in ("up", "front")))
     except ConfigError as exc:
-        raise ApiError(422, "invalid_field", str(exc), field=exc.field) from None
+        raise ApiError(422, "invalid_option", str(exc), field=exc.field) from None  # as a job's up and front
     upload = forms.file(form, "mesh")
     name = forms.file_name(upload, "mesh")
     data = await forms.read_limited(upload, settings.max_upload_bytes, "mesh", "mesh_file_too_large")

@@ -3,6 +3,7 @@ download its results."""
 
 from __future__ import annotations
 
+import json
 import logging
 
 import redis.asyncio as aioredis
@@ -19,10 +20,12 @@ from service.chained import chained_target
 from service.deps import own_job, owner
 from service.errors import ApiError, documented, download_response
 from service.jobs import ORIGINAL, OUTPUTS, TERMINAL, JobRecord, Jobs, alternative_blob, now, parse_record
+from service.redact import redact_json
 from service.schemas import Accepted, JobList, JobOut, build_config
 
 log = logging.getLogger("ctp.service")
 
+REPORT = "report.json"  # small: always streamed, so that it can be redacted
 SSE_KEEPALIVE_S = 10.0
 JOBS_PAGE_MAX = 100
 OFFSET_MAX = 2**53 - 1  # what every JSON client holds exactly; Redis ranges take 64-bit integers
@@ -178,14 +181,15 @@ def _add_output_route(name: str, media_type: str) -> None:
 
     router.add_api_route(f"/jobs/{{job_id}}/{name}", download if name == "result.glb" else download_file,
                          methods=["GET"], response_class=Response,
-                         responses={**download_response(media_type, name), **REDIRECT,
-                                    **documented(400, 401, 404, 409, 503)},
+                         responses={**download_response(media_type, name),
+                                    **({} if name == REPORT else REDIRECT), **documented(400, 401, 404, 409, 503)},
                          operation_id=f"download_{name.replace('.', '_')}", summary=f"Download {name}")
 
 
 async def _download(request: Request, job_id: str, who: str, name: str, media_type: str,
                     alternative: int | None) -> Response:
-    """A succeeded job's file ``name`` (``alternative``: result.glb's k-th placement), streamed or redirected."""
+    """A succeeded job's file ``name`` (``alternative``: result.glb's k-th placement), streamed or redirected;
+    report.json always streamed, without the machine's paths (``service.redact``)."""
     record = await own_job(request, job_id, who)
     if record.status != "succeeded":
         raise ApiError(409, "job_not_ready", f"job {job_id} is {record.status}; results exist once it succeeded")
@@ -199,7 +203,8 @@ async def _download(request: Request, job_id: str, who: str, name: str, media_ty
         stored = alternative_blob(alternative)
     storage, presign_s = request.app.state.jobs.storage, request.app.state.settings.s3_presign_s
     filename = f"{job_id}-{stored}"
-    if record.downloads == "redirect" and presign_s:  # what the job's links promised, while still configured
+    # what the job's links promised, while still configured
+    if record.downloads == "redirect" and presign_s and name != REPORT:
         url = await run_in_threadpool(storage.url, job_id, stored, presign_s, media_type=media_type,
                                       filename=filename)
         if url is not None:
@@ -207,6 +212,8 @@ async def _download(request: Request, job_id: str, who: str, name: str, media_ty
     data = await run_in_threadpool(storage.get, job_id, stored)
     if data is None:
         raise ApiError(404, "job_not_found", f"the results of job {job_id} have expired")
+    if name == REPORT:
+        data = json.dumps(redact_json(json.loads(data)), indent=2).encode()  # as the worker wrote it
     return Response(data, media_type=media_type, headers={"Content-Disposition": f'attachment; filename="{filename}"'})
 
 

@@ -4,6 +4,8 @@ shows the plan and lets a person correct it), ``POST /scenes`` reads it and plac
 
 from __future__ import annotations
 
+from typing import Annotated
+
 from fastapi import APIRouter, Depends, Request, Response
 from pydantic import BaseModel, Field
 from starlette.concurrency import run_in_threadpool
@@ -11,7 +13,7 @@ from starlette.concurrency import run_in_threadpool
 from ctp_core.assembly.describe import DESCRIPTION_MAX, DescriptionError, ScenePlan
 from ctp_core.assembly.plan import plan_step
 from ctp_core.assembly.readers import get_reader
-from ctp_core.reading.names import default_name
+from ctp_core.reading.names import NAME_MAX, default_name
 from service import forms, submit
 from service.deps import owner
 from service.errors import ApiError, documented
@@ -33,9 +35,10 @@ SCENE_BODY = {
             "object": {"type": "array", "items": forms.mesh_field("one object of the scene"),
                        "description": "one part per object, each with a distinct file name, in the order of "
                        "`names`"},
-            "names": {"type": "string", "contentMediaType": "application/json",
-                      "description": "JSON list of what each object is, in the order of the parts (default: their "
-                      "file names: `paint_tin.glb` is \"paint tin\")"},
+            "names": {"type": "array", "items": forms.NAME_SCHEMA, "minItems": 1,
+                      "description": "what each object is, one name per `object` part in their order: "
+                      f"{forms.LIST_FIELDS.replace('on=', 'names=')} (default: their file names: `paint_tin.glb` is "
+                      "\"paint tin\")"},
             "prompt": {"type": "string", "minLength": 1, "maxLength": DESCRIPTION_MAX,
                        "description": "the scene in one sentence (\"a piano with its stool in front of it and a "
                        "metronome on top\")"},
@@ -53,8 +56,9 @@ class PlanRequest(BaseModel):
     """A description and the names of the objects it may name."""
 
     prompt: str = Field(min_length=1, max_length=DESCRIPTION_MAX, description="the scene in one sentence")
-    names: list[str] = Field(min_length=2, max_length=64, description="what each object is (an upload's name, or "
-                             "its file name), in upload order")
+    names: list[Annotated[str, Field(min_length=1, max_length=NAME_MAX, pattern=forms.NAME_PATTERN)]] = Field(
+        min_length=2, max_length=64, description="what each object is (an upload's name, or its file name), in "
+        f"upload order; 1 to {NAME_MAX} characters, one not a space, no control characters")
 
 
 class AlsoSaid(BaseModel):
@@ -148,14 +152,14 @@ async def _scene_job(request: Request, form, who: str, job_id: str) -> submit.Bu
 
 
 def _names(form, files: list[str]) -> list[str]:
-    """The objects' names: the ``names`` field (a JSON list, one per part), else the parts' file names."""
-    raw = forms.text(form, "names")
-    if raw is None:
+    """The objects' names: the ``names`` list field (``forms.text_list``), one per part, else the parts' file
+    names; 400 ``invalid_field`` for a wrong count."""
+    names = forms.text_list(form, "names")
+    if names is None:
         return [default_name(file, "object") for file in files]
-    names = forms.strict_json(raw, "names", "invalid_field")
-    if not isinstance(names, list) or len(names) != len(files) or not all(isinstance(n, str) for n in names):
-        raise ApiError(422, "invalid_field", f"names must be a JSON list of {len(files)} strings, one per object "
-                       "part", field="names")
+    if len(names) != len(files):
+        raise ApiError(400, "invalid_field", f"names has {len(names)} names for {len(files)} object parts: one "
+                       "per part", field="names")
     return [forms.clean_name(name, f"names.{i}") for i, name in enumerate(names)]
 
 
