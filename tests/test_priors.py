@@ -205,7 +205,7 @@ def test_parts_and_size_words():
     assert lexicon.lookup("teapot_lid").size_m == pytest.approx(0.6 * lexicon.lookup("teapot").size_m)
     assert lexicon.lookup("ball_small").size_m == pytest.approx(0.5 * lexicon.lookup("ball").size_m)
     # a bare detachable part is sized from the other object; a person has no lid
-    assert rules("kettle", "lid", "a kettle").size_ratio == pytest.approx(lexicon.PARTS["lid"])
+    assert rules("kettle", "lid", "a kettle").size_ratio == pytest.approx(lexicon.PART_SIZES["lid"])
     assert rules("man", "cap", "a man wearing a cap").size_ratio < 0.3
 
 

@@ -155,7 +155,7 @@ def _part_ratio(target_name, source_name, target, source) -> tuple[float, str] |
                                                               (target_name, source_name, source, target, False)):
         part = lexicon.bare_part(part_name, other_name if own is None else "")  # unknown: "soldering_stand"
         if part is not None and other is not None and not other.has("agent"):  # a man has no lid
-            fraction = lexicon.PARTS[part]
+            fraction = lexicon.PART_SIZES[part]
             ratio = fraction if part_is_source else 1.0 / fraction
             return ratio, (f"size ratio {clamp_size(ratio):.3g} ({part_name}: the {part} of the {other_name}, "
                            f"{fraction:g} of its size)")

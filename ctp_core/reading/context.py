@@ -135,11 +135,11 @@ def resolve(name: str, prompt: str, mention_at: list[int], other: lexicon.Match 
     said = [w for start, w in prompt_words(prompt) if start in mention_at[:1]]
     plain = lexicon.lookup(said[0]) if said else None
     if (match is not None and plain is not None and plain.entry is match.entry and match.phrase not in lexicon.LEXICON
-            and match.phrase not in lexicon.PARTS):  # a "lipstick cover" is no lipstick
+            and match.phrase not in lexicon.PART_SIZES):  # a "lipstick cover" is no lipstick
         # "quilt_patchwork_hi" that the prompt calls "a half-finished quilt": a quilt, with a quilt's shape
         match = replace(plain, how=plain.how + f" (the prompt calls {name!r} a {said[0]})")
     match = _head_first(name, prompt, mention_at, match, said, plain)
-    if match is None or match.phrase not in lexicon.LEXICON and match.phrase not in lexicon.PARTS:
+    if match is None or match.phrase not in lexicon.LEXICON and match.phrase not in lexicon.PART_SIZES:
         match = _held_in(name, prompt, mention_at) or match
     taken = set(lexicon.words(name)) | set(lexicon.words(other_name))
     mods = [w for w in modifiers(prompt, mention_at) if w not in taken]
@@ -191,7 +191,7 @@ def _head_first(name: str, prompt: str, mention_at: list[int], match: lexicon.Ma
     of the name's words ("a birthday candle"), or the one word of the name the prompt calls it by ("an owl"
     for "Owl_Barn_01", where the stem's last word, "barn", is nowhere in the prompt)."""
     name_words = [w for w in lexicon.words(name) if w not in lexicon.NON_HEAD_WORDS and len(w) > 2]
-    if len(name_words) < 2 or (match is not None and match.phrase in lexicon.PARTS):
+    if len(name_words) < 2 or (match is not None and match.phrase in lexicon.PART_SIZES):
         return match
     tokens = [w for _, w in prompt_words(prompt)]
     for i in range(len(tokens) - len(name_words) + 1):

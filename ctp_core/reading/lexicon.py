@@ -32,7 +32,7 @@ Each row belongs to the section it is listed under (``Entry.domain``): the domai
 a word listed in more than one row (``~mouse`` in a later row: the computer mouse is another sense of "mouse";
 ``SENSES``), by the other object of the prompt.
 
-Names like ``rooster_comb`` or ``teapot_lid`` are parts: ``PARTS`` gives a part's size as a fraction
+Names like ``rooster_comb`` or ``teapot_lid`` are parts: ``PART_SIZES`` gives a part's size as a fraction
 of its owner's, so any owner in the table works without listing every pair.
 """
 
@@ -46,7 +46,7 @@ from importlib import resources
 
 # A part's size as a fraction of its owner's ("teapot lid": 0.6 of a teapot); a holder named for what it holds
 # ("ring box", "guitar case") is sized from that.
-PARTS: dict[str, float] = {
+PART_SIZES: dict[str, float] = {
     "lid": 0.6, "cap": 0.4, "cover": 1.0, "case": 1.0, "box": 1.5, "sheath": 1.0, "holder": 1.3, "base": 0.7,
     "stand": 0.8, "handle": 0.4, "jar": 0.6, "tank": 0.6, "container": 0.6, "comb": 0.15, "top": 0.5,
     "seat": 0.4, "wheel": 0.3, "door": 0.5, "roof": 1.0, "blade": 0.6, "tip": 0.1, "head": 0.3,
@@ -247,7 +247,7 @@ def lookup(name: str) -> Match | None:
         tokens.pop()
     known = spans(tokens)
     found = [f for f in known if f[2] not in MATERIALS] or known
-    part = next((w for w in singulars(tokens[-1]) if w in PARTS), None) if tokens else None
+    part = next((w for w in singulars(tokens[-1]) if w in PART_SIZES), None) if tokens else None
     if part is not None and not any(end == len(tokens) and end - start > 1 for start, end, _, _ in found):
         owners = [f for f in found if f[1] < len(tokens) and (part in AGENT_PARTS or "agent" not in f[3].tags)
                   and (part in FOOD_PARTS or f[3].domain != "food and drink")
@@ -255,7 +255,7 @@ def lookup(name: str) -> Match | None:
                   and (part not in FOOD_PIECES or f[3].domain == "food and drink")]
         if owners:
             _, _, phrase, owner = owners[-1]
-            fraction = POINTED_HOLDER if part == "holder" and "pointed" in owner.tags else PARTS[part]
+            fraction = POINTED_HOLDER if part == "holder" and "pointed" in owner.tags else PART_SIZES[part]
             size = owner.size_m * fraction * scale
             tags = frozenset({"container"}) if part in CONTAINER_PARTS else frozenset()
             tags |= {"wrap"} if part in WRAPPING_PARTS else set()
