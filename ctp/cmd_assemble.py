@@ -139,6 +139,7 @@ def _step(entry: Any, folder: Path, config, i: int, loader):
     image = io.load_image(folder / step.image) if step.image is not None else None
     return Step(source=loader.load(file, name=f"{where}.file"),
                 name=step.name or names.default_name(file.name, "object"), prompt=step.prompt, image=image, on=step.on,
+                also=step.also,
                 config=_with_options(config, step.options, f"{where}.options") if step.options else None)
 
 

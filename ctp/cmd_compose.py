@@ -65,7 +65,8 @@ def run(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     with MeshLoader(1) as loader:  # the same bounded loading as ctp align and ctp assemble
         meshes = [loader.load(path, name=f"objects.{i}") for i, path in enumerate(args.objects)]
-    steps = [Step(source=meshes[s.upload].copy(), name=s.name, prompt=s.prompt, on=list(s.on)) for s in plan.steps]
+    steps = [Step(source=meshes[s.upload].copy(), name=s.name, prompt=s.prompt, on=list(s.on),
+                  also=s.also) for s in plan.steps]
     return run_assembly(args, meshes[plan.base_upload], plan.base, steps, config, plan=plan.to_dict())
 
 

@@ -191,6 +191,15 @@ class JobError(BaseModel):
     field: str | None = Field(None, description="the request field at fault, when there is one")
 
 
+class AssemblyAlso(BaseModel):
+    """A relation said of a stage's object besides its own (``ctp_core.assembly.plan.Also``): judged with the stage
+    and on the final scene."""
+
+    prompt: str
+    on: list[str]
+    relation: str = ""
+
+
 class AssemblyStep(BaseModel):
     """One stage of an assembly job as stored: its source (blob ``source-<i>``), guide, name, relation and config.
 
@@ -204,6 +213,7 @@ class AssemblyStep(BaseModel):
     has_image: bool = Field(False, description="guided by the reference picture in blob image-<i>")
     on: str | list[str] | None = Field(None, description="the placed object(s) it relates to (two: \"between\"); "
                                        "None: the last placed one, or the two a between prompt names")
+    also: list[AssemblyAlso] = Field(default_factory=list, description="relations said of it besides its own")
     config: AlignConfig = Field(description="this stage's config (the assembly's options, then the step's), "
                                 "validated at submit")
 

@@ -24,6 +24,7 @@ from ctp_core.adjust import Adjusted, adjust, read_back
 from ctp_core.align import align
 from ctp_core.assembly.assemble import Step, assemble, scene_of
 from ctp_core.assembly.copies import place_copies, placed_copies, set_metrics
+from ctp_core.assembly.plan import Also
 from ctp_core.config import AUTO, AlignConfig
 from ctp_core.errors import Canceled, ConfigError, CtpError, JobTooLarge, forget, out_of_memory
 from ctp_core.export import (
@@ -381,7 +382,7 @@ def assemble_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobCon
     job.on_progress(Progress(stage=Stage(name="loading", count=count), kind="loading", message="loading meshes"), True)
     base = job.load(inputs["target"], record.target_file)
     steps = [Step(source=job.load(inputs[f"source-{i}"], s.file), name=s.name, prompt=s.prompt, on=s.on,
-                  config=s.config,
+                  config=s.config, also=[Also(a.prompt, tuple(a.on), a.relation) for a in s.also],
                   image=load_image(inputs[f"image-{i}"]) if inputs.get(f"image-{i}") is not None else None)
              for i, s in enumerate(record.steps)]
     model = Stage(name="model", count=count)

@@ -29,14 +29,16 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import trimesh
 
-from ctp_core.assembly.plan import check_plan
+from ctp_core.assembly.plan import Also, check_plan
 from ctp_core.config import AUTO, AlignConfig
 from ctp_core.errors import Canceled, ConfigError, CtpError
 from ctp_core.geometry import frames
 from ctp_core.guide import selection
 from ctp_core.progress import CancelCheck, ProgressCallback
-from ctp_core.reading import cues
+from ctp_core.reading import cues, passes
 from ctp_core.reading.names import ground_names
+from ctp_core.reading.records import ORIENTED_NEAR, RELATIONS, RelationName
+from ctp_core.reading.relation import RelationReading
 
 if TYPE_CHECKING:  # the engine (torch) loads only when a step runs: the API checks plans with plan.check_plan
     from ctp_core.align import AlignResult
@@ -55,6 +57,7 @@ class Step:
     on: str | Sequence[str] | None = None  # the placed object(s) it relates to (two: "between"); None: the last
     # placed one, or the two a "between" prompt names
     config: AlignConfig | None = None  # this step's options; None: the assembly's config
+    also: Sequence[Also] = ()  # relations said of it besides its own: judged with it and on the final scene
 
 
 @dataclass
@@ -64,6 +67,7 @@ class Placed:
     name: str
     mesh: trimesh.Trimesh
     to_scene: frames.Similarity  # the object's file frame -> scene
+    front: np.ndarray | None = None  # (3,) its front in the scene frame, where given or set by a convention
 
 
 @dataclass
@@ -132,6 +136,7 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
     check_plan(base_name, [(s.name, ground_names(s.on),
                             s.prompt is not None or s.image is not None or c.loss.lambda_clip == 0)
                            for s, c in zip(steps, configs, strict=True)])
+    _check_also(base_name, steps)
     if any(c.model != config.model for c in configs):
         raise ConfigError("every stage must use the assembly's model (it is loaded once)", field="model")
     if choice is None and config.model == AUTO:
@@ -145,6 +150,7 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
         guide = guide_for(guided[0])
     placed = [Placed(base_name, base, frames.Similarity(np.eye(4), frames.SCENE, frames.SCENE))]
     results: list[StepResult] = []
+    rooms = _rooms(base_name, steps)
     for index, (step, step_config) in enumerate(zip(steps, configs, strict=True), start=1):
         scene = scene_of(placed)
         on = cues.grounds(step.prompt, ground_names(step.on), [p.name for p in placed]) or [placed[-1].name]
@@ -160,7 +166,9 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
             where = f"steps.{index - 1}" + (f".{exc.field}" if exc.field else "")
             raise type(exc)(f"stage {index}/{len(steps)} ({step.name}): {exc.message}", code=exc.code,
                             field=where) from exc
-        result, kept = _keeping(placed, results, step, _on_floor(result, step.source, placed[0]), on)
+        if index == 1 and result.target_upright is not None and result.target_upright.front_trusted:
+            placed[0].front = np.asarray(result.target_upright.front, dtype=np.float64)  # the scene is the base
+        result, kept = _keeping(placed, results, step, result, on, rooms[index - 1])
         placed.append(_placed(step, result))
         results.append(StepResult(index, len(steps), step, on[0], result, on, kept))
     return Assembly(placed, results, {"total_s": round(time.perf_counter() - started, 3)}, judged(placed, results))
@@ -168,7 +176,10 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
 
 def _placed(step: Step, result: AlignResult) -> Placed:
     """The step's object where its run puts it (the run's target file frame is the scene frame)."""
-    return Placed(step.name, step.source, frames.Similarity(result.source_to_target, frames.SOURCE_FILE, frames.SCENE))
+    matrix = np.asarray(result.source_to_target, dtype=np.float64)
+    upright = result.source_upright
+    front = matrix[:3, :3] @ upright.front if upright is not None and upright.front_trusted else None
+    return Placed(step.name, step.source, frames.Similarity(matrix, frames.SOURCE_FILE, frames.SCENE), front)
 
 
 def _on_floor(result: AlignResult, source: trimesh.Trimesh, base: Placed) -> AlignResult:
@@ -186,21 +197,37 @@ def _on_floor(result: AlignResult, source: trimesh.Trimesh, base: Placed) -> Ali
     return replace(result, source_to_target=lifted)
 
 
-def _keeping(placed: list[Placed], results: list[StepResult], step: Step, result: AlignResult, on: list[str]
-             ) -> tuple[AlignResult, dict[str, Any] | None]:
+def _keeping(placed: list[Placed], results: list[StepResult], step: Step, result: AlignResult, on: list[str],
+             rooms: Sequence[Room] = ()) -> tuple[AlignResult, dict[str, Any] | None]:
     """The run's answer, or where it breaks an earlier relation or sinks (``_breaks``), the first of its
-    alternatives that breaks nothing; where none does, the first (of ``LIFTED``, the least bad first) that breaks
-    nothing once raised straight up by how deep it sinks (``LIFTS`` times at most: a cushion sunk into a sofa's seat
-    then rests on it); else the one that breaks the fewest, then sinks the least (the answer on a tie), with what
-    the answer broke."""
-    answer_broke, answer_sunk = _breaks([*placed, _placed(step, result)], results, result, on)
+    alternatives that breaks nothing; each turned first as the description turns it (``_turned``) and tried as
+    placed where turned it breaks something; a placement that leaves too little room for an object a later step
+    puts between it and another (``rooms``) breaks that. Where none is clean, the first (of ``LIFTED``, the least
+    bad first) that breaks nothing once moved: raised straight up by how deep it sinks (``LIFTS`` times at most: a
+    cushion sunk into a sofa's seat then rests on it), or moved straight away from the other object by the room
+    missing (a cabinet right of a workbench moved right to make room for the oil drum between them); else the one
+    that breaks the fewest, then sinks the least (the answer on a tie), with what the answer broke."""
+    def breaks(candidate: AlignResult) -> tuple[list[str], float]:
+        broke, sunk = _breaks([*placed, _placed(step, candidate)], results, candidate, on, step.also)
+        return broke + [r.said(step.name, g) for r in rooms if (g := r.gap(placed, step, candidate)) < r.width], sunk
+
+    def judged(k: int) -> tuple[AlignResult, list[str], float]:
+        plain = _on_floor(result.alternative(k) if k else result, step.source, placed[0])
+        turned = _on_floor(_turned(plain, step, placed), step.source, placed[0])
+        broke, sunk = breaks(turned)
+        if broke and turned is not plain:
+            plain_broke, plain_sunk = breaks(plain)
+            if (len(plain_broke), plain_sunk) < (len(broke), sunk):
+                return plain, plain_broke, plain_sunk
+        return turned, broke, sunk
+
+    answer, answer_broke, answer_sunk = judged(0)
     if not answer_broke:
-        return result, None
+        return answer, None
     best, best_key = 0, (len(answer_broke), answer_sunk)
-    tried = [(result, answer_sunk)]
+    tried = [(answer, answer_sunk)]
     for k in range(1, len(result.alternatives)):
-        other = _on_floor(result.alternative(k), step.source, placed[0])
-        broke, sunk = _breaks([*placed, _placed(step, other)], results, other, on)
+        other, broke, sunk = judged(k)
         tried.append((other, sunk))
         if not broke:
             return other, {"alternative": k, "broke": answer_broke}
@@ -213,15 +240,90 @@ def _keeping(placed: list[Placed], results: list[StepResult], step: Step, result
             if sunk <= 0:
                 break
             candidate = _raised(candidate, sunk / 1000 + LIFT_CLEAR * step.source.scale)
-            broke, sunk = _breaks([*placed, _placed(step, candidate)], results, candidate, on)
+            broke, sunk = breaks(candidate)
             if not broke:
                 return candidate, {"alternative": k, "broke": answer_broke, "lifted": True}
+        candidate = tried[k][0]
+        for room in rooms:
+            candidate = room.made(placed, step, candidate)
+        if candidate is not tried[k][0] and not breaks(candidate)[0]:
+            return candidate, {"alternative": k, "broke": answer_broke, "made_room": True}
     return tried[best][0], {"alternative": best, "broke": answer_broke, "none_clean": True}
 
 
 LIFTS = 2  # times a sunk placement is raised by its depth before it is given up
 LIFTED = 2  # placements raised: the least bad, then the answer (or the first alternative)
 LIFT_CLEAR = 1e-4  # of the source's size: what a raised placement clears its depth by
+
+
+@dataclass(frozen=True)
+class Room:
+    """Room a step's object leaves between itself and an object placed before it (``other``) for a later step's
+    ``figure``, said to go between the two: ``width``, the figure's narrower side seen from above (scene units)."""
+
+    other: str
+    figure: str
+    width: float
+
+    def gap(self, placed: Sequence[Placed], step: Step, result: AlignResult) -> float:
+        """The horizontal gap between the boxes (seen from above, scene frame) of ``step``'s object placed by
+        ``result`` and ``other``."""
+        mine = _box(step.source, np.asarray(result.source_to_target, dtype=np.float64))
+        other = next(p for p in placed if p.name == self.other)
+        theirs = _box(other.mesh, np.asarray(other.to_scene.matrix))
+        return float(np.max(np.maximum(mine[0] - theirs[1], theirs[0] - mine[1])[[0, 2]]))
+
+    def made(self, placed: Sequence[Placed], step: Step, result: AlignResult) -> AlignResult:
+        """``result`` moved straight away from ``other`` (horizontally, from centre to centre) by the room missing."""
+        missing = self.width - self.gap(placed, step, result)
+        if missing <= 0:
+            return result
+        other = next(p for p in placed if p.name == self.other)
+        away = _centre_of(step.source, np.asarray(result.source_to_target)) - _centre(other)
+        away[1] = 0.0
+        length = float(np.linalg.norm(away))
+        if length == 0.0:
+            return result
+        shift = away / length
+        # the gap between boxes grows along an axis only: move by the missing room over the axis the gap is along
+        shift /= max(abs(shift[0]), abs(shift[2]))
+        matrix = np.array(result.source_to_target, dtype=np.float64)
+        matrix[:3, 3] += shift * (missing + ROOM_CLEAR * self.width)
+        return replace(result, source_to_target=matrix)
+
+    def said(self, name: str, gap: float) -> str:
+        return (f"{name} leaves {max(gap, 0.0) * 1000:.0f} mm between it and {self.other}: the {self.figure} said "
+                f"to go between them takes {self.width * 1000:.0f} mm")
+
+
+ROOM_CLEAR = 0.25  # of the figure's width: the room made beyond it (a person leaves a hand's width or so)
+
+
+def _rooms(base_name: str, steps: Sequence[Step]) -> list[list[Room]]:
+    """For each step, the room it leaves (``Room``): for each later step between it and an object placed before
+    it, that step's figure's narrower side seen from above (its own file frame stands upright: glTF's +Y)."""
+    order = [base_name, *(s.name for s in steps)]
+    out: list[list[Room]] = [[] for _ in steps]
+    for later in steps:
+        grounds = ground_names(later.on)
+        if len(grounds) != 2 or not all(g in order for g in grounds):
+            continue
+        first, last = sorted(grounds, key=order.index)
+        if last == base_name:
+            continue
+        extents = later.source.extents
+        out[order.index(last) - 1].append(Room(first, later.name, float(min(extents[0], extents[2]))))
+    return out
+
+
+def _box(mesh: trimesh.Trimesh, matrix: np.ndarray) -> np.ndarray:
+    """(2, 3) the scene-frame box of ``mesh`` (own file frame) placed by ``matrix``."""
+    points = trimesh.transform_points(np.asarray(mesh.convex_hull.vertices), matrix)
+    return np.array([points.min(0), points.max(0)])
+
+
+def _centre_of(mesh: trimesh.Trimesh, matrix: np.ndarray) -> np.ndarray:
+    return _box(mesh, matrix).mean(0)
 
 
 def _raised(result: AlignResult, height: float) -> AlignResult:
@@ -231,11 +333,12 @@ def _raised(result: AlignResult, height: float) -> AlignResult:
     return replace(result, source_to_target=matrix)
 
 
-def _breaks(objects: list[Placed], earlier: list[StepResult], result: AlignResult, on: list[str]
-            ) -> tuple[list[str], float]:
+def _breaks(objects: list[Placed], earlier: list[StepResult], result: AlignResult, on: list[str],
+            also: Sequence[Also] = ()) -> tuple[list[str], float]:
     """What the last of ``objects`` (placed by ``result``) breaks, in words: each earlier step whose relation held
-    and now fails or whose object now intersects another, and the new object where it intersects one; and how deep
-    the new object sinks (millimetres into another object or below the floor, the deeper: ``sinking``)."""
+    and now fails or whose object now intersects another, the new object where it intersects one, and each relation
+    said of it besides (``also``) whose objects are placed and that does not hold; and how deep the new object sinks
+    (millimetres into another object or below the floor, the deeper: ``sinking``)."""
     from ctp_core.assembly import whole
 
     found = []
@@ -246,20 +349,27 @@ def _breaks(objects: list[Placed], earlier: list[StepResult], result: AlignResul
                 found.append(whole.said(now))
     new = _verdict(objects, len(objects) - 1, result, on)
     sunk = max(new["penetration_mm"], new["below_floor_mm"])
+    names = {p.name for p in objects}
+    found += [whole.said(v) for a in also if set(a.on) <= names
+              for v in [_also_verdict(objects, len(objects) - 1, result, a)] if v["holds"] is False]
     return ([*found, whole.said(new)] if new["intersects"] else found), sunk
 
 
 def judged(objects: list[Placed], results: list[StepResult]) -> dict[str, Any]:
-    """Every step's relation judged on the scene ``objects``: the verdicts (``whole.verdict``), ``all_hold`` (None
-    where no step has a relation) and ``none_intersect``."""
-    relations = [_verdict(objects, s.index, s.result, s.grounds) for s in results]
+    """Every step's relation judged on the scene ``objects``, and every relation said of it besides (``also``,
+    marked so): the verdicts (``whole.verdict``), ``all_hold`` (None where no step has a relation) and
+    ``none_intersect``."""
+    relations = [{**_verdict(objects, s.index, s.result, s.grounds), "also": False} for s in results]
+    relations += [{**_also_verdict(objects, s.index, s.result, a), "also": True} for s in results for a in s.step.also]
     known = [r for r in relations if r["holds"] is not None]
     return {"relations": relations, "all_hold": all(r["holds"] for r in known) if known else None,
             "none_intersect": not any(r["intersects"] for r in relations)}
 
 
-def _verdict(objects: list[Placed], index: int, result: AlignResult, grounds: list[str]) -> dict[str, Any]:
-    """``whole.verdict`` of ``objects[index]`` (placed by ``result``) against every other object."""
+def _verdict(objects: list[Placed], index: int, result: AlignResult, grounds: Sequence[str],
+             reading: RelationReading | None = None) -> dict[str, Any]:
+    """``whole.verdict`` of ``objects[index]`` (placed by ``result``; judged by ``reading``, else the run's) against
+    every other object."""
     from ctp_core.assembly import whole
 
     placed = objects[index]
@@ -267,4 +377,79 @@ def _verdict(objects: list[Placed], index: int, result: AlignResult, grounds: li
     floor = float(objects[0].mesh.bounds[0][1])  # the base's bottom: its file frame is the scene frame
     return whole.verdict(scene_of(others), placed.name, placed.mesh, np.asarray(placed.to_scene.matrix), result,
                          grounds, placed=[(p.name, p.mesh, np.asarray(p.to_scene.matrix)) for p in others],
-                         floor=floor)
+                         floor=floor, reading=reading)
+
+
+def _also_verdict(objects: list[Placed], index: int, result: AlignResult, also: Also) -> dict[str, Any]:
+    """A relation said of ``objects[index]`` besides its own, judged as ``_verdict`` judges the step's."""
+    return _verdict(objects, index, result, also.on, _also_reading(objects[index].name, also))
+
+
+def _also_reading(figure: str, also: Also) -> RelationReading | None:
+    """The relation ``also`` says, read as a pair prompt with ``figure`` the figure; an orientation said alone
+    ("facing the monitor", read as near it and facing it) is judged as the orientation only: where the figure
+    stands is its step's relation's to say."""
+    reading = passes.read_prompt(also.on[0], figure, also.prompt).reading
+    if (reading is not None and reading.orientation is not None and reading.leant is None
+            and reading.position == ORIENTED_NEAR):
+        return RelationReading(reading.orientation)
+    return reading
+
+
+def _turned(result: AlignResult, step: Step, placed: list[Placed]) -> AlignResult:
+    """The run's placement turned about the vertical through its centre as the description turns it: its front at
+    (or away from) the object a relation said besides its own names ("in front of the desk, facing the monitor":
+    the step's own relation is about the desk); else, resting on an object with a front and told no way to face,
+    facing as that object faces (a monitor on a desk, a clock on a mantelpiece: squared to it as people set them,
+    and its left and right then the desk's). Unchanged where the figure has no front it was given or that a
+    convention gives (``Upright.front_trusted``), or where the object it turns by is not placed yet."""
+    upright = result.source_upright
+    if upright is None or not upright.front_trusted:
+        return result
+    scene = {p.name: p for p in placed}
+    matrix = np.asarray(result.source_to_target, dtype=np.float64)
+    centre = trimesh.transform_points(step.source.bounds, matrix).mean(0)
+    want = _facing_way(step, scene, centre, result)
+    if want is None:
+        return result
+    front = matrix[:3, :3] @ np.asarray(upright.front, dtype=np.float64)
+    turn = np.arctan2(want[0], want[2]) - np.arctan2(front[0], front[2])
+    about = trimesh.transformations.rotation_matrix(turn, (0.0, 1.0, 0.0), point=centre)
+    return replace(result, source_to_target=about @ matrix)
+
+
+def _facing_way(step: Step, scene: dict[str, Placed], centre: np.ndarray, result: AlignResult) -> np.ndarray | None:
+    """The horizontal direction (scene frame) the step's object should face (``_turned``), or None."""
+    readings = [(a.on, r) for a in step.also if set(a.on) <= set(scene)
+                for r in [_also_reading(step.name, a)] if r is not None]
+    for on, reading in readings:
+        turn = reading.orientation or reading.position
+        if turn in (RelationName.FACING, RelationName.FACING_AWAY):
+            toward = _centre(scene[on[0]]) - centre
+            return -toward if turn == RelationName.FACING_AWAY else toward
+    own = RelationReading.from_verdict(result.relation)
+    if own is None or own.orientation is not None:
+        return None
+    grounds = tuple(result.grounds) or ((result.on,) if result.on else ())
+    resting = [(grounds, own)] if grounds else []
+    for on, reading in [*resting, *readings]:
+        support = scene.get(on[0])
+        if RELATIONS[reading.position].rests and reading.leant is None and support is not None:
+            return None if support.front is None else support.front
+    return None
+
+
+def _centre(placed: Placed) -> np.ndarray:
+    """The centre of a placed object's box, in the scene frame."""
+    return _centre_of(placed.mesh, np.asarray(placed.to_scene.matrix))
+
+
+def _check_also(base_name: str, steps: Sequence[Step]) -> None:
+    """Every object a step's ``also`` relates to is an object of the assembly."""
+    names = {base_name, *(s.name for s in steps)}
+    for i, step in enumerate(steps):
+        for k, also in enumerate(step.also):
+            unknown = [n for n in also.on if n not in names]
+            if unknown:
+                raise ConfigError(f"step {i + 1} ({step.name}): also relates to {unknown[0]!r}, no object of the "
+                                  f"assembly ({', '.join(sorted(names))})", field=f"steps.{i}.also.{k}.on")

@@ -24,13 +24,13 @@ import re
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
 
-from ctp_core.assembly.plan import MAX_GROUNDS
+from ctp_core.assembly.plan import MAX_GROUNDS, Also
 from ctp_core.errors import ConfigError
 from ctp_core.reading import counts, cues, lexicon, passes, scene
 from ctp_core.reading.records import RELATIONS, Kind, RelationName
 from ctp_core.reading.scene import DETERMINERS, Said, SceneReading, SceneReadingError
 
-__all__ = ["Also", "DescriptionError", "Placement", "ScenePlan", "keys_of", "plan_relations", "read_description"]
+__all__ = ["DescriptionError", "Placement", "ScenePlan", "keys_of", "plan_relations", "read_description"]
 
 DESCRIPTION_MAX = 2000  # characters of a description
 FLOOR = "floor"  # what a step stands on when no object holds it up
@@ -49,16 +49,6 @@ class DescriptionError(ConfigError):
     place, a cycle): the CLI prints it, the API answers 422 with its code."""
 
     code = "invalid_description"
-
-
-@dataclass(frozen=True)
-class Also:
-    """A relation said of a step's object besides its own ("to its right" of "the lamp on the desk to its right"):
-    the relation the reader reads of ``prompt``, and the placed objects it relates to."""
-
-    relation: str
-    on: tuple[str, ...]
-    prompt: str
 
 
 @dataclass(frozen=True)
@@ -82,7 +72,7 @@ class Placement:
     def to_dict(self) -> dict:
         out = asdict(self)
         return {**out, "on": list(self.on), "warnings": list(self.warnings),
-                "also": [{**asdict(a), "on": list(a.on)} for a in self.also]}
+                "also": [a.to_dict() for a in self.also]}
 
 
 @dataclass
@@ -106,7 +96,8 @@ class ScenePlan:
         """The plan as ``ctp assemble --plan`` and ``POST /assemble`` take it (``files``: one per upload)."""
         return {"base": files[self.base_upload], "name": self.base,
                 "steps": [{"file": files[s.upload], "name": s.name, "prompt": s.prompt,
-                           "on": s.on[0] if len(s.on) == 1 else list(s.on)} for s in self.steps]}
+                           "on": s.on[0] if len(s.on) == 1 else list(s.on),
+                           **({"also": [a.to_dict() for a in s.also]} if s.also else {})} for s in self.steps]}
 
 
 def read_description(description: str, names: Sequence[str]) -> ScenePlan:
@@ -431,9 +422,9 @@ def _steps(said: Said, nodes: dict[str, list[str]], keys: list[str], also: list[
         else:
             on = tuple(nodes[g][0] for g in said.grounds)[:MAX_GROUNDS]
         relation = _relation(on[0], name, prompt, said.clause)
-        more = tuple(Also(_relation(nodes[a.grounds[0]][0], name, p, a.clause), tuple(
-            nodes[g][0] for g in a.grounds)[:MAX_GROUNDS], p) for a in others
-            for p in [_prompt(a, f"the {said.figure}", list(a.grounds), False)])
+        more = tuple(Also(p, tuple(nodes[g][0] for g in a.grounds)[:MAX_GROUNDS],
+                          _relation(nodes[a.grounds[0]][0], name, p, a.clause)) for a in others
+                     for p in [_prompt(a, f"the {said.figure}", list(a.grounds), False)])
         out.append(Placement(name, upload, prompt, on, relation, said.clause, support=_support(relation, on, support),
                              also=more, warnings=tuple(notes)))
     return out

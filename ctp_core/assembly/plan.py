@@ -13,11 +13,12 @@ from typing import Any
 from ctp_core.errors import ConfigError
 from ctp_core.reading.names import ground_names
 
-__all__ = ["MAX_GROUNDS", "STEP_KEYS", "PlanError", "PlanStep", "check_plan", "plan_step",
+__all__ = ["MAX_GROUNDS", "STEP_KEYS", "Also", "PlanError", "PlanStep", "check_plan", "plan_step",
            "step_options"]
 
 MAX_GROUNDS = 2  # objects one step relates to: one, or two ("a lamp between the sofa and the armchair")
-STEP_KEYS = frozenset({"file", "prompt", "image", "name", "on", "options"})  # one step of a plan
+STEP_KEYS = frozenset({"file", "prompt", "image", "name", "on", "also", "options"})  # one step of a plan
+ALSO_KEYS = frozenset({"prompt", "on", "relation"})  # one relation said of a step's object besides its own
 _ASSEMBLY_ONLY = frozenset({"preset", "model"})  # the whole assembly's: one model is loaded for every stage
 
 
@@ -25,6 +26,22 @@ class PlanError(ConfigError):
     """A plan step of the wrong shape (a bad option value is a plain ``ConfigError``): the CLI prints it,
     the API answers 400 ``invalid_plan``."""
 
+
+
+@dataclass(frozen=True)
+class Also:
+    """A relation said of a step's object besides the one that places it ("the lamp on the desk, to the right of
+    the monitor": placed on the desk, right of the monitor as well): its prompt, read as a pair prompt with the
+    step's object as the figure, and the objects it relates to (``on``, placed by the plan). The assembly judges it
+    with the step (a placement that breaks it is retried among the run's alternatives) and on the final scene.
+    ``relation``: the reading's name where a reader filled it in (reports only)."""
+
+    prompt: str
+    on: tuple[str, ...]
+    relation: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"prompt": self.prompt, "on": list(self.on), "relation": self.relation}
 
 
 @dataclass(frozen=True)
@@ -37,6 +54,7 @@ class PlanStep:
     image: str | None = None
     name: str | None = None  # None: the adapter's default (the file stem)
     on: tuple[str, ...] = ()
+    also: tuple[Also, ...] = ()
     options: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -60,7 +78,7 @@ def plan_step(entry: Any, where: str, *, assembly_options: str) -> PlanStep:
     if entry.get("prompt") is not None and entry.get("image") is not None:
         raise PlanError(f"{where}: give a prompt or an image, not both", field=f"{where}.prompt")
     return PlanStep(file=entry["file"], prompt=entry.get("prompt"), image=entry.get("image"), name=entry.get("name"),
-                    on=_on(entry.get("on"), f"{where}.on"),
+                    on=_on(entry.get("on"), f"{where}.on"), also=_also(entry.get("also"), f"{where}.also"),
                     options=step_options(entry.get("options"), f"{where}.options", assembly_options=assembly_options))
 
 
@@ -73,6 +91,28 @@ def _on(on: Any, where: str) -> tuple[str, ...]:
     if len(set(on)) < len(on):
         raise PlanError(f"{where} names {on[0]!r} twice; the grounds are different objects", field=where)
     return tuple(on)
+
+
+def _also(also: Any, where: str) -> tuple[Also, ...]:
+    """A step's ``also``: absent, or a list of mappings, each a ``prompt`` and the ``on`` it relates to."""
+    if also is None:
+        return ()
+    if not isinstance(also, list):
+        raise PlanError(f"{where} must be a list of {{prompt, on}} mappings", field=where)
+    out = []
+    for k, entry in enumerate(also):
+        here = f"{where}.{k}"
+        if not isinstance(entry, dict) or not isinstance(entry.get("prompt"), str) or not entry["prompt"].strip():
+            raise PlanError(f"{here} must be a mapping with prompt: the relation in words", field=here)
+        unknown = sorted(set(entry) - ALSO_KEYS, key=str)
+        if unknown:
+            raise PlanError(f"{here}: unknown key {unknown[0]!r}; known: {', '.join(sorted(ALSO_KEYS))}",
+                            field=f"{here}.{unknown[0]}")
+        on = _on(entry.get("on"), f"{here}.on")
+        if not on:
+            raise PlanError(f"{here}.on must name the object(s) the relation is to", field=f"{here}.on")
+        out.append(Also(entry["prompt"], on, str(entry.get("relation") or "")))
+    return tuple(out)
 
 
 def step_options(options: Any, where: str, *, assembly_options: str) -> dict[str, Any]:

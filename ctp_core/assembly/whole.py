@@ -31,13 +31,14 @@ __all__ = ["said", "verdict"]
 
 def verdict(others: trimesh.Scene, name: str, mesh: trimesh.Trimesh, to_scene: np.ndarray, result: AlignResult,
             grounds: Sequence[str], *, placed: Sequence[tuple[str, trimesh.Trimesh, np.ndarray]] = (),
-            floor: float | None = None) -> dict[str, Any]:
+            floor: float | None = None, reading: RelationReading | None = None) -> dict[str, Any]:
     """The relation of the step that placed ``mesh`` (its run ``result``, its ``grounds``) judged where it is now
     (``to_scene``: its file frame -> scene) against every ``other`` object: name, relation, on, holds, stable,
     penetration (the search's), how deep it is measured into the others and below the floor (``sinking``:
     ``penetration_mm``, ``into``, ``below_floor_mm``), intersects. ``placed``: the other objects as (name, mesh in
-    its own file frame, its 4x4 into the scene), for the measure; ``floor``: the scene's (the base's bottom)."""
-    reading = RelationReading.from_verdict(result.relation)
+    its own file frame, its 4x4 into the scene), for the measure; ``floor``: the scene's (the base's bottom);
+    ``reading``: the relation to judge (a relation said of the object besides its own), else the run's."""
+    reading = reading or RelationReading.from_verdict(result.relation)
     # the scene's up and front found as the step's run found them, from its objects (their files' frames)
     done = adjust.adjust(others, mesh, to_scene, result.config, on=list(grounds), reading=reading)
     judged = done.relation or {}

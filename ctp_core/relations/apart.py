@@ -38,6 +38,7 @@ from ctp_core.relations.spec import Judge, Spec
 
 BESIDE_GAP = 0.5  # "beside": the gap at most this many *mean* diagonals of figure and ground
 UNDER_REACH = 0.5  # "under": a downward-facing ground sample above the figure within this of its centre's column
+SIDE_OVERLAP = 0.05  # front/behind/left/right: the figure's near side may reach this share of its diagonal back
 NEAR_GAP = 1.0  # "near": the gap at most this many *mean* diagonals of figure and ground (twice ``BESIDE_GAP``)
 FAR_GAP = 2.0  # "far": the gap at least this many mean diagonals
 CLEAR = 2 * CONTACT  # "above", "below": the gap's bound in the score; what holds is a gap of at least ``CONTACT``
@@ -86,17 +87,23 @@ def _score_side(c: Context, side: str) -> torch.Tensor:
     (``axes``: the viewer's where its front cannot be trusted): the figure's centre beyond the ground's extent
     that way (its farthest sample along the side's direction) by more than it is beyond the ground's extent either
     way across (a wedge from the ground's corners: a box level with a sofa's left end and a little in front is on
-    its left; one well in front of that end is in front)."""
+    its left; one well in front of that end is in front), and its near side beyond that extent too, but for
+    ``SIDE_OVERLAP`` of its diagonal (a lamp to the right of a monitor stands clear of it, not behind its edge)."""
     way = toward(side, c.front, c.left)
     across = c.left if side in ("front", "behind") else c.front
     aside = torch.maximum(_beyond(c, across), _beyond(c, -across)).clamp_min(0.0)
-    return _score_beside(c) + c.h(aside - _beyond(c, way))
+    near = (c.figure.points * way[:, None, :]).sum(-1).min(-1).values - _extent(c, way)
+    return _score_beside(c) + c.h(aside - _beyond(c, way)) + c.h(-SIDE_OVERLAP * c.unit - near)
 
 
 def _beyond(c: Context, direction: torch.Tensor) -> torch.Tensor:
     """(B,) how far the figure's centre lies beyond the ground's farthest sample along ``direction`` (B, 3)."""
-    extent = (c.ground.samples.points * direction[:, None, :]).sum(-1).max(-1).values
-    return (c.figure.centre * direction).sum(-1) - extent
+    return (c.figure.centre * direction).sum(-1) - _extent(c, direction)
+
+
+def _extent(c: Context, direction: torch.Tensor) -> torch.Tensor:
+    """(B,) the ground's farthest sample along ``direction`` (B, 3)."""
+    return (c.ground.samples.points * direction[:, None, :]).sum(-1).max(-1).values
 
 
 def score_above(c: Context) -> torch.Tensor:

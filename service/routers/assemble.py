@@ -13,7 +13,7 @@ from ctp_core.reading.names import NAME_MAX, default_name, ground_names
 from service import forms, submit
 from service.deps import owner
 from service.errors import ApiError
-from service.jobs import AssemblyStep, JobRecord, now
+from service.jobs import AssemblyAlso, AssemblyStep, JobRecord, now
 from service.schemas import Accepted, build_config
 
 router = APIRouter()
@@ -137,7 +137,7 @@ async def assembly_job(request: Request, form, who: str, job_id: str, plan: list
         prompt = None if entry.prompt is None else forms.clean_prompt(entry.prompt, f"{where}.prompt", where)
         steps.append(AssemblyStep(name=_name(entry.name, file, where), file=file, prompt=prompt,
                                   has_image=entry.image is not None, on=list(entry.on) or None,
-                                  config=step_config))
+                                  also=[AssemblyAlso(**a.to_dict()) for a in entry.also], config=step_config))
     unused = sorted(f for f, part in sources.items() if f not in meshes and part is not base)
     if unused:
         raise ApiError(400, "invalid_plan", f"source part {unused[0]!r} is not used by any step", field="source")
