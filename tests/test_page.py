@@ -246,14 +246,14 @@ def _previews_and_the_up(driver, target: bytes) -> None:
     faces = len(trimesh.load(io.BytesIO(target), file_type="glb", force="mesh").faces)
     info = find(By.ID, "inspect-target").text
     assert f"{faces:,} faces" in info and "file's units" in info and "up: the file's" in info, info
-    assert "glTF convention" in info and "front: the file's +z" in info, info
+    assert "every glTF file" in info and "front: the file's +z" in info, info
     colours = driver.execute_script(CANVAS_COLOURS.replace("#viewer canvas", "#preview-source canvas"), BACKGROUND)
     assert colours["differ"] > 0.02 * colours["total"], colours  # the ball is drawn
     find(By.ID, "flip-up-target").click()  # the user flips the up: asked again with up -y, the arrows redrawn
     wait_for(lambda: "up: -y as given" in find(By.ID, "inspect-target").text, 20, "the flipped up")
     assert find(By.ID, "up-target").get_attribute("value") == "-y"
     Select(find(By.ID, "up-target")).select_by_value("file")  # and back: the job runs in the file's frame
-    wait_for(lambda: "glTF convention" in find(By.ID, "inspect-target").text, 20, "the file's up again")
+    wait_for(lambda: "every glTF file" in find(By.ID, "inspect-target").text, 20, "the file's up again")
     find(By.ID, "drop-target").location_once_scrolled_into_view  # noqa: B018
     shoot(driver, "previews")
 
