@@ -5,8 +5,9 @@ scene adjusted by hand says where its objects stand now.
 
 Frames: the scene frame (``assemble``: the base's file frame), +Y up, as the scene's judge (``whole``) reads the
 floor. Rays are cast down from an object's lowest points (those within ``BAND`` of its height above its bottom)
-and its footprint's centre, from ``BAND`` of its height above them; a hit on a level face (``LEVEL``) of another
-object no lower than ``REACH`` of its height under its bottom is what it stands on (the highest such surface).
+and its footprint's centre, from ``START`` of its height above them (an object sunk a little into what it stands
+on still finds it); a hit on a level face (``LEVEL``) of another object no lower than ``REACH`` of its height under
+its bottom is what it stands on (the highest such surface).
 """
 
 from __future__ import annotations
@@ -23,7 +24,8 @@ if TYPE_CHECKING:
 __all__ = ["FLOOR", "stands_on"]
 
 FLOOR = "floor"
-BAND = 0.02  # of an object's height: its bottom, and how far above it rays start
+BAND = 0.02  # of an object's height: its bottom
+START = 0.5  # of an object's height above its bottom: where rays start (inside it, so one sunk a little still hits)
 REACH = 0.05  # of an object's height: a surface this far under its bottom still carries it (a gap the search left)
 RAYS = 16  # lowest vertices a ray is cast down from, besides the footprint's centre
 LEVEL = 0.7  # |normal . up| of a face a thing can stand on (a wall grazed on the way down is not one)
@@ -48,7 +50,7 @@ def _under(mesh: trimesh.Trimesh, others: dict[str, trimesh.Trimesh]) -> str:
     order = np.argsort(height)[:RAYS]
     lowest = vertices[order[height[order] <= bottom + BAND * span]]
     centre = vertices.mean(0) - (vertices.mean(0) @ UP - bottom) * UP
-    origins = np.vstack([lowest, centre]) + BAND * span * UP
+    origins = np.vstack([lowest, centre]) + START * span * UP
     directions = np.tile(-UP, (len(origins), 1))
     best, best_level = FLOOR, -np.inf
     for name, other in others.items():
