@@ -16,7 +16,7 @@ from selenium.webdriver.support.ui import Select
 
 from tests.conftest import wait_for
 from tests.test_compose import _bench, _box
-from tests.test_page import AUTH, _adjust_state, browser, drag_handle, env, open_page  # noqa: F401 - fixtures
+from tests.test_page import AUTH, _adjust_state, browser, drag_handle, env, open_page, shoot  # noqa: F401 - fixtures
 
 SENTENCE = "put the toolbox on the workbench; a stool to its left"
 STAGE_AND_BAR = "return [document.getElementById('stage').textContent, document.getElementById('bar').value]"
@@ -119,6 +119,8 @@ def _the_scene_shown(driver, api, job_id: str, report: dict) -> None:
     wait_for(lambda: SENTENCE in row.text, 10, "the job list's label")
     assert "(a scene of 3 objects)" in row.text and "reference image" not in row.text, row.text
     assert "reference image" not in find(By.ID, "result").text
+    find(By.ID, "result").location_once_scrolled_into_view  # noqa: B018 - for the screenshot
+    shoot(driver, "scene-result")
 
 
 def _one_object_adjusted_and_saved(driver, api, job_id: str) -> None:
@@ -140,6 +142,7 @@ def _one_object_adjusted_and_saved(driver, api, job_id: str) -> None:
     assert _adjust_state(driver) == "saved", find(By.ID, "adjust-state").text
     wait_for(lambda: find(By.ID, "viewer").get_attribute("data-ready"), 30, "the saved scene shown")
     assert "toolbox moved by hand" in find(By.ID, "transform").text
+    shoot(driver, "scene-adjusted")
     saved = api.client.get(f"/jobs/{job_id}/report.json", headers=AUTH).json()
     assert saved["adjusted"] and saved["adjustment"]["object"] == "toolbox"
     assert [r["name"] for r in saved["whole"]["relations"]] == ["toolbox", "stool"]
