@@ -21,6 +21,7 @@ const state = {
   urls: [], // blob URLs to revoke when the next result replaces this one
   figures: [], // the progress readout's figure (guide match, else -gap) over time, for the spark line
   readout: false, // whether this job's progress has shown a readout (then the objective is never shown)
+  stageIndex: null, // the alignment of a scene (or of copies) the readout is about: the next one starts it afresh
   nextPage: null,
 };
 
@@ -657,7 +658,7 @@ function showFacts(report) {
 }
 
 // Lengths as the files give them: glTF files are in metres (their spec), other formats say no unit.
-const UNITS = "lengths in the files' units (metres for glTF)";
+const UNITS = "in the files' units (metres for glTF)";
 
 /** Where the source was put, in words: how far from the target's origin, turned by how many degrees about which
  * axis, at what size; the relation's verdict and contact; who chose among the placements. */
@@ -665,7 +666,7 @@ function pairRows(report) {
   const t = report.transform || {};
   const fixed = (values, digits) => (values || []).map((v) => Number(v).toFixed(digits)).join(", ");
   const rows = report.copies ? copyRows(report, fixed) : [
-    ["position", t.translation ? `${fixed(t.translation, 3)} from the target's origin (${UNITS})` : ""],
+    ["position", t.translation ? `${fixed(t.translation, 3)} from the target's origin, ${UNITS}` : ""],
     ["turn", t.rotation_wxyz ? turnWords(t.rotation_wxyz) : ""],
     ["size", t.scale != null ? sizeWords(Number(t.scale)) + scaleOrigin((report.extra || {}).scale) : ""],
   ];
