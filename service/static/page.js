@@ -497,6 +497,7 @@ function fillGrounds(select, none, names) {
 
 async function showResult(id) {
   clearError();
+  clearError($("scene-error"));
   delete $("viewer").dataset.ready; // set again once this result is drawn (showScene)
   let job, glb, report, preview, strip;
   try {
@@ -980,7 +981,8 @@ async function reopen(job) {
     $("progress").hidden = true;
     await showResult(job.id);
   } else {
-    follow(job.id); // a running job's progress; an ended one's final state and error
+    // a running job's progress; an ended one's final state and error, beside the form of its kind
+    follow(job.id, job.kind === "assemble" ? $("scene-error") : $("error"));
   }
 }
 
