@@ -227,7 +227,11 @@ def run(args: argparse.Namespace) -> int:
     if result.guide == NONE and config.model == AUTO and config.uses_model:  # auto found no model: say so, once
         print(f"note: no guide: {result.guide_why.removeprefix('auto: ')}; `{pull_command()}` gets the model",
               file=sys.stderr)
-    summary = {"out": str(args.out), "objective": round(result.objective, 6), "scale": round(result.scale, 6),
+    placed = said(result)
+    if not args.quiet:
+        print(f"placed: {placed}", file=sys.stderr)
+    summary = {"out": str(args.out), "said": placed, "objective": round(result.objective, 6),
+               "scale": round(result.scale, 6),
                "translation": [round(v, 6) for v in result.translation.tolist()],
                "seconds": round(time.perf_counter() - started, 2), "preset": config.preset,
                "model": result.model, "guide": result.guide, "guide_why": result.guide_why, "runtime": result.runtime,
@@ -241,6 +245,28 @@ def run(args: argparse.Namespace) -> int:
                                  else f"priors: size ratio {result.scaling['size_ratio']:.3g}")
     print(json.dumps(summary))
     return 0
+
+
+def said(result) -> str:
+    """The answer in words a person reads (the JSON fields beside it are for machines): the relation's verdict,
+    contact, and where the source went, turned and at what size (lengths in the files' units: metres for glTF)."""
+    import numpy as np
+
+    relation = result.relation
+    words = [f"'{relation['name']}' {'holds' if relation['holds'] else 'does not hold'}" if relation
+             else "no relation read from the prompt"]
+    if relation and relation.get("stable") is False:
+        words.append("may tip over")
+    if result.contact:
+        words.append("touching" if result.contact["touching"]
+                     else f"not touching: a gap of {100 * result.contact['gap']:.0f} % of the source's size")
+    x, y, z = result.translation.tolist()
+    words.append(f"moved to ({x:.3f}, {y:.3f}, {z:.3f}) in the target's file units (metres for glTF)")
+    angle = float(np.degrees(np.arccos(np.clip((np.trace(result.rotation) - 1) / 2, -1.0, 1.0))))
+    words.append("not turned" if angle < 0.05 else f"turned {angle:.1f}°")
+    scale = result.scale
+    words.append("at its file's size" if abs(scale - 1) < 5e-4 else f"at {scale:.3f} times its file's size")
+    return ", ".join(words)
 
 
 def _run_copies(args: argparse.Namespace, target, source, config, count: int, arrangement: str, target_name: str,

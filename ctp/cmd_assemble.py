@@ -97,8 +97,23 @@ def run_assembly(args: argparse.Namespace, base, base_name: str, steps: list, co
         "objects": [{"name": p.name, "scale": round(p.to_scene.scale, 6),
                      "translation": [round(v, 6) for v in p.to_scene.translation.tolist()]}
                     for p in assembly.objects],
-        "objectives": [round(s.result.objective, 6) for s in assembly.results], **summary}))
+        "said": said(assembly.whole), "objectives": [round(s.result.objective, 6) for s in assembly.results],
+        **summary}))
     return 0
+
+
+def said(whole: dict[str, Any] | None) -> str:
+    """Every relation of the final scene in words a person reads ("toolbox on workbench: holds; stool right
+    workbench: does not hold, 4.0 mm into workbench"); the JSON fields beside it are for machines."""
+    lines = []
+    for judged in (whole or {}).get("relations", []):
+        words = [("holds" if judged["holds"] else "does not hold") if judged["relation"] else "no relation read"]
+        if judged.get("below_floor_mm", 0.0) >= 0.5:
+            words.append(f"{judged['below_floor_mm']} mm below the floor")
+        if judged.get("penetration_mm", 0.0) >= 0.5 and judged.get("into"):
+            words.append(f"{judged['penetration_mm']} mm into {judged['into']}")
+        lines.append(f"{judged['name']} {judged['relation'] or 'by'} {' and '.join(judged['on'])}: {', '.join(words)}")
+    return "; ".join(lines)
 
 
 def read_plan(path: Path, config):

@@ -15,6 +15,7 @@ import io
 import json
 import math
 import platform
+from collections.abc import Sequence
 from importlib import metadata
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -26,7 +27,8 @@ from PIL import Image
 
 import ctp_core
 from ctp_core import orientation, priors
-from ctp_core.assembly.assemble import Assembly
+from ctp_core.assembly import standing
+from ctp_core.assembly.assemble import Assembly, Placed
 from ctp_core.assembly.copies import Copies
 from ctp_core.geometry.frames import SCENE, SOURCE_FILE, TARGET_FILE, Similarity
 from ctp_core.geometry.pose import matrix_to_quaternion
@@ -36,6 +38,7 @@ from ctp_core.pairs import objects
 if TYPE_CHECKING:  # align imports the whole engine; exporting a result needs none of it
     from ctp_core.adjust import Adjusted
     from ctp_core.align import AlignResult
+    from ctp_core.assembly.adjusted import SceneAdjusted
 
 
 def scene_glb(result: AlignResult, source_name: str | None = None, target_name: str | None = None) -> bytes:
@@ -138,7 +141,7 @@ def assembly_report(assembly: Assembly) -> dict:
     first = assembly.results[0].result.config
     return {
         "frame": SCENE,
-        "objects": [{"name": p.name, "transform": transform(p.to_scene)} for p in assembly.objects],
+        "objects": placed_objects(assembly.objects, standing.stands_on(assembly.objects)),
         "stages": [{"stage": s.index, "of": s.count, "name": s.step.name, "on": s.on,
                     "grounds": s.grounds or [s.on], "image_guided": s.step.image is not None,
                     **_run(s.result, transform(assembly.objects[s.index].to_scene)),
@@ -149,6 +152,27 @@ def assembly_report(assembly: Assembly) -> dict:
         "timings": _jsonable(assembly.timings),
         **_provenance(),
     }
+
+
+def placed_objects(objects: Sequence[Placed], stands_on: dict[str, str]) -> list[dict]:
+    """The report's ``objects``: each one's name, file -> scene transform and what it stands on
+    (``standing.stands_on``: an object's name, or floor)."""
+    return [{"name": p.name, "transform": transform(p.to_scene), "stands_on": stands_on[p.name]} for p in objects]
+
+
+def adjusted_scene_report(original: dict, done: SceneAdjusted, *, at: str) -> dict:
+    """An assembly's report once a person saved one object adjusted by hand (``assembly.adjusted``): the objects
+    where they are now, that object's stage transform, every relation judged again (``whole``), ``adjusted`` true
+    and ``adjustment`` its measures, which object, when (``at``, ISO 8601) and every object's placement as the run
+    left it (``original_objects``, kept through later saves). Each stage's run record (objective, relation at its
+    placing) still describes the run."""
+    first = original.get("adjustment", {}).get("original_objects", original["objects"])
+    objects = placed_objects(done.objects, done.stands_on)
+    moved = next(o for o in objects if o["name"] == done.name)
+    stages = [{**s, "transform": moved["transform"]} if s["name"] == done.name else s for s in original["stages"]]
+    return {**original, "objects": objects, "stages": stages, "whole": _jsonable(done.whole), "adjusted": True,
+            "adjustment": {**_jsonable(done.adjusted.to_dict()), "object": done.name, "saved_at": at,
+                           "original_objects": first}}
 
 
 def adjusted_report(original: dict, adjusted: Adjusted, *, at: str) -> dict:

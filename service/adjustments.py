@@ -1,11 +1,12 @@
-"""Adjustments of a succeeded alignment (``POST /jobs/{id}/adjust``): short jobs of their own.
+"""Adjustments of a succeeded job (``POST /jobs/{id}/adjust``): short jobs of their own.
 
 A person moved the source by hand (the page's handles); an adjustment measures that placement as the search
 measures its poses (penetration, contact gap, the relation's verdict), first settles it into contact when asked
 ("drop", "push": ``ctp_core.adjust``), and with ``save`` stores it as the job's result (``result.glb`` and
 ``report.json`` replaced, the run's own GLB kept as ``original.glb``), so that downloads and ``target_job``
-chaining use it. It needs the engine (torch), so it runs on a worker of the job's queue; the API only checks
-and queues it.
+chaining use it. An assembly's adjustment moves one of its placed objects (``object``) against all the others and
+judges every relation of the scene again (``ctp_core.assembly.adjusted``). It needs the engine (torch), so it runs
+on a worker of the job's queue; the API only checks and queues it.
 
 An adjustment is a record ``{prefix}:adjust:{id}`` (status, the request, the outcome or the error) that lives as
 long as the job's results (``CTP_JOB_TTL_S``) and an rq job on the job's queue that carries only its id; it is
@@ -24,6 +25,7 @@ from typing import Literal
 
 from pydantic import BaseModel, Field
 
+from ctp_core.reading.names import NAME_MAX
 from service.jobs import JobError, Jobs, compare_and_set, now
 from service.redact import redact_model
 
@@ -39,8 +41,8 @@ class AdjustRequest(BaseModel):
 
     transform: list[list[float]] = Field(
         description="the source's 4x4, source file frame -> target file frame, row-major (as the report's "
-        "`transform.matrix` and the GLB's source node): a rotation, one scale and a translation; 422 "
-        "`invalid_transform` otherwise")
+        "`transform.matrix` and the GLB's source node; an assembly's object: its file frame -> the scene, as the "
+        "report's `objects`): a rotation, one scale and a translation; 422 `invalid_transform` otherwise")
     settle: Literal["none", "drop", "push"] = Field(
         "none", description="none: measured where it is; drop: lowered along the target's up (as the job turned "
         "it upright) until it touches the target, or rests on the plane the target stands on; push: moved along "
@@ -53,6 +55,10 @@ class AdjustRequest(BaseModel):
     copy_index: int | None = Field(None, ge=1, description="a job of several copies (options.count): which copy, "
                              "1-based as the report's `copies`, the transform is for (422 `invalid_copy` when "
                              "missing or past the count; the others stay where they are); none for one source")
+    object: str | None = Field(None, min_length=1, max_length=NAME_MAX, description="an assembly: the placed "
+                               "object (its name, as the report's `objects`) the transform is for; the others stay "
+                               "where they are, every relation is judged again (422 `invalid_object` when missing, "
+                               "unknown or the base, which stays put); none for an alignment")
 
 
 class AdjustOutcome(BaseModel):
@@ -69,6 +75,10 @@ class AdjustOutcome(BaseModel):
     touching: bool = Field(description="the gap is within 0.1, what the answer's selection counts as touching")
     relation: dict | None = Field(None, description="the prompt's relation judged here (name, role, score, holds, "
                                   "stable); null without one")
+    whole: dict | None = Field(None, description="an assembly: every relation of the scene judged again with the "
+                               "object here (as the report's `whole`); null for an alignment")
+    stands_on: dict[str, str] | None = Field(None, description="an assembly: what each object stands on now (an "
+                                             "object's name, or floor); null for an alignment")
     saved: bool = Field(description="stored as the job's result")
 
 

@@ -72,7 +72,7 @@ run's own at `original.glb`). Jobs run on queue workers; records and results exp
 - 404: `job_not_found` (also a `target_job` that is unknown or another key's), `not_found`,
   `adjustment_not_found`, `not_adjusted` (`original.glb` of a job with no saved adjustment)
 - 409: `job_not_ready` (result of a job that has not succeeded, or such a `target_job`, or an adjustment of one),
-  `not_adjustable` (an adjustment of an assembly), `job_finished` (cancel of an ended job), `idempotency_conflict`
+  `job_finished` (cancel of an ended job), `idempotency_conflict`
   (an `Idempotency-Key` already used for a different request), `idempotency_in_progress` (the first request with
   that key is still being checked after a minute)
 - 413: `request_too_large`, `mesh_file_too_large`, `mesh_too_large` (faces, glTF instances counted),

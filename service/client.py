@@ -198,17 +198,23 @@ class Client:
         return self._json(self.http.post("/inspect", files={"mesh": _file(mesh)}, data={"up": up, "front": front}))
 
     def adjust(self, job_id: str, transform, *, settle: str = "none", direction: Sequence[float] | None = None,
-               save: bool = False, wait: int = 30, timeout_s: float = 120.0) -> dict[str, Any]:
-        """Adjust a succeeded alignment by hand (``POST /jobs/{id}/adjust``) and return the ended adjustment:
-        ``transform`` (4x4, source file -> target file, row-major; a numpy array will do) measured there, after
-        ``settle`` "drop" (along the target's up) or "push" (along ``direction``, target file frame) into contact,
-        and with ``save`` stored as the job's result (``original.glb`` keeps the run's own). Its ``status`` is
-        succeeded or failed (``error``); its ``result`` has the ``transform`` it ended at, ``penetration``,
-        ``contact_gap``, ``touching``, ``settled``, ``relation``. Waits ``wait`` s in the request (``Prefer: wait``),
-        then reads it until it ends; ``TimeoutError`` after ``timeout_s``."""
-        body = {"transform": [list(map(float, row)) for row in transform], "settle": settle, "save": save}
+               save: bool = False, object_name: str | None = None, wait: int = 30,
+               timeout_s: float = 120.0) -> dict[str, Any]:
+        """Adjust a succeeded job by hand (``POST /jobs/{id}/adjust``) and return the ended adjustment:
+        ``transform`` (4x4, source file -> target file, row-major; a numpy array will do; for a scene's object
+        ``object_name``, its file frame -> the scene) measured there, after ``settle`` "drop" (along the
+        target's up) or "push" (along ``direction``, target file frame) into contact, and with ``save`` stored
+        as the job's result (``original.glb`` keeps the run's own). Its ``status`` is succeeded or failed
+        (``error``); its ``result`` has the ``transform`` it ended at, ``penetration``, ``contact_gap``,
+        ``touching``, ``settled``, ``relation``, and for a scene ``whole`` (every relation judged again) and
+        ``stands_on``. Waits ``wait`` s in the request (``Prefer: wait``), then reads it until it ends;
+        ``TimeoutError`` after ``timeout_s``."""
+        body: dict[str, Any] = {"transform": [list(map(float, row)) for row in transform], "settle": settle,
+                                "save": save}
         if direction is not None:
             body["direction"] = [float(v) for v in direction]
+        if object_name is not None:
+            body["object"] = object_name
         timeout = httpx.Timeout(self.http.timeout.connect, read=(self.http.timeout.read or 0) + wait)
         adjustment = self._json(self.http.post(f"/jobs/{job_id}/adjust", json=body, headers={"Prefer": f"wait={wait}"},
                                                timeout=timeout))

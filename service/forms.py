@@ -195,12 +195,12 @@ def prompt_and_image(form) -> tuple[str | None, UploadFile | None]:
     return (clean_prompt(prompt) if prompt is not None else None), image
 
 
-def clean_prompt(prompt: str, field: str = "prompt", where: str = "") -> str:
-    """A prompt as the engine gets it (stripped); 422 ``invalid_prompt`` when empty, too long or holding
-    control characters. ``where`` prefixes the message (an assembly step: ``plan.1``)."""
+def clean_prompt(prompt: str, field: str = "prompt", where: str = "", limit: int = PROMPT_MAX) -> str:
+    """A prompt as the engine gets it (stripped); 422 ``invalid_prompt`` when empty, longer than ``limit`` or
+    holding control characters. ``where`` prefixes the message (an assembly step: ``plan.1``)."""
     prefix = f"{where}: " if where else ""
-    if not 1 <= len(prompt.strip()) <= PROMPT_MAX:
-        raise ApiError(422, "invalid_prompt", f"{prefix}the prompt must have 1 to {PROMPT_MAX} characters",
+    if not 1 <= len(prompt.strip()) <= limit:
+        raise ApiError(422, "invalid_prompt", f"{prefix}the prompt must have 1 to {limit} characters",
                        field=field)
     if _PROMPT_CONTROL.search(prompt):
         raise ApiError(422, "invalid_prompt", f"{prefix}the prompt holds control characters (only tab, newline "

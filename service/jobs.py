@@ -161,7 +161,8 @@ class Progress(BaseModel):
     step: int = Field(0, description="optimisation steps done (all phases)")
     steps: int = Field(0, description="optimisation steps of this run (all phases); 0 until known")
     restarts: int = Field(0, description="random restarts of this run")
-    fraction: float = Field(0.0, ge=0.0, le=1.0, description="step / steps")
+    fraction: float = Field(0.0, ge=0.0, le=1.0, description="how much of the whole job is done: step / steps, "
+                            "and for several alignments (an assembly's objects, copies) each one a 1/count share")
     elapsed_s: float = Field(0.0, description="seconds since the worker started the job")
     eta_s: float | None = Field(None, description="estimated seconds left; null when unknown")
     objective: float | None = Field(
@@ -236,6 +237,8 @@ class JobRecord(BaseModel):
     cancel_requested: bool = False
     worker: str | None = None
     prompt: str | None = None
+    description: str | None = Field(None, description="an assembly: the scene in one sentence, as the job is "
+                                    "labelled (POST /scenes's prompt, POST /assemble's description)")
     has_image: bool = False
     target_name: str = "target"
     source_name: str = "source"

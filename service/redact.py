@@ -3,15 +3,16 @@
 Every text it hands out passes through ``redact``: filesystem paths (absolute, ``~``-relative, ``./``-relative) and
 cache folder names (``.cache/...``, the Hugging Face cache's ``models--...`` entries) become ``<path>``. That is
 ``/readyz`` and every error answer (which may be read without a key), and every job and adjustment answer (``GET
-/jobs/{id}``, the job list, its events and webhooks: ``redact_model``) and ``report.json`` (``redact_json``: each
-string in them, e.g. a worker's ``guide_why`` naming where it looked for a model's weights). Which model is
-missing and the command that gets it stay; where a worker looked for it is the operator's to read in the worker's
-log. The API's own routes (``POST /align``, ...) are not paths. Hostnames (worker names, the stores' addresses)
-and versions are never put in those texts.
+/jobs/{id}``, the job list, its events and webhooks: ``redact_model``) and ``report.json`` (``report_json``, as the
+worker stores it and as it is served: each string in them, e.g. a worker's ``guide_why`` naming where it looked for
+a model's weights). Which model is missing and the command that gets it stay; where a worker looked for it is the
+operator's to read in the worker's log. The API's own routes (``POST /align``, ...) are not paths. Hostnames (worker
+names, the stores' addresses) and versions are never put in those texts.
 """
 
 from __future__ import annotations
 
+import json
 import re
 from typing import Any, TypeVar
 
@@ -42,6 +43,12 @@ def redact_json(value: Any) -> Any:
     if isinstance(value, list):
         return [redact_json(item) for item in value]
     return value
+
+
+def report_json(report: Any) -> bytes:
+    """A job's ``report.json`` as it is stored and served: ``redact_json``, indented. The worker writes it so
+    (results and saved adjustments); the download applies it again to a report an older worker wrote."""
+    return json.dumps(redact_json(report), indent=2).encode()
 
 
 def redact_model(model: Model) -> Model:

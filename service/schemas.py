@@ -107,13 +107,18 @@ class JobOut(BaseModel):
                           "not counted): a job whose worker was lost is queued again once, so at most 2")
     prompt: str | None = Field(None, description="the text prompt (null for image-guided jobs without one)")
     image_guided: bool = Field(description="guided by a reference image instead of the text")
+    kind: Literal["align", "assemble"] = Field(description="align: one source placed (POST /align); assemble: a "
+                                               "scene of several objects (POST /assemble, POST /scenes)")
+    description: str | None = Field(None, description="an assembly: the scene in one sentence (POST /scenes's "
+                                    "prompt, POST /assemble's description, else its steps' prompts joined); "
+                                    "null for an alignment")
     webhook: Webhook | None = Field(None, description="the job's webhook and how its deliveries went; null "
                                     "when it was submitted without one")
     queue: str = Field(description="the named queue it was sent to (option queue)")
     target_job: str | None = Field(None, description="the job whose result scene is this one's target (POST /align "
                                    "with target_job: an object added to that scene); null otherwise")
     stages: int = Field(1, description="objects this job places: 1 for POST /align, the plan's steps for POST "
-                        "/assemble")
+                        "/assemble (the scene holds one more: the base, which stays put)")
     count: int = Field(1, description="copies of the source this alignment places (options.count, or the prompt's "
                        "number)")
     arrangement: str | None = Field(None, description="how the copies stand together (scatter, around, row, "
@@ -138,6 +143,7 @@ class JobOut(BaseModel):
         return cls(id=r.id, status=r.status, progress=redact_model(r.progress), created_at=r.created_at,
                    started_at=r.started_at, finished_at=r.finished_at, error=r.error and redact_model(r.error),
                    cancel_requested=r.cancel_requested, attempts=r.attempts, prompt=r.prompt, image_guided=r.has_image,
+                   kind=r.kind, description=r.description,
                    webhook=r.webhook, queue=r.queue, target_job=r.target_job, stages=r.stage_count,
                    count=r.count, arrangement=r.arrangement,
                    alternatives=r.alternatives, adjusted=r.adjusted, guide=r.guide and redact(r.guide),

@@ -127,6 +127,10 @@ def test_cli_align_end_to_end(tmp_path, meshes, capsys):
                           "config", "hparams", "relation", "contact", "guide_say", "restarts", "alternatives",
                           "timings", "extra", "warnings", "versions", "created_at"]
     assert data["contact"]["touching"] and alternatives_touch(data)
+    # the answer in words: the verdict, contact, where it went (units named), turned in degrees, its size
+    verdict = "'on' holds" if data["relation"]["holds"] else "'on' does not hold"
+    assert summary["said"].startswith(f"{verdict}") and ", touching, moved to (" in summary["said"], summary["said"]
+    assert "(metres for glTF)" in summary["said"] and ("°" in summary["said"] or "not turned" in summary["said"])
     # the best distinct placements, the answer first; --alternatives 3 wrote the next two beside --out
     alternatives = data["alternatives"]
     assert alternatives[0]["restart"] == data["extra"]["best_restart"]

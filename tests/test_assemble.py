@@ -165,6 +165,11 @@ def test_cli_plan_and_add(tmp_path, meshes, capsys):
     assert 'stage 2/2: cup: a cup on the plate' in captured.err
     summary = json.loads(captured.out)
     assert [o["name"] for o in summary["objects"]] == ["table", "plate", "cup"]
+    whole = json.loads((tmp_path / "report.json").read_text())["whole"]["relations"]
+    said = summary["said"].split("; ")  # every relation of the final scene in words
+    assert [line.split(": ")[0] for line in said] == ["plate on table", "cup on plate"], said
+    assert all(line.split(": ")[1].startswith("holds" if r["holds"] else "does not hold")
+               for line, r in zip(said, whole, strict=True)), said
     check_contacts(out.read_bytes())
     assert json.loads((tmp_path / "report.json").read_text())["stages"][1]["on"] == "plate"
     assert (tmp_path / "preview.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -267,8 +267,8 @@ def test_a_part_added_as_the_docs_say_is_named_in_a_run_report(monkeypatch):
     monkeypatch.setattr(parts, "PARTS", dict([top, ("step", parts.Part("step", step)), *others]))
     result, _ = _run(stepped_block(), crate(0.1), "a crate on the stepped block", "stepped block", "crate")
     named = export.report(result)["extra"]["parts"]
-    assert any(line.startswith("a step: up-facing 0.25 over the base") for line in named), named
-    assert any(line.startswith("the top: the highest surface, up-facing 0.5") for line in named), named
+    assert any(line.startswith("a step: facing up, 0.25 above the bottom") for line in named), named
+    assert any(line.startswith("the top: the highest surface, facing up, 0.5") for line in named), named
     monkeypatch.undo()
     found = parts.find_parts.__wrapped__(prepared(stepped_block(), crate(0.1)))
     assert [s.name for s in found.surfaces] == ["top", "seat"]  # without it: a back rises behind the step
@@ -276,7 +276,7 @@ def test_a_part_added_as_the_docs_say_is_named_in_a_run_report(monkeypatch):
 
 def test_parts_name_their_reasons_in_file_units():
     found = parts.find_parts(prepared(dining_chair(), cushion()))
-    assert any("0.47 over the base" in line for line in found.describe()), found.describe()
+    assert any("0.47 above the bottom" in line for line in found.describe()), found.describe()
 
 
 def pen_holder() -> trimesh.Trimesh:

@@ -19,7 +19,7 @@ from ctp_core.config import AlignConfig
 from service.adjustments import AdjustmentRecord, Adjustments, AdjustRequest
 from service.client import Client
 from service.deps import digest
-from service.jobs import JobRecord, Jobs, now
+from service.jobs import AssemblyStep, JobRecord, Jobs, now
 from service.storage import RedisStorage
 from tests.conftest import park_worker, service_env, wait_for
 
@@ -97,15 +97,18 @@ def test_adjust_is_refused_for_unknown_others_and_unfinished_jobs(api, env):
         leave()
 
 
-def test_an_assembly_is_not_adjustable(api, env):
+def test_an_assembly_adjusts_one_placed_object_named(api, env):
     client = redis.Redis.from_url(env["REDIS_URL"])
     prefix = env["CTP_KEY_PREFIX"]
     jobs = Jobs(client, RedisStorage(client, prefix, 600), prefix=prefix, ttl_s=600, job_timeout_s=60, lease_s=5)
+    step = AssemblyStep(name="mug", file="mug.glb", prompt="a mug on the table", config=AlignConfig())
     record = JobRecord(id="a" * 32, owner=digest(KEY), status="succeeded", created_at=now(), config=AlignConfig(),
-                       kind="assemble")
+                       kind="assemble", target_name="table", steps=[step])
     client.set(jobs.record_key(record.id), record.model_dump_json(), ex=600)
     try:
-        assert error(post(api, record.id, {"transform": np.eye(4).tolist()})) == (409, "not_adjustable", None)
+        eye = np.eye(4).tolist()
+        for body in ({"transform": eye}, {"transform": eye, "object": "table"}, {"transform": eye, "object": "cup"}):
+            assert error(post(api, record.id, body)) == (422, "invalid_object", "object"), body
     finally:
         client.delete(jobs.record_key(record.id))
         client.close()

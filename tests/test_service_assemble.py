@@ -78,6 +78,13 @@ def test_assembly_runs_as_one_job_with_stage_progress(api, assembled):
     assert stages[0] == (1, 2, "a plate on the table") and stages[-1] == (2, 2, "a cup on the plate")
     assert stages == sorted(stages)
     assert any(e["progress"]["message"].startswith('stage 2/2: "a cup on the plate"') for e in events)
+    # one bar over the scene: the first alignment's events in its half, the second's in the other
+    halves = [(e["progress"]["stage"]["index"], e["progress"]["fraction"]) for e in events
+              if e["progress"]["kind"] in ("phase_start", "step", "phase_end")]
+    assert all(f <= 0.5 if index == 1 else f >= 0.5 for index, f in halves), halves
+    # labelled by its steps' prompts (no description sent), an assembly
+    assert (final["kind"], final["description"], final["prompt"]) == (
+        "assemble", "a plate on the table; a cup on the plate", None)
 
     glb = api.client.get(f"/jobs/{job_id}/result.glb", headers=ALPHA).content
     check_contacts(glb)

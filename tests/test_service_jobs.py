@@ -462,3 +462,16 @@ def test_a_refused_submit_says_when_a_slot_is_likely_free(jobs):
     assert soon.value.retry_after_s == 8
     jobs.set_progress(first.id, Progress(kind="step", eta_s=0.1))
     assert jobs.retry_after("me") == 1
+
+
+def test_progress_is_over_the_whole_job_one_share_per_alignment():
+    """An assembly's (or copies') progress is one bar: step 5 of 10 of the second of two alignments is 75 %, not
+    the 50 % of that alignment alone; a job of one alignment is its own fraction."""
+    from ctp_core.progress import ProgressEvent
+    from service.jobs import Stage
+    from worker.tasks import progress_of
+
+    event = ProgressEvent(kind="step", phase=1, phases=1, step=5, steps=10, restarts=1, elapsed_s=1.0, eta_s=1.0)
+    assert progress_of(event, Stage(name="search", index=2, count=2, label="a stool")).fraction == 0.75
+    assert progress_of(event, Stage(name="search", index=1, count=2, label="a toolbox")).fraction == 0.25
+    assert progress_of(event).fraction == 0.5

@@ -16,12 +16,14 @@ import socket
 import fastapi
 import httpx
 import pytest
+import redis
 import trimesh
 import uvicorn
 
 from ctp_core.config import DEFAULT_MODEL
 from ctp_core.guide.checkpoints import missing
 from service.redact import PLACEHOLDER, redact
+from service.storage import RedisStorage
 from tests.conftest import REPO, Api, park_worker, service_env, wait_for
 from tests.test_service import BALL, BOX
 
@@ -130,7 +132,8 @@ def test_without_keys_no_error_answer_names_a_path(private_redis, tmp_path):
 def test_no_job_answer_or_report_names_a_path(api, env, worker):
     """A real worker under model auto without the default model's weights: the guide_why it writes names the
     session's Hugging Face cache. Every answer about an alignment and an assembly (submit, the job, the list, the
-    events, report.json with each stage's guide_why) says ``<path>`` instead, and names no other path."""
+    events, report.json with each stage's guide_why, and report.json as stored) says ``<path>`` instead, and names no
+    other path."""
     auth = {"Authorization": f"Bearer {KEY}"}
     cube = trimesh.creation.box((0.1, 0.1, 0.1)).export(file_type="glb")
     submits = [
@@ -144,6 +147,7 @@ def test_no_job_answer_or_report_names_a_path(api, env, worker):
     ]
     assert [s.status_code for s in submits] == [202, 202], [s.text for s in submits]
     answers = list(submits)
+    storage = RedisStorage(redis.Redis.from_url(env["REDIS_URL"]), env["CTP_KEY_PREFIX"], 600)
     for job_id in (s.json()["id"] for s in submits):
         wait_for(lambda job_id=job_id: api.client.get(f"/jobs/{job_id}", headers=auth).json()["status"] in (
             "succeeded", "failed"), 300, f"job {job_id} to end")
@@ -153,6 +157,8 @@ def test_no_job_answer_or_report_names_a_path(api, env, worker):
         assert f"not in the Hugging Face cache ({PLACEHOLDER})" in job.json()["guide_why"]  # a path was there
         whys = [report.json().get("guide_why")] + [s["guide_why"] for s in report.json().get("stages", [])]
         assert all(f"({PLACEHOLDER})" in why for why in whys if why is not None) and any(whys), whys
+        stored = storage.get(job_id, "report.json").decode()  # as the worker wrote it: redacted at rest too
+        assert f"({PLACEHOLDER})" in stored and os.environ["HF_HOME"] not in stored
         answers += [job, report, api.client.get(f"/jobs/{job_id}/events", headers=auth),
                     api.client.delete(f"/jobs/{job_id}", headers=auth)]
     answers.append(api.client.get("/jobs", headers=auth))

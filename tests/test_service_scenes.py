@@ -88,6 +88,7 @@ def test_a_described_scene_is_one_job_with_stage_progress(api, worker, parts, tm
             if line.startswith("data: "):
                 events.append(json.loads(line.removeprefix("data: ")))
     assert events[-1]["status"] == "succeeded", events[-1]
+    assert (events[-1]["kind"], events[-1]["description"]) == ("assemble", DESCRIPTION)  # labelled by its sentence
     messages = [e["progress"]["message"] for e in events]
     assert any(m.startswith('stage 2/2: "a stool to the left of the workbench"') for m in messages), messages
     whole = api.client.get(f"/jobs/{job_id}/report.json", headers=ALPHA).json()["whole"]

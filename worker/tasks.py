@@ -22,6 +22,7 @@ from rq.timeouts import JobTimeoutException
 
 from ctp_core.adjust import Adjusted, adjust, read_back
 from ctp_core.align import align
+from ctp_core.assembly.adjusted import adjust_object
 from ctp_core.assembly.assemble import Step, assemble, scene_of
 from ctp_core.assembly.copies import place_copies, placed_copies, set_metrics
 from ctp_core.assembly.plan import Also
@@ -30,6 +31,7 @@ from ctp_core.errors import Canceled, ConfigError, CtpError, JobTooLarge, forget
 from ctp_core.export import (
     adjusted_copies_report,
     adjusted_report,
+    adjusted_scene_report,
     arrangement_glb,
     assembly_glb,
     assembly_report,
@@ -61,6 +63,7 @@ from service.jobs import (
     alternative_blob,
     now,
 )
+from service.redact import report_json
 from service.settings import Settings
 from service.storage import StorageUnavailable
 from worker.main import context, where
@@ -248,6 +251,8 @@ def adjust_job(adjustment: AdjustmentRecord, jobs: Jobs, limits: MeshLimits) -> 
         raise gone
     facts = json.loads(stored["report.json"])
     request = adjustment.request
+    if record.kind == "assemble":
+        return _scene_adjusted(adjustment, record, jobs, limits, stored, facts)
     # the adjusted object: the source (the last node), or one of several copies (its node, judged as it was)
     copies = record.count > 1
     entry = facts["copies"][request.copy_index - 1] if copies else facts
@@ -267,14 +272,40 @@ def adjust_job(adjustment: AdjustmentRecord, jobs: Jobs, limits: MeshLimits) -> 
         else:
             glb, report_ = arrangement_glb(target, source, done.source_to_target, name), adjusted_report(
                 facts, done, at=at_text)
-        if jobs.storage.get(adjustment.job, ORIGINAL) is None:  # the run's own, kept through later saves
-            jobs.storage.put(adjustment.job, ORIGINAL, stored["result.glb"])
-        jobs.storage.put(adjustment.job, "result.glb", glb)
-        jobs.storage.put(adjustment.job, "report.json", json.dumps(report_, indent=2).encode())
-        jobs.mark_adjusted(adjustment.job, SavedAdjustment(
+        _save(adjustment, jobs, stored, glb, report_, SavedAdjustment(
             saved_at=saved_at, adjustment=adjustment.id, transform=done.source_to_target.tolist(),
             penetration=done.penetration, contact_gap=done.contact_gap))
     return AdjustOutcome(transform=done.source_to_target.tolist(), saved=request.save, **done.to_dict())
+
+
+def _scene_adjusted(adjustment: AdjustmentRecord, record: JobRecord, jobs: Jobs, limits: MeshLimits,
+                    stored: dict[str, bytes | None], facts: dict[str, Any]) -> AdjustOutcome:
+    """An assembly's object adjusted (``assembly.adjusted``): every relation judged again; with ``save`` the scene
+    with it there and its report replace the job's result."""
+    request = adjustment.request
+    scene = load_objects(stored["result.glb"], filename="result.glb", limits=limits)
+    done = adjust_object(scene, facts, request.object or "", np.asarray(request.transform),
+                         [s.config for s in record.steps], settle=request.settle,
+                         direction=None if request.direction is None else np.asarray(request.direction))
+    if request.save:
+        saved_at = now()
+        report_ = adjusted_scene_report(facts, done, at=saved_at.isoformat(timespec="seconds"))
+        glb = trimesh.exchange.gltf.export_glb(scene_of(done.objects))
+        _save(adjustment, jobs, stored, glb, report_, SavedAdjustment(
+            saved_at=saved_at, adjustment=adjustment.id, transform=done.adjusted.source_to_target.tolist(),
+            penetration=done.adjusted.penetration, contact_gap=done.adjusted.contact_gap))
+    return AdjustOutcome(transform=done.adjusted.source_to_target.tolist(), saved=request.save,
+                         whole=done.whole, stands_on=done.stands_on, **done.adjusted.to_dict())
+
+
+def _save(adjustment: AdjustmentRecord, jobs: Jobs, stored: dict[str, bytes | None], glb: bytes,
+          report_: dict[str, Any], saved: SavedAdjustment) -> None:
+    """An adjusted result stored as the job's: the run's own GLB kept once as ``original.glb``."""
+    if jobs.storage.get(adjustment.job, ORIGINAL) is None:  # the run's own, kept through later saves
+        jobs.storage.put(adjustment.job, ORIGINAL, stored["result.glb"])
+    jobs.storage.put(adjustment.job, "result.glb", glb)
+    jobs.storage.put(adjustment.job, "report.json", report_json(report_))
+    jobs.mark_adjusted(adjustment.job, saved)
 
 
 def _copies_saved(k: int, facts: dict[str, Any], scene: trimesh.Scene, source: trimesh.Trimesh, done: Adjusted,
@@ -414,7 +445,7 @@ def assemble_job(record: JobRecord, inputs: dict[str, bytes | None], job: JobCon
 
 def _results(glb: bytes, report_: dict[str, Any], preview) -> dict[str, bytes]:
     """A succeeded job's files (``service.jobs.OUTPUTS``); a preview only when the run rendered one."""
-    files = {"result.glb": glb, "report.json": json.dumps(report_, indent=2).encode()}
+    files = {"result.glb": glb, "report.json": report_json(report_)}  # stored without the machine's paths
     if preview is not None:
         files["preview.png"] = preview_png(preview)
     return files
@@ -440,9 +471,10 @@ def progress_of(event: ProgressEvent, stage: Stage | None = None) -> Progress:
         stage = stage.model_copy(update={"name": event.stage})
         message = f'stage {stage.index}/{stage.count}: "{stage.label}": {message}'
     rounded = lambda value, digits: None if value is None else round(value, digits)  # noqa: E731
+    done = (stage.index - 1 + event.fraction) / stage.count  # each alignment of several a 1/count share: one bar
     return Progress(stage=stage, kind=event.kind, phase=event.phase, phases=event.phases,
                     step=event.step, steps=event.steps,
-                    restarts=event.restarts, fraction=round(event.fraction, 4),
+                    restarts=event.restarts, fraction=round(min(1.0, done), 4),
                     eta_s=rounded(event.eta_s, 1), objective=rounded(event.best_objective, 5), message=message,
                     relation=event.relation, relation_holds=event.relation_holds,
                     relation_checked=event.relation_checked, guide_match=rounded(event.guide_match, 4),

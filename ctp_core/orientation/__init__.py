@@ -99,7 +99,7 @@ def orient(mesh: trimesh.Trimesh, axes: Axes = FROM_FILE, *, seed: int = 0, judg
         up = axis(axes.up)
         upright = _standing(up, f"up: {axes.up} as given")
     elif convention:
-        upright = canonical.identity(f"up: +Y, the {convention} convention (its spec)")
+        upright = canonical.identity(f"up: +Y, as every {convention} file has it")
     else:
         upright = _unstated(mesh, fmt)
     up = upright.up
@@ -121,8 +121,8 @@ def orient(mesh: trimesh.Trimesh, axes: Axes = FROM_FILE, *, seed: int = 0, judg
             convention_front = np.asarray(node, dtype=np.float64)
         front = canonical.turn_onto(convention_up, up) @ convention_front
         trusted = bool(convention) and axes.up in ("file", "+y")
-        why = (f"front: {_named(front)}, the {convention} convention (+Z) turned by the file's node" if node is not None
-               else f"front: {_named(front)}, the {convention} convention" if convention
+        why = (f"front: {_named(front)}, every {convention} file's +Z, turned by the file's node" if node is not None
+               else f"front: {_named(front)}, as every {convention} file has it" if convention
                else f"front: {_named(front)}, the usual front of a {'Y' if convention_up is _Y else 'Z'}-up export "
                     f"({fmt or 'a mesh made in code'} states none): not trusted")
         if trusted and upright.symmetric:

@@ -179,7 +179,7 @@ class Found:
 
     @property
     def at(self) -> str:
-        return f"up-facing {self.height:.3g} over the base, {self.area:.3g} in area (file units)"
+        return f"facing up, {self.height:.3g} above the bottom, {self.area:.3g} square units (the file's units) in area"
 
 
 def _top(f: Found) -> str | None:
@@ -233,7 +233,7 @@ def _sides(points: np.ndarray, front: torch.Tensor, left: torch.Tensor, trusted:
         v = np.array([u[2], 0.0, -u[0]])
         along, across = points @ u, points @ v
         against = trusted and name == RelationName.BEHIND
-        reason = (f"{name}: against the wall (a ground with a front stands with its back to one)" if against
+        reason = (f"{name}: against the wall (a thing with a front usually stands with its back to a wall)" if against
                   else f"{name}: a person reaches it")
         out[name] = GroundSide(name, u, v, float(along.max()), (float(across.min()), float(across.max())), not against,
                            reason)

@@ -40,13 +40,15 @@ def _matrix(transform: dict[str, Any]) -> list[list[float]]:
 
 def verdict(relation: dict[str, Any] | None, contact: dict[str, Any] | None = None) -> str:
     """``'on' holds, stable, touching``: the geometry's judgement of the prompt's relation (``relations.predicates``)
-    and whether the placement touches the target (the report's ``contact``, where it has one)."""
+    and whether the placement touches the target (the report's ``contact``, where it has one; a gap said as a share of
+    the source's size, the diagonal its ``gap`` is measured in)."""
     words = ([f"'{relation['name']}' {'holds' if relation['holds'] else 'does not hold'}"] if relation else
              ["no relation read from the prompt"])
     if relation and relation.get("stable") is not None:
         words.append("stable" if relation["stable"] else "not stable")
     if contact:
-        words.append("touching" if contact["touching"] else f"{contact['gap']:.2f} source diagonals from touching")
+        words.append("touching" if contact["touching"] else f"not touching: a gap of {100 * contact['gap']:.0f} % of "
+                     "its size")
     if relation and relation.get("note"):
         words.append(relation["note"])
     return ", ".join(words)

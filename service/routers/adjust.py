@@ -17,6 +17,7 @@ from service import submit as submit_
 from service.adjustments import ENDED, Adjustment, AdjustmentRecord, Adjustments, AdjustRequest
 from service.deps import check_workers, own_job, owner
 from service.errors import ApiError, documented
+from service.jobs import JobRecord
 
 POLL_S = 0.2  # Prefer: wait reads the adjustment this often (adjustments take a second or so)
 
@@ -31,8 +32,11 @@ router = APIRouter()
              "the target's up) or push (along `direction`), and with `save` store it as the job's result "
              "(result.glb and report.json, `adjusted` true; the run's own GLB stays at original.glb; downloads and "
              "`target_job` chaining use the adjusted scene). A short job on the job's queue, at its front: 202 "
-             "with the adjustment to GET until it ends, or 200 once ended within `Prefer: wait=N`. 404 "
-             "`job_not_found`, 409 `job_not_ready` (the job has not succeeded) or `not_adjustable` (an assembly), "
+             "with the adjustment to GET until it ends, or 200 once ended within `Prefer: wait=N`. An assembly "
+             "(POST /assemble, POST /scenes) adjusts one placed object at a time (`object`) against all the others, "
+             "every relation of the scene judged again (`whole`). 404 "
+             "`job_not_found`, 409 `job_not_ready` (the job has not succeeded), "
+             "422 `invalid_object` (an assembly's object missing, unknown or the base), "
              "422 `invalid_copy` (a job of several copies adjusts one at a time: `copy_index`), "
              "422 `invalid_transform` (not a rotation, one scale and a translation) or `invalid_direction`, 503 "
              "`no_worker`.")
@@ -41,9 +45,7 @@ async def adjust(job_id: str, body: AdjustRequest, request: Request, who: str = 
     record = await own_job(request, job_id, who)
     if record.status != "succeeded":
         raise ApiError(409, "job_not_ready", f"job {job_id} is {record.status}; only a succeeded job can be adjusted")
-    if record.kind != "align":
-        raise ApiError(409, "not_adjustable", f"job {job_id} is an assembly; adjust one of its objects by adding it "
-                       "with POST /align and target_job instead")
+    _check_object(record, body)
     if (body.copy_index is None) != (record.count == 1) or (body.copy_index or 1) > record.count:
         wanted = f"copy_index is 1 to {record.count}" if record.count > 1 else "it places one source: no copy_index"
         raise ApiError(422, "invalid_copy", f"job {job_id}: {wanted}", field="copy_index")
@@ -72,6 +74,19 @@ async def get_adjustment(job_id: str, adjustment_id: str, request: Request, who:
     if found is None or found.job != job_id or found.owner != who:
         raise ApiError(404, "adjustment_not_found", f"job {job_id} has no adjustment {adjustment_id!r}")
     return found.out()
+
+
+def _check_object(record: JobRecord, body: AdjustRequest) -> None:
+    """An assembly adjusts one placed object, named (422 ``invalid_object``); an alignment names none."""
+    placed = [step.name for step in record.steps]
+    if record.kind != "assemble":
+        if body.object is not None:
+            raise ApiError(422, "invalid_object", f"job {record.id} places one source: no object", field="object")
+    elif body.object not in placed:
+        said = "the base stays put" if body.object == record.target_name else (
+            "which one: object" if body.object is None else f"it has no placed object {body.object!r}")
+        raise ApiError(422, "invalid_object", f"job {record.id} is a scene ({said}); its placed objects are "
+                       f"{', '.join(placed)}", field="object")
 
 
 def _check_direction(body: AdjustRequest) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, Request, Response
 from fastapi.concurrency import run_in_threadpool
 
+from ctp_core.assembly.describe import DESCRIPTION_MAX
 from ctp_core.assembly.plan import PlanError, PlanStep, check_plan, plan_step
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
@@ -18,7 +19,7 @@ from service.schemas import Accepted, build_config
 
 router = APIRouter()
 
-ASSEMBLE_FIELDS = {"base", "base_name", "source", "image", "plan", "options", *forms.WEBHOOK_FIELDS}
+ASSEMBLE_FIELDS = {"base", "base_name", "source", "image", "plan", "description", "options", *forms.WEBHOOK_FIELDS}
 
 ASSEMBLE_BODY = {
     "required": True,
@@ -44,6 +45,11 @@ ASSEMBLE_BODY = {
                      "`[\"sofa\", \"armchair\"]` for \"a lamp between the sofa and the armchair\"; default the "
                      "last placed one, or the two placed objects a between prompt names), `options` "
                      "(AlignOptions of this stage, without preset and model)"},
+            "description": {"type": "string", "minLength": 1, "maxLength": DESCRIPTION_MAX,
+                            "pattern": forms.PROMPT_PATTERN,
+                            "description": "the scene in one sentence, the job's label (`description` of GET "
+                            "/jobs/{id}: the sentence a plan was read from by POST /plans/read, then edited); "
+                            "default: the steps' prompts joined by \"; \""},
             "options": {"type": "string", "contentMediaType": "application/json",
                         "contentSchema": {"$ref": "#/components/schemas/JobOptions"},
                         "description": "JSON object of run options (JobOptions: AlignOptions for every stage, and "
@@ -79,15 +85,18 @@ async def _assembly_job(request: Request, form, who: str, job_id: str) -> submit
     plan = _plan(forms.text(form, "plan"), request.app.state.settings.max_stages)
     base = forms.file(form, "base")
     base_file = forms.file_name(base, "base")
+    said = forms.text(form, "description")
+    description = None if said is None else forms.clean_prompt(said, "description", "description",
+                                                                 DESCRIPTION_MAX)
     return await assembly_job(request, form, who, job_id, plan, base, forms.object_name(form, "base", base_file),
-                              file_parts(form, "source"))
+                              file_parts(form, "source"), description)
 
 
 async def assembly_job(request: Request, form, who: str, job_id: str, plan: list[PlanStep], base,
-                       base_name: str, sources: dict) -> submit.Built:
+                       base_name: str, sources: dict, description: str | None) -> submit.Built:
     """An assembly job checked (``POST /assemble``'s and ``POST /scenes``'s): the base part, the source parts by
     file name (one part may be read by several steps, the base's too), the form's options, images and webhooks;
-    its record, uploads and every stage's config."""
+    its record (labelled by ``description``, else its steps' prompts), uploads and every stage's config."""
     settings = request.app.state.settings
     options, queue = forms.job_options(form, settings.default_queue)
     # one guide for all stages (it is loaded once): a stage that asks for guidance asks it for the assembly
@@ -147,7 +156,9 @@ async def assembly_job(request: Request, form, who: str, job_id: str, plan: list
     except ConfigError as exc:
         raise ApiError(422, "invalid_step", exc.message,
                        field=f"plan.{(exc.field or '').removeprefix('steps.')}") from None
+    label = description or "; ".join(s.prompt or f"{s.name} (image-guided)" for s in steps)
     record = JobRecord(id=job_id, owner=who, created_at=now(), kind="assemble", prompt=None,  # per stage: steps
+                       description=label,
                        has_image=any(s.has_image for s in steps), target_name=base_name, target_file=base_file,
                        source_name=steps[-1].name, source_file=steps[-1].file, steps=steps,
                        config=config, queue=queue, downloads=settings.downloads)

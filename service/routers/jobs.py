@@ -20,7 +20,7 @@ from service.chained import chained_target
 from service.deps import own_job, owner
 from service.errors import ApiError, documented, download_response
 from service.jobs import ORIGINAL, OUTPUTS, TERMINAL, JobRecord, Jobs, alternative_blob, now, parse_record
-from service.redact import redact_json
+from service.redact import report_json
 from service.schemas import Accepted, JobList, JobOut, build_config
 
 log = logging.getLogger("ctp.service")
@@ -213,7 +213,7 @@ async def _download(request: Request, job_id: str, who: str, name: str, media_ty
     if data is None:
         raise ApiError(404, "job_not_found", f"the results of job {job_id} have expired")
     if name == REPORT:
-        data = json.dumps(redact_json(json.loads(data)), indent=2).encode()  # as the worker wrote it
+        data = report_json(json.loads(data))  # one an older worker stored unredacted is redacted here
     return Response(data, media_type=media_type, headers={"Content-Disposition": f'attachment; filename="{filename}"'})
 
 

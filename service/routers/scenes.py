@@ -148,7 +148,8 @@ async def _scene_job(request: Request, form, who: str, job_id: str) -> submit.Bu
     written = plan.assembly_plan(files)
     steps = [plan_step(entry, f"plan.{i}", assembly_options="the options field")
              for i, entry in enumerate(written["steps"])]
-    return await assembly_job(request, form, who, job_id, steps, parts[written["base"]], plan.base, parts)
+    return await assembly_job(request, form, who, job_id, steps, parts[written["base"]], plan.base, parts,
+                              prompt.strip())
 
 
 def _names(form, files: list[str]) -> list[str]:

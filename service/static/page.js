@@ -1,7 +1,7 @@
 // The ctp page: a client of the JSON API like any other (POST /align, GET /jobs/{id}/events, results).
 // Every call goes through fetch with the API key, when there is one, in the Authorization header (never
 // in a URL); results are fetched as blobs and shown from blob URLs, so the same code works with keys on.
-import { wireScene, wholeRows } from "./scene.js";
+import { objectFacts, sceneSummary, wireScene } from "./scene.js";
 import { Viewer, similarityParts } from "./viewer.js";
 
 const $ = (id) => document.getElementById(id);
@@ -21,6 +21,7 @@ const state = {
   urls: [], // blob URLs to revoke when the next result replaces this one
   figures: [], // the progress readout's figure (guide match, else -gap) over time, for the spark line
   readout: false, // whether this job's progress has shown a readout (then the objective is never shown)
+  stageIndex: null, // the alignment of a scene (or of copies) the readout is about: the next one starts it afresh
   nextPage: null,
 };
 
@@ -59,8 +60,8 @@ const api = {
 
 // -- messages ---------------------------------------------------------------------------------------
 
-function showError(err) {
-  const box = $("error");
+/** An error in the box beside the form it concerns (the pair form's, the scene form's). */
+function showError(err, box = $("error")) {
   const code = document.createElement("code");
   code.textContent = err.code || "error";
   let where = "";
@@ -74,9 +75,9 @@ function showError(err) {
   box.hidden = false;
 }
 
-function clearError() {
-  $("error").hidden = true;
-  $("error").replaceChildren();
+function clearError(box = $("error")) {
+  box.hidden = true;
+  box.replaceChildren();
 }
 
 function askForKey(message) {
@@ -277,15 +278,16 @@ async function submit(event) {
   await submitJob("align", data, $("submit"));
 }
 
-// A form to a job endpoint ("align", "assemble"): the button off while it is sent, then the job followed.
-async function submitJob(path, data, button) {
+// A form to a job endpoint ("align", "assemble"): the button off while it is sent and while the job runs (until
+// it ends or another job is followed); its errors in ``errors``, the box beside that form.
+async function submitJob(path, data, button, errors = $("error")) {
   button.disabled = true;
   try {
     const accepted = await api.json(path, { method: "POST", body: data });
-    follow(accepted.id);
     refreshJobs();
+    await follow(accepted.id, errors);
   } catch (err) {
-    showError(err);
+    showError(err, errors);
   } finally {
     button.disabled = false;
   }
@@ -321,14 +323,12 @@ async function readEvents(path, signal, onProgress) {
   }
 }
 
-async function follow(id) {
+async function follow(id, errors = $("error")) {
   if (state.following) state.following.abort();
   const controller = new AbortController();
   state.following = controller;
-  state.figures = [];
-  state.readout = false;
-  drawSpark();
-  $("quality").textContent = "";
+  state.stageIndex = null;
+  resetReadout();
   $("progress").hidden = false;
   $("result").hidden = true;
   $("job-id").textContent = id;
@@ -340,7 +340,7 @@ async function follow(id) {
     } catch (err) {
       if (controller.signal.aborted) return;
       if (err instanceof ApiError && err.status !== 0) {
-        showError(err);
+        showError(err, errors);
         return;
       }
     }
@@ -351,7 +351,15 @@ async function follow(id) {
   state.following = null;
   refreshJobs();
   if (final.status === "succeeded") await showResult(final.id);
-  else if (final.error) showError(final.error);
+  else if (final.error) showError(final.error, errors);
+}
+
+/** The quality line and its spark line emptied: a new job, or the next object of a scene (its figures are its own). */
+function resetReadout() {
+  state.figures = [];
+  state.readout = false;
+  drawSpark();
+  $("quality").textContent = "";
 }
 
 function stageName(job) {
@@ -364,8 +372,15 @@ function renderProgress(job) {
   const p = job.progress;
   const name = stageName(job);
   let stage = name;
-  if (p.stage && p.stage.count > 1) {
-    stage += ` - object ${p.stage.index} of ${p.stage.count}${p.stage.label ? ` (${p.stage.label})` : ""}`;
+  const several = p.stage && p.stage.count > 1;
+  if (job.kind === "assemble" && ["search", "refine"].includes(name)) { // counted as uploaded: the first stays put
+    stage += ` - placing object ${p.stage.index + 1} of ${p.stage.count + 1}${p.stage.label ? `: ${p.stage.label}` : ""}`;
+  } else if (several) {
+    stage += ` - copy ${p.stage.index} of ${p.stage.count}${p.stage.label ? ` (${p.stage.label})` : ""}`;
+  }
+  if ((job.kind === "assemble" || several) && state.stageIndex !== p.stage.index) { // the next object: its own readout
+    if (state.stageIndex !== null) resetReadout();
+    state.stageIndex = p.stage.index;
   }
   if (p.phase && p.phases && job.status === "running") stage += ` - phase ${p.phase} of ${p.phases}`; // none in the search
   $("stage").textContent = stage;
@@ -377,7 +392,9 @@ function renderProgress(job) {
     ? `${name === "search" ? "candidate" : "step"} ${p.step} of ${p.steps}${p.restarts ? `, ${p.restarts} restarts` : ""}`
     : "";
   const times = [];
-  if (p.eta_s != null && !TERMINAL.includes(job.status)) times.push(`about ${duration(p.eta_s)} left`);
+  if (p.eta_s != null && !TERMINAL.includes(job.status)) {
+    times.push(`about ${duration(p.eta_s)} left${job.kind === "assemble" || several ? " for this one" : ""}`);
+  }
   if (p.elapsed_s) times.push(`${duration(p.elapsed_s)} elapsed`);
   $("eta").textContent = times.join(", ");
   const quality = readout(p);
@@ -480,11 +497,12 @@ function fillGrounds(select, none, names) {
 
 async function showResult(id) {
   clearError();
+  clearError($("scene-error"));
   delete $("viewer").dataset.ready; // set again once this result is drawn (showScene)
-  let glb, report, preview, strip;
+  let job, glb, report, preview, strip;
   try {
-    [glb, report, preview, strip] = await Promise.all([
-      api.blob(`jobs/${id}/result.glb`), api.blob(`jobs/${id}/report.json`),
+    [job, glb, report, preview, strip] = await Promise.all([
+      api.json(`jobs/${id}`), api.blob(`jobs/${id}/result.glb`), api.blob(`jobs/${id}/report.json`),
       api.blob(`jobs/${id}/preview.png`).catch(() => null), // a run may have no preview
       api.blob(`jobs/${id}/alternatives.png`).catch(() => null), // nor an assembly alternatives
     ]);
@@ -494,7 +512,7 @@ async function showResult(id) {
   }
   state.urls.forEach((url) => URL.revokeObjectURL(url));
   state.urls = [];
-  state.result = { id, alternative: 0, glbs: { 0: glb },
+  state.result = { id, job, alternative: 0, glbs: { 0: glb },
                    blobs: { "result.glb": glb, "report.json": report, "preview.png": preview } };
   $("result").hidden = false;
   $("result-id").textContent = id;
@@ -503,6 +521,7 @@ async function showResult(id) {
   showFacts(facts);
   document.querySelector("[data-file='original.glb']").hidden = !facts.adjusted;
   showAlternatives(facts.alternatives || [], strip);
+  $("objects").hidden = !facts.objects;
   if (preview) {
     const url = URL.createObjectURL(preview);
     state.urls.push(url);
@@ -526,6 +545,8 @@ async function showScene(glb) {
   viewerBox.viewer = state.viewer; // for scripts (the browser test finds the handles through it)
   const parts = await state.viewer.show(await glb.arrayBuffer());
   showParts(parts);
+  state.result.parts = parts;
+  if (state.result.facts.objects) showObjects(state.result.shownFacts); // the thumbnails are the view's
   makeAdjustable(parts);
   viewerBox.dataset.ready = "1";
 }
@@ -537,6 +558,7 @@ function showAlternatives(alternatives, strip) {
   const box = $("alternatives");
   box.replaceChildren();
   box.hidden = alternatives.length < 2 || !strip;
+  $("alternatives-order").hidden = box.hidden;
   if (box.hidden) return;
   const url = URL.createObjectURL(strip);
   state.urls.push(url);
@@ -547,7 +569,7 @@ function showAlternatives(alternatives, strip) {
     button.style.backgroundSize = `${alternatives.length * 100}% 100%`;
     button.style.backgroundPosition = `${(100 * k) / (alternatives.length - 1)}% 0`;
     const holds = alt.relation ? (alt.relation.holds ? ` - '${alt.relation.name}' holds` : ` - not '${alt.relation.name}'`) : "";
-    const match = alt.clip ? ` - match ${(-alt.clip).toFixed(3)}` : "";
+    const match = alt.clip ? ` - guide match ${(-alt.clip).toFixed(2)}` : "";
     const caption = document.createElement("span");
     caption.textContent = `${k === 0 ? "answer" : `#${k + 1}`}${holds}${match}`;
     button.append(caption);
@@ -566,7 +588,7 @@ async function chooseAlternative(k) {
     result.alternative = k;
     result.blobs["result.glb"] = result.glbs[k];
     const alt = result.facts.alternatives[k]; // the facts table shows the placement shown
-    showFacts({ ...result.facts, transform: alt.transform, objective: alt.objective });
+    showFacts({ ...result.facts, transform: alt.transform, relation: alt.relation, contact: alt.contact });
     await showScene(result.glbs[k]);
   } catch (err) {
     showError(err);
@@ -615,22 +637,49 @@ function scaleOrigin(scale) {
 
 function showFacts(report) {
   state.result.shownFacts = report;
-  $("result-prompt").textContent = report.prompt ? `"${report.prompt}"` : "guided by a reference image";
+  const job = state.result.job || {};
+  const label = report.objects ? job.description : report.prompt;
+  $("result-prompt").textContent = label ? `"${label}"` : report.image_guided || job.image_guided
+    ? "guided by a reference image" : "";
+  const rows = report.objects ? sceneRows(report) : pairRows(report);
+  if (report.adjusted) {
+    const which = report.adjustment.object ? `${report.adjustment.object} moved ` : "";
+    rows.push(["adjusted", `${which}by hand, saved ${new Date(report.adjustment.saved_at).toLocaleString()} `
+      + "(original.glb keeps the run's placement)"]);
+  }
+  const table = $("transform");
+  table.replaceChildren();
+  for (const [name, value] of rows) {
+    if (value === "" || value == null) continue; // no empty rows
+    const tr = table.insertRow();
+    tr.insertCell().textContent = name;
+    tr.insertCell().textContent = value;
+  }
+  if (report.objects) showObjects(report);
+}
+
+// Lengths as the files give them: glTF files are in metres (their spec), other formats say no unit.
+const UNITS = "in the files' units (metres for glTF)";
+
+/** Where the source was put, in words: how far from the target's origin, turned by how many degrees about which
+ * axis, at what size; the relation's verdict and contact; who chose among the placements. */
+function pairRows(report) {
   const t = report.transform || {};
   const fixed = (values, digits) => (values || []).map((v) => Number(v).toFixed(digits)).join(", ");
-  const [w = 1, ...xyz] = t.rotation_wxyz || [];
-  const angle = (2 * Math.acos(Math.min(1, Math.abs(w))) * 180) / Math.PI;
-  const rows = [
-    ["translation", `${fixed(t.translation, 3)} (target file frame)`],
-    ["rotation", `${angle.toFixed(1)} deg; quaternion wxyz ${fixed([w, ...xyz], 4)}`],
-    ["scale", t.scale != null ? Number(t.scale).toFixed(3) + scaleOrigin((report.extra || {}).scale) : ""],
-    ["objective", typeof report.objective === "number" ? report.objective.toFixed(4) : ""],
-    ["model", report.model || ""],
-    ["preset, seed", `${report.preset ?? ""}, ${report.seed ?? ""}`],
+  const rows = report.copies ? copyRows(report, fixed) : [
+    ["position", t.translation ? `${fixed(t.translation, 3)} from the target's origin, ${UNITS}` : ""],
+    ["turn", t.rotation_wxyz ? turnWords(t.rotation_wxyz) : ""],
+    ["size", t.scale != null ? sizeWords(Number(t.scale)) + scaleOrigin((report.extra || {}).scale) : ""],
   ];
-  if (report.copies) rows.splice(0, 3, ...copyRows(report, fixed)); // several copies: no one transform
-  if (report.guide_say) rows.push(["who chose", report.guide_say.summary]); // the guide's say (ordering.Gate)
   const verdict = report.relation || {};
+  if (!report.copies && report.relation !== undefined) {
+    rows.push(["relation", report.relation ? `'${verdict.name}' ${verdict.holds ? "holds" : "does not hold"}`
+      + (verdict.stable === false ? ", may tip over" : "") : "none read from the prompt"]);
+  }
+  if (report.contact) {
+    rows.push(["contact", report.contact.touching ? "touching"
+      : `not touching: a gap of ${(100 * report.contact.gap).toFixed(1)} % of the source's size`]);
+  }
   if (verdict.usual) { // the relation's usual place and the ground's part it is on (predicates.RelationVerdict)
     rows.push(["usual place", (verdict.place ? `the prompt names "${verdict.place}": ` : "") + verdict.usual]);
   }
@@ -639,18 +688,54 @@ function showFacts(report) {
   if (named.length) rows.push(["the ground's parts", named.join("; ")]); // relations.parts, with why
   const grounds = (report.extra || {}).grounds || [];
   if (grounds.length) rows.push(["relates to", grounds.join(" and ")]); // a scene target's objects it was placed by
-  rows.push(...wholeRows(report)); // an assembly: every relation judged again on the final scene
-  if (report.adjusted) {
-    rows.push(["adjusted", `by hand, saved ${new Date(report.adjustment.saved_at).toLocaleString()} `
-      + "(the objective is the run's; original.glb keeps its placement)"]);
-  }
-  const table = $("transform");
-  table.replaceChildren();
-  for (const [name, value] of rows) {
-    const tr = table.insertRow();
-    tr.insertCell().textContent = name;
-    tr.insertCell().textContent = value;
-  }
+  if (report.guide_say) rows.push(["who chose", report.guide_say.summary]); // the guide's say (ordering.Gate)
+  rows.push(["guided by", report.model && report.guide !== "none" ? report.model : "the geometry and the relation"]);
+  rows.push(["run", `preset ${report.preset ?? "default"}, seed ${report.seed ?? "default"}`]);
+  return rows;
+}
+
+/** A rotation (a unit quaternion w, x, y, z) in degrees about its axis, in the target's file frame. */
+function turnWords([w, x, y, z]) {
+  const angle = (2 * Math.acos(Math.min(1, Math.abs(w))) * 180) / Math.PI;
+  if (angle < 0.05) return "not turned";
+  const n = Math.hypot(x, y, z) * Math.sign(w || 1);
+  const axis = [x, y, z].map((v) => (v / n).toFixed(2)).join(", ");
+  return `turned ${angle.toFixed(1)}° about (${axis})`;
+}
+
+function sizeWords(scale) {
+  return Math.abs(scale - 1) < 5e-4 ? "as in its file" : `${scale.toFixed(3)} times its file's size`;
+}
+
+/** A scene (an assembly's report): the scene's verdict, the run's settings; each object is in the objects list. */
+function sceneRows(report) {
+  const first = (report.stages || [])[0] || {};
+  return [
+    ["the scene", report.whole ? sceneSummary(report.whole) : ""],
+    ["objects", `${report.objects.length}: ${report.objects[0].name} stays put, the others placed in order`],
+    ["guided by", first.guide && first.guide !== "none" ? first.guide : "the geometry and each relation"],
+    ["run", `preset ${report.preset ?? "default"}, seed ${report.seed ?? "default"}`],
+  ];
+}
+
+/** Each object of a scene: a thumbnail (the scene drawn with it in its colour), its relation, what it stands on and
+ * its verdict on the final scene. */
+function showObjects(report) {
+  const list = $("objects");
+  const judged = new Map(((report.whole || {}).relations || []).map((r) => [r.name, r]));
+  const parts = state.result.parts || [];
+  list.replaceChildren(...report.objects.map((object, k) => {
+    const item = document.createElement("li");
+    item.dataset.object = object.name;
+    const image = Object.assign(document.createElement("img"), { className: "thumb", alt: object.name });
+    if (parts[k] && state.viewer) image.src = state.viewer.thumbnail(parts[k]);
+    const facts = k === 0 ? `stays put; stands on ${object.stands_on === "floor" ? "the floor" : object.stands_on}`
+      : judged.has(object.name) ? objectFacts(judged.get(object.name), object.stands_on) : "";
+    const words = Object.assign(document.createElement("span"), { className: "object-facts" });
+    words.append(Object.assign(document.createElement("strong"), { textContent: object.name }), ` - ${facts}`);
+    item.append(image, words);
+    return item;
+  }));
 }
 
 /** A run of several copies (``copies_report``): the set's measures, then each copy's place and verdict. */
@@ -694,16 +779,28 @@ async function download(file) {
 
 // -- adjusting the result by hand -------------------------------------------------------------------
 
-/** Handles on the result's source (an alignment's last node; one of several copies, chosen in the copy select; an
- * assembly has no one source) and the buttons that settle, reset and save it (POST /jobs/{id}/adjust, run by a
- * worker: the settling is the search's own). */
+/** Handles on the result's source (an alignment's last node; one of several copies, chosen in the copy select; one
+ * placed object of a scene, chosen in the object select) and the buttons that settle, reset and save it (POST
+ * /jobs/{id}/adjust, run by a worker: the settling is the search's own; a scene's relations are all judged again). */
 function makeAdjustable(parts) {
   const facts = state.result.facts;
   const box = $("adjust");
-  box.hidden = !(facts.transform || facts.copies) || Boolean(facts.objects) || parts.length < 2;
+  box.hidden = !(facts.transform || facts.copies || facts.objects) || parts.length < 2;
   $("adjust-copy-label").hidden = !facts.copies;
+  $("adjust-object-label").hidden = !facts.objects;
   if (box.hidden) return;
-  if (facts.copies) {
+  if (facts.objects) { // the GLB's nodes are the report's objects, in order; the first (the base) stays put
+    const select = $("adjust-object");
+    select.replaceChildren(...facts.objects.slice(1).map((o, i) => new Option(o.name, String(i + 1))));
+    select.value = String(state.result.object || facts.objects.length - 1);
+    select.onchange = () => {
+      resetAdjusted();
+      state.result.object = Number(select.value);
+      makeAdjustable(parts);
+    };
+    state.result.object = Number(select.value);
+    state.viewer.adjustable(parts[state.result.object]);
+  } else if (facts.copies) {
     const select = $("adjust-copy");
     select.replaceChildren(...facts.copies.map((c, i) => new Option(c.name, String(i + 1))));
     select.value = String(state.result.copy || 1);
@@ -742,6 +839,7 @@ function setAdjustState(name, text, bad = false) {
  * run's). */
 function showTransform(rows) {
   const facts = state.result.shownFacts;
+  if (facts.objects) return; // a scene's facts are its relations: judged again by a drop, a push or a save
   if (!facts.copies) {
     showFacts({ ...facts, transform: similarityParts(rows) });
     return;
@@ -753,6 +851,7 @@ function showTransform(rows) {
 /** Send an adjustment and wait for it (Prefer: wait, then reading it until it ends); a failed one throws. */
 async function adjustment(body) {
   if (state.result.facts.copies) body.copy_index = state.result.copy;
+  if (state.result.facts.objects) body.object = state.result.facts.objects[state.result.object].name;
   let adjusted = await api.json(`jobs/${state.result.id}/adjust`, {
     method: "POST", body: JSON.stringify(body), headers: { "Content-Type": "application/json", Prefer: "wait=30" } });
   while (!["succeeded", "failed"].includes(adjusted.status)) {
@@ -767,10 +866,12 @@ function describeOutcome(outcome, how) {
   const percent = (v) => `${(100 * v).toFixed(1)} %`;
   if (outcome.settled === false) return "nothing to touch that way: left where it was";
   const parts = [how === "drop" ? "dropped" : "pushed"];
-  parts.push(outcome.on_floor ? "resting where the target stands"
-    : outcome.contact_gap < 0.005 ? "touching" : `gap ${percent(outcome.contact_gap)} of the source's size`);
-  parts.push(`penetration ${percent(outcome.penetration)}`);
+  parts.push(outcome.on_floor ? "resting on the floor"
+    : outcome.contact_gap < 0.005 ? "touching" : `a gap of ${percent(outcome.contact_gap)} of its size`);
+  parts.push(outcome.penetration > 0.0005 ? `sunk ${percent(outcome.penetration)} of its size into what it touches`
+    : "not sunk");
   if (outcome.relation) parts.push(`'${outcome.relation.name}' ${outcome.relation.holds ? "holds" : "does not hold"}`);
+  if (outcome.whole) parts.push(`the scene: ${sceneSummary(outcome.whole)}`); // every relation judged again
   return `${parts.join(" - ")} - not saved`;
 }
 
@@ -789,6 +890,10 @@ async function settle(how) {
       viewer.placeSource(outcome.transform);
       showTransform(outcome.transform);
       result.dirty = true;
+      if (outcome.whole) { // a scene: each object's verdict with this one where it was dropped
+        const objects = result.facts.objects.map((o) => ({ ...o, stands_on: outcome.stands_on[o.name] ?? o.stands_on }));
+        showFacts({ ...result.facts, whole: outcome.whole, objects });
+      }
     }
     setAdjustState(outcome.settled ? "settled" : "unsettled", describeOutcome(outcome, how));
   } catch (err) {
@@ -837,8 +942,8 @@ async function refreshJobs(more = false) {
     status.textContent = job.status + (job.error && job.error.code !== job.status ? ` (${job.error.code})` : "");
     status.className = `status-${job.status}`;
     const what = row.insertCell();
-    what.textContent = `${"↳ ".repeat(depth)}${job.prompt ?? "(reference image)"}`
-      + (job.stages > 1 ? ` (an assembly of ${job.stages} objects)` : "")
+    what.textContent = `${"↳ ".repeat(depth)}${job.description ?? job.prompt ?? (job.image_guided ? "(reference image)" : "")}`
+      + (job.kind === "assemble" ? ` (a scene of ${job.stages + 1} objects)` : "")
       + (job.target_job ? ` (added to the scene of ${job.target_job.slice(0, 8)})` : "");
     const open = document.createElement("button");
     open.type = "button";
@@ -876,7 +981,8 @@ async function reopen(job) {
     $("progress").hidden = true;
     await showResult(job.id);
   } else {
-    follow(job.id); // a running job's progress; an ended one's final state and error
+    // a running job's progress; an ended one's final state and error, beside the form of its kind
+    follow(job.id, job.kind === "assemble" ? $("scene-error") : $("error"));
   }
 }
 
@@ -923,7 +1029,9 @@ async function init() {
   $("align-form").addEventListener("submit", submit);
   document.querySelectorAll("[data-file]").forEach((b) => b.addEventListener("click", () => download(b.dataset.file)));
   $("add-object").addEventListener("click", addObject);
-  wireScene({ api, options, showError, clearError, submitJob });
+  wireScene({ api, options, showError: (err) => showError(err, $("scene-error")),
+              clearError: () => clearError($("scene-error")),
+              submitJob: (path, data, button) => submitJob(path, data, button, $("scene-error")) });
   document.querySelectorAll("input[name=adjust-mode]").forEach((r) => r.addEventListener("change", () => {
     state.viewer?.setHandles(document.querySelector("input[name=adjust-mode]:checked").value || null);
   }));

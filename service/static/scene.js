@@ -1,9 +1,10 @@
 // A scene from one sentence on the page: several meshes and one description are read into a plan
 // (POST /plans/read), shown as a list a person can correct (each step's prompt and what it relates to; what it
 // stands on, the other relations said of it and its warnings shown beside it), then
-// placed as that plan says (POST /assemble: the edited plan, not the sentence, is what runs). The page's own
-// calls, option fields and job submitter are passed in by page.js (wireScene), so this module holds no state
-// of the page's and imports nothing from it.
+// placed as that plan says (POST /assemble: the edited plan, not the sentence, is what runs; the sentence is the
+// job's label). A step whose prompt or grounds are edited is read again, so its relation and support are the edited
+// prompt's. The page's own calls, option fields and job submitter are passed in by page.js (wireScene), so this
+// module holds no state of the page's and imports nothing from it; it also words a scene's result (objectFacts).
 
 const $ = (id) => document.getElementById(id);
 
@@ -35,15 +36,43 @@ export function wireScene({ api, options, showError, clearError, submitJob }) {
     clearError();
     clearPlan();
     try {
-      const body = JSON.stringify({ prompt: $("scene-prompt").value, names: names() });
-      scene.plan = await api.json("plans/read", { method: "POST", body,
-                                                  headers: { "Content-Type": "application/json" } });
+      scene.plan = await readPlan($("scene-prompt").value, names());
     } catch (err) {
       showError(err);
       return;
     }
     showPlan(scene.plan);
   });
+
+  function readPlan(prompt, objectNames) {
+    return api.json("plans/read", { method: "POST", body: JSON.stringify({ prompt, names: objectNames }),
+                                    headers: { "Content-Type": "application/json" } });
+  }
+
+  /** A step's prompt or grounds edited: the step read again (POST /plans/read of its prompt over its object and
+   * its grounds), so that its relation and what it stands on are the edited prompt's; a prompt the reader
+   * cannot read is said beside the step (the service still checks it when the scene is placed). */
+  async function rereadStep(i) {
+    const step = scene.plan.steps[i];
+    const row = document.querySelector(`#scene-plan li[data-step='${i}']`);
+    const on = row.querySelector(".step-on").value.split(",").map((n) => n.trim()).filter(Boolean);
+    const objectName = names()[step.upload] ?? step.name;
+    const note = row.querySelector(".step-reread");
+    row.dataset.reading = "1";
+    const asked = [...new Set([...(on.length ? on : [scene.plan.base]), objectName])];
+    try {
+      const read = await readPlan(row.querySelector(".step-prompt").value, asked);
+      const found = read.steps.find((s) => s.upload === asked.indexOf(objectName));
+      if (found) Object.assign(step, { relation: found.relation, floor: found.floor,
+                                       support: supportIn(scene.plan, found.support, on) });
+      note.textContent = found ? "" : `this prompt does not place the ${objectName}`;
+    } catch (err) {
+      note.textContent = `not read: ${err.detail ?? err.message}`;
+    }
+    row.querySelector(".step-name").textContent = stepLabel(step);
+    row.querySelector(".step-support").textContent = `stands on ${step.support}`;
+    delete row.dataset.reading;
+  }
 
   /** The plan as a list: the base, then one row per step with its prompt and grounds editable. */
   function showPlan(plan) {
@@ -54,9 +83,7 @@ export function wireScene({ api, options, showError, clearError, submitJob }) {
     plan.steps.forEach((step, i) => {
       const row = document.createElement("li");
       row.dataset.step = i;
-      const what = Object.assign(document.createElement("span"), {
-        className: "step-name", textContent: `${step.name} (${step.relation}${step.floor ? ", on the floor" : ""})`,
-      });
+      const what = Object.assign(document.createElement("span"), { className: "step-name", textContent: stepLabel(step) });
       const prompt = Object.assign(document.createElement("input"), { type: "text", value: step.prompt,
                                                                      className: "step-prompt" });
       const on = Object.assign(document.createElement("input"), { type: "text", value: step.on.join(", "),
@@ -64,7 +91,9 @@ export function wireScene({ api, options, showError, clearError, submitJob }) {
       const stands = Object.assign(document.createElement("span"), {
         className: "step-support", textContent: `stands on ${step.support}`,
       });
-      row.append(what, " ", prompt, " relates to ", on, " ", stands);
+      for (const field of [prompt, on]) field.addEventListener("change", () => rereadStep(i));
+      const reread = Object.assign(document.createElement("div"), { className: "step-reread hint" });
+      row.append(what, " ", prompt, " relates to ", on, " ", stands, reread);
       for (const also of step.also) {  // what the description says of the object besides
         row.append(Object.assign(document.createElement("div"), {
           className: "step-also hint", textContent: `also ${also.relation} ${also.on.join(" and ")}`,
@@ -102,22 +131,55 @@ export function wireScene({ api, options, showError, clearError, submitJob }) {
     const used = new Set(plan.steps.map((s) => s.upload));
     for (const index of used) data.append("source", scene.files[index], scene.files[index].name);
     data.append("plan", JSON.stringify(editedSteps()));
+    data.append("description", plan.description); // the job's label: the sentence the plan was read from
     data.append("options", JSON.stringify(options()));
-    await submitJob("assemble", data, $("scene-place"));
+    await submitJob("assemble", data, $("scene-place")); // off until the job ends
+    $("scene-place").disabled = !scene.plan;
   });
 }
 
-/** The facts of an assembly's final scene (the report's ``whole``): one row per relation, judged again. */
-export function wholeRows(report) {
-  const whole = report.whole;
-  if (!whole) return [];
-  const rows = whole.relations.map((r) => [
-    `${r.name} ${r.relation} ${r.on.join(" and ")}`,
-    `${r.holds ? "holds" : "does not hold"}${r.stable === false ? ", not stable" : ""}`
-      + `${r.intersects ? ", intersects another object" : ""}`,
-  ]);
+/** What a re-read step stands on in the whole plan: the reader of the step alone knows its grounds but not what
+ * they stand on, so where it says the floor and its grounds all stand on one thing, that thing (the rule of
+ * ``PlannedStep.support``: beside objects on the same top, on that top). */
+function supportIn(plan, support, on) {
+  if (support !== "floor" || !on.length) return support;
+  const of = (name) => (name === plan.base ? plan.base_support : plan.steps.find((s) => s.name === name)?.support);
+  const below = new Set(on.map(of));
+  const [only] = below;
+  return below.size === 1 && only ? only : support;
+}
+
+/** A step as the plan list names it: "toolbox (on)", "stool (left, on the floor)". */
+function stepLabel(step) {
+  return `${step.name} (${step.relation}${step.floor ? ", on the floor" : ""})`;
+}
+
+const RELATION_WORDS = { left: "left of", right: "right of", front: "in front of", near: "near", next: "next to" };
+
+/** A relation as a person says it: "on the workbench", "left of the bench", "between the sofa and the armchair". */
+export function relationWords(relation, on) {
+  return `${RELATION_WORDS[relation] ?? relation} ${on.join(" and ")}`;
+}
+
+const mm = (v) => `${Number(v) < 10 ? Number(v).toFixed(1) : Math.round(Number(v))} mm`;
+
+/** An object's verdict on the final scene (the report's ``whole``, each relation judged again) in words: whether its
+ * relation holds, whether it may tip, how deep it sinks into another object or below the floor (millimetres,
+ * measured on the meshes: the scene's units are metres in a glTF), what it stands on. */
+export function objectFacts(judged, standsOn) {
+  const parts = [judged.relation ? `${relationWords(judged.relation, judged.on)}: `
+    + (judged.holds ? "holds" : "does not hold") : `placed by ${judged.on.join(" and ")}`];
+  if (judged.stable === false) parts.push("may tip over");
+  if (standsOn) parts.push(`stands on ${standsOn === "floor" ? "the floor" : standsOn}`);
+  if (Number(judged.below_floor_mm) >= 0.5) parts.push(`${mm(judged.below_floor_mm)} below the floor`);
+  if (Number(judged.penetration_mm) >= 0.5 && judged.into) parts.push(`${mm(judged.penetration_mm)} into ${judged.into}`);
+  else if (judged.intersects) parts.push("intersects another object");
+  return parts.join("; ");
+}
+
+/** The scene in one line: how many relations hold on the final scene, and whether any object intersects another. */
+export function sceneSummary(whole) {
   const held = whole.relations.filter((r) => r.holds).length;
-  rows.unshift(["the scene", `${held} of ${whole.relations.length} relations hold; `
-    + `${whole.none_intersect ? "none intersect" : "some intersect"}`]);
-  return rows;
+  return `${held} of ${whole.relations.length} relations hold; ${whole.none_intersect ? "no object intersects another"
+    : "some objects intersect"}`;
 }

@@ -227,6 +227,21 @@ export class Viewer {
     this.render();
   }
 
+  /** A picture of the scene as the view shows it, ``part`` in its own flat colour and the others in their
+   * materials (a scene's object list shows where each object is): a PNG data URL; the view is drawn back after. */
+  thumbnail(part) {
+    const shown = new Map();
+    for (const p of this.parts) for (const mesh of p.materials.keys()) shown.set(mesh, mesh.material);
+    for (const p of this.parts) {
+      for (const [mesh, original] of p.materials) mesh.material = p === part ? part.tinted : original;
+    }
+    this.render();
+    const url = this.renderer.domElement.toDataURL("image/png");
+    for (const [mesh, material] of shown) mesh.material = material;
+    this.render();
+    return url;
+  }
+
   /** Tinted: every part in its own flat colour (told apart at a glance); untinted: the file's materials. */
   setTinted(tinted) {
     for (const part of this.parts) {
