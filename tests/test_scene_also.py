@@ -18,8 +18,8 @@ from ctp_core.assembly import sinking
 from ctp_core.assembly.assemble import Step, assemble
 from ctp_core.assembly.plan import Also, PlanError, plan_step
 from ctp_core.pairs import prepare_pair
-from ctp_core.relations import predicates
 from ctp_core.reading.relation import RelationReading
+from ctp_core.relations import predicates
 from tests.test_scene_placement import box, chair, config, desk, gltf, placed, table
 
 
