@@ -144,6 +144,7 @@ def assembly_report(assembly: Assembly) -> dict:
         "objects": placed_objects(assembly.objects, standing.stands_on(assembly.objects)),
         "stages": [{"stage": s.index, "of": s.count, "name": s.step.name, "on": s.on,
                     "grounds": s.grounds or [s.on], "image_guided": s.step.image is not None,
+                    "also": [a.to_dict() for a in s.step.also],
                     **_run(s.result, transform(assembly.objects[s.index].to_scene)),
                     **({"keeps_up": s.result.keeps_up} if s.result.keeps_up else {}),
                     **({"kept": s.kept} if s.kept else {})} for s in assembly.results],

@@ -138,7 +138,8 @@ def test_plan_step_is_the_one_rule_of_a_step_s_shape():
     for entry, field, message in [
         ("cup.glb", "steps.0", "a step is a mapping with file"),
         ({"prompt": "x"}, "steps.0", "a step is a mapping with file"),
-        ({"file": "cup.glb", "colour": "red"}, "steps.0.colour", "unknown key 'colour'; known: file, image, name, on"),
+        ({"file": "cup.glb", "colour": "red"}, "steps.0.colour",
+         "unknown key 'colour'; known: also, file, image, name, on"),
         ({"file": "cup.glb", "name": ["cup"]}, "steps.0.name", "steps.0.name must be a string"),
         ({"file": "cup.glb", "prompt": "x", "image": "cup.png"}, "steps.0.prompt", "a prompt or an image, not both"),
         ({"file": "cup.glb", "options": [1]}, "steps.0.options", "must be a mapping of option names"),

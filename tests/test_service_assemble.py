@@ -182,7 +182,7 @@ def test_a_step_s_shape_is_refused_as_the_engine_words_it(api, files):
         "plan.1.options: preset and model are set for the whole assembly (the options field)")}
     unknown = post_assembly(api, files, [{**PLAN[0], "colour": "red"}], sources=("plate",)).json()["error"]
     assert (unknown["field"], unknown["message"]) == (
-        "plan.0.colour", "plan.0: unknown key 'colour'; known: file, image, name, on, options, prompt")
+        "plan.0.colour", "plan.0: unknown key 'colour'; known: also, file, image, name, on, options, prompt")
 
 
 def test_a_bad_stage_is_refused_before_queueing_and_named(api, files):

@@ -20,6 +20,7 @@ import trimesh
 from ctp_core import adjust
 from ctp_core.assembly import standing
 from ctp_core.assembly.assemble import Placed, Step, StepResult, judged, scene_of
+from ctp_core.assembly.plan import Also
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
 from ctp_core.geometry import frames
@@ -91,7 +92,8 @@ def adjust_object(scene: trimesh.Scene, report: dict[str, Any], name: str, to_sc
     objects[k] = replace(objects[k], to_scene=frames.Similarity(done.source_to_target, frames.SOURCE_FILE,
                                                                 frames.SCENE))
     # judged reads a step's run for its config and verdict only: the stored ones stand in for the run
-    results = [StepResult(i + 1, len(stages), Step(objects[i + 1].mesh, s["name"]), s["on"],
+    results = [StepResult(i + 1, len(stages), Step(objects[i + 1].mesh, s["name"], also=[
+                   Also(a["prompt"], tuple(a["on"]), a.get("relation", "")) for a in s.get("also", [])]), s["on"],
                           cast("AlignResult", _Run(configs[i], s.get("relation"))), list(s["grounds"]))
                for i, s in enumerate(stages)]
     return SceneAdjusted(name, done, objects, judged(objects, results), standing.stands_on(objects))

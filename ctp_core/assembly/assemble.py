@@ -202,53 +202,90 @@ def _keeping(placed: list[Placed], results: list[StepResult], step: Step, result
     """The run's answer, or where it breaks an earlier relation or sinks (``_breaks``), the first of its
     alternatives that breaks nothing; each turned first as the description turns it (``_turned``) and tried as
     placed where turned it breaks something; a placement that leaves too little room for an object a later step
-    puts between it and another (``rooms``) breaks that. Where none is clean, the first (of ``LIFTED``, the least
-    bad first) that breaks nothing once moved: raised straight up by how deep it sinks (``LIFTS`` times at most: a
-    cushion sunk into a sofa's seat then rests on it), or moved straight away from the other object by the room
-    missing (a cabinet right of a workbench moved right to make room for the oil drum between them); else the one
-    that breaks the fewest, then sinks the least (the answer on a tie), with what the answer broke."""
-    def breaks(candidate: AlignResult) -> tuple[list[str], float]:
-        broke, sunk = _breaks([*placed, _placed(step, candidate)], results, candidate, on, step.also)
-        return broke + [r.said(step.name, g) for r in rooms if (g := r.gap(placed, step, candidate)) < r.width], sunk
-
-    def judged(k: int) -> tuple[AlignResult, list[str], float]:
-        plain = _on_floor(result.alternative(k) if k else result, step.source, placed[0])
-        turned = _on_floor(_turned(plain, step, placed), step.source, placed[0])
-        broke, sunk = breaks(turned)
-        if broke and turned is not plain:
-            plain_broke, plain_sunk = breaks(plain)
-            if (len(plain_broke), plain_sunk) < (len(broke), sunk):
-                return plain, plain_broke, plain_sunk
-        return turned, broke, sunk
-
-    answer, answer_broke, answer_sunk = judged(0)
+    puts between it and another (``rooms``) breaks that. An answer that sinks is first raised straight up by how
+    deep it sinks (``LIFTS`` times at most: a lamp 6 mm into a chest's top then stands on it rather than at a
+    lower-ranked place). Where none is clean, the first (of ``LIFTED``, the least bad first) that breaks nothing
+    once moved: raised as the answer is, or moved straight away from the other object by the room missing (a
+    cabinet right of a workbench moved right to make room for the oil drum between them); else the one that breaks
+    the fewest, then sinks the least (the answer on a tie), with what the answer broke."""
+    keeper = _Keeper(placed, results, step, result, on, rooms)
+    answer, answer_broke, answer_sunk = keeper.judged(0)
     if not answer_broke:
         return answer, None
+    up = keeper.lifted(answer, answer_sunk)  # only sunk a little into what it rests on: raised out of it first
+    if up is not None:
+        return up, {"alternative": 0, "broke": answer_broke, "lifted": True}
     best, best_key = 0, (len(answer_broke), answer_sunk)
     tried = [(answer, answer_sunk)]
     for k in range(1, len(result.alternatives)):
-        other, broke, sunk = judged(k)
+        other, broke, sunk = keeper.judged(k)
         tried.append((other, sunk))
         if not broke:
             return other, {"alternative": k, "broke": answer_broke}
         if (len(broke), sunk) < best_key:
             best, best_key = k, (len(broke), sunk)
-    # none is clean: a placement sunk into what it rests on (a cushion into a sofa's seat) comes up out of it
+    # none is clean: one sunk into what it rests on (a cushion into a sofa's seat) comes up out of it, one too
+    # close to what it must leave room beside moves away
     for k in sorted(range(len(tried)), key=lambda i: (i != best, i))[:LIFTED]:
-        candidate, sunk = tried[k]
+        up = keeper.lifted(*tried[k]) if k else None
+        if up is not None:
+            return up, {"alternative": k, "broke": answer_broke, "lifted": True}
+        moved = keeper.made_room(tried[k][0])
+        if moved is not None:
+            return moved, {"alternative": k, "broke": answer_broke, "made_room": True}
+    return tried[best][0], {"alternative": best, "broke": answer_broke, "none_clean": True}
+
+
+@dataclass(frozen=True)
+class _Keeper:
+    """A step's candidates judged against the scene so far (``_keeping``)."""
+
+    placed: list[Placed]
+    results: list[StepResult]
+    step: Step
+    result: AlignResult
+    on: list[str]
+    rooms: Sequence[Room]
+
+    def breaks(self, candidate: AlignResult) -> tuple[list[str], float]:
+        """``_breaks``, and the room a later step needs that ``candidate`` does not leave."""
+        step = self.step
+        broke, sunk = _breaks([*self.placed, _placed(step, candidate)], self.results, candidate, self.on, step.also)
+        return broke + [r.said(step.name, gap) for r in self.rooms
+                        if (gap := r.gap(self.placed, step, candidate)) < r.width], sunk
+
+    def judged(self, k: int) -> tuple[AlignResult, list[str], float]:
+        """Alternative ``k`` (0: the answer) on the floor, turned (``_turned``), or as placed where that breaks
+        less; what it breaks and how deep it sinks."""
+        step, placed = self.step, self.placed
+        plain = _on_floor(self.result.alternative(k) if k else self.result, step.source, placed[0])
+        turned = _on_floor(_turned(plain, step, placed), step.source, placed[0])
+        broke, sunk = self.breaks(turned)
+        if broke and turned is not plain:
+            plain_broke, plain_sunk = self.breaks(plain)
+            if (len(plain_broke), plain_sunk) < (len(broke), sunk):
+                return plain, plain_broke, plain_sunk
+        return turned, broke, sunk
+
+    def lifted(self, candidate: AlignResult, sunk: float) -> AlignResult | None:
+        """``candidate`` raised straight up by how deep it sinks, ``LIFTS`` times at most, where that breaks
+        nothing."""
         for _ in range(LIFTS):
             if sunk <= 0:
-                break
-            candidate = _raised(candidate, sunk / 1000 + LIFT_CLEAR * step.source.scale)
-            broke, sunk = breaks(candidate)
+                return None
+            candidate = _raised(candidate, sunk / 1000 + LIFT_CLEAR * self.step.source.scale)
+            broke, sunk = self.breaks(candidate)
             if not broke:
-                return candidate, {"alternative": k, "broke": answer_broke, "lifted": True}
-        candidate = tried[k][0]
-        for room in rooms:
-            candidate = room.made(placed, step, candidate)
-        if candidate is not tried[k][0] and not breaks(candidate)[0]:
-            return candidate, {"alternative": k, "broke": answer_broke, "made_room": True}
-    return tried[best][0], {"alternative": best, "broke": answer_broke, "none_clean": True}
+                return candidate
+        return None
+
+    def made_room(self, candidate: AlignResult) -> AlignResult | None:
+        """``candidate`` moved away from each object it must leave room beside (``Room.made``), where that
+        breaks nothing."""
+        moved = candidate
+        for room in self.rooms:
+            moved = room.made(self.placed, self.step, moved)
+        return moved if moved is not candidate and not self.breaks(moved)[0] else None
 
 
 LIFTS = 2  # times a sunk placement is raised by its depth before it is given up
@@ -336,9 +373,10 @@ def _raised(result: AlignResult, height: float) -> AlignResult:
 def _breaks(objects: list[Placed], earlier: list[StepResult], result: AlignResult, on: list[str],
             also: Sequence[Also] = ()) -> tuple[list[str], float]:
     """What the last of ``objects`` (placed by ``result``) breaks, in words: each earlier step whose relation held
-    and now fails or whose object now intersects another, the new object where it intersects one, and each relation
-    said of it besides (``also``) whose objects are placed and that does not hold; and how deep the new object sinks
-    (millimetres into another object or below the floor, the deeper: ``sinking``)."""
+    and now fails or whose object now intersects another, the new object where it intersects one or where its own
+    relation, held in its run, fails (a placement raised or moved off it), and each relation said of it besides
+    (``also``) whose objects are placed and that does not hold; and how deep the new object sinks (millimetres into
+    another object or below the floor, the deeper: ``sinking``)."""
     from ctp_core.assembly import whole
 
     found = []
@@ -348,6 +386,8 @@ def _breaks(objects: list[Placed], earlier: list[StepResult], result: AlignResul
             if not now["holds"] or now["intersects"]:
                 found.append(whole.said(now))
     new = _verdict(objects, len(objects) - 1, result, on)
+    if (result.relation or {}).get("holds") and new["holds"] is False:  # its run judged it holding: moved off it
+        found.append(whole.said(new))
     sunk = max(new["penetration_mm"], new["below_floor_mm"])
     names = {p.name for p in objects}
     found += [whole.said(v) for a in also if set(a.on) <= names

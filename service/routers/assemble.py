@@ -43,8 +43,10 @@ ASSEMBLE_BODY = {
                      "file name, required), `prompt` or `image` (an image part's file name), `name` (unique; "
                      "default the file stem), `on` (the placed object it relates to, or a list of two: "
                      "`[\"sofa\", \"armchair\"]` for \"a lamp between the sofa and the armchair\"; default the "
-                     "last placed one, or the two placed objects a between prompt names), `options` "
-                     "(AlignOptions of this stage, without preset and model)"},
+                     "last placed one, or the two placed objects a between prompt names), `also` (relations said "
+                     "of it besides its own, judged with it and on the final scene: a list of `{prompt, on}`, e.g. "
+                     "`{\"prompt\": \"the lamp to the right of the monitor\", \"on\": \"monitor\"}`), "
+                     "`options` (AlignOptions of this stage, without preset and model)"},
             "description": {"type": "string", "minLength": 1, "maxLength": DESCRIPTION_MAX,
                             "pattern": forms.PROMPT_PATTERN,
                             "description": "the scene in one sentence, the job's label (`description` of GET "

@@ -722,7 +722,8 @@ function sceneRows(report) {
  * its verdict on the final scene. */
 function showObjects(report) {
   const list = $("objects");
-  const judged = new Map(((report.whole || {}).relations || []).map((r) => [r.name, r]));
+  const relations = (report.whole || {}).relations || [];
+  const judged = new Map(relations.filter((r) => !r.also).map((r) => [r.name, r]));
   const parts = state.result.parts || [];
   list.replaceChildren(...report.objects.map((object, k) => {
     const item = document.createElement("li");
@@ -730,7 +731,8 @@ function showObjects(report) {
     const image = Object.assign(document.createElement("img"), { className: "thumb", alt: object.name });
     if (parts[k] && state.viewer) image.src = state.viewer.thumbnail(parts[k]);
     const facts = k === 0 ? `stays put; stands on ${object.stands_on === "floor" ? "the floor" : object.stands_on}`
-      : judged.has(object.name) ? objectFacts(judged.get(object.name), object.stands_on) : "";
+      : judged.has(object.name) ? objectFacts(judged.get(object.name), object.stands_on,
+        relations.filter((r) => r.also && r.name === object.name)) : "";
     const words = Object.assign(document.createElement("span"), { className: "object-facts" });
     words.append(Object.assign(document.createElement("strong"), { textContent: object.name }), ` - ${facts}`);
     item.append(image, words);

@@ -164,11 +164,15 @@ export function relationWords(relation, on) {
 const mm = (v) => `${Number(v) < 10 ? Number(v).toFixed(1) : Math.round(Number(v))} mm`;
 
 /** An object's verdict on the final scene (the report's ``whole``, each relation judged again) in words: whether its
- * relation holds, whether it may tip, how deep it sinks into another object or below the floor (millimetres,
- * measured on the meshes: the scene's units are metres in a glTF), what it stands on. */
-export function objectFacts(judged, standsOn) {
+ * relation holds, and each said of it besides (``also``), whether it may tip, how deep it sinks into another object
+ * or below the floor (millimetres, measured on the meshes: the scene's units are metres in a glTF), what it stands
+ * on. */
+export function objectFacts(judged, standsOn, also = []) {
   const parts = [judged.relation ? `${relationWords(judged.relation, judged.on)}: `
     + (judged.holds ? "holds" : "does not hold") : `placed by ${judged.on.join(" and ")}`];
+  for (const a of also) {
+    if (a.relation) parts.push(`${relationWords(a.relation, a.on)}: ${a.holds ? "holds" : "does not hold"}`);
+  }
   if (judged.stable === false) parts.push("may tip over");
   if (standsOn) parts.push(`stands on ${standsOn === "floor" ? "the floor" : standsOn}`);
   if (Number(judged.below_floor_mm) >= 0.5) parts.push(`${mm(judged.below_floor_mm)} below the floor`);
