@@ -37,7 +37,7 @@ from ctp_core.guide import selection
 from ctp_core.progress import CancelCheck, ProgressCallback
 from ctp_core.reading import cues, passes
 from ctp_core.reading.names import ground_names
-from ctp_core.reading.records import ORIENTED_NEAR, RELATIONS, RelationName
+from ctp_core.reading.records import ORIENTED_NEAR, RELATIONS, Kind, RelationName
 from ctp_core.reading.relation import RelationReading
 
 if TYPE_CHECKING:  # the engine (torch) loads only when a step runs: the API checks plans with plan.check_plan
@@ -343,7 +343,10 @@ def _rooms(base_name: str, steps: Sequence[Step]) -> list[list[Room]]:
     out: list[list[Room]] = [[] for _ in steps]
     for later in steps:
         grounds = ground_names(later.on)
-        if len(grounds) != 2 or not all(g in order for g in grounds):
+        if len(grounds) != 2 or not all(g in order for g in grounds) or later.prompt is None:
+            continue
+        reading = passes.read_prompt(grounds[0], later.name, later.prompt).reading
+        if reading is None or RELATIONS[reading.position].kind != Kind.BETWEEN:  # "next to them": a group
             continue
         first, last = sorted(grounds, key=order.index)
         if last == base_name:
