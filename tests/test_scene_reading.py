@@ -280,6 +280,12 @@ def test_it_beside_something_is_rather_a_thing_of_its_size_than_the_furniture_it
     assert got["phone"] == ("beside", ("laptop",), "desk")  # on the desk, beside the laptop
 
 
+def test_them_after_a_clause_of_two_objects_is_those_two_not_the_place_said_first():
+    got = steps("On the café table, put the teapot next to the paper bag and the wooden bowl in front of them.",
+                ["café table", "teapot", "paper bag", "wooden bowl"])
+    assert got["wooden bowl"] == ("front", ("teapot", "paper bag"), "café table")
+
+
 def test_flanking_and_the_other_side():
     assert steps("Two potted plants flank the bench, one on each side.", ["bench", "potted plant"]) == {
         "potted plant_1": ("beside", ("bench",), "floor"), "potted plant_2": ("beside", ("bench",), "floor")}

@@ -36,8 +36,10 @@ may name (``keys``: each upload's name as words) into ``Said`` records, one per 
   "in it" prefers a container; beside (left of, near ...) it, found by recency, prefers a thing of the figure's
   size among the last three ("the laptop on the desk and the phone beside it": the laptop). "them" and "both" are
   the group named last (the copies of a count, figures or grounds joined by "and"), else the clause's subject and
-  its ground, else the last two objects named; "each" one ground copy per figure copy. A cue with its ground left out
-  ("a stool in front", "a metronome on top") is of the topic, else of the object most often a ground so far.
+  its ground, else the last clause's figure and its ground ("put the teapot next to the bag and the bowl in front
+  of them": not the table a fronted "on the table" named), else the last two objects named; "each" one ground copy
+  per figure copy. A cue with its ground left out ("a stool in front", "a metronome on top") is of the topic, else
+  of the object most often a ground so far.
 
 Why no parser library: spaCy 3.8 is on the registry, but without a trained pipeline it has no parser, and its
 English pipelines are published outside the registry (GitHub releases) under their own licence terms; a service
@@ -787,7 +789,7 @@ class _Reader:
     def _group(self, figures: list[str], clause: _Clause, said: str, word: str, rel: _Relation | None
                ) -> list[str]:
         """What "them", "both" or "each" stands for: the group named last that is not the figure's, else the clause's
-        subject and its ground, else the last two objects named."""
+        subject and its ground, else the last clause's figure and its ground, else the last two objects named."""
         for group in reversed(self.groups):
             if not set(group) & set(figures):
                 return list(group)
@@ -796,6 +798,10 @@ class _Reader:
                                ())
             if host_ground:
                 return [clause.host, *host_ground][:MAX_GROUNDS]
+        previous = next((s for s in reversed(self.out.said) if s.figure not in figures and len(s.grounds) == 1
+                         and s.grounds[0] not in figures and not s.derived), None)
+        if previous is not None:  # "put the teapot next to the bag and the bowl in front of them"
+            return [previous.figure, *previous.grounds]
         last = [k for k in dict.fromkeys(reversed(self.recent)) if k not in figures][:2]
         if len(last) < 2:
             raise SceneReadingError(f"'{said}': '{word}' needs two objects named before it")
