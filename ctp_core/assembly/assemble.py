@@ -451,7 +451,7 @@ def _turned(result: AlignResult, step: Step, placed: list[Placed]) -> AlignResul
         return result
     scene = {p.name: p for p in placed}
     matrix = np.asarray(result.source_to_target, dtype=np.float64)
-    centre = trimesh.transform_points(step.source.bounds, matrix).mean(0)
+    centre = _centre_of(step.source, matrix)
     want = _facing_way(step, scene, centre, result)
     if want is None:
         return result
