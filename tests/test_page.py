@@ -661,18 +661,24 @@ def _saved(driver) -> None:
     shoot(driver, "adjust-saved")
 
 
-def _saved_scene_downloaded(driver, api, job_id: str, dropped: np.ndarray, original: bytes) -> None:
-    """The page's download is the saved scene: its source node at the dropped transform, touching the table
-    (measured on the GLB with trimesh); original.glb is the run's own, the report says adjusted."""
+def downloaded_glb(driver, api, job_id: str) -> trimesh.Scene:
+    """The result GLB the page's download button saves, checked to be the API's, as a scene."""
     from selenium.webdriver.common.by import By
 
-    driver.find_element(By.CSS_SELECTOR, "[data-file='result.glb']").click()  # the page's download is the saved scene
+    driver.find_element(By.CSS_SELECTOR, "[data-file='result.glb']").click()
     downloaded = driver.downloads / f"{job_id}-result.glb"
     wait_for(downloaded.exists, 20, "the GLB download")
     time.sleep(0.2)
     glb = downloaded.read_bytes()
     assert glb == api.client.get(f"/jobs/{job_id}/result.glb", headers=AUTH).content
-    scene = trimesh.load(io.BytesIO(glb), file_type="glb")
+    return trimesh.load(io.BytesIO(glb), file_type="glb")
+
+
+def _saved_scene_downloaded(driver, api, job_id: str, dropped: np.ndarray, original: bytes) -> None:
+    """The page's download is the saved scene: its source node at the dropped transform, touching the table
+    (measured on the GLB with trimesh); original.glb is the run's own, the report says adjusted."""
+
+    scene = downloaded_glb(driver, api, job_id)  # the page's download is the saved scene
     node, geometry = scene.graph["ball"]
     assert np.allclose(node, dropped, atol=1e-5)  # the source node holds the saved transform
     ball = scene.geometry[geometry].copy().apply_transform(node)

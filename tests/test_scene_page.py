@@ -6,17 +6,15 @@ dropped to contact and saved (every relation judged again), and the saved scene 
 
 from __future__ import annotations
 
-import io
 import re
 import time
 
-import trimesh
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support.ui import Select
 
 from tests.conftest import wait_for
 from tests.test_compose import _bench, _box
-from tests.test_page import AUTH, _adjust_state, browser, drag_handle, env, open_page, shoot  # noqa: F401 - fixtures
+from tests.test_page import AUTH, _adjust_state, browser, downloaded_glb, drag_handle, env, open_page, shoot  # noqa: F401 - fixtures
 
 SENTENCE = "put the toolbox on the workbench; a stool to its left"
 STAGE_AND_BAR = "return [document.getElementById('stage').textContent, document.getElementById('bar').value]"
@@ -152,11 +150,5 @@ def _one_object_adjusted_and_saved(driver, api, job_id: str) -> None:
 
 def _downloaded(driver, api, job_id: str) -> None:
     """The page's GLB download is the saved scene, its nodes named as the objects."""
-    driver.find_element(By.CSS_SELECTOR, "[data-file='result.glb']").click()
-    downloaded = driver.downloads / f"{job_id}-result.glb"
-    wait_for(downloaded.exists, 20, "the GLB download")
-    time.sleep(0.2)
-    glb = downloaded.read_bytes()
-    assert glb == api.client.get(f"/jobs/{job_id}/result.glb", headers=AUTH).content
-    scene = trimesh.load(io.BytesIO(glb), file_type="glb")
+    scene = downloaded_glb(driver, api, job_id)
     assert {"workbench", "toolbox", "stool"} <= set(scene.graph.nodes_geometry)
