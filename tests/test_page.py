@@ -677,7 +677,6 @@ def downloaded_glb(driver, api, job_id: str) -> trimesh.Scene:
 def _saved_scene_downloaded(driver, api, job_id: str, dropped: np.ndarray, original: bytes) -> None:
     """The page's download is the saved scene: its source node at the dropped transform, touching the table
     (measured on the GLB with trimesh); original.glb is the run's own, the report says adjusted."""
-
     scene = downloaded_glb(driver, api, job_id)  # the page's download is the saved scene
     node, geometry = scene.graph["ball"]
     assert np.allclose(node, dropped, atol=1e-5)  # the source node holds the saved transform
