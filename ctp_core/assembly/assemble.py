@@ -202,16 +202,18 @@ def _keeping(placed: list[Placed], results: list[StepResult], step: Step, result
     """The run's answer, or where it breaks an earlier relation or sinks (``_breaks``), the first of its
     alternatives that breaks nothing; each turned first as the description turns it (``_turned``) and tried as
     placed where turned it breaks something; a placement that leaves too little room for an object a later step
-    puts between it and another (``rooms``) breaks that. An answer that sinks is first raised straight up by how
-    deep it sinks (``LIFTS`` times at most: a lamp 6 mm into a chest's top then stands on it rather than at a
-    lower-ranked place). Where none is clean, the first (of ``LIFTED``, the least bad first) that breaks nothing
-    once moved: raised as the answer is, or moved straight away from the other object by the room missing (a
-    cabinet right of a workbench moved right to make room for the oil drum between them); else the one that breaks
-    the fewest, then sinks the least (the answer on a tie), with what the answer broke."""
+    puts between it and another (``rooms``) breaks that. An answer that sinks at all is first raised straight up by
+    how deep it sinks (``LIFTS`` times at most, kept where that breaks nothing: a lamp 6 mm into a chest's top then
+    stands on it rather than at a lower-ranked place, a teapot 3 mm into a tray on it). Where none is clean, the
+    first (of ``LIFTED``, the least bad first) that breaks nothing once moved: raised as the answer is, or moved
+    straight away from the other object by the room missing (a cabinet right of a workbench moved right to make
+    room for the oil drum between them); else the one that breaks the fewest, then sinks the least (the answer on a
+    tie), with what the answer broke."""
     keeper = _Keeper(placed, results, step, result, on, rooms)
     answer, answer_broke, answer_sunk = keeper.judged(0)
     if not answer_broke:
-        return answer, None
+        up = keeper.lifted(answer, answer_sunk)  # a sink too shallow to break anything still shows on a thin tray
+        return (answer, None) if up is None else (up, {"alternative": 0, "broke": [], "lifted": True})
     up = keeper.lifted(answer, answer_sunk)  # only sunk a little into what it rests on: raised out of it first
     if up is not None:
         return up, {"alternative": 0, "broke": answer_broke, "lifted": True}
