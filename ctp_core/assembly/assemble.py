@@ -37,7 +37,7 @@ from ctp_core.guide import selection
 from ctp_core.progress import CancelCheck, ProgressCallback
 from ctp_core.reading import cues, passes
 from ctp_core.reading.names import ground_names
-from ctp_core.reading.records import ORIENTED_NEAR, RELATIONS, Kind, RelationName
+from ctp_core.reading.records import ALONGSIDE, ORIENTED_NEAR, RELATIONS, Kind, RelationName
 from ctp_core.reading.relation import RelationReading
 
 if TYPE_CHECKING:  # the engine (torch) loads only when a step runs: the API checks plans with plan.check_plan
@@ -202,18 +202,28 @@ def _keeping(placed: list[Placed], results: list[StepResult], step: Step, result
     """The run's answer, or where it breaks an earlier relation or sinks (``_breaks``), the first of its
     alternatives that breaks nothing; each turned first as the description turns it (``_turned``) and tried as
     placed where turned it breaks something; a placement that leaves too little room for an object a later step
-    puts between it and another (``rooms``) breaks that. An answer that sinks at all is first raised straight up by
-    how deep it sinks (``LIFTS`` times at most, kept where that breaks nothing: a lamp 6 mm into a chest's top then
-    stands on it rather than at a lower-ranked place, a teapot 3 mm into a tray on it). Where none is clean, the
+    puts between it and another (``rooms``) breaks that. An answer that sinks is first raised straight up by how
+    deep it sinks (``LIFTS`` times at most, kept where that breaks nothing: a lamp 6 mm into a chest's top then
+    stands on it rather than at a lower-ranked place). Where none is clean, the
     first (of ``LIFTED``, the least bad first) that breaks nothing once moved: raised as the answer is, or moved
     straight away from the other object by the room missing (a cabinet right of a workbench moved right to make
     room for the oil drum between them); else the one that breaks the fewest, then sinks the least (the answer on a
-    tie), with what the answer broke."""
+    tie), with what the answer broke. The one kept is then dropped into contact with what it stands on where that
+    breaks nothing more (``_Keeper.dropped``: a drum left 2 cm over the floor, a teapot 3 mm into a tray)."""
     keeper = _Keeper(placed, results, step, result, on, rooms)
+    chosen, kept = _choosing(keeper)
+    dropped = keeper.dropped(chosen)
+    if dropped is None:
+        return chosen, kept
+    return dropped, {**(kept or {"alternative": 0, "broke": []}), "dropped": True}
+
+
+def _choosing(keeper: _Keeper) -> tuple[AlignResult, dict[str, Any] | None]:
+    """``_keeping``'s choice, before it is dropped into contact."""
+    result = keeper.result
     answer, answer_broke, answer_sunk = keeper.judged(0)
     if not answer_broke:
-        up = keeper.lifted(answer, answer_sunk)  # a sink too shallow to break anything still shows on a thin tray
-        return (answer, None) if up is None else (up, {"alternative": 0, "broke": [], "lifted": True})
+        return answer, None
     up = keeper.lifted(answer, answer_sunk)  # only sunk a little into what it rests on: raised out of it first
     if up is not None:
         return up, {"alternative": 0, "broke": answer_broke, "lifted": True}
@@ -280,6 +290,22 @@ class _Keeper:
             if not broke:
                 return candidate
         return None
+
+    def dropped(self, candidate: AlignResult) -> AlignResult | None:
+        """``candidate`` moved straight up or down into contact with what is under it (``_to_contact``), where it
+        stands on something (a relation that rests, or one beside, between or facing its grounds) and that breaks
+        no more than it did; None where it does not move."""
+        reading = RelationReading.from_verdict(candidate.relation)
+        if reading is None or not (RELATIONS[reading.position].rests or RELATIONS[reading.position].kind in ALONGSIDE):
+            return None
+        matrix = np.asarray(candidate.source_to_target, dtype=np.float64)
+        shift = _to_contact(trimesh.transform_points(np.asarray(self.step.source.vertices), matrix), self.placed)
+        if shift == 0.0:
+            return None
+        moved = _raised(candidate, shift)
+        before, sunk_before = self.breaks(candidate)
+        after, sunk_after = self.breaks(moved)
+        return moved if (len(after), sunk_after) <= (len(before), sunk_before) else None
 
     def made_room(self, candidate: AlignResult) -> AlignResult | None:
         """``candidate`` moved away from each object it must leave room beside (``Room.made``), where that
@@ -366,6 +392,30 @@ def _box(mesh: trimesh.Trimesh, matrix: np.ndarray) -> np.ndarray:
 
 def _centre_of(mesh: trimesh.Trimesh, matrix: np.ndarray) -> np.ndarray:
     return _box(mesh, matrix).mean(0)
+
+
+CONTACT_BAND = 0.02  # of an object's height: its bottom, whose vertices are brought into contact (``_to_contact``)
+CONTACT_REACH = 0.1  # of an object's height: the farthest ``_to_contact`` moves it (a gap left by the search)
+
+
+def _to_contact(vertices: np.ndarray, placed: Sequence[Placed]) -> float:
+    """How far to move an object (its ``vertices``, scene frame) straight up (negative: down) so that its bottom
+    touches what is under it: rays straight down from its bottom vertices (those within ``CONTACT_BAND`` of its
+    height over its lowest) meet the level faces of the placed objects and the floor (the base's bottom); the move is
+    the smallest gap between a bottom vertex and the face under it, negative where it is sunk (a surface above its
+    vertex within the band), 0 past ``CONTACT_REACH`` of its height."""
+    height = float(np.ptp(vertices[:, 1]))
+    band = CONTACT_BAND * height
+    bottom = vertices[vertices[:, 1] <= vertices[:, 1].min() + band]
+    origins = bottom + np.array([0.0, band, 0.0])
+    gaps = bottom[:, 1] - float(placed[0].mesh.bounds[0][1])  # the floor
+    for other in placed:
+        mesh = other.mesh.copy().apply_transform(np.asarray(other.to_scene.matrix))
+        hits, rays, faces = mesh.ray.intersects_location(origins, np.tile([0.0, -1.0, 0.0], (len(origins), 1)))
+        level = np.abs(mesh.face_normals[faces][:, 1]) > 0.5
+        np.minimum.at(gaps, rays[level], bottom[rays[level], 1] - hits[level, 1])
+    shift = -float(gaps.min())
+    return shift if 0.0 < abs(shift) <= CONTACT_REACH * height else 0.0
 
 
 def _raised(result: AlignResult, height: float) -> AlignResult:

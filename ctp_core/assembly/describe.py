@@ -27,7 +27,7 @@ from dataclasses import asdict, dataclass, field, replace
 from ctp_core.assembly.plan import MAX_GROUNDS, Also
 from ctp_core.errors import ConfigError
 from ctp_core.reading import counts, cues, lexicon, passes, scene
-from ctp_core.reading.records import RELATIONS, Kind, RelationName
+from ctp_core.reading.records import ALONGSIDE, RELATIONS, Kind, RelationName
 from ctp_core.reading.scene import DETERMINERS, Said, SceneReading, SceneReadingError
 
 __all__ = ["DescriptionError", "Placement", "ScenePlan", "keys_of", "plan_relations", "read_description"]
@@ -40,8 +40,6 @@ _TRIPLE_WORDS = {"front of": "in front of", "in front": "in front of", "front": 
                  "side of": "beside", "on top": "on top of", "top of": "on top of", "face": "facing",
                  "faces": "facing", "next": "next to", "back of": "behind"}
 _DETERMINERS = DETERMINERS
-# relations whose figure stands where its ground stands (on the same table, on the floor)
-_ALONGSIDE = frozenset({Kind.SIDE, Kind.DISTANCE, Kind.BETWEEN, Kind.ORIENTATION})
 
 
 class DescriptionError(ConfigError):
@@ -278,7 +276,7 @@ def _places_of_grounds(placed_by: dict[str, Said], also: dict[str, list[Said]]) 
             continue
         (top,) = said.grounds
         for other in also.get(figure, []):
-            if RELATIONS[other.relation].kind not in _ALONGSIDE - {Kind.ORIENTATION} or len(other.grounds) != 1:
+            if RELATIONS[other.relation].kind not in ALONGSIDE - {Kind.ORIENTATION} or len(other.grounds) != 1:
                 continue
             (beside,) = other.grounds
             if beside in placed_by or beside == top:
@@ -323,7 +321,7 @@ def _on_the_same_top(said: Said, also: list[Said], support: dict[str, str], node
         return said, also
     top = nodes[said.grounds[0]][0]
     for other in also:
-        if (RELATIONS[other.relation].kind in _ALONGSIDE - {Kind.ORIENTATION} and other.grounds
+        if (RELATIONS[other.relation].kind in ALONGSIDE - {Kind.ORIENTATION} and other.grounds
                 and all(support.get(nodes[g][0]) == top for g in other.grounds)):
             placed = replace(other, primary=True, clause=said.clause, det=said.det)
             return placed, [replace(said, primary=False), *(a for a in also if a is not other)]
@@ -437,7 +435,7 @@ def _support(relation: str, on: tuple[str, ...], support: dict[str, str]) -> str
     position = RelationName(relation.split("+")[0])
     if scene.is_support(position):
         return on[0]
-    if RELATIONS[position].kind in _ALONGSIDE:
+    if RELATIONS[position].kind in ALONGSIDE:
         below = {support.get(g, FLOOR) for g in on}
         if len(below) == 1:
             return below.pop()

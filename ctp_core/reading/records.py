@@ -181,6 +181,9 @@ RELATIONS: dict[RelationName, Relation] = {r.name: r for r in (
 )}
 del R
 # where an orientation said alone puts the figure: "a chair facing the desk" stands near the desk, not across the room
+# the kinds whose figure stands where its ground stands (on the same table, on the floor): beside, the sides, near,
+# between, facing
+ALONGSIDE = frozenset({Kind.SIDE, Kind.DISTANCE, Kind.BETWEEN, Kind.ORIENTATION})
 ORIENTED_NEAR = RelationName.NEAR
 
 
