@@ -153,3 +153,19 @@ def test_a_sink_into_an_open_slab_is_measured():
     sheet = trimesh.Trimesh(slab.vertices, slab.faces[slab.face_normals[:, 1] > 0.5], process=False)
     assert sinking.sinking("block", block, trimesh.transformations.translation_matrix((0, 0.5, 0)),
                            [("sheet", sheet, np.eye(4))], floor=0.0).to_dict()["penetration_mm"] == 0.0
+
+
+# --- brought into contact ------------------------------------------------------------------------------------------
+
+
+def test_an_object_left_over_or_sunk_into_what_it_stands_on_is_brought_to_contact():
+    from ctp_core.assembly.assemble import Placed, _to_contact
+    from ctp_core.geometry import frames
+
+    scene = [Placed("table", table(), frames.Similarity(np.eye(4), frames.SCENE, frames.SCENE))]
+    block = box([0.2, 0.2, 0.2], [0, 0.1, 0]).vertices
+    assert _to_contact(block + [0.0, 0.75 + 0.02, 0.0], scene) == pytest.approx(-0.02, abs=1e-6)  # lowered 2 cm
+    assert _to_contact(block + [0.0, 0.75 - 0.003, 0.0], scene) == pytest.approx(0.003, abs=1e-6)  # raised 3 mm
+    assert _to_contact(block + [0.0, 0.75, 0.0], scene) == 0.0  # touching: left
+    assert _to_contact(block + [2.0, 0.03, 0.0], scene) == pytest.approx(-0.03, abs=1e-6)  # beside it: the floor
+    assert _to_contact(block + [0.0, 1.5, 0.0], scene) == 0.0  # far over it: not a gap the search left

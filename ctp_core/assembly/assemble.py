@@ -395,7 +395,7 @@ def _centre_of(mesh: trimesh.Trimesh, matrix: np.ndarray) -> np.ndarray:
 
 
 CONTACT_BAND = 0.02  # of an object's height: its bottom, whose vertices are brought into contact (``_to_contact``)
-CONTACT_REACH = 0.1  # of an object's height: the farthest ``_to_contact`` moves it (a gap left by the search)
+CONTACT_REACH = 0.1  # of an object's diagonal: the farthest ``_to_contact`` moves it (a gap left by the search)
 
 
 def _to_contact(vertices: np.ndarray, placed: Sequence[Placed]) -> float:
@@ -403,7 +403,7 @@ def _to_contact(vertices: np.ndarray, placed: Sequence[Placed]) -> float:
     touches what is under it: rays straight down from its bottom vertices (those within ``CONTACT_BAND`` of its
     height over its lowest) meet the level faces of the placed objects and the floor (the base's bottom); the move is
     the smallest gap between a bottom vertex and the face under it, negative where it is sunk (a surface above its
-    vertex within the band), 0 past ``CONTACT_REACH`` of its height."""
+    vertex within the band), 0 past ``CONTACT_REACH`` of its diagonal."""
     height = float(np.ptp(vertices[:, 1]))
     band = CONTACT_BAND * height
     bottom = vertices[vertices[:, 1] <= vertices[:, 1].min() + band]
@@ -415,7 +415,8 @@ def _to_contact(vertices: np.ndarray, placed: Sequence[Placed]) -> float:
         level = np.abs(mesh.face_normals[faces][:, 1]) > 0.5
         np.minimum.at(gaps, rays[level], bottom[rays[level], 1] - hits[level, 1])
     shift = -float(gaps.min())
-    return shift if 0.0 < abs(shift) <= CONTACT_REACH * height else 0.0
+    reach = CONTACT_REACH * float(np.linalg.norm(np.ptp(vertices, axis=0)))
+    return shift if 0.0 < abs(shift) <= reach else 0.0
 
 
 def _raised(result: AlignResult, height: float) -> AlignResult:
