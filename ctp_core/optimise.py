@@ -21,6 +21,7 @@ import torch
 from ctp_core.config import AlignConfig
 from ctp_core.config.schedule import Phase
 from ctp_core.contact import clearance, contact_gap, touch_limit
+from ctp_core.descent import Adam
 from ctp_core.errors import Canceled
 from ctp_core.geometry.pose import (
     Poses,
@@ -135,19 +136,16 @@ class Optimiser:
         t = start.t.clone().requires_grad_(True)
         q = start.q.clone().requires_grad_(True)
         log_s = start.log_s.clone().requires_grad_(cfg.scale)
-        groups = [{"params": [t], "lr": cfg.optim.lr_translation},
-                  {"params": [q], "lr": cfg.optim.lr_rotation}]
+        groups = [(t, cfg.optim.lr_translation), (q, cfg.optim.lr_rotation)]
         if cfg.scale and cfg.optim.lr_scale > 0:
-            groups.append({"params": [log_s], "lr": cfg.optim.lr_scale})
-        opt = torch.optim.Adam(groups)
-        sched = torch.optim.lr_scheduler.CosineAnnealingWarmRestarts(
-            opt, T_0=cfg.optim.cosine_t0, T_mult=cfg.optim.cosine_t_mult)
+            groups.append((log_s, cfg.optim.lr_scale))
+        opt = Adam(groups, cfg.optim.cosine_t0, cfg.optim.cosine_t_mult)
         best = start.detached()
         scores = self.scorer.evaluate(best, phase, clip)
         for step in range(phase.steps):
             if self.should_cancel():
                 raise Canceled("the run was cancelled")
-            opt.zero_grad(set_to_none=True)
+            opt.zero_grad()
             poses = Poses(t, q, log_s)
             geo = self.scorer.geometry(poses, phase)
             last = {"icp": geo["icp"].detach(), "pen": geo["pen"].detach(), "rel": geo["rel"].detach()}
@@ -166,7 +164,7 @@ class Optimiser:
             if self.scorer.pair.source_keeps_up:
                 with torch.no_grad():
                     q.copy_(upright_twist(q, self.scorer.pair.source_up_quaternion))
-            sched.step()
+            opt.schedule()
             self.done += 1
             if (step + 1) % cfg.optim.eval_every == 0 or step + 1 == phase.steps:
                 current = Poses(t, q, log_s).detached()
@@ -214,16 +212,15 @@ class Optimiser:
                 "relation_holds": int(holding(scores).sum()) if reading is not None else None,
                 "relation_checked": len(best) if reading is not None else None}
 
-    def _perturb(self, opt: torch.optim.Optimizer) -> None:
+    def _perturb(self, opt: Adam) -> None:
         """Zero-mean Gaussian pose noise after each step, sigma = noise * current lr (the method's)."""
         scale = self.scorer.config.optim.noise
         if scale <= 0:
             return
         with torch.no_grad():
-            for group in opt.param_groups:
-                for p in group["params"]:
-                    noise = torch.randn(p.shape, generator=self.generator).to(p.device)
-                    p.add_(noise * (scale * group["lr"]))
+            for p, lr in zip(opt.params, opt.lrs, strict=True):
+                noise = torch.randn(p.shape, generator=self.generator).to(p.device)
+                p.add_(noise * (scale * lr))
 
     def _emit(self, kind, phase: Phase, **fields) -> None:
         elapsed = time.perf_counter() - self.start
