@@ -116,8 +116,12 @@ def enclosed_penetration(points: torch.Tensor, inside: torch.Tensor, source: Sur
     pose's source local frame; ``inside`` (B, K) which of them count; ``scale`` (B,) the pose's scale (local
     -> normalised lengths). The depth (normalised units) past ``margin`` is summed with the weight of the area
     each sample stands for, over the posed source's area (``area_ratio``, (B,)): the same mean over the source's
-    surface that ``penetration`` takes, so the two halves add up.
+    surface that ``penetration`` takes, so the two halves add up. Only the samples that count are looked up (the
+    others' depth is 0 and counts 0 times: the sum is the same, term for term).
     """
-    width = (sigma / scale).reshape(-1, 1, 1)  # the softmax width in local units
-    depth = signed_depth(points, source, width, k) * scale[:, None]
+    counted = inside.bool()
+    width = (sigma / scale)[:, None].expand_as(inside)[counted]  # each counted sample's softmax width, local units
+    depth = torch.zeros_like(inside)
+    depth[counted] = signed_depth(points[counted][None], source, width.reshape(1, -1, 1), k)[0]
+    depth = depth * scale[:, None]
     return (torch.relu(depth - margin) * inside).sum(1) * area_ratio

@@ -1,10 +1,10 @@
-"""``descent.Adam`` against torch.optim: the same poses bit for bit on the CPU, over schedule restarts."""
+"""``optimise.Adam`` against torch.optim: the same poses bit for bit on the CPU, over schedule restarts."""
 
 from __future__ import annotations
 
 import torch
 
-from ctp_core.descent import Adam
+from ctp_core.optimise import Adam
 
 
 def _loss(t: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
