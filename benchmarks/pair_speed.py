@@ -8,6 +8,7 @@
       placed the source the same, and the ratio of the pair medians; a markdown table last
   python benchmarks/pair_speed.py cli --before DIR --after DIR CASE_DIR... [--rounds 3]
       the same for the command a user types, `ctp align TARGET SOURCE --prompt P --no-guidance`, timed as a whole
+      (its "align" time is the seconds the command reports: the placement and writing its GLB)
   python benchmarks/pair_speed.py profile CASE_DIR... [--guide none] [--out profile.txt]
       pyinstrument's call tree over the cases in one process, after one warm-up run (imports left out)
   python benchmarks/pair_speed.py one CASE_DIR [--guide none]
@@ -21,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -88,30 +90,33 @@ def profile(args) -> None:
     print(text)
 
 
-def _run(command: list[str], tree: Path) -> tuple[float, str]:
+def _run(command: list[str], tree: Path) -> tuple[float, float, str]:
+    """The command's wall time, its CPU time (user + system, its children's included) and its last line."""
     env = {**os.environ, "PYTHONPATH": str(tree)}
-    t0 = time.perf_counter()
+    before, t0 = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
     done = subprocess.run(command, cwd=tree, env=env, capture_output=True, text=True, check=False)
-    wall = time.perf_counter() - t0
+    wall, after = time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_CHILDREN)
     if done.returncode:
         raise SystemExit(f"{' '.join(command)} in {tree} failed:\n{done.stderr[-2000:]}")
-    return wall, done.stdout.strip().splitlines()[-1]
+    cpu = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
+    return wall, cpu, done.stdout.strip().splitlines()[-1]
 
 
 def _measure(args, tree: Path, folder: Path) -> dict:
     if args.what == "cli":
         case = json.loads((folder / "case.json").read_text())
         with tempfile.TemporaryDirectory() as out:
-            wall, line = _run([sys.executable, "-m", "ctp", "align", str(folder / case["target"]["file"]),
+            wall, cpu, line = _run([sys.executable, "-m", "ctp", "align", str(folder / case["target"]["file"]),
                                str(folder / case["source"]["file"]), "--prompt", case["prompt"], "--no-guidance",
                                "--target-name", case["target"]["name"], "--source-name", case["source"]["name"],
-                               "--threads", str(args.threads), "--quiet", "--out", f"{out}/scene.glb"], tree)
+                                    "--threads", str(args.threads), "--quiet", "--out", f"{out}/scene.glb"], tree)
         summary = json.loads(line)
-        return {"case": case["id"], "process_s": round(wall, 3), "align_s": summary["seconds"],
+        return {"case": case["id"], "process_s": round(wall, 3), "process_cpu_s": round(cpu, 3),
+                "align_s": summary["seconds"],
                 "pose": [summary["translation"], summary["scale"]]}
-    wall, line = _run([sys.executable, str(Path(__file__).resolve()), "one", str(folder), "--guide", args.guide,
-                       "--model", args.model, "--threads", str(args.threads)], tree)
-    return {**json.loads(line), "process_s": round(wall, 3)}
+    wall, cpu, line = _run([sys.executable, str(Path(__file__).resolve()), "one", str(folder), "--guide",
+                            args.guide, "--model", args.model, "--threads", str(args.threads)], tree)
+    return {**json.loads(line), "process_s": round(wall, 3), "process_cpu_s": round(cpu, 3)}
 
 
 def compare(args) -> None:
@@ -134,19 +139,19 @@ def compare(args) -> None:
         poses = [json.dumps(r["pose"]) for r in rows if r["case"] == case]
         return len(set(poses)) == 1
 
-    lines = ["| case | before: align s | after: align s | before: process s | after: process s | same placement |",
-             "|---|---|---|---|---|---|"]
+    keys = {"align_s": "align call, wall s", "process_s": "whole process, wall s",
+            "process_cpu_s": "whole process, CPU s"}
+    lines = ["| case | " + " | ".join(f"{label}: before → after" for label in keys.values()) + " | same placement |",
+             "|---|" + "---|" * len(keys) + "---|"]
     for case in cases:
-        lines.append(f"| {case} | {median('before', case, 'align_s'):.2f} | {median('after', case, 'align_s'):.2f} "
-                     f"| {median('before', case, 'process_s'):.2f} | {median('after', case, 'process_s'):.2f} "
-                     f"| {'yes' if same(case) else 'NO'} |")
+        cells = [f"{median('before', case, k):.2f} → {median('after', case, k):.2f}" for k in keys]
+        lines.append(f"| {case} | {' | '.join(cells)} | {'yes' if same(case) else 'NO'} |")
     totals = {}
-    for key in ("align_s", "process_s"):
-        before = statistics.median(median("before", c, key) for c in cases)
-        after = statistics.median(median("after", c, key) for c in cases)
-        totals[key] = (before, after)
-        label = "align call" if key == "align_s" else "whole process"
-        lines.append(f"| **pair median, {label}** | {before:.2f} | {after:.2f} | | | ratio {before / after:.2f}x |")
+    for key in keys:
+        totals[key] = (statistics.median(median("before", c, key) for c in cases),
+                       statistics.median(median("after", c, key) for c in cases))
+    cells = [f"{b:.2f} → {a:.2f} (**{b / a:.2f}x**)" for b, a in totals.values()]
+    lines.append(f"| pair median | {' | '.join(cells)} | |")
     print(json.dumps({"bench": f"pair_speed_{args.what}", "guide": args.guide, "rounds": args.rounds,
                       "threads": args.threads, "cases": cases,
                       **{f"{k}_median_{t}": round(v[i], 3) for k, v in totals.items()
