@@ -205,8 +205,9 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("several copies are guided by a prompt, with one placement each: no --image or "
                           "--alternatives", field="count")
     # the same bounded loading as the service (ctp_core.io.loader); its child process reads the meshes while
-    # this one imports the engine (torch, trimesh: seconds): on two cores the one wait hides the other
-    with MeshLoader(1) as loader, ThreadPoolExecutor(1) as pool:
+    # this one imports the engine (torch, trimesh: seconds): on two cores the one wait hides the other. The loader
+    # closes first, so an interrupt waits on no load in flight.
+    with ThreadPoolExecutor(1) as pool, MeshLoader(1) as loader:
         meshes = pool.submit(lambda: (loader.load(args.target, name="target"), loader.load(args.source, name="source")))
         from ctp_core import export, io
         from ctp_core.align import align

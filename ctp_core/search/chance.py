@@ -79,8 +79,8 @@ def spread_chance(scores: torch.Tensor, changes: torch.Tensor) -> float:
     spread, noise = float(scores.var()), float(changes.square().mean()) / 2
     if noise <= 0:
         return 0.0 if spread > 0 else 1.0
-    from scipy import stats  # here, not at the top: scipy.stats takes seconds to import, and a run without a guide
-    # never asks
+    # imported here: scipy.stats takes seconds to import, and a run without a guide never asks
+    from scipy import stats
 
     return float(stats.f.sf(spread / noise, len(scores) - 1, len(changes)))
 
