@@ -12,6 +12,7 @@ import argparse
 import json
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from types import UnionType
 from typing import Any, Literal, Union, get_args, get_origin
@@ -194,10 +195,6 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--alternatives must be 1 to {MAX_ALTERNATIVES}", field="alternatives")
     check_inputs(args)
     config = config_from_args(args)
-    from ctp_core import export, io  # the engine (torch, trimesh): seconds to import
-    from ctp_core.align import align
-    from ctp_core.config import AUTO
-    from ctp_core.guide.selection import NONE, pull_command
     from ctp_core.io.loader import MeshLoader
     from ctp_core.reading.counts import choose
 
@@ -207,9 +204,17 @@ def run(args: argparse.Namespace) -> int:
     if count > 1 and (args.image is not None or args.alternatives > 1):
         raise ConfigError("several copies are guided by a prompt, with one placement each: no --image or "
                           "--alternatives", field="count")
-    with MeshLoader(1) as loader:  # the same bounded loading as the service (ctp_core.io.loader)
-        target = loader.load(args.target, name="target")
-        source = loader.load(args.source, name="source")
+    # the same bounded loading as the service (ctp_core.io.loader); its child process reads the meshes while
+    # this one imports the engine (torch, trimesh: seconds): on two cores the one wait hides the other. The loader
+    # closes first, so an interrupt waits on no load in flight.
+    with ThreadPoolExecutor(1) as pool, MeshLoader(1) as loader:
+        meshes = pool.submit(lambda: (loader.load(args.target, name="target"), loader.load(args.source, name="source")))
+        from ctp_core import export, io
+        from ctp_core.align import align
+        from ctp_core.config import AUTO
+        from ctp_core.guide.selection import NONE, pull_command
+
+        target, source = meshes.result()
     if count > 1:
         return _run_copies(args, target, source, config, count, arrangement, target_name, source_name)
     image = io.load_image(args.image) if args.image else None

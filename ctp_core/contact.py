@@ -38,7 +38,7 @@ def clearance(pair: PreparedPair, index: losses.SurfaceIndex, poses: Poses, poin
     """(B,) the smallest distance between each posed source (``points`` of its samples) and the target samples,
     in source diagonals (normalised frame)."""
     posed = apply_pose(pair.source_subset(points), poses.t, poses.q, poses.log_s).detach().cpu()
-    dist, _ = index.tree.query(posed.reshape(-1, 3).numpy().astype(np.float64), k=1, workers=1)
+    dist, _ = index.tree.query(posed.reshape(-1, 3).numpy().astype(np.float64), k=1, workers=losses.query_workers())
     return torch.as_tensor(dist.reshape(len(poses), -1).min(axis=1), dtype=torch.float32) / source_diagonal(pair, poses)
 
 
@@ -161,7 +161,8 @@ def settle(pair: PreparedPair, index: losses.SurfaceIndex, q: torch.Tensor, anch
     def step(rotated: torch.Tensor, active: torch.Tensor, closing: bool) -> tuple[torch.Tensor, torch.Tensor]:
         """Move the active candidates once; returns the ones that still move and every active one's depth."""
         posed = rotated[active] + centre[active, None, :]
-        dist, idx = index.tree.query(posed.reshape(-1, 3).numpy().astype(np.float64), k=2, workers=1)
+        dist, idx = index.tree.query(posed.reshape(-1, 3).numpy().astype(np.float64), k=2,
+                                     workers=losses.query_workers())
         idx = torch.as_tensor(idx.reshape(*posed.shape[:2], 2), dtype=torch.long)
         dist = torch.as_tensor(dist[:, 0].reshape(posed.shape[:2]), dtype=centre.dtype)
         # behind the sampled surface and mostly along its normal: above a feature thinner than the sample

@@ -24,6 +24,12 @@ def clip_view_loss(image_embeddings: torch.Tensor, goal_embeddings: torch.Tensor
     return -((img * goal).sum(-1) if goal.dim() == 3 else img @ goal)
 
 
+def query_workers() -> int:
+    """Threads a batch of nearest-sample queries runs on: torch's CPU threads (``AlignConfig.threads``), so a run
+    held to one thread stays on one. Each query is answered alone: the answer is the same on any number."""
+    return torch.get_num_threads()
+
+
 class SurfaceIndex:
     """Surface samples with outward normals and a KD-tree, built once per run in a frame where the surface
     never moves: the target's in the normalised frame, the source's in its local frame."""
@@ -37,25 +43,26 @@ class SurfaceIndex:
         """Indices (..., k) of the k nearest target samples to each query point (no gradient)."""
         k = min(k, self.points.shape[0])
         flat = queries.detach().reshape(-1, 3).cpu().numpy().astype(np.float64)
-        _, idx = self.tree.query(flat, k=k, workers=1)
+        _, idx = self.tree.query(flat, k=k, workers=query_workers())
         idx = torch.as_tensor(idx.reshape(queries.shape[:-1] + (k,)), device=queries.device)
         return idx.long()
 
 
-def soft_icp(source: torch.Tensor, index: SurfaceIndex, ratio: float, sigma: float, k: int) -> torch.Tensor:
+def soft_icp(source: torch.Tensor, index: SurfaceIndex, ratio: float, sigma: float, k: int,
+             idx: torch.Tensor | None = None) -> torch.Tensor:
     """Fractional soft-ICP: attach the fraction ``ratio`` of the source that is already closest (0: none).
 
     source (B, N, 3) posed samples. For each source point d_i = min_j |v_i - u_j|; keep the
     K = floor(ratio * N) smallest (the selection carries no gradient), then
     L = 1/K sum_{i in W} sum_j softmax_j(-E_ij / 2 sigma^2) E_ij with E_ij = |v_i - u_j|^2.
     The softmax runs over the k nearest target samples instead of all M (memory B*N*k, not B*N*M);
-    with k >= M it is the dense formula exactly.
+    with k >= M it is the dense formula exactly. ``idx`` (B, N, k): the neighbours when the caller has them.
     """
     n = source.shape[1]
     if ratio <= 0:  # attach nothing: "a ball under the table" need not touch it (the relation places it)
         return source.new_zeros(source.shape[0])
     keep = max(1, int(np.floor(ratio * n)))
-    idx = index.neighbours(source, k)  # (B, N, k)
+    idx = index.neighbours(source, k) if idx is None else idx  # (B, N, k)
     u = index.points[idx]  # (B, N, k, 3)
     sq = ((source[:, :, None, :] - u) ** 2).sum(-1)  # (B, N, k)
     with torch.no_grad():
@@ -84,12 +91,13 @@ def signed_depth(source: torch.Tensor, index: SurfaceIndex, sigma: float | torch
     return (alpha * (diff * nrm).sum(-1)).sum(-1)
 
 
-def penetration(source: torch.Tensor, index: SurfaceIndex, sigma: float, margin: float, k: int) -> torch.Tensor:
+def penetration(source: torch.Tensor, index: SurfaceIndex, sigma: float, margin: float, k: int,
+                idx: torch.Tensor | None = None) -> torch.Tensor:
     """Mean of max(0, depth - margin) over source samples (the reference drops the margin; we keep it).
 
-    depth is ``signed_depth``: positive inside the target.
+    depth is ``signed_depth``: positive inside the target (``idx``: its neighbours, where the caller has them).
     """
-    return torch.relu(signed_depth(source, index, sigma, k) - margin).mean(dim=1)
+    return torch.relu(signed_depth(source, index, sigma, k, idx=idx) - margin).mean(dim=1)
 
 
 def below_floor(source: torch.Tensor, floor: float, margin: float) -> torch.Tensor:
@@ -108,8 +116,12 @@ def enclosed_penetration(points: torch.Tensor, inside: torch.Tensor, source: Sur
     pose's source local frame; ``inside`` (B, K) which of them count; ``scale`` (B,) the pose's scale (local
     -> normalised lengths). The depth (normalised units) past ``margin`` is summed with the weight of the area
     each sample stands for, over the posed source's area (``area_ratio``, (B,)): the same mean over the source's
-    surface that ``penetration`` takes, so the two halves add up.
+    surface that ``penetration`` takes, so the two halves add up. Only the samples that count are looked up (the
+    others' depth is 0 and counts 0 times: the sum is the same, term for term).
     """
-    width = (sigma / scale).reshape(-1, 1, 1)  # the softmax width in local units
-    depth = signed_depth(points, source, width, k) * scale[:, None]
+    counted = inside.bool()
+    width = (sigma / scale)[:, None].expand_as(inside)[counted]  # each counted sample's softmax width, local units
+    depth = torch.zeros_like(inside)
+    depth[counted] = signed_depth(points[counted][None], source, width.reshape(1, -1, 1), k)[0]
+    depth = depth * scale[:, None]
     return (torch.relu(depth - margin) * inside).sum(1) * area_ratio

@@ -134,9 +134,14 @@ class Scorer:
         samples = self.pair.source_samples if points is None else self.pair.source_subset(points)
         with self.clock.time("geometry"):
             pts = apply_pose(samples, poses.t, poses.q, poses.log_s)
-            icp = losses.soft_icp(pts, self.pair.anchor, self.contact_ratio, phase.sigma_icp, cfg.icp_neighbours)
+            # where soft-ICP pulls toward the whole target (a single pair), its neighbours are the penetration's:
+            # one search serves both
+            shared = self.pair.anchor is self.pair.index and self.contact_ratio > 0 and phase.lambda_pen > 0
+            idx = self.pair.index.neighbours(pts, cfg.icp_neighbours) if shared else None
+            icp = losses.soft_icp(pts, self.pair.anchor, self.contact_ratio, phase.sigma_icp, cfg.icp_neighbours,
+                                  idx=idx)
             if phase.lambda_pen > 0:
-                pen = losses.penetration(pts, self.pair.index, cfg.sigma_pen, cfg.c_pen, cfg.icp_neighbours)
+                pen = losses.penetration(pts, self.pair.index, cfg.sigma_pen, cfg.c_pen, cfg.icp_neighbours, idx=idx)
                 pen = pen + self.enclosed(poses)
                 if self.pair.solid_floor:  # a scene's floor is solid: nothing placed goes under it
                     pen = pen + losses.below_floor(pts, self.pair.scene_floor, cfg.c_pen)
@@ -164,7 +169,7 @@ class Scorer:
         scale = poses.log_s.exp()
         count = min(ENCLOSED_SAMPLES, len(pair.index.points))
         centres = poses.t.detach().cpu().numpy().astype(np.float64)
-        dist, idx = pair.index.tree.query(centres, k=count, workers=1)
+        dist, idx = pair.index.tree.query(centres, k=count, workers=losses.query_workers())
         dist, idx = dist.reshape(len(poses), count), idx.reshape(len(poses), count)
         reach = scale.detach().cpu().numpy()[:, None] * pair.source_radius
         inside = torch.as_tensor(dist <= reach, dtype=torch.float32, device=poses.t.device)

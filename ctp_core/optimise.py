@@ -35,6 +35,59 @@ from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.render.cameras import sample_training_views
 from ctp_core.search.ordering import GuideSay, holding, improves, select_answer
 
+# ``Adam``: torch.optim.Adam's defaults, its single-tensor CPU update operation for operation, and the learning rate
+# of torch.optim.lr_scheduler.CosineAnnealingWarmRestarts (eta_min 0): on the CPU the poses come out bit for bit the
+# same. Not torch.optim itself: its first optimiser in a process imports torch._dynamo (two to five seconds on a
+# 2-core machine) for nothing three small tensors need, and a command-line placement pays that in every process.
+ADAM_BETAS = (0.9, 0.999)
+ADAM_EPS = 1e-8
+
+
+class Adam:
+    """Adam over parameter groups of one tensor and one base learning rate each, the rate on a cosine schedule
+    with warm restarts (first period ``t0`` steps, each next ``t_mult`` times longer)."""
+
+    def __init__(self, groups: list[tuple[torch.Tensor, float]], t0: int, t_mult: int = 1):
+        self.params = [p for p, _ in groups]
+        self.base_lrs = [float(lr) for _, lr in groups]
+        self.lrs = list(self.base_lrs)  # each group's current rate
+        self._steps = [0] * len(groups)
+        self._exp_avg = [torch.zeros_like(p, memory_format=torch.preserve_format) for p in self.params]
+        self._exp_avg_sq = [torch.zeros_like(p, memory_format=torch.preserve_format) for p in self.params]
+        self._t_i, self._t_cur, self._t_mult = t0, 0, t_mult
+
+    def zero_grad(self) -> None:
+        for p in self.params:
+            p.grad = None
+
+    @torch.no_grad()
+    def step(self) -> None:
+        """One update of every parameter that has a gradient, at the current rates."""
+        beta1, beta2 = ADAM_BETAS
+        for i, param in enumerate(self.params):
+            grad = param.grad
+            if grad is None:
+                continue
+            self._steps[i] += 1
+            step = float(self._steps[i])
+            exp_avg, exp_avg_sq = self._exp_avg[i], self._exp_avg_sq[i]
+            exp_avg.lerp_(grad, 1 - beta1)
+            exp_avg_sq.mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
+            bias_correction1 = 1 - beta1**step
+            bias_correction2 = 1 - beta2**step
+            step_size = self.lrs[i] / bias_correction1
+            denom = (exp_avg_sq.sqrt() / bias_correction2**0.5).add_(ADAM_EPS)
+            param.addcdiv_(exp_avg, denom, value=-step_size)
+
+    def schedule(self) -> None:
+        """Advance the cosine schedule by one step (after ``step``)."""
+        self._t_cur += 1
+        if self._t_cur >= self._t_i:
+            self._t_cur = self._t_cur % self._t_i
+            self._t_i = self._t_i * self._t_mult
+        cosine = 1 + math.cos(math.pi * self._t_cur / self._t_i)
+        self.lrs = [base * cosine / 2 for base in self.base_lrs]
+
 
 @dataclass
 class Outcome:
@@ -135,19 +188,16 @@ class Optimiser:
         t = start.t.clone().requires_grad_(True)
         q = start.q.clone().requires_grad_(True)
         log_s = start.log_s.clone().requires_grad_(cfg.scale)
-        groups = [{"params": [t], "lr": cfg.optim.lr_translation},
-                  {"params": [q], "lr": cfg.optim.lr_rotation}]
+        groups = [(t, cfg.optim.lr_translation), (q, cfg.optim.lr_rotation)]
         if cfg.scale and cfg.optim.lr_scale > 0:
-            groups.append({"params": [log_s], "lr": cfg.optim.lr_scale})
-        opt = torch.optim.Adam(groups)
-        sched = torch.optim.lr_scheduler.CosineAnnealingWarmRestarts(
-            opt, T_0=cfg.optim.cosine_t0, T_mult=cfg.optim.cosine_t_mult)
+            groups.append((log_s, cfg.optim.lr_scale))
+        opt = Adam(groups, cfg.optim.cosine_t0, cfg.optim.cosine_t_mult)
         best = start.detached()
         scores = self.scorer.evaluate(best, phase, clip)
         for step in range(phase.steps):
             if self.should_cancel():
                 raise Canceled("the run was cancelled")
-            opt.zero_grad(set_to_none=True)
+            opt.zero_grad()
             poses = Poses(t, q, log_s)
             geo = self.scorer.geometry(poses, phase)
             last = {"icp": geo["icp"].detach(), "pen": geo["pen"].detach(), "rel": geo["rel"].detach()}
@@ -166,7 +216,7 @@ class Optimiser:
             if self.scorer.pair.source_keeps_up:
                 with torch.no_grad():
                     q.copy_(upright_twist(q, self.scorer.pair.source_up_quaternion))
-            sched.step()
+            opt.schedule()
             self.done += 1
             if (step + 1) % cfg.optim.eval_every == 0 or step + 1 == phase.steps:
                 current = Poses(t, q, log_s).detached()
@@ -214,16 +264,15 @@ class Optimiser:
                 "relation_holds": int(holding(scores).sum()) if reading is not None else None,
                 "relation_checked": len(best) if reading is not None else None}
 
-    def _perturb(self, opt: torch.optim.Optimizer) -> None:
+    def _perturb(self, opt: Adam) -> None:
         """Zero-mean Gaussian pose noise after each step, sigma = noise * current lr (the method's)."""
         scale = self.scorer.config.optim.noise
         if scale <= 0:
             return
         with torch.no_grad():
-            for group in opt.param_groups:
-                for p in group["params"]:
-                    noise = torch.randn(p.shape, generator=self.generator).to(p.device)
-                    p.add_(noise * (scale * group["lr"]))
+            for p, lr in zip(opt.params, opt.lrs, strict=True):
+                noise = torch.randn(p.shape, generator=self.generator).to(p.device)
+                p.add_(noise * (scale * lr))
 
     def _emit(self, kind, phase: Phase, **fields) -> None:
         elapsed = time.perf_counter() - self.start

@@ -149,3 +149,23 @@ def test_holding_excludes_a_pose_that_intersects():
     terms = {"objective": torch.zeros(3), "rel": torch.tensor([0.0, 0.0, 0.5]),
              "sunk": torch.tensor([0.0, 2 * SUNK, 0.0])}
     assert holding(terms).tolist() == [True, False, False]
+
+
+def test_the_enclosed_half_looks_up_only_the_samples_that_count_with_the_same_sum_and_gradient():
+    """Every sample's depth through the dense formula, then masked, against ``enclosed_penetration``'s lookup of
+    the counted samples alone: equal bit for bit, value and gradient (a pose with none counted included)."""
+    g = torch.Generator().manual_seed(0)
+    normals = torch.nn.functional.normalize(torch.randn(500, 3, generator=g), dim=-1)
+    source = losses.SurfaceIndex(torch.randn(500, 3, generator=g), normals)
+    points = torch.randn(6, 64, 3, generator=g)
+    inside = (torch.rand(6, 64, generator=g) < 0.3).float()
+    inside[2] = 0
+    scale, area_ratio = torch.rand(6, generator=g) + 0.5, torch.rand(6, generator=g)
+    dense_points, points = points.clone().requires_grad_(True), points.clone().requires_grad_(True)
+    depth = losses.signed_depth(dense_points, source, (0.3 / scale).reshape(-1, 1, 1), 32) * scale[:, None]
+    dense = (torch.relu(depth - 0.01) * inside).sum(1) * area_ratio
+    looked_up = losses.enclosed_penetration(points, inside, source, scale, area_ratio, 0.3, 0.01, 32)
+    assert torch.equal(dense, looked_up) and float(dense[2]) == 0 and float(dense.sum()) > 0
+    dense.sum().backward()
+    looked_up.sum().backward()
+    assert torch.equal(dense_points.grad, points.grad)

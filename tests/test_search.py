@@ -588,3 +588,28 @@ def test_a_run_without_a_guide_reports_no_say(meshes):
     config = CONFIG.model_copy(update={"loss": CONFIG.loss.model_copy(update={"lambda_clip": 0.0})})
     result = align(*meshes["box on table"], "a box on the table", config, target_name="table", source_name="box")
     assert export.report(result)["guide_say"] is None
+
+
+def test_without_a_guide_the_fine_stage_ranks_the_coarse_terms_as_scoring_them_again_would(meshes, monkeypatch):
+    """No view changes a geometric term: the fine stage scores nothing again, and its ranking is the one scoring the
+    shortlist at the fine views gives."""
+    target, source = meshes["box on table"]
+    pair, props = _proposals(target, source)
+    scorer = objective.Scorer(pair, CONFIG, 0.2)
+    phase = schedule.phases(CONFIG, allow_penetration=False)[0]
+    cameras = coarse_to_fine.coarse_cameras(pair, CONFIG, 0.0)
+    terms = coarse_to_fine.terms_of(scorer, props.poses, phase, cameras, batch=CONFIG.search.batch)
+    coarse = coarse_to_fine.ranking_key(scorer, terms, phase)
+    distinct = coarse_to_fine.distinct_of(pair, CONFIG, 0.0)
+    plan = coarse_to_fine._Plan.of(scorer, props, 2, None, 0.0, 1)
+    shortlist = coarse_to_fine.shortlist_of(props.poses, coarse, plan.fine_count, *distinct)
+    fine_poses = props.poses.select(shortlist)
+    rescored = coarse_to_fine.score(scorer, fine_poses, phase, coarse_to_fine.fine_cameras(pair, CONFIG, fine_poses),
+                                    batch=CONFIG.search.batch).average(coarse.select(shortlist))
+    calls = []
+    monkeypatch.setattr(objective.Scorer, "score", lambda *args, **kwargs: calls.append(args))
+    kept, ranked = coarse_to_fine._fine(scorer, pair, props.poses, terms, coarse, phase, distinct, plan, None)
+    assert not calls and len(shortlist) > 1
+    assert torch.equal(kept.t, fine_poses.t)
+    assert torch.equal(ranked.tier, rescored.tier) and torch.equal(ranked.value, rescored.value)
+    assert ranked.argsort().tolist() == rescored.argsort().tolist()

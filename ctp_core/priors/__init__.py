@@ -10,12 +10,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from typing import TYPE_CHECKING, Any
 
 from ctp_core.errors import ConfigError
-from ctp_core.priors.openai import OpenAIProvider, PriorSettings
 from ctp_core.priors.prior import PriorProvider, ScenePrior, clamp_size, to_report
 from ctp_core.priors.rules import RulesProvider
 from ctp_core.reading import lexicon, places
+
+if TYPE_CHECKING:  # loaded on first use: the rules need no HTTP client (httpx) or settings reader
+    from ctp_core.priors.openai import OpenAIProvider, PriorSettings
 
 __all__ = ["PROVIDERS", "OpenAIProvider", "PriorProvider", "PriorSettings", "RulesProvider", "ScenePrior",
            "get_provider", "mesh_size_ratio", "resolve_priors", "to_report"]
@@ -27,11 +30,22 @@ PLAUSIBLE_FACTOR = 3.0  # a mesh "looks real" when within this factor of its obj
 AGREE_FACTOR = 2.5  # ... and the two meshes' ratio within this factor of the typical sizes' ratio
 
 
+def __getattr__(name: str) -> Any:
+    """``OpenAIProvider`` and ``PriorSettings``, imported when first asked for."""
+    if name in ("OpenAIProvider", "PriorSettings"):
+        from ctp_core.priors import openai
+
+        return getattr(openai, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 def get_provider(name: str = "rules", settings: PriorSettings | None = None) -> PriorProvider:
     """A provider by name; ``settings`` (default: from CTP_LLM_* env) configure "openai"."""
     if name == "rules":
         return RulesProvider()
     if name == "openai":
+        from ctp_core.priors.openai import OpenAIProvider, PriorSettings
+
         return OpenAIProvider(settings or PriorSettings())
     raise ConfigError(f"unknown priors provider {name!r}; choose one of {', '.join(PROVIDERS)}",
                       field="hparams_provider")

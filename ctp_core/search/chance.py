@@ -24,7 +24,6 @@ from __future__ import annotations
 import math
 
 import torch
-from scipy import stats
 
 DRAWS = 9999  # ``agreement_chance``: tables of the permutation null (p-values from 1e-4; 16 ms at 8 x 5, one thread)
 AGREE_MIN = 3  # ``agreement``: fewer candidates than this tell nothing (chance gives any order of two)
@@ -80,6 +79,9 @@ def spread_chance(scores: torch.Tensor, changes: torch.Tensor) -> float:
     spread, noise = float(scores.var()), float(changes.square().mean()) / 2
     if noise <= 0:
         return 0.0 if spread > 0 else 1.0
+    # imported here: scipy.stats takes seconds to import, and a run without a guide never asks
+    from scipy import stats
+
     return float(stats.f.sf(spread / noise, len(scores) - 1, len(changes)))
 
 

@@ -340,7 +340,7 @@ def search(scorer: Scorer, proposals: Proposals, phase: Phase, *, k: int,
             scorer, proposed, phase, plan.tiles, batch=cfg.batch, should_cancel=should_cancel,
             progress=lambda n: plan.emit(plan.total - plan.fine_count - plan.tiled_count + n))
         plan.emit(plan.total - plan.fine_count)
-        fine_poses, ranked = _fine(scorer, pair, poses, coarse, phase, distinct, plan, should_cancel)
+        fine_poses, ranked = _fine(scorer, pair, poses, terms, coarse, phase, distinct, plan, should_cancel)
         best = diverse_top(fine_poses, ranked, k, *distinct)
         kept, objectives = fine_poses.select(best), ranked.select(best)
         stages = {"coarse": (poses, coarse), "fine": (fine_poses, ranked)}
@@ -469,15 +469,20 @@ def _sweep_turns(scorer: Scorer, proposals: Proposals, phase: Phase, coarse: Key
     return swept.select(shortlist), len(swept)
 
 
-def _fine(scorer: Scorer, pair: PreparedPair, poses: Poses, coarse: Key, phase: Phase,
-          distinct: tuple[float, float], plan: _Plan, should_cancel: CancelCheck | None) -> tuple[Poses, Key]:
+def _fine(scorer: Scorer, pair: PreparedPair, poses: Poses, terms: dict[str, torch.Tensor], coarse: Key,
+          phase: Phase, distinct: tuple[float, float], plan: _Plan,
+          should_cancel: CancelCheck | None) -> tuple[Poses, Key]:
     """The fine stage: the coarse and sweep candidates' shortlist (``shortlist_of``) scored at views zoomed toward
-    each, and their key ranking by both stages."""
+    each, and their key ranking by both stages. Without a guide no view changes a term: the shortlist's coarse
+    ``terms`` are its fine ones, ranked among themselves, and nothing is scored again."""
     shortlist = shortlist_of(poses, coarse, plan.fine_count, *distinct)
     fine_poses = poses.select(shortlist)
-    fine = score(scorer, fine_poses, phase, fine_cameras(pair, scorer.config, fine_poses),
-                 batch=scorer.config.search.batch, progress=lambda n: plan.emit(plan.total - plan.fine_count + n),
-                 should_cancel=should_cancel)
+    if scorer.use_clip:
+        fine = score(scorer, fine_poses, phase, fine_cameras(pair, scorer.config, fine_poses),
+                     batch=scorer.config.search.batch, progress=lambda n: plan.emit(plan.total - plan.fine_count + n),
+                     should_cancel=should_cancel)
+    else:
+        fine = ranking_key(scorer, {key: value[shortlist] for key, value in terms.items()}, phase)
     # the fine views see each candidate closer; the coarse ones see all in the same frame: rank by both
     return fine_poses, fine.average(coarse.select(shortlist))
 
