@@ -402,12 +402,12 @@ def _to_contact(vertices: np.ndarray, placed: Sequence[Placed]) -> float:
     """How far to move an object (its ``vertices``, scene frame) straight up (negative: down) so that its bottom
     touches what is under it: rays straight down from its bottom vertices (those within ``CONTACT_BAND`` of its
     height over its lowest) meet the level faces of the placed objects and the floor (the base's bottom); the move is
-    the smallest gap between a bottom vertex and the face under it, negative where it is sunk (a surface above its
-    vertex within the band), 0 past ``CONTACT_REACH`` of its diagonal."""
+    the smallest gap between a bottom vertex and the face under it, negative where it is sunk (a level face above
+    its vertex, within ``CONTACT_REACH`` of its diagonal), 0 where the move would be farther than that."""
     height = float(np.ptp(vertices[:, 1]))
-    band = CONTACT_BAND * height
-    bottom = vertices[vertices[:, 1] <= vertices[:, 1].min() + band]
-    origins = bottom + np.array([0.0, band, 0.0])
+    reach = CONTACT_REACH * float(np.linalg.norm(np.ptp(vertices, axis=0)))
+    bottom = vertices[vertices[:, 1] <= vertices[:, 1].min() + CONTACT_BAND * height]
+    origins = bottom + np.array([0.0, reach, 0.0])
     gaps = bottom[:, 1] - float(placed[0].mesh.bounds[0][1])  # the floor
     for other in placed:
         mesh = other.mesh.copy().apply_transform(np.asarray(other.to_scene.matrix))
@@ -415,7 +415,6 @@ def _to_contact(vertices: np.ndarray, placed: Sequence[Placed]) -> float:
         level = np.abs(mesh.face_normals[faces][:, 1]) > 0.5
         np.minimum.at(gaps, rays[level], bottom[rays[level], 1] - hits[level, 1])
     shift = -float(gaps.min())
-    reach = CONTACT_REACH * float(np.linalg.norm(np.ptp(vertices, axis=0)))
     return shift if 0.0 < abs(shift) <= reach else 0.0
 
 
