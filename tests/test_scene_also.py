@@ -80,6 +80,18 @@ def test_a_chair_in_front_of_a_desk_facing_a_monitor_at_its_end_faces_the_monito
     assert [(r["name"], r["relation"], r["on"], r["holds"]) for r in said] == [("chair", "facing", ["monitor"], True)]
 
 
+def test_a_chair_to_the_left_of_a_table_facing_it_faces_its_centre():
+    """Its own relation's "facing" is made exact: the search leaves it within 45 degrees."""
+    done = assemble(table(), [Step(chair(), "chair", "a chair to the left of the table, facing it", on="table")],
+                    config(), base_name="table")
+    centre = placed(done, "chair").bounds.mean(0)
+    toward = placed(done, "table").bounds.mean(0) - centre
+    toward[1] = 0.0
+    assert front_of(done, "chair") @ (toward / np.linalg.norm(toward)) > math.cos(math.radians(5))
+    (verdict,) = done.whole["relations"]
+    assert verdict["relation"] == "left+facing" and verdict["holds"]
+
+
 def test_a_monitor_on_a_desk_faces_as_the_desk_faces():
     """Nothing says which way it faces: it is squared to the desk, its screen to the desk's front."""
     done = assemble(desk(), [Step(monitor(), "monitor", "a monitor on the desk", on="desk")], config(),

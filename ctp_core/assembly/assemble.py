@@ -493,8 +493,9 @@ def _also_reading(figure: str, also: Also) -> RelationReading | None:
 
 def _turned(result: AlignResult, step: Step, placed: list[Placed]) -> AlignResult:
     """The run's placement turned about the vertical through its centre as the description turns it: its front at
-    (or away from) the object a relation said besides its own names ("in front of the desk, facing the monitor":
-    the step's own relation is about the desk); else, resting on an object with a front and told no way to face,
+    (or away from) the object its relation or one said besides names ("to the left of the workbench, facing it":
+    exactly, where the search leaves 45 degrees; "in front of the desk, facing the monitor": the step's own
+    relation is about the desk); else, resting on an object with a front and told no way to face,
     facing as that object faces (a monitor on a desk, a clock on a mantelpiece: squared to it as people set them,
     and its left and right then the desk's). Unchanged where the figure has no front it was given or that a
     convention gives (``Upright.front_trusted``), or where the object it turns by is not placed yet."""
@@ -515,18 +516,18 @@ def _turned(result: AlignResult, step: Step, placed: list[Placed]) -> AlignResul
 
 def _facing_way(step: Step, scene: dict[str, Placed], centre: np.ndarray, result: AlignResult) -> np.ndarray | None:
     """The horizontal direction (scene frame) the step's object should face (``_turned``), or None."""
+    own = RelationReading.from_verdict(result.relation)
+    grounds = tuple(result.grounds) or ((result.on,) if result.on else ())
+    resting = [(grounds, own)] if grounds and own is not None and set(grounds) <= set(scene) else []
     readings = [(a.on, r) for a in step.also if set(a.on) <= set(scene)
                 for r in [_also_reading(step.name, a)] if r is not None]
-    for on, reading in readings:
+    for on, reading in [*resting, *readings]:  # its own "facing X" exactly (the search leaves it 45 degrees)
         turn = reading.orientation or reading.position
         if turn in (RelationName.FACING, RelationName.FACING_AWAY):
             toward = _centre(scene[on[0]]) - centre
             return -toward if turn == RelationName.FACING_AWAY else toward
-    own = RelationReading.from_verdict(result.relation)
     if own is None or own.orientation is not None:
         return None
-    grounds = tuple(result.grounds) or ((result.on,) if result.on else ())
-    resting = [(grounds, own)] if grounds else []
     for on, reading in [*resting, *readings]:
         support = scene.get(on[0])
         if RELATIONS[reading.position].rests and reading.leant is None and support is not None:
