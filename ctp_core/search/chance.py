@@ -68,6 +68,17 @@ def agreement_chance(views: torch.Tensor, *, seed: int = 0, draws: int = DRAWS
     return observed, (1 + at_least).double() / (draws + 1)
 
 
+def either(tests: list[tuple[torch.Tensor | None, torch.Tensor]]) -> tuple[torch.Tensor | None, torch.Tensor]:
+    """The stronger of ``agreement_chance``'s results on separate tables (a guide's places and its turns at one
+    place), its p-value times the number of tables tested (Bonferroni: noise passes any of k tests at level a at
+    most k x a of the time); (None, 1) where none was."""
+    tested = [(agree, p) for agree, p in tests if agree is not None]
+    if not tested:
+        return None, torch.ones((), dtype=torch.float64)
+    agree, p = min(tested, key=lambda test: float(test[1]))
+    return agree, (p * len(tested)).clamp(max=1.0)
+
+
 def spread_chance(scores: torch.Tensor, changes: torch.Tensor) -> float:
     """The p-value of the scores' spread over the candidates if they were noise as large as the probes show:
     ``changes`` (P,) are the differences of P candidates' scores when moved by a negligible amount, each the
