@@ -286,7 +286,7 @@ def test_the_say_in_words_names_what_the_guide_decided():
     say = GuideSay(0.1, 0.01, spread_p=1e-6, agree_p=5e-4, agree=0.0, places=3, turns=5, drawn=4, decided=turned)
     assert say.summary().startswith("the guide turned the hat 90 degrees to face forward: views it had not seen "
                                     "agree, chance one time in 2,000")
-    assert "its 3 best places and 5 turns at its favourite, 4 drawn" in say.summary()
+    assert "its 3 best places and 5 turns at its favourite; 4 turns drawn for the check" in say.summary()
     none = GuideSay(0.1, 0.01, spread_p=1e-6, agree_p=0.2, agree=0.4, places=8, decided=turned)
     assert none.summary().startswith("the guide would have turned the hat") and "as well by chance one time in 5" \
         in none.summary() and none.summary().endswith("no say, the geometry chose")

@@ -53,7 +53,8 @@ GATE_SHIFT = 0.01  # ... by this many source diagonals
 GATE_TURN_DEG = 1.0  # ... and turned this much about +Y
 HELD_OUT_AZIMUTHS = (0.0, 90.0, 180.0, 270.0)  # ``agreement_cameras``: the views that check the guide's choice
 AGREE_CHOICES = 8  # ``agreement_views``: its best distinct choices they see (full agreement: chance 1 in 8^4)
-TURN_DRAWS = 12  # ... where fewer exist: turns drawn at its favourite's site, evenly about the relation's axis
+TURN_DRAWS = 8  # ... and its favourite's turns drawn for them, evenly about the relation's axis (45 degrees apart:
+# past the restarts' distinct angle, ``search.distinct_rotation_deg``)
 SAME_SCALE = 1e-3  # ``diverse_top``'s ``scales``: log-scales closer than this are one size
 LOOK_POINTS = 512  # ``looks_apart``: source samples compared
 
@@ -276,7 +277,7 @@ class Choices:
     """What ``agreement_views`` checked, two tables of (K, 1 + V) the guide's term per choice (its favourite first)
     at the views it chose by and at each view it has not seen ((K, 1) with fewer than ``chance.AGREE_MIN``
     choices: nothing to check): its best distinct ``places``, and the ``turns`` (and sizes) at its favourite's
-    place; that favourite (None: nothing holds) and how many turns were drawn for the check."""
+    place; that favourite (None: nothing holds) and how many turns were drawn (and scored) for the check."""
 
     places: torch.Tensor
     turns: torch.Tensor
@@ -294,10 +295,10 @@ def agreement_views(scorer: Scorer, proposals: Proposals, terms: dict[str, torch
     - places: its ``AGREE_CHOICES`` best at distinct places (``distinct``'s distance, any turn: near twins would
       tie by its noise);
     - turns: its favourite and its best other turns and sizes at that place, each a turn by ``distinct``'s angle
-      or a size from a better one and none looking the same (``looks_apart``: the source's symmetries removed);
-      where fewer than ``AGREE_CHOICES`` exist, the favourite's turns about the relation's axis are drawn
-      (``turns_at``), scored at the same views, and those that hold join them: what a guide knows at one place
-      is how the source turns there.
+      or a size from a better one and none looking the same (``looks_apart``: the source's symmetries removed).
+      The proposals rarely turn one source many ways at one place, so the favourite's turns about the
+      relation's axis are drawn (``turns_at``), scored at the same views, and those that hold join them: what a
+      guide knows at one place is how the source turns there.
 
     Each choice is then seen from each of ``checks`` alone (the V other columns: K x V encodes per table). Under
     noise the new views order a table's K at random whatever its first column says, so
@@ -311,25 +312,24 @@ def agreement_views(scorer: Scorer, proposals: Proposals, terms: dict[str, torch
     if not len(index):
         return Choices(torch.zeros(0, 1), torch.zeros(0, 1))
     turns = _turns_here(pair, poses, clip, distinct)
-    drawn = 0
-    if len(turns) < AGREE_CHOICES:
-        turned = turns_at(pair, proposals, int(index[turns[0]]))
-        if len(turned):
-            extra = terms_of(scorer, turned, phase, cameras, batch=batch, goal_embeddings=goal_embeddings)
-            kept = holding(extra)
-            poses = Poses.cat([poses, turned.select(kept.to(turned.t.device))])
-            clip = torch.cat([clip, extra["clip"].cpu()[kept]])
-            turns = _turns_here(pair, poses, clip, distinct)
-            drawn = sum(i >= len(index) for i in turns)
+    turned = turns_at(pair, proposals, int(index[turns[0]]))
+    if len(turned):
+        extra = terms_of(scorer, turned, phase, cameras, batch=batch, goal_embeddings=goal_embeddings)
+        kept = holding(extra)
+        poses = Poses.cat([poses, turned.select(kept.to(turned.t.device))])
+        clip = torch.cat([clip, extra["clip"].cpu()[kept]])
+        turns = _turns_here(pair, poses, clip, distinct)
     places = diverse_top(poses, Key.plain(clip), AGREE_CHOICES, distinct[0], 180.0, fill=False)
+    tested = [chosen for chosen in (places, turns) if len(chosen) >= chance.AGREE_MIN]
+    goal = embed_shared_goal(scorer, checks) if tested else None  # the views' goal once for both tables
     tables = []
     for chosen in (places, turns):
         table = clip[chosen][:, None]
         if len(chosen) >= chance.AGREE_MIN:
-            seen = terms_of(scorer, poses.select(chosen), phase, checks, batch=batch, views=True)
+            seen = terms_of(scorer, poses.select(chosen), phase, checks, batch=batch, goal_embeddings=goal, views=True)
             table = torch.cat([table, seen["clip_views"].cpu()], dim=1)
         tables.append(table)
-    return Choices(tables[0], tables[1], poses.select(turns[:1]), drawn)
+    return Choices(tables[0], tables[1], poses.select(turns[:1]), len(turned))
 
 
 def _turns_here(pair: PreparedPair, poses: Poses, clip: torch.Tensor, distinct: tuple[float, float]) -> list[int]:

@@ -129,7 +129,7 @@ class GuideSay:
     agree: float | None = None
     lead: float = 0.0
     # the guide's choices the agreement was checked on (``coarse_to_fine.agreement_views``): its distinct places,
-    # the turns (and sizes) at its favourite's place besides it, and of those the turns drawn for the check
+    # the turns (and sizes) at its favourite's place besides it, and the turns drawn (and scored) for the check
     places: int = 0
     turns: int = 0
     drawn: int = 0
@@ -187,7 +187,7 @@ class GuideSay:
             choice = f"the guide {'' if self.amount > 0 else 'would have '}{self.decided}"
         among = f"its {self.places} best place{'s' if self.places != 1 else ''}" + (
             f" and {self.turns} turn{'s' if self.turns != 1 else ''} at its favourite" if self.turns else "") + (
-            f", {self.drawn} drawn" if self.drawn else "")
+            f"; {self.drawn} turns drawn for the check" if self.drawn else "")
         agree = ("too few choices hold for views it has not seen to check it" if self.agree is None else
                  f"views it had not seen agree{', chance' if self.amount > 0 else ' as well by chance'} "
                  f"{chance.odds(self.agree_p)} (each favourite {self.agree:.0%} down the others' orders, 50% by "
