@@ -613,8 +613,8 @@ def test_the_tile_stage_encodes_across_tiles_in_full_batches():
 
 def test_the_fast_preset_places_in_contact_within_its_encoder_budget(meshes):
     """``fast``: the relation and the geometry choose, the guide glances: no gradient images, and at most the
-    shortlist (and the gate's probes) at the coarse views, its best few places from the views that check its
-    choice, the fine few, and each restart's start and end on the evaluation views. ``default`` takes no gradient
+    shortlist (and the gate's probes) at the coarse views, its best few places and turns from the views that
+    check its choice, the fine few, and each restart's start and end on the evaluation views. ``default`` takes no gradient
     either; ``descent`` and ``paper`` descend the guide."""
     assert not AlignConfig.from_preset("default").needs_image_gradient
     assert all(AlignConfig.from_preset(name).needs_image_gradient for name in ("descent", "paper"))
@@ -622,7 +622,9 @@ def test_the_fast_preset_places_in_contact_within_its_encoder_budget(meshes):
                                   search={"coarse_image_size": 64, "fine_image_size": 64})
     result = align(*meshes["box on table"], "a box on the table", cfg, target_name="table", source_name="box")
     s, cam, opt = cfg.search, cfg.camera, cfg.optim
-    checks = coarse_to_fine.AGREE_PLACES * len(coarse_to_fine.HELD_OUT_AZIMUTHS)
+    # its best places and turns from the views that check them, and the turns drawn for that at the coarse views
+    checks = (2 * coarse_to_fine.AGREE_CHOICES * len(coarse_to_fine.HELD_OUT_AZIMUTHS)
+              + (coarse_to_fine.TURN_DRAWS - 1) * s.coarse_views)
     budget = ((s.shortlist + coarse_to_fine.GATE_PROBES) * s.coarse_views + checks + s.fine * s.fine_views
               + opt.restarts * cam.eval_views * (1 + opt.phases))
     assert 0 < result.clip_images <= budget

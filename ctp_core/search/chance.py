@@ -9,7 +9,9 @@ noise would not show there. Two statistics, each with a per-run null (no extra e
   the candidates independently, ``DRAWS`` times, vectorised; the p-value is the share of shuffles that agree at
   least as well (with the observed one counted, so never below 1 / (``DRAWS`` + 1)). Two views' favourites can
   at best coincide, which chance does once in N: the search checks the guide's choice from four views it has not
-  seen (``coarse_to_fine.agreement_views``), where full agreement over N places is chance once in N^4.
+  seen (``coarse_to_fine.agreement_views``), where full agreement over N choices is chance once in N^4; its places
+  and its turns at one place in two tables (the turns at one place look alike to any encoder: mixed with
+  places they would rank together by chance), the stronger counted at the price of both (``either``).
 - **spread** (``spread_chance``): the scores' variance over the candidates against the variance of their noise
   (half the mean square of the probes' changes, ``coarse_to_fine.guide_noise``), an F test with (N - 1, probes)
   degrees of freedom: how often noise alone would spread the candidates as far.

@@ -112,10 +112,11 @@ class GuideSay:
 
     - spread (``spread_p``): its scores' spread over the candidates against its noise (the changes of a few
       candidates' scores when moved by a negligible amount), an F test;
-    - agreement (``agree_p``): where each view's favourite among the candidates that hold ranks in the other views'
+    - agreement (``agree_p``): where each view's favourite among its choices that hold (its best places, and its
+      turns at its favourite's place: two tables, the stronger at the price of both) ranks in the other views'
       orders (``agree``), against the same views' scores shuffled; a consistent function of the image passes the
-      first test, noise included (a random encoder is one); only a guide that sees where the source is agrees
-      with itself from other sides.
+      first test, noise included (a random encoder is one); only a guide that sees where and how the source
+      belongs agrees with itself from other sides.
 
     The evidence is the weaker test's, in decades (-log10 p): the say is 0 until it passes ``CHANCE_DECADES``
     (noise does one run in 100) plus the geometry's ``lead`` (its best pose's lead in its own spread units, at most
