@@ -185,7 +185,7 @@ def test_search_counts_every_encoder_image_including_the_oracles(meshes, monkeyp
     # turns drawn for that at the coarse views, the fine ones each
     coarse = (n + ranked.swept + min(coarse_to_fine.GATE_PROBES, n)) * cfg.coarse_views
     held_out = len(coarse_to_fine.HELD_OUT_AZIMUTHS)
-    rows = [n for n in (ranked.say.places, ranked.say.turns + 1) if n >= 3]  # the tables tested
+    rows = [n for n in (ranked.say.places, ranked.say.turns + 1) if n >= coarse_to_fine.AGREE_ROWS]  # tables tested
     checks = (sum(rows) + 1) * held_out + ranked.say.drawn * cfg.coarse_views  # + the drawn turns at the coarse views
     assert ranked.say.amount == 1.0 and ranked.say.places >= 3
     refs = cfg.fine_views if cfg.fine_zoom == 0 else fine * cfg.fine_views  # shared fine views without zoom

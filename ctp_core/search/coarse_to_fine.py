@@ -45,7 +45,15 @@ from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.relations.measures import axes, horizontal_unit
 from ctp_core.render.cameras import Cameras, orbit
 from ctp_core.search import chance
-from ctp_core.search.ordering import GuideSay, Key, holding, search_key, split_shortlist, usual_first
+from ctp_core.search.ordering import (
+    CHANCE_DECADES,
+    GuideSay,
+    Key,
+    holding,
+    search_key,
+    split_shortlist,
+    usual_first,
+)
 
 HIDDEN = 1e-6  # tile stage: a smaller change of the guide's term than this is a source its views do not see
 GATE_PROBES = 4  # ``guide_noise``: candidates scored again, moved by a negligible amount
@@ -53,6 +61,8 @@ GATE_SHIFT = 0.01  # ... by this many source diagonals
 GATE_TURN_DEG = 1.0  # ... and turned this much about +Y
 HELD_OUT_AZIMUTHS = (0.0, 90.0, 180.0, 270.0)  # ``agreement_cameras``: the views that check the guide's choice
 AGREE_CHOICES = 8  # ``agreement_views``: its best distinct choices they see (full agreement: chance 1 in 8^4)
+# ... and the fewest that can pass chance's one in 100 in full agreement (1 in N^4): a smaller table is not checked
+AGREE_ROWS = math.ceil(10 ** (CHANCE_DECADES / len(HELD_OUT_AZIMUTHS)) - 1e-9)
 TURN_DRAWS = 8  # ... and its favourite's turns drawn for them, evenly about the relation's axis (45 degrees apart:
 # past the restarts' distinct angle, ``search.distinct_rotation_deg``)
 SAME_SCALE = 1e-3  # ``diverse_top``'s ``scales``: log-scales closer than this are one size
@@ -275,9 +285,10 @@ def guide_noise(scorer: Scorer, proposals: Proposals, terms: dict[str, torch.Ten
 @dataclass(frozen=True)
 class Choices:
     """What ``agreement_views`` checked, two tables of (K, 1 + V) the guide's term per choice (its favourite first)
-    at the views it chose by and at each view it has not seen ((K, 1) with fewer than ``chance.AGREE_MIN``
-    choices: nothing to check): its best distinct ``places``, and the ``turns`` (and sizes) at its favourite's
-    place; that favourite (None: nothing holds) and how many turns were drawn (and scored) for the check."""
+    at the views it chose by and at each view it has not seen ((K, 1) with fewer than ``AGREE_ROWS`` choices:
+    even full agreement could not pass chance: not checked, and no price to the other table): its best distinct
+    ``places``, and the ``turns`` (and sizes) at its favourite's place; that favourite (None: nothing holds) and
+    how many turns were drawn (and scored) for the check."""
 
     places: torch.Tensor
     turns: torch.Tensor
@@ -320,12 +331,12 @@ def agreement_views(scorer: Scorer, proposals: Proposals, terms: dict[str, torch
         clip = torch.cat([clip, extra["clip"].cpu()[kept]])
         turns = _turns_here(pair, poses, clip, distinct)
     places = diverse_top(poses, Key.plain(clip), AGREE_CHOICES, distinct[0], 180.0, fill=False)
-    tested = [chosen for chosen in (places, turns) if len(chosen) >= chance.AGREE_MIN]
+    tested = [chosen for chosen in (places, turns) if len(chosen) >= AGREE_ROWS]
     goal = embed_shared_goal(scorer, checks) if tested else None  # the views' goal once for both tables
     tables = []
     for chosen in (places, turns):
         table = clip[chosen][:, None]
-        if len(chosen) >= chance.AGREE_MIN:
+        if len(chosen) >= AGREE_ROWS:
             seen = terms_of(scorer, poses.select(chosen), phase, checks, batch=batch, goal_embeddings=goal, views=True)
             table = torch.cat([table, seen["clip_views"].cpu()], dim=1)
         tables.append(table)
