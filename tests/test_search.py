@@ -614,8 +614,8 @@ def test_the_tile_stage_encodes_across_tiles_in_full_batches():
 def test_the_fast_preset_places_in_contact_within_its_encoder_budget(meshes):
     """``fast``: the relation and the geometry choose, the guide glances: no gradient images, and at most the
     shortlist (and the gate's probes) at the coarse views, its best few places and turns from the views that
-    check its choice, the fine few, and each restart's start and end on the evaluation views. ``default`` takes no gradient
-    either; ``descent`` and ``paper`` descend the guide."""
+    check its choice, the fine few, and each restart's start and end on the evaluation views. ``default`` takes
+    no gradient either; ``descent`` and ``paper`` descend the guide."""
     assert not AlignConfig.from_preset("default").needs_image_gradient
     assert all(AlignConfig.from_preset(name).needs_image_gradient for name in ("descent", "paper"))
     cfg = AlignConfig.from_preset("fast", model="random:tiny", loss={"samples": 600},

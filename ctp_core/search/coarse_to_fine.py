@@ -368,30 +368,29 @@ def looks_apart(pair: PreparedPair, kept: torch.Tensor, q: torch.Tensor, kept_lo
                 log_s: torch.Tensor) -> torch.Tensor:
     """(K,) bool: whether the source turned by ``q`` (4,) looks other than turned by each of ``kept`` (K, 4): a
     different size (``SAME_SCALE``), or its samples, centred, lie farther from the other turn's on average than
-    its samples lie from each other (``PreparedPair.source_samples``): a turn about an axis of symmetry, a box's
-    half turn, is no choice."""
+    its samples lie from each other (``LOOK_POINTS`` of ``PreparedPair.source_samples``): a turn about an axis of
+    symmetry, a box's half turn, is no choice."""
     if not len(kept):
         return torch.ones(0, dtype=torch.bool)
     points = pair.source_subset(LOOK_POINTS).cpu().double()
     points = points - points.mean(dim=0)
-    spacing, _ = _nearest(points, points, skip_self=True)
+    spacing = _nearest(points, points, skip_self=True)
     mine = points @ quaternion_to_matrix(q.cpu().double()).T
     apart = []
     for other, other_log_s in zip(kept.cpu().double(), kept_log_s.cpu(), strict=True):
         theirs = points @ quaternion_to_matrix(other).T
         sized = abs(float(other_log_s) - float(log_s)) >= SAME_SCALE
-        apart.append(sized or float(_nearest(mine, theirs)[0]) > float(spacing))
+        apart.append(sized or _nearest(mine, theirs) > spacing)
     return torch.tensor(apart, dtype=torch.bool)
 
 
-def _nearest(a: torch.Tensor, b: torch.Tensor, skip_self: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
-    """(mean, per point) distance from each of ``a`` (N, 3) to its nearest of ``b`` (M, 3), itself skipped where
-    ``a`` is ``b`` (``skip_self``)."""
+def _nearest(a: torch.Tensor, b: torch.Tensor, skip_self: bool = False) -> float:
+    """The mean distance from each of ``a`` (N, 3) to its nearest of ``b`` (M, 3), itself skipped where ``a`` is
+    ``b`` (``skip_self``)."""
     distance = torch.cdist(a, b)
     if skip_self:
         distance.fill_diagonal_(math.inf)
-    near = distance.min(dim=1).values
-    return near.mean(), near
+    return float(distance.min(dim=1).values.mean())
 
 
 def turns_at(pair: PreparedPair, proposals: Proposals, i: int) -> Poses:
