@@ -297,7 +297,8 @@ def score(run: Run, proposals: Proposals, *, say: GuideSay | None = None, on_eve
         return proposals.poses, None
     scorer = run.scorer if say is None else run.scorer.with_say(say)
     ranked = coarse_to_fine.search(scorer, proposals, run.plan[0], k=run.config.optim.restarts, on_event=on_event,
-                            should_cancel=should_cancel, phases=len(run.plan), started=run.started)
+                            should_cancel=should_cancel, phases=len(run.plan), started=run.started,
+                            name=run.names.get("source") or "source")
     run.timings["search_s"] = round(ranked.seconds, 3)
     run.timings["search_candidates"] = ranked.scored
     if ranked.screened:  # the geometry's screen before the guide saw its shortlist

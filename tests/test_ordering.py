@@ -106,7 +106,7 @@ def test_the_weaker_test_decides_and_says_what_chance_gives_it():
     assert "one time in 4" in spread_only.summary() and spread_only.summary().endswith("no say, the geometry chose")
     assert GuideSay(spread=0.1, noise=0.01, spread_p=0.3, agree_p=1e-4, agree=0.0).amount == 0.0
     few = GuideSay(spread=0.1, noise=0.01, spread_p=1e-4, agree_p=1.0)  # too few poses hold to test the agreement
-    assert few.amount == 0.0 and "too few places hold" in few.summary()
+    assert few.amount == 0.0 and "too few choices hold" in few.summary()
     sure = GuideSay(spread=0.1, noise=0.01, spread_p=1e-5, agree_p=1e-4, agree=0.0, lead=0.4)
     assert "less than one time in 10,000" in sure.summary() and "leads by 0.4" in sure.summary()
 
@@ -233,6 +233,66 @@ def test_noise_earns_no_say_in_99_percent_of_runs_and_a_strong_guide_the_full_sa
         assert say.amount == 0.0
     else:  # once in N^3: some say from 5 candidates, the full say from 16
         assert say.amount > 0 and (say.amount == 1.0 or count < 16)
+
+
+def _places_and_turns(tables: int, places: int, turns: int, effect: float, generator: torch.Generator
+                      ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Pure-noise score tables as ``coarse_to_fine.agreement_views`` builds them, ``tables`` of each, 1 + 4 views:
+    the guide's best of ``places`` distinct places, and its best 8 of ``turns`` turns at its favourite's place by
+    the first column (twelve drawn, say, some failing the relation), where each view sees each place with its own
+    ``effect`` (what any encoder sees of a place: the turns at one place look alike) plus each choice's noise."""
+    views = 5
+    place = effect * torch.randn(tables, places, views, generator=generator)
+    spots = place + torch.randn(tables, places, views, generator=generator)
+    here = place[:, :1] + torch.randn(tables, turns, views, generator=generator)
+    best = torch.argsort(here[..., 0], dim=1)[:, :8]
+    return spots, here.gather(1, best[..., None].expand(-1, -1, views))
+
+
+@pytest.mark.parametrize("effect", [0.0, 3.0])
+@pytest.mark.parametrize(("places", "turns"), [(1, 11), (2, 8), (3, 6), (5, 4), (8, 3)])
+def test_noise_earns_no_say_on_its_places_and_turns_in_99_percent_of_runs(places, turns, effect):
+    """The 10,000 tables above again for the guide's choices of place and of turn at one place (1,000 per case):
+    each table tested alone and the stronger taken at the number of tables' price (``chance.either``), pure
+    noise earns a say in at most 1 % of runs, whatever a place adds to every turn's score there; a guide that
+    knows only the turn earns one from the turns. Mixed into one table, the turns at one place would rank
+    together by chance and pass as agreement more often than 1 in 100 (why ``agreement_views`` keeps them apart)."""
+    generator = torch.Generator().manual_seed(100 * places + turns + int(effect))
+    spots, here = _places_and_turns(1000, places, turns, effect, generator)
+    tested = [chance.agreement_chance(table, seed=places) for table in (spots, here)]
+    changes = torch.randn(1000, 4, generator=generator) - torch.randn(1000, 4, generator=generator)
+    says = []
+    for i in range(1000):
+        agree, p = chance.either([(None if a is None else a[i], q[i]) for a, q in tested])
+        says.append(GuideSay(1.0, 1.0, spread_p=chance.spread_chance(spots[i, :, 0], changes[i]), agree_p=float(p),
+                             agree=None if agree is None else float(agree)).amount)
+    assert sum(say == 0 for say in says) >= 0.99 * len(says)
+    if effect and places >= 2 and turns >= 6:
+        mixed = torch.cat([spots[:, 1:], here], dim=1)
+        _, p = chance.agreement_chance(mixed, seed=places)
+        assert float((p <= 0.01).double().mean()) > 0.015
+    knows = torch.randn(min(turns, 8), 1, generator=generator) + 0.01 * torch.randn(min(turns, 8), 5,
+                                                                                   generator=generator)
+    agree, p = chance.either([chance.agreement_chance(spots[0]), chance.agreement_chance(knows)])
+    say = GuideSay(1.0, 1e-3, spread_p=1e-6, agree_p=float(p), agree=None if agree is None else float(agree))
+    # full agreement on N turns: chance 1 in N^4, x 2 tables: some say from 4, the full say from 8
+    assert (say.amount > 0) == (min(turns, 8) >= 4) and (say.amount == 1.0) == (turns >= 8)
+
+
+def test_the_say_in_words_names_what_the_guide_decided():
+    """``GuideSay.summary``: what its favourite does that the geometry's does not (``decided``), the guide's doing
+    where it has a say and what it would have done where it has none; the choices it was checked on."""
+    turned = "turned the hat 90 degrees to face forward"
+    say = GuideSay(0.1, 0.01, spread_p=1e-6, agree_p=5e-4, agree=0.0, places=3, turns=5, drawn=4, decided=turned)
+    assert say.summary().startswith("the guide turned the hat 90 degrees to face forward: views it had not seen "
+                                    "agree, chance one time in 2,000")
+    assert "its 3 best places and 5 turns at its favourite; 4 turns drawn for the check" in say.summary()
+    none = GuideSay(0.1, 0.01, spread_p=1e-6, agree_p=0.2, agree=0.4, places=8, decided=turned)
+    assert none.summary().startswith("the guide would have turned the hat") and "as well by chance one time in 5" \
+        in none.summary() and none.summary().endswith("no say, the geometry chose")
+    assert GuideSay(0.1, 0.01, spread_p=1e-6, agree_p=0.2).summary().startswith(
+        "the guide's favourite is the geometry's")
+    assert say.to_dict()["decided"] == turned and say.to_dict()["turns"] == 5
 
 
 def test_the_spread_test_asks_more_than_the_noise_of_a_few_probes():

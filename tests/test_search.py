@@ -181,10 +181,12 @@ def test_search_counts_every_encoder_image_including_the_oracles(meshes, monkeyp
     n, fine = len(props.poses), min(cfg.fine, len(props.poses))
     assert 0 < ranked.swept <= cfg.sweep * len(props.rotations)  # every orientation at the best site(s)
     # candidates x views (coarse and sweep, the guide's noise probes), the shared coarse reference views once,
-    # the places its choice is checked on from the held-out views and those views' references, the fine ones each
+    # the places and turns its choice is checked on from the held-out views and those views' references once, the
+    # turns drawn for that at the coarse views, the fine ones each
     coarse = (n + ranked.swept + min(coarse_to_fine.GATE_PROBES, n)) * cfg.coarse_views
     held_out = len(coarse_to_fine.HELD_OUT_AZIMUTHS)
-    checks = (ranked.say.places + 1) * held_out
+    rows = [n for n in (ranked.say.places, ranked.say.turns + 1) if n >= coarse_to_fine.AGREE_ROWS]  # tables tested
+    checks = (sum(rows) + 1) * held_out + ranked.say.drawn * cfg.coarse_views  # + the drawn turns at the coarse views
     assert ranked.say.amount == 1.0 and ranked.say.places >= 3
     refs = cfg.fine_views if cfg.fine_zoom == 0 else fine * cfg.fine_views  # shared fine views without zoom
     assert scorer.clip_images == coarse + cfg.coarse_views + checks + fine * cfg.fine_views + refs
@@ -287,6 +289,87 @@ def test_diverse_top_skips_near_duplicates():
     objectives = ordering.Key.plain(torch.tensor([0.0, 0.1, 0.2]))
     assert coarse_to_fine.diverse_top(poses, objectives, 2, 0.1, 30.0) == [0, 2]
     assert coarse_to_fine.diverse_top(poses, objectives, 3, 0.1, 30.0) == [0, 2, 1]
+
+
+def _turned(pair, poses, index, degrees, axis=(0.0, 1.0, 0.0)):
+    """Pose ``index`` of ``poses`` turned by ``degrees`` about ``axis`` (normalised frame) in place."""
+    half = math.radians(degrees) / 2
+    turn = torch.tensor([math.cos(half), *(math.sin(half) * torch.tensor(axis)).tolist()])
+    return pose.Poses(poses.t[index:index + 1], pose.quaternion_product(turn[None], poses.q[index:index + 1]),
+                      poses.log_s[index:index + 1])
+
+
+def test_a_turn_that_looks_the_same_is_no_choice(meshes):
+    """``looks_apart``: a box turned by a half turn about any of its axes looks as it did, a quarter turn about its
+    up does not (its sides differ); an upright cylinder looks the same at any turn about its axis; another size
+    is another choice."""
+    target, source = meshes["box on table"]
+    pair, props = _proposals(target, source)
+    q = props.poses.q[:1]
+    apart = [bool(coarse_to_fine.looks_apart(pair, q, _turned(pair, props.poses, 0, d, axis).q[0], torch.zeros(1),
+                                              torch.zeros(())).all()) for d, axis in
+             [(180, (0.0, 1.0, 0.0)), (180, (1.0, 0.0, 0.0)), (90, (0.0, 1.0, 0.0)), (30, (0.0, 1.0, 0.0))]]
+    assert apart == [False, False, True, True]
+    assert bool(coarse_to_fine.looks_apart(pair, q, q[0], torch.zeros(1), torch.tensor(0.5)).all())
+    can = trimesh.creation.cylinder(radius=0.2, height=0.5, sections=64)
+    can.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))  # its axis along +Y
+    can_pair, can_props = _proposals(target, can)
+    up = torch.as_tensor(can_pair.source_upright.up, dtype=torch.float32)
+    standing = pose.quaternion_to_matrix(can_props.poses.q) @ up
+    i = int(torch.argmax(standing[:, 1]))  # a proposal standing on its end: its axis along +Y
+    assert float(standing[i, 1]) > 0.99
+    assert not coarse_to_fine.looks_apart(can_pair, can_props.poses.q[i:i + 1], _turned(
+        can_pair, can_props.poses, i, 70).q[0], torch.zeros(1), torch.zeros(())).any()
+
+
+def test_the_turns_drawn_for_the_check_touch_and_differ(meshes):
+    """``turns_at``: a box resting on a table turned about the up in eighths of a full turn, lowered into contact:
+    the half turn and the turns a half turn from a kept one look the same (a box's symmetry), so 3 remain; each
+    rests on the table (the relation holds, nothing intersects), turned about the up only."""
+    run = prepare(*meshes["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box")
+    props = propose(run)
+    terms = run.scorer.geometry(props.poses, run.plan[0])
+    i = int(torch.nonzero(ordering.holding(terms) & torch.tensor([r == "top" for r in props.region]))[0, 0])
+    turned = coarse_to_fine.turns_at(run.pair, props, i)
+    assert len(turned) == 3
+    assert bool(ordering.holding(run.scorer.geometry(turned, run.plan[0])).all())
+    up = torch.tensor([0.0, 1.0, 0.0])
+    ups = pose.quaternion_to_matrix(turned.q) @ (pose.quaternion_to_matrix(props.poses.q[i]).T @ up)
+    assert torch.allclose(ups, up.expand_as(ups), atol=1e-4)  # the box's own up stays the table's up
+    assert (turned.t - props.poses.t[i]).norm(dim=-1).max() < 0.5 * run.pair.source_diagonal
+
+
+def test_the_check_draws_turns_where_one_place_holds_and_names_the_decision(meshes):
+    """Where the relation holds at one place only, the places cannot be checked; the guide's turns there are drawn
+    and checked from the views it has not seen (``agreement_views``), and the say names what its favourite does
+    that the geometry's does not (``decision``)."""
+    run = prepare(*meshes["box on table"], "a box on the table", CONFIG, target_name="table", source_name="box")
+    props = propose(run)
+    phase, pair, config = run.plan[0], run.pair, run.config
+    cameras = coarse_to_fine.coarse_cameras(pair, config, 0.0)
+    checks = coarse_to_fine.agreement_cameras(pair, config, 0.0)
+    terms = coarse_to_fine.terms_of(run.scorer, props.poses, phase, cameras, batch=8)
+    distinct = coarse_to_fine.distinct_of(pair, config, 0.0)
+    held = ordering.holding(terms)
+    one = torch.zeros_like(held)
+    one[int(torch.nonzero(held & torch.tensor([r == "top" for r in props.region]))[0, 0])] = True
+    before = run.scorer.clip_images
+    checked = coarse_to_fine.agreement_views(run.scorer, props, terms, one, phase, cameras, None, checks, distinct)
+    assert len(checked.places) == 1 and checked.places.shape[1] == 1  # one place: not tested
+    assert checked.drawn == 3 and len(checked.turns) == 4 and checked.turns.shape[1] == 1 + len(checks.eye[0])
+    # the three turns at the coarse views, the four choices at the held-out ones (a prompt's goal: encoded once)
+    assert run.scorer.clip_images - before == 3 * config.search.coarse_views + 4 * len(checks.eye[0])
+    say = coarse_to_fine.guide_noise(run.scorer, props, {**terms, "rel": torch.where(one, 0.0, 1.0)}, phase, cameras,
+                                     None, checks, distinct, "box")
+    assert say.places == 1 and say.turns == 3 and say.drawn == 3 and say.agree is not None
+    geometry = props.poses.select(torch.nonzero(one)[0])
+    assert coarse_to_fine.decision(pair, geometry, geometry, distinct, "box") == ""
+    assert coarse_to_fine.decision(pair, _turned(pair, geometry, 0, 90), geometry, distinct, "box") \
+        == "turned the box 90 degrees"
+    moved = pose.Poses(geometry.t + torch.tensor([[2.0 * pair.source_diagonal, 0.0, 0.0]]), geometry.q,
+                       geometry.log_s + 0.5)
+    assert coarse_to_fine.decision(pair, moved, geometry, distinct, "box") == "moved the box 2.0 of its sizes and " \
+        "sized it x1.65"
 
 
 def test_the_fine_shortlist_keeps_distinct_places_before_turns():
@@ -530,16 +613,18 @@ def test_the_tile_stage_encodes_across_tiles_in_full_batches():
 
 def test_the_fast_preset_places_in_contact_within_its_encoder_budget(meshes):
     """``fast``: the relation and the geometry choose, the guide glances: no gradient images, and at most the
-    shortlist (and the gate's probes) at the coarse views, its best few places from the views that check its
-    choice, the fine few, and each restart's start and end on the evaluation views. ``default`` takes no gradient
-    either; ``descent`` and ``paper`` descend the guide."""
+    shortlist (and the gate's probes) at the coarse views, its best few places and turns from the views that
+    check its choice, the fine few, and each restart's start and end on the evaluation views. ``default`` takes
+    no gradient either; ``descent`` and ``paper`` descend the guide."""
     assert not AlignConfig.from_preset("default").needs_image_gradient
     assert all(AlignConfig.from_preset(name).needs_image_gradient for name in ("descent", "paper"))
     cfg = AlignConfig.from_preset("fast", model="random:tiny", loss={"samples": 600},
                                   search={"coarse_image_size": 64, "fine_image_size": 64})
     result = align(*meshes["box on table"], "a box on the table", cfg, target_name="table", source_name="box")
     s, cam, opt = cfg.search, cfg.camera, cfg.optim
-    checks = coarse_to_fine.AGREE_PLACES * len(coarse_to_fine.HELD_OUT_AZIMUTHS)
+    # its best places and turns from the views that check them, and the turns drawn for that at the coarse views
+    checks = (2 * coarse_to_fine.AGREE_CHOICES * len(coarse_to_fine.HELD_OUT_AZIMUTHS)
+              + (coarse_to_fine.TURN_DRAWS - 1) * s.coarse_views)
     budget = ((s.shortlist + coarse_to_fine.GATE_PROBES) * s.coarse_views + checks + s.fine * s.fine_views
               + opt.restarts * cam.eval_views * (1 + opt.phases))
     assert 0 < result.clip_images <= budget

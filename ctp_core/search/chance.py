@@ -9,7 +9,9 @@ noise would not show there. Two statistics, each with a per-run null (no extra e
   the candidates independently, ``DRAWS`` times, vectorised; the p-value is the share of shuffles that agree at
   least as well (with the observed one counted, so never below 1 / (``DRAWS`` + 1)). Two views' favourites can
   at best coincide, which chance does once in N: the search checks the guide's choice from four views it has not
-  seen (``coarse_to_fine.agreement_views``), where full agreement over N places is chance once in N^4.
+  seen (``coarse_to_fine.agreement_views``), where full agreement over N choices is chance once in N^4; its places
+  and its turns at one place in two tables (the turns at one place look alike to any encoder: mixed with
+  places they would rank together by chance), the stronger counted at the price of both (``either``).
 - **spread** (``spread_chance``): the scores' variance over the candidates against the variance of their noise
   (half the mean square of the probes' changes, ``coarse_to_fine.guide_noise``), an F test with (N - 1, probes)
   degrees of freedom: how often noise alone would spread the candidates as far.
@@ -65,6 +67,17 @@ def agreement_chance(views: torch.Tensor, *, seed: int = 0, draws: int = DRAWS
     null = _favourites(torch.argsort(torch.rand(draws, count, sides, generator=generator), dim=1))
     at_least = (null <= observed.unsqueeze(-1) + 1e-12).sum(dim=-1)
     return observed, (1 + at_least).double() / (draws + 1)
+
+
+def either(tests: list[tuple[torch.Tensor | None, torch.Tensor]]) -> tuple[torch.Tensor | None, torch.Tensor]:
+    """The stronger of ``agreement_chance``'s results on separate tables (a guide's places and its turns at one
+    place), its p-value times the number of tables tested (Bonferroni: noise passes any of k tests at level a at
+    most k x a of the time); (None, 1) where none was."""
+    tested = [(agree, p) for agree, p in tests if agree is not None]
+    if not tested:
+        return None, torch.ones((), dtype=torch.float64)
+    agree, p = min(tested, key=lambda test: float(test[1]))
+    return agree, (p * len(tested)).clamp(max=1.0)
 
 
 def spread_chance(scores: torch.Tensor, changes: torch.Tensor) -> float:

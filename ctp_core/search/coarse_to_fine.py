@@ -36,22 +36,37 @@ import torch
 
 from ctp_core.config import AlignConfig
 from ctp_core.config.schedule import Phase
-from ctp_core.contact import Proposals, place
+from ctp_core.contact import APPROACHES, Proposals, Site, place
 from ctp_core.errors import Canceled
 from ctp_core.geometry.pose import Poses, quaternion_product, quaternion_to_matrix
 from ctp_core.objective import Scorer, combine, goal_rows
 from ctp_core.pairs import PreparedPair
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
+from ctp_core.relations.measures import axes, horizontal_unit
 from ctp_core.render.cameras import Cameras, orbit
 from ctp_core.search import chance
-from ctp_core.search.ordering import GuideSay, Key, holding, search_key, split_shortlist, usual_first
+from ctp_core.search.ordering import (
+    CHANCE_DECADES,
+    GuideSay,
+    Key,
+    holding,
+    search_key,
+    split_shortlist,
+    usual_first,
+)
 
 HIDDEN = 1e-6  # tile stage: a smaller change of the guide's term than this is a source its views do not see
 GATE_PROBES = 4  # ``guide_noise``: candidates scored again, moved by a negligible amount
 GATE_SHIFT = 0.01  # ... by this many source diagonals
 GATE_TURN_DEG = 1.0  # ... and turned this much about +Y
 HELD_OUT_AZIMUTHS = (0.0, 90.0, 180.0, 270.0)  # ``agreement_cameras``: the views that check the guide's choice
-AGREE_PLACES = 8  # ``agreement_views``: its best distinct places they see (full agreement: chance 1 in 8^4)
+AGREE_CHOICES = 8  # ``agreement_views``: its best distinct choices they see (full agreement: chance 1 in 8^4)
+# ... and the fewest that can pass chance's one in 100 in full agreement (1 in N^4): a smaller table is not checked
+AGREE_ROWS = math.ceil(10 ** (CHANCE_DECADES / len(HELD_OUT_AZIMUTHS)) - 1e-9)
+TURN_DRAWS = 8  # ... and its favourite's turns drawn for them, evenly about the relation's axis (45 degrees apart:
+# past the restarts' distinct angle, ``search.distinct_rotation_deg``)
+SAME_SCALE = 1e-3  # ``diverse_top``'s ``scales``: log-scales closer than this are one size
+LOOK_POINTS = 512  # ``looks_apart``: source samples compared
 
 
 @dataclass
@@ -219,9 +234,11 @@ def score(scorer: Scorer, poses: Poses, phase: Phase, cameras: Cameras, *, batch
     return ranking_key(scorer, terms, phase)
 
 
-def guide_noise(scorer: Scorer, poses: Poses, terms: dict[str, torch.Tensor], phase: Phase, cameras: Cameras,
-                goal_embeddings: torch.Tensor | None, checks: Cameras, distinct: tuple[float, float]) -> GuideSay:
-    """The guide's ``GuideSay`` from a stage's candidates, each test against what chance gives on them (``chance``):
+def guide_noise(scorer: Scorer, proposals: Proposals, terms: dict[str, torch.Tensor], phase: Phase,
+                cameras: Cameras, goal_embeddings: torch.Tensor | None, checks: Cameras, distinct: tuple[float, float],
+                name: str = "source") -> GuideSay:
+    """The guide's ``GuideSay`` from a stage's candidates (``proposals``), each test against what chance gives on
+    them (``chance``):
 
     - the spread of its term over them against its noise: the changes of its term when ``GATE_PROBES`` of them
       (spread over its order) are moved by ``GATE_SHIFT`` of the source's diagonal and turned ``GATE_TURN_DEG``
@@ -229,11 +246,13 @@ def guide_noise(scorer: Scorer, poses: Poses, terms: dict[str, torch.Tensor], ph
       source's edges and the encoder's rounding (bf16 under autocast) differs with them): ``GATE_PROBES``
       encodes;
     - whether views it has not seen confirm its choice where the relation holds (``agreement_views`` from the
-      ``checks`` views, its best places at least ``distinct`` apart);
-    - the geometry's lead: the usual arrangement's best pose that holds against the next (``usual_first``).
+      ``checks`` views: its best places and turns, at least ``distinct`` apart);
+    - the geometry's lead: the usual arrangement's best pose that holds against the next (``usual_first``);
+    - what it decided, in words (``decision``: its favourite against the geometry's, the source called ``name``).
 
     ``benchmarks/guide_signal.py`` compares the same spread to the bf16 rounding offline, ``benchmarks/guide_say.py``
     the say per case."""
+    poses = proposals.poses
     clip = terms["clip"]
     order = torch.argsort(clip)
     picks = order[torch.linspace(0, len(order) - 1, min(GATE_PROBES, len(order))).round().long()].unique()
@@ -248,52 +267,223 @@ def guide_noise(scorer: Scorer, poses: Poses, terms: dict[str, torch.Tensor], ph
     again = terms_of(scorer, moved, phase, cameras, batch=len(picks), goal_embeddings=goal_embeddings)["clip"]
     changes = again - clip[picks]
     held = holding(terms)
-    checked = agreement_views(scorer, poses, terms, held, phase, checks, distinct)
-    agree, agree_p = chance.agreement_chance(checked, seed=scorer.config.seed)
+    checked = agreement_views(scorer, proposals, terms, held, phase, cameras, goal_embeddings, checks, distinct)
+    agree, agree_p = chance.either([chance.agreement_chance(table, seed=scorer.config.seed) for table in
+                                    (checked.places, checked.turns)])
     geometric = combine({**terms, "clip": torch.zeros_like(clip)}, phase)
-    lead = chance.lead(usual_first(geometric, terms, phase, held)[held])
+    usual = usual_first(geometric, terms, phase, held)
+    decided = ""
+    if checked.favourite is not None:  # its favourite against the geometry's among the same candidates
+        geometry = poses.select([int(torch.nonzero(held)[int(torch.argmin(usual[held])), 0])])
+        decided = decision(scorer.pair, checked.favourite, geometry, distinct, name)
     return GuideSay(float(clip.std()) if len(clip) > 1 else 0.0, float(changes.abs().max()),
-                chance.spread_chance(clip, changes), float(agree_p), None if agree is None else float(agree), lead,
-                len(checked))
+                    chance.spread_chance(clip, changes), float(agree_p), None if agree is None else float(agree),
+                    chance.lead(usual[held]), places=len(checked.places), turns=max(0, len(checked.turns) - 1),
+                    drawn=checked.drawn, decided=decided)
 
 
-def agreement_views(scorer: Scorer, poses: Poses, terms: dict[str, torch.Tensor], held: torch.Tensor,
-                    phase: Phase, checks: Cameras, distinct: tuple[float, float]) -> torch.Tensor:
-    """(K, 1 + V) the guide's choice and what ``checks``, views it has not seen, say of it: its ``AGREE_PLACES`` best
-    candidates where the relation holds (``held``: what it orders), each at least ``distinct`` from a better
-    one (near twins would tie by its noise), by its term at the coarse views (``terms["clip"]``: the first
-    column), then seen from each of those views alone (the V others: K x V encodes). Under noise they
-    order the K at random whatever the first column says, so ``chance.agreement_chance`` tests them as
-    independent views; a guide that sees where the source belongs prefers the same place from every side."""
+@dataclass(frozen=True)
+class Choices:
+    """What ``agreement_views`` checked, two tables of (K, 1 + V) the guide's term per choice (its favourite first)
+    at the views it chose by and at each view it has not seen ((K, 1) with fewer than ``AGREE_ROWS`` choices:
+    even full agreement could not pass chance: not checked, and no price to the other table): its best distinct
+    ``places``, and the ``turns`` (and sizes) at its favourite's place; that favourite (None: nothing holds) and
+    how many turns were drawn (and scored) for the check."""
+
+    places: torch.Tensor
+    turns: torch.Tensor
+    favourite: Poses | None = None
+    drawn: int = 0
+
+
+def agreement_views(scorer: Scorer, proposals: Proposals, terms: dict[str, torch.Tensor], held: torch.Tensor,
+                    phase: Phase, cameras: Cameras, goal_embeddings: torch.Tensor | None, checks: Cameras,
+                    distinct: tuple[float, float]) -> Choices:
+    """The guide's choices and what ``checks``, views it has not seen, say of them (``Choices``), among the
+    candidates where the relation holds (``held``: what it orders), best first by its term at the ``cameras``
+    views (``terms["clip"]``: each table's first column):
+
+    - places: its ``AGREE_CHOICES`` best at distinct places (``distinct``'s distance, any turn: near twins would
+      tie by its noise);
+    - turns: its favourite and its best other turns and sizes at that place, each a turn by ``distinct``'s angle
+      or a size from a better one and none looking the same (``looks_apart``: the source's symmetries removed).
+      The proposals rarely turn one source many ways at one place, so the favourite's turns about the
+      relation's axis are drawn (``turns_at``), scored at the same views, and those that hold join them: what a
+      guide knows at one place is how the source turns there.
+
+    Each choice is then seen from each of ``checks`` alone (the V other columns: K x V encodes per table). Under
+    noise the new views order a table's K at random whatever its first column says, so
+    ``chance.agreement_chance`` tests them as independent views; a guide that sees where and how the source
+    belongs prefers the same choice from every side. The two tables are apart by design: the turns at one place
+    look alike to any encoder, so mixed with other places they would rank together by chance
+    (``tests/test_ordering.py``)."""
+    pair, batch = scorer.pair, scorer.config.search.batch
     index = torch.nonzero(held.cpu())[:, 0]
-    clip = terms["clip"].cpu()
-    best = index[diverse_top(poses.select(index), Key.plain(clip[index]), AGREE_PLACES, *distinct, fill=False)]
-    if len(best) < chance.AGREE_MIN:
-        return clip[best][:, None]
-    seen = terms_of(scorer, poses.select(best), phase, checks, batch=scorer.config.search.batch, views=True)
-    return torch.cat([clip[best][:, None], seen["clip_views"].cpu()], dim=1)
+    poses, clip = proposals.poses.select(index), terms["clip"].cpu()[index]
+    if not len(index):
+        return Choices(torch.zeros(0, 1), torch.zeros(0, 1))
+    turns = _turns_here(pair, poses, clip, distinct)
+    turned = turns_at(pair, proposals, int(index[turns[0]]))
+    if len(turned):
+        extra = terms_of(scorer, turned, phase, cameras, batch=batch, goal_embeddings=goal_embeddings)
+        kept = holding(extra)
+        poses = Poses.cat([poses, turned.select(kept.to(turned.t.device))])
+        clip = torch.cat([clip, extra["clip"].cpu()[kept]])
+        turns = _turns_here(pair, poses, clip, distinct)
+    places = diverse_top(poses, Key.plain(clip), AGREE_CHOICES, distinct[0], 180.0, fill=False)
+    tested = [chosen for chosen in (places, turns) if len(chosen) >= AGREE_ROWS]
+    goal = embed_shared_goal(scorer, checks) if tested else None  # the views' goal once for both tables
+    tables = []
+    for chosen in (places, turns):
+        table = clip[chosen][:, None]
+        if len(chosen) >= AGREE_ROWS:
+            seen = terms_of(scorer, poses.select(chosen), phase, checks, batch=batch, goal_embeddings=goal, views=True)
+            table = torch.cat([table, seen["clip_views"].cpu()], dim=1)
+        tables.append(table)
+    return Choices(tables[0], tables[1], poses.select(turns[:1]), len(turned))
+
+
+def _turns_here(pair: PreparedPair, poses: Poses, clip: torch.Tensor, distinct: tuple[float, float]) -> list[int]:
+    """``agreement_views``' turns: the best of ``poses`` by ``clip``, then up to ``AGREE_CHOICES`` in all of the others
+    at its place (within ``distinct``'s distance), each a turn (``distinct``'s angle) or a size from a better one,
+    none that looks as a better one does (``looks_apart``)."""
+    order = torch.argsort(clip).tolist()
+    here = [i for i in order if float((poses.t[i] - poses.t[order[0]]).norm()) < distinct[0]]
+    local = poses.select(here)
+    apart = diverse_top(local, Key.plain(clip[here]), len(here), math.inf, distinct[1], fill=False, scales=True)
+    return [here[i] for i in _unlike(pair, local, apart)[:AGREE_CHOICES]]
+
+
+def _unlike(pair: PreparedPair, poses: Poses, order: list[int]) -> list[int]:
+    """Of ``order`` (indices of ``poses``, best first), those that look other than every better one kept
+    (``looks_apart``)."""
+    kept: list[int] = []
+    for i in order:
+        if looks_apart(pair, poses.q[kept], poses.q[i], poses.log_s[kept], poses.log_s[i]).all():
+            kept.append(i)
+    return kept
+
+
+def looks_apart(pair: PreparedPair, kept: torch.Tensor, q: torch.Tensor, kept_log_s: torch.Tensor,
+                log_s: torch.Tensor) -> torch.Tensor:
+    """(K,) bool: whether the source turned by ``q`` (4,) looks other than turned by each of ``kept`` (K, 4): a
+    different size (``SAME_SCALE``), or its samples, centred, lie farther from the other turn's on average than
+    its samples lie from each other (``LOOK_POINTS`` of ``PreparedPair.source_samples``): a turn about an axis of
+    symmetry, a box's half turn, is no choice."""
+    if not len(kept):
+        return torch.ones(0, dtype=torch.bool)
+    points = pair.source_subset(LOOK_POINTS).cpu().double()
+    points = points - points.mean(dim=0)
+    spacing = _nearest(points, points, skip_self=True)
+    mine = points @ quaternion_to_matrix(q.cpu().double()).T
+    apart = []
+    for other, other_log_s in zip(kept.cpu().double(), kept_log_s.cpu(), strict=True):
+        theirs = points @ quaternion_to_matrix(other).T
+        sized = abs(float(other_log_s) - float(log_s)) >= SAME_SCALE
+        apart.append(sized or _nearest(mine, theirs) > spacing)
+    return torch.tensor(apart, dtype=torch.bool)
+
+
+def _nearest(a: torch.Tensor, b: torch.Tensor, skip_self: bool = False) -> float:
+    """The mean distance from each of ``a`` (N, 3) to its nearest of ``b`` (M, 3), itself skipped where ``a`` is
+    ``b`` (``skip_self``)."""
+    distance = torch.cdist(a, b)
+    if skip_self:
+        distance.fill_diagonal_(math.inf)
+    return float(distance.min(dim=1).values.mean())
+
+
+def turns_at(pair: PreparedPair, proposals: Proposals, i: int) -> Poses:
+    """Proposal ``i`` turned about the relation's axis through its centre by every ``TURN_DRAWS``-th of a full
+    turn, each lowered along that axis into contact as a drop is (``contact.place``, "straight"), less those that
+    look as it or a kept one does (``looks_apart``: a turn about the source's axis of symmetry is no choice).
+    The axis is the up where its site faces up more than sideways (a top, a cavity, a drop, the floor) or the
+    source keeps its up, else its site's normal (a wall it leans on, hangs on or sticks into)."""
+    none = proposals.poses.select(slice(0, 0))
+    if proposals.sites is None or proposals.index is None:
+        return none
+    normal, up = proposals.sites.normal[i].cpu(), torch.tensor([0.0, 1.0, 0.0])
+    axis = up if pair.source_keeps_up or float(normal[1].abs()) >= math.sqrt(0.5) else normal
+    angles = torch.arange(1, TURN_DRAWS, dtype=torch.float32) * (2 * math.pi / TURN_DRAWS)
+    count = len(angles)
+    turn = torch.cat([torch.cos(angles / 2)[:, None], torch.sin(angles / 2)[:, None] * axis[None]], dim=1)
+    start = proposals.poses.select([i])
+    start = Poses(start.t.cpu(), start.q.cpu(), start.log_s.cpu())
+    q = quaternion_product(turn, start.q.expand(count, 4))
+    sites = Site(start.t.expand(count, 3), axis.expand(count, 3), torch.zeros(count),
+                 torch.zeros(count, dtype=torch.bool), torch.full((count,), APPROACHES.index("straight")))
+    placed, _ = place(pair, proposals.index, q, sites, start.log_s.expand(count))
+    both = Poses(torch.cat([start.t, placed.t]), torch.cat([start.q, placed.q]), torch.cat([start.log_s, placed.log_s]))
+    keep = [k for k in _unlike(pair, both, list(range(len(both)))) if k > 0]  # the start first
+    device = pair.source_vertices.device
+    return Poses(both.t[keep].to(device), both.q[keep].to(device), both.log_s[keep].to(device))
+
+
+def decision(pair: PreparedPair, guide: Poses, geometry: Poses, distinct: tuple[float, float], name: str) -> str:
+    """What the guide's favourite ``guide`` (one pose) does that the geometry's own choice ``geometry`` does not, in
+    words: "moved the hat 1.2 of its sizes, turned it 90 degrees to face forward and sized it x1.30"; "" where
+    they are one choice (``distinct``, the source's symmetry). Which way it faces is said where the source's
+    front is known (``Upright.front_trusted``), in the target's frame or the viewer's (``measures.axes``)."""
+    said: list[str] = []
+    moved = float((guide.t - geometry.t).norm())
+    if moved >= distinct[0]:
+        said.append(f"moved the {name} {moved / (pair.source_diagonal * float(geometry.log_s.exp())):.1f} of its sizes")
+    spin = pair.source_spin_axis
+    turned = float(_turned(_frames(geometry.q, spin), _frames(guide.q, spin)[0], spin is not None)[0])
+    if turned >= distinct[1]:
+        said.append(f"turned {'it' if said else f'the {name}'} {turned:.0f} degrees{_facing(pair, guide)}")
+    sized = float(guide.log_s[0] - geometry.log_s[0])
+    if abs(sized) >= SAME_SCALE:
+        said.append(f"sized {'it' if said else f'the {name}'} x{math.exp(sized):.2f}")
+    return " and ".join([", ".join(said[:-1]), said[-1]] if len(said) > 1 else said)
+
+
+def _facing(pair: PreparedPair, pose: Poses) -> str:
+    """" to face forward" (backward, left, right: the target's frame; the viewer, away, the viewer's left or right:
+    the viewer's) for a source whose front is known and lies near the horizontal; "" otherwise."""
+    if not pair.source_upright.front_trusted or pair.source_upright.symmetric:
+        return ""
+    front = quaternion_to_matrix(pose.q.cpu().double())[0] @ torch.as_tensor(pair.source_front, dtype=torch.float64)
+    if float(front[1].abs()) > math.sqrt(0.5):  # it faces up or down more than any side
+        return ""
+    ahead, left = axes(torch.as_tensor(pair.target_front, dtype=torch.float64)[None], pair.front_trusted)
+    sides = torch.stack([ahead[0], -ahead[0], left[0], -left[0]]) @ horizontal_unit(front)
+    words = (("forward", "backward", "left", "right") if pair.front_trusted else
+             ("the viewer", "away from the viewer", "the viewer's left", "the viewer's right"))
+    return f" to face {words[int(torch.argmax(sides))]}"
+
+
+def _frames(q: torch.Tensor, spin_axis: torch.Tensor | None) -> torch.Tensor:
+    """What ``_turned`` compares of (K, 4) turns: the unit quaternions, or with ``spin_axis`` (source local) the
+    directions they turn it to (a spin about it shows nothing)."""
+    q = torch.nn.functional.normalize(q, dim=-1)
+    return q if spin_axis is None else quaternion_to_matrix(q) @ spin_axis.to(q)
+
+
+def _turned(kept: torch.Tensor, one: torch.Tensor, spin: bool) -> torch.Tensor:
+    """(K,) degrees between each of ``kept`` (K, .) ``_frames`` and ``one``'s; ``spin``: they are directions."""
+    cos = kept @ one
+    return torch.rad2deg(torch.acos(cos.clamp(-1.0, 1.0)) if spin else 2 * torch.acos(cos.abs().clamp(max=1.0)))
 
 
 def diverse_top(poses: Poses, objectives: Key, k: int, distance: float, angle_deg: float, *,
-                fill: bool = True, spin_axis: torch.Tensor | None = None) -> list[int]:
+                fill: bool = True, spin_axis: torch.Tensor | None = None, scales: bool = False) -> list[int]:
     """Indices of the ``k`` best poses (first by ``objectives``), skipping any within ``distance`` (normalised
     units) and ``angle_deg`` of one already kept; duplicates fill in only when too few distinct poses exist
     (``fill``). ``spin_axis`` (3,), source local frame (``PreparedPair.source_spin_axis``): the source is
-    symmetric about it, so two turns are as far apart as the directions they turn it to, a spin about it none."""
+    symmetric about it, so two turns are as far apart as the directions they turn it to, a spin about it none.
+    ``scales``: poses of different sizes (``SAME_SCALE`` apart in log-scale) are distinct too (scale mode)."""
     order = objectives.argsort().tolist()
-    q = torch.nn.functional.normalize(poses.q, dim=-1)
-    pointing = None if spin_axis is None else quaternion_to_matrix(q) @ spin_axis.to(q)
+    frames = _frames(poses.q, spin_axis)
     kept: list[int] = []
     for i in order:
         if len(kept) == k:
             break
         if kept:
             near = (poses.t[kept] - poses.t[i]).norm(dim=-1) < distance
-            if pointing is None:
-                turned = 2 * torch.acos((q[kept] @ q[i]).abs().clamp(max=1.0))
-            else:
-                turned = torch.acos((pointing[kept] @ pointing[i]).clamp(-1.0, 1.0))
-            close = torch.rad2deg(turned) < angle_deg
+            if scales:
+                near = near & ((poses.log_s[kept] - poses.log_s[i]).abs() < SAME_SCALE)
+            close = _turned(frames[kept], frames[i], spin_axis is not None) < angle_deg
             if bool((near & close).any()):
                 continue
         kept.append(i)
@@ -304,9 +494,10 @@ def diverse_top(poses: Poses, objectives: Key, k: int, distance: float, angle_de
 
 def search(scorer: Scorer, proposals: Proposals, phase: Phase, *, k: int,
            on_event: ProgressCallback | None = None, should_cancel: CancelCheck | None = None,
-           phases: int = 1, started: float | None = None) -> Ranked:
+           phases: int = 1, started: float | None = None, name: str = "source") -> Ranked:
     """Coarse then fine scoring of ``proposals`` and the diverse best ``k`` (see module docstring). A ``scorer``
     with its say already (``Scorer.with_say``) keeps its say: one that silences the guide searches as without a guide.
+    ``name``: what the say calls the source (``GuideSay.decided``).
 
     Events: kind ``step`` with stage ``search``, step/steps = candidate evaluations done / planned.
     """
@@ -322,8 +513,8 @@ def search(scorer: Scorer, proposals: Proposals, phase: Phase, *, k: int,
     plan.emit(0)
     with scorer.clock.time("search"):
         checks = agreement_cameras(pair, config, float(proposals.poses.log_s.max())) if scorer.guided else None
-        scorer, terms, goal_embeddings = _coarse(scorer, proposals.poses, phase, cameras, checks, distinct, plan,
-                                                 should_cancel)
+        scorer, terms, goal_embeddings = _coarse(scorer, proposals, phase, cameras, checks, distinct, plan,
+                                                 should_cancel, name)
         coarse = ranking_key(scorer, terms, phase)
         swept, turns_screened = _sweep_turns(scorer, proposals, phase, coarse, distinct, plan)
         screened += turns_screened
@@ -436,19 +627,19 @@ def _screened(scorer: Scorer, proposals: Proposals, phase: Phase,
     return proposals.select(shortlist), len(proposals.poses)
 
 
-def _coarse(scorer: Scorer, poses: Poses, phase: Phase, cameras: Cameras, checks: Cameras | None,
-            distinct: tuple[float, float], plan: _Plan, should_cancel: CancelCheck | None
+def _coarse(scorer: Scorer, proposals: Proposals, phase: Phase, cameras: Cameras, checks: Cameras | None,
+            distinct: tuple[float, float], plan: _Plan, should_cancel: CancelCheck | None, name: str
             ) -> tuple[Scorer, dict[str, torch.Tensor], torch.Tensor | None]:
     """The coarse stage: every candidate's terms at the shared views. Where there is a guide and no say yet, its
     say (how far the guide may override the relation: ``guide_noise``, its choice checked from the ``checks``
-    views) is measured on them and the scorer given it, for the later stages. Returns the scorer they score
-    with, the terms and the views' goal embeddings."""
-    cfg = scorer.config.search
+    views, the source called ``name``) is measured on them and the scorer given it, for the later stages.
+    Returns the scorer they score with, the terms and the views' goal embeddings."""
+    cfg, poses = scorer.config.search, proposals.poses
     goal_embeddings = embed_shared_goal(scorer, cameras)
     terms = terms_of(scorer, poses, phase, cameras, batch=cfg.batch, goal_embeddings=goal_embeddings,
                      progress=plan.emit, should_cancel=should_cancel)
     if scorer.guided and plan.say is None and len(poses) > 1:  # how far the guide may override the relation
-        plan.say = guide_noise(scorer, poses, terms, phase, cameras, goal_embeddings, checks, distinct)
+        plan.say = guide_noise(scorer, proposals, terms, phase, cameras, goal_embeddings, checks, distinct, name)
         scorer = scorer.with_say(plan.say)  # the later stages score under it
         if plan.say.amount == 0:
             plan.drop_tiles()  # a guide with no signal cannot tell tiles apart either

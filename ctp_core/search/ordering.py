@@ -112,10 +112,11 @@ class GuideSay:
 
     - spread (``spread_p``): its scores' spread over the candidates against its noise (the changes of a few
       candidates' scores when moved by a negligible amount), an F test;
-    - agreement (``agree_p``): where each view's favourite among the candidates that hold ranks in the other views'
+    - agreement (``agree_p``): where each view's favourite among its choices that hold (its best places, and its
+      turns at its favourite's place: two tables, the stronger at the price of both) ranks in the other views'
       orders (``agree``), against the same views' scores shuffled; a consistent function of the image passes the
-      first test, noise included (a random encoder is one); only a guide that sees where the source is agrees
-      with itself from other sides.
+      first test, noise included (a random encoder is one); only a guide that sees where and how the source
+      belongs agrees with itself from other sides.
 
     The evidence is the weaker test's, in decades (-log10 p): the say is 0 until it passes ``CHANCE_DECADES``
     (noise does one run in 100) plus the geometry's ``lead`` (its best pose's lead in its own spread units, at most
@@ -128,7 +129,12 @@ class GuideSay:
     agree_p: float = 0.0
     agree: float | None = None
     lead: float = 0.0
-    places: int = 0  # the guide's best places the agreement was checked on (``coarse_to_fine.agreement_views``)
+    # the guide's choices the agreement was checked on (``coarse_to_fine.agreement_views``): its distinct places,
+    # the turns (and sizes) at its favourite's place besides it, and the turns drawn (and scored) for the check
+    places: int = 0
+    turns: int = 0
+    drawn: int = 0
+    decided: str = ""  # what its favourite does that the geometry's does not ("turned the hat 90 degrees"); "": none
 
     @property
     def ratio(self) -> float:
@@ -174,21 +180,30 @@ class GuideSay:
         return "geometry" if self.amount <= 0 else "guide" if self.amount >= 1 else "both"
 
     def summary(self) -> str:
-        """The say in one line, for the progress readout, the report and the page: what chance gives each test
-        in words, the geometry's lead, who chose."""
-        spread = (f"chance gives the guide's spread ({self.ratio:.1f}x its noise) {chance.odds(self.spread_p)}"
-                  if self.noise > 0 else "the guide's scores have no measurable noise")
-        agree = ("too few places hold for views it has not seen to check its choice" if self.agree is None else
-                 f"views it has not seen agreeing as well with its choice among its {self.places} best places (each "
-                 f"favourite {self.agree:.0%} down the others' orders, 50% by chance) {chance.odds(self.agree_p)}")
+        """The say in one line, for the progress readout, the report and the page: what the guide decided (or would
+        have), what chance gives each test in words, the geometry's lead, who chose."""
+        if not self.decided:
+            choice = "the guide's favourite is the geometry's"
+        else:
+            choice = f"the guide {'' if self.amount > 0 else 'would have '}{self.decided}"
+        among = f"its {self.places} best place{'s' if self.places != 1 else ''}" + (
+            f" and {self.turns} turn{'s' if self.turns != 1 else ''} at its favourite" if self.turns else "") + (
+            f"; {self.drawn} turns drawn for the check" if self.drawn else "")
+        agree = ("too few choices hold for views it has not seen to check it" if self.agree is None else
+                 f"views it had not seen agree{', chance' if self.amount > 0 else ' as well by chance'} "
+                 f"{chance.odds(self.agree_p)} (each favourite {self.agree:.0%} down the others' orders, 50% by "
+                 f"chance; {among})")
+        spread = (f"its spread {self.ratio:.1f}x its noise, chance {chance.odds(self.spread_p)}"
+                  if self.noise > 0 else "its scores have no measurable noise")
         lead = f"; the geometry's best leads by {self.lead:.1f} of its spreads" if self.lead >= 0.05 else ""
-        return f"{spread}, {agree}{lead}" + {
+        return f"{choice}: {agree}; {spread}{lead}" + {
             "geometry": ": no say, the geometry chose", "guide": ": the guide chose",
             "both": f": the guide chose, the usual arrangement weighing {1 - self.amount:.2f}"}[self.chooser]
 
     def to_dict(self) -> dict[str, float | str | None]:
         return {"spread": self.spread, "noise": self.noise, "spread_p": self.spread_p, "agree": self.agree,
-                "agree_p": self.agree_p, "places": self.places, "lead": round(self.lead, 3),
+                "agree_p": self.agree_p, "places": self.places, "turns": self.turns,
+                "drawn": self.drawn, "decided": self.decided, "lead": round(self.lead, 3),
                 "evidence": round(min(self.evidence, 99.0), 3),
                 "needed": round(self.needed, 3), "override": round(self.amount, 3), "chose": self.chooser,
                 "summary": self.summary()}
