@@ -21,6 +21,7 @@ already in the scene frame, so its answer (source file -> target file) is the so
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -258,13 +259,21 @@ class _Keeper:
     result: AlignResult
     on: list[str]
     rooms: Sequence[Room]
+    # each candidate's answer, by its placement and verdict: a verdict re-prepares the scene, and the same
+    # candidate is asked again (turned or not, before and after dropping it)
+    seen: dict[tuple[bytes, str], tuple[list[str], float]] = field(default_factory=dict)
 
     def breaks(self, candidate: AlignResult) -> tuple[list[str], float]:
         """``_breaks``, and the room a later step needs that ``candidate`` does not leave."""
-        step = self.step
-        broke, sunk = _breaks([*self.placed, _placed(step, candidate)], self.results, candidate, self.on, step.also)
-        return broke + [r.said(step.name, gap) for r in self.rooms
-                        if (gap := r.gap(self.placed, step, candidate)) < r.width], sunk
+        key = (np.asarray(candidate.source_to_target, dtype=np.float64).tobytes(), repr(candidate.relation))
+        if key not in self.seen:
+            step = self.step
+            broke, sunk = _breaks([*self.placed, _placed(step, candidate)], self.results, candidate, self.on,
+                                  step.also)
+            self.seen[key] = (broke + [r.said(step.name, gap) for r in self.rooms
+                                       if (gap := r.gap(self.placed, step, candidate)) < r.width], sunk)
+        broke, sunk = self.seen[key]
+        return list(broke), sunk
 
     def judged(self, k: int) -> tuple[AlignResult, list[str], float]:
         """Alternative ``k`` (0: the answer) on the floor, turned (``_turned``), or as placed where that breaks
@@ -480,6 +489,7 @@ def _also_verdict(objects: list[Placed], index: int, result: AlignResult, also: 
     return _verdict(objects, index, result, also.on, _also_reading(objects[index].name, also))
 
 
+@functools.lru_cache(maxsize=256)
 def _also_reading(figure: str, also: Also) -> RelationReading | None:
     """The relation ``also`` says, read as a pair prompt with ``figure`` the figure; an orientation said alone
     ("facing the monitor", read as near it and facing it) is judged as the orientation only: where the figure
