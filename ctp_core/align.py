@@ -94,7 +94,7 @@ class AlignResult:
     # (file frames, 4x4), objective, the guide's and geometry's terms, relation verdict
     alternatives: list[dict[str, Any]] = field(default_factory=list)
     thumbnails: np.ndarray | None = None  # (K, H, W, 3) uint8: one view of each alternative
-    # the guide's say over the geometry as the search measured it (``ordering.Gate.to_dict``: spread, noise,
+    # the guide's say over the geometry as the search measured it (``ordering.GuideSay.to_dict``: spread, noise,
     # override, who chose, a summary line); None without a guide or a search
     guide_say: dict[str, Any] | None = None
     # a scene step: whether the source kept its own up (turns about +Y only) and why (``canonical.clear_up``);

@@ -13,8 +13,8 @@ from ctp_core.config import AlignConfig, share_of
 from ctp_core.config.schedule import Phase
 from ctp_core.contact import REACH, TOUCH
 from ctp_core.objective import combine
-from ctp_core.search import chance, ordering
-from ctp_core.search.ordering import CHANCE_DECADES, FULL_DECADES, SUNK, TIE_NOISE, GuideSay, Key
+from ctp_core.search import chance, coarse_to_fine, ordering
+from ctp_core.search.ordering import CHANCE_DECADES, FULL_DECADES, LEAD_MAX, SUNK, TIE_NOISE, GuideSay, Key
 
 WEIGHTS = Phase(index=1, steps=1, lambda_clip=1.0, lambda_icp=1.0, lambda_pen=1.0, sigma_icp=0.1, look_at_beta=0.0,
                 zoom=1.0, lambda_rel=1.0)
@@ -209,13 +209,34 @@ def test_agreement_is_zero_where_the_views_share_a_favourite_and_one_half_by_cha
     assert observed is None and float(p) == 1.0 and float(chance.agreement_chance(same[:, :1])[1]) == 1.0
 
 
-@pytest.mark.parametrize("views", [2, 4])
+def test_full_agreement_has_its_exact_chance_and_a_sure_geometry_yields_to_a_guide_every_view_agrees_with():
+    """Every view preferring the same of N choices happens by chance once in N^(C-1) (C views): exact, where the
+    permutation draws could not show less than 1 in ``DRAWS`` + 1. With the views that check the guide's choice
+    (``HELD_OUT_VIEWS`` besides the one it chose by) and its 8 best, that is evidence enough for the full say over
+    the surest geometry (``LEAD_MAX``), even at the price of two tables; partial agreement keeps the draws'
+    estimate."""
+    views = 1 + len(coarse_to_fine.HELD_OUT_VIEWS)
+    generator = torch.Generator().manual_seed(3)
+    order = torch.randn(coarse_to_fine.AGREE_CHOICES, 1, generator=generator)
+    full = order + 1e-3 * torch.randn(coarse_to_fine.AGREE_CHOICES, views, generator=generator)
+    agree, p = chance.agreement_chance(full)
+    assert float(agree) == 0.0 and float(p) == pytest.approx(coarse_to_fine.AGREE_CHOICES ** -(views - 1))
+    _, p = chance.either([(agree, p), (agree, p)])
+    say = GuideSay(1.0, 1e-3, spread_p=1e-9, agree_p=float(p), agree=0.0, lead=LEAD_MAX + 1.0)
+    assert say.needed == CHANCE_DECADES + LEAD_MAX and say.amount == 1.0
+    partial = full.clone()
+    partial[int(order.argmin()), 1] = partial[:, 1].max() + 1.0  # one view puts the favourite last
+    agree, p = chance.agreement_chance(partial)
+    assert float(agree) > 0 and float(p) >= 1 / (chance.DRAWS + 1)
+
+
+@pytest.mark.parametrize("views", [2, 4, 7])
 @pytest.mark.parametrize("count", [3, 5, 8, 16, 40])
 def test_noise_earns_no_say_in_99_percent_of_runs_and_a_strong_guide_the_full_say(count, views):
     """Pure noise on ``count`` candidates and ``views`` views (1,000 seeded score tables per case, 10,000 in all,
     each with its own noise probes): the say is 0 in at least 99 %; a guide whose views share their order (plus
     a little noise) and whose spread is far past its probes' changes earns the full say where the test can show
-    it (four views and enough candidates)."""
+    it (enough views and candidates)."""
     generator = torch.Generator().manual_seed(1000 * count + views)
     tables = torch.randn(1000, count, views, generator=generator)
     _, agree_p = chance.agreement_chance(tables, seed=count)
@@ -229,19 +250,21 @@ def test_noise_earns_no_say_in_99_percent_of_runs_and_a_strong_guide_the_full_sa
     say = GuideSay(1.0, 1e-3, spread_p=chance.spread_chance(strong[:, 0], 1e-3 * torch.randn(4, generator=generator)),
                 agree_p=float(p), agree=float(agree))
     assert float(agree) == 0.0
-    if views == 2 or count == 3:  # the favourites coincide by chance once in N (or N^3 = 27): no say
+    full = count ** -(views - 1)  # the favourites coincide by chance once in N^(C-1)
+    if full > 10 ** -CHANCE_DECADES:  # two views, or 3 candidates at 4: no say
         assert say.amount == 0.0
-    else:  # once in N^3: some say from 5 candidates, the full say from 16
-        assert say.amount > 0 and (say.amount == 1.0 or count < 16)
+    else:  # some say (5 candidates at 4 views), the full say a decade past it (16 at 4, 8 at 7)
+        assert say.amount > 0 and (say.amount == 1.0) == (full <= 10 ** -(CHANCE_DECADES + FULL_DECADES))
 
 
 def _places_and_turns(tables: int, places: int, turns: int, effect: float, generator: torch.Generator
                       ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Pure-noise score tables as ``coarse_to_fine.agreement_views`` builds them, ``tables`` of each, 1 + 4 views:
+    """Pure-noise score tables as ``coarse_to_fine.agreement_views`` builds them, ``tables`` of each, at the view
+    it chose by and the ``HELD_OUT_VIEWS``:
     the guide's best of ``places`` distinct places, and its best 8 of ``turns`` turns at its favourite's place by
     the first column (twelve drawn, say, some failing the relation), where each view sees each place with its own
     ``effect`` (what any encoder sees of a place: the turns at one place look alike) plus each choice's noise."""
-    views = 5
+    views = 1 + len(coarse_to_fine.HELD_OUT_VIEWS)
     place = effect * torch.randn(tables, places, views, generator=generator)
     spots = place + torch.randn(tables, places, views, generator=generator)
     here = place[:, :1] + torch.randn(tables, turns, views, generator=generator)
@@ -271,12 +294,13 @@ def test_noise_earns_no_say_on_its_places_and_turns_in_99_percent_of_runs(places
         mixed = torch.cat([spots[:, 1:], here], dim=1)
         _, p = chance.agreement_chance(mixed, seed=places)
         assert float((p <= 0.01).double().mean()) > 0.015
-    knows = torch.randn(min(turns, 8), 1, generator=generator) + 0.01 * torch.randn(min(turns, 8), 5,
-                                                                                   generator=generator)
+    known = min(turns, 8)
+    knows = torch.randn(known, 1, generator=generator) + 0.01 * torch.randn(known, spots.shape[-1],
+                                                                           generator=generator)
     agree, p = chance.either([chance.agreement_chance(spots[0]), chance.agreement_chance(knows)])
     say = GuideSay(1.0, 1e-3, spread_p=1e-6, agree_p=float(p), agree=None if agree is None else float(agree))
-    # full agreement on N turns: chance 1 in N^4, x 2 tables: some say from 4, the full say from 8
-    assert (say.amount > 0) == (min(turns, 8) >= 4) and (say.amount == 1.0) == (turns >= 8)
+    # full agreement on N turns: chance 1 in N^6, x 2 tables: some say from 3 (``AGREE_ROWS``), the full say from 4
+    assert (say.amount > 0) == (known >= coarse_to_fine.AGREE_ROWS) and (say.amount == 1.0) == (known >= 4)
 
 
 def test_the_say_in_words_names_what_the_guide_decided():

@@ -184,7 +184,7 @@ def test_search_counts_every_encoder_image_including_the_oracles(meshes, monkeyp
     # the places and turns its choice is checked on from the held-out views and those views' references once, the
     # turns drawn for that at the coarse views, the fine ones each
     coarse = (n + ranked.swept + min(coarse_to_fine.GATE_PROBES, n)) * cfg.coarse_views
-    held_out = len(coarse_to_fine.HELD_OUT_AZIMUTHS)
+    held_out = len(coarse_to_fine.HELD_OUT_VIEWS)
     rows = [n for n in (ranked.say.places, ranked.say.turns + 1) if n >= coarse_to_fine.AGREE_ROWS]  # tables tested
     checks = (sum(rows) + 1) * held_out + ranked.say.drawn * cfg.coarse_views  # + the drawn turns at the coarse views
     assert ranked.say.amount == 1.0 and ranked.say.places >= 3
@@ -623,7 +623,7 @@ def test_the_fast_preset_places_in_contact_within_its_encoder_budget(meshes):
     result = align(*meshes["box on table"], "a box on the table", cfg, target_name="table", source_name="box")
     s, cam, opt = cfg.search, cfg.camera, cfg.optim
     # its best places and turns from the views that check them, and the turns drawn for that at the coarse views
-    checks = (2 * coarse_to_fine.AGREE_CHOICES * len(coarse_to_fine.HELD_OUT_AZIMUTHS)
+    checks = (2 * coarse_to_fine.AGREE_CHOICES * len(coarse_to_fine.HELD_OUT_VIEWS)
               + (coarse_to_fine.TURN_DRAWS - 1) * s.coarse_views)
     budget = ((s.shortlist + coarse_to_fine.GATE_PROBES) * s.coarse_views + checks + s.fine * s.fine_views
               + opt.restarts * cam.eval_views * (1 + opt.phases))

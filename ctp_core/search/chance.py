@@ -7,9 +7,10 @@ noise would not show there. Two statistics, each with a per-run null (no extra e
   candidates that view ranks before it, averaged over the ordered pairs of views (0: every view prefers the same
   pose; 0.5 by chance). Its null (``agreement_chance``) is a permutation test: each view's scores shuffled across
   the candidates independently, ``DRAWS`` times, vectorised; the p-value is the share of shuffles that agree at
-  least as well (with the observed one counted, so never below 1 / (``DRAWS`` + 1)). Two views' favourites can
-  at best coincide, which chance does once in N: the search checks the guide's choice from four views it has not
-  seen (``coarse_to_fine.agreement_views``), where full agreement over N choices is chance once in N^4; its places
+  least as well (with the observed one counted, so never below 1 / (``DRAWS`` + 1)), but for full agreement, whose
+  chance is exact. Two views' favourites can at best coincide, which chance does once in N: the search checks the
+  guide's choice from six views it has not seen (``coarse_to_fine.agreement_views``), where full agreement over N
+  choices is chance once in N^6; its places
   and its turns at one place in two tables (the turns at one place look alike to any encoder: mixed with
   places they would rank together by chance), the stronger counted at the price of both (``either``).
 - **spread** (``spread_chance``): the scores' variance over the candidates against the variance of their noise
@@ -56,7 +57,8 @@ def agreement_chance(views: torch.Tensor, *, seed: int = 0, draws: int = DRAWS
                      ) -> tuple[torch.Tensor | None, torch.Tensor]:
     """(the observed ``agreement``, its p-value under the permutation null), each (...,) for ``views`` (..., N, C):
     the share of ``draws`` tables whose every view orders the candidates at random that agree at least as well,
-    the observed one counted among them (never below 1 / (``draws`` + 1)). The null depends on N and C only, so
+    the observed one counted among them (never below 1 / (``draws`` + 1)); full agreement's exact chance,
+    N^-(C-1), where every view prefers the same candidate. The null depends on N and C only, so
     one is drawn for a whole batch of tables. (None, 1) with fewer than ``AGREE_MIN`` candidates or one view:
     nothing to test, no evidence."""
     count, sides = views.shape[-2:]
@@ -66,7 +68,10 @@ def agreement_chance(views: torch.Tensor, *, seed: int = 0, draws: int = DRAWS
     generator = torch.Generator().manual_seed(seed)
     null = _favourites(torch.argsort(torch.rand(draws, count, sides, generator=generator), dim=1))
     at_least = (null <= observed.unsqueeze(-1) + 1e-12).sum(dim=-1)
-    return observed, (1 + at_least).double() / (draws + 1)
+    # full agreement (every view's favourite the same) has an exact chance, N^-(C-1), far below what the draws
+    # can resolve with six views or more
+    full = torch.full_like(observed, float(count) ** -(sides - 1))
+    return observed, torch.where(observed <= 1e-12, full, (1 + at_least).double() / (draws + 1))
 
 
 def either(tests: list[tuple[torch.Tensor | None, torch.Tensor]]) -> tuple[torch.Tensor | None, torch.Tensor]:

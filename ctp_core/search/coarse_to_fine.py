@@ -59,10 +59,14 @@ HIDDEN = 1e-6  # tile stage: a smaller change of the guide's term than this is a
 GATE_PROBES = 4  # ``guide_noise``: candidates scored again, moved by a negligible amount
 GATE_SHIFT = 0.01  # ... by this many source diagonals
 GATE_TURN_DEG = 1.0  # ... and turned this much about +Y
-HELD_OUT_AZIMUTHS = (0.0, 90.0, 180.0, 270.0)  # ``agreement_cameras``: the views that check the guide's choice
-AGREE_CHOICES = 8  # ``agreement_views``: its best distinct choices they see (full agreement: chance 1 in 8^4)
-# ... and the fewest that can pass chance's one in 100 in full agreement (1 in N^4): a smaller table is not checked
-AGREE_ROWS = math.ceil(10 ** (CHANCE_DECADES / len(HELD_OUT_AZIMUTHS)) - 1e-9)
+# ``agreement_cameras``: the views that check the guide's choice, (azimuth, degrees above the evaluation elevation):
+# front, left, back and right, and two from higher up between them. Six, so that a guide every view agrees with can
+# earn a full say over a sure geometry: full agreement over 8 choices is chance 1 in 8^6 (5.1 decades with the two
+# tables' price, ``chance.either``), past ``GuideSay``'s most needed 4 (4 views gave 3.3: never a full say).
+HELD_OUT_VIEWS = ((0.0, 0.0), (90.0, 0.0), (180.0, 0.0), (270.0, 0.0), (135.0, 30.0), (315.0, 30.0))
+AGREE_CHOICES = 8  # ``agreement_views``: its best distinct choices they see
+# ... and the fewest that can pass chance's one in 100 in full agreement (1 in N^V): a smaller table is not checked
+AGREE_ROWS = math.ceil(10 ** (CHANCE_DECADES / len(HELD_OUT_VIEWS)) - 1e-9)
 TURN_DRAWS = 8  # ... and its favourite's turns drawn for them, evenly about the relation's axis (45 degrees apart:
 # past the restarts' distinct angle, ``search.distinct_rotation_deg``)
 SAME_SCALE = 1e-3  # ``diverse_top``'s ``scales``: log-scales closer than this are one size
@@ -87,11 +91,12 @@ def _scene_radius(pair: PreparedPair, log_s: float) -> float:
 
 
 def coarse_cameras(pair: PreparedPair, config: AlignConfig, log_s: float, look_at: torch.Tensor | None = None,
-                   radius: float | None = None, azimuths: list[float] | None = None) -> Cameras:
+                   radius: float | None = None, azimuths: list[float] | None = None,
+                   rises: list[float] | None = None) -> Cameras:
     """(K, C) fixed views (K = 1: around the target centre) that frame the target and any source touching it,
     or, given ``look_at`` (K, 3) and ``radius``, that frame that much around each point (the tile stage); at
     ``azimuths`` (degrees about +Y in the normalised frame), by default ``search.coarse_views`` of them evenly
-    spaced (``coarse_azimuths``).
+    spaced (``coarse_azimuths``), each ``rises`` degrees above the evaluation elevation (default 0).
 
     They depend on the target and the source's size only (never on a candidate or a reference pose).
     """
@@ -103,9 +108,10 @@ def coarse_cameras(pair: PreparedPair, config: AlignConfig, log_s: float, look_a
     radius = _scene_radius(pair, log_s) if radius is None else radius
     distance = radius / math.sin(math.radians(fov) / 2) * 1.05
     azimuth = torch.tensor(azimuths, dtype=torch.float32)[None].expand(len(look_at), -1)
+    elevation = cam.eval_elevation_deg + torch.tensor(rises or [0.0] * views, dtype=torch.float32)
     full = lambda v: torch.full((len(look_at), views), float(v))  # noqa: E731
     device = pair.source_vertices.device
-    return orbit(look_at, azimuth, full(cam.eval_elevation_deg), full(distance), full(fov),
+    return orbit(look_at, azimuth, elevation[None].expand(len(look_at), -1), full(distance), full(fov),
                  cfg.coarse_image_size).to(device)
 
 
@@ -115,9 +121,10 @@ def coarse_azimuths(views: int) -> list[float]:
 
 
 def agreement_cameras(pair: PreparedPair, config: AlignConfig, log_s: float) -> Cameras:
-    """The views the guide's choice is checked from (``agreement_views``): front, left, back and right
-    (``HELD_OUT_AZIMUTHS``), none of the coarse stage's corner views with its default one, two or four."""
-    return coarse_cameras(pair, config, log_s, azimuths=list(HELD_OUT_AZIMUTHS))
+    """The views the guide's choice is checked from (``agreement_views``): front, left, back and right, and two
+    from higher up (``HELD_OUT_VIEWS``), none of the coarse stage's corner views with its one to four."""
+    return coarse_cameras(pair, config, log_s, azimuths=[view[0] for view in HELD_OUT_VIEWS],
+                          rises=[view[1] for view in HELD_OUT_VIEWS])
 
 
 def tiles_of(pair: PreparedPair, config: AlignConfig, poses: Poses) -> tuple[torch.Tensor, torch.Tensor, float] | None:

@@ -64,6 +64,6 @@ def summary(report: dict[str, Any]) -> str:
 
 
 def guide(report: dict[str, Any]) -> str:
-    """Which guide ran and, where it had one, its say in the choice (``ordering.Gate``'s summary)."""
+    """Which guide ran and, where it had one, its say in the choice (``ordering.GuideSay``'s summary)."""
     say = (report.get("guide_say") or {}).get("summary")
     return f"guide: {report.get('guide', 'unknown')}" + (f"; {say}" if say else "")

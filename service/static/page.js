@@ -688,7 +688,7 @@ function pairRows(report) {
   if (named.length) rows.push(["the ground's parts", named.join("; ")]); // relations.parts, with why
   const grounds = (report.extra || {}).grounds || [];
   if (grounds.length) rows.push(["relates to", grounds.join(" and ")]); // a scene target's objects it was placed by
-  if (report.guide_say) rows.push(["who chose", report.guide_say.summary]); // the guide's say (ordering.Gate)
+  if (report.guide_say) rows.push(["who chose", report.guide_say.summary]); // the guide's say (ordering.GuideSay)
   rows.push(["guided by", report.model && report.guide !== "none" ? report.model : "the geometry and the relation"]);
   rows.push(["run", `preset ${report.preset ?? "default"}, seed ${report.seed ?? "default"}`]);
   return rows;
