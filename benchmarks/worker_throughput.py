@@ -76,8 +76,8 @@ def main(argv: list[str] | None = None) -> int:
     return 0 if figures["overall"]["succeeded"] == total else 1
 
 
-def mix(geometry: int, guided: int, scenes: int, preset: str, folder: Path) -> list[tuple[str, str, dict, dict]]:
-    """The fixed jobs, in submitting order: (kind, route, files, form fields)."""
+def mix(geometry: int, guided: int, scenes: int, preset: str, folder: Path) -> list[tuple[str, str, str, dict, dict]]:
+    """The fixed jobs, in submitting order: (kind, case, route, files, form fields)."""
     pairs = list(EXAMPLES.values())
     jobs = []
     for kind, count, options in (("geometry", geometry, {"lambda_clip": 0}),
@@ -85,9 +85,10 @@ def mix(geometry: int, guided: int, scenes: int, preset: str, folder: Path) -> l
         for i in range(count):
             example = pairs[i % len(pairs)]
             files = example.files()
-            jobs.append((kind, "/align", {"target": (example.target_file, files[example.target_file]),
-                                          "source": (example.source_file, files[example.source_file])},
-                         {"prompt": example.prompt, "options": json.dumps({"preset": preset, "seed": i, **options})}))
+            upload = {"target": (example.target_file, files[example.target_file]),
+                      "source": (example.source_file, files[example.source_file])}
+            form = {"prompt": example.prompt, "options": json.dumps({"preset": preset, "seed": i, **options})}
+            jobs.append((kind, example.name, "/align", upload, form))
     if scenes:
         write_table_setting(folder)
         for name, data in get_example("apple-in-bowl").files().items():
@@ -95,7 +96,7 @@ def mix(geometry: int, guided: int, scenes: int, preset: str, folder: Path) -> l
     for i in range(scenes):
         files = [("base", ("table.glb", (folder / "table.glb").read_bytes()))]
         files += [("source", (s["file"], (folder / s["file"]).read_bytes())) for s in SCENE_STEPS]
-        jobs.append(("scene", "/assemble", files,
+        jobs.append(("scene", "table setting, bowl, apple", "/assemble", files,
                      {"plan": json.dumps(SCENE_STEPS),
                       "options": json.dumps({"preset": preset, "seed": i, "lambda_clip": 0})}))
     return jobs
@@ -152,16 +153,16 @@ async def _measure(url: str, worker: int, args: argparse.Namespace) -> dict:
             jobs = mix(args.geometry, args.guided, args.scenes, args.preset, Path(tmp))
         first_submit = time.time()
         ids = []
-        for kind, route, files, data in jobs:
+        for kind, case, route, files, data in jobs:
             answer = await client.post(route, files=files, data=data)
             if answer.is_error:
                 raise RuntimeError(f"POST {route} refused the mix's {kind} job: {answer.status_code} {answer.text}")
-            ids.append((kind, answer.json()["id"]))
+            ids.append(((kind, case), answer.json()["id"]))
         records = []
-        for kind, job_id in ids:  # one worker takes them in order: wait on the oldest unfinished only
+        for label, job_id in ids:  # one worker takes them in order: wait on the oldest unfinished only
             while (job := (await client.get(f"/jobs/{job_id}")).json())["status"] not in TERMINAL:
                 await asyncio.sleep(0.5)
-            records.append((kind, job))
+            records.append((label, job))
         await asyncio.sleep(5)  # after: the last job's memory released, if it is
         after = sampler.samples[-1]
         sampler.stop()
@@ -170,14 +171,14 @@ async def _measure(url: str, worker: int, args: argparse.Namespace) -> dict:
     return _figures(records, sampler, first_submit, idle, idle_cpu_rate, after, hwm, args)
 
 
-def _figures(records: list[tuple[str, dict]], sampler: Sampler, first_submit: float, idle: tuple, idle_cpu_rate: float,
-             after: tuple, hwm: dict, args: argparse.Namespace) -> dict:
+def _figures(records: list[tuple[tuple[str, str], dict]], sampler: Sampler, first_submit: float, idle: tuple,
+             idle_cpu_rate: float, after: tuple, hwm: dict, args: argparse.Namespace) -> dict:
     per_job = []
-    for kind, job in records:
+    for (kind, case), job in records:
         created, started, finished = (_epoch(job[k]) for k in ("created_at", "started_at", "finished_at"))
         run_s = None if started is None or finished is None else finished - started
         per_job.append({
-            "kind": kind, "status": job["status"], "guide": job.get("guide"),
+            "kind": kind, "case": case, "status": job["status"], "guide": job.get("guide"),
             "error": (job.get("error") or {}).get("code"),
             "queued_s": None if started is None else round(started - created, 2),
             "run_s": None if run_s is None else round(run_s, 2),
@@ -193,6 +194,8 @@ def _figures(records: list[tuple[str, dict]], sampler: Sampler, first_submit: fl
                        "succeeded": sum(j["kind"] == kind and j["status"] == "succeeded" for j in per_job),
                        "run_s_median": _median([j["run_s"] for j in mine]),
                        "cpu_s_median": _median([j["cpu_s"] for j in mine]),
+                       "run_s_median_by_case": {c: _median([j["run_s"] for j in mine if j["case"] == c])
+                                                for c in dict.fromkeys(j["case"] for j in mine)},
                        "jobs_per_minute": round(60 * len(mine) / run, 2) if run else None}
     return {
         "mix": {"geometry": args.geometry, "guided": args.guided, "scenes": args.scenes, "preset": args.preset,
