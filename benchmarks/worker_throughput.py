@@ -122,13 +122,11 @@ class Sampler(threading.Thread):
         self._halt.set()
         self.join()
 
-    def sample(self) -> tuple[float, float, float, float]:
+    def sample(self) -> None:
         now = descendants(self.pid)
         self.children.update(now)
-        row = (time.time(), sum(_cpu_s(p) for p in [self.pid, *now]), _status_mb(self.pid, "VmRSS"),
-               sum((_status_mb(p, "VmRSS") for p in now), 0.0))
-        self.samples.append(row)
-        return row
+        self.samples.append((time.time(), sum(_cpu_s(p) for p in [self.pid, *now]), _status_mb(self.pid, "VmRSS"),
+                             sum((_status_mb(p, "VmRSS") for p in now), 0.0)))
 
     def cpu_at(self, when: float) -> float:
         """Cumulative CPU seconds at ``when`` (epoch), interpolated between the samples around it."""
@@ -138,6 +136,7 @@ class Sampler(threading.Thread):
         return c0 + (c1 - c0) * min(max((when - t0) / max(t1 - t0, 1e-9), 0.0), 1.0)
 
     def between(self, start: float, end: float) -> list[tuple[float, float, float, float]]:
+        """The samples taken from ``start`` to ``end`` (epoch)."""
         return [s for s in self.samples if start <= s[0] <= end]
 
 
