@@ -20,6 +20,8 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import httpx
@@ -40,26 +42,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, default=None, help="also write the figures here")
     args = parser.parse_args(argv)
 
-    with tempfile.TemporaryDirectory() as tmp, EmbeddedRedis(Path(tmp) / "redis") as redis_url:
-        env = {**os.environ, "REDIS_URL": redis_url, "CTP_MODEL": "random:tiny", "CTP_LOG_LEVEL": "WARNING",
-               "CTP_MAX_ACTIVE_JOBS": str(args.jobs), "CTP_THREADS": "1", "OMP_NUM_THREADS": "1",
-               "OMP_WAIT_POLICY": "PASSIVE"}
-        port = free_port()
-        url = f"http://127.0.0.1:{port}"
-        logs = open(Path(tmp) / "processes.log", "wb")  # noqa: SIM115 - closed below
-        api = subprocess.Popen([sys.executable, "-m", "uvicorn", "--factory", "service.app:create_app", "--host",
-                                "127.0.0.1", "--port", str(port), "--log-level", "warning"],
-                               env=env, cwd=REPO, stdout=logs, stderr=subprocess.STDOUT)
-        workers = [subprocess.Popen([sys.executable, "-m", "ctp", "worker"], env=env, cwd=REPO, stdout=logs,
-                                    stderr=subprocess.STDOUT) for _ in range(args.workers)]
-        try:
-            figures = asyncio.run(_measure(url, args))
-        finally:
-            for p in [*workers, api]:
-                p.terminate()
-            for p in [*workers, api]:
-                p.wait(timeout=30)
-            logs.close()
+    with running_service(args.workers, max_active_jobs=args.jobs) as (url, _):
+        figures = asyncio.run(_measure(url, args))
     print(json.dumps(figures, indent=2))
     if args.json:
         args.json.write_text(json.dumps(figures, indent=2))
@@ -71,7 +55,7 @@ async def _measure(url: str, args: argparse.Namespace) -> dict:
     source = ("ball.glb", trimesh.creation.icosphere(subdivisions=2, radius=0.3).export(file_type="glb"))
     limits = httpx.Limits(max_connections=args.concurrency, max_keepalive_connections=args.concurrency)
     async with httpx.AsyncClient(base_url=url, timeout=120, limits=limits) as client:
-        await _until_ready(client, args.workers)
+        await until_ready(client, args.workers)
 
         async def one_job(i: int) -> dict:
             started = time.perf_counter()
@@ -120,7 +104,32 @@ async def _measure(url: str, args: argparse.Namespace) -> dict:
     }
 
 
-async def _until_ready(client: httpx.AsyncClient, workers: int, timeout_s: float = 180) -> None:
+@contextmanager
+def running_service(workers: int, *, max_active_jobs: int) -> Iterator[tuple[str, list[subprocess.Popen]]]:
+    """A private redis-server, the API under uvicorn and ``workers`` ``ctp worker`` processes (tiny random model,
+    one torch thread each, logs to a temporary file) until the block ends; yields the API's URL and the workers."""
+    with tempfile.TemporaryDirectory() as tmp, EmbeddedRedis(Path(tmp) / "redis") as redis_url:
+        env = {**os.environ, "REDIS_URL": redis_url, "CTP_MODEL": "random:tiny", "CTP_LOG_LEVEL": "WARNING",
+               "CTP_MAX_ACTIVE_JOBS": str(max_active_jobs), "CTP_THREADS": "1", "OMP_NUM_THREADS": "1",
+               "OMP_WAIT_POLICY": "PASSIVE"}
+        port = free_port()
+        with open(Path(tmp) / "processes.log", "wb") as logs:
+            api = subprocess.Popen([sys.executable, "-m", "uvicorn", "--factory", "service.app:create_app", "--host",
+                                    "127.0.0.1", "--port", str(port), "--log-level", "warning"],
+                                   env=env, cwd=REPO, stdout=logs, stderr=subprocess.STDOUT)
+            started = [subprocess.Popen([sys.executable, "-m", "ctp", "worker"], env=env, cwd=REPO, stdout=logs,
+                                        stderr=subprocess.STDOUT) for _ in range(workers)]
+            try:
+                yield f"http://127.0.0.1:{port}", started
+            finally:
+                for p in [*started, api]:
+                    p.terminate()
+                for p in [*started, api]:
+                    p.wait(timeout=30)
+
+
+async def until_ready(client: httpx.AsyncClient, workers: int, timeout_s: float = 180) -> None:
+    """Wait until ``/readyz`` counts ``workers`` workers (each has loaded its model)."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         try:
