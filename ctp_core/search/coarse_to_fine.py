@@ -56,7 +56,10 @@ from ctp_core.search.ordering import (
 )
 
 HIDDEN = 1e-6  # tile stage: a smaller change of the guide's term than this is a source its views do not see
-GATE_PROBES = 4  # ``guide_noise``: candidates scored again, moved by a negligible amount
+# ``guide_noise``: candidates scored again, moved by a negligible amount. Eight, so that a spread well past the noise
+# can show it: a variance 20 times the noise's is 4.2 decades against chance with 8 degrees of freedom (F(N - 1, 8)),
+# the most ``GuideSay`` asks (a sure geometry), and 2.3 with 4, never a full say
+GATE_PROBES = 8
 GATE_SHIFT = 0.01  # ... by this many source diagonals
 GATE_TURN_DEG = 1.0  # ... and turned this much about +Y
 # ``agreement_cameras``: the views that check the guide's choice, (azimuth, degrees above the evaluation elevation):
