@@ -23,9 +23,8 @@ CONFIG = AlignConfig.from_preset("test", model="random:tiny", seed=0, loss={"lam
 
 def _placed(meshes: dict[str, trimesh.Trimesh]) -> Assembly:
     """The table, a plate on it and a cup on the plate, geometry only (the test preset, a short refinement)."""
-    config = CONFIG
     steps = [Step(meshes[name], name, prompt, on=on) for name, prompt, on in PLAN]
-    return assemble(meshes["table"], steps, config, base_name="table")
+    return assemble(meshes["table"], steps, CONFIG, base_name="table")
 
 
 def _counted(patch: pytest.MonkeyPatch) -> tuple[Assembly, Counter, int]:
