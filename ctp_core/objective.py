@@ -134,12 +134,13 @@ class Scorer:
         samples = self.pair.source_samples if points is None else self.pair.source_subset(points)
         with self.clock.time("geometry"):
             pts = apply_pose(samples, poses.t, poses.q, poses.log_s)
-            # where soft-ICP pulls toward the whole target (a single pair), its neighbours are the penetration's:
-            # one search serves both
-            shared = self.pair.anchor is self.pair.index and self.contact_ratio > 0 and phase.lambda_pen > 0
-            idx = self.pair.index.neighbours(pts, cfg.icp_neighbours) if shared else None
+            # where both terms ask, one search answers both: the same one where soft-ICP pulls toward the whole
+            # target (a single pair), the grounds' where they answer for every object (``losses.neighbours_of``)
+            both = self.contact_ratio > 0 and phase.lambda_pen > 0
+            near, idx = (losses.neighbours_of(self.pair.anchor, self.pair.index, pts, cfg.icp_neighbours) if both
+                         else (None, None))
             icp = losses.soft_icp(pts, self.pair.anchor, self.contact_ratio, phase.sigma_icp, cfg.icp_neighbours,
-                                  idx=idx)
+                                  idx=near)
             if phase.lambda_pen > 0:
                 pen = losses.penetration(pts, self.pair.index, cfg.sigma_pen, cfg.c_pen, cfg.icp_neighbours, idx=idx)
                 pen = pen + self.enclosed(poses)

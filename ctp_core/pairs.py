@@ -16,6 +16,7 @@ Frames (see ``frames``):
 
 from __future__ import annotations
 
+import copy
 import functools
 import math
 import weakref
@@ -30,7 +31,7 @@ import trimesh
 
 from ctp_core import orientation, render
 from ctp_core.errors import ConfigError
-from ctp_core.geometry import frames, sampling
+from ctp_core.geometry import frames, once, sampling
 from ctp_core.geometry.pose import matrix_to_quaternion
 from ctp_core.losses import SurfaceIndex
 from ctp_core.orientation import canonical
@@ -53,10 +54,22 @@ def objects(target: Target) -> list[tuple[str, trimesh.Trimesh]]:
         matrix, key = target.graph[node]
         mesh = target.geometry.get(key)
         if isinstance(mesh, trimesh.Trimesh):
-            placed.append((node, mesh if np.allclose(matrix, np.eye(4)) else mesh.copy().apply_transform(matrix)))
+            placed.append((node, mesh if np.allclose(matrix, np.eye(4)) else _moved(mesh, _matrix_key(matrix))))
     if not placed:
         raise ValueError("the target scene holds no triangle mesh")
     return placed
+
+
+def _matrix_key(matrix: np.ndarray) -> bytes:
+    """A node's 4x4 as a key of ``_moved`` (its float64 bytes: the matrix itself, exactly)."""
+    return np.asarray(matrix, dtype=np.float64).tobytes()
+
+
+@once.per_mesh
+def _moved(mesh: trimesh.Trimesh, matrix: bytes) -> trimesh.Trimesh:
+    """A copy of ``mesh`` moved by the 4x4 ``matrix`` (``_matrix_key``): a placed object in the target file frame,
+    made once per scene for each place it is put (``once``)."""
+    return mesh.copy().apply_transform(np.frombuffer(matrix, dtype=np.float64).reshape(4, 4))
 
 
 def attachment(target: Target, on: str | Sequence[str] | None) -> trimesh.Trimesh:
@@ -248,10 +261,10 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
     whole, up_from = geometry(target), base(target)
     if target_up is None:
         axes = target_axes if canonicalise else orientation.Axes("+y", target_axes.front)
-        target_up = orientation.orient(up_from, axes, seed=seed, judge=judge)
+        target_up = _orient(up_from, axes, seed, judge=judge)
         if not canonicalise:
             target_up.reason = "up: the file's +Y (the upright step is off)"
-    source_up = orientation.orient(source, source_axes, seed=seed, role="source")
+    source_up = _orient(source, source_axes, seed, role="source")
     stated = source_axes.up not in ("file", "auto") or (
         source_axes.up == "file" and orientation.file_format(source) in orientation.CONVENTIONS)
     keeps, why = canonical.clear_up(source, source_up.up, stated) if keep_up else (False, "")
@@ -259,16 +272,15 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
     source_to_local = frames.source_local(source.bounds, target_to_norm)
 
     parts = objects(target)
-    target_arrays = [MeshArrays.from_trimesh(m) for _, m in parts]
-    source_arrays = MeshArrays.from_trimesh(source)
-    renders = [render.RenderMesh.from_arrays(a, device=device) for a in [*target_arrays, source_arrays]]
-    mesh = render.join(renders, [len(a.vertices) for a in [*target_arrays, source_arrays]])
+    rendered = [_rendered(m, device) for m in [*(m for _, m in parts), source]]
+    target_arrays, source_arrays = [a for a, _ in rendered[:-1]], rendered[-1][0]
+    mesh = render.join([r for _, r in rendered], [len(a.vertices) for a, _ in rendered])
 
     oriented = [outward(m) for _, m in parts]
-    sampled = [sampling.surface_samples(m, samples, seed + 2 * i) for i, m in enumerate(oriented)]
+    sampled = [_samples(m, samples, seed + 2 * i) for i, m in enumerate(oriented)]
     t_pts, t_nrm = (np.concatenate(parts_of) for parts_of in zip(*sampled, strict=True))
-    s_pts, _ = sampling.surface_samples(source, samples, seed + 1)
-    s_out, s_nrm = sampling.surface_samples(outward(source), samples, seed + 1)
+    s_pts, _ = _samples(source, samples, seed + 1)
+    s_out, s_nrm = _samples(outward(source), samples, seed + 1)
     as_tensor = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=device)  # noqa: E731
     index = lambda p, n: SurfaceIndex(as_tensor(target_to_norm.apply(p)),  # noqa: E731
                                      as_tensor(target_to_norm.apply_directions(n)))
@@ -280,13 +292,19 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
     bottoms = [float(v[:, 1].min()) for v in placed]
     ground_level = None
     if positions and len(parts) > 1:
-        plain = [trimesh.Trimesh(m.vertices, m.faces, process=False) for _, m in parts]
+        plain = [_plain(m) for _, m in parts]
         ground_level = min(bottoms[0] if i == 0 else support_level(  # the base stands on the floor
             plain[i], [o for k, o in enumerate(plain) if k != i], target_to_norm, target_up.up, bottoms[0])
             for i in positions)
     named = [index(*sampled[i]) for i in positions] if len(parts) > 1 else []
     attach = None if not named else named[0] if len(named) == 1 else SurfaceIndex(
         torch.cat([g.points for g in named]), torch.cat([g.normals for g in named]))
+    target_index = index(t_pts, t_nrm)
+    if attach is not None:  # the grounds' samples are rows of every object's: their search answers for both
+        starts = np.cumsum([0] + [len(p) for p, _ in sampled])
+        rows = [np.arange(starts[i], starts[i + 1]) for i in range(len(sampled))]
+        attach.part_of(target_index, np.concatenate([rows[i] for i in positions]),
+                       [r for i, r in enumerate(rows) if i not in positions])
     return PreparedPair(
         target=target,
         source=source,
@@ -297,7 +315,7 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
         mesh=mesh,
         target_vertices=as_tensor(target_to_norm.apply(np.concatenate([a.vertices for a in target_arrays]))),
         source_vertices=as_tensor(source_to_local.apply(source_arrays.vertices)),
-        index=index(t_pts, t_nrm),
+        index=target_index,
         source_samples=as_tensor(source_to_local.apply(s_pts)),
         source_surface=SurfaceIndex(as_tensor(source_to_local.apply(s_out)),
                                     as_tensor(source_to_local.apply_directions(s_nrm))),
@@ -352,7 +370,7 @@ def ground_front(target: trimesh.Scene, name: str, up: np.ndarray, seed: int) ->
     are its base's; a directional relation to another of its objects ("to the left of the sofa" once the sofa is
     turned to face the TV) is in that object's own frame."""
     matrix, key = target.graph[name]
-    own = orientation.orient(target.geometry[key], seed=seed, role="target")
+    own = _orient(target.geometry[key], orientation.FROM_FILE, seed)
     linear = np.asarray(matrix, dtype=np.float64)[:3, :3]
     front = linear @ own.front
     front = front - (front @ up) * up  # a front tipped toward the up keeps its horizontal part
@@ -365,11 +383,47 @@ def _unit(vector: np.ndarray) -> np.ndarray:
     return vector / np.linalg.norm(vector)
 
 
+def _orient(mesh: trimesh.Trimesh, axes: orientation.Axes, seed: int, *, role: str = "target",
+            judge: canonical.Judge | None = None) -> canonical.Upright:
+    """``orientation.orient``; without a judge, found once per scene for each object (``once``) and copied out
+    (``prepare_pair`` may change its reason)."""
+    if judge is not None:
+        return orientation.orient(mesh, axes, seed=seed, judge=judge, role=role)
+    return copy.deepcopy(_oriented(mesh, axes, seed, role))
+
+
+@once.per_mesh
+def _oriented(mesh: trimesh.Trimesh, axes: orientation.Axes, seed: int, role: str) -> canonical.Upright:
+    return orientation.orient(mesh, axes, seed=seed, role=role)
+
+
+@once.per_mesh
+def _rendered(mesh: trimesh.Trimesh, device: str) -> tuple[MeshArrays, render.RenderMesh]:
+    """A mesh's arrays and its render mesh on ``device``, made once per scene (``once``)."""
+    arrays = MeshArrays.from_trimesh(mesh)
+    return arrays, render.RenderMesh.from_arrays(arrays, device=device)
+
+
+@once.per_mesh
+def _samples(mesh: trimesh.Trimesh, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """``sampling.surface_samples``, made once per scene for each mesh, count and seed (``once``)."""
+    return sampling.surface_samples(mesh, count, seed)
+
+
+@once.per_mesh
+def _plain(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """The mesh's triangles alone (no visuals, not processed), made once per scene (``once``): what rays are cast
+    against (``support_level``), its intersector kept with it."""
+    return trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+
+
+@once.per_mesh
 def outward(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     """A copy with consistent, outward winding where trimesh can decide it (penetration needs "inside").
 
     Watertight meshes get outward normals; open ones get consistent winding, oriented by trimesh's
-    heuristic, and "inside" then means behind the oriented side (documented limit).
+    heuristic, and "inside" then means behind the oriented side (documented limit). Made once per scene for
+    each mesh (``once``): the copy is shared there, not to be changed.
     """
     fixed = mesh.copy()
     with np.errstate(divide="ignore", invalid="ignore"):  # trimesh divides by the volume of flat parts

@@ -169,3 +169,42 @@ def test_the_enclosed_half_looks_up_only_the_samples_that_count_with_the_same_su
     dense.sum().backward()
     looked_up.sum().backward()
     assert torch.equal(dense_points.grad, points.grad)
+
+
+def _three_objects(shift: float = 0.0) -> tuple[losses.SurfaceIndex, losses.SurfaceIndex, list[np.ndarray]]:
+    """Every object's samples (three clusters: a ground and two others) and the ground's alone; its rows and the
+    others'."""
+    gen = torch.Generator().manual_seed(3)
+    parts = [torch.randn(300, 3, generator=gen) * 0.2 + torch.tensor(c) for c in ([0.0, 0, 0], [1.5, 0, 0], [0, 0, 2])]
+    normals = torch.nn.functional.normalize(torch.randn(900, 3, generator=gen), dim=1)
+    whole = losses.SurfaceIndex(torch.cat(parts), normals)
+    ground = losses.SurfaceIndex(parts[0] + shift, normals[:300])
+    return whole, ground, [np.arange(0, 300), np.arange(300, 600), np.arange(600, 900)]
+
+
+def test_a_ground_answers_for_every_object_where_no_other_is_nearer():
+    """``neighbours_of``: the ground's search answers the penetration term's question of every object's samples
+    where no other object's box is as near as its k-th sample; the whole is searched for the rest only, and both
+    answers are those of a search of each, index for index."""
+    whole, ground, rows = _three_objects()
+    assert ground.part_of(whole, rows[0], rows[1:])
+    gen = torch.Generator().manual_seed(4)
+    # half around the ground (a source placed on it), half anywhere around all three
+    queries = torch.cat([torch.randn(5, 200, 3, generator=gen) * 0.3, torch.rand(5, 200, 3, generator=gen) * 4 - 1], 1)
+    asked: list[int] = []
+    search = whole.nearest
+    whole.nearest = lambda flat, k: (asked.append(len(flat)), search(flat, k))[1]  # type: ignore[method-assign]
+    near, idx = losses.neighbours_of(ground, whole, queries, 32)
+    whole.nearest = search  # type: ignore[method-assign]
+    assert torch.equal(near, ground.neighbours(queries, 32))
+    assert torch.equal(idx, whole.neighbours(queries, 32))
+    assert len(asked) == 1 and 0 < asked[0] < 2000  # the whole asked only for the points near the other objects
+
+
+def test_samples_that_are_not_the_wholes_rows_are_no_part_of_it():
+    """A ground whose samples differ from the whole's rows (here by 1 mm) is not marked: both are searched."""
+    whole, ground, rows = _three_objects(shift=1e-3)
+    assert not ground.part_of(whole, rows[0], rows[1:])
+    queries = torch.rand(2, 100, 3, generator=torch.Generator().manual_seed(5)) * 4 - 1
+    near, idx = losses.neighbours_of(ground, whole, queries, 16)
+    assert torch.equal(near, ground.neighbours(queries, 16)) and torch.equal(idx, whole.neighbours(queries, 16))

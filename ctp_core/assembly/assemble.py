@@ -21,6 +21,7 @@ already in the scene frame, so its answer (source file -> target file) is the so
 
 from __future__ import annotations
 
+import copy
 import functools
 import time
 from collections.abc import Callable, Sequence
@@ -33,7 +34,7 @@ import trimesh
 from ctp_core.assembly.plan import Also, check_plan
 from ctp_core.config import AUTO, AlignConfig
 from ctp_core.errors import Canceled, ConfigError, CtpError
-from ctp_core.geometry import frames
+from ctp_core.geometry import frames, once
 from ctp_core.guide import selection
 from ctp_core.progress import CancelCheck, ProgressCallback
 from ctp_core.reading import cues, passes
@@ -118,6 +119,7 @@ def scene_of(objects: Sequence[Placed]) -> trimesh.Scene:
 StepCallback = Callable[[int, int, Step], None]
 
 
+@once.scene()  # what every step and every check asks of the placed objects again, made once
 def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, *, base_name: str = "base",
              guide=None, on_event: ProgressCallback | None = None, on_step: StepCallback | None = None,
              should_cancel: CancelCheck | None = None, choice: selection.GuideChoice | None = None) -> Assembly:
@@ -128,7 +130,9 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
     ``config.model``). A step's ``CtpError`` is re-raised with the step named in its message (as "stage k/n",
     the word the report and the API use) and
     ``field`` ``steps.<i>[.<its field>]``; ``Canceled`` passes through. Model ``auto`` is chosen once for all
-    steps (``choice``: already chosen, a worker's), so every step has the same guide.
+    steps (``choice``: already chosen, a worker's), so every step has the same guide. What the steps, the checks of
+    their candidates and the final judgement ask again of objects that have not moved (their copies in the scene,
+    samples, render meshes, up and front, and a verdict of the same scene) is made once (``once``).
     """
     from ctp_core.align import align
 
@@ -473,15 +477,24 @@ def judged(objects: list[Placed], results: list[StepResult]) -> dict[str, Any]:
 def _verdict(objects: list[Placed], index: int, result: AlignResult, grounds: Sequence[str],
              reading: RelationReading | None = None) -> dict[str, Any]:
     """``whole.verdict`` of ``objects[index]`` (placed by ``result``; judged by ``reading``, else the run's) against
-    every other object."""
+    every other object. Judged once per scene (``once``) for the same objects where they are, relation and options:
+    the last step's answer is judged with every earlier step when it is kept, and the final scene is that scene."""
     from ctp_core.assembly import whole
 
     placed = objects[index]
     others = [p for i, p in enumerate(objects) if i != index]
     floor = float(objects[0].mesh.bounds[0][1])  # the base's bottom: its file frame is the scene frame
-    return whole.verdict(scene_of(others), placed.name, placed.mesh, np.asarray(placed.to_scene.matrix), result,
-                         grounds, placed=[(p.name, p.mesh, np.asarray(p.to_scene.matrix)) for p in others],
-                         floor=floor, reading=reading)
+    reading = reading or RelationReading.from_verdict(result.relation)  # what ``whole.verdict`` reads of the run
+
+    def judge() -> dict[str, Any]:
+        return whole.verdict(scene_of(others), placed.name, placed.mesh, np.asarray(placed.to_scene.matrix), result,
+                             grounds, placed=[(p.name, p.mesh, np.asarray(p.to_scene.matrix)) for p in others],
+                             floor=floor, reading=reading)
+
+    where = tuple((p.name, id(p.mesh), hash(p.mesh), np.asarray(p.to_scene.matrix, dtype=np.float64).tobytes())
+                  for p in objects)
+    key = ("verdict", where, index, tuple(grounds), reading, result.config.model_dump_json())
+    return copy.deepcopy(once.value(key, judge, pin=[p.mesh for p in objects]))  # the caller's own copy
 
 
 def _also_verdict(objects: list[Placed], index: int, result: AlignResult, also: Also) -> dict[str, Any]:

@@ -40,7 +40,7 @@ from ctp_core import priors
 from ctp_core.assembly.assemble import Placed, scene_of
 from ctp_core.config import AUTO, AlignConfig
 from ctp_core.errors import Canceled
-from ctp_core.geometry import frames
+from ctp_core.geometry import frames, once
 from ctp_core.guide import selection
 from ctp_core.progress import CancelCheck, ProgressCallback
 from ctp_core.reading import counts
@@ -119,13 +119,15 @@ def placed_copies(target: trimesh.Trimesh, target_name: str, source: trimesh.Tri
                                                            frames.SCENE)) for name, m in copies)]
 
 
+@once.scene()  # each copy's run and check asks the same of the target and the earlier copies
 def place_copies(target: trimesh.Trimesh, source: trimesh.Trimesh, prompt: str | None, config: AlignConfig, *,
                  count: int | None = None, arrangement: str = AUTO, target_name: str = "target",
                  source_name: str = "source", guide=None, on_event: ProgressCallback | None = None,
                  on_copy: CopyCallback | None = None, should_cancel: CancelCheck | None = None,
                  choice: selection.GuideChoice | None = None) -> Copies:
     """Place ``count`` copies of ``source`` (file frames) by ``arrangement`` (see the module); ``on_copy(k, n)`` is
-    called as copy k of n starts. The guide is chosen and loaded once for all copies."""
+    called as copy k of n starts. The guide is chosen and loaded once for all copies; what every copy's run asks of
+    the target and the copies before it again is made once (``once``)."""
     from ctp_core import adjust, orientation, pairs
     from ctp_core.align import align
 

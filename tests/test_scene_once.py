@@ -1,0 +1,104 @@
+"""Made once per scene (``ctp_core.geometry.once``): a scene's steps, the checks of their candidates and the final
+judgement ask again what they asked of objects that have not moved (their copies in the scene, surface samples,
+render meshes, up and front, a verdict of the same scene). Each is made once within ``assemble``, and the scene
+placed so is the one placed without keeping anything, bit for bit: every pose, verdict and choice."""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import numpy as np
+import pytest
+import trimesh
+
+from ctp_core import pairs
+from ctp_core.assembly import whole
+from ctp_core.assembly.assemble import Assembly, Step, assemble
+from ctp_core.config import AlignConfig
+from ctp_core.geometry import once, sampling
+from tests.test_assemble import PLAN, table_plate_cup
+
+CONFIG = AlignConfig.from_preset("test", model="random:tiny", seed=0, loss={"lambda_clip": 0.0}, optim={"steps": 40})
+
+
+def _placed(meshes: dict[str, trimesh.Trimesh]) -> Assembly:
+    """The table, a plate on it and a cup on the plate, geometry only (the test preset, a short refinement)."""
+    steps = [Step(meshes[name], name, prompt, on=on) for name, prompt, on in PLAN]
+    return assemble(meshes["table"], steps, CONFIG, base_name="table")
+
+
+def _counted(patch: pytest.MonkeyPatch) -> tuple[Assembly, Counter, int]:
+    """The scene placed with ``patch``'s changes, the surface samples it made (by the mesh sampled, the count and
+    the seed) and the verdicts it judged."""
+    made: Counter = Counter()
+    judged: list[int] = []
+    sample, verdict = sampling.surface_samples, whole.verdict
+
+    def counted_sample(mesh: trimesh.Trimesh, count: int, seed: int):
+        made.update([(id(mesh), count, seed)])
+        return sample(mesh, count, seed)
+
+    def counted_verdict(*args, **kwargs):
+        judged.append(1)
+        return verdict(*args, **kwargs)
+
+    with patch.context() as inner:
+        inner.setattr(sampling, "surface_samples", counted_sample)
+        inner.setattr(whole, "verdict", counted_verdict)
+        placed = _placed(table_plate_cup())
+    return placed, made, len(judged)
+
+
+@pytest.fixture(scope="module")
+def runs() -> dict[str, tuple[Assembly, Counter, int]]:
+    """The scene placed as it is (kept) and with nothing kept (fresh: every ``once.value`` made again)."""
+    with pytest.MonkeyPatch.context() as patch:
+        kept = _counted(patch)
+        patch.setattr(once, "value", lambda key, build, pin=None: build())
+        return {"kept": kept, "fresh": _counted(patch)}
+
+
+def test_each_object_is_sampled_once_per_scene(runs):
+    """Within the scene every object's samples (a target's in the scene frame with its seed, a source's in its own
+    frame) are made once, though every step and every check prepares its pair afresh; without keeping them the same
+    scene samples its objects again and again."""
+    count = CONFIG.loss.samples  # the losses' samples (``pairs.prepare_pair``), not the other measures' few
+    kept = [n for (_, samples, _), n in runs["kept"][1].items() if samples == count]
+    fresh = [n for (_, samples, _), n in runs["fresh"][1].items() if samples == count]
+    assert kept and max(kept) == 1  # the meshes sampled are all held by the scene's store: no identity is reused
+    assert sum(fresh) > 2 * sum(kept)
+
+
+def test_the_final_judgement_judges_nothing_again(runs):
+    """The final scene is the scene the last step's answer was judged in: its verdicts are not judged again."""
+    kept, _, kept_judged = runs["kept"]
+    _, _, fresh_judged = runs["fresh"]
+    finals = len(kept.whole["relations"])
+    assert finals == 2 and kept_judged <= fresh_judged - finals
+
+
+def test_what_is_kept_places_and_judges_as_without(runs):
+    """Bit for bit: every object's pose, each step's choice among its candidates, its run's answer and
+    alternatives, and the final judgement."""
+    kept, _, _ = runs["kept"]
+    fresh, _, _ = runs["fresh"]
+    for a, b in zip(kept.objects, fresh.objects, strict=True):
+        assert a.name == b.name and np.array_equal(a.to_scene.matrix, b.to_scene.matrix)
+    for a, b in zip(kept.results, fresh.results, strict=True):
+        assert a.kept == b.kept and a.result.relation == b.result.relation
+        assert np.array_equal(a.result.source_to_target, b.result.source_to_target)
+        assert [np.asarray(x["source_to_target"]).tobytes() for x in a.result.alternatives] == [
+            np.asarray(x["source_to_target"]).tobytes() for x in b.result.alternatives]
+    assert kept.whole == fresh.whole
+
+
+def test_outside_a_scene_nothing_is_kept():
+    """A single pair, or any call outside ``assemble`` and ``place_copies``, makes everything afresh."""
+    mesh = trimesh.creation.box()
+    assert pairs.outward(mesh) is not pairs.outward(mesh)
+    with once.scene():
+        fixed = pairs.outward(mesh)
+        assert pairs.outward(mesh) is fixed
+        mesh.apply_translation((0.1, 0.0, 0.0))  # changed in place: never answered from what was kept before
+        assert pairs.outward(mesh) is not fixed
+        assert np.array_equal(pairs.outward(mesh).vertices, fixed.vertices + [0.1, 0.0, 0.0])
