@@ -124,9 +124,9 @@ class SearchConfig(_Strict):
     enabled: bool = Field(True, description="off: the optimiser starts from random poses (the method's Initialise)")
     candidates: int = Field(144, ge=1, le=20000, description="contact proposals made (and scored by the geometry)")
     shortlist: int = Field(
-        0, ge=0, le=20000, description="with a guide, the proposals whose images it sees at the coarse stage, "
-        "chosen by the relation and the geometry (distinct places where the relation holds first, then a "
-        "``min_share`` of the others: ``coarse_to_fine.encoder_shortlist``); 0: all of them"
+        0, ge=0, le=20000, description="the proposals the coarse stage scores in full (and whose images a guide "
+        "sees), chosen by the relation and the geometry's screen (distinct places where the relation holds first, "
+        "then a ``min_share`` of the others: ``coarse_to_fine.encoder_shortlist``); 0: all of them"
     )
     coarse_views: int = Field(2, ge=1, le=16, description="fixed views of the coarse stage, the same for all")
     coarse_image_size: int = Field(128, ge=32, le=1024, description="render size of the coarse stage")

@@ -1,9 +1,10 @@
 """The search, coarse to fine: how it ranks its candidates (``proposals``), forward only, and keeps a diverse best
 few.
 
-First the geometry screens every proposal (``Scorer.screen``: the relation's verdict, penetration, contact; no
-render) and only ``search.shortlist`` of them reach the guide (``encoder_shortlist``: distinct places where the
-relation holds, and a share of the others), so the encoder's images go to what can be the answer; a guide whose
+First the geometry screens every proposal (``Scorer.screen``: the relation's verdict, penetration, contact on a few
+of the source's samples; no render) and only ``search.shortlist`` of them are scored in full and reach the guide
+(``encoder_shortlist``: distinct places where the relation holds, and a share of the others), so the full measure
+and the encoder's images go to what can be the answer; a guide whose
 spread is within its noise (``ordering.GuideSay`` amount 0) encodes nothing after the coarse stage
 (``Scorer.with_say``, ``Scorer.guided``). ``score``: the objective's terms (``objective.Scorer``) of every candidate,
 ranked by the prompt's relation first, then by the guide's term where there is a guide with signal
@@ -625,11 +626,12 @@ class _Plan:
 
 def _screened(scorer: Scorer, proposals: Proposals, phase: Phase,
               distinct: tuple[float, float]) -> tuple[Proposals, int]:
-    """The proposals the encoder will see, and how many the geometry screened to choose them: with a guide and more
-    than ``search.shortlist`` proposals, only those of ``encoder_shortlist`` (only what can be the answer reaches
-    the encoder); else all, none screened."""
+    """The proposals the coarse stage scores in full (and a guide sees), and how many the geometry screened to
+    choose them: with more than ``search.shortlist`` proposals, only those of ``encoder_shortlist``: only what can
+    be the answer reaches the encoder and the full measure (a screen on ``objective.SCREEN_POINTS`` samples tells
+    where the relation holds and what intersects; the full measure orders those); else all, none screened."""
     cfg = scorer.config.search
-    if not (scorer.guided and 0 < cfg.shortlist < len(proposals.poses)):
+    if not 0 < cfg.shortlist < len(proposals.poses):
         return proposals, 0
     with scorer.clock.time("search"):
         geometric = scorer.screen(proposals.poses, phase)
