@@ -10,9 +10,9 @@ noise would not show there. Two statistics, each with a per-run null (no extra e
   least as well (with the observed one counted, so never below 1 / (``DRAWS`` + 1)), but for full agreement, whose
   chance is exact. Two views' favourites can at best coincide, which chance does once in N: the search checks the
   guide's choice from six views it has not seen (``coarse_to_fine.agreement_views``), where full agreement over N
-  choices is chance once in N^6; its places
-  and its turns at one place in two tables (the turns at one place look alike to any encoder: mixed with
-  places they would rank together by chance), the stronger counted at the price of both (``either``).
+  choices is chance once in N^6; its places and its turns at one place in two tables (the turns at one place look
+  alike to any encoder: mixed with places they would rank together by chance), the stronger counted at the price
+  of both (``either``).
 - **spread** (``spread_chance``): the scores' variance over the candidates against the variance of their noise
   (half the mean square of the probes' changes, ``coarse_to_fine.guide_noise``), an F test with (N - 1, probes)
   degrees of freedom: how often noise alone would spread the candidates as far.
