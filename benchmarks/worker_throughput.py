@@ -91,11 +91,10 @@ def mix(geometry: int, guided: int, scenes: int, preset: str, folder: Path) -> l
             jobs.append((kind, example.name, "/align", upload, form))
     if scenes:
         write_table_setting(folder)
-        for name, data in get_example("apple-in-bowl").files().items():
-            (folder / name).write_bytes(data)
-    for i in range(scenes):
+        get_example("apple-in-bowl").write(folder)
         files = [("base", ("table.glb", (folder / "table.glb").read_bytes()))]
         files += [("source", (s["file"], (folder / s["file"]).read_bytes())) for s in SCENE_STEPS]
+    for i in range(scenes):
         jobs.append(("scene", "table setting, bowl, apple", "/assemble", files,
                      {"plan": json.dumps(SCENE_STEPS),
                       "options": json.dumps({"preset": preset, "seed": i, "lambda_clip": 0})}))

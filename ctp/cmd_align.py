@@ -257,6 +257,8 @@ def said(result) -> str:
     contact, and where the source went, turned and at what size (lengths in the files' units: metres for glTF)."""
     import numpy as np
 
+    from ctp_core.metrics import rotation_error_deg
+
     relation = result.relation
     words = [f"'{relation['name']}' {'holds' if relation['holds'] else 'does not hold'}" if relation
              else "no relation read from the prompt"]
@@ -267,7 +269,7 @@ def said(result) -> str:
                      else f"not touching: a gap of {100 * result.contact['gap']:.0f} % of the source's size")
     x, y, z = result.translation.tolist()
     words.append(f"moved to ({x:.3f}, {y:.3f}, {z:.3f}) in the target's file units (metres for glTF)")
-    angle = float(np.degrees(np.arccos(np.clip((np.trace(result.rotation) - 1) / 2, -1.0, 1.0))))
+    angle = rotation_error_deg(result.rotation, np.eye(3))
     words.append("not turned" if angle < 0.05 else f"turned {angle:.1f}°")
     scale = result.scale
     words.append("at its file's size" if abs(scale - 1) < 5e-4 else f"at {scale:.3f} times its file's size")

@@ -366,8 +366,8 @@ def _matrices(transform: dict[str, Any]) -> dict[str, Any]:
 
 def verdict(relation: dict[str, Any] | None, contact: dict[str, Any] | None = None) -> str:
     """``'on' holds, stable, touching``: the geometry's judgement of the prompt's relation and whether the source
-    touches the target (the report's ``relation`` and ``contact``; the Blender add-on's panel words them the same,
-    in its own stdlib-only copy, ``integrations/blender/report.py``)."""
+    touches the target (the report's ``relation`` and ``contact``; the Blender add-on's panel, a stdlib-only copy in
+    ``integrations/blender/report.py``, says a gap as a share of the source's size instead)."""
     if not relation:
         return "no relation read from the prompt"
     words = [f"'{relation['name']}' {'holds' if relation['holds'] else 'does not hold'}"]

@@ -301,7 +301,7 @@ def score(run: Run, proposals: Proposals, *, say: GuideSay | None = None, on_eve
                             name=run.names.get("source") or "source")
     run.timings["search_s"] = round(ranked.seconds, 3)
     run.timings["search_candidates"] = ranked.scored
-    if ranked.screened:  # the geometry's screen before the guide saw its shortlist
+    if ranked.screened:  # the geometry's screen before the full measure (and a guide) saw its shortlist
         run.timings["search_screened"] = ranked.screened
     if run.scorer.reading is not None:
         run.timings["search_relation_holds"] = ranked.holding  # of the coarse and sweep candidates

@@ -136,8 +136,8 @@ def report(result: AlignResult) -> dict:
 
 def assembly_report(assembly: Assembly) -> dict:
     """The record of an assembly: every object's file -> scene transform, each stage's run (``keeps_up``: whether
-    its source kept its own up and why; ``kept``: where its answer broke an earlier relation), every relation judged
-    on the final scene (``whole``)."""
+    its source kept its own up and why; ``kept``: what keeping its answer took, ``StepResult.kept``), every
+    relation judged on the final scene (``whole``)."""
     first = assembly.results[0].result.config
     return {
         "frame": SCENE,

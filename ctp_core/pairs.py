@@ -346,21 +346,32 @@ def support_level(ground: trimesh.Trimesh, others: list[trimesh.Trimesh], to_nor
     (a lamp hung over the floor: a box below it stands on the floor, not at the lamp's bottom). Never under
     ``floor``."""
     vertices = np.asarray(ground.vertices, dtype=np.float64)
-    height = vertices @ up
-    band = SUPPORT_BAND * float(np.ptp(height))
-    order = np.argsort(height)[:SUPPORT_RAYS]
-    lowest = vertices[order[height[order] <= height.min() + band]]  # its bottom, not a part higher up
-    centre = vertices.mean(0) - ((vertices.mean(0) @ up) - height.min()) * up
-    origins = np.vstack([lowest, centre]) + band * up
-    directions = np.tile(-up, (len(origins), 1))
+    band = SUPPORT_BAND * float(np.ptp(vertices @ up))
+    origins = bottom_points(vertices, up, band, SUPPORT_RAYS) + band * up
     level = floor
     for other in others:
-        hits, _, faces = other.ray.intersects_location(origins, directions, multiple_hits=True)
-        # a level surface (either winding: uploads' normals are not to be trusted), not a wall grazed on the way
-        level_face = np.abs(np.asarray(other.face_normals)[faces] @ up) > UP_FACING
-        if level_face.any():
-            level = max(level, float(to_normalised.apply(hits[level_face])[:, 1].max()))
+        hits = level_hits(other, origins, up, UP_FACING)
+        if len(hits):
+            level = max(level, float(to_normalised.apply(hits)[:, 1].max()))
     return level
+
+
+def bottom_points(vertices: np.ndarray, up: np.ndarray, band: float, count: int) -> np.ndarray:
+    """(P, 3) where a thing (its ``vertices``) meets what it stands on: its ``count`` lowest vertices along ``up``
+    within ``band`` (a length) of its lowest (its bottom, not a part higher up), and its footprint's centre at that
+    height."""
+    height = vertices @ up
+    order = np.argsort(height)[:count]
+    lowest = vertices[order[height[order] <= height.min() + band]]
+    centre = vertices.mean(0) - ((vertices.mean(0) @ up) - height.min()) * up
+    return np.vstack([lowest, centre])
+
+
+def level_hits(mesh: trimesh.Trimesh, origins: np.ndarray, up: np.ndarray, level: float) -> np.ndarray:
+    """(H, 3) every point where rays cast down ``up`` from ``origins`` meet ``mesh``'s level faces (|normal . up|
+    over ``level``, either winding: uploads' normals are not to be trusted), not a wall grazed on the way."""
+    hits, _, faces = mesh.ray.intersects_location(origins, np.tile(-up, (len(origins), 1)), multiple_hits=True)
+    return hits[np.abs(np.asarray(mesh.face_normals)[faces] @ up) > level]
 
 
 def ground_front(target: trimesh.Scene, name: str, up: np.ndarray, seed: int) -> tuple[np.ndarray, bool]:

@@ -251,13 +251,13 @@ def adjust_job(adjustment: AdjustmentRecord, jobs: Jobs, limits: MeshLimits) -> 
         raise gone
     facts = json.loads(stored["report.json"])
     request = adjustment.request
+    scene = load_objects(stored["result.glb"], filename="result.glb", limits=limits)
     if record.kind == "assemble":
-        return _scene_adjusted(adjustment, record, jobs, limits, stored, facts)
+        return _scene_adjusted(adjustment, record, jobs, scene, stored, facts)
     # the adjusted object: the source (the last node), or one of several copies (its node, judged as it was)
     copies = record.count > 1
     entry = facts["copies"][request.copy_index - 1] if copies else facts
     at = np.asarray(entry["transform"]["matrix"], dtype=np.float64)  # the stored result.glb's node
-    scene = load_objects(stored["result.glb"], filename="result.glb", limits=limits)
     target, source, name = read_back(scene, at, entry.get("name") if copies else None)
     upright = (facts.get("extra") or {}).get("target_upright")
     done = adjust(target, source, np.asarray(request.transform), record.config, settle=request.settle,
@@ -278,12 +278,11 @@ def adjust_job(adjustment: AdjustmentRecord, jobs: Jobs, limits: MeshLimits) -> 
     return AdjustOutcome(transform=done.source_to_target.tolist(), saved=request.save, **done.to_dict())
 
 
-def _scene_adjusted(adjustment: AdjustmentRecord, record: JobRecord, jobs: Jobs, limits: MeshLimits,
+def _scene_adjusted(adjustment: AdjustmentRecord, record: JobRecord, jobs: Jobs, scene: trimesh.Scene,
                     stored: dict[str, bytes | None], facts: dict[str, Any]) -> AdjustOutcome:
     """An assembly's object adjusted (``assembly.adjusted``): every relation judged again; with ``save`` the scene
     with it there and its report replace the job's result."""
     request = adjustment.request
-    scene = load_objects(stored["result.glb"], filename="result.glb", limits=limits)
     done = adjust_object(scene, facts, request.object or "", np.asarray(request.transform),
                          [s.config for s in record.steps], settle=request.settle,
                          direction=None if request.direction is None else np.asarray(request.direction))

@@ -23,13 +23,13 @@ from ctp_core.assembly.assemble import Placed, Step, StepResult, judged, scene_o
 from ctp_core.assembly.plan import Also
 from ctp_core.config import AlignConfig
 from ctp_core.errors import ConfigError
-from ctp_core.geometry import frames
+from ctp_core.geometry import frames, once
 from ctp_core.reading.relation import RelationReading
 
 if TYPE_CHECKING:
     from ctp_core.align import AlignResult
 
-__all__ = ["SceneAdjusted", "adjust_object", "placed_objects"]
+__all__ = ["SceneAdjusted", "adjust_object", "read_placed"]
 
 
 @dataclass(frozen=True)
@@ -52,7 +52,7 @@ class _Run:
     relation: dict[str, Any] | None
 
 
-def placed_objects(scene: trimesh.Scene, report: dict[str, Any]) -> list[Placed]:
+def read_placed(scene: trimesh.Scene, report: dict[str, Any]) -> list[Placed]:
     """The scene's objects as placed (base first): each mesh back in its own file frame, under its transform."""
     objects: list[Placed] = []
     for entry in report["objects"]:
@@ -66,13 +66,14 @@ def placed_objects(scene: trimesh.Scene, report: dict[str, Any]) -> list[Placed]
     return objects
 
 
+@once.scene()  # every step judged again asks the same of objects that have not moved
 def adjust_object(scene: trimesh.Scene, report: dict[str, Any], name: str, to_scene: np.ndarray,
                   configs: Sequence[AlignConfig], *, settle: adjust.Settle = "none",
                   direction: np.ndarray | None = None) -> SceneAdjusted:
     """Put object ``name`` of the scene at ``to_scene`` (settled with ``settle`` against every other object),
     measured as ``adjust.adjust`` measures a placement against its step's grounds and reading, then judge every
     step's relation on the scene with it there. ``configs``: each step's config, in placing order."""
-    objects = placed_objects(scene, report)
+    objects = read_placed(scene, report)
     names = [p.name for p in objects]
     if name == names[0]:
         raise ConfigError(f"{name} is the scene's base: it stays put (its file frame is the scene's); move the "
@@ -93,7 +94,7 @@ def adjust_object(scene: trimesh.Scene, report: dict[str, Any], name: str, to_sc
                                                                 frames.SCENE))
     # judged reads a step's run for its config and verdict only: the stored ones stand in for the run
     results = [StepResult(i + 1, len(stages), Step(objects[i + 1].mesh, s["name"], also=[
-                   Also(a["prompt"], tuple(a["on"]), a.get("relation", "")) for a in s.get("also", [])]), s["on"],
+                   Also.from_dict(a) for a in s.get("also", [])]), s["on"],
                           cast("AlignResult", _Run(configs[i], s.get("relation"))), list(s["grounds"]))
                for i, s in enumerate(stages)]
     return SceneAdjusted(name, done, objects, judged(objects, results), standing.stands_on(objects))

@@ -83,8 +83,9 @@ class StepResult:
     on: str
     result: AlignResult
     grounds: list[str] = field(default_factory=list)
-    # where the run's answer broke an earlier relation: {"alternative": the one kept (0: none did better, the
-    # answer), "broke": what the answer broke, in words}; None where the answer broke nothing
+    # what keeping the answer took (``_keeping``): {"alternative": the one kept (0: the answer), "broke": what the
+    # answer broke, in words, and where so "lifted", "made_room", "none_clean" or "dropped": true}; None where the
+    # answer was kept as the run left it
     kept: dict[str, Any] | None = None
 
 
@@ -330,7 +331,7 @@ class _Keeper:
 
 
 LIFTS = 2  # times a sunk placement is raised by its depth before it is given up
-LIFTED = 2  # placements raised: the least bad, then the answer (or the first alternative)
+LIFTED = 2  # where none is clean, placements raised or moved to make room: the least bad, then the first other
 LIFT_CLEAR = 1e-4  # of the source's size: what a raised placement clears its depth by
 
 
@@ -554,7 +555,7 @@ def _facing_way(step: Step, scene: dict[str, Placed], centre: np.ndarray, result
     for on, reading in [*resting, *readings]:
         support = scene.get(on[0])
         if RELATIONS[reading.position].rests and reading.leant is None and support is not None:
-            return None if support.front is None else support.front
+            return support.front
     return None
 
 

@@ -43,6 +43,11 @@ class Also:
     def to_dict(self) -> dict[str, Any]:
         return {"prompt": self.prompt, "on": list(self.on), "relation": self.relation}
 
+    @classmethod
+    def from_dict(cls, entry: dict[str, Any]) -> Also:
+        """``to_dict``'s inverse (a report's or a job record's entry, already checked)."""
+        return cls(entry["prompt"], tuple(entry["on"]), entry.get("relation") or "")
+
 
 @dataclass(frozen=True)
 class PlanStep:

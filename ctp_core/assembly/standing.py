@@ -18,6 +18,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import trimesh
 
+from ctp_core.pairs import bottom_points, level_hits
+
 if TYPE_CHECKING:
     from ctp_core.assembly.assemble import Placed
 
@@ -47,18 +49,10 @@ def _under(mesh: trimesh.Trimesh, others: dict[str, trimesh.Trimesh]) -> str:
     height = vertices @ UP
     span = float(np.ptp(height)) or 1e-9
     bottom = float(height.min())
-    order = np.argsort(height)[:RAYS]
-    lowest = vertices[order[height[order] <= bottom + BAND * span]]
-    centre = vertices.mean(0) - (vertices.mean(0) @ UP - bottom) * UP
-    origins = np.vstack([lowest, centre]) + START * span * UP
-    directions = np.tile(-UP, (len(origins), 1))
+    origins = bottom_points(vertices, UP, BAND * span, RAYS) + START * span * UP
     best, best_level = FLOOR, -np.inf
     for name, other in others.items():
-        hits, _, faces = other.ray.intersects_location(origins, directions, multiple_hits=True)
-        if not len(hits):
-            continue
-        level = np.abs(np.asarray(other.face_normals)[faces] @ UP) > LEVEL
-        heights = hits[level] @ UP
+        heights = level_hits(other, origins, UP, LEVEL) @ UP
         heights = heights[heights >= bottom - REACH * span]
         if len(heights) and float(heights.max()) > best_level:
             best, best_level = name, float(heights.max())

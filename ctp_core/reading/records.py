@@ -180,10 +180,10 @@ RELATIONS: dict[RelationName, Relation] = {r.name: r for r in (
              figure_regions={"floor": 4.0, "gap": 2.0}),
 )}
 del R
-# where an orientation said alone puts the figure: "a chair facing the desk" stands near the desk, not across the room
 # the kinds whose figure stands where its ground stands (on the same table, on the floor): beside, the sides, near,
 # between, facing
 ALONGSIDE = frozenset({Kind.SIDE, Kind.DISTANCE, Kind.BETWEEN, Kind.ORIENTATION})
+# where an orientation said alone puts the figure: "a chair facing the desk" stands near the desk, not across the room
 ORIENTED_NEAR = RelationName.NEAR
 
 

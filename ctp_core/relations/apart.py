@@ -92,8 +92,10 @@ def _score_side(c: Context, side: str) -> torch.Tensor:
     way = toward(side, c.front, c.left)
     across = c.left if side in ("front", "behind") else c.front
     aside = torch.maximum(_beyond(c, across), _beyond(c, -across)).clamp_min(0.0)
-    near = (c.figure.points * way[:, None, :]).sum(-1).min(-1).values - _extent(c, way)
-    return _score_beside(c) + c.h(aside - _beyond(c, way)) + c.h(-SIDE_OVERLAP * c.unit - near)
+    extent = _extent(c, way)
+    beyond = (c.figure.centre * way).sum(-1) - extent  # ``_beyond(c, way)``, the extent measured once
+    near = (c.figure.points * way[:, None, :]).sum(-1).min(-1).values - extent
+    return _score_beside(c) + c.h(aside - beyond) + c.h(-SIDE_OVERLAP * c.unit - near)
 
 
 def _beyond(c: Context, direction: torch.Tensor) -> torch.Tensor:

@@ -87,7 +87,7 @@ class Ranked:
     stages: dict[str, tuple[Poses, Key]] = field(default_factory=dict)  # per stage: poses, ranking key
     holding: int = 0  # coarse and sweep candidates where the prompt's relation holds (all without one)
     say: GuideSay | None = None  # the guide's say, for the refinement and the selection; None: not measured
-    screened: int = 0  # poses the geometry screened before the guide saw the shortlist (proposals, sweep turns)
+    screened: int = 0  # poses the geometry screened for the shortlists (proposals, sweep turns)
 
 
 def _scene_radius(pair: PreparedPair, log_s: float) -> float:

@@ -378,7 +378,8 @@ function renderProgress(job) {
   } else if (several) {
     stage += ` - copy ${p.stage.index} of ${p.stage.count}${p.stage.label ? ` (${p.stage.label})` : ""}`;
   }
-  if ((job.kind === "assemble" || several) && state.stageIndex !== p.stage.index) { // the next object: its own readout
+  const perObject = job.kind === "assemble" || several; // one readout per object placed
+  if (perObject && state.stageIndex !== p.stage.index) { // the next object: its own readout
     if (state.stageIndex !== null) resetReadout();
     state.stageIndex = p.stage.index;
   }
@@ -393,7 +394,7 @@ function renderProgress(job) {
     : "";
   const times = [];
   if (p.eta_s != null && !TERMINAL.includes(job.status)) {
-    times.push(`about ${duration(p.eta_s)} left${job.kind === "assemble" || several ? " for this one" : ""}`);
+    times.push(`about ${duration(p.eta_s)} left${perObject ? " for this one" : ""}`);
   }
   if (p.elapsed_s) times.push(`${duration(p.elapsed_s)} elapsed`);
   $("eta").textContent = times.join(", ");
@@ -639,8 +640,7 @@ function showFacts(report) {
   state.result.shownFacts = report;
   const job = state.result.job || {};
   const label = report.objects ? job.description : report.prompt;
-  $("result-prompt").textContent = label ? `"${label}"` : report.image_guided || job.image_guided
-    ? "guided by a reference image" : "";
+  $("result-prompt").textContent = label ? `"${label}"` : job.image_guided ? "guided by a reference image" : "";
   const rows = report.objects ? sceneRows(report) : pairRows(report);
   if (report.adjusted) {
     const which = report.adjustment.object ? `${report.adjustment.object} moved ` : "";
