@@ -9,6 +9,9 @@
   python benchmarks/pair_speed.py cli --before DIR --after DIR CASE_DIR... [--rounds 3]
       the same for the command a user types, `ctp align TARGET SOURCE --prompt P --no-guidance`, timed as a whole
       (its "align" time is the seconds the command reports: the placement and writing its GLB)
+  python benchmarks/pair_speed.py scene --before DIR --after DIR SCENE_DIR... [--rounds 3]
+      the same for a described scene (../shared/bench/scenes/<id>), `ctp compose` as its run.sh runs it
+      (`--no-guidance --seed 7`); "same placement": the objects' placements the command prints are equal
   python benchmarks/pair_speed.py profile CASE_DIR... [--guide none] [--out profile.txt]
       pyinstrument's call tree over the cases in one process, after one warm-up run (imports left out)
   python benchmarks/pair_speed.py one CASE_DIR [--guide none]
@@ -114,6 +117,17 @@ def _measure(args, tree: Path, folder: Path) -> dict:
         return {"case": case["id"], "process_s": round(wall, 3), "process_cpu_s": round(cpu, 3),
                 "align_s": summary["seconds"],
                 "pose": [summary["translation"], summary["scale"]]}
+    if args.what == "scene":
+        scene = json.loads((folder / "scene.json").read_text())
+        names = ["--names", *scene["names_flag"]] if scene.get("names_flag") else []
+        with tempfile.TemporaryDirectory() as out:
+            wall, cpu, line = _run([sys.executable, "-m", "ctp", "compose",
+                                    *(str(folder / o["file"]) for o in scene["objects"]), "--prompt",
+                                    scene["sentence"], *names, "--no-guidance", "--seed", "7", "--threads",
+                                    str(args.threads), "--quiet", "--out", f"{out}/scene.glb"], tree)
+        summary = json.loads(line)
+        return {"case": scene["id"], "process_s": round(wall, 3), "process_cpu_s": round(cpu, 3),
+                "align_s": summary["seconds"], "pose": summary["objects"]}
     wall, cpu, line = _run([sys.executable, str(Path(__file__).resolve()), "one", str(folder), "--guide",
                             args.guide, "--model", args.model, "--threads", str(args.threads)], tree)
     return {**json.loads(line), "process_s": round(wall, 3), "process_cpu_s": round(cpu, 3)}
@@ -139,7 +153,8 @@ def compare(args) -> None:
         poses = [json.dumps(r["pose"]) for r in rows if r["case"] == case]
         return len(set(poses)) == 1
 
-    keys = {"align_s": "align call, wall s", "align_cpu_s": "align call, CPU s", "process_s": "whole process, wall s",
+    keys = {"align_s": "align call, wall s" if args.what == "compare" else "command's seconds, wall",
+            "align_cpu_s": "align call, CPU s", "process_s": "whole process, wall s",
             "process_cpu_s": "whole process, CPU s"}
     keys = {k: label for k, label in keys.items() if all(k in r for r in rows)}  # `cli` has no align CPU
     lines = ["| case | " + " | ".join(f"{label}: before → after" for label in keys.values()) + " | same placement |",
@@ -152,7 +167,7 @@ def compare(args) -> None:
         totals[key] = (statistics.median(median("before", c, key) for c in cases),
                        statistics.median(median("after", c, key) for c in cases))
     cells = [f"{b:.2f} → {a:.2f} (**{b / a:.2f}x**)" for b, a in totals.values()]
-    lines.append(f"| pair median | {' | '.join(cells)} | |")
+    lines.append(f"| median | {' | '.join(cells)} | |")
     print(json.dumps({"bench": f"pair_speed_{args.what}", "guide": args.guide, "rounds": args.rounds,
                       "threads": args.threads, "cases": cases,
                       **{f"{k}_median_{t}": round(v[i], 3) for k, v in totals.items()
@@ -164,9 +179,9 @@ def compare(args) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="what", required=True)
-    for name in ("compare", "cli", "profile", "one"):
+    for name in ("compare", "cli", "scene", "profile", "one"):
         p = sub.add_parser(name)
-        if name in ("compare", "cli"):
+        if name in ("compare", "cli", "scene"):
             p.add_argument("--before", type=Path, required=True)
             p.add_argument("--after", type=Path, required=True)
             p.add_argument("--rounds", type=int, default=3)
@@ -180,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
         p.add_argument("--model", default="random:ViT-B-32", help="the oracle guide's encoder")
         p.add_argument("--threads", type=int, default=1)
     args = parser.parse_args(argv)
-    {"compare": compare, "cli": compare, "profile": profile, "one": one}[args.what](args)
+    {"compare": compare, "cli": compare, "scene": compare, "profile": profile, "one": one}[args.what](args)
     return 0
 
 

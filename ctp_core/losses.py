@@ -12,6 +12,8 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
+from ctp_core.geometry import field as fields
+
 
 def clip_view_loss(image_embeddings: torch.Tensor, goal_embeddings: torch.Tensor) -> torch.Tensor:
     """(B, C) -cos(e_img, e_goal) per view; L_clip is its mean over the views (``Scorer.clip_term``), each view
@@ -41,6 +43,18 @@ class SurfaceIndex:
         self.normals = normals  # (M, 3) outward unit normals
         self.tree = cKDTree(points.detach().cpu().numpy().astype(np.float64))
         self.part: Part | None = None  # where its samples are rows of a larger index (``part_of``)
+        self._field: fields.DistanceField | None = None
+
+    @property
+    def field(self) -> fields.DistanceField:
+        """The samples' distance field (``geometry.field``), built on first use and kept: what the objective's
+        terms read where ``LossConfig.distances`` is ``field``."""
+        if self._field is None:  # ordinary tensors even where first asked under inference mode (a screen)
+            as_np = lambda t: t.detach().cpu().numpy().astype(np.float64)  # noqa: E731
+            with torch.inference_mode(False):
+                self._field = fields.build(self.tree, as_np(self.points), as_np(self.normals), query_workers(),
+                                           device=self.points.device)
+        return self._field
 
     def neighbours(self, queries: torch.Tensor, k: int) -> torch.Tensor:
         """Indices (..., k) of the k nearest target samples to each query point (no gradient)."""
@@ -168,13 +182,29 @@ def signed_depth(source: torch.Tensor, index: SurfaceIndex, sigma: float | torch
     return (alpha * (diff * nrm).sum(-1)).sum(-1)
 
 
+def closest_fraction(distance: torch.Tensor, ratio: float) -> torch.Tensor:
+    """(B,) soft-ICP at its closest-point limit (its width to 0) from each posed source sample's distance (B, N) to
+    the target (``geometry.field``): the mean squared distance of the fraction ``ratio`` of the samples that are
+    closest (the selection carries no gradient; 0 attaches nothing)."""
+    if ratio <= 0:
+        return distance.new_zeros(distance.shape[0])
+    keep = max(1, int(np.floor(ratio * distance.shape[1])))
+    with torch.no_grad():
+        chosen = distance.topk(keep, dim=1, largest=False).indices
+    return (torch.gather(distance, 1, chosen) ** 2).mean(dim=1)
+
+
+def depth_penalty(depth: torch.Tensor, margin: float) -> torch.Tensor:
+    """(B,) mean of max(0, depth - margin) over the source samples' depths (B, N) inside the target (the reference
+    drops the margin; we keep it)."""
+    return torch.relu(depth - margin).mean(dim=1)
+
+
 def penetration(source: torch.Tensor, index: SurfaceIndex, sigma: float, margin: float, k: int,
                 idx: torch.Tensor | None = None) -> torch.Tensor:
-    """Mean of max(0, depth - margin) over source samples (the reference drops the margin; we keep it).
-
-    depth is ``signed_depth``: positive inside the target (``idx``: its neighbours, where the caller has them).
-    """
-    return torch.relu(signed_depth(source, index, sigma, k, idx=idx) - margin).mean(dim=1)
+    """``depth_penalty`` of the source samples (B, N, 3) at their ``signed_depth`` (``idx``: their neighbours, where
+    the caller has them)."""
+    return depth_penalty(signed_depth(source, index, sigma, k, idx=idx), margin)
 
 
 def below_floor(source: torch.Tensor, floor: float, margin: float) -> torch.Tensor:
@@ -184,7 +214,8 @@ def below_floor(source: torch.Tensor, floor: float, margin: float) -> torch.Tens
 
 
 def enclosed_penetration(points: torch.Tensor, inside: torch.Tensor, source: SurfaceIndex, scale: torch.Tensor,
-                         area_ratio: torch.Tensor, sigma: float, margin: float, k: int) -> torch.Tensor:
+                         area_ratio: torch.Tensor, sigma: float, margin: float, k: int,
+                         field: bool = False) -> torch.Tensor:
     """(B,) the other half of the penetration: target samples inside the posed source.
 
     ``penetration`` sees only source samples inside the target, so a source straddling a thin wall (a ball
@@ -194,11 +225,15 @@ def enclosed_penetration(points: torch.Tensor, inside: torch.Tensor, source: Sur
     -> normalised lengths). The depth (normalised units) past ``margin`` is summed with the weight of the area
     each sample stands for, over the posed source's area (``area_ratio``, (B,)): the same mean over the source's
     surface that ``penetration`` takes, so the two halves add up. Only the samples that count are looked up (the
-    others' depth is 0 and counts 0 times: the sum is the same, term for term).
+    others' depth is 0 and counts 0 times: the sum is the same, term for term). ``field``: the depth read from the
+    source's distance field instead of its k nearest samples.
     """
     counted = inside.bool()
-    width = (sigma / scale)[:, None].expand_as(inside)[counted]  # each counted sample's softmax width, local units
     depth = torch.zeros_like(inside)
-    depth[counted] = signed_depth(points[counted][None], source, width.reshape(1, -1, 1), k)[0]
+    if field:
+        depth[counted] = source.field.sample(points[counted])[1]
+    else:
+        width = (sigma / scale)[:, None].expand_as(inside)[counted]  # each counted sample's softmax width, local
+        depth[counted] = signed_depth(points[counted][None], source, width.reshape(1, -1, 1), k)[0]
     depth = depth * scale[:, None]
     return (torch.relu(depth - margin) * inside).sum(1) * area_ratio

@@ -50,6 +50,7 @@ class Say(Protocol):
 
 SCREEN_POINTS = 256  # ``Scorer.screen``: source samples of the geometric screen before the guide
 ENCLOSED_SAMPLES = 512  # target samples a pose's enclosed penetration looks at (its bounding sphere's nearest)
+INTERIOR_POINTS = 256  # points inside the source whose depth in the target ``Scorer.interior`` charges
 
 
 PREFER = 0.1  # ``combine``: weight of ``predicates.preference`` (the usual arrangement) relative to the relation's
@@ -134,25 +135,48 @@ class Scorer:
         samples = self.pair.source_samples if points is None else self.pair.source_subset(points)
         with self.clock.time("geometry"):
             pts = apply_pose(samples, poses.t, poses.q, poses.log_s)
-            # where both terms ask, one search answers both: the same one where soft-ICP pulls toward the whole
-            # target (a single pair), the grounds' where they answer for every object (``losses.neighbours_of``)
-            both = self.contact_ratio > 0 and phase.lambda_pen > 0
-            near, idx = (losses.neighbours_of(self.pair.anchor, self.pair.index, pts, cfg.icp_neighbours) if both
-                         else (None, None))
-            icp = losses.soft_icp(pts, self.pair.anchor, self.contact_ratio, phase.sigma_icp, cfg.icp_neighbours,
-                                  idx=near)
+            icp, pen = (self._from_fields(pts, phase) if cfg.distances == "field"
+                        else self._from_samples(pts, phase))
             if phase.lambda_pen > 0:
-                pen = losses.penetration(pts, self.pair.index, cfg.sigma_pen, cfg.c_pen, cfg.icp_neighbours, idx=idx)
                 pen = pen + self.enclosed(poses)
+                if self.pair.twins is not None:
+                    pen = pen + self.interior(poses, self.pair.twins)
                 if self.pair.solid_floor:  # a scene's floor is solid: nothing placed goes under it
                     pen = pen + losses.below_floor(pts, self.pair.scene_floor, cfg.c_pen)
-            else:
-                pen = torch.zeros_like(icp)
             sunk = pen.detach() / source_diagonal(self.pair, poses).to(pen.device)
         out = {"icp": icp, "pen": pen, "sunk": sunk, **self.relation_terms(poses), "centroid": pts.mean(dim=1)}
         if self.scale is not None:
             out["scale"] = self.scale.term(poses.log_s, self.preference_weight)
         return out
+
+    def _from_fields(self, pts: torch.Tensor, phase: Phase) -> tuple[torch.Tensor, torch.Tensor]:
+        """(soft-ICP at its closest-point limit, penetration) of posed samples (B, N, 3) from the grounds' and the
+        target's distance fields (one reading where they are the same surface); penetration zero where the phase
+        switches it off."""
+        anchor, index = self.pair.anchor, self.pair.index
+        distance, depth = anchor.field.sample(pts) if self.contact_ratio > 0 else (None, None)
+        icp = (losses.closest_fraction(distance, self.contact_ratio) if distance is not None
+               else pts.new_zeros(pts.shape[0]))
+        if phase.lambda_pen <= 0:
+            return icp, torch.zeros_like(icp)
+        if depth is None or anchor is not index:
+            _, depth = index.field.sample(pts)
+        return icp, losses.depth_penalty(depth, self.config.loss.c_pen)
+
+    def _from_samples(self, pts: torch.Tensor, phase: Phase) -> tuple[torch.Tensor, torch.Tensor]:
+        """(soft-ICP, penetration) of posed samples (B, N, 3) from their k nearest samples; penetration zero where
+        the phase switches it off. Where both terms ask, one search answers both: the same one where soft-ICP
+        pulls toward the whole target (a single pair), the grounds' where they answer for every object
+        (``losses.neighbours_of``)."""
+        cfg = self.config.loss
+        both = self.contact_ratio > 0 and phase.lambda_pen > 0
+        near, idx = (losses.neighbours_of(self.pair.anchor, self.pair.index, pts, cfg.icp_neighbours) if both
+                     else (None, None))
+        icp = losses.soft_icp(pts, self.pair.anchor, self.contact_ratio, phase.sigma_icp, cfg.icp_neighbours,
+                              idx=near)
+        if phase.lambda_pen <= 0:
+            return icp, torch.zeros_like(icp)
+        return icp, losses.penetration(pts, self.pair.index, cfg.sigma_pen, cfg.c_pen, cfg.icp_neighbours, idx=idx)
 
     def screen(self, poses: Poses, phase: Phase) -> dict[str, torch.Tensor]:
         """The geometry's terms and objective (``clip`` 0) on ``SCREEN_POINTS`` of the source's samples, forward
@@ -180,7 +204,18 @@ class Scorer:
         local = torch.einsum("bji,bkj->bki", quaternion_to_matrix(poses.q), near) / scale[:, None, None]
         area_ratio = pair.sample_spacing(len(pair.index.points)) ** 2 / (pair.source_area * scale**2)
         return losses.enclosed_penetration(local, inside, pair.source_surface, scale, area_ratio, cfg.sigma_pen,
-                                           cfg.c_pen, cfg.icp_neighbours)
+                                           cfg.c_pen, cfg.icp_neighbours, field=cfg.distances == "field")
+
+    def interior(self, poses: Poses, twins: losses.SurfaceIndex) -> torch.Tensor:
+        """(B,) the penetration's share where the target holds the source's mesh again (``PreparedPair.twins``:
+        earlier copies): the mean depth inside them of points inside the posed source (``DistanceField.interior``,
+        up to ``INTERIOR_POINTS``). Both surface halves miss a copy put where an identical one stands (every sample
+        on the other's surface, depth 0); its inside is deep in the other."""
+        inner = self.pair.source_surface.field.interior(INTERIOR_POINTS)
+        if not len(inner):
+            return torch.zeros(len(poses), device=poses.t.device)
+        _, depth = twins.field.sample(apply_pose(inner, poses.t, poses.q, poses.log_s))
+        return losses.depth_penalty(depth, self.config.loss.c_pen)
 
     def relation_terms(self, poses: Poses) -> dict[str, torch.Tensor]:
         """``rel``: how far each pose is from the prompt's relation (``predicates.relation_score``, figure

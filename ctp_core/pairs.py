@@ -127,6 +127,8 @@ class PreparedPair:
     source_surface: SurfaceIndex  # source samples + outward normals, source local frame (what is inside the source)
     target_outward: list[trimesh.Trimesh]  # each target object, file frame, outward winding (``outward``)
     attach: SurfaceIndex | None = None  # samples of the object(s) the source relates to; None: all of ``index``
+    # samples of the target's objects that are the source's mesh again (earlier copies of it, ``twins``); None: none
+    twins: SurfaceIndex | None = None
     # each named ground's samples where the source relates to several objects ("between"), in the order named
     grounds: list[SurfaceIndex] = field(default_factory=list)
     # the target's front, (3,) unit, normalised frame (its file's +Z for glTF, turned as the target is)
@@ -305,7 +307,10 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
         rows = [np.arange(starts[i], starts[i + 1]) for i in range(len(sampled))]
         attach.part_of(target_index, np.concatenate([rows[i] for i in positions]),
                        [r for i, r in enumerate(rows) if i not in positions])
+    same = [i for i, (_, m) in enumerate(parts) if len(parts) > 1 and twins(m, source)]
     return PreparedPair(
+        twins=index(np.concatenate([sampled[i][0] for i in same]), np.concatenate([sampled[i][1] for i in same]))
+        if same else None,
         target=target,
         source=source,
         target_to_normalised=target_to_norm,
@@ -331,6 +336,14 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
         _scene_floor=bottoms[0],
         solid_floor=isinstance(target, trimesh.Scene),
     )
+
+
+def twins(a: trimesh.Trimesh, b: trimesh.Trimesh) -> bool:
+    """Whether two meshes are one shape however each is placed (the same triangles' areas, in the same order: a
+    copy moved and turned): where one is put on the other, every sample of its surface lies on the other's."""
+    if len(a.faces) != len(b.faces) or len(a.vertices) != len(b.vertices):
+        return False
+    return bool(np.allclose(a.area_faces, b.area_faces, rtol=1e-6, atol=1e-12 * max(float(a.area), 1e-30)))
 
 
 SUPPORT_BAND = 0.02  # of a ground's height: a surface this close above its bottom still carries it (sunk a little)

@@ -41,7 +41,8 @@ def _apart(out) -> None:
 
 def test_spheres_in_a_bowl_are_all_inside_and_apart():
     bowl, ball = examples._bowl(), trimesh.creation.icosphere(subdivisions=2, radius=0.025)
-    config = CONFIG.merged({"optim": {"restarts": 4}})  # as the default preset: distinct placements to pick from
+    # the default preset (no guide): the test preset's 400 samples and 6 steps can leave a ball where one stands
+    config = AlignConfig.from_preset("default", seed=0, loss={"lambda_clip": 0.0})
     out = place_copies(bowl, ball, "three balls in the bowl", config, target_name="bowl", source_name="ball")
     assert (out.count, out.arrangement, out.reading.name) == (3, "scatter", "in")
     assert all(c.how == "search" and c.relation["holds"] for c in out.copies)

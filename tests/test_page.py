@@ -448,12 +448,12 @@ def test_choose_among_alternatives_from_the_page(api, worker, browser):
 
 
 def test_cancel_from_the_page(api, worker, browser):
-    """A longer run (the default preset, one of the examples): watch it optimise, then cancel it.
+    """Watch a run optimise (the default preset, one of the examples), then cancel a longer one.
 
-    With random:tiny the default refinement (4 restarts) lasts seconds, so a loaded machine could finish the job
-    before the click lands; asking for 48 (the search keeps at most its 12 fine candidates, plus the tile stage's)
-    keeps it refining long enough that the cancel surely lands mid-run. On the way: the search's stage line has no
-    phase, and the restart count is the planned one, then the one refined, nothing else."""
+    The default run asks for 48 restarts (the search keeps at most its 12 fine candidates, plus the tile stage's):
+    its search's stage line has no phase, and the restart count is the planned one, then the one refined, nothing
+    else. Its refinement lasts a fraction of a second, too short for a click to land in, so the run cancelled is
+    the descent preset's (120 steps from random starts, minutes on a CPU)."""
     from selenium.webdriver.common.by import By
     from selenium.webdriver.support.ui import Select
 
@@ -478,6 +478,12 @@ def test_cancel_from_the_page(api, worker, browser):
     refined = int(re.search(r"(\d+) restarts", find(By.ID, "steps").text).group(1))
     assert refined > 8 and counts <= {refined, 48, 48 + 1}, seen  # asked for 48 (+ the tile stage's), then what it kept
     shoot(driver, "progress-running")
+    wait_for(lambda: find(By.ID, "percent").text == "100 %", 240, "the default run to finish", interval_s=0.25)
+    Select(find(By.ID, "opt-preset")).select_by_value("descent")
+    find(By.ID, "opt-restarts").clear()
+    find(By.ID, "submit").click()
+    wait_for(lambda: find(By.ID, "stage").text.lower().startswith("refine") and find(By.ID, "steps").text, 180,
+             "the descent's first steps", interval_s=0.1)
     find(By.ID, "cancel").click()
     wait_for(lambda: find(By.ID, "stage").text.lower() == "canceled", 120, "the job to stop")
     assert "canceled" in find(By.ID, "error").text and int(find(By.ID, "percent").text.split()[0]) < 100

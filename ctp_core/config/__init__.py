@@ -92,6 +92,11 @@ class LossConfig(_Strict):
     )
     c_pen: float = Field(0.0, ge=0.0, description="penetration margin, normalised frame units")
     icp_neighbours: int = Field(32, ge=1, description="soft-ICP softmax restricted to k nearest targets")
+    distances: Literal["field", "samples"] = Field(
+        "field", description="where the soft-ICP and penetration terms read distances: each surface's distance "
+        "field (geometry.field: the nearest sample's distance and depth on a grid built once; soft-ICP at its "
+        "closest-point limit) or a search of the k nearest samples per point (soft-ICP's softmax over them)"
+    )
     samples: int = Field(3000, ge=100, le=50000, description="surface samples per object for the losses")
     selection_only: bool = Field(
         False, description="reference-code behaviour: no CLIP gradient, text only picks the best pose"
@@ -316,9 +321,11 @@ def _first_field(exc: Exception) -> str | None:
 
 
 PRESETS: dict[str, dict] = {
-    # The paper's budget: 2000 steps, 8 views per step, 3 phases, 5 restarts, no search.
+    # The paper's budget: 2000 steps, 8 views per step, 3 phases, 5 restarts, no search; its soft-ICP (a softmax
+    # over each point's nearest samples, not the distance field's closest-point limit).
     "paper": {
         "camera": {"views": 8},
+        "loss": {"distances": "samples"},
         "optim": {"steps": 2000, "phases": 3, "restarts": 5, "eval_every": 50, "init_rotation": "random"},
         "search": {"enabled": False},
     },

@@ -1,0 +1,99 @@
+"""A surface's distance field: the distance to its nearest sample and the signed depth behind it, on a grid.
+
+The objective's geometric terms ask, for every posed source sample of every candidate and restart, how far the
+nearest target sample is and how deep behind the target's oriented surface the point lies. A k-nearest search per
+point (``losses.SurfaceIndex``) answers exactly but costs most of a placement; a grid built once per surface
+answers the same two questions by trilinear interpolation (``torch.nn.functional.grid_sample``), batched over
+any number of points, differentiable in the points, on CPU or GPU.
+
+Two levels keep the build cheap: a coarse grid over the whole box, and a fine one whose nodes are computed only in
+a band around the surface (where the terms' values and gradients matter); elsewhere the fine grid holds the
+coarse grid's interpolation. Each node's values are those of its nearest sample (``nodes``): its distance, and
+the depth along that sample's outward normal (positive behind the surface: inside a closed one), the sample-based
+measure ``losses.signed_depth`` takes with a narrow width. Outside the grid's box a point is outside the surface:
+its distance grows and its depth falls by its distance to the box.
+
+Frames: the grid lives in the frame of the samples it was built from (the normalised frame for a target, the
+source local frame for a source); points are given in that frame.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from scipy.spatial import cKDTree
+
+COARSE = 32  # nodes per side of the coarse grid
+FINE = 128  # nodes per side of the fine grid (only its band is computed)
+PAD = 0.08  # of the samples' box's longest side: the grid's margin around the samples
+BAND = 1.5  # fine cells beyond a coarse cell's reach: how far from the surface fine nodes are computed
+
+
+@dataclass(frozen=True)
+class DistanceField:
+    """Distance and signed depth on a cubic grid, fine near the surface (build with ``build``)."""
+
+    origin: torch.Tensor  # (3,) the grid's lowest corner, the samples' frame
+    size: float  # the grid's side, the samples' frame
+    values: torch.Tensor  # (1, 2, R, R, R): distance, depth; indexed [x, y, z]
+
+    def sample(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(distance, depth), each shaped like ``points``' leading dimensions, at ``points`` (..., 3) in the
+        samples' frame; differentiable in ``points``."""
+        lead = points.shape[:-1]
+        got, out = self._read(self.values, points)
+        return (got[0] + out).reshape(lead), (got[1] - out).reshape(lead)
+
+    def interior(self, count: int) -> torch.Tensor:
+        """(P, 3) up to ``count`` fine nodes well inside the surface (deeper than two fine cells: behind it whichever
+        way one looks), evenly spread through its volume, the samples' frame; empty for a surface that encloses
+        nothing (a sheet, a shell thinner than that)."""
+        cell = self.size / (self.values.shape[-1] - 1)
+        inside = torch.nonzero(self.values[0, 1] > 2 * cell)
+        pick = torch.linspace(0, len(inside) - 1, min(count, len(inside))).round().long()
+        return self.origin + inside[pick].to(self.origin) * cell
+
+    def _read(self, grid: torch.Tensor, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(channels, Q) trilinear readings of ``grid`` (1, channels, R, R, R) spanning the field's box at
+        ``points`` (..., 3), each clamped into the box, and (Q,) each point's distance to the box (0 within)."""
+        flat = points.reshape(-1, 3)
+        low = self.origin.to(flat)
+        inside = torch.minimum(torch.maximum(flat, low), low + self.size)
+        unit = (inside - low) * (2.0 / self.size) - 1.0
+        # grid_sample reads (x, y, z) as (W, H, D): the grids are stored [x, y, z] = (D, H, W)
+        at = unit.flip(-1).reshape(1, -1, 1, 1, 3)
+        got = F.grid_sample(grid.to(flat), at, mode="bilinear", align_corners=True)[0, :, :, 0, 0]
+        return got, (flat - inside).norm(dim=-1)
+
+
+def nodes(tree: cKDTree, points: np.ndarray, normals: np.ndarray, at: np.ndarray, workers: int
+          ) -> tuple[np.ndarray, np.ndarray]:
+    """(distance, depth) at ``at`` (Q, 3): to the nearest sample, and along its outward normal (positive behind)."""
+    dist, idx = tree.query(at, k=1, workers=workers)
+    depth = ((points[idx] - at) * normals[idx]).sum(-1)
+    return dist, depth
+
+
+def build(tree: cKDTree, points: np.ndarray, normals: np.ndarray, workers: int = 1,
+          device: torch.device | str = "cpu") -> DistanceField:
+    """The field of the samples ``points`` (M, 3) with outward ``normals`` (M, 3), whose KD-tree is ``tree``; its
+    tensors on ``device``."""
+    low, high = points.min(0), points.max(0)
+    size = float((high - low).max()) * (1 + 2 * PAD)
+    origin = (low + high) / 2 - size / 2
+    axis = np.linspace(0.0, size, COARSE)
+    coarse = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3) + origin
+    values = np.stack(nodes(tree, points, normals, coarse, workers)).reshape(1, 2, COARSE, COARSE, COARSE)
+    fine = F.interpolate(torch.as_tensor(values), size=(FINE,) * 3, mode="trilinear", align_corners=True)[0].numpy()
+    # a fine node is computed where the surface may come within BAND fine cells of it: the distance changes by
+    # at most its change in place, so the coarse grid's interpolation is within a coarse cell's diagonal of it
+    reach = math.sqrt(3) * size / (COARSE - 1) + BAND * size / (FINE - 1)
+    where = np.nonzero(fine[0] < reach)
+    at = np.stack(where, -1) * (size / (FINE - 1)) + origin
+    fine[0][where], fine[1][where] = nodes(tree, points, normals, at, workers)
+    return DistanceField(torch.as_tensor(origin, dtype=torch.float32, device=device), size,
+                         torch.as_tensor(fine, dtype=torch.float32, device=device)[None])

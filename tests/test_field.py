@@ -1,0 +1,93 @@
+"""The distance field (``geometry.field``) against a brute-force nearest-sample search (``torch.cdist``, no KD-tree)."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from ctp_core import losses
+from ctp_core.geometry import field as fields
+
+
+def _sphere(count: int = 2000, radius: float = 1.0) -> losses.SurfaceIndex:
+    """Evenly spread samples on a sphere (a Fibonacci lattice) with outward normals."""
+    i = np.arange(count) + 0.5
+    polar, turn = np.arccos(1 - 2 * i / count), np.pi * (1 + 5**0.5) * i
+    unit = np.stack([np.cos(turn) * np.sin(polar), np.sin(turn) * np.sin(polar), np.cos(polar)], 1)
+    return losses.SurfaceIndex(torch.as_tensor(unit * radius, dtype=torch.float32),
+                               torch.as_tensor(unit, dtype=torch.float32))
+
+
+def _brute(index: losses.SurfaceIndex, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(distance, depth) to the nearest sample by a full distance matrix: along its normal, positive behind."""
+    dist, nearest = torch.cdist(points, index.points).min(dim=1)
+    depth = ((index.points[nearest] - points) * index.normals[nearest]).sum(-1)
+    return dist, depth
+
+
+def _cell(field: fields.DistanceField) -> float:
+    return field.size / (fields.FINE - 1)
+
+
+def test_distance_near_the_surface_is_the_nearest_samples_within_a_fine_cell():
+    index = _sphere()
+    gen = torch.Generator().manual_seed(0)
+    direction = torch.nn.functional.normalize(torch.randn(3000, 3, generator=gen), dim=1)
+    points = direction * (1 + 0.1 * (torch.rand(3000, 1, generator=gen) - 0.5))  # within 0.05 of the surface
+    distance, depth = index.field.sample(points)
+    exact_distance, exact_depth = _brute(index, points)
+    cell = _cell(index.field)
+    # a 1-Lipschitz function read trilinearly is off by at most the cell's diagonal
+    assert (distance - exact_distance).abs().max() <= math.sqrt(3) * cell
+    assert (depth - exact_depth).abs().median() <= 0.1 * cell
+
+
+def test_depth_tells_inside_from_outside_a_closed_surface():
+    index = _sphere()
+    gen = torch.Generator().manual_seed(1)
+    direction = torch.nn.functional.normalize(torch.randn(500, 3, generator=gen), dim=1)
+    _, inside = index.field.sample(direction * 0.8)
+    _, outside = index.field.sample(direction * 1.2)
+    assert inside.min() > 0.15 and inside.max() < 0.25
+    assert outside.max() < -0.15
+
+
+def test_beyond_the_box_the_distance_grows_and_the_depth_falls_with_the_gap():
+    index = _sphere()
+    field = index.field
+    corner = field.origin + field.size  # the box's highest corner
+    near, far = corner + 0.1, corner + 1.1
+    d_near, s_near = field.sample(near[None])
+    d_far, s_far = field.sample(far[None])
+    gap = math.sqrt(3)  # the two points are 1 apart along each axis
+    assert float(d_far - d_near) == pytest.approx(gap, rel=1e-5)
+    assert float(s_near - s_far) == pytest.approx(gap, rel=1e-5)
+
+
+def test_the_distances_gradient_points_away_from_the_surface():
+    index = _sphere()
+    points = torch.tensor([[0.0, 1.1, 0.0], [0.0, 0.0, -0.9], [0.75, 0.75, 0.0]], requires_grad=True)
+    distance, _ = index.field.sample(points)
+    distance.sum().backward()
+    outward = torch.nn.functional.normalize(points.detach(), dim=1)
+    sign = torch.tensor([1.0, -1.0, 1.0])  # outside: away from the centre; inside: toward it
+    cosine = torch.nn.functional.cosine_similarity(points.grad, outward * sign[:, None], dim=1)
+    assert (cosine > 0.9).all()
+
+
+def test_closest_fraction_is_the_mean_square_of_the_nearest_share():
+    distance = torch.tensor([[0.4, 0.1, 0.3, 0.2], [1.0, 1.0, 1.0, 0.0]])
+    value = losses.closest_fraction(distance, 0.5)
+    torch.testing.assert_close(value, torch.tensor([(0.01 + 0.04) / 2, 0.5]))
+    assert losses.closest_fraction(distance, 0.0).abs().sum() == 0
+
+
+def test_the_field_and_the_k_nearest_search_charge_the_same_penetration():
+    """A ball half sunk into a larger one: both ways of reading the depth charge about the same."""
+    index = _sphere(4000)
+    ball = _sphere(800, radius=0.3).points + torch.tensor([0.0, 1.0, 0.0])
+    samples = losses.penetration(ball[None], index, sigma=0.01, margin=0.0, k=32)
+    read = losses.depth_penalty(index.field.sample(ball[None])[1], 0.0)
+    assert float(samples) > 0.05
+    assert float(read) == pytest.approx(float(samples), rel=0.05)
