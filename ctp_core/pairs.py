@@ -127,7 +127,8 @@ class PreparedPair:
     source_surface: SurfaceIndex  # source samples + outward normals, source local frame (what is inside the source)
     target_outward: list[trimesh.Trimesh]  # each target object, file frame, outward winding (``outward``)
     attach: SurfaceIndex | None = None  # samples of the object(s) the source relates to; None: all of ``index``
-    # samples of the target's objects that are the source's mesh again (earlier copies of it, ``twins``); None: none
+    # samples of the target's objects that are the (closed) source's mesh again (earlier copies of it, ``twins``);
+    # None: none
     twins: SurfaceIndex | None = None
     # each named ground's samples where the source relates to several objects ("between"), in the order named
     grounds: list[SurfaceIndex] = field(default_factory=list)
@@ -307,7 +308,8 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
         rows = [np.arange(starts[i], starts[i + 1]) for i in range(len(sampled))]
         attach.part_of(target_index, np.concatenate([rows[i] for i in positions]),
                        [r for i, r in enumerate(rows) if i not in positions])
-    same = [i for i, (_, m) in enumerate(parts) if len(parts) > 1 and twins(m, source)]
+    # a closed source only: behind an open one (a sheet) is its whole back side, no inside
+    same = [i for i, (_, m) in enumerate(parts) if len(parts) > 1 and source.is_watertight and twins(m, source)]
     return PreparedPair(
         twins=index(np.concatenate([sampled[i][0] for i in same]), np.concatenate([sampled[i][1] for i in same]))
         if same else None,

@@ -91,3 +91,46 @@ def test_the_field_and_the_k_nearest_search_charge_the_same_penetration():
     read = losses.depth_penalty(index.field.sample(ball[None])[1], 0.0)
     assert float(samples) > 0.05
     assert float(read) == pytest.approx(float(samples), rel=0.05)
+
+
+def test_interior_points_lie_deep_inside_a_closed_surface():
+    field = _sphere(3000).field
+    inner = field.interior(200)
+    assert len(inner) == 200
+    assert float(inner.norm(dim=1).max()) < 1 - 1.5 * _cell(field)
+    assert len(_sphere(3000, radius=0.02).field.interior(200)) > 0  # the grid follows the surface's size
+
+
+def test_a_copy_where_an_identical_one_stands_is_charged_for_its_inside():
+    """Both surface halves of the penetration read about 0 for a ball placed on its twin; its inside does not."""
+    import trimesh
+
+    from ctp_core import objective, pairs
+    from ctp_core.config import AlignConfig, schedule
+    from ctp_core.relations import predicates
+
+    ground = trimesh.creation.box((1.0, 0.1, 1.0))
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.1)
+    here = np.eye(4)
+    here[:3, 3] = (0.2, 0.15, 0.0)
+    scene = trimesh.Scene()
+    scene.add_geometry(ground, node_name="table", geom_name="table")
+    scene.add_geometry(ball.copy().apply_transform(here), node_name="ball_1", geom_name="ball_1")
+    assert pairs.twins(ball.copy().apply_transform(here), ball) and not pairs.twins(ground, ball)
+    config = AlignConfig.from_preset("test", seed=0, loss={"lambda_clip": 0.0})
+    pair = pairs.prepare_pair(scene, ball, samples=1500, seed=0, on="table")
+    assert pair.twins is not None
+    scorer = objective.Scorer(pair, config, contact_ratio=0.1)
+    beside = here.copy()
+    beside[:3, 3] = (-0.2, 0.15, 0.0)
+    poses = [predicates.poses_of(pair.local_to_normalised(m)) for m in (here, beside)]
+    on_twin, apart = (float(scorer.interior(p, pair.twins)[0]) for p in poses)
+    assert apart == 0.0
+    radius = 0.1 * pair.target_to_normalised.scale
+    assert on_twin > 0.2 * radius
+    phase = schedule.phases(config, allow_penetration=False)[-1]
+    assert float(scorer.geometry(poses[0], phase)["pen"][0]) >= on_twin
+    sheet = trimesh.creation.box((0.2, 0.2, 0.01))
+    sheet.update_faces(sheet.face_normals[:, 1] < 0.5)  # its top gone: open
+    scene.add_geometry(sheet.copy().apply_transform(beside), node_name="sheet_1", geom_name="sheet_1")
+    assert pairs.prepare_pair(scene, sheet, samples=500, seed=0, on="table").twins is None  # no inside to ask

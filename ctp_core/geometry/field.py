@@ -49,9 +49,9 @@ class DistanceField:
         return (got[0] + out).reshape(lead), (got[1] - out).reshape(lead)
 
     def interior(self, count: int) -> torch.Tensor:
-        """(P, 3) up to ``count`` fine nodes well inside the surface (deeper than two fine cells: behind it whichever
-        way one looks), evenly spread through its volume, the samples' frame; empty for a surface that encloses
-        nothing (a sheet, a shell thinner than that)."""
+        """(P, 3) up to ``count`` fine nodes well inside a closed surface (deeper than two fine cells), evenly spread
+        through its volume, the samples' frame; empty for a shell thinner than that. Behind an open surface (a
+        sheet) is its whole back side: no inside to ask for."""
         cell = self.size / (self.values.shape[-1] - 1)
         inside = torch.nonzero(self.values[0, 1] > 2 * cell)
         pick = torch.linspace(0, len(inside) - 1, min(count, len(inside))).round().long()
