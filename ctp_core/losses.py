@@ -214,8 +214,7 @@ def below_floor(source: torch.Tensor, floor: float, margin: float) -> torch.Tens
 
 
 def enclosed_penetration(points: torch.Tensor, inside: torch.Tensor, source: SurfaceIndex, scale: torch.Tensor,
-                         area_ratio: torch.Tensor, sigma: float, margin: float, k: int,
-                         field: bool = False) -> torch.Tensor:
+                         area_ratio: torch.Tensor, sigma: float, margin: float, k: int) -> torch.Tensor:
     """(B,) the other half of the penetration: target samples inside the posed source.
 
     ``penetration`` sees only source samples inside the target, so a source straddling a thin wall (a ball
@@ -225,15 +224,11 @@ def enclosed_penetration(points: torch.Tensor, inside: torch.Tensor, source: Sur
     -> normalised lengths). The depth (normalised units) past ``margin`` is summed with the weight of the area
     each sample stands for, over the posed source's area (``area_ratio``, (B,)): the same mean over the source's
     surface that ``penetration`` takes, so the two halves add up. Only the samples that count are looked up (the
-    others' depth is 0 and counts 0 times: the sum is the same, term for term). ``field``: the depth read from the
-    source's distance field instead of its k nearest samples.
+    others' depth is 0 and counts 0 times: the sum is the same, term for term).
     """
     counted = inside.bool()
+    width = (sigma / scale)[:, None].expand_as(inside)[counted]  # each counted sample's softmax width, local units
     depth = torch.zeros_like(inside)
-    if field:
-        depth[counted] = source.field.sample(points[counted])[1]
-    else:
-        width = (sigma / scale)[:, None].expand_as(inside)[counted]  # each counted sample's softmax width, local
-        depth[counted] = signed_depth(points[counted][None], source, width.reshape(1, -1, 1), k)[0]
+    depth[counted] = signed_depth(points[counted][None], source, width.reshape(1, -1, 1), k)[0]
     depth = depth * scale[:, None]
     return (torch.relu(depth - margin) * inside).sum(1) * area_ratio

@@ -203,8 +203,11 @@ class Scorer:
         near = pair.index.points[torch.as_tensor(idx, device=poses.t.device)] - poses.t[:, None]
         local = torch.einsum("bji,bkj->bki", quaternion_to_matrix(poses.q), near) / scale[:, None, None]
         area_ratio = pair.sample_spacing(len(pair.index.points)) ** 2 / (pair.source_area * scale**2)
+        # with the fields, each counted sample's nearest source sample (the depth a field's node holds, read
+        # exactly): the few target samples within a source cost less to look up than its field does to build
+        k = 1 if cfg.distances == "field" else cfg.icp_neighbours
         return losses.enclosed_penetration(local, inside, pair.source_surface, scale, area_ratio, cfg.sigma_pen,
-                                           cfg.c_pen, cfg.icp_neighbours, field=cfg.distances == "field")
+                                           cfg.c_pen, k)
 
     def interior(self, poses: Poses, twins: losses.SurfaceIndex) -> torch.Tensor:
         """(B,) the penetration's share where the target holds the source's mesh again (``PreparedPair.twins``:
