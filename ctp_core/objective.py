@@ -50,7 +50,6 @@ class Say(Protocol):
 
 SCREEN_POINTS = 256  # ``Scorer.screen``: source samples of the geometric screen before the guide
 ENCLOSED_SAMPLES = 512  # target samples a pose's enclosed penetration looks at (its bounding sphere's nearest)
-INTERIOR_POINTS = 256  # points inside the source whose depth in the target ``Scorer.interior`` charges
 
 
 PREFER = 0.1  # ``combine``: weight of ``predicates.preference`` (the usual arrangement) relative to the relation's
@@ -211,10 +210,10 @@ class Scorer:
 
     def interior(self, poses: Poses, twins: losses.SurfaceIndex) -> torch.Tensor:
         """(B,) the penetration's share where the target holds the source's mesh again (``PreparedPair.twins``:
-        earlier copies): the mean depth inside them of points inside the posed source (``DistanceField.interior``,
-        up to ``INTERIOR_POINTS``). Both surface halves miss a copy put where an identical one stands (every sample
-        on the other's surface, depth 0); its inside is deep in the other."""
-        inner = self.pair.source_surface.field.interior(INTERIOR_POINTS)
+        earlier copies): the mean depth inside them of points inside the posed source (``PreparedPair.source_inside``).
+        Both surface halves miss a copy put where an identical one stands (every sample on the other's surface,
+        depth 0); its inside is deep in the other."""
+        inner = self.pair.source_inside
         if not len(inner):
             return torch.zeros(len(poses), device=poses.t.device)
         _, depth = twins.field.sample(apply_pose(inner, poses.t, poses.q, poses.log_s))

@@ -189,6 +189,15 @@ class PreparedPair:
         return self._scene_floor if self._scene_floor is not None else float(self.target_vertices[:, 1].min())
 
     @cached_property
+    def source_inside(self) -> torch.Tensor:
+        """(P, 3) up to ``INSIDE_POINTS`` points well inside the source (``DistanceField.interior`` of its own
+        field), source local frame: what ``objective.Scorer.interior`` charges inside its twins. Found once, as an
+        ordinary tensor even where first asked under inference mode (a screen), since a refinement's gradient
+        reads it too."""
+        with torch.inference_mode(False):
+            return self.source_surface.field.interior(INSIDE_POINTS)
+
+    @cached_property
     def target_area(self) -> float:
         """The target's surface area, every object, in its file's units."""
         return float(sum(m.area for m in self.target_outward))
@@ -348,6 +357,7 @@ def twins(a: trimesh.Trimesh, b: trimesh.Trimesh) -> bool:
     return bool(np.allclose(a.area_faces, b.area_faces, rtol=1e-6, atol=1e-12 * max(float(a.area), 1e-30)))
 
 
+INSIDE_POINTS = 256  # ``PreparedPair.source_inside``: points inside the source charged inside its twins
 SUPPORT_BAND = 0.02  # of a ground's height: a surface this close above its bottom still carries it (sunk a little)
 SUPPORT_RAYS = 16  # the ground's lowest vertices a ray is cast down from, and its footprint's centre
 
