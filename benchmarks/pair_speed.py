@@ -105,29 +105,29 @@ def _run(command: list[str], tree: Path) -> tuple[float, float, str]:
     return wall, cpu, done.stdout.strip().splitlines()[-1]
 
 
-def _measure(args, tree: Path, folder: Path) -> dict:
+def _command(args, folder: Path) -> tuple[str, list[str], str]:
+    """The command a user types for ``folder`` (`cli`: a pair's `ctp align`; `scene`: `ctp compose` as the scenes'
+    run.sh runs it), before its common flags: the case's id, the arguments, and the summary's key for its pose."""
     if args.what == "cli":
         case = json.loads((folder / "case.json").read_text())
+        return case["id"], ["align", str(folder / case["target"]["file"]), str(folder / case["source"]["file"]),
+                            "--prompt", case["prompt"], "--target-name", case["target"]["name"],
+                            "--source-name", case["source"]["name"]], "translation"
+    scene = json.loads((folder / "scene.json").read_text())
+    names = ["--names", *scene["names_flag"]] if scene.get("names_flag") else []
+    return scene["id"], ["compose", *(str(folder / o["file"]) for o in scene["objects"]), "--prompt",
+                         scene["sentence"], *names, "--seed", "7"], "objects"
+
+
+def _measure(args, tree: Path, folder: Path) -> dict:
+    if args.what in ("cli", "scene"):
+        case, command, pose = _command(args, folder)
         with tempfile.TemporaryDirectory() as out:
-            wall, cpu, line = _run([sys.executable, "-m", "ctp", "align", str(folder / case["target"]["file"]),
-                               str(folder / case["source"]["file"]), "--prompt", case["prompt"], "--no-guidance",
-                               "--target-name", case["target"]["name"], "--source-name", case["source"]["name"],
-                                    "--threads", str(args.threads), "--quiet", "--out", f"{out}/scene.glb"], tree)
-        summary = json.loads(line)
-        return {"case": case["id"], "process_s": round(wall, 3), "process_cpu_s": round(cpu, 3),
-                "align_s": summary["seconds"],
-                "pose": [summary["translation"], summary["scale"]]}
-    if args.what == "scene":
-        scene = json.loads((folder / "scene.json").read_text())
-        names = ["--names", *scene["names_flag"]] if scene.get("names_flag") else []
-        with tempfile.TemporaryDirectory() as out:
-            wall, cpu, line = _run([sys.executable, "-m", "ctp", "compose",
-                                    *(str(folder / o["file"]) for o in scene["objects"]), "--prompt",
-                                    scene["sentence"], *names, "--no-guidance", "--seed", "7", "--threads",
+            wall, cpu, line = _run([sys.executable, "-m", "ctp", *command, "--no-guidance", "--threads",
                                     str(args.threads), "--quiet", "--out", f"{out}/scene.glb"], tree)
         summary = json.loads(line)
-        return {"case": scene["id"], "process_s": round(wall, 3), "process_cpu_s": round(cpu, 3),
-                "align_s": summary["seconds"], "pose": summary["objects"]}
+        return {"case": case, "process_s": round(wall, 3), "process_cpu_s": round(cpu, 3),
+                "align_s": summary["seconds"], "pose": [summary[pose], summary.get("scale")]}
     wall, cpu, line = _run([sys.executable, str(Path(__file__).resolve()), "one", str(folder), "--guide",
                             args.guide, "--model", args.model, "--threads", str(args.threads)], tree)
     return {**json.loads(line), "process_s": round(wall, 3), "process_cpu_s": round(cpu, 3)}
