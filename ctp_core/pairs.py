@@ -132,6 +132,8 @@ class PreparedPair:
     twins: SurfaceIndex | None = None
     # each named ground's samples where the source relates to several objects ("between"), in the order named
     grounds: list[SurfaceIndex] = field(default_factory=list)
+    # the positions in ``target_outward`` of the objects ``attach`` samples; empty: every object
+    attach_objects: tuple[int, ...] = ()
     # the target's front, (3,) unit, normalised frame (its file's +Z for glTF, turned as the target is)
     target_front: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
     # False where no convention gives a front (or a symmetric target): directional relations use the viewer's frame
@@ -167,6 +169,14 @@ class PreparedPair:
     def anchor(self) -> SurfaceIndex:
         """What the soft-ICP term pulls toward: the related object's samples, or the whole target's."""
         return self.index if self.attach is None else self.attach
+
+    def anchor_samples(self, count: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, float]:
+        """``count`` samples of the objects ``anchor`` samples, their outward normals (normalised frame) and
+        spacing (as ``sample_spacing``): denser than the losses' where a detail (a thin part) needs them."""
+        mesh = _triangles([self.target_outward[i] for i in self.attach_objects] or self.target_outward)
+        points, normals = sampling.surface_samples(mesh, count, seed)
+        frame = self.target_to_normalised
+        return frame.apply(points), frame.apply_directions(normals), math.sqrt(mesh.area / count) * frame.scale
 
     @cached_property
     def target_radius(self) -> float:
@@ -338,6 +348,7 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
         target_outward=oriented,
         attach=attach,
         grounds=named if len(named) > 1 else [],
+        attach_objects=tuple(positions) if attach is not None else (),
         target_front=_unit(target_to_norm.apply_directions(front[None])[0]),
         front_trusted=trusted,
         source_front=_unit(np.asarray(source_up.front, dtype=np.float64)),

@@ -39,6 +39,9 @@ class PartName(StrEnum):
     SEAT = "seat"
     SURFACE = "surface"
     SIDE = "side"
+    BAR = "bar"
+    OPENING = "opening"
+    RIM = "rim"
 
 
 # Words for a ground's parts and places, never an object's name ("on top of it", "to its left", "in the middle of").

@@ -6,14 +6,13 @@ import math
 
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
 
 from ctp_core.contact import Proposals, surface_regions
 from ctp_core.geometry.pose import quaternion_product, quaternion_to_matrix
 from ctp_core.pairs import PreparedPair, per_pair
 from ctp_core.reading.records import RelationName
 from ctp_core.reading.relation import RelationReading
-from ctp_core.relations import parts
+from ctp_core.relations import parts, thin
 from ctp_core.relations.apart import FACING
 from ctp_core.relations.building import LEAN_POINTS, long_axis_up, lowered, quaternion_onto, target_axes, yaw_turn
 from ctp_core.relations.measures import (
@@ -139,10 +138,20 @@ def _where_lean(c: Context) -> str | None:
 
 
 def _prefer_hang(c: Context) -> torch.Tensor:
-    """``hang``: hung freely from what bears it (``_borne``), at the middle of the ground along its length
-    (``along_middle``: a towel rail's middle, not its end; a peg's place on its wall is where the peg is)."""
+    """``hang``: hung freely from what bears it (``_borne``), under the middle of a bar where the ground has bars
+    (``parts.bar_place``: a towel rail's middle, not its end, nor the wall plate behind it), else at the middle of
+    the ground along its length (``along_middle``)."""
     borne = _borne(c)
-    return borne + torch.where(borne < FAR, along_middle(c), torch.zeros_like(borne))
+    bars = parts.find_parts(c.pair).bars if c.pair is not None else ()
+    place = parts.bar_place(c, bars) if bars else along_middle(c)
+    return borne + torch.where(borne < FAR, place, torch.zeros_like(borne))
+
+
+def _where_hang(c: Context) -> str | None:
+    if c.pair is None or not (found := parts.find_parts(c.pair)).bars:
+        return None
+    longest = found.bars[0].describe(found.unit, found.floor).removeprefix("a bar: ")
+    return f"hung freely under the middle of one of its {len(found.bars)} bar(s) (the longest: {longest})"
 
 
 def along_middle(c: Context) -> torch.Tensor:
@@ -196,8 +205,9 @@ def lean(pair: PreparedPair, proposals: Proposals, seed: int, reading: RelationR
 
 def hung(pair: PreparedPair, proposals: Proposals, seed: int, reading: RelationReading | None,
          log_s: float, count: int) -> Proposals | None:
-    """Sources hung by a hook point on a thin up-facing part of the target (``extend``); None where the source has
-    no hook point or no up-facing part of the target is thin enough to pass into one."""
+    """Sources hung by a hook point on a thin up-facing part of the target (``extend``), more of them on a bar near
+    its middle (``parts.near_bar_middles``); None where the source has no hook point or no up-facing part of the
+    target is thin enough to pass into one."""
     local, plumb, hooks, clearance = hook_points(pair)
     clearance = clearance * math.exp(log_s)
     points, _, top, thickness, density, spacing = peg_thickness(pair)
@@ -205,7 +215,7 @@ def hung(pair: PreparedPair, proposals: Proposals, seed: int, reading: RelationR
     if not fits.any():
         return None
     rng = np.random.default_rng(seed + 31)
-    weights = density[top] * fits
+    weights = density[top] * fits * parts.near_bar_middles(parts.find_parts(pair), points[top])
     pick = rng.choice(len(top), size=count, p=weights / weights.sum())
     hook = np.array([rng.choice(hooks[clearance > thickness[i]]) for i in pick])
     down = np.array([0.0, -1.0, 0.0])
@@ -238,12 +248,12 @@ def hook_points(pair: PreparedPair) -> tuple[np.ndarray, np.ndarray, np.ndarray,
 @per_pair
 def peg_thickness(pair: PreparedPair) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
     """Where a hook point can take the target: its samples and their normals (normalised frame), the up-facing
-    ones' indices, the target's vertical thickness under each (``_thickness``), the samples' density weights and
-    spacing."""
+    ones' indices, the target's vertical thickness under each (``thin.thickness``), the samples' density weights
+    and spacing."""
     points, normals, regions, density = surface_regions(pair)
     spacing = pair.sample_spacing(len(points))
     top = regions["top"]
-    return points, normals, top, _thickness(points, top, regions["bottom"], spacing), density, spacing
+    return points, normals, top, thin.thickness(points, normals, top, spacing)[0], density, spacing
 
 
 def _clearance(local: np.ndarray, plumb: np.ndarray, hooks: np.ndarray, spacing: float) -> np.ndarray:
@@ -255,21 +265,6 @@ def _clearance(local: np.ndarray, plumb: np.ndarray, hooks: np.ndarray, spacing:
     off = np.sqrt(np.clip((rel**2).sum(-1) - along**2, 0.0, None))
     on_line = (along > 2 * spacing) & (off <= spacing)
     return np.where(on_line, along, np.inf).min(1)
-
-
-def _thickness(points: np.ndarray, top: np.ndarray, bottom: np.ndarray, spacing: float) -> np.ndarray:
-    """(T,) the target's vertical thickness under each up-facing sample ``top``: down to the highest down-facing
-    sample below it within ``spacing`` of its column (the part's underside); inf where there is none."""
-    if not len(bottom):
-        return np.full(len(top), np.inf)
-    tree = cKDTree(points[bottom][:, [0, 2]])
-    out = np.full(len(top), np.inf)
-    for k, near in enumerate(tree.query_ball_point(points[top][:, [0, 2]], r=spacing, workers=1)):
-        below = points[bottom[near], 1]
-        below = below[below < points[top[k], 1]]
-        if len(below):
-            out[k] = points[top[k], 1] - below.max()
-    return out
 
 
 CREST = math.radians(20.0)  # ``hang``: a sample's normal within this of straight up sees the part's whole thickness
@@ -300,7 +295,8 @@ SPECS: dict[RelationName, Spec] = {
     R.HOLD: Spec(R.HOLD, Judge(_score_hold), usual="at the ground's side, below its top"),
     R.WRAP: Spec(R.WRAP, Judge(_score_wrap), usual="around a part of the ground"),
     R.HANG: Spec(R.HANG, Judge(_score_hang, _prefer_hang), hung, _takes_the_peg,
-                 "hung freely below what bears it, its centre under the hook, at the middle of the bar"),
+                 "hung freely below what bears it, its centre under the hook, at the middle of the bar",
+                 where=_where_hang),
     R.LEAN: Spec(R.LEAN, Judge(_score_lean, _prefer_lean), lean,
                  usual="heavy end down, against a side a person reaches (not the back of furniture), centred on it",
                  where=_where_lean),

@@ -13,6 +13,7 @@ from ctp_core.geometry.pose import Poses, quaternion_product, quaternion_to_matr
 from ctp_core.pairs import PreparedPair
 from ctp_core.reading.records import RelationName
 from ctp_core.reading.relation import RelationReading
+from ctp_core.relations import parts
 from ctp_core.relations.building import LEAN_POINTS, labelled, long_axis_up, lowered, quaternion_onto, straight_sites
 from ctp_core.relations.measures import (
     FAR,
@@ -50,8 +51,17 @@ def _score_in(c: Context) -> torch.Tensor:
 
 
 def _prefer_in(c: Context) -> torch.Tensor:
-    """``in``: held by its sides, near the middle."""
-    return 1.0 - _enclosure(c) + off_centre(c)
+    """``in``: held by its sides, near the middle of an opening where the ground has openings (``parts
+    .opening_place``: a mug's, not the middle of the mug and its handle), else near the ground's middle."""
+    openings = parts.find_parts(c.pair).openings if c.pair is not None else ()
+    return 1.0 - _enclosure(c) + (parts.opening_place(c, openings) if openings else off_centre(c))
+
+
+def _where_in(c: Context) -> str | None:
+    if c.pair is None or not (found := parts.find_parts(c.pair)).openings:
+        return None
+    deepest = found.openings[0].describe(found.unit, found.floor)[0].removeprefix("an opening: ")
+    return f"in one of its {len(found.openings)} opening(s), near its middle (the deepest: {deepest})"
 
 
 def _enclosure(c: Context) -> torch.Tensor:
@@ -131,8 +141,8 @@ ENCLOSURE_BATCH = 64  # up-facing points whose enclosure is measured at once (me
 
 def contained(pair: PreparedPair, proposals: Proposals, seed: int, reading: RelationReading | None,
               log_s: float, count: int) -> Proposals | None:
-    """Sources standing in the target's most enclosed up-facing places (``extend``); None where no up-facing
-    point is enclosed at all."""
+    """Sources standing in the target's most enclosed up-facing places (``extend``), more of them under an
+    opening near its middle (``parts.in_opening_middles``); None where no up-facing point is enclosed at all."""
     points, _, regions, density = surface_regions(pair)
     top = regions["top"]
     if not len(top):
@@ -143,7 +153,7 @@ def contained(pair: PreparedPair, proposals: Proposals, seed: int, reading: Rela
     spacing = pair.sample_spacing(len(points))
     held = torch.cat([enclosure(chunk, ground[None], spacing, lift)
                       for chunk in feet.split(ENCLOSURE_BATCH)]).numpy().astype(np.float64)
-    weights = density[top] * held**4
+    weights = density[top] * held**4 * parts.in_opening_middles(parts.find_parts(pair), points[top])
     if weights.sum() <= 0:
         return None
     rng = np.random.default_rng(seed + 29)
@@ -244,7 +254,7 @@ def _fits_cavity(pair: PreparedPair, seed: int, around: float, span: float) -> B
 R = RelationName
 SPECS: dict[RelationName, Spec] = {
     R.IN: Spec(R.IN, Judge(_score_in, _prefer_in), contained, _fits_cavity,
-               "in the cavity, near its middle, held by its sides"),
+               "in the cavity, near its middle, held by its sides", where=_where_in),
     R.PENETRATE: Spec(R.PENETRATE, Judge(_score_penetrate, _prefer_penetrate), pierced,
                       usual="end first into the middle, from above the floor"),
     R.WEAR: Spec(R.WEAR, Judge(_score_wear, summit_drop), bound=wear_fit, usual="over the highest summit"),

@@ -33,7 +33,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
@@ -41,7 +40,8 @@ from scipy.spatial import cKDTree
 from ctp_core.pairs import PreparedPair, per_pair
 from ctp_core.reading.places import OFF_MIDDLE, SHELVES, PartName, Place
 from ctp_core.reading.records import RelationName
-from ctp_core.relations.measures import Context, axes, hinge, soft_min, toward
+from ctp_core.relations import thin
+from ctp_core.relations.measures import OFF_CENTRE, Context, axes, hinge, soft_min, toward
 
 UP_COS = 0.85  # a support sample's normal: at least this cosine with +Y (a seat's gentle slope, not a dome's flank)
 JOIN_SPACINGS = 3.0  # support samples this many sample spacings apart (across and in height) belong to one surface
@@ -54,6 +54,8 @@ FIT = 0.75  # ``usual_surface``: a surface holds a figure whose footprint overha
 # as large as the seat it is on: the judge's stability says whether it rests; this only chooses where)
 ROOM_SHARE = 0.5  # ``usual_surface``: the highest surface with at least this share of the roomiest one's room
 TOP_BAND = 0.05  # "on top of": the highest surface is the top where it is within this share of the ground's height
+THIN_SAMPLES = 20000  # the ground's samples its thin parts are found on (``thin``): a peg a tenth of the ground
+# wide has a few dozen
 SIDES = (RelationName.FRONT, RelationName.BEHIND, RelationName.LEFT, RelationName.RIGHT)
 
 
@@ -107,11 +109,16 @@ class Parts:
     sides: dict[RelationName, GroundSide] = field(default_factory=dict)
     height: float = 0.0  # the ground's height, normalised units
     floor: float = 0.0
+    bars: tuple[thin.Bar, ...] = ()  # longest first
+    openings: tuple[thin.Opening, ...] = ()  # deepest first
+    unit: float = 1.0  # target file units per normalised unit: what reasons say
 
     def describe(self) -> list[str]:
         """One line per named part, with its reason (reports, the page)."""
         lines = [s.reason for s in self.surfaces if s.name != PartName.SURFACE]
         lines += [s.reason for s in self.sides.values()]
+        lines += [b.describe(self.unit, self.floor) for b in self.bars]
+        lines += [line for o in self.openings for line in o.describe(self.unit, self.floor)]
         return lines
 
 
@@ -126,7 +133,10 @@ def find_parts(pair: PreparedPair) -> Parts:
     front, left = axes(torch.as_tensor(pair.target_front, dtype=torch.float32)[None], pair.front_trusted)
     unit = 1.0 / pair.target_to_normalised.scale  # target file units per normalised unit: what reasons say
     surfaces = tuple(_surfaces(points, normals, spacing, floor, unit))
-    return Parts(surfaces, _sides(points, front, left, pair.front_trusted), top - floor, floor)
+    dense, dense_normals, fine = pair.anchor_samples(THIN_SAMPLES)
+    return Parts(surfaces, _sides(points, front, left, pair.front_trusted), top - floor, floor,
+                 tuple(thin.find_bars(dense, dense_normals, fine)), tuple(thin.find_openings(dense, fine)),
+                 unit)
 
 
 def _surfaces(points: np.ndarray, normals: np.ndarray, spacing: float, floor: float, unit: float) -> list[Surface]:
@@ -267,23 +277,12 @@ def usual_surface(found: Parts, height: float, footprint: tuple[float, float], p
 def room(surface: Surface, height: float, footprint: tuple[float, float]) -> float:
     """How many times the figure's footprint's shorter side fits across the widest clear spot of ``surface``'s
     free area (``Surface.free``: clear of the ground above for its ``height``): the diameter of the largest disc
-    inside it (``inscribed``) over that side; 0 where the free area is smaller than ``FIT`` squared of the
+    inside it (``thin.inscribed``) over that side; 0 where the free area is smaller than ``FIT`` squared of the
     footprint's. A ring round a tower's top is as roomy as it is wide, not as its outer extent."""
     free = surface.free(height)
     if not free.any() or free.sum() * surface.spacing**2 < FIT**2 * footprint[0] * footprint[1]:
         return 0.0
-    return inscribed(surface.points[free][:, [0, 2]], surface.spacing) / max(footprint[0], 1e-12)
-
-
-def inscribed(xz: np.ndarray, spacing: float) -> float:
-    """The diameter of the largest disc inside the area the samples ``xz`` (N, 2) cover: the samples on a grid of
-    their spacing, closed over one cell (the gaps between samples), and the largest distance of a covered cell
-    from an uncovered one."""
-    cells = np.floor((xz - xz.min(0)) / spacing).astype(int) + 1
-    grid = np.zeros(cells.max(0) + 2, dtype=bool)
-    grid[cells[:, 0], cells[:, 1]] = True
-    grid = ndimage.binary_closing(grid, structure=np.ones((3, 3)))
-    return float(max(2 * ndimage.distance_transform_edt(grid).max() - 1, 1) * spacing)
+    return thin.inscribed(surface.points[free][:, [0, 2]], surface.spacing) / max(footprint[0], 1e-12)
 
 
 @per_pair
@@ -365,6 +364,39 @@ def side_place(c: Context, side: GroundSide, gap: bool = True) -> torch.Tensor:
     return out
 
 
+def bar_place(c: Context, bars: tuple[thin.Bar, ...]) -> torch.Tensor:
+    """(B,) how far the figure's centre is from under the middle of the nearest of ``bars`` (hung from a bar, its
+    centre is plumb under it): ``OFF_CENTRE`` x its offset along the bar in the bar's half-lengths, and its
+    horizontal distance from the bar's crest (up to ``CREST_POINTS`` of its samples: two rails joined at their ends
+    are one bar, and the middle of their extent is on neither) in figure diagonals."""
+    as_t = lambda a: torch.as_tensor(a, dtype=c.unit.dtype, device=c.unit.device)  # noqa: E731
+    centre = c.figure.centre[:, [0, 2]]
+    costs = []
+    for bar in bars:
+        along = (centre - as_t(bar.middle[[0, 2]])) @ as_t(bar.axis[[0, 2]])
+        crest = as_t(bar.points[:: -(-len(bar.points) // CREST_POINTS), [0, 2]])
+        across = torch.cdist(centre, crest).min(-1).values
+        costs.append(OFF_CENTRE * along.abs() / bar.half + across / c.unit)
+    return torch.stack(costs, -1).min(-1).values
+
+
+def opening_place(c: Context, openings: tuple[thin.Opening, ...]) -> torch.Tensor:
+    """(B,) how far the figure is from in through the nearest of ``openings``: ``OFF_CENTRE`` x the horizontal
+    distance of its centre from the opening's middle in the opening's half-widths, and the share of its samples
+    below the rim that are out beyond the opening's reach (through its wall: a pencil lying across a narrow
+    holder, not standing in it; a count, no gradient)."""
+    as_t = lambda a: torch.as_tensor(np.asarray(a), dtype=c.unit.dtype, device=c.unit.device)  # noqa: E731
+    costs = []
+    for o in openings:
+        offset = (c.figure.points[..., [0, 2]] - as_t(o.middle)).norm(dim=-1)  # (B, N)
+        below = c.figure.points[..., 1] < o.rim
+        through = ((offset > o.reach) & below).float().mean(-1)
+        middle = (c.figure.centre[:, [0, 2]] - as_t(o.middle)).norm(dim=-1) / o.half
+        costs.append(OFF_CENTRE * middle + through.detach())
+    return torch.stack(costs, -1).min(-1).values
+
+
+CREST_POINTS = 256  # ``bar_place``: a bar's crest samples its distance is measured to
 MIDDLE_WIDTH = 0.2  # ``near_middle``: how far from a middle, in half-spans, still counts as near it
 MIDDLE_WEIGHT = 4.0  # ... and how much more a sample there is drawn than one elsewhere
 
@@ -379,6 +411,26 @@ def near_side_middles(found: Parts, points: np.ndarray, normals: np.ndarray) -> 
             continue
         facing = normals @ side.direction >= np.cos(np.pi / 4)
         weight += facing * near_middle((points @ side.across - side.middle) / side.half)
+    return weight
+
+
+def near_bar_middles(found: Parts, points: np.ndarray) -> np.ndarray:
+    """(N,) a drawing weight for each of a ground's up-facing samples ``points``: 1, one more on a bar (within its
+    thickness of its crest) and up to ``MIDDLE_WEIGHT`` more near that bar's middle."""
+    weight = np.ones(len(points))
+    for bar in found.bars:
+        on = cKDTree(bar.points).query(points, k=1, workers=1)[0] <= bar.thickness
+        weight += on * (1.0 + near_middle((points - bar.middle) @ bar.axis / bar.half))
+    return weight
+
+
+def in_opening_middles(found: Parts, points: np.ndarray) -> np.ndarray:
+    """(N,) a drawing weight for each of a ground's up-facing samples ``points``: 1, one more under an opening
+    (within its half-width of its middle) and up to ``MIDDLE_WEIGHT`` more near that middle."""
+    weight = np.ones(len(points))
+    for opening in found.openings:
+        offset = np.linalg.norm(points[:, [0, 2]] - opening.middle, axis=1) / opening.half
+        weight += (offset <= 1.0) * (1.0 + near_middle(offset))
     return weight
 
 
@@ -410,6 +462,9 @@ PARTS: dict[PartName, Part] = {p.name: p for p in (
     Part(PartName.SEAT, _seat, frozenset(), _RESTING),
     Part(PartName.SURFACE, _surface, frozenset(OFF_MIDDLE), _RESTING),
     Part(PartName.SIDE, None, frozenset(), frozenset({*SIDES, RelationName.BESIDE, RelationName.LEAN})),
+    Part(PartName.BAR, None, frozenset(), frozenset({RelationName.HANG})),
+    Part(PartName.OPENING, None, frozenset(), frozenset({RelationName.IN})),
+    Part(PartName.RIM, None, frozenset(), frozenset({RelationName.IN})),
 )}
 
 
