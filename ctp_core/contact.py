@@ -31,6 +31,7 @@ CONTACT_SAMPLES = 6000  # target samples for settling proposals (the losses use 
 SETTLE_POINTS = 256  # source samples checked for penetration when settling proposals
 APPROACH_POINTS = 64  # source samples used while sliding proposals into contact
 SETTLE_ITERATIONS = 12
+NEAR = 0.25  # target radii: settling's nearest-sample search is bounded to this (``nearest_two``)
 PUSH_ITERATIONS = 3
 
 
@@ -161,17 +162,14 @@ def settle(pair: PreparedPair, index: losses.SurfaceIndex, q: torch.Tensor, anch
     def step(rotated: torch.Tensor, active: torch.Tensor, closing: bool) -> tuple[torch.Tensor, torch.Tensor]:
         """Move the active candidates once; returns the ones that still move and every active one's depth."""
         posed = rotated[active] + centre[active, None, :]
-        dist, idx = index.tree.query(posed.reshape(-1, 3).numpy().astype(np.float64), k=2,
-                                     workers=losses.query_workers())
-        idx = torch.as_tensor(idx.reshape(*posed.shape[:2], 2), dtype=torch.long)
-        dist = torch.as_tensor(dist[:, 0].reshape(posed.shape[:2]), dtype=centre.dtype)
-        # behind the sampled surface and mostly along its normal: above a feature thinner than the sample
-        # spacing (a spire's tip) a point is behind the planes of the samples on either side, though outside
-        depth = losses.signed_depth(posed, index, 0.01, 2, idx=idx)
         # a sample outside the target's box (by more than a sample spacing) is outside the target: far from a
         # surface thinner than the spacing (a plate under a source 100 times its size) the nearest sample's side
         # is a coin toss, and a wrong "inside" pushed such a source hundreds of radii away
         within = ((posed >= low) & (posed <= high)).all(dim=-1)
+        dist, idx = nearest_two(index, posed, within, NEAR * pair.target_radius)
+        # behind the sampled surface and mostly along its normal: above a feature thinner than the sample
+        # spacing (a spire's tip) a point is behind the planes of the samples on either side, though outside
+        depth = losses.signed_depth(posed, index, 0.01, 2, idx=idx)
         depth = torch.where(within, depth, torch.zeros_like(depth))
         deepest = torch.where(depth >= 0.5 * dist, depth, torch.zeros_like(depth)).max(dim=1).values
         gap, nearest = dist.min(dim=1)
@@ -202,6 +200,26 @@ def settle(pair: PreparedPair, index: losses.SurfaceIndex, q: torch.Tensor, anch
         if not len(active):
             break
     return centre, depth <= inside_tol
+
+
+def nearest_two(index: losses.SurfaceIndex, posed: torch.Tensor, within: torch.Tensor, near: float
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+    """(B, N) each posed point's distance to its nearest sample of ``index`` and (B, N, 2) its two nearest samples,
+    as one search for both would find them, from a search bounded to ``near``: a far point's search visits much
+    of the tree, and settling asks of many far points (the far side of a large source). The bound changes no
+    answer that is used: points inside the target's box (``within``) and every point of a pose none of whose
+    points is that near are searched again without it; a point outside the box beyond the bound keeps an
+    infinite distance (never the nearest of its pose's, nor counted inside: its depth is not read)."""
+    flat = posed.reshape(-1, 3).numpy().astype(np.float64)
+    dist, idx = index.tree.query(flat, k=2, workers=losses.query_workers(), distance_upper_bound=near)
+    far = ~np.isfinite(dist[:, 1])
+    lone = ~np.isfinite(dist[:, 0]).reshape(posed.shape[:2]).any(1)  # no point of the pose within the bound
+    again = far & (within.reshape(-1).numpy() | np.repeat(lone, posed.shape[1]))
+    if again.any():
+        dist[again], idx[again] = index.tree.query(flat[again], k=2, workers=losses.query_workers())
+    idx = np.where(np.isfinite(dist), idx, 0)  # a point left far is outside the box: its neighbours are not read
+    return (torch.as_tensor(dist[:, 0].reshape(posed.shape[:2]), dtype=posed.dtype),
+            torch.as_tensor(idx.reshape(*posed.shape[:2], 2), dtype=torch.long))
 
 
 def place(pair: PreparedPair, index: losses.SurfaceIndex, q: torch.Tensor, sites: Site,

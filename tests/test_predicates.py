@@ -294,7 +294,9 @@ def test_a_ring_on_a_peg_prefers_hanging_freely_to_swung_aside_stuck_under_the_w
     stuck = pose([0.3, 0.5 - 0.17, -0.05])  # its top against the wall's underside (y = 0.5): held by nothing seen
     prefer, score = _preference(wall_with_peg(), ring(), [threaded, swung, flat, stuck], "hang")
     assert predicates.holds(score).tolist() == [True, True, True, True], score
-    assert prefer[0] < 0.05 and prefer[0] + 0.05 < prefer[1] < prefer[3] < prefer[2] == measures.FAR, prefer
+    # threaded: on the peg (a bar, ``relations.thin``) a quarter of its half-length out from its middle, hung plumb
+    assert abs(prefer[0] - measures.OFF_CENTRE * 0.25) < 0.08, prefer
+    assert prefer[0] + 0.05 < prefer[1] < prefer[3] < prefer[2] == measures.FAR, prefer
     assert prefer[3] >= attached.FIXED, prefer
 
 

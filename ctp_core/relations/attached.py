@@ -140,11 +140,13 @@ def _where_lean(c: Context) -> str | None:
 def _prefer_hang(c: Context) -> torch.Tensor:
     """``hang``: hung freely from what bears it (``_borne``), under the middle of a bar where the ground has bars
     (``parts.bar_place``: a towel rail's middle, not its end, nor the wall plate behind it), else at the middle of
-    the ground along its length (``along_middle``)."""
+    the ground along its length (``along_middle``). Where it hangs weighs at most half what its bearing is short
+    of ``FAR``: every pose borne at all stays before one that is not (a ring fixed under a wall's underside far
+    from the peg before one flat against the wall)."""
     borne = _borne(c)
     bars = parts.find_parts(c.pair).bars if c.pair is not None else ()
     place = parts.bar_place(c, bars) if bars else along_middle(c)
-    return borne + torch.where(borne < FAR, place, torch.zeros_like(borne))
+    return borne + torch.where(borne < FAR, torch.minimum(place, (FAR - borne) / 2), torch.zeros_like(borne))
 
 
 def _where_hang(c: Context) -> str | None:

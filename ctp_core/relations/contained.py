@@ -51,17 +51,19 @@ def _score_in(c: Context) -> torch.Tensor:
 
 
 def _prefer_in(c: Context) -> torch.Tensor:
-    """``in``: held by its sides, near the middle of an opening where the ground has openings (``parts
-    .opening_place``: a mug's, not the middle of the mug and its handle), else near the ground's middle."""
+    """``in``: held by its sides, near the middle, and in through an opening where the ground has openings, not
+    through its wall (``parts.through_openings``)."""
     openings = parts.find_parts(c.pair).openings if c.pair is not None else ()
-    return 1.0 - _enclosure(c) + (parts.opening_place(c, openings) if openings else off_centre(c))
+    through = parts.through_openings(c, openings) if openings else torch.zeros_like(c.unit)
+    return 1.0 - _enclosure(c) + off_centre(c) + through
 
 
 def _where_in(c: Context) -> str | None:
     if c.pair is None or not (found := parts.find_parts(c.pair)).openings:
         return None
     deepest = found.openings[0].describe(found.unit, found.floor)[0].removeprefix("an opening: ")
-    return f"in one of its {len(found.openings)} opening(s), near its middle (the deepest: {deepest})"
+    return (f"in the cavity near its middle, held by its sides, in through one of its {len(found.openings)} "
+            f"opening(s), not its wall (the deepest: {deepest})")
 
 
 def _enclosure(c: Context) -> torch.Tensor:
@@ -141,8 +143,9 @@ ENCLOSURE_BATCH = 64  # up-facing points whose enclosure is measured at once (me
 
 def contained(pair: PreparedPair, proposals: Proposals, seed: int, reading: RelationReading | None,
               log_s: float, count: int) -> Proposals | None:
-    """Sources standing in the target's most enclosed up-facing places (``extend``), more of them under an
-    opening near its middle (``parts.in_opening_middles``); None where no up-facing point is enclosed at all."""
+    """Sources standing in the target's most enclosed up-facing places (``extend``); None where no up-facing
+    point is enclosed at all. An opening's floor is among the most enclosed already: which of them is the
+    preference's to say (``parts.opening_place``)."""
     points, _, regions, density = surface_regions(pair)
     top = regions["top"]
     if not len(top):
@@ -153,7 +156,7 @@ def contained(pair: PreparedPair, proposals: Proposals, seed: int, reading: Rela
     spacing = pair.sample_spacing(len(points))
     held = torch.cat([enclosure(chunk, ground[None], spacing, lift)
                       for chunk in feet.split(ENCLOSURE_BATCH)]).numpy().astype(np.float64)
-    weights = density[top] * held**4 * parts.in_opening_middles(parts.find_parts(pair), points[top])
+    weights = density[top] * held**4
     if weights.sum() <= 0:
         return None
     rng = np.random.default_rng(seed + 29)

@@ -380,20 +380,15 @@ def bar_place(c: Context, bars: tuple[thin.Bar, ...]) -> torch.Tensor:
     return torch.stack(costs, -1).min(-1).values
 
 
-def opening_place(c: Context, openings: tuple[thin.Opening, ...]) -> torch.Tensor:
-    """(B,) how far the figure is from in through the nearest of ``openings``: ``OFF_CENTRE`` x the horizontal
-    distance of its centre from the opening's middle in the opening's half-widths, and the share of its samples
-    below the rim that are out beyond the opening's reach (through its wall: a pencil lying across a narrow
-    holder, not standing in it; a count, no gradient)."""
+def through_openings(c: Context, openings: tuple[thin.Opening, ...]) -> torch.Tensor:
+    """(B,) how far the figure is from in through the nearest of ``openings``: the share of its samples below the
+    opening's rim that are out beyond its reach (through its wall: a pencil lying across a narrow holder, not
+    standing in it), the least over the openings; a count, no gradient."""
     as_t = lambda a: torch.as_tensor(np.asarray(a), dtype=c.unit.dtype, device=c.unit.device)  # noqa: E731
-    costs = []
-    for o in openings:
-        offset = (c.figure.points[..., [0, 2]] - as_t(o.middle)).norm(dim=-1)  # (B, N)
-        below = c.figure.points[..., 1] < o.rim
-        through = ((offset > o.reach) & below).float().mean(-1)
-        middle = (c.figure.centre[:, [0, 2]] - as_t(o.middle)).norm(dim=-1) / o.half
-        costs.append(OFF_CENTRE * middle + through.detach())
-    return torch.stack(costs, -1).min(-1).values
+    points = c.figure.points.detach()
+    shares = [((points[..., [0, 2]] - as_t(o.middle)).norm(dim=-1) > o.reach) & (points[..., 1] < o.rim)
+              for o in openings]
+    return torch.stack([s.float().mean(-1) for s in shares], -1).min(-1).values
 
 
 CREST_POINTS = 256  # ``bar_place``: a bar's crest samples its distance is measured to
@@ -421,16 +416,6 @@ def near_bar_middles(found: Parts, points: np.ndarray) -> np.ndarray:
     for bar in found.bars:
         on = cKDTree(bar.points).query(points, k=1, workers=1)[0] <= bar.thickness
         weight += on * (1.0 + near_middle((points - bar.middle) @ bar.axis / bar.half))
-    return weight
-
-
-def in_opening_middles(found: Parts, points: np.ndarray) -> np.ndarray:
-    """(N,) a drawing weight for each of a ground's up-facing samples ``points``: 1, one more under an opening
-    (within its half-width of its middle) and up to ``MIDDLE_WEIGHT`` more near that middle."""
-    weight = np.ones(len(points))
-    for opening in found.openings:
-        offset = np.linalg.norm(points[:, [0, 2]] - opening.middle, axis=1) / opening.half
-        weight += (offset <= 1.0) * (1.0 + near_middle(offset))
     return weight
 
 
