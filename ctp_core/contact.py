@@ -205,18 +205,34 @@ def settle(pair: PreparedPair, index: losses.SurfaceIndex, q: torch.Tensor, anch
 def nearest_two(index: losses.SurfaceIndex, posed: torch.Tensor, within: torch.Tensor, near: float
                 ) -> tuple[torch.Tensor, torch.Tensor]:
     """(B, N) each posed point's distance to its nearest sample of ``index`` and (B, N, 2) its two nearest samples,
-    as one search for both would find them, from a search bounded to ``near``: a far point's search visits much
-    of the tree, and settling asks of many far points (the far side of a large source). The bound changes no
-    answer that is used: points inside the target's box (``within``) and every point of a pose none of whose
-    points is that near are searched again without it; a point outside the box beyond the bound keeps an
-    infinite distance (never the nearest of its pose's, nor counted inside: its depth is not read)."""
+    as one unbounded search for both finds them wherever they are read, for less: a far point's search visits much
+    of the tree, and settling asks of many far points (the far side of a large source, a pose far from the target).
+    First a search bounded to ``near``; points inside the target's box (``within``) beyond it are searched again
+    without it. A pose none of whose points is that near needs its nearest point and that point's nearest sample
+    still (its nearest may be outside the box): the index's few covering samples (``SurfaceIndex.cover``) bound
+    each point's distance from above and below, and only the points whose distance can be the pose's least are
+    searched, bounded by the least upper bound. Every other point outside the box keeps an infinite distance
+    (never its pose's nearest, nor counted inside: its depth is not read)."""
     flat = posed.reshape(-1, 3).numpy().astype(np.float64)
-    dist, idx = index.tree.query(flat, k=2, workers=losses.query_workers(), distance_upper_bound=near)
-    far = ~np.isfinite(dist[:, 1])
-    lone = ~np.isfinite(dist[:, 0]).reshape(posed.shape[:2]).any(1)  # no point of the pose within the bound
-    again = far & (within.reshape(-1).numpy() | np.repeat(lone, posed.shape[1]))
-    if again.any():
-        dist[again], idx[again] = index.tree.query(flat[again], k=2, workers=losses.query_workers())
+    workers = losses.query_workers()
+    dist, idx = index.tree.query(flat, k=2, workers=workers, distance_upper_bound=near)
+    close = np.isfinite(dist[:, 0]).reshape(posed.shape[:2]).any(1)  # a point within the bound: the pose's nearest
+    inside = within.reshape(-1).numpy() & ~np.isfinite(dist[:, 1])
+    if inside.any():
+        dist[inside], idx[inside] = index.tree.query(flat[inside], k=2, workers=workers)
+    lone = np.flatnonzero(~close)
+    if len(lone):
+        points = flat.reshape(*posed.shape[:2], 3)[lone]  # (L, N, 3)
+        few, radius = index.cover
+        square = (points**2).sum(-1)[..., None] + (few**2).sum(-1) - 2 * points @ few.T  # (L, N, C)
+        upper = np.sqrt(np.clip(square, 0.0, None).min(-1))  # (L, N): each point at least this near
+        known = dist[:, 0].reshape(posed.shape[:2])[lone]  # points inside the box, searched already
+        least = np.minimum(upper.min(1), known.min(1))  # each pose's nearest point is at least this near
+        can = (upper - radius <= least[:, None]) & ~np.isfinite(known)  # those that can be it, not yet searched
+        for i, pose in enumerate(lone):
+            rows = pose * posed.shape[1] + np.flatnonzero(can[i])
+            dist[rows, 0], idx[rows, 0] = index.tree.query(flat[rows], k=1, workers=workers,
+                                                           distance_upper_bound=least[i] * (1 + 1e-9))
     idx = np.where(np.isfinite(dist), idx, 0)  # a point left far is outside the box: its neighbours are not read
     return (torch.as_tensor(dist[:, 0].reshape(posed.shape[:2]), dtype=posed.dtype),
             torch.as_tensor(idx.reshape(*posed.shape[:2], 2), dtype=torch.long))

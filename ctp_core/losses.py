@@ -34,6 +34,9 @@ def query_workers() -> int:
     return torch.get_num_threads()
 
 
+COVER = 64  # ``SurfaceIndex.cover``: the samples a far point's distance is first bounded by
+
+
 class SurfaceIndex:
     """Surface samples with outward normals and a KD-tree, built once per run in a frame where the surface
     never moves: the target's in the normalised frame, the source's in its local frame."""
@@ -44,6 +47,18 @@ class SurfaceIndex:
         self.tree = cKDTree(points.detach().cpu().numpy().astype(np.float64))
         self.part: Part | None = None  # where its samples are rows of a larger index (``part_of``)
         self._field: fields.DistanceField | None = None
+        self._cover: tuple[np.ndarray, float] | None = None
+
+    @property
+    def cover(self) -> tuple[np.ndarray, float]:
+        """(C, 3) ``COVER`` of the samples (every ``M / C``-th) and how far any sample is from the nearest of them:
+        a point's distance to the samples is at most its distance to these and at least that less the radius (a
+        bound for far points, whose exact search is slow), made on first use and kept."""
+        if self._cover is None:
+            data = self.tree.data
+            few = data[:: max(1, len(data) // COVER)]
+            self._cover = few, float(cKDTree(few).query(data, k=1, workers=query_workers())[0].max())
+        return self._cover
 
     @property
     def field(self) -> fields.DistanceField:
