@@ -348,7 +348,7 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
                  "source_name": run.names.get("source")},
         restarts=restarts, timings=timings, preview=preview, best_restart=best, on=run.names.get("on"),
         grounds=run.names.get("grounds", []),
-        ground_parts=[] if (found := ground_parts(run)) is None else found.describe(),
+        ground_parts=[] if ground_parts(run) is None else parts.describe(run.pair),
         guided_by=goal.description if goal is not None else "none (geometry only)",
         model=config.model if goal is not None else None,
         runtime=getattr(run.scorer.guide, "runtime", None),  # the pixels guide has none

@@ -171,12 +171,14 @@ class PreparedPair:
         return self.index if self.attach is None else self.attach
 
     def anchor_samples(self, count: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, float]:
-        """``count`` samples of the objects ``anchor`` samples, their outward normals (normalised frame) and
-        spacing (as ``sample_spacing``): denser than the losses' where a detail (a thin part) needs them."""
-        mesh = _triangles([self.target_outward[i] for i in self.attach_objects] or self.target_outward)
-        points, normals = sampling.surface_samples(mesh, count, seed)
+        """``count`` samples of each object ``anchor`` samples, their outward normals (normalised frame) and the
+        spacing of the densest object's (as ``sample_spacing``): denser than the losses' where a detail (a thin
+        part) needs them; made once per scene for each object (``_samples``)."""
+        meshes = [self.target_outward[i] for i in self.attach_objects] or self.target_outward
+        points, normals = (np.concatenate(a) for a in zip(*(_samples(m, count, seed) for m in meshes), strict=True))
         frame = self.target_to_normalised
-        return frame.apply(points), frame.apply_directions(normals), math.sqrt(mesh.area / count) * frame.scale
+        spacing = min(math.sqrt(m.area / count) for m in meshes) * frame.scale
+        return frame.apply(points), frame.apply_directions(normals), spacing
 
     @cached_property
     def target_radius(self) -> float:

@@ -12,9 +12,10 @@ import re
 import numpy as np
 import trimesh
 from test_directions import gltf, prepared
-from test_parts import bookcase, crate, cushion, desk, dining_chair, pen_holder, prefer_and_score, towel_rail
+from test_parts import _run, bookcase, crate, cushion, desk, dining_chair, pen_holder, prefer_and_score, towel_rail
 from test_predicates import box, pose
 
+from ctp_core import export
 from ctp_core.relations import parts, thin
 
 
@@ -62,18 +63,18 @@ def test_water_stands_inside_a_rim_drawn_corner_to_corner_and_drains_outside():
 
 
 def test_a_towel_rail_s_longest_bar_is_its_rail_and_its_wall_plate_is_none():
-    found = parts.find_parts(prepared(towel_rail(), cushion()))
+    found = parts.thin_parts(prepared(towel_rail(), cushion()))
     assert found.bars and not found.openings, found.describe()
     # the rail (and the posts that hold it, rods too), at y 1.0; the plate's top edge (y 1.1) is thicker than wide
     assert all(abs((b.middle[1] - found.floor) * found.unit - 0.1) < 0.02 for b in found.bars), found.describe()
     line = found.bars[0].describe(found.unit, found.floor)
     assert 0.7 <= _numbers(line, "a bar:") <= 0.85, line  # 0.8 long (its posts and the plate's top are not it)
     assert 0.015 <= _numbers(line, "long,") <= 0.03, line  # 0.02 thick
-    assert line in found.describe()
+    assert line in found.describe() and line in parts.describe(prepared(towel_rail(), cushion()))
 
 
 def test_a_pen_holder_has_an_opening_with_its_rim_at_its_top():
-    found = parts.find_parts(prepared(pen_holder(), cushion()))
+    found = parts.thin_parts(prepared(pen_holder(), cushion()))
     assert len(found.openings) == 1, found.describe()
     opening, rim = found.openings[0].describe(found.unit, found.floor)
     assert 0.06 <= _numbers(opening, "an opening:") <= 0.08, opening  # 0.072 inside
@@ -83,7 +84,7 @@ def test_a_pen_holder_has_an_opening_with_its_rim_at_its_top():
 
 
 def test_a_bucket_has_one_opening_under_its_handle_and_the_handle_is_a_bar():
-    found = parts.find_parts(prepared(bucket(), cushion()))
+    found = parts.thin_parts(prepared(bucket(), cushion()))
     assert len(found.openings) == 1, found.describe()  # one opening: the handle over it does not split it
     assert abs(found.openings[0].depth * found.unit - 0.24) < 0.02, found.describe()
     assert abs(found.openings[0].rim - found.floor - 0.25 / found.unit) < 0.02 / found.unit
@@ -93,10 +94,10 @@ def test_a_bucket_has_one_opening_under_its_handle_and_the_handle_is_a_bar():
 
 def test_furniture_boards_trays_and_frames_are_neither_bars_nor_openings():
     for ground in (desk(), bookcase(), dining_chair(), tray(), frame()):
-        found = parts.find_parts(prepared(ground, cushion()))
+        found = parts.thin_parts(prepared(ground, cushion()))
         assert not found.openings, found.describe()
     for ground in (desk(), bookcase(), tray()):
-        assert not parts.find_parts(prepared(ground, cushion())).bars, ground
+        assert not parts.thin_parts(prepared(ground, cushion())).bars, ground
 
 
 def test_hang_prefers_the_bar_to_the_top_edge_of_the_wall_plate_behind_it():
@@ -123,5 +124,15 @@ def test_in_prefers_standing_in_through_the_opening_to_lying_through_its_wall():
 
 def test_a_crate_in_front_reports_no_thin_parts_of_its_own():
     """A closed box has neither: its top is a board, its inside closed."""
-    found = parts.find_parts(prepared(crate(0.3), cushion()))
+    found = parts.thin_parts(prepared(crate(0.3), cushion()))
     assert not found.bars and not found.openings, found.describe()
+
+
+def test_a_run_hanging_a_ring_on_a_towel_rail_names_the_bar_in_its_report_and_hangs_on_it():
+    ring = gltf(trimesh.creation.annulus(r_min=0.03, r_max=0.04, height=0.01))
+    ring.apply_transform(trimesh.transformations.rotation_matrix(math.pi / 2, [1, 0, 0]))
+    result, centre = _run(towel_rail(), ring, "a ring hanging on the towel rail", "towel rail", "ring")
+    named = export.report(result)["extra"]["parts"]
+    assert any(line.startswith("a bar:") and 0.7 <= _numbers(line, "a bar:") <= 0.85 for line in named), named
+    assert result.relation["holds"] and "bar" in result.relation["usual"], result.relation
+    assert abs(centre[0]) < 0.2 and centre[2] > 0.05, centre  # on the rail (z 0.1), toward its middle

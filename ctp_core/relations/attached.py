@@ -144,13 +144,13 @@ def _prefer_hang(c: Context) -> torch.Tensor:
     of ``FAR``: every pose borne at all stays before one that is not (a ring fixed under a wall's underside far
     from the peg before one flat against the wall)."""
     borne = _borne(c)
-    bars = parts.find_parts(c.pair).bars if c.pair is not None else ()
+    bars = parts.thin_parts(c.pair).bars if c.pair is not None else ()
     place = parts.bar_place(c, bars) if bars else along_middle(c)
     return borne + torch.where(borne < FAR, torch.minimum(place, (FAR - borne) / 2), torch.zeros_like(borne))
 
 
 def _where_hang(c: Context) -> str | None:
-    if c.pair is None or not (found := parts.find_parts(c.pair)).bars:
+    if c.pair is None or not (found := parts.thin_parts(c.pair)).bars:
         return None
     longest = found.bars[0].describe(found.unit, found.floor).removeprefix("a bar: ")
     return f"hung freely under the middle of one of its {len(found.bars)} bar(s) (the longest: {longest})"
@@ -217,7 +217,7 @@ def hung(pair: PreparedPair, proposals: Proposals, seed: int, reading: RelationR
     if not fits.any():
         return None
     rng = np.random.default_rng(seed + 31)
-    weights = density[top] * fits * parts.near_bar_middles(parts.find_parts(pair), points[top])
+    weights = density[top] * fits * parts.near_bar_middles(parts.thin_parts(pair), points[top])
     pick = rng.choice(len(top), size=count, p=weights / weights.sum())
     hook = np.array([rng.choice(hooks[clearance > thickness[i]]) for i in pick])
     down = np.array([0.0, -1.0, 0.0])

@@ -53,13 +53,13 @@ def _score_in(c: Context) -> torch.Tensor:
 def _prefer_in(c: Context) -> torch.Tensor:
     """``in``: held by its sides, near the middle, and in through an opening where the ground has openings, not
     through its wall (``parts.through_openings``)."""
-    openings = parts.find_parts(c.pair).openings if c.pair is not None else ()
+    openings = parts.thin_parts(c.pair).openings if c.pair is not None else ()
     through = parts.through_openings(c, openings) if openings else torch.zeros_like(c.unit)
     return 1.0 - _enclosure(c) + off_centre(c) + through
 
 
 def _where_in(c: Context) -> str | None:
-    if c.pair is None or not (found := parts.find_parts(c.pair)).openings:
+    if c.pair is None or not (found := parts.thin_parts(c.pair)).openings:
         return None
     deepest = found.openings[0].describe(found.unit, found.floor)[0].removeprefix("an opening: ")
     return (f"in the cavity near its middle, held by its sides, in through one of its {len(found.openings)} "

@@ -109,17 +109,33 @@ class Parts:
     sides: dict[RelationName, GroundSide] = field(default_factory=dict)
     height: float = 0.0  # the ground's height, normalised units
     floor: float = 0.0
-    bars: tuple[thin.Bar, ...] = ()  # longest first
-    openings: tuple[thin.Opening, ...] = ()  # deepest first
-    unit: float = 1.0  # target file units per normalised unit: what reasons say
 
     def describe(self) -> list[str]:
         """One line per named part, with its reason (reports, the page)."""
         lines = [s.reason for s in self.surfaces if s.name != PartName.SURFACE]
         lines += [s.reason for s in self.sides.values()]
-        lines += [b.describe(self.unit, self.floor) for b in self.bars]
-        lines += [line for o in self.openings for line in o.describe(self.unit, self.floor)]
         return lines
+
+
+@dataclass(frozen=True)
+class ThinParts:
+    """The ground's thin parts (``thin_parts``), found apart from the others: only what reads them pays for them
+    (``hang``, ``in``, the run's report)."""
+
+    bars: tuple[thin.Bar, ...] = ()  # longest first
+    openings: tuple[thin.Opening, ...] = ()  # deepest first
+    unit: float = 1.0  # target file units per normalised unit: what reasons say
+    floor: float = 0.0  # the ground's bottom, normalised frame
+
+    def describe(self) -> list[str]:
+        """One line per bar, opening and rim, with its size and height (reports, the page)."""
+        lines = [b.describe(self.unit, self.floor) for b in self.bars]
+        return lines + [line for o in self.openings for line in o.describe(self.unit, self.floor)]
+
+
+def describe(pair: PreparedPair) -> list[str]:
+    """Every named part of the pair's ground, with its reason: what a run's report lists."""
+    return find_parts(pair).describe() + thin_parts(pair).describe()
 
 
 @per_pair
@@ -133,10 +149,17 @@ def find_parts(pair: PreparedPair) -> Parts:
     front, left = axes(torch.as_tensor(pair.target_front, dtype=torch.float32)[None], pair.front_trusted)
     unit = 1.0 / pair.target_to_normalised.scale  # target file units per normalised unit: what reasons say
     surfaces = tuple(_surfaces(points, normals, spacing, floor, unit))
-    dense, dense_normals, fine = pair.anchor_samples(THIN_SAMPLES)
-    return Parts(surfaces, _sides(points, front, left, pair.front_trusted), top - floor, floor,
-                 tuple(thin.find_bars(dense, dense_normals, fine)), tuple(thin.find_openings(dense, fine)),
-                 unit)
+    return Parts(surfaces, _sides(points, front, left, pair.front_trusted), top - floor, floor)
+
+
+@per_pair
+def thin_parts(pair: PreparedPair) -> ThinParts:
+    """The pair's ground's ``ThinParts`` (``relations.thin``, on ``THIN_SAMPLES`` samples of it), found on first use
+    and kept while the pair lives."""
+    points, normals, spacing = pair.anchor_samples(THIN_SAMPLES)
+    floor = float(pair.anchor.points[:, 1].min())
+    return ThinParts(tuple(thin.find_bars(points, normals, spacing)), tuple(thin.find_openings(points, spacing)),
+                     1.0 / pair.target_to_normalised.scale, floor)
 
 
 def _surfaces(points: np.ndarray, normals: np.ndarray, spacing: float, floor: float, unit: float) -> list[Surface]:
@@ -409,7 +432,7 @@ def near_side_middles(found: Parts, points: np.ndarray, normals: np.ndarray) -> 
     return weight
 
 
-def near_bar_middles(found: Parts, points: np.ndarray) -> np.ndarray:
+def near_bar_middles(found: ThinParts, points: np.ndarray) -> np.ndarray:
     """(N,) a drawing weight for each of a ground's up-facing samples ``points``: 1, one more on a bar (within its
     thickness of its crest) and up to ``MIDDLE_WEIGHT`` more near that bar's middle."""
     weight = np.ones(len(points))

@@ -1,7 +1,7 @@
 """Thin parts of the ground: the bars a thing hangs on and the openings a thing goes in through, with their rims.
 
-Found from the ground's samples alone (normalised frame, +Y up), once per pair with the other parts
-(``parts.find_parts``), and named in the registry (``parts.PARTS``) and in the run's report:
+Found from the ground's samples alone (normalised frame, +Y up), once per pair where something reads them
+(``parts.thin_parts``), and named in the registry (``parts.PARTS``) and in the run's report:
 
 - an **opening** is a basin of the ground seen from above. The ground's *height map* (the highest sample over each
   cell of a grid ``CELL`` sample spacings wide) is filled as water fills it from all round (``water_level``: water
