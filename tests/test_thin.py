@@ -10,6 +10,7 @@ import math
 import re
 
 import numpy as np
+import pytest
 import trimesh
 from test_directions import gltf, prepared
 from test_parts import _run, bookcase, crate, cushion, desk, dining_chair, pen_holder, prefer_and_score, towel_rail
@@ -136,3 +137,16 @@ def test_a_run_hanging_a_ring_on_a_towel_rail_names_the_bar_in_its_report_and_ha
     assert any(line.startswith("a bar:") and 0.7 <= _numbers(line, "a bar:") <= 0.85 for line in named), named
     assert result.relation["holds"] and "bar" in result.relation["usual"], result.relation
     assert abs(centre[0]) < 0.2 and centre[2] > 0.05, centre  # on the rail (z 0.1), toward its middle
+
+
+def test_specks_scattered_over_a_wide_box_keep_the_grids_small():
+    """Samples far apart for the box they span (a few tiny triangles over a metre): the height map and a crest's
+    disc stay within ``GRID`` cells a side instead of one cell per spacing (billions of them)."""
+    rng = np.random.default_rng(0)
+    points = rng.random((20000, 3))
+    widest = float(np.ptp(points[:, [0, 2]], axis=0).max())
+    height, _, cell = thin.height_map(points, 1e-6)
+    assert max(height.shape) <= thin.GRID + 1 and cell == pytest.approx(widest / thin.GRID)
+    assert thin.inscribed(points[:, [0, 2]], 1e-6) >= widest / thin.GRID
+    normals = np.tile([0.0, 1.0, 0.0], (len(points), 1))
+    assert thin.find_openings(points, 1e-6) == [] and thin.find_bars(points, normals, 1e-6) == []

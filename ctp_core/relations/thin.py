@@ -28,6 +28,8 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 CELL = 1.5  # height-map cell, in sample spacings
+GRID = 1024  # cells per side at most, of the height map and of a crest's widest disc: a few specks scattered over a
+# wide box (their samples far apart for its size) would otherwise ask for billions of cells
 MIN_DEPTH = 2.0  # an opening's water, at its deepest, at least this many sample spacings deep (not a sampling dent)
 DEEP = 0.25  # an opening: at least this deep for its width (a mug, a bucket; a tray or a plate is a surface)
 OWN_FLOOR = 0.5  # an opening: the ground's samples under at least this share of its cells
@@ -82,10 +84,11 @@ class Bar:
                 + ("nothing under it" if math.isinf(self.room) else f"free for {self.room * unit:.3g} under it"))
 
 
-def height_map(points: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
+def height_map(points: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray, float]:
     """The highest sample's height over each cell of a grid of side ``cell`` (x, z; -inf where the grid has no
-    sample; gaps one cell wide inside the covered area closed with their neighbours' highest) and the x, z of the
-    grid's first cell's middle."""
+    sample; gaps one cell wide inside the covered area closed with their neighbours' highest), the x, z of the
+    grid's first cell's middle and the cell's side (``cell``, or larger: at most ``GRID`` cells a side)."""
+    cell = max(cell, float(np.ptp(points[:, [0, 2]], axis=0).max()) / GRID)
     low = points[:, [0, 2]].min(0) - cell / 2
     ij = np.floor((points[:, [0, 2]] - low) / cell).astype(int)
     height = np.full(ij.max(0) + 1, -np.inf)
@@ -93,7 +96,7 @@ def height_map(points: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]
     covered = np.isfinite(height)
     gaps = ndimage.binary_closing(np.pad(covered, 1), structure=np.ones((3, 3)))[1:-1, 1:-1] & ~covered
     height[gaps] = ndimage.grey_dilation(height, size=(3, 3), mode="constant", cval=-np.inf)[gaps]
-    return height, low + cell / 2
+    return height, low + cell / 2, cell
 
 
 def water_level(height: np.ndarray) -> np.ndarray:
@@ -115,7 +118,7 @@ def find_openings(points: np.ndarray, spacing: float) -> list[Opening]:
     """The ground's openings (see the module docstring), deepest first."""
     tall, size = float(np.ptp(points[:, 1])), float(np.ptp(points, axis=0).max())
     cell = CELL * spacing
-    height, first = height_map(points, cell)
+    height, first, cell = height_map(points, cell)
     level = water_level(height)
     floor = np.where(np.isfinite(height), height, -np.inf)
     standing = np.isfinite(level) & (level > floor + MIN_DEPTH * spacing)
@@ -200,10 +203,11 @@ def find_bars(points: np.ndarray, normals: np.ndarray, spacing: float) -> list[B
 
 def inscribed(xz: np.ndarray, spacing: float) -> float:
     """The diameter of the largest disc inside the area the samples ``xz`` (N, 2) cover: the samples on a grid of
-    their spacing, closed over one cell (the gaps between samples), and the largest distance of a covered cell
-    from an uncovered one."""
-    cells = np.floor((xz - xz.min(0)) / spacing).astype(int) + 1
+    their spacing (at most ``GRID`` cells a side), closed over one cell (the gaps between samples), and the largest
+    distance of a covered cell from an uncovered one."""
+    cell = max(spacing, float(np.ptp(xz, axis=0).max()) / GRID)
+    cells = np.floor((xz - xz.min(0)) / cell).astype(int) + 1
     grid = np.zeros(cells.max(0) + 2, dtype=bool)
     grid[cells[:, 0], cells[:, 1]] = True
     grid = ndimage.binary_closing(grid, structure=np.ones((3, 3)))
-    return float(max(2 * ndimage.distance_transform_edt(grid).max() - 1, 1) * spacing)
+    return float(max(2 * ndimage.distance_transform_edt(grid).max() - 1, 1) * cell)
