@@ -145,7 +145,7 @@ def contained(pair: PreparedPair, proposals: Proposals, seed: int, reading: Rela
               log_s: float, count: int) -> Proposals | None:
     """Sources standing in the target's most enclosed up-facing places (``extend``); None where no up-facing
     point is enclosed at all. An opening's floor is among the most enclosed already: which of them is the
-    preference's to say (``parts.opening_place``)."""
+    preference's to say (``parts.through_openings``)."""
     points, _, regions, density = surface_regions(pair)
     top = regions["top"]
     if not len(top):

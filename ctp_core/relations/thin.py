@@ -104,9 +104,8 @@ def water_level(height: np.ndarray) -> np.ndarray:
     the grid's edge (a morphological reconstruction by erosion; -inf where it drains away): at least the cell's
     own height."""
     cross = ndimage.generate_binary_structure(2, 1)
-    level = np.where(np.isfinite(height), np.max(height[np.isfinite(height)], initial=0.0), -np.inf)
-    level = np.maximum(level, height)
-    level[np.isinf(height)] = np.inf  # nothing there: water stands or drains as its neighbours let it
+    # every cell full to the highest sample; a cell with nothing there stands or drains as its neighbours let it
+    level = np.where(np.isfinite(height), np.max(height, initial=0.0), np.inf)
     while True:
         lower = np.maximum(ndimage.grey_erosion(level, footprint=cross, mode="constant", cval=-np.inf), height)
         if np.array_equal(lower, level):
@@ -117,11 +116,9 @@ def water_level(height: np.ndarray) -> np.ndarray:
 def find_openings(points: np.ndarray, spacing: float) -> list[Opening]:
     """The ground's openings (see the module docstring), deepest first."""
     tall, size = float(np.ptp(points[:, 1])), float(np.ptp(points, axis=0).max())
-    cell = CELL * spacing
-    height, first, cell = height_map(points, cell)
+    height, first, cell = height_map(points, CELL * spacing)
     level = water_level(height)
-    floor = np.where(np.isfinite(height), height, -np.inf)
-    standing = np.isfinite(level) & (level > floor + MIN_DEPTH * spacing)
+    standing = np.isfinite(level) & (level > height + MIN_DEPTH * spacing)
     joined = ndimage.binary_closing(np.pad(standing, JOIN_CELLS), structure=np.ones((3, 3)),
                                     iterations=JOIN_CELLS)[JOIN_CELLS:-JOIN_CELLS, JOIN_CELLS:-JOIN_CELLS]
     labels, count = ndimage.label(joined)
