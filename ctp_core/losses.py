@@ -6,6 +6,7 @@ optimiser can sum for the backward pass and still rank restarts.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,12 +42,16 @@ class SurfaceIndex:
     """Surface samples with outward normals and a KD-tree, built once per run in a frame where the surface
     never moves: the target's in the normalised frame, the source's in its local frame."""
 
-    def __init__(self, points: torch.Tensor, normals: torch.Tensor):
+    def __init__(self, points: torch.Tensor, normals: torch.Tensor,
+                 objects_field: Callable[[], fields.Field] | None = None):
         self.points = points  # (M, 3) the surface's frame
         self.normals = normals  # (M, 3) outward unit normals
         self.tree = cKDTree(points.detach().cpu().numpy().astype(np.float64))
         self.part: Part | None = None  # where its samples are rows of a larger index (``part_of``)
-        self._field: fields.DistanceField | None = None
+        # where the samples are objects' own (a target's), their fields read as one (``field``)
+        self._objects_field = objects_field
+        self._field: fields.Field | None = None
+        self._own: fields.DistanceField | None = None
         self._cover: tuple[np.ndarray, float] | None = None
 
     @property
@@ -61,15 +66,25 @@ class SurfaceIndex:
         return self._cover
 
     @property
-    def field(self) -> fields.DistanceField:
-        """The samples' distance field (``geometry.field``), built on first use and kept: what the objective's
-        terms read where ``LossConfig.distances`` is ``field``."""
+    def field(self) -> fields.Field:
+        """The samples' distance field (``geometry.field``), made on first use and kept: what the objective's
+        terms read where ``LossConfig.distances`` is ``field``. A target's samples are its objects' and their field
+        is the objects' own fields read as one (``objects_field``: each object's is built once per scene), else it
+        is built from these samples (``own_field``)."""
         if self._field is None:  # ordinary tensors even where first asked under inference mode (a screen)
+            with torch.inference_mode(False):
+                self._field = self.own_field if self._objects_field is None else self._objects_field()
+        return self._field
+
+    @property
+    def own_field(self) -> fields.DistanceField:
+        """The field of these samples themselves, built on first use and kept."""
+        if self._own is None:
             as_np = lambda t: t.detach().cpu().numpy().astype(np.float64)  # noqa: E731
             with torch.inference_mode(False):
-                self._field = fields.build(self.tree, as_np(self.points), as_np(self.normals), query_workers(),
-                                           device=self.points.device)
-        return self._field
+                self._own = fields.build(self.tree, as_np(self.points), as_np(self.normals), query_workers(),
+                                         device=self.points.device)
+        return self._own
 
     def neighbours(self, queries: torch.Tensor, k: int) -> torch.Tensor:
         """Indices (..., k) of the k nearest target samples to each query point (no gradient)."""

@@ -28,12 +28,14 @@ from typing import TypeAlias, TypeVar
 import numpy as np
 import torch
 import trimesh
+from scipy.spatial import cKDTree
 
 from ctp_core import orientation, render
 from ctp_core.errors import ConfigError
+from ctp_core.geometry import field as fields
 from ctp_core.geometry import frames, once, sampling
 from ctp_core.geometry.pose import matrix_to_quaternion
-from ctp_core.losses import SurfaceIndex
+from ctp_core.losses import SurfaceIndex, query_workers
 from ctp_core.orientation import canonical
 from ctp_core.reading.names import ground_names
 from ctp_core.render.cameras import framing_cameras
@@ -61,7 +63,7 @@ def objects(target: Target) -> list[tuple[str, trimesh.Trimesh]]:
 
 
 def _matrix_key(matrix: np.ndarray) -> bytes:
-    """A node's 4x4 as a key of ``_moved`` (its float64 bytes: the matrix itself, exactly)."""
+    """A matrix as a key of ``_moved`` and ``_field`` (its float64 bytes: the matrix itself, exactly)."""
     return np.asarray(matrix, dtype=np.float64).tobytes()
 
 
@@ -207,7 +209,7 @@ class PreparedPair:
         ordinary tensor even where first asked under inference mode (a screen), since a refinement's gradient
         reads it too."""
         with torch.inference_mode(False):
-            return self.source_surface.field.interior(INSIDE_POINTS)
+            return self.source_surface.own_field.interior(INSIDE_POINTS)
 
     @cached_property
     def target_area(self) -> float:
@@ -302,12 +304,23 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
 
     oriented = [outward(m) for _, m in parts]
     sampled = [_samples(m, samples, seed + 2 * i) for i, m in enumerate(oriented)]
-    t_pts, t_nrm = (np.concatenate(parts_of) for parts_of in zip(*sampled, strict=True))
     s_pts, _ = _samples(source, samples, seed + 1)
     s_out, s_nrm = _samples(outward(source), samples, seed + 1)
     as_tensor = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=device)  # noqa: E731
-    index = lambda p, n: SurfaceIndex(as_tensor(target_to_norm.apply(p)),  # noqa: E731
-                                     as_tensor(target_to_norm.apply_directions(n)))
+    turn = _matrix_key(target_up.rotation)
+
+    def index(members: Sequence[int]) -> SurfaceIndex:
+        """The samples of the objects ``members`` (normalised frame), their field their own fields read as one."""
+        def objects_field() -> fields.FieldUnion:
+            return fields.FieldUnion(tuple(
+                _field(oriented[i], samples, seed + 2 * i, turn, device).scaled(target_to_norm.scale,
+                                                                                target_to_norm.translation)
+                for i in members))
+
+        points, normals = (np.concatenate([sampled[i][k] for i in members]) for k in (0, 1))
+        return SurfaceIndex(as_tensor(target_to_norm.apply(points)),
+                            as_tensor(target_to_norm.apply_directions(normals)), objects_field)
+
     positions = [_position([name for name, _ in parts], n) for n in ground_names(on)]
     front, trusted = target_up.front, target_up.front_trusted
     if positions and positions[0] != 0 and isinstance(target, trimesh.Scene):
@@ -320,10 +333,9 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
         ground_level = min(bottoms[0] if i == 0 else support_level(  # the base stands on the floor
             plain[i], [o for k, o in enumerate(plain) if k != i], target_to_norm, target_up.up, bottoms[0])
             for i in positions)
-    named = [index(*sampled[i]) for i in positions] if len(parts) > 1 else []
-    attach = None if not named else named[0] if len(named) == 1 else SurfaceIndex(
-        torch.cat([g.points for g in named]), torch.cat([g.normals for g in named]))
-    target_index = index(t_pts, t_nrm)
+    named = [index([i]) for i in positions] if len(parts) > 1 else []
+    attach = None if not named else named[0] if len(named) == 1 else index(positions)
+    target_index = index(range(len(parts)))
     if attach is not None:  # the grounds' samples are rows of every object's: their search answers for both
         starts = np.cumsum([0] + [len(p) for p, _ in sampled])
         rows = [np.arange(starts[i], starts[i + 1]) for i in range(len(sampled))]
@@ -332,8 +344,7 @@ def prepare_pair(target: Target, source: trimesh.Trimesh, *, samples: int, seed:
     # a closed source only: behind an open one (a sheet) is its whole back side, no inside
     same = [i for i, (_, m) in enumerate(parts) if len(parts) > 1 and source.is_watertight and twins(m, source)]
     return PreparedPair(
-        twins=index(np.concatenate([sampled[i][0] for i in same]), np.concatenate([sampled[i][1] for i in same]))
-        if same else None,
+        twins=index(same) if same else None,
         target=target,
         source=source,
         target_to_normalised=target_to_norm,
@@ -457,6 +468,17 @@ def _rendered(mesh: trimesh.Trimesh, device: str) -> tuple[MeshArrays, render.Re
 def _samples(mesh: trimesh.Trimesh, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """``sampling.surface_samples``, made once per scene for each mesh, count and seed (``once``)."""
     return sampling.surface_samples(mesh, count, seed)
+
+
+@once.per_mesh
+def _field(mesh: trimesh.Trimesh, count: int, seed: int, turn: bytes, device: str) -> fields.DistanceField:
+    """The distance field of ``_samples(mesh, count, seed)`` in the target upright frame (the file frame turned by
+    the 3x3 ``turn``, ``_matrix_key``), which stays where a scene's normalised frame moves as objects are added:
+    built once per scene for each object (``once``), read in each step's normalised frame (``scaled``)."""
+    points, normals = _samples(mesh, count, seed)
+    rotation = np.frombuffer(turn, dtype=np.float64).reshape(3, 3)
+    points, normals = points @ rotation.T, normals @ rotation.T
+    return fields.build(cKDTree(points), points, normals, query_workers(), device=device)
 
 
 @once.per_mesh

@@ -76,6 +76,38 @@ def test_the_distances_gradient_points_away_from_the_surface():
     assert (cosine > 0.9).all()
 
 
+def test_a_field_scaled_and_shifted_reads_what_one_built_there_reads():
+    """An object's field built once (a scene's target upright frame) and read in another frame a scale and a shift
+    away (each step's normalised frame) answers as the field built from the samples moved there."""
+    index = _sphere()
+    scale, shift = 0.37, np.array([0.5, -1.25, 2.0])
+    there = losses.SurfaceIndex(index.points * scale + torch.as_tensor(shift, dtype=torch.float32), index.normals)
+    gen = torch.Generator().manual_seed(3)
+    points = (torch.rand(4000, 3, generator=gen) * 2.6 - 1.3) * scale + torch.as_tensor(shift, dtype=torch.float32)
+    moved = index.field.scaled(scale, shift)
+    for read, built in zip(moved.sample(points), there.field.sample(points), strict=True):
+        torch.testing.assert_close(read, built, atol=1e-5 * scale, rtol=1e-4)
+
+
+def test_objects_read_as_one_answer_with_the_nearest_surface():
+    """Two balls' own fields read as one (``FieldUnion``) give each point the nearer ball's distance and depth: as
+    the brute-force search of both balls' samples does near either surface, inside either ball and between them."""
+    a, b = _sphere(2000), _sphere(1000, radius=0.5)
+    offset = torch.tensor([2.0, 0.0, 0.0])
+    both = losses.SurfaceIndex(torch.cat([a.points, b.points + offset]), torch.cat([a.normals, b.normals]))
+    union = fields.FieldUnion((a.field, b.field.scaled(1.0, offset.numpy())))
+    gen = torch.Generator().manual_seed(4)
+    direction = torch.nn.functional.normalize(torch.randn(1000, 3, generator=gen), dim=1)
+    points = torch.cat([direction * 0.97, direction * 0.48 + offset, torch.tensor([[1.3, 0.0, 0.0], [1.4, 0.3, 0.0]])])
+    distance, depth = union.sample(points)
+    exact_distance, exact_depth = _brute(both, points)
+    cell = _cell(a.field)
+    assert (distance - exact_distance).abs().max() <= math.sqrt(3) * cell
+    assert (depth - exact_depth).abs().median() <= 0.1 * cell
+    assert (depth[:2000] > 0).all() and (depth[2000:] < 0).all()  # inside either ball; between them, outside both
+    assert torch.equal(fields.FieldUnion((a.field,)).sample(points)[0], a.field.sample(points)[0])
+
+
 def test_closest_fraction_is_the_mean_square_of_the_nearest_share():
     distance = torch.tensor([[0.4, 0.1, 0.3, 0.2], [1.0, 1.0, 1.0, 0.0]])
     value = losses.closest_fraction(distance, 0.5)

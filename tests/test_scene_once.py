@@ -15,6 +15,7 @@ from ctp_core import pairs
 from ctp_core.assembly import whole
 from ctp_core.assembly.assemble import Assembly, Step, assemble
 from ctp_core.config import AlignConfig
+from ctp_core.geometry import field as fields
 from ctp_core.geometry import once, sampling
 from tests.test_assemble import PLAN, table_plate_cup
 
@@ -27,12 +28,13 @@ def _placed(meshes: dict[str, trimesh.Trimesh]) -> Assembly:
     return assemble(meshes["table"], steps, CONFIG, base_name="table")
 
 
-def _counted(patch: pytest.MonkeyPatch) -> tuple[Assembly, Counter, int]:
+def _counted(patch: pytest.MonkeyPatch) -> tuple[Assembly, Counter, int, Counter]:
     """The scene placed with ``patch``'s changes, the surface samples it made (by the mesh sampled, the count and
-    the seed) and the verdicts it judged."""
+    the seed), the verdicts it judged and the distance fields it built (by the samples' bytes)."""
     made: Counter = Counter()
+    built: Counter = Counter()
     judged: list[int] = []
-    sample, verdict = sampling.surface_samples, whole.verdict
+    sample, verdict, build = sampling.surface_samples, whole.verdict, fields.build
 
     def counted_sample(mesh: trimesh.Trimesh, count: int, seed: int):
         made.update([(id(mesh), count, seed)])
@@ -42,15 +44,20 @@ def _counted(patch: pytest.MonkeyPatch) -> tuple[Assembly, Counter, int]:
         judged.append(1)
         return verdict(*args, **kwargs)
 
+    def counted_build(tree, points, normals, *args, **kwargs):
+        built.update([np.asarray(points).tobytes()])
+        return build(tree, points, normals, *args, **kwargs)
+
     with patch.context() as inner:
         inner.setattr(sampling, "surface_samples", counted_sample)
         inner.setattr(whole, "verdict", counted_verdict)
+        inner.setattr(fields, "build", counted_build)
         placed = _placed(table_plate_cup())
-    return placed, made, len(judged)
+    return placed, made, len(judged), built
 
 
 @pytest.fixture(scope="module")
-def runs() -> dict[str, tuple[Assembly, Counter, int]]:
+def runs() -> dict[str, tuple[Assembly, Counter, int, Counter]]:
     """The scene placed as it is (kept) and with nothing kept (fresh: every ``once.value`` made again)."""
     with pytest.MonkeyPatch.context() as patch:
         kept = _counted(patch)
@@ -69,10 +76,19 @@ def test_each_object_is_sampled_once_per_scene(runs):
     assert sum(fresh) > 2 * sum(kept)
 
 
+def test_each_objects_distance_field_is_built_once_per_scene(runs):
+    """A scene's normalised frame moves as objects are added, so a field of all its samples would be built again at
+    every step; each object's own field (``pairs._field``, target upright frame) is built once and read in each
+    step's frame (``field.FieldUnion``). Without keeping them the table's is built at every step."""
+    kept, fresh = runs["kept"][3], runs["fresh"][3]
+    assert kept and max(kept.values()) == 1
+    assert max(fresh.values()) > 1
+
+
 def test_the_final_judgement_judges_nothing_again(runs):
     """The final scene is the scene the last step's answer was judged in: its verdicts are not judged again."""
-    kept, _, kept_judged = runs["kept"]
-    _, _, fresh_judged = runs["fresh"]
+    kept, _, kept_judged, _ = runs["kept"]
+    _, _, fresh_judged, _ = runs["fresh"]
     finals = len(kept.whole["relations"])
     assert finals == 2 and kept_judged <= fresh_judged - finals
 
@@ -80,8 +96,8 @@ def test_the_final_judgement_judges_nothing_again(runs):
 def test_what_is_kept_places_and_judges_as_without(runs):
     """Bit for bit: every object's pose, each step's choice among its candidates, its run's answer and
     alternatives, and the final judgement."""
-    kept, _, _ = runs["kept"]
-    fresh, _, _ = runs["fresh"]
+    kept, _, _, _ = runs["kept"]
+    fresh, _, _, _ = runs["fresh"]
     for a, b in zip(kept.objects, fresh.objects, strict=True):
         assert a.name == b.name and np.array_equal(a.to_scene.matrix, b.to_scene.matrix)
     for a, b in zip(kept.results, fresh.results, strict=True):

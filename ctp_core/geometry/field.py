@@ -13,14 +13,19 @@ the depth along that sample's outward normal (positive behind the surface: insid
 measure ``losses.signed_depth`` takes with a narrow width. Outside the grid's box a point is outside the surface:
 its distance grows and its depth falls by its distance to the box.
 
-Frames: the grid lives in the frame of the samples it was built from (the normalised frame for a target, the
-source local frame for a source); points are given in that frame.
+Several surfaces read as one (``FieldUnion``: a scene's placed objects) answer with the nearest surface's distance
+and its depth, each object's field built alone once and read through a shift and a scale (``DistanceField.scaled``):
+a scene's normalised frame moves and scales as objects are added, its objects' own fields do not change.
+
+Frames: the grid lives in the frame of the samples it was built from (the target upright frame for a target's
+object, ``scaled`` into the normalised frame; the source local frame for a source); points are given in that frame.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import torch
@@ -31,6 +36,12 @@ COARSE = 32  # nodes per side of the coarse grid
 FINE = 128  # nodes per side of the fine grid (only its band is computed)
 PAD = 0.08  # of the samples' box's longest side: the grid's margin around the samples
 BAND = 1.5  # fine cells beyond a coarse cell's reach: how far from the surface fine nodes are computed
+
+
+class Field(Protocol):
+    """What the objective's terms read of a surface: its distance and depth at points (``DistanceField.sample``)."""
+
+    def sample(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]: ...
 
 
 @dataclass(frozen=True)
@@ -47,6 +58,12 @@ class DistanceField:
         lead = points.shape[:-1]
         got, out = self._read(self.values, points)
         return (got[0] + out).reshape(lead), (got[1] - out).reshape(lead)
+
+    def scaled(self, scale: float, shift: np.ndarray) -> DistanceField:
+        """The same field in the frame ``scale * p + shift`` of its own (a uniform scale and a shift, no turn): its box
+        moved and its distances and depths scaled with it, so it reads there what it reads here."""
+        offset = torch.as_tensor(np.asarray(shift), dtype=self.origin.dtype, device=self.origin.device)
+        return DistanceField(self.origin * scale + offset, self.size * scale, self.values * scale)
 
     def interior(self, count: int) -> torch.Tensor:
         """(P, 3) up to ``count`` fine nodes well inside a closed surface (deeper than two fine cells), evenly spread
@@ -68,6 +85,23 @@ class DistanceField:
         at = unit.flip(-1).reshape(1, -1, 1, 1, 3)
         got = F.grid_sample(grid.to(flat), at, mode="bilinear", align_corners=True)[0, :, :, 0, 0]
         return got, (flat - inside).norm(dim=-1)
+
+
+@dataclass(frozen=True)
+class FieldUnion:
+    """Surfaces' fields in one frame read as one surface: at each point the nearest one's distance and its depth
+    (behind the nearest surface, as one field of all their samples measures it, ``nodes``)."""
+
+    members: tuple[DistanceField, ...]
+
+    def sample(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(distance, depth) as ``DistanceField.sample``; differentiable in ``points``."""
+        if len(self.members) == 1:
+            return self.members[0].sample(points)
+        distance, depth = (torch.stack(readings) for readings in zip(*(m.sample(points) for m in self.members),
+                                                                     strict=True))
+        nearest = distance.argmin(dim=0, keepdim=True)
+        return distance.gather(0, nearest)[0], depth.gather(0, nearest)[0]
 
 
 def nodes(tree: cKDTree, points: np.ndarray, normals: np.ndarray, at: np.ndarray, workers: int
