@@ -102,7 +102,7 @@ def adjust(target: Target, source: trimesh.Trimesh, source_to_target: np.ndarray
         # one pose: a search of its samples' nearest costs less than the distance fields' builds (the verdict's
         # measure is the samples', as ``loss.distances`` samples measures); soft-ICP's ratio: not read here
         scorer = objective.Scorer(pair, config.merged({"loss": {"distances": "samples"}}), contact_ratio=1.0)
-        sunk = float(scorer.geometry(pose, schedule.phases(config, allow_penetration=False)[-1])["sunk"][0])
+        sunk = float(scorer.geometry(pose, schedule.phases(config, allow_penetration=False)[-1]).sunk[0])
         if gap is None:  # the pose as given (none, or a settling that met nothing)
             gap = float(contact.contact_gap(pair, pose)[0])
     verdict = predicates.verdict(pair, pose, reading)

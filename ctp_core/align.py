@@ -337,7 +337,7 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
     timings.update(run.timings, total_s=round(time.perf_counter() - run.started, 3))
     restarts = [
         {"restart": i, "objective": float(outcome.objectives[i]),
-         **{k: float(v[i]) for k, v in outcome.terms.items()}, "source_to_target": answers[i].tolist()}
+         **outcome.terms.row(i, ("clip", "icp", "pen", "rel", "sunk")), "source_to_target": answers[i].tolist()}
         for i in range(len(answers))
     ]
     goal = run.goal
@@ -371,7 +371,7 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
         judged = predicates.verdict(pair, matrices[i], run.reading)
         answer.alternatives.append({
             "restart": i, "source_to_target": answers[i], "objective": float(outcome.objectives[i]),
-            **{k: float(outcome.terms[k][i]) for k in ("clip", "icp", "pen", "rel")},
+            **outcome.terms.row(i, ("clip", "icp", "pen", "rel")),
             "relation": judged.to_dict() if judged is not None else None, "contact": contact_of(float(gaps[i]))})
     answer.thumbnails = _uint8(torch.stack([pairs.render_pair(pair, matrices[i], views=1, image_size=THUMBNAIL)[0]
                                             for i in picks]))

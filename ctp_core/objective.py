@@ -14,7 +14,8 @@ it (``GuideSay``), is ``ordering``'s.
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, fields, replace
 from typing import Protocol
 
 import numpy as np
@@ -65,18 +66,90 @@ def goal_rows(goal_embeddings: torch.Tensor | None, rows: slice | torch.Tensor,
     return goal_embeddings[rows]
 
 
-def combine(terms: dict[str, torch.Tensor], phase: Phase) -> torch.Tensor:
-    """The weighted sum, one value per pose: the only place the weights meet the terms (``rel`` and ``stable``
-    count where present: the relation's, ``Scorer.relation_terms``; ``scale`` in scale mode, weighted already:
-    ``scaling.ScalePlan.term``)."""
-    out = phase.lambda_clip * terms["clip"] + phase.lambda_icp * terms["icp"] + phase.lambda_pen * terms["pen"]
-    if "scale" in terms:
-        out = out + terms["scale"]
-    if phase.lambda_rel and "rel" in terms:
-        zeros = torch.zeros_like(out)
-        out = out + phase.lambda_rel * (terms["rel"] + terms.get("stable", zeros)
-                                          + PREFER * terms.get("prefer", zeros))
+@dataclass(frozen=True)
+class Terms:
+    """The objective's terms of a batch of B poses, each (B,), made together by a ``Scorer``: what the search ranks
+    (``ordering``), the refinement improves and the selection chooses by.
+
+    ``icp`` and ``pen``: soft-ICP and penetration (zero where a phase switches them off); ``sunk``: the penetration
+    in source diagonals (``ordering.holding``); ``rel``, ``stable``, ``prefer``: the relation's
+    (``Scorer.relation_terms``; zeros without a relation); ``clip``: the guide's (zero where nothing is encoded);
+    ``objective``: their weighted sum under a phase (``combine``; the optimiser's loss where ``clip`` is zero).
+    Where asked: ``scale``, scale mode's term (weighted already); ``clip_views`` (B, C), the guide's term seen by
+    each view alone; ``centroid`` (B, 3), the posed samples' centroid (``Scorer.geometry``: the refinement's look-at).
+    """
+
+    icp: torch.Tensor
+    pen: torch.Tensor
+    sunk: torch.Tensor
+    rel: torch.Tensor
+    stable: torch.Tensor
+    prefer: torch.Tensor
+    clip: torch.Tensor
+    objective: torch.Tensor
+    scale: torch.Tensor | None = None
+    clip_views: torch.Tensor | None = None
+    centroid: torch.Tensor | None = None
+
+    def map(self, fn: Callable[[torch.Tensor], torch.Tensor]) -> Terms:
+        """``fn`` of every term there is (a copy, a device, a selection)."""
+        return Terms(**{f.name: None if (v := getattr(self, f.name)) is None else fn(v) for f in fields(self)})
+
+    def select(self, index: torch.Tensor | slice | list[int]) -> Terms:
+        """The terms of the poses at ``index``."""
+        return self.map(lambda v: v[index])
+
+    def where(self, mask: torch.Tensor, other: Terms) -> Terms:
+        """Each pose's terms from this batch where ``mask`` (B,), else from ``other``'s."""
+        def pick(name: str) -> torch.Tensor | None:
+            mine, theirs = getattr(self, name), getattr(other, name)
+            if mine is None or theirs is None:
+                return None
+            shape = (-1,) + (1,) * (mine.dim() - 1)
+            return torch.where(mask.reshape(shape), mine, theirs)
+
+        return Terms(**{f.name: pick(f.name) for f in fields(self)})
+
+    def row(self, i: int, names: Sequence[str]) -> dict[str, float]:
+        """Pose ``i``'s terms ``names`` by name, as reports list them."""
+        return {name: float(getattr(self, name)[i]) for name in names}
+
+    def but(self, **changes: torch.Tensor | None) -> Terms:
+        """These terms with ``changes`` (``dataclasses.replace``)."""
+        return replace(self, **changes)
+
+    @staticmethod
+    def zeros(count: int) -> Terms:
+        """``count`` poses' terms, every one zero: no pose's (``count`` 0), or what a caller fills in."""
+        zero = torch.zeros(count)
+        return Terms(icp=zero, pen=zero, sunk=zero, rel=zero, stable=zero, prefer=zero, clip=zero, objective=zero)
+
+    @staticmethod
+    def cat(parts: Sequence[Terms]) -> Terms:
+        """One batch of ``parts``' poses in order (a term missing from any part is missing from it)."""
+        def joined(name: str) -> torch.Tensor | None:
+            values = [getattr(p, name) for p in parts]
+            return None if any(v is None for v in values) else torch.cat(values)
+
+        return Terms(**{f.name: joined(f.name) for f in fields(Terms)})
+
+
+def combine(terms: Terms, phase: Phase, *, clip: torch.Tensor | None = None) -> torch.Tensor:
+    """The weighted sum, one value per pose: the only place the weights meet the terms (``scale`` in scale mode,
+    weighted already: ``scaling.ScalePlan.term``). ``clip``: the guide's term to count instead of ``terms.clip``
+    (zeros: the geometry's objective alone)."""
+    clip = terms.clip if clip is None else clip
+    out = phase.lambda_clip * clip + phase.lambda_icp * terms.icp + phase.lambda_pen * terms.pen
+    if terms.scale is not None:
+        out = out + terms.scale
+    if phase.lambda_rel:
+        out = out + phase.lambda_rel * (terms.rel + terms.stable + PREFER * terms.prefer)
     return out
+
+
+def geometric_objective(terms: Terms, phase: Phase) -> torch.Tensor:
+    """The objective without the guide's term: what orders poses where the geometry alone chooses."""
+    return combine(terms, phase, clip=torch.zeros_like(terms.objective))
 
 
 @dataclass
@@ -125,11 +198,11 @@ class Scorer:
         refinement's gradient and the selection's views run on the geometry alone."""
         return self.use_clip and (self.say is None or self.say.amount > 0)
 
-    def geometry(self, poses: Poses, phase: Phase, points: int | None = None) -> dict[str, torch.Tensor]:
-        """Soft-ICP and penetration (zero when the phase switches it off), the penetration in source diagonals
-        (``sunk``: what ``ordering.holding`` reads), the relation's terms, the ``scale`` term in scale mode and
-        the posed centroid. ``points``: on that many of the source's samples (``PreparedPair.source_subset``)
-        instead of all."""
+    def geometry(self, poses: Poses, phase: Phase, points: int | None = None) -> Terms:
+        """The geometry's ``Terms`` (``clip`` zero; its ``objective`` the geometry's alone, the refinement's loss):
+        soft-ICP and penetration (zero when the phase switches it off), the penetration in source diagonals, the
+        relation's terms, the ``scale`` term in scale mode and the posed centroid. ``points``: on that many of the
+        source's samples (``PreparedPair.source_subset``) instead of all."""
         cfg = self.config.loss
         samples = self.pair.source_samples if points is None else self.pair.source_subset(points)
         with self.clock.time("geometry"):
@@ -143,10 +216,12 @@ class Scorer:
                 if self.pair.solid_floor:  # a scene's floor is solid: nothing placed goes under it
                     pen = pen + losses.below_floor(pts, self.pair.scene_floor, cfg.c_pen)
             sunk = pen.detach() / source_diagonal(self.pair, poses).to(pen.device)
-        out = {"icp": icp, "pen": pen, "sunk": sunk, **self.relation_terms(poses), "centroid": pts.mean(dim=1)}
-        if self.scale is not None:
-            out["scale"] = self.scale.term(poses.log_s, self.preference_weight)
-        return out
+        rel, stable, prefer = self.relation_terms(poses)
+        zero = torch.zeros_like(icp)
+        scale = None if self.scale is None else self.scale.term(poses.log_s, self.preference_weight)
+        out = Terms(icp=icp, pen=pen, sunk=sunk, rel=rel, stable=stable, prefer=prefer, clip=zero, objective=zero,
+                    scale=scale, centroid=pts.mean(dim=1))
+        return out.but(objective=combine(out, phase))
 
     def _from_fields(self, pts: torch.Tensor, phase: Phase) -> tuple[torch.Tensor, torch.Tensor]:
         """(soft-ICP at its closest-point limit, penetration) of posed samples (B, N, 3) from the grounds' and the
@@ -177,14 +252,14 @@ class Scorer:
             return icp, torch.zeros_like(icp)
         return icp, losses.penetration(pts, self.pair.index, cfg.sigma_pen, cfg.c_pen, cfg.icp_neighbours, idx=idx)
 
-    def screen(self, poses: Poses, phase: Phase) -> dict[str, torch.Tensor]:
+    def screen(self, poses: Poses, phase: Phase) -> Terms:
         """The geometry's terms and objective (``clip`` 0) on ``SCREEN_POINTS`` of the source's samples, forward
         only: enough to tell where the relation holds and which poses intersect (the relation's own features are
         fewer still), at a fraction of the cost. The search screens every proposal with it before the guide
         sees any (``coarse_to_fine.encoder_shortlist``)."""
         with torch.inference_mode():
             terms = self._score(poses, phase, None, None, None, encode=False, points=SCREEN_POINTS)
-        return {k: v.clone().cpu() for k, v in terms.items()}
+        return terms.map(lambda v: v.clone().cpu())
 
     def enclosed(self, poses: Poses) -> torch.Tensor:
         """(B,) ``losses.enclosed_penetration``: the target samples within each posed source's bounding sphere
@@ -219,7 +294,7 @@ class Scorer:
         _, depth = twins.field.sample(apply_pose(inner, poses.t, poses.q, poses.log_s))
         return losses.depth_penalty(depth, self.config.loss.c_pen)
 
-    def relation_terms(self, poses: Poses) -> dict[str, torch.Tensor]:
+    def relation_terms(self, poses: Poses) -> predicates.RelationTerms:
         """``rel``: how far each pose is from the prompt's relation (``predicates.relation_score``, figure
         diagonals, 0 where it holds); ``stable``: its centre of mass off its support (``predicates.stable``), for
         the relations that rest on something besides the resting ones (``on``, ``stand``, ... include it in
@@ -227,8 +302,7 @@ class Scorer:
         relation. Differentiable (a refinement term)."""
         with self.clock.time("relation"):
             out = predicates.terms(self.pair, poses, self.reading)
-        out["prefer"] = out["prefer"] * self.preference_weight
-        return out
+        return out._replace(prefer=out.prefer * self.preference_weight)
 
     @property
     def preference_weight(self) -> float:
@@ -274,7 +348,7 @@ class Scorer:
         return (each if views else value).detach()
 
     def score(self, poses: Poses, phase: Phase, cameras: Cameras, goal_embeddings: torch.Tensor | None = None,
-              batch: int | None = None, *, encode: bool = True, views: bool = False) -> dict[str, torch.Tensor]:
+              batch: int | None = None, *, encode: bool = True, views: bool = False) -> Terms:
         """Every term and the objective of ``poses`` on ``cameras``, forward only, ``batch`` poses per call.
 
         ``cameras`` are (1, C) shared by every pose (a per-view goal is then encoded once for all) or
@@ -285,34 +359,28 @@ class Scorer:
         """
         with torch.inference_mode():
             out = self._score(poses, phase, cameras, goal_embeddings, batch, encode and self.guided, views=views)
-        return {k: v.clone() for k, v in out.items()}  # normal tensors, usable outside inference mode
+        return out.map(torch.clone)  # normal tensors, usable outside inference mode
 
     def _score(self, poses: Poses, phase: Phase, cameras: Cameras | None, goal_embeddings: torch.Tensor | None,
                batch: int | None, encode: bool, points: int | None = None,
-               views: bool = False) -> dict[str, torch.Tensor]:
+               views: bool = False) -> Terms:
         """``score``'s work, without inference mode or copies; ``cameras`` may be None where nothing is encoded,
         ``points``: the geometry on that many source samples (``geometry``)."""
         shared = cameras is not None and cameras.fov_deg.shape[0] == 1
         if encode and shared and goal_embeddings is None:
             goal_embeddings = self.embed_goal(cameras)
         step = batch or len(poses)
-        parts: list[dict[str, torch.Tensor]] = []
+        parts: list[Terms] = []
         for lo in range(0, len(poses), step):
             chunk = poses.select(slice(lo, lo + step))
-            terms = self.geometry(chunk, phase, points)
-            del terms["centroid"]
+            terms = self.geometry(chunk, phase, points).but(centroid=None)
             if encode:
                 cams = cameras.expand(len(chunk)) if shared else cameras.rows(lo, lo + step)
                 each = self.clip_term(chunk, cams, goal_rows(goal_embeddings, slice(lo, lo + step), shared), views=True)
-                terms["clip"] = each.mean(dim=-1)
-                if views:
-                    terms["clip_views"] = each
-            else:
-                terms["clip"] = torch.zeros_like(terms["icp"])
+                terms = terms.but(clip=each.mean(dim=-1), clip_views=each if views else None)
             parts.append(terms)
-        out = {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
-        out["objective"] = combine(out, phase)
-        return out
+        out = Terms.cat(parts)
+        return out.but(objective=combine(out, phase))
 
     def evaluation_cameras(self) -> tuple[Cameras, torch.Tensor | None]:
         """The fixed selection views (1, C) around the target centre and the goal's embeddings there, made once."""
@@ -327,7 +395,7 @@ class Scorer:
             self._eval = (cams, goal_embeddings)
         return self._eval
 
-    def evaluate(self, poses: Poses, phase: Phase, clip: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+    def evaluate(self, poses: Poses, phase: Phase, clip: torch.Tensor | None = None) -> Terms:
         """The selection objective on the fixed evaluation views, for any number of poses. ``clip``: the guide's
         term of these poses on these views, already known (a phase starts from the poses the last one ended
         with evaluated): only the geometry is computed again, under this phase's weights."""
@@ -335,9 +403,7 @@ class Scorer:
             cams, goal_embeddings = self.evaluation_cameras()
             if clip is None:
                 return self.score(poses, phase, cams, goal_embeddings)
-            out = self.score(poses, phase, cams, encode=False)
-        out["clip"] = clip.clone()
-        out["objective"] = combine(out, phase)
-        return out
+            out = self.score(poses, phase, cams, encode=False).but(clip=clip.clone())
+        return out.but(objective=combine(out, phase))
 
 

@@ -29,7 +29,7 @@ from ctp_core.geometry.pose import (
     random_quaternions,
     upright_twist,
 )
-from ctp_core.objective import Scorer, combine
+from ctp_core.objective import Scorer, Terms
 from ctp_core.pairs import PreparedPair
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.render.cameras import sample_training_views
@@ -94,7 +94,7 @@ class Outcome:
     best: int  # the answer's restart (``Optimiser.answer``: ``ordering.select_answer``), not the lowest objective's
     poses: Poses  # best pose of every restart
     objectives: torch.Tensor  # (B,) on the evaluation views, last phase's weights
-    terms: dict[str, torch.Tensor]  # (B,) each: clip, icp, pen, rel of the best poses
+    terms: Terms  # the best poses' terms on the evaluation views, the last phase's weights
     timings: dict[str, float]
     phase_timings: list[dict[str, float]]
     clip_images: int
@@ -163,25 +163,24 @@ class Optimiser:
         self.restarts = len(start)
         best = self._standing(start.detached())
         phase_timings = []
-        scores: dict[str, torch.Tensor] = {}
+        scores: Terms | None = None
         answer = 0
         for phase in self.plan:
             before, t0 = self.clock.mark(), time.perf_counter()
             self._emit("phase_start", phase, message=f"phase {phase.index}/{len(self.plan)}")
-            best, scores = self._phase(phase, best, scores.get("clip"))
+            best, scores = self._phase(phase, best, None if scores is None else scores.clip)
             phase_timings.append(self.clock.since(before, t0))
             answer = self.answer(best, scores, phase)  # the last phase's: the run's answer
             self._emit("phase_end", phase, **self._readout(best, scores, answer))
-        objectives = scores["objective"]
+        assert scores is not None  # a plan has at least one phase
         totals = self.clock.since(self._clock_start, self.start)
         return Outcome(
-            best=answer, poses=best, objectives=objectives,
-            terms={k: scores[k] for k in ("clip", "icp", "pen", "rel", "sunk")}, timings=totals,
+            best=answer, poses=best, objectives=scores.objective, terms=scores, timings=totals,
             phase_timings=phase_timings, clip_images=self.scorer.clip_images, steps_run=self.done,
             say=self.scorer.say,
         )
 
-    def _phase(self, phase: Phase, start: Poses, clip: torch.Tensor | None) -> tuple[Poses, dict[str, torch.Tensor]]:
+    def _phase(self, phase: Phase, start: Poses, clip: torch.Tensor | None) -> tuple[Poses, Terms]:
         """One phase from ``start`` (each restart's best so far); ``clip``: their guide's term on the evaluation
         views, known when an earlier phase evaluated them (None in the first)."""
         cfg = self.scorer.config
@@ -200,17 +199,16 @@ class Optimiser:
             opt.zero_grad()
             poses = Poses(t, q, log_s)
             geo = self.scorer.geometry(poses, phase)
-            last = {"icp": geo["icp"].detach(), "pen": geo["pen"].detach(), "rel": geo["rel"].detach()}
+            last = {"icp": geo.icp.detach(), "pen": geo.pen.detach(), "rel": geo.rel.detach()}
             if self.clip_gradient:
                 with torch.no_grad():
-                    look_at = phase.look_at_beta * geo["centroid"]  # target centre is the origin
+                    look_at = phase.look_at_beta * geo.centroid  # target centre is the origin
                 cams = sample_training_views(look_at, cfg.camera, phase.zoom, self.generator)
                 last["clip"] = self.scorer.clip_term(poses, cams, weight=phase.lambda_clip)
             with self.clock.time("geometry"):
                 # the objective without the guide's term (its gradient went back in ``clip_term``); the relation's
                 # terms pull toward where it holds
-                loss = combine({**geo, "clip": torch.zeros_like(geo["icp"])}, phase)
-                loss.sum().backward()
+                geo.objective.sum().backward()
             opt.step()
             self._perturb(opt)
             if self.scorer.pair.source_keeps_up:
@@ -223,7 +221,7 @@ class Optimiser:
                 now = self.scorer.evaluate(current, phase)
                 better = improves(now, scores)
                 best = current.where(better, best)
-                scores = {k: torch.where(better, now[k], scores[k]) for k in scores}
+                scores = now.where(better, scores)
             if (step + 1) % cfg.progress_every == 0 or step + 1 == phase.steps:
                 losses_now = {k: float(v.mean()) for k, v in last.items()}
                 readout = self._readout(best, scores, self.answer(best, scores, phase))
@@ -239,7 +237,7 @@ class Optimiser:
             return poses
         return Poses(poses.t, upright_twist(poses.q, pair.source_up_quaternion.to(poses.q.device)), poses.log_s)
 
-    def answer(self, best: Poses, scores: dict[str, torch.Tensor], phase: Phase) -> int:
+    def answer(self, best: Poses, scores: Terms, phase: Phase) -> int:
         """The restart whose best pose is the answer (``ordering.select_answer`` under ``phase``'s weights and the
         search's say): after the last phase the run's (``Outcome.best``), before it the answer were the run to
         stop there. Not the lowest objective: the selection orders by the relation first, leaves out restarts far
@@ -249,7 +247,7 @@ class Optimiser:
                              phase, guided=scorer.use_clip, touches=scorer.contact_ratio > 0,
                              share=scorer.config.search.min_share, say=scorer.say)
 
-    def _readout(self, best: Poses, scores: dict[str, torch.Tensor], i: int) -> dict:
+    def _readout(self, best: Poses, scores: Terms, i: int) -> dict:
         """The progress figures of restart ``i`` (the one the run would answer with now) on the
         evaluation views: its objective, and what a person reads instead of it (its scale changes with each
         phase's weights): its match to the guide (mean cosine; none without one, or with one whose say is 0) and
@@ -258,8 +256,8 @@ class Optimiser:
         scorer = self.scorer
         gap = contact_gap(scorer.pair, best.select(slice(i, i + 1)))
         reading = scorer.reading
-        return {"restart": i, "best_objective": float(scores["objective"][i]), "contact_gap": float(gap[0]),
-                "guide_match": -float(scores["clip"][i]) if scorer.guided else None,
+        return {"restart": i, "best_objective": float(scores.objective[i]), "contact_gap": float(gap[0]),
+                "guide_match": -float(scores.clip[i]) if scorer.guided else None,
                 "relation": reading.name if reading is not None else None,
                 "relation_holds": int(holding(scores).sum()) if reading is not None else None,
                 "relation_checked": len(best) if reading is not None else None}

@@ -161,7 +161,7 @@ def test_a_copy_where_an_identical_one_stands_is_charged_for_its_inside():
     radius = 0.1 * pair.target_to_normalised.scale
     assert on_twin > 0.2 * radius
     phase = schedule.phases(config, allow_penetration=False)[-1]
-    assert float(scorer.geometry(poses[0], phase)["pen"][0]) >= on_twin
+    assert float(scorer.geometry(poses[0], phase).pen[0]) >= on_twin
     sheet = trimesh.creation.box((0.2, 0.2, 0.01))
     sheet.update_faces(sheet.face_normals[:, 1] < 0.5)  # its top gone: open
     scene.add_geometry(sheet.copy().apply_transform(beside), node_name="sheet_1", geom_name="sheet_1")

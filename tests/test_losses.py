@@ -126,8 +126,8 @@ def test_a_ball_through_a_thin_wall_is_charged_by_the_wall_samples_inside_it():
     assert source_half(through) / diag < 0.005  # the blind spot this half has
     # exactly: the disc's two faces, depth r - rho, over the ball's area: r / 6, i.e. 0.048 AABB diagonals
     assert float(scorer.enclosed(through)[0]) / diag == pytest.approx(1 / (12 * 3**0.5), rel=0.15)
-    assert float(scorer.geometry(through, phase)["sunk"][0]) > 0.04
-    assert float(scorer.geometry(resting, phase)["sunk"][0]) < 0.001
+    assert float(scorer.geometry(through, phase).sunk[0]) > 0.04
+    assert float(scorer.geometry(resting, phase).sunk[0]) < 0.001
 
 
 def test_the_enclosed_half_pushes_a_ball_out_of_a_wall():
@@ -144,10 +144,10 @@ def test_the_enclosed_half_pushes_a_ball_out_of_a_wall():
 def test_holding_excludes_a_pose_that_intersects():
     """The relation's tier (``ordering.holding``): a pose where the relation holds but that is sunk into the
     target past ``SUNK`` ranks with the poses where it fails."""
+    from ctp_core.objective import Terms
     from ctp_core.search.ordering import SUNK, holding
 
-    terms = {"objective": torch.zeros(3), "rel": torch.tensor([0.0, 0.0, 0.5]),
-             "sunk": torch.tensor([0.0, 2 * SUNK, 0.0])}
+    terms = Terms.zeros(3).but(rel=torch.tensor([0.0, 0.0, 0.5]), sunk=torch.tensor([0.0, 2 * SUNK, 0.0]))
     assert holding(terms).tolist() == [True, False, False]
 
 

@@ -17,6 +17,7 @@ from ctp_core.assembly import copies
 from ctp_core.config import AlignConfig, schedule, share_of
 from ctp_core.geometry import pose
 from ctp_core.io.examples import get_example
+from ctp_core.objective import Terms
 from ctp_core.search import coarse_to_fine, ordering
 
 GEOMETRY = AlignConfig.from_preset("test", loss={"lambda_clip": 0.0})
@@ -44,7 +45,7 @@ def _assert_the_readout_is_the_answers(run, outcome, result, events):
     gap = contact.contact_gap(run.pair, outcome.poses.select(slice(best, best + 1)))
     assert last.contact_gap == pytest.approx(float(gap[0]), abs=0.0)
     if run.scorer.guided:
-        assert last.guide_match == pytest.approx(-float(outcome.terms["clip"][best]), abs=0.0)
+        assert last.guide_match == pytest.approx(-float(outcome.terms.clip[best]), abs=0.0)
     report = export.report(result)
     assert report["extra"]["best_restart"] == best == report["alternatives"][0]["restart"]
     assert report["objective"] == pytest.approx(float(outcome.objectives[best]))
@@ -60,7 +61,7 @@ def test_the_progress_and_the_report_describe_the_answer_not_the_lowest_objectiv
     chosen = []
 
     def highest(terms, *args, **kwargs):
-        chosen.append(int(terms["objective"].argmax()))
+        chosen.append(int(terms.objective.argmax()))
         return chosen[-1]
 
     monkeypatch.setattr(optimise, "select_answer", highest)
@@ -110,9 +111,8 @@ def _random_candidates(seed: int, n: int):
     held = torch.rand(n, generator=g) < [0.0, 0.2, 0.6, 1.0][seed % 4]
     rel = torch.where(held, 0.0, 0.5)
     objective = torch.randint(0, 8, (n,), generator=g).float()  # ties happen
-    zero = torch.zeros(n)
-    terms = {"rel": rel, "sunk": torch.where(torch.rand(n, generator=g) < 0.1, 1.0, 0.0), "icp": objective,
-             "pen": zero, "stable": zero, "clip": zero, "objective": objective}
+    terms = Terms.zeros(n).but(rel=rel, sunk=torch.where(torch.rand(n, generator=g) < 0.1, 1.0, 0.0), icp=objective,
+                               objective=objective)
     return pose.Poses(t, q, torch.zeros(n)), terms
 
 

@@ -12,7 +12,7 @@ import torch
 from ctp_core.config import AlignConfig, share_of
 from ctp_core.config.schedule import Phase
 from ctp_core.contact import REACH, TOUCH
-from ctp_core.objective import combine
+from ctp_core.objective import Terms, combine
 from ctp_core.search import chance, coarse_to_fine, ordering
 from ctp_core.search.ordering import CHANCE_DECADES, FULL_DECADES, LEAD_MAX, SUNK, TIE_NOISE, GuideSay, Key
 
@@ -28,22 +28,22 @@ def said(say: float, *, spread: float = 1.0, noise: float = 0.01) -> GuideSay:
     p = 1.0 if say <= 0 else 10 ** -(CHANCE_DECADES + say * FULL_DECADES)
     return GuideSay(spread, noise, spread_p=p, agree_p=p, agree=0.1)
 
-def _terms(rel, icp, clip=None, sunk=None) -> dict[str, torch.Tensor]:
-    n = len(rel)
-    terms = {"rel": torch.tensor(rel), "icp": torch.tensor(icp), "pen": torch.zeros(n), "stable": torch.zeros(n),
-             "clip": torch.zeros(n) if clip is None else torch.tensor(clip),
-             "sunk": torch.zeros(n) if sunk is None else torch.tensor(sunk)}
-    terms["objective"] = combine(terms, WEIGHTS)
-    return terms
+def _terms(rel, icp, clip=None, sunk=None) -> Terms:
+    terms = Terms.zeros(len(rel)).but(rel=torch.tensor(rel), icp=torch.tensor(icp))
+    if clip is not None:
+        terms = terms.but(clip=torch.tensor(clip))
+    if sunk is not None:
+        terms = terms.but(sunk=torch.tensor(sunk))
+    return terms.but(objective=combine(terms, WEIGHTS))
 
 
 def test_holding_needs_the_relation_and_no_intersection():
     terms = _terms([HELD, HELD, FAILED, FAILED], [0.0] * 4, sunk=[0.0, 2 * SUNK, 0.0, 2 * SUNK])
     assert ordering.intersecting(terms).tolist() == [False, True, False, True]
     assert ordering.holding(terms).tolist() == [True, False, False, False]
-    at_the_limit = {**terms, "sunk": torch.full((4,), SUNK)}  # "past SUNK" intersects, SUNK itself does not
+    at_the_limit = terms.but(sunk=torch.full((4,), SUNK))  # "past SUNK" intersects, SUNK itself does not
     assert not ordering.intersecting(at_the_limit).any()
-    bare = {"objective": torch.zeros(2)}  # no relation, no penetration measured: every pose holds
+    bare = Terms.zeros(2)  # no relation, no penetration: every pose holds
     assert ordering.holding(bare).tolist() == [True, True] and not ordering.intersecting(bare).any()
 
 
@@ -140,7 +140,7 @@ def test_the_share_keeps_at_least_one_of_a_non_empty_count():
 
 def test_the_tie_lets_the_usual_arrangement_break_only_what_the_guide_cannot_tell():
     terms = _terms([HELD, HELD], [0.0, 0.0], clip=[-0.997, -0.993])
-    terms["prefer"] = torch.tensor([0.9, 0.2])  # the guide's favourite is the less usual arrangement
+    terms = terms.but(prefer=torch.tensor([0.9, 0.2]))  # the guide's favourite is the less usual arrangement
     sure, unsure = said(1.0, spread=0.02, noise=5e-4), said(1 / 3, spread=0.02, noise=0.01)
     assert ordering.search_key(terms, WEIGHTS, sure, guided=True, share=SHARE).argsort().tolist() == [0, 1]
     assert ordering.search_key(terms, WEIGHTS, unsure, guided=True, share=SHARE).argsort().tolist() == [1, 0]
@@ -152,7 +152,7 @@ def test_improves_puts_the_relation_before_the_objective():
     # holds now, failed before (worse objective): yes; fails now, held before (better objective): no;
     # both hold: the lower objective; both fail: the lower objective
     assert ordering.improves(now, best).tolist() == [True, False, True, True]
-    sunk = {**now, "sunk": torch.tensor([2 * SUNK, 0.0, 0.0, 0.0])}  # intersecting: not holding
+    sunk = now.but(sunk=torch.tensor([2 * SUNK, 0.0, 0.0, 0.0]))  # intersecting: not holding
     assert ordering.improves(sunk, best).tolist() == [False, False, True, True]
 
 

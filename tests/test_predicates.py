@@ -317,10 +317,10 @@ def test_terms_equal_the_predicates_one_by_one(relation):
     pair = prepared(table(), BALL)
     p = poses(pair, list(BALL_POSES.values()))
     got = predicates.terms(pair, p, reading(relation))
-    assert torch.allclose(got["rel"], predicates.relation_score(pair, p, reading(relation)))
-    assert torch.allclose(got["prefer"], predicates.preference(pair, p, reading(relation)))
+    assert torch.allclose(got.rel, predicates.relation_score(pair, p, reading(relation)))
+    assert torch.allclose(got.prefer, predicates.preference(pair, p, reading(relation)))
     own = relation is not None and RELATIONS[relation].steady and not RELATIONS[relation].rests
-    assert torch.allclose(got["stable"], predicates.stable(pair, p) if own else torch.zeros(len(p)))
+    assert torch.allclose(got.stable, predicates.stable(pair, p) if own else torch.zeros(len(p)))
 
 
 def test_a_stick_stuck_into_a_block_prefers_standing_in_its_top_to_lying_sunk_along_it_or_rising_through_its_base():

@@ -78,11 +78,11 @@ def test_the_search_progress_says_how_many_candidates_hold_the_relation():
 WEIGHTS = schedule.phases(AlignConfig.from_preset("test"), allow_penetration=False)[-1]
 
 
-def _terms(rel, icp, clip=None):
-    terms = {"rel": torch.tensor(rel), "icp": torch.tensor(icp), "pen": torch.zeros(len(rel)),
-             "stable": torch.zeros(len(rel)), "clip": torch.zeros(len(rel)) if clip is None else torch.tensor(clip)}
-    terms["objective"] = objective.combine(terms, WEIGHTS)
-    return terms
+def _terms(rel, icp, clip=None) -> objective.Terms:
+    terms = objective.Terms.zeros(len(rel)).but(rel=torch.tensor(rel), icp=torch.tensor(icp))
+    if clip is not None:
+        terms = terms.but(clip=torch.tensor(clip))
+    return terms.but(objective=objective.combine(terms, WEIGHTS))
 
 
 def test_ranking_puts_the_candidates_that_hold_the_relation_first():
@@ -169,8 +169,8 @@ def test_a_guided_selection_charges_penetration_only_where_a_pose_intersects():
     clear, limit = torch.zeros(2), torch.full((2,), contact.TOUCH)
     pen = 0.05 / WEIGHTS.lambda_pen  # weighted, ten times the guide's difference
     for sunk, chosen in ((0.1 * ordering.SUNK, 0), (2 * ordering.SUNK, 1)):
-        terms.update(pen=torch.tensor([pen, 0.0]), sunk=torch.tensor([sunk, 0.0]))
-        terms["objective"] = objective.combine(terms, WEIGHTS)
+        terms = terms.but(pen=torch.tensor([pen, 0.0]), sunk=torch.tensor([sunk, 0.0]))
+        terms = terms.but(objective=objective.combine(terms, WEIGHTS))
         assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=True, touches=True, share=SHARE) == chosen
 
 
@@ -179,8 +179,8 @@ def test_the_usual_arrangement_ranks_without_a_guide_and_breaks_only_the_guides_
     its corner, both holding "on"); with one, worth the guide's noise per unit: it decides between restarts the
     guide cannot tell apart (``GATE_FULL`` noises per unit) and never outweighs a difference it can tell."""
     terms = _terms([0.0, 0.0], [0.0, 0.0], clip=[-0.997, -0.993])
-    terms["prefer"] = torch.tensor([0.9, 0.2])  # the guide's favourite is the less usual arrangement
-    terms["objective"] = objective.combine(terms, WEIGHTS)
+    terms = terms.but(prefer=torch.tensor([0.9, 0.2]))  # the guide's favourite is the less usual arrangement
+    terms = terms.but(objective=objective.combine(terms, WEIGHTS))
     clear, limit = torch.zeros(2), torch.full((2,), contact.TOUCH)
     rule = {"touches": True, "share": SHARE}
     assert ordering.select_answer(terms, clear, limit, WEIGHTS, guided=False, **rule) == 1

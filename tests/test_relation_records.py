@@ -76,12 +76,12 @@ def test_adding_a_relation_is_its_record_and_its_judge(monkeypatch):
     p = poses(pair, list(BALL_POSES.values()))
     assert torch.equal(predicates.relation_score(pair, p, reading),
                        predicates.relation_score(pair, p, RelationReading.parse("above")))
-    assert predicates.terms(pair, p, reading)["stable"].tolist() == [0.0] * len(p)
+    assert predicates.terms(pair, p, reading).stable.tolist() == [0.0] * len(p)
     verdict = predicates.verdict(pair, p.matrices()[0], reading).to_dict()
     assert verdict["name"] == "hover" and verdict["stable"] is None
     # a steady one: stability joins its terms (not resting: its score does not include it)
     monkeypatch.setitem(RELATIONS, "hover", replace(record, steady=True))
-    assert torch.allclose(predicates.terms(pair, p, reading)["stable"], predicates.stable(pair, p))
+    assert torch.allclose(predicates.terms(pair, p, reading).stable, predicates.stable(pair, p))
 
 
 

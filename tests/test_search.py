@@ -156,10 +156,10 @@ def test_the_scorer_scores_n_candidates_then_m_restarts(meshes):
     many = scorer.evaluate(props.poses, weights)
     few = scorer.evaluate(props.poses.select(slice(0, 3)), weights)
     n, views = len(props.poses), CONFIG.camera.eval_views
-    assert many["objective"].shape == (n,) and few["objective"].shape == (3,)
-    torch.testing.assert_close(few["objective"], many["objective"][:3], atol=1e-5, rtol=0)
+    assert many.objective.shape == (n,) and few.objective.shape == (3,)
+    torch.testing.assert_close(few.objective, many.objective[:3], atol=1e-5, rtol=0)
     assert scorer.clip_images == (n + 3) * views
-    assert not few["objective"].is_inference()  # usable by the optimiser outside inference mode
+    assert not few.objective.is_inference()  # usable by the optimiser outside inference mode
 
 
 @pytest.mark.parametrize("zoom", [0.0, 0.5])
@@ -354,13 +354,13 @@ def test_the_check_draws_turns_where_one_place_holds_and_names_the_decision(mesh
     one = torch.zeros_like(held)
     one[int(torch.nonzero(held & torch.tensor([r == "top" for r in props.region]))[0, 0])] = True
     before = run.scorer.clip_images
-    checked = coarse_to_fine.agreement_views(run.scorer, props, terms, one, phase, cameras, None, checks, distinct)
+    stage = coarse_to_fine.Stage(run.scorer, phase, cameras, None, checks, distinct, name="box")
+    checked = coarse_to_fine.agreement_views(stage, props, terms, one)
     assert len(checked.places) == 1 and checked.places.shape[1] == 1  # one place: not tested
     assert checked.drawn == 3 and len(checked.turns) == 4 and checked.turns.shape[1] == 1 + len(checks.eye[0])
     # the three turns at the coarse views, the four choices at the held-out ones (a prompt's goal: encoded once)
     assert run.scorer.clip_images - before == 3 * config.search.coarse_views + 4 * len(checks.eye[0])
-    say = coarse_to_fine.guide_noise(run.scorer, props, {**terms, "rel": torch.where(one, 0.0, 1.0)}, phase, cameras,
-                                     None, checks, distinct, "box")
+    say = coarse_to_fine.guide_noise(stage, props, terms.but(rel=torch.where(one, 0.0, 1.0)))
     assert say.places == 1 and say.turns == 3 and say.drawn == 3 and say.agree is not None
     geometry = props.poses.select(torch.nonzero(one)[0])
     assert coarse_to_fine.decision(pair, geometry, geometry, distinct, "box") == ""
@@ -395,8 +395,7 @@ def test_the_answer_is_the_best_restart_that_stays_near_the_target(meshes):
     poses = pose.Poses(torch.tensor([[0.0, 30.0, 0.0], [0.0, 0.3, 0.0]]), q, torch.zeros(2))
     clear = contact.clearance(pair, pair.index, poses)
     assert clear[0] > contact.REACH >= clear[1]
-    terms = {"objective": torch.tensor([-1.0, 0.0]), "clip": torch.tensor([-1.0, 0.0]), "icp": torch.zeros(2),
-             "pen": torch.zeros(2)}
+    terms = objective.Terms.zeros(2).but(objective=torch.tensor([-1.0, 0.0]), clip=torch.tensor([-1.0, 0.0]))
     weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
     for guided in (False, True):
         rule = {"guided": guided, "touches": False, "share": CONFIG.search.min_share}
@@ -410,10 +409,11 @@ def test_with_a_guide_the_answer_leaves_out_soft_icp_among_restarts_that_touch()
     penetration terms among the near restarts that touch (where the relation touches)."""
     weights = schedule.phases(CONFIG, allow_penetration=False)[-1]
     assert weights.lambda_icp > 0 and weights.lambda_pen > 0
-    terms = {"clip": torch.tensor([-0.99, -0.98, -0.999, -0.9995]), "icp": torch.tensor([0.0, 0.0, 0.0, 0.0]),
-             "pen": torch.tensor([0.0, 0.0, 0.0, 1.0])}  # the fourth is deep inside
-    terms["icp"] = torch.tensor([1.0, 0.0, 0.0, 0.0]) * 0.05 / weights.lambda_icp  # noise that outweighs the guide
-    terms["objective"] = objective.combine(terms, weights)
+    terms = objective.Terms.zeros(4).but(  # the fourth is deep inside
+        clip=torch.tensor([-0.99, -0.98, -0.999, -0.9995]), pen=torch.tensor([0.0, 0.0, 0.0, 1.0]),
+        sunk=torch.tensor([0.0, 0.0, 0.0, 2 * ordering.SUNK]),
+        icp=torch.tensor([1.0, 0.0, 0.0, 0.0]) * 0.05 / weights.lambda_icp)  # noise that outweighs the guide
+    terms = terms.but(objective=objective.combine(terms, weights))
     clear = torch.tensor([0.01, 0.0, 0.5, 0.0])  # the third floats half a diagonal off
     limit = torch.full((4,), contact.TOUCH)
     plain = {"guided": False, "touches": True, "share": CONFIG.search.min_share}
@@ -505,10 +505,9 @@ def test_random_init_mode_draws_uniform_orientations_without_resting_poses(meshe
     assert (q[:, [0, 2]].norm(dim=1) < 0.999).any()  # not only turns about +Y
 
 
-def _terms(rel: list[float], objective_: list[float]) -> dict[str, torch.Tensor]:
-    zero = torch.zeros(len(rel))
-    return {"rel": torch.tensor(rel), "sunk": zero, "icp": torch.tensor(objective_), "pen": zero, "stable": zero,
-            "clip": zero, "objective": torch.tensor(objective_)}
+def _terms(rel: list[float], objective_: list[float]) -> objective.Terms:
+    return objective.Terms.zeros(len(rel)).but(rel=torch.tensor(rel), icp=torch.tensor(objective_),
+                                               objective=torch.tensor(objective_))
 
 
 def test_the_encoder_shortlist_takes_distinct_places_where_the_relation_holds_and_a_share_of_the_rest():
@@ -587,9 +586,9 @@ def test_a_phase_starts_from_the_guide_terms_the_last_one_measured(meshes):
     expected = opt.restarts * views.eval_views * (1 + opt.phases * per_phase) + opt.steps * opt.restarts * views.views
     assert outcome.clip_images == expected
     scorer, last = run.scorer, run.plan[-1]
-    again = scorer.evaluate(outcome.poses, last, outcome.terms["clip"])
+    again = scorer.evaluate(outcome.poses, last, outcome.terms.clip)
     fresh = scorer.evaluate(outcome.poses, last)
-    torch.testing.assert_close(again["objective"], fresh["objective"], atol=1e-5, rtol=0)
+    torch.testing.assert_close(again.objective, fresh.objective, atol=1e-5, rtol=0)
 
 
 def test_the_tile_stage_encodes_across_tiles_in_full_batches():
@@ -693,7 +692,8 @@ def test_without_a_guide_the_fine_stage_ranks_the_coarse_terms_as_scoring_them_a
                                     batch=CONFIG.search.batch).average(coarse.select(shortlist))
     calls = []
     monkeypatch.setattr(objective.Scorer, "score", lambda *args, **kwargs: calls.append(args))
-    kept, ranked = coarse_to_fine._fine(scorer, pair, props.poses, terms, coarse, phase, distinct, plan, None)
+    stage = coarse_to_fine.Stage(scorer, phase, cameras, None, None, distinct)
+    kept, ranked = coarse_to_fine._fine(stage, props.poses, terms, coarse, plan)
     assert not calls and len(shortlist) > 1
     assert torch.equal(kept.t, fine_poses.t)
     assert torch.equal(ranked.tier, rescored.tier) and torch.equal(ranked.value, rescored.value)

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -102,17 +103,25 @@ def relation_score(pair: PreparedPair, poses: Poses, reading: RelationReading | 
     return _score(context(pair, poses, reading), reading)
 
 
-def terms(pair: PreparedPair, poses: Poses, reading: RelationReading | None) -> dict[str, torch.Tensor]:
+class RelationTerms(NamedTuple):
+    """The objective's relation terms of B poses, each (B,) (``terms``)."""
+
+    rel: torch.Tensor  # ``relation_score``
+    stable: torch.Tensor  # ``stable`` where the reading asks it besides its score
+    prefer: torch.Tensor  # ``preference``
+
+
+def terms(pair: PreparedPair, poses: Poses, reading: RelationReading | None) -> RelationTerms:
     """``rel`` (``relation_score``), ``stable`` (``stable`` for the readings it applies to that do not rest on
     their ground, ``Relation.steady`` but not ``rests``: the resting ones include it in their score; zeros
     otherwise) and ``prefer`` (``preference``), from one posing of the samples and one support footprint per pose
     (the objective's relation terms)."""
     zeros = torch.zeros(len(poses), device=poses.t.device)
     if reading is None:
-        return {"rel": zeros, "stable": zeros, "prefer": zeros}
+        return RelationTerms(zeros, zeros, zeros)
     c = context(pair, poses, reading)
     steady = stability(c) if reading.steady and not reading.rests else zeros
-    return {"rel": _score(c, reading), "stable": steady, "prefer": sum(_prefer(c, p) for p in reading.relations)}
+    return RelationTerms(_score(c, reading), steady, sum(_prefer(c, p) for p in reading.relations))
 
 
 def stable(pair: PreparedPair, poses: Poses, reading: RelationReading | None = None) -> torch.Tensor:

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import torch
 
@@ -40,7 +40,7 @@ from ctp_core.config.schedule import Phase
 from ctp_core.contact import APPROACHES, Proposals, Site, place
 from ctp_core.errors import Canceled
 from ctp_core.geometry.pose import Poses, quaternion_product, quaternion_to_matrix
-from ctp_core.objective import Scorer, combine, goal_rows
+from ctp_core.objective import Scorer, Terms, geometric_objective, goal_rows
 from ctp_core.pairs import PreparedPair
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.relations.measures import axes, horizontal_unit
@@ -172,10 +172,10 @@ def tile_score(scorer: Scorer, poses: Poses, phase: Phase, tiles: tuple[torch.Te
     count = len(centres)
     empty = Poses(centres.to(poses.t), poses.q[:1].expand(count, 4), torch.full((count,), -30.0).to(poses.log_s))
     base = terms_of(scorer, empty, phase, cameras, batch=batch, goal_embeddings=goal_embeddings,
-                    should_cancel=should_cancel)["clip"]
+                    should_cancel=should_cancel).clip
     terms = terms_of(scorer, poses, phase, cameras.take(tile.to(cameras.eye.device)), batch=batch,
                      goal_embeddings=goal_rows(goal_embeddings, tile), progress=progress, should_cancel=should_cancel)
-    moved = terms["clip"] - base[tile]
+    moved = terms.clip - base[tile]
     change = torch.where(moved.abs() > HIDDEN, moved, torch.full_like(moved, torch.inf))
     return ranking_key(scorer, terms, phase, guide_key=change)
 
@@ -213,7 +213,7 @@ def embed_shared_goal(scorer: Scorer, cameras: Cameras) -> torch.Tensor | None:
 
 def terms_of(scorer: Scorer, poses: Poses, phase: Phase, cameras: Cameras, *, batch: int,
              goal_embeddings: torch.Tensor | None = None, progress=lambda scored: None,
-             should_cancel: CancelCheck | None = None, views: bool = False) -> dict[str, torch.Tensor]:
+             should_cancel: CancelCheck | None = None, views: bool = False) -> Terms:
     """The objective's terms (``Scorer.score``: clip, icp, pen, rel, stable, objective) of ``poses`` on ``cameras``
     ((1, C) shared or (N, C)), ``batch`` poses per call, forward only, on the CPU; ``progress(scored)`` after
     each batch, cancel checked before each. ``goal_embeddings``: ``embed_shared_goal`` of shared cameras, when
@@ -222,18 +222,16 @@ def terms_of(scorer: Scorer, poses: Poses, phase: Phase, cameras: Cameras, *, ba
     shared = cameras.fov_deg.shape[0] == 1
     if shared and goal_embeddings is None and scorer.guided:
         goal_embeddings = embed_shared_goal(scorer, cameras)
-    out: list[dict[str, torch.Tensor]] = []
+    out: list[Terms] = []
     for lo in range(0, len(poses), batch):
         if should_cancel is not None and should_cancel():
             raise Canceled("the run was cancelled")
         chunk = poses.select(slice(lo, lo + batch))
         cams = cameras if shared else cameras.rows(lo, lo + batch)
         goal = goal_rows(goal_embeddings, slice(lo, lo + batch), shared)
-        out.append({k: v.cpu() for k, v in scorer.score(chunk, phase, cams, goal, views=views).items()})
+        out.append(scorer.score(chunk, phase, cams, goal, views=views).map(torch.Tensor.cpu))
         progress(lo + len(chunk))
-    if not out:
-        return {k: torch.zeros(0) for k in ("clip", "icp", "pen", "sunk", "rel", "stable", "prefer", "objective")}
-    return {k: torch.cat([part[k] for part in out]) for k in out[0]}
+    return Terms.cat(out) if out else Terms.zeros(0)
 
 
 def score(scorer: Scorer, poses: Poses, phase: Phase, cameras: Cameras, *, batch: int,
@@ -245,11 +243,9 @@ def score(scorer: Scorer, poses: Poses, phase: Phase, cameras: Cameras, *, batch
     return ranking_key(scorer, terms, phase)
 
 
-def guide_noise(scorer: Scorer, proposals: Proposals, terms: dict[str, torch.Tensor], phase: Phase,
-                cameras: Cameras, goal_embeddings: torch.Tensor | None, checks: Cameras, distinct: tuple[float, float],
-                name: str = "source") -> GuideSay:
-    """The guide's ``GuideSay`` from a stage's candidates (``proposals``), each test against what chance gives on
-    them (``chance``):
+def guide_noise(stage: Stage, proposals: Proposals, terms: Terms) -> GuideSay:
+    """The guide's ``GuideSay`` from the coarse stage's candidates (``proposals``, their ``terms`` at the stage's
+    views), each test against what chance gives on them (``chance``):
 
     - the spread of its term over them against its noise: the changes of its term when ``GATE_PROBES`` of them
       (spread over its order) are moved by ``GATE_SHIFT`` of the source's diagonal and turned ``GATE_TURN_DEG``
@@ -257,14 +253,14 @@ def guide_noise(scorer: Scorer, proposals: Proposals, terms: dict[str, torch.Ten
       source's edges and the encoder's rounding (bf16 under autocast) differs with them): ``GATE_PROBES``
       encodes;
     - whether views it has not seen confirm its choice where the relation holds (``agreement_views`` from the
-      ``checks`` views: its best places and turns, at least ``distinct`` apart);
+      stage's ``checks`` views: its best places and turns, at least ``distinct`` apart);
     - the geometry's lead: the usual arrangement's best pose that holds against the next (``usual_first``);
-    - what it decided, in words (``decision``: its favourite against the geometry's, the source called ``name``).
+    - what it decided, in words (``decision``: its favourite against the geometry's, the source by the stage's
+      ``name``).
 
     ``benchmarks/guide_signal.py`` compares the same spread to the bf16 rounding offline, ``benchmarks/guide_say.py``
     the say per case."""
-    poses = proposals.poses
-    clip = terms["clip"]
+    scorer, poses, clip = stage.scorer, proposals.poses, terms.clip
     order = torch.argsort(clip)
     picks = order[torch.linspace(0, len(order) - 1, min(GATE_PROBES, len(order))).round().long()].unique()
     probe = poses.select(picks)
@@ -275,18 +271,18 @@ def guide_noise(scorer: Scorer, proposals: Proposals, terms: dict[str, torch.Ten
     turn = torch.tensor([math.cos(half), 0.0, math.sin(half), 0.0]).expand(len(picks), 4)
     moved = Poses(probe.t + (GATE_SHIFT * diagonal)[:, None] * direction.to(probe.t),
                   quaternion_product(turn.to(probe.q), probe.q), probe.log_s)
-    again = terms_of(scorer, moved, phase, cameras, batch=len(picks), goal_embeddings=goal_embeddings)["clip"]
+    again = terms_of(scorer, moved, stage.phase, stage.cameras, batch=len(picks),
+                     goal_embeddings=stage.goal_embeddings).clip
     changes = again - clip[picks]
     held = holding(terms)
-    checked = agreement_views(scorer, proposals, terms, held, phase, cameras, goal_embeddings, checks, distinct)
+    checked = agreement_views(stage, proposals, terms, held)
     agree, agree_p = chance.either([chance.agreement_chance(table, seed=scorer.config.seed) for table in
                                     (checked.places, checked.turns)])
-    geometric = combine({**terms, "clip": torch.zeros_like(clip)}, phase)
-    usual = usual_first(geometric, terms, phase, held)
+    usual = usual_first(geometric_objective(terms, stage.phase), terms, stage.phase, held)
     decided = ""
     if checked.favourite is not None:  # its favourite against the geometry's among the same candidates
         geometry = poses.select([int(torch.nonzero(held)[int(torch.argmin(usual[held])), 0])])
-        decided = decision(scorer.pair, checked.favourite, geometry, distinct, name)
+        decided = decision(scorer.pair, checked.favourite, geometry, stage.distinct, stage.name)
     return GuideSay(float(clip.std()) if len(clip) > 1 else 0.0, float(changes.abs().max()),
                     chance.spread_chance(clip, changes), float(agree_p), None if agree is None else float(agree),
                     chance.lead(usual[held]), places=len(checked.places), turns=max(0, len(checked.turns) - 1),
@@ -307,39 +303,40 @@ class Choices:
     drawn: int = 0
 
 
-def agreement_views(scorer: Scorer, proposals: Proposals, terms: dict[str, torch.Tensor], held: torch.Tensor,
-                    phase: Phase, cameras: Cameras, goal_embeddings: torch.Tensor | None, checks: Cameras,
-                    distinct: tuple[float, float]) -> Choices:
-    """The guide's choices and what ``checks``, views it has not seen, say of them (``Choices``), among the
-    candidates where the relation holds (``held``: what it orders), best first by its term at the ``cameras``
-    views (``terms["clip"]``: each table's first column):
+def agreement_views(stage: Stage, proposals: Proposals, terms: Terms, held: torch.Tensor) -> Choices:
+    """The guide's choices and what the stage's ``checks``, views it has not seen, say of them (``Choices``), among
+    the candidates where the relation holds (``held``: what it orders), best first by its term at the stage's
+    views (``terms.clip``: each table's first column):
 
-    - places: its ``AGREE_CHOICES`` best at distinct places (``distinct``'s distance, any turn: near twins would
-      tie by its noise);
+    - places: its ``AGREE_CHOICES`` best at distinct places (the stage's ``distinct`` distance, any turn: near
+      twins would tie by its noise);
     - turns: its favourite and its best other turns and sizes at that place, each a turn by ``distinct``'s angle
       or a size from a better one and none looking the same (``looks_apart``: the source's symmetries removed).
       The proposals rarely turn one source many ways at one place, so the favourite's turns about the
       relation's axis are drawn (``turns_at``), scored at the same views, and those that hold join them: what a
       guide knows at one place is how the source turns there.
 
-    Each choice is then seen from each of ``checks`` alone (the V other columns: K x V encodes per table). Under
+    Each choice is then seen from each of the ``checks`` alone (the V other columns: K x V encodes per table). Under
     noise the new views order a table's K at random whatever its first column says, so
     ``chance.agreement_chance`` tests them as independent views; a guide that sees where and how the source
     belongs prefers the same choice from every side. The two tables are apart by design: the turns at one place
     look alike to any encoder, so mixed with other places they would rank together by chance
     (``tests/test_ordering.py``)."""
+    scorer, phase, distinct, checks = stage.scorer, stage.phase, stage.distinct, stage.checks
+    if checks is None:
+        raise ValueError("the guide's choices are checked from held-out views: a guided search's stage has them")
     pair, batch = scorer.pair, scorer.config.search.batch
     index = torch.nonzero(held.cpu())[:, 0]
-    poses, clip = proposals.poses.select(index), terms["clip"].cpu()[index]
+    poses, clip = proposals.poses.select(index), terms.clip.cpu()[index]
     if not len(index):
         return Choices(torch.zeros(0, 1), torch.zeros(0, 1))
     turns = _turns_here(pair, poses, clip, distinct)
     turned = turns_at(pair, proposals, int(index[turns[0]]))
     if len(turned):
-        extra = terms_of(scorer, turned, phase, cameras, batch=batch, goal_embeddings=goal_embeddings)
+        extra = terms_of(scorer, turned, phase, stage.cameras, batch=batch, goal_embeddings=stage.goal_embeddings)
         kept = holding(extra)
         poses = Poses.cat([poses, turned.select(kept.to(turned.t.device))])
-        clip = torch.cat([clip, extra["clip"].cpu()[kept]])
+        clip = torch.cat([clip, extra.clip.cpu()[kept]])
         turns = _turns_here(pair, poses, clip, distinct)
     places = diverse_top(poses, Key.plain(clip), AGREE_CHOICES, distinct[0], 180.0, fill=False)
     tested = [chosen for chosen in (places, turns) if len(chosen) >= AGREE_ROWS]
@@ -349,7 +346,8 @@ def agreement_views(scorer: Scorer, proposals: Proposals, terms: dict[str, torch
         table = clip[chosen][:, None]
         if len(chosen) >= AGREE_ROWS:
             seen = terms_of(scorer, poses.select(chosen), phase, checks, batch=batch, goal_embeddings=goal, views=True)
-            table = torch.cat([table, seen["clip_views"].cpu()], dim=1)
+            assert seen.clip_views is not None  # asked for (``views``), and the guide encodes here
+            table = torch.cat([table, seen.clip_views.cpu()], dim=1)
         tables.append(table)
     return Choices(tables[0], tables[1], poses.select(turns[:1]), len(turned))
 
@@ -503,6 +501,25 @@ def diverse_top(poses: Poses, objectives: Key, k: int, distance: float, angle_de
     return kept
 
 
+@dataclass(frozen=True)
+class Stage:
+    """What every stage of one search reads besides its candidates, made once by ``search``: the scorer it scores
+    with (given the guide's say once the coarse stage has measured it: ``Scorer.with_say``), the phase's weights,
+    the coarse views every candidate shares and their goal's embeddings (``embed_shared_goal``; None where nothing
+    is encoded), the held-out views that check the guide's choice (``agreement_cameras``; None without a guide),
+    when two poses count as one (``distinct_of``: distance, degrees), the cancel check and what the guide's say
+    calls the source (``GuideSay.decided``)."""
+
+    scorer: Scorer
+    phase: Phase
+    cameras: Cameras
+    goal_embeddings: torch.Tensor | None
+    checks: Cameras | None
+    distinct: tuple[float, float]
+    should_cancel: CancelCheck | None = None
+    name: str = "source"
+
+
 def search(scorer: Scorer, proposals: Proposals, phase: Phase, *, k: int,
            on_event: ProgressCallback | None = None, should_cancel: CancelCheck | None = None,
            phases: int = 1, started: float | None = None, name: str = "source") -> Ranked:
@@ -524,17 +541,18 @@ def search(scorer: Scorer, proposals: Proposals, phase: Phase, *, k: int,
     plan.emit(0)
     with scorer.clock.time("search"):
         checks = agreement_cameras(pair, config, float(proposals.poses.log_s.max())) if scorer.guided else None
-        scorer, terms, goal_embeddings = _coarse(scorer, proposals, phase, cameras, checks, distinct, plan,
-                                                 should_cancel, name)
+        stage = Stage(scorer, phase, cameras, embed_shared_goal(scorer, cameras), checks, distinct, should_cancel, name)
+        stage, terms = _coarse(stage, proposals, plan)
+        scorer = stage.scorer  # with the guide's say, where the coarse stage measured it
         coarse = ranking_key(scorer, terms, phase)
-        swept, turns_screened = _sweep_turns(scorer, proposals, phase, coarse, distinct, plan)
+        swept, turns_screened = _sweep_turns(stage, proposals, coarse, plan)
         screened += turns_screened
         poses = proposals.poses
         if swept is not None and len(swept):
-            extra = terms_of(scorer, swept, phase, cameras, batch=cfg.batch, goal_embeddings=goal_embeddings,
+            extra = terms_of(scorer, swept, phase, cameras, batch=cfg.batch, goal_embeddings=stage.goal_embeddings,
                              should_cancel=should_cancel, progress=lambda n: plan.emit(len(proposals.poses) + n))
             poses = Poses.cat([poses, swept])
-            terms = {key: torch.cat([terms[key], extra[key]]) for key in terms}
+            terms = Terms.cat([terms, extra])
             coarse = ranking_key(scorer, terms, phase)
         plan.held = (int(holding(terms).sum()), len(poses))
         proposed = proposals.poses
@@ -542,7 +560,7 @@ def search(scorer: Scorer, proposals: Proposals, phase: Phase, *, k: int,
             scorer, proposed, phase, plan.tiles, batch=cfg.batch, should_cancel=should_cancel,
             progress=lambda n: plan.emit(plan.total - plan.fine_count - plan.tiled_count + n))
         plan.emit(plan.total - plan.fine_count)
-        fine_poses, ranked = _fine(scorer, pair, poses, terms, coarse, phase, distinct, plan, should_cancel)
+        fine_poses, ranked = _fine(stage, poses, terms, coarse, plan)
         best = diverse_top(fine_poses, ranked, k, *distinct)
         kept, objectives = fine_poses.select(best), ranked.select(best)
         stages = {"coarse": (poses, coarse), "fine": (fine_poses, ranked)}
@@ -639,53 +657,48 @@ def _screened(scorer: Scorer, proposals: Proposals, phase: Phase,
     return proposals.select(shortlist), len(proposals.poses)
 
 
-def _coarse(scorer: Scorer, proposals: Proposals, phase: Phase, cameras: Cameras, checks: Cameras | None,
-            distinct: tuple[float, float], plan: _Plan, should_cancel: CancelCheck | None, name: str
-            ) -> tuple[Scorer, dict[str, torch.Tensor], torch.Tensor | None]:
-    """The coarse stage: every candidate's terms at the shared views. Where there is a guide and no say yet, its
-    say (how far the guide may override the relation: ``guide_noise``, its choice checked from the ``checks``
-    views, the source called ``name``) is measured on them and the scorer given it, for the later stages.
-    Returns the scorer they score with, the terms and the views' goal embeddings."""
-    cfg, poses = scorer.config.search, proposals.poses
-    goal_embeddings = embed_shared_goal(scorer, cameras)
-    terms = terms_of(scorer, poses, phase, cameras, batch=cfg.batch, goal_embeddings=goal_embeddings,
-                     progress=plan.emit, should_cancel=should_cancel)
+def _coarse(stage: Stage, proposals: Proposals, plan: _Plan) -> tuple[Stage, Terms]:
+    """The coarse stage: every candidate's terms at the stage's shared views. Where there is a guide and no say
+    yet, its say (how far the guide may override the relation: ``guide_noise``) is measured on them and the
+    stage's scorer given it, for the later stages. Returns the stage they score in and the terms."""
+    scorer, poses = stage.scorer, proposals.poses
+    terms = terms_of(scorer, poses, stage.phase, stage.cameras, batch=scorer.config.search.batch,
+                     goal_embeddings=stage.goal_embeddings, progress=plan.emit, should_cancel=stage.should_cancel)
     if scorer.guided and plan.say is None and len(poses) > 1:  # how far the guide may override the relation
-        plan.say = guide_noise(scorer, proposals, terms, phase, cameras, goal_embeddings, checks, distinct, name)
-        scorer = scorer.with_say(plan.say)  # the later stages score under it
+        plan.say = guide_noise(stage, proposals, terms)
+        stage = replace(stage, scorer=scorer.with_say(plan.say))  # the later stages score under it
         if plan.say.amount == 0:
             plan.drop_tiles()  # a guide with no signal cannot tell tiles apart either
-    return scorer, terms, goal_embeddings
+    return stage, terms
 
 
-def _sweep_turns(scorer: Scorer, proposals: Proposals, phase: Phase, coarse: Key, distinct: tuple[float, float],
-                 plan: _Plan) -> tuple[Poses | None, int]:
+def _sweep_turns(stage: Stage, proposals: Proposals, coarse: Key, plan: _Plan) -> tuple[Poses | None, int]:
     """The sweep's candidates (``sweep``: every turn at the best distinct coarse sites; None where none are
     planned), cut to the turns the geometry allows (``encoder_shortlist``) where ``search.sweep_keep`` is set and
     more were made; and how many the geometry screened for that."""
+    scorer, distinct = stage.scorer, stage.distinct
     cfg = scorer.config.search
     swept = sweep(proposals, scorer.pair, coarse, cfg.sweep, distinct[0]) if plan.sweep_count else None
     if swept is None or not cfg.sweep_keep or len(swept) <= plan.sweep_count:
         return swept, 0
-    shortlist = encoder_shortlist(swept, scorer.screen(swept, phase), phase, plan.sweep_count, distinct,
+    shortlist = encoder_shortlist(swept, scorer.screen(swept, stage.phase), stage.phase, plan.sweep_count, distinct,
                                   cfg.min_share)
     return swept.select(shortlist), len(swept)
 
 
-def _fine(scorer: Scorer, pair: PreparedPair, poses: Poses, terms: dict[str, torch.Tensor], coarse: Key,
-          phase: Phase, distinct: tuple[float, float], plan: _Plan,
-          should_cancel: CancelCheck | None) -> tuple[Poses, Key]:
+def _fine(stage: Stage, poses: Poses, terms: Terms, coarse: Key, plan: _Plan) -> tuple[Poses, Key]:
     """The fine stage: the coarse and sweep candidates' shortlist (``shortlist_of``) scored at views zoomed toward
     each, and their key ranking by both stages. Without a guide no view changes a term: the shortlist's coarse
     ``terms`` are its fine ones, ranked among themselves, and nothing is scored again."""
-    shortlist = shortlist_of(poses, coarse, plan.fine_count, *distinct)
+    scorer, phase = stage.scorer, stage.phase
+    shortlist = shortlist_of(poses, coarse, plan.fine_count, *stage.distinct)
     fine_poses = poses.select(shortlist)
     if scorer.use_clip:
-        fine = score(scorer, fine_poses, phase, fine_cameras(pair, scorer.config, fine_poses),
+        fine = score(scorer, fine_poses, phase, fine_cameras(scorer.pair, scorer.config, fine_poses),
                      batch=scorer.config.search.batch, progress=lambda n: plan.emit(plan.total - plan.fine_count + n),
-                     should_cancel=should_cancel)
+                     should_cancel=stage.should_cancel)
     else:
-        fine = ranking_key(scorer, {key: value[shortlist] for key, value in terms.items()}, phase)
+        fine = ranking_key(scorer, terms.select(shortlist), phase)
     # the fine views see each candidate closer; the coarse ones see all in the same frame: rank by both
     return fine_poses, fine.average(coarse.select(shortlist))
 
@@ -711,7 +724,7 @@ def shortlist_of(poses: Poses, objectives: Key, k: int, distance: float, angle_d
     return places + rest[: k - len(places)]
 
 
-def encoder_shortlist(poses: Poses, terms: dict[str, torch.Tensor], phase: Phase, k: int,
+def encoder_shortlist(poses: Poses, terms: Terms, phase: Phase, k: int,
                       distinct: tuple[float, float], share: float) -> list[int]:
     """Indices of the ``k`` candidates whose images the guide will see, chosen without it from their geometric
     ``terms`` (``Scorer.screen``): where the prompt's relation holds, the best at distinct
@@ -722,7 +735,7 @@ def encoder_shortlist(poses: Poses, terms: dict[str, torch.Tensor], phase: Phase
     return split_shortlist(terms, phase, k, share, lambda key, n: shortlist_of(poses, key, n, *distinct))
 
 
-def ranking_key(scorer: Scorer, terms: dict[str, torch.Tensor], phase: Phase,
+def ranking_key(scorer: Scorer, terms: Terms, phase: Phase,
                 guide_key: torch.Tensor | None = None) -> Key:
     """What the search ranks a stage's candidates by (``ordering.search_key``): with ``scorer``'s guide as far as
     the say it scores under lets it (``Scorer.with_say``; None: not measured yet), the search's ``min_share``;

@@ -35,7 +35,7 @@ import torch
 from ctp_core.config import share_of
 from ctp_core.config.schedule import Phase
 from ctp_core.contact import REACH
-from ctp_core.objective import combine
+from ctp_core.objective import Terms, combine, geometric_objective
 from ctp_core.relations import predicates
 from ctp_core.search import chance
 
@@ -212,27 +212,23 @@ class GuideSay:
 TRUSTED = GuideSay(spread=1.0, noise=0.0)  # a say not measured (yet): the guide trusted fully (p 0: amount 1, tie 0)
 
 
-def holding(terms: dict[str, torch.Tensor]) -> torch.Tensor:
+def holding(terms: Terms) -> torch.Tensor:
     """(B,) bool: where the relation holds (``predicates.holds`` of the ``rel`` term; everywhere without one),
     steadily where it asks that (the ``stable`` term: a report's ``valid`` asks it too), and the pose does not
     intersect the target (``sunk`` at most ``SUNK``; 0 where penetration is allowed).
     Intersecting is worse than the relation failing: without the second rule a pose pulled into the target's wall
     by a containment relation would outrank every clean pose beside it."""
-    held = predicates.holds(terms["rel"]) if "rel" in terms else torch.ones_like(terms["objective"], dtype=torch.bool)
-    if "stable" in terms:  # a relation that asks its figure to stand steadily (``stable``: 0 where it does)
-        held = held & predicates.holds(terms["stable"]).to(held.device)
+    held = predicates.holds(terms.rel)
+    held = held & predicates.holds(terms.stable).to(held.device)  # a figure asked to stand steadily: 0 where it does
     return held & ~intersecting(terms).to(held.device)
 
 
-def intersecting(terms: dict[str, torch.Tensor]) -> torch.Tensor:
-    """(B,) bool: where the pose is sunk into the target past ``SUNK`` (nowhere without a ``sunk`` term)."""
-    sunk = terms.get("sunk")
-    if sunk is None:
-        return torch.zeros_like(terms["objective"], dtype=torch.bool)
-    return sunk > SUNK
+def intersecting(terms: Terms) -> torch.Tensor:
+    """(B,) bool: where the pose is sunk into the target past ``SUNK``."""
+    return terms.sunk > SUNK
 
 
-def rank_key(terms: dict[str, torch.Tensor], phase: Phase, *, share: float, guide_key: torch.Tensor | None = None,
+def rank_key(terms: Terms, phase: Phase, *, share: float, guide_key: torch.Tensor | None = None,
              amount: float = 1.0, geometric: torch.Tensor | None = None, tie: float = 0.0) -> Key:
     """The relation first, then a value.
 
@@ -243,12 +239,12 @@ def rank_key(terms: dict[str, torch.Tensor], phase: Phase, *, share: float, guid
     region weights); value the guide's key plus ``tie`` per unit of ``prefer`` (``GuideSay.weigh``: the usual
     arrangement weighs as much as the guide's say leaves it, and breaks what the guide cannot tell).
     """
-    holds = holding(terms).to(terms["objective"].device)
+    holds = holding(terms).to(terms.objective.device)
     if guide_key is None or amount <= 0:
         if geometric is None:
-            geometric = combine({**terms, "clip": torch.zeros_like(terms["objective"])}, phase)
+            geometric = geometric_objective(terms, phase)
         return Key((~holds).long(), usual_first(geometric, terms, phase, holds))
-    key = guide_key.double() + tie * terms.get("prefer", torch.zeros_like(guide_key)).double()
+    key = guide_key.double() + tie * terms.prefer.double()
     pool = holds.clone()
     others = torch.nonzero(~holds)[:, 0]
     admit = share_of(len(others), amount * share)
@@ -257,7 +253,7 @@ def rank_key(terms: dict[str, torch.Tensor], phase: Phase, *, share: float, guid
     return Key((~pool).long(), key)
 
 
-def usual_first(geometric: torch.Tensor, terms: dict[str, torch.Tensor], phase: Phase, holds: torch.Tensor
+def usual_first(geometric: torch.Tensor, terms: Terms, phase: Phase, holds: torch.Tensor
                 ) -> torch.Tensor:
     """(B,) float64: what orders poses where the geometry alone chooses: among those that hold (``holds``) the
     usual arrangement (``prefer``) one to one against the geometric objective in units of the relation's weight
@@ -266,13 +262,13 @@ def usual_first(geometric: torch.Tensor, terms: dict[str, torch.Tensor], phase: 
     the gradient (it must not pull a pose off the relation) but lets soft-ICP, which favours corners and edges where
     more samples fall near the source, decide among poses that all hold; ordered here, among them the usual place
     comes first and the geometry breaks what it cannot tell. Without a relation term: the objective as it is."""
-    if not phase.lambda_rel or "prefer" not in terms:
+    if not phase.lambda_rel:
         return geometric.double()
-    usual = geometric.double() / phase.lambda_rel + terms["prefer"].to(geometric.device).double()
+    usual = geometric.double() / phase.lambda_rel + terms.prefer.to(geometric.device).double()
     return torch.where(holds.to(geometric.device), usual, geometric.double())
 
 
-def search_key(terms: dict[str, torch.Tensor], phase: Phase, say: GuideSay | None, *, guided: bool, share: float,
+def search_key(terms: Terms, phase: Phase, say: GuideSay | None, *, guided: bool, share: float,
                guide_key: torch.Tensor | None = None) -> Key:
     """What the search ranks a stage's candidates by (``rank_key``): with a guide (``guided``) that ``say`` lets
     override (None: not measured yet, trusted), its term (``guide_key``: the tile stage's change); otherwise the
@@ -285,23 +281,23 @@ def search_key(terms: dict[str, torch.Tensor], phase: Phase, say: GuideSay | Non
     The refinement and the final selection use the whole objective.
     """
     say = say or TRUSTED
-    key = (terms["clip"] if guide_key is None else guide_key) if guided and say.amount > 0 else None
+    key = (terms.clip if guide_key is None else guide_key) if guided and say.amount > 0 else None
     tie = 0.0
     if key is not None:
         held = holding(terms).to(key.device)
-        tie = say.weigh(key[held], terms.get("prefer", torch.zeros_like(key))[held])
+        tie = say.weigh(key[held], terms.prefer.to(key.device)[held])
     return rank_key(terms, phase, guide_key=key, amount=say.amount, share=share, tie=tie)
 
 
-def improves(now: dict[str, torch.Tensor], best: dict[str, torch.Tensor]) -> torch.Tensor:
+def improves(now: Terms, best: Terms) -> torch.Tensor:
     """(B,) whether each restart's new pose replaces its best: the relation first (``holding``), then the lower
     objective. Without the first rule a pose that holds is traded for one where the relation fails that has a
     little less penetration, weighted more than the relation's violation."""
     held, was = holding(now), holding(best)
-    return (held & ~was) | ((held == was) & (now["objective"] < best["objective"]))
+    return (held & ~was) | ((held == was) & (now.objective < best.objective))
 
 
-def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: torch.Tensor, phase: Phase, *,
+def select_answer(terms: Terms, clear: torch.Tensor, limit: torch.Tensor, phase: Phase, *,
                   guided: bool, touches: bool, share: float, say: GuideSay | None = None) -> int:
     """The answer among refined poses: those within ``REACH`` of the target (any when none is: an image guide can
     prefer a source gone out of view, an absent source differing less from the goal than a misplaced one); with
@@ -325,39 +321,38 @@ def select_answer(terms: dict[str, torch.Tensor], clear: torch.Tensor, limit: to
     """
     say = say or TRUSTED
     amount = say.amount
-    key = terms["objective"]
+    key = terms.objective
     if guided and amount <= 0:  # a guide without signal: the geometry alone
-        guided, key = False, combine({**terms, "clip": torch.zeros_like(key)}, phase)
+        guided, key = False, geometric_objective(terms, phase)
     clear, limit = clear.to(key.device), limit.to(key.device)
     near = clear <= REACH
     pool = near if near.any() else torch.ones_like(near)
     if guided:
         fit = pool & ((clear <= limit) | (not touches))
         if fit.any():
-            pen = terms["pen"]
-            if "sunk" in terms:  # penetration counts where the pose intersects, not at contact
-                pen = torch.where(intersecting(terms).to(pen.device), pen, torch.zeros_like(pen))
+            # penetration counts where the pose intersects, not at contact
+            pen = torch.where(intersecting(terms).to(terms.pen.device), terms.pen, torch.zeros_like(terms.pen))
             zeros = torch.zeros_like(key)
-            key = combine({**terms, "icp": zeros, "pen": pen, "prefer": zeros}, phase)
-            prefer, judged = terms.get("prefer", zeros), fit & holding(terms).to(fit.device)
+            key = combine(terms.but(icp=zeros, pen=pen, prefer=zeros), phase)
+            prefer, judged = terms.prefer, fit & holding(terms).to(fit.device)
             pool, key = fit, key + say.weigh(key[judged], prefer[judged]) * prefer
     key = torch.where(pool, key.double(), torch.full_like(key, torch.inf, dtype=torch.float64))
-    ranked = rank_key({**terms, "objective": key}, phase, guide_key=key if guided else None,
+    ranked = rank_key(terms.but(objective=key), phase, guide_key=key if guided else None,
                       amount=amount, share=share, geometric=key)
     return ranked.argmin()
 
 
-def alternatives_key(terms: dict[str, torch.Tensor], objectives: torch.Tensor, far: torch.Tensor, best: int) -> Key:
+def alternatives_key(terms: Terms, objectives: torch.Tensor, far: torch.Tensor, best: int) -> Key:
     """The order of the refined placements a person picks among (``align.alternatives``): the answer ``best``
     first, then those where the relation holds and nothing intersects (``holding``), then by the objective on
     the evaluation views (not the selection's own key, which leaves soft-ICP out among touching poses with a
     guide); those ``far`` from the target excluded."""
-    holds = holding({**terms, "objective": objectives})
+    holds = holding(terms)
     key = Key((~holds).long().cpu(), objectives.double().cpu()).excluding(far.cpu())
     return key.first(best)
 
 
-def split_shortlist(terms: dict[str, torch.Tensor], phase: Phase, k: int, share: float,
+def split_shortlist(terms: Terms, phase: Phase, k: int, share: float,
                     pick: Callable[[Key, int], list[int]]) -> list[int]:
     """``k`` poses chosen by the geometry alone, the relation first (the guide's shortlist,
     ``coarse_to_fine.encoder_shortlist``): ``pick(key, n)`` (up to ``n`` indices best first by ``key``; the caller's
