@@ -14,6 +14,10 @@
       (`--no-guidance --seed 7`); "same placement": the objects' placements the command prints are equal
   python benchmarks/pair_speed.py profile CASE_DIR... [--guide none] [--out profile.txt]
       pyinstrument's call tree over the cases in one process, after one warm-up run (imports left out)
+  python benchmarks/pair_speed.py encodes CASE_DIR... [--guide oracle]
+      the images the guide encodes in one placement of each case, by the search's stage that asked for them (the
+      coarse stage, the guide's noise probes and its agreement check, the fine stage; "refinement and swept turns"
+      for the rest) and the goal's own views; one JSON line per case
   python benchmarks/pair_speed.py one CASE_DIR [--guide none]
       one run in this process: one JSON line (what `compare` starts per run)
 
@@ -91,6 +95,47 @@ def profile(args) -> None:
     if args.out:
         args.out.write_text(text)
     print(text)
+
+
+# ``encodes``: the search's functions a count is filed under, innermost first
+STAGES = ("agreement_views", "guide_noise", "_fine", "tile_score", "_coarse")
+
+
+def encodes(args) -> None:
+    from collections import Counter
+
+    from ctp_core import objective
+    from ctp_core.search import coarse_to_fine
+
+    inside: list[str] = []
+
+    def within(name: str, fn):
+        def call(*a, **k):
+            inside.append(name)
+            try:
+                return fn(*a, **k)
+            finally:
+                inside.pop()
+        return call
+
+    def counted(fn, kind: str):
+        def call(scorer, *a, **k):
+            before = scorer.clip_images
+            out = fn(scorer, *a, **k)
+            stage = next((s for s in reversed(inside) if s in STAGES), "refinement and swept turns")
+            tally[f"{kind}{stage.strip('_')}"] += scorer.clip_images - before
+            return out
+        return call
+
+    for name in STAGES:
+        setattr(coarse_to_fine, name, within(name, getattr(coarse_to_fine, name)))
+    objective.Scorer.clip_term = counted(objective.Scorer.clip_term, "")
+    objective.Scorer.embed_goal = counted(objective.Scorer.embed_goal, "goal's views: ")
+    for folder in args.cases:
+        tally: Counter = Counter()
+        row, result = _align(folder, args.guide, args.model, args.threads)
+        print(json.dumps({"case": row["case"], "clip_images": result.clip_images, "align_s": row["align_s"],
+                          **dict(tally.most_common())}))
 
 
 def _run(command: list[str], tree: Path) -> tuple[float, float, str]:
@@ -179,7 +224,7 @@ def compare(args) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="what", required=True)
-    for name in ("compare", "cli", "scene", "profile", "one"):
+    for name in ("compare", "cli", "scene", "profile", "encodes", "one"):
         p = sub.add_parser(name)
         if name in ("compare", "cli", "scene"):
             p.add_argument("--before", type=Path, required=True)
@@ -191,11 +236,12 @@ def main(argv: list[str] | None = None) -> int:
             p.add_argument("cases", type=Path, nargs="+")
         if name == "profile":
             p.add_argument("--out", type=Path)
-        p.add_argument("--guide", choices=("none", "oracle"), default="none")
+        p.add_argument("--guide", choices=("none", "oracle"), default="oracle" if name == "encodes" else "none")
         p.add_argument("--model", default="random:ViT-B-32", help="the oracle guide's encoder")
         p.add_argument("--threads", type=int, default=1)
     args = parser.parse_args(argv)
-    {"compare": compare, "cli": compare, "scene": compare, "profile": profile, "one": one}[args.what](args)
+    {"compare": compare, "cli": compare, "scene": compare, "profile": profile, "encodes": encodes,
+     "one": one}[args.what](args)
     return 0
 
 

@@ -106,7 +106,7 @@ def _prefer_resting(c: Context) -> torch.Tensor:
 
 
 def _spot(c: Context) -> parts.Spot | None:
-    return None if c.pair is None else parts.usual_spot(c.pair, float(c.unit.mean()), c.place)
+    return None if c.pair is None else parts.usual_spot(c.pair, float(c.unit.detach().mean()), c.place)
 
 
 def _where(c: Context) -> str | None:
