@@ -165,7 +165,7 @@ def test_the_enclosed_half_looks_up_only_the_samples_that_count_with_the_same_su
     depth = losses.signed_depth(dense_points, source, (0.3 / scale).reshape(-1, 1, 1), 32) * scale[:, None]
     dense = (torch.relu(depth - 0.01) * inside).sum(1) * area_ratio
     looked_up = losses.enclosed_penetration(points, inside, source, scale, area_ratio, 0.3, 0.01, 32)
-    assert torch.equal(dense, looked_up) and float(dense[2]) == 0 and float(dense.sum()) > 0
+    assert torch.equal(dense, looked_up) and float(dense[2].detach()) == 0 and float(dense.detach().sum()) > 0
     dense.sum().backward()
     looked_up.sum().backward()
     assert torch.equal(dense_points.grad, points.grad)
