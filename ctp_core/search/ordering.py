@@ -213,9 +213,9 @@ TRUSTED = GuideSay(spread=1.0, noise=0.0)  # a say not measured (yet): the guide
 
 
 def holding(terms: Terms) -> torch.Tensor:
-    """(B,) bool: where the relation holds (``predicates.holds`` of the ``rel`` term; everywhere without one),
-    steadily where it asks that (the ``stable`` term: a report's ``valid`` asks it too), and the pose does not
-    intersect the target (``sunk`` at most ``SUNK``; 0 where penetration is allowed).
+    """(B,) bool: where the relation holds (``predicates.holds`` of the ``rel`` term: zero, so everywhere, without
+    a relation), steadily where it asks that (the ``stable`` term: a report's ``valid`` asks it too), and the pose
+    does not intersect the target (``sunk`` at most ``SUNK``; 0 where penetration is allowed).
     Intersecting is worse than the relation failing: without the second rule a pose pulled into the target's wall
     by a containment relation would outrank every clean pose beside it."""
     held = predicates.holds(terms.rel)
@@ -261,7 +261,8 @@ def usual_first(geometric: torch.Tensor, terms: Terms, phase: Phase, holds: torc
     the usual place). In the objective the usual arrangement weighs ``PREFER`` of the relation, which is right for
     the gradient (it must not pull a pose off the relation) but lets soft-ICP, which favours corners and edges where
     more samples fall near the source, decide among poses that all hold; ordered here, among them the usual place
-    comes first and the geometry breaks what it cannot tell. Without a relation term: the objective as it is."""
+    comes first and the geometry breaks what it cannot tell. Where the phase does not weigh the relation
+    (``lambda_rel`` 0): the objective as it is."""
     if not phase.lambda_rel:
         return geometric.double()
     usual = geometric.double() / phase.lambda_rel + terms.prefer.to(geometric.device).double()
