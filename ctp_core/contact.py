@@ -19,7 +19,7 @@ from scipy.spatial import Delaunay, QhullError
 from ctp_core import losses
 from ctp_core.geometry import sampling
 from ctp_core.geometry.pose import Poses, apply_pose, quaternion_to_matrix
-from ctp_core.pairs import UP_FACING, PreparedPair
+from ctp_core.pairs import UP_FACING, PreparedPair, triangles
 
 REACH = 2.0  # source diagonals: a pose whose source is farther than this from the target places it nowhere
 TOUCH = 0.1  # source diagonals: a refined pose this close to the target touches it (plus the samples' spacing)
@@ -119,10 +119,8 @@ def surface_regions(pair: PreparedPair) -> tuple[np.ndarray, np.ndarray, dict[st
 def contact_index(pair: PreparedPair, count: int = CONTACT_SAMPLES, seed: int = 0) -> losses.SurfaceIndex:
     """Denser target samples than the losses' (normalised frame, outward normals) for placing proposals: the
     sampled depth and distance are only as good as the spacing."""
-    parts = pair.target_outward  # a scene of placed objects: all of them, oriented once by prepare_pair
-    oriented = parts[0] if len(parts) == 1 else trimesh.util.concatenate(
-        [trimesh.Trimesh(m.vertices, m.faces, process=False) for m in parts])
-    points, normals = sampling.surface_samples(oriented, count, seed)
+    # a scene of placed objects: all of them, oriented once by prepare_pair
+    points, normals = sampling.surface_samples(triangles(pair.target_outward), count, seed)
     frame = pair.target_to_normalised
     as_t = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
     return losses.SurfaceIndex(as_t(frame.apply(points)), as_t(frame.apply_directions(normals)))

@@ -71,9 +71,11 @@ class SurfaceIndex:
         terms read where ``LossConfig.distances`` is ``field``. A target's samples are its objects' and their field
         is the objects' own fields read as one (``objects_field``: each object's is built once per scene), else it
         is built from these samples (``own_field``)."""
+        if self._objects_field is None:
+            return self.own_field
         if self._field is None:  # ordinary tensors even where first asked under inference mode (a screen)
             with torch.inference_mode(False):
-                self._field = self.own_field if self._objects_field is None else self._objects_field()
+                self._field = self._objects_field()
         return self._field
 
     @property

@@ -82,7 +82,7 @@ def attachment(target: Target, on: str | Sequence[str] | None) -> trimesh.Trimes
         return geometry(target)
     parts = objects(target)
     picked = [parts[_position([name for name, _ in parts], n)][1] for n in named]
-    return picked[0] if len(picked) == 1 else _triangles(picked)
+    return picked[0] if len(picked) == 1 else triangles(picked)
 
 
 def _position(names: list[str], on: str) -> int:
@@ -104,10 +104,10 @@ def geometry(target: Target) -> trimesh.Trimesh:
     """All triangles of ``target`` as one mesh (no visuals): what framing and the upright turn look at."""
     if isinstance(target, trimesh.Trimesh):
         return target
-    return _triangles([m for _, m in objects(target)])
+    return triangles([m for _, m in objects(target)])
 
 
-def _triangles(meshes: list[trimesh.Trimesh]) -> trimesh.Trimesh:
+def triangles(meshes: list[trimesh.Trimesh]) -> trimesh.Trimesh:
     """The triangles of ``meshes`` as one mesh, without their visuals."""
     parts = [trimesh.Trimesh(m.vertices, m.faces, process=False) for m in meshes]
     return parts[0] if len(parts) == 1 else trimesh.util.concatenate(parts)

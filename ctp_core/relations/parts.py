@@ -147,8 +147,7 @@ def find_parts(pair: PreparedPair) -> Parts:
     spacing = pair.sample_spacing(len(pair.index.points))
     floor, top = float(points[:, 1].min()), float(points[:, 1].max())
     front, left = axes(torch.as_tensor(pair.target_front, dtype=torch.float32)[None], pair.front_trusted)
-    unit = 1.0 / pair.target_to_normalised.scale  # target file units per normalised unit: what reasons say
-    surfaces = tuple(_surfaces(points, normals, spacing, floor, unit))
+    surfaces = tuple(_surfaces(points, normals, spacing, floor, file_unit(pair)))
     return Parts(surfaces, _sides(points, front, left, pair.front_trusted), top - floor, floor)
 
 
@@ -159,7 +158,12 @@ def thin_parts(pair: PreparedPair) -> ThinParts:
     points, normals, spacing = pair.anchor_samples(THIN_SAMPLES)
     floor = float(pair.anchor.points[:, 1].min())
     return ThinParts(tuple(thin.find_bars(points, normals, spacing)), tuple(thin.find_openings(points, spacing)),
-                     1.0 / pair.target_to_normalised.scale, floor)
+                     file_unit(pair), floor)
+
+
+def file_unit(pair: PreparedPair) -> float:
+    """Target file units per normalised unit: what reasons say sizes and heights in."""
+    return 1.0 / pair.target_to_normalised.scale
 
 
 def _surfaces(points: np.ndarray, normals: np.ndarray, spacing: float, floor: float, unit: float) -> list[Surface]:

@@ -88,7 +88,7 @@ def height_map(points: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray,
     """The highest sample's height over each cell of a grid of side ``cell`` (x, z; -inf where the grid has no
     sample; gaps one cell wide inside the covered area closed with their neighbours' highest), the x, z of the
     grid's first cell's middle and the cell's side (``cell``, or larger: at most ``GRID`` cells a side)."""
-    cell = max(cell, float(np.ptp(points[:, [0, 2]], axis=0).max()) / GRID)
+    cell = grid_cell(points[:, [0, 2]], cell)
     low = points[:, [0, 2]].min(0) - cell / 2
     ij = np.floor((points[:, [0, 2]] - low) / cell).astype(int)
     height = np.full(ij.max(0) + 1, -np.inf)
@@ -97,6 +97,11 @@ def height_map(points: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray,
     gaps = ndimage.binary_closing(np.pad(covered, 1), structure=np.ones((3, 3)))[1:-1, 1:-1] & ~covered
     height[gaps] = ndimage.grey_dilation(height, size=(3, 3), mode="constant", cval=-np.inf)[gaps]
     return height, low + cell / 2, cell
+
+
+def grid_cell(xz: np.ndarray, cell: float) -> float:
+    """``cell``, or larger where the points ``xz`` (N, 2) would span more than ``GRID`` cells of it."""
+    return max(cell, float(np.ptp(xz, axis=0).max()) / GRID)
 
 
 def water_level(height: np.ndarray) -> np.ndarray:
@@ -202,7 +207,7 @@ def inscribed(xz: np.ndarray, spacing: float) -> float:
     """The diameter of the largest disc inside the area the samples ``xz`` (N, 2) cover: the samples on a grid of
     their spacing (at most ``GRID`` cells a side), closed over one cell (the gaps between samples), and the largest
     distance of a covered cell from an uncovered one."""
-    cell = max(spacing, float(np.ptp(xz, axis=0).max()) / GRID)
+    cell = grid_cell(xz, spacing)
     cells = np.floor((xz - xz.min(0)) / cell).astype(int) + 1
     grid = np.zeros(cells.max(0) + 2, dtype=bool)
     grid[cells[:, 0], cells[:, 1]] = True
