@@ -119,11 +119,11 @@ def test_cli_prints_one_line_for_an_allocation_failure(monkeypatch, capsys):
         main(["align", "t.glb", "s.glb", "--prompt", "x"])
 
 
-# A worker with a small ceiling. Measured here (test preset, random:tiny, 1 thread; docs/service.md): the
-# ball-on-box job peaks at about +45 MB over the worker's data size at job start on its first run (+20 MB
-# later); an 81,920-face icosphere as the source needs about +260 MB (in search). 120 MB sits between them
-# with a margin of more than 2x either way.
-CEILING_MB = 120
+# A worker with a small ceiling. Measured here (test preset, random:tiny, 1 thread, the data size sampled every
+# 0.3 ms in one process, four runs each): the ball-on-box job peaks at +95 to +167 MB over the data size at its
+# start; an 81,920-face icosphere as the source at +1.35 to +1.42 GB. 480 MB sits between them with a margin of
+# more than 2.5x either way (how much of the heap an earlier job left behind moves a job's peak).
+CEILING_MB = 480
 DENSE = glb(trimesh.creation.icosphere(subdivisions=6, radius=0.3))
 
 
@@ -143,7 +143,7 @@ def test_a_job_over_the_ceiling_fails_alone_and_the_worker_takes_the_next(api, w
     assert "during search: an allocation of " in message or "during refine: an allocation of " in message, message
 
     done = wait_status(api, small, ("failed", "succeeded", "canceled"), timeout_s=180)
-    assert done["status"] == "succeeded", done
+    assert done["status"] == "succeeded", done.get("error")
     assert worker.process.poll() is None  # the one worker ran both and is still alive
     assert api.client.get("/readyz").json()["workers"] == 1
     assert api.client.get(f"/jobs/{small}/result.glb").status_code == 200
