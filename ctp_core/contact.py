@@ -39,7 +39,8 @@ def clearance(pair: PreparedPair, index: losses.SurfaceIndex, poses: Poses, poin
     """(B,) the smallest distance between each posed source (``points`` of its samples) and the target samples,
     in source diagonals (normalised frame)."""
     posed = apply_pose(pair.source_subset(points), poses.t, poses.q, poses.log_s).detach().cpu()
-    dist, _ = index.tree.query(posed.reshape(-1, 3).numpy().astype(np.float64), k=1, workers=losses.query_workers())
+    flat = posed.reshape(-1, 3).numpy().astype(np.float64)
+    dist, _ = index.tree.query(flat, k=1, workers=losses.query_workers(len(flat)))
     return torch.as_tensor(dist.reshape(len(poses), -1).min(axis=1), dtype=torch.float32) / source_diagonal(pair, poses)
 
 
@@ -212,12 +213,11 @@ def nearest_two(index: losses.SurfaceIndex, posed: torch.Tensor, within: torch.T
     searched, bounded by the least upper bound. Every other point outside the box keeps an infinite distance
     (never its pose's nearest, nor counted inside: its depth is not read)."""
     flat = posed.reshape(-1, 3).numpy().astype(np.float64)
-    workers = losses.query_workers()
-    dist, idx = index.tree.query(flat, k=2, workers=workers, distance_upper_bound=near)
+    dist, idx = index.tree.query(flat, k=2, workers=losses.query_workers(len(flat)), distance_upper_bound=near)
     close = np.isfinite(dist[:, 0]).reshape(posed.shape[:2]).any(1)  # a point within the bound: the pose's nearest
     inside = within.reshape(-1).numpy() & ~np.isfinite(dist[:, 1])
     if inside.any():
-        dist[inside], idx[inside] = index.tree.query(flat[inside], k=2, workers=workers)
+        dist[inside], idx[inside] = index.tree.query(flat[inside], k=2, workers=losses.query_workers(inside.sum()))
     lone = np.flatnonzero(~close)
     if len(lone):
         points = flat.reshape(*posed.shape[:2], 3)[lone]  # (L, N, 3)
@@ -229,7 +229,7 @@ def nearest_two(index: losses.SurfaceIndex, posed: torch.Tensor, within: torch.T
         can = (upper - radius <= least[:, None]) & ~np.isfinite(known)  # those that can be it, not yet searched
         for i, pose in enumerate(lone):
             rows = pose * posed.shape[1] + np.flatnonzero(can[i])
-            dist[rows, 0], idx[rows, 0] = index.tree.query(flat[rows], k=1, workers=workers,
+            dist[rows, 0], idx[rows, 0] = index.tree.query(flat[rows], k=1, workers=losses.query_workers(len(rows)),
                                                            distance_upper_bound=least[i] * (1 + 1e-9))
     idx = np.where(np.isfinite(dist), idx, 0)  # a point left far is outside the box: its neighbours are not read
     return (torch.as_tensor(dist[:, 0].reshape(posed.shape[:2]), dtype=posed.dtype),

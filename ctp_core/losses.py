@@ -29,10 +29,15 @@ def clip_view_loss(image_embeddings: torch.Tensor, goal_embeddings: torch.Tensor
     return -((img * goal).sum(-1) if goal.dim() == 3 else img @ goal)
 
 
-def query_workers() -> int:
-    """Threads a batch of nearest-sample queries runs on: torch's CPU threads (``AlignConfig.threads``), so a run
-    held to one thread stays on one. Each query is answered alone: the answer is the same on any number."""
-    return torch.get_num_threads()
+PARALLEL_QUERY = 8192  # query points from which a search runs on torch's threads (``query_workers``)
+
+
+def query_workers(count: int) -> int:
+    """Threads a search of ``count`` points runs on: torch's CPU threads (``AlignConfig.threads``), so a run held to
+    one thread stays on one; below ``PARALLEL_QUERY`` points one, as scipy starts its threads anew for every search
+    (``benchmarks/kd_threads.py``: it costs about what 4,000 points' search does). Each query is answered alone: the
+    answer is the same on any number."""
+    return torch.get_num_threads() if count >= PARALLEL_QUERY else 1
 
 
 COVER = 64  # ``SurfaceIndex.cover``: the samples a far point's distance is first bounded by
@@ -62,7 +67,7 @@ class SurfaceIndex:
         if self._cover is None:
             data = self.tree.data
             few = data[:: max(1, len(data) // COVER)]
-            self._cover = few, float(cKDTree(few).query(data, k=1, workers=query_workers())[0].max())
+            self._cover = few, float(cKDTree(few).query(data, k=1, workers=query_workers(len(data)))[0].max())
         return self._cover
 
     @property
@@ -84,8 +89,8 @@ class SurfaceIndex:
         if self._own is None:
             as_np = lambda t: t.detach().cpu().numpy().astype(np.float64)  # noqa: E731
             with torch.inference_mode(False):
-                self._own = fields.build(self.tree, as_np(self.points), as_np(self.normals), query_workers(),
-                                         device=self.points.device)
+                self._own = fields.build(self.tree, as_np(self.points), as_np(self.normals),
+                                         query_workers(fields.COARSE**3), device=self.points.device)
         return self._own
 
     def neighbours(self, queries: torch.Tensor, k: int) -> torch.Tensor:
@@ -96,7 +101,7 @@ class SurfaceIndex:
     def nearest(self, flat: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
         """(Q, k) distances and indices of the k nearest samples to each of ``flat`` (Q, 3) float64 points."""
         k = min(k, self.points.shape[0])
-        dist, idx = self.tree.query(flat, k=k, workers=query_workers())
+        dist, idx = self.tree.query(flat, k=k, workers=query_workers(len(flat)))
         return dist.reshape(len(flat), k), idx.reshape(len(flat), k)
 
     def part_of(self, whole: SurfaceIndex, rows: np.ndarray, others: list[np.ndarray]) -> bool:

@@ -193,12 +193,10 @@ def _clearance(points: np.ndarray, normals: np.ndarray, up: np.ndarray, spacing:
     out = np.full(len(up), np.inf)
     if not len(down):
         return out
-    tree = cKDTree(down[:, [0, 2]])
-    for i, near in enumerate(tree.query_ball_point(up[:, [0, 2]], r=COLUMN * spacing, workers=1)):
-        above = down[near, 1] - up[i, 1]
-        above = above[above > JOIN_SPACINGS * spacing]
-        if len(above):
-            out[i] = above.min()
+    row, other = thin.column_neighbours(up, down, COLUMN * spacing)
+    above = down[other, 1] - up[row, 1]
+    higher = above > JOIN_SPACINGS * spacing
+    np.minimum.at(out, row[higher], above[higher])
     return out
 
 

@@ -155,9 +155,7 @@ def thickness(points: np.ndarray, normals: np.ndarray, up: np.ndarray, spacing: 
     thick, room = np.full(len(up), np.inf), np.full(len(up), np.inf)
     if not len(up):
         return thick, room
-    near = cKDTree(points[:, [0, 2]]).query_ball_point(points[up][:, [0, 2]], r=spacing, workers=1)
-    row = np.repeat(np.arange(len(up)), [len(n) for n in near])
-    other = np.concatenate([np.asarray(n, dtype=int) for n in near])
+    row, other = column_neighbours(points[up], points, spacing)
     y, top = points[other, 1], points[up[row], 1]
     under = np.full(len(up), -np.inf)
     np.maximum.at(under, row, np.where((y < top) & (normals[other, 1] <= -UP), y, -np.inf))
@@ -167,6 +165,13 @@ def thickness(points: np.ndarray, normals: np.ndarray, up: np.ndarray, spacing: 
     np.maximum.at(below, row, np.where(y < under[row] - spacing, y, -np.inf))
     room[found] = under[found] - below[found]
     return thick, room
+
+
+def column_neighbours(tops: np.ndarray, points: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Every pair of a sample of ``tops`` (T, 3) and a sample of ``points`` (P, 3) whose horizontal (x, z) distance is
+    at most ``radius`` (the two in one column): (K,) rows of ``tops`` and (K,) rows of ``points``."""
+    pairs = cKDTree(tops[:, [0, 2]]).sparse_distance_matrix(cKDTree(points[:, [0, 2]]), radius, output_type="ndarray")
+    return pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)
 
 
 def find_bars(points: np.ndarray, normals: np.ndarray, spacing: float) -> list[Bar]:
