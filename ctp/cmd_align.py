@@ -195,7 +195,6 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--alternatives must be 1 to {MAX_ALTERNATIVES}", field="alternatives")
     check_inputs(args)
     config = config_from_args(args)
-    from ctp_core.io.loader import MeshLoader
     from ctp_core.reading.counts import choose
 
     target_name = args.target_name or names.default_name(args.target.name, "target")
@@ -204,17 +203,12 @@ def run(args: argparse.Namespace) -> int:
     if count > 1 and (args.image is not None or args.alternatives > 1):
         raise ConfigError("several copies are guided by a prompt, with one placement each: no --image or "
                           "--alternatives", field="count")
-    # the same bounded loading as the service (ctp_core.io.loader); its child process reads the meshes while
-    # this one imports the engine (torch, trimesh: seconds): on two cores the one wait hides the other. The loader
-    # closes first, so an interrupt waits on no load in flight.
-    with ThreadPoolExecutor(1) as pool, MeshLoader(1) as loader:
-        meshes = pool.submit(lambda: (loader.load(args.target, name="target"), loader.load(args.source, name="source")))
-        from ctp_core import export, io
-        from ctp_core.align import align
-        from ctp_core.config import AUTO
-        from ctp_core.guide.selection import NONE, pull_command
+    target, source = load_meshes([(args.target, "target"), (args.source, "source")])
+    from ctp_core import export, io
+    from ctp_core.align import align
+    from ctp_core.config import AUTO
+    from ctp_core.guide.selection import NONE, pull_command
 
-        target, source = meshes.result()
     if count > 1:
         return _run_copies(args, target, source, config, count, arrangement, target_name, source_name)
     image = io.load_image(args.image) if args.image else None
@@ -250,6 +244,22 @@ def run(args: argparse.Namespace) -> int:
                                  else f"priors: size ratio {result.scaling['size_ratio']:.3g}")
     print(json.dumps(summary))
     return 0
+
+
+def load_meshes(files: list[tuple[Path, str]]) -> list:
+    """The meshes of ``files`` ((path, the name errors give it) each), read by the bounded loader the service uses
+    (``ctp_core.io.loader``). Its child process reads them while this one imports the engine (torch, trimesh:
+    seconds), so on two cores the one wait hides the other. The loader closes first, so an interrupt waits on no
+    load in flight."""
+    from ctp_core.io.loader import MeshLoader
+
+    with ThreadPoolExecutor(1) as pool, MeshLoader(1) as loader:
+        meshes = pool.submit(lambda: [loader.load(path, name=name) for path, name in files])
+        # the engine, imported meanwhile: the caller's own imports of it then cost nothing
+        import ctp_core.align  # noqa: F401
+        import ctp_core.export  # noqa: F401
+
+        return meshes.result()
 
 
 def said(result) -> str:

@@ -37,7 +37,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ctp.cmd_align import ProgressBar, add_run_arguments, config_from_args
+from ctp.cmd_align import ProgressBar, add_run_arguments, config_from_args, load_meshes
 from ctp_core.errors import ConfigError
 from ctp_core.reading import names
 
@@ -57,8 +57,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ctp_core.io.loader import MeshLoader
-
     config = config_from_args(args)
     if args.plan is not None:
         if args.base is not None or args.add:
@@ -67,10 +65,9 @@ def run(args: argparse.Namespace) -> int:
     else:
         if args.base is None or not args.add:
             raise ConfigError("give BASE and at least one --add SOURCE PROMPT (or --plan plan.yaml)", field="add")
-        with MeshLoader(1) as loader:  # the same bounded loading as ctp align and the service
-            base, base_name = loader.load(args.base, name="base"), names.default_name(args.base.name, "base")
-            steps = [_step({"file": str(path), "prompt": prompt}, Path.cwd(), config, i, loader)
-                     for i, (path, prompt) in enumerate(args.add)]
+        entries = [{"file": str(path), "prompt": prompt} for path, prompt in args.add]
+        base, steps = _steps(entries, Path.cwd(), config, args.base)
+        base_name = names.default_name(args.base.name, "base")
     return run_assembly(args, base, base_name, steps, config)
 
 
@@ -122,7 +119,6 @@ def read_plan(path: Path, config):
     import yaml
 
     from ctp_core.assembly.plan import step_options
-    from ctp_core.io.loader import MeshLoader
 
     try:
         plan = yaml.safe_load(path.read_text())
@@ -137,25 +133,27 @@ def read_plan(path: Path, config):
     config = _with_options(config, step_options(plan.get("options"), "options", assembly_options=_ASSEMBLY_FLAGS),
                            "options")
     base_file = folder / plan["base"]
-    with MeshLoader(1) as loader:  # one loading process for every mesh of the plan
-        steps = [_step(step, folder, config, i, loader) for i, step in enumerate(plan["steps"])]
-        base = loader.load(base_file, name="base")
+    base, steps = _steps(plan["steps"], folder, config, base_file)
     return base, str(plan.get("name") or names.default_name(base_file.name, "base")), steps, config
 
 
-def _step(entry: Any, folder: Path, config, i: int, loader):
+def _steps(entries: list, folder: Path, config, base_file: Path) -> tuple[Any, list]:
+    """The base's mesh and the ``Step`` of each of ``entries`` (a plan's steps; files relative to ``folder``): every
+    entry checked first, then every mesh read (``load_meshes``: one loading process for them all)."""
     from ctp_core import io
     from ctp_core.assembly.assemble import Step
     from ctp_core.assembly.plan import plan_step
 
-    where = f"steps.{i}"
-    step = plan_step(_from_yaml(entry), where, assembly_options=_ASSEMBLY_FLAGS)
-    file = folder / step.file
-    image = io.load_image(folder / step.image) if step.image is not None else None
-    return Step(source=loader.load(file, name=f"{where}.file"),
-                name=step.name or names.default_name(file.name, "object"), prompt=step.prompt, image=image, on=step.on,
-                also=step.also,
-                config=_with_options(config, step.options, f"{where}.options") if step.options else None)
+    parsed = [plan_step(_from_yaml(entry), f"steps.{i}", assembly_options=_ASSEMBLY_FLAGS)
+              for i, entry in enumerate(entries)]
+    options = [_with_options(config, s.options, f"steps.{i}.options") if s.options else None
+               for i, s in enumerate(parsed)]
+    images = [io.load_image(folder / s.image) if s.image is not None else None for s in parsed]
+    base, *meshes = load_meshes([(base_file, "base")]
+                                + [(folder / s.file, f"steps.{i}.file") for i, s in enumerate(parsed)])
+    return base, [Step(source=mesh, name=s.name or names.default_name((folder / s.file).name, "object"),
+                       prompt=s.prompt, image=image, on=s.on, also=s.also, config=step_config)
+                  for s, mesh, image, step_config in zip(parsed, meshes, images, options, strict=True)]
 
 
 def _from_yaml(entry: Any) -> Any:

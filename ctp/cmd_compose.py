@@ -23,7 +23,7 @@ from pathlib import Path
 
 import yaml
 
-from ctp.cmd_align import add_run_arguments, config_from_args
+from ctp.cmd_align import add_run_arguments, config_from_args, load_meshes
 from ctp.cmd_assemble import run_assembly
 from ctp_core.assembly.describe import ScenePlan
 from ctp_core.assembly.readers import READERS, get_reader
@@ -50,7 +50,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ctp_core.assembly.assemble import Step
-    from ctp_core.io.loader import MeshLoader
 
     called = args.names or [names.default_name(path.name, "object") for path in args.objects]
     if len(called) != len(args.objects):
@@ -63,8 +62,7 @@ def run(args: argparse.Namespace) -> int:
     for warning in plan.warnings:
         print(f"warning: {warning}", file=sys.stderr)
     config = config_from_args(args)
-    with MeshLoader(1) as loader:  # the same bounded loading as ctp align and ctp assemble
-        meshes = [loader.load(path, name=f"objects.{i}") for i, path in enumerate(args.objects)]
+    meshes = load_meshes([(path, f"objects.{i}") for i, path in enumerate(args.objects)])
     steps = [Step(source=meshes[s.upload].copy(), name=s.name, prompt=s.prompt, on=list(s.on),
                   also=s.also) for s in plan.steps]
     return run_assembly(args, meshes[plan.base_upload], plan.base, steps, config, plan=plan.to_dict())
