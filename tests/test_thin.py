@@ -150,3 +150,17 @@ def test_specks_scattered_over_a_wide_box_keep_the_grids_small():
     assert thin.inscribed(points[:, [0, 2]], 1e-6) >= widest / thin.GRID
     normals = np.tile([0.0, 1.0, 0.0], (len(points), 1))
     assert thin.find_openings(points, 1e-6) == [] and thin.find_bars(points, normals, 1e-6) == []
+
+
+def test_column_neighbours_are_every_pair_within_the_radius_across():
+    """Against all pairs measured directly: the height is ignored, a pair at exactly the radius counts, and a sample
+    straight above another (no horizontal distance) is its neighbour."""
+    rng = np.random.default_rng(3)
+    tops, points = rng.uniform(0, 1, (40, 3)), rng.uniform(0, 1, (300, 3))
+    points[0] = tops[0] + [0.0, 0.5, 0.0]  # straight above
+    points[1] = tops[1] + [0.1, -0.3, 0.0]  # exactly the radius across
+    row, other = thin.column_neighbours(tops, points, 0.1)
+    across = np.linalg.norm(tops[:, None, [0, 2]] - points[None, :, [0, 2]], axis=-1)
+    expected = {(i, j) for i, j in zip(*np.nonzero(across <= 0.1), strict=True)}
+    assert set(zip(row.tolist(), other.tolist(), strict=True)) == expected and len(row) == len(expected)
+    assert (0, 0) in expected and (1, 1) in expected
