@@ -140,17 +140,18 @@ def read_plan(path: Path, config):
 def _steps(entries: list, folder: Path, config, base_file: Path) -> tuple[Any, list]:
     """The base's mesh and the ``Step`` of each of ``entries`` (a plan's steps; files relative to ``folder``): every
     entry checked first, then every mesh read (``load_meshes``: one loading process for them all)."""
-    from ctp_core import io
-    from ctp_core.assembly.assemble import Step
     from ctp_core.assembly.plan import plan_step
 
     parsed = [plan_step(_from_yaml(entry), f"steps.{i}", assembly_options=_ASSEMBLY_FLAGS)
               for i, entry in enumerate(entries)]
     options = [_with_options(config, s.options, f"steps.{i}.options") if s.options else None
                for i, s in enumerate(parsed)]
-    images = [io.load_image(folder / s.image) if s.image is not None else None for s in parsed]
     base, *meshes = load_meshes([(base_file, "base")]
                                 + [(folder / s.file, f"steps.{i}.file") for i, s in enumerate(parsed)])
+    from ctp_core import io  # imported (trimesh with it) while the meshes were read
+    from ctp_core.assembly.assemble import Step
+
+    images = [io.load_image(folder / s.image) if s.image is not None else None for s in parsed]
     return base, [Step(source=mesh, name=s.name or names.default_name((folder / s.file).name, "object"),
                        prompt=s.prompt, image=image, on=s.on, also=s.also, config=step_config)
                   for s, mesh, image, step_config in zip(parsed, meshes, images, options, strict=True)]

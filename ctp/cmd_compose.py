@@ -49,8 +49,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ctp_core.assembly.assemble import Step
-
     called = args.names or [names.default_name(path.name, "object") for path in args.objects]
     if len(called) != len(args.objects):
         raise ConfigError(f"--names gives {len(called)} names for {len(args.objects)} objects: one each",
@@ -63,6 +61,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"warning: {warning}", file=sys.stderr)
     config = config_from_args(args)
     meshes = load_meshes([(path, f"objects.{i}") for i, path in enumerate(args.objects)])
+    from ctp_core.assembly.assemble import Step  # imported (trimesh with it) while the meshes were read
+
     steps = [Step(source=meshes[s.upload].copy(), name=s.name, prompt=s.prompt, on=list(s.on),
                   also=s.also) for s in plan.steps]
     return run_assembly(args, meshes[plan.base_upload], plan.base, steps, config, plan=plan.to_dict())
