@@ -89,8 +89,8 @@ class SurfaceIndex:
         if self._own is None:
             as_np = lambda t: t.detach().cpu().numpy().astype(np.float64)  # noqa: E731
             with torch.inference_mode(False):
-                self._own = fields.build(self.tree, as_np(self.points), as_np(self.normals),
-                                         query_workers(fields.COARSE**3), device=self.points.device)
+                self._own = fields.build(self.tree, as_np(self.points), as_np(self.normals), query_workers,
+                                         device=self.points.device)
         return self._own
 
     def neighbours(self, queries: torch.Tensor, k: int) -> torch.Tensor:

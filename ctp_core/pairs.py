@@ -478,7 +478,7 @@ def _field(mesh: trimesh.Trimesh, count: int, seed: int, turn: bytes, device: st
     points, normals = _samples(mesh, count, seed)
     rotation = np.frombuffer(turn, dtype=np.float64).reshape(3, 3)
     points, normals = points @ rotation.T, normals @ rotation.T
-    return fields.build(cKDTree(points), points, normals, query_workers(fields.COARSE**3), device=device)
+    return fields.build(cKDTree(points), points, normals, query_workers, device=device)
 
 
 @once.per_mesh
