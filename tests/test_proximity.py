@@ -24,6 +24,17 @@ def test_matches_trimesh_in_small_batches():
     assert np.isclose(proximity.min_distance(mesh, points, batch=37), expected_distance.min())
 
 
+def test_points_over_several_bulk_queries_match_trimesh(monkeypatch):
+    """The boxes of many points go to the R-tree a chunk at a time (``_CHUNK``): chunks and batches that end
+    mid-way through a point's candidates give trimesh's answers still."""
+    monkeypatch.setattr(proximity, "_CHUNK", 16)
+    mesh = trimesh.creation.icosphere(subdivisions=2)
+    points = _points(2)
+    expected_point, expected_distance, _ = trimesh.proximity.closest_point(mesh, points)
+    found, distance, _ = proximity.closest_points(mesh, points, batch=37)
+    assert np.allclose(distance, expected_distance) and np.allclose(found, expected_point)
+
+
 def test_anchor_tree_is_kept_per_mesh_until_it_changes():
     mesh = trimesh.creation.icosphere(subdivisions=2)
     tree = proximity._anchors(mesh)

@@ -17,6 +17,7 @@ from ctp_core.assembly.assemble import Assembly, Step, assemble
 from ctp_core.config import AlignConfig
 from ctp_core.geometry import field as fields
 from ctp_core.geometry import once, sampling
+from ctp_core.orientation import canonical
 from tests.test_assemble import PLAN, table_plate_cup
 
 CONFIG = AlignConfig.from_preset("test", model="random:tiny", seed=0, loss={"lambda_clip": 0.0}, optim={"steps": 40})
@@ -118,3 +119,18 @@ def test_outside_a_scene_nothing_is_kept():
         mesh.apply_translation((0.1, 0.0, 0.0))  # changed in place: never answered from what was kept before
         assert pairs.outward(mesh) is not fixed
         assert np.array_equal(pairs.outward(mesh).vertices, fixed.vertices + [0.1, 0.0, 0.0])
+
+
+def test_copies_of_one_object_find_their_resting_poses_once(monkeypatch):
+    """An object's resting poses (``canonical.unit_resting_poses``) are kept within a scene by its content: a copy
+    of it asks nothing again, a changed one does, and outside a scene every call finds them afresh."""
+    found: list[int] = []
+    resting_poses = canonical.resting_poses
+    monkeypatch.setattr(canonical, "resting_poses", lambda mesh: found.append(1) or resting_poses(mesh))
+    box = trimesh.creation.box((1.0, 2.0, 3.0))
+    with once.scene():
+        first = canonical.unit_resting_poses(box)
+        assert canonical.unit_resting_poses(box.copy()) is first and len(found) == 1
+        box.apply_scale((1.0, 1.0, 2.0))
+        assert canonical.unit_resting_poses(box) != first and len(found) == 2
+    assert canonical.unit_resting_poses(box) == resting_poses(canonical.unit_size(box)) and len(found) == 3

@@ -22,6 +22,7 @@ from ctp_core.geometry import sampling
 
 BATCH = 200_000  # (point, triangle) pairs evaluated at once: about 100 MB of temporaries
 _SAMPLES = 20_000  # surface samples that bound each point's search radius
+_CHUNK = 1024  # points whose boxes one bulk R-tree query answers
 # id(mesh) -> (the mesh's content hash when built, its anchor tree); an entry goes with its mesh
 _ANCHORS: dict[int, tuple[int, cKDTree]] = {}
 
@@ -84,19 +85,27 @@ def _search(mesh: trimesh.Trimesh, points: np.ndarray, batch: int, prune: bool):
             chosen = first[better]
             best_d[w[chosen]], best_p[w[chosen]], best_f[w[chosen]] = dist[chosen], found[chosen], f[chosen]
 
-    order = np.argsort(upper) if prune else np.arange(len(points))
-    for i in order:
-        # the anchor's own triangle is always within upper[i]; with pruning, a point whose box finds
-        # nothing is farther than the best so far and keeps an infinite distance
-        radius = (min(upper[i], best_d.min()) if prune else upper[i]) + slack
-        bounds = np.concatenate([points[i] - radius, points[i] + radius])
-        faces = np.fromiter(tree.intersection(bounds), dtype=np.int64)
-        if prune and len(faces):
-            flush()  # radii shrink with what is already found
-        pairs_point.append(np.full(len(faces), i, dtype=np.int64))
+    def gather(who: np.ndarray, faces: np.ndarray) -> None:
+        nonlocal pending
+        pairs_point.append(who)
         pairs_face.append(faces)
         pending += len(faces)
         if pending >= batch:
             flush()
+
+    # the anchor's own triangle is always within upper[i] of point i
+    if not prune:  # every point's box at once, a chunk of points per call of the R-tree
+        for start in range(0, len(points), _CHUNK):
+            near, radius = points[start:start + _CHUNK], upper[start:start + _CHUNK, None] + slack
+            faces, counts = tree.intersection_v(near - radius, near + radius)
+            gather(np.repeat(np.arange(start, start + len(near)), counts.astype(np.int64)), faces)
+    for i in np.argsort(upper) if prune else ():
+        # a point whose box finds nothing is farther than the best so far and keeps an infinite distance
+        radius = min(upper[i], best_d.min()) + slack
+        faces = np.fromiter(tree.intersection(np.concatenate([points[i] - radius, points[i] + radius])),
+                            dtype=np.int64)
+        if len(faces):
+            flush()  # radii shrink with what is already found
+        gather(np.full(len(faces), i, dtype=np.int64), faces)
     flush()
     return best_p, best_d, best_f

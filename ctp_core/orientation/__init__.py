@@ -137,7 +137,7 @@ def _unstated(mesh: trimesh.Trimesh, fmt: str | None) -> canonical.Upright:
     """The stated rule for a file without an up convention: Y-up, unless the object stands on legs with the
     file's +Z up and not with its +Y up."""
     what = f"{fmt.upper()} states no up" if fmt else "a mesh made in code states no up"
-    poses = canonical.resting_poses(canonical.unit_size(mesh))
+    poses = canonical.unit_resting_poses(mesh)
     y, z = _pose(poses, _Y), _pose(poses, _Z)
     if z is not None and z["feet"] >= canonical.LEGS and (y is None or y["feet"] < canonical.LEGS):
         return _standing(_Z, f"up: +Z ({what}; it stands on legs with the file's +Z up, not its +Y: a Z-up export)")

@@ -53,7 +53,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import QhullError, cKDTree
 
-from ctp_core.geometry import sampling
+from ctp_core.geometry import once, sampling
 
 _INLIER_COS = np.cos(np.radians(5.0))
 _SNAP_COS = np.cos(np.radians(5.0))
@@ -107,9 +107,9 @@ def identity(reason: str = "not canonicalised") -> Upright:
 def upright_rotation(mesh: trimesh.Trimesh, seed: int = 0, judge: Judge | None = None,
                      margin: float = 0.01) -> Upright:
     """Estimate the upright frame of ``mesh`` (file frame); deterministic by ``seed`` (and the judge)."""
+    candidates = unit_resting_poses(mesh)
     mesh = unit_size(mesh)
     axes = dominant_axes(mesh, seed)
-    candidates = resting_poses(mesh)
     if judge is not None:
         return _judged(axes, candidates, judge, margin)
     axis = symmetry_axis(mesh, seed)
@@ -149,7 +149,7 @@ def clear_up(mesh: trimesh.Trimesh, up: np.ndarray, stated: bool = False) -> tup
     placement that tips it is wrong whatever relation it satisfies. ``stated``: the file states its up (glTF's +Y
     by its spec, or an axis given): then any resting pose with that up is clear (a sofa on four short feet, which
     neither legs nor a base show), and only an up it cannot stand on (a rake on its tines) is not."""
-    candidates = resting_poses(unit_size(mesh))
+    candidates = unit_resting_poses(mesh)
     at = [c for c in candidates if np.dot(c["up"], up) > _AUTHORED_COS]
     if not at:
         return False, "its up is none of its resting poses"
@@ -257,6 +257,13 @@ def dominant_axes(mesh: trimesh.Trimesh, seed: int = 0, tries: int = 200, iterat
     if np.linalg.det(axes) < 0:
         axes[2] = -axes[2]
     return axes
+
+
+def unit_resting_poses(mesh: trimesh.Trimesh) -> list[dict]:
+    """``resting_poses`` of ``mesh`` made unit size (``unit_size``), kept within a scene (``once``) by the mesh's
+    content: a scene's steps find and judge an object's up again, and copies of one object are one object here.
+    The caller must not change what it gets."""
+    return once.value(("resting_poses", hash(mesh)), lambda: resting_poses(unit_size(mesh)))
 
 
 def resting_poses(mesh: trimesh.Trimesh, min_probability: float = 0.005) -> list[dict]:
