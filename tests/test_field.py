@@ -43,6 +43,36 @@ def test_distance_near_the_surface_is_the_nearest_samples_within_a_fine_cell():
     assert (depth - exact_depth).abs().median() <= 0.1 * cell
 
 
+@pytest.mark.parametrize("shape", ["sphere", "scatter"])
+def test_every_fine_node_within_the_band_holds_its_nearest_samples_values(shape):
+    """Fine nodes are computed where the coarse grid's reading cannot rule out a sample within ``BAND`` fine cells
+    (``field.build``'s reach): every node truly that near holds its nearest sample's distance and depth, not an
+    interpolation, on a sphere and on samples scattered through a box (where the coarse reading errs most)."""
+    gen = torch.Generator().manual_seed(1)
+    if shape == "sphere":
+        index = _sphere(300)
+    else:
+        normals = torch.nn.functional.normalize(torch.randn(300, 3, generator=gen), dim=1)
+        index = losses.SurfaceIndex(torch.rand(300, 3, generator=gen) * torch.tensor([2.0, 1.0, 0.5]), normals)
+    field = index.field
+    cell, nodes = _cell(field), fields.FINE
+    axis = torch.arange(nodes, dtype=torch.float64) * cell
+    grid = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3) + field.origin.double()
+    stored = field.values[0].reshape(2, -1).double()
+    points, normals = index.points.double(), index.normals.double()
+    checked = 0
+    for start in range(0, len(grid), 1 << 16):
+        at = grid[start:start + (1 << 16)]
+        dist, nearest = torch.cdist(at, points).min(dim=1)
+        near = dist < fields.BAND * cell
+        depth = ((points[nearest] - at) * normals[nearest]).sum(-1)
+        got = stored[:, start:start + (1 << 16)]
+        assert torch.allclose(got[0][near], dist[near], atol=1e-5 * field.size)
+        assert torch.allclose(got[1][near], depth[near], atol=1e-5 * field.size)
+        checked += int(near.sum())
+    assert checked > 1000
+
+
 def test_depth_tells_inside_from_outside_a_closed_surface():
     index = _sphere()
     gen = torch.Generator().manual_seed(1)

@@ -125,9 +125,10 @@ def build(tree: cKDTree, points: np.ndarray, normals: np.ndarray,
     coarse = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3) + origin
     values = np.stack(nodes(tree, points, normals, coarse, workers)).reshape(1, 2, COARSE, COARSE, COARSE)
     fine = F.interpolate(torch.as_tensor(values), size=(FINE,) * 3, mode="trilinear", align_corners=True)[0].numpy()
-    # a fine node is computed where the surface may come within BAND fine cells of it: the distance changes by
-    # at most its change in place, so the coarse grid's interpolation is within a coarse cell's diagonal of it
-    reach = math.sqrt(3) * size / (COARSE - 1) + BAND * size / (FINE - 1)
+    # a fine node is computed where the surface may come within BAND fine cells of it. The distance changes by at
+    # most its change in place, so the coarse interpolation overstates it by at most the weighted mean distance to
+    # the cell's corners, which the root of the weighted mean square bounds: half a coarse cell's diagonal
+    reach = math.sqrt(3) / 2 * size / (COARSE - 1) + BAND * size / (FINE - 1)
     where = np.nonzero(fine[0] < reach)
     at = np.stack(where, -1) * (size / (FINE - 1)) + origin
     fine[0][where], fine[1][where] = nodes(tree, points, normals, at, workers)
