@@ -105,8 +105,8 @@ class FieldUnion:
         return distance.gather(0, nearest)[0], depth.gather(0, nearest)[0]
 
 
-def nodes(tree: cKDTree, points: np.ndarray, normals: np.ndarray, at: np.ndarray,
-          workers: Callable[[int], int] = lambda count: 1) -> tuple[np.ndarray, np.ndarray]:
+def nodes(tree: cKDTree, points: np.ndarray, normals: np.ndarray, at: np.ndarray, workers: Callable[[int], int]
+          ) -> tuple[np.ndarray, np.ndarray]:
     """(distance, depth) at ``at`` (Q, 3): to the nearest sample, and along its outward normal (positive behind).
     ``workers``: the threads a search of so many points runs on (``losses.query_workers``)."""
     dist, idx = tree.query(at, k=1, workers=workers(len(at)))
@@ -114,8 +114,8 @@ def nodes(tree: cKDTree, points: np.ndarray, normals: np.ndarray, at: np.ndarray
     return dist, depth
 
 
-def build(tree: cKDTree, points: np.ndarray, normals: np.ndarray,
-          workers: Callable[[int], int] = lambda count: 1, device: torch.device | str = "cpu") -> DistanceField:
+def build(tree: cKDTree, points: np.ndarray, normals: np.ndarray, workers: Callable[[int], int],
+          device: torch.device | str = "cpu") -> DistanceField:
     """The field of the samples ``points`` (M, 3) with outward ``normals`` (M, 3), whose KD-tree is ``tree``; its
     tensors on ``device``. ``workers`` as ``nodes`` takes it."""
     low, high = points.min(0), points.max(0)

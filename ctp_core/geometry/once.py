@@ -6,8 +6,10 @@ A scene is placed step by step (``assembly.assemble``), and every step prepares 
 surface sampled, its render arrays made and its up and front found again, though the object has not moved and
 the answer is the same each time. ``scene()`` opens a store for the length of a scene; ``per_mesh`` functions
 keep their answers in it, keyed by the mesh (its identity and its content's hash, so a mesh changed in place is
-never answered from an older copy) and their other arguments. The answer kept is the very one a fresh call gives
-(the same function of the same inputs), so nothing placed or judged changes; outside a scene nothing is kept.
+never answered from an older copy) and their other arguments; ``per_content`` functions, which read nothing of a
+mesh but its content, by its content's hash alone (copies of one object ask once). The answer kept is the very one
+a fresh call gives (the same function of the same inputs), so nothing placed or judged changes; outside a scene
+nothing is kept.
 
 What is kept is shared: a caller must not change it (a mesh kept here is copied before it is changed, as
 ``pairs.outward`` does).
@@ -23,7 +25,7 @@ from typing import Any, TypeVar
 
 import trimesh
 
-__all__ = ["per_mesh", "scene", "value"]
+__all__ = ["per_content", "per_mesh", "scene", "value"]
 
 _STORE: ContextVar[dict[Hashable, tuple[Any, Any]] | None] = ContextVar("once", default=None)
 
@@ -54,6 +56,19 @@ def per_mesh(build: Callable[..., Kept]) -> Callable[..., Kept]:
             return build(mesh, *args)
         return value((build.__module__, build.__qualname__, id(mesh), hash(mesh), args),
                      lambda: build(mesh, *args), pin=mesh)
+
+    return kept
+
+
+def per_content(build: Callable[[trimesh.Trimesh], Kept]) -> Callable[[trimesh.Trimesh], Kept]:
+    """``build(mesh)`` kept within a ``scene`` per the mesh's content (its hash: no identity, nothing pinned), for a
+    ``build`` that reads nothing else of it; called as it is outside one."""
+
+    @functools.wraps(build)
+    def kept(mesh: trimesh.Trimesh) -> Kept:
+        if _STORE.get() is None:
+            return build(mesh)
+        return value((build.__module__, build.__qualname__, hash(mesh)), lambda: build(mesh))
 
     return kept
 

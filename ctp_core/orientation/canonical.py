@@ -259,11 +259,11 @@ def dominant_axes(mesh: trimesh.Trimesh, seed: int = 0, tries: int = 200, iterat
     return axes
 
 
+@once.per_content
 def unit_resting_poses(mesh: trimesh.Trimesh) -> list[dict]:
-    """``resting_poses`` of ``mesh`` made unit size (``unit_size``), kept within a scene (``once``) by the mesh's
-    content: a scene's steps find and judge an object's up again, and copies of one object are one object here.
-    The caller must not change what it gets."""
-    return once.value(("resting_poses", hash(mesh)), lambda: resting_poses(unit_size(mesh)))
+    """``resting_poses`` of ``mesh`` made unit size (``unit_size``), kept within a scene by the mesh's content: a
+    scene's steps find and judge an object's up again. The caller must not change what it gets."""
+    return resting_poses(unit_size(mesh))
 
 
 def resting_poses(mesh: trimesh.Trimesh, min_probability: float = 0.005) -> list[dict]:
