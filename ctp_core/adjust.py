@@ -100,8 +100,9 @@ def adjust(target: Target, source: trimesh.Trimesh, source_to_target: np.ndarray
             pose, gap = placed, placed_gap
     with torch.no_grad():
         # one pose: a search of its samples' nearest costs less than the distance fields' builds (the verdict's
-        # measure is the samples', as ``loss.distances`` samples measures); soft-ICP's ratio: not read here
-        scorer = objective.Scorer(pair, config.merged({"loss": {"distances": "samples"}}), contact_ratio=1.0)
+        # measure is the samples', as ``loss.distances`` samples measures); only the penetration is read: soft-ICP
+        # off (ratio 0), so the search asks for the whole target's nearest samples alone
+        scorer = objective.Scorer(pair, config.merged({"loss": {"distances": "samples"}}), contact_ratio=0.0)
         sunk = float(scorer.geometry(pose, schedule.phases(config, allow_penetration=False)[-1]).sunk[0])
         if gap is None:  # the pose as given (none, or a settling that met nothing)
             gap = float(contact.contact_gap(pair, pose)[0])

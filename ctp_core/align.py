@@ -321,18 +321,20 @@ def refine(run: Run, starts: Poses, say: GuideSay | None = None, *, on_event: Pr
     return runner.run(starts)
 
 
-def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: ProgressCallback | None = None) -> AlignResult:
+def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: ProgressCallback | None = None,
+           pictures: bool = True) -> AlignResult:
     """The answer in file frames with its report fields and a preview, from the restart the optimiser selected
     (``Outcome.best``: ``ordering.select_answer``, the relation first, near the target, then the objective on the
     fixed evaluation views; not always the lowest objective). The report's ``best_restart``, the first
-    alternative and the last progress readout are that restart."""
+    alternative and the last progress readout are that restart. ``pictures``: render the preview and the
+    alternatives' thumbnails (else None)."""
     from ctp_core import pairs
     from ctp_core.relations import predicates
 
     config, pair, best = run.config, run.pair, outcome.best
     matrices = outcome.poses.matrices()
     answers = [pair.source_to_target(m) for m in matrices]
-    preview = _uint8(pairs.render_pair(pair, matrices[best], views=4, image_size=224))
+    preview = pairs.to_uint8(pairs.render_pair(pair, matrices[best], views=4, image_size=224)) if pictures else None
     timings = {f"optimise_{k}_s": round(v, 3) for k, v in outcome.timings.items()}
     timings.update(run.timings, total_s=round(time.perf_counter() - run.started, 3))
     restarts = [
@@ -373,8 +375,9 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
             "restart": i, "source_to_target": answers[i], "objective": float(outcome.objectives[i]),
             **outcome.terms.row(i, ("clip", "icp", "pen", "rel")),
             "relation": judged.to_dict() if judged is not None else None, "contact": contact_of(float(gaps[i]))})
-    answer.thumbnails = _uint8(torch.stack([pairs.render_pair(pair, matrices[i], views=1, image_size=THUMBNAIL)[0]
-                                            for i in picks]))
+    if pictures:
+        answer.thumbnails = pairs.to_uint8(torch.stack([
+            pairs.render_pair(pair, matrices[i], views=1, image_size=THUMBNAIL)[0] for i in picks]))
     if on_event:
         steps = sum(p.steps for p in run.plan)
         on_event(ProgressEvent(kind="done", phase=len(run.plan), phases=len(run.plan), step=outcome.steps_run,
@@ -385,11 +388,6 @@ def result(run: Run, outcome: Outcome, prompt: str | None, *, on_event: Progress
 
 
 THUMBNAIL = 160  # pixels, one view of each alternative
-
-
-def _uint8(images: torch.Tensor) -> np.ndarray:
-    """(V, 3, H, W) renders in [0, 1] -> (V, H, W, 3) uint8 (a preview, thumbnails)."""
-    return (images.permute(0, 2, 3, 1).clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8)
 
 
 def alternatives(run: Run, outcome: Outcome) -> list[int]:
@@ -450,6 +448,7 @@ def align(
     on_event: ProgressCallback | None = None,
     should_cancel: CancelCheck | None = None,
     choice: selection.GuideChoice | None = None,
+    pictures: bool = True,
 ) -> AlignResult:
     """Place ``source`` relative to ``target`` (both in file frames) so renders agree with the prompt.
 
@@ -464,7 +463,8 @@ def align(
     the source relates to, or the two of "between" (``grounds``; soft-ICP attaches to them, the search proposes
     on them; ``target_name`` and their size feed the priors), while renders and the penetration term see them all.
     Model ``auto`` is resolved first (``selection.resolve``; ``choice``: ``auto``'s pick made already for this
-    run, a worker's); the result says which guide ran and why.
+    run, a worker's); the result says which guide ran and why. ``pictures``: render the preview and the
+    alternatives' thumbnails (off for a step of a scene or a set of copies, whose preview is the whole's).
     Raises ``errors.Canceled`` when ``should_cancel()`` turns true, other ``CtpError`` on bad input.
     """
     config, chosen = selection.resolve(config, image=image is not None, choice=choice)
@@ -478,6 +478,6 @@ def align(
         run.scale = run.scale.at_centre()
         starts, say = score(run, propose(run, init), say=say, on_event=on_event, should_cancel=should_cancel)
     outcome = refine(run, starts, say, on_event=on_event, should_cancel=should_cancel)
-    answer = result(run, outcome, prompt, on_event=on_event)
+    answer = result(run, outcome, prompt, on_event=on_event, pictures=pictures)
     answer.guide, answer.guide_why = chosen.guide, chosen.why
     return answer

@@ -502,7 +502,7 @@ def outward(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     return fixed
 
 
-def render_arrangement(target: trimesh.Trimesh, source: trimesh.Trimesh, source_to_target: np.ndarray, *,
+def render_arrangement(target: Target, source: trimesh.Trimesh, source_to_target: np.ndarray, *,
                        views: int = 8, image_size: int = 224, device: str = "cpu") -> torch.Tensor:
     """Render target + placed source from fixed views framing the scene: (V, 3, H, W) in [0, 1].
 
@@ -510,6 +510,16 @@ def render_arrangement(target: trimesh.Trimesh, source: trimesh.Trimesh, source_
     """
     pair = prepare_pair(target, source, samples=100, seed=0, device=device, canonicalise=False)
     return render_pair(pair, pair.local_to_normalised(source_to_target), views=views, image_size=image_size)
+
+
+def preview(target: Target, source: trimesh.Trimesh, source_to_target: np.ndarray) -> np.ndarray:
+    """(4, 224, 224, 3) uint8 views of an arrangement (``render_arrangement``): a scene's or a set's preview."""
+    return to_uint8(render_arrangement(target, source, source_to_target, views=4))
+
+
+def to_uint8(images: torch.Tensor) -> np.ndarray:
+    """(V, 3, H, W) renders in [0, 1] -> (V, H, W, 3) uint8 (a preview, thumbnails)."""
+    return (images.permute(0, 2, 3, 1).clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8)
 
 
 @torch.no_grad()

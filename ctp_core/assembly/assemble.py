@@ -97,11 +97,7 @@ class Assembly:
     results: list[StepResult]
     timings: dict[str, float] = field(default_factory=dict)
     whole: dict[str, Any] | None = None  # every step's relation judged on the final scene (``judged``)
-
-    @property
-    def preview(self) -> np.ndarray | None:
-        """(V, H, W, 3) uint8 views of the whole scene: the last step renders every object."""
-        return self.results[-1].result.preview if self.results else None
+    preview: np.ndarray | None = None  # (V, H, W, 3) uint8 views of the final scene (None: no step placed)
 
     def scene(self) -> trimesh.Scene:
         """Every object as its own named node: its mesh (own file frame, own materials) under ``to_scene``."""
@@ -165,7 +161,7 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
         try:
             result = align(scene, step.source, step.prompt, step_config, on=on,
                            image=step.image, target_name=on[0], source_name=step.name, guide=guide, on_event=on_event,
-                           should_cancel=should_cancel, choice=choice)
+                           should_cancel=should_cancel, choice=choice, pictures=False)
         except Canceled:
             raise
         except CtpError as exc:
@@ -177,7 +173,18 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
         result, kept = _keeping(placed, results, step, result, on, rooms[index - 1])
         placed.append(_placed(step, result))
         results.append(StepResult(index, len(steps), step, on[0], result, on, kept))
-    return Assembly(placed, results, {"total_s": round(time.perf_counter() - started, 3)}, judged(placed, results))
+    whole, preview = judged(placed, results), _preview(placed)
+    return Assembly(placed, results, {"total_s": round(time.perf_counter() - started, 3)}, whole, preview)
+
+
+def _preview(placed: list[Placed]) -> np.ndarray | None:
+    """The final scene's preview (``pairs.preview``): every object where it was kept; None with the base alone."""
+    from ctp_core import pairs
+
+    if len(placed) < 2:
+        return None
+    last = placed[-1]
+    return pairs.preview(scene_of(placed[:-1]), last.mesh, np.asarray(last.to_scene.matrix, dtype=np.float64))
 
 
 def _placed(step: Step, result: AlignResult) -> Placed:
@@ -478,12 +485,17 @@ def judged(objects: list[Placed], results: list[StepResult]) -> dict[str, Any]:
 def _verdict(objects: list[Placed], index: int, result: AlignResult, grounds: Sequence[str],
              reading: RelationReading | None = None) -> dict[str, Any]:
     """``whole.verdict`` of ``objects[index]`` (placed by ``result``; judged by ``reading``, else the run's) against
-    every other object. Judged once per scene (``once``) for the same objects where they are, relation and options:
-    the last step's answer is judged with every earlier step when it is kept, and the final scene is that scene."""
+    the base, its ``grounds`` and every other object near it (``_near``). Judged once per scene (``once``) for the
+    same objects where they are, relation and options: the last step's answer is judged with every earlier step
+    when it is kept, the final scene is that scene, and an object placed far from an earlier one leaves its
+    verdict as it was."""
     from ctp_core.assembly import whole
 
     placed = objects[index]
-    others = [p for i, p in enumerate(objects) if i != index]
+    # the base (the scene's frame and floor), the grounds and what comes near it: an object farther away can neither
+    # touch it, hold it up nor sink into it, and adding one does not judge the others again
+    others = [p for i, p in enumerate(objects)
+              if i != index and (i == 0 or p.name in grounds or _near(p, placed))]
     floor = float(objects[0].mesh.bounds[0][1])  # the base's bottom: its file frame is the scene frame
     reading = reading or RelationReading.from_verdict(result.relation)  # what ``whole.verdict`` reads of the run
 
@@ -493,9 +505,29 @@ def _verdict(objects: list[Placed], index: int, result: AlignResult, grounds: Se
                              floor=floor, reading=reading)
 
     where = tuple((p.name, id(p.mesh), hash(p.mesh), np.asarray(p.to_scene.matrix, dtype=np.float64).tobytes())
-                  for p in objects)
-    key = ("verdict", where, index, tuple(grounds), reading, result.config.model_dump_json())
-    return copy.deepcopy(once.value(key, judge, pin=[p.mesh for p in objects]))  # the caller's own copy
+                  for p in [placed, *others])
+    key = ("verdict", where, tuple(grounds), reading, result.config.model_dump_json())
+    return copy.deepcopy(once.value(key, judge, pin=[p.mesh for p in [placed, *others]]))  # the caller's own copy
+
+
+NEARBY = 0.1  # of a judged object's diagonal: what another object's box must come within to be judged with it (as
+# ``contact.TOUCH`` counts touching)
+
+
+def _near(other: Placed, judged: Placed) -> bool:
+    """Whether ``other``'s box in the scene comes within ``NEARBY`` of ``judged``'s diagonal of ``judged``'s box
+    (each the box of its file-frame box's corners moved into the scene: at least as large as the mesh's own)."""
+    low, high = _scene_box(judged)
+    margin = NEARBY * float(np.linalg.norm(high - low))
+    other_low, other_high = _scene_box(other)
+    return bool(np.all(other_low <= high + margin) and np.all(other_high >= low - margin))
+
+
+def _scene_box(placed: Placed) -> tuple[np.ndarray, np.ndarray]:
+    """(lowest, highest) corner of ``placed``'s box in the scene frame, from its file-frame box's eight corners."""
+    corners = trimesh.bounds.corners(placed.mesh.bounds)
+    moved = trimesh.transform_points(corners, np.asarray(placed.to_scene.matrix, dtype=np.float64))
+    return moved.min(0), moved.max(0)
 
 
 def _also_verdict(objects: list[Placed], index: int, result: AlignResult, also: Also) -> dict[str, Any]:

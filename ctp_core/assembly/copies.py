@@ -158,7 +158,7 @@ def place_copies(target: trimesh.Trimesh, source: trimesh.Trimesh, prompt: str |
         if kind == "scatter":
             result = align(scene_of(placed), source, one, config, on=target_name, target_name=target_name,
                            source_name=source_name, guide=guide, on_event=on_event, should_cancel=should_cancel,
-                           choice=choice)
+                           choice=choice, pictures=False)
             pick = _spaced(result, out)
             result = result.alternative(pick)
             copy = Copy(names[k], result.source_to_target, target_name, result.relation, 0.0, "search", result=result)
@@ -179,8 +179,7 @@ def place_copies(target: trimesh.Trimesh, source: trimesh.Trimesh, prompt: str |
         out.copies.append(copy)
     placing = time.perf_counter()
     out.metrics = set_metrics(source, [c.source_to_target for c in out.copies], [c.relation for c in out.copies])
-    views = pairs.render_arrangement(scene_of(out.placed()[:-1]), source, out.copies[-1].source_to_target, views=4)
-    out.preview = (views.permute(0, 2, 3, 1).clamp(0, 1).numpy() * 255).round().astype(np.uint8)
+    out.preview = pairs.preview(scene_of(out.placed()[:-1]), source, out.copies[-1].source_to_target)
     seconds = [c.seconds for c in out.copies]
     out.timings = {"place_s": round(placing - started, 3), "per_copy_s": seconds,
                    "mean_copy_s": round(float(np.mean(seconds)), 3),

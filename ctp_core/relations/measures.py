@@ -163,42 +163,67 @@ def gap_to(points: torch.Tensor, ground: Ground, u: torch.Tensor, n: torch.Tenso
 
 def hull_distance_2d(query: torch.Tensor, points: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
     """(B,) signed distance of query (B, 2) to the convex hull of points (B or 1, N, 2) (positive outside; the
-    maximum over the hull's edge lines, exact inside and a lower bound outside). Fewer than three usable points:
-    the distance to the nearest of them (a line's or a point's footprint)."""
-    out = []
-    shared = points.shape[0] == 1 and mask is None  # one hull for every pose (a static ground)
-    edges = _edges_2d(points[0]) if shared else None
-    for i in range(query.shape[0]):
-        pts = points[i if points.shape[0] > 1 else 0]
-        if mask is not None:
-            pts = pts[mask[i if mask.shape[0] > 1 else 0]]
-        out.append(_one_hull_2d(query[i], pts, edges if shared else _edges_2d(pts)))
-    return torch.stack(out)
+    maximum over the hull's edge lines, exact inside and a lower bound outside), of each pose's points where
+    ``mask`` (B or 1, N) keeps them. Fewer than three usable points: the distance to the nearest of them (a line's or
+    a point's footprint). Each hull's edges come from Qhull one pose at a time; the distances are one batch."""
+    batch = query.shape[0]
+    every = lambda rows: torch.arange(batch) if rows > 1 else torch.zeros(batch, dtype=torch.long)  # noqa: E731
+    keep = (torch.ones((1, points.shape[1]), dtype=torch.bool, device=points.device) if mask is None
+            else mask.detach())
+    rows, mask_rows = every(points.shape[0]), every(keep.shape[0])
+    flat, kept = points.detach().cpu().double().numpy(), keep.cpu().numpy()
+    found: dict[tuple[int, int], np.ndarray | None] = {}  # a hull's edges per (points row, mask row)
+    edges = []
+    for i in range(batch):
+        key = (int(rows[i]), int(mask_rows[i]))
+        if key not in found:
+            found[key] = _edges_2d(flat[key[0]], kept[key[1]])
+        edges.append(found[key])
+    out = torch.zeros(batch, dtype=query.dtype, device=query.device)
+    hull = [i for i in range(batch) if edges[i] is not None]
+    if hull:
+        at = torch.as_tensor(hull)
+        out = out.index_put((at,), _hull_distances(query[at], points[rows[at]], keep[mask_rows[at]],
+                                                   [edges[i] for i in hull]))
+    for i in (i for i in range(batch) if edges[i] is None):
+        pts = points[rows[i]][keep[mask_rows[i]]]
+        one = (pts - query[i]).norm(dim=-1).min() if len(pts) else torch.tensor(FAR * 1e3, dtype=out.dtype)
+        out = out.index_put((torch.tensor([i]),), one[None])  # collinear or too few: the nearest point's distance
+    return out
 
 
-def _edges_2d(pts: torch.Tensor) -> torch.Tensor | None:
-    """(E, 2) indices of the convex hull's edges; None when there is no 2-D hull (fewer than 3 points, a line)."""
-    if len(pts) < 3:
+def _edges_2d(points: np.ndarray, keep: np.ndarray) -> np.ndarray | None:
+    """(E, 2) indices into ``points`` (N, 2) of the convex hull's edges of those ``keep`` holds; None when they
+    make no 2-D hull (fewer than 3 points, a line)."""
+    chosen = np.flatnonzero(keep)
+    if len(chosen) < 3:
         return None
     try:
-        return torch.as_tensor(ConvexHull(pts.detach().cpu().double().numpy()).simplices, device=pts.device)
+        return chosen[ConvexHull(points[chosen]).simplices]
     except (QhullError, ValueError):
         return None
 
 
-def _one_hull_2d(q: torch.Tensor, pts: torch.Tensor, simplices: torch.Tensor | None) -> torch.Tensor:
-    if len(pts) == 0:
-        return torch.tensor(FAR * 1e3, dtype=q.dtype, device=q.device)
-    if simplices is None:  # collinear or too few: the distance to the nearest of the points
-        return (pts - q).norm(dim=-1).min()
-    a, c = pts[simplices[:, 0]], pts[simplices[:, 1]]
+def _hull_distances(query: torch.Tensor, points: torch.Tensor, keep: torch.Tensor, edges: list[np.ndarray]
+                    ) -> torch.Tensor:
+    """(H,) ``hull_distance_2d`` of H queries (H, 2) against their own points (H, N, 2), those ``keep`` (H, N)
+    holds, whose hulls have ``edges`` (per query, (E, 2) indices into its points): the largest distance past an
+    edge line, each edge's normal turned away from the mean of the kept points."""
+    index = np.zeros((len(edges), max(len(e) for e in edges), 2), dtype=np.int64)
+    valid = np.zeros(index.shape[:2], dtype=bool)
+    for k, e in enumerate(edges):
+        index[k, : len(e)], valid[k, : len(e)] = e, True
+    ends = torch.as_tensor(index, device=points.device)
+    a, c = (torch.gather(points, 1, ends[..., j, None].expand(-1, -1, 2)) for j in (0, 1))
     edge = c - a
-    normal = torch.stack([edge[:, 1], -edge[:, 0]], -1)
+    normal = torch.stack([edge[..., 1], -edge[..., 0]], -1)
     normal = normal / normal.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    inner = pts.mean(0)
-    sign = torch.sign(((a - inner) * normal).sum(-1)).detach()  # orient every edge normal outward
-    normal = normal * torch.where(sign == 0, torch.ones_like(sign), sign)[:, None]
-    return ((q - a) * normal).sum(-1).max()
+    weights = keep.to(points.dtype)
+    inner = (points.detach() * weights[..., None]).sum(1) / weights.sum(1, keepdim=True)
+    sign = torch.sign(((a.detach() - inner[:, None]) * normal.detach()).sum(-1))  # every edge's normal outward
+    normal = normal * torch.where(sign == 0, torch.ones_like(sign), sign)[..., None]
+    reach = ((query[:, None] - a) * normal).sum(-1)
+    return reach.masked_fill(~torch.as_tensor(valid, device=points.device), -torch.inf).max(-1).values
 
 
 def hull_distance_3d(query: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
