@@ -105,11 +105,16 @@ class FieldUnion:
         return distance.gather(0, nearest)[0], depth.gather(0, nearest)[0]
 
 
-def nodes(tree: cKDTree, points: np.ndarray, normals: np.ndarray, at: np.ndarray, workers: Callable[[int], int]
-          ) -> tuple[np.ndarray, np.ndarray]:
+def nodes(tree: cKDTree, points: np.ndarray, normals: np.ndarray, at: np.ndarray, workers: Callable[[int], int],
+          within: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
     """(distance, depth) at ``at`` (Q, 3): to the nearest sample, and along its outward normal (positive behind).
-    ``workers``: the threads a search of so many points runs on (``losses.query_workers``)."""
-    dist, idx = tree.query(at, k=1, workers=workers(len(at)))
+    ``workers``: the threads a search of so many points runs on (``losses.query_workers``). ``within``: how near
+    most points' nearest sample is (a band's nodes): the search is bounded by it first (it visits less of the tree),
+    then the points it left are searched unbounded; the answer is the same."""
+    dist, idx = tree.query(at, k=1, workers=workers(len(at)), distance_upper_bound=within)
+    missed = ~np.isfinite(dist)
+    if missed.any():
+        dist[missed], idx[missed] = tree.query(at[missed], k=1, workers=workers(int(missed.sum())))
     depth = ((points[idx] - at) * normals[idx]).sum(-1)
     return dist, depth
 
@@ -124,13 +129,15 @@ def build(tree: cKDTree, points: np.ndarray, normals: np.ndarray, workers: Calla
     axis = np.linspace(0.0, size, COARSE)
     coarse = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3) + origin
     values = np.stack(nodes(tree, points, normals, coarse, workers)).reshape(1, 2, COARSE, COARSE, COARSE)
-    fine = F.interpolate(torch.as_tensor(values), size=(FINE,) * 3, mode="trilinear", align_corners=True)[0].numpy()
+    # in the field's own precision: the grid is kept in float32
+    fine = F.interpolate(torch.as_tensor(values, dtype=torch.float32), size=(FINE,) * 3, mode="trilinear",
+                         align_corners=True)[0].numpy()
     # a fine node is computed where the surface may come within BAND fine cells of it. The distance changes by at
     # most its change in place, so the coarse interpolation overstates it by at most the weighted mean distance to
     # the cell's corners, which the root of the weighted mean square bounds: half a coarse cell's diagonal
     reach = math.sqrt(3) / 2 * size / (COARSE - 1) + BAND * size / (FINE - 1)
     where = np.nonzero(fine[0] < reach)
     at = np.stack(where, -1) * (size / (FINE - 1)) + origin
-    fine[0][where], fine[1][where] = nodes(tree, points, normals, at, workers)
+    fine[0][where], fine[1][where] = nodes(tree, points, normals, at, workers, within=2 * reach)
     return DistanceField(torch.as_tensor(origin, dtype=torch.float32, device=device), size,
-                         torch.as_tensor(fine, dtype=torch.float32, device=device)[None])
+                         torch.as_tensor(fine, device=device)[None])
