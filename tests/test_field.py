@@ -196,3 +196,18 @@ def test_a_copy_where_an_identical_one_stands_is_charged_for_its_inside():
     sheet.update_faces(sheet.face_normals[:, 1] < 0.5)  # its top gone: open
     scene.add_geometry(sheet.copy().apply_transform(beside), node_name="sheet_1", geom_name="sheet_1")
     assert pairs.prepare_pair(scene, sheet, samples=500, seed=0, on="table").twins is None  # no inside to ask
+
+
+def test_a_bounded_node_search_answers_as_the_brute_force_does_near_and_far():
+    """``nodes`` with ``within`` (a band's bound) searches the points it leaves again, unbounded: near and far points
+    get the nearest sample's distance and depth either way."""
+    index = _sphere(500)
+    generator = torch.Generator().manual_seed(2)
+    at = torch.randn(400, 3, generator=generator) * 1.5  # inside, near the surface and far out
+    data = index.points.double().numpy()
+    dist, depth = fields.nodes(index.tree, data, index.normals.double().numpy(), at.double().numpy(), lambda n: 1,
+                               within=0.05)
+    want_dist, want_depth = _brute(index, at)
+    assert (want_dist > 0.05).sum() > 100 and (want_dist <= 0.05).sum() > 0  # both kinds were asked
+    np.testing.assert_allclose(dist, want_dist.numpy(), atol=1e-5)
+    np.testing.assert_allclose(depth, want_depth.numpy(), atol=1e-5)
