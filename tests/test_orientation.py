@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import copy
+import pickle
+
 import numpy as np
 import pytest
 import trimesh
@@ -85,6 +88,20 @@ def test_the_legs_cue_counts_feet(make):
     flipped = next(p for p in poses if p["up"][1] < -0.99)
     assert standing["feet"] == (3 if make is stool else 4)
     assert flipped["feet"] == 1
+
+
+def test_feet_are_counted_when_read_and_survive_copies():
+    """A resting pose's feet are counted on first read (``canonical._Resting``): a copy or a pickle made before
+    counts the same; a table upside down is clearly not up (its legs are opposite), counting those poses' feet."""
+    poses = canonical.resting_poses(canonical.unit_size(table()))
+    standing = next(p for p in poses if p["up"][1] > 0.99)
+    assert "feet" not in standing
+    twins = copy.deepcopy(standing), pickle.loads(pickle.dumps(standing))
+    assert [standing["feet"], *(t["feet"] for t in twins)] == [4, 4, 4]
+    with pytest.raises(KeyError):
+        standing["legs"]
+    clear, why = canonical.clear_up(canonical.unit_size(table()), np.array([0.0, -1.0, 0.0]), stated=True)
+    assert not clear and "legs on its other side" in why
 
 
 def test_a_gltf_asset_is_never_turned_without_up_auto(tmp_path):

@@ -156,8 +156,7 @@ def clear_up(mesh: trimesh.Trimesh, up: np.ndarray, stated: bool = False) -> tup
     pose = at[0]
     if pose["feet"] >= LEGS:
         return True, f"it stands on {pose['feet']} legs with that up"
-    legged = [c for c in candidates if c["feet"] >= LEGS]
-    if _legs_under(pose, legged) is not None:
+    if _legs_under(pose, candidates) is not None:
         return False, "that up rests on a top with legs on its other side"
     if stated:
         return True, "its file states that up and it stands on it"
@@ -307,15 +306,31 @@ def resting_poses(mesh: trimesh.Trimesh, min_probability: float = 0.005) -> list
         touching = on_plane & (face_normals @ down > np.cos(np.radians(15.0)))
         fill = min(float(face_areas[touching].sum() / areas[group].sum()), 1.0)
         height = float(np.ptp(depth) / extent)
-        poses.append({"up": (-down).tolist(), "probability": probability, "fill": fill, "height": height,
-                      "score": probability * (0.05 + fill) * height**2, "feet": _feet(surface, down, extent)})
+        poses.append(_Resting({"up": (-down).tolist(), "probability": probability, "fill": fill, "height": height,
+                               "score": probability * (0.05 + fill) * height**2}, surface, down, extent))
     return sorted(poses, key=lambda p: -p["score"])
 
 
-def _legs_under(pose: dict, legged: list[dict]) -> dict | None:
-    """The pose of ``legged`` opposite ``pose`` (its up within ``_OPPOSITE_COS`` of ``pose``'s down), if any: then
-    ``pose`` rests on a top (a table's, a stool's seat), and the object stands on those legs."""
-    return next((c for c in legged if np.dot(c["up"], pose["up"]) < -_OPPOSITE_COS), None)
+class _Resting(dict):
+    """One of ``resting_poses``, its ``feet`` counted on first read (``_feet``): a round base's rim makes dozens of
+    poses, and whether an up is clear (``clear_up``) reads the feet of the few opposite it."""
+
+    def __init__(self, fields: dict, surface: np.ndarray, down: np.ndarray, extent: float):
+        super().__init__(fields)
+        self._counted_from = (surface, down, extent)
+
+    def __missing__(self, key: str) -> int:
+        if key != "feet":
+            raise KeyError(key)
+        self["feet"] = _feet(*self._counted_from)
+        return self["feet"]
+
+
+def _legs_under(pose: dict, pool: list[dict]) -> dict | None:
+    """The first pose of ``pool`` opposite ``pose`` (its up within ``_OPPOSITE_COS`` of ``pose``'s down) that stands
+    on legs, if any: then ``pose`` rests on a top (a table's, a stool's seat), and the object stands on those legs.
+    Only the opposite poses' feet are counted."""
+    return next((c for c in pool if np.dot(c["up"], pose["up"]) < -_OPPOSITE_COS and c["feet"] >= LEGS), None)
 
 
 def _feet(points: np.ndarray, down: np.ndarray, extent: float) -> int:
