@@ -180,11 +180,11 @@ def hull_distance_2d(query: torch.Tensor, points: torch.Tensor, mask: torch.Tens
             found[key] = _edges_2d(flat[key[0]], kept[key[1]])
         edges.append(found[key])
     out = torch.zeros(batch, dtype=query.dtype, device=query.device)
-    hull = [i for i in range(batch) if edges[i] is not None]
+    hull = {i: e for i, e in enumerate(edges) if e is not None}
     if hull:
-        at = torch.as_tensor(hull)
+        at = torch.as_tensor(list(hull))
         out = out.index_put((at,), _hull_distances(query[at], points[rows[at]], keep[mask_rows[at]],
-                                                   [edges[i] for i in hull]))
+                                                   list(hull.values())))
     for i in (i for i in range(batch) if edges[i] is None):
         pts = points[rows[i]][keep[mask_rows[i]]]
         one = (pts - query[i]).norm(dim=-1).min() if len(pts) else torch.tensor(FAR * 1e3, dtype=out.dtype)
