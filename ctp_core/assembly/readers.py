@@ -18,9 +18,8 @@ from __future__ import annotations
 import json
 import re
 from collections.abc import Sequence
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
-import httpx
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from ctp_core.assembly.describe import ScenePlan, keys_of, plan_relations, read_description
@@ -30,6 +29,9 @@ from ctp_core.priors.openai import PriorSettings
 from ctp_core.reading.counts import MAX_COPIES
 from ctp_core.reading.records import RelationName
 from ctp_core.reading.scene import Said, SceneReading
+
+if TYPE_CHECKING:  # imported where an endpoint is asked: the rules (the default) never load it
+    import httpx
 
 __all__ = ["READERS", "RELATION_WORDS", "OpenAIReader", "PlanReader", "ReaderSettings", "RulesReader", "get_reader",
            "plan_schema"]
@@ -125,6 +127,8 @@ class OpenAIReader:
     def read(self, description: str, names: Sequence[str]) -> ScenePlan:
         if not self.settings.base_url:
             return self._fall_back(description, names, "no endpoint (CTP_LLM_BASE_URL unset)")
+        import httpx
+
         try:
             answer = self._ask(description, names)
             plan = plan_answer(description, names, answer)
@@ -147,6 +151,8 @@ class OpenAIReader:
             body["model"] = self.settings.model
         key = self.settings.api_key
         headers = {"Authorization": f"Bearer {key.get_secret_value()}"} if key else {}
+        import httpx
+
         failure: Exception | None = None
         with httpx.Client(base_url=self.settings.base_url.rstrip("/") + "/",  # type: ignore[union-attr]
                           timeout=self.settings.timeout_s, headers=headers) as client:

@@ -13,13 +13,16 @@ from __future__ import annotations
 import json
 import math
 import re
+from typing import TYPE_CHECKING
 
-import httpx
 from pydantic import SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from ctp_core.priors.prior import ScenePrior, clamp_contact, clamp_size
 from ctp_core.priors.rules import RulesProvider
+
+if TYPE_CHECKING:  # imported where an endpoint is asked: a run with none (the default) never loads it
+    import httpx
 
 
 class PriorSettings(BaseSettings):
@@ -69,6 +72,8 @@ class OpenAIProvider:
     def estimate(self, target_name: str, source_name: str, prompt: str) -> ScenePrior:
         if not self.settings.base_url:
             return self._fall_back(target_name, source_name, prompt, "no endpoint (CTP_LLM_BASE_URL unset)")
+        import httpx
+
         names = {"target": _readable(target_name), "source": _readable(source_name), "prompt": prompt}
         answers = {}
         try:
@@ -95,6 +100,8 @@ class OpenAIProvider:
                 "temperature": 0, "max_tokens": 256}
         if self.settings.model:
             body["model"] = self.settings.model
+        import httpx
+
         failure: Exception | None = None
         for _ in range(self.settings.retries + 1):
             try:
