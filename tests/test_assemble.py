@@ -21,7 +21,7 @@ from ctp_core.errors import ConfigError
 from ctp_core.export import assembly_glb, assembly_report
 from ctp_core.geometry import frames
 from ctp_core.io import load_objects
-from ctp_core.pairs import objects
+from ctp_core.pairs import objects, render_arrangement
 
 TOUCH_M = 0.01  # a gap under 1 cm (the scene is 1.2 m wide) is contact for these soft terms
 DEPTH_M = 0.005  # deepest point of one object inside another: under a quarter of the plate's thickness
@@ -100,6 +100,19 @@ def test_placed_objects_never_move(assembly, meshes):
                                atol=1e-6)
     np.testing.assert_allclose(seen_by_stage_2["table"].vertices, meshes["table"].vertices, atol=1e-9)
     assert assembly.objects[1].to_scene.matrix.tolist() == plate_after_stage_1.matrix.tolist()
+
+
+def test_the_preview_is_the_final_scene_and_steps_render_none(assembly):
+    """The steps render no preview or thumbnails of their own; the assembly's preview is four views of the final
+    scene, every object where it was kept (the last one on the others), in colour."""
+    assert all(s.result.preview is None and s.result.thumbnails is None for s in assembly.results)
+    preview = assembly.preview
+    assert preview.shape == (4, 224, 224, 3) and preview.dtype == np.uint8
+    last, others = assembly.objects[-1], assembly.scene()
+    others.delete_geometry(last.name)
+    views = render_arrangement(others, last.mesh, np.asarray(last.to_scene.matrix), views=4)
+    np.testing.assert_allclose(preview / 255.0, views.permute(0, 2, 3, 1).numpy(), atol=1 / 255)
+    assert (preview.std(axis=-1) > 20).any(axis=(1, 2)).all()  # coloured objects in every view, not a blank one
 
 
 def test_report_lists_every_stage(assembly):
