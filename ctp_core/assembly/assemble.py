@@ -492,10 +492,10 @@ def _verdict(objects: list[Placed], index: int, result: AlignResult, grounds: Se
     from ctp_core.assembly import whole
 
     placed = objects[index]
+    box = _box(placed.mesh, np.asarray(placed.to_scene.matrix))
     # the base (the scene's frame and floor), the grounds and what comes near it: an object farther away can neither
     # touch it, hold it up nor sink into it, and adding one does not judge the others again
-    others = [p for i, p in enumerate(objects)
-              if i != index and (i == 0 or p.name in grounds or _near(p, placed))]
+    others = [p for i, p in enumerate(objects) if i != index and (i == 0 or p.name in grounds or _near(p, box))]
     floor = float(objects[0].mesh.bounds[0][1])  # the base's bottom: its file frame is the scene frame
     reading = reading or RelationReading.from_verdict(result.relation)  # what ``whole.verdict`` reads of the run
 
@@ -514,20 +514,11 @@ NEARBY = 0.1  # of a judged object's diagonal: what another object's box must co
 # ``contact.TOUCH`` counts touching)
 
 
-def _near(other: Placed, judged: Placed) -> bool:
-    """Whether ``other``'s box in the scene comes within ``NEARBY`` of ``judged``'s diagonal of ``judged``'s box
-    (each the box of its file-frame box's corners moved into the scene: at least as large as the mesh's own)."""
-    low, high = _scene_box(judged)
-    margin = NEARBY * float(np.linalg.norm(high - low))
-    other_low, other_high = _scene_box(other)
-    return bool(np.all(other_low <= high + margin) and np.all(other_high >= low - margin))
-
-
-def _scene_box(placed: Placed) -> tuple[np.ndarray, np.ndarray]:
-    """(lowest, highest) corner of ``placed``'s box in the scene frame, from its file-frame box's eight corners."""
-    corners = trimesh.bounds.corners(placed.mesh.bounds)
-    moved = trimesh.transform_points(corners, np.asarray(placed.to_scene.matrix, dtype=np.float64))
-    return moved.min(0), moved.max(0)
+def _near(other: Placed, box: np.ndarray) -> bool:
+    """Whether ``other``'s scene box (``_box``) comes within ``NEARBY`` of ``box``'s diagonal of ``box`` (2, 3)."""
+    margin = NEARBY * float(np.linalg.norm(box[1] - box[0]))
+    theirs = _box(other.mesh, np.asarray(other.to_scene.matrix))
+    return bool(np.all(theirs[0] <= box[1] + margin) and np.all(theirs[1] >= box[0] - margin))
 
 
 def _also_verdict(objects: list[Placed], index: int, result: AlignResult, also: Also) -> dict[str, Any]:

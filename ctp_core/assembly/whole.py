@@ -2,11 +2,11 @@
 
 A step is judged when it is placed, against the scene so far; a later object can break it (a stool pushed off
 the workbench's left by paint tins, a lamp sunk into a chair placed after it). ``verdict`` judges one step's
-relation on a scene (``adjust.adjust``: the step's figure where it is, every other object its target, the step's
-grounds and reading, as the run judged it) and says whether the figure intersects another object (the search's
-``sunk`` past ``ordering.SUNK``, where its relation does not go into the ground). ``assemble`` judges with it what
-a new object breaks of the steps before it (and then tries the new step's alternatives) and the final scene (the
-report's ``whole``).
+relation on a scene (``adjust.adjust``: the step's figure where it is, the other objects it is given its target
+(``assemble`` gives the base, the grounds and those near it), the step's grounds and reading, as the run judged
+it) and says whether the figure intersects another object (the search's ``sunk`` past ``ordering.SUNK``, where its
+relation does not go into the ground). ``assemble`` judges with it what a new object breaks of the steps before it
+(and then tries the new step's alternatives) and the final scene (the report's ``whole``).
 """
 
 from __future__ import annotations

@@ -94,18 +94,19 @@ def _search(mesh: trimesh.Trimesh, points: np.ndarray, batch: int, prune: bool):
             flush()
 
     # the anchor's own triangle is always within upper[i] of point i
-    if not prune:  # every point's box at once, a chunk of points per call of the R-tree
+    if prune:  # nearest first, each point's box shrunk to the best found so far
+        for i in np.argsort(upper):
+            # a point whose box finds nothing is farther than the best so far and keeps an infinite distance
+            radius = min(upper[i], best_d.min()) + slack
+            faces = np.fromiter(tree.intersection(np.concatenate([points[i] - radius, points[i] + radius])),
+                                dtype=np.int64)
+            if len(faces):
+                flush()  # radii shrink with what is already found
+            gather(np.full(len(faces), i, dtype=np.int64), faces)
+    else:  # every point's box at once, a chunk of points per call of the R-tree
         for start in range(0, len(points), _CHUNK):
             near, radius = points[start:start + _CHUNK], upper[start:start + _CHUNK, None] + slack
             faces, counts = tree.intersection_v(near - radius, near + radius)
             gather(np.repeat(np.arange(start, start + len(near)), counts.astype(np.int64)), faces)
-    for i in np.argsort(upper) if prune else ():
-        # a point whose box finds nothing is farther than the best so far and keeps an infinite distance
-        radius = min(upper[i], best_d.min()) + slack
-        faces = np.fromiter(tree.intersection(np.concatenate([points[i] - radius, points[i] + radius])),
-                            dtype=np.int64)
-        if len(faces):
-            flush()  # radii shrink with what is already found
-        gather(np.full(len(faces), i, dtype=np.int64), faces)
     flush()
     return best_p, best_d, best_f
