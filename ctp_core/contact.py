@@ -40,7 +40,7 @@ def clearance(pair: PreparedPair, index: losses.SurfaceIndex, poses: Poses, poin
     in source diagonals (normalised frame)."""
     posed = apply_pose(pair.source_subset(points), poses.t, poses.q, poses.log_s).detach().cpu()
     flat = posed.reshape(-1, 3).numpy().astype(np.float64)
-    dist, _ = index.tree.query(flat, k=1, workers=losses.query_workers(len(flat)))
+    dist, _ = index.tree.query(flat)
     return torch.as_tensor(dist.reshape(len(poses), -1).min(axis=1), dtype=torch.float32) / source_diagonal(pair, poses)
 
 
@@ -108,7 +108,7 @@ def surface_regions(pair: PreparedPair) -> tuple[np.ndarray, np.ndarray, dict[st
     points = anchor.points.cpu().numpy().astype(np.float64)
     normals = anchor.normals.cpu().numpy().astype(np.float64)
     ny = normals[:, 1]
-    _, near = anchor.tree.query(points, k=min(8, len(points)), workers=1)
+    _, near = anchor.tree.query(points, k=min(8, len(points)))
     spread = 1.0 - np.linalg.norm(normals[near].mean(axis=1), axis=1)
     height = (points[:, 1] - points[:, 1].min()) / max(float(np.ptp(points[:, 1])), 1e-9)
     density = 1.0 + np.clip(ny, 0.0, None) + (spread > 0.3) + 2.0 * height**4
@@ -213,11 +213,11 @@ def nearest_two(index: losses.SurfaceIndex, posed: torch.Tensor, within: torch.T
     searched, bounded by the least upper bound. Every other point outside the box keeps an infinite distance
     (never its pose's nearest, nor counted inside: its depth is not read)."""
     flat = posed.reshape(-1, 3).numpy().astype(np.float64)
-    dist, idx = index.tree.query(flat, k=2, workers=losses.query_workers(len(flat)), distance_upper_bound=near)
+    dist, idx = index.tree.query(flat, k=2, upper=near)
     close = np.isfinite(dist[:, 0]).reshape(posed.shape[:2]).any(1)  # a point within the bound: the pose's nearest
     inside = within.reshape(-1).numpy() & ~np.isfinite(dist[:, 1])
     if inside.any():
-        dist[inside], idx[inside] = index.tree.query(flat[inside], k=2, workers=losses.query_workers(inside.sum()))
+        dist[inside], idx[inside] = index.tree.query(flat[inside], k=2)
     lone = np.flatnonzero(~close)
     if len(lone):
         points = flat.reshape(*posed.shape[:2], 3)[lone]  # (L, N, 3)
@@ -229,8 +229,7 @@ def nearest_two(index: losses.SurfaceIndex, posed: torch.Tensor, within: torch.T
         can = (upper - radius <= least[:, None]) & ~np.isfinite(known)  # those that can be it, not yet searched
         for i, pose in enumerate(lone):
             rows = pose * posed.shape[1] + np.flatnonzero(can[i])
-            dist[rows, 0], idx[rows, 0] = index.tree.query(flat[rows], k=1, workers=losses.query_workers(len(rows)),
-                                                           distance_upper_bound=least[i] * (1 + 1e-9))
+            dist[rows, 0], idx[rows, 0] = index.tree.query(flat[rows], upper=least[i] * (1 + 1e-9))
     idx = np.where(np.isfinite(dist), idx, 0)  # a point left far is outside the box: its neighbours are not read
     return (torch.as_tensor(dist[:, 0].reshape(posed.shape[:2]), dtype=posed.dtype),
             torch.as_tensor(idx.reshape(*posed.shape[:2], 2), dtype=torch.long))
@@ -278,7 +277,7 @@ def hollow(verts: np.ndarray, index: losses.SurfaceIndex, seed: int, sigma: floa
     probes = probes[hull.find_simplex(probes) >= 0]
     if not len(probes):
         return probes
-    dist, _ = index.tree.query(probes, k=1, workers=1)
+    dist, _ = index.tree.query(probes)
     depth = losses.signed_depth(torch.as_tensor(probes, dtype=torch.float32)[None], index, sigma, 8)[0]
     keep = (depth.numpy() < 0) & (dist > CAVITY_MARGIN * float(np.linalg.norm(hi - lo)))
     return probes[keep]

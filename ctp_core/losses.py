@@ -11,9 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
 
 from ctp_core.geometry import field as fields
+from ctp_core.geometry import nearest
 
 
 def clip_view_loss(image_embeddings: torch.Tensor, goal_embeddings: torch.Tensor) -> torch.Tensor:
@@ -29,17 +29,6 @@ def clip_view_loss(image_embeddings: torch.Tensor, goal_embeddings: torch.Tensor
     return -((img * goal).sum(-1) if goal.dim() == 3 else img @ goal)
 
 
-PARALLEL_QUERY = 8192  # query points from which a search runs on torch's threads (``query_workers``)
-
-
-def query_workers(count: int) -> int:
-    """Threads a search of ``count`` points runs on: torch's CPU threads (``AlignConfig.threads``), so a run held to
-    one thread stays on one; below ``PARALLEL_QUERY`` points one, as scipy starts its threads anew for every search
-    (``benchmarks/kd_threads.py``, two cores: up to a few thousand points two threads gained nothing or lost, at
-    8,192 they were 1.6x faster). Each query is answered alone: the answer is the same on any number."""
-    return torch.get_num_threads() if count >= PARALLEL_QUERY else 1
-
-
 COVER = 64  # ``SurfaceIndex.cover``: the samples a far point's distance is first bounded by
 
 
@@ -51,7 +40,7 @@ class SurfaceIndex:
                  objects_field: Callable[[], fields.Field] | None = None):
         self.points = points  # (M, 3) the surface's frame
         self.normals = normals  # (M, 3) outward unit normals
-        self.tree = cKDTree(points.detach().cpu().numpy().astype(np.float64))
+        self.tree = nearest.Tree(points.detach().cpu().numpy())
         self.part: Part | None = None  # where its samples are rows of a larger index (``part_of``)
         # where the samples are objects' own (a target's), their fields read as one (``field``)
         self._objects_field = objects_field
@@ -67,7 +56,7 @@ class SurfaceIndex:
         if self._cover is None:
             data = self.tree.data
             few = data[:: max(1, len(data) // COVER)]
-            self._cover = few, float(cKDTree(few).query(data, k=1, workers=query_workers(len(data)))[0].max())
+            self._cover = few, float(nearest.Tree(few).query(data)[0].max())
         return self._cover
 
     @property
@@ -89,8 +78,7 @@ class SurfaceIndex:
         if self._own is None:
             as_np = lambda t: t.detach().cpu().numpy().astype(np.float64)  # noqa: E731
             with torch.inference_mode(False):
-                self._own = fields.build(self.tree, as_np(self.points), as_np(self.normals), query_workers,
-                                         device=self.points.device)
+                self._own = fields.build(self.tree, as_np(self.points), as_np(self.normals), device=self.points.device)
         return self._own
 
     def neighbours(self, queries: torch.Tensor, k: int) -> torch.Tensor:
@@ -101,7 +89,7 @@ class SurfaceIndex:
     def nearest(self, flat: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
         """(Q, k) distances and indices of the k nearest samples to each of ``flat`` (Q, 3) float64 points."""
         k = min(k, self.points.shape[0])
-        dist, idx = self.tree.query(flat, k=k, workers=query_workers(len(flat)))
+        dist, idx = self.tree.query(flat, k=k)
         return dist.reshape(len(flat), k), idx.reshape(len(flat), k)
 
     def part_of(self, whole: SurfaceIndex, rows: np.ndarray, others: list[np.ndarray]) -> bool:

@@ -268,7 +268,7 @@ class Scorer:
         scale = poses.log_s.exp()
         count = min(ENCLOSED_SAMPLES, len(pair.index.points))
         centres = poses.t.detach().cpu().numpy().astype(np.float64)
-        dist, idx = pair.index.tree.query(centres, k=count, workers=losses.query_workers(len(centres)))
+        dist, idx = pair.index.tree.query(centres, k=count)
         dist, idx = dist.reshape(len(poses), count), idx.reshape(len(poses), count)
         reach = scale.detach().cpu().numpy()[:, None] * pair.source_radius
         inside = torch.as_tensor(dist <= reach, dtype=torch.float32, device=poses.t.device)

@@ -28,14 +28,13 @@ from typing import TypeAlias, TypeVar
 import numpy as np
 import torch
 import trimesh
-from scipy.spatial import cKDTree
 
 from ctp_core import orientation, render
 from ctp_core.errors import ConfigError
 from ctp_core.geometry import field as fields
-from ctp_core.geometry import frames, once, sampling
+from ctp_core.geometry import frames, nearest, once, sampling
 from ctp_core.geometry.pose import matrix_to_quaternion
-from ctp_core.losses import SurfaceIndex, query_workers
+from ctp_core.losses import SurfaceIndex
 from ctp_core.orientation import canonical
 from ctp_core.reading.names import ground_names
 from ctp_core.render.cameras import framing_cameras
@@ -478,7 +477,7 @@ def _field(mesh: trimesh.Trimesh, count: int, seed: int, turn: bytes, device: st
     points, normals = _samples(mesh, count, seed)
     rotation = np.frombuffer(turn, dtype=np.float64).reshape(3, 3)
     points, normals = points @ rotation.T, normals @ rotation.T
-    return fields.build(cKDTree(points), points, normals, query_workers, device=device)
+    return fields.build(nearest.Tree(points), points, normals, device=device)
 
 
 @once.per_mesh

@@ -205,8 +205,7 @@ def test_a_bounded_node_search_answers_as_the_brute_force_does_near_and_far():
     generator = torch.Generator().manual_seed(2)
     at = torch.randn(400, 3, generator=generator) * 1.5  # inside, near the surface and far out
     data = index.points.double().numpy()
-    dist, depth = fields.nodes(index.tree, data, index.normals.double().numpy(), at.double().numpy(), lambda n: 1,
-                               within=0.05)
+    dist, depth = fields.nodes(index.tree, data, index.normals.double().numpy(), at.double().numpy(), within=0.05)
     want_dist, want_depth = _brute(index, at)
     assert (want_dist > 0.05).sum() > 100 and (want_dist <= 0.05).sum() > 0  # both kinds were asked
     np.testing.assert_allclose(dist, want_dist.numpy(), atol=1e-5)

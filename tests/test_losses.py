@@ -209,21 +209,3 @@ def test_samples_that_are_not_the_wholes_rows_are_no_part_of_it():
     near, idx = losses.neighbours_of(ground, whole, queries, 16)
     assert torch.equal(near, ground.neighbours(queries, 16)) and torch.equal(idx, whole.neighbours(queries, 16))
 
-
-def test_searches_of_few_points_run_on_one_thread_and_every_search_answers_alike():
-    """Below ``PARALLEL_QUERY`` points a search runs on one thread whatever torch's count; at or above it on torch's
-    threads; the answers are the same either way (each query is answered alone)."""
-    threads = torch.get_num_threads()
-    index = _plane(101)
-    queries = np.random.default_rng(0).uniform(-1.2, 1.2, (losses.PARALLEL_QUERY + 5, 3))
-    try:
-        torch.set_num_threads(2)
-        assert losses.query_workers(losses.PARALLEL_QUERY - 1) == 1
-        assert losses.query_workers(losses.PARALLEL_QUERY) == 2
-        both = index.nearest(queries, 4)
-        torch.set_num_threads(1)
-        assert losses.query_workers(losses.PARALLEL_QUERY) == 1
-        one = index.nearest(queries, 4)
-    finally:
-        torch.set_num_threads(threads)
-    assert np.array_equal(both[0], one[0]) and np.array_equal(both[1], one[1])

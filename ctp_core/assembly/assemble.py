@@ -141,8 +141,9 @@ def assemble(base: trimesh.Trimesh, steps: Sequence[Step], config: AlignConfig, 
     _check_also(base_name, steps)
     if any(c.model != config.model for c in configs):
         raise ConfigError("every stage must use the assembly's model (it is loaded once)", field="model")
-    if choice is None and config.model == AUTO:
-        choice = selection.choose()
+    if choice is None and config.model == AUTO and any(selection.asks_model(c, s.image is not None)
+                                                       for s, c in zip(steps, configs, strict=True)):
+        choice = selection.choose()  # once for every step (a worker's choice comes with the job)
     resolved = [selection.resolve(c, image=s.image is not None, choice=choice)[0]
                 for s, c in zip(steps, configs, strict=True)]
     guided = [c for c in resolved if c.loss.lambda_clip > 0]

@@ -134,8 +134,8 @@ def place_copies(target: trimesh.Trimesh, source: trimesh.Trimesh, prompt: str |
     started = time.perf_counter()
     n, kind, counted = choose(prompt, count, arrangement, source_name)
     one = one_copy(prompt, kind)
-    if choice is None and config.model == AUTO:
-        choice = selection.choose()
+    if choice is None and config.model == AUTO and selection.asks_model(config):
+        choice = selection.choose()  # once for every copy
     resolved, chosen = selection.resolve(config, image=False, choice=choice)
     if guide is None and resolved.loss.lambda_clip > 0:
         from ctp_core.guide.loaders import guide_for

@@ -24,14 +24,14 @@ object, ``scaled`` into the normalised frame; the source local frame for a sourc
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 import torch
 import torch.nn.functional as F
-from scipy.spatial import cKDTree
+
+from ctp_core.geometry import nearest
 
 COARSE = 32  # nodes per side of the coarse grid
 FINE = 128  # nodes per side of the fine grid (only its band is computed)
@@ -105,30 +105,30 @@ class FieldUnion:
         return distance.gather(0, nearest)[0], depth.gather(0, nearest)[0]
 
 
-def nodes(tree: cKDTree, points: np.ndarray, normals: np.ndarray, at: np.ndarray, workers: Callable[[int], int],
+def nodes(tree: nearest.Tree, points: np.ndarray, normals: np.ndarray, at: np.ndarray,
           within: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
     """(distance, depth) at ``at`` (Q, 3): to the nearest sample, and along its outward normal (positive behind).
-    ``workers``: the threads a search of so many points runs on (``losses.query_workers``). ``within``: how near
+    ``within``: how near
     most points' nearest sample is (a band's nodes): the search is bounded by it first (it visits less of the tree),
     then the points it left are searched unbounded; the answer is the same."""
-    dist, idx = tree.query(at, k=1, workers=workers(len(at)), distance_upper_bound=within)
+    dist, idx = tree.query(at, upper=within)
     missed = ~np.isfinite(dist)
     if missed.any():
-        dist[missed], idx[missed] = tree.query(at[missed], k=1, workers=workers(int(missed.sum())))
+        dist[missed], idx[missed] = tree.query(at[missed])
     depth = ((points[idx] - at) * normals[idx]).sum(-1)
     return dist, depth
 
 
-def build(tree: cKDTree, points: np.ndarray, normals: np.ndarray, workers: Callable[[int], int],
+def build(tree: nearest.Tree, points: np.ndarray, normals: np.ndarray,
           device: torch.device | str = "cpu") -> DistanceField:
     """The field of the samples ``points`` (M, 3) with outward ``normals`` (M, 3), whose KD-tree is ``tree``; its
-    tensors on ``device``. ``workers`` as ``nodes`` takes it."""
+    tensors on ``device``."""
     low, high = points.min(0), points.max(0)
     size = float((high - low).max()) * (1 + 2 * PAD)
     origin = (low + high) / 2 - size / 2
     axis = np.linspace(0.0, size, COARSE)
     coarse = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3) + origin
-    values = np.stack(nodes(tree, points, normals, coarse, workers)).reshape(1, 2, COARSE, COARSE, COARSE)
+    values = np.stack(nodes(tree, points, normals, coarse)).reshape(1, 2, COARSE, COARSE, COARSE)
     # in the field's own precision: the grid is kept in float32
     fine = F.interpolate(torch.as_tensor(values, dtype=torch.float32), size=(FINE,) * 3, mode="trilinear",
                          align_corners=True)[0].numpy()
@@ -138,6 +138,6 @@ def build(tree: cKDTree, points: np.ndarray, normals: np.ndarray, workers: Calla
     reach = math.sqrt(3) / 2 * size / (COARSE - 1) + BAND * size / (FINE - 1)
     where = np.nonzero(fine[0] < reach)
     at = np.stack(where, -1) * (size / (FINE - 1)) + origin
-    fine[0][where], fine[1][where] = nodes(tree, points, normals, at, workers, within=2 * reach)
+    fine[0][where], fine[1][where] = nodes(tree, points, normals, at, within=2 * reach)
     return DistanceField(torch.as_tensor(origin, dtype=torch.float32, device=device), size,
                          torch.as_tensor(fine, device=device)[None])

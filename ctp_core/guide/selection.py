@@ -55,13 +55,19 @@ def unguided(absent: str) -> GuideChoice:
                        "geometry and the prompt's relation place the source", pull_command())
 
 
+def asks_model(config: AlignConfig, image: bool = False) -> bool:
+    """Whether a run uses a model: a guide's term or the upright judge, or ``auto`` asked for image guidance;
+    else ``resolve`` gives it none and needs no ``choice``."""
+    return config.uses_model or (config.model == AUTO and image)
+
+
 def resolve(config: AlignConfig, *, image: bool = False,
             choice: GuideChoice | None = None) -> tuple[AlignConfig, GuideChoice]:
     """The config a run executes and its guide. ``auto``: the default model, or none (``lambda_clip`` 0, upright
     judge off; refused with ``model_unavailable`` when the run asks for guidance itself: ``image``, the judge);
     ``choice``: ``auto``'s pick made already for this run (a worker's, an assembly's), else ``choose()``.
     Any other spec: the config unchanged, its guide that model, or none when the run uses no model."""
-    if not config.uses_model and (config.model != AUTO or not image):
+    if not asks_model(config, image):
         return config, GuideChoice(NONE, "the run asks for no guide (lambda_clip 0, no upright judge)")
     if config.model != AUTO:
         return config, GuideChoice(config.model, f"named by the run's options ({config.model})")
