@@ -20,7 +20,7 @@ import trimesh
 from ctp_core import contact, priors
 from ctp_core.config import MAX_ALTERNATIVES, PENETRATION, AlignConfig
 from ctp_core.errors import ConfigError
-from ctp_core.geometry import frames, nearest
+from ctp_core.geometry import frames
 from ctp_core.guide import selection
 from ctp_core.progress import CancelCheck, ProgressCallback, ProgressEvent
 from ctp_core.reading import cues
@@ -185,7 +185,6 @@ def prepare(target: trimesh.Trimesh | trimesh.Scene, source: trimesh.Trimesh, pr
     started = time.perf_counter()
     if config.threads:
         torch.set_num_threads(config.threads)
-        nearest.use_threads(config.threads)
     if config.device == "cuda" and not torch.cuda.is_available():
         raise ConfigError("device 'cuda' was requested but no CUDA device is available", field="device")
     on = grounds(target, prompt, on)

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+import torch
 from threadpoolctl import threadpool_info
 
 from ctp_core.geometry import nearest
@@ -65,19 +66,30 @@ def test_no_query_points_give_empty_answers(points):
     assert dist.shape == idx.shape == (0, 2)
 
 
-def test_the_searches_threads_follow_the_runs_and_answer_alike(points):
-    """``use_threads`` holds pykdtree's OpenMP threads (its own runtime, beside torch's) to the run's count; each
-    query is answered alone, so the answers are the same on any number."""
-    data, at = points
+def test_a_large_search_runs_on_the_runs_threads_a_small_one_on_one_and_both_answer_alike(points):
+    """From ``PARALLEL_QUERY`` points a search runs on torch's count of threads (the run's), below it on one: the
+    count pykdtree's own OpenMP runtime is set to before each search. Each query is answered alone, so the answers
+    are the same on any number."""
+    data, _ = points
     tree = nearest.Tree(data)
-    before = [i["num_threads"] for i in threadpool_info() if i["user_api"] == "openmp"]
+    at = np.random.default_rng(4).uniform(-2, 2, (nearest.PARALLEL_QUERY, 3))
+    threads = torch.get_num_threads()
+
+    def pykdtree_threads() -> int:
+        own = [i for i in threadpool_info() if i["user_api"] == "openmp" and "pykdtree" in i["filepath"]]
+        assert own, "pykdtree's wheel bundles its OpenMP runtime"
+        return own[0]["num_threads"]
+
     try:
-        nearest.use_threads(1)
-        assert {i["num_threads"] for i in threadpool_info() if i["user_api"] == "openmp"} == {1}
+        torch.set_num_threads(2)
+        large = tree.query(at, k=8)
+        assert pykdtree_threads() == 2
+        small = tree.query(at[:100], k=8)
+        assert pykdtree_threads() == 1
+        torch.set_num_threads(1)
         one = tree.query(at, k=8)
-        nearest.use_threads(2)
-        assert {i["num_threads"] for i in threadpool_info() if i["user_api"] == "openmp"} == {2}
-        two = tree.query(at, k=8)
+        assert pykdtree_threads() == 1
     finally:
-        nearest.use_threads(max(before))
-    assert np.array_equal(one[0], two[0]) and np.array_equal(one[1], two[1])
+        torch.set_num_threads(threads)
+    assert np.array_equal(large[0], one[0]) and np.array_equal(large[1], one[1])
+    assert np.array_equal(small[1], one[1][:100])

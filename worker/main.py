@@ -203,13 +203,11 @@ def _preload(settings: Settings) -> dict[str, str | None]:
 
     from ctp_core.config import AUTO, AlignConfig
     from ctp_core.errors import ModelError
-    from ctp_core.geometry import nearest
     from ctp_core.guide import checkpoints, selection
     from ctp_core.guide.loaders import guide_for
 
     if settings.threads:
         torch.set_num_threads(settings.threads)
-        nearest.use_threads(settings.threads)
     started = time.perf_counter()
     models = {spec: checkpoints.missing(spec) for spec in settings.allowed_models}
     # auto runs every job (without a guide where the default model is missing): preload what it picks now

@@ -363,10 +363,7 @@ def read_results(path: Path) -> list[dict]:
 def _worker_init(threads: int) -> None:
     import torch
 
-    from ctp_core.geometry import nearest
-
     torch.set_num_threads(threads)
-    nearest.use_threads(threads)
 
 
 def _check_models(options: BenchOptions) -> None:
