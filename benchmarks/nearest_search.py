@@ -51,7 +51,7 @@ def main() -> None:
     for count in (100, 1000, 8192, 64000):
         near = data[rng.integers(0, len(data), count // 2)] + rng.normal(0, 0.02, (count // 2, 3))
         queries = np.concatenate([near, rng.uniform(-4, 4, (count - count // 2, 3))])
-        for k in (1, 2, 8, 512):
+        for k in (1, 2, 8, 32, 512):
             if k == 512 and count > 1000:
                 continue
             row = []

@@ -27,7 +27,7 @@ def points() -> tuple[np.ndarray, np.ndarray]:
     return data, at
 
 
-@pytest.mark.parametrize("k", [1, 2, 8, 64])  # 64: past ``MANY``, scipy's tree
+@pytest.mark.parametrize("k", [1, 2, 8, 32, 64])  # 64: past ``MANY``, scipy's tree
 def test_neighbours_and_distances_are_the_brute_force_searchs(points, k):
     data, at = points
     dist, idx = nearest.Tree(data).query(at, k=k)

@@ -1,10 +1,10 @@
 """Nearest-sample search over fixed points (a surface's samples): a KD-tree built once, queried in batches.
 
-The objective's terms, settling and the fields' builds ask for the one, two or eight samples nearest to many
-points. pykdtree answers those queries with the same neighbours and distances as scipy's ``cKDTree`` (the same
-exact search; ``tests/test_nearest.py`` checks both against a brute-force search) in about half the time for so few
-neighbours (``benchmarks/nearest_search.py``); for many neighbours at once (``MANY``: the enclosed half asks for
-512) scipy's tree is faster, and is built for those on first use.
+The objective's terms, settling and the fields' builds ask for the one to 32 samples nearest to many points.
+pykdtree answers those queries with the same neighbours and distances as scipy's ``cKDTree`` (the same exact
+search; ``tests/test_nearest.py`` checks both against a brute-force search) in half to four fifths of the time for
+so few neighbours (``benchmarks/nearest_search.py``); for many neighbours at once (``MANY``: the enclosed half asks
+for 512) scipy's tree is faster, and is built for those on first use.
 
 Threads: a search of ``PARALLEL_QUERY`` points or more runs on the run's (torch's count, ``AlignConfig.threads``), a
 smaller one on one: a parallel region waits for its slowest thread, and on a shared two-core worker the other core
@@ -25,7 +25,7 @@ import torch
 from pykdtree.kdtree import KDTree
 from scipy.spatial import cKDTree
 
-MANY = 32  # neighbours per point from which a query runs on scipy's tree (pykdtree keeps a sorted list per point)
+MANY = 48  # neighbours per point from which a query runs on scipy's tree (pykdtree keeps a sorted list per point)
 PARALLEL_QUERY = 8192  # query points from which a search runs on the run's threads (``benchmarks/nearest_search.py``)
 
 
