@@ -103,7 +103,7 @@ def adjust(target: Target, source: trimesh.Trimesh, source_to_target: np.ndarray
         # measure is the samples', as ``loss.distances`` samples measures); only the penetration is read: soft-ICP
         # off (ratio 0), so the search asks for the whole target's nearest samples alone
         scorer = objective.Scorer(pair, config.merged({"loss": {"distances": "samples"}}), contact_ratio=0.0)
-        sunk = float(scorer.geometry(pose, schedule.phases(config, allow_penetration=False)[-1]).sunk[0])
+        sunk = float(scorer.sunk(pose, schedule.phases(config, allow_penetration=False)[-1])[0])
         if gap is None:  # the pose as given (none, or a settling that met nothing)
             gap = float(contact.contact_gap(pair, pose)[0])
     verdict = predicates.verdict(pair, pose, reading)

@@ -203,6 +203,23 @@ class Scorer:
         soft-ICP and penetration (zero when the phase switches it off), the penetration in source diagonals, the
         relation's terms, the ``scale`` term in scale mode and the posed centroid. ``points``: on that many of the
         source's samples (``PreparedPair.source_subset``) instead of all."""
+        pts, icp, pen, sunk = self._surfaces(poses, phase, points)
+        rel, stable, prefer = self.relation_terms(poses)
+        zero = torch.zeros_like(icp)
+        scale = None if self.scale is None else self.scale.term(poses.log_s, self.preference_weight)
+        out = Terms(icp=icp, pen=pen, sunk=sunk, rel=rel, stable=stable, prefer=prefer, clip=zero, objective=zero,
+                    scale=scale, centroid=pts.mean(dim=1))
+        return out.but(objective=combine(out, phase))
+
+    def sunk(self, poses: Poses, phase: Phase) -> torch.Tensor:
+        """(B,) the penetration in source diagonals (``Terms.sunk``) alone: what a check of a placed pose reads
+        (``adjust.adjust``), without the relation's terms."""
+        return self._surfaces(poses, phase, None)[3]
+
+    def _surfaces(self, poses: Poses, phase: Phase, points: int | None
+                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``geometry``'s terms of the two surfaces: the posed samples (B, N, 3), soft-ICP, the penetration (both
+        halves, the twins' inside, the solid floor) and the penetration in source diagonals."""
         cfg = self.config.loss
         samples = self.pair.source_samples if points is None else self.pair.source_subset(points)
         with self.clock.time("geometry"):
@@ -216,12 +233,7 @@ class Scorer:
                 if self.pair.solid_floor:  # a scene's floor is solid: nothing placed goes under it
                     pen = pen + losses.below_floor(pts, self.pair.scene_floor, cfg.c_pen)
             sunk = pen.detach() / source_diagonal(self.pair, poses).to(pen.device)
-        rel, stable, prefer = self.relation_terms(poses)
-        zero = torch.zeros_like(icp)
-        scale = None if self.scale is None else self.scale.term(poses.log_s, self.preference_weight)
-        out = Terms(icp=icp, pen=pen, sunk=sunk, rel=rel, stable=stable, prefer=prefer, clip=zero, objective=zero,
-                    scale=scale, centroid=pts.mean(dim=1))
-        return out.but(objective=combine(out, phase))
+        return pts, icp, pen, sunk
 
     def _from_fields(self, pts: torch.Tensor, phase: Phase) -> tuple[torch.Tensor, torch.Tensor]:
         """(soft-ICP at its closest-point limit, penetration) of posed samples (B, N, 3) from the grounds' and the
