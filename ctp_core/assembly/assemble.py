@@ -505,10 +505,11 @@ def _verdict(objects: list[Placed], index: int, result: AlignResult, grounds: Se
                              grounds, placed=[(p.name, p.mesh, np.asarray(p.to_scene.matrix)) for p in others],
                              floor=floor, reading=reading)
 
+    judged_with = [placed, *others]
     where = tuple((p.name, id(p.mesh), hash(p.mesh), np.asarray(p.to_scene.matrix, dtype=np.float64).tobytes())
-                  for p in [placed, *others])
+                  for p in judged_with)
     key = ("verdict", where, tuple(grounds), reading, result.config.model_dump_json())
-    return copy.deepcopy(once.value(key, judge, pin=[p.mesh for p in [placed, *others]]))  # the caller's own copy
+    return copy.deepcopy(once.value(key, judge, pin=[p.mesh for p in judged_with]))  # the caller's own copy
 
 
 NEARBY = 0.1  # of a judged object's diagonal: what another object's box must come within to be judged with it (as

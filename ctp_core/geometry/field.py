@@ -108,9 +108,8 @@ class FieldUnion:
 def nodes(tree: nearest.Tree, points: np.ndarray, normals: np.ndarray, at: np.ndarray,
           within: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
     """(distance, depth) at ``at`` (Q, 3): to the nearest sample, and along its outward normal (positive behind).
-    ``within``: how near
-    most points' nearest sample is (a band's nodes): the search is bounded by it first (it visits less of the tree),
-    then the points it left are searched unbounded; the answer is the same."""
+    ``within``: how near most points' nearest sample is (a band's nodes): the search is bounded by it first (it visits
+    less of the tree), then the points it left are searched unbounded; the answer is the same."""
     dist, idx = tree.query(at, upper=within)
     missed = ~np.isfinite(dist)
     if missed.any():

@@ -167,10 +167,10 @@ def hull_distance_2d(query: torch.Tensor, points: torch.Tensor, mask: torch.Tens
     ``mask`` (B or 1, N) keeps them. Fewer than three usable points: the distance to the nearest of them (a line's or
     a point's footprint). Each hull's edges come from Qhull one pose at a time; the distances are one batch."""
     batch = query.shape[0]
-    every = lambda rows: torch.arange(batch) if rows > 1 else torch.zeros(batch, dtype=torch.long)  # noqa: E731
     keep = (torch.ones((1, points.shape[1]), dtype=torch.bool, device=points.device) if mask is None
             else mask.detach())
-    rows, mask_rows = every(points.shape[0]), every(keep.shape[0])
+    rows, mask_rows = (torch.arange(batch) if n > 1 else torch.zeros(batch, dtype=torch.long)  # a row per pose
+                       for n in (points.shape[0], keep.shape[0]))
     flat, kept = points.detach().cpu().double().numpy(), keep.cpu().numpy()
     found: dict[tuple[int, int], np.ndarray | None] = {}  # a hull's edges per (points row, mask row)
     edges = []
